@@ -1,0 +1,5 @@
+import sys
+
+from matspray.cli import main
+
+sys.exit(main())

@@ -1,0 +1,22 @@
+"""`matspray info DATA`."""
+
+from pathlib import Path
+
+
+def add_parser(parser) -> None:
+    parser.add_argument("data", type=Path, help="dataset folder (Blender, TensoIR or COLMAP layout)")
+    parser.add_argument("--downscale", type=float, default=1.0, help="shrink images by this factor on load (default 1)")
+
+
+def run(args) -> int:
+    from matspray.data import describe_scene, load_scene
+
+    summary = describe_scene(load_scene(args.data, downscale=args.downscale))
+    print("\n".join(summary.lines))
+    if summary.problems:
+        print(f"problems ({len(summary.problems)}):")
+        for problem in summary.problems:
+            print(f"  - {problem}")
+    else:
+        print("problems: none found")
+    return 0

@@ -1,0 +1,142 @@
+"""Pinhole camera in the OpenCV convention (x right, y down, z forward).
+
+`viewmat` maps world to camera coordinates; `K` holds the intrinsics with pixel centres at +0.5,
+so the centre of pixel (column i, row j) is the continuous coordinate (i + 0.5, j + 0.5).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+# Blender / NeRF-synthetic cameras look down -z with y up (OpenGL); OpenCV looks down +z with y down.
+OPENGL_TO_OPENCV = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
+
+
+@dataclass
+class Camera:
+    K: Tensor  # [3, 3] pinhole intrinsics
+    viewmat: Tensor  # [4, 4] world-to-camera, OpenCV axes
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        if tuple(self.K.shape) != (3, 3) or tuple(self.viewmat.shape) != (4, 4):
+            raise ValueError(f"Camera needs K [3, 3] and viewmat [4, 4], got {tuple(self.K.shape)} and {tuple(self.viewmat.shape)}")
+        self.width, self.height = int(self.width), int(self.height)
+
+    # ---------------------------------------------------------------- construction
+    @staticmethod
+    def from_camtoworld_opengl(c2w: Tensor, K: Tensor, width: int, height: int) -> "Camera":
+        """Camera from a Blender/NeRF camera-to-world matrix [4, 4] (OpenGL axes)."""
+        c2w = torch.as_tensor(c2w, dtype=torch.float64)
+        c2w_cv = c2w @ OPENGL_TO_OPENCV
+        viewmat = torch.linalg.inv(c2w_cv)
+        return Camera(K=torch.as_tensor(K, dtype=torch.float32), viewmat=viewmat.float(), width=width, height=height)
+
+    @staticmethod
+    def from_fov_x(fov_x: float, width: int, height: int, viewmat: Tensor) -> "Camera":
+        """Camera with square pixels, horizontal field of view `fov_x` (radians), centred principal point."""
+        return Camera(K=intrinsics_from_fov(fov_x, width, height), viewmat=torch.as_tensor(viewmat).float(), width=width, height=height)
+
+    @staticmethod
+    def look_at(eye, target, up, fov_x: float, width: int, height: int) -> "Camera":
+        """Camera at `eye` looking at `target`; `up` is the world direction that appears up in the image."""
+        eye, target, up = (torch.as_tensor(v, dtype=torch.float64) for v in (eye, target, up))
+        forward = target - eye
+        forward = forward / forward.norm()
+        right = torch.linalg.cross(forward, up)
+        if right.norm() < 1e-9:  # looking along `up`: any perpendicular will do
+            right = torch.linalg.cross(forward, torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
+        right = right / right.norm()
+        down = torch.linalg.cross(forward, right)
+        c2w = torch.eye(4, dtype=torch.float64)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, forward, eye
+        return Camera.from_fov_x(fov_x, width, height, torch.linalg.inv(c2w))
+
+    # ---------------------------------------------------------------- properties
+    @property
+    def camtoworld(self) -> Tensor:  # [4, 4] OpenCV axes
+        return torch.linalg.inv(self.viewmat.double()).to(self.viewmat.dtype)
+
+    @property
+    def camtoworld_opengl(self) -> Tensor:  # [4, 4] Blender/NeRF axes, float64 so that writers lose nothing
+        return torch.linalg.inv(self.viewmat.double()) @ OPENGL_TO_OPENCV.to(self.viewmat.device)
+
+    @property
+    def center(self) -> Tensor:  # [3] camera position in world space
+        return self.camtoworld[:3, 3]
+
+    @property
+    def fov_x(self) -> float:
+        return 2.0 * math.atan(0.5 * self.width / float(self.K[0, 0]))
+
+    @property
+    def device(self) -> torch.device:
+        return self.viewmat.device
+
+    def to(self, device) -> "Camera":
+        return Camera(self.K.to(device), self.viewmat.to(device), self.width, self.height)
+
+    def scaled(self, factor: float) -> "Camera":
+        """The same camera for an image resized by `factor` (e.g. 0.5 halves width and height)."""
+        width, height = max(1, round(self.width * factor)), max(1, round(self.height * factor))
+        sx, sy = width / self.width, height / self.height
+        K = self.K.clone()
+        K[0] *= sx
+        K[1] *= sy
+        return Camera(K, self.viewmat.clone(), width, height)
+
+    # ---------------------------------------------------------------- geometry
+    def world_to_camera(self, points: Tensor) -> Tensor:  # [N, 3] -> [N, 3]
+        R, t = self.viewmat[:3, :3].to(points), self.viewmat[:3, 3].to(points)
+        return points @ R.T + t
+
+    def project(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """World points [N, 3] -> continuous pixel coordinates [N, 2] and camera depth z [N]."""
+        cam = self.world_to_camera(points)
+        z = cam[:, 2]
+        K = self.K.to(points)
+        uv = cam[:, :2] / z.clamp_min(1e-12)[:, None]
+        pixels = uv * torch.stack([K[0, 0], K[1, 1]]) + torch.stack([K[0, 2], K[1, 2]])
+        return pixels, z
+
+    def rays(self, samples_per_side: int = 1) -> tuple[Tensor, Tensor]:
+        """Ray origins and unit directions in world space.
+
+        Returns origins [H * W * s * s, 3] and directions [H * W * s * s, 3], ordered by pixel (row-major)
+        and then by sub-pixel sample on an s x s grid (sample centres at (k + 0.5) / s inside the pixel).
+        """
+        pixels = pixel_sample_grid(self.height, self.width, samples_per_side, device=self.device)  # [P, 2]
+        return self.rays_through(pixels)
+
+    def rays_through(self, pixels: Tensor) -> tuple[Tensor, Tensor]:
+        """Rays through continuous pixel coordinates [P, 2] -> origins [P, 3], unit directions [P, 3]."""
+        K = self.K.to(pixels)
+        x = (pixels[:, 0] - K[0, 2]) / K[0, 0]
+        y = (pixels[:, 1] - K[1, 2]) / K[1, 1]
+        dirs_cam = torch.stack([x, y, torch.ones_like(x)], dim=-1)
+        c2w = self.camtoworld.to(pixels)
+        dirs = dirs_cam @ c2w[:3, :3].T
+        dirs = dirs / dirs.norm(dim=-1, keepdim=True)
+        origins = c2w[:3, 3].expand_as(dirs)
+        return origins, dirs
+
+
+def intrinsics_from_fov(fov_x: float, width: int, height: int) -> Tensor:  # [3, 3]
+    focal = 0.5 * width / math.tan(0.5 * fov_x)
+    return torch.tensor([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]], dtype=torch.float32)
+
+
+def pixel_sample_grid(height: int, width: int, samples_per_side: int = 1, device=None) -> Tensor:
+    """Continuous coordinates [H * W * s * s, 2] (x, y) of an s x s sample grid inside every pixel."""
+    s = int(samples_per_side)
+    offsets = (torch.arange(s, device=device, dtype=torch.float32) + 0.5) / s  # [s]
+    oy, ox = torch.meshgrid(offsets, offsets, indexing="ij")
+    sub = torch.stack([ox.reshape(-1), oy.reshape(-1)], dim=-1)  # [s*s, 2]
+    rows, cols = torch.meshgrid(torch.arange(height, device=device), torch.arange(width, device=device), indexing="ij")
+    corners = torch.stack([cols.reshape(-1), rows.reshape(-1)], dim=-1).float()  # [H*W, 2]
+    return (corners[:, None, :] + sub[None, :, :]).reshape(-1, 2)

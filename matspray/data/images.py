@@ -1,0 +1,294 @@
+"""Image files in and out: exact sRGB curve, PNG (8/16 bit), OpenEXR, Radiance HDR; resampling.
+
+In memory every image is a float32 tensor [H, W, C]. LDR files hold sRGB-encoded values (or linear
+values for scalar maps such as roughness); EXR and HDR hold linear values.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from matspray.errors import file_error
+
+LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
+HDR_SUFFIXES = (".exr", ".hdr")
+
+
+# ------------------------------------------------------------------------------------------ sRGB
+def srgb_to_linear(x: Tensor) -> Tensor:  # [...] -> [...]
+    x = x.clamp(0.0, 1.0)
+    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(x: Tensor) -> Tensor:  # [...] -> [...]
+    x = x.clamp(0.0, 1.0)
+    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1.0 / 2.4) - 0.055)
+
+
+# ------------------------------------------------------------------------------------------ atomic writes
+def atomic_target(path: Path) -> Path:
+    """A temporary sibling of `path` to write into before `os.replace` (same folder, same suffix)."""
+    path = Path(path)
+    return path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
+
+
+def _publish(tmp: Path, path: Path) -> None:
+    os.replace(tmp, path)
+
+
+# ------------------------------------------------------------------------------------------ reading
+def read_image(path) -> tuple[Tensor, Tensor | None]:
+    """Read an image file as linear float32.
+
+    Returns rgb [H, W, 3] (a single-channel file is broadcast to 3 channels) and alpha [H, W] or None.
+    PNG/JPG are decoded from sRGB; EXR/HDR are read as stored.
+    """
+    values = read_raw(path)  # [H, W, C] in the file's own encoding, [0, 1] for LDR
+    path = Path(path)
+    rgb, alpha = split_alpha(values)
+    if path.suffix.lower() in LDR_SUFFIXES:
+        rgb = srgb_to_linear(rgb)
+    return rgb, alpha
+
+
+def split_alpha(values: Tensor) -> tuple[Tensor, Tensor | None]:  # [H, W, C] -> [H, W, 3], [H, W] | None
+    channels = values.shape[-1]
+    if channels == 1:
+        return values.expand(-1, -1, 3).contiguous(), None
+    if channels == 2:  # grey + alpha
+        return values[..., :1].expand(-1, -1, 3).contiguous(), values[..., 1]
+    if channels == 3:
+        return values, None
+    return values[..., :3].contiguous(), values[..., 3].contiguous()
+
+
+def read_raw(path) -> Tensor:
+    """Read stored values without colour decoding: [H, W, C] float32, LDR scaled to [0, 1]."""
+    path = Path(path)
+    if not path.exists():
+        raise file_error(path, "file does not exist")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".png":
+            array = _read_png(path)
+        elif suffix in (".jpg", ".jpeg"):
+            array = _read_pillow(path)
+        elif suffix == ".exr":
+            array = _read_exr(path)
+        elif suffix == ".hdr":
+            array = _read_hdr(path)
+        elif suffix == ".npy":
+            array = np.load(path).astype(np.float32)
+            if array.ndim == 3 and array.shape[0] in (1, 3, 4) and array.shape[-1] not in (1, 3, 4):
+                array = np.moveaxis(array, 0, -1)  # CHW -> HWC
+        else:
+            raise file_error(path, f"unsupported image type '{suffix}'", "use PNG, JPG, EXR or HDR")
+    except (OSError, ValueError, SyntaxError, RuntimeError, EOFError) as exc:  # decoder failures
+        raise file_error(path, f"cannot read image: {exc}") from None
+    if array.ndim == 2:
+        array = array[..., None]
+    if array.ndim != 3:
+        raise file_error(path, f"expected a 2D image, got an array of shape {array.shape}")
+    if not np.isfinite(array).all():
+        bad = int((~np.isfinite(array)).sum())
+        raise file_error(path, f"holds {bad} NaN or Inf values", "re-export the file with finite values")
+    return torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32))
+
+
+def _read_pillow(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as img:
+        if img.mode in ("P", "CMYK", "YCbCr", "LAB", "HSV"):
+            img = img.convert("RGBA" if "transparency" in img.info else "RGB")
+        if img.mode in ("I;16", "I;16B", "I;16L", "I"):
+            return np.asarray(img, dtype=np.float32) / 65535.0
+        if img.mode == "1":
+            img = img.convert("L")
+        return np.asarray(img, dtype=np.float32) / 255.0
+
+
+def _read_png(path: Path) -> np.ndarray:
+    import png  # pypng: reads 16-bit colour PNGs, which Pillow reduces to 8 bit
+
+    with open(path, "rb") as handle:
+        header = handle.read(33)
+    if header[:8] != b"\x89PNG\r\n\x1a\n":
+        raise ValueError("not a PNG file")
+    bit_depth = header[24]
+    if bit_depth != 16:
+        return _read_pillow(path)
+    width, height, rows, info = png.Reader(filename=str(path)).asDirect()
+    planes = info["planes"]
+    array = np.vstack([np.asarray(row, dtype=np.uint16) for row in rows]).reshape(height, width, planes)
+    return array.astype(np.float32) / 65535.0
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as exr:
+        channels = {name: np.asarray(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
+    if not channels:
+        raise ValueError("no channels")
+    for names in (("R", "G", "B", "A"), ("R", "G", "B"), ("X", "Y", "Z"), ("Y",), ("Z",)):
+        if all(n in channels for n in names):
+            return np.stack([channels[n] for n in names], axis=-1)
+    if len(channels) == 1:
+        return next(iter(channels.values()))
+    raise ValueError(f"channels {sorted(channels)} are not RGB(A), XYZ, Y or Z")
+
+
+_HDR_SIZE = re.compile(rb"^([-+])Y (\d+) ([-+])X (\d+)$")
+
+
+def _read_hdr(path: Path) -> np.ndarray:
+    """Radiance RGBE, flat or new-style run-length encoded scanlines."""
+    data = path.read_bytes()
+    if not (data.startswith(b"#?RADIANCE") or data.startswith(b"#?RGBE")):
+        raise ValueError("missing '#?RADIANCE' header")
+    end = data.find(b"\n\n")
+    if end < 0:
+        raise ValueError("header has no blank line")
+    size_end = data.find(b"\n", end + 2)
+    match = _HDR_SIZE.match(data[end + 2 : size_end])
+    if match is None or match.group(1) != b"-" or match.group(3) != b"+":
+        raise ValueError("only '-Y H +X W' orientation is supported")
+    height, width = int(match.group(2)), int(match.group(4))
+    buf = np.frombuffer(data, dtype=np.uint8, offset=size_end + 1)
+    rgbe = np.empty((height, width, 4), dtype=np.uint8)
+    pos = 0
+    for row in range(height):
+        if 8 <= width < 0x8000 and buf[pos] == 2 and buf[pos + 1] == 2 and (buf[pos + 2] << 8 | buf[pos + 3]) == width:
+            pos += 4
+            for channel in range(4):
+                col = 0
+                while col < width:
+                    count = int(buf[pos])
+                    if count > 128:  # a run of one value
+                        count -= 128
+                        rgbe[row, col : col + count, channel] = buf[pos + 1]
+                        pos += 2
+                    else:  # literal values
+                        rgbe[row, col : col + count, channel] = buf[pos + 1 : pos + 1 + count]
+                        pos += 1 + count
+                    col += count
+        else:
+            rgbe[row] = buf[pos : pos + 4 * width].reshape(width, 4)
+            pos += 4 * width
+    exponent = rgbe[..., 3].astype(np.int32)
+    scale = np.where(exponent > 0, np.ldexp(1.0, exponent - 136), 0.0).astype(np.float32)
+    return (rgbe[..., :3].astype(np.float32) + 0.5 * (exponent[..., None] > 0)) * scale[..., None]
+
+
+# ------------------------------------------------------------------------------------------ writing
+def write_image(path, rgb: Tensor, alpha: Tensor | None = None, bits: int = 8) -> None:
+    """Write linear rgb [H, W, 3] (and alpha [H, W]): sRGB-encoded PNG/JPG, or linear EXR/HDR."""
+    path = Path(path)
+    values = rgb if path.suffix.lower() in HDR_SUFFIXES else linear_to_srgb(rgb)
+    if alpha is not None:
+        values = torch.cat([values, alpha[..., None].to(values)], dim=-1)
+    write_raw(path, values, bits=bits)
+
+
+def write_raw(path, values: Tensor, bits: int = 8) -> None:
+    """Write stored values [H, W, C] or [H, W] as they are (LDR files clamp to [0, 1]); atomic."""
+    path = Path(path)
+    array = values.detach().float().cpu().numpy()
+    if array.ndim == 3 and array.shape[-1] == 1:
+        array = array[..., 0]
+    suffix = path.suffix.lower()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    if suffix == ".png":
+        _write_png(tmp, array, bits)
+    elif suffix in (".jpg", ".jpeg"):
+        from PIL import Image
+
+        Image.fromarray(np.round(np.clip(array, 0, 1) * 255).astype(np.uint8)).save(tmp, quality=95)
+    elif suffix == ".exr":
+        _write_exr(tmp, array)
+    elif suffix == ".hdr":
+        _write_hdr(tmp, array)
+    else:
+        raise file_error(path, f"unsupported image type '{suffix}'", "use PNG, JPG, EXR or HDR")
+    _publish(tmp, path)
+
+
+def _write_png(path: Path, array: np.ndarray, bits: int) -> None:
+    if bits not in (8, 16):
+        raise ValueError(f"PNG bit depth must be 8 or 16, got {bits}")
+    if bits == 8:
+        from PIL import Image
+
+        Image.fromarray(np.round(np.clip(array, 0, 1) * 255).astype(np.uint8)).save(path)
+        return
+    import png
+
+    ints = np.round(np.clip(array, 0, 1) * 65535).astype(np.uint16)
+    height, width = ints.shape[:2]
+    planes = 1 if ints.ndim == 2 else ints.shape[2]
+    greyscale, has_alpha = planes in (1, 2), planes in (2, 4)
+    writer = png.Writer(width, height, greyscale=greyscale, alpha=has_alpha, bitdepth=16)
+    with open(path, "wb") as handle:
+        writer.write(handle, ints.reshape(height, width * planes))
+
+
+def _write_exr(path: Path, array: np.ndarray) -> None:
+    import OpenEXR
+
+    array = np.ascontiguousarray(array, dtype=np.float32)
+    if array.ndim == 2:
+        channels = {"Y": array}
+    else:
+        names = {1: "Y", 3: "RGB", 4: "RGBA"}.get(array.shape[-1])
+        if names is None:
+            raise ValueError(f"EXR needs 1, 3 or 4 channels, got {array.shape[-1]}")
+        channels = {names: array} if array.shape[-1] > 1 else {"Y": array[..., 0]}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, channels) as exr:
+        exr.write(str(path))
+
+
+def _write_hdr(path: Path, array: np.ndarray) -> None:
+    if array.ndim == 2:
+        array = np.repeat(array[..., None], 3, axis=-1)
+    rgb = np.clip(array[..., :3].astype(np.float64), 0.0, None)
+    brightest = rgb.max(axis=-1)
+    mantissa, exponent = np.frexp(brightest)
+    scale = np.where(brightest > 1e-32, mantissa * 256.0 / np.maximum(brightest, 1e-32), 0.0)
+    rgbe = np.zeros(rgb.shape[:2] + (4,), dtype=np.uint8)
+    rgbe[..., :3] = np.clip(np.floor(rgb * scale[..., None]), 0, 255).astype(np.uint8)
+    rgbe[..., 3] = np.where(brightest > 1e-32, exponent + 128, 0).astype(np.uint8)
+    height, width = rgb.shape[:2]
+    with open(path, "wb") as handle:
+        handle.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + f"-Y {height} +X {width}\n".encode())
+        handle.write(rgbe.tobytes())
+
+
+# ------------------------------------------------------------------------------------------ resampling
+def resize(image: Tensor, height: int, width: int, mode: str = "area") -> Tensor:
+    """Resample an image [H, W, C] or [H, W] to [height, width(, C)].
+
+    `mode`: 'area' (antialiased bilinear, for photos and continuous maps) or 'nearest' (masks, ids).
+    """
+    squeeze = image.ndim == 2
+    x = image[..., None] if squeeze else image
+    if tuple(x.shape[:2]) == (height, width):
+        return image
+    x = x.permute(2, 0, 1)[None].float()
+    if mode == "nearest":
+        out = F.interpolate(x, size=(height, width), mode="nearest")
+    elif mode == "area":
+        out = F.interpolate(x, size=(height, width), mode="bilinear", align_corners=False, antialias=True)
+    else:
+        raise ValueError(f"unknown resize mode '{mode}'")
+    out = out[0].permute(1, 2, 0)
+    return out[..., 0] if squeeze else out

@@ -1,0 +1,133 @@
+"""Find out what layout a dataset folder has, load it as a Scene, and describe it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from matspray.data import blender, colmap, tensoir
+from matspray.data.scene import Scene, View, bounds_from_cameras, bounds_from_points, bounds_from_visual_hull
+from matspray.errors import ConfigError, DataError, file_error
+
+FORMATS = ("blender", "tensoir", "colmap")
+
+
+def detect_format(root: Path) -> str:
+    root = Path(root)
+    if not root.exists():
+        raise file_error(root, "path does not exist")
+    if not root.is_dir():
+        raise file_error(root, "is not a folder", "point at the dataset folder, not a file inside it")
+    if (root / "transforms_train.json").exists() or (root / "transforms_test.json").exists():
+        return "blender"
+    if tensoir.is_tensoir(root):
+        return "tensoir"
+    if colmap.find_model(root) is not None:
+        return "colmap"
+    raise file_error(
+        root,
+        "no dataset layout recognised",
+        "tried blender (transforms_train.json), tensoir (train_000/metadata.json), colmap (sparse/0/cameras.bin)",
+    )
+
+
+def check_split(views: list[View], where: Path, split: str) -> None:
+    sizes = {(v.width, v.height) for v in views}
+    if len(sizes) > 1:
+        first = views[0]
+        odd = next(v for v in views if (v.width, v.height) != (first.width, first.height))
+        where = odd.path or where
+        raise file_error(
+            where,
+            f"is {odd.width}x{odd.height} but '{first.name}' in the {split} split is {first.width}x{first.height}",
+            "all images of a split must have the same size",
+        )
+    names = [v.name for v in views]
+    if len(set(names)) != len(names):
+        raise DataError(f"{where}: the {split} split has repeated view names")
+
+
+def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:
+    """Load a dataset folder (Blender, TensoIR or COLMAP layout) into a Scene.
+
+    `downscale` > 1 shrinks every image and camera by that factor (2 halves the resolution).
+    """
+    if downscale < 1.0:
+        raise ConfigError(f"--downscale must be >= 1, got {downscale}")
+    root = Path(root)
+    fmt = detect_format(root)
+    points = colors = None
+    if fmt == "blender":
+        train, test = blender.read_split(root, "train"), blender.read_split(root, "test")
+        if not train:
+            raise file_error(root / "transforms_train.json", "has no frames" if (root / "transforms_train.json").exists() else "does not exist")
+    elif fmt == "tensoir":
+        train, test = tensoir.read_split(root, "train"), tensoir.read_split(root, "test")
+        if not train:
+            raise file_error(root, "TensoIR layout without train_*/ folders")
+    else:
+        train, test, points, colors = colmap.read_colmap(root, test_every=test_every)
+    for split, views in (("train", train), ("test", test)):
+        check_split(views, root, split)
+    if downscale != 1.0:
+        train = [v.scaled(1.0 / downscale) for v in train]
+        test = [v.scaled(1.0 / downscale) for v in test]
+    views = train + test
+    notes = []
+    masked = sum(v.alpha is not None for v in views)
+    if 0 < masked < len(views):
+        notes.append(f"only {masked} of {len(views)} views have masks; masks are ignored for the others")
+    bounds = None
+    if points is not None and len(points) >= 8:
+        bounds = bounds_from_points(points)
+    if bounds is None:
+        bounds = bounds_from_visual_hull(views)
+    if bounds is None:
+        bounds = bounds_from_cameras(views)
+        notes.append("object bounds guessed from where the cameras look (no masks or points)")
+    return Scene(train=train, test=test, bounds=bounds.float(), source=root, format=fmt, points=points, point_colors=colors, notes=notes)
+
+
+@dataclass
+class SceneSummary:
+    lines: list[str]
+    problems: list[str]
+
+
+def describe_scene(scene: Scene) -> SceneSummary:
+    """What `matspray info` prints: layout, views, resolution, intrinsics, camera distances, masks."""
+    lines = [f"format: {scene.format}", f"source: {scene.source}"]
+    problems = list(scene.notes)
+    center = scene.bounds.mean(0)
+    for split in ("train", "test"):
+        views = scene.split(split)
+        if not views:
+            lines.append(f"{split}: no views")
+            if split == "test":
+                problems.append("no test views: evaluation will have nothing to compare against")
+            continue
+        first = views[0]
+        K = first.camera.K
+        distances = torch.stack([(v.camera.center - center).norm() for v in views])
+        masks = sum(v.alpha is not None for v in views)
+        lines += [
+            f"{split}: {len(views)} views, {first.width}x{first.height} px",
+            f"  intrinsics: fx={float(K[0, 0]):.2f} fy={float(K[1, 1]):.2f} cx={float(K[0, 2]):.2f} cy={float(K[1, 2]):.2f}"
+            f" (fov_x {first.camera.fov_x * 57.29578:.1f} deg)",
+            f"  camera distance to object centre: {float(distances.min()):.3f} .. {float(distances.max()):.3f}",
+            f"  masks: {masks} of {len(views)}",
+        ]
+        for view in views:
+            if view.alpha is not None and float(view.alpha.mean()) < 1e-4:
+                problems.append(f"{view.path or view.name}: mask is empty")
+            pixels, depth = view.camera.project(center[None])
+            x, y = float(pixels[0, 0]), float(pixels[0, 1])
+            if float(depth[0]) <= 0 or not (0 <= x < view.width and 0 <= y < view.height):
+                problems.append(f"{view.path or view.name}: the object centre is not in front of this camera's image")
+    lo, hi = scene.bounds.tolist()
+    lines.append("object bounds: " + " .. ".join("(" + ", ".join(f"{v:.3f}" for v in b) + ")" for b in (lo, hi)))
+    if scene.points is not None:
+        lines.append(f"sparse points: {len(scene.points)}")
+    return SceneSummary(lines=lines, problems=problems)

@@ -1,0 +1,29 @@
+"""Errors a user can act on. The CLI prints them as one line, without a traceback."""
+
+
+class MatsprayError(Exception):
+    """Base class: a problem with the user's input or settings, with a message that says what to do."""
+
+
+class DataError(MatsprayError):
+    """A dataset, image or map on disk is missing, malformed or inconsistent."""
+
+
+class ConfigError(MatsprayError):
+    """A setting or command-line argument is out of range or contradicts another."""
+
+
+class RunError(MatsprayError):
+    """A run directory does not fit the current request (other dataset, other settings)."""
+
+
+class NumericalError(MatsprayError):
+    """An optimisation produced NaN or Inf."""
+
+
+def file_error(path, problem: str, hint: str = "") -> DataError:
+    """A DataError whose message names the file first: '<path>: <problem>[ (<hint>)]'."""
+    message = f"{path}: {problem}"
+    if hint:
+        message += f" ({hint})"
+    return DataError(message)
