@@ -1,0 +1,1 @@
+"""Rendering: Gaussian rasterization (G-buffers), ray contributions, PBR shading, environment maps."""
