@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from matspray.data.camera import Camera
@@ -105,8 +106,8 @@ def read_colmap(root: Path, test_every: int = 8) -> tuple[list[View], list[View]
         train, test = views, []
     points3d = list(reconstruction.points3D.values())
     if points3d:
-        points = torch.tensor([p.xyz for p in points3d], dtype=torch.float32)
-        colors = srgb_to_linear(torch.tensor([p.color for p in points3d], dtype=torch.float32) / 255.0)
+        points = torch.from_numpy(np.array([p.xyz for p in points3d], dtype=np.float32))
+        colors = srgb_to_linear(torch.from_numpy(np.array([p.color for p in points3d], dtype=np.float32)) / 255.0)
     else:
         points = torch.zeros(0, 3)
         colors = torch.zeros(0, 3)

@@ -1,0 +1,39 @@
+"""The CLI: help works, info describes a dataset, bad input is one clear line and a non-zero exit."""
+
+import subprocess
+import sys
+
+from tests.test_readers import blender_folder
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "matspray", *map(str, args)], capture_output=True, text=True, timeout=120)
+
+
+def test_help_lists_commands():
+    result = run_cli("--help")
+    assert result.returncode == 0
+    assert "info" in result.stdout and "relightable" in result.stdout
+
+
+def test_info_describes_dataset(tmp_path):
+    result = run_cli("info", blender_folder(tmp_path))
+    assert result.returncode == 0, result.stderr
+    assert "format: blender" in result.stdout
+    assert "train: 2 views, 40x30 px" in result.stdout
+    assert "masks: 2 of 2" in result.stdout
+    assert "no test views" in result.stdout  # the one problem this folder has
+
+
+def test_info_bad_input_is_one_line_without_traceback(tmp_path):
+    (tmp_path / "transforms_train.json").write_text("{oops")
+    result = run_cli("info", tmp_path)
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "transforms_train.json: malformed JSON" in lines[0]
+
+
+def test_info_missing_path(tmp_path):
+    result = run_cli("info", tmp_path / "nowhere")
+    assert result.returncode == 2 and "nowhere: path does not exist" in result.stderr

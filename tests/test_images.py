@@ -1,0 +1,104 @@
+import numpy as np
+import pytest
+import torch
+
+from matspray.data.images import (
+    linear_to_srgb,
+    read_image,
+    read_raw,
+    resize,
+    srgb_to_linear,
+    write_image,
+    write_raw,
+)
+from matspray.errors import DataError
+
+
+def test_srgb_round_trip_within_1e6():
+    x = torch.linspace(0.0, 1.0, 100001, dtype=torch.float64)
+    assert (linear_to_srgb(srgb_to_linear(x)) - x).abs().max() < 1e-6
+    assert (srgb_to_linear(linear_to_srgb(x)) - x).abs().max() < 1e-6
+
+
+def test_srgb_curve_known_values():
+    # the exact piecewise curve: linear segment below 0.04045, and 0.5 sRGB is 0.2140 linear
+    assert float(srgb_to_linear(torch.tensor(0.04045))) == pytest.approx(0.04045 / 12.92)
+    assert float(srgb_to_linear(torch.tensor(0.5))) == pytest.approx(0.21404114, abs=1e-7)
+    assert float(linear_to_srgb(torch.tensor(1.0))) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("bits,tol", [(8, 0.5 / 255 + 1e-7), (16, 0.5 / 65535 + 1e-7)])
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_png_round_trip(tmp_path, bits, tol, channels):
+    values = torch.rand(7, 5, channels)
+    write_raw(tmp_path / "a.png", values, bits=bits)
+    back = read_raw(tmp_path / "a.png")
+    assert back.shape == (7, 5, channels)
+    assert (back - values).abs().max() <= tol
+
+
+def test_png_image_with_alpha_is_srgb_decoded(tmp_path):
+    rgb = torch.rand(4, 6, 3)
+    alpha = torch.rand(4, 6)
+    write_image(tmp_path / "x.png", rgb, alpha, bits=16)
+    rgb2, alpha2 = read_image(tmp_path / "x.png")
+    assert (alpha2 - alpha).abs().max() < 1e-4
+    assert (rgb2 - rgb).abs().max() < 2e-4  # 16-bit quantisation in sRGB space, mapped back
+
+
+def test_exr_round_trip_is_exact(tmp_path):
+    for channels in (1, 3, 4):
+        values = torch.randn(9, 4, channels) * 100
+        write_raw(tmp_path / f"a{channels}.exr", values)
+        assert torch.equal(read_raw(tmp_path / f"a{channels}.exr"), values)
+
+
+def test_hdr_round_trip_relative_precision(tmp_path):
+    values = torch.rand(10, 20, 3) * torch.logspace(-2, 3, 20)[None, :, None]
+    write_raw(tmp_path / "a.hdr", values)
+    back = read_raw(tmp_path / "a.hdr")
+    rel = (back - values).abs() / values.amax(-1, keepdim=True)
+    assert rel.max() < 1.0 / 128  # RGBE keeps 8 bits of mantissa for the brightest channel
+
+
+def test_hdr_reads_run_length_encoded_scanlines(tmp_path):
+    # hand-built new-style RLE file: width 8, one row; each channel is one run of 8 equal bytes
+    header = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1 +X 8\n"
+    row = bytes([2, 2, 0, 8]) + b"".join(bytes([128 + 8, v]) for v in (128, 64, 32, 129))
+    (tmp_path / "rle.hdr").write_bytes(header + row)
+    back = read_raw(tmp_path / "rle.hdr")
+    expected = (np.array([128, 64, 32]) + 0.5) * 2.0 ** (129 - 136)
+    assert np.allclose(back[0].numpy(), expected[None, :].repeat(8, 0))
+
+
+def test_nan_in_exr_is_rejected(tmp_path):
+    values = torch.ones(4, 4, 3)
+    values[1, 2, 0] = float("nan")
+    write_raw(tmp_path / "bad.exr", values)
+    with pytest.raises(DataError, match=r"bad\.exr: holds 1 NaN or Inf"):
+        read_raw(tmp_path / "bad.exr")
+
+
+def test_missing_and_unsupported_files(tmp_path):
+    with pytest.raises(DataError, match=r"nope\.png: file does not exist"):
+        read_raw(tmp_path / "nope.png")
+    (tmp_path / "a.tiff").write_bytes(b"xx")
+    with pytest.raises(DataError, match="unsupported image type"):
+        read_raw(tmp_path / "a.tiff")
+    (tmp_path / "broken.png").write_bytes(b"not a png at all")
+    with pytest.raises(DataError, match=r"broken\.png: cannot read image"):
+        read_raw(tmp_path / "broken.png")
+
+
+def test_no_temporary_files_left(tmp_path):
+    write_raw(tmp_path / "a.png", torch.rand(3, 3, 3))
+    assert [p.name for p in tmp_path.iterdir()] == ["a.png"]
+
+
+def test_resize_area_preserves_mean_and_nearest_keeps_values():
+    image = torch.rand(32, 48, 3)
+    small = resize(image, 16, 24)
+    assert small.shape == (16, 24, 3)
+    assert torch.allclose(small.mean((0, 1)), image.mean((0, 1)), atol=1e-3)
+    mask = (torch.rand(32, 48) > 0.5).float()
+    assert set(resize(mask, 8, 12, mode="nearest").unique().tolist()) <= {0.0, 1.0}
