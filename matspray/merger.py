@@ -1,0 +1,142 @@
+"""The Neural Merger (paper section 3.3): per-Gaussian softmax weights over views.
+
+For each channel group (base color, roughness, metallic) a separate MLP (3 hidden layers of 128,
+ReLU) reads the NeRF positional encoding of the Gaussian's position and the group's per-view values,
+and outputs one logit per view. Views in which the Gaussian was not seen are masked out before the
+softmax, so the merged value is a convex combination of what the Gaussian received:
+
+    h_g = f_theta(PE(p_g), m_g1 .. m_gV)        w_gv = softmax_v(h_gv)        m_g = sum_v w_gv m_gv
+
+The last layer starts at zero, so before training the merger returns the plain average of the seen
+views (the paper's "Proj. Average", its initialisation). With `softmax=False` (the paper's ablation)
+the weights are 1/n_seen + h: the same starting point, but free to leave the convex hull.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from matspray.data.images import atomic_target
+from matspray.errors import RunError, file_error
+
+# channel layout of the lifted values [N, V, 5]
+CHANNEL_GROUPS = {"base_color": slice(0, 3), "roughness": slice(3, 4), "metallic": slice(4, 5)}
+N_CHANNELS = 5
+
+
+@dataclass
+class MergerConfig:
+    hidden: int = 128
+    layers: int = 3
+    frequencies: int = 6  # NeRF positional-encoding octaves
+    softmax: bool = True
+
+
+def positional_encoding(x: Tensor, frequencies: int) -> Tensor:  # [N, 3] in ~[-1, 1] -> [N, 3 * (1 + 2F)]
+    scales = (2.0 ** torch.arange(frequencies, device=x.device, dtype=x.dtype)) * math.pi  # [F]
+    angles = x[:, :, None] * scales  # [N, 3, F]
+    return torch.cat([x, torch.sin(angles).flatten(1), torch.cos(angles).flatten(1)], dim=-1)
+
+
+def mlp(n_in: int, n_out: int, hidden: int, layers: int) -> nn.Sequential:
+    blocks: list[nn.Module] = []
+    width = n_in
+    for _ in range(layers):
+        blocks += [nn.Linear(width, hidden), nn.ReLU()]
+        width = hidden
+    head = nn.Linear(width, n_out)
+    nn.init.zeros_(head.weight)
+    nn.init.zeros_(head.bias)
+    return nn.Sequential(*blocks, head)
+
+
+def merge_weights(logits: Tensor, seen: Tensor, softmax: bool) -> Tensor:
+    """Per-view weights [N, V] from logits [N, V]; views not seen (seen [N, V] False) get weight 0."""
+    if softmax:
+        masked = logits.masked_fill(~seen, float("-inf"))
+        return torch.softmax(masked, dim=-1).nan_to_num(0.0)  # a row with no seen view gives zeros
+    n_seen = seen.sum(-1, keepdim=True).clamp_min(1)
+    return (1.0 / n_seen + logits) * seen
+
+
+class NeuralMerger(nn.Module):
+    def __init__(self, n_views: int, bounds: Tensor, config: MergerConfig | None = None):
+        """`bounds` [2, 3]: the object's box; positions are mapped to [-1, 1] inside it."""
+        super().__init__()
+        self.config = config or MergerConfig()
+        self.n_views = int(n_views)
+        self.register_buffer("bounds", torch.as_tensor(bounds, dtype=torch.float32).clone())
+        pe_dim = 3 * (1 + 2 * self.config.frequencies)
+        self.mlps = nn.ModuleDict(
+            {
+                name: mlp(pe_dim + self.n_views * (group.stop - group.start) + self.n_views, self.n_views, self.config.hidden, self.config.layers)
+                for name, group in CHANNEL_GROUPS.items()
+            }
+        )
+
+    def encode_positions(self, positions: Tensor) -> Tensor:  # [N, 3] -> [N, pe_dim]
+        lo, hi = self.bounds[0], self.bounds[1]
+        unit = 2.0 * (positions - lo) / (hi - lo).clamp_min(1e-8) - 1.0
+        return positional_encoding(unit, self.config.frequencies)
+
+    def forward(self, positions: Tensor, values: Tensor, seen: Tensor, return_weights: bool = False):
+        """Merge per-view values.
+
+        positions: [N, 3]; values: [N, V, 5] (base color rgb, roughness, metallic; anything where unseen);
+        seen: [N, V] bool. Returns merged materials [N, 5] (and the weights {group: [N, V]}).
+        """
+        if values.shape[1] != self.n_views or seen.shape != values.shape[:2]:
+            raise RunError(f"the merger was built for {self.n_views} views but got values for {values.shape[1]}")
+        encoded = self.encode_positions(positions)
+        values = values * seen[..., None]  # unseen entries carry no information
+        merged, weights = [], {}
+        for name, group in CHANNEL_GROUPS.items():
+            group_values = values[:, :, group]  # [N, V, c]
+            inputs = torch.cat([encoded, group_values.flatten(1), seen.to(values.dtype)], dim=-1)
+            w = merge_weights(self.mlps[name](inputs), seen, self.config.softmax)  # [N, V]
+            weights[name] = w
+            merged.append((w[..., None] * group_values).sum(1))
+        out = torch.cat(merged, dim=-1)
+        if not self.config.softmax:  # unconstrained weights can leave [0, 1]: keep materials valid
+            out = out.clamp(0.0, 1.0)
+        return (out, weights) if return_weights else out
+
+
+def projection_average(values: Tensor, seen: Tensor) -> Tensor:  # [N, V, 5], [N, V] -> [N, 5]
+    """The paper's "Proj. Average": mean of the per-view values over the views that saw the Gaussian."""
+    n_seen = seen.sum(-1, keepdim=True).clamp_min(1)
+    return (values * seen[..., None]).sum(1) / n_seen
+
+
+def load_merger(path, n_views: int, bounds: Tensor, map_location="cpu") -> NeuralMerger:
+    """A merger saved with `save_merger`; refuses a checkpoint made for a different number of views."""
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=False)
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+        raise file_error(path, f"cannot read the merger checkpoint: {exc}") from None
+    if not isinstance(state, dict) or "n_views" not in state or "state_dict" not in state:
+        raise file_error(path, "is not a MatSpray merger checkpoint")
+    if int(state["n_views"]) != int(n_views):
+        raise file_error(path, f"merger was trained for {state['n_views']} views, this run has {n_views}", "delete it to retrain")
+    merger = NeuralMerger(n_views, bounds, MergerConfig(**state["config"]))
+    try:
+        merger.load_state_dict(state["state_dict"])
+    except RuntimeError as exc:
+        raise file_error(path, f"merger weights do not fit: {str(exc).splitlines()[0]}", "delete it to retrain") from None
+    return merger
+
+
+def save_merger(merger: NeuralMerger, path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    torch.save({"n_views": merger.n_views, "config": dataclasses.asdict(merger.config), "state_dict": merger.state_dict()}, tmp)
+    os.replace(tmp, path)
