@@ -1,0 +1,174 @@
+"""Refinement (paper section 3.4): Neural Merger + environment map, trained with two losses.
+
+Each step takes a random training view, rasterizes the merged per-Gaussian materials and normals
+into a G-buffer, and
+  - compares the rasterized material maps with the view's 2D maps by L1 (updates the merger only),
+  - shades the G-buffer with split-sum image-based lighting from the learnable environment map and
+    compares it with the photo by 0.8 L1 + 0.2 (1 - SSIM) (updates the merger and the environment map).
+Geometry is frozen, so each view's blending weights are computed once and reused every step.
+
+Variants (the paper's ablations) choose what produces the per-Gaussian materials:
+  full          Neural Merger with softmax over views
+  no-softmax    Neural Merger with unconstrained weights
+  supervised    free per-Gaussian materials trained with the 2D-map loss only
+  proj-average  the mean of the projected per-view values; no training at all
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor, nn
+from tqdm import tqdm
+
+from matspray.data.images import linear_to_srgb
+from matspray.errors import ConfigError, NumericalError
+from matspray.gaussians import Gaussians
+from matspray.merger import MergerConfig, NeuralMerger, projection_average
+from matspray.render.gbuffer import FrozenViews
+
+VARIANTS = ("full", "proj-average", "supervised", "no-softmax")
+
+
+@dataclass
+class RefineConfig:
+    iterations: int = 1000
+    merger_lr: float = 1e-3  # paper: 0.001
+    envmap_lr: float = 3e-2
+    envmap_height: int = 16  # learnable lat-long map is H x 2H
+    envmap_init: float = 0.5  # initial constant radiance
+    material_weight: float = 1.0  # paper: 1.0
+    photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
+    variant: str = "full"
+    refine_normals: bool = False  # optional: learn per-Gaussian normal offsets with the PBR loss
+    seed: int = 0
+    log_every: int = 10
+    merger: MergerConfig = field(default_factory=MergerConfig)
+
+    def __post_init__(self):
+        if self.variant not in VARIANTS:
+            raise ConfigError(f"unknown variant '{self.variant}'; choose one of {', '.join(VARIANTS)}")
+        if self.iterations < 0:
+            raise ConfigError(f"refine iterations must be >= 0, got {self.iterations}")
+
+
+class MaterialSource(nn.Module):
+    """Per-Gaussian materials [N, 5] for one variant."""
+
+    def __init__(self, variant: str, positions: Tensor, values: Tensor, seen: Tensor, bounds: Tensor, merger_config: MergerConfig):
+        super().__init__()
+        self.variant = variant
+        self.register_buffer("positions", positions)
+        self.register_buffer("values", values)
+        self.register_buffer("seen", seen)
+        self.merger = None
+        if variant in ("full", "no-softmax"):
+            config = MergerConfig(**{**merger_config.__dict__, "softmax": variant == "full"})
+            self.merger = NeuralMerger(values.shape[1], bounds, config)
+        elif variant == "supervised":  # free parameters, starting from an uninformed grey
+            self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
+
+    def forward(self) -> Tensor:  # [N, 5]
+        if self.merger is not None:
+            return self.merger(self.positions, self.values, self.seen)
+        if self.variant == "supervised":
+            return torch.sigmoid(self.logits)
+        return projection_average(self.values, self.seen)
+
+    @property
+    def trainable(self) -> bool:
+        return any(p.requires_grad for p in self.parameters())
+
+
+def masked_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
+    weight = mask[..., None].expand_as(pred)
+    return ((pred - target).abs() * weight).sum() / weight.sum().clamp_min(1.0)
+
+
+def photometric_loss(rendered: Tensor, photo: Tensor, l1_weight: float) -> Tensor:  # sRGB [H, W, 3] each
+    from matspray.eval.metrics import ssim_torch
+
+    l1 = (rendered - photo).abs().mean()
+    return l1_weight * l1 + (1.0 - l1_weight) * (1.0 - ssim_torch(rendered, photo))
+
+
+def check_finite(step: int, **terms: Tensor) -> None:
+    for name, value in terms.items():
+        if not torch.isfinite(value).all():
+            raise NumericalError(f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept")
+
+
+@dataclass
+class RefineResult:
+    materials: Tensor  # [N, 5]
+    normals: Tensor  # [N, 3] unoriented unit normals used for shading
+    source: MaterialSource
+    envmap: nn.Module | None  # EnvironmentMap, None for variants without the PBR loss
+    history: list[dict]
+
+
+def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, views, maps2d: list[Tensor], bounds: Tensor, config: RefineConfig, progress: bool = True, on_checkpoint=None) -> RefineResult:
+    """Train the variant's material source (and the environment map) on the training views.
+
+    normals [N, 3]: per-Gaussian unit normals (any orientation; each view flips them to face it).
+    values [N, V, 5], seen [N, V]: the lifted per-view materials; views/maps2d: the V training views
+    and their 2D maps [H, W, 5] (base color linear, roughness, metallic), in the same order.
+    `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end.
+    """
+    from matspray.render.deferred import shade_gbuffer
+    from matspray.render.envmap import EnvironmentMap
+
+    torch.manual_seed(config.seed)
+    device = gaussians.device
+    source = MaterialSource(config.variant, gaussians.means.detach(), values, seen, bounds, config.merger).to(device)
+    uses_light = config.variant in ("full", "no-softmax")
+    envmap = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if uses_light else None
+    normal_offsets = nn.Parameter(torch.zeros_like(normals)) if (config.refine_normals and uses_light) else None
+    history: list[dict] = []
+    if not source.trainable or config.iterations == 0:
+        return RefineResult(source().detach(), normals, source, envmap, history)
+
+    frozen = FrozenViews(gaussians.detach(), [v.camera for v in views])
+    groups = [{"params": list(source.parameters()), "lr": config.merger_lr}]
+    if envmap is not None:
+        groups.append({"params": list(envmap.parameters()), "lr": config.envmap_lr})
+    if normal_offsets is not None:
+        groups.append({"params": [normal_offsets], "lr": 1e-3})
+    optimizer = torch.optim.Adam(groups)
+    generator = torch.Generator().manual_seed(config.seed)
+    bar = tqdm(range(1, config.iterations + 1), desc=f"refine [{config.variant}]", disable=not progress)
+    for step in bar:
+        index = int(torch.randint(len(views), (1,), generator=generator))
+        view, target = views[index], maps2d[index]
+        mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=device)
+        materials = source()  # [N, 5]
+        shading_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
+        oriented = frozen.orient_normals(index, shading_normals)
+        gbuffer, alpha = frozen.render(index, torch.cat([materials, oriented], dim=-1))  # [H, W, 8], [H, W]
+        material_maps = gbuffer[..., :5] / alpha[..., None].clamp_min(1e-4)
+        loss_material = masked_l1(material_maps, target, mask * (alpha > 0.5))
+        terms = {"material": loss_material}
+        total = config.material_weight * loss_material
+        if envmap is not None:
+            normals_map = torch.nn.functional.normalize(gbuffer[..., 5:8], dim=-1)
+            rgb = shade_gbuffer(material_maps[..., :3], material_maps[..., 3], material_maps[..., 4], normals_map, view.camera, envmap)
+            rendered = linear_to_srgb(rgb * alpha[..., None])  # composited over black
+            photo = linear_to_srgb(view.image * mask[..., None])
+            loss_photo = photometric_loss(rendered, photo, config.photo_l1_weight)
+            terms["photo"] = loss_photo
+            total = total + loss_photo
+        check_finite(step, **terms)
+        optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        optimizer.step()
+        if step % config.log_every == 0 or step == config.iterations:
+            record = {"step": step, **{k: float(v) for k, v in terms.items()}}
+            history.append(record)
+            bar.set_postfix({k: f"{v:.4f}" for k, v in record.items() if k != "step"})
+        if on_checkpoint is not None and (step % 100 == 0 or step == config.iterations):
+            on_checkpoint(step, source, envmap, history)
+    with torch.no_grad():
+        final_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
+        return RefineResult(source().detach(), final_normals.detach(), source, envmap, history)
+

@@ -1,0 +1,125 @@
+"""The run directory: one object, one folder; each stage records the settings that made its artifact.
+
+A stage is skipped when its artifact exists and was made with the same settings (its fingerprint,
+which also covers the fingerprints of the stages it read from); otherwise it is recomputed and says
+why. Every file is written atomically, so an interrupted run never leaves a half-written artifact.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import yaml
+
+from matspray.data.images import atomic_target
+from matspray.errors import RunError
+
+STAGE_RECORD = "stage.json"
+
+
+def to_plain(value):
+    """Dataclasses, paths and tuples as plain JSON/YAML values."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: to_plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return {str(k): to_plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_plain(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def fingerprint(*parts) -> str:
+    text = json.dumps([to_plain(p) for p in parts], sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_json(path: Path, data) -> None:
+    write_text_atomic(path, json.dumps(to_plain(data), indent=2, sort_keys=False) + "\n")
+
+
+def read_json(path: Path) -> dict:
+    return json.loads(Path(path).read_text())
+
+
+class RunDir:
+    def __init__(self, root):
+        self.root = Path(root)
+
+    def path(self, *parts) -> Path:
+        return self.root.joinpath(*parts)
+
+    # ---------------------------------------------------------------- identity
+    def claim(self, dataset_id: dict, overwrite: bool = False) -> None:
+        """Make sure this folder belongs to the dataset described by `dataset_id` (or is new)."""
+        record = self.path("dataset.json")
+        if record.exists() and not overwrite:
+            previous = read_json(record)
+            if previous != to_plain(dataset_id):
+                raise RunError(
+                    f"{self.root}: this run folder was made from another dataset ({previous.get('source')}, "
+                    f"{previous.get('train_views')} training views); use a new --out folder or pass --overwrite"
+                )
+        self.root.mkdir(parents=True, exist_ok=True)
+        write_json(record, dataset_id)
+
+    # ---------------------------------------------------------------- stages
+    def stage_done(self, stage: str, stage_fingerprint: str, artifacts: list[str]) -> bool:
+        record = self.path(stage, STAGE_RECORD)
+        if not record.exists() or not all(self.path(stage, a).exists() for a in artifacts):
+            return False
+        try:
+            return read_json(record).get("fingerprint") == stage_fingerprint
+        except (json.JSONDecodeError, OSError):
+            return False
+
+    def stage_fingerprint(self, stage: str) -> str | None:
+        record = self.path(stage, STAGE_RECORD)
+        return read_json(record).get("fingerprint") if record.exists() else None
+
+    def finish_stage(self, stage: str, stage_fingerprint: str, settings, seconds: float, extra: dict | None = None) -> None:
+        write_json(self.path(stage, STAGE_RECORD), {"fingerprint": stage_fingerprint, "settings": settings, "seconds": seconds, **(extra or {})})
+        self.record_timing(stage, seconds)
+
+    def record_timing(self, stage: str, seconds: float) -> None:
+        path = self.path("timings.json")
+        timings = read_json(path) if path.exists() else {}
+        timings[stage] = round(float(seconds), 3)
+        write_json(path, timings)
+
+    def timings(self) -> dict:
+        path = self.path("timings.json")
+        return read_json(path) if path.exists() else {}
+
+    def write_config(self, config) -> None:
+        write_text_atomic(self.path("config.yaml"), yaml.safe_dump(to_plain(config), sort_keys=False))
+
+
+@contextmanager
+def timed():
+    """`with timed() as t: ...; t.seconds`."""
+
+    class Timer:
+        seconds = 0.0
+
+    timer = Timer()
+    start = time.perf_counter()
+    try:
+        yield timer
+    finally:
+        timer.seconds = time.perf_counter() - start
