@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from matspray.errors import DataError
@@ -106,10 +105,10 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=to
     return taps / taps.sum()
 
 
-def _window_mean(x: Tensor, taps: Tensor) -> Tensor:  # [C, 1, H, W], [K] -> [C, 1, H-K+1, W-K+1]
+def _window_mean(x: Tensor, taps: Tensor) -> Tensor:  # [..., H, W], [K] -> [..., H-K+1, W-K+1]
     k = taps.shape[0]
-    x = F.conv2d(x, taps.view(1, 1, 1, k))  # along width, valid
-    return F.conv2d(x, taps.view(1, 1, k, 1))  # along height, valid
+    x = x.unfold(-1, k, 1) @ taps  # along width, valid positions only
+    return x.unfold(-2, k, 1) @ taps  # along height
 
 
 def ssim_map(pred, target) -> Tensor:
@@ -119,16 +118,16 @@ def ssim_map(pred, target) -> Tensor:
     if min(height, width) < SSIM_WINDOW:
         raise DataError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {height}x{width}")
     taps = gaussian_window(device=pred.device)  # [11]
-    x = pred.permute(2, 0, 1)[:, None]  # [C, 1, H, W]
-    y = target.permute(2, 0, 1)[:, None]
-    mean_x, mean_y = _window_mean(x, taps), _window_mean(y, taps)
-    var_x = _window_mean(x * x, taps) - mean_x**2
-    var_y = _window_mean(y * y, taps) - mean_y**2
-    cov_xy = _window_mean(x * y, taps) - mean_x * mean_y
+    x, y = pred.permute(2, 0, 1), target.permute(2, 0, 1)  # [C, H, W]
+    means = _window_mean(torch.stack([x, y, x * x, y * y, x * y]), taps)  # [5, C, H-10, W-10]
+    mean_x, mean_y = means[0], means[1]
+    var_x = means[2] - mean_x**2
+    var_y = means[3] - mean_y**2
+    cov_xy = means[4] - mean_x * mean_y
     c1, c2 = SSIM_K1**2, SSIM_K2**2  # data range 1
     numerator = (2 * mean_x * mean_y + c1) * (2 * cov_xy + c2)
     denominator = (mean_x**2 + mean_y**2 + c1) * (var_x + var_y + c2)
-    return (numerator / denominator)[:, 0].permute(1, 2, 0)  # [H-10, W-10, C]
+    return (numerator / denominator).permute(1, 2, 0)  # [H-10, W-10, C]
 
 
 def ssim(pred, target) -> float:
