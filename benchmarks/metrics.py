@@ -16,14 +16,14 @@ import torch
 from matspray.eval import load_lpips, psnr, ssim
 
 
-def median_ms(function, repeats: int) -> float:
-    function()  # warm-up (allocations, CUDA kernels)
+def median_ms(function, pred, target, repeats: int) -> float:
+    function(pred, target)  # warm-up (allocations, CUDA kernels)
     times = []
     for _ in range(repeats):
         if torch.cuda.is_available():
             torch.cuda.synchronize()
         start = time.perf_counter()
-        function()
+        function(pred, target)
         if torch.cuda.is_available():
             torch.cuda.synchronize()
         times.append((time.perf_counter() - start) * 1000.0)
@@ -40,14 +40,13 @@ def main() -> None:
 
     lpips, source = load_lpips(args.lpips_weights)
     print(f"device {args.device}, torch threads {torch.get_num_threads()}, LPIPS: {source}")
+    metrics = {"PSNR": psnr, "SSIM": ssim, **({"LPIPS": lpips.distance} if lpips is not None else {})}
     generator = torch.Generator().manual_seed(0)
     for size in args.sizes:
         pred = torch.rand(size, size, 3, generator=generator).to(args.device)
         target = torch.rand(size, size, 3, generator=generator).to(args.device)
-        print(f"{size}x{size}  PSNR  {median_ms(lambda: psnr(pred, target), args.repeats):8.2f} ms")
-        print(f"{size}x{size}  SSIM  {median_ms(lambda: ssim(pred, target), args.repeats):8.2f} ms")
-        if lpips is not None:
-            print(f"{size}x{size}  LPIPS {median_ms(lambda: lpips.distance(pred, target), args.repeats):8.2f} ms")
+        for name, function in metrics.items():
+            print(f"{size}x{size}  {name:5s} {median_ms(function, pred, target, args.repeats):8.2f} ms")
 
 
 if __name__ == "__main__":
