@@ -1,0 +1,135 @@
+"""PSNR and SSIM between two images with values in [0, 1].
+
+Images are [H, W, C] (a [H, W] map counts as one channel), compared as given: callers composite
+prediction and ground truth on the object first (`matspray.eval.masked.composite_on_background`),
+so both are sRGB-encoded (colour) or raw (roughness, metallic) values clamped to [0, 1].
+
+SSIM follows Wang et al. 2004: an 11-tap Gaussian window with sigma 1.5, K1 = 0.01, K2 = 0.03,
+data range 1, statistics over the window positions that lie fully inside the image ("valid"
+filtering, as the authors' MATLAB code), averaged over positions and channels. That equals
+scikit-image's `structural_similarity(gaussian_weights=True, sigma=1.5,
+use_sample_covariance=False, data_range=1, channel_axis=-1)`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from matspray.errors import DataError
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_K1 = 0.01
+SSIM_K2 = 0.03
+RANGE_TOLERANCE = 1e-6  # values this far outside [0, 1] still count as inside (float rounding)
+
+
+# ------------------------------------------------------------------------------------------ input checks
+def as_image(values, name: str) -> Tensor:
+    """`values` as a float64 tensor [H, W, C]; a [H, W] map becomes [H, W, 1]. Rejects NaN/Inf."""
+    image = torch.as_tensor(values)
+    if image.dim() == 2:
+        image = image[..., None]
+    if image.dim() != 3:
+        raise DataError(f"{name}: expected an image [H, W] or [H, W, C], got shape {list(image.shape)}")
+    image = image.to(torch.float64)
+    if not torch.isfinite(image).all():
+        raise DataError(f"{name}: contains NaN or Inf values")
+    return image
+
+
+def as_unit_image(values, name: str) -> Tensor:
+    """Like `as_image`, and the values must lie in [0, 1]."""
+    image = as_image(values, name)
+    low, high = float(image.min()), float(image.max())
+    if low < -RANGE_TOLERANCE or high > 1.0 + RANGE_TOLERANCE:
+        raise DataError(
+            f"{name}: values must be in [0, 1] for image metrics, found [{low:.4g}, {high:.4g}] "
+            "(composite and clamp first with matspray.eval.composite_on_background)"
+        )
+    return image
+
+
+def unit_image_pair(pred, target) -> tuple[Tensor, Tensor]:  # -> [H, W, C], [H, W, C] float64
+    pred = as_unit_image(pred, "pred")
+    target = as_unit_image(target, "target").to(pred.device)
+    if pred.shape != target.shape:
+        raise DataError(f"pred {list(pred.shape)} and target {list(target.shape)} differ in shape")
+    return pred, target
+
+
+def as_weights(mask, shape: tuple[int, int], device) -> Tensor:
+    """A mask [H, W] (bool or weights in [0, 1]) as float64 weights on `device`."""
+    weights = torch.as_tensor(mask).to(device=device, dtype=torch.float64)
+    if weights.dim() == 3 and weights.shape[-1] == 1:
+        weights = weights[..., 0]
+    if tuple(weights.shape) != tuple(shape):
+        raise DataError(f"mask: shape {list(weights.shape)} does not match the image's {list(shape)}")
+    if not torch.isfinite(weights).all() or float(weights.min()) < 0.0 or float(weights.max()) > 1.0:
+        raise DataError("mask: values must be finite and in [0, 1]")
+    return weights
+
+
+# ------------------------------------------------------------------------------------------ PSNR
+def psnr_from_mse(mse: float) -> float:
+    """Peak signal-to-noise ratio in dB for data range 1; infinite when the error is zero."""
+    return math.inf if mse == 0.0 else -10.0 * math.log10(mse)
+
+
+def mse(pred, target, mask=None) -> float:
+    """Mean squared error over pixels and channels; with `mask` [H, W], a mean weighted by it."""
+    pred, target = unit_image_pair(pred, target)
+    squared = (pred - target) ** 2  # [H, W, C]
+    if mask is None:
+        return float(squared.mean())
+    weights = as_weights(mask, pred.shape[:2], pred.device)  # [H, W]
+    total = float(weights.sum())
+    if total == 0.0:
+        raise DataError("mask: selects no pixels; PSNR over an empty region is undefined")
+    return float((squared * weights[..., None]).sum()) / (total * pred.shape[-1])
+
+
+def psnr(pred, target, mask=None) -> float:
+    """PSNR in dB of images [H, W, C] in [0, 1]; `mask` [H, W] restricts (weights) the pixels."""
+    return psnr_from_mse(mse(pred, target, mask))
+
+
+# ------------------------------------------------------------------------------------------ SSIM
+def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=torch.float64, device=None) -> Tensor:
+    """Normalised 1D Gaussian taps [size], centred (MATLAB's fspecial('gaussian') is its outer product)."""
+    offsets = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
+    taps = torch.exp(-(offsets**2) / (2 * sigma**2))
+    return taps / taps.sum()
+
+
+def _window_mean(x: Tensor, taps: Tensor) -> Tensor:  # [..., H, W], [K] -> [..., H-K+1, W-K+1]
+    k = taps.shape[0]
+    x = x.unfold(-1, k, 1) @ taps  # along width, valid positions only
+    return x.unfold(-2, k, 1) @ taps  # along height
+
+
+def ssim_map(pred, target) -> Tensor:
+    """Local SSIM [H-10, W-10, C] at every window position inside the image."""
+    pred, target = unit_image_pair(pred, target)
+    height, width, _ = pred.shape
+    if min(height, width) < SSIM_WINDOW:
+        raise DataError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {height}x{width}")
+    taps = gaussian_window(device=pred.device)  # [11]
+    x, y = pred.permute(2, 0, 1), target.permute(2, 0, 1)  # [C, H, W]
+    means = _window_mean(torch.stack([x, y, x * x, y * y, x * y]), taps)  # [5, C, H-10, W-10]
+    mean_x, mean_y = means[0], means[1]
+    var_x = means[2] - mean_x**2
+    var_y = means[3] - mean_y**2
+    cov_xy = means[4] - mean_x * mean_y
+    c1, c2 = SSIM_K1**2, SSIM_K2**2  # data range 1
+    numerator = (2 * mean_x * mean_y + c1) * (2 * cov_xy + c2)
+    denominator = (mean_x**2 + mean_y**2 + c1) * (var_x + var_y + c2)
+    return (numerator / denominator).permute(1, 2, 0)  # [H-10, W-10, C]
+
+
+def ssim(pred, target) -> float:
+    """Mean SSIM of images [H, W, C] in [0, 1] (Gaussian window 11, sigma 1.5; Wang et al. 2004)."""
+    return float(ssim_map(pred, target).mean())

@@ -1,0 +1,211 @@
+"""The paper's tables as markdown, from plain dicts (the content of eval/metrics.json).
+
+Cell conventions: an entry that is absent prints '—' (not measured / run not made); a metric that is
+present but None prints 'n/a' (LPIPS unavailable); an infinite PSNR prints '∞'. The metallic PSNR
+follows the paper: with k > 0 objects at infinite PSNR it prints '∞*/<mean of the others>' and a
+footnote gives k. Where two or more columns hold numbers, the best of a row is bold.
+
+Input shapes (every level optional):
+  table1:  {method: {row: {"psnr": x, "ssim": x, "lpips": x}}}, rows "relighting", "basecolor",
+           "roughness", "metallic" (also "psnr_infinite": k, "objects": n), and the scale-aligned
+           "relighting_aligned", "basecolor_aligned"
+  table2 / softmax:  {variant: {"psnr": x, "ssim": x, "lpips": x}}
+  timings: {column: {stage: seconds}}
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from matspray.data.images import atomic_target
+
+MISSING = "—"
+UNAVAILABLE = "n/a"
+METRIC_HEADERS = {"psnr": "PSNR ↑", "ssim": "SSIM ↑", "lpips": "LPIPS ↓"}
+HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False}
+TABLE1_ROWS = {
+    "relighting": "Relighting",
+    "basecolor": "BaseColor",
+    "roughness": "Roughness",
+    "metallic": "Metallic",
+}
+ALIGNED_ROWS = {
+    "relighting_aligned": "Relighting (scale-aligned)",
+    "basecolor_aligned": "BaseColor (scale-aligned)",
+}
+ABLATION_VARIANTS = ("Full", "Supervised", "Proj. Average")
+SOFTMAX_VARIANTS = ("Full", "Without Softmax")
+STAGE_LABELS = {
+    "predict": "Diffusion predictions",
+    "geometry": "Gaussian Splatting",
+    "normals": "Normal generation",
+    "lift": "Projection (ray tracing)",
+    "refine": "Material optimization",
+}
+ALIGNED_NOTE = ("Scale-aligned rows: the prediction is multiplied per channel by the median ratio "
+                "ground truth / prediction over object pixels (NeRFactor/TensoIR convention) before "
+                "compositing; they are not comparable with the unaligned rows or the paper.")
+
+
+# ------------------------------------------------------------------------------------------ cells
+def format_number(value: float, decimals: int = 3) -> str:
+    if math.isinf(value):
+        return "∞" if value > 0 else "-∞"
+    return f"{value:.{decimals}f}"
+
+
+def format_metric(entry: Mapping | None, metric: str) -> str:
+    """One cell: '—' when absent, 'n/a' when None, else the number."""
+    if entry is None or metric not in entry:
+        return MISSING
+    value = entry[metric]
+    return UNAVAILABLE if value is None else format_number(float(value))
+
+
+def format_metallic_psnr(entry: Mapping | None) -> str:
+    """The paper's metallic PSNR cell: '∞*/27.202' when some objects are at infinite PSNR."""
+    infinite = int((entry or {}).get("psnr_infinite", 0))
+    if infinite == 0:
+        return format_metric(entry, "psnr")
+    mean = entry.get("psnr")
+    return "∞*" if mean is None else f"∞*/{format_number(float(mean))}"
+
+
+def _comparable(entry: Mapping | None, metric: str) -> float | None:
+    if entry is None or entry.get(metric) is None:
+        return None
+    if metric == "psnr" and int(entry.get("psnr_infinite", 0)) > 0:
+        return None  # '∞*/x' is not one number
+    return float(entry[metric])
+
+
+def _bold_best(cells: list[str], values: list[float | None], higher_is_better: bool) -> list[str]:
+    numbers = [v for v in values if v is not None]
+    if len(numbers) < 2:
+        return cells
+    best = max(numbers) if higher_is_better else min(numbers)
+    return [f"**{cell}**" if value == best else cell for cell, value in zip(cells, values)]
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A GitHub markdown table; the first column left-aligned, the others right-aligned."""
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join([":---"] + ["---:"] * (len(header) - 1)) + " |"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ tables
+def material_table(methods: Mapping[str, Mapping[str, Mapping]]) -> str:
+    """Table 1: rows Relighting/BaseColor/Roughness/Metallic (+ scale-aligned), PSNR/SSIM/LPIPS per method."""
+    names = list(methods)
+    metrics = list(METRIC_HEADERS)
+    header = ["Task"] + [
+        METRIC_HEADERS[m] if len(names) == 1 else f"{name} {METRIC_HEADERS[m]}" for name in names for m in metrics
+    ]
+    present_aligned = [key for key in ALIGNED_ROWS if any(key in methods[name] for name in names)]
+    row_labels = {**TABLE1_ROWS, **{key: ALIGNED_ROWS[key] for key in present_aligned}}
+    rows = []
+    for key, label in row_labels.items():
+        columns = {}
+        for metric in metrics:
+            entries = [methods[name].get(key) for name in names]
+            if key == "metallic" and metric == "psnr":
+                cells = [format_metallic_psnr(entry) for entry in entries]
+            else:
+                cells = [format_metric(entry, metric) for entry in entries]
+            values = [_comparable(entry, metric) for entry in entries]
+            columns[metric] = _bold_best(cells, values, HIGHER_IS_BETTER[metric])
+        rows.append([label] + [columns[m][i] for i in range(len(names)) for m in metrics])
+    notes = []
+    for name in names:
+        metallic = methods[name].get("metallic") or {}
+        infinite = int(metallic.get("psnr_infinite", 0))
+        if infinite:
+            of = f" of {metallic['objects']}" if "objects" in metallic else ""
+            who = f"{name}: " if len(names) > 1 else ""
+            notes.append(f"\\* {who}{infinite}{of} objects are non-metallic and predicted all zero, so their "
+                         "metallic PSNR is infinite; they are left out of the average after the slash.")
+    if present_aligned:
+        notes.append(ALIGNED_NOTE)
+    return "\n\n".join([markdown_table(header, rows)] + notes)
+
+
+def variant_table(variants: Mapping[str, Mapping], order: Sequence[str] = ()) -> str:
+    """Rows of PSNR/SSIM/LPIPS per variant: the names in `order` first ('—' when that run is
+    missing), then any other variants in their given order."""
+    names = list(order) + [name for name in variants if name not in order]
+    metrics = list(METRIC_HEADERS)
+    columns = {}
+    for metric in metrics:
+        entries = [variants.get(name) for name in names]
+        cells = [format_metric(entry, metric) for entry in entries]
+        columns[metric] = _bold_best(cells, [_comparable(e, metric) for e in entries], HIGHER_IS_BETTER[metric])
+    rows = [[name] + [columns[m][i] for m in metrics] for i, name in enumerate(names)]
+    return markdown_table(["Method"] + [METRIC_HEADERS[m] for m in metrics], rows)
+
+
+def ablation_table(variants: Mapping[str, Mapping]) -> str:
+    """Table 2: Full / Supervised / Proj. Average."""
+    return variant_table(variants, ABLATION_VARIANTS)
+
+
+def softmax_table(variants: Mapping[str, Mapping]) -> str:
+    """The supplementary softmax ablation: Full / Without Softmax."""
+    return variant_table(variants, SOFTMAX_VARIANTS)
+
+
+def timings_table(columns: Mapping[str, Mapping[str, float | None]]) -> str:
+    """Table 3: seconds per stage per column (e.g. one run, or one device) and their total.
+
+    Known stages (predict, geometry, normals, lift, refine) come first with the paper's labels;
+    other stages follow under their own names. The total sums the numbers shown in the column.
+    """
+    names = list(columns)
+    stages = [s for s in STAGE_LABELS if any(s in columns[n] for n in names)]
+    stages += [s for n in names for s in columns[n] if s not in stages]
+    stages = list(dict.fromkeys(stages))
+    rows = [[STAGE_LABELS.get(s, s)] + [_seconds(columns[name].get(s)) for name in names] for s in stages]
+    totals = []
+    for name in names:
+        numbers = [float(v) for v in columns[name].values() if v is not None]
+        totals.append(f"**{_seconds(sum(numbers))}**" if numbers else MISSING)
+    rows.append(["**Total**"] + totals)
+    return markdown_table(["Stage"] + [f"{name} (s)" for name in names], rows)
+
+
+def _seconds(value: float | None) -> str:
+    return MISSING if value is None else f"{float(value):.1f}"
+
+
+# ------------------------------------------------------------------------------------------ document
+def tables_markdown(metrics: Mapping) -> str:
+    """eval/tables.md: a title, notes, the LPIPS source, Table 1, Table 2, the softmax ablation, Table 3."""
+    parts = [f"# {metrics.get('title', 'MatSpray evaluation')}"]
+    notes = list(metrics.get("notes", ()))
+    if metrics.get("lpips"):
+        notes.append(f"LPIPS: {metrics['lpips']}")
+    if notes:
+        parts.append("\n".join(f"- {note}" for note in notes))
+    sections = (
+        ("Table 1: relighting and material maps", "table1", material_table, "No relighting or material evaluation."),
+        ("Table 2: ablation (Full / Supervised / Proj. Average)", "table2", ablation_table, "No ablation runs."),
+        ("Ablation: Neural Merger softmax", "softmax", softmax_table, "No softmax ablation runs."),
+        ("Table 3: seconds per stage", "timings", timings_table, "No timings recorded."),
+    )
+    for title, key, render, absent in sections:
+        data = metrics.get(key)
+        parts.append(f"## {title}\n\n" + (render(data) if data else f"_{absent}_"))
+    return "\n\n".join(parts) + "\n"
+
+
+def write_tables(path, metrics: Mapping) -> Path:
+    """Write `tables_markdown(metrics)` to `path` atomically (temp file, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    tmp.write_text(tables_markdown(metrics), encoding="utf-8")
+    os.replace(tmp, path)
+    return path
