@@ -24,6 +24,7 @@ from tqdm import tqdm
 
 from matspray.data.images import linear_to_srgb
 from matspray.errors import ConfigError, NumericalError
+from matspray.eval.metrics import ssim_loss
 from matspray.gaussians import Gaussians
 from matspray.merger import MergerConfig, NeuralMerger, projection_average
 from matspray.render.gbuffer import FrozenViews
@@ -87,10 +88,8 @@ def masked_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C
 
 
 def photometric_loss(rendered: Tensor, photo: Tensor, l1_weight: float) -> Tensor:  # sRGB [H, W, 3] each
-    from matspray.eval.metrics import ssim_torch
-
     l1 = (rendered - photo).abs().mean()
-    return l1_weight * l1 + (1.0 - l1_weight) * (1.0 - ssim_torch(rendered, photo))
+    return l1_weight * l1 + (1.0 - l1_weight) * ssim_loss(rendered, photo)
 
 
 def check_finite(step: int, **terms: Tensor) -> None:

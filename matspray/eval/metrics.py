@@ -112,22 +112,33 @@ def _window_mean(x: Tensor, taps: Tensor) -> Tensor:  # [..., H, W], [K] -> [...
 
 
 def ssim_map(pred, target) -> Tensor:
-    """Local SSIM [H-10, W-10, C] at every window position inside the image."""
+    """Local SSIM [H-10, W-10, C] at every window position inside the image (validated, float64)."""
     pred, target = unit_image_pair(pred, target)
     height, width, _ = pred.shape
     if min(height, width) < SSIM_WINDOW:
         raise DataError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {height}x{width}")
-    taps = gaussian_window(device=pred.device)  # [11]
-    x, y = pred.permute(2, 0, 1), target.permute(2, 0, 1)  # [C, H, W]
-    means = _window_mean(torch.stack([x, y, x * x, y * y, x * y]), taps)  # [5, C, H-10, W-10]
-    mean_x, mean_y = means[0], means[1]
-    var_x = means[2] - mean_x**2
-    var_y = means[3] - mean_y**2
-    cov_xy = means[4] - mean_x * mean_y
+    return local_ssim(pred, target)
+
+
+def local_ssim(x: Tensor, y: Tensor) -> Tensor:  # [H, W, C], [H, W, C] -> [H-10, W-10, C]
+    """SSIM statistics of two images at every valid window position; differentiable, any float dtype.
+    No input checks: the training loss calls it on every step."""
+    taps = gaussian_window(dtype=x.dtype, device=x.device)  # [11]
+    x = x.permute(2, 0, 1)[:, None]  # [C, 1, H, W]
+    y = y.permute(2, 0, 1)[:, None]
+    mean_x, mean_y = _window_mean(x, taps), _window_mean(y, taps)
+    var_x = _window_mean(x * x, taps) - mean_x**2
+    var_y = _window_mean(y * y, taps) - mean_y**2
+    cov_xy = _window_mean(x * y, taps) - mean_x * mean_y
     c1, c2 = SSIM_K1**2, SSIM_K2**2  # data range 1
     numerator = (2 * mean_x * mean_y + c1) * (2 * cov_xy + c2)
     denominator = (mean_x**2 + mean_y**2 + c1) * (var_x + var_y + c2)
-    return (numerator / denominator).permute(1, 2, 0)  # [H-10, W-10, C]
+    return (numerator / denominator)[:, 0].permute(1, 2, 0)
+
+
+def ssim_loss(pred: Tensor, target: Tensor) -> Tensor:  # [H, W, C], [H, W, C] in [0, 1] -> [] (1 - SSIM)
+    """D-SSIM term of the 3DGS photometric loss: 1 - mean local SSIM, differentiable."""
+    return 1.0 - local_ssim(pred, target).mean()
 
 
 def ssim(pred, target) -> float:
