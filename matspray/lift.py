@@ -64,21 +64,26 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
 
     Returns medians [N, 5], seen [N] bool, and hits [N] (number of (pixel, sample) hits received).
     """
-    from matspray.render.contributions import contributions
+    from matspray.render.contributions import iter_contributions
 
     n = len(gaussians)
     s = config.samples_per_side
-    hits = contributions(gaussians, camera, s, falloff=config.falloff)
-    transmittance = hits.weights / hits.alphas.clamp_min(1e-12)  # before the hit
-    visible = transmittance >= config.visibility_threshold
-    gaussian_ids = hits.gaussian_ids[visible]
-    pixel_ids = hits.sample_ids[visible] // (s * s)
-    if mask is not None:
-        on_object = mask.reshape(-1)[pixel_ids] >= config.mask_threshold
-        gaussian_ids, pixel_ids = gaussian_ids[on_object], pixel_ids[on_object]
-    # one entry per (Gaussian, pixel), weighted by how many of the pixel's samples hit it
     n_pixels = camera.width * camera.height
-    pairs, counts = torch.unique(gaussian_ids.long() * n_pixels + pixel_ids.long(), return_counts=True)
+    pair_keys, pair_counts = [], []
+    for band in iter_contributions(gaussians, camera, s, falloff=config.falloff):  # whole rays, a band of rows at a time
+        transmittance = band.weights / band.alphas.clamp_min(1e-12)  # in front of the hit
+        visible = transmittance >= config.visibility_threshold
+        gaussian_ids, pixel_ids = band.gaussian_ids[visible], band.pixel_ids[visible]
+        if mask is not None:
+            on_object = mask.reshape(-1)[pixel_ids] >= config.mask_threshold
+            gaussian_ids, pixel_ids = gaussian_ids[on_object], pixel_ids[on_object]
+        keys, counts = torch.unique(gaussian_ids.long() * n_pixels + pixel_ids.long(), return_counts=True)
+        pair_keys.append(keys)
+        pair_counts.append(counts)
+    # one entry per (Gaussian, pixel), weighted by how many of the pixel's samples hit it; bands hold
+    # disjoint pixels, so no pair appears twice
+    pairs = torch.cat(pair_keys) if pair_keys else torch.zeros(0, dtype=torch.long, device=materials.device)
+    counts = torch.cat(pair_counts) if pair_counts else torch.zeros(0, dtype=torch.long, device=materials.device)
     pair_gaussians, pair_pixels = pairs // n_pixels, pairs % n_pixels
     flat = materials.reshape(-1, materials.shape[-1])[pair_pixels]  # [P, 5]
     medians = torch.zeros(n, materials.shape[-1], dtype=materials.dtype, device=materials.device)

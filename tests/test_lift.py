@@ -21,3 +21,37 @@ def test_weighted_median_matches_brute_force():
 def test_weighted_median_single_and_tied_values():
     medians, has = weighted_median(torch.tensor([0, 0, 0, 1]), torch.tensor([0.2, 0.9, 0.9, 0.4]), torch.tensor([1, 1, 1, 7]), 2)
     assert medians.tolist() == [0.8999999761581421, 0.4000000059604645] and has.all()
+
+
+def hand_made_scene():
+    """Camera on -z looking at +z. G0: opaque disk on the left; G1: small, right behind G0 (hidden);
+    G2: opaque disk on the right; G3: a disk far outside the object mask (a floater)."""
+    from matspray.data import Camera
+    from matspray.gaussians import Gaussians
+
+    camera = Camera.look_at([0.0, 0.0, -5.0], [0.0, 0.0, 0.0], [0.0, -1.0, 0.0], 0.8, 32, 32)
+    means = torch.tensor([[-0.8, 0.0, 0.0], [-0.8, 0.0, 0.6], [0.8, 0.0, 0.0], [0.0, 1.45, 0.0]])
+    scales = torch.tensor([[0.25, 0.25, 0.01], [0.05, 0.05, 0.05], [0.25, 0.25, 0.01], [0.1, 0.1, 0.01]])
+    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(4, 4).clone()
+    opacity = torch.tensor([0.99, 0.99, 0.99, 0.99])
+    gaussians = Gaussians(means, scales.log(), quats, torch.logit(opacity), torch.zeros(4, 1, 3))
+    return gaussians, camera
+
+
+def test_lifting_hand_made_scene_median_and_occlusion():
+    from matspray.lift import LiftConfig, lift
+
+    gaussians, camera = hand_made_scene()
+    pixels, _ = camera.project(gaussians.means)
+    cols = torch.arange(32) + 0.5
+    materials = torch.where((cols < 16)[None, :, None], torch.tensor(0.2), torch.tensor(0.8)).expand(32, 32, 5).clone()
+    left_x, left_y = int(pixels[0, 0]), int(pixels[0, 1])
+    materials[left_y, left_x] = 1.0  # one outlier inside G0's footprint: the median ignores it
+    mask = torch.ones(32, 32)
+    mask[int(pixels[3, 1]) - 3 :] = 0.0  # the bottom rows are background: G3 is a floater
+    result = lift(gaussians, [camera, camera], [materials, materials], [mask, mask], ["a", "b"], LiftConfig(samples_per_side=4), progress=False)
+    assert result.kept.tolist() == [True, False, True, False]  # hidden and floater Gaussians removed
+    assert torch.allclose(result.values[0], torch.full((2, 5), 0.2))
+    assert torch.allclose(result.values[1], torch.full((2, 5), 0.8))
+    assert result.seen.all()
+    assert result.stats["gaussians_removed"] == 2
