@@ -1,0 +1,75 @@
+"""`matspray predict --data DATA --out RUN --predictor SPEC`: per-view material maps into RUN/materials2d/."""
+
+from pathlib import Path
+
+SPLITS = ("train", "test", "all")
+
+
+def add_parser(parser) -> None:
+    parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
+    parser.add_argument("--out", type=Path, required=True, help="run folder; maps go to OUT/materials2d/")
+    parser.add_argument(
+        "--predictor",
+        required=True,
+        metavar="SPEC",
+        help="files:DIR (precomputed maps: MatSpray, DiffusionRenderer or Marigold layout), marigold (diffusers, "
+        "from --weights), simulated or ground-truth (benchmarks on `matspray synth` objects only)",
+    )
+    parser.add_argument("--split", choices=SPLITS, default="train", help="views to predict (default: train, what lifting uses)")
+    parser.add_argument("--downscale", type=float, default=1.0, help="shrink images by this factor on load (default 1)")
+    group = parser.add_argument_group("files and marigold")
+    group.add_argument(
+        "--basecolor-encoding",
+        metavar="ENC",
+        help="how stored base color relates to linear: srgb, gamma1.8 or linear "
+        "(default: gamma1.8 for DiffusionRenderer output, srgb otherwise)",
+    )
+    group = parser.add_argument_group("marigold")
+    group.add_argument("--weights", help="MarigoldIntrinsicsPipeline folder, or a hub id when the network allows "
+                       "(default prs-eth/marigold-iid-appearance-v1-1)")
+    group.add_argument("--device", help="auto (default: CUDA when available), cpu, cuda or cuda:N")
+    group.add_argument("--steps", type=int, help="denoising steps (default: the model's)")
+    group.add_argument("--ensemble-size", type=int, help="predictions per view; >= 3 also writes a confidence map (default 1)")
+    group.add_argument("--processing-resolution", type=int, help="resolution the model works at (default: the model's; 0 = native)")
+    group = parser.add_argument_group("marigold and simulated")
+    group.add_argument("--batch-size", type=int, help="views per model call / window (default: marigold 4, simulated 8)")
+    group.add_argument("--seed", type=int, help="random seed (default 0)")
+    group = parser.add_argument_group("simulated")
+    group.add_argument("--severity", type=float, help="strength of the simulated failure modes; 0 = ground truth (default 1)")
+
+
+def run(args) -> int:
+    from matspray import __version__
+    from matspray.data import load_scene
+    from matspray.errors import DataError
+    from matspray.predictors import PredictorOptions, make_predictor, predict_views, write_materials2d
+
+    scene = load_scene(args.data, downscale=args.downscale)
+    views = scene.views if args.split == "all" else scene.split(args.split)
+    if not views:
+        raise DataError(f"{args.data}: the {args.split} split has no views")
+    options = PredictorOptions(
+        basecolor_encoding=args.basecolor_encoding,
+        weights=args.weights,
+        device=args.device,
+        steps=args.steps,
+        ensemble_size=args.ensemble_size,
+        processing_resolution=args.processing_resolution,
+        batch_size=args.batch_size,
+        seed=args.seed,
+        severity=args.severity,
+    )
+    predictor = make_predictor(args.predictor, options)
+    maps = predict_views(views, predictor)
+    info = dict(
+        predictor.describe(),
+        spec=args.predictor,
+        data=str(args.data),
+        split=args.split,
+        downscale=args.downscale,
+        matspray_version=__version__,
+    )
+    folder = write_materials2d(args.out, maps, info)
+    label = "SIMULATED maps" if predictor.simulated else "maps"
+    print(f"wrote {label} of {len(maps)} {args.split} view(s) from the {predictor.name} predictor to {folder}")
+    return 0
