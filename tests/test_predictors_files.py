@@ -253,3 +253,30 @@ def test_failed_predict_leaves_no_materials2d(dataset, tmp_path, capsys):
     assert not (run / "materials2d").exists() and not any(run.glob(".materials2d*"))
     assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}", "--split", "test"]) == 2
     assert "no matspray maps for 2 of 2 views: r_004, r_005" in capsys.readouterr().err
+
+
+def test_predicting_another_split_into_the_same_run_is_refused(dataset, tmp_path, capsys):
+    root, views = dataset
+    folder = tmp_path / "maps"
+    folder.mkdir()
+    write_matspray(folder, [v.name for v in views] + ["r_004"])
+    write_raw(folder / "r_005_basecolor.png", torch.rand(H, W, 3))
+    write_raw(folder / "r_005_roughness.png", torch.rand(H, W))
+    write_raw(folder / "r_005_metallic.png", torch.rand(H, W))
+    run = tmp_path / "run"
+    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 0
+    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 0
+    assert "replaced the previous maps" in capsys.readouterr().out
+    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}", "--split", "test"]) == 2
+    assert "holds maps of the train split; predicting the test split would replace them" in capsys.readouterr().err
+    assert read_predictor_info(run)["split"] == "train"
+    assert main(["predict", "--data", str(root), "--out", str(tmp_path / "all"), "--predictor", f"files:{folder}", "--split", "all"]) == 0
+    assert read_predictor_info(tmp_path / "all")["views"] == [f"r_{i:03d}" for i in range(6)]
+
+
+def test_split_all_refuses_views_that_share_names(tmp_path, capsys):
+    camera = Camera.look_at([3.0, 0.0, 0.5], [0, 0, 0], [0, 0, 1], 0.8, W, H)
+    view = View("r_0", torch.rand(H, W, 3), None, camera)
+    write_blender(tmp_path / "data", {"train": [view], "test": [view]})
+    assert main(["predict", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--predictor", "ground-truth", "--split", "all"]) == 2
+    assert "train and test views share names (r_0)" in capsys.readouterr().err

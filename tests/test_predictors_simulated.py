@@ -290,6 +290,7 @@ def test_predict_simulated_and_ground_truth_through_the_cli(sphere, tmp_path, ca
     for name, m in maps.items():
         assert torch.allclose(m.roughness, expected[name].roughness, atol=1e-4)
         assert torch.allclose(m.basecolor, expected[name].basecolor, atol=1e-3)
+    run = tmp_path / "evaluation"
     assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", "ground-truth", "--split", "test"]) == 0
     assert "GROUND-TRUTH" in capsys.readouterr().out
     info = read_predictor_info(run)
@@ -304,3 +305,34 @@ def test_cli_rejects_options_that_do_not_apply(sphere, tmp_path, capsys):
     assert not (tmp_path / "run" / "materials2d").exists()
     assert main(["predict", "--data", str(root), "--out", str(tmp_path / "run"), "--predictor", "simulated", "--severity", "-1"]) == 2
     assert "--severity must be a number >= 0" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------ benchmark
+def load_benchmark():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "predictors.py"
+    spec = importlib.util.spec_from_file_location("benchmark_predictors", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_benchmark_pieces_and_report(sphere, capsys):
+    bench = load_benchmark()
+    mask = torch.tensor([[True, False]])
+    assert bench.psnr(torch.tensor([[[0.5], [0.0]]]), torch.tensor([[[0.6], [1.0]]]), mask) == pytest.approx(20.0)
+    assert bench.psnr(torch.zeros(1, 2, 1), torch.zeros(1, 2, 1), mask) == math.inf
+    assert bench.mean_psnr([20.0, math.inf, 30.0]) == (25.0, 1)
+    root, scene = sphere
+    assert bench.main(["--data", str(root), "--batch-size", "2"]) == 0
+    out = capsys.readouterr().out
+    truth_row = next(line for line in out.splitlines() if line.startswith("ground-truth"))
+    simulated_row = next(line for line in out.splitlines() if line.startswith("simulated (severity 1)"))
+    assert truth_row.split()[1:4] == ["inf", "inf", "inf"]
+    truth_spread = [float(x) for x in truth_row.split()[-3:]]
+    simulated_spread = [float(x) for x in simulated_row.split()[-3:]]
+    assert max(truth_spread) < 0.02 and simulated_spread[0] > 2 * truth_spread[0] and simulated_spread[1] > 2 * truth_spread[1]
+    assert bench.main(["--data", str(root / "missing")]) == 2
+    assert "matspray synth" in capsys.readouterr().err

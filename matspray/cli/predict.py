@@ -44,10 +44,17 @@ def run(args) -> int:
     from matspray.errors import DataError
     from matspray.predictors import PredictorOptions, make_predictor, predict_views, write_materials2d
 
+    check_run_split(args.out, args.split)
     scene = load_scene(args.data, downscale=args.downscale)
     views = scene.views if args.split == "all" else scene.split(args.split)
     if not views:
         raise DataError(f"{args.data}: the {args.split} split has no views")
+    shared = sorted({v.name for v in scene.train} & {v.name for v in scene.test})
+    if args.split == "all" and shared:
+        raise DataError(
+            f"{args.data}: train and test views share names ({', '.join(shared[:5])}), and maps are stored by view name; "
+            "predict one split at a time (--split train, or --split test into another --out)"
+        )
     options = PredictorOptions(
         basecolor_encoding=args.basecolor_encoding,
         weights=args.weights,
@@ -69,7 +76,25 @@ def run(args) -> int:
         downscale=args.downscale,
         matspray_version=__version__,
     )
+    replacing = (args.out / "materials2d").exists()
     folder = write_materials2d(args.out, maps, info)
+    if replacing:
+        print(f"replaced the previous maps in {folder}")
     label = "SIMULATED maps" if predictor.simulated else "maps"
     print(f"wrote {label} of {len(maps)} {args.split} view(s) from the {predictor.name} predictor to {folder}")
     return 0
+
+
+def check_run_split(run_dir: Path, split: str) -> None:
+    """Refuse to replace the maps of one split with those of another (lifting needs the train maps)."""
+    from matspray.errors import RunError
+    from matspray.predictors import read_predictor_info
+
+    if not (run_dir / "materials2d" / "predictor.json").exists():
+        return
+    previous = read_predictor_info(run_dir).get("split")
+    if previous is not None and previous != split:
+        raise RunError(
+            f"{run_dir / 'materials2d'}: holds maps of the {previous} split; predicting the {split} split would replace them "
+            f"(use another --out, e.g. for evaluation predictions, or delete that folder first)"
+        )
