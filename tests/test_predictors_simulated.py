@@ -290,6 +290,11 @@ def test_predict_simulated_and_ground_truth_through_the_cli(sphere, tmp_path, ca
     for name, m in maps.items():
         assert torch.allclose(m.roughness, expected[name].roughness, atol=1e-4)
         assert torch.allclose(m.basecolor, expected[name].basecolor, atol=1e-3)
+    copied = tmp_path / "copied"  # maps read back from a simulated run stay labelled as simulated
+    assert main(["predict", "--data", str(root), "--out", str(copied), "--predictor", f"files:{run / 'materials2d'}"]) == 0
+    assert "SIMULATED" in capsys.readouterr().out
+    info = read_predictor_info(copied)
+    assert info["simulated"] is True and info["source_predictor"]["predictor"] == "simulated"
     run = tmp_path / "evaluation"
     assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", "ground-truth", "--split", "test"]) == 0
     assert "GROUND-TRUTH" in capsys.readouterr().out

@@ -12,12 +12,14 @@ Several videos/clips are taken in natural order of their names, then by chunk an
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 from torch import Tensor
+from tqdm import tqdm
 
 from matspray.data.scene import View
 from matspray.errors import file_error
@@ -155,9 +157,26 @@ class FilesPredictor(Predictor):
         self.basecolor_encoding = check_encoding(basecolor_encoding or self.layout.default_encoding)
         self.notify = notify
         self._check_complete()
+        self.source_info = self._read_source_info()
+        self.simulated = bool(self.source_info.get("simulated", False))  # maps copied from a simulated run stay labelled
+        self.benchmark_only = bool(self.source_info.get("benchmark_only", False))
 
     def describe(self) -> dict:
-        return dict(super().describe(), source=str(self.root), layout=self.layout.name, basecolor_encoding=self.basecolor_encoding)
+        info = dict(super().describe(), source=str(self.root), layout=self.layout.name, basecolor_encoding=self.basecolor_encoding)
+        if self.source_info:
+            info["source_predictor"] = self.source_info
+        return info
+
+    def _read_source_info(self) -> dict:
+        """The predictor.json of a MatSpray materials2d folder used as a source, else {}."""
+        path = self.root / "predictor.json"
+        if self.layout.name != "matspray" or not path.is_file():
+            return {}
+        try:
+            info = json.loads(path.read_text())
+        except (json.JSONDecodeError, OSError, UnicodeDecodeError):
+            return {}
+        return info if isinstance(info, dict) else {}
 
     def _check_complete(self) -> None:
         needed = ("basecolor", "material") if self.layout.name == "marigold" else ("basecolor", "roughness", "metallic")
@@ -215,4 +234,5 @@ class FilesPredictor(Predictor):
         return MaterialMaps(basecolor, scalars["roughness"], scalars["metallic"], scalars.get("confidence"))
 
     def predict(self, views: list[View]) -> dict[str, MaterialMaps]:
-        return {name: self.read_entry(entry) for name, entry in self.assign(views).items()}
+        assigned = self.assign(views)
+        return {name: self.read_entry(entry) for name, entry in tqdm(assigned.items(), desc=f"reading {self.layout.name} maps", unit="view")}
