@@ -171,7 +171,7 @@ def test_batches_share_their_colour_drift():
     assert torch.equal(gains[0], gains[1]) and not torch.equal(gains[1], gains[2])
 
 
-def test_spurious_metallic_raises_metallic_on_the_object_only():
+def test_effects_change_the_object_only():
     config = SimulationConfig(metallic_probability=1.0, metallic_amplitude=(0.3, 0.3), blur_fraction=0.0)
     from matspray.predictors.maps import MaterialMaps
     from matspray.predictors.simulated import simulate_view
@@ -183,6 +183,8 @@ def test_spurious_metallic_raises_metallic_on_the_object_only():
     truth = MaterialMaps(torch.full((4, 4, 3), 0.4), torch.full((4, 4), 0.5), torch.zeros(4, 4))
     out = simulate_view(truth, torch.full((4, 4, 3), 0.3), alpha, drift, config, 0)
     assert torch.allclose(out.metallic[:, :2], torch.full((4, 2), 0.3)) and torch.equal(out.metallic[:, 2:], torch.zeros(4, 2))
+    assert torch.equal(out.basecolor[:, 2:], truth.basecolor[:, 2:]) and torch.equal(out.roughness[:, 2:], truth.roughness[:, 2:])
+    assert not torch.allclose(out.basecolor[:, :2], truth.basecolor[:, :2], atol=0.01)
 
 
 def test_filmic_tone_darkens_base_color_and_compresses_roughness():

@@ -18,6 +18,7 @@ the paper describes for DiffusionRenderer, so that later stages can be measured 
    a batch differ by a smaller jitter.
 4. Blur: a Gaussian of `blur_fraction` of the image size, restricted to the object (latent-space
    models lose fine detail).
+All effects apply to the object (alpha); background pixels keep their true values.
 
 `severity` scales every effect (0 gives the ground truth exactly, 1 the default strength). Random
 draws depend only on `seed` and positions, not on severity, so severities form one family.
@@ -162,6 +163,8 @@ def simulate_view(truth: MaterialMaps, photo: Tensor, alpha: Tensor | None, drif
 
     maps = torch.cat([basecolor, roughness[..., None], metallic[..., None]], dim=-1)
     maps = blur_inside(maps, weight, config.blur_fraction * s * max(maps.shape[:2])).clamp(0.0, 1.0)
+    truth_stack = torch.cat([truth.basecolor, truth.roughness[..., None], truth.metallic[..., None]], dim=-1)
+    maps = weight[..., None] * maps + (1.0 - weight[..., None]) * truth_stack  # the background keeps its true values
     return MaterialMaps(maps[..., :3].contiguous(), maps[..., 3].contiguous(), maps[..., 4].contiguous())
 
 
