@@ -10,7 +10,8 @@ On a `matspray synth` object (true maps and depth next to every view), for the g
   every other view where they are visible, and the standard deviation of the values the views give
   the same point is averaged (matspray.predictors.consistency; base color: mean over RGB, sRGB-encoded).
 
-    python benchmarks/predictors.py --data DIR [--split train] [--severity 1] [--seed 0] [--batch-size 8]
+    python -m benchmarks.predictors --data DIR [--split train] [--severity 1] [--seed 0] [--batch-size 8]
+(from the repository root; `python benchmarks/predictors.py` works where matspray is installed)
 """
 
 from __future__ import annotations
