@@ -171,6 +171,15 @@ def test_batches_share_their_colour_drift():
     assert torch.equal(gains[0], gains[1]) and not torch.equal(gains[1], gains[2])
 
 
+def test_a_fraction_of_batches_gets_spurious_metallic():
+    for seed in range(5):
+        config = SimulationConfig(seed=seed, metallic_probability=0.3)
+        metal = [draw_batch_drift(config, b).spurious_metallic > 0 for b in range(10)]
+        assert sum(metal) == 3
+        assert sum(draw_batch_drift(SimulationConfig(seed=seed, metallic_probability=0.3), b).spurious_metallic > 0 for b in range(5)) >= 1
+    assert not any(draw_batch_drift(SimulationConfig(severity=0.0), b).spurious_metallic for b in range(10))
+
+
 def test_effects_change_the_object_only():
     config = SimulationConfig(metallic_probability=1.0, metallic_amplitude=(0.3, 0.3), blur_fraction=0.0)
     from matspray.predictors.maps import MaterialMaps
