@@ -1,0 +1,16 @@
+"""2D material predictors: per-view base color, roughness and metallic maps from any source.
+
+`predict_views(views, predictor)` is the one entry point; `make_predictor("files:DIR" | "marigold" |
+"simulated" | "ground-truth")` builds a predictor; `write_materials2d` / `read_materials2d` are the
+`RUN/materials2d/` folder that later stages read.
+"""
+
+from matspray.predictors.base import Predictor, predict_views
+from matspray.predictors.encodings import BASECOLOR_ENCODINGS, decode_basecolor, encode_basecolor
+from matspray.predictors.maps import MATERIALS2D, MaterialMaps, read_materials2d, read_predictor_info, write_materials2d
+from matspray.predictors.registry import SPECS, PredictorOptions, make_predictor
+
+__all__ = [
+    "BASECOLOR_ENCODINGS", "MATERIALS2D", "MaterialMaps", "Predictor", "PredictorOptions", "SPECS", "decode_basecolor",
+    "encode_basecolor", "make_predictor", "predict_views", "read_materials2d", "read_predictor_info", "write_materials2d",
+]

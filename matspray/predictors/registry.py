@@ -1,0 +1,69 @@
+"""`--predictor SPEC` -> a Predictor. Specs: `files:DIR`, `marigold`, `simulated`, `ground-truth`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Callable
+
+from matspray.errors import ConfigError
+from matspray.predictors.base import Predictor
+
+SPECS = ("files:DIR", "marigold", "simulated", "ground-truth")
+
+
+@dataclass
+class PredictorOptions:
+    """Every setting the command line offers; None = the predictor's default. Each predictor takes its own."""
+
+    basecolor_encoding: str | None = None  # files, marigold
+    weights: str | None = None  # marigold
+    device: str | None = None  # marigold
+    steps: int | None = None  # marigold
+    ensemble_size: int | None = None  # marigold
+    processing_resolution: int | None = None  # marigold
+    batch_size: int | None = None  # marigold, simulated
+    seed: int | None = None  # marigold, simulated
+    severity: float | None = None  # simulated
+
+
+USES = {
+    "files": {"basecolor_encoding"},
+    "marigold": {"basecolor_encoding", "weights", "device", "steps", "ensemble_size", "processing_resolution", "batch_size", "seed"},
+    "simulated": {"batch_size", "seed", "severity"},
+    "ground-truth": set(),
+}
+
+
+def _given(options: PredictorOptions, names: set[str]) -> dict:
+    return {n: getattr(options, n) for n in names if getattr(options, n) is not None}
+
+
+def make_predictor(spec: str, options: PredictorOptions | None = None, notify: Callable[[str], None] = print) -> Predictor:
+    options = options or PredictorOptions()
+    kind, _, argument = str(spec).partition(":")
+    kind = kind.strip().lower()
+    if kind not in USES:
+        raise ConfigError(f"--predictor: unknown predictor '{spec}'; use one of {', '.join(SPECS)}")
+    if kind == "files" and not argument:
+        raise ConfigError("--predictor files:DIR needs the folder holding the maps, e.g. files:outputs/diffusion_renderer")
+    if kind != "files" and argument:
+        raise ConfigError(f"--predictor {kind} takes no ':' argument (got '{spec}')")
+    unused = sorted(n for n in _given(options, {f.name for f in fields(options)}) if n not in USES[kind])
+    if unused:
+        flags = ", ".join("--" + n.replace("_", "-") for n in unused)
+        raise ConfigError(f"{flags} do(es) not apply to the {kind} predictor")
+    if kind == "files":
+        from matspray.predictors.files import FilesPredictor
+
+        return FilesPredictor(argument, options.basecolor_encoding, notify=notify)
+    if kind == "marigold":
+        from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
+
+        return MarigoldPredictor(MarigoldConfig(**_given(options, USES["marigold"])), notify=notify)
+    if kind == "simulated":
+        from matspray.predictors.simulated import SimulatedPredictor, SimulationConfig
+
+        return SimulatedPredictor(SimulationConfig(**_given(options, USES["simulated"])))
+    from matspray.predictors.ground_truth import GroundTruthPredictor
+
+    return GroundTruthPredictor()

@@ -1,0 +1,205 @@
+"""A simulated diffusion material predictor for benchmarks (`--predictor simulated`).
+
+It turns the ground-truth maps of a `matspray synth` object into predictions with the failure modes
+the paper describes for DiffusionRenderer, so that later stages can be measured against a known truth:
+
+1. Lighting baked into base color. The model partly explains the photo's shading as albedo:
+   base color is multiplied by the photo's diffuse shading ratio S = Y(photo) / Y(true base color),
+   normalised to median 1 over the object, raised to `shading_strength` (shadows darken it,
+   highlights brighten it; S depends on the view, so this is view-inconsistent).
+2. Tone mapping. Its training targets were tone mapped (supplement of the paper), so base color and
+   roughness come out through a filmic view transform read back as sRGB: a sigmoid in log2 exposure
+   (middle grey 0.18 kept, scene 1.0 -> display 0.8) that darkens bright base colors and compresses
+   roughness [0.2, 1] into about [0.2, 0.6]. Metallic, mostly 0 or 1, is left alone.
+3. Batches. Views are processed in dataset order in windows of `batch_size` (24 frames in
+   DiffusionRenderer; 8 by default so a 40-view demo has several), and the model cannot see the whole
+   illumination from one window: each batch gets its own exposure, white balance and colour shift,
+   roughness offset, and a fraction of the batches a spurious partial metallic over the object. Views
+   in a batch differ by a smaller jitter.
+4. Blur: a Gaussian of `blur_fraction` of the image size, restricted to the object (latent-space
+   models lose fine detail).
+All effects apply to the object (alpha); background pixels keep their true values.
+
+`severity` scales every effect (0 gives the ground truth exactly, 1 the default strength). Random
+draws depend only on `seed` and positions, not on severity, so severities form one family.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+from tqdm import tqdm
+
+from matspray.data.images import srgb_to_linear
+from matspray.data.scene import View
+from matspray.errors import ConfigError
+from matspray.predictors.base import Predictor
+from matspray.predictors.ground_truth import check_ground_truth, read_ground_truth
+from matspray.predictors.maps import MaterialMaps
+
+LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights
+
+
+@dataclass
+class SimulationConfig:
+    severity: float = 1.0  # scales every effect; 0 = ground truth
+    seed: int = 0
+    batch_size: int = 8  # views per model window (DiffusionRenderer: 24)
+    # magnitudes at severity 1
+    shading_strength: float = 0.35  # exponent of the baked-in shading ratio
+    tone_strength: float = 1.0  # blend towards the filmic curve's output
+    exposure_sigma: float = 0.10  # per batch, std of log brightness gain
+    white_balance_sigma: float = 0.06  # per batch and channel, std of log gain
+    color_shift_sigma: float = 0.015  # per batch and channel, additive (linear)
+    roughness_offset_sigma: float = 0.08  # per batch, additive
+    view_jitter_sigma: float = 0.02  # per view inside a batch: log gain of colour, offset of roughness
+    metallic_probability: float = 0.3  # fraction of the batches that get spurious metallic
+    metallic_amplitude: tuple[float, float] = (0.1, 0.4)  # its strength, uniform in this range
+    blur_fraction: float = 1.0 / 200.0  # Gaussian sigma as a fraction of max(H, W)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.severity) and self.severity >= 0):
+            raise ConfigError(f"--severity must be a number >= 0, got {self.severity}")
+        if int(self.batch_size) < 1:
+            raise ConfigError(f"--batch-size must be >= 1, got {self.batch_size}")
+
+
+@dataclass
+class BatchDrift:
+    """What one model window gets wrong (at the configured severity)."""
+
+    exposure: float  # brightness gain
+    white_balance: list[float]  # [3] per-channel gain
+    color_shift: list[float]  # [3] additive, linear
+    roughness_offset: float
+    spurious_metallic: float  # 0 when this batch has none
+
+
+# ------------------------------------------------------------------------------------------ effects
+def luminance(rgb: Tensor) -> Tensor:  # [..., 3] -> [...]
+    return rgb @ torch.tensor(LUMA, dtype=rgb.dtype, device=rgb.device)
+
+
+def filmic_tone(x: Tensor) -> Tensor:  # [...] linear in [0, 1] -> [...] linear in [0, 1]
+    """Scene value -> filmic display value (log2 sigmoid, 0.18 -> sRGB(0.18), 1.0 -> 0.8) -> decoded as sRGB."""
+    width, pivot = 3.21, 0.249  # in stops; solve d(0.18) = 0.4613 (sRGB of 0.18) and d(1.0) = 0.8
+    stops = torch.log2(x.clamp_min(1e-6) / 0.18)
+    display = 0.5 + 0.5 * torch.tanh((stops - pivot) / width)
+    return srgb_to_linear(display)
+
+
+def shading_ratio(photo: Tensor, basecolor: Tensor, mask: Tensor) -> Tensor:
+    """photo [H, W, 3] linear, basecolor [H, W, 3] linear, mask [H, W] bool -> S [H, W], median 1 on the mask."""
+    albedo = luminance(basecolor)
+    ratio = luminance(photo) / albedo.clamp_min(0.02)
+    valid = mask & (albedo > 0.02)
+    if not valid.any():
+        return torch.ones_like(ratio)
+    ratio = ratio / ratio[valid].median().clamp_min(1e-6)
+    return torch.where(valid, ratio.clamp(1.0 / 8.0, 8.0), torch.ones_like(ratio))
+
+
+def gaussian_kernel(sigma: float, dtype=torch.float32, device=None) -> Tensor:  # [2r + 1], sums to 1
+    radius = max(1, math.ceil(3.0 * sigma))
+    x = torch.arange(-radius, radius + 1, dtype=dtype, device=device)
+    kernel = torch.exp(-0.5 * (x / sigma) ** 2)
+    return kernel / kernel.sum()
+
+
+def blur_inside(x: Tensor, weight: Tensor, sigma: float) -> Tensor:
+    """x [H, W, C], weight [H, W] in [0, 1] -> x blurred with a Gaussian, averaging only object pixels
+    (normalised by the blurred weight), blended back by weight so the background keeps its values."""
+    if sigma <= 0:
+        return x
+    kernel = gaussian_kernel(sigma, x.dtype, x.device)
+    r = kernel.numel() // 2
+    stack = torch.cat([x * weight[..., None], weight[..., None]], dim=-1).permute(2, 0, 1)[:, None]  # [C+1, 1, H, W]
+    stack = F.conv2d(F.pad(stack, (r, r, 0, 0), mode="replicate"), kernel.view(1, 1, 1, -1))
+    stack = F.conv2d(F.pad(stack, (0, 0, r, r), mode="replicate"), kernel.view(1, 1, -1, 1))
+    stack = stack[:, 0].permute(1, 2, 0)  # [H, W, C+1]
+    blurred = stack[..., :-1] / stack[..., -1:].clamp_min(1e-6)
+    return weight[..., None] * blurred + (1.0 - weight[..., None]) * x
+
+
+def draw_batch_drift(config: SimulationConfig, batch: int) -> BatchDrift:
+    rng = np.random.default_rng([int(config.seed), 0, batch])
+    s = config.severity
+    normal = rng.standard_normal(8).clip(-3.0, 3.0)  # no freak outliers: severity alone sets the scale
+    # a fraction q of the batches gets spurious metallic, spread evenly from a seeded start (not left to chance,
+    # so that a 5-batch demo shows the failure mode for every seed)
+    q = min(1.0, config.metallic_probability * s)
+    start = np.random.default_rng([int(config.seed), 2]).uniform()
+    has_metal = q > 0 and (start + batch * q) % 1.0 < q
+    low, high = config.metallic_amplitude
+    amplitude = rng.uniform(low, high) * s
+    return BatchDrift(
+        exposure=float(np.exp(config.exposure_sigma * s * normal[0])),
+        white_balance=[float(v) for v in np.exp(config.white_balance_sigma * s * normal[1:4])],
+        color_shift=[float(v) for v in config.color_shift_sigma * s * normal[4:7]],
+        roughness_offset=float(config.roughness_offset_sigma * s * normal[7]),
+        spurious_metallic=float(min(1.0, amplitude)) if has_metal else 0.0,
+    )
+
+
+def simulate_view(truth: MaterialMaps, photo: Tensor, alpha: Tensor | None, drift: BatchDrift, config: SimulationConfig, index: int) -> MaterialMaps:
+    """One view's simulated prediction. truth: true maps; photo [H, W, 3] linear; alpha [H, W] or None;
+    index: the view's position in the predicted list (seeds its jitter)."""
+    s = config.severity
+    weight = torch.ones_like(truth.roughness) if alpha is None else alpha.to(truth.roughness).clamp(0.0, 1.0)
+    mask = weight > 0.5
+    jitter = np.random.default_rng([int(config.seed), 1, index]).standard_normal(2) * config.view_jitter_sigma * s
+    tone = min(1.0, config.tone_strength * s)
+
+    basecolor = truth.basecolor * shading_ratio(photo.to(truth.basecolor), truth.basecolor, mask)[..., None] ** (config.shading_strength * s)
+    basecolor = basecolor.clamp(0.0, 1.0)
+    basecolor = torch.lerp(basecolor, filmic_tone(basecolor), tone)
+    gain = torch.tensor(drift.white_balance, dtype=basecolor.dtype, device=basecolor.device) * drift.exposure * float(np.exp(jitter[0]))
+    basecolor = basecolor * gain + torch.tensor(drift.color_shift, dtype=basecolor.dtype, device=basecolor.device)
+
+    roughness = torch.lerp(truth.roughness, filmic_tone(truth.roughness), tone)
+    roughness = roughness + drift.roughness_offset + float(jitter[1])
+    metallic = truth.metallic + drift.spurious_metallic * (1.0 - truth.metallic) * weight
+
+    maps = torch.cat([basecolor, roughness[..., None], metallic[..., None]], dim=-1)
+    maps = blur_inside(maps, weight, config.blur_fraction * s * max(maps.shape[:2])).clamp(0.0, 1.0)
+    truth_stack = torch.cat([truth.basecolor, truth.roughness[..., None], truth.metallic[..., None]], dim=-1)
+    maps = weight[..., None] * maps + (1.0 - weight[..., None]) * truth_stack  # the background keeps its true values
+    return MaterialMaps(maps[..., :3].contiguous(), maps[..., 3].contiguous(), maps[..., 4].contiguous())
+
+
+class SimulatedPredictor(Predictor):
+    """Ground truth degraded like a video diffusion model's output (benchmarks only)."""
+
+    name = "simulated"
+    simulated = True
+    benchmark_only = True
+
+    def __init__(self, config: SimulationConfig | None = None):
+        self.config = config or SimulationConfig()
+        self.batches: list[dict] = []  # what each batch got, filled by predict (for predictor.json)
+
+    def describe(self) -> dict:
+        info = dict(super().describe(), note="SIMULATED from ground truth for benchmarks; not a real prediction")
+        config = asdict(self.config)
+        config["metallic_amplitude"] = list(self.config.metallic_amplitude)
+        return dict(info, settings=config, batches=self.batches)
+
+    def predict(self, views: list[View]) -> dict[str, MaterialMaps]:
+        check_ground_truth(views)
+        out, self.batches = {}, []
+        size = int(self.config.batch_size)
+        with tqdm(total=len(views), desc="simulated predictions", unit="view") as bar:
+            for batch, start in enumerate(range(0, len(views), size)):
+                drift = draw_batch_drift(self.config, batch)
+                members = views[start : start + size]
+                self.batches.append(dict(asdict(drift), views=[v.name for v in members]))
+                for offset, view in enumerate(members):
+                    truth = read_ground_truth(view)
+                    out[view.name] = simulate_view(truth, view.image, view.alpha, drift, self.config, start + offset)
+                    bar.update(1)
+        return out
