@@ -102,3 +102,17 @@ def test_resize_area_preserves_mean_and_nearest_keeps_values():
     assert torch.allclose(small.mean((0, 1)), image.mean((0, 1)), atol=1e-3)
     mask = (torch.rand(32, 48) > 0.5).float()
     assert set(resize(mask, 8, 12, mode="nearest").unique().tolist()) <= {0.0, 1.0}
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+def test_truncated_and_corrupt_png_are_data_errors(tmp_path, bits):
+    write_raw(tmp_path / "a.png", torch.rand(16, 16, 3), bits=bits)
+    data = (tmp_path / "a.png").read_bytes()
+    (tmp_path / "truncated.png").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DataError, match=r"truncated\.png: cannot read image"):
+        read_raw(tmp_path / "truncated.png")
+    corrupt = bytearray(data)
+    corrupt[60:80] = bytes(20)  # zeros inside the compressed pixel data
+    (tmp_path / "corrupt.png").write_bytes(bytes(corrupt))
+    with pytest.raises(DataError, match=r"corrupt\.png: cannot read image"):
+        read_raw(tmp_path / "corrupt.png")

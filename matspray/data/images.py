@@ -18,6 +18,9 @@ from torch import Tensor
 from matspray.errors import file_error
 
 LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
+# what the decoders raise on a corrupt or truncated file (pypng's FormatError and ChunkError are
+# Exception subclasses of their own; a truncated scanline shows up as an IndexError)
+DECODER_ERRORS = (OSError, ValueError, SyntaxError, RuntimeError, EOFError, IndexError, KeyError)
 HDR_SUFFIXES = (".exr", ".hdr")
 
 
@@ -90,8 +93,8 @@ def read_raw(path) -> Tensor:
                 array = np.moveaxis(array, 0, -1)  # CHW -> HWC
         else:
             raise file_error(path, f"unsupported image type '{suffix}'", "use PNG, JPG, EXR or HDR")
-    except (OSError, ValueError, SyntaxError, RuntimeError, EOFError) as exc:  # decoder failures
-        raise file_error(path, f"cannot read image: {exc}") from None
+    except DECODER_ERRORS as exc:
+        raise file_error(path, f"cannot read image: {exc or type(exc).__name__}") from None
     if array.ndim == 2:
         array = array[..., None]
     if array.ndim != 3:
@@ -118,6 +121,13 @@ def _read_pillow(path: Path) -> np.ndarray:
 def _read_png(path: Path) -> np.ndarray:
     import png  # pypng: reads 16-bit colour PNGs, which Pillow reduces to 8 bit
 
+    try:
+        return _read_png_unchecked(path, png)
+    except png.Error as exc:  # FormatError, ChunkError, ...
+        raise ValueError(str(exc)) from None
+
+
+def _read_png_unchecked(path: Path, png) -> np.ndarray:
     with open(path, "rb") as handle:
         header = handle.read(33)
     if header[:8] != b"\x89PNG\r\n\x1a\n":
