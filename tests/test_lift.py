@@ -1,3 +1,4 @@
+import pytest
 import torch
 
 from matspray.lift import weighted_median
@@ -39,6 +40,7 @@ def hand_made_scene():
 
 
 def test_lifting_hand_made_scene_median_and_occlusion():
+    pytest.importorskip("matspray.render.contributions")
     from matspray.lift import LiftConfig, lift
 
     gaussians, camera = hand_made_scene()
