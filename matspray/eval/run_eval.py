@@ -1,0 +1,140 @@
+"""`matspray eval`: every figure of a run against the ground truth of a `matspray synth` object.
+
+For each asset in the run (the full method and any ablation variant) and each test view:
+  relighting  the asset rendered under every held-out light (`envmaps/{env}.exr`) vs Mitsuba's
+              render of the same view (`test/{view}_relight_{env}.png`)
+  materials   rasterized base color, roughness, metallic vs the true maps (`test/{view}_{channel}.png`)
+and, as the baseline the method must beat, the raw 2D predictions of the test views (when the run's
+predictor can make them). Everything is compared on the object (ground-truth mask, shared background).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from matspray.data import Scene, View, read_image
+from matspray.errors import DataError, file_error
+from matspray.eval.evaluate import average_metrics, evaluate_images
+from matspray.eval.masked import align_scale
+from matspray.eval.metallic import metallic_psnr_over_objects
+
+VARIANT_LABELS = {"full": "Full", "supervised": "Supervised", "proj-average": "Proj. Average", "no-softmax": "Without Softmax"}
+EVAL_ENV_HEIGHT = 64  # relighting maps are prefiltered from this many rows (x 2 columns)
+
+
+@dataclass
+class GroundTruth:
+    mask: torch.Tensor  # [H, W]
+    basecolor: torch.Tensor  # [H, W, 3] linear
+    roughness: torch.Tensor  # [H, W]
+    metallic: torch.Tensor  # [H, W]
+    relit: dict[str, torch.Tensor]  # env name -> [H, W, 3] linear
+
+
+def relight_env_names(data: Path, view: View) -> list[str]:
+    prefix = f"{view.name}_relight_"
+    return sorted(p.stem[len(prefix):] for p in view.path.parent.glob(f"{prefix}*.png"))
+
+
+def read_view_truth(view: View) -> GroundTruth:
+    from matspray.predictors.ground_truth import read_ground_truth
+
+    maps = read_ground_truth(view)
+    mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width)
+    relit = {}
+    for env in relight_env_names(view.path.parent, view):
+        rgb, _ = read_image(view.path.with_name(f"{view.name}_relight_{env}.png"))
+        relit[env] = rgb
+    return GroundTruth(mask, maps.basecolor, maps.roughness, maps.metallic, relit)
+
+
+def load_relight_lights(data: Path, names: list[str]):
+    from matspray.render.envmap import EnvironmentMap
+
+    lights = {}
+    for name in names:
+        path = Path(data) / "envmaps" / f"{name}.exr"
+        if not path.exists():
+            raise file_error(path, f"the held-out light '{name}' has relit ground truth but no environment map")
+        lights[name] = EnvironmentMap.from_file(path, height=EVAL_ENV_HEIGHT).prefilter()
+    return lights
+
+
+def unpremultiply(rgb: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:  # [H, W, 3], [H, W] -> [H, W, 3]
+    return torch.where(alpha[..., None] > 1e-4, rgb / alpha[..., None].clamp_min(1e-4), torch.zeros_like(rgb))
+
+
+def evaluate_asset(asset, views: list[View], truths: list[GroundTruth], lights: dict, lpips, aligned: bool = False) -> dict:
+    """Per-view and averaged metrics of one asset: relighting (per light and overall) and materials."""
+    from matspray.relight import render_gbuffer
+    from matspray.render.deferred import shade_gbuffer
+
+    per_view, relit_records, aligned_records, metallic_objects = [], [], [], []
+    channels = {"basecolor": [], "roughness": [], "metallic": []}
+    aligned_base = []
+    preds_metal, truths_metal, masks_metal = [], [], []
+    for view, truth in zip(views, truths):
+        camera = view.camera.to(asset.gaussians.device)
+        with torch.no_grad():
+            gbuffer = render_gbuffer(asset, camera)
+            record = {"view": view.name, "relighting": {}}
+            for env, light in lights.items():
+                rgb = unpremultiply(shade_gbuffer(gbuffer, camera, light), gbuffer.alpha).cpu()
+                metrics = evaluate_images(rgb, truth.relit[env], truth.mask, lpips)
+                record["relighting"][env] = metrics
+                relit_records.append(metrics)
+                if aligned:
+                    aligned_records.append(evaluate_images(align_scale(rgb, truth.relit[env], truth.mask), truth.relit[env], truth.mask, lpips))
+            base = gbuffer.base_color.cpu().clamp(0, 1)
+            rough, metal = gbuffer.roughness.cpu().clamp(0, 1), gbuffer.metallic.cpu().clamp(0, 1)
+        record["basecolor"] = evaluate_images(base, truth.basecolor, truth.mask, lpips)
+        record["roughness"] = evaluate_images(rough[..., None], truth.roughness[..., None], truth.mask, lpips, encoding="raw")
+        record["metallic"] = evaluate_images(metal[..., None], truth.metallic[..., None], truth.mask, lpips, encoding="raw")
+        if aligned:
+            aligned_base.append(evaluate_images(align_scale(base, truth.basecolor, truth.mask), truth.basecolor, truth.mask, lpips))
+        for name in channels:
+            channels[name].append(record[name])
+        preds_metal.append(metal)
+        truths_metal.append(truth.metallic)
+        masks_metal.append(truth.mask)
+        per_view.append(record)
+    metallic = metallic_psnr_over_objects([(torch.stack(preds_metal), torch.stack(truths_metal), torch.stack(masks_metal))])
+    summary = {
+        "relighting": average_metrics(relit_records),
+        "basecolor": average_metrics(channels["basecolor"]),
+        "roughness": average_metrics(channels["roughness"]),
+        "metallic": {**average_metrics(channels["metallic"]), "psnr": metallic.mean if metallic.mean is not None else math.inf,
+                     "psnr_infinite": metallic.infinite, "objects": 1},
+    }
+    for env in lights:
+        summary[f"relighting_{env}"] = average_metrics([r["relighting"][env] for r in per_view])
+    if aligned:
+        summary["relighting_aligned"] = average_metrics(aligned_records)
+        summary["basecolor_aligned"] = average_metrics(aligned_base)
+    return {"summary": summary, "per_view": per_view}
+
+
+def evaluate_predictions(maps: dict, views: list[View], truths: list[GroundTruth], lpips) -> dict:
+    """The raw 2D predictions of the test views against the truth (what lifting starts from)."""
+    records = {"basecolor": [], "roughness": [], "metallic": []}
+    for view, truth in zip(views, truths):
+        m = maps[view.name]
+        records["basecolor"].append(evaluate_images(m.basecolor.clamp(0, 1), truth.basecolor, truth.mask, lpips))
+        records["roughness"].append(evaluate_images(m.roughness[..., None], truth.roughness[..., None], truth.mask, lpips, encoding="raw"))
+        records["metallic"].append(evaluate_images(m.metallic[..., None], truth.metallic[..., None], truth.mask, lpips, encoding="raw"))
+    return {name: average_metrics(values) for name, values in records.items()}
+
+
+def check_synthetic(scene: Scene) -> None:
+    if not scene.test:
+        raise DataError(f"{scene.source}: no test views to evaluate on")
+    missing = [v.name for v in scene.test if not v.path.with_name(f"{v.name}_basecolor.png").exists()]
+    if missing:
+        raise file_error(
+            scene.source, f"test views without ground-truth material maps: {', '.join(missing[:5])}",
+            "evaluation needs a `matspray synth` object (or the same layout of ground truth)",
+        )
