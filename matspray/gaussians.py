@@ -48,10 +48,12 @@ class Gaussians:
     def rotation_matrices(self) -> Tensor:  # [N, 3, 3], columns are the Gaussian's local axes in world space
         return quaternion_to_matrix(self.rotations)
 
-    def covariances(self) -> Tensor:  # [N, 3, 3] world-space covariance R S S^T R^T
-        R = self.rotation_matrices()
-        M = R * self.scales[:, None, :]
-        return M @ M.transpose(1, 2)
+    def scaled_axes(self) -> Tensor:  # [N, 3, 3] L = R diag(scales): columns are the scaled local axes
+        return self.rotation_matrices() * self.scales[:, None, :]
+
+    def covariances(self) -> Tensor:  # [N, 3, 3] world-space covariance R S S^T R^T = L L^T
+        L = self.scaled_axes()
+        return L @ L.transpose(1, 2)
 
     def normals(self) -> Tensor:  # [N, 3] unit axis of the smallest scale (unoriented)
         R = self.rotation_matrices()

@@ -1,0 +1,169 @@
+"""The torch rasterizer against a brute-force per-pixel loop, and its gradients."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from matspray.data.camera import Camera
+from matspray.errors import ConfigError
+from matspray.gaussians import Gaussians
+from matspray.render.rasterize import rasterize
+
+
+def random_scene(n: int, seed: int, dtype=torch.float32, width: int = 16, height: int = 12, max_opacity: float = 0.97):
+    """n Gaussians in a 1.2-unit cube around the origin, seen by a camera 4 units away."""
+    g = torch.Generator().manual_seed(seed)
+    means = (torch.rand(n, 3, generator=g) - 0.5) * 1.2
+    log_scales = torch.log(0.04 + 0.12 * torch.rand(n, 3, generator=g))
+    quats = torch.randn(n, 4, generator=g)
+    opacity = 0.05 + (max_opacity - 0.05) * torch.rand(n, generator=g)
+    sh = torch.randn(n, 1, 3, generator=g) * 0.5
+    gaussians = Gaussians(means, log_scales, quats, torch.logit(opacity), sh).to(dtype=dtype)
+    camera = Camera.look_at([0.3, -4.0, 0.8], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(30), width, height)
+    features = torch.rand(n, 3, generator=g).to(dtype)
+    return gaussians, camera, features
+
+
+def brute_force(gaussians: Gaussians, camera: Camera, features, background, near=0.01, eps2d=0.3,
+                min_alpha=1 / 255, max_alpha=0.99, min_transmittance=1e-4):
+    """3DGS's forward pass written out per Gaussian and per pixel in float64 numpy."""
+    g = gaussians.to(dtype=torch.float64)
+    means, covs = g.means.numpy(), g.covariances().numpy()
+    opac = g.opacities.numpy()
+    feats = features.double().numpy()
+    V = camera.viewmat.double().numpy()
+    K = camera.K.double().numpy()
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    W, H = camera.width, camera.height
+    splats = []
+    for i in range(len(means)):
+        t = V[:3, :3] @ means[i] + V[:3, 3]
+        if t[2] <= near:
+            continue
+        x, y = t[0] / t[2], t[1] / t[2]
+        xc = min(max(x, -1.3 * cx / fx), 1.3 * (W - cx) / fx)
+        yc = min(max(y, -1.3 * cy / fy), 1.3 * (H - cy) / fy)
+        J = np.array([[fx / t[2], 0, -fx * xc / t[2]], [0, fy / t[2], -fy * yc / t[2]]])
+        cov2 = J @ V[:3, :3] @ covs[i] @ V[:3, :3].T @ J.T + eps2d * np.eye(2)
+        splats.append((t[2], np.array([fx * x + cx, fy * y + cy]), np.linalg.inv(cov2), opac[i], feats[i]))
+    splats.sort(key=lambda s: s[0])
+    image = np.zeros((H, W, feats.shape[1]))
+    alpha = np.zeros((H, W))
+    depth = np.zeros((H, W))
+    for row in range(H):
+        for col in range(W):
+            T, colour, d = 1.0, np.zeros(feats.shape[1]), 0.0
+            for z, mean, conic, o, f in splats:
+                delta = np.array([col + 0.5, row + 0.5]) - mean
+                a = min(max_alpha, o * math.exp(-0.5 * delta @ conic @ delta))
+                if a < min_alpha:
+                    continue
+                if T * (1 - a) < min_transmittance:
+                    break
+                colour += a * T * f
+                d += a * T * z
+                T *= 1 - a
+            image[row, col] = colour + T * background.double().numpy()
+            alpha[row, col] = 1 - T
+            depth[row, col] = d
+    return torch.from_numpy(image), torch.from_numpy(alpha), torch.from_numpy(depth)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_matches_brute_force(seed):
+    gaussians, camera, features = random_scene(40, seed)
+    background = torch.tensor([0.2, 0.5, 1.0])
+    out = rasterize(gaussians, camera, features, background)
+    image, alpha, depth = brute_force(gaussians, camera, features, background)
+    assert out.features.shape == (12, 16, 3) and out.alpha.shape == (12, 16) and out.depth.shape == (12, 16)
+    assert alpha.max() > 0.9 and (alpha < 0.5).any()  # the scene has both covered and open pixels
+    torch.testing.assert_close(out.features.double(), image, atol=1e-5, rtol=0)
+    torch.testing.assert_close(out.alpha.double(), alpha, atol=1e-5, rtol=0)
+    torch.testing.assert_close(out.depth.double(), depth, atol=1e-5 * 5, rtol=1e-5)  # depth ~4, float32
+
+
+def test_early_termination_matches_brute_force():
+    """Eight nearly opaque Gaussians stacked on the optical axis: blending stops once the transmittance
+    would fall below 1e-4, so the farthest ones must not appear (they do without termination)."""
+    n = 8
+    means = torch.zeros(n, 3)
+    means[:, 2] = torch.linspace(-0.5, 0.5, n)
+    gaussians = Gaussians(means, torch.full((n, 3), math.log(0.3)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                          torch.logit(torch.full((n,), 0.95)), torch.zeros(n, 1, 3))
+    camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 8, 8)
+    features = torch.eye(n)
+    out = rasterize(gaussians, camera, features)
+    image, alpha, depth = brute_force(gaussians, camera, features, torch.zeros(n))
+    torch.testing.assert_close(out.features.double(), image, atol=1e-5, rtol=0)
+    torch.testing.assert_close(out.alpha.double(), alpha, atol=1e-5, rtol=0)
+    assert out.features[3:5, 3:5, -1].max() == 0  # the four central pixels stop early
+    assert rasterize(gaussians, camera, features, min_transmittance=0.0).features[3:5, 3:5, -1].min() > 1e-6
+
+
+def test_row_bands_give_the_same_image_and_gradients():
+    gaussians, camera, features = random_scene(30, 3)
+    results = []
+    for max_pairs in (1 << 23, 40):
+        g = Gaussians(*(t.clone().requires_grad_(True) for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
+                                                                   gaussians.opacity_logits, gaussians.sh)))
+        out = rasterize(g, camera, features, max_pairs=max_pairs)
+        (out.features.square().sum() + out.depth.sum()).backward()
+        results.append((out.features.detach(), out.alpha.detach(), g.means.grad, g.log_scales.grad))
+    for whole, banded in zip(*results):
+        torch.testing.assert_close(banded, whole, atol=1e-5, rtol=1e-4)  # float32 summation order
+
+
+def test_gradcheck_float64():
+    gaussians, camera, features = random_scene(4, 5, dtype=torch.float64, width=7, height=6, max_opacity=0.8)
+    gaussians.log_scales = gaussians.log_scales + math.log(2.5)  # footprints of a few pixels, overlapping
+    background = torch.tensor([0.3, 0.1, 0.7], dtype=torch.float64)
+
+    def render(means, log_scales, quats, opacity_logits, feats):
+        g = Gaussians(means, log_scales, quats, opacity_logits, gaussians.sh)
+        out = rasterize(g, camera, feats, background)
+        return out.features, out.alpha, out.depth
+
+    inputs = tuple(t.clone().requires_grad_(True) for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
+                                                              gaussians.opacity_logits, features.double()))
+    assert render(*inputs)[1].max() > 0.5
+    assert torch.autograd.gradcheck(render, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+def test_screen_space_gradients_and_radii():
+    gaussians, camera, features = random_scene(20, 6)
+    behind = gaussians.means.clone()
+    behind[0] = camera.center + (camera.center - 0.0)  # far behind the camera
+    gaussians.means = behind.requires_grad_(True)
+    out = rasterize(gaussians, camera, features)
+    out.means2d.retain_grad()
+    out.features.sum().backward()
+    assert out.means2d.grad is not None and out.means2d.grad.shape == (20, 2)
+    assert out.radii[0] == 0 and not out.visible[0]
+    assert (out.means2d.grad[~out.visible] == 0).all()
+    assert out.means2d.grad[out.visible].abs().sum() > 0
+
+
+def test_expected_depth_is_the_surface_depth():
+    n = 1
+    gaussians = Gaussians(torch.zeros(n, 3), torch.full((n, 3), math.log(0.2)), torch.tensor([[1.0, 0, 0, 0]]),
+                          torch.logit(torch.tensor([0.9])), torch.zeros(n, 1, 3))
+    camera = Camera.look_at([0.0, 0.0, -3.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 9, 9)
+    out = rasterize(gaussians, camera, torch.ones(n, 1))
+    covered = out.alpha > 0
+    torch.testing.assert_close(out.expected_depth[covered], torch.full_like(out.alpha[covered], 3.0))
+    assert (out.expected_depth[~covered] == 0).all()
+    torch.testing.assert_close(out.features[..., 0], out.alpha)  # feature 1 everywhere renders alpha
+
+
+def test_rejects_bad_arguments():
+    gaussians, camera, features = random_scene(5, 0)
+    with pytest.raises(ValueError, match="features must be"):
+        rasterize(gaussians, camera, features[:4])
+    with pytest.raises(ValueError, match="background must be"):
+        rasterize(gaussians, camera, features, torch.zeros(2))
+    with pytest.raises(ConfigError, match="unknown backend"):
+        rasterize(gaussians, camera, features, backend="optix")
