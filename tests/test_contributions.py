@@ -11,7 +11,7 @@ import torch
 from matspray.gaussians import Gaussians
 from matspray.render.contributions import contributions, iter_contributions
 from matspray.render.rasterize import rasterize
-from test_rasterize import random_scene
+from tests.test_rasterize import random_scene
 
 
 def brute_force(gaussians: Gaussians, camera, samples_per_side, falloff=1.0, near=0.01, min_alpha=1 / 255,
