@@ -46,19 +46,43 @@ def _gaussian_response(splats: Tensor, gaussian_ids: Tensor, pixel_ids: Tensor, 
     return response, opacity, a, b, c, dx, dy
 
 
+def _blended_hits(raw: Tensor, pixel_ids: Tensor, num_pixels: int, min_alpha: float, max_alpha: float, min_transmittance: float):
+    """The 3DGS alpha test and early termination on candidate hits with raw alpha o G [M]: indices of
+    the hits that are blended [K], their alphas [K] and the transmittance in front of them [K]."""
+    alphas = torch.where(raw >= min_alpha, raw.clamp(max=max_alpha), torch.zeros_like(raw))
+    log_keep, log_T = log_transmittance(alphas, pixel_ids, num_pixels)
+    keep = torch.nonzero((alphas > 0) & surviving_hits(log_keep, log_T, min_transmittance)).squeeze(1)
+    return keep, alphas.index_select(0, keep), torch.exp(log_T.index_select(0, keep)).to(alphas.dtype)
+
+
+@torch.no_grad()
+def hit_weights(
+    splats: Tensor,  # [6, N] as for `blend_hits`
+    gaussian_ids: Tensor,  # [M] candidate hits sorted by pixel then front to back
+    pixel_ids: Tensor,  # [M] pixel index within the band
+    width: int,
+    row_start: int,
+    num_pixels: int,
+    min_alpha: float,
+    max_alpha: float,
+    min_transmittance: float,
+) -> tuple[Tensor, Tensor, Tensor]:  # Gaussian ids [K], pixel ids [K], weights alpha_k T_k [K]
+    """The blending weights `blend_hits` uses, without gradients: with them a frozen view's image of
+    any features is one sparse product, out[p] = sum_k weight_k f[gaussian_k]."""
+    response, opacity, *_ = _gaussian_response(splats, gaussian_ids, pixel_ids, width, row_start)
+    keep, alphas, transmittance = _blended_hits(opacity * response, pixel_ids, num_pixels, min_alpha, max_alpha, min_transmittance)
+    return gaussian_ids.index_select(0, keep), pixel_ids.index_select(0, keep), alphas * transmittance
+
+
 class _BlendHits(torch.autograd.Function):
     @staticmethod
     def forward(ctx, splats, values, gaussian_ids, pixel_ids, settings):
         width, row_start, num_pixels, min_alpha, max_alpha, min_transmittance = settings
         response, opacity, a, b, c, dx, dy = _gaussian_response(splats, gaussian_ids, pixel_ids, width, row_start)
         raw = opacity * response
-        alphas = torch.where(raw >= min_alpha, raw.clamp(max=max_alpha), torch.zeros_like(raw))
-        log_keep, log_T = log_transmittance(alphas, pixel_ids, num_pixels)
-        keep = torch.nonzero((alphas > 0) & surviving_hits(log_keep, log_T, min_transmittance)).squeeze(1)
-
+        keep, alphas, transmittance = _blended_hits(raw, pixel_ids, num_pixels, min_alpha, max_alpha, min_transmittance)
         gaussian_ids, pixel_ids = gaussian_ids.index_select(0, keep), pixel_ids.index_select(0, keep)
-        alphas, raw = alphas.index_select(0, keep), raw.index_select(0, keep)
-        transmittance = torch.exp(log_T.index_select(0, keep)).to(alphas.dtype)
+        raw = raw.index_select(0, keep)
         weights = alphas * transmittance
         hit_values = torch.stack([row.index_select(0, gaussian_ids) for row in values])  # [C, M]
         out = values.new_zeros(num_pixels, values.shape[0])

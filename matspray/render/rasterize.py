@@ -23,7 +23,7 @@ from torch import Tensor
 from matspray.data.camera import Camera
 from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
-from matspray.render.blend import blend_hits
+from matspray.render.blend import blend_hits, hit_weights
 from matspray.render.compositing import ray_major_order
 from matspray.render.pairs import EMPTY_BOX, box_areas, clip_rows, ellipse_pixel_pairs, pixel_boxes, row_bands
 from matspray.render.projection import log_opacity_ratio, max_eigen_radius, project_gaussians
@@ -90,10 +90,25 @@ def depth_ranks(depths: Tensor) -> Tensor:  # [N] -> [N] long: 0 for the nearest
     return ranks
 
 
-def _rasterize_torch(gaussians, camera, features, background, *, near, eps2d, min_alpha, max_alpha, min_transmittance, max_pairs):
-    means = gaussians.means
+@dataclass
+class _Setup:
+    proj: object  # ProjectedGaussians
+    opacities: Tensor  # [N]
+    boxes: Tensor  # [N, 4] pixel boxes of the footprints (empty when not drawn)
+    radii: Tensor  # [N]
+    ranks: Tensor  # [N] front-to-back order of the centres
+    footprints: tuple  # projected centres, conics, footprint radius^2 (no grad)
+
+    @property
+    def splats(self) -> Tensor:  # [6, N] projected mean x, y; conic a, b, c; opacity
+        proj = self.proj
+        return torch.stack([*proj.means2d.unbind(-1), *proj.conics.unbind(-1), self.opacities])
+
+
+def _setup(gaussians: Gaussians, camera: Camera, near: float, eps2d: float, min_alpha: float) -> _Setup:
+    """Project the Gaussians and find each one's footprint (what every rendering of a view starts with)."""
     height, width = camera.height, camera.width
-    proj = project_gaussians(means, gaussians.scaled_axes(), camera.viewmat, camera.K, width, height, near, eps2d)
+    proj = project_gaussians(gaussians.means, gaussians.scaled_axes(), camera.viewmat, camera.K, width, height, near, eps2d)
     opacities = gaussians.opacities
     with torch.no_grad():
         # where opacity * exp(-q / 2) >= min_alpha: q <= radius2; the small margin keeps every true hit,
@@ -106,8 +121,39 @@ def _rasterize_torch(gaussians, camera, features, background, *, near, eps2d, mi
         radii = torch.where(box_areas(boxes) > 0, max_eigen_radius(proj.cov2d), torch.zeros_like(opacities))
         ranks = depth_ranks(proj.depths)
         footprints = (proj.means2d.detach(), proj.conics.detach(), radius2)
+    return _Setup(proj, opacities, boxes, radii, ranks, footprints)
 
-    splats = torch.stack([*proj.means2d.unbind(-1), *proj.conics.unbind(-1), opacities])  # [6, N]
+
+@torch.no_grad()
+def view_weights(
+    gaussians: Gaussians,
+    camera: Camera,
+    *,
+    near: float = 0.01,
+    eps2d: float = 0.3,
+    min_alpha: float = 1.0 / 255.0,
+    max_alpha: float = 0.99,
+    min_transmittance: float = 1e-4,
+    max_pairs: int = 1 << 23,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The blending weights of every (Gaussian, pixel) hit `rasterize` would blend for this camera:
+    Gaussian ids [M], row-major pixel ids [M], weights [M]. For frozen geometry, rendering any
+    features [N, C] is then `zeros(H * W, C).index_add_(0, pixel_ids, weights[:, None] * f[gaussian_ids])`."""
+    setup = _setup(gaussians, camera, near, eps2d, min_alpha)
+    splats, width = setup.splats, camera.width
+    parts = []
+    for row_start, row_end in row_bands(setup.boxes, camera.height, max_pairs):
+        gaussian_ids, pixel_ids = _candidate_pairs(clip_rows(setup.boxes, row_start, row_end), setup.footprints, setup.ranks, row_start, width)
+        ids, pixels, weights = hit_weights(splats, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, min_alpha, max_alpha, min_transmittance)
+        parts.append((ids, pixels + row_start * width, weights))
+    return tuple(torch.cat(column) for column in zip(*parts))
+
+
+def _rasterize_torch(gaussians, camera, features, background, *, near, eps2d, min_alpha, max_alpha, min_transmittance, max_pairs):
+    height, width = camera.height, camera.width
+    setup = _setup(gaussians, camera, near, eps2d, min_alpha)
+    proj, opacities, boxes, radii, ranks, footprints = setup.proj, setup.opacities, setup.boxes, setup.radii, setup.ranks, setup.footprints
+    splats = setup.splats  # [6, N]
     values = torch.cat([features.t(), proj.depths[None], torch.ones_like(opacities)[None]])  # [C + 2, N]
     bands, num_hits = [], 0
     for row_start, row_end in row_bands(boxes, height, max_pairs):
