@@ -16,8 +16,9 @@ rotation about the up axis, so the weight between an output pixel and an input p
 the two rows and the column offset; each sum is therefore a circular correlation along the rows,
 done with FFTs and one small complex matrix product per frequency against a precomputed kernel
 [W_in // 2 + 1, H_out, H_in] (cached per size). It is differentiable w.r.t. the map and costs
-O(H_out H_in W) per level: 16 ms for all levels of a 64 x 128 map on one CPU core. Rough levels (and the
-irradiance) are evaluated on coarser output grids (H_in / 2^k rows), always from the full input.
+O(H_out H_in W) per level: all 12 default levels of a 64 x 128 map take 15 ms (33 ms with the
+backward pass) on a 2-core CPU. Rough levels (and the irradiance) are evaluated on coarser output
+grids (H_in / 2^k rows), always from the full input.
 """
 
 from __future__ import annotations
@@ -79,7 +80,8 @@ def _safe_uv(d: Tensor) -> Tensor:  # [..., 3] unit -> [..., 2], finite gradient
     y = torch.where(at_pole, torch.zeros_like(y), y)
     z_inside = z.clamp(-0.5, 0.5)  # u ignores z; keeps acos inside direction_to_uv away from its infinite slope
     u = direction_to_uv(torch.stack([x, y, z_inside], dim=-1))[..., 0]
-    rho = torch.where(at_pole, torch.zeros_like(rho2), torch.where(at_pole, torch.ones_like(rho2), rho2).sqrt())
+    safe_rho2 = torch.where(at_pole, torch.ones_like(rho2), rho2)  # sqrt has an infinite slope at 0
+    rho = torch.where(at_pole, torch.zeros_like(rho2), safe_rho2.sqrt())
     return torch.stack([u, torch.atan2(rho, z) / math.pi], dim=-1)
 
 
@@ -124,8 +126,9 @@ def level_height(roughness: float, map_height: int, min_height: int = MIN_LEVEL_
 
 
 def _kernel_spectrum(kind: str, alpha: float, in_height: int, out_height: int, device, dtype) -> Tensor:
-    """Conjugated rfft [W_in // 2 + 1, out_height, in_height] along azimuth of the weights [out_height, in_height, 2 in_height] between an output pixel in
-    column 0 and every input pixel: 'ggx' (the lobe D V (r.l)+, normalised to sum to 1) or 'cosine' ((n.l)+)."""
+    """The weights [out_height, in_height, 2 in_height] between an output pixel of column 0 and every input
+    pixel, 'ggx' (the lobe D V (r.l)+, normalised to sum to 1) or 'cosine' ((n.l)+, summing to pi),
+    as their conjugated rfft along azimuth, laid out [2 in_height // 2 + 1, out_height, in_height]."""
     key = (kind, alpha, in_height, out_height, str(device), dtype)
     if key not in _KERNELS:
         in_width, stride = 2 * in_height, in_height // out_height
