@@ -31,6 +31,12 @@ def upper_hemisphere(height: int):
     return dirs, weights
 
 
+def quadrature_rows(roughness: float) -> int:
+    """Rows of the hemisphere grid for integrals over a lobe of this roughness to converge to ~1e-4
+    (checked against 768 rows); a glossy lobe seen at grazing angles needs the finer grid."""
+    return 384 if roughness < 0.25 else 192
+
+
 def view_at(n_dot_v: float):
     return torch.tensor([math.sqrt(1 - n_dot_v**2), 0.0, n_dot_v], dtype=f64)
 
@@ -108,7 +114,7 @@ def test_cook_torrance_lobes_by_hand():
 def test_white_furnace(roughness, n_dot_v):
     # directional albedo integral f cos: a white metal (pure specular) loses energy but never gains it;
     # the Lambert lobe of a white dielectric returns exactly (1 - metallic) = 1 on top of its specular.
-    dirs, dw = upper_hemisphere(256)
+    dirs, dw = upper_hemisphere(quadrature_rows(roughness))
     n, wo = unit(0, 0, 1), view_at(n_dot_v)
     white = torch.ones(3, dtype=f64)
 
@@ -143,7 +149,7 @@ def test_hammersley_points():
 def split_sum_by_quadrature(n_dot_v: float, roughness: float):
     """A and B by brute force over the hemisphere, from the pure specular lobe (metallic 1, F0 = base color):
     F0 = 0 leaves B alone, F0 = 1 gives A + B."""
-    dirs, dw = upper_hemisphere(384)
+    dirs, dw = upper_hemisphere(quadrature_rows(roughness))
     n, wo = unit(0, 0, 1), view_at(n_dot_v)
     r = torch.tensor(roughness, dtype=f64)
     metal = torch.tensor(1.0, dtype=f64)  # pure specular lobe with F0 = base color
