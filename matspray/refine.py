@@ -98,6 +98,25 @@ def check_finite(step: int, **terms: Tensor) -> None:
             raise NumericalError(f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept")
 
 
+def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, target: Tensor, envmap, config: RefineConfig) -> dict[str, Tensor]:
+    """The two losses of one training view: L1 of the rasterized material maps against the view's 2D
+    maps [H, W, 5] ("material"), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo ("photo",
+    only with an environment map). materials [N, 5], normals [N, 3] any orientation."""
+    from matspray.render.deferred import GBuffer, shade_gbuffer
+
+    mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=materials.device)
+    oriented = frozen.orient_normals(index, normals)
+    blended, alpha = frozen.render(index, torch.cat([materials, oriented], dim=-1))  # [H, W, 8], [H, W]
+    gbuffer = GBuffer.from_accumulated(blended[..., :3], blended[..., 3], blended[..., 4], blended[..., 5:8], alpha)
+    material_maps = torch.cat([gbuffer.base_color, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1)
+    terms = {"material": masked_l1(material_maps, target, mask * (alpha > 0.5))}
+    if envmap is not None:
+        rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, envmap.prefilter()))  # over black
+        photo = linear_to_srgb(view.image * mask[..., None])
+        terms["photo"] = photometric_loss(rendered, photo, config.photo_l1_weight)
+    return terms
+
+
 @dataclass
 class RefineResult:
     materials: Tensor  # [N, 5]
@@ -115,7 +134,6 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     and their 2D maps [H, W, 5] (base color linear, roughness, metallic), in the same order.
     `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end.
     """
-    from matspray.render.deferred import shade_gbuffer
     from matspray.render.envmap import EnvironmentMap
 
     torch.manual_seed(config.seed)
@@ -139,30 +157,15 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     bar = tqdm(range(1, config.iterations + 1), desc=f"refine [{config.variant}]", disable=not progress)
     for step in bar:
         index = int(torch.randint(len(views), (1,), generator=generator))
-        view, target = views[index], maps2d[index]
-        mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=device)
-        materials = source()  # [N, 5]
         shading_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
-        oriented = frozen.orient_normals(index, shading_normals)
-        gbuffer, alpha = frozen.render(index, torch.cat([materials, oriented], dim=-1))  # [H, W, 8], [H, W]
-        material_maps = gbuffer[..., :5] / alpha[..., None].clamp_min(1e-4)
-        loss_material = masked_l1(material_maps, target, mask * (alpha > 0.5))
-        terms = {"material": loss_material}
-        total = config.material_weight * loss_material
-        if envmap is not None:
-            normals_map = torch.nn.functional.normalize(gbuffer[..., 5:8], dim=-1)
-            rgb = shade_gbuffer(material_maps[..., :3], material_maps[..., 3], material_maps[..., 4], normals_map, view.camera, envmap)
-            rendered = linear_to_srgb(rgb * alpha[..., None])  # composited over black
-            photo = linear_to_srgb(view.image * mask[..., None])
-            loss_photo = photometric_loss(rendered, photo, config.photo_l1_weight)
-            terms["photo"] = loss_photo
-            total = total + loss_photo
+        terms = view_losses(frozen, index, source(), shading_normals, views[index], maps2d[index], envmap, config)
+        total = config.material_weight * terms["material"] + terms.get("photo", 0.0)
         check_finite(step, **terms)
         optimizer.zero_grad(set_to_none=True)
         total.backward()
         optimizer.step()
         if step % config.log_every == 0 or step == config.iterations:
-            record = {"step": step, **{k: float(v) for k, v in terms.items()}}
+            record = {"step": step, **{k: float(v.detach()) for k, v in terms.items()}}
             history.append(record)
             bar.set_postfix({k: f"{v:.4f}" for k, v in record.items() if k != "step"})
         if on_checkpoint is not None and (step % 100 == 0 or step == config.iterations):
