@@ -138,3 +138,83 @@ def check_synthetic(scene: Scene) -> None:
             scene.source, f"test views without ground-truth material maps: {', '.join(missing[:5])}",
             "evaluation needs a `matspray synth` object (or the same layout of ground truth)",
         )
+
+
+def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, str]:
+    """Raw 2D predictions of the test views by the run's predictor, when it can make them here."""
+    from matspray.predictors import PredictorOptions, make_predictor, predict_views
+    from matspray.rundir import read_json
+
+    import yaml
+
+    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    spec = config.get("predictor", "")
+    if not (spec in ("simulated", "ground-truth") or spec.startswith("files:")):
+        return None, f"raw 2D predictions of test views not evaluated (predictor '{spec}' would have to run again)"
+    try:
+        predictor = make_predictor(spec, PredictorOptions(**config.get("predictor_options", {})), notify=lambda _: None)
+        return predict_views(views, predictor, notify=lambda _: None), f"raw 2D predictions: {spec}"
+    except DataError as exc:
+        return None, f"raw 2D predictions of test views not evaluated: {exc}"
+
+
+def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, progress: bool = True) -> dict:
+    """Evaluate every asset of `run_dir` on the dataset's test views; writes eval/metrics.json and
+    eval/tables.md and returns the metrics."""
+    from tqdm import tqdm
+
+    from matspray.asset import read_asset
+    from matspray.data import load_scene
+    from matspray.eval.lpips import load_lpips
+    from matspray.eval.tables import write_tables
+    from matspray.pipeline import asset_stage
+    from matspray.rundir import RunDir, read_json, write_json
+
+    run = RunDir(run_dir)
+    identity_path = run.path("dataset.json")
+    if not identity_path.exists():
+        raise DataError(f"{run.root}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
+    identity = read_json(identity_path)
+    data = Path(data) if data is not None else Path(identity["source"])
+    from matspray.relight import _downscale_of
+
+    scene = load_scene(data, downscale=_downscale_of(run.root))
+    if [v.name for v in scene.train] != identity["train_views"]:
+        raise DataError(f"{run.root}: this run was made from {identity['source']}, not from {data}")
+    check_synthetic(scene)
+    lpips, lpips_source = load_lpips(lpips_weights)
+    truths = [read_view_truth(v) for v in scene.test]
+    env_names = sorted(set.intersection(*(set(t.relit) for t in truths)))
+    lights = load_relight_lights(data, env_names)
+    metrics = {"title": f"MatSpray evaluation: {identity['source']}", "lpips": lpips_source, "notes": [], "relight_envs": env_names}
+    if not env_names:
+        metrics["notes"].append("no relit ground truth in the dataset: relighting not evaluated")
+    variants = {}
+    stages = [(v, asset_stage(v)) for v in VARIANT_LABELS if run.path(asset_stage(v), "asset.ply").exists()]
+    for variant, stage in tqdm(stages, desc="eval", disable=not progress):
+        variants[variant] = evaluate_asset(read_asset(run.path(stage)), scene.test, truths, lights, lpips, aligned)
+    predictions, note = predict_test_views(run.root, scene.test)
+    metrics["notes"].append(note)
+    if predictions is not None:
+        metrics["predictions_2d"] = evaluate_predictions(predictions, scene.test, truths, lpips)
+    metrics["variants"] = variants
+    metrics.update(paper_tables(variants, metrics.get("predictions_2d"), run.timings()))
+    write_json(run.path("eval", "metrics.json"), metrics)
+    write_tables(run.path("eval", "tables.md"), metrics)
+    return metrics
+
+
+def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dict:
+    """The table dicts `matspray.eval.tables` renders, from per-variant summaries."""
+    rows = ("relighting", "basecolor", "roughness", "metallic", "relighting_aligned", "basecolor_aligned")
+    table1 = {}
+    if "full" in variants:
+        summary = variants["full"]["summary"]
+        table1["Ours"] = {row: summary[row] for row in rows if row in summary}
+    if predictions is not None:
+        table1["2D predictions"] = {row: predictions[row] for row in ("basecolor", "roughness", "metallic")}
+    table2 = {VARIANT_LABELS[v]: variants[v]["summary"]["relighting"] for v in ("full", "supervised", "proj-average") if v in variants}
+    softmax = {VARIANT_LABELS[v]: variants[v]["summary"]["relighting"] for v in ("full", "no-softmax") if v in variants}
+    stage_names = {"materials2d": "predict", "geometry": "geometry", "lift": "lift", "asset": "refine"}
+    stages = {stage_names[k]: v for k, v in timings.items() if k in stage_names}
+    return {"table1": table1, "table2": table2, "softmax": softmax, "timings": {"Ours (this machine)": stages} if stages else {}}
