@@ -35,7 +35,7 @@ class PipelineConfig:
 
 def preset_config(preset: str, **overrides) -> PipelineConfig:
     """The settings of a preset (DESIGN.md): `test` for CI, `demo` for 2 CPU cores, `paper` for a GPU."""
-    from matspray.geometry import GeometryConfig
+    from matspray.geometry.config import preset as geometry_preset
 
     if preset not in PRESETS:
         raise ConfigError(f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
@@ -45,8 +45,9 @@ def preset_config(preset: str, **overrides) -> PipelineConfig:
         config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=4), refine=RefineConfig(iterations=600, envmap_height=16))
     else:
         config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=16), refine=RefineConfig(iterations=10000, envmap_height=32))
-    config.geometry = GeometryConfig.preset(preset)
-    return replace(config, **overrides)
+    config = replace(config, **overrides)
+    config.geometry = geometry_preset(preset, seed=config.seed)
+    return config
 
 
 def resolve_device(name: str) -> torch.device:
@@ -111,20 +112,23 @@ class Pipeline:
 
     # ---------------------------------------------------------------- geometry
     def geometry_fingerprint(self) -> str:
-        return fingerprint("geometry", self.dataset_fp, self.config.geometry, self.config.seed)
+        return fingerprint("geometry", self.dataset_fp, self.config.geometry)
 
     def geometry(self):
-        from matspray.geometry import read_geometry, train_geometry
+        """Trained Gaussians [N] and their oriented normals [N, 3]."""
+        from matspray.geometry.ply import read_ply
+        from matspray.geometry.train import train_geometry
 
         fp = self.geometry_fingerprint()
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             with timed() as t:
-                train_geometry(self.scene, self.config.geometry, self.run.path("geometry"), device=self.device, seed=self.config.seed, progress=self.progress)
+                train_geometry(self.scene, self.config.geometry, self.run.path("geometry"), progress=self.progress)
             self.run.finish_stage("geometry", fp, self.config.geometry, t.seconds)
         else:
             self.log("geometry: done before, reusing geometry/gaussians.ply")
-        return read_geometry(self.run.path("geometry", "gaussians.ply"), device=self.device)
+        gaussians, normals = read_ply(self.run.path("geometry", "gaussians.ply"))
+        return gaussians.to(self.device), torch.nn.functional.normalize(normals, dim=-1).to(self.device)
 
     # ---------------------------------------------------------------- lift
     def lift_fingerprint(self) -> str:

@@ -39,9 +39,11 @@ def config_from_args(args):
         options["severity"] = args.severity
     config.predictor_options = options
     if args.geometry_iterations is not None:
+        from matspray.geometry.config import preset as geometry_preset
+
         if args.geometry_iterations < 1:
             raise ConfigError(f"--geometry-iterations must be >= 1, got {args.geometry_iterations}")
-        config.geometry = replace(config.geometry, iterations=args.geometry_iterations)
+        config.geometry = geometry_preset(args.preset, seed=args.seed, iterations=args.geometry_iterations)
     if args.refine_iterations is not None:
         if args.refine_iterations < 0:
             raise ConfigError(f"--refine-iterations must be >= 0, got {args.refine_iterations}")
