@@ -92,11 +92,28 @@ def principled_bsdf(textures: Textures) -> dict:
     }
 
 
+def mitsuba_envmap_rows(env: np.ndarray) -> np.ndarray:  # [H, W, 3] -> [2H + 1, W, 3]
+    """Our map resampled for Mitsuba's envmap, whose rows sit at v = i / (rows - 1) (the first and last on
+    the poles) where ours sit at pixel centres v = (i + 0.5) / H.
+
+    Rows at v = k / 2H interleave our pixel centres (odd k) with the midpoints between them (even k);
+    our lookup is linear between centres and constant beyond the outer ones, so Mitsuba's linear
+    interpolation between these rows reproduces it exactly.
+    """
+    height = env.shape[0]
+    rows = np.empty((2 * height + 1,) + env.shape[1:], dtype=env.dtype)
+    rows[1::2] = env
+    rows[2:-1:2] = 0.5 * (env[:-1] + env[1:])
+    rows[0], rows[-1] = env[0], env[-1]
+    return rows
+
+
 def envmap_emitter(env: np.ndarray) -> dict:
     """Environment emitter for a lat-long map [H, 2H, 3] (linear RGB) in matspray's convention."""
     import mitsuba as mi
 
-    bitmap = mi.Bitmap(np.ascontiguousarray(env, dtype=np.float32), pixel_format=mi.Bitmap.PixelFormat.RGB)
+    rows = np.ascontiguousarray(mitsuba_envmap_rows(np.asarray(env, dtype=np.float32)))
+    bitmap = mi.Bitmap(rows, pixel_format=mi.Bitmap.PixelFormat.RGB)
     return {"type": "envmap", "bitmap": bitmap, "to_world": mi.ScalarTransform4f(ENVMAP_TO_WORLD.tolist())}
 
 
