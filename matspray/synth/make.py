@@ -95,7 +95,7 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
         "render": {"renderer": "mitsuba", "integrator": "path", "max_depth": MAX_DEPTH, "spp": config.spp,
                    "bsdf": "principled (specular 0.5, no sheen/clearcoat/transmission)", "film_filter": "box",
                    "rgba": "straight (not premultiplied) sRGB-encoded colour, alpha from the render"},
-        "ground_truth": {"subpixel_samples": config.gt_samples**2, "alpha_channel": False, "background": 0,
+        "ground_truth": {"subpixel_samples": config.gt_samples**2, "alpha_channel": "coverage (PNG maps)", "background": 0,
                          "basecolor": "sRGB-encoded 16-bit PNG", "roughness": "linear 16-bit PNG (GGX alpha = r^2)",
                          "metallic": "linear 16-bit PNG", "normal": "EXR world-space unit xyz",
                          "depth": "EXR camera z (OpenCV forward), 0 on background"},

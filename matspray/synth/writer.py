@@ -3,14 +3,16 @@
 atomically (temporary file + rename) by the image and JSON writers used here.
 
 Layout (beside the Blender-layout `transforms_{split}.json` and `{split}/r_000.png` RGBA renders):
-    {split}/r_000_basecolor.png        sRGB-encoded, 16 bit RGB, no alpha, 0 on background
-    {split}/r_000_roughness.png        linear, 16 bit grey, no alpha, 0 on background
-    {split}/r_000_metallic.png         linear, 16 bit grey, no alpha, 0 on background
+    {split}/r_000_basecolor.png        sRGB-encoded, 16 bit RGBA, 0 on background
+    {split}/r_000_roughness.png        linear, 16 bit grey + alpha, 0 on background
+    {split}/r_000_metallic.png         linear, 16 bit grey + alpha, 0 on background
     {split}/r_000_normal.exr           world-space unit normals (RGB = xyz), 0 on background
     {split}/r_000_depth.exr            camera z along the OpenCV forward axis, 0 on background
     test/r_000_relight_{env}.png       RGBA render under light {env} (straight colour, sRGB)
     envmaps/{env}.exr                  every light used, lat-long, linear, as rendered
     scene.json                         every setting, the seed, and what was made
+The alpha channel of the three material maps is the ground-truth coverage (fraction of the
+subpixel rays that hit the object); colour values are not premultiplied by it.
 """
 
 from __future__ import annotations
@@ -37,9 +39,10 @@ def tensor(values: np.ndarray) -> torch.Tensor:
 
 
 def write_ground_truth(folder: Path, name: str, truth: GroundTruth) -> None:
-    write_image(folder / f"{name}_basecolor.png", tensor(truth.base_color), bits=MAP_BITS)
-    write_raw(folder / f"{name}_roughness.png", tensor(truth.roughness), bits=MAP_BITS)
-    write_raw(folder / f"{name}_metallic.png", tensor(truth.metallic), bits=MAP_BITS)
+    coverage = tensor(truth.coverage)[..., None]
+    write_image(folder / f"{name}_basecolor.png", tensor(truth.base_color), coverage[..., 0], bits=MAP_BITS)
+    for what, values in (("roughness", truth.roughness), ("metallic", truth.metallic)):
+        write_raw(folder / f"{name}_{what}.png", torch.cat([tensor(values)[..., None], coverage], -1), bits=MAP_BITS)
     write_raw(folder / f"{name}_normal.exr", tensor(truth.normal))
     write_raw(folder / f"{name}_depth.exr", tensor(truth.depth))
 
