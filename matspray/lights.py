@@ -93,9 +93,9 @@ def studio_radiance(d: Tensor) -> Tensor:  # [..., 3] unit -> [..., 3]
 
 def sunset_radiance(d: Tensor) -> Tensor:  # [..., 3] unit -> [..., 3]
     """Low orange sun 6 degrees above the horizon under a deep blue zenith, dark ground."""
-    base = sky_gradient(d[..., 2], colour(0.05, 0.07, 0.2), colour(1.0, 0.45, 0.18), colour(0.06, 0.045, 0.035))
+    base = sky_gradient(d[..., 2], colour(0.1, 0.14, 0.4), colour(2.0, 0.9, 0.36), colour(0.12, 0.09, 0.07))
     disc, glow = sun_disc(d, direction_from_angles(200.0, 6.0), radius_deg=3.0, glow_deg=15.0)
-    return base + disc[..., None] * colour(300.0, 170.0, 80.0) + glow[..., None] * colour(1.5, 0.6, 0.2)
+    return base + disc[..., None] * colour(750.0, 425.0, 200.0) + glow[..., None] * colour(3.0, 1.2, 0.4)
 
 
 def overcast_radiance(d: Tensor) -> Tensor:  # [..., 3] unit -> [..., 3]
