@@ -105,21 +105,20 @@ def spread_roughness(rng: np.random.Generator, count: int) -> np.ndarray:  # [co
 
 
 def random_material(rng: np.random.Generator, regions: int | None = None) -> Material:
-    """Seeded material with 3-5 regions (two layers each); among them always a mirror-like and a fully
-    rough layer, a metal (1) and a dielectric (0)."""
+    """Seeded material with 3-5 regions. The regions' A layers (which always show; B only where the
+    pattern puts it) include a mirror-like and a fully rough one, a metal (1) and a dielectric (0)."""
     count = int(regions if regions is not None else rng.integers(3, 6))
-    roughness = spread_roughness(rng, 2 * count)
-    metallic = [1.0, 0.0] + [random_metallic(rng) for _ in range(2 * count - 2)]
-    metallic = rng.permutation(metallic)
+    roughness_a = spread_roughness(rng, count)
+    metallic_a = rng.permutation([1.0, 0.0] + [random_metallic(rng) for _ in range(count - 2)])
     sites = rng.normal(size=(count, 3))
     sites = 0.8 * sites / np.linalg.norm(sites, axis=1, keepdims=True)
     region_list = []
     for k in range(count):
         direction = rng.normal(size=3)
         region_list.append(Region(
-            a=random_layer(rng, roughness[2 * k], metallic[2 * k]),
-            b=random_layer(rng, roughness[2 * k + 1], metallic[2 * k + 1]),
-            pattern=PATTERNS[k % len(PATTERNS)] if k < len(PATTERNS) else str(rng.choice(PATTERNS)),
+            a=random_layer(rng, roughness_a[k], metallic_a[k]),
+            b=random_layer(rng, rng.uniform(MIN_ROUGHNESS, MAX_ROUGHNESS), random_metallic(rng)),
+            pattern=PATTERNS[k] if k < len(PATTERNS) else str(rng.choice(PATTERNS)),
             direction=direction / np.linalg.norm(direction),
             frequency=float(rng.uniform(2.0, 6.0)),
             threshold=float(rng.uniform(-0.1, 0.2)),
