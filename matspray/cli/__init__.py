@@ -13,6 +13,7 @@ from matspray.errors import MatsprayError
 # (module under matspray.cli, one-line help); order is the order of `matspray --help`
 COMMANDS = [
     ("info", "describe a dataset folder and list every problem found"),
+    ("synth", "a synthetic benchmark object with ground truth, rendered by Mitsuba 3"),
     ("predict", "per-view 2D material maps (base color, roughness, metallic) into RUN/materials2d/"),
     ("run", "the whole method: predict, geometry, lift, refine (finished stages are reused)"),
     ("relight", "render a run's asset under a new environment light (PNG frames, orbit MP4)"),

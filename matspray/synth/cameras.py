@@ -1,0 +1,61 @@
+"""Cameras on a sphere around the object, looking at its centre (NeRF-synthetic style).
+
+Training cameras follow a Fibonacci spiral over an elevation band (even coverage); test cameras are
+seeded random positions on the same band, so the two sets are disjoint. The distance is chosen so
+the object's bounding sphere fills most of the frame at the NeRF-synthetic field of view.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from matspray.data.camera import Camera
+
+FOV_X = 0.6911112070083618  # radians, NeRF-synthetic's camera_angle_x
+FILL = 0.92  # the bounding sphere's angular radius as a fraction of half the field of view
+MIN_ELEVATION, MAX_ELEVATION = -20.0, 70.0  # degrees; the poles are avoided (image up is world +z)
+GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
+
+
+def framing_distance(bounding_radius: float, fov_x: float = FOV_X, fill: float = FILL) -> float:
+    """Distance at which a sphere of `bounding_radius` spans `fill` of the field of view."""
+    return bounding_radius / math.sin(0.5 * fov_x * fill)
+
+
+def band_point(azimuth: np.ndarray, height: np.ndarray) -> np.ndarray:  # [N], [N] -> [N, 3] unit
+    """Points on the unit sphere from azimuth (radians) and z = sin(elevation)."""
+    ring = np.sqrt(1.0 - height**2)
+    return np.stack([ring * np.cos(azimuth), ring * np.sin(azimuth), height], axis=-1)
+
+
+def fibonacci_directions(count: int, phase: float) -> np.ndarray:  # [count, 3] unit
+    """An even spiral over the elevation band, equal area per point, turned by `phase` radians."""
+    low, high = math.sin(math.radians(MIN_ELEVATION)), math.sin(math.radians(MAX_ELEVATION))
+    k = np.arange(count)
+    height = high - (k + 0.5) / count * (high - low)
+    return band_point(phase + GOLDEN_ANGLE * k, height)
+
+
+def random_directions(count: int, rng: np.random.Generator) -> np.ndarray:  # [count, 3] unit
+    """Uniform (equal area) random points on the elevation band."""
+    low, high = math.sin(math.radians(MIN_ELEVATION)), math.sin(math.radians(MAX_ELEVATION))
+    return band_point(rng.uniform(0.0, 2.0 * math.pi, count), rng.uniform(low, high, count))
+
+
+def orbit_cameras(directions: np.ndarray, distance: float, resolution: int, fov_x: float = FOV_X) -> list[Camera]:
+    """Square cameras at `distance` along each direction [N, 3], looking at the origin, world +z up."""
+    return [
+        Camera.look_at((distance * d).tolist(), [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], fov_x, resolution, resolution)
+        for d in directions
+    ]
+
+
+def make_cameras(train: int, test: int, bounding_radius: float, resolution: int,
+                 rng: np.random.Generator) -> tuple[list[Camera], list[Camera], float]:
+    """Train and test cameras and the distance they sit at."""
+    distance = framing_distance(bounding_radius)
+    train_cameras = orbit_cameras(fibonacci_directions(train, rng.uniform(0.0, 2.0 * math.pi)), distance, resolution)
+    test_cameras = orbit_cameras(random_directions(test, rng), distance, resolution)
+    return train_cameras, test_cameras, distance

@@ -1,0 +1,50 @@
+"""Settings of one synthetic benchmark object, checked before anything is rendered or written."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+from matspray.errors import ConfigError
+
+MAX_RESOLUTION = 2048
+MAX_VIEWS = 1000
+MAX_SPP = 1 << 16
+
+
+@dataclass
+class SynthConfig:
+    shape: str = "random"  # a name of matspray.synth.shapes.SHAPES, or 'random' (picked from the seed)
+    seed: int = 0
+    resolution: int = 128  # pixels, square images
+    train_views: int = 40
+    test_views: int = 10
+    spp: int = 64  # Mitsuba samples per pixel
+    env: str = "sky"  # training light: built-in name, .exr/.hdr path, or shared HDRI name
+    relight_envs: list[str] | None = None  # lights for the test views; None: two built-ins unlike `env`
+    env_height: int = 128  # lights are resampled to env_height x 2 env_height for rendering
+    gt_samples: int = 4  # ground-truth subpixel rays per side (s x s per pixel)
+    texture_height: int = 256  # texture rows per part (twice as many columns)
+    overwrite: bool = False  # replace a different scene already in the output folder
+    extra: dict = field(default_factory=dict)  # free-form notes stored in scene.json
+
+    def validate(self) -> None:
+        def check_int(name: str, value, low: int, high: int, flag: str) -> None:
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise ConfigError(f"{flag} must be an integer in [{low}, {high}], got {value!r}")
+
+        check_int("resolution", self.resolution, 8, MAX_RESOLUTION, "--res")
+        check_int("train_views", self.train_views, 1, MAX_VIEWS, "--views")
+        check_int("test_views", self.test_views, 0, MAX_VIEWS, "--test-views")
+        check_int("spp", self.spp, 1, MAX_SPP, "--spp")
+        check_int("seed", self.seed, 0, 2**31 - 1, "--seed")
+        check_int("env_height", self.env_height, 8, 4096, "--env-height")
+        check_int("gt_samples", self.gt_samples, 1, 16, "--gt-samples")
+        check_int("texture_height", self.texture_height, 8, 4096, "--texture-height")
+        if self.relight_envs is not None and len(set(self.relight_envs)) != len(self.relight_envs):
+            raise ConfigError(f"--relight-env lists a light twice: {', '.join(self.relight_envs)}")
+
+    def identity(self) -> dict:
+        """Everything that determines the files (all settings but `overwrite`)."""
+        values = asdict(self)
+        values.pop("overwrite")
+        return values

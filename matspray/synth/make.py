@@ -1,0 +1,132 @@
+"""`make_object`: one synthetic benchmark object, from settings to a complete folder."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from matspray import __version__
+from matspray.data.blender import write_blender
+from matspray.data.scene import View
+from matspray.errors import ConfigError
+from matspray.lights import default_relight_names, load_envmap
+from matspray.synth.cameras import FOV_X, make_cameras
+from matspray.synth.config import SynthConfig
+from matspray.synth.groundtruth import cast_ground_truth
+from matspray.synth.materials import bake_textures, random_material
+from matspray.synth.mitsuba_scene import MAX_DEPTH, build_scene, render_view, select_variant
+from matspray.synth.shapes import make_shape, resolve_shape
+from matspray.synth.writer import (
+    prepare_output, write_envmap, write_ground_truth, write_render, write_scene_json,
+)
+
+# independent random streams of one seed
+SHAPE_STREAM, MATERIAL_STREAM, CAMERA_STREAM = 2, 3, 4
+
+
+@dataclass
+class SynthResult:
+    out: Path
+    variant: str  # Mitsuba variant that rendered it
+    shape: str
+    train_env: str
+    relight_envs: list[str]
+    seconds: float
+
+
+def render_seed(seed: int, light: int, split: int, view: int) -> int:
+    """Mitsuba sampler seed of one render (distinct per light, split and view; fits in 31 bits)."""
+    return int(np.random.default_rng([seed, 5, light, split, view]).integers(0, 2**31 - 1))
+
+
+def resolve_lights(config: SynthConfig) -> tuple[str, list[str], dict[str, torch.Tensor]]:
+    """Training light name, relight names and every map by name, loaded at the working size."""
+    train_name, train_map = load_envmap(config.env, config.env_height)
+    specs = config.relight_envs if config.relight_envs is not None else default_relight_names(train_name)
+    maps = {train_name: train_map}
+    relight_names = []
+    for spec in specs:
+        name, env = load_envmap(spec, config.env_height)
+        if name in maps and not torch.equal(maps[name], env):
+            raise ConfigError(f"two different lights are both called '{name}' ({spec!r} and another); rename one of the files")
+        if name in relight_names:
+            raise ConfigError(f"--relight-env names the light '{name}' twice")
+        maps[name] = env
+        relight_names.append(name)
+    return train_name, relight_names, maps
+
+
+def make_object(config: SynthConfig, out, progress: bool = True, notify: Callable[[str], None] = print) -> SynthResult:
+    """Render a synthetic object with its ground truth into folder `out` (see matspray.synth.writer)."""
+    start = time.perf_counter()
+    out = Path(out)
+    config.validate()
+    shape = resolve_shape(config.shape, config.seed)
+    train_env, relight_envs, lights = resolve_lights(config)
+    prepare_output(out, config.identity(), config.overwrite)
+    variant = select_variant()
+    notify(f"Mitsuba variant: {variant}")
+
+    parts = make_shape(shape, np.random.default_rng([config.seed, SHAPE_STREAM]))
+    material = random_material(np.random.default_rng([config.seed, MATERIAL_STREAM]))
+    textures = [bake_textures(material, part, config.texture_height) for part in parts]
+    bounding_radius = float(max(np.linalg.norm(p.vertices, axis=1).max() for p in parts))
+    train_cameras, test_cameras, distance = make_cameras(
+        config.train_views, config.test_views, bounding_radius, config.resolution,
+        np.random.default_rng([config.seed, CAMERA_STREAM]),
+    )
+    record = {
+        "matspray_version": __version__,
+        "settings": config.identity(),
+        "seed": config.seed,
+        "variant": variant,
+        "shape": shape,
+        "parts": [{"name": p.name, **p.params} for p in parts],
+        "material": material.to_json(),
+        "lights": {"train": train_env, "relight": relight_envs},
+        "cameras": {"fov_x": FOV_X, "distance": distance, "bounding_radius": bounding_radius, "up": [0, 0, 1],
+                    "train": config.train_views, "test": config.test_views},
+        "render": {"renderer": "mitsuba", "integrator": "path", "max_depth": MAX_DEPTH, "spp": config.spp,
+                   "bsdf": "principled (specular 0.5, no sheen/clearcoat/transmission)", "film_filter": "box",
+                   "rgba": "straight (not premultiplied) sRGB-encoded colour, alpha from the render"},
+        "ground_truth": {"subpixel_samples": config.gt_samples**2, "alpha_channel": "coverage (PNG maps)", "background": 0,
+                         "basecolor": "sRGB-encoded 16-bit PNG", "roughness": "linear 16-bit PNG (GGX alpha = r^2)",
+                         "metallic": "linear 16-bit PNG", "normal": "EXR world-space unit xyz",
+                         "depth": "EXR camera z (OpenCV forward), 0 on background"},
+        "status": "incomplete",
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    write_scene_json(out, record)
+    for name, env in lights.items():
+        write_envmap(out, name, env)
+
+    splits = {"train": train_cameras, "test": test_cameras}
+    total = len(train_cameras) + len(test_cameras) * (2 + len(relight_envs)) + len(train_cameras)
+    bar = tqdm(total=total, desc="synth", unit="render", disable=not progress)
+    views: dict[str, list[View]] = {"train": [], "test": []}
+    scene = build_scene(parts, textures, lights[train_env].numpy())
+    for split_index, (split, cameras) in enumerate(splits.items()):
+        for index, camera in enumerate(cameras):
+            name = f"r_{index:03d}"
+            rgb, alpha = render_view(scene, camera, config.spp, render_seed(config.seed, 0, split_index, index))
+            views[split].append(View(name, torch.from_numpy(rgb), torch.from_numpy(alpha), camera))
+            bar.update()
+            write_ground_truth(out / split, name, cast_ground_truth(scene, textures, camera, config.gt_samples))
+            bar.update()
+    write_blender(out, views)
+    for light_index, env_name in enumerate(relight_envs, start=1):
+        scene = build_scene(parts, textures, lights[env_name].numpy())
+        for index, camera in enumerate(test_cameras):
+            rgb, alpha = render_view(scene, camera, config.spp, render_seed(config.seed, light_index, 1, index))
+            write_render(out / "test" / f"r_{index:03d}_relight_{env_name}.png", rgb, alpha)
+            bar.update()
+    bar.close()
+    record["status"] = "complete"
+    write_scene_json(out, record)
+    return SynthResult(out, variant, shape, train_env, relight_envs, time.perf_counter() - start)
