@@ -38,7 +38,7 @@ def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bo
     from matspray.synth import SynthConfig, make_object
 
     size = DEMO_SIZES[preset]
-    config = SynthConfig(shape=shape, seed=seed, res=size.res, views=size.views, test_views=size.test_views, spp=size.spp)
+    config = SynthConfig(shape=shape, seed=seed, resolution=size.res, train_views=size.views, test_views=size.test_views, spp=size.spp)
     if not (out / "scene.json").exists():
         make_object(config, out, progress=progress)
     return out
