@@ -70,12 +70,13 @@ class MaterialSource(nn.Module):
         elif variant == "supervised":  # free parameters, starting from an uninformed grey
             self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
 
-    def forward(self) -> Tensor:  # [N, 5]
+    def forward(self, index: Tensor | None = None) -> Tensor:  # [N, 5], or [K, 5] for the Gaussians `index` [K]
+        pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
         if self.merger is not None:
-            return self.merger(self.positions, self.values, self.seen)
+            return self.merger(pick(self.positions), pick(self.values), pick(self.seen))
         if self.variant == "supervised":
-            return torch.sigmoid(self.logits)
-        return projection_average(self.values, self.seen)
+            return torch.sigmoid(pick(self.logits))
+        return projection_average(pick(self.values), pick(self.seen))
 
     @property
     def trainable(self) -> bool:
@@ -147,6 +148,7 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
         return RefineResult(source().detach(), normals, source, envmap, history)
 
     frozen = FrozenViews(gaussians.detach(), [v.camera for v in views])
+    visible_ids = [torch.nonzero(frozen.visible(i)).squeeze(1) for i in range(len(views))]
     groups = [{"params": list(source.parameters()), "lr": config.merger_lr}]
     if envmap is not None:
         groups.append({"params": list(envmap.parameters()), "lr": config.envmap_lr})
@@ -158,7 +160,9 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     for step in bar:
         index = int(torch.randint(len(views), (1,), generator=generator))
         shading_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
-        terms = view_losses(frozen, index, source(), shading_normals, views[index], maps2d[index], envmap, config)
+        visible = visible_ids[index]  # the merger only runs for the Gaussians this view sees
+        materials = torch.zeros(len(gaussians), 5, device=device).index_copy(0, visible, source(visible))
+        terms = view_losses(frozen, index, materials, shading_normals, views[index], maps2d[index], envmap, config)
         total = config.material_weight * terms["material"] + terms.get("photo", 0.0)
         check_finite(step, **terms)
         optimizer.zero_grad(set_to_none=True)
