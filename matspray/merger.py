@@ -104,9 +104,8 @@ class NeuralMerger(nn.Module):
             w = merge_weights(self.mlps[name](inputs), seen, self.config.softmax)  # [N, V]
             weights[name] = w
             merged.append((w[..., None] * group_values).sum(1))
-        out = torch.cat(merged, dim=-1)
-        if not self.config.softmax:  # unconstrained weights can leave [0, 1]: keep materials valid
-            out = out.clamp(0.0, 1.0)
+        # unconstrained weights (no softmax) can leave [0, 1]; with softmax only rounding can: keep materials valid
+        out = torch.cat(merged, dim=-1).clamp(0.0, 1.0)
         return (out, weights) if return_weights else out
 
 

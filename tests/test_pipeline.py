@@ -1,0 +1,125 @@
+"""The method end to end on a tiny Mitsuba object: stages, artifacts, resuming, eval, report, relight."""
+
+import re
+import subprocess
+import sys
+from dataclasses import replace
+
+import pytest
+import torch
+
+from matspray.errors import DataError, NumericalError, RunError
+from matspray.pipeline import Pipeline, asset_stage, preset_config
+from matspray.refine import VARIANTS, check_finite
+
+pytest.importorskip("mitsuba")
+
+
+@pytest.fixture(scope="module")
+def tiny_object(tmp_path_factory):
+    from matspray.synth import SynthConfig, make_object
+
+    out = tmp_path_factory.mktemp("object") / "data"
+    make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), out, progress=False, notify=lambda _: None)
+    return out
+
+
+def tiny_config():
+    config = preset_config("test", predictor="simulated")
+    config.refine = replace(config.refine, iterations=8)
+    return config
+
+
+@pytest.fixture(scope="module")
+def finished_run(tiny_object, tmp_path_factory):
+    run = tmp_path_factory.mktemp("run") / "run"
+    pipeline = Pipeline(tiny_object, run, tiny_config(), progress=False, log=lambda _: None)
+    pipeline.run_all(VARIANTS)
+    return run
+
+
+def test_every_stage_writes_its_artifact(finished_run):
+    for path in ("config.yaml", "dataset.json", "timings.json", "materials2d/predictor.json", "geometry/gaussians.ply",
+                 "lift/projected.pt", "asset/asset.ply", "asset/envmap.exr", "asset/merger.pt"):
+        assert (finished_run / path).exists(), path
+    for variant in VARIANTS:
+        assert (finished_run / asset_stage(variant) / "asset.ply").exists()
+    timings = (finished_run / "timings.json").read_text()
+    for stage in ("materials2d", "geometry", "lift", "asset"):
+        assert f'"{stage}"' in timings
+    assert not list(finished_run.rglob("*.tmp-*")), "a temporary file was left behind"
+
+
+def test_asset_round_trip(finished_run):
+    from matspray.asset import read_asset
+
+    asset = read_asset(finished_run / "asset")
+    assert asset.materials.shape[1] == 5 and len(asset.gaussians) == len(asset.materials)
+    assert (asset.materials >= 0).all() and (asset.materials <= 1).all()
+    assert torch.allclose(asset.normals.norm(dim=-1), torch.ones(len(asset.normals)), atol=1e-4)
+
+
+def test_second_run_reuses_every_stage(tiny_object, finished_run):
+    messages = []
+    Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=messages.append).run_all(VARIANTS)
+    assert any("reusing asset/" in m for m in messages)
+    assert not any(m.startswith("geometry: 3D") for m in messages)
+
+
+def test_run_folder_of_another_dataset_is_refused(tmp_path, finished_run):
+    from matspray.synth import SynthConfig, make_object
+
+    other = tmp_path / "other"
+    make_object(SynthConfig(shape="sphere", seed=2, resolution=16, train_views=3, test_views=1, spp=2, env_height=16), other, progress=False, notify=lambda _: None)
+    with pytest.raises(RunError, match="made from another dataset"):
+        Pipeline(other, finished_run, tiny_config(), progress=False, log=lambda _: None)
+
+
+def test_eval_tables_and_report(tiny_object, finished_run):
+    from matspray.eval.report import write_report
+    from matspray.eval.run_eval import evaluate_run
+
+    metrics = evaluate_run(finished_run, tiny_object, progress=False)
+    assert set(metrics["variants"]) == set(VARIANTS)
+    summary = metrics["variants"]["full"]["summary"]
+    assert 5 < summary["relighting"]["psnr"] < 60 and 0 < summary["relighting"]["ssim"] <= 1
+    tables = (finished_run / "eval" / "tables.md").read_text()
+    assert "Table 1" in tables and "Proj. Average" in tables and "Without Softmax" in tables
+    report = write_report(finished_run, metrics, tiny_object)
+    page = report.read_text()
+    sources = re.findall(r'src="([^"]+)"', page)
+    assert len(sources) > 10
+    missing = [s for s in sources if not (report.parent / s).exists()]
+    assert not missing, f"report references files that do not exist: {missing}"
+    assert "SIMULATED" in page
+
+
+def test_relight_cli_writes_frames_and_video(finished_run, tmp_path):
+    out = tmp_path / "relit"
+    result = subprocess.run([sys.executable, "-m", "matspray", "relight", "--run", str(finished_run), "--env", "studio",
+                             "--views", "orbit", "--frames", "3", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert len(list(out.glob("orbit_*_studio.png"))) == 3
+    assert (out / "orbit_studio.mp4").stat().st_size > 0
+
+
+def test_relight_refuses_a_map_that_is_not_latlong(finished_run, tmp_path):
+    from matspray.data import write_image
+
+    write_image(tmp_path / "square.exr", torch.ones(8, 8, 3))
+    result = subprocess.run([sys.executable, "-m", "matspray", "relight", "--run", str(finished_run), "--env", str(tmp_path / "square.exr"),
+                             "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "lat-long" in result.stderr
+
+
+def test_eval_needs_ground_truth(tmp_path, finished_run):
+    with pytest.raises(DataError, match="not a MatSpray run folder"):
+        from matspray.eval.run_eval import evaluate_run
+
+        evaluate_run(tmp_path, None)
+
+
+def test_nan_loss_names_step_and_term():
+    with pytest.raises(NumericalError, match="refine step 7: the photo loss is nan"):
+        check_finite(7, material=torch.tensor(0.1), photo=torch.tensor(float("nan")))
