@@ -14,6 +14,7 @@ from matspray.errors import MatsprayError
 COMMANDS = [
     ("info", "describe a dataset folder and list every problem found"),
     ("synth", "a synthetic benchmark object with ground truth, rendered by Mitsuba 3"),
+    ("geometry", "fit 3D Gaussians (3DGS with normals) to the photos: RUN/geometry/gaussians.ply"),
     ("predict", "per-view 2D material maps (base color, roughness, metallic) into RUN/materials2d/"),
     ("run", "the whole method: predict, geometry, lift, refine (finished stages are reused)"),
     ("relight", "render a run's asset under a new environment light (PNG frames, orbit MP4)"),

@@ -1,0 +1,1 @@
+"""Gaussian Splatting geometry: training, densification, normals, PLY files."""
