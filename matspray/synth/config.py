@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 from matspray.errors import ConfigError
 
@@ -25,23 +25,26 @@ class SynthConfig:
     gt_samples: int = 4  # ground-truth subpixel rays per side (s x s per pixel)
     texture_height: int = 256  # texture rows per part (twice as many columns)
     overwrite: bool = False  # replace a different scene already in the output folder
-    extra: dict = field(default_factory=dict)  # free-form notes stored in scene.json
 
     def validate(self) -> None:
-        def check_int(name: str, value, low: int, high: int, flag: str) -> None:
+        """Raise ConfigError naming the flag of the first setting out of range; normalise env specs to str."""
+        for flag, value, low, high in (
+            ("--res", self.resolution, 8, MAX_RESOLUTION),
+            ("--views", self.train_views, 1, MAX_VIEWS),
+            ("--test-views", self.test_views, 0, MAX_VIEWS),
+            ("--spp", self.spp, 1, MAX_SPP),
+            ("--seed", self.seed, 0, 2**31 - 1),
+            ("--env-height", self.env_height, 8, 4096),
+            ("gt_samples", self.gt_samples, 1, 16),
+            ("texture_height", self.texture_height, 8, 4096),
+        ):
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise ConfigError(f"{flag} must be an integer in [{low}, {high}], got {value!r}")
-
-        check_int("resolution", self.resolution, 8, MAX_RESOLUTION, "--res")
-        check_int("train_views", self.train_views, 1, MAX_VIEWS, "--views")
-        check_int("test_views", self.test_views, 0, MAX_VIEWS, "--test-views")
-        check_int("spp", self.spp, 1, MAX_SPP, "--spp")
-        check_int("seed", self.seed, 0, 2**31 - 1, "--seed")
-        check_int("env_height", self.env_height, 8, 4096, "--env-height")
-        check_int("gt_samples", self.gt_samples, 1, 16, "--gt-samples")
-        check_int("texture_height", self.texture_height, 8, 4096, "--texture-height")
-        if self.relight_envs is not None and len(set(self.relight_envs)) != len(self.relight_envs):
-            raise ConfigError(f"--relight-env lists a light twice: {', '.join(self.relight_envs)}")
+        self.env = str(self.env)
+        if self.relight_envs is not None:
+            self.relight_envs = [str(spec) for spec in self.relight_envs]  # as scene.json will hold them
+            if len(set(self.relight_envs)) != len(self.relight_envs):
+                raise ConfigError(f"--relight-env lists a light twice: {', '.join(self.relight_envs)}")
 
     def identity(self) -> dict:
         """Everything that determines the files (all settings but `overwrite`)."""

@@ -27,13 +27,14 @@ ENVMAP_TO_WORLD = np.array([[0.0, 0.0, -1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 
 OPENCV_TO_MITSUBA_CAMERA = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
-def select_variant(preferred: tuple[str, ...] = VARIANTS) -> str:
-    """Set the first Mitsuba variant of `preferred` that loads here and return its name."""
+def select_variant(preferred: tuple[str, ...] | None = None) -> str:
+    """Set the first Mitsuba variant of `preferred` (default VARIANTS) that loads here and return its name."""
     try:
         import mitsuba as mi
     except ImportError:
         raise ConfigError("Mitsuba 3 is not installed; `matspray synth` needs it: pip install 'matspray[synth]'") from None
     current = mi.variant()
+    preferred = VARIANTS if preferred is None else preferred
     for variant in preferred:
         if current == variant:
             return variant

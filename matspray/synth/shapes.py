@@ -198,8 +198,8 @@ def blob(rng: np.random.Generator) -> list[Part]:
 
 
 def composite(rng: np.random.Generator) -> list[Part]:
-    """A pedestal block, a ball resting on it, a leaning ring through both and a capsule lying in front:
-    the parts cast shadows on, reflect and hide each other."""
+    """A pedestal block, a ball resting on it, a leaning ring through both and a rod lying at the
+    block's foot: the parts cast shadows on, reflect and hide each other."""
     spin = rotation_about([0.0, 0.0, 1.0], rng.uniform(0.0, 2.0 * np.pi))
     ring_lean = rotation_about([1.0, 0.0, 0.0], np.radians(rng.uniform(55.0, 75.0)))
     lying = rotation_about([0.0, 1.0, 0.0], np.pi / 2)
@@ -207,7 +207,7 @@ def composite(rng: np.random.Generator) -> list[Part]:
         ("block", rounded_cube_surface(1.0, 8.0), np.eye(3), [0.0, 0.0, -0.62], 0.38),
         ("ball", sphere_surface(1.0), tilt(rng, 30.0), [0.05, 0.0, 0.14], 0.4),
         ("ring", torus_surface(0.75, 0.18), ring_lean, [0.0, 0.0, 0.05], 0.8),
-        ("rod", capsule_surface(0.3, 0.7), lying, [0.05, 0.62, -0.78], 0.22),
+        ("rod", capsule_surface(0.3, 0.7), lying, [0.05, 0.46, -0.93], 0.22),
     ]
     parts = []
     for name, surface, rotation, offset, scale in layout:
