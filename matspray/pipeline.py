@@ -11,6 +11,7 @@ from pathlib import Path
 
 import torch
 
+from matspray.device import resolve_device
 from matspray.data import Scene, load_scene
 from matspray.errors import ConfigError
 from matspray.lift import LiftConfig, LiftResult, lift
@@ -48,18 +49,6 @@ def preset_config(preset: str, **overrides) -> PipelineConfig:
     config = replace(config, **overrides)
     config.geometry = geometry_preset(preset, seed=config.seed)
     return config
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise ConfigError(f"--device: '{name}' is not a device (use auto, cpu, cuda or cuda:N)") from None
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("--device cuda: no CUDA device is available; use --device cpu")
-    return device
 
 
 def dataset_identity(scene: Scene) -> dict:

@@ -13,7 +13,8 @@ from matspray.gaussians import Gaussians
 from matspray.geometry.config import preset
 from matspray.geometry.densify import DensityControl, split_gaussians
 from matspray.geometry.init import hull_surface_points, initial_gaussians, neighbour_spacing
-from matspray.geometry.losses import flatten_loss, normal_consistency_loss, ssim
+from matspray.eval.metrics import ssim_loss
+from matspray.geometry.losses import flatten_loss, normal_consistency_loss
 from matspray.geometry.normals import consensus_normals, depth_normals, oriented_normals, render_normals
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
 
@@ -122,9 +123,9 @@ def test_normals_face_the_camera_and_agree_across_views():
 def test_losses():
     g = torch.Generator().manual_seed(0)
     image = torch.rand(24, 20, 3, generator=g)
-    assert abs(float(ssim(image, image)) - 1) < 1e-6
+    assert abs(1 - float(ssim_loss(image, image)) - 1) < 1e-6
     noisy = (image + 0.1 * torch.randn(24, 20, 3, generator=g)).clamp(0, 1)
-    assert float(ssim(image, noisy)) < float(ssim(image, (image + noisy) / 2)) < 1
+    assert 1 - float(ssim_loss(image, noisy)) < 1 - float(ssim_loss(image, (image + noisy) / 2)) < 1
     assert math.isclose(float(flatten_loss(torch.log(torch.tensor([[1.0, 0.1, 0.5], [2.0, 2.0, 2.0]])))), (0.2 + 1) / 2, rel_tol=1e-6)
     n = torch.nn.functional.normalize(torch.randn(5, 6, 3, generator=g), dim=-1)
     weights = torch.ones(5, 6)

@@ -12,6 +12,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from matspray.eval import metrics
+
 from matspray.data.camera import Camera
 from matspray.data.images import atomic_target, linear_to_srgb, read_raw, resize, srgb_to_linear, write_image, write_raw
 from matspray.data.scene import View
@@ -55,9 +57,7 @@ def target_srgb(view: View, background: Tensor) -> Tensor:  # -> [H, W, 3] the p
 
 def psnr(pred: Tensor, target: Tensor, weights: Tensor | None = None) -> float:
     """PSNR (dB) of [H, W, C] values clamped to [0, 1]; `weights` [H, W] restrict the pixels."""
-    squared = (pred.clamp(0, 1) - target.clamp(0, 1)).square().mean(-1)
-    mse = float(squared.mean()) if weights is None else float((squared * weights).sum() / weights.sum().clamp_min(1e-12))
-    return math.inf if mse == 0 else -10.0 * math.log10(mse)
+    return metrics.psnr(pred.detach().clamp(0, 1), target.clamp(0, 1), weights)
 
 
 def true_normals(view: View) -> Tensor | None:

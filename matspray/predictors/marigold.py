@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from matspray.device import resolve_device
 from matspray.data.images import linear_to_srgb, srgb_to_linear
 from matspray.data.scene import View
 from matspray.errors import ConfigError, DataError, file_error
@@ -52,18 +53,6 @@ class MarigoldConfig:
             raise ConfigError(f"--steps must be >= 1, got {self.steps}")
         if self.basecolor_encoding is not None:
             self.basecolor_encoding = check_encoding(self.basecolor_encoding)
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise ConfigError(f"--device: unknown device '{name}'; use auto, cpu, cuda or cuda:N") from None
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError(f"--device {name}: this torch build or machine has no CUDA; use --device cpu")
-    return device
 
 
 def load_pipeline(weights: str):
