@@ -43,11 +43,13 @@ def preset_config(preset: str, **overrides) -> PipelineConfig:
     if preset == "test":
         config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=2), refine=RefineConfig(iterations=30, envmap_height=8))
     elif preset == "demo":
-        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=4), refine=RefineConfig(iterations=600, envmap_height=16))
+        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=4), refine=RefineConfig(iterations=400, envmap_height=16))
     else:
         config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=16), refine=RefineConfig(iterations=10000, envmap_height=32))
     config = replace(config, **overrides)
-    config.geometry = geometry_preset(preset, seed=config.seed)
+    # the demo must finish on 2 CPU cores in minutes: fewer geometry steps than the geometry stage's own preset
+    geometry_overrides = {"iterations": 2000} if preset == "demo" else {}
+    config.geometry = geometry_preset(preset, seed=config.seed, **geometry_overrides)
     return config
 
 
