@@ -13,6 +13,7 @@ from matspray.errors import MatsprayError
 # (module under matspray.cli, one-line help); order is the order of `matspray --help`
 COMMANDS = [
     ("info", "describe a dataset folder and list every problem found"),
+    ("geometry", "fit 3D Gaussians (3DGS with normals) to the photos: RUN/geometry/gaussians.ply"),
 ]
 
 

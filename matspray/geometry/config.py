@@ -1,0 +1,114 @@
+"""Settings of geometry training, with the presets of DESIGN.md (test, demo, paper)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+from matspray.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class GeometryConfig:
+    preset: str = "demo"
+    seed: int = 0
+    resolution: int = 128  # longest image side used for training (views are downscaled to it); 0: as loaded
+    iterations: int = 3000
+
+    # initialisation: the sparse points of a COLMAP scene, points on the masks' visual hull, or random
+    # points in the object bounds; isotropic, init_scale times the spacing of their neighbours
+    init_points: int = 8000
+    init_opacity: float = 0.3
+    init_scale: float = 0.7
+    sh_degree: int = 3
+    sh_degree_every: int = 500  # raise the active SH degree by one every this many iterations
+
+    # learning rates (3DGS); positions are scaled by the scene extent and decay exponentially
+    lr_means: float = 1.6e-4
+    lr_means_final: float = 1.6e-6
+    lr_sh_dc: float = 2.5e-3
+    lr_sh_rest: float = 2.5e-3 / 20
+    lr_opacity: float = 0.05
+    lr_scales: float = 5e-3
+    lr_quats: float = 1e-3
+
+    # adaptive density control (3DGS)
+    densify_from: int = 200
+    densify_until: int = 2000
+    densify_every: int = 100
+    opacity_reset_every: int = 1000
+    grad_threshold: float = 2e-4  # mean screen-space gradient (NDC units) that triggers clone / split
+    percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
+    prune_opacity: float = 0.005
+    max_screen_fraction: float = 0.15  # prune Gaussians wider than this fraction of the image (after a reset)
+    max_world_fraction: float = 0.1  # ... or larger than this fraction of the scene extent
+    max_gaussians: int = 40000
+
+    # losses
+    ssim_weight: float = 0.2  # L = (1 - w) L1 + w (1 - SSIM) on sRGB values
+    alpha_weight: float = 0.5  # L1 between rendered and true alpha (data with masks)
+    flatten_weight: float = 0.05  # mean ratio of the shortest to the middle axis of each Gaussian
+    normal_weight: float = 0.05  # 1 - cos between rendered normals and normals of the rendered depth
+    normal_from: float = 0.3  # fraction of the iterations after which the normal loss is on
+    random_background: bool = True  # composite on a random colour each step (data with masks)
+
+    checkpoint_every: int = 500
+
+    def __post_init__(self) -> None:
+        positive = ["iterations", "init_points", "densify_every", "opacity_reset_every", "max_gaussians", "checkpoint_every", "sh_degree_every"]
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ConfigError(f"geometry config: {name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.sh_degree <= 3:
+            raise ConfigError(f"geometry config: sh_degree must be 0..3, got {self.sh_degree}")
+        if self.resolution < 0:
+            raise ConfigError(f"geometry config: resolution must be >= 0 (0 keeps the images' size), got {self.resolution}")
+        for name in ("ssim_weight", "normal_from", "init_opacity"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ConfigError(f"geometry config: {name} must be in [0, 1], got {getattr(self, name)}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(values: dict) -> "GeometryConfig":
+        known = {f.name for f in fields(GeometryConfig)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ConfigError(f"geometry config: unknown settings {', '.join(unknown)}")
+        return GeometryConfig(**values)
+
+
+PRESETS = {
+    "test": GeometryConfig(
+        preset="test", resolution=40, iterations=60, init_points=1000, sh_degree=1, sh_degree_every=30,
+        densify_from=20, densify_until=50, densify_every=10, opacity_reset_every=1000, max_gaussians=3000,
+        checkpoint_every=20, normal_from=0.5,
+    ),
+    "demo": GeometryConfig(preset="demo"),
+    "paper": GeometryConfig(
+        preset="paper", resolution=512, iterations=30000, init_points=100000, sh_degree_every=1000,
+        densify_from=500, densify_until=15000, densify_every=100, opacity_reset_every=3000,
+        max_screen_fraction=20 / 512, max_gaussians=1_000_000, checkpoint_every=2000, normal_from=0.25,
+    ),
+}
+
+
+# iteration counts that follow `iterations` when only that is overridden
+SCHEDULE = ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "sh_degree_every", "checkpoint_every")
+
+
+def preset(name: str, **overrides) -> GeometryConfig:
+    """The named preset with some settings replaced. Overriding `iterations` alone stretches the
+    schedule (densification window, opacity resets, SH degree steps, checkpoints) to match."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown geometry preset {name!r}; choose one of {', '.join(PRESETS)}")
+    known = {f.name for f in fields(GeometryConfig)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ConfigError(f"geometry config: unknown settings {', '.join(unknown)}")
+    base = PRESETS[name]
+    if "iterations" in overrides and overrides["iterations"] >= 1:
+        ratio = overrides["iterations"] / base.iterations
+        for key in SCHEDULE:
+            overrides.setdefault(key, max(1, round(getattr(base, key) * ratio)))
+    return replace(base, **overrides)

@@ -1,0 +1,105 @@
+"""Adaptive density control of 3DGS: clone small and split large Gaussians whose projected centres
+receive large gradients, prune transparent or oversized ones, reset opacities now and then."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from matspray.gaussians import Gaussians
+from matspray.geometry.config import GeometryConfig
+from matspray.geometry.optim import GaussianOptimizer
+from matspray.render.rasterize import RasterOutput
+
+RESET_OPACITY = 0.01
+SPLIT_INTO = 2
+SPLIT_SHRINK = 0.8 * SPLIT_INTO  # children are 1.6 times smaller than their parent (3DGS)
+
+
+class DensityControl:
+    """Running screen-space gradient statistics and the densify / prune / reset schedule."""
+
+    def __init__(self, config: GeometryConfig, extent: float, num_gaussians: int, device=None):
+        self.config, self.extent = config, float(extent)
+        self.reset_stats(num_gaussians, device)
+
+    def reset_stats(self, num_gaussians: int, device=None) -> None:
+        self.grad_sum = torch.zeros(num_gaussians, device=device)  # summed |d loss / d mean2d| (NDC units)
+        self.count = torch.zeros(num_gaussians, device=device)  # views in which the Gaussian was visible
+        self.max_radius = torch.zeros(num_gaussians, device=device)  # largest 3-sigma radius, fraction of the image
+
+    def observe(self, out: RasterOutput, width: int, height: int) -> None:
+        """Record one view's statistics; call after backward, with out.means2d.retain_grad() done before."""
+        if out.means2d.grad is None:
+            raise RuntimeError("DensityControl.observe: call out.means2d.retain_grad() before backward")
+        visible = out.visible
+        ndc = out.means2d.grad.detach() * torch.tensor([0.5 * width, 0.5 * height], device=visible.device)
+        self.grad_sum[visible] += ndc[visible].norm(dim=-1).to(self.grad_sum)
+        self.count[visible] += 1
+        radius = out.radii.detach().to(self.max_radius) / max(width, height)
+        self.max_radius = torch.where(visible, torch.maximum(self.max_radius, radius), self.max_radius)
+
+    def step(self, iteration: int, optimizer: GaussianOptimizer, generator: torch.Generator) -> str:
+        """Apply the schedule after optimisation step `iteration` (0-based); returns what it did ('' if nothing)."""
+        c, done = self.config, iteration + 1
+        events = []
+        if done >= c.densify_until:
+            return ""
+        if done > c.densify_from and done % c.densify_every == 0:
+            events.append(self.densify_and_prune(optimizer, generator, prune_large=done > c.opacity_reset_every))
+        if done % c.opacity_reset_every == 0:
+            opacities = optimizer.params["opacity_logits"].detach()
+            optimizer.replace_values("opacity_logits", torch.minimum(opacities, torch.logit(torch.tensor(RESET_OPACITY))))
+            events.append("opacity reset")
+        return ", ".join(events)
+
+    def densify_and_prune(self, optimizer: GaussianOptimizer, generator: torch.Generator, prune_large: bool) -> str:
+        c = self.config
+        g = optimizer.gaussians().detach()
+        n = len(g)
+        grads = torch.where(self.count > 0, self.grad_sum / self.count.clamp_min(1), torch.zeros_like(self.grad_sum))
+        candidates = grads >= c.grad_threshold
+        budget = max(0, c.max_gaussians - n)
+        if int(candidates.sum()) > budget:  # over the cap: only the strongest gradients grow
+            order = torch.argsort(torch.where(candidates, grads, torch.full_like(grads, -1.0)), descending=True)
+            candidates = torch.zeros_like(candidates)
+            candidates[order[:budget]] = True
+        largest = g.scales.max(dim=-1).values
+        clone = candidates & (largest <= c.percent_dense * self.extent)
+        split = candidates & ~clone
+        children = split_gaussians(g.subset(split), generator)
+        appended = concat([g.subset(clone), children])
+
+        opacities = g.opacities
+        prune = opacities < c.prune_opacity
+        if prune_large:
+            prune |= (self.max_radius > c.max_screen_fraction) | (largest > c.max_world_fraction * self.extent)
+        keep = ~(prune | split)
+        optimizer.edit(keep, appended)
+        self.reset_stats(len(optimizer.params["means"]), grads.device)
+        return f"+{int(clone.sum())} cloned, +{len(children)} split from {int(split.sum())}, -{int((prune & ~split).sum())} pruned"
+
+
+def split_gaussians(g: Gaussians, generator: torch.Generator) -> Gaussians:
+    """SPLIT_INTO children per Gaussian, centred at samples of it, SPLIT_SHRINK times smaller."""
+    if len(g) == 0:
+        return g
+    repeated = concat([g] * SPLIT_INTO)
+    noise = torch.randn(repeated.means.shape, generator=generator).to(repeated.means)
+    offsets = (repeated.rotation_matrices() @ (noise * repeated.scales)[:, :, None])[..., 0]
+    return Gaussians(
+        repeated.means + offsets, repeated.log_scales - torch.log(torch.tensor(SPLIT_SHRINK)), repeated.quats,
+        repeated.opacity_logits, repeated.sh,
+    )
+
+
+def concat(parts: list[Gaussians]) -> Gaussians:
+    return Gaussians(*(torch.cat([getattr(p, name) for p in parts]) for name in ("means", "log_scales", "quats", "opacity_logits", "sh")))
+
+
+def stats_state(control: DensityControl) -> dict[str, Tensor]:
+    return {"grad_sum": control.grad_sum, "count": control.count, "max_radius": control.max_radius}
+
+
+def load_stats_state(control: DensityControl, state: dict[str, Tensor]) -> None:
+    control.grad_sum, control.count, control.max_radius = state["grad_sum"], state["count"], state["max_radius"]

@@ -1,0 +1,115 @@
+"""Rendering views of trained Gaussians (sRGB colour, alpha, normals, depth) and novel-view metrics."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from matspray.data.camera import Camera
+from matspray.data.images import atomic_target, linear_to_srgb, read_raw, resize, srgb_to_linear, write_image, write_raw
+from matspray.data.scene import View
+from matspray.gaussians import Gaussians
+from matspray.geometry.normals import angular_error_degrees, normal_map_to_rgb, oriented_normals
+from matspray.render.rasterize import RasterOutput, rasterize
+from matspray.render.sh import sh_colors
+
+
+@dataclass
+class ViewRender:
+    rgb: Tensor  # [H, W, 3] sRGB-encoded colour composited over the background (not clamped)
+    alpha: Tensor  # [H, W]
+    normals: Tensor  # [H, W, 3] world-space blended normals (unit where covered, else 0)
+    depth: Tensor  # [H, W] expected camera z (0 where nothing is covered)
+    raster: RasterOutput  # the rasterizer's full output (screen-space means, radii)
+
+
+def render_view(gaussians: Gaussians, camera: Camera, sh_degree: int | None = None, background: Tensor | None = None) -> ViewRender:
+    """Colour and normals in one rasterization. The Gaussians' SH give sRGB-encoded colour, as in
+    3DGS, so that 3DGS viewers show the PLY with the right colours; `background` [3] is sRGB too."""
+    colours = sh_colors(gaussians, camera, sh_degree)
+    normals = oriented_normals(gaussians, camera)
+    if background is None:
+        background = torch.zeros(3, device=gaussians.device)
+    background = torch.cat([background.to(colours), torch.zeros(3, dtype=colours.dtype, device=colours.device)])
+    out = rasterize(gaussians, camera, torch.cat([colours, normals], dim=1), background)
+    return ViewRender(
+        rgb=out.features[..., :3], alpha=out.alpha, normals=F.normalize(out.features[..., 3:], dim=-1),
+        depth=out.expected_depth, raster=out,
+    )
+
+
+def target_srgb(view: View, background: Tensor) -> Tensor:  # -> [H, W, 3] the photo in sRGB over `background`
+    rgb = linear_to_srgb(view.image)
+    if view.alpha is None:
+        return rgb
+    alpha = view.alpha[..., None]
+    return rgb * alpha + background.to(rgb) * (1 - alpha)
+
+
+def psnr(pred: Tensor, target: Tensor, weights: Tensor | None = None) -> float:
+    """PSNR (dB) of [H, W, C] values clamped to [0, 1]; `weights` [H, W] restrict the pixels."""
+    squared = (pred.clamp(0, 1) - target.clamp(0, 1)).square().mean(-1)
+    mse = float(squared.mean()) if weights is None else float((squared * weights).sum() / weights.sum().clamp_min(1e-12))
+    return math.inf if mse == 0 else -10.0 * math.log10(mse)
+
+
+def true_normals(view: View) -> Tensor | None:
+    """World-space ground-truth normals [H, W, 3] from `{name}_normal.exr` next to the view's image
+    (the layout `matspray synth` writes), resized to the view; None when there is no such file."""
+    if view.path is None:
+        return None
+    path = Path(view.path).with_name(f"{view.name}_normal.exr")
+    if not path.exists():
+        return None
+    normals = read_raw(path)[..., :3].float()
+    if normals.shape[:2] != (view.height, view.width):
+        normals = resize(normals, view.height, view.width)
+    return F.normalize(normals, dim=-1)
+
+
+def evaluate_views(gaussians: Gaussians, views: list[View], sh_degree: int | None = None, out_dir=None) -> dict:
+    """Novel-view metrics of `views`; with `out_dir`, writes renders/{view}.png (colour on white) and
+    normals/{view}.png ((n + 1) / 2, world space) there.
+
+    psnr: whole image, both composited on white. psnr_masked: only the object's pixels (weighted by the
+    true alpha). normal_error_deg: mean angle between rendered and true normals on the object (where
+    `{view}_normal.exr` exists; uncovered pixels count as 90 degrees)."""
+    white = torch.ones(3)
+    per_view = {}
+    for view in views:
+        with torch.no_grad():
+            render = render_view(gaussians, view.camera, sh_degree, white)
+        target = target_srgb(view, white)
+        entry = {"psnr": psnr(render.rgb, target)}
+        if view.alpha is not None and float(view.alpha.sum()) > 0:
+            entry["psnr_masked"] = psnr(render.rgb, target, view.alpha)
+        normals = true_normals(view)
+        if normals is not None:
+            on_object = (view.alpha > 0.5) if view.alpha is not None else (normals.norm(dim=-1) > 0.5)
+            if bool(on_object.any()):
+                entry["normal_error_deg"] = float(angular_error_degrees(render.normals, normals)[on_object].mean())
+        per_view[view.name] = entry
+        if out_dir is not None:
+            out_dir = Path(out_dir)
+            write_image(out_dir / "renders" / f"{view.name}.png", srgb_to_linear(render.rgb.clamp(0, 1)))
+            write_raw(out_dir / "normals" / f"{view.name}.png", normal_map_to_rgb(render.normals) * (render.alpha[..., None] > 0))
+    summary = {"views": per_view}
+    for key in ("psnr", "psnr_masked", "normal_error_deg"):
+        values = [v[key] for v in per_view.values() if key in v]
+        summary[key] = sum(values) / len(values) if values else None
+    return summary
+
+
+def write_json(path, data) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    os.replace(tmp, path)

@@ -1,0 +1,126 @@
+"""Initial Gaussians: COLMAP points when the scene has them; with masks, points on the visual hull's
+surface (the first point along a ray through an object pixel that every mask calls object), coloured
+by that pixel; otherwise random points in the object bounds."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from matspray.data.images import linear_to_srgb
+from matspray.data.scene import Scene, View
+from matspray.errors import DataError
+from matspray.gaussians import Gaussians
+from matspray.render.sh import num_sh_bases, rgb_to_sh_dc
+
+MIN_COLMAP_POINTS = 100
+
+
+def initial_gaussians(scene: Scene, views: list[View], count: int, sh_degree: int, opacity: float,
+                      generator: torch.Generator, scale: float = 1.0) -> Gaussians:
+    """`count` isotropic Gaussians (fewer with COLMAP points or thin masks), `scale` times the RMS
+    distance to their 3 nearest neighbours, coloured by the sRGB colour they project to."""
+    if scene.points is not None and len(scene.points) >= MIN_COLMAP_POINTS:
+        points = scene.points.float()
+        if len(points) > count:
+            points = points[torch.randperm(len(points), generator=generator)[:count]]
+        colours = projected_colours(points, views)
+    elif any(v.alpha is not None for v in views):
+        points, colours = hull_surface_points(scene.bounds.float(), views, count, generator)
+    else:
+        bounds = scene.bounds.float()
+        points = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count, 3, generator=generator)
+        colours = projected_colours(points, views)
+    sh = torch.zeros(len(points), num_sh_bases(sh_degree), 3)
+    sh[:, 0] = rgb_to_sh_dc(colours)
+    quats = torch.zeros(len(points), 4)
+    quats[:, 0] = 1.0
+    return Gaussians(
+        means=points, log_scales=torch.log(scale * neighbour_spacing(points))[:, None].repeat(1, 3), quats=quats,
+        opacity_logits=torch.full((len(points),), float(torch.logit(torch.tensor(opacity)))), sh=sh,
+    )
+
+
+def hull_surface_points(bounds: Tensor, views: list[View], count: int, generator: torch.Generator,
+                        samples_per_ray: int = 128) -> tuple[Tensor, Tensor]:
+    """About `count` points [P, 3] on the visual hull of the masked views, with sRGB colours [P, 3].
+
+    Rays through random object pixels (alpha > 0.5) of every masked view are sampled across the
+    bounds [2, 3]; the first sample inside every mask that sees it is the hull's surface, as seen
+    from that view."""
+    masked = [v for v in views if v.alpha is not None]
+    per_view = -(-count // len(masked))
+    points, colours = [], []
+    for view in masked:
+        weights = (view.alpha.reshape(-1) > 0.5).float()
+        if float(weights.sum()) == 0:
+            continue
+        picks = torch.multinomial(weights, per_view, replacement=True, generator=generator)
+        jitter = torch.rand(per_view, 2, generator=generator)
+        pixels = torch.stack([picks % view.width, torch.div(picks, view.width, rounding_mode="floor")], -1).float() + jitter
+        origins, dirs = view.camera.rays_through(pixels)
+        near, far = box_entry_exit(origins, dirs, bounds)
+        steps = (torch.arange(samples_per_ray) + 0.5) / samples_per_ray
+        t = near[:, None] + (far - near)[:, None] * steps  # [R, S]
+        samples = (origins[:, None, :] + t[..., None] * dirs[:, None, :]).reshape(-1, 3)
+        inside = torch.ones(len(samples), dtype=torch.bool)
+        for other in masked:
+            values, seen = sample_image(other.alpha[..., None], other, samples)
+            inside &= ~seen | (values[:, 0] > 0.5)
+        inside = inside.reshape(per_view, samples_per_ray) & (far > near)[:, None]
+        hit = inside.any(dim=1)
+        first = torch.argmax(inside.int(), dim=1)
+        rays = torch.nonzero(hit).squeeze(1)
+        points.append(origins[rays] + t[rays, first[rays], None] * dirs[rays])
+        colours.append(linear_to_srgb(view.image)[pixels[rays, 1].long(), pixels[rays, 0].long()])
+    points = torch.cat(points) if points else torch.zeros(0, 3)
+    if len(points) < max(1, count // 100):
+        raise DataError(
+            f"the masks leave only {len(points)} initial points on the object "
+            "(check that the masks, i.e. the alpha channels, show the object and that the cameras are right: matspray info)"
+        )
+    return points, torch.cat(colours)
+
+
+def box_entry_exit(origins: Tensor, dirs: Tensor, bounds: Tensor) -> tuple[Tensor, Tensor]:  # -> [R], [R]
+    """Ray parameters where rays enter and leave the box [2, 3] (far < near when they miss it)."""
+    safe = torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
+    t0, t1 = (bounds[0] - origins) / safe, (bounds[1] - origins) / safe
+    near = torch.minimum(t0, t1).max(dim=-1).values.clamp_min(0)
+    far = torch.maximum(t0, t1).min(dim=-1).values
+    return near, far
+
+
+def sample_image(image: Tensor, view: View, points: Tensor) -> tuple[Tensor, Tensor]:
+    """Nearest-pixel values [P, C] of `image` [H, W, C] at the projections of `points` [P, 3], and
+    whether each point lies in front of the camera and inside the image [P]."""
+    pixels, depth = view.camera.project(points)
+    cols, rows = pixels[:, 0].floor().long(), pixels[:, 1].floor().long()
+    seen = (depth > 0) & (cols >= 0) & (cols < view.width) & (rows >= 0) & (rows < view.height)
+    values = image[rows.clamp(0, view.height - 1), cols.clamp(0, view.width - 1)]
+    return values, seen
+
+
+def projected_colours(points: Tensor, views: list[View]) -> Tensor:  # [P, 3] -> [P, 3] sRGB
+    """Mean sRGB colour at each point's projection over the views where it lands on the object."""
+    total, weight = torch.zeros(len(points), 3), torch.zeros(len(points), 1)
+    for view in views:
+        colours, seen = sample_image(linear_to_srgb(view.image), view, points)
+        w = seen.float()[:, None]
+        if view.alpha is not None:
+            w = w * sample_image(view.alpha[..., None], view, points)[0]
+        total += colours * w
+        weight += w
+    return torch.where(weight > 0, total / weight.clamp_min(1e-8), torch.full_like(total, 0.5))
+
+
+def neighbour_spacing(points: Tensor, k: int = 3, chunk: int = 2048) -> Tensor:  # [P, 3] -> [P]
+    """Root mean squared distance to the k nearest other points (3DGS's initial scale)."""
+    out = torch.empty(len(points))
+    k = min(k, max(1, len(points) - 1))
+    for start in range(0, len(points), chunk):
+        d2 = torch.cdist(points[start:start + chunk], points).square()
+        d2[torch.arange(d2.shape[0]), torch.arange(start, start + d2.shape[0])] = float("inf")
+        nearest = torch.topk(d2, k, dim=1, largest=False).values
+        out[start:start + chunk] = nearest.mean(dim=1).sqrt()
+    return out.clamp_min(1e-7)

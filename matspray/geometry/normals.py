@@ -1,0 +1,79 @@
+"""Normals of flat Gaussians: per-Gaussian shortest axes, rendered normal maps, normals of a depth map."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from matspray.data.camera import Camera
+from matspray.gaussians import Gaussians
+from matspray.render.rasterize import rasterize
+
+
+def shortest_axes(gaussians: Gaussians) -> Tensor:  # [N, 3] unit, unoriented; differentiable w.r.t. quats
+    return gaussians.normals()
+
+
+def oriented_normals(gaussians: Gaussians, camera: Camera) -> Tensor:  # [N, 3] unit
+    """Each Gaussian's shortest axis, flipped to face `camera` (the side the camera sees)."""
+    axes = shortest_axes(gaussians)
+    to_camera = camera.center.to(gaussians.means) - gaussians.means
+    sign = torch.where((axes * to_camera).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(axes)
+    return axes * sign
+
+
+def consensus_normals(gaussians: Gaussians, cameras: list[Camera]) -> Tensor:  # [N, 3] unit
+    """Shortest axes oriented once for all views: towards the side from which the Gaussian contributes
+    most to the training images. A Gaussian's blending weight summed over a view's pixels is the
+    gradient of the rendered alpha sum w.r.t. a zero feature, so one backward pass per view gives it."""
+    g = gaussians.detach()
+    axes = shortest_axes(g)
+    vote = torch.zeros(len(g), dtype=axes.dtype, device=axes.device)
+    for camera in cameras:
+        probe = torch.zeros(len(g), 1, dtype=axes.dtype, device=axes.device, requires_grad=True)
+        out = rasterize(g, camera, probe)
+        (weights,) = torch.autograd.grad(out.features.sum(), probe)
+        facing = torch.sign((axes * (camera.center.to(axes) - g.means)).sum(-1))
+        vote += weights[:, 0] * facing
+    return axes * torch.where(vote < 0, -1.0, 1.0).to(axes)[:, None]
+
+
+def camera_points(depth: Tensor, camera: Camera) -> Tensor:  # [H, W] z-depth -> [H, W, 3] world points
+    """Back-project pixel centres with their camera z."""
+    height, width = depth.shape
+    K = camera.K.to(depth)
+    rows, cols = torch.meshgrid(torch.arange(height, device=depth.device, dtype=depth.dtype),
+                                torch.arange(width, device=depth.device, dtype=depth.dtype), indexing="ij")
+    x = (cols + 0.5 - K[0, 2]) / K[0, 0]
+    y = (rows + 0.5 - K[1, 2]) / K[1, 1]
+    cam = torch.stack([x, y, torch.ones_like(x)], dim=-1) * depth[..., None]
+    c2w = camera.camtoworld.to(depth)
+    return cam @ c2w[:3, :3].T + c2w[:3, 3]
+
+
+def depth_normals(depth: Tensor, camera: Camera) -> Tensor:  # [H, W] -> [H, W, 3] world, unit; zero on the border
+    """Normals of the surface described by a z-depth map: cross product of central differences of the
+    back-projected points, oriented towards the camera."""
+    points = camera_points(depth, camera)
+    dx = points[1:-1, 2:] - points[1:-1, :-2]
+    dy = points[2:, 1:-1] - points[:-2, 1:-1]
+    normals = F.normalize(torch.linalg.cross(dy, dx, dim=-1), dim=-1)
+    to_camera = camera.center.to(depth) - points[1:-1, 1:-1]
+    normals = torch.where((normals * to_camera).sum(-1, keepdim=True) < 0, -normals, normals)
+    return F.pad(normals.permute(2, 0, 1), (1, 1, 1, 1)).permute(1, 2, 0)
+
+
+def render_normals(gaussians: Gaussians, camera: Camera) -> tuple[Tensor, Tensor]:
+    """Normal map [H, W, 3] (world, unit where covered, zero elsewhere) and alpha [H, W]."""
+    out = rasterize(gaussians, camera, oriented_normals(gaussians, camera))
+    return F.normalize(out.features, dim=-1), out.alpha
+
+
+def normal_map_to_rgb(normals: Tensor) -> Tensor:  # [H, W, 3] unit -> [H, W, 3] in [0, 1] (n + 1) / 2
+    return (normals * 0.5 + 0.5).clamp(0.0, 1.0)
+
+
+def angular_error_degrees(a: Tensor, b: Tensor) -> Tensor:  # [..., 3], [..., 3] -> [...]
+    cos = (F.normalize(a, dim=-1) * F.normalize(b, dim=-1)).sum(-1).clamp(-1.0, 1.0)
+    return torch.rad2deg(torch.acos(cos))

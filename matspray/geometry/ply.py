@@ -1,0 +1,91 @@
+"""Gaussians as PLY files in the standard 3DGS layout, so common 3DGS viewers open them.
+
+One `vertex` element with float32 properties, in this order:
+    x y z  nx ny nz  f_dc_0..2  f_rest_0..(3 (K - 1) - 1)  opacity  scale_0..2  rot_0..3
+f_rest is channel-major (f_rest_{c (K - 1) + k} is coefficient k + 1 of channel c), opacity is the
+logit, scales are logs and rot is the quaternion (w, x, y, z), as 3DGS stores them. Standard files
+carry zero normals; ours carry each Gaussian's oriented shortest-axis normal.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+from plyfile import PlyData, PlyElement, PlyParseError
+from torch import Tensor
+
+from matspray.data.images import atomic_target
+from matspray.errors import file_error
+from matspray.gaussians import Gaussians
+
+REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+
+
+def property_names(sh_bases: int) -> list[str]:
+    rest = [f"f_rest_{i}" for i in range(3 * (sh_bases - 1))]
+    return ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", *rest, "opacity",
+            "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+
+
+def write_ply(path, gaussians: Gaussians, normals: Tensor | None = None) -> None:
+    """Write `gaussians` (and normals [N, 3], zeros when None) atomically as a binary 3DGS PLY."""
+    path = Path(path)
+    g = gaussians.detach().to(device="cpu", dtype=torch.float32)
+    n = len(g)
+    normals = torch.zeros(n, 3) if normals is None else normals.detach().to("cpu", torch.float32)
+    rest = g.sh[:, 1:].transpose(1, 2).reshape(n, -1)  # [N, 3 (K - 1)] channel-major
+    columns = torch.cat([g.means, normals, g.sh[:, 0], rest, g.opacity_logits[:, None], g.log_scales, g.quats], dim=1)
+    names = property_names(g.sh.shape[1])
+    data = np.empty(n, dtype=[(name, "f4") for name in names])
+    values = columns.numpy()
+    for i, name in enumerate(names):
+        data[name] = values[:, i]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    PlyData([PlyElement.describe(data, "vertex")], text=False).write(str(tmp))
+    os.replace(tmp, path)
+
+
+def read_ply(path) -> tuple[Gaussians, Tensor | None]:
+    """Gaussians [N] and normals [N, 3] (None when the file has no nx/ny/nz) from a 3DGS PLY."""
+    path = Path(path)
+    if not path.exists():
+        raise file_error(path, "does not exist")
+    try:
+        ply = PlyData.read(str(path))
+    except (PlyParseError, ValueError, OSError) as exc:
+        raise file_error(path, f"is not a readable PLY file ({exc})") from None
+    if "vertex" not in [e.name for e in ply.elements]:
+        raise file_error(path, "has no 'vertex' element", "expected a 3D Gaussian Splatting PLY")
+    vertex = ply["vertex"].data
+    names = vertex.dtype.names
+    missing = [name for name in REQUIRED if name not in names]
+    if missing:
+        raise file_error(path, f"lacks the 3DGS properties {', '.join(missing)}", "expected a 3D Gaussian Splatting PLY")
+    rest_names = sorted((name for name in names if re.fullmatch(r"f_rest_\d+", name)), key=lambda s: int(s[7:]))
+    bases = 1 + len(rest_names) // 3
+    if len(rest_names) % 3 or round(bases**0.5) ** 2 != bases or rest_names != [f"f_rest_{i}" for i in range(len(rest_names))]:
+        raise file_error(path, f"has {len(rest_names)} f_rest properties, which is no SH degree (expected 0, 9, 24 or 45)")
+
+    def column(*keys) -> Tensor:
+        return torch.from_numpy(np.stack([np.asarray(vertex[k], dtype=np.float32) for k in keys], axis=-1))
+
+    n = len(vertex)
+    dc = column("f_dc_0", "f_dc_1", "f_dc_2")
+    rest = column(*rest_names).reshape(n, 3, bases - 1).transpose(1, 2) if rest_names else torch.zeros(n, 0, 3)
+    gaussians = Gaussians(
+        means=column("x", "y", "z"),
+        log_scales=column("scale_0", "scale_1", "scale_2"),
+        quats=column("rot_0", "rot_1", "rot_2", "rot_3"),
+        opacity_logits=column("opacity")[:, 0],
+        sh=torch.cat([dc[:, None, :], rest], dim=1).contiguous(),
+    )
+    for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
+        if not torch.isfinite(getattr(gaussians, name)).all():
+            raise file_error(path, f"has NaN or Inf values in its {name}")
+    normals = column("nx", "ny", "nz") if all(k in names for k in ("nx", "ny", "nz")) else None
+    return gaussians, normals

@@ -1,0 +1,165 @@
+"""3D Gaussian Splatting of one object: `train_geometry(scene, config, out_dir) -> Gaussians`.
+
+Per step: one random training view; loss = photometric (L1 + D-SSIM on sRGB values, the RGBA photo
+composited on a random background colour) + alpha L1 against the masks + a flattening regulariser +,
+after `normal_from` of the run, consistency between the rendered normals (oriented shortest axes)
+and the normals of the rendered depth. Adaptive density control as in 3DGS. Writes, under out_dir:
+gaussians.ply, renders/ and normals/ of the test views, metrics.json, and checkpoint.pt while it runs.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from matspray.data.scene import Scene, View
+from matspray.errors import DataError, NumericalError
+from matspray.gaussians import Gaussians
+from matspray.geometry.checkpoint import load_checkpoint, save_checkpoint
+from matspray.geometry.config import GeometryConfig
+from matspray.geometry.densify import DensityControl, load_stats_state, stats_state
+from matspray.geometry.evaluate import evaluate_views, psnr, render_view, target_srgb, write_json
+from matspray.geometry.init import initial_gaussians
+from matspray.geometry.losses import flatten_loss, normal_consistency_loss, photometric_loss
+from matspray.geometry.normals import consensus_normals, depth_normals
+from matspray.geometry.optim import GaussianOptimizer, exponential_lr
+from matspray.geometry.ply import read_ply, write_ply
+
+PLY_NAME, METRICS_NAME, CHECKPOINT_NAME = "gaussians.ply", "metrics.json", "checkpoint.pt"
+
+
+def prepare_views(views: list[View], resolution: int) -> list[View]:
+    """Views downscaled so that their longest side is `resolution` (never upscaled; 0 keeps them)."""
+    out = []
+    for view in views:
+        factor = resolution / max(view.width, view.height) if resolution else 1.0
+        out.append(view.scaled(factor) if factor < 1.0 - 1e-6 else view)
+    return out
+
+
+def scene_extent(views: list[View]) -> float:
+    """3DGS's scene scale: 1.1 times the largest distance of a camera from the cameras' centroid."""
+    centres = torch.stack([v.camera.center.double() for v in views])
+    return 1.1 * float((centres - centres.mean(0)).norm(dim=-1).max().clamp_min(1e-6))
+
+
+def learning_rates(config: GeometryConfig, extent: float) -> dict[str, float]:
+    return {
+        "means": config.lr_means * extent, "log_scales": config.lr_scales, "quats": config.lr_quats,
+        "opacity_logits": config.lr_opacity, "sh_dc": config.lr_sh_dc, "sh_rest": config.lr_sh_rest,
+    }
+
+
+def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, restart: bool = False, progress: bool = True) -> Gaussians:
+    """Train Gaussians on `scene`'s training views and write the stage's artifacts into `out_dir`.
+
+    Resumes from out_dir/checkpoint.pt when it exists (settings must match; `restart` discards it).
+    A finished run (checkpoint at the last iteration and gaussians.ply present) is not redone.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    checkpoint_path = out_dir / CHECKPOINT_NAME
+    if restart:
+        for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME):
+            (out_dir / name).unlink(missing_ok=True)
+    train_views = prepare_views(scene.train, config.resolution)
+    test_views = prepare_views(scene.test, config.resolution)
+    if not train_views:
+        raise DataError(f"{scene.source}: no training views to fit geometry to")
+    masked = all(v.alpha is not None for v in train_views)
+    extent = scene_extent(train_views)
+    generator = torch.Generator().manual_seed(config.seed)
+
+    resumed = load_checkpoint(checkpoint_path, config)
+    if resumed is not None and resumed[0] >= config.iterations and (out_dir / PLY_NAME).exists() and (out_dir / METRICS_NAME).exists():
+        return read_ply(out_dir / PLY_NAME)[0]
+    if resumed is None:
+        start, order = 0, []
+        initial = initial_gaussians(scene, train_views, config.init_points, config.sh_degree, config.init_opacity, generator, config.init_scale)
+        optimizer = GaussianOptimizer(initial, learning_rates(config, extent))
+        density = DensityControl(config, extent, len(initial))
+        elapsed = 0.0
+    else:
+        start, state = resumed
+        optimizer = GaussianOptimizer(_empty_like(state["optimizer"]["params"]), learning_rates(config, extent))
+        optimizer.load_state_dict(state["optimizer"])
+        density = DensityControl(config, extent, 0)
+        load_stats_state(density, state["density"])
+        generator.set_state(state["generator"])
+        order, elapsed = state["order"], state["elapsed"]
+
+    began = time.perf_counter() - elapsed
+    bar = tqdm(range(start, config.iterations), initial=start, total=config.iterations, desc="geometry", disable=not progress, dynamic_ncols=True)
+    running_psnr = None
+    for iteration in bar:
+        if not order:
+            order = torch.randperm(len(train_views), generator=generator).tolist()
+        view = train_views[order.pop()]
+        optimizer.set_lr("means", exponential_lr(iteration, config.iterations, config.lr_means * extent, config.lr_means_final * extent))
+        losses, render, target = training_losses(optimizer.gaussians(), view, config, iteration, masked, generator)
+        total = sum(losses.values())
+        if not torch.isfinite(total):
+            raise NumericalError(
+                f"geometry training diverged at iteration {iteration} (loss terms: "
+                + ", ".join(f"{k}={float(v):.3g}" for k, v in losses.items())
+                + "); try lower learning rates or another --seed"
+            )
+        total.backward()
+        density.observe(render.raster, view.width, view.height)
+        optimizer.step()
+        event = density.step(iteration, optimizer, generator)
+
+        step_psnr = psnr(render.rgb.detach(), target)
+        running_psnr = step_psnr if running_psnr is None else 0.9 * running_psnr + 0.1 * min(step_psnr, 99.0)
+        bar.set_postfix(loss=f"{float(total.detach()):.4f}", psnr=f"{running_psnr:.2f}", gaussians=len(optimizer.params["means"]), refresh=False)
+        if event and progress:
+            bar.write(f"iteration {iteration + 1}: {event}")
+        done = iteration + 1
+        if done % config.checkpoint_every == 0 or done == config.iterations:
+            save_checkpoint(checkpoint_path, config, done, {
+                "optimizer": optimizer.state_dict(), "density": stats_state(density), "generator": generator.get_state(),
+                "order": order, "elapsed": time.perf_counter() - began,
+            })
+    bar.close()
+    train_seconds = time.perf_counter() - began
+
+    gaussians = optimizer.gaussians().detach()
+    normals = consensus_normals(gaussians, [v.camera for v in train_views])
+    write_ply(out_dir / PLY_NAME, gaussians, normals)
+    metrics = evaluate_views(gaussians, test_views, config.sh_degree, out_dir)
+    metrics.update(gaussians=len(gaussians), iterations=config.iterations, train_seconds=train_seconds, preset=config.preset)
+    write_json(out_dir / METRICS_NAME, metrics)
+    return gaussians
+
+
+def training_losses(gaussians: Gaussians, view: View, config: GeometryConfig, iteration: int, masked: bool, generator):
+    """The weighted loss terms of one step {name: scalar}, the render and the sRGB target."""
+    degree = min(config.sh_degree, iteration // config.sh_degree_every)
+    background = torch.rand(3, generator=generator) if masked and config.random_background else torch.zeros(3)
+    render = render_view(gaussians, view.camera, degree, background.to(gaussians.device))
+    render.raster.means2d.retain_grad()
+    target = target_srgb(view, background)
+    # the prediction is not clamped here (DESIGN compares clamped values in metrics): a clamp would
+    # stop the gradient of pixels that overshoot 1
+    losses = {"photometric": photometric_loss(render.rgb, target, config.ssim_weight)}
+    if masked and config.alpha_weight > 0:
+        losses["alpha"] = config.alpha_weight * (render.alpha - view.alpha).abs().mean()
+    if config.flatten_weight > 0:
+        losses["flatten"] = config.flatten_weight * flatten_loss(gaussians.log_scales)
+    if config.normal_weight > 0 and iteration >= config.normal_from * config.iterations:
+        surface = -F.max_pool2d(-render.alpha.detach()[None, None], 3, stride=1, padding=1)[0, 0]  # alpha eroded by 1 px
+        if masked:
+            surface = surface * (view.alpha > 0.5)
+        losses["normal"] = config.normal_weight * normal_consistency_loss(
+            render.raster.features[..., 3:], depth_normals(render.depth, view.camera), surface
+        )
+    return losses, render, target
+
+
+def _empty_like(params: dict) -> Gaussians:
+    return Gaussians(params["means"], params["log_scales"], params["quats"], params["opacity_logits"],
+                     torch.cat([params["sh_dc"], params["sh_rest"]], dim=1))
