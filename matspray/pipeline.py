@@ -11,7 +11,7 @@ from pathlib import Path
 
 import torch
 
-from matspray.device import resolve_device
+from matspray.device import configure_threads, resolve_device
 from matspray.data import Scene, load_scene
 from matspray.errors import ConfigError
 from matspray.lift import LiftConfig, LiftResult, lift
@@ -74,6 +74,7 @@ class Pipeline:
     def __init__(self, data, out, config: PipelineConfig, overwrite: bool = False, progress: bool = True, log=print):
         self.config = config
         self.device = resolve_device(config.device)
+        configure_threads(self.device)
         self.scene = load_scene(data, downscale=config.downscale)
         self.run = RunDir(out)
         self.run.claim(dataset_identity(self.scene), overwrite=overwrite)

@@ -127,7 +127,7 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
     prefiltered = light.prefilter()
     asset = read_asset(run_dir / stage)
     config = read_json(identity)
-    scene = load_scene(config["source"], downscale=_downscale_of(run_dir))
+    scene = load_scene(config["source"], downscale=run_downscale(run_dir))
     if views == "test":
         if not scene.test:
             raise RunError(f"{config['source']}: the dataset has no test views; use --views orbit")
@@ -154,7 +154,7 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
     return written
 
 
-def _downscale_of(run_dir: Path) -> float:
+def run_downscale(run_dir: Path) -> float:
     import yaml
 
     config_path = run_dir / "config.yaml"

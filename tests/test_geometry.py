@@ -20,6 +20,15 @@ from matspray.geometry.ply import read_ply
 from matspray.geometry.train import prepare_views, train_geometry
 
 
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """Training steps are many small ops: on a busy 2-core machine a second thread makes them slower."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="module")
 def tiny_object(tmp_path_factory):
     """The analytic object, 32 px, 8 training and 3 test views."""

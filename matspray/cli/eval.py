@@ -14,6 +14,9 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
+    from matspray.device import configure_threads
+
+    configure_threads()
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run
 

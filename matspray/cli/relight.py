@@ -19,6 +19,9 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
+    from matspray.device import configure_threads
+
+    configure_threads()
     from matspray.relight import relight_run
 
     written = relight_run(args.run, args.env, args.views, args.out, variant=args.variant, frames=args.frames, fps=args.fps,

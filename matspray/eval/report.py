@@ -12,7 +12,6 @@ from pathlib import Path
 import torch
 
 from matspray.data import View, load_scene, write_image
-from matspray.data.images import linear_to_srgb
 from matspray.rundir import read_json, write_text_atomic
 
 MAX_VIEWS = 3
@@ -115,18 +114,18 @@ def tone_map(env: torch.Tensor) -> torch.Tensor:  # HDR [H, W, 3] -> displayable
 def write_report(run_dir, metrics: dict, data=None) -> Path:
     """Write RUN/report.html (and RUN/report/*.png) from a run and its evaluation `metrics`."""
     from matspray.asset import read_asset, read_history
-    from matspray.eval.run_eval import VARIANT_LABELS, read_view_truth, relight_env_names, unpremultiply
+    from matspray.eval.run_eval import VARIANT_LABELS, read_view_truth, unpremultiply
     from matspray.eval.tables import tables_markdown
     from matspray.pipeline import asset_stage
     from matspray.predictors import read_materials2d, read_predictor_info
-    from matspray.relight import _downscale_of, render_gbuffer
+    from matspray.relight import run_downscale, render_gbuffer
     from matspray.render.deferred import shade_gbuffer
     from matspray.render.envmap import EnvironmentMap
 
     run_dir = Path(run_dir)
     identity = read_json(run_dir / "dataset.json")
     data = Path(data) if data is not None else Path(identity["source"])
-    scene = load_scene(data, downscale=_downscale_of(run_dir))
+    scene = load_scene(data, downscale=run_downscale(run_dir))
     figures = Figures(run_dir / "report")
     sections = [f"<h1>MatSpray result: {html.escape(data.name)}</h1>"]
     info = read_predictor_info(run_dir) if (run_dir / "materials2d" / "predictor.json").exists() else {}
@@ -140,7 +139,6 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
     views: list[View] = scene.test[:MAX_VIEWS]
     env_names = metrics.get("relight_envs", [])
     lights = {name: EnvironmentMap.from_file(data / "envmaps" / f"{name}.exr", height=64).prefilter() for name in env_names}
-    train_maps = None
     for view in views:
         truth = read_view_truth(view)
         rows = [f"<h2>Test view {html.escape(view.name)}</h2>"]
@@ -192,7 +190,7 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
                         "is only determined up to what the training views reveal.</p><div>" + "".join(cells) + "</div>")
     histories = {v: read_history(run_dir / asset_stage(v)) for v in assets}
     sections.append("<h2>Loss curves (refinement)</h2>" + loss_curves_svg({k: v for k, v in histories.items() if v}))
-    sections.append(markdown_to_html(tables_markdown(metrics)).replace("<h2>", "<h2>", 1))
+    sections.append(markdown_to_html(tables_markdown(metrics)))
     sections.append(f"<details><summary>metrics.json</summary><pre>{html.escape(json.dumps(metrics.get('table1', {}), indent=1))}</pre></details>")
     page = f"<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title><style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
     path = run_dir / "report.html"

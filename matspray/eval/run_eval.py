@@ -142,10 +142,9 @@ def check_synthetic(scene: Scene) -> None:
 
 def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, str]:
     """Raw 2D predictions of the test views by the run's predictor, when it can make them here."""
-    from matspray.predictors import PredictorOptions, make_predictor, predict_views
-    from matspray.rundir import read_json
-
     import yaml
+
+    from matspray.predictors import PredictorOptions, make_predictor, predict_views
 
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     spec = config.get("predictor", "")
@@ -168,6 +167,7 @@ def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, 
     from matspray.eval.lpips import load_lpips
     from matspray.eval.tables import write_tables
     from matspray.pipeline import asset_stage
+    from matspray.relight import run_downscale
     from matspray.rundir import RunDir, read_json, write_json
 
     run = RunDir(run_dir)
@@ -176,9 +176,7 @@ def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, 
         raise DataError(f"{run.root}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
     identity = read_json(identity_path)
     data = Path(data) if data is not None else Path(identity["source"])
-    from matspray.relight import _downscale_of
-
-    scene = load_scene(data, downscale=_downscale_of(run.root))
+    scene = load_scene(data, downscale=run_downscale(run.root))
     if [v.name for v in scene.train] != identity["train_views"]:
         raise DataError(f"{run.root}: this run was made from {identity['source']}, not from {data}")
     check_synthetic(scene)

@@ -4,7 +4,6 @@ rows can be kept, dropped and appended together with their Adam moments."""
 from __future__ import annotations
 
 import math
-from dataclasses import fields
 
 import torch
 from torch import Tensor
@@ -93,7 +92,3 @@ def exponential_lr(step: int, total: int, start: float, end: float) -> float:
     """Log-linear interpolation from `start` at step 0 to `end` at step `total` (3DGS position schedule)."""
     t = min(max(step / max(total, 1), 0.0), 1.0)
     return math.exp((1 - t) * math.log(start) + t * math.log(end))
-
-
-def num_parameters(gaussians: Gaussians) -> int:
-    return sum(getattr(gaussians, f.name).numel() for f in fields(gaussians))

@@ -9,7 +9,6 @@ gaussians.ply, renders/ and normals/ of the test views, metrics.json, and checkp
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 
