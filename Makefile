@@ -13,6 +13,11 @@ $(STAMP): pyproject.toml Makefile
 	# the pinned CPU build of torch first: an unpinned torch would pull a multi-GB CUDA build
 	$(PY) -m pip install --quiet torch==2.13.0
 	$(PY) -m pip install --quiet -e ".[all,test]"
+	# Mitsuba's fast llvm_ad_rgb variant needs LLVM >= 16 (Debian: libllvm19); best effort, as root only.
+	# Without it `matspray synth` falls back to the slower scalar_rgb variant.
+	-@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! ldconfig -p | grep -q 'libLLVM.so.19'; then \
+		(apt-get install -y -q libllvm19 >/dev/null 2>&1 || (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libllvm19 >/dev/null 2>&1)) \
+		|| echo "note: libllvm19 not installed; Mitsuba will use its scalar_rgb variant"; fi
 	touch $(STAMP)
 
 setup: $(STAMP)

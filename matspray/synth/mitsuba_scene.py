@@ -27,6 +27,35 @@ ENVMAP_TO_WORLD = np.array([[0.0, 0.0, -1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 
 OPENCV_TO_MITSUBA_CAMERA = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
+_PROBE = """
+import mitsuba as mi
+mi.set_variant("{variant}")
+scene = mi.load_dict({{"type": "scene", "integrator": {{"type": "path"}}, "s": {{"type": "sphere"}}, "e": {{"type": "constant"}},
+    "sensor": {{"type": "perspective", "to_world": mi.ScalarTransform4f().translate([0, 0, -4]),
+               "film": {{"type": "hdrfilm", "width": 4, "height": 4}}}}}})
+mi.render(scene, spp=1)
+"""
+_RENDERS: dict[str, bool] = {}
+
+
+def variant_renders(variant: str) -> bool:
+    """Whether `variant` can render here, tried once per process in a child process: with an LLVM older
+    than Dr.Jit needs (Debian 12's LLVM 15), llvm variants load but their first JIT compile aborts the
+    whole process ("LLVM ERROR: Cannot select ..."), which no exception handler can catch."""
+    if variant.startswith("scalar"):
+        return True
+    if variant not in _RENDERS:
+        import subprocess
+        import sys
+
+        try:
+            result = subprocess.run([sys.executable, "-c", _PROBE.format(variant=variant)], capture_output=True, timeout=120)
+            _RENDERS[variant] = result.returncode == 0
+        except (OSError, subprocess.TimeoutExpired):
+            _RENDERS[variant] = False
+    return _RENDERS[variant]
+
+
 def select_variant(preferred: tuple[str, ...] | None = None) -> str:
     """Set the first Mitsuba variant of `preferred` (default VARIANTS) that loads here and return its name."""
     try:
@@ -36,6 +65,8 @@ def select_variant(preferred: tuple[str, ...] | None = None) -> str:
     current = mi.variant()
     preferred = VARIANTS if preferred is None else preferred
     for variant in preferred:
+        if not variant_renders(variant):
+            continue  # e.g. llvm_ad_rgb with an LLVM < 16: install libllvm19 for the fast variant
         if current == variant:
             return variant
         try:
