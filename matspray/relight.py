@@ -12,6 +12,7 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
+from matspray.render.gbuffer import orient_normals
 
 
 @dataclass
@@ -26,13 +27,6 @@ class Asset:
         n = len(self.gaussians)
         if self.materials.shape != (n, 5) or self.normals.shape != (n, 3):
             raise ValueError(f"asset: materials must be [{n}, 5] and normals [{n}, 3], got {tuple(self.materials.shape)}, {tuple(self.normals.shape)}")
-
-
-def orient_normals(normals: Tensor, means: Tensor, camera: Camera) -> Tensor:  # [N, 3], [N, 3] -> [N, 3]
-    """Flip each normal to face the camera (Gaussian normals have no reliable sign)."""
-    to_camera = camera.center.to(means) - means
-    facing = (normals * to_camera).sum(-1, keepdim=True) >= 0
-    return torch.where(facing, normals, -normals)
 
 
 def render_gbuffer(asset: Asset, camera: Camera):

@@ -35,7 +35,7 @@ class GroundTruth:
     relit: dict[str, torch.Tensor]  # env name -> [H, W, 3] linear
 
 
-def relight_env_names(data: Path, view: View) -> list[str]:
+def relight_env_names(view: View) -> list[str]:
     prefix = f"{view.name}_relight_"
     return sorted(p.stem[len(prefix):] for p in view.path.parent.glob(f"{prefix}*.png"))
 
@@ -46,7 +46,7 @@ def read_view_truth(view: View) -> GroundTruth:
     maps = read_ground_truth(view)
     mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width)
     relit = {}
-    for env in relight_env_names(view.path.parent, view):
+    for env in relight_env_names(view):
         rgb, _ = read_image(view.path.with_name(f"{view.name}_relight_{env}.png"))
         relit[env] = rgb
     return GroundTruth(mask, maps.basecolor, maps.roughness, maps.metallic, relit)

@@ -8,6 +8,7 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
+from matspray.render.gbuffer import orient_normals
 from matspray.render.rasterize import rasterize
 
 
@@ -17,10 +18,7 @@ def shortest_axes(gaussians: Gaussians) -> Tensor:  # [N, 3] unit, unoriented; d
 
 def oriented_normals(gaussians: Gaussians, camera: Camera) -> Tensor:  # [N, 3] unit
     """Each Gaussian's shortest axis, flipped to face `camera` (the side the camera sees)."""
-    axes = shortest_axes(gaussians)
-    to_camera = camera.center.to(gaussians.means) - gaussians.means
-    sign = torch.where((axes * to_camera).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(axes)
-    return axes * sign
+    return orient_normals(shortest_axes(gaussians), gaussians.means, camera)
 
 
 def consensus_normals(gaussians: Gaussians, cameras: list[Camera]) -> Tensor:  # [N, 3] unit

@@ -42,6 +42,11 @@ class FrozenViews:
         return visible
 
     def orient_normals(self, index: int, normals: Tensor) -> Tensor:  # [N, 3] -> [N, 3] facing view `index`
-        to_camera = self.cameras[index].center.to(self.means) - self.means
-        facing = (normals * to_camera).sum(-1, keepdim=True) >= 0
-        return torch.where(facing, normals, -normals)
+        return orient_normals(normals, self.means, self.cameras[index])
+
+
+def orient_normals(normals: Tensor, means: Tensor, camera: Camera) -> Tensor:  # [N, 3], [N, 3] -> [N, 3]
+    """Flip each normal to face the camera (Gaussian normals have no reliable sign)."""
+    to_camera = camera.center.to(means) - means
+    facing = (normals * to_camera).sum(-1, keepdim=True) >= 0
+    return torch.where(facing, normals, -normals)
