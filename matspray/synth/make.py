@@ -20,7 +20,7 @@ from matspray.synth.cameras import FOV_X, make_cameras
 from matspray.synth.config import SynthConfig
 from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.materials import bake_textures, random_material
-from matspray.synth.mitsuba_scene import MAX_DEPTH, build_scene, render_view, select_variant
+from matspray.synth.mitsuba_scene import MAX_DEPTH, build_scene, render_view, sampler_for, select_variant
 from matspray.synth.shapes import make_shape, resolve_shape
 from matspray.synth.writer import (
     prepare_output, write_envmap, write_ground_truth, write_render, write_scene_json,
@@ -92,7 +92,7 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
         "lights": {"train": train_env, "relight": relight_envs},
         "cameras": {"fov_x": FOV_X, "distance": distance, "bounding_radius": bounding_radius, "up": [0, 0, 1],
                     "train": config.train_views, "test": config.test_views},
-        "render": {"renderer": "mitsuba", "integrator": "path", "max_depth": MAX_DEPTH, "spp": config.spp,
+        "render": {"renderer": "mitsuba", "integrator": "path", "max_depth": MAX_DEPTH, "spp": config.spp, "sampler": sampler_for(config.spp),
                    "bsdf": "principled (specular 0.5, no sheen/clearcoat/transmission)", "film_filter": "box",
                    "rgba": "straight (not premultiplied) sRGB-encoded colour, alpha from the render"},
         "ground_truth": {"subpixel_samples": config.gt_samples**2, "alpha_channel": "coverage (PNG maps)", "background": 0,
