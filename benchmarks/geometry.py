@@ -1,9 +1,10 @@
 """Geometry training on an object: test-view PSNR, normal error, time, memory, step cost.
 
-    python -m benchmarks.geometry [--data DATASET] [--preset demo] [--iterations N] [--threads 1]
+    python -m benchmarks.geometry [--data DATASET|demo] [--preset demo] [--iterations N] [--threads N]
 
 DATASET is a Blender-layout folder with `{split}/{name}_normal.exr` ground-truth normals (what
-`matspray synth` writes). Without --data, the analytic test object of `matspray.geometry.analytic`
+`matspray synth` writes); `--data demo` makes (once) the default demo object of `matspray demo` (composite
+shape, seed 0, 128 px, 40 train / 10 test views) in $TMPDIR/matspray-demo-object. Without --data, the analytic test object of `matspray.geometry.analytic`
 (a sphere fused with a rounded box, baked diffuse lighting) is rendered at 128 px, 40 train and
 8 test views, into $TMPDIR/matspray-analytic128 (once).
 
@@ -33,6 +34,7 @@ from matspray.geometry.evaluate import render_view
 from matspray.geometry.train import train_geometry
 
 CACHE = Path(tempfile.gettempdir()) / "matspray-analytic128"
+DEMO_OBJECT = Path(tempfile.gettempdir()) / "matspray-demo-object"
 
 
 def step_milliseconds(n: int = 20000, resolution: int = 128, repeats: int = 5) -> float:
@@ -56,15 +58,19 @@ def step_milliseconds(n: int = 20000, resolution: int = 128, repeats: int = 5) -
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path, default=None)
+    parser.add_argument("--data", type=Path, default=None, help="dataset folder, or 'demo' for the demo object")
     parser.add_argument("--out", type=Path, default=None, help="run folder (default: a temporary one)")
     parser.add_argument("--preset", default="demo")
     parser.add_argument("--iterations", type=int, default=None)
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (0: torch's default)")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default, one per core)")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     data = args.data
+    if data == Path("demo"):
+        from matspray.demo import make_demo_object
+
+        data = make_demo_object(DEMO_OBJECT, "demo", "composite", 0)
     if data is None:
         data = CACHE
         if not (data / "transforms_test.json").exists():

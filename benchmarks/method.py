@@ -1,14 +1,23 @@
 """The method on the demo object with the simulated predictor: every variant's relighting and material
 quality, the raw 2D predictions' quality, and the seconds per stage.
 
-    python -m benchmarks.method [--preset demo|test] [--out runs/bench-method] [--shape composite]
+    python -m benchmarks.method [--preset demo|test] [--out runs/bench-method] [--shape composite] [--ceilings]
 
 Prints one table; the figures also land in OUT/run/eval/metrics.json and OUT/run/report.html.
+
+With --ceilings it also prints what no material estimate can beat on this object:
+  shading ceiling  the true G-buffer (true base color, roughness, metallic, normals and mask) shaded by
+                   our split-sum renderer vs Mitsuba's path-traced relit views: the cost of the
+                   shading model alone (no shadows, no interreflections);
+  lifted truth     the ground-truth 2D maps lifted onto our Gaussians and averaged (proj-average with
+                   the ground-truth "predictor", in OUT/run-truth, reusing the geometry): the cost of
+                   the geometry, the lifting and the Gaussian representation with perfect 2D maps.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import time
 from pathlib import Path
 
@@ -29,6 +38,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/bench-method"))
     parser.add_argument("--shape", default="composite")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--ceilings", action="store_true", help="also measure the shading and lifted-truth ceilings")
     args = parser.parse_args()
     start = time.perf_counter()
     data = make_demo_object(args.out / "data", args.preset, args.shape, args.seed)
@@ -47,6 +57,55 @@ def main() -> None:
     timings = RunDir(args.out / "run").timings()
     print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
     print(f"total wall time: {time.perf_counter() - start:.0f} s")
+    if args.ceilings:
+        print_ceilings(data, args.out, args.preset)
+
+
+def shading_ceiling(data: Path) -> dict:
+    """Relighting metrics of the true G-buffer of every test view shaded by our renderer, per light."""
+    from matspray.data import load_scene
+    from matspray.data.images import read_raw
+    from matspray.eval.evaluate import average_metrics, evaluate_images
+    from matspray.eval.run_eval import load_relight_lights, read_view_truth, unpremultiply
+    from matspray.render.deferred import GBuffer, shade_gbuffer
+
+    scene = load_scene(data)
+    truths = [read_view_truth(v) for v in scene.test]
+    lights = load_relight_lights(data, sorted(truths[0].relit))
+    records = {name: [] for name in lights}
+    for view, truth in zip(scene.test, truths):
+        normals = read_raw(view.path.with_name(f"{view.name}_normal.exr"))[..., :3]
+        gbuffer = GBuffer(truth.basecolor, truth.roughness, truth.metallic, normals, truth.mask)
+        for name, light in lights.items():
+            with torch.no_grad():
+                rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, light), truth.mask)
+            records[name].append(evaluate_images(rgb, truth.relit[name], truth.mask))
+    per_light = {name: average_metrics(r) for name, r in records.items()}
+    return {"relighting": average_metrics([m for r in records.values() for m in r]), **per_light}
+
+
+def lifted_truth(data: Path, out: Path, preset: str) -> dict:
+    """proj-average of the lifted ground-truth maps on the run's own Gaussians (geometry reused)."""
+    from matspray.eval.run_eval import evaluate_run
+    from matspray.pipeline import Pipeline, preset_config
+
+    run, truth_run = out / "run", out / "run-truth"
+    truth_run.mkdir(parents=True, exist_ok=True)
+    if not (truth_run / "geometry").exists():
+        shutil.copytree(run / "geometry", truth_run / "geometry")
+    pipeline = Pipeline(data, truth_run, preset_config(preset, predictor="ground-truth"), log=lambda _: None)
+    pipeline.run_all(("proj-average",))
+    return evaluate_run(truth_run, data, progress=False)["variants"]["proj-average"]["summary"]
+
+
+def print_ceilings(data: Path, out: Path, preset: str) -> None:
+    shading = shading_ceiling(data)
+    print("\nceilings (what no material estimate can beat here):")
+    lights = ", ".join(f"{name} {fmt(m['psnr'])}" for name, m in shading.items() if name != "relighting")
+    print(f"shading ceiling: relight PSNR {fmt(shading['relighting']['psnr'])} ({lights}), SSIM {fmt(shading['relighting']['ssim'], 3)}")
+    truth = lifted_truth(data, out, preset)
+    print(f"lifted truth:    relight PSNR {fmt(truth['relighting']['psnr'])}, basecolor {fmt(truth['basecolor']['psnr'])}, "
+          f"roughness {fmt(truth['roughness']['psnr'])}, metallic {fmt(truth['metallic']['psnr'])}")
 
 
 if __name__ == "__main__":
