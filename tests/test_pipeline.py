@@ -92,6 +92,7 @@ def test_eval_tables_and_report(tiny_object, finished_run):
     missing = [s for s in sources if not (report.parent / s).exists()]
     assert not missing, f"report references files that do not exist: {missing}"
     assert "SIMULATED" in page
+    assert "2D prediction" in page and any("pred2d_test_" in s for s in sources)  # the test views' own 2D baseline
 
 
 def test_relight_cli_writes_frames_and_video(finished_run, tmp_path):

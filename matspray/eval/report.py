@@ -114,7 +114,7 @@ def tone_map(env: torch.Tensor) -> torch.Tensor:  # HDR [H, W, 3] -> displayable
 def write_report(run_dir, metrics: dict, data=None) -> Path:
     """Write RUN/report.html (and RUN/report/*.png) from a run and its evaluation `metrics`."""
     from matspray.asset import read_asset, read_history
-    from matspray.eval.run_eval import VARIANT_LABELS, read_view_truth, unpremultiply
+    from matspray.eval.run_eval import VARIANT_LABELS, predict_test_views, read_view_truth, unpremultiply
     from matspray.eval.tables import tables_markdown
     from matspray.pipeline import asset_stage
     from matspray.predictors import read_materials2d, read_predictor_info
@@ -139,6 +139,7 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
     views: list[View] = scene.test[:MAX_VIEWS]
     env_names = metrics.get("relight_envs", [])
     lights = {name: EnvironmentMap.from_file(data / "envmaps" / f"{name}.exr", height=64).prefilter() for name in env_names}
+    test_predictions, _ = predict_test_views(run_dir, views)  # the baseline of Table 1, None when it cannot run here
     for view in views:
         truth = read_view_truth(view)
         rows = [f"<h2>Test view {html.escape(view.name)}</h2>"]
@@ -160,6 +161,11 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
                      figures.scalar(f"{view.name}_metallic_ours", gbuffer.metallic, "metallic, ours", gbuffer.alpha),
                      figures.scalar(f"{view.name}_metallic_gt", truth.metallic, "metallic, truth", truth.mask),
                      figures.image(f"{view.name}_normal_ours", _srgb_inverse(normals), "normals, ours", gbuffer.alpha)]
+            if test_predictions is not None:
+                m = test_predictions[view.name]
+                cells[2:2] = [figures.image(f"pred2d_test_{view.name}_basecolor", m.basecolor, "base color, 2D prediction", truth.mask)]
+                cells[5:5] = [figures.scalar(f"pred2d_test_{view.name}_roughness", m.roughness, "roughness, 2D prediction", truth.mask)]
+                cells[8:8] = [figures.scalar(f"pred2d_test_{view.name}_metallic", m.metallic, "metallic, 2D prediction", truth.mask)]
             if gt_normal_path.exists():
                 from matspray.data import read_image
 
