@@ -47,9 +47,7 @@ def preset_config(preset: str, **overrides) -> PipelineConfig:
     else:
         config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=16), refine=RefineConfig(iterations=10000, envmap_height=32))
     config = replace(config, **overrides)
-    # the demo must finish on 2 CPU cores in minutes: fewer geometry steps than the geometry stage's own preset
-    geometry_overrides = {"iterations": 2000} if preset == "demo" else {}
-    config.geometry = geometry_preset(preset, seed=config.seed, **geometry_overrides)
+    config.geometry = geometry_preset(preset, seed=config.seed)
     return config
 
 
