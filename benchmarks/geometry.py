@@ -38,7 +38,7 @@ DEMO_OBJECT = Path(tempfile.gettempdir()) / "matspray-demo-object"
 
 
 def step_milliseconds(n: int = 20000, resolution: int = 128, repeats: int = 5) -> float:
-    from benchmarks.rasterize import sphere_object
+    from benchmarks.rasterize import sphere_object, time_ms
 
     gaussians = sphere_object(n)
     for t in (gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits, gaussians.sh):
@@ -49,11 +49,7 @@ def step_milliseconds(n: int = 20000, resolution: int = 128, repeats: int = 5) -
         render = render_view(gaussians, camera, 3, torch.ones(3))
         (render.rgb.sum() + render.raster.features[..., 3:].sum() + render.alpha.sum()).backward()
 
-    step()
-    start = time.perf_counter()
-    for _ in range(repeats):
-        step()
-    return (time.perf_counter() - start) / repeats * 1000
+    return time_ms(step, repeats)
 
 
 def main() -> None:
