@@ -61,8 +61,11 @@ def main() -> None:
         print_ceilings(data, args.out, args.preset)
 
 
-def shading_ceiling(data: Path) -> dict:
-    """Relighting metrics of the true G-buffer of every test view shaded by our renderer, per light."""
+def shading_ceiling(data: Path, shadows_from=None) -> dict:
+    """Relighting metrics of the true G-buffer of every test view shaded by our renderer, per light;
+    shadowed by the visibility of the asset `shadows_from` when given."""
+    from matspray.relight import render_gbuffer
+
     from matspray.data import load_scene
     from matspray.data.images import read_raw
     from matspray.eval.evaluate import average_metrics, evaluate_images
@@ -75,9 +78,10 @@ def shading_ceiling(data: Path) -> dict:
     records = {name: [] for name in lights}
     for view, truth in zip(scene.test, truths):
         normals = read_raw(view.path.with_name(f"{view.name}_normal.exr"))[..., :3]
-        gbuffer = GBuffer(truth.basecolor, truth.roughness, truth.metallic, normals, truth.mask)
         for name, light in lights.items():
             with torch.no_grad():
+                shadow = None if shadows_from is None else render_gbuffer(shadows_from, view.camera, light).shadow
+                gbuffer = GBuffer(truth.basecolor, truth.roughness, truth.metallic, normals, truth.mask, shadow)
                 rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, light), truth.mask)
             records[name].append(evaluate_images(rgb, truth.relit[name], truth.mask))
     per_light = {name: average_metrics(r) for name, r in records.items()}
@@ -99,10 +103,15 @@ def lifted_truth(data: Path, out: Path, preset: str) -> dict:
 
 
 def print_ceilings(data: Path, out: Path, preset: str) -> None:
-    shading = shading_ceiling(data)
+    from matspray.asset import read_asset
+
     print("\nceilings (what no material estimate can beat here):")
-    lights = ", ".join(f"{name} {fmt(m['psnr'])}" for name, m in shading.items() if name != "relighting")
-    print(f"shading ceiling: relight PSNR {fmt(shading['relighting']['psnr'])} ({lights}), SSIM {fmt(shading['relighting']['ssim'], 3)}")
+    full = read_asset(out / "run" / "asset")
+    for label, shadows_from in [("unshadowed", None)] + ([("our shadowing", full)] if full.visibility is not None else []):
+        shading = shading_ceiling(data, shadows_from)
+        lights = ", ".join(f"{name} {fmt(m['psnr'])}" for name, m in shading.items() if name != "relighting")
+        print(f"shading ceiling ({label}): true G-buffer relight PSNR {fmt(shading['relighting']['psnr'])} ({lights}), "
+              f"SSIM {fmt(shading['relighting']['ssim'], 3)}")
     truth = lifted_truth(data, out, preset)
     print(f"lifted truth:    relight PSNR {fmt(truth['relighting']['psnr'])}, basecolor {fmt(truth['basecolor']['psnr'])}, "
           f"roughness {fmt(truth['roughness']['psnr'])}, metallic {fmt(truth['metallic']['psnr'])}")

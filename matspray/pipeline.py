@@ -16,6 +16,7 @@ from matspray.data import Scene, load_scene
 from matspray.errors import ConfigError
 from matspray.lift import LiftConfig, LiftResult, lift
 from matspray.refine import VARIANTS, RefineConfig, refine
+from matspray.render.visibility import VisibilityConfig
 from matspray.rundir import RunDir, fingerprint, timed, to_plain
 
 PRESETS = ("test", "demo", "paper")
@@ -31,6 +32,7 @@ class PipelineConfig:
     device: str = "auto"
     geometry: object = None  # GeometryConfig of the preset
     lift: LiftConfig = field(default_factory=LiftConfig)
+    visibility: VisibilityConfig | None = field(default_factory=VisibilityConfig)  # None: no shadowing (the paper's shading)
     refine: RefineConfig = field(default_factory=RefineConfig)
 
 
@@ -41,11 +43,13 @@ def preset_config(preset: str, **overrides) -> PipelineConfig:
     if preset not in PRESETS:
         raise ConfigError(f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
     if preset == "test":
-        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=2), refine=RefineConfig(iterations=30, envmap_height=8))
+        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=2), visibility=VisibilityConfig(rows=4, resolution=48),
+                                refine=RefineConfig(iterations=30, envmap_height=8))
     elif preset == "demo":
         config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=4), refine=RefineConfig(iterations=400, envmap_height=16))
     else:
-        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=16), refine=RefineConfig(iterations=10000, envmap_height=32))
+        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=16), visibility=VisibilityConfig(rows=16, resolution=512),
+                                refine=RefineConfig(iterations=10000, envmap_height=32))
     config = replace(config, **overrides)
     config.geometry = geometry_preset(preset, seed=config.seed)
     return config
@@ -141,6 +145,37 @@ class Pipeline:
             self.log("lift: done before, reusing lift/projected.pt")
         return load_lift(path, self.device)
 
+    # ---------------------------------------------------------------- visibility
+    def visibility_fingerprint(self) -> str:
+        return fingerprint("visibility", self.config.visibility, self.lift_fingerprint())
+
+    def visibility(self, kept) -> torch.Tensor | None:
+        """Directional visibility [N, D] of the lifted Gaussians `kept`, or None when shadowing is off."""
+        import os
+
+        from matspray.data.images import atomic_target
+        from matspray.render.visibility import bake_visibility
+
+        if self.config.visibility is None:
+            return None
+        fp = self.visibility_fingerprint()
+        path = self.run.path("visibility", "visibility.pt")
+        if not self.run.stage_done("visibility", fp, ["visibility.pt"]):
+            self.log(f"visibility: shadow maps of {len(kept)} Gaussians towards {2 * self.config.visibility.rows ** 2} directions")
+            with timed() as t:
+                values = bake_visibility(kept, self.config.visibility, progress=self.progress)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                tmp = atomic_target(path)
+                torch.save(values.cpu(), tmp)
+                os.replace(tmp, path)
+            self.run.finish_stage("visibility", fp, self.config.visibility, t.seconds)
+        else:
+            self.log("visibility: done before, reusing visibility/visibility.pt")
+        values = torch.load(path, map_location=self.device)
+        if values.shape[0] != len(kept):
+            raise ConfigError(f"{path}: visibility of {values.shape[0]} Gaussians, but the lifted geometry has {len(kept)}; delete the file to bake it again")
+        return values
+
     # ---------------------------------------------------------------- refine
     def refine_config(self, variant: str) -> RefineConfig:
         if variant not in VARIANTS:
@@ -152,7 +187,7 @@ class Pipeline:
 
         config = self.refine_config(variant)
         stage = asset_stage(variant)
-        fp = fingerprint("refine", config, self.lift_fingerprint())
+        fp = fingerprint("refine", config, self.lift_fingerprint(), self.visibility_fingerprint() if self.config.visibility else None)
         if self.run.stage_done(stage, fp, ["asset.ply"]):
             self.log(f"refine [{variant}]: done before, reusing {stage}/")
             return read_asset(self.run.path(stage), device=self.device)
@@ -162,8 +197,10 @@ class Pipeline:
         kept = gaussians.subset(lifted.kept)
         views = [v.to(self.device) for v in self.scene.train]
         targets = [maps_to_tensor(maps[v.name]).to(self.device) for v in views]
+        visibility = self.visibility(kept)
         with timed() as t:
-            result = refine(kept, normals[lifted.kept], lifted.values, lifted.seen, views, targets, self.scene.bounds.to(self.device), config, progress=self.progress)
+            result = refine(kept, normals[lifted.kept], lifted.values, lifted.seen, views, targets, self.scene.bounds.to(self.device), config,
+                            progress=self.progress, visibility=visibility)
             write_asset(self.run.path(stage), kept, result)
         self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history})
         return read_asset(self.run.path(stage), device=self.device)

@@ -101,20 +101,30 @@ def check_finite(step: int, **terms: Tensor) -> None:
             raise NumericalError(f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept")
 
 
-def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, target: Tensor, envmap, config: RefineConfig) -> dict[str, Tensor]:
+def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, target: Tensor, envmap, config: RefineConfig,
+                visibility: Tensor | None = None) -> dict[str, Tensor]:
     """The two losses of one training view: L1 of the rasterized material maps against the view's 2D
     maps [H, W, 5] ("material"), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo ("photo",
-    only with an environment map). materials [N, 5], normals [N, 3] any orientation."""
+    only with an environment map). materials [N, 5], normals [N, 3] any orientation; visibility [N, D]
+    (optional) shadows the PBR render (`render.visibility`)."""
     from matspray.render.deferred import GBuffer, shade_gbuffer
+    from matspray.render.visibility import gaussian_shadows
 
     mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=materials.device)
     oriented = frozen.orient_normals(index, normals)
-    blended, alpha = frozen.render(index, torch.cat([materials, oriented], dim=-1))  # [H, W, 8], [H, W]
-    gbuffer = GBuffer.from_accumulated(blended[..., :3], blended[..., 3], blended[..., 4], blended[..., 5:8], alpha)
+    features = [materials, oriented]
+    light = envmap.prefilter() if envmap is not None else None
+    if light is not None and visibility is not None:  # only for the Gaussians this view sees: the rest blend with weight 0
+        seen = frozen.visible_ids[index]
+        shadows = gaussian_shadows(visibility[seen], oriented[seen], frozen.means[seen], materials[seen, 3], view.camera, light)
+        features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
+    blended, alpha = frozen.render(index, torch.cat(features, dim=-1))  # [H, W, 8 or 14], [H, W]
+    shadow = blended[..., 8:14] if blended.shape[-1] > 8 else None
+    gbuffer = GBuffer.from_accumulated(blended[..., :3], blended[..., 3], blended[..., 4], blended[..., 5:8], alpha, shadow)
     material_maps = torch.cat([gbuffer.base_color, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1)
     terms = {"material": masked_l1(material_maps, target, mask * (alpha > 0.5))}
-    if envmap is not None:
-        rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, envmap.prefilter()))  # over black
+    if light is not None:
+        rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
         photo = linear_to_srgb(view.image * mask[..., None])
         terms["photo"] = photometric_loss(rendered, photo, config.photo_l1_weight)
     return terms
@@ -127,14 +137,17 @@ class RefineResult:
     source: MaterialSource
     envmap: nn.Module | None  # EnvironmentMap, None for variants without the PBR loss
     history: list[dict]
+    visibility: Tensor | None = None  # [N, D] the shadowing used (kept with the asset for relighting)
 
 
-def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, views, maps2d: list[Tensor], bounds: Tensor, config: RefineConfig, progress: bool = True, on_checkpoint=None) -> RefineResult:
+def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, views, maps2d: list[Tensor], bounds: Tensor, config: RefineConfig,
+           progress: bool = True, on_checkpoint=None, visibility: Tensor | None = None) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
 
     normals [N, 3]: per-Gaussian unit normals (any orientation; each view flips them to face it).
     values [N, V, 5], seen [N, V]: the lifted per-view materials; views/maps2d: the V training views
     and their 2D maps [H, W, 5] (base color linear, roughness, metallic), in the same order.
+    visibility [N, D] (optional): directional visibility that shadows the PBR render (`render.visibility`).
     `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end.
     """
     from matspray.render.envmap import EnvironmentMap
@@ -147,10 +160,9 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     normal_offsets = nn.Parameter(torch.zeros_like(normals)) if (config.refine_normals and uses_light) else None
     history: list[dict] = []
     if not source.trainable or config.iterations == 0:
-        return RefineResult(source().detach(), normals, source, envmap, history)
+        return RefineResult(source().detach(), normals, source, envmap, history, visibility)
 
     frozen = FrozenViews(gaussians.detach(), [v.camera for v in views])
-    visible_ids = [torch.nonzero(frozen.visible(i)).squeeze(1) for i in range(len(views))]
     source_lr = config.supervised_lr if config.variant == "supervised" else config.merger_lr
     groups = [{"params": list(source.parameters()), "lr": source_lr}]
     if envmap is not None:
@@ -163,9 +175,9 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     for step in bar:
         index = int(torch.randint(len(views), (1,), generator=generator))
         shading_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
-        visible = visible_ids[index]  # the merger only runs for the Gaussians this view sees
+        visible = frozen.visible_ids[index]  # the merger only runs for the Gaussians this view sees
         materials = torch.zeros(len(gaussians), 5, device=device).index_copy(0, visible, source(visible))
-        terms = view_losses(frozen, index, materials, shading_normals, views[index], maps2d[index], envmap, config)
+        terms = view_losses(frozen, index, materials, shading_normals, views[index], maps2d[index], envmap, config, visibility)
         total = config.material_weight * terms["material"] + terms.get("photo", 0.0)
         check_finite(step, **terms)
         optimizer.zero_grad(set_to_none=True)
@@ -179,5 +191,5 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
             on_checkpoint(step, source, envmap, history)
     with torch.no_grad():
         final_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
-        return RefineResult(source().detach(), final_normals.detach(), source, envmap, history)
+        return RefineResult(source().detach(), final_normals.detach(), source, envmap, history, visibility)
 

@@ -22,22 +22,31 @@ class Asset:
     gaussians: Gaussians
     materials: Tensor  # [N, 5] base color rgb (linear), roughness, metallic
     normals: Tensor  # [N, 3] unit; sign is fixed per view when rendering
+    visibility: Tensor | None = None  # [N, D] directional visibility (`render.visibility`); None = no shadowing
 
     def __post_init__(self):
         n = len(self.gaussians)
         if self.materials.shape != (n, 5) or self.normals.shape != (n, 3):
             raise ValueError(f"asset: materials must be [{n}, 5] and normals [{n}, 3], got {tuple(self.materials.shape)}, {tuple(self.normals.shape)}")
+        if self.visibility is not None and self.visibility.shape[0] != n:
+            raise ValueError(f"asset: visibility must be [{n}, D], got {tuple(self.visibility.shape)}")
 
 
-def render_gbuffer(asset: Asset, camera: Camera):
-    """Rasterize materials and normals for `camera` -> GBuffer (materials divided by coverage)."""
+def render_gbuffer(asset: Asset, camera: Camera, light=None):
+    """Rasterize materials and normals for `camera` -> GBuffer (materials divided by coverage); with a
+    `light` and an asset that has visibility, also the shadow factors that light casts."""
     from matspray.render.deferred import GBuffer
     from matspray.render.rasterize import rasterize
+    from matspray.render.visibility import gaussian_shadows
 
     normals = orient_normals(asset.normals, asset.gaussians.means, camera)
-    out = rasterize(asset.gaussians, camera, torch.cat([asset.materials, normals], dim=-1))
+    features = [asset.materials, normals]
+    if light is not None and asset.visibility is not None:
+        features.append(gaussian_shadows(asset.visibility, normals, asset.gaussians.means, asset.materials[:, 3], camera, light))
+    out = rasterize(asset.gaussians, camera, torch.cat(features, dim=-1))
     f = out.features
-    return GBuffer.from_accumulated(f[..., :3], f[..., 3], f[..., 4], f[..., 5:8], out.alpha)
+    shadow = f[..., 8:14] if f.shape[-1] > 8 else None
+    return GBuffer.from_accumulated(f[..., :3], f[..., 3], f[..., 4], f[..., 5:8], out.alpha, shadow)
 
 
 def render_relit(asset: Asset, camera: Camera, light, background: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -46,7 +55,7 @@ def render_relit(asset: Asset, camera: Camera, light, background: Tensor | None 
     from matspray.render.deferred import shade_gbuffer
 
     with torch.no_grad():
-        gbuffer = render_gbuffer(asset, camera)
+        gbuffer = render_gbuffer(asset, camera, light)
         return shade_gbuffer(gbuffer, camera, light, background), gbuffer.alpha
 
 

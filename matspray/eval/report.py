@@ -146,7 +146,7 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
         for env in env_names:
             cells = [figures.image(f"{view.name}_{env}_gt", truth.relit[env], f"ground truth, {env}", truth.mask)]
             for variant, asset in assets.items():
-                gbuffer = render_gbuffer(asset, view.camera)
+                gbuffer = render_gbuffer(asset, view.camera, lights[env])
                 rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, lights[env]), gbuffer.alpha)
                 cells.append(figures.image(f"{view.name}_{env}_{variant}", rgb, f"{VARIANT_LABELS[variant]}, {env}", gbuffer.alpha))
             rows.append("<div>" + "".join(cells) + "</div>")

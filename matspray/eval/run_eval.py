@@ -83,7 +83,8 @@ def evaluate_asset(asset, views: list[View], truths: list[GroundTruth], lights: 
             gbuffer = render_gbuffer(asset, camera)
             record = {"view": view.name, "relighting": {}}
             for env, light in lights.items():
-                rgb = unpremultiply(shade_gbuffer(gbuffer, camera, light), gbuffer.alpha).cpu()
+                lit = gbuffer if asset.visibility is None else render_gbuffer(asset, camera, light)  # shadows depend on the light
+                rgb = unpremultiply(shade_gbuffer(lit, camera, light), lit.alpha).cpu()
                 metrics = evaluate_images(rgb, truth.relit[env], truth.mask, lpips)
                 record["relighting"][env] = metrics
                 relit_records.append(metrics)

@@ -51,13 +51,16 @@ class GBuffer:
     metallic: Tensor  # [H, W]
     normals: Tensor  # [H, W, 3] world space, any length
     alpha: Tensor  # [H, W] coverage in [0, 1]
+    shadow: Tensor | None = None  # [H, W, 6] diffuse and specular RGB light scales (`render.visibility`); None = unshadowed
 
     @classmethod
-    def from_accumulated(cls, base_color: Tensor, roughness: Tensor, metallic: Tensor, normals: Tensor, alpha: Tensor):
+    def from_accumulated(cls, base_color: Tensor, roughness: Tensor, metallic: Tensor, normals: Tensor, alpha: Tensor,
+                         shadow: Tensor | None = None):
         """From alpha-blended sums over a black background (sum_i w_i value_i, with sum_i w_i = alpha):
-        divides the materials by alpha. Normals keep their blend; shading normalises them."""
+        divides the materials (and shadow factors) by alpha. Normals keep their blend; shading normalises them."""
         cover = alpha.clamp_min(1e-6)
-        return cls(base_color / cover[..., None], roughness / cover, metallic / cover, normals, alpha)
+        shadow = None if shadow is None else shadow / cover[..., None]
+        return cls(base_color / cover[..., None], roughness / cover, metallic / cover, normals, alpha, shadow)
 
 
 def specular_direction(n: Tensor, wo: Tensor, roughness: Tensor) -> Tensor:  # [..., 3], [..., 3], [...] -> [..., 3]
@@ -75,6 +78,7 @@ def shade(
     normals: Tensor,  # [..., 3] world space, any length
     view_dirs: Tensor,  # [..., 3] unit, from the surface towards the camera (wo)
     light: EnvironmentMap | PrefilteredEnvironment,
+    shadow: Tensor | None = None,  # [..., 6] diffuse and specular RGB light scales; None = unshadowed
 ) -> Tensor:  # [..., 3] outgoing linear radiance
     """Split-sum image-based lighting. Pass a PrefilteredEnvironment to reuse one prefiltering."""
     if isinstance(light, EnvironmentMap):
@@ -89,6 +93,8 @@ def shade(
     specular_weight = specular_f0(base_color, metallic) * scale_bias[..., :1] + scale_bias[..., 1:]
     specular = light.lookup_specular(specular_direction(n, wo, r), r) * specular_weight
     diffuse = light.lookup_diffuse(n) * diffuse_albedo(base_color, metallic) / math.pi
+    if shadow is not None:
+        diffuse, specular = diffuse * shadow[..., :3], specular * shadow[..., 3:]
     return diffuse + specular
 
 
@@ -109,7 +115,7 @@ def shade_gbuffer(
         raise ValueError(f"G-buffer is {tuple(gbuffer.alpha.shape)} but the camera is {height} x {width}")
     _, ray_dirs = camera.to(gbuffer.normals.device).rays()  # [H * W, 3], row-major
     view_dirs = -ray_dirs.reshape(height, width, 3).to(gbuffer.normals.dtype)
-    rgb = shade(gbuffer.base_color, gbuffer.roughness, gbuffer.metallic, gbuffer.normals, view_dirs, light)
+    rgb = shade(gbuffer.base_color, gbuffer.roughness, gbuffer.metallic, gbuffer.normals, view_dirs, light, gbuffer.shadow)
     alpha = gbuffer.alpha[..., None]
     if background is None:
         return rgb * alpha

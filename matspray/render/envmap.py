@@ -184,6 +184,7 @@ class PrefilteredEnvironment:
     roughness_levels: Tensor  # [L] increasing
     specular: list[Tensor]  # L maps [h_i, 2 h_i, 3]
     irradiance: Tensor  # [h, 2h, 3]
+    source: Tensor | None = None  # [H, 2H, 3] the map it was prefiltered from (for `render.visibility`)
 
     def lookup_specular(self, directions: Tensor, roughness: Tensor) -> Tensor:  # [..., 3], [...] -> [..., 3]
         """Prefiltered radiance around unit reflection directions, linear between roughness levels."""
@@ -221,6 +222,7 @@ def prefilter_latlong(map: Tensor, levels=DEFAULT_LEVELS) -> PrefilteredEnvironm
         roughness_levels=torch.tensor(levels, dtype=map.dtype, device=map.device),
         specular=[prefilter_specular(map, r) for r in levels],
         irradiance=irradiance_map(map),
+        source=map,
     )
 
 

@@ -6,6 +6,8 @@ This is what makes material refinement cheap: the Gaussians do not move, only th
 
 from __future__ import annotations
 
+import functools
+
 import torch
 from torch import Tensor
 
@@ -40,6 +42,10 @@ class FrozenViews:
         visible = torch.zeros(len(self.means), dtype=torch.bool, device=self.means.device)
         visible[self.weights[index][0]] = True
         return visible
+
+    @functools.cached_property
+    def visible_ids(self) -> list[Tensor]:  # per view: ids [K] of the Gaussians that contribute to it
+        return [torch.nonzero(self.visible(index)).squeeze(1) for index in range(len(self))]
 
     def orient_normals(self, index: int, normals: Tensor) -> Tensor:  # [N, 3] -> [N, 3] facing view `index`
         return orient_normals(normals, self.means, self.cameras[index])
