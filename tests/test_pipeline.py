@@ -40,12 +40,13 @@ def finished_run(tiny_object, tmp_path_factory):
 
 def test_every_stage_writes_its_artifact(finished_run):
     for path in ("config.yaml", "dataset.json", "timings.json", "materials2d/predictor.json", "geometry/gaussians.ply",
-                 "lift/projected.pt", "asset/asset.ply", "asset/envmap.exr", "asset/merger.pt"):
+                 "lift/projected.pt", "visibility/visibility.pt", "asset/asset.ply", "asset/envmap.exr", "asset/merger.pt",
+                 "asset/visibility.pt"):
         assert (finished_run / path).exists(), path
     for variant in VARIANTS:
         assert (finished_run / asset_stage(variant) / "asset.ply").exists()
     timings = (finished_run / "timings.json").read_text()
-    for stage in ("materials2d", "geometry", "lift", "asset"):
+    for stage in ("materials2d", "geometry", "lift", "visibility", "asset"):
         assert f'"{stage}"' in timings
     assert not list(finished_run.rglob("*.tmp-*")), "a temporary file was left behind"
 
@@ -57,6 +58,23 @@ def test_asset_round_trip(finished_run):
     assert asset.materials.shape[1] == 5 and len(asset.gaussians) == len(asset.materials)
     assert (asset.materials >= 0).all() and (asset.materials <= 1).all()
     assert torch.allclose(asset.normals.norm(dim=-1), torch.ones(len(asset.normals)), atol=1e-4)
+    assert asset.visibility is not None and asset.visibility.shape == (len(asset.gaussians), 2 * 4 * 4)  # test preset: rows 4
+
+
+def test_shadows_off_makes_an_unshadowed_asset(tiny_object, finished_run, tmp_path):
+    import shutil
+
+    from matspray.asset import read_asset
+    from matspray.cli import main
+
+    run = tmp_path / "run"
+    for stage in ("materials2d", "geometry"):  # reuse the slow stages
+        shutil.copytree(finished_run / stage, run / stage)
+    shutil.copy(finished_run / "timings.json", run / "timings.json")
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4", "--shadows", "off"]
+    assert main(args) == 0
+    assert not (run / "visibility").exists()
+    assert read_asset(run / "asset").visibility is None
 
 
 def test_second_run_reuses_every_stage(tiny_object, finished_run):

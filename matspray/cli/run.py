@@ -18,6 +18,9 @@ def add_parser(parser) -> None:
     parser.add_argument("--geometry-iterations", type=int, help="override the preset's Gaussian Splatting iterations")
     parser.add_argument("--refine-iterations", type=int, help="override the preset's refinement iterations")
     parser.add_argument("--samples-per-side", type=int, help="override the preset's k (k x k lifting rays per pixel)")
+    parser.add_argument("--shadows", choices=("on", "off"), default="on",
+                        help="on (default): bake each Gaussian's visibility and shadow the PBR shading with it; "
+                             "off: the paper's unshadowed split-sum shading")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda or cuda:N")
     parser.add_argument("--weights", help="marigold: pipeline folder")
@@ -38,6 +41,8 @@ def config_from_args(args):
     if args.severity is not None:
         options["severity"] = args.severity
     config.predictor_options = options
+    if args.shadows == "off":
+        config.visibility = None
     if args.geometry_iterations is not None:
         from matspray.geometry.config import preset as geometry_preset
 

@@ -214,6 +214,6 @@ def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dic
         table1["2D predictions"] = {row: predictions[row] for row in ("basecolor", "roughness", "metallic")}
     table2 = {VARIANT_LABELS[v]: variants[v]["summary"]["relighting"] for v in ("full", "supervised", "proj-average") if v in variants}
     softmax = {VARIANT_LABELS[v]: variants[v]["summary"]["relighting"] for v in ("full", "no-softmax") if v in variants}
-    stage_names = {"materials2d": "predict", "geometry": "geometry", "lift": "lift", "asset": "refine"}
+    stage_names = {"materials2d": "predict", "geometry": "geometry", "lift": "lift", "visibility": "visibility", "asset": "refine"}
     stages = {stage_names[k]: v for k, v in timings.items() if k in stage_names}
     return {"table1": table1, "table2": table2, "softmax": softmax, "timings": {"Ours (this machine)": stages} if stages else {}}

@@ -43,6 +43,7 @@ STAGE_LABELS = {
     "geometry": "Gaussian Splatting",
     "normals": "Normal generation",
     "lift": "Projection (ray tracing)",
+    "visibility": "Shadow maps (visibility)",
     "refine": "Material optimization",
 }
 ALIGNED_NOTE = ("Scale-aligned rows: the prediction is multiplied per channel by the median ratio "
