@@ -8,7 +8,8 @@ Prints one table; the figures also land in OUT/run/eval/metrics.json and OUT/run
 With --ceilings it also prints what no material estimate can beat on this object:
   shading ceiling  the true G-buffer (true base color, roughness, metallic, normals and mask) shaded by
                    our split-sum renderer vs Mitsuba's path-traced relit views: the cost of the
-                   shading model alone (no shadows, no interreflections);
+                   shading model alone, unshadowed and shadowed by the full asset's baked visibility
+                   (interreflections are never modelled);
   lifted truth     the ground-truth 2D maps lifted onto our Gaussians and averaged (proj-average with
                    the ground-truth "predictor", in OUT/run-truth, reusing the geometry): the cost of
                    the geometry, the lifting and the Gaussian representation with perfect 2D maps.

@@ -8,8 +8,9 @@ here it is baked with the rasterizer:
   bake   For each of D directions w_j (the centres of a rows x 2 rows lat-long grid), render the Gaussians
          from a distant camera looking along -w_j. Along each shadow-map pixel the transmittance is a step
          function of depth, T(z) = 1 - sum_{hits k with z_k < z} w_k (the blending weights). A Gaussian's
-         visibility towards w_j is T at its own depth minus a bias (its own extent along w_j plus a
-         pixel), bilinear between the four shadow-map pixels around its projected centre: V [N, D].
+         visibility towards w_j is T at its own depth minus a bias (twice its own extent along w_j plus a
+         small fraction of the object's size, so that a surface does not shadow itself), bilinear between
+         the four shadow-map pixels around its projected centre: V [N, D].
   shade  Per Gaussian and view, with n its (oriented) normal, L_j the light averaged over cell j and
          dw_j the cell's solid angle, the diffuse and specular light are scaled by
              s_diffuse  = sum_j L_j V_j (n.w_j)+ dw_j / sum_j L_j (n.w_j)+ dw_j
@@ -35,7 +36,8 @@ from matspray.render.brdf import roughness_to_alpha
 from matspray.render.latlong import pixel_directions, pixel_solid_angles
 from matspray.render.rasterize import view_weights
 
-MAX_KAPPA = 12.0  # the specular kernel is kept at least ~ one grid cell wide (rows = 8: 22.5 degree cells)
+MAX_KAPPA = 1.5  # the specular kernel stays broad: on the coarse grid (rows = 8: 22.5 degree cells) sharper
+# kernels shadowed the true G-buffer of the demo object worse (relight PSNR 32.3 dB at 1.5, 31.8 at 12, 31.7 at 40)
 
 
 @dataclass(frozen=True)
@@ -43,7 +45,8 @@ class VisibilityConfig:
     rows: int = 8  # directions: the centres of a rows x 2 rows lat-long grid
     resolution: int = 128  # shadow-map pixels per side
     distance: float = 30.0  # shadow cameras sit this many bounding radii away (nearly parallel rays)
-    bias_pixels: float = 1.5  # depth bias in shadow-map pixels, added to each Gaussian's own extent
+    bias: float = 0.08  # depth bias as a fraction of the bounding radius, added to twice each Gaussian's extent
+    # along the direction (demo object, true G-buffer shadowed: 0.08 beat 0.008, 0.023, 0.047 and 0.125)
 
 
 def visibility_directions(rows: int, device=None) -> tuple[Tensor, Tensor]:  # -> [D, 3] unit, [D] steradians
@@ -108,12 +111,11 @@ def bake_visibility(gaussians: Gaussians, config: VisibilityConfig = VisibilityC
     center = (means.amax(0) + means.amin(0)) / 2
     radius = float((means - center).norm(dim=-1).max()) + 3.0 * float(gaussians.log_scales.exp().max())
     directions, _ = visibility_directions(config.rows, device=means.device)
-    pixel_size = 2.0 * radius / config.resolution
     axes = gaussians.scaled_axes()  # [N, 3, 3] columns: the scaled principal axes
     columns = []
     for direction in tqdm(directions, desc="visibility", disable=not progress):
         extent = (axes * direction[:, None]).sum(-2).norm(dim=-1)  # [N] standard deviation along the direction
-        bias = 2.0 * extent + config.bias_pixels * pixel_size
+        bias = 2.0 * extent + config.bias * radius
         columns.append(visibility_from(gaussians, shadow_camera(direction, center, radius, config), bias))
     return torch.stack(columns, dim=-1)
 
