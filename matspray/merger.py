@@ -87,15 +87,16 @@ class NeuralMerger(nn.Module):
         unit = 2.0 * (positions - lo) / (hi - lo).clamp_min(1e-8) - 1.0
         return positional_encoding(unit, self.config.frequencies)
 
-    def forward(self, positions: Tensor, values: Tensor, seen: Tensor, return_weights: bool = False):
+    def forward(self, positions: Tensor, values: Tensor, seen: Tensor, return_weights: bool = False, encoded: Tensor | None = None):
         """Merge per-view values.
 
         positions: [N, 3]; values: [N, V, 5] (base color rgb, roughness, metallic; anything where unseen);
-        seen: [N, V] bool. Returns merged materials [N, 5] (and the weights {group: [N, V]}).
+        seen: [N, V] bool; encoded: `encode_positions(positions)` when the caller keeps it (fixed Gaussians).
+        Returns merged materials [N, 5] (and the weights {group: [N, V]}).
         """
         if values.shape[1] != self.n_views or seen.shape != values.shape[:2]:
             raise RunError(f"the merger was built for {self.n_views} views but got values for {values.shape[1]}")
-        encoded = self.encode_positions(positions)
+        encoded = self.encode_positions(positions) if encoded is None else encoded
         values = values * seen[..., None]  # unseen entries carry no information
         merged, weights = [], {}
         for name, group in CHANNEL_GROUPS.items():

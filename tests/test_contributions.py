@@ -11,6 +11,7 @@ import torch
 from matspray.gaussians import Gaussians
 from matspray.render.contributions import contributions, iter_contributions
 from matspray.render.rasterize import rasterize
+from matspray.render.settings import RasterSettings
 from tests.test_rasterize import random_scene
 
 
@@ -110,7 +111,7 @@ def test_agrees_with_rasterized_alpha():
     agree on average to within 10% of the covered alpha, the splats never covering less."""
     gaussians, camera, _ = random_scene(25, 7, width=40, height=32)
     ray_alpha = contributions(gaussians, camera, 1).pixel_alpha()
-    unfiltered = rasterize(gaussians, camera, torch.zeros(len(gaussians), 0), eps2d=0.0).alpha
+    unfiltered = rasterize(gaussians, camera, torch.zeros(len(gaussians), 0), settings=RasterSettings(eps2d=0.0)).alpha
     filtered = rasterize(gaussians, camera, torch.zeros(len(gaussians), 0)).alpha
     assert ray_alpha.max() > 0.9 and (ray_alpha == 0).any()
     assert (ray_alpha - unfiltered).abs().max() < 0.03

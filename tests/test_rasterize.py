@@ -12,6 +12,7 @@ from matspray.data.camera import Camera
 from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
 from matspray.render.rasterize import rasterize
+from matspray.render.settings import RasterSettings
 
 
 def random_scene(n: int, seed: int, dtype=torch.float32, width: int = 16, height: int = 12, max_opacity: float = 0.97):
@@ -101,7 +102,7 @@ def test_early_termination_matches_brute_force():
     torch.testing.assert_close(out.features.double(), image, atol=1e-5, rtol=0)
     torch.testing.assert_close(out.alpha.double(), alpha, atol=1e-5, rtol=0)
     assert out.features[3:5, 3:5, -1].max() == 0  # the four central pixels stop early
-    assert rasterize(gaussians, camera, features, min_transmittance=0.0).features[3:5, 3:5, -1].min() > 1e-6
+    assert rasterize(gaussians, camera, features, settings=RasterSettings(min_transmittance=0.0)).features[3:5, 3:5, -1].min() > 1e-6
 
 
 def test_row_bands_give_the_same_image_and_gradients():

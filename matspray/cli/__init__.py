@@ -40,6 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+RESUMING_COMMANDS = ("run", "geometry", "demo", "bench")  # staged: a rerun skips what is finished
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -52,7 +55,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"matspray {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"matspray {args.command}: interrupted; finished stages are kept and a rerun resumes", file=sys.stderr)
+        if args.command in RESUMING_COMMANDS:
+            print(f"matspray {args.command}: interrupted; finished stages are kept and a rerun resumes", file=sys.stderr)
+        else:
+            print(f"matspray {args.command}: interrupted; run it again to start over (no file is left half-written)", file=sys.stderr)
         return 130
 
 

@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 from matspray.render.compositing import log_transmittance, surviving_hits
+from matspray.render.settings import RasterSettings
 
 
 def blend_hits(
@@ -27,13 +28,9 @@ def blend_hits(
     width: int,
     row_start: int,
     num_pixels: int,
-    min_alpha: float,
-    max_alpha: float,
-    min_transmittance: float,
+    settings: RasterSettings,
 ) -> tuple[Tensor, int]:  # [num_pixels, C] blended values, number of blended hits
-    out, blended = _BlendHits.apply(
-        splats, values, gaussian_ids, pixel_ids, (width, row_start, num_pixels, min_alpha, max_alpha, min_transmittance)
-    )
+    out, blended = _BlendHits.apply(splats, values, gaussian_ids, pixel_ids, (width, row_start, num_pixels, settings))
     return out, int(blended)
 
 
@@ -46,12 +43,12 @@ def _gaussian_response(splats: Tensor, gaussian_ids: Tensor, pixel_ids: Tensor, 
     return response, opacity, a, b, c, dx, dy
 
 
-def _blended_hits(raw: Tensor, pixel_ids: Tensor, num_pixels: int, min_alpha: float, max_alpha: float, min_transmittance: float):
+def _blended_hits(raw: Tensor, pixel_ids: Tensor, num_pixels: int, settings: RasterSettings):
     """The 3DGS alpha test and early termination on candidate hits with raw alpha o G [M]: indices of
     the hits that are blended [K], their alphas [K] and the transmittance in front of them [K]."""
-    alphas = torch.where(raw >= min_alpha, raw.clamp(max=max_alpha), torch.zeros_like(raw))
+    alphas = torch.where(raw >= settings.min_alpha, raw.clamp(max=settings.max_alpha), torch.zeros_like(raw))
     log_keep, log_T = log_transmittance(alphas, pixel_ids, num_pixels)
-    keep = torch.nonzero((alphas > 0) & surviving_hits(log_keep, log_T, min_transmittance)).squeeze(1)
+    keep = torch.nonzero((alphas > 0) & surviving_hits(log_keep, log_T, settings.min_transmittance)).squeeze(1)
     return keep, alphas.index_select(0, keep), torch.exp(log_T.index_select(0, keep)).to(alphas.dtype)
 
 
@@ -63,24 +60,22 @@ def hit_weights(
     width: int,
     row_start: int,
     num_pixels: int,
-    min_alpha: float,
-    max_alpha: float,
-    min_transmittance: float,
+    settings: RasterSettings,
 ) -> tuple[Tensor, Tensor, Tensor]:  # Gaussian ids [K], pixel ids [K], weights alpha_k T_k [K]
     """The blending weights `blend_hits` uses, without gradients: with them a frozen view's image of
     any features is one sparse product, out[p] = sum_k weight_k f[gaussian_k]."""
     response, opacity, *_ = _gaussian_response(splats, gaussian_ids, pixel_ids, width, row_start)
-    keep, alphas, transmittance = _blended_hits(opacity * response, pixel_ids, num_pixels, min_alpha, max_alpha, min_transmittance)
+    keep, alphas, transmittance = _blended_hits(opacity * response, pixel_ids, num_pixels, settings)
     return gaussian_ids.index_select(0, keep), pixel_ids.index_select(0, keep), alphas * transmittance
 
 
 class _BlendHits(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, splats, values, gaussian_ids, pixel_ids, settings):
-        width, row_start, num_pixels, min_alpha, max_alpha, min_transmittance = settings
+    def forward(ctx, splats, values, gaussian_ids, pixel_ids, band):
+        width, row_start, num_pixels, settings = band
         response, opacity, a, b, c, dx, dy = _gaussian_response(splats, gaussian_ids, pixel_ids, width, row_start)
         raw = opacity * response
-        keep, alphas, transmittance = _blended_hits(raw, pixel_ids, num_pixels, min_alpha, max_alpha, min_transmittance)
+        keep, alphas, transmittance = _blended_hits(raw, pixel_ids, num_pixels, settings)
         gaussian_ids, pixel_ids = gaussian_ids.index_select(0, keep), pixel_ids.index_select(0, keep)
         raw = raw.index_select(0, keep)
         weights = alphas * transmittance
@@ -88,7 +83,7 @@ class _BlendHits(torch.autograd.Function):
         out = values.new_zeros(num_pixels, values.shape[0])
         out.index_add_(0, pixel_ids, (hit_values * weights).t())
         ctx.save_for_backward(
-            gaussian_ids, pixel_ids, alphas, transmittance, raw <= max_alpha, response.index_select(0, keep),
+            gaussian_ids, pixel_ids, alphas, transmittance, raw <= settings.max_alpha, response.index_select(0, keep),
             a.index_select(0, keep), b.index_select(0, keep), c.index_select(0, keep),
             dx.index_select(0, keep), dy.index_select(0, keep), hit_values,
         )

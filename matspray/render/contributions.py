@@ -27,6 +27,7 @@ from matspray.gaussians import Gaussians
 from matspray.render.compositing import log_transmittance, ray_major_order_by_depth, surviving_hits
 from matspray.render.pairs import EMPTY_BOX, box_pixel_pairs, clip_rows, ellipse_pixel_pairs, pixel_boxes, row_bands
 from matspray.render.projection import log_opacity_ratio
+from matspray.render.settings import RasterSettings
 
 
 @dataclass
@@ -87,10 +88,7 @@ def iter_contributions(
     samples_per_side: int = 1,
     *,
     falloff: float = 1.0,
-    near: float = 0.01,
-    min_alpha: float = 1.0 / 255.0,
-    max_alpha: float = 0.99,
-    min_transmittance: float = 1e-4,
+    settings: RasterSettings = RasterSettings(),  # its eps2d is the rasterizer's alone
     max_samples: int = 1 << 21,
 ) -> Iterator[Contributions]:
     """The hits of `camera`'s rays, one band of pixel rows at a time (top to bottom).
@@ -105,6 +103,7 @@ def iter_contributions(
     if falloff <= 0:
         raise ValueError(f"contributions: falloff must be > 0, got {falloff}")
     width, height = camera.width, camera.height
+    near, min_alpha = settings.near, settings.min_alpha
     frame = _whitened_frames(gaussians, camera)
     opacities = gaussians.opacities.detach().double()
     radius2 = 2.0 * log_opacity_ratio(opacities, min_alpha) / falloff  # [N] k^2
@@ -123,7 +122,7 @@ def iter_contributions(
         first_sample = row_start * width * s * s
         local_ids = pixel_ids.index_select(0, pair) * (s * s) + sub - first_sample
         gaussian_ids = owner.index_select(0, pair)
-        alphas = alphas.reshape(-1).index_select(0, hit).clamp(max=max_alpha)
+        alphas = alphas.reshape(-1).index_select(0, hit).clamp(max=settings.max_alpha)
         depths = depths.reshape(-1).index_select(0, hit)
 
         order = ray_major_order_by_depth(local_ids, depths.float())
@@ -131,7 +130,7 @@ def iter_contributions(
         alphas, depths = alphas.index_select(0, order), depths.index_select(0, order)
         num_rays = (row_end - row_start) * width * s * s
         log_keep, log_T = log_transmittance(alphas, local_ids, num_rays)
-        alive = torch.nonzero(surviving_hits(log_keep, log_T, min_transmittance)).squeeze(1)
+        alive = torch.nonzero(surviving_hits(log_keep, log_T, settings.min_transmittance)).squeeze(1)
         local_ids, gaussian_ids = local_ids.index_select(0, alive), gaussian_ids.index_select(0, alive)
         alphas, depths = alphas.index_select(0, alive), depths.index_select(0, alive)
         weights = alphas * torch.exp(log_T.index_select(0, alive))

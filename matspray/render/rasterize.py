@@ -27,6 +27,7 @@ from matspray.render.blend import blend_hits, hit_weights
 from matspray.render.compositing import ray_major_order
 from matspray.render.pairs import EMPTY_BOX, box_areas, clip_rows, ellipse_pixel_pairs, pixel_boxes, row_bands
 from matspray.render.projection import log_opacity_ratio, max_eigen_radius, project_gaussians
+from matspray.render.settings import RasterSettings
 
 BACKENDS = ("auto", "torch")
 
@@ -57,11 +58,7 @@ def rasterize(
     background: Tensor | None = None,  # [C]; None means zeros
     *,
     backend: str = "auto",
-    near: float = 0.01,
-    eps2d: float = 0.3,
-    min_alpha: float = 1.0 / 255.0,
-    max_alpha: float = 0.99,
-    min_transmittance: float = 1e-4,
+    settings: RasterSettings = RasterSettings(),
     max_pairs: int = 1 << 23,
 ) -> RasterOutput:
     """Render per-Gaussian `features` into `camera`; differentiable w.r.t. the Gaussians' means,
@@ -77,10 +74,7 @@ def rasterize(
         raise ValueError(f"rasterize: background must be [C={features.shape[1]}], got {tuple(background.shape)}")
     if backend not in BACKENDS:
         raise ConfigError(f"rasterize: unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
-    return _rasterize_torch(
-        gaussians, camera, features, background, near=near, eps2d=eps2d, min_alpha=min_alpha,
-        max_alpha=max_alpha, min_transmittance=min_transmittance, max_pairs=max_pairs,
-    )
+    return _rasterize_torch(gaussians, camera, features, background, settings, max_pairs)
 
 
 def depth_ranks(depths: Tensor) -> Tensor:  # [N] -> [N] long: 0 for the nearest centre
@@ -105,10 +99,11 @@ class _Setup:
         return torch.stack([*proj.means2d.unbind(-1), *proj.conics.unbind(-1), self.opacities])
 
 
-def _setup(gaussians: Gaussians, camera: Camera, near: float, eps2d: float, min_alpha: float) -> _Setup:
+def _setup(gaussians: Gaussians, camera: Camera, settings: RasterSettings) -> _Setup:
     """Project the Gaussians and find each one's footprint (what every rendering of a view starts with)."""
     height, width = camera.height, camera.width
-    proj = project_gaussians(gaussians.means, gaussians.scaled_axes(), camera.viewmat, camera.K, width, height, near, eps2d)
+    min_alpha = settings.min_alpha
+    proj = project_gaussians(gaussians.means, gaussians.scaled_axes(), camera.viewmat, camera.K, width, height, settings.near, settings.eps2d)
     opacities = gaussians.opacities
     with torch.no_grad():
         # where opacity * exp(-q / 2) >= min_alpha: q <= radius2; the small margin keeps every true hit,
@@ -129,39 +124,32 @@ def view_weights(
     gaussians: Gaussians,
     camera: Camera,
     *,
-    near: float = 0.01,
-    eps2d: float = 0.3,
-    min_alpha: float = 1.0 / 255.0,
-    max_alpha: float = 0.99,
-    min_transmittance: float = 1e-4,
+    settings: RasterSettings = RasterSettings(),
     max_pairs: int = 1 << 23,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """The blending weights of every (Gaussian, pixel) hit `rasterize` would blend for this camera:
     Gaussian ids [M], row-major pixel ids [M], weights [M]. For frozen geometry, rendering any
     features [N, C] is then `zeros(H * W, C).index_add_(0, pixel_ids, weights[:, None] * f[gaussian_ids])`."""
-    setup = _setup(gaussians, camera, near, eps2d, min_alpha)
+    setup = _setup(gaussians, camera, settings)
     splats, width = setup.splats, camera.width
     parts = []
     for row_start, row_end in row_bands(setup.boxes, camera.height, max_pairs):
         gaussian_ids, pixel_ids = _candidate_pairs(clip_rows(setup.boxes, row_start, row_end), setup.footprints, setup.ranks, row_start, width)
-        ids, pixels, weights = hit_weights(splats, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, min_alpha, max_alpha, min_transmittance)
+        ids, pixels, weights = hit_weights(splats, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, settings)
         parts.append((ids, pixels + row_start * width, weights))
     return tuple(torch.cat(column) for column in zip(*parts))
 
 
-def _rasterize_torch(gaussians, camera, features, background, *, near, eps2d, min_alpha, max_alpha, min_transmittance, max_pairs):
+def _rasterize_torch(gaussians, camera, features, background, settings: RasterSettings, max_pairs: int):
     height, width = camera.height, camera.width
-    setup = _setup(gaussians, camera, near, eps2d, min_alpha)
+    setup = _setup(gaussians, camera, settings)
     proj, opacities, boxes, radii, ranks, footprints = setup.proj, setup.opacities, setup.boxes, setup.radii, setup.ranks, setup.footprints
     splats = setup.splats  # [6, N]
     values = torch.cat([features.t(), proj.depths[None], torch.ones_like(opacities)[None]])  # [C + 2, N]
     bands, num_hits = [], 0
     for row_start, row_end in row_bands(boxes, height, max_pairs):
         gaussian_ids, pixel_ids = _candidate_pairs(clip_rows(boxes, row_start, row_end), footprints, ranks, row_start, width)
-        band, blended = blend_hits(
-            splats, values, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width,
-            min_alpha, max_alpha, min_transmittance,
-        )
+        band, blended = blend_hits(splats, values, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, settings)
         bands.append(band.reshape(row_end - row_start, width, -1))
         num_hits += blended
     image = torch.cat(bands, dim=0) if len(bands) > 1 else bands[0]  # [H, W, C + 2]
