@@ -5,7 +5,9 @@ into a G-buffer, and
   - compares the rasterized material maps with the view's 2D maps by L1 (updates the merger only),
   - shades the G-buffer with split-sum image-based lighting from the learnable environment map and
     compares it with the photo by 0.8 L1 + 0.2 (1 - SSIM) (updates the merger and the environment map).
-Geometry is frozen, so each view's blending weights are computed once and reused every step.
+Geometry is frozen, so each view's blending weights are computed once and reused every step. With a
+directional visibility per Gaussian (the pipeline bakes one unless `--shadows off`), the PBR render is
+shadowed (`render.visibility`), so the photo loss no longer pushes shadows into the base color.
 
 Variants (the paper's ablations) choose what produces the per-Gaussian materials:
   full          Neural Merger with softmax over views
