@@ -19,13 +19,9 @@ VISIBILITY_FILE = "visibility.pt"  # optional: directional visibility [N, D] as 
 
 
 def write_visibility(path: Path, visibility: torch.Tensor) -> None:
-    import os
+    from matspray.data.images import save_torch_atomic
 
-    from matspray.data.images import atomic_target
-
-    tmp = atomic_target(path)
-    torch.save({"format": "matspray-visibility-1", "values": (visibility.detach().cpu().clamp(0, 1) * 255).round().to(torch.uint8)}, tmp)
-    os.replace(tmp, path)
+    save_torch_atomic({"format": "matspray-visibility-1", "values": (visibility.detach().cpu().clamp(0, 1) * 255).round().to(torch.uint8)}, path)
 
 
 def read_visibility(path: Path, count: int) -> torch.Tensor:  # -> [count, D] float in [0, 1]

@@ -16,15 +16,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import pickle
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 from torch import Tensor, nn
 
-from matspray.data.images import atomic_target
+from matspray.data.images import save_torch_atomic
 from matspray.errors import RunError, file_error
 
 # channel layout of the lifted values [N, V, 5]
@@ -135,8 +133,4 @@ def load_merger(path, n_views: int, bounds: Tensor, map_location="cpu") -> Neura
 
 
 def save_merger(merger: NeuralMerger, path) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = atomic_target(path)
-    torch.save({"n_views": merger.n_views, "config": dataclasses.asdict(merger.config), "state_dict": merger.state_dict()}, tmp)
-    os.replace(tmp, path)
+    save_torch_atomic({"n_views": merger.n_views, "config": dataclasses.asdict(merger.config), "state_dict": merger.state_dict()}, path)

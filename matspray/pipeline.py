@@ -151,9 +151,7 @@ class Pipeline:
 
     def visibility(self, kept) -> torch.Tensor | None:
         """Directional visibility [N, D] of the lifted Gaussians `kept`, or None when shadowing is off."""
-        import os
-
-        from matspray.data.images import atomic_target
+        from matspray.data.images import save_torch_atomic
         from matspray.render.visibility import bake_visibility
 
         if self.config.visibility is None:
@@ -163,11 +161,7 @@ class Pipeline:
         if not self.run.stage_done("visibility", fp, ["visibility.pt"]):
             self.log(f"visibility: shadow maps of {len(kept)} Gaussians towards {2 * self.config.visibility.rows ** 2} directions")
             with timed() as t:
-                values = bake_visibility(kept, self.config.visibility, progress=self.progress)
-                path.parent.mkdir(parents=True, exist_ok=True)
-                tmp = atomic_target(path)
-                torch.save(values.cpu(), tmp)
-                os.replace(tmp, path)
+                save_torch_atomic(bake_visibility(kept, self.config.visibility, progress=self.progress).cpu(), path)
             self.run.finish_stage("visibility", fp, self.config.visibility, t.seconds)
         else:
             self.log("visibility: done before, reusing visibility/visibility.pt")
@@ -214,14 +208,10 @@ def maps_to_tensor(maps) -> torch.Tensor:  # MaterialMaps -> [H, W, 5]
 
 
 def save_lift(result: LiftResult, path: Path) -> None:
-    import os
+    from matspray.data.images import save_torch_atomic
 
-    from matspray.data.images import atomic_target
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = atomic_target(path)
-    torch.save({"values": result.values.cpu(), "seen": result.seen.cpu(), "kept": result.kept.cpu(), "view_names": result.view_names, "stats": to_plain(result.stats)}, tmp)
-    os.replace(tmp, path)
+    save_torch_atomic({"values": result.values.cpu(), "seen": result.seen.cpu(), "kept": result.kept.cpu(), "view_names": result.view_names,
+                       "stats": to_plain(result.stats)}, path)
 
 
 def load_lift(path: Path, device) -> LiftResult:

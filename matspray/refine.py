@@ -121,11 +121,9 @@ def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, ta
         seen = frozen.visible_ids[index]
         shadows = gaussian_shadows(visibility[seen], oriented[seen], frozen.means[seen], materials[seen, 3], view.camera, light)
         features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
-    blended, alpha = frozen.render(index, torch.cat(features, dim=-1))  # [H, W, 8 or 14], [H, W]
-    shadow = blended[..., 8:14] if blended.shape[-1] > 8 else None
-    gbuffer = GBuffer.from_accumulated(blended[..., :3], blended[..., 3], blended[..., 4], blended[..., 5:8], alpha, shadow)
+    gbuffer = GBuffer.from_blended(*frozen.render(index, torch.cat(features, dim=-1)))  # [H, W, 8 or 14], [H, W]
     material_maps = torch.cat([gbuffer.base_color, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1)
-    terms = {"material": masked_l1(material_maps, target, mask * (alpha > 0.5))}
+    terms = {"material": masked_l1(material_maps, target, mask * (gbuffer.alpha > 0.5))}
     if light is not None:
         rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
         photo = linear_to_srgb(view.image * mask[..., None])

@@ -44,9 +44,7 @@ def render_gbuffer(asset: Asset, camera: Camera, light=None):
     if light is not None and asset.visibility is not None:
         features.append(gaussian_shadows(asset.visibility, normals, asset.gaussians.means, asset.materials[:, 3], camera, light))
     out = rasterize(asset.gaussians, camera, torch.cat(features, dim=-1))
-    f = out.features
-    shadow = f[..., 8:14] if f.shape[-1] > 8 else None
-    return GBuffer.from_accumulated(f[..., :3], f[..., 3], f[..., 4], f[..., 5:8], out.alpha, shadow)
+    return GBuffer.from_blended(out.features, out.alpha)
 
 
 def render_relit(asset: Asset, camera: Camera, light, background: Tensor | None = None) -> tuple[Tensor, Tensor]:

@@ -46,6 +46,15 @@ def _publish(tmp: Path, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def save_torch_atomic(obj, path) -> None:
+    """`torch.save` that never leaves a half-written file at `path` (creates the folder)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
 # ------------------------------------------------------------------------------------------ reading
 def read_image(path) -> tuple[Tensor, Tensor | None]:
     """Read an image file as linear float32.

@@ -80,11 +80,13 @@ def evaluate_asset(asset, views: list[View], truths: list[GroundTruth], lights: 
     for view, truth in zip(views, truths):
         camera = view.camera.to(asset.gaussians.device)
         with torch.no_grad():
-            gbuffer = render_gbuffer(asset, camera)
+            # with visibility each light casts its own shadows; the material channels are the same in every G-buffer
+            lit = {env: render_gbuffer(asset, camera, light) for env, light in lights.items()} if asset.visibility is not None else {}
+            gbuffer = next(iter(lit.values())) if lit else render_gbuffer(asset, camera)
             record = {"view": view.name, "relighting": {}}
             for env, light in lights.items():
-                lit = gbuffer if asset.visibility is None else render_gbuffer(asset, camera, light)  # shadows depend on the light
-                rgb = unpremultiply(shade_gbuffer(lit, camera, light), lit.alpha).cpu()
+                shaded = lit.get(env, gbuffer)
+                rgb = unpremultiply(shade_gbuffer(shaded, camera, light), shaded.alpha).cpu()
                 metrics = evaluate_images(rgb, truth.relit[env], truth.mask, lpips)
                 record["relighting"][env] = metrics
                 relit_records.append(metrics)

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 
-from matspray.data.images import atomic_target
+from matspray.data.images import save_torch_atomic
 from matspray.errors import RunError, file_error
 from matspray.geometry.config import GeometryConfig
 
@@ -16,11 +15,7 @@ CHECKPOINT_VERSION = 1
 
 def save_checkpoint(path, config: GeometryConfig, iteration: int, state: dict) -> None:
     """`state`: tensors and plain values (optimizer, density statistics, random generator...)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = atomic_target(path)
-    torch.save({"version": CHECKPOINT_VERSION, "config": config.to_dict(), "iteration": iteration, "state": state}, tmp)
-    os.replace(tmp, path)
+    save_torch_atomic({"version": CHECKPOINT_VERSION, "config": config.to_dict(), "iteration": iteration, "state": state}, path)
 
 
 def load_checkpoint(path, config: GeometryConfig) -> tuple[int, dict] | None:

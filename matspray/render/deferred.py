@@ -62,6 +62,13 @@ class GBuffer:
         shadow = None if shadow is None else shadow / cover[..., None]
         return cls(base_color / cover[..., None], roughness / cover, metallic / cover, normals, alpha, shadow)
 
+    @classmethod
+    def from_blended(cls, blended: Tensor, alpha: Tensor):
+        """`from_accumulated` of blended per-Gaussian features [H, W, 8 | 14] laid out as base color 3,
+        roughness, metallic, normal 3 and optionally the 6 shadow factors (`render.visibility`)."""
+        shadow = blended[..., 8:14] if blended.shape[-1] > 8 else None
+        return cls.from_accumulated(blended[..., :3], blended[..., 3], blended[..., 4], blended[..., 5:8], alpha, shadow)
+
 
 def specular_direction(n: Tensor, wo: Tensor, roughness: Tensor) -> Tensor:  # [..., 3], [..., 3], [...] -> [..., 3]
     """Dominant direction of the specular lobe: lerp(n, reflect(-wo, n), s (sqrt(s) + alpha)), s = 1 - alpha."""

@@ -78,14 +78,12 @@ def transmittance_at(keys: Tensor, cumulative: Tensor, pixel: Tensor, depth01: T
 def visibility_from(gaussians: Gaussians, camera: Camera, bias: Tensor) -> Tensor:  # bias [N] -> [N]
     """Each Gaussian's transmittance towards `camera` (1 when nothing in front of it blocks the view)."""
     ids, pixels, weights = view_weights(gaussians, camera)  # sorted by pixel, then front to back
-    means_cam = gaussians.means @ camera.viewmat[:3, :3].t().to(gaussians.means) + camera.viewmat[:3, 3].to(gaussians.means)
-    depth = means_cam[:, 2].double()  # [N]
+    xy, depth = camera.project(gaussians.means)  # [N, 2] continuous pixel coordinates (centres at +0.5), [N]
+    depth = depth.double()
     near, far = float(depth.min()), float(depth.max())
     depth01 = (depth - near) / max(far - near, 1e-12)
     keys = pixels.double() + depth01[ids] / 2
     cumulative = F.pad(torch.cumsum(weights.double(), 0), (1, 0))
-    # projected centres, in pixel units with pixel centres at integer + 0.5
-    xy = (means_cam @ camera.K.t().to(means_cam))[:, :2] / means_cam[:, 2:].clamp_min(1e-9)
     query_depth = (depth - bias.double() - near) / max(far - near, 1e-12)
     corner = torch.floor(xy - 0.5)
     frac = (xy - 0.5 - corner).double()
@@ -109,7 +107,7 @@ def bake_visibility(gaussians: Gaussians, config: VisibilityConfig = VisibilityC
     gaussians = gaussians.detach()
     means = gaussians.means
     center = (means.amax(0) + means.amin(0)) / 2
-    radius = float((means - center).norm(dim=-1).max()) + 3.0 * float(gaussians.log_scales.exp().max())
+    radius = float((means - center).norm(dim=-1).max()) + 3.0 * float(gaussians.scales.max())
     directions, _ = visibility_directions(config.rows, device=means.device)
     axes = gaussians.scaled_axes()  # [N, 3, 3] columns: the scaled principal axes
     columns = []
