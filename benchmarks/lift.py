@@ -2,7 +2,7 @@
 Gaussians with non-zero rendered weight in a view that receive no material value from it, and the
 seconds lifting takes per view.
 
-    python -m benchmarks.lift --run runs/demo-demo/run [--views 4] [--samples 1 2 4 16]
+    python -m benchmarks.lift --run runs/demo-demo/run [--views 4] [--samples 1 2 4 16] [--falloff 4]
 
 Uses the run's geometry and its 2D maps (RUN/geometry/gaussians.ply, RUN/materials2d/).
 """
@@ -28,13 +28,14 @@ def main() -> None:
     parser.add_argument("--run", type=Path, default=Path("runs/demo-demo/run"))
     parser.add_argument("--views", type=int, default=4, help="training views to measure (evenly spread)")
     parser.add_argument("--samples", type=int, nargs="+", default=[1, 4, 16])
+    parser.add_argument("--falloff", type=float, default=LiftConfig.falloff, help="lambda of eq. (2) (default: the lifting default)")
     args = parser.parse_args()
     scene = load_scene(read_json(args.run / "dataset.json")["source"])
     gaussians, _ = read_ply(args.run / "geometry" / "gaussians.ply")
     step = max(1, len(scene.train) // args.views)
     views = scene.train[::step][: args.views]
     maps = read_materials2d(args.run, views)
-    print(f"{len(gaussians)} Gaussians, {len(views)} views of {views[0].width}x{views[0].height} px")
+    print(f"{len(gaussians)} Gaussians, {len(views)} views of {views[0].width}x{views[0].height} px, falloff {args.falloff}")
     rendered = [rendered_weight_per_gaussian(gaussians, v.camera) > 0 for v in views]
     # "any hit": every Gaussian a ray reaches counts (the sampling question alone); "visible": the
     # default rule, hits behind an opaque front (transmittance < 0.5) do not receive the front's value
@@ -46,7 +47,7 @@ def main() -> None:
         for view, drawn in zip(views, rendered):
             total += int(drawn.sum())
             for threshold in missed:  # no mask: the question is whether rays find what the rasterizer draws
-                config = LiftConfig(samples_per_side=k, visibility_threshold=threshold)
+                config = LiftConfig(samples_per_side=k, visibility_threshold=threshold, falloff=args.falloff)
                 _, seen, _ = lift_view(gaussians, view.camera, maps_to_tensor(maps[view.name]), None, config)
                 missed[threshold] += int((drawn & ~seen).sum())
         seconds = (time.perf_counter() - start) / len(views) / len(missed)

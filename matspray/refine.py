@@ -104,6 +104,13 @@ def check_finite(step: int, **terms: Tensor) -> None:
             raise NumericalError(f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept")
 
 
+def check_finite_gradients(step: int, named_parameters) -> None:
+    """A non-finite gradient would turn Adam's state (and every later step) into NaN without any loss showing it."""
+    bad = [name for name, p in named_parameters if p.grad is not None and not torch.isfinite(p.grad).all()]
+    if bad:
+        raise NumericalError(f"refine step {step}: non-finite gradient for {', '.join(bad[:3])}; the last good checkpoint is kept")
+
+
 def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, target: Tensor, envmap, config: RefineConfig,
                 visibility: Tensor | None = None) -> dict[str, Tensor]:
     """The two losses of one training view: L1 of the rasterized material maps against the view's 2D
@@ -171,6 +178,8 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     if normal_offsets is not None:
         groups.append({"params": [normal_offsets], "lr": 1e-3})
     optimizer = torch.optim.Adam(groups)
+    trained = list(source.named_parameters()) + ([] if envmap is None else [(f"envmap.{n}", p) for n, p in envmap.named_parameters()]) \
+        + ([] if normal_offsets is None else [("normal_offsets", normal_offsets)])
     generator = torch.Generator().manual_seed(config.seed)
     bar = tqdm(range(1, config.iterations + 1), desc=f"refine [{config.variant}]", disable=not progress)
     for step in bar:
@@ -183,6 +192,7 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
         check_finite(step, **terms)
         optimizer.zero_grad(set_to_none=True)
         total.backward()
+        check_finite_gradients(step, trained)
         optimizer.step()
         if step % config.log_every == 0 or step == config.iterations:
             record = {"step": step, **{k: float(v.detach()) for k, v in terms.items()}}

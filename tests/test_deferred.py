@@ -171,3 +171,17 @@ def test_shade_gradcheck():
         return shade(base, rough, metal, normals, view, prefilter_latlong(log_map.exp(), levels=(0.2, 0.6, 1.0)))
 
     assert torch.autograd.gradcheck(render, (base, rough, metal, normals, log_map), fast_mode=True)
+
+
+@pytest.mark.parametrize("roughness", [0.0, 1.0])
+def test_gradients_are_finite_at_the_ends_of_the_roughness_range(roughness):
+    """Roughness 1 makes the lobe's lerp weight s = 1 - alpha zero; s * sqrt(s) has a finite slope there,
+    but written as s * sqrt(s) autograd multiplied 0 by an infinite 1 / (2 sqrt(s)) and returned NaN."""
+    from matspray.render.deferred import specular_direction
+
+    rough = torch.full((4,), roughness, requires_grad=True)
+    normals = torch.nn.functional.normalize(torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.1, 0.9], [0.2, -0.5, 0.8], [-0.4, 0.4, 0.7]]), dim=-1)
+    view = torch.nn.functional.normalize(torch.tensor([[0.2, 0.1, 0.9], [0.7, 0.0, 0.7], [0.0, 0.6, 0.8], [0.1, 0.1, 0.9]]), dim=-1)
+    env = EnvironmentMap.from_tensor(sky_map(16).float())
+    (specular_direction(normals, view, rough).sum() + shade(torch.full((4, 3), 0.5), rough, torch.zeros(4), normals, view, env).sum()).backward()
+    assert torch.isfinite(rough.grad).all()

@@ -63,3 +63,14 @@ def test_supervised_materials_converge_to_the_2d_maps_in_a_short_run(lifted_scen
     result = refine(gaussians, normals, lifted.values, lifted.seen, views, maps, BOUNDS, config, progress=False)
     after = mean_losses(gaussians, normals, result.materials, None, views, maps, config)["material"]
     assert after < 0.4 * before, (before, after)
+
+
+def test_a_non_finite_gradient_stops_refinement_naming_the_step_and_parameter():
+    from matspray.errors import NumericalError
+    from matspray.refine import check_finite_gradients
+
+    good, bad = torch.nn.Parameter(torch.zeros(2)), torch.nn.Parameter(torch.zeros(3))
+    good.grad, bad.grad = torch.ones(2), torch.tensor([0.0, float("nan"), 1.0])
+    check_finite_gradients(7, [("good", good)])
+    with pytest.raises(NumericalError, match="refine step 7: non-finite gradient for merger.bad"):
+        check_finite_gradients(7, [("good", good), ("merger.bad", bad)])

@@ -127,3 +127,16 @@ def test_visibility_round_trips_with_the_asset_and_a_wrong_count_is_refused(tmp_
         read_asset(tmp_path)
     write_asset(tmp_path, gaussians, SimpleNamespace(**{**result.__dict__, "visibility": None}))
     assert read_asset(tmp_path).visibility is None  # the stale file is gone with the asset that used it
+
+
+def test_shadow_factor_gradients_are_finite_for_fully_rough_gaussians():
+    light = EnvironmentMap.from_tensor(sky_map(8).float())
+    rows = 4
+    rough = torch.tensor([1.0, 1.0, 0.5], requires_grad=True)
+    normals = torch.nn.functional.normalize(torch.tensor([[0.0, 0.0, 1.0], [0.5, 0.0, 0.8], [0.0, 0.3, 0.9]]), dim=-1)
+    view_dirs = torch.nn.functional.normalize(torch.tensor([[0.3, 0.0, 0.9], [0.0, 0.4, 0.9], [0.2, 0.2, 0.9]]), dim=-1)
+    visibility = torch.rand(3, 2 * rows * rows, generator=torch.Generator().manual_seed(0))
+    from matspray.render.visibility import light_cells
+
+    shadow_factors(visibility, normals, view_dirs, rough, light_cells(light, rows)).sum().backward()
+    assert torch.isfinite(rough.grad).all()

@@ -75,7 +75,8 @@ def specular_direction(n: Tensor, wo: Tensor, roughness: Tensor) -> Tensor:  # [
     alpha = roughness_to_alpha(roughness)[..., None]
     smooth = 1.0 - alpha
     mirror = reflect(-wo, n)
-    return F.normalize(torch.lerp(n, mirror, smooth * (smooth.sqrt() + alpha)), dim=-1, eps=1e-12)
+    # s^1.5 + s alpha rather than s (sqrt(s) + alpha): the same value, but a finite gradient at s = 0 (roughness 1)
+    return F.normalize(torch.lerp(n, mirror, smooth.pow(1.5) + smooth * alpha), dim=-1, eps=1e-12)
 
 
 def shade(
