@@ -2,6 +2,7 @@
 quality, the raw 2D predictions' quality, and the seconds per stage.
 
     python -m benchmarks.method [--preset demo|test] [--out runs/bench-method] [--shape composite] [--ceilings]
+                                [--refine-iterations N]
 
 Prints one table; the figures also land in OUT/run/eval/metrics.json and OUT/run/report.html.
 
@@ -40,10 +41,11 @@ def main() -> None:
     parser.add_argument("--shape", default="composite")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--ceilings", action="store_true", help="also measure the shading and lifted-truth ceilings")
+    parser.add_argument("--refine-iterations", type=int, help="override the preset's refinement iterations (earlier stages are reused)")
     args = parser.parse_args()
     start = time.perf_counter()
     data = make_demo_object(args.out / "data", args.preset, args.shape, args.seed)
-    metrics = run_object(data, args.out / "run", args.preset)
+    metrics = run_object(data, args.out / "run", args.preset, refine_iterations=args.refine_iterations)
     print(f"\nobject: {args.shape} seed {args.seed}, preset {args.preset}, torch threads {torch.get_num_threads()}")
     print(f"held-out lights: {', '.join(metrics['relight_envs'])}")
     header = f"{'variant':<16}{'relight PSNR':>13}{'relight SSIM':>13}{'basecolor PSNR':>15}{'rough PSNR':>11}{'metal PSNR':>11}"

@@ -44,13 +44,20 @@ def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bo
     return out
 
 
-def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progress: bool = True, log=print) -> dict:
-    """Run every variant of the method on one object, evaluate it and write its report."""
+def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progress: bool = True, log=print,
+               refine_iterations: int | None = None) -> dict:
+    """Run every variant of the method on one object, evaluate it and write its report
+    (`refine_iterations` overrides the preset's)."""
+    from dataclasses import replace
+
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run
     from matspray.pipeline import Pipeline, preset_config
 
-    pipeline = Pipeline(data, run_dir, preset_config(preset, predictor="simulated"), progress=progress, log=log)
+    config = preset_config(preset, predictor="simulated")
+    if refine_iterations is not None:
+        config.refine = replace(config.refine, iterations=refine_iterations)
+    pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)
     pipeline.run_all(variants)
     metrics = evaluate_run(run_dir, data, progress=progress)
     write_report(run_dir, metrics, data)

@@ -211,9 +211,10 @@ def save_lift(result: LiftResult, path: Path) -> None:
     from matspray.data.images import save_torch_atomic
 
     save_torch_atomic({"values": result.values.cpu(), "seen": result.seen.cpu(), "kept": result.kept.cpu(), "view_names": result.view_names,
-                       "stats": to_plain(result.stats)}, path)
+                       "stats": to_plain(result.stats), "hits": None if result.hits is None else result.hits.cpu()}, path)
 
 
 def load_lift(path: Path, device) -> LiftResult:
     data = torch.load(path, map_location=device, weights_only=False)
-    return LiftResult(values=data["values"], seen=data["seen"], kept=data["kept"], view_names=data["view_names"], stats=data["stats"])
+    return LiftResult(values=data["values"], seen=data["seen"], kept=data["kept"], view_names=data["view_names"], stats=data["stats"],
+                      hits=data.get("hits"))

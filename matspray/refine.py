@@ -71,14 +71,15 @@ class MaterialSource(nn.Module):
         if variant in ("full", "no-softmax"):
             config = MergerConfig(**{**merger_config.__dict__, "softmax": variant == "full"})
             self.merger = NeuralMerger(values.shape[1], bounds, config)
-            self.register_buffer("encoded", self.merger.encode_positions(positions), persistent=False)  # geometry is frozen
+            with torch.no_grad():  # geometry is frozen: the MLPs' inputs never change
+                self.inputs = self.merger.group_inputs(positions, values, seen)
         elif variant == "supervised":  # free parameters, starting from an uninformed grey
             self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
 
     def forward(self, index: Tensor | None = None) -> Tensor:  # [N, 5], or [K, 5] for the Gaussians `index` [K]
         pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
         if self.merger is not None:
-            return self.merger(pick(self.positions), pick(self.values), pick(self.seen), encoded=pick(self.encoded))
+            return self.merger.merge({name: pick(x) for name, x in self.inputs.items()}, pick(self.values), pick(self.seen))
         if self.variant == "supervised":
             return torch.sigmoid(pick(self.logits))
         return projection_average(pick(self.values), pick(self.seen))

@@ -57,3 +57,32 @@ def test_lifting_hand_made_scene_median_and_occlusion():
     assert torch.allclose(result.values[1], torch.full((2, 5), 0.8))
     assert result.seen.all()
     assert result.stats["gaussians_removed"] == 2
+
+
+def test_a_view_that_only_glimpses_a_gaussian_does_not_count_as_seeing_it():
+    """Camera a sees G0 (left disk) whole; camera b is turned so that only the edge of G0's footprint
+    stays in the image: b's hits are a small share of a's, so b does not count (its median stays stored)."""
+    from matspray.data import Camera
+    from matspray.lift import LiftConfig, lift, supported_views
+
+    gaussians, camera = hand_made_scene()
+    glimpse = Camera.look_at([1.75, 0.0, -5.0], [1.75, 0.0, 0.0], [0.0, -1.0, 0.0], 0.8, 32, 32)
+    materials = torch.full((32, 32, 5), 0.3)
+    config = LiftConfig(samples_per_side=2)
+    result = lift(gaussians, [camera, glimpse], [materials, materials], [None, None], ["a", "b"], config, progress=False)
+    left = 0  # G0 is the first kept Gaussian
+    hits_a, hits_b = result.hits[left].tolist()
+    assert 0 < hits_b < 0.5 * hits_a
+    assert result.seen[left].tolist() == [True, False]
+    assert torch.allclose(result.values[left, 1], torch.full((5,), 0.3))  # the glimpse's median is kept, just not counted
+    everything = lift(gaussians, [camera, glimpse], [materials, materials], [None, None], ["a", "b"], LiftConfig(samples_per_side=2, min_support=0.0), progress=False)
+    assert everything.seen[left].tolist() == [True, True]
+    assert supported_views(torch.tensor([[10, 4, 0], [0, 2, 1]]), 0.5).tolist() == [[True, False, False], [False, True, True]]
+
+
+def test_min_support_outside_zero_to_one_is_refused():
+    from matspray.errors import ConfigError
+    from matspray.lift import LiftConfig
+
+    with pytest.raises(ConfigError, match="min_support must be in"):
+        LiftConfig(min_support=1.5)

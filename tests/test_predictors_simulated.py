@@ -180,6 +180,20 @@ def test_a_fraction_of_batches_gets_spurious_metallic():
     assert not any(draw_batch_drift(SimulationConfig(severity=0.0), b).spurious_metallic for b in range(10))
 
 
+def test_baked_shading_strength_varies_by_batch_around_its_mean():
+    config = SimulationConfig(seed=4)
+    exponents = [draw_batch_drift(config, batch).shading for batch in range(400)]
+    low, high = config.shading_strength * (1 - config.shading_spread), config.shading_strength * (1 + config.shading_spread)
+    assert all(low <= e <= high for e in exponents)
+    assert abs(sum(exponents) / len(exponents) - config.shading_strength) < 0.03
+    assert max(exponents) - min(exponents) > 0.9 * (high - low)  # batches really differ
+    flat = SimulationConfig(seed=4, shading_spread=0.0)
+    assert {draw_batch_drift(flat, batch).shading for batch in range(5)} == {flat.shading_strength}
+    assert draw_batch_drift(SimulationConfig(seed=4, severity=0.0), 3).shading == 0.0
+    with pytest.raises(Exception, match="shading_spread must be in"):
+        SimulationConfig(shading_spread=1.5)
+
+
 def test_effects_change_the_object_only():
     config = SimulationConfig(metallic_probability=1.0, metallic_amplitude=(0.3, 0.3), blur_fraction=0.0)
     from matspray.predictors.maps import MaterialMaps

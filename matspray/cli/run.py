@@ -18,6 +18,9 @@ def add_parser(parser) -> None:
     parser.add_argument("--geometry-iterations", type=int, help="override the preset's Gaussian Splatting iterations")
     parser.add_argument("--refine-iterations", type=int, help="override the preset's refinement iterations")
     parser.add_argument("--samples-per-side", type=int, help="override the preset's k (k x k lifting rays per pixel)")
+    parser.add_argument("--min-support", type=float, metavar="SHARE",
+                        help="a view counts for a Gaussian when it gets at least this share of the hits of its best view "
+                             "(default 0.5; 0 counts every view with a hit)")
     parser.add_argument("--shadows", choices=("on", "off"), default="on",
                         help="on (default): bake each Gaussian's visibility and shadow the PBR shading with it; "
                              "off: the paper's unshadowed split-sum shading")
@@ -57,6 +60,10 @@ def config_from_args(args):
         if not 1 <= args.samples_per_side <= 32:
             raise ConfigError(f"--samples-per-side must be in 1..32, got {args.samples_per_side}")
         config.lift = replace(config.lift, samples_per_side=args.samples_per_side)
+    if args.min_support is not None:
+        if not 0.0 <= args.min_support <= 1.0:
+            raise ConfigError(f"--min-support must be in [0, 1], got {args.min_support}")
+        config.lift = replace(config.lift, min_support=args.min_support)
     return config
 
 

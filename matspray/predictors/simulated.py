@@ -5,8 +5,11 @@ the paper describes for DiffusionRenderer, so that later stages can be measured 
 
 1. Lighting baked into base color. The model partly explains the photo's shading as albedo:
    base color is multiplied by the photo's diffuse shading ratio S = Y(photo) / Y(true base color),
-   normalised to median 1 over the object, raised to `shading_strength` (shadows darken it,
-   highlights brighten it; S depends on the view, so this is view-inconsistent).
+   normalised to median 1 over the object, raised to an exponent (shadows darken it, highlights
+   brighten it). How much lighting a window fails to remove depends on what that window saw (the
+   paper: a batch "cannot recover the complete environment illumination"), so the exponent is drawn
+   per batch, uniformly in `shading_strength` x [1 - `shading_spread`, 1 + `shading_spread`]. The
+   shadows themselves sit at the same surface points in every view; only the batches' strength differs.
 2. Tone mapping. Its training targets were tone mapped (supplement of the paper), so base color and
    roughness come out through a filmic view transform read back as sRGB: a sigmoid in log2 exposure
    (middle grey 0.18 kept, scene 1.0 -> display 0.8) that darkens bright base colors and compresses
@@ -51,7 +54,8 @@ class SimulationConfig:
     seed: int = 0
     batch_size: int = 8  # views per model window (DiffusionRenderer: 24)
     # magnitudes at severity 1
-    shading_strength: float = 0.35  # exponent of the baked-in shading ratio
+    shading_strength: float = 0.35  # mean exponent of the baked-in shading ratio
+    shading_spread: float = 0.8  # per batch the exponent is shading_strength x U[1 - spread, 1 + spread]
     tone_strength: float = 1.0  # blend towards the filmic curve's output
     exposure_sigma: float = 0.10  # per batch, std of log brightness gain
     white_balance_sigma: float = 0.06  # per batch and channel, std of log gain
@@ -67,6 +71,8 @@ class SimulationConfig:
             raise ConfigError(f"--severity must be a number >= 0, got {self.severity}")
         if int(self.batch_size) < 1:
             raise ConfigError(f"--batch-size must be >= 1, got {self.batch_size}")
+        if not 0.0 <= self.shading_spread <= 1.0:
+            raise ConfigError(f"shading_spread must be in [0, 1], got {self.shading_spread}")
 
 
 @dataclass
@@ -78,6 +84,7 @@ class BatchDrift:
     color_shift: list[float]  # [3] additive, linear
     roughness_offset: float
     spurious_metallic: float  # 0 when this batch has none
+    shading: float  # exponent of the baked-in shading ratio
 
 
 # ------------------------------------------------------------------------------------------ effects
@@ -143,6 +150,8 @@ def draw_batch_drift(config: SimulationConfig, batch: int) -> BatchDrift:
         color_shift=[float(v) for v in config.color_shift_sigma * s * normal[4:7]],
         roughness_offset=float(config.roughness_offset_sigma * s * normal[7]),
         spurious_metallic=float(min(1.0, amplitude)) if has_metal else 0.0,
+        # its own stream, so that adding it left every earlier draw as it was
+        shading=float(config.shading_strength * s * (1.0 + config.shading_spread * (2.0 * np.random.default_rng([int(config.seed), 3, batch]).uniform() - 1.0))),
     )
 
 
@@ -155,7 +164,7 @@ def simulate_view(truth: MaterialMaps, photo: Tensor, alpha: Tensor | None, drif
     jitter = np.random.default_rng([int(config.seed), 1, index]).standard_normal(2) * config.view_jitter_sigma * s
     tone = min(1.0, config.tone_strength * s)
 
-    basecolor = truth.basecolor * shading_ratio(photo.to(truth.basecolor), truth.basecolor, mask)[..., None] ** (config.shading_strength * s)
+    basecolor = truth.basecolor * shading_ratio(photo.to(truth.basecolor), truth.basecolor, mask)[..., None] ** drift.shading
     basecolor = basecolor.clamp(0.0, 1.0)
     basecolor = torch.lerp(basecolor, filmic_tone(basecolor), tone)
     gain = torch.tensor(drift.white_balance, dtype=basecolor.dtype, device=basecolor.device) * drift.exposure * float(np.exp(jitter[0]))
