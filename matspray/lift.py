@@ -10,9 +10,9 @@ the pixel's samples hit the Gaussian. Gaussians hit in no view are removed.
 A view counts as seeing a Gaussian (`seen`, the mask the Neural Merger and Proj. Average use) when the
 Gaussian receives at least `min_support` times the samples it receives in the view that sees it best.
 Views with fewer hits are glimpses (nearly occluded, grazing, or the edge of a footprint that lies
-on another surface); on the demo object their medians disagree with the other views more than twice as often
-times as often (`python -m benchmarks.lift_support`). Every hit view keeps its median in `values`
-and its sample count in `hits`.
+on another surface); on the demo object their medians disagree with the other views more than
+twice as often as the best-seen views' (`python -m benchmarks.lift_support`). Every hit view keeps
+its median in `values` and its sample count in `hits`.
 """
 
 from __future__ import annotations
