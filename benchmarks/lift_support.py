@@ -18,27 +18,13 @@ from pathlib import Path
 import torch
 
 from matspray.data import load_scene
-from matspray.eval.evaluate import evaluate_images
-from matspray.eval.run_eval import read_view_truth
+from matspray.eval.run_eval import evaluate_asset, read_view_truth
 from matspray.geometry.ply import read_ply
 from matspray.lift import LiftConfig, lift, supported_views
 from matspray.merger import projection_average
 from matspray.pipeline import maps_to_tensor
 from matspray.predictors.ground_truth import read_ground_truth
-from matspray.render.rasterize import rasterize
-
-
-def material_psnr(gaussians, materials, views, truths) -> dict[str, float]:
-    """Mean PSNR of rasterized base color, roughness, metallic [N, 5] over `views`."""
-    totals = {"basecolor": 0.0, "roughness": 0.0, "metallic": 0.0}
-    for view, truth in zip(views, truths):
-        with torch.no_grad():
-            out = rasterize(gaussians, view.camera, materials)
-        maps = (out.features / out.alpha.clamp_min(1e-6)[..., None]).clamp(0, 1)
-        totals["basecolor"] += evaluate_images(maps[..., :3], truth.basecolor, truth.mask)["psnr"]
-        totals["roughness"] += evaluate_images(maps[..., 3:4], truth.roughness[..., None], truth.mask, encoding="raw")["psnr"]
-        totals["metallic"] += evaluate_images(maps[..., 4:5], truth.metallic[..., None], truth.mask, encoding="raw")["psnr"]
-    return {name: value / len(views) for name, value in totals.items()}
+from matspray.relight import Asset
 
 
 def main() -> None:
@@ -48,14 +34,14 @@ def main() -> None:
     parser.add_argument("--support", type=float, nargs="+", default=[0.0, 0.1, 0.25, 0.5, 0.75])
     args = parser.parse_args()
     scene = load_scene(args.out / "data")
-    gaussians, _ = read_ply(args.out / "run" / "geometry" / "gaussians.ply")
+    gaussians, normals = read_ply(args.out / "run" / "geometry" / "gaussians.ply")
     start = time.perf_counter()
     maps = [maps_to_tensor(read_ground_truth(view)) for view in scene.train]
     lifted = lift(gaussians, [v.camera for v in scene.train], maps, [v.alpha for v in scene.train], [v.name for v in scene.train],
                   LiftConfig(samples_per_side=args.samples, min_support=0.0), progress=True)
     print(f"{len(gaussians)} Gaussians ({int(lifted.kept.sum())} hit), {len(scene.train)} views, {args.samples}x{args.samples} rays/pixel, "
           f"lifted in {time.perf_counter() - start:.0f} s")
-    kept = gaussians.subset(lifted.kept)
+    kept, kept_normals = gaussians.subset(lifted.kept), normals[lifted.kept]
     hits, values = lifted.hits.float(), lifted.values
     hit = hits > 0
     consensus = torch.where(hit[..., None], values, torch.full_like(values, float("nan"))).nanmedian(dim=1).values  # [N, 5]
@@ -69,7 +55,8 @@ def main() -> None:
     print("\nmin_support   views per Gaussian   Proj. Average PSNR on test views: base color / roughness / metallic")
     for support in args.support:
         seen = supported_views(lifted.hits, support)
-        psnr = material_psnr(kept, projection_average(values, seen), scene.test, truths)
+        asset = Asset(kept, projection_average(values, seen), kept_normals)
+        psnr = {name: m["psnr"] for name, m in evaluate_asset(asset, scene.test, truths, {}, None)["summary"].items() if "psnr" in m}
         print(f"{support:>11.2f}{float(seen.sum(1).float().mean()):>21.1f}   "
               f"{psnr['basecolor']:.2f} / {psnr['roughness']:.2f} / {psnr['metallic']:.2f}")
 

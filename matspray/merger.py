@@ -85,23 +85,23 @@ class NeuralMerger(nn.Module):
         unit = 2.0 * (positions - lo) / (hi - lo).clamp_min(1e-8) - 1.0
         return positional_encoding(unit, self.config.frequencies)
 
-    def group_inputs(self, positions: Tensor, values: Tensor, seen: Tensor, encoded: Tensor | None = None) -> dict[str, Tensor]:
+    def group_inputs(self, positions: Tensor, masked_values: Tensor, seen: Tensor, encoded: Tensor | None = None) -> dict[str, Tensor]:
         """Each channel group's MLP input {group: [N, pe_dim + V * c + V]}: PE(position), the group's
-        per-view values (0 where unseen) and the seen mask. Fixed for frozen Gaussians, so callers may keep it."""
-        if values.shape[1] != self.n_views or seen.shape != values.shape[:2]:
-            raise RunError(f"the merger was built for {self.n_views} views but got values for {values.shape[1]}")
+        per-view values (`masked_values`: 0 where unseen) and the seen mask. Fixed for frozen Gaussians,
+        so callers may keep it."""
+        if masked_values.shape[1] != self.n_views or seen.shape != masked_values.shape[:2]:
+            raise RunError(f"the merger was built for {self.n_views} views but got values for {masked_values.shape[1]}")
         encoded = self.encode_positions(positions) if encoded is None else encoded
-        values = values * seen[..., None]  # unseen entries carry no information
-        return {name: torch.cat([encoded, values[:, :, group].flatten(1), seen.to(values.dtype)], dim=-1) for name, group in CHANNEL_GROUPS.items()}
+        return {name: torch.cat([encoded, masked_values[:, :, group].flatten(1), seen.to(masked_values.dtype)], dim=-1)
+                for name, group in CHANNEL_GROUPS.items()}
 
-    def merge(self, inputs: dict[str, Tensor], values: Tensor, seen: Tensor, return_weights: bool = False):
-        """Merged materials [N, 5] from `group_inputs` and the per-view values [N, V, 5] / seen [N, V]."""
-        values = values * seen[..., None]
+    def merge(self, inputs: dict[str, Tensor], masked_values: Tensor, seen: Tensor, return_weights: bool = False):
+        """Merged materials [N, 5] from `group_inputs` and the per-view values [N, V, 5] (0 where unseen) / seen [N, V]."""
         merged, weights = [], {}
         for name, group in CHANNEL_GROUPS.items():
             w = merge_weights(self.mlps[name](inputs[name]), seen, self.config.softmax)  # [N, V]
             weights[name] = w
-            merged.append((w[..., None] * values[:, :, group]).sum(1))
+            merged.append((w[..., None] * masked_values[:, :, group]).sum(1))
         # unconstrained weights (no softmax) can leave [0, 1]; with softmax only rounding can: keep materials valid
         out = torch.cat(merged, dim=-1).clamp(0.0, 1.0)
         return (out, weights) if return_weights else out
@@ -113,7 +113,8 @@ class NeuralMerger(nn.Module):
         seen: [N, V] bool; encoded: `encode_positions(positions)` when the caller keeps it (fixed Gaussians).
         Returns merged materials [N, 5] (and the weights {group: [N, V]}).
         """
-        return self.merge(self.group_inputs(positions, values, seen, encoded), values, seen, return_weights)
+        masked = values * seen[..., None]  # unseen entries carry no information
+        return self.merge(self.group_inputs(positions, masked, seen, encoded), masked, seen, return_weights)
 
 
 def projection_average(values: Tensor, seen: Tensor) -> Tensor:  # [N, V, 5], [N, V] -> [N, 5]

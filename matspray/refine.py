@@ -65,14 +65,14 @@ class MaterialSource(nn.Module):
         super().__init__()
         self.variant = variant
         self.register_buffer("positions", positions)
-        self.register_buffer("values", values)
+        self.register_buffer("values", values * seen[..., None])  # unseen entries carry no information
         self.register_buffer("seen", seen)
         self.merger = None
         if variant in ("full", "no-softmax"):
             config = MergerConfig(**{**merger_config.__dict__, "softmax": variant == "full"})
             self.merger = NeuralMerger(values.shape[1], bounds, config)
             with torch.no_grad():  # geometry is frozen: the MLPs' inputs never change
-                self.inputs = self.merger.group_inputs(positions, values, seen)
+                self.inputs = self.merger.group_inputs(positions, self.values, seen)
         elif variant == "supervised":  # free parameters, starting from an uninformed grey
             self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
 
@@ -105,11 +105,12 @@ def check_finite(step: int, **terms: Tensor) -> None:
             raise NumericalError(f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept")
 
 
-def check_finite_gradients(step: int, named_parameters) -> None:
-    """A non-finite gradient would turn Adam's state (and every later step) into NaN without any loss showing it."""
-    bad = [name for name, p in named_parameters if p.grad is not None and not torch.isfinite(p.grad).all()]
+def check_finite_gradients(step: int, param_groups) -> None:
+    """A non-finite gradient would turn Adam's state (and every later step) into NaN without any loss showing it.
+    param_groups: the optimizer's groups, each with a "name"."""
+    bad = [group["name"] for group in param_groups if any(p.grad is not None and not torch.isfinite(p.grad).all() for p in group["params"])]
     if bad:
-        raise NumericalError(f"refine step {step}: non-finite gradient for {', '.join(bad[:3])}; the last good checkpoint is kept")
+        raise NumericalError(f"refine step {step}: non-finite gradient for the {', '.join(bad)}; the last good checkpoint is kept")
 
 
 def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, target: Tensor, envmap, config: RefineConfig,
@@ -173,14 +174,12 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
 
     frozen = FrozenViews(gaussians.detach(), [v.camera for v in views])
     source_lr = config.supervised_lr if config.variant == "supervised" else config.merger_lr
-    groups = [{"params": list(source.parameters()), "lr": source_lr}]
+    groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{config.variant} materials"}]
     if envmap is not None:
-        groups.append({"params": list(envmap.parameters()), "lr": config.envmap_lr})
+        groups.append({"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"})
     if normal_offsets is not None:
-        groups.append({"params": [normal_offsets], "lr": 1e-3})
+        groups.append({"params": [normal_offsets], "lr": 1e-3, "name": "normal offsets"})
     optimizer = torch.optim.Adam(groups)
-    trained = list(source.named_parameters()) + ([] if envmap is None else [(f"envmap.{n}", p) for n, p in envmap.named_parameters()]) \
-        + ([] if normal_offsets is None else [("normal_offsets", normal_offsets)])
     generator = torch.Generator().manual_seed(config.seed)
     bar = tqdm(range(1, config.iterations + 1), desc=f"refine [{config.variant}]", disable=not progress)
     for step in bar:
@@ -193,7 +192,7 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
         check_finite(step, **terms)
         optimizer.zero_grad(set_to_none=True)
         total.backward()
-        check_finite_gradients(step, trained)
+        check_finite_gradients(step, optimizer.param_groups)
         optimizer.step()
         if step % config.log_every == 0 or step == config.iterations:
             record = {"step": step, **{k: float(v.detach()) for k, v in terms.items()}}

@@ -71,6 +71,6 @@ def test_a_non_finite_gradient_stops_refinement_naming_the_step_and_parameter():
 
     good, bad = torch.nn.Parameter(torch.zeros(2)), torch.nn.Parameter(torch.zeros(3))
     good.grad, bad.grad = torch.ones(2), torch.tensor([0.0, float("nan"), 1.0])
-    check_finite_gradients(7, [("good", good)])
-    with pytest.raises(NumericalError, match="refine step 7: non-finite gradient for merger.bad"):
-        check_finite_gradients(7, [("good", good), ("merger.bad", bad)])
+    check_finite_gradients(7, [{"name": "environment map", "params": [good]}])
+    with pytest.raises(NumericalError, match="refine step 7: non-finite gradient for the full materials"):
+        check_finite_gradients(7, [{"name": "environment map", "params": [good]}, {"name": "full materials", "params": [good, bad]}])
