@@ -43,6 +43,9 @@ class RefineConfig:
     # at the merger's 1e-3 a Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey
     envmap_height: int = 16  # learnable lat-long map is H x 2H
     envmap_init: float = 0.5  # initial constant radiance
+    light_warmup: int = 0  # steps that fit only the environment map to the photos, materials fixed at their start
+    min_coverage: float = 0.0  # per step the material source runs only for Gaussians covering >= this many pixels of
+    # the view; the others (a sliver of the image) reuse their last value, without gradient
     material_weight: float = 1.0  # paper: 1.0
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
     variant: str = "full"
@@ -140,6 +143,19 @@ def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, ta
     return terms
 
 
+def warm_up_light(frozen, materials: Tensor, envmap, normals, views, maps2d, config: RefineConfig, generator, visibility, progress: bool) -> None:
+    """Fit the environment map alone to the photos for `config.light_warmup` steps, with fixed materials
+    [N, 5] (what the source starts from: the projection average for the merger variants)."""
+    optimizer = torch.optim.Adam(envmap.parameters(), lr=config.envmap_lr)
+    for step in tqdm(range(1, config.light_warmup + 1), desc="light warm-up", disable=not progress):
+        index = int(torch.randint(len(views), (1,), generator=generator))
+        terms = view_losses(frozen, index, materials, normals, views[index], maps2d[index], envmap, config, visibility)
+        check_finite(step, photo=terms["photo"])
+        optimizer.zero_grad(set_to_none=True)
+        terms["photo"].backward()
+        optimizer.step()
+
+
 @dataclass
 class RefineResult:
     materials: Tensor  # [N, 5]
@@ -179,14 +195,20 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
         groups.append({"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"})
     if normal_offsets is not None:
         groups.append({"params": [normal_offsets], "lr": 1e-3, "name": "normal offsets"})
-    optimizer = torch.optim.Adam(groups)
     generator = torch.Generator().manual_seed(config.seed)
+    with torch.no_grad():
+        last_materials = source()  # [N, 5] each Gaussian's latest merged value
+    if envmap is not None and config.light_warmup > 0:
+        warm_up_light(frozen, last_materials, envmap, normals, views, maps2d, config, generator, visibility, progress)
+    optimizer = torch.optim.Adam(groups)
     bar = tqdm(range(1, config.iterations + 1), desc=f"refine [{config.variant}]", disable=not progress)
     for step in bar:
         index = int(torch.randint(len(views), (1,), generator=generator))
         shading_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
-        visible = frozen.visible_ids[index]  # the merger only runs for the Gaussians this view sees
-        materials = torch.zeros(len(gaussians), 5, device=device).index_copy(0, visible, source(visible))
+        active = frozen.contributing_ids(index, config.min_coverage)  # the merger only runs for the Gaussians this view shows
+        merged = source(active)
+        materials = last_materials.index_copy(0, active, merged)
+        last_materials.index_copy_(0, active, merged.detach())
         terms = view_losses(frozen, index, materials, shading_normals, views[index], maps2d[index], envmap, config, visibility)
         total = config.material_weight * terms["material"] + terms.get("photo", 0.0)
         check_finite(step, **terms)

@@ -27,3 +27,19 @@ def test_normals_are_flipped_to_face_the_camera():
     oriented = frozen.orient_normals(0, normals)
     assert ((oriented * (camera.center - gaussians.means)).sum(-1) >= 0).all()
     assert torch.allclose(oriented.abs(), normals.abs())
+
+
+def test_sparse_blend_gradient_passes_gradcheck():
+    gaussians, camera = random_scene(12, 2, width=8, height=6)[:2]
+    frozen = FrozenViews(gaussians, [camera])
+    features = torch.rand(len(gaussians), 2, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda f: frozen.render(0, f)[0], (features,))
+    assert frozen.render(0, features)[0].abs().sum() > 0  # the view sees some of the Gaussians
+
+
+def test_coverage_is_each_gaussians_share_of_the_rendered_alpha():
+    gaussians, camera = random_scene(40, 3, width=24, height=20)[:2]
+    frozen = FrozenViews(gaussians, [camera])
+    _, alpha = frozen.render(0, torch.ones(len(gaussians), 1))
+    assert torch.allclose(frozen.coverage[0].sum(), alpha.sum(), rtol=1e-5)
+    assert (frozen.coverage[0][frozen.visible(0)] > 0).all() and (frozen.coverage[0][~frozen.visible(0)] == 0).all()

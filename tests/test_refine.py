@@ -74,3 +74,34 @@ def test_a_non_finite_gradient_stops_refinement_naming_the_step_and_parameter():
     check_finite_gradients(7, [{"name": "environment map", "params": [good]}])
     with pytest.raises(NumericalError, match="refine step 7: non-finite gradient for the full materials"):
         check_finite_gradients(7, [{"name": "environment map", "params": [good]}, {"name": "full materials", "params": [good, bad]}])
+
+
+def test_light_warm_up_fits_the_environment_map_and_leaves_the_merger_at_its_start(lifted_scene):
+    """Warm-up steps train only the light: with no merger steps after it the materials are still the
+    projection average, and the photo loss is lower than with the initial constant map."""
+    from matspray.refine import warm_up_light
+
+    gaussians, normals, _, views, maps, lifted = lifted_scene
+    config = RefineConfig(envmap_height=8, light_warmup=30)
+    average = projection_average(lifted.values, lifted.seen)
+    light = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height)
+    before = mean_losses(gaussians, normals, average, light, views, maps, config)["photo"]
+    frozen = FrozenViews(gaussians, [v.camera for v in views])
+    warm_up_light(frozen, average, light, normals, views, maps, config, torch.Generator().manual_seed(0), None, progress=False)
+    after = mean_losses(gaussians, normals, average, light, views, maps, config)["photo"]
+    assert after < 0.8 * before, (before, after)
+
+
+def test_min_coverage_runs_the_merger_on_fewer_gaussians_with_a_close_result(lifted_scene):
+    gaussians, normals, _, views, maps, lifted = lifted_scene
+    frozen = FrozenViews(gaussians, [v.camera for v in views])
+    visible = frozen.visible_ids[0]
+    assert torch.equal(frozen.contributing_ids(0, 0.0), visible)
+    covering = frozen.contributing_ids(0, 0.05)
+    assert 0 < len(covering) < len(visible)
+    assert (frozen.coverage[0][covering] >= 0.05).all()
+    results = {}
+    for min_coverage in (0.0, 0.05):
+        config = RefineConfig(iterations=20, envmap_height=8, seed=0, min_coverage=min_coverage)
+        results[min_coverage] = refine(gaussians, normals, lifted.values, lifted.seen, views, maps, BOUNDS, config, progress=False).materials
+    assert (results[0.0] - results[0.05]).abs().mean() < 0.01
