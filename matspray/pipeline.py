@@ -44,12 +44,12 @@ def preset_config(preset: str, **overrides) -> PipelineConfig:
         raise ConfigError(f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
     if preset == "test":
         config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=2), visibility=VisibilityConfig(rows=4, resolution=48),
-                                refine=RefineConfig(iterations=30, envmap_height=8))
+                                refine=RefineConfig(iterations=30, envmap_height=8, light_warmup=10))
     elif preset == "demo":
-        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=4), refine=RefineConfig(iterations=400, envmap_height=16))
+        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=4), refine=RefineConfig(iterations=600, envmap_height=16, light_warmup=200))
     else:
         config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=16), visibility=VisibilityConfig(rows=16, resolution=512),
-                                refine=RefineConfig(iterations=10000, envmap_height=32))
+                                refine=RefineConfig(iterations=10000, envmap_height=32, light_warmup=1000))
     config = replace(config, **overrides)
     config.geometry = geometry_preset(preset, seed=config.seed)
     return config

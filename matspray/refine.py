@@ -5,7 +5,10 @@ into a G-buffer, and
   - compares the rasterized material maps with the view's 2D maps by L1 (updates the merger only),
   - shades the G-buffer with split-sum image-based lighting from the learnable environment map and
     compares it with the photo by 0.8 L1 + 0.2 (1 - SSIM) (updates the merger and the environment map).
-Geometry is frozen, so each view's blending weights are computed once and reused every step. With a
+Before that, `light_warmup` steps fit the environment map alone, with the materials the variant starts
+from, so that the merger's first steps are not driven by a wrong light. Geometry is frozen, so each
+view's blending weights are computed once and reused every step (and the merger runs only for the
+Gaussians that cover at least `min_coverage` pixels of the step's view). With a
 directional visibility per Gaussian (the pipeline bakes one unless `--shadows off`), the PBR render is
 shadowed (`render.visibility`), so the photo loss no longer pushes shadows into the base color.
 
@@ -44,7 +47,8 @@ class RefineConfig:
     envmap_height: int = 16  # learnable lat-long map is H x 2H
     envmap_init: float = 0.5  # initial constant radiance
     light_warmup: int = 0  # steps that fit only the environment map to the photos, materials fixed at their start
-    min_coverage: float = 0.0  # per step the material source runs only for Gaussians covering >= this many pixels of
+    # (the presets use ~10-20 % of `iterations`): the merger then learns against a light that already fits
+    min_coverage: float = 0.02  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
     material_weight: float = 1.0  # paper: 1.0
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
@@ -59,6 +63,8 @@ class RefineConfig:
             raise ConfigError(f"unknown variant '{self.variant}'; choose one of {', '.join(VARIANTS)}")
         if self.iterations < 0:
             raise ConfigError(f"refine iterations must be >= 0, got {self.iterations}")
+        if self.light_warmup < 0 or self.min_coverage < 0:
+            raise ConfigError(f"light_warmup and min_coverage must be >= 0, got {self.light_warmup} and {self.min_coverage}")
 
 
 class MaterialSource(nn.Module):
