@@ -149,17 +149,33 @@ def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, ta
     return terms
 
 
+def optimize(optimizer, n_views: int, steps: int, losses_of_view, generator, desc: str, progress: bool, on_step=None) -> None:
+    """The step driver shared by the warm-up and the refinement: `steps` times, draw a random training
+    view, take `losses_of_view(index)` -> (terms {name: []}, total []), stop on a non-finite loss or
+    gradient, and step the optimizer. `on_step(step, terms, bar)` runs after each step."""
+    bar = tqdm(range(1, steps + 1), desc=desc, disable=not progress)
+    for step in bar:
+        index = int(torch.randint(n_views, (1,), generator=generator))
+        terms, total = losses_of_view(index)
+        check_finite(step, **terms)
+        optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        check_finite_gradients(step, optimizer.param_groups)
+        optimizer.step()
+        if on_step is not None:
+            on_step(step, terms, bar)
+
+
 def warm_up_light(frozen, materials: Tensor, envmap, normals, views, maps2d, config: RefineConfig, generator, visibility, progress: bool) -> None:
     """Fit the environment map alone to the photos for `config.light_warmup` steps, with fixed materials
     [N, 5] (what the source starts from: the projection average for the merger variants)."""
-    optimizer = torch.optim.Adam(envmap.parameters(), lr=config.envmap_lr)
-    for step in tqdm(range(1, config.light_warmup + 1), desc="light warm-up", disable=not progress):
-        index = int(torch.randint(len(views), (1,), generator=generator))
-        terms = view_losses(frozen, index, materials, normals, views[index], maps2d[index], envmap, config, visibility)
-        check_finite(step, photo=terms["photo"])
-        optimizer.zero_grad(set_to_none=True)
-        terms["photo"].backward()
-        optimizer.step()
+    optimizer = torch.optim.Adam([{"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"}])
+
+    def photo_loss(index: int):
+        photo = view_losses(frozen, index, materials, normals, views[index], maps2d[index], envmap, config, visibility)["photo"]
+        return {"photo": photo}, photo
+
+    optimize(optimizer, len(views), config.light_warmup, photo_loss, generator, "light warm-up", progress)
 
 
 @dataclass
@@ -207,27 +223,25 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     if envmap is not None and config.light_warmup > 0:
         warm_up_light(frozen, last_materials, envmap, normals, views, maps2d, config, generator, visibility, progress)
     optimizer = torch.optim.Adam(groups)
-    bar = tqdm(range(1, config.iterations + 1), desc=f"refine [{config.variant}]", disable=not progress)
-    for step in bar:
-        index = int(torch.randint(len(views), (1,), generator=generator))
+
+    def refine_losses(index: int):
         shading_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
         active = frozen.contributing_ids(index, config.min_coverage)  # the merger only runs for the Gaussians this view shows
         merged = source(active)
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
         terms = view_losses(frozen, index, materials, shading_normals, views[index], maps2d[index], envmap, config, visibility)
-        total = config.material_weight * terms["material"] + terms.get("photo", 0.0)
-        check_finite(step, **terms)
-        optimizer.zero_grad(set_to_none=True)
-        total.backward()
-        check_finite_gradients(step, optimizer.param_groups)
-        optimizer.step()
+        return terms, config.material_weight * terms["material"] + terms.get("photo", 0.0)
+
+    def log(step: int, terms: dict, bar) -> None:
         if step % config.log_every == 0 or step == config.iterations:
             record = {"step": step, **{k: float(v.detach()) for k, v in terms.items()}}
             history.append(record)
             bar.set_postfix({k: f"{v:.4f}" for k, v in record.items() if k != "step"})
         if on_checkpoint is not None and (step % 100 == 0 or step == config.iterations):
             on_checkpoint(step, source, envmap, history)
+
+    optimize(optimizer, len(views), config.iterations, refine_losses, generator, f"refine [{config.variant}]", progress, log)
     with torch.no_grad():
         final_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
         return RefineResult(source().detach(), final_normals.detach(), source, envmap, history, visibility)
