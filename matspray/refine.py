@@ -122,10 +122,10 @@ def check_finite_gradients(step: int, param_groups) -> None:
         raise NumericalError(f"refine step {step}: non-finite gradient for the {', '.join(bad)}; the last good checkpoint is kept")
 
 
-def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, target: Tensor, envmap, config: RefineConfig,
+def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, target: Tensor | None, envmap, config: RefineConfig,
                 visibility: Tensor | None = None) -> dict[str, Tensor]:
     """The two losses of one training view: L1 of the rasterized material maps against the view's 2D
-    maps [H, W, 5] ("material"), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo ("photo",
+    maps `target` [H, W, 5] ("material", skipped when `target` is None), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo ("photo",
     only with an environment map). materials [N, 5], normals [N, 3] any orientation; visibility [N, D]
     (optional) shadows the PBR render (`render.visibility`)."""
     from matspray.render.deferred import GBuffer, shade_gbuffer
@@ -140,8 +140,10 @@ def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, ta
         shadows = gaussian_shadows(visibility[seen], oriented[seen], frozen.means[seen], materials[seen, 3], view.camera, light)
         features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
     gbuffer = GBuffer.from_blended(*frozen.render(index, torch.cat(features, dim=-1)))  # [H, W, 8 or 14], [H, W]
-    material_maps = torch.cat([gbuffer.base_color, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1)
-    terms = {"material": masked_l1(material_maps, target, mask * (gbuffer.alpha > 0.5))}
+    terms = {}
+    if target is not None:
+        material_maps = torch.cat([gbuffer.base_color, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1)
+        terms["material"] = masked_l1(material_maps, target, mask * (gbuffer.alpha > 0.5))
     if light is not None:
         rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
         photo = linear_to_srgb(view.image * mask[..., None])
@@ -166,14 +168,19 @@ def optimize(optimizer, n_views: int, steps: int, losses_of_view, generator, des
             on_step(step, terms, bar)
 
 
-def warm_up_light(frozen, materials: Tensor, envmap, normals, views, maps2d, config: RefineConfig, generator, visibility, progress: bool) -> None:
+def envmap_group(envmap, config: RefineConfig) -> dict:
+    """The environment map's optimizer parameter group."""
+    return {"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"}
+
+
+def warm_up_light(frozen, materials: Tensor, envmap, normals, views, config: RefineConfig, generator, visibility, progress: bool) -> None:
     """Fit the environment map alone to the photos for `config.light_warmup` steps, with fixed materials
     [N, 5] (what the source starts from: the projection average for the merger variants)."""
-    optimizer = torch.optim.Adam([{"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"}])
+    optimizer = torch.optim.Adam([envmap_group(envmap, config)])
 
     def photo_loss(index: int):
-        photo = view_losses(frozen, index, materials, normals, views[index], maps2d[index], envmap, config, visibility)["photo"]
-        return {"photo": photo}, photo
+        terms = view_losses(frozen, index, materials, normals, views[index], None, envmap, config, visibility)  # photo only
+        return terms, terms["photo"]
 
     optimize(optimizer, len(views), config.light_warmup, photo_loss, generator, "light warm-up", progress)
 
@@ -214,23 +221,25 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     source_lr = config.supervised_lr if config.variant == "supervised" else config.merger_lr
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{config.variant} materials"}]
     if envmap is not None:
-        groups.append({"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"})
+        groups.append(envmap_group(envmap, config))
     if normal_offsets is not None:
         groups.append({"params": [normal_offsets], "lr": 1e-3, "name": "normal offsets"})
     generator = torch.Generator().manual_seed(config.seed)
     with torch.no_grad():
         last_materials = source()  # [N, 5] each Gaussian's latest merged value
     if envmap is not None and config.light_warmup > 0:
-        warm_up_light(frozen, last_materials, envmap, normals, views, maps2d, config, generator, visibility, progress)
+        warm_up_light(frozen, last_materials, envmap, normals, views, config, generator, visibility, progress)
     optimizer = torch.optim.Adam(groups)
 
+    def shading_normals() -> Tensor:  # [N, 3] the normals with the learned offsets (when refined)
+        return normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
+
     def refine_losses(index: int):
-        shading_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
         active = frozen.contributing_ids(index, config.min_coverage)  # the merger only runs for the Gaussians this view shows
         merged = source(active)
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
-        terms = view_losses(frozen, index, materials, shading_normals, views[index], maps2d[index], envmap, config, visibility)
+        terms = view_losses(frozen, index, materials, shading_normals(), views[index], maps2d[index], envmap, config, visibility)
         return terms, config.material_weight * terms["material"] + terms.get("photo", 0.0)
 
     def log(step: int, terms: dict, bar) -> None:
@@ -243,6 +252,5 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
 
     optimize(optimizer, len(views), config.iterations, refine_losses, generator, f"refine [{config.variant}]", progress, log)
     with torch.no_grad():
-        final_normals = normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
-        return RefineResult(source().detach(), final_normals.detach(), source, envmap, history, visibility)
+        return RefineResult(source().detach(), shading_normals().detach(), source, envmap, history, visibility)
 

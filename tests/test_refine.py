@@ -87,7 +87,7 @@ def test_light_warm_up_fits_the_environment_map_and_leaves_the_merger_at_its_sta
     light = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height)
     before = mean_losses(gaussians, normals, average, light, views, maps, config)["photo"]
     frozen = FrozenViews(gaussians, [v.camera for v in views])
-    warm_up_light(frozen, average, light, normals, views, maps, config, torch.Generator().manual_seed(0), None, progress=False)
+    warm_up_light(frozen, average, light, normals, views, config, torch.Generator().manual_seed(0), None, progress=False)
     after = mean_losses(gaussians, normals, average, light, views, maps, config)["photo"]
     assert after < 0.8 * before, (before, after)
 
