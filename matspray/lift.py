@@ -7,6 +7,14 @@ the pixel the ray belongs to. Per Gaussian and view the median of what it receiv
 samples from one pixel carry one value, so the median is taken over pixels weighted by how many of
 the pixel's samples hit the Gaussian. Gaussians hit in no view are removed.
 
+The footprint the median runs over is the Gaussian's core: the rays passing within `footprint_sigmas`
+standard deviations of its centre (the paper's released code intersects rays with the 1-sigma
+ellipsoid). A ray reaches alpha_max >= 1/255 out to ~3.3 sigma, and that ring holds most of the pixels
+a Gaussian touches, so a median over all of them mostly reads the neighbours' materials and blurs thin
+features. A Gaussian whose core no ray met in a view (smaller than the sample spacing, or its core
+hidden) takes the median of all its hits there, so no Gaussian is missed for being small; which views
+see a Gaussian, and which Gaussians are kept, do not depend on the footprint.
+
 A view counts as seeing a Gaussian (`seen`, the mask the Neural Merger and Proj. Average use) when the
 Gaussian receives at least `min_support` times the samples it receives in the view that sees it best.
 Views with fewer hits are glimpses (nearly occluded, grazing, or the edge of a footprint that lies
@@ -17,6 +25,7 @@ its median in `values` and its sample count in `hits`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import torch
@@ -26,7 +35,9 @@ from tqdm import tqdm
 from matspray.data.camera import Camera
 from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
+from matspray.render.settings import RasterSettings
 
+MAX_ALPHA = RasterSettings().max_alpha
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
 
 
@@ -37,12 +48,16 @@ class LiftConfig:
     falloff: float = 1.0  # lambda of eq. (2)
     mask_threshold: float = 0.5  # pixels whose object mask is below this give nothing
     min_support: float = 0.5  # a view sees a Gaussian when it gets >= this share of its best view's hits (0: any hit)
+    footprint_sigmas: float | None = 1.0  # a ray hits a Gaussian when it passes within this many standard deviations of its
+    # centre (the paper's released code intersects the 1-sigma ellipsoid); None: wherever alpha_max >= min_alpha (~3.3 sigma)
 
     def __post_init__(self):
         if not 0.0 <= self.min_support <= 1.0:
             raise ConfigError(f"lift min_support must be in [0, 1], got {self.min_support}")
         if self.samples_per_side < 1:
             raise ConfigError(f"samples per side must be >= 1, got {self.samples_per_side}")
+        if self.footprint_sigmas is not None and not self.footprint_sigmas > 0:
+            raise ConfigError(f"lift footprint_sigmas must be > 0 (or None), got {self.footprint_sigmas}")
 
 
 @dataclass
@@ -81,6 +96,15 @@ def weighted_median(group_ids: Tensor, values: Tensor, weights: Tensor, n_groups
     return medians, totals > 0
 
 
+def footprint_alpha(opacities: Tensor, config: LiftConfig) -> Tensor | None:  # [N] -> [N]
+    """The alpha_max a ray reaches where it passes `config.footprint_sigmas` standard deviations from a
+    Gaussian's centre (eq. 2: alpha_max = opacity exp(-lambda d^2 / 2)), capped at the clamp of the
+    alphas; None when the footprint is the whole extent a ray can hit."""
+    if config.footprint_sigmas is None:
+        return None
+    return (opacities * math.exp(-0.5 * config.falloff * config.footprint_sigmas**2)).clamp(max=MAX_ALPHA)
+
+
 def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Tensor | None, config: LiftConfig) -> tuple[Tensor, Tensor, Tensor]:
     """Lift one view's material maps [H, W, 5] (mask [H, W] or None) onto the Gaussians.
 
@@ -91,28 +115,35 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
     n = len(gaussians)
     s = config.samples_per_side
     n_pixels = camera.width * camera.height
+    core_alpha = footprint_alpha(gaussians.opacities.detach(), config)  # [N] or None
     pair_keys, pair_counts = [], []
     for band in iter_contributions(gaussians, camera, s, falloff=config.falloff):  # whole rays, a band of rows at a time
         transmittance = band.weights / band.alphas.clamp_min(1e-12)  # in front of the hit
         visible = transmittance >= config.visibility_threshold
         gaussian_ids, pixel_ids = band.gaussian_ids[visible], band.pixel_ids[visible]
+        in_core = torch.ones_like(gaussian_ids, dtype=torch.bool) if core_alpha is None else band.alphas[visible] >= core_alpha[gaussian_ids]
         if mask is not None:
             on_object = mask.reshape(-1)[pixel_ids] >= config.mask_threshold
-            gaussian_ids, pixel_ids = gaussian_ids[on_object], pixel_ids[on_object]
-        keys, counts = torch.unique(gaussian_ids.long() * n_pixels + pixel_ids.long(), return_counts=True)
+            gaussian_ids, pixel_ids, in_core = gaussian_ids[on_object], pixel_ids[on_object], in_core[on_object]
+        keys, counts = torch.unique((gaussian_ids.long() * n_pixels + pixel_ids.long()) * 2 + in_core.long(), return_counts=True)
         pair_keys.append(keys)
         pair_counts.append(counts)
-    # one entry per (Gaussian, pixel), weighted by how many of the pixel's samples hit it; bands hold
-    # disjoint pixels, so no pair appears twice
-    pairs = torch.cat(pair_keys) if pair_keys else torch.zeros(0, dtype=torch.long, device=materials.device)
+    # one entry per (Gaussian, pixel, inside the core or not), weighted by how many of the pixel's samples
+    # hit it there; bands hold disjoint pixels, so no entry appears twice
+    keys = torch.cat(pair_keys) if pair_keys else torch.zeros(0, dtype=torch.long, device=materials.device)
     counts = torch.cat(pair_counts) if pair_counts else torch.zeros(0, dtype=torch.long, device=materials.device)
+    in_core, pairs = (keys % 2).bool(), keys // 2
     pair_gaussians, pair_pixels = pairs // n_pixels, pairs % n_pixels
+    received = torch.zeros(n, dtype=torch.long, device=materials.device).index_add_(0, pair_gaussians, counts)
+    # the median runs over the core's pixels; a Gaussian whose core no ray met (tiny, or its core hidden) uses all its hits
+    has_core = torch.zeros(n, dtype=torch.bool, device=materials.device).index_fill_(0, pair_gaussians[in_core], True)
+    use = in_core | ~has_core[pair_gaussians]
+    pair_gaussians, pair_pixels, counts = pair_gaussians[use], pair_pixels[use], counts[use]
     flat = materials.reshape(-1, materials.shape[-1])[pair_pixels]  # [P, 5]
     medians = torch.zeros(n, materials.shape[-1], dtype=materials.dtype, device=materials.device)
     seen = torch.zeros(n, dtype=torch.bool, device=materials.device)
     for channel in range(materials.shape[-1]):
         medians[:, channel], seen = weighted_median(pair_gaussians, flat[:, channel], counts, n)
-    received = torch.zeros(n, dtype=torch.long, device=materials.device).index_add_(0, pair_gaussians, counts)
     return medians, seen, received
 
 

@@ -86,3 +86,50 @@ def test_min_support_outside_zero_to_one_is_refused():
 
     with pytest.raises(ConfigError, match="min_support must be in"):
         LiftConfig(min_support=1.5)
+
+
+def test_the_median_reads_a_gaussians_core_and_a_tiny_gaussian_still_gets_a_value():
+    """G0, a disk covering ~2 px per standard deviation, sits on a 0.2 spot (radius 2.5 px) inside a 0.8 surround:
+    its 1-sigma core reads 0.2, while all the pixels it reaches (out to ~3.3 sigma) are mostly 0.8. G1 is too
+    small for any ray (one per pixel) to pass through its core: it takes the median of its few hits instead."""
+    from matspray.data import Camera
+    from matspray.gaussians import Gaussians
+    from matspray.lift import LiftConfig, lift
+
+    camera = Camera.look_at([0.0, 0.0, -5.0], [0.0, 0.0, 0.0], [0.0, -1.0, 0.0], 0.8, 32, 32)
+    focal = float(camera.K[0, 0])
+    px = 5.0 / focal  # world units per pixel at the disks' depth
+    target_pixel = torch.tensor([[20.5 + 0.3, 8.5]])  # 0.3 px from a pixel centre
+    offset = (target_pixel - camera.K[:2, 2]) * px
+    means = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    means[1, :2] = offset[0] * torch.tensor([-1.0, -1.0])  # look_at with up (0, -1, 0) from -z flips x and y
+    pixels, _ = camera.project(means)
+    if (pixels[1] - target_pixel[0]).abs().max() > 1e-3:  # the flip guessed wrong: mirror back
+        means[1, :2] = -means[1, :2]
+        pixels, _ = camera.project(means)
+    assert torch.allclose(pixels[1], target_pixel[0], atol=1e-3)
+    scales = torch.tensor([[2.0 * px, 2.0 * px, 0.01], [0.15 * px, 0.15 * px, 0.01]])
+    gaussians = Gaussians(means, scales.log(), torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(2, 4).clone(),
+                          torch.logit(torch.tensor([0.99, 0.99])), torch.zeros(2, 1, 3))
+    ys, xs = torch.meshgrid(torch.arange(32) + 0.5, torch.arange(32) + 0.5, indexing="ij")
+    spot = (xs - pixels[0, 0]) ** 2 + (ys - pixels[0, 1]) ** 2 <= 2.5**2
+    materials = torch.where(spot[..., None], torch.tensor(0.2), torch.tensor(0.8)).expand(32, 32, 5).clone()
+    materials[pixels[1, 1].long(), pixels[1, 0].long()] = 0.5  # the one pixel G1 reaches
+
+    def lifted(footprint):
+        config = LiftConfig(samples_per_side=1, footprint_sigmas=footprint)
+        return lift(gaussians, [camera], [materials], [None], ["a"], config, progress=False)
+
+    core, everything = lifted(1.0), lifted(None)
+    assert core.kept.tolist() == [True, True] and core.seen.all()
+    assert torch.allclose(core.values[0, 0], torch.full((5,), 0.2))
+    assert torch.allclose(everything.values[0, 0], torch.full((5,), 0.8))
+    assert torch.allclose(core.values[1, 0], torch.full((5,), 0.5)) and torch.equal(core.hits, everything.hits)
+
+
+def test_a_footprint_of_zero_sigmas_is_refused():
+    from matspray.errors import ConfigError
+    from matspray.lift import LiftConfig
+
+    with pytest.raises(ConfigError, match="footprint_sigmas must be > 0"):
+        LiftConfig(footprint_sigmas=0.0)
