@@ -37,7 +37,6 @@ from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
 from matspray.render.settings import RasterSettings
 
-MAX_ALPHA = RasterSettings().max_alpha
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
 
 
@@ -96,13 +95,13 @@ def weighted_median(group_ids: Tensor, values: Tensor, weights: Tensor, n_groups
     return medians, totals > 0
 
 
-def footprint_alpha(opacities: Tensor, config: LiftConfig) -> Tensor | None:  # [N] -> [N]
+def footprint_alpha(opacities: Tensor, config: LiftConfig, max_alpha: float) -> Tensor | None:  # [N] -> [N]
     """The alpha_max a ray reaches where it passes `config.footprint_sigmas` standard deviations from a
-    Gaussian's centre (eq. 2: alpha_max = opacity exp(-lambda d^2 / 2)), capped at the clamp of the
-    alphas; None when the footprint is the whole extent a ray can hit."""
+    Gaussian's centre (eq. 2: alpha_max = opacity exp(-lambda d^2 / 2)), capped at `max_alpha`, the
+    clamp the hits' alphas went through; None when the footprint is the whole extent a ray can hit."""
     if config.footprint_sigmas is None:
         return None
-    return (opacities * math.exp(-0.5 * config.falloff * config.footprint_sigmas**2)).clamp(max=MAX_ALPHA)
+    return (opacities * math.exp(-0.5 * config.falloff * config.footprint_sigmas**2)).clamp(max=max_alpha)
 
 
 def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Tensor | None, config: LiftConfig) -> tuple[Tensor, Tensor, Tensor]:
@@ -115,9 +114,10 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
     n = len(gaussians)
     s = config.samples_per_side
     n_pixels = camera.width * camera.height
-    core_alpha = footprint_alpha(gaussians.opacities.detach(), config)  # [N] or None
+    settings = RasterSettings()
+    core_alpha = footprint_alpha(gaussians.opacities.detach(), config, settings.max_alpha)  # [N] or None
     pair_keys, pair_counts = [], []
-    for band in iter_contributions(gaussians, camera, s, falloff=config.falloff):  # whole rays, a band of rows at a time
+    for band in iter_contributions(gaussians, camera, s, falloff=config.falloff, settings=settings):  # whole rays, a band of rows at a time
         transmittance = band.weights / band.alphas.clamp_min(1e-12)  # in front of the hit
         visible = transmittance >= config.visibility_threshold
         gaussian_ids, pixel_ids = band.gaussian_ids[visible], band.pixel_ids[visible]
@@ -141,10 +141,9 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
     pair_gaussians, pair_pixels, counts = pair_gaussians[use], pair_pixels[use], counts[use]
     flat = materials.reshape(-1, materials.shape[-1])[pair_pixels]  # [P, 5]
     medians = torch.zeros(n, materials.shape[-1], dtype=materials.dtype, device=materials.device)
-    seen = torch.zeros(n, dtype=torch.bool, device=materials.device)
     for channel in range(materials.shape[-1]):
-        medians[:, channel], seen = weighted_median(pair_gaussians, flat[:, channel], counts, n)
-    return medians, seen, received
+        medians[:, channel], _ = weighted_median(pair_gaussians, flat[:, channel], counts, n)
+    return medians, received > 0, received  # every Gaussian with a hit keeps at least one entry
 
 
 def lift(gaussians: Gaussians, cameras: list[Camera], materials: list[Tensor], masks: list[Tensor | None], view_names: list[str], config: LiftConfig | None = None, progress: bool = True) -> LiftResult:
