@@ -2,9 +2,13 @@
 quality, the raw 2D predictions' quality, and the seconds per stage.
 
     python -m benchmarks.method [--preset demo|test] [--out runs/bench-method] [--shape composite] [--ceilings]
-                                [--refine-iterations N]
+                                [--refine-iterations N] [--refine-seeds 0 1 2]
 
 Prints one table; the figures also land in OUT/run/eval/metrics.json and OUT/run/report.html.
+With several --refine-seeds every variant is refined once per seed on the same geometry and lift
+(the seed sets the merger's initialisation and the order of the training views); the table then
+holds the mean over the seeds, with each seed's relighting PSNR beside it, and the run folder keeps
+the last seed's assets. One seed's figures move by about 0.2 dB with the seed alone on the demo object.
 
 With --ceilings it also prints what no material estimate can beat on this object:
   shading ceiling  the true G-buffer (true base color, roughness, metallic, normals and mask) shaded by
@@ -42,18 +46,25 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--ceilings", action="store_true", help="also measure the shading and lifted-truth ceilings")
     parser.add_argument("--refine-iterations", type=int, help="override the preset's refinement iterations (earlier stages are reused)")
+    parser.add_argument("--refine-seeds", type=int, nargs="+", help="refine every variant once per seed and report the means "
+                        "(default: the object's seed)")
     args = parser.parse_args()
     start = time.perf_counter()
     data = make_demo_object(args.out / "data", args.preset, args.shape, args.seed)
-    metrics = run_object(data, args.out / "run", args.preset, refine_iterations=args.refine_iterations)
+    seeds = args.refine_seeds or [args.seed]
+    runs = [run_object(data, args.out / "run", args.preset, refine_iterations=args.refine_iterations, refine_seed=seed) for seed in seeds]
+    metrics = runs[-1]
     print(f"\nobject: {args.shape} seed {args.seed}, preset {args.preset}, torch threads {torch.get_num_threads()}")
     print(f"held-out lights: {', '.join(metrics['relight_envs'])}")
+    print(f"refinement seeds: {' '.join(map(str, seeds))}" + (" (figures are means over the seeds)" if len(seeds) > 1 else ""))
     header = f"{'variant':<16}{'relight PSNR':>13}{'relight SSIM':>13}{'basecolor PSNR':>15}{'rough PSNR':>11}{'metal PSNR':>11}"
-    print(header)
-    for variant, result in metrics["variants"].items():
-        s = result["summary"]
-        print(f"{VARIANT_LABELS[variant]:<16}{fmt(s['relighting']['psnr']):>13}{fmt(s['relighting']['ssim'], 3):>13}"
-              f"{fmt(s['basecolor']['psnr']):>15}{fmt(s['roughness']['psnr']):>11}{fmt(s['metallic']['psnr']):>11}")
+    print(header + ("   relight PSNR per seed" if len(seeds) > 1 else ""))
+    for variant in metrics["variants"]:
+        summaries = [run["variants"][variant]["summary"] for run in runs]
+        mean = lambda *keys: seed_mean(summaries, *keys)  # noqa: E731
+        per_seed = "   " + " ".join(fmt(s["relighting"]["psnr"]) for s in summaries) if len(seeds) > 1 else ""
+        print(f"{VARIANT_LABELS[variant]:<16}{fmt(mean('relighting', 'psnr')):>13}{fmt(mean('relighting', 'ssim'), 3):>13}"
+              f"{fmt(mean('basecolor', 'psnr')):>15}{fmt(mean('roughness', 'psnr')):>11}{fmt(mean('metallic', 'psnr')):>11}{per_seed}")
     if "predictions_2d" in metrics:
         p = metrics["predictions_2d"]
         print(f"{'2D predictions':<16}{'':>13}{'':>13}{fmt(p['basecolor']['psnr']):>15}{fmt(p['roughness']['psnr']):>11}{fmt(p['metallic']['psnr']):>11}")
@@ -62,6 +73,12 @@ def main() -> None:
     print(f"total wall time: {time.perf_counter() - start:.0f} s")
     if args.ceilings:
         print_ceilings(data, args.out, args.preset)
+
+
+def seed_mean(summaries: list[dict], group: str, key: str):
+    """Mean of one figure over the seeds' summaries (None when any seed lacks it; inf stays inf)."""
+    values = [s[group].get(key) for s in summaries]
+    return None if any(v is None for v in values) else sum(values) / len(values)
 
 
 def shading_ceiling(data: Path, shadows_from=None) -> dict:

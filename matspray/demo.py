@@ -45,16 +45,16 @@ def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bo
 
 
 def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progress: bool = True, log=print,
-               refine_iterations: int | None = None) -> dict:
+               refine_iterations: int | None = None, refine_seed: int | None = None) -> dict:
     """Run every variant of the method on one object, evaluate it and write its report
-    (`refine_iterations` overrides the preset's)."""
+    (`refine_iterations` and `refine_seed` override the preset's; earlier stages are reused)."""
     from dataclasses import replace
 
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run
     from matspray.pipeline import Pipeline, preset_config
 
-    config = preset_config(preset, predictor="simulated")
+    config = preset_config(preset, predictor="simulated", refine_seed=refine_seed)
     if refine_iterations is not None:
         config.refine = replace(config.refine, iterations=refine_iterations)
     pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)

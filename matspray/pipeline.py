@@ -29,6 +29,7 @@ class PipelineConfig:
     predictor_options: dict = field(default_factory=dict)  # PredictorOptions fields
     downscale: float = 1.0
     seed: int = 0
+    refine_seed: int | None = None  # the refinement's own seed (view order, merger init); None: `seed`
     device: str = "auto"
     geometry: object = None  # GeometryConfig of the preset
     lift: LiftConfig = field(default_factory=LiftConfig)
@@ -174,7 +175,8 @@ class Pipeline:
     def refine_config(self, variant: str) -> RefineConfig:
         if variant not in VARIANTS:
             raise ConfigError(f"unknown variant '{variant}'; choose one of {', '.join(VARIANTS)}")
-        return replace(self.config.refine, variant=variant, seed=self.config.seed)
+        seed = self.config.seed if self.config.refine_seed is None else self.config.refine_seed
+        return replace(self.config.refine, variant=variant, seed=seed)
 
     def refine(self, variant: str = "full"):
         from matspray.asset import read_asset, write_asset

@@ -2,9 +2,12 @@
 
 Each step takes a random training view, rasterizes the merged per-Gaussian materials and normals
 into a G-buffer, and
-  - compares the rasterized material maps with the view's 2D maps by L1 (updates the merger only),
+  - compares the rasterized material maps with the view's 2D maps by L1 (updates the merger only);
+    the base color scale-invariantly (after the least-squares scale onto the 2D map, as the paper's
+    released code does), so a predictor's per-view exposure drift does not pull the merger,
   - shades the G-buffer with split-sum image-based lighting from the learnable environment map and
-    compares it with the photo by 0.8 L1 + 0.2 (1 - SSIM) (updates the merger and the environment map).
+    compares it with the photo by 0.8 L1 + 0.2 (1 - SSIM) (updates the merger and the environment map),
+    weighted 2 : 1 against the material loss (the released code adds it twice).
 Before that, `light_warmup` steps fit the environment map alone, with the materials the variant starts
 from, so that the merger's first steps are not driven by a wrong light. Geometry is frozen, so each
 view's blending weights are computed once and reused every step (and the merger runs only for the
@@ -35,6 +38,7 @@ from matspray.merger import MergerConfig, NeuralMerger, projection_average
 from matspray.render.gbuffer import FrozenViews
 
 VARIANTS = ("full", "proj-average", "supervised", "no-softmax")
+BASECOLOR_LOSSES = ("l1", "scale-invariant")
 
 
 @dataclass
@@ -50,7 +54,11 @@ class RefineConfig:
     # (the presets use ~10-20 % of `iterations`): the merger then learns against a light that already fits
     min_coverage: float = 0.02  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
-    material_weight: float = 1.0  # paper: 1.0
+    material_weight: float = 1.0  # L_Image
+    photo_weight: float = 2.0  # L_3DGS; the paper gives no weights, its released code adds the photometric term twice
+    basecolor_loss: str = "scale-invariant"  # the base color maps are compared after the least-squares scale that fits
+    # them to the view's 2D map (the released code's default), so a predictor's per-view exposure errors do not pull the
+    # merger; only for variants with the PBR loss, which then sets the brightness (supervised keeps "l1")
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
     variant: str = "full"
     refine_normals: bool = False  # optional: learn per-Gaussian normal offsets with the PBR loss
@@ -63,6 +71,10 @@ class RefineConfig:
             raise ConfigError(f"unknown variant '{self.variant}'; choose one of {', '.join(VARIANTS)}")
         if self.iterations < 0:
             raise ConfigError(f"refine iterations must be >= 0, got {self.iterations}")
+        if self.basecolor_loss not in BASECOLOR_LOSSES:
+            raise ConfigError(f"unknown base color loss '{self.basecolor_loss}'; choose one of {', '.join(BASECOLOR_LOSSES)}")
+        if not (self.material_weight >= 0 and self.photo_weight >= 0):
+            raise ConfigError(f"loss weights must be >= 0, got material {self.material_weight} and photo {self.photo_weight}")
         if self.light_warmup < 0 or self.min_coverage < 0:
             raise ConfigError(f"light_warmup and min_coverage must be >= 0, got {self.light_warmup} and {self.min_coverage}")
 
@@ -101,6 +113,23 @@ class MaterialSource(nn.Module):
 def masked_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
     weight = mask[..., None].expand_as(pred)
     return ((pred - target).abs() * weight).sum() / weight.sum().clamp_min(1.0)
+
+
+def scale_invariant_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
+    """masked L1 of s * pred against target, s the least-squares scale of pred onto target over the mask
+    (clamped to [0.1, 10]): blind to a global brightness error of either side."""
+    weight = mask[..., None].expand_as(pred)
+    scale = (pred * target * weight).sum() / (pred * pred * weight).sum().clamp_min(1e-8)
+    return masked_l1(scale.clamp(0.1, 10.0) * pred, target, mask)
+
+
+def material_loss(maps: Tensor, target: Tensor, mask: Tensor, basecolor_loss: str) -> Tensor:  # [H, W, 5] x2, [H, W] -> []
+    """L1 of rendered material maps against the 2D maps, averaged over the 5 channels; the base color
+    channels scale-invariant when `basecolor_loss` says so."""
+    if basecolor_loss == "l1":
+        return masked_l1(maps, target, mask)
+    base = scale_invariant_l1(maps[..., :3], target[..., :3], mask)
+    return (3.0 * base + 2.0 * masked_l1(maps[..., 3:], target[..., 3:], mask)) / 5.0
 
 
 def photometric_loss(rendered: Tensor, photo: Tensor, l1_weight: float) -> Tensor:  # sRGB [H, W, 3] each
@@ -143,7 +172,8 @@ def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, ta
     terms = {}
     if target is not None:
         material_maps = torch.cat([gbuffer.base_color, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1)
-        terms["material"] = masked_l1(material_maps, target, mask * (gbuffer.alpha > 0.5))
+        basecolor_loss = config.basecolor_loss if light is not None else "l1"  # without the PBR loss nothing sets the scale
+        terms["material"] = material_loss(material_maps, target, mask * (gbuffer.alpha > 0.5), basecolor_loss)
     if light is not None:
         rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
         photo = linear_to_srgb(view.image * mask[..., None])
@@ -240,7 +270,7 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
         terms = view_losses(frozen, index, materials, shading_normals(), views[index], maps2d[index], envmap, config, visibility)
-        return terms, config.material_weight * terms["material"] + terms.get("photo", 0.0)
+        return terms, config.material_weight * terms["material"] + config.photo_weight * terms.get("photo", 0.0)
 
     def log(step: int, terms: dict, bar) -> None:
         if step % config.log_every == 0 or step == config.iterations:

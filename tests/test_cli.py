@@ -3,6 +3,8 @@
 import subprocess
 import sys
 
+import pytest
+
 from tests.test_readers import blender_folder
 
 
@@ -37,3 +39,31 @@ def test_info_bad_input_is_one_line_without_traceback(tmp_path):
 def test_info_missing_path(tmp_path):
     result = run_cli("info", tmp_path / "nowhere")
     assert result.returncode == 2 and "nowhere: path does not exist" in result.stderr
+
+
+def run_config(*argv):
+    import argparse
+
+    from matspray.cli.run import add_parser, config_from_args
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser)
+    return config_from_args(parser.parse_args(["--data", "d", "--out", "o", *argv]))
+
+
+def test_run_refines_the_base_color_scale_invariantly_unless_told_l1():
+    assert run_config().refine.basecolor_loss == "scale-invariant"
+    assert run_config("--basecolor-loss", "l1").refine.basecolor_loss == "l1"
+    with pytest.raises(SystemExit):
+        run_config("--basecolor-loss", "l2")
+
+
+def test_refine_seed_overrides_the_seed_for_refinement_only():
+    from matspray.pipeline import Pipeline
+
+    config = run_config("--seed", "3")
+    config.refine_seed = 7
+    pipeline = Pipeline.__new__(Pipeline)  # refine_config reads only the config
+    pipeline.config = config
+    assert pipeline.refine_config("full").seed == 7
+    assert config.geometry.seed == 3

@@ -4,7 +4,7 @@ import torch
 from matspray.errors import ConfigError
 from matspray.lift import LiftConfig, lift
 from matspray.merger import projection_average
-from matspray.refine import VARIANTS, RefineConfig, refine, view_losses
+from matspray.refine import VARIANTS, RefineConfig, masked_l1, material_loss, refine, scale_invariant_l1, view_losses
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from tests.scenes import material_scene
@@ -51,6 +51,54 @@ def test_each_variant_runs(lifted_scene, variant):
 def test_unknown_variant_is_refused():
     with pytest.raises(ConfigError, match="unknown variant 'best'.*full, proj-average, supervised, no-softmax"):
         RefineConfig(variant="best")
+
+
+def test_scale_invariant_l1_ignores_a_global_scale_and_matches_a_brute_force_scale():
+    generator = torch.Generator().manual_seed(0)
+    target = torch.rand(6, 5, 3, generator=generator) * 0.8 + 0.1
+    mask = torch.rand(6, 5, generator=generator) > 0.3
+    assert float(scale_invariant_l1(0.5 * target, target, mask.float())) == pytest.approx(0.0, abs=1e-6)
+    pred = target * (1.0 + 0.3 * torch.rand(6, 5, 3, generator=generator))
+    # least-squares scale over the masked pixels only, then the masked L1 at that scale
+    weight = mask[..., None].float().expand_as(pred)
+    scale = float((pred * target * weight).sum() / (pred * pred * weight).sum())
+    expected = float(((scale * pred - target).abs() * weight).sum() / weight.sum())
+    assert float(scale_invariant_l1(pred, target, mask.float())) == pytest.approx(expected, rel=1e-5)
+    assert float(scale_invariant_l1(pred, target, mask.float())) < float(masked_l1(pred, target, mask.float()))
+
+
+def test_material_loss_is_plain_l1_unless_the_base_color_is_scale_invariant():
+    generator = torch.Generator().manual_seed(1)
+    target = torch.rand(4, 4, 5, generator=generator)
+    mask = torch.ones(4, 4)
+    darker = torch.cat([0.5 * target[..., :3], target[..., 3:]], dim=-1)  # base color half as bright, the rest exact
+    assert float(material_loss(darker, target, mask, "l1")) == pytest.approx(float(masked_l1(darker, target, mask)))
+    assert float(material_loss(darker, target, mask, "scale-invariant")) == pytest.approx(0.0, abs=1e-6)
+    rough = target.clone()
+    rough[..., 3] += 0.2  # a roughness error is not forgiven: 0.2 on one channel of five
+    assert float(material_loss(rough, target, mask, "scale-invariant")) == pytest.approx(0.2 / 5, rel=1e-5)
+
+
+def test_unknown_basecolor_loss_is_refused():
+    with pytest.raises(ConfigError, match="unknown base color loss 'l2'.*l1, scale-invariant"):
+        RefineConfig(basecolor_loss="l2")
+
+
+def test_negative_loss_weights_are_refused():
+    with pytest.raises(ConfigError, match="loss weights must be >= 0, got material 1.0 and photo -1"):
+        RefineConfig(photo_weight=-1)
+
+
+def test_the_base_color_is_compared_scale_invariantly_only_with_the_photometric_loss(lifted_scene):
+    """Without an environment map (the supervised variant) nothing else would set the base color's
+    brightness, so its material loss stays plain L1 whatever `basecolor_loss` says."""
+    gaussians, normals, materials, views, maps, _ = lifted_scene
+    darker = torch.cat([0.6 * materials[:, :3], materials[:, 3:]], dim=-1)
+    light = EnvironmentMap.constant(0.5, height=8)
+    plain = mean_losses(gaussians, normals, darker, None, views, maps, RefineConfig(basecolor_loss="scale-invariant"))
+    assert plain["material"] == pytest.approx(mean_losses(gaussians, normals, darker, None, views, maps, RefineConfig(basecolor_loss="l1"))["material"])
+    lit = mean_losses(gaussians, normals, darker, light, views, maps, RefineConfig(basecolor_loss="scale-invariant"))
+    assert lit["material"] < 0.8 * plain["material"], (lit, plain)
 
 
 def test_supervised_materials_converge_to_the_2d_maps_in_a_short_run(lifted_scene):

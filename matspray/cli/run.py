@@ -24,6 +24,9 @@ def add_parser(parser) -> None:
     parser.add_argument("--shadows", choices=("on", "off"), default="on",
                         help="on (default): bake each Gaussian's visibility and shadow the PBR shading with it; "
                              "off: the paper's unshadowed split-sum shading")
+    parser.add_argument("--basecolor-loss", choices=("scale-invariant", "l1"), default="scale-invariant",
+                        help="how refinement compares the rendered base color with the 2D maps: scale-invariant (default; "
+                             "forgives each view's exposure error, the photometric loss sets the brightness) or plain l1")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda or cuda:N")
     parser.add_argument("--weights", help="marigold: pipeline folder")
@@ -56,6 +59,7 @@ def config_from_args(args):
         if args.refine_iterations < 0:
             raise ConfigError(f"--refine-iterations must be >= 0, got {args.refine_iterations}")
         config.refine = replace(config.refine, iterations=args.refine_iterations)
+    config.refine = replace(config.refine, basecolor_loss=args.basecolor_loss)
     if args.samples_per_side is not None:
         if not 1 <= args.samples_per_side <= 32:
             raise ConfigError(f"--samples-per-side must be in 1..32, got {args.samples_per_side}")
