@@ -56,6 +56,15 @@ def preset_config(preset: str, **overrides) -> PipelineConfig:
     return config
 
 
+def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
+    """The refinement settings of one variant: the run's, with the variant and the refinement seed
+    (`refine_seed`, else the run's `seed`)."""
+    if variant not in VARIANTS:
+        raise ConfigError(f"unknown variant '{variant}'; choose one of {', '.join(VARIANTS)}")
+    seed = config.seed if config.refine_seed is None else config.refine_seed
+    return replace(config.refine, variant=variant, seed=seed)
+
+
 def dataset_identity(scene: Scene) -> dict:
     return {
         "source": str(Path(scene.source).resolve()) if scene.source else None,
@@ -172,16 +181,10 @@ class Pipeline:
         return values
 
     # ---------------------------------------------------------------- refine
-    def refine_config(self, variant: str) -> RefineConfig:
-        if variant not in VARIANTS:
-            raise ConfigError(f"unknown variant '{variant}'; choose one of {', '.join(VARIANTS)}")
-        seed = self.config.seed if self.config.refine_seed is None else self.config.refine_seed
-        return replace(self.config.refine, variant=variant, seed=seed)
-
     def refine(self, variant: str = "full"):
         from matspray.asset import read_asset, write_asset
 
-        config = self.refine_config(variant)
+        config = variant_refine_config(self.config, variant)
         stage = asset_stage(variant)
         fp = fingerprint("refine", config, self.lift_fingerprint(), self.visibility_fingerprint() if self.config.visibility else None)
         if self.run.stage_done(stage, fp, ["asset.ply"]):

@@ -59,11 +59,11 @@ def test_run_refines_the_base_color_scale_invariantly_unless_told_l1():
 
 
 def test_refine_seed_overrides_the_seed_for_refinement_only():
-    from matspray.pipeline import Pipeline
+    from matspray.pipeline import variant_refine_config
 
     config = run_config("--seed", "3")
+    assert variant_refine_config(config, "full").seed == 3
     config.refine_seed = 7
-    pipeline = Pipeline.__new__(Pipeline)  # refine_config reads only the config
-    pipeline.config = config
-    assert pipeline.refine_config("full").seed == 7
+    assert variant_refine_config(config, "full").seed == 7
+    assert variant_refine_config(config, "supervised").variant == "supervised"
     assert config.geometry.seed == 3
