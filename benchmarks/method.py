@@ -18,7 +18,13 @@ With --ceilings it also prints what no material estimate can beat on this object
                    (interreflections are never modelled);
   lifted truth     the ground-truth 2D maps lifted onto our Gaussians and averaged (proj-average with
                    the ground-truth "predictor", in OUT/run-truth, reusing the geometry): the cost of
-                   the geometry, the lifting and the Gaussian representation with perfect 2D maps.
+                   the geometry, the lifting and the Gaussian representation with perfect 2D maps;
+  softmax merger   the lifted truth clamped, per Gaussian and channel, to the range of what that Gaussian
+                   received from the predictor (`merger.clamp_to_seen_range`): an oracle that knows the
+                   truth and is held to convex combinations of the per-view values, as the Neural Merger
+                   is. Where the predictor is wrong in the same direction in every view (tone-mapped
+                   roughness), no softmax merger gets closer to the true materials than this (its
+                   relighting is not a strict bound: a wrong value can offset another one's error).
 """
 
 from __future__ import annotations
@@ -109,18 +115,33 @@ def shading_ceiling(data: Path, shadows_from=None) -> dict:
     return {"relighting": average_metrics([m for r in records.values() for m in r]), **per_light}
 
 
-def lifted_truth(data: Path, out: Path, preset: str) -> dict:
-    """proj-average of the lifted ground-truth maps on the run's own Gaussians (geometry reused)."""
-    from matspray.eval.run_eval import evaluate_run
-    from matspray.pipeline import Pipeline, preset_config
+def lifted_truth(data: Path, out: Path, preset: str) -> tuple[dict, dict]:
+    """Summaries of the lifted ground-truth maps on the run's own Gaussians (geometry reused), averaged
+    (proj-average) and clamped to the range of the predictor's per-view values (the softmax merger's reach)."""
+    from dataclasses import replace
+
+    from matspray.asset import read_asset
+    from matspray.data import load_scene
+    from matspray.eval.run_eval import evaluate_asset, evaluate_run, load_relight_lights, read_view_truth
+    from matspray.merger import clamp_to_seen_range
+    from matspray.pipeline import Pipeline, load_lift, preset_config
 
     run, truth_run = out / "run", out / "run-truth"
     truth_run.mkdir(parents=True, exist_ok=True)
     if not (truth_run / "geometry").exists():
         shutil.copytree(run / "geometry", truth_run / "geometry")
     pipeline = Pipeline(data, truth_run, preset_config(preset, predictor="ground-truth"), log=lambda _: None)
-    pipeline.run_all(("proj-average",))
-    return evaluate_run(truth_run, data, progress=False)["variants"]["proj-average"]["summary"]
+    averaged = pipeline.run_all(("proj-average",))["proj-average"]  # Asset
+    truth, predicted = load_lift(truth_run / "lift" / "projected.pt", "cpu"), load_lift(run / "lift" / "projected.pt", "cpu")
+    if not torch.equal(truth.kept, predicted.kept):
+        raise RuntimeError(f"{truth_run} and {run} kept different Gaussians; delete {truth_run} and run again")
+    reach = clamp_to_seen_range(averaged.materials.cpu(), predicted.values, predicted.seen)  # [N, 5]
+    asset = read_asset(run / "asset")
+    scene = load_scene(data)
+    truths = [read_view_truth(v) for v in scene.test]
+    lights = load_relight_lights(data, sorted(set.intersection(*(set(t.relit) for t in truths))))
+    merger = evaluate_asset(replace(asset, materials=reach.to(asset.materials)), scene.test, truths, lights, None)["summary"]
+    return evaluate_run(truth_run, data, progress=False)["variants"]["proj-average"]["summary"], merger
 
 
 def print_ceilings(data: Path, out: Path, preset: str) -> None:
@@ -133,9 +154,9 @@ def print_ceilings(data: Path, out: Path, preset: str) -> None:
         lights = ", ".join(f"{name} {fmt(m['psnr'])}" for name, m in shading.items() if name != "relighting")
         print(f"shading ceiling ({label}): true G-buffer relight PSNR {fmt(shading['relighting']['psnr'])} ({lights}), "
               f"SSIM {fmt(shading['relighting']['ssim'], 3)}")
-    truth = lifted_truth(data, out, preset)
-    print(f"lifted truth:    relight PSNR {fmt(truth['relighting']['psnr'])}, basecolor {fmt(truth['basecolor']['psnr'])}, "
-          f"roughness {fmt(truth['roughness']['psnr'])}, metallic {fmt(truth['metallic']['psnr'])}")
+    for label, summary in zip(("lifted truth:  ", "softmax merger:"), lifted_truth(data, out, preset)):
+        print(f"{label} relight PSNR {fmt(summary['relighting']['psnr'])}, basecolor {fmt(summary['basecolor']['psnr'])}, "
+              f"roughness {fmt(summary['roughness']['psnr'])}, metallic {fmt(summary['metallic']['psnr'])}")
 
 
 if __name__ == "__main__":

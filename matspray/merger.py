@@ -123,6 +123,17 @@ def projection_average(values: Tensor, seen: Tensor) -> Tensor:  # [N, V, 5], [N
     return (values * seen[..., None]).sum(1) / n_seen
 
 
+def clamp_to_seen_range(target: Tensor, values: Tensor, seen: Tensor) -> Tensor:  # [N, 5], [N, V, 5], [N, V] -> [N, 5]
+    """`target` clamped, per Gaussian and channel, to the range its seen per-view values span: the values
+    nearest `target` that a softmax merger can output. Exact for roughness and metallic (one channel: the convex hull is
+    that range); for base color the per-channel box holds the RGB hull, so it bounds the reach from above.
+    A Gaussian seen in no view keeps `target`."""
+    lowest = torch.where(seen[..., None], values, torch.inf).amin(1)  # [N, 5]
+    highest = torch.where(seen[..., None], values, -torch.inf).amax(1)
+    clamped = torch.minimum(torch.maximum(target, lowest), highest)
+    return torch.where(seen.any(1, keepdim=True), clamped, target)
+
+
 def load_merger(path, n_views: int, bounds: Tensor, map_location="cpu") -> NeuralMerger:
     """A merger saved with `save_merger`; refuses a checkpoint made for a different number of views."""
     try:

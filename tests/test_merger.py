@@ -2,7 +2,8 @@ import pytest
 import torch
 
 from matspray.errors import DataError, RunError
-from matspray.merger import MergerConfig, NeuralMerger, load_merger, positional_encoding, projection_average, save_merger
+from matspray.merger import (MergerConfig, NeuralMerger, clamp_to_seen_range, load_merger, positional_encoding, projection_average,
+                             save_merger)
 
 BOUNDS = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
@@ -53,6 +54,23 @@ def test_output_is_convex_combination_ignoring_unseen_views():
     changed = values.clone()
     changed[~seen] = 123.0
     assert torch.allclose(merger(positions, changed, seen), merged)
+
+
+def test_clamp_to_seen_range_is_the_nearest_value_a_softmax_merger_reaches():
+    values = torch.tensor([[[0.2] * 5, [0.6] * 5, [0.9] * 5]])  # [1, 3, 5]; the 0.9 view is unseen
+    seen = torch.tensor([[True, True, False]])
+    target = torch.tensor([[0.1, 0.4, 0.7, 0.95, 0.2]])
+    expected = torch.tensor([[0.2, 0.4, 0.6, 0.6, 0.2]])  # below -> lowest seen, above -> highest seen (not 0.9)
+    assert torch.equal(clamp_to_seen_range(target, values, seen), expected)
+    # whatever a trained softmax merger outputs is left where it is
+    positions, values, seen = random_inputs()
+    merger = NeuralMerger(6, BOUNDS)
+    randomise(merger)
+    with torch.no_grad():
+        merged = merger(positions, values, seen)
+    assert torch.allclose(clamp_to_seen_range(merged, values, seen), merged, atol=1e-6)
+    # a Gaussian seen in no view keeps its target
+    assert torch.equal(clamp_to_seen_range(target, values[:1, :3], torch.zeros(1, 3, dtype=torch.bool)), target)
 
 
 def test_without_softmax_weights_are_unconstrained():
