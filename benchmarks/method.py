@@ -88,22 +88,28 @@ def seed_mean(summaries: list[dict], group: str, key: str):
     return None if any(v is None for v in values) else sum(values) / len(values)
 
 
-def shading_ceiling(data: Path, shadows_from=None) -> dict:
+def read_test_truth(data: Path) -> tuple[list, list, dict]:
+    """The test views of `data`, their ground truth and the held-out lights (prefiltered), read once."""
+    from matspray.data import load_scene
+    from matspray.eval.run_eval import load_relight_lights, read_view_truth
+
+    views = load_scene(data).test
+    truths = [read_view_truth(v) for v in views]
+    return views, truths, load_relight_lights(data, sorted(set.intersection(*(set(t.relit) for t in truths))))
+
+
+def shading_ceiling(views: list, truths: list, lights: dict, shadows_from=None) -> dict:
     """Relighting metrics of the true G-buffer of every test view shaded by our renderer, per light;
     shadowed by the visibility of the asset `shadows_from` when given."""
     from matspray.relight import render_gbuffer
 
-    from matspray.data import load_scene
     from matspray.data.images import read_raw
     from matspray.eval.evaluate import average_metrics, evaluate_images
-    from matspray.eval.run_eval import load_relight_lights, read_view_truth, unpremultiply
+    from matspray.eval.run_eval import unpremultiply
     from matspray.render.deferred import GBuffer, shade_gbuffer
 
-    scene = load_scene(data)
-    truths = [read_view_truth(v) for v in scene.test]
-    lights = load_relight_lights(data, sorted(truths[0].relit))
     records = {name: [] for name in lights}
-    for view, truth in zip(scene.test, truths):
+    for view, truth in zip(views, truths):
         normals = read_raw(view.path.with_name(f"{view.name}_normal.exr"))[..., :3]
         for name, light in lights.items():
             with torch.no_grad():
@@ -115,14 +121,13 @@ def shading_ceiling(data: Path, shadows_from=None) -> dict:
     return {"relighting": average_metrics([m for r in records.values() for m in r]), **per_light}
 
 
-def lifted_truth(data: Path, out: Path, preset: str) -> tuple[dict, dict]:
+def lifted_truth(data: Path, out: Path, preset: str, full, views: list, truths: list, lights: dict) -> tuple[dict, dict]:
     """Summaries of the lifted ground-truth maps on the run's own Gaussians (geometry reused), averaged
-    (proj-average) and clamped to the range of the predictor's per-view values (the softmax merger's reach)."""
+    (proj-average) and clamped to the range of the predictor's per-view values (the softmax merger's reach,
+    shaded with the `full` asset's normals and shadowing)."""
     from dataclasses import replace
 
-    from matspray.asset import read_asset
-    from matspray.data import load_scene
-    from matspray.eval.run_eval import evaluate_asset, evaluate_run, load_relight_lights, read_view_truth
+    from matspray.eval.run_eval import evaluate_asset
     from matspray.merger import clamp_to_seen_range
     from matspray.pipeline import Pipeline, load_lift, preset_config
 
@@ -136,12 +141,8 @@ def lifted_truth(data: Path, out: Path, preset: str) -> tuple[dict, dict]:
     if not torch.equal(truth.kept, predicted.kept):
         raise RuntimeError(f"{truth_run} and {run} kept different Gaussians; delete {truth_run} and run again")
     reach = clamp_to_seen_range(averaged.materials.cpu(), predicted.values, predicted.seen)  # [N, 5]
-    asset = read_asset(run / "asset")
-    scene = load_scene(data)
-    truths = [read_view_truth(v) for v in scene.test]
-    lights = load_relight_lights(data, sorted(set.intersection(*(set(t.relit) for t in truths))))
-    merger = evaluate_asset(replace(asset, materials=reach.to(asset.materials)), scene.test, truths, lights, None)["summary"]
-    return evaluate_run(truth_run, data, progress=False)["variants"]["proj-average"]["summary"], merger
+    return tuple(evaluate_asset(asset, views, truths, lights, None)["summary"]
+                 for asset in (averaged, replace(full, materials=reach.to(full.materials))))
 
 
 def print_ceilings(data: Path, out: Path, preset: str) -> None:
@@ -149,12 +150,13 @@ def print_ceilings(data: Path, out: Path, preset: str) -> None:
 
     print("\nceilings (what no material estimate can beat here):")
     full = read_asset(out / "run" / "asset")
+    views, truths, lights = read_test_truth(data)
     for label, shadows_from in [("unshadowed", None)] + ([("our shadowing", full)] if full.visibility is not None else []):
-        shading = shading_ceiling(data, shadows_from)
-        lights = ", ".join(f"{name} {fmt(m['psnr'])}" for name, m in shading.items() if name != "relighting")
-        print(f"shading ceiling ({label}): true G-buffer relight PSNR {fmt(shading['relighting']['psnr'])} ({lights}), "
+        shading = shading_ceiling(views, truths, lights, shadows_from)
+        per_light = ", ".join(f"{name} {fmt(m['psnr'])}" for name, m in shading.items() if name != "relighting")
+        print(f"shading ceiling ({label}): true G-buffer relight PSNR {fmt(shading['relighting']['psnr'])} ({per_light}), "
               f"SSIM {fmt(shading['relighting']['ssim'], 3)}")
-    for label, summary in zip(("lifted truth:  ", "softmax merger:"), lifted_truth(data, out, preset)):
+    for label, summary in zip(("lifted truth:  ", "softmax merger:"), lifted_truth(data, out, preset, full, views, truths, lights)):
         print(f"{label} relight PSNR {fmt(summary['relighting']['psnr'])}, basecolor {fmt(summary['basecolor']['psnr'])}, "
               f"roughness {fmt(summary['roughness']['psnr'])}, metallic {fmt(summary['metallic']['psnr'])}")
 
