@@ -8,7 +8,8 @@ import importlib
 import sys
 
 from matspray import __version__
-from matspray.errors import MatsprayError
+from matspray.cli.options import flag_message
+from matspray.errors import MatsprayError, SettingError
 
 # (module under matspray.cli, one-line help); order is the order of `matspray --help`
 COMMANDS = [
@@ -51,6 +52,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
+    except SettingError as exc:
+        print(f"matspray {args.command}: error: {flag_message(exc)}", file=sys.stderr)
+        return 2
     except MatsprayError as exc:
         print(f"matspray {args.command}: error: {exc}", file=sys.stderr)
         return 2

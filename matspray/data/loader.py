@@ -9,7 +9,7 @@ import torch
 
 from matspray.data import blender, colmap, tensoir
 from matspray.data.scene import Scene, View, bounds_from_cameras, bounds_from_points, bounds_from_visual_hull
-from matspray.errors import ConfigError, DataError, file_error
+from matspray.errors import ConfigError, DataError, SettingError, file_error
 
 FORMATS = ("blender", "tensoir", "colmap")
 
@@ -55,7 +55,7 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:
     `downscale` > 1 shrinks every image and camera by that factor (2 halves the resolution).
     """
     if downscale < 1.0:
-        raise ConfigError(f"--downscale must be >= 1, got {downscale}")
+        raise SettingError("downscale", f"must be >= 1, got {downscale}")
     root = Path(root)
     fmt = detect_format(root)
     points = colors = None
