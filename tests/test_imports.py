@@ -57,7 +57,7 @@ def imported_modules(name: str, path: Path, modules: dict[str, Path]) -> list[tu
                 target = target.rpartition(".")[0]
             if target in modules:
                 found.append((target, node.lineno))
-    return found
+    return sorted(found, key=lambda hit: hit[1])
 
 
 def import_graph(root: Path) -> dict[str, dict[str, str]]:
