@@ -7,6 +7,10 @@ from typing import Callable
 
 from matspray.errors import ConfigError, SettingError
 from matspray.predictors.base import Predictor
+from matspray.predictors.files import FilesPredictor
+from matspray.predictors.ground_truth import GroundTruthPredictor
+from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
+from matspray.predictors.simulated import SimulatedPredictor, SimulationConfig
 
 SPECS = ("files:DIR", "marigold", "simulated", "ground-truth")
 
@@ -53,17 +57,9 @@ def make_predictor(spec: str, options: PredictorOptions | None = None, notify: C
         flags = ", ".join("--" + n.replace("_", "-") for n in unused)
         raise ConfigError(f"{flags} do(es) not apply to the {kind} predictor")
     if kind == "files":
-        from matspray.predictors.files import FilesPredictor
-
         return FilesPredictor(argument, options.basecolor_encoding, notify=notify)
     if kind == "marigold":
-        from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
-
         return MarigoldPredictor(MarigoldConfig(**_given(options, USES["marigold"])), notify=notify)
     if kind == "simulated":
-        from matspray.predictors.simulated import SimulatedPredictor, SimulationConfig
-
         return SimulatedPredictor(SimulationConfig(**_given(options, USES["simulated"])))
-    from matspray.predictors.ground_truth import GroundTruthPredictor
-
     return GroundTruthPredictor()
