@@ -14,7 +14,7 @@ from matspray.cli import main
 from matspray.data import Camera, View, load_scene, write_image
 from matspray.data.images import linear_to_srgb, read_image
 from matspray.data.nerfstudio import write_nerfstudio
-from matspray.data.undistort import Lens, distort_image, plan_undistortion
+from matspray.data.undistort import Lens, distort_view, plan_undistortion
 from matspray.errors import DataError
 
 pytest.importorskip("cv2")
@@ -83,11 +83,7 @@ def test_distorted_nerfstudio_capture_undistorts_to_the_ground_truth(synth_objec
     first = original.train[0].camera
     lens = Lens(float(first.K[0, 0]), float(first.K[1, 1]), float(first.K[0, 2]), float(first.K[1, 2]), first.width,
                 first.height, (-0.12, 0.03, 0.002, -0.001, 0.0), model="OPENCV")
-    distorted = {
-        split: [View(v.name, distort_image(v.image, lens, v.camera.K), distort_image(v.alpha, lens, v.camera.K), v.camera)
-                for v in original.split(split)]
-        for split in ("train", "test")
-    }
+    distorted = {split: [distort_view(v, lens) for v in original.split(split)] for split in ("train", "test")}
     write_nerfstudio(tmp_path, distorted, lens=lens, separate_masks=True)
     scene = load_scene(tmp_path)
     assert scene.format == "nerfstudio"

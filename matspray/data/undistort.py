@@ -230,6 +230,13 @@ def distort_image(image: Tensor, lens: Lens, K: Tensor) -> Tensor:
     return torch.from_numpy(out.reshape(array.shape[:2] + array.shape[2:]))
 
 
+def distort_view(view: View, lens: Lens) -> View:
+    """`view` (a pinhole photo and its alpha) as the distorted `lens` would have taken it from the same pose;
+    the View keeps the pinhole camera it was made from."""
+    alpha = None if view.alpha is None else distort_image(view.alpha, lens, view.camera.K)
+    return View(view.name, distort_image(view.image, lens, view.camera.K), alpha, view.camera, view.path)
+
+
 # ------------------------------------------------------------------------------------------ datasets
 def cache_folder(root: Path) -> Path:
     """Beside the dataset when its folder is writable, else in the user's cache."""
@@ -250,6 +257,7 @@ class Undistorter:
     """
 
     def __init__(self, root: Path):
+        self.root = Path(root).resolve()
         self.cache = cache_folder(root)
         self.plans: dict[Lens, Undistortion] = {}
         self.undistorted = 0
@@ -283,11 +291,16 @@ class Undistorter:
         stamp = [plan.key()]
         for source in (path, *sources):
             stat = Path(source).stat()
-            stamp.append(f"{Path(source).resolve()}:{stat.st_size}:{stat.st_mtime_ns}")
+            stamp.append(f"{self.relative(source)}:{stat.st_size}:{stat.st_mtime_ns}")
         digest = hashlib.sha1("|".join(stamp).encode()).hexdigest()[:12]
-        origin = hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()[:8]  # same stem, other folder
+        origin = hashlib.sha1(self.relative(path).encode()).hexdigest()[:8]  # same stem, other folder
         suffix = ".png" if path.suffix.lower() in LDR_SUFFIXES else ".exr"
         return self.cache / f"{path.stem}-{origin}-{digest}{suffix}"
+
+    def relative(self, path: Path) -> str:
+        """`path` relative to the dataset (so that a moved dataset keeps its cache), else absolute."""
+        resolved = Path(path).resolve()
+        return str(resolved.relative_to(self.root)) if resolved.is_relative_to(self.root) else str(resolved)
 
     def store(self, cached: Path, rgb: Tensor, alpha: Tensor | None) -> None:
         try:
@@ -300,7 +313,14 @@ class Undistorter:
     def notes(self) -> list[str]:
         """What `matspray info` says about the undistortion."""
         lines = []
-        for plan in self.plans.values():
+        if len(self.plans) > 3:  # one camera per photo (as COLMAP makes them without EXIF): a summary
+            plans = list(self.plans.values())
+            fx = [float(plan.K[0, 0]) for plan in plans]
+            kept = [100 * plan.kept for plan in plans]
+            models = ", ".join(sorted({plan.lens.model for plan in plans}))
+            lines.append(f"undistorted {len(plans)} {models} cameras to pinhole, fx {min(fx):.2f} .. {max(fx):.2f}, "
+                         f"{min(kept):.0f} .. {max(kept):.0f}% of the image kept")
+        for plan in self.plans.values() if len(self.plans) <= 3 else ():
             K = plan.K
             lines.append(
                 f"undistorted {plan.lens.describe()} to pinhole fx={float(K[0, 0]):.2f} fy={float(K[1, 1]):.2f} "
