@@ -226,7 +226,13 @@ def test_colmap_simple_radial_model_is_undistorted(tmp_path, capsys):
         expected = camera.img_from_cam((X @ R.T + t))
         assert np.abs(lens.to_pixels(lens.distort(xy_und)) - expected).max() < 1e-3
     assert main(["info", str(tmp_path)]) == 0
-    assert "loading: undistorted SIMPLE_RADIAL (k1=-0.15) to pinhole" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "loading: undistorted SIMPLE_RADIAL (k1=-0.15) to pinhole" in printed and "0 made, 3 read from the cache" in printed
+    write_image(tmp_path / "images" / "img1.png", analytic(truth_xy).flip(1))  # a changed photo is undistorted again
+    again = load_scene(tmp_path, test_every=0)
+    assert any("1 made, 2 read from the cache" in line for line in again.log)
+    assert torch.equal(again.train[0].image, scene.train[0].image)
+    assert (again.train[1].image - scene.train[1].image).abs().mean() > 0.05
 
 
 # ------------------------------------------------------------------------------------------ bad input

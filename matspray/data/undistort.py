@@ -283,8 +283,9 @@ class Undistorter:
         rgb, alpha = load()
         rgb = plan.apply(rgb).clamp_min(0.0)
         alpha = None if alpha is None else plan.apply(alpha).clamp(0.0, 1.0)
-        self.store(cached, rgb, alpha)
         self.undistorted += 1
+        if self.store(cached, rgb, alpha):  # what later loads will read, so that every load gives the same values
+            rgb, alpha = read_image(cached)
         return View(name, rgb, alpha, camera, path)
 
     def cached_path(self, path: Path, plan: Undistortion, sources) -> Path:
@@ -302,13 +303,14 @@ class Undistorter:
         resolved = Path(path).resolve()
         return str(resolved.relative_to(self.root)) if resolved.is_relative_to(self.root) else str(resolved)
 
-    def store(self, cached: Path, rgb: Tensor, alpha: Tensor | None) -> None:
+    def store(self, cached: Path, rgb: Tensor, alpha: Tensor | None) -> bool:
         try:
             for stale in cached.parent.glob(f"{cached.stem.rsplit('-', 1)[0]}-*{cached.suffix}"):  # older versions
                 stale.unlink()
             write_image(cached, rgb, alpha)  # atomic: a reader never sees half a file
+            return True
         except OSError:
-            pass  # a cache that cannot be written only costs time on the next load
+            return False  # a cache that cannot be written only costs time on the next load
 
     def notes(self) -> list[str]:
         """What `matspray info` says about the undistortion."""
