@@ -16,6 +16,7 @@ from matspray.data.images import linear_to_srgb, read_image
 from matspray.data.nerfstudio import write_nerfstudio
 from matspray.data.undistort import Lens, distort_view, plan_undistortion
 from matspray.errors import DataError
+from tests.test_readers import write_colmap
 
 pytest.importorskip("cv2")
 
@@ -196,8 +197,6 @@ def analytic(xy: torch.Tensor) -> torch.Tensor:  # [..., 2] normalised pinhole c
 
 def test_colmap_simple_radial_model_is_undistorted(tmp_path, capsys):
     pycolmap = pytest.importorskip("pycolmap")
-    from tests.test_readers import write_colmap
-
     params = (36.0, 20.3, 14.8, -0.15)  # f, cx, cy, k
     poses = write_colmap(tmp_path, n_images=3, model="SIMPLE_RADIAL", params=params)
     lens = Lens(params[0], params[0], params[1], params[2], W, H, (params[3], 0.0, 0.0, 0.0), model="SIMPLE_RADIAL")
@@ -281,8 +280,6 @@ def test_strong_distortion_is_refused_with_the_fraction_kept():
 
 def test_unknown_colmap_camera_model_is_refused(tmp_path):
     pytest.importorskip("pycolmap")
-    from tests.test_readers import write_colmap
-
     write_colmap(tmp_path, model="FOV", params=(45.0, 47.0, 19.5, 15.5, 0.1))
     with pytest.raises(DataError, match=r"camera model FOV, which MatSpray cannot undistort \(known: SIMPLE_PINHOLE, PINHOLE"):
         load_scene(tmp_path)

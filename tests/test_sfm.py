@@ -10,7 +10,7 @@ import torch
 
 from matspray.cli import main
 from matspray.data import load_scene, write_image
-from matspray.data.sfm import SfmConfig, run_sfm
+from matspray.data.sfm import SfmConfig, prepare_photo, run_sfm
 from matspray.errors import ConfigError, DataError
 
 pytest.importorskip("pycolmap")
@@ -62,7 +62,7 @@ def test_photos_that_do_not_match_are_explained(tmp_path, capsys):
         (lambda d: (photos(d, 3), (d / "p9.heic").write_bytes(b"x")), r"p9.heic: is not a JPEG or PNG photo \('.heic'\)"),
         (lambda d: (photos(d, 3), (d / "p1.png").write_bytes(b"broken")), r"p1.png: cannot read image"),
         (lambda d: (photos(d, 2), write_image(d / "z.png", torch.rand(30, 64, 3))),
-         r"z.png: is 64x30 but p0.png is 64x48 \(--single-camera needs photos of one size\)"),
+         r"z.png: is 64x30 but p0.png is 64x48 \(one camera for every photo needs photos of one size\)"),
     ],
 )
 def test_bad_photo_folders_are_named(tmp_path, make, message):
@@ -90,8 +90,6 @@ def test_missing_mask_and_bad_settings(tmp_path):
 
 def test_exif_rotated_photo_is_written_upright(tmp_path):
     from PIL import Image
-
-    from matspray.data.sfm import prepare_photo
 
     stored = (np.random.default_rng(0).random((40, 30, 3)) * 255).astype(np.uint8)
     exif = Image.Exif()

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from matspray.data.sfm import CAMERA_MODELS, MATCHERS, SfmConfig
+from matspray.data.sfm import CAMERA_MODELS, MATCHERS, SfmConfig, run_sfm
 
 
 def add_parser(parser) -> None:
@@ -32,8 +32,6 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
-    from matspray.data.sfm import run_sfm
-
     config = SfmConfig(matcher=args.matcher, max_size=args.max_size, single_camera=args.single_camera,
                        camera_model=args.camera_model, threads=args.threads)
     log = (lambda _: None) if args.quiet else print

@@ -35,7 +35,7 @@ MATCHERS = ("exhaustive", "sequential")
 CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "SIMPLE_PINHOLE", "PINHOLE")  # what SfM may estimate
 MIN_REGISTERED = 3
 ADVICE = ("take more photos with more overlap (every part seen by 3 or more photos, about 15 degrees apart), "
-          "keep them sharp and the object textured, or try --matcher exhaustive")
+          "keep them sharp and the object textured, or use the exhaustive matcher")
 
 
 @dataclass(frozen=True)
@@ -178,7 +178,7 @@ def reconstruct(photos: list[Path], work: Path, config: SfmConfig, mask_dir: Pat
         first = photos[0]
         odd = next(p for p in photos if sizes[p.name] != sizes[first.name])
         raise file_error(odd, f"is {sizes[odd.name][0]}x{sizes[odd.name][1]} but {first.name} is "
-                              f"{sizes[first.name][0]}x{sizes[first.name][1]}", "--single-camera needs photos of one size")
+                              f"{sizes[first.name][0]}x{sizes[first.name][1]}", "one camera for every photo needs photos of one size")
     pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
     names = [p.name for p in photos]
     reader = pycolmap.ImageReaderOptions()
