@@ -47,6 +47,12 @@ def resolve_image(root: Path, file_path: str, json_path: Path) -> Path:
     raise file_error(json_path, f"image '{file_path}' of a frame does not exist under {root}")
 
 
+def view_name(file_path: str) -> str:
+    """A view's name: the file name of its `file_path`, without an image suffix."""
+    name = Path(str(file_path).replace("\\", "/")).name
+    return Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
+
+
 def frame_intrinsics(meta: dict, frame: dict, width: int, height: int, json_path: Path, label: str = "") -> torch.Tensor:
     """K [3, 3] for one frame, from per-frame keys first, then the file's top-level keys
     (`label` names the frame in the error when there are none)."""
@@ -113,8 +119,7 @@ def read_split(root: Path, split: str) -> list[View]:
         height, width = rgb.shape[:2]
         K = frame_intrinsics(meta, frame, width, height, json_path)
         camera = Camera.from_camtoworld_opengl(pose, K, width, height)
-        name = Path(frame["file_path"]).name
-        name = Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
+        name = view_name(frame["file_path"])
         views.append(View(name=name, image=rgb, alpha=alpha, camera=camera, path=image_path))
     return views
 

@@ -14,7 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from matspray.data.blender import frame_intrinsics, intrinsics_record, pose_record, read_json, read_pose, resolve_image, write_json
+from matspray.data.blender import (frame_intrinsics, intrinsics_record, pose_record, read_json, read_pose, resolve_image,
+                                   view_name, write_json)
 from matspray.data.camera import Camera
 from matspray.data.images import image_size, read_image, read_raw, split_alpha, write_image, write_raw
 from matspray.data.scene import View
@@ -176,8 +177,7 @@ def read_frame(root: Path, meta: dict, frame: dict, index: int, json_path: Path,
                 raise file_error(mask_path, f"mask is {tuple(alpha.shape)} but the image is {tuple(rgb.shape[:2])}")
         return rgb, alpha
 
-    name = PurePosixPath(normalised(frame["file_path"])).name
-    name = PurePosixPath(name).stem if PurePosixPath(name).suffix.lower() in (".png", ".jpg", ".jpeg", ".exr") else name
+    name = view_name(frame["file_path"])
     sources = () if mask_path is None else (mask_path,)
     return undistorter.view(name, image_path, lens, viewmat, load, sources)
 
