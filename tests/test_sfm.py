@@ -30,12 +30,15 @@ def photos(folder: Path, count: int, size=(48, 64), suffix=".png") -> Path:
 def test_four_real_photos_register_and_load(tmp_path):
     if not SCEAUX.is_dir():
         pytest.skip(f"shared data not found at {SCEAUX}")
-    subset = tmp_path / "photos"
+    subset, masks = tmp_path / "photos", tmp_path / "masks"
     subset.mkdir()
     for name in sorted(p.name for p in SCEAUX.iterdir())[:4]:
         (subset / name).write_bytes((SCEAUX / name).read_bytes())
+        mask = torch.zeros(769, 1024)  # full size: resized with its photo
+        mask[200:600, 300:800] = 1.0
+        write_image(masks / f"{Path(name).stem}.png", mask[..., None].expand(-1, -1, 3))
     out = tmp_path / "dataset"
-    result = run_sfm(subset, out, SfmConfig(max_size=400, single_camera=True), progress=False, log=lambda _: None)
+    result = run_sfm(subset, out, SfmConfig(max_size=400, single_camera=True), masks=masks, progress=False, log=lambda _: None)
     assert result.registered == 4 and result.model_sizes == [4]
     assert result.mean_reprojection_error < 1.5
     assert not list(tmp_path.glob(".dataset.tmp-*"))  # the work folder was renamed, nothing left behind
@@ -44,6 +47,8 @@ def test_four_real_photos_register_and_load(tmp_path):
     scene = load_scene(out)
     assert scene.format == "colmap" and len(scene.views) == 4 and (scene.views[0].width, scene.views[0].height) == (400, 300)
     assert any("undistorted images: 0 made, 4 read from the cache" in line for line in scene.log)
+    coverage = float(scene.views[0].alpha.mean())  # the box covers 400 x 500 of 769 x 1024 before undistortion
+    assert abs(coverage - 400 * 500 / (769 * 1024)) < 0.03, coverage
 
 
 def test_photos_that_do_not_match_are_explained(tmp_path, capsys):
