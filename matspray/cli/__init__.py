@@ -14,6 +14,7 @@ from matspray.errors import MatsprayError, SettingError
 # (module under matspray.cli, one-line help); order is the order of `matspray --help`
 COMMANDS = [
     ("info", "describe a dataset folder and list every problem found"),
+    ("colmap", "structure from motion on a folder of photos (pycolmap): a dataset folder for info and run"),
     ("synth", "a synthetic benchmark object with ground truth, rendered by Mitsuba 3"),
     ("geometry", "fit 3D Gaussians (3DGS with normals) to the photos: RUN/geometry/gaussians.ply"),
     ("predict", "per-view 2D material maps (base color, roughness, metallic) into RUN/materials2d/"),
