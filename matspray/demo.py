@@ -33,30 +33,36 @@ DEMO_SIZES = {
 }
 
 
-def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True) -> Path:
-    """A `matspray synth` object for `preset` in `out` (reused when it is already there)."""
+def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True, env: str = "sky",
+                     relight_envs: list[str] | None = None) -> Path:
+    """A `matspray synth` object for `preset` in `out` (reused when it is already there), trained under
+    `env` and relit under `relight_envs` (None: synth's default lights)."""
     from matspray.synth import SynthConfig, make_object
 
     size = DEMO_SIZES[preset]
-    config = SynthConfig(shape=shape, seed=seed, resolution=size.res, train_views=size.views, test_views=size.test_views, spp=size.spp)
+    config = SynthConfig(shape=shape, seed=seed, resolution=size.res, train_views=size.views, test_views=size.test_views, spp=size.spp,
+                         env=env, relight_envs=relight_envs)
     if not (out / "scene.json").exists():
         make_object(config, out, progress=progress)
     return out
 
 
 def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progress: bool = True, log=print,
-               refine_iterations: int | None = None, refine_seed: int | None = None) -> dict:
-    """Run every variant of the method on one object, evaluate it and write its report
-    (`refine_iterations` and `refine_seed` override the preset's; earlier stages are reused)."""
+               refine_iterations: int | None = None, refine_seed: int | None = None, predictor: str = "simulated",
+               refine_overrides: dict | None = None, config_overrides: dict | None = None) -> dict:
+    """Run every variant of the method on one object with `predictor`, evaluate it and write its report
+    (`refine_iterations`, `refine_seed`, `refine_overrides` (RefineConfig fields) and `config_overrides`
+    (PipelineConfig fields) override the preset's; earlier stages are reused)."""
     from dataclasses import replace
 
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run
     from matspray.pipeline import Pipeline, preset_config
 
-    config = preset_config(preset, predictor="simulated", refine_seed=refine_seed)
-    if refine_iterations is not None:
-        config.refine = replace(config.refine, iterations=refine_iterations)
+    config = preset_config(preset, predictor=predictor, refine_seed=refine_seed, **(config_overrides or {}))
+    refine = dict(refine_overrides or {}, **({} if refine_iterations is None else {"iterations": refine_iterations}))
+    if refine:
+        config.refine = replace(config.refine, **refine)
     pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)
     pipeline.run_all(variants)
     metrics = evaluate_run(run_dir, data, progress=progress)
