@@ -3,6 +3,7 @@
     python -m benchmarks.generalise --set dev|eval [--objects K] [--preset demo|test]
         [--models paper harsh outliers ground-truth] [--variants full proj-average supervised no-softmax]
         [--method paper|matspray] [--refine KEY=VALUE ...] [--tag NAME] [--out DIR]
+    python -m benchmarks.generalise --set dev --compare [--out DIR]
 
 Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every setting, `eval` (seeds
 2000 + i) to run once at the end. Object i is a procedural `random` shape (the seed picks it), trained
@@ -20,6 +21,8 @@ no-softmax, 3D vs 2D per channel) and the seconds per object. Writes OUT/results
 per model OUT/tables-TAG-MODEL.md (the paper's tables averaged over the objects).
 `--refine KEY=VALUE` overrides a refinement setting (RefineConfig field; `merger.KEY` for the merger)
 for development sweeps: earlier stages are reused, so a sweep costs only refinement and evaluation.
+Each configuration keeps its results file (its --tag), and `--compare` prints one row per configuration
+and error model from them: the development-set table of choices.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from matspray.lights import BUILTINS, hdri_files
 from matspray.pipeline import PipelineConfig, preset_config
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.refine import VARIANTS
-from matspray.rundir import RunDir, fingerprint, write_json, write_text_atomic
+from matspray.rundir import RunDir, fingerprint, read_json, write_json, write_text_atomic
 
 SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
@@ -209,7 +212,9 @@ def model_summary(per_object: list[dict]) -> dict:
 def fmt(value) -> str:
     if value is None:
         return "—"
-    return "inf" if math.isinf(value) else f"{value:.2f}"
+    if math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return f"{value:.2f}"
 
 
 def metallic_mean(entry: dict) -> str:
@@ -313,6 +318,34 @@ def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict])
     return lines
 
 
+def choices_table(out: Path) -> list[str]:
+    """Markdown lines: one row per configuration (results-*.json in `out`) and error model, from the
+    saved results: the development-set table of choices."""
+    reports = sorted(out.glob("results-*.json"))
+    if not reports:
+        raise ConfigError(f"{out}: no results-*.json to compare; run the protocol first (with --out {out})")
+    lines = ["| tag | method | refine overrides | model | objects | relight full | full - proj-average | full - no-softmax | "
+             "full > proj-average | 3D - 2D base | 3D - 2D rough |", "|" + "---|" * 11]
+    for path in reports:
+        report = read_json(path)
+        settings = report["settings"]
+        overrides = ", ".join(f"{k}={v}" for k, v in settings["refine_overrides"].items()) or "none"
+        for model, result in report["models"].items():
+            summary = result["summary"]
+            relight, m3, m2 = summary["relight"], summary["materials_3d"], summary["materials_2d"]
+
+            def gap(a, b):
+                return None if a is None or b is None else a - b
+
+            win = summary["wins"]["full > proj-average"]
+            lines.append("| " + " | ".join([
+                settings["tag"], str(settings["method"]), overrides, model, str(settings["objects"]), fmt(relight.get("full")),
+                fmt(gap(relight.get("full"), relight.get("proj-average"))), fmt(gap(relight.get("full"), relight.get("no-softmax"))),
+                f"{win['wins']}/{win['of']}", fmt(gap(m3["basecolor"].get("psnr"), m2["basecolor"].get("psnr"))),
+                fmt(gap(m3["roughness"].get("psnr"), m2["roughness"].get("psnr")))]) + " |")
+    return lines
+
+
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(prog="python -m benchmarks.generalise", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="dev: choose settings here; eval: run once at the end (default dev)")
@@ -327,6 +360,8 @@ def parse_args(argv=None):
     parser.add_argument("--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)")
     parser.add_argument("--out", type=Path, help="folder (default runs/generalise-SET-PRESET); objects and runs in it are reused")
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
+    parser.add_argument("--compare", action="store_true", help="run nothing: print one row per configuration already run in --out "
+                        "(its results-*.json), the table to choose settings from")
     args = parser.parse_args(argv)
     args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
     return args
@@ -335,6 +370,9 @@ def parse_args(argv=None):
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
+        if args.compare:
+            print("\n".join(choices_table(args.out)))
+            return 0
         result = run_protocol(args)
     except MatsprayError as exc:
         print(f"error: {exc}", file=sys.stderr)

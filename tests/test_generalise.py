@@ -146,5 +146,11 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert paper["materials_2d"]["basecolor"] < 40 and set(paper["relight"]) == {"full", "proj-average"}
     assert json.loads((runs / "paper" / "materials2d" / "predictor.json").read_text())["error_model"] == "paper"
     assert (out / f"tables-{tag}-paper.md").exists() and (out / f"results-{tag}.md").exists()
+    assert main(["--compare", "--out", str(out)]) == 0  # the table of choices, from the saved results
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(f"| {tag} |")]
+    assert [row.split(" | ")[3] for row in rows] == ["paper", "ground-truth"] and "iterations=4, light_warmup=2" in rows[0]
+    assert rows[1].split(" | ")[-2:] == ["-inf", "-inf |"]  # the 3D materials never reach the exact 2D truth
+    assert main(["--compare", "--out", str(tmp_path / "nothing")]) == 2
+    assert "no results-*.json to compare" in capsys.readouterr().err
     assert main(argv[:-3] + ["--refine", "iterations=x", "--out", str(out)]) == 2
     assert "--refine iterations=x: expected an integer" in capsys.readouterr().err
