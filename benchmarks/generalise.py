@@ -263,6 +263,10 @@ def run_protocol(args, log=print) -> dict:
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
     if args.set == "eval":
         log("generalise: evaluation set — run it once, with settings chosen on the development set only")
+        earlier = sorted(p.stem[len("results-"):] for p in args.out.glob("results-*.json") if p.stem != f"results-{tag}")
+        if earlier:
+            log(f"warning: this evaluation set was already run with other settings ({', '.join(earlier)}); "
+                "choosing between them on it makes it a development set")
     results = {m: [] for m in specs}
     timing = []
     for number, spec in enumerate(objects, 1):

@@ -80,7 +80,7 @@ SETTINGS = ("severity", "seed", "batch_size")  # what a user may set on top of a
 def error_model(name: str, **settings) -> SimulationConfig:
     """The named model's magnitudes with `severity`, `seed`, `batch_size` set where given (not None)."""
     if name not in ERROR_MODELS:
-        raise ConfigError(f"--predictor simulated:{name}: unknown error model; use one of {', '.join(ERROR_MODELS)}")
+        raise ConfigError(f"predictor 'simulated:{name}': unknown error model; use one of {', '.join(ERROR_MODELS)}")
     unknown = sorted(set(settings) - set(SETTINGS))
     if unknown:
         raise ConfigError(f"error models take only {', '.join(SETTINGS)}; got {', '.join(unknown)}")
