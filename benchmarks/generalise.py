@@ -2,7 +2,8 @@
 
     python -m benchmarks.generalise --set dev|eval [--objects K] [--preset demo|test]
         [--models paper harsh outliers ground-truth] [--variants full proj-average supervised no-softmax]
-        [--method paper|matspray] [--refine KEY=VALUE ...] [--tag NAME] [--out DIR]
+        [--method matspray|paper] [--without ADDITION ...] [setting flags of `matspray run`]
+        [--refine KEY=VALUE ...] [--tag NAME] [--out DIR]
     python -m benchmarks.generalise --set dev --compare [--out DIR]
 
 Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every setting, `eval` (seeds
@@ -38,19 +39,18 @@ from pathlib import Path
 
 import numpy as np
 
+from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
 from matspray.demo import DEMO_SIZES, average_tables, make_demo_object, run_object
-from matspray.errors import ConfigError, MatsprayError
+from matspray.errors import ConfigError, MatsprayError, SettingError
 from matspray.eval.tables import write_tables
 from matspray.lights import BUILTINS, hdri_files
-from matspray.pipeline import PipelineConfig, preset_config
 from matspray.predictors.error_models import ERROR_MODELS
-from matspray.refine import VARIANTS
+from matspray.variants import VARIANT_NAMES as VARIANTS
 from matspray.rundir import RunDir, fingerprint, read_json, write_json, write_text_atomic
 
 SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
 MODELS = (*ERROR_MODELS, "ground-truth")
-METHODS = ("paper", "matspray")
 CHANNELS = ("basecolor", "roughness", "metallic")
 SHORT = {"basecolor": "base", "roughness": "rough", "metallic": "metal"}
 
@@ -134,21 +134,17 @@ def with_overrides(config, items: list[str], prefix: str = ""):
     return replace(config, **changes)
 
 
-def refine_overrides(preset: str, items: list[str]) -> dict:
-    """The RefineConfig fields that `items` change, relative to the preset's refinement settings."""
-    base = preset_config(preset).refine
+def refine_overrides(base, items: list[str]) -> dict:
+    """The fields of the refinement settings `base` (a RefineConfig) that `items` change."""
     changed = with_overrides(base, items)
     return {f.name: getattr(changed, f.name) for f in fields(base) if getattr(changed, f.name) != getattr(base, f.name)}
 
 
-def method_overrides(method: str | None) -> dict:
-    if method is None:
-        return {}
-    if method not in METHODS:
-        raise ConfigError(f"--method must be one of {', '.join(METHODS)}, got '{method}'")
-    if "method" not in {f.name for f in fields(PipelineConfig)}:
-        raise ConfigError("--method needs the pipeline's `method` setting (issue 19), which this version does not have")
-    return {"method": method}
+def protocol_config(args, predictor: str):
+    """The run settings of one error model: the preset, --method, --without and setting flags (as
+    `matspray run` reads them), then the --refine overrides."""
+    config = build_config_from_args(args, predictor=predictor)
+    return replace(config, refine=with_overrides(config.refine, args.refine))
 
 
 # ------------------------------------------------------------------------------------------ geometry once
@@ -255,11 +251,14 @@ def run_protocol(args, log=print) -> dict:
         log("notice: no ../shared/data/hdri found; objects are trained under built-in lights instead of HDRIs")
     objects = object_set(args.set, args.objects, hdris)
     specs = {m: predictor_spec(m) for m in args.models}
-    refine = refine_overrides(args.preset, args.refine)
-    config = method_overrides(args.method)
-    tag = args.tag or ("default" if not (refine or config) else fingerprint(refine, config)[:8])
+    configs = {m: protocol_config(args, spec) for m, spec in specs.items()}
+    refine = refine_overrides(build_config_from_args(args).refine, args.refine)
+    flags = method_settings_from_args(args)
+    choices = {"without": list(args.without), "settings": {k: str(v) for k, v in flags.items()}, "refine": refine}
+    tag = args.tag or ("default" if not (refine or flags or args.without) else fingerprint(choices)[:8])
+    tag = tag if args.method == "matspray" else f"{args.method}-{tag}"
     settings = {"set": args.set, "preset": args.preset, "objects": len(objects), "models": list(args.models), "variants": list(args.variants),
-                "method": args.method or "pipeline default", "refine_overrides": refine, "tag": tag}
+                "method": args.method, "without": list(args.without), "settings": choices["settings"], "refine_overrides": refine, "tag": tag}
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
     if args.set == "eval":
         log("generalise: evaluation set — run it once, with settings chosen on the development set only")
@@ -277,13 +276,12 @@ def run_protocol(args, log=print) -> dict:
                                 relight_envs=list(spec.relight_envs))
         seconds = {"synth": time.perf_counter() - start, "models": {}}
         first_run = folder / "runs" / next(iter(specs))
-        for model, predictor in specs.items():
+        for model in specs:
             run_dir = folder / "runs" / model
             if run_dir != first_run and share_geometry(first_run, run_dir):
                 log(f"generalise: {spec.name} / {model}: geometry shared from {first_run.name}")
             begin = time.perf_counter()
-            metrics = run_object(data, run_dir, args.preset, variants=args.variants, progress=args.progress, log=log, predictor=predictor,
-                                 refine_overrides=refine, config_overrides=config)
+            metrics = run_object(data, run_dir, configs[model], variants=args.variants, progress=args.progress, log=log)
             seconds["models"][model] = time.perf_counter() - begin
             results[model].append({"object": vars(spec) | {"relight_envs": list(spec.relight_envs)}, "figures": object_figures(metrics),
                                    "metrics": metrics, "seconds": seconds["models"][model]})
@@ -307,7 +305,8 @@ def run_protocol(args, log=print) -> dict:
 def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict]) -> list[str]:
     size = DEMO_SIZES[settings["preset"]]
     lines = [f"## Generalisation protocol: {settings['set']} set, preset {settings['preset']} ({size.res} px, {size.views} views)", "",
-             f"method: {settings['method']}; refine overrides: {settings['refine_overrides'] or 'none'}; tag {settings['tag']}",
+             f"method: {settings['method']}; without: {', '.join(settings['without']) or 'nothing'}; settings: "
+             f"{settings['settings'] or 'as the method sets them'}; refine overrides: {settings['refine_overrides'] or 'none'}; tag {settings['tag']}",
              "PSNR in dB on the test views (object mask); relighting under the two held-out lights; 3D = the full method's materials, "
              "2D = the predictor's maps of the same test views. Simulated predictors are SIMULATED from the ground truth.", ""]
     for model, per_object in results.items():
@@ -354,11 +353,9 @@ def parse_args(argv=None):
     parser = argparse.ArgumentParser(prog="python -m benchmarks.generalise", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="dev: choose settings here; eval: run once at the end (default dev)")
     parser.add_argument("--objects", type=int, default=6, help="objects of the set, the first K (default 6)")
-    parser.add_argument("--preset", choices=("test", "demo"), default="demo", help="demo: 128 px, 40 views (default); test: a quick look")
     parser.add_argument("--models", nargs="+", default=list(MODELS), metavar="MODEL", help=f"error models (default: {' '.join(MODELS)})")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS, metavar="VARIANT",
                         help=f"variants refined per run (default: {' '.join(VARIANTS)})")
-    parser.add_argument("--method", choices=METHODS, help="the pipeline's method (default: the pipeline's default)")
     parser.add_argument("--refine", nargs="+", default=[], metavar="KEY=VALUE", help="override refinement settings (RefineConfig fields, "
                         "merger.KEY for the merger), e.g. --refine iterations=300 merger.hidden=64")
     parser.add_argument("--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)")
@@ -366,6 +363,7 @@ def parse_args(argv=None):
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
     parser.add_argument("--compare", action="store_true", help="run nothing: print one row per configuration already run in --out "
                         "(its results-*.json), the table to choose settings from")
+    add_method_arguments(parser, presets=("test", "demo"))
     args = parser.parse_args(argv)
     args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
     return args
@@ -378,6 +376,9 @@ def main(argv=None) -> int:
             print("\n".join(choices_table(args.out)))
             return 0
         result = run_protocol(args)
+    except SettingError as exc:
+        print(f"error: {flag_message(exc)}", file=sys.stderr)
+        return 2
     except MatsprayError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

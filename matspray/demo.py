@@ -12,8 +12,15 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from matspray.errors import ConfigError
-from matspray.refine import VARIANTS
+from matspray.config import PipelineConfig, build_config
+from matspray.errors import SettingError
+from matspray.eval.report import write_report
+from matspray.eval.run_eval import evaluate_run
+from matspray.eval.tables import write_tables
+from matspray.pipeline import Pipeline
+from matspray.rundir import write_json
+from matspray.synth import SynthConfig, make_object
+from matspray.variants import VARIANT_NAMES
 
 SHAPES = ("composite", "blob", "rounded-cube", "torus", "capsule", "sphere")
 
@@ -37,8 +44,6 @@ def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bo
                      relight_envs: list[str] | None = None) -> Path:
     """A `matspray synth` object for `preset` in `out` (reused when it is already there), trained under
     `env` and relit under `relight_envs` (None: synth's default lights)."""
-    from matspray.synth import SynthConfig, make_object
-
     size = DEMO_SIZES[preset]
     config = SynthConfig(shape=shape, seed=seed, resolution=size.res, train_views=size.views, test_views=size.test_views, spp=size.spp,
                          env=env, relight_envs=relight_envs)
@@ -47,22 +52,8 @@ def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bo
     return out
 
 
-def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progress: bool = True, log=print,
-               refine_iterations: int | None = None, refine_seed: int | None = None, predictor: str = "simulated",
-               refine_overrides: dict | None = None, config_overrides: dict | None = None) -> dict:
-    """Run every variant of the method on one object with `predictor`, evaluate it and write its report
-    (`refine_iterations`, `refine_seed`, `refine_overrides` (RefineConfig fields) and `config_overrides`
-    (PipelineConfig fields) override the preset's; earlier stages are reused)."""
-    from dataclasses import replace
-
-    from matspray.eval.report import write_report
-    from matspray.eval.run_eval import evaluate_run
-    from matspray.pipeline import Pipeline, preset_config
-
-    config = preset_config(preset, predictor=predictor, refine_seed=refine_seed, **(config_overrides or {}))
-    refine = dict(refine_overrides or {}, **({} if refine_iterations is None else {"iterations": refine_iterations}))
-    if refine:
-        config.refine = replace(config.refine, **refine)
+def run_object(data: Path, run_dir: Path, config: PipelineConfig, variants=VARIANT_NAMES, progress: bool = True, log=print) -> dict:
+    """Run every variant of the method on one object, evaluate it and write its report (earlier stages are reused)."""
     pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)
     pipeline.run_all(variants)
     metrics = evaluate_run(run_dir, data, progress=progress)
@@ -70,22 +61,23 @@ def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progre
     return metrics
 
 
-def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0, progress: bool = True, log=print) -> Path:
+def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0, progress: bool = True, log=print,
+             config: PipelineConfig | None = None) -> Path:
+    """The demo object of `preset` and every variant on it; `config` (default: the preset's matspray
+    method with the simulated predictor) chooses the method and its settings."""
     if preset not in DEMO_SIZES:
-        raise ConfigError(f"unknown preset '{preset}'; choose one of {', '.join(DEMO_SIZES)}")
+        raise SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(DEMO_SIZES)}")
     out = Path(out)
     data = make_demo_object(out / "data", preset, shape, seed, progress)
-    run_object(data, out / "run", preset, progress=progress, log=log)
+    run_object(data, out / "run", config or build_config(preset, predictor="simulated"), progress=progress, log=log)
     return out / "run" / "report.html"
 
 
-def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, log=print) -> dict:
+def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, log=print, config: PipelineConfig | None = None) -> dict:
     """Several objects (shapes in turn, seeds 0, 1, ...); returns and writes the averaged tables."""
-    from matspray.eval.tables import write_tables
-    from matspray.rundir import write_json
-
     if objects < 1:
-        raise ConfigError(f"--objects must be >= 1, got {objects}")
+        raise SettingError("objects", f"must be >= 1, got {objects}")
+    config = config or build_config(preset, predictor="simulated")
     out = Path(out)
     per_object = []
     for index in range(objects):
@@ -93,10 +85,10 @@ def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, lo
         name = f"{index:02d}-{shape}"
         log(f"bench: object {index + 1}/{objects} ({shape}, seed {index})")
         data = make_demo_object(out / name / "data", preset, shape, index, progress)
-        per_object.append(run_object(data, out / name / "run", preset, progress=progress, log=log))
+        per_object.append(run_object(data, out / name / "run", config, progress=progress, log=log))
     averaged = average_tables(per_object)
     averaged["title"] = f"MatSpray benchmark: {objects} objects, preset {preset}"
-    write_json(out / "bench.json", {"objects": objects, "preset": preset, "tables": averaged})
+    write_json(out / "bench.json", {"objects": objects, "preset": preset, "method": config.method, "tables": averaged})
     write_tables(out / "tables.md", averaged)
     return averaged
 

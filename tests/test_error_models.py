@@ -179,9 +179,9 @@ def test_named_models_from_the_spec_and_their_labels(flat):
         assert info["simulated"] is True and info["error_model"] == name and "SIMULATED" in info["note"]
     assert model_name(replace(ERROR_MODELS["harsh"], severity=0.5, seed=3, batch_size=2)) == "harsh"
     assert model_name(replace(ERROR_MODELS["harsh"], blur_fraction=0.0)) == "custom"
-    with pytest.raises(ConfigError, match=r"predictor 'simulated:nope': unknown error model; use one of paper, harsh, outliers"):
+    with pytest.raises(ConfigError, match=r"predictor: 'simulated:nope': unknown error model; use one of paper, harsh, outliers"):
         make_predictor("simulated:nope")
-    with pytest.raises(ConfigError, match=r"cast_fraction must be in \[0, 1\]"):
+    with pytest.raises(ConfigError, match=r"cast_fraction: must be in \[0, 1\]"):
         SimulationConfig(cast_fraction=2.0)
 
 

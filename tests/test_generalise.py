@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import fields
 
 import pytest
 
@@ -14,7 +13,6 @@ from benchmarks.generalise import (
     MAX_OBJECTS,
     SET_SEEDS,
     main,
-    method_overrides,
     model_summary,
     object_set,
     predictor_spec,
@@ -24,7 +22,6 @@ from benchmarks.generalise import (
 )
 from matspray.errors import ConfigError
 from matspray.lights import BUILTINS
-from matspray.pipeline import PipelineConfig
 from matspray.refine import RefineConfig
 
 HDRIS = ["city", "forest", "interior", "studio", "sunrise", "sunset"]
@@ -47,24 +44,18 @@ def test_object_sets_have_disjoint_seeds_and_draw_their_lights():
         object_set("test", 1, HDRIS)
 
 
-def test_predictor_specs_and_method():
+def test_predictor_specs():
     assert [predictor_spec(m) for m in ("paper", "harsh", "outliers", "ground-truth")] == [
         "simulated:paper", "simulated:harsh", "simulated:outliers", "ground-truth"]
     with pytest.raises(ConfigError, match="unknown error model 'mild'"):
         predictor_spec("mild")
-    assert method_overrides(None) == {}
-    if "method" in {f.name for f in fields(PipelineConfig)}:
-        assert method_overrides("paper") == {"method": "paper"}
-    else:
-        with pytest.raises(ConfigError, match="--method needs the pipeline's `method` setting"):
-            method_overrides("paper")
 
 
 def test_refine_overrides_are_typed_and_checked():
     config = with_overrides(RefineConfig(), ["iterations=7", "photo_weight=0.5", "merger.softmax=false", "merger.hidden=32", "basecolor_loss=l1"])
     assert (config.iterations, config.photo_weight, config.merger.softmax, config.merger.hidden, config.basecolor_loss) == (7, 0.5, False, 32, "l1")
-    assert refine_overrides("test", ["iterations=7"]) == {"iterations": 7}
-    assert refine_overrides("test", []) == {}
+    assert refine_overrides(RefineConfig(), ["iterations=7"]) == {"iterations": 7}
+    assert refine_overrides(RefineConfig(), []) == {}
     with pytest.raises(ConfigError, match=r"--refine iterations=many: expected an integer"):
         with_overrides(RefineConfig(), ["iterations=many"])
     with pytest.raises(ConfigError, match=r"--refine speed=3: expected KEY=VALUE with KEY one of"):
@@ -75,7 +66,7 @@ def test_refine_overrides_are_typed_and_checked():
         with_overrides(RefineConfig(), ["merger=3"])
     with pytest.raises(ConfigError, match=r"--refine merger.softmax=maybe: expected true or false"):
         with_overrides(RefineConfig(), ["merger.softmax=maybe"])
-    with pytest.raises(ConfigError, match="unknown base color loss"):
+    with pytest.raises(ConfigError, match="unknown loss 'l7'"):
         with_overrides(RefineConfig(), ["basecolor_loss=l7"])
 
 
@@ -128,7 +119,7 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     pytest.importorskip("mitsuba")
     out = tmp_path / "g"
     argv = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "ground-truth",
-            "--variants", "full", "proj-average", "--refine", "iterations=4", "light_warmup=2", "--out", str(out), "--no-progress"]
+            "--variants", "full", "proj-average", "--method", "paper", "--refine", "iterations=4", "light_warmup=2", "--out", str(out), "--no-progress"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert "geometry shared from paper" in printed
@@ -139,7 +130,8 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert "geometry" not in json.loads((runs / "ground-truth" / "timings.json").read_text())  # not trained again
     tag = next(out.glob("results-*.json")).stem[len("results-"):]
     report = json.loads((out / f"results-{tag}.json").read_text())
-    assert report["settings"]["refine_overrides"] == {"iterations": 4, "light_warmup": 2}
+    assert report["settings"]["refine_overrides"] == {"iterations": 4, "light_warmup": 2} and tag.startswith("paper-")
+    assert report["settings"]["method"] == "paper" and "method: paper" in (runs / "paper" / "config.yaml").read_text()
     truth = report["models"]["ground-truth"]["objects"][0]["figures"]
     assert math.isinf(truth["materials_2d"]["basecolor"])  # the sanity row: 2D maps are the truth
     paper = report["models"]["paper"]["objects"][0]["figures"]

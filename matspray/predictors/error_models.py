@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
-from matspray.errors import ConfigError
+from matspray.errors import SettingError
 
 
 @dataclass(frozen=True)
@@ -50,14 +50,14 @@ class SimulationConfig:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.severity) and self.severity >= 0):
-            raise ConfigError(f"--severity must be a number >= 0, got {self.severity}")
+            raise SettingError("severity", f"must be a number >= 0, got {self.severity}")
         if int(self.batch_size) < 1:
-            raise ConfigError(f"--batch-size must be >= 1, got {self.batch_size}")
+            raise SettingError("batch_size", f"must be >= 1, got {self.batch_size}")
         if not 0.0 <= self.shading_spread <= 1.0:
-            raise ConfigError(f"shading_spread must be in [0, 1], got {self.shading_spread}")
+            raise SettingError("shading_spread", f"must be in [0, 1], got {self.shading_spread}")
         for name in ("metallic_probability", "cast_fraction", "highlight_fraction", "highlight_amount"):
             if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ConfigError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+                raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
 
 
 PAPER = SimulationConfig()
@@ -80,10 +80,10 @@ SETTINGS = ("severity", "seed", "batch_size")  # what a user may set on top of a
 def error_model(name: str, **settings) -> SimulationConfig:
     """The named model's magnitudes with `severity`, `seed`, `batch_size` set where given (not None)."""
     if name not in ERROR_MODELS:
-        raise ConfigError(f"predictor 'simulated:{name}': unknown error model; use one of {', '.join(ERROR_MODELS)}")
+        raise SettingError("predictor", f"'simulated:{name}': unknown error model; use one of {', '.join(ERROR_MODELS)}")
     unknown = sorted(set(settings) - set(SETTINGS))
     if unknown:
-        raise ConfigError(f"error models take only {', '.join(SETTINGS)}; got {', '.join(unknown)}")
+        raise SettingError("predictor_options", f"error models take only {', '.join(SETTINGS)}; got {', '.join(unknown)}")
     return replace(ERROR_MODELS[name], **{k: v for k, v in settings.items() if v is not None})
 
 
