@@ -161,3 +161,30 @@ def test_bad_files_each_get_one_line_naming_the_file(tmp_path):
     assert "JSON" in bad(tmp_path, raw=b"{not json", name="broken.gltf")
     assert "glTF 2.0" in bad(tmp_path, {"asset": {"version": "1.0"}}, name="old.gltf")
     assert "no such file" in str(pytest.raises(DataError, read_gltf, tmp_path / "absent.glb").value)
+
+
+def test_node_hierarchy_with_trs_and_matrix_places_every_primitive(tmp_path):
+    half = math.sqrt(0.5)
+    document = quad_gltf(data_uri(quad_buffer()), data_uri(png_bytes(IMAGE), "image/png"), 92)
+    document["scenes"] = [{"nodes": [0]}]
+    document["nodes"] = [
+        {"translation": [1.0, 2.0, 3.0], "rotation": [0.0, 0.0, half, half], "scale": [2.0, 2.0, 2.0], "children": [1, 2]},
+        {"mesh": 0, "matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0.5, 0, 0, 1]},  # column-major: translate x by 0.5
+        {"mesh": 1, "scale": [-1.0, 1.0, 1.0]},  # mirrored: the winding turns round
+        {"mesh": 0},  # not in the scene
+    ]
+    document["meshes"].append({"name": "dots", "primitives": [{"attributes": {"POSITION": 0}, "mode": 0},
+                                                              {"attributes": {"POSITION": 0}, "indices": 2}]})
+    path = tmp_path / "tree.gltf"
+    path.write_text(json.dumps(document))
+    asset = read_gltf(path)
+    assert [p.name for p in asset.primitives] == ["quad", "dots/1"]
+    assert asset.notes == ["points primitives (skipped)"]
+    rotate = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # +90 degrees about z
+    expected = (2.0 * (QUAD_POSITIONS + [0.5, 0, 0])) @ rotate.T + [1, 2, 3]
+    np.testing.assert_allclose(asset.primitives[0].positions, expected, atol=1e-12)
+    np.testing.assert_array_equal(asset.primitives[0].indices, QUAD_FACES)
+    mirrored = (2.0 * (QUAD_POSITIONS * [-1, 1, 1])) @ rotate.T + [1, 2, 3]
+    np.testing.assert_allclose(asset.primitives[1].positions, mirrored, atol=1e-12)
+    np.testing.assert_array_equal(asset.primitives[1].indices, QUAD_FACES[:, [0, 2, 1]])
+    assert asset.primitives[1].material is None and asset.material_of(asset.primitives[1]) == PbrMaterial()
