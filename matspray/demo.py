@@ -2,17 +2,19 @@
 
 `run_demo`: make a benchmark object with `matspray synth`, run the full method and its ablations
 with the simulated predictor, evaluate against the ground truth and write the report.
-`run_bench`: the same over several objects (shapes and seeds), with the tables averaged, as the
-paper averages over 17 objects.
+`run_bench`: the same over several objects (procedural shapes and seeds, or glTF assets), with the
+tables averaged, as the paper averages over 17 objects; a thin loop of "make object -> run object".
 """
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from matspray.errors import ConfigError
+from matspray.eval.run_eval import VARIANT_LABELS
 from matspray.refine import VARIANTS
 
 SHAPES = ("composite", "blob", "rounded-cube", "torus", "capsule", "sphere")
@@ -33,12 +35,49 @@ DEMO_SIZES = {
 }
 
 
-def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True) -> Path:
-    """A `matspray synth` object for `preset` in `out` (reused when it is already there)."""
+ASSET_SUFFIXES = (".glb", ".gltf")
+
+
+@dataclass(frozen=True)
+class BenchObject:
+    """One benchmark object: a procedural shape and seed, or a glTF asset (its cameras from the seed)."""
+
+    name: str  # its folder in the benchmark
+    shape: str = "composite"
+    seed: int = 0
+    asset: str | None = None
+
+
+def procedural_objects(count: int) -> list[BenchObject]:
+    """Shapes in turn, seeds 0, 1, ..."""
+    if count < 1:
+        raise ConfigError(f"--objects must be >= 1, got {count}")
+    return [BenchObject(f"{i:02d}-{SHAPES[i % len(SHAPES)]}", SHAPES[i % len(SHAPES)], i) for i in range(count)]
+
+
+def asset_objects(paths) -> list[BenchObject]:
+    """One object per .glb/.gltf file given, or found (sorted) in a folder given; seeds 0, 1, ..."""
+    files = []
+    for path in map(Path, paths):
+        if path.is_dir():
+            found = sorted(p for p in path.rglob("*") if p.suffix.lower() in ASSET_SUFFIXES and p.is_file())
+            if not found:
+                raise ConfigError(f"--assets {path}: the folder holds no .glb or .gltf file")
+            files += found
+        elif path.suffix.lower() in ASSET_SUFFIXES and path.is_file():
+            files.append(path)
+        else:
+            raise ConfigError(f"--assets {path}: not a .glb/.gltf file or a folder of them")
+    return [BenchObject(f"{i:02d}-{f.stem}", "asset", i, str(f)) for i, f in enumerate(files)]
+
+
+def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True, asset: str | None = None) -> Path:
+    """A `matspray synth` object for `preset` in `out` (reused when it is already there); `asset`: a glTF file."""
     from matspray.synth import SynthConfig, make_object
 
     size = DEMO_SIZES[preset]
-    config = SynthConfig(shape=shape, seed=seed, resolution=size.res, train_views=size.views, test_views=size.test_views, spp=size.spp)
+    config = SynthConfig(shape=shape if asset is None else "random", seed=seed, resolution=size.res, train_views=size.views,
+                         test_views=size.test_views, spp=size.spp, asset=asset)
     if not (out / "scene.json").exists():
         make_object(config, out, progress=progress)
     return out
@@ -73,26 +112,42 @@ def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0,
     return out / "run" / "report.html"
 
 
-def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, log=print) -> dict:
-    """Several objects (shapes in turn, seeds 0, 1, ...); returns and writes the averaged tables."""
+def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=print) -> dict:
+    """Every object of `objects` (a count of procedural objects, or a list of BenchObject) made and run;
+    returns and writes the averaged tables with one row per object (its variants and seconds).
+    bench.json is rewritten after each object, so a partial benchmark shows what has finished."""
     from matspray.eval.tables import write_tables
     from matspray.rundir import write_json
 
-    if objects < 1:
-        raise ConfigError(f"--objects must be >= 1, got {objects}")
+    specs = procedural_objects(objects) if isinstance(objects, int) else list(objects)
+    if not specs:
+        raise ConfigError("the benchmark has no objects")
     out = Path(out)
-    per_object = []
-    for index in range(objects):
-        shape = SHAPES[index % len(SHAPES)]
-        name = f"{index:02d}-{shape}"
-        log(f"bench: object {index + 1}/{objects} ({shape}, seed {index})")
-        data = make_demo_object(out / name / "data", preset, shape, index, progress)
-        per_object.append(run_object(data, out / name / "run", preset, progress=progress, log=log))
+    per_object, rows = [], {}
+    for index, spec in enumerate(specs):
+        log(f"bench: object {index + 1}/{len(specs)} ({spec.asset or spec.shape}, seed {spec.seed})")
+        start = time.perf_counter()
+        data = make_demo_object(out / spec.name / "data", preset, spec.shape, spec.seed, progress, asset=spec.asset)
+        made = time.perf_counter()
+        per_object.append(run_object(data, out / spec.name / "run", preset, progress=progress, log=log))
+        rows[spec.name] = object_row(spec, per_object[-1], made - start, time.perf_counter() - made)
+        log(f"bench: {spec.name}: synth {rows[spec.name]['seconds']['synth']:.1f} s, method {rows[spec.name]['seconds']['method']:.1f} s")
+        write_json(out / "bench.json", {"objects": len(specs), "finished": index + 1, "preset": preset, "per_object": rows})
     averaged = average_tables(per_object)
-    averaged["title"] = f"MatSpray benchmark: {objects} objects, preset {preset}"
-    write_json(out / "bench.json", {"objects": objects, "preset": preset, "tables": averaged})
+    averaged["title"] = f"MatSpray benchmark: {len(specs)} objects, preset {preset}"
+    averaged["objects"] = rows
+    write_json(out / "bench.json", {"objects": len(specs), "finished": len(specs), "preset": preset, "per_object": rows, "tables": averaged})
     write_tables(out / "tables.md", averaged)
     return averaged
+
+
+def object_row(spec: BenchObject, metrics: dict, synth_seconds: float, method_seconds: float) -> dict:
+    """One object's line of the benchmark: relighting and base colour PSNR per variant, and its seconds."""
+    variants = metrics.get("variants", {})
+    psnr = {row: {VARIANT_LABELS[v]: variants[v]["summary"][row]["psnr"] for v in variants if row in variants[v]["summary"]}
+            for row in ("relighting", "basecolor")}
+    return {"source": spec.asset or f"{spec.shape} (seed {spec.seed})", "psnr": psnr,
+            "seconds": {"synth": synth_seconds, "method": method_seconds}}
 
 
 def _mean(values):
