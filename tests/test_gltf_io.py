@@ -188,3 +188,17 @@ def test_node_hierarchy_with_trs_and_matrix_places_every_primitive(tmp_path):
     np.testing.assert_allclose(asset.primitives[1].positions, mirrored, atol=1e-12)
     np.testing.assert_array_equal(asset.primitives[1].indices, QUAD_FACES[:, [0, 2, 1]])
     assert asset.primitives[1].material is None and asset.material_of(asset.primitives[1]) == PbrMaterial()
+
+
+def test_what_is_ignored_is_listed_once(tmp_path):
+    document = quad_gltf(data_uri(quad_buffer()), data_uri(png_bytes(IMAGE), "image/png"), 92,
+                         {"extensionsUsed": ["KHR_materials_clearcoat"]})
+    document["materials"][0].update({"normalTexture": {"index": 0}, "occlusionTexture": {"index": 0}, "emissiveFactor": [1, 0, 0],
+                                     "alphaMode": "BLEND", "extensions": {"KHR_materials_clearcoat": {"clearcoatFactor": 1}}})
+    document["materials"].append(dict(document["materials"][0]))
+    document["meshes"][0]["primitives"].append(dict(document["meshes"][0]["primitives"][0], material=1))
+    path = tmp_path / "extras.gltf"
+    path.write_text(json.dumps(document))
+    asset = read_gltf(path)
+    assert asset.notes == ["alpha mode BLEND", "emissive factors", "extension KHR_materials_clearcoat", "normal textures", "occlusion textures"]
+    assert len(asset.primitives) == 2 and asset.materials[0].base_color_texture is not None

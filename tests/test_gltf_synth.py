@@ -203,3 +203,25 @@ def test_cli_rejects_bad_assets_in_one_line_and_writes_nothing(tmp_path, capsys)
                   [PbrMaterial(base_color_texture=TextureRef(image, 0), metallic_roughness_texture=TextureRef(image, 1))])
         make_object(SynthConfig(asset=str(two), **SMALL), tmp_path / "out2", progress=False, notify=lambda _: None)
     assert not (tmp_path / "out2").exists()
+
+
+@pytest.mark.parametrize("double_sided", [False, True])
+def test_a_double_sided_face_is_shaded_from_behind_with_its_normal_turned(tmp_path, double_sided):
+    from matspray.synth.mitsuba_scene import render_view
+
+    path = tmp_path / "plane.glb"
+    back_first = FACES[:, [0, 2, 1]]  # the quad's front faces away from the camera (glTF -Z, world +y)
+    write_glb(path, [Primitive("plane", QUAD, back_first, (), None, 0)], [PbrMaterial("grey", (0.5, 0.5, 0.5, 1.0), 0.0, 1.0, double_sided=double_sided)])
+    parts, textures, _ = asset_parts(read_gltf(path), "keep")
+    scene = build_scene(parts, textures, np.ones((8, 16, 3), np.float32))
+    camera = quad_camera(16)
+    truth = cast_ground_truth(scene, textures, camera, 1)
+    rgb, alpha = render_view(scene, camera, 16, 0)
+    full = truth.coverage == 1.0
+    assert full.sum() > 50 and (alpha[full] > 0.99).all()
+    if double_sided:  # a rough grey dielectric under a white sky: about its albedo, and facing the camera (-y)
+        assert 0.3 < float(rgb[full].mean()) < 0.7
+        np.testing.assert_allclose(truth.normal[full], np.tile([0.0, -1.0, 0.0], (full.sum(), 1)), atol=1e-5)
+    else:
+        assert float(rgb[full].max()) < 1e-3
+        np.testing.assert_allclose(truth.normal[full], np.tile([0.0, 1.0, 0.0], (full.sum(), 1)), atol=1e-5)

@@ -54,6 +54,7 @@ class PbrMaterial:
     roughness_factor: float = 1.0
     base_color_texture: TextureRef | None = None  # sRGB-encoded RGB(A)
     metallic_roughness_texture: TextureRef | None = None  # linear: G = roughness, B = metallic
+    double_sided: bool = False  # glTF doubleSided: back faces are shaded too (with the normal turned round)
 
 
 @dataclass(frozen=True)

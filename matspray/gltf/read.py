@@ -270,7 +270,7 @@ def read_material(resolver: Resolver, material: pygltflib.Material, notes: set[s
         if present:
             notes.add(what)
     for name in material.extensions or {}:
-        notes.add(f"material extension {name}")
+        notes.add(f"extension {name}")
     pbr = material.pbrMetallicRoughness or pygltflib.PbrMetallicRoughness()
     factor = tuple(float(c) for c in (pbr.baseColorFactor or [1.0, 1.0, 1.0, 1.0]))
     if factor[3] < 1.0:
@@ -282,6 +282,7 @@ def read_material(resolver: Resolver, material: pygltflib.Material, notes: set[s
         roughness_factor=float(1.0 if pbr.roughnessFactor is None else pbr.roughnessFactor),
         base_color_texture=texture_ref(resolver, pbr.baseColorTexture, notes),
         metallic_roughness_texture=texture_ref(resolver, pbr.metallicRoughnessTexture, notes),
+        double_sided=bool(material.doubleSided),
     )
 
 

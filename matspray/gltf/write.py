@@ -95,7 +95,7 @@ def _material(gltf: pygltflib.GLTF2, blob: _Blob, material: PbrMaterial) -> pygl
         pbr.baseColorTexture = _texture_info(gltf, blob, material.base_color_texture)
     if material.metallic_roughness_texture is not None:
         pbr.metallicRoughnessTexture = _texture_info(gltf, blob, material.metallic_roughness_texture)
-    return pygltflib.Material(name=material.name or None, pbrMetallicRoughness=pbr, doubleSided=True)
+    return pygltflib.Material(name=material.name or None, pbrMetallicRoughness=pbr, doubleSided=bool(material.double_sided))
 
 
 def _check(primitive: Primitive, materials: int) -> None:

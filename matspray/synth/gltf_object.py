@@ -67,7 +67,7 @@ def material_textures(material: PbrMaterial) -> Textures:
         rough, metal = green * material.roughness_factor, blue * material.metallic_factor
         mr_sampling = texture_sampling(material.metallic_roughness_texture)
     as_map = lambda values: np.ascontiguousarray(np.clip(values, 0.0, 1.0), dtype=np.float32)  # noqa: E731
-    return Textures(as_map(base), as_map(rough), as_map(metal), base_sampling, mr_sampling)
+    return Textures(as_map(base), as_map(rough), as_map(metal), base_sampling, mr_sampling, material.double_sided)
 
 
 def primitive_uvs(asset: GltfAsset, primitive: Primitive, material: PbrMaterial) -> np.ndarray:  # -> [V, 2]

@@ -47,6 +47,10 @@ def cast_ground_truth(scene, textures: list[Textures], camera: Camera, samples_p
     origins, directions = camera.rays(samples_per_side)  # [P * s * s, 3] each, grouped by pixel
     origins, directions = origins.double().cpu().numpy(), directions.double().cpu().numpy()
     hits = intersect(scene, origins, directions)
+    for index, texture in enumerate(textures):
+        if texture.double_sided:  # the back of a double-sided face is shaded with its normal turned round
+            back = (hits.part == index) & ((hits.normal * directions).sum(-1) > 0)
+            hits.normal[back] *= -1.0
     forward = camera.camtoworld.double().cpu().numpy()[:3, 2]  # OpenCV +z in world space
     per_ray = np.concatenate(
         [surface_values(hits, textures), hits.normal, (hits.distance * (directions @ forward))[:, None]], axis=1

@@ -193,6 +193,7 @@ class Textures:
     metallic: np.ndarray  # [T', W']
     base_color_sampling: Sampling = Sampling()
     metallic_roughness_sampling: Sampling = Sampling()
+    double_sided: bool = False  # shade back faces too (glTF doubleSided); procedural parts are closed
 
 
 def texel_uvs(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:  # -> u [T, W], v [T, W]

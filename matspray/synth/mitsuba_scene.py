@@ -124,14 +124,16 @@ def bitmap_texture(values: np.ndarray, sampling: Sampling = Sampling(), uvs: np.
 
 def principled_bsdf(textures: Textures, uvs: np.ndarray | None = None) -> dict:
     """Mitsuba's principled BSDF: textured base colour, roughness (GGX alpha = r^2) and metallic;
-    specular 0.5 (F0 = 0.04 for dielectrics), no sheen, clearcoat or transmission."""
-    return {
+    specular 0.5 (F0 = 0.04 for dielectrics), no sheen, clearcoat or transmission; wrapped in Mitsuba's
+    `twosided` for double-sided materials (else the back of a face is black)."""
+    bsdf = {
         "type": "principled",
         "base_color": bitmap_texture(textures.base_color, textures.base_color_sampling, uvs),
         "roughness": bitmap_texture(textures.roughness, textures.metallic_roughness_sampling, uvs),
         "metallic": bitmap_texture(textures.metallic, textures.metallic_roughness_sampling, uvs),
         "specular": 0.5,
     }
+    return {"type": "twosided", "bsdf": bsdf} if textures.double_sided else bsdf
 
 
 def mitsuba_envmap_rows(env: np.ndarray) -> np.ndarray:  # [H, W, 3] -> [2H + 1, W, 3]
