@@ -225,3 +225,13 @@ def test_a_double_sided_face_is_shaded_from_behind_with_its_normal_turned(tmp_pa
     else:
         assert float(rgb[full].max()) < 1e-3
         np.testing.assert_allclose(truth.normal[full], np.tile([0.0, 1.0, 0.0], (full.sum(), 1)), atol=1e-5)
+
+
+def test_a_texture_tiled_too_far_for_two_wrap_modes_is_refused_before_writing(tmp_path):
+    path = tmp_path / "tiled.glb"
+    image = np.zeros((64, 64, 3))
+    write_glb(path, [Primitive("q", QUAD, FACES, (QUAD[:, :2] * 200.0,), None, 0)],
+              [PbrMaterial(base_color_texture=TextureRef(image, 0, TextureTransform(), "repeat", "clamp"))])
+    with pytest.raises(DataError, match="tiled.glb: mesh 'q': a texture with wraps repeat/clamp"):
+        make_object(SynthConfig(asset=str(path), **SMALL), tmp_path / "out", progress=False, notify=lambda _: None)
+    assert not (tmp_path / "out").exists()

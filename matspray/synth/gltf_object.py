@@ -19,7 +19,7 @@ from matspray.errors import ConfigError, file_error
 from matspray.gltf.model import GltfAsset, PbrMaterial, Primitive, TextureRef, TextureTransform
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
 from matspray.synth.config import PLACEMENTS  # fit: centre the bounding box, farthest vertex at FIT_RADIUS; keep: as in the file
-from matspray.synth.materials import Sampling, Textures, srgb_to_linear
+from matspray.synth.materials import Sampling, Textures, single_wrap, srgb_to_linear
 from matspray.synth.shapes import Part, drop_degenerate
 
 # glTF's frame (+Y up, +Z front) -> ours (+z up): x stays, glTF +Y becomes +z, glTF +Z becomes -y
@@ -113,6 +113,12 @@ def asset_parts(asset: GltfAsset, placement: str = "fit") -> tuple[list[Part], l
         params = {"primitive": primitive.name, "material": material.name or (f"material {primitive.material}" if primitive.material is not None else "default")}
         parts.append(Part(f"asset/{index}", None, vertices, faces, uvs, normals, params))
         textures.append(material_textures(material))
+        for values, sampling in ((textures[-1].base_color, textures[-1].base_color_sampling),
+                                 (textures[-1].roughness, textures[-1].metallic_roughness_sampling)):
+            try:  # what the renderer will do with two wrap modes, checked before anything is written
+                single_wrap(values, sampling, uvs)
+            except ConfigError as error:
+                raise file_error(asset.path, f"mesh '{primitive.name}': {error}") from None
     if not parts:
         raise file_error(asset.path, "every triangle of the default scene has zero area", "the asset has no surface to render")
     return parts, textures, matrix
