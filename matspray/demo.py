@@ -15,6 +15,7 @@ from pathlib import Path
 
 from matspray.errors import ConfigError
 from matspray.eval.run_eval import VARIANT_LABELS
+from matspray.gltf.read import read_gltf
 from matspray.refine import VARIANTS
 
 SHAPES = ("composite", "blob", "rounded-cube", "torus", "capsule", "sphere")
@@ -69,6 +70,13 @@ def asset_objects(paths) -> list[BenchObject]:
         else:
             raise ConfigError(f"--assets {path}: not a .glb/.gltf file or a folder of them")
     return [BenchObject(f"{i:02d}-{f.stem}", "asset", i, str(f)) for i, f in enumerate(files)]
+
+
+def check_assets(objects: list[BenchObject]) -> None:
+    """Read every asset once before the benchmark starts, so a bad file stops it before any work."""
+    for spec in objects:
+        if spec.asset is not None:
+            read_gltf(spec.asset)
 
 
 def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True, asset: str | None = None) -> Path:

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import pytest
 
-from matspray.demo import BenchObject, asset_objects, procedural_objects
-from matspray.errors import ConfigError
-from matspray.eval.tables import objects_table, tables_markdown
+pytest.importorskip("pygltflib")
+
+from matspray.cli import main  # noqa: E402
+from matspray.demo import BenchObject, asset_objects, procedural_objects  # noqa: E402
+from matspray.errors import ConfigError  # noqa: E402
+from matspray.eval.tables import objects_table, tables_markdown  # noqa: E402
 
 
 def test_asset_objects_from_files_and_folders(tmp_path):
@@ -41,3 +44,12 @@ def test_objects_table_orders_variants_and_counts_wins():
     assert "Full > Proj. Average (relighting PSNR) on 2 of 2 objects" in table
     assert "Full > Without Softmax (relighting PSNR) on 0 of 1 objects" in table
     assert "## Per object" in tables_markdown({"objects": rows}) and "## Per object" not in tables_markdown({})
+
+
+def test_bench_refuses_a_bad_asset_before_any_object_is_made(tmp_path, capsys):
+    (tmp_path / "set").mkdir()
+    (tmp_path / "set" / "broken.glb").write_bytes(b"glTF\x02\x00\x00\x00\xff\x00\x00\x00")
+    code = main(["bench", "--assets", str(tmp_path / "set"), "--preset", "test", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code != 0 and "broken.glb" in err and "truncated" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()

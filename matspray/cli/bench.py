@@ -9,16 +9,18 @@ def add_parser(parser) -> None:
                         help="glTF 2.0 files (.glb/.gltf) or folders of them: one benchmark object each (`synth --asset`), "
                              "instead of procedural ones")
     parser.add_argument("--preset", choices=("test", "demo", "paper"), default="demo", help="size of objects and runs (default demo)")
-    parser.add_argument("--out", type=Path, help="folder for everything (default: runs/bench-PRESET)")
+    parser.add_argument("--out", type=Path, help="folder for everything (default: runs/bench-PRESET, with --assets runs/bench-assets-PRESET)")
 
 
 def run(args) -> int:
-    from matspray.demo import asset_objects, run_bench
+    from matspray.demo import asset_objects, check_assets, run_bench
     from matspray.errors import ConfigError
 
     if args.assets is not None and args.objects is not None:
         raise ConfigError("--objects and --assets exclude each other; give one")
     objects = asset_objects(args.assets) if args.assets is not None else (3 if args.objects is None else args.objects)
+    if args.assets is not None:
+        check_assets(objects)
     out = args.out or Path("runs") / (f"bench-assets-{args.preset}" if args.assets is not None else f"bench-{args.preset}")
     run_bench(out, objects, preset=args.preset)
     print(f"averaged tables: {out / 'tables.md'}")

@@ -7,9 +7,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from matspray.errors import ConfigError
+
 # glTF sampler wrap enums and our names for them (the names Mitsuba's bitmap texture uses)
 WRAP_MODES = {10497: "repeat", 33071: "clamp", 33648: "mirror"}
 WRAP_ENUMS = {name: enum for enum, name in WRAP_MODES.items()}
+
+
+def require_pygltflib(module) -> None:
+    """ConfigError saying what to install when the optional pygltflib (`module`, None when missing) is absent."""
+    if module is None:
+        raise ConfigError("reading and writing glTF needs pygltflib: pip install 'matspray[gltf]'")
 
 
 @dataclass(frozen=True)

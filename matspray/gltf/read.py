@@ -18,11 +18,15 @@ from pathlib import Path
 from urllib.parse import unquote
 
 import numpy as np
-import pygltflib
 from PIL import Image, UnidentifiedImageError
 
+try:
+    import pygltflib
+except ImportError:  # optional: pip install 'matspray[gltf]'
+    pygltflib = None
+
 from matspray.errors import file_error
-from matspray.gltf.model import WRAP_MODES, GltfAsset, PbrMaterial, Primitive, TextureRef, TextureTransform
+from matspray.gltf.model import WRAP_MODES, GltfAsset, PbrMaterial, Primitive, TextureRef, TextureTransform, require_pygltflib
 
 GLB_MAGIC, JSON_CHUNK, BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942
 SUPPORTED_REQUIRED = {"KHR_texture_transform", "KHR_mesh_quantization", "KHR_materials_emissive_strength"}
@@ -335,6 +339,7 @@ def read_gltf(path) -> GltfAsset:
 
     Raises DataError (one line naming the file) on a required extension we cannot read, a truncated
     file, a missing external file, an image that does not decode, no triangles, or a non-finite vertex."""
+    require_pygltflib(pygltflib)
     path = Path(path)
     gltf, binary = load_document(path)
     unsupported = [name for name in gltf.extensionsRequired or [] if name not in SUPPORTED_REQUIRED]

@@ -13,14 +13,18 @@ import os
 from pathlib import Path
 
 import numpy as np
-import pygltflib
 from PIL import Image
+
+try:
+    import pygltflib
+except ImportError:  # optional: pip install 'matspray[gltf]'
+    pygltflib = None
 
 from matspray.data.images import atomic_target
 from matspray.errors import ConfigError
-from matspray.gltf.model import WRAP_ENUMS, PbrMaterial, Primitive, TextureRef
+from matspray.gltf.model import WRAP_ENUMS, PbrMaterial, Primitive, TextureRef, require_pygltflib
 
-FLOAT, UINT32 = pygltflib.FLOAT, pygltflib.UNSIGNED_INT
+FLOAT, UINT32 = 5126, 5125  # glTF component types
 TRANSFORM_EXTENSION = "KHR_texture_transform"
 
 
@@ -117,6 +121,7 @@ def write_glb(path, primitives: list[Primitive], materials: list[PbrMaterial], e
     """Write each primitive as a mesh of its own under a root node (identity transform) to `path` (.glb).
 
     `extras` (JSON-serialisable) goes to the document's asset.extras."""
+    require_pygltflib(pygltflib)
     path = Path(path)
     if not primitives:
         raise ConfigError("write_glb needs at least one primitive")
