@@ -20,8 +20,8 @@ from matspray.gltf.read import read_gltf
 from matspray.lights import default_relight_names, load_envmap
 from matspray.synth.cameras import FOV_X, make_cameras
 from matspray.synth.config import SynthConfig
-from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.gltf_object import asset_parts, write_object_glb
+from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.materials import Textures, bake_textures, random_material
 from matspray.synth.mitsuba_scene import MAX_DEPTH, build_scene, render_view, sampler_for, select_variant
 from matspray.synth.shapes import Part, make_shape, resolve_shape
