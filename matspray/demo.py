@@ -13,10 +13,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from matspray.errors import ConfigError
-from matspray.eval.run_eval import VARIANT_LABELS
+from matspray.config import PipelineConfig, build_config
+from matspray.errors import SettingError
+from matspray.eval.report import write_report
+from matspray.eval.run_eval import evaluate_run
+from matspray.eval.tables import write_tables
 from matspray.gltf.read import read_gltf
-from matspray.refine import VARIANTS
+from matspray.pipeline import Pipeline
+from matspray.rundir import write_json
+from matspray.synth import SynthConfig, make_object
+from matspray.variants import LABELS, VARIANT_NAMES
 
 SHAPES = ("composite", "blob", "rounded-cube", "torus", "capsule", "sphere")
 
@@ -52,7 +58,7 @@ class BenchObject:
 def procedural_objects(count: int) -> list[BenchObject]:
     """Shapes in turn, seeds 0, 1, ..."""
     if count < 1:
-        raise ConfigError(f"--objects must be >= 1, got {count}")
+        raise SettingError("objects", f"must be >= 1, got {count}")
     return [BenchObject(f"{i:02d}-{SHAPES[i % len(SHAPES)]}", SHAPES[i % len(SHAPES)], i) for i in range(count)]
 
 
@@ -63,12 +69,12 @@ def asset_objects(paths) -> list[BenchObject]:
         if path.is_dir():
             found = sorted(p for p in path.rglob("*") if p.suffix.lower() in ASSET_SUFFIXES and p.is_file())
             if not found:
-                raise ConfigError(f"--assets {path}: the folder holds no .glb or .gltf file")
+                raise SettingError("assets", f"the folder {path} holds no .glb or .gltf file")
             files += found
         elif path.suffix.lower() in ASSET_SUFFIXES and path.is_file():
             files.append(path)
         else:
-            raise ConfigError(f"--assets {path}: not a .glb/.gltf file or a folder of them")
+            raise SettingError("assets", f"{path} is not a .glb/.gltf file or a folder of them")
     return [BenchObject(f"{i:02d}-{f.stem}", "asset", i, str(f)) for i, f in enumerate(files)]
 
 
@@ -81,8 +87,6 @@ def check_assets(objects: list[BenchObject]) -> None:
 
 def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True, asset: str | None = None) -> Path:
     """A `matspray synth` object for `preset` in `out` (reused when it is already there); `asset`: a glTF file."""
-    from matspray.synth import SynthConfig, make_object
-
     size = DEMO_SIZES[preset]
     config = SynthConfig(shape=shape if asset is None else "random", seed=seed, resolution=size.res, train_views=size.views,
                          test_views=size.test_views, spp=size.spp, asset=asset)
@@ -91,19 +95,8 @@ def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bo
     return out
 
 
-def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progress: bool = True, log=print,
-               refine_iterations: int | None = None, refine_seed: int | None = None) -> dict:
-    """Run every variant of the method on one object, evaluate it and write its report
-    (`refine_iterations` and `refine_seed` override the preset's; earlier stages are reused)."""
-    from dataclasses import replace
-
-    from matspray.eval.report import write_report
-    from matspray.eval.run_eval import evaluate_run
-    from matspray.pipeline import Pipeline, preset_config
-
-    config = preset_config(preset, predictor="simulated", refine_seed=refine_seed)
-    if refine_iterations is not None:
-        config.refine = replace(config.refine, iterations=refine_iterations)
+def run_object(data: Path, run_dir: Path, config: PipelineConfig, variants=VARIANT_NAMES, progress: bool = True, log=print) -> dict:
+    """Run every variant of the method on one object, evaluate it and write its report (earlier stages are reused)."""
     pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)
     pipeline.run_all(variants)
     metrics = evaluate_run(run_dir, data, progress=progress)
@@ -111,25 +104,26 @@ def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progre
     return metrics
 
 
-def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0, progress: bool = True, log=print) -> Path:
+def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0, progress: bool = True, log=print,
+             config: PipelineConfig | None = None) -> Path:
+    """The demo object of `preset` and every variant on it; `config` (default: the preset's matspray
+    method with the simulated predictor) chooses the method and its settings."""
     if preset not in DEMO_SIZES:
-        raise ConfigError(f"unknown preset '{preset}'; choose one of {', '.join(DEMO_SIZES)}")
+        raise SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(DEMO_SIZES)}")
     out = Path(out)
     data = make_demo_object(out / "data", preset, shape, seed, progress)
-    run_object(data, out / "run", preset, progress=progress, log=log)
+    run_object(data, out / "run", config or build_config(preset, predictor="simulated"), progress=progress, log=log)
     return out / "run" / "report.html"
 
 
-def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=print) -> dict:
+def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=print, config: PipelineConfig | None = None) -> dict:
     """Every object of `objects` (a count of procedural objects, or a list of BenchObject) made and run;
     returns and writes the averaged tables with one row per object (its variants and seconds).
     bench.json is rewritten after each object, so a partial benchmark shows what has finished."""
-    from matspray.eval.tables import write_tables
-    from matspray.rundir import write_json
-
     specs = procedural_objects(objects) if isinstance(objects, int) else list(objects)
     if not specs:
-        raise ConfigError("the benchmark has no objects")
+        raise SettingError("objects", "the benchmark has no objects")
+    config = config or build_config(preset, predictor="simulated")
     out = Path(out)
     per_object, rows = [], {}
     for index, spec in enumerate(specs):
@@ -137,14 +131,16 @@ def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=pri
         start = time.perf_counter()
         data = make_demo_object(out / spec.name / "data", preset, spec.shape, spec.seed, progress, asset=spec.asset)
         made = time.perf_counter()
-        per_object.append(run_object(data, out / spec.name / "run", preset, progress=progress, log=log))
+        per_object.append(run_object(data, out / spec.name / "run", config, progress=progress, log=log))
         rows[spec.name] = object_row(spec, per_object[-1], made - start, time.perf_counter() - made)
         log(f"bench: {spec.name}: synth {rows[spec.name]['seconds']['synth']:.1f} s, method {rows[spec.name]['seconds']['method']:.1f} s")
-        write_json(out / "bench.json", {"objects": len(specs), "finished": index + 1, "preset": preset, "per_object": rows})
+        write_json(out / "bench.json", {"objects": len(specs), "finished": index + 1, "preset": preset, "method": config.method,
+                                        "per_object": rows})
     averaged = average_tables(per_object)
     averaged["title"] = f"MatSpray benchmark: {len(specs)} objects, preset {preset}"
     averaged["objects"] = rows
-    write_json(out / "bench.json", {"objects": len(specs), "finished": len(specs), "preset": preset, "per_object": rows, "tables": averaged})
+    write_json(out / "bench.json", {"objects": len(specs), "finished": len(specs), "preset": preset, "method": config.method,
+                                    "per_object": rows, "tables": averaged})
     write_tables(out / "tables.md", averaged)
     return averaged
 
@@ -152,7 +148,7 @@ def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=pri
 def object_row(spec: BenchObject, metrics: dict, synth_seconds: float, method_seconds: float) -> dict:
     """One object's line of the benchmark: relighting and base colour PSNR per variant, and its seconds."""
     variants = metrics.get("variants", {})
-    psnr = {row: {VARIANT_LABELS[v]: variants[v]["summary"][row]["psnr"] for v in variants if row in variants[v]["summary"]}
+    psnr = {row: {LABELS[v]: variants[v]["summary"][row]["psnr"] for v in variants if row in variants[v]["summary"]}
             for row in ("relighting", "basecolor")}
     return {"source": spec.asset or f"{spec.shape} (seed {spec.seed})", "psnr": psnr,
             "seconds": {"synth": synth_seconds, "method": method_seconds}}
