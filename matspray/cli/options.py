@@ -47,7 +47,8 @@ FLAG_OF_SETTING = {setting: flag for flag, (setting, _, _) in SETTING_FLAGS.item
 FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "--without", "visibility": "--shadows", "objects": "--objects",
                         "severity": "--severity", "batch_size": "--batch-size", "ensemble_size": "--ensemble-size", "steps": "--steps",
                         "predictor": "--predictor", "relight_envs": "--relight-env", "out": "--out", "resolution": "--res",
-                        "train_views": "--views", "test_views": "--test-views", "spp": "--spp", "env_height": "--env-height"})
+                        "train_views": "--views", "test_views": "--test-views", "spp": "--spp", "env_height": "--env-height",
+                        "asset": "--asset", "assets": "--assets", "placement": "--placement"})
 
 
 def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "demo") -> None:

@@ -11,6 +11,7 @@ Input shapes (every level optional):
            "relighting_aligned", "basecolor_aligned"
   table2 / softmax:  {variant: {"psnr": x, "ssim": x, "lpips": x}}
   timings: {column: {stage: seconds}}
+  objects: {name: {"source": str, "psnr": {"relighting"|"basecolor": {variant: x}}, "seconds": {"synth": s, "method": s}}}
 """
 
 from __future__ import annotations
@@ -178,6 +179,30 @@ def timings_table(columns: Mapping[str, Mapping[str, float | None]]) -> str:
     return markdown_table(["Stage"] + [f"{name} (s)" for name in names], rows)
 
 
+def objects_table(objects: Mapping[str, Mapping]) -> str:
+    """A benchmark's objects: relighting PSNR of each variant (the best bold), the order of the variants,
+    base colour PSNR of Full, and seconds; then how often Full beats each other variant."""
+    variants = list(dict.fromkeys(ABLATION_VARIANTS + SOFTMAX_VARIANTS))
+    variants += [v for row in objects.values() for v in row["psnr"].get("relighting", {}) if v not in variants]
+    rows, wins = [], {v: [0, 0] for v in variants[1:]}
+    for name, row in objects.items():
+        relit = row["psnr"].get("relighting", {})
+        values = [relit.get(v) for v in variants]
+        cells = _bold_best([MISSING if x is None else format_number(x, 2) for x in values], values, True)
+        order = " > ".join(sorted((v for v in variants if relit.get(v) is not None), key=lambda v: -relit[v]))
+        base = row["psnr"].get("basecolor", {}).get("Full")
+        seconds = row.get("seconds", {})
+        rows.append([f"{name} ({row.get('source', '')})"] + cells + [order, MISSING if base is None else format_number(base, 2),
+                                                                      _seconds(seconds.get("synth")), _seconds(seconds.get("method"))])
+        for other in wins:
+            if relit.get("Full") is not None and relit.get(other) is not None:
+                wins[other][0] += relit["Full"] > relit[other]
+                wins[other][1] += 1
+    header = ["Object"] + [f"{v} relit PSNR" for v in variants] + ["order", "Full base colour PSNR", "synth (s)", "method (s)"]
+    lines = [f"Full > {other} (relighting PSNR) on {k} of {n} objects" for other, (k, n) in wins.items() if n]
+    return "\n\n".join([markdown_table(header, rows)] + (["\n".join(f"- {line}" for line in lines)] if lines else []))
+
+
 def _seconds(value: float | None) -> str:
     return MISSING if value is None else f"{float(value):.1f}"
 
@@ -197,6 +222,8 @@ def tables_markdown(metrics: Mapping) -> str:
         ("Ablation: Neural Merger softmax", "softmax", softmax_table, "No softmax ablation runs."),
         ("Table 3: seconds per stage", "timings", timings_table, "No timings recorded."),
     )
+    if metrics.get("objects"):
+        sections += (("Per object: variants, their order, seconds", "objects", objects_table, ""),)
     for title, key, render, absent in sections:
         data = metrics.get(key)
         parts.append(f"## {title}\n\n" + (render(data) if data else f"_{absent}_"))

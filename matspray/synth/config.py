@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from matspray.errors import ConfigError, SettingError
+from matspray.errors import SettingError
+
+PLACEMENTS = ("fit", "keep")  # how a glTF asset is placed in the world (matspray.synth.gltf_object)
 
 MAX_RESOLUTION = 2048
 MAX_VIEWS = 1000
@@ -24,6 +26,8 @@ class SynthConfig:
     env_height: int = 128  # lights are resampled to env_height x 2 env_height for rendering
     gt_samples: int = 4  # ground-truth subpixel rays per side (s x s per pixel)
     texture_height: int = 256  # texture rows per part (twice as many columns)
+    asset: str | None = None  # a glTF 2.0 file (.glb/.gltf) to render instead of a procedural shape
+    placement: str = "fit"  # of the asset: 'fit' (centred, scaled into the unit sphere) or 'keep' (the file's units)
     overwrite: bool = False  # replace a different scene already in the output folder
 
     def validate(self) -> None:
@@ -41,6 +45,12 @@ class SynthConfig:
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise SettingError(name, f"must be an integer in [{low}, {high}], got {value!r}")
         self.env = str(self.env)
+        if self.placement not in PLACEMENTS:
+            raise SettingError("placement", f"must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
+        if self.asset is not None:
+            self.asset = str(self.asset)
+            if not self.asset.lower().endswith((".glb", ".gltf")):
+                raise SettingError("asset", f"{self.asset} is not a .glb or .gltf file")
         if self.relight_envs is not None:
             self.relight_envs = [str(spec) for spec in self.relight_envs]  # as scene.json will hold them
             if len(set(self.relight_envs)) != len(self.relight_envs):
