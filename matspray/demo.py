@@ -2,18 +2,21 @@
 
 `run_demo`: make a benchmark object with `matspray synth`, run the full method and its ablations
 with the simulated predictor, evaluate against the ground truth and write the report.
-`run_bench`: the same over several objects (shapes and seeds), with the tables averaged, as the
-paper averages over 17 objects.
+`run_bench`: the same over several objects (shapes and seeds) through `matspray batch`, with the
+tables averaged, as the paper averages over 17 objects.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from matspray.errors import ConfigError
+from matspray.batch import BatchConfig, run_batch, run_one_object
+from matspray.errors import ConfigError, DataError
+from matspray.eval.tables import write_tables
+from matspray.pipeline import preset_config
 from matspray.refine import VARIANTS
+from matspray.rundir import write_json
 
 SHAPES = ("composite", "blob", "rounded-cube", "torus", "capsule", "sphere")
 
@@ -48,19 +51,12 @@ def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progre
                refine_iterations: int | None = None, refine_seed: int | None = None) -> dict:
     """Run every variant of the method on one object, evaluate it and write its report
     (`refine_iterations` and `refine_seed` override the preset's; earlier stages are reused)."""
-    from dataclasses import replace
-
-    from matspray.eval.report import write_report
-    from matspray.eval.run_eval import evaluate_run
-    from matspray.pipeline import Pipeline, preset_config
-
     config = preset_config(preset, predictor="simulated", refine_seed=refine_seed)
     if refine_iterations is not None:
         config.refine = replace(config.refine, iterations=refine_iterations)
-    pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)
-    pipeline.run_all(variants)
-    metrics = evaluate_run(run_dir, data, progress=progress)
-    write_report(run_dir, metrics, data)
+    metrics = run_one_object(data, run_dir, config, variants, progress=progress, log=log)
+    if metrics is None:
+        raise DataError(f"{data}: no ground truth to evaluate the demo against; make the object with `matspray synth`")
     return metrics
 
 
@@ -73,55 +69,23 @@ def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0,
     return out / "run" / "report.html"
 
 
-def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, log=print) -> dict:
-    """Several objects (shapes in turn, seeds 0, 1, ...); returns and writes the averaged tables."""
-    from matspray.eval.tables import write_tables
-    from matspray.rundir import write_json
-
+def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, log=print, workers: int | None = None,
+              use_ray: bool = True) -> dict:
+    """Several objects (shapes in turn, seeds 0, 1, ...) made in OUT/data/, run by `matspray batch`
+    into OUT/<object>/ (`workers` at once); writes the averaged tables and returns the batch summary."""
     if objects < 1:
         raise ConfigError(f"--objects must be >= 1, got {objects}")
     out = Path(out)
-    per_object = []
+    datas = []
     for index in range(objects):
         shape = SHAPES[index % len(SHAPES)]
-        name = f"{index:02d}-{shape}"
         log(f"bench: object {index + 1}/{objects} ({shape}, seed {index})")
-        data = make_demo_object(out / name / "data", preset, shape, index, progress)
-        per_object.append(run_object(data, out / name / "run", preset, progress=progress, log=log))
-    averaged = average_tables(per_object)
-    averaged["title"] = f"MatSpray benchmark: {objects} objects, preset {preset}"
-    write_json(out / "bench.json", {"objects": objects, "preset": preset, "tables": averaged})
-    write_tables(out / "tables.md", averaged)
-    return averaged
-
-
-def _mean(values):
-    values = [v for v in values if v is not None]
-    if not values:
-        return None
-    return math.fsum(values) / len(values)
-
-
-def average_tables(metrics: list[dict]) -> dict:
-    """Average the per-object table entries; metallic PSNR follows the paper's infinity rule
-    (objects with infinite PSNR are counted and left out of the mean)."""
-    out: dict = {"notes": sorted({n for m in metrics for n in m.get("notes", [])}), "lpips": metrics[0].get("lpips")}
-    for key in ("table2", "softmax"):
-        names = {name for m in metrics for name in m.get(key, {})}
-        out[key] = {name: {metric: _mean([m[key][name].get(metric) for m in metrics if name in m.get(key, {})]) for metric in ("psnr", "ssim", "lpips")} for name in names}
-    table1 = {}
-    for method in {name for m in metrics for name in m.get("table1", {})}:
-        rows = {}
-        for row in {r for m in metrics for r in m.get("table1", {}).get(method, {})}:
-            entries = [m["table1"][method][row] for m in metrics if row in m.get("table1", {}).get(method, {})]
-            if row == "metallic":
-                finite = [e["psnr"] for e in entries if e.get("psnr") is not None and math.isfinite(e["psnr"])]
-                rows[row] = {"psnr": _mean(finite) if finite else math.inf, "ssim": _mean([e.get("ssim") for e in entries]),
-                             "lpips": _mean([e.get("lpips") for e in entries]), "psnr_infinite": len(entries) - len(finite), "objects": len(entries)}
-            else:
-                rows[row] = {metric: _mean([e.get(metric) for e in entries]) for metric in ("psnr", "ssim", "lpips")}
-        table1[method] = rows
-    out["table1"] = table1
-    stages = {stage for m in metrics for column in m.get("timings", {}).values() for stage in column}
-    out["timings"] = {"Ours (mean per object)": {s: _mean([c.get(s) for m in metrics for c in m.get("timings", {}).values()]) for s in stages}}
-    return out
+        datas.append(make_demo_object(out / "data" / f"{index:02d}-{shape}", preset, shape, index, progress))
+    config = BatchConfig(pipeline=preset_config(preset, predictor="simulated"), variants=VARIANTS, workers=workers, use_ray=use_ray)
+    summary = run_batch(datas, out, config, progress=progress, log=log)
+    averaged = summary["averages"]
+    if averaged is not None:
+        averaged["title"] = f"MatSpray benchmark: {summary['averaged_over']} of {objects} objects, preset {preset}"
+        write_json(out / "bench.json", {"objects": objects, "preset": preset, "tables": averaged})
+        write_tables(out / "tables.md", averaged)
+    return summary

@@ -1,4 +1,4 @@
-"""`matspray bench --objects N`: the method on several benchmark objects, tables averaged."""
+"""`matspray bench --objects N`: the method on several benchmark objects (through `matspray batch`), tables averaged."""
 
 from pathlib import Path
 
@@ -7,12 +7,23 @@ def add_parser(parser) -> None:
     parser.add_argument("--objects", type=int, default=3, help="number of objects (shapes in turn, seeds 0..N-1; default 3)")
     parser.add_argument("--preset", choices=("test", "demo", "paper"), default="demo", help="size of objects and runs (default demo)")
     parser.add_argument("--out", type=Path, help="folder for everything (default: runs/bench-PRESET)")
+    parser.add_argument("--workers", type=int, help="objects at once, as Ray tasks (default: one per CPU core; "
+                        "without Ray installed, one after another)")
 
 
 def run(args) -> int:
-    from matspray.demo import run_bench
+    import sys
 
+    from matspray.demo import run_bench
+    from matspray.errors import ConfigError
+
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     out = args.out or Path("runs") / f"bench-{args.preset}"
-    run_bench(out, args.objects, preset=args.preset)
-    print(f"averaged tables: {out / 'tables.md'}")
-    return 0
+    summary = run_bench(out, args.objects, preset=args.preset, workers=args.workers)
+    for failure in summary["failed"]:
+        print(f"failed: {failure['name']}: {failure['error']}", file=sys.stderr)
+    if summary["averages"] is not None:
+        print(f"averaged tables: {out / 'tables.md'}")
+    print(f"per object: {out / 'summary.md'}")
+    return 1 if summary["failed"] else 0

@@ -8,6 +8,12 @@ VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax")
 def add_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
     parser.add_argument("--out", type=Path, required=True, help="run folder; finished stages in it are reused")
+    add_settings_arguments(parser)
+    parser.add_argument("--overwrite", action="store_true", help="reuse an --out folder made from another dataset")
+
+
+def add_settings_arguments(parser) -> None:
+    """The run's settings (shared with `matspray batch`, which applies them to every object)."""
     parser.add_argument("--predictor", default="simulated", metavar="SPEC",
                         help="2D material maps: files:DIR, marigold, simulated or ground-truth (default: simulated, benchmarks only)")
     parser.add_argument("--preset", choices=("test", "demo", "paper"), default="demo",
@@ -31,7 +37,6 @@ def add_parser(parser) -> None:
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda or cuda:N")
     parser.add_argument("--weights", help="marigold: pipeline folder")
     parser.add_argument("--severity", type=float, help="simulated: strength of the simulated failure modes (default 1)")
-    parser.add_argument("--overwrite", action="store_true", help="reuse an --out folder made from another dataset")
 
 
 def config_from_args(args):
