@@ -48,7 +48,7 @@ def ray_local():
 
 
 @pytest.fixture(scope="module")
-def first_batch(objects, ray_local, tmp_path_factory, capsys_module=None):
+def first_batch(objects, ray_local, tmp_path_factory):
     out = tmp_path_factory.mktemp("batch") / "out"
     datas = [str(objects / n) for n in ("ball", "ring", "broken")]
     start = time.perf_counter()
