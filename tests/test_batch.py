@@ -213,3 +213,14 @@ def test_an_address_without_ray_installed_is_refused(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)
     with pytest.raises(ConfigError, match=r"needs Ray: pip install 'matspray\[cluster\]'"):
         run_batch([tmp_path], tmp_path / "out", BatchConfig(address="127.0.0.1:6379"))
+
+
+def test_failures_become_one_line_errors():
+    from matspray.batch.objects import one_line
+    from matspray.errors import NumericalError
+
+    assert one_line(NumericalError("refine step 3: NaN in the photometric loss")) == "refine step 3: NaN in the photometric loss"
+    oom = one_line(RuntimeError("CUDA out of memory.\nTried to allocate 2.00 GiB"))
+    assert oom.startswith("out of memory (RuntimeError: CUDA out of memory. Tried") and "fewer workers" in oom
+    assert one_line(MemoryError()).startswith("out of memory (MemoryError")
+    assert one_line(ValueError("bad\n  value")) == "ValueError: bad value"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from tqdm import tqdm
@@ -94,7 +94,12 @@ def _show(bar, stages: dict[str, str]) -> None:
 
 
 def _ray_task(obj: BatchObject, config: PipelineConfig, variants, settings_fp: str, threads: int, board) -> dict:
-    """The body of one object's Ray task."""
+    """The body of one object's Ray task. A task Ray gave no GPU runs on the CPU even where the
+    machine has one (device auto), so that only scheduled tasks share a GPU."""
+    import ray
+
+    if config.device == "auto" and not ray.get_gpu_ids():
+        config = replace(config, device="cpu")
     result = process_object(obj, config, variants, settings_fp, threads, lambda stage: board.update.remote(obj.name, stage))
     board.update.remote(obj.name, None)
     return result
