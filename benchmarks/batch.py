@@ -21,12 +21,12 @@ from pathlib import Path
 from matspray.batch import BatchConfig, run_batch
 from matspray.batch.runner import local_cpus
 from matspray.demo import SHAPES, make_demo_object
-from matspray.pipeline import preset_config
+from matspray.config import build_config
 
 
 def timed_batch(datas, out: Path, workers: int, use_ray: bool, preset: str) -> tuple[float, dict]:
     shutil.rmtree(out, ignore_errors=True)
-    config = BatchConfig(pipeline=preset_config(preset, predictor="simulated"), workers=workers, use_ray=use_ray)
+    config = BatchConfig(pipeline=build_config(preset, predictor="simulated"), workers=workers, use_ray=use_ray)
     start = time.perf_counter()
     summary = run_batch(datas, out, config, log=lambda _: None)
     return time.perf_counter() - start, summary

@@ -16,7 +16,7 @@ from matspray.batch.cluster import address_endpoint, check_reachable
 from matspray.batch.runner import claim_batch_folder
 from matspray.cli import build_parser, main
 from matspray.cli.batch import batch_config
-from matspray.errors import ConfigError, RunError
+from matspray.errors import ConfigError, RunError, SettingError
 from matspray.eval.average import average_tables
 
 REPO = Path(__file__).resolve().parents[1]
@@ -153,8 +153,8 @@ def test_without_ray_the_objects_run_in_process_and_resume_an_interrupted_run(fi
 def test_workers_below_one_is_one_line(tmp_path, capsys):
     assert main(["batch", str(tmp_path), "--out", str(tmp_path / "out"), "--workers", "0"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == "matspray batch: error: --workers must be >= 1, got 0"
-    with pytest.raises(ConfigError, match="workers must be >= 1"):
+    assert err == "matspray batch: error: --workers: must be >= 1, got 0"
+    with pytest.raises(SettingError, match="workers: must be >= 1"):
         run_batch([tmp_path], tmp_path / "out", BatchConfig(workers=0))
     assert not (tmp_path / "out").exists()
 
@@ -179,7 +179,7 @@ def free_port() -> int:
 def test_an_address_that_does_not_answer_is_reported_within_seconds(tmp_path):
     port = free_port()
     start = time.perf_counter()
-    with pytest.raises(ConfigError, match=rf"nothing answers at 127.0.0.1:{port} within 3 s.*ray start --head --port={port}"):
+    with pytest.raises(SettingError, match=rf"address: nothing answers at 127.0.0.1:{port} within 3 s.*ray start --head --port={port}"):
         check_reachable(f"127.0.0.1:{port}")
     assert time.perf_counter() - start < 4
     with socket.socket() as server:  # something listening answers
@@ -195,7 +195,7 @@ def test_the_cli_refuses_an_address_that_does_not_answer(tmp_path):
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "matspray", "batch", str(tmp_path), "--out", str(tmp_path / "out"),
                            "--address", f"127.0.0.1:{free_port()}"], capture_output=True, text=True, cwd=REPO, timeout=60)
-    assert proc.returncode == 2 and "nothing answers at 127.0.0.1" in proc.stderr and not (tmp_path / "out").exists()
+    assert proc.returncode == 2 and "error: --address: nothing answers at 127.0.0.1" in proc.stderr and not (tmp_path / "out").exists()
     assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
     assert time.perf_counter() - start < 30  # imports included; the check itself is bounded by 3 s
 
@@ -205,7 +205,7 @@ def test_address_forms():
     assert address_endpoint("head") == ("head", 6379)
     assert address_endpoint("ray://head") == ("head", 10001)
     assert address_endpoint("ray://head:123") == ("head", 123)
-    with pytest.raises(ConfigError, match="port is not a number"):
+    with pytest.raises(SettingError, match="is not a number"):
         address_endpoint("head:abc")
 
 

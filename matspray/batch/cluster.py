@@ -12,7 +12,7 @@ import socket
 from contextlib import contextmanager
 from urllib.parse import urlsplit
 
-from matspray.errors import ConfigError
+from matspray.errors import SettingError
 
 CONNECT_TIMEOUT_S = 3.0
 GCS_PORT = 6379  # `ray start --head` default
@@ -37,21 +37,21 @@ def address_endpoint(address: str) -> tuple[str, int]:
     try:
         port = parts.port
     except ValueError:
-        raise ConfigError(f"address '{address}': the port is not a number; use HOST:PORT, e.g. 10.0.0.5:6379") from None
+        raise SettingError("address", f"the port of '{address}' is not a number; use HOST:PORT, e.g. 10.0.0.5:6379") from None
     if not parts.hostname:
-        raise ConfigError(f"address '{address}': no host; use HOST:PORT, e.g. 10.0.0.5:6379, or ray://HOST:10001")
+        raise SettingError("address", f"'{address}' has no host; use HOST:PORT, e.g. 10.0.0.5:6379, or ray://HOST:10001")
     return parts.hostname, port or (CLIENT_PORT if client else GCS_PORT)
 
 
 def check_reachable(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
-    """Raise ConfigError when nothing accepts a connection at `address` within `timeout` seconds."""
+    """Raise SettingError when nothing accepts a connection at `address` within `timeout` seconds."""
     host, port = address_endpoint(address)
     try:
         with socket.create_connection((host, port), timeout=timeout):
             return
     except OSError as exc:
         reason = "no answer" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
-        raise ConfigError(f"address '{address}': nothing answers at {host}:{port} within {timeout:.0f} s ({reason}); start the "
+        raise SettingError("address", f"nothing answers at {host}:{port} within {timeout:.0f} s ({reason}); start the "
                           f"cluster's head there with `ray start --head --port={port}`, or leave the address out for a local Ray") from None
 
 
@@ -65,7 +65,7 @@ def ray_session(ray, address: str | None, num_cpus: int, cpus_per_task: int, gpu
             try:
                 ray.init(address=address, logging_level="ERROR", log_to_driver=False)
             except (ConnectionError, RuntimeError) as exc:
-                raise ConfigError(f"address '{address}': Ray could not join that cluster ({' '.join(str(exc).split())[:200]})") from None
+                raise SettingError("address", f"Ray could not join the cluster at '{address}' ({' '.join(str(exc).split())[:200]})") from None
         else:
             # workers import this same matspray (a checkout need not be the installed copy)
             package_root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -76,10 +76,10 @@ def ray_session(ray, address: str | None, num_cpus: int, cpus_per_task: int, gpu
     try:
         resources = ray.cluster_resources()
         if resources.get("CPU", 0) < cpus_per_task:
-            raise ConfigError(f"each object asks for {cpus_per_task} CPUs but the Ray cluster has {resources.get('CPU', 0):g}; "
+            raise SettingError("cpus_per_object", f"each object asks for {cpus_per_task} CPUs but the Ray cluster has {resources.get('CPU', 0):g}; "
                               "lower the CPUs per object")
         if resources.get("GPU", 0) < gpus_per_task:
-            raise ConfigError(f"each object asks for {gpus_per_task:g} GPUs but the Ray cluster has {resources.get('GPU', 0):g}; "
+            raise SettingError("gpus_per_object", f"each object asks for {gpus_per_task:g} GPUs but the Ray cluster has {resources.get('GPU', 0):g}; "
                               "lower the GPUs per object (0 runs on CPUs)")
         yield ray
     finally:

@@ -16,7 +16,8 @@ from typing import Callable
 from matspray.errors import ConfigError, DataError, MatsprayError
 from matspray.eval.report import write_report
 from matspray.eval.run_eval import check_synthetic, evaluate_run
-from matspray.pipeline import Pipeline, PipelineConfig
+from matspray.config import PipelineConfig
+from matspray.pipeline import Pipeline
 from matspray.rundir import read_json, write_json
 
 OBJECT_RECORD = "batch-object.json"

@@ -18,9 +18,9 @@ from tqdm import tqdm
 from matspray.batch.cluster import INSTALL_HINT, check_reachable, load_ray, ray_session
 from matspray.batch.objects import BatchObject, batch_objects, finished_record, object_result, one_line, process_object
 from matspray.batch.summary import batch_summary, write_summary
-from matspray.errors import ConfigError, RunError
-from matspray.pipeline import PipelineConfig
-from matspray.refine import VARIANTS
+from matspray.config import PipelineConfig
+from matspray.errors import ConfigError, RunError, SettingError
+from matspray.variants import VARIANT_NAMES
 from matspray.rundir import fingerprint, read_json, to_plain, write_json
 
 SETTINGS_RECORD = "batch.json"
@@ -40,14 +40,14 @@ class BatchConfig:
 
 def check_config(config: BatchConfig) -> None:
     if config.workers is not None and config.workers < 1:
-        raise ConfigError(f"workers must be >= 1, got {config.workers}")
+        raise SettingError("workers", f"must be >= 1, got {config.workers}")
     if config.cpus_per_object < 1:
-        raise ConfigError(f"CPUs per object must be >= 1, got {config.cpus_per_object}")
+        raise SettingError("cpus_per_object", f"must be >= 1, got {config.cpus_per_object}")
     if config.gpus_per_object < 0:
-        raise ConfigError(f"GPUs per object must be >= 0, got {config.gpus_per_object:g}")
-    unknown = [v for v in config.variants if v not in VARIANTS]
+        raise SettingError("gpus_per_object", f"must be >= 0, got {config.gpus_per_object:g}")
+    unknown = [v for v in config.variants if v not in VARIANT_NAMES]
     if unknown or not config.variants:
-        raise ConfigError(f"unknown variant '{(unknown or [''])[0]}'; choose from {', '.join(VARIANTS)}")
+        raise SettingError("variants", f"unknown variant '{(unknown or [''])[0]}'; choose from {', '.join(VARIANT_NAMES)}")
 
 
 def batch_settings(config: BatchConfig) -> dict:
