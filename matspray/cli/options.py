@@ -55,7 +55,8 @@ FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "
 def add_run_arguments(parser) -> None:
     """What `run` and `batch` take besides the method: the predictor, its options and the variants."""
     parser.add_argument("--predictor", default="simulated", metavar="SPEC",
-                        help="2D material maps: files:DIR, marigold, simulated or ground-truth (default: simulated, benchmarks only)")
+                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers] or ground-truth "
+                        "(default: simulated, = simulated:paper, benchmarks only)")
     parser.add_argument("--variant", choices=VARIANT_CHOICES, nargs="+", default=["full"],
                         help="method variants to refine (the paper's ablations); default: full")
     parser.add_argument("--weights", help="marigold: pipeline folder")
