@@ -40,8 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
-from matspray.demo import DEMO_SIZES, average_tables, make_demo_object, run_object
+from matspray.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.errors import ConfigError, MatsprayError, SettingError
+from matspray.eval.average import average_tables
 from matspray.eval.tables import write_tables
 from matspray.lights import BUILTINS, hdri_files
 from matspray.predictors.error_models import ERROR_MODELS
@@ -186,7 +187,7 @@ def wins(figures: list[dict], pairs) -> dict:
 
 
 def model_summary(per_object: list[dict]) -> dict:
-    """Means over objects (the paper's averaging, via matspray.demo.average_tables) and wins out of N."""
+    """Means over objects (the paper's averaging, via matspray.eval.average.average_tables) and wins out of N."""
     averaged = average_tables([o["metrics"] for o in per_object])
     table1 = averaged["table1"]
     relight = {v: averaged["table2"].get(label, averaged["softmax"].get(label, {})).get("psnr")

@@ -2,24 +2,22 @@
 
 `run_demo`: make a benchmark object with `matspray synth`, run the full method and its ablations
 with the simulated predictor, evaluate against the ground truth and write the report.
-`run_bench`: the same over several objects (procedural shapes and seeds, or glTF assets), with the
-tables averaged, as the paper averages over 17 objects; a thin loop of "make object -> run object".
+`run_bench`: the same over several objects (procedural shapes and seeds, or glTF assets), made first and
+then run by `matspray batch`, with the tables averaged, as the paper averages over 17 objects.
 """
 
 from __future__ import annotations
 
-import math
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from matspray.batch import BatchConfig, run_batch, run_one_object
 from matspray.config import PipelineConfig, build_config
-from matspray.errors import SettingError
-from matspray.eval.report import write_report
-from matspray.eval.run_eval import evaluate_run
+from matspray.errors import DataError, SettingError
 from matspray.eval.tables import write_tables
 from matspray.gltf.read import read_gltf
-from matspray.pipeline import Pipeline
 from matspray.rundir import write_json
 from matspray.synth import SynthConfig, make_object
 from matspray.variants import LABELS, VARIANT_NAMES
@@ -99,10 +97,9 @@ def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bo
 
 def run_object(data: Path, run_dir: Path, config: PipelineConfig, variants=VARIANT_NAMES, progress: bool = True, log=print) -> dict:
     """Run every variant of the method on one object, evaluate it and write its report (earlier stages are reused)."""
-    pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)
-    pipeline.run_all(variants)
-    metrics = evaluate_run(run_dir, data, progress=progress)
-    write_report(run_dir, metrics, data)
+    metrics = run_one_object(data, run_dir, config, variants, progress=progress, log=log)
+    if metrics is None:
+        raise DataError(f"{data}: no ground truth to evaluate against; make the object with `matspray synth`")
     return metrics
 
 
@@ -118,33 +115,34 @@ def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0,
     return out / "run" / "report.html"
 
 
-def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=print, config: PipelineConfig | None = None) -> dict:
-    """Every object of `objects` (a count of procedural objects, or a list of BenchObject) made and run;
-    returns and writes the averaged tables with one row per object (its variants and seconds).
-    bench.json is rewritten after each object, so a partial benchmark shows what has finished."""
+def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=print, config: PipelineConfig | None = None,
+              workers: int | None = None, use_ray: bool = True) -> dict:
+    """Every object of `objects` (a count of procedural objects, or a list of BenchObject) made in
+    OUT/data/<name>/ and run by `matspray batch` into OUT/<name>/ (`workers` at once); writes the averaged
+    tables with one row per object (its variants and seconds) and returns the batch summary."""
     specs = procedural_objects(objects) if isinstance(objects, int) else list(objects)
     if not specs:
         raise SettingError("objects", "the benchmark has no objects")
     config = config or build_config(preset, predictor="simulated")
     out = Path(out)
-    per_object, rows = [], {}
+    datas, synth_seconds = [], {}
     for index, spec in enumerate(specs):
         log(f"bench: object {index + 1}/{len(specs)} ({spec.asset or spec.shape}, seed {spec.seed})")
         start = time.perf_counter()
-        data = make_demo_object(out / spec.name / "data", preset, spec.shape, spec.seed, progress, asset=spec.asset)
-        made = time.perf_counter()
-        per_object.append(run_object(data, out / spec.name / "run", config, progress=progress, log=log))
-        rows[spec.name] = object_row(spec, per_object[-1], made - start, time.perf_counter() - made)
-        log(f"bench: {spec.name}: synth {rows[spec.name]['seconds']['synth']:.1f} s, method {rows[spec.name]['seconds']['method']:.1f} s")
-        write_json(out / "bench.json", {"objects": len(specs), "finished": index + 1, "preset": preset, "method": config.method,
-                                        "per_object": rows})
-    averaged = average_tables(per_object)
-    averaged["title"] = f"MatSpray benchmark: {len(specs)} objects, preset {preset}"
-    averaged["objects"] = rows
-    write_json(out / "bench.json", {"objects": len(specs), "finished": len(specs), "preset": preset, "method": config.method,
-                                    "per_object": rows, "tables": averaged})
-    write_tables(out / "tables.md", averaged)
-    return averaged
+        datas.append(make_demo_object(out / "data" / spec.name, preset, spec.shape, spec.seed, progress, asset=spec.asset))
+        synth_seconds[spec.name] = time.perf_counter() - start
+    summary = run_batch(datas, out, BatchConfig(pipeline=config, variants=VARIANT_NAMES, workers=workers, use_ray=use_ray),
+                        progress=progress, log=log)
+    averaged = summary["averages"]
+    if averaged is not None:
+        finished = {row["name"]: row for row in summary["objects"] if row["status"] != "failed"}
+        averaged["title"] = f"MatSpray benchmark: {summary['averaged_over']} of {len(specs)} objects, preset {preset}"
+        averaged["objects"] = {spec.name: object_row(spec, json.loads((out / spec.name / "eval" / "metrics.json").read_text()),
+                                                     synth_seconds[spec.name], finished[spec.name]["seconds"] or 0.0)
+                               for spec in specs if spec.name in finished and (out / spec.name / "eval" / "metrics.json").exists()}
+        write_json(out / "bench.json", {"objects": len(specs), "preset": preset, "method": config.method, "tables": averaged})
+        write_tables(out / "tables.md", averaged)
+    return summary
 
 
 def object_row(spec: BenchObject, metrics: dict, synth_seconds: float, method_seconds: float) -> dict:
@@ -154,35 +152,3 @@ def object_row(spec: BenchObject, metrics: dict, synth_seconds: float, method_se
             for row in ("relighting", "basecolor")}
     return {"source": spec.asset or f"{spec.shape} (seed {spec.seed})", "psnr": psnr,
             "seconds": {"synth": synth_seconds, "method": method_seconds}}
-
-
-def _mean(values):
-    values = [v for v in values if v is not None]
-    if not values:
-        return None
-    return math.fsum(values) / len(values)
-
-
-def average_tables(metrics: list[dict]) -> dict:
-    """Average the per-object table entries; metallic PSNR follows the paper's infinity rule
-    (objects with infinite PSNR are counted and left out of the mean)."""
-    out: dict = {"notes": sorted({n for m in metrics for n in m.get("notes", [])}), "lpips": metrics[0].get("lpips")}
-    for key in ("table2", "softmax"):
-        names = {name for m in metrics for name in m.get(key, {})}
-        out[key] = {name: {metric: _mean([m[key][name].get(metric) for m in metrics if name in m.get(key, {})]) for metric in ("psnr", "ssim", "lpips")} for name in names}
-    table1 = {}
-    for method in {name for m in metrics for name in m.get("table1", {})}:
-        rows = {}
-        for row in {r for m in metrics for r in m.get("table1", {}).get(method, {})}:
-            entries = [m["table1"][method][row] for m in metrics if row in m.get("table1", {}).get(method, {})]
-            if row == "metallic":
-                finite = [e["psnr"] for e in entries if e.get("psnr") is not None and math.isfinite(e["psnr"])]
-                rows[row] = {"psnr": _mean(finite) if finite else math.inf, "ssim": _mean([e.get("ssim") for e in entries]),
-                             "lpips": _mean([e.get("lpips") for e in entries]), "psnr_infinite": len(entries) - len(finite), "objects": len(entries)}
-            else:
-                rows[row] = {metric: _mean([e.get(metric) for e in entries]) for metric in ("psnr", "ssim", "lpips")}
-        table1[method] = rows
-    out["table1"] = table1
-    stages = {stage for m in metrics for column in m.get("timings", {}).values() for stage in column}
-    out["timings"] = {"Ours (mean per object)": {s: _mean([c.get(s) for m in metrics for c in m.get("timings", {}).values()]) for s in stages}}
-    return out

@@ -23,6 +23,7 @@ COMMANDS = [
     ("eval", "metrics against ground truth, the paper's tables and report.html"),
     ("demo", "make a benchmark object, run the method and its ablations, evaluate, write the report"),
     ("bench", "the demo over several objects, tables averaged"),
+    ("batch", "the method once per object, as Ray tasks on this machine or a cluster; a summary over objects"),
 ]
 
 
@@ -42,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-RESUMING_COMMANDS = ("run", "geometry", "demo", "bench")  # staged: a rerun skips what is finished
+RESUMING_COMMANDS = ("run", "geometry", "demo", "bench", "batch")  # staged: a rerun skips what is finished
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,5 +1,7 @@
-"""`matspray bench --objects N` or `--assets PATH...`: the method on several benchmark objects, tables averaged."""
+"""`matspray bench --objects N` or `--assets PATH...`: the method on several benchmark objects (through
+`matspray batch`), tables averaged."""
 
+import sys
 from pathlib import Path
 
 from matspray.cli.options import add_method_arguments, build_config_from_args
@@ -11,6 +13,8 @@ def add_parser(parser) -> None:
                         help="glTF 2.0 files (.glb/.gltf) or folders of them: one benchmark object each (`synth --asset`), "
                              "instead of procedural ones")
     parser.add_argument("--out", type=Path, help="folder for everything (default: runs/bench-PRESET, with --assets runs/bench-assets-PRESET)")
+    parser.add_argument("--workers", type=int, help="objects at once, as Ray tasks (default: one per CPU core; "
+                        "without Ray installed, one after another)")
     add_method_arguments(parser)
 
 
@@ -24,6 +28,11 @@ def run(args) -> int:
     if args.assets is not None:
         check_assets(objects)
     out = args.out or Path("runs") / (f"bench-assets-{args.preset}" if args.assets is not None else f"bench-{args.preset}")
-    run_bench(out, objects, preset=args.preset, config=build_config_from_args(args, predictor="simulated"))
-    print(f"averaged tables: {out / 'tables.md'}")
-    return 0
+    summary = run_bench(out, objects, preset=args.preset, config=build_config_from_args(args, predictor="simulated"),
+                        workers=args.workers)
+    for failure in summary["failed"]:
+        print(f"failed: {failure['name']}: {failure['error']}", file=sys.stderr)
+    if summary["averages"] is not None:
+        print(f"averaged tables: {out / 'tables.md'}")
+    print(f"per object: {out / 'summary.md'}")
+    return 1 if summary["failed"] else 0

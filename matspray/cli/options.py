@@ -48,7 +48,25 @@ FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "
                         "severity": "--severity", "batch_size": "--batch-size", "ensemble_size": "--ensemble-size", "steps": "--steps",
                         "predictor": "--predictor", "relight_envs": "--relight-env", "out": "--out", "resolution": "--res",
                         "train_views": "--views", "test_views": "--test-views", "spp": "--spp", "env_height": "--env-height",
-                        "asset": "--asset", "assets": "--assets", "placement": "--placement"})
+                        "asset": "--asset", "assets": "--assets", "placement": "--placement",
+                        "workers": "--workers", "address": "--address", "cpus_per_object": "--cpus-per-object",
+                        "gpus_per_object": "--gpus-per-object"})
+
+
+def add_run_arguments(parser) -> None:
+    """What `run` and `batch` take besides the method: the predictor, its options and the variants."""
+    parser.add_argument("--predictor", default="simulated", metavar="SPEC",
+                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers] or ground-truth "
+                        "(default: simulated, = simulated:paper, benchmarks only)")
+    parser.add_argument("--variant", choices=VARIANT_CHOICES, nargs="+", default=["full"],
+                        help="method variants to refine (the paper's ablations); default: full")
+    parser.add_argument("--weights", help="marigold: pipeline folder")
+    parser.add_argument("--severity", type=float, help="simulated: strength of the simulated failure modes (default 1)")
+
+
+def predictor_options_from_args(args) -> dict:
+    """PredictorOptions fields from --weights and --severity, when given."""
+    return {name: value for name, value in (("weights", args.weights), ("severity", args.severity)) if value is not None}
 
 
 def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "demo") -> None:
