@@ -45,24 +45,24 @@ class ExportedMesh:
     seconds: dict = field(default_factory=dict)  # per step
 
 
-def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, progress: bool = False) -> ExportedMesh:
+def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, progress: bool = False, notes: dict | None = None) -> ExportedMesh:
     """Surface, decimation, atlas and textures of `asset` seen from `cameras` (the training views)."""
     seconds, start = {}, time.perf_counter()
-    bar = tqdm(total=4, desc="export", disable=not progress, dynamic_ncols=True)
+    bar = tqdm(total=4, desc="export", disable=not progress, dynamic_ncols=True, postfix="surface")
 
-    def step(name: str) -> None:
+    def step(name: str, following: str = "") -> None:
         nonlocal start
         now = time.perf_counter()
         seconds[name], start = round(now - start, 2), now
-        bar.set_postfix_str(name)
+        bar.set_postfix_str(following, refresh=False)
         bar.update()
 
     mesh, voxel = fuse_surface(asset.gaussians, cameras, config.grid, config.truncation, config.min_alpha, config.keep_fraction, progress)
-    step("surface")
+    step("surface", "decimate")
     mesh = decimate(mesh, config.faces)
-    step("decimate")
+    step("decimate", "atlas")
     atlas = uv_atlas(mesh, config.texture_size, config.padding)
-    step("atlas")
+    step("atlas", "bake")
     materials = asset.materials.detach().cpu().double().numpy()
     textures = bake_textures(atlas.positions, atlas.faces, atlas.uvs, asset.gaussians, materials, config.texture_size,
                              config.neighbours, voxel)
@@ -72,7 +72,7 @@ def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, p
     step("bake")
     bar.close()
     matrix = file_from_dataset(config.frame)
-    extras = {**frame_extras(config.frame), "voxel": voxel, "faces": int(len(atlas.faces)), "texture_size": config.texture_size}
+    extras = {**frame_extras(config.frame), "voxel": voxel, "faces": int(len(atlas.faces)), "texture_size": config.texture_size, **(notes or {})}
     return ExportedMesh(transform_points(matrix, atlas.positions), transform_directions(matrix, normals), atlas.uvs, atlas.faces,
                         textures, extras, seconds)
 
@@ -155,8 +155,7 @@ def export_run(run_dir, out, variant: str = "full", config: ExportConfig = Expor
     source = data if data is not None else read_json(run_dir / "dataset.json")["source"]
     scene = load_scene(source, downscale=run_downscale(run_dir))
     asset = read_asset(folder)
-    mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress)
+    mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress, notes={"variant": variant})
     envmap = folder / "envmap.exr"
-    mesh.extras.update(variant=variant)
     files = write_export(mesh, out, envmap if envmap.exists() else None)
     return ExportReport(files, len(mesh.faces), len(mesh.positions), config.texture_size, mesh.seconds)
