@@ -1,12 +1,20 @@
-"""`matspray synth --out DIR`: a synthetic benchmark object rendered by Mitsuba 3, with ground truth."""
+"""`matspray synth --out DIR`: a synthetic benchmark object rendered by Mitsuba 3, with ground truth
+(a procedural shape, or a glTF 2.0 asset with `--asset FILE.glb|FILE.gltf`)."""
 
 from pathlib import Path
 
 
 def add_parser(parser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output folder (Blender layout + ground truth)")
-    parser.add_argument("--shape", default="random",
+    parser.add_argument("--shape", default=None,
                         help="sphere, rounded-cube, torus, capsule, blob, composite, or random (picked from the seed; default)")
+    parser.add_argument("--asset", type=Path, default=None, metavar="FILE",
+                        help="render this glTF 2.0 asset (.glb, or .gltf with its files) instead of a procedural shape: every triangle "
+                             "primitive of its default scene with its metallic-roughness material; normal, occlusion and emissive "
+                             "textures and alpha are ignored (said once)")
+    parser.add_argument("--placement", choices=("fit", "keep"), default="fit",
+                        help="of --asset: fit (centred, scaled into the unit sphere; default) or keep (the file's units and origin, "
+                             "glTF +Y up as our +z; reproduces a synth object from its object.glb)")
     parser.add_argument("--seed", type=int, default=0, help="seed of shape, materials, cameras and renders (default 0)")
     parser.add_argument("--res", type=int, default=128, help="image width and height in pixels (default 128)")
     parser.add_argument("--views", type=int, default=40, help="training views (default 40)")
@@ -21,10 +29,13 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
+    from matspray.errors import ConfigError
     from matspray.synth import SynthConfig, make_object
 
+    if args.asset is not None and args.shape is not None:
+        raise ConfigError("--shape and --asset exclude each other; give one")
     config = SynthConfig(
-        shape=args.shape, seed=args.seed, resolution=args.res, train_views=args.views, test_views=args.test_views,
+        shape=args.shape or "random", asset=args.asset, placement=args.placement, seed=args.seed, resolution=args.res, train_views=args.views, test_views=args.test_views,
         spp=args.spp, env=args.env, relight_envs=args.relight_env, env_height=args.env_height, overwrite=args.overwrite,
     )
     result = make_object(config, args.out)

@@ -6,6 +6,8 @@ from dataclasses import asdict, dataclass
 
 from matspray.errors import ConfigError
 
+PLACEMENTS = ("fit", "keep")  # how a glTF asset is placed in the world (matspray.synth.gltf_object)
+
 MAX_RESOLUTION = 2048
 MAX_VIEWS = 1000
 MAX_SPP = 1 << 16
@@ -24,6 +26,8 @@ class SynthConfig:
     env_height: int = 128  # lights are resampled to env_height x 2 env_height for rendering
     gt_samples: int = 4  # ground-truth subpixel rays per side (s x s per pixel)
     texture_height: int = 256  # texture rows per part (twice as many columns)
+    asset: str | None = None  # a glTF 2.0 file (.glb/.gltf) to render instead of a procedural shape
+    placement: str = "fit"  # of the asset: 'fit' (centred, scaled into the unit sphere) or 'keep' (the file's units)
     overwrite: bool = False  # replace a different scene already in the output folder
 
     def validate(self) -> None:
@@ -41,6 +45,12 @@ class SynthConfig:
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise ConfigError(f"{flag} must be an integer in [{low}, {high}], got {value!r}")
         self.env = str(self.env)
+        if self.placement not in PLACEMENTS:
+            raise ConfigError(f"--placement must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
+        if self.asset is not None:
+            self.asset = str(self.asset)
+            if not self.asset.lower().endswith((".glb", ".gltf")):
+                raise ConfigError(f"--asset {self.asset}: not a .glb or .gltf file")
         if self.relight_envs is not None:
             self.relight_envs = [str(spec) for spec in self.relight_envs]  # as scene.json will hold them
             if len(set(self.relight_envs)) != len(self.relight_envs):

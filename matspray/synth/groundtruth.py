@@ -2,8 +2,8 @@
 
 Every pixel is sampled on an s x s subpixel grid; a map's value is the mean over the samples that hit
 the object (so edge pixels hold the surface's own values, not values darkened by the background),
-and `coverage` is the fraction that hit. Textures are read with the same bilinear, repeating lookup
-at the hit's UV as Mitsuba's bitmap textures, so the maps agree with the renders pixel for pixel.
+and `coverage` is the fraction that hit. Textures are read with the same bilinear lookup (UV transform,
+wrap modes) at the hit's UV as Mitsuba's bitmap textures, so the maps agree with the renders pixel for pixel.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from matspray.data.camera import Camera
-from matspray.synth.materials import Textures, bilinear_lookup
+from matspray.synth.materials import Textures, texture_lookup
 from matspray.synth.mitsuba_scene import intersect
 
 SAMPLES_PER_SIDE = 4  # 4 x 4 subpixel rays per pixel
@@ -36,9 +36,9 @@ def surface_values(hits, textures: list[Textures]) -> np.ndarray:  # -> [R, 5] b
         if not on_part.any():
             continue
         uv = hits.uv[on_part]
-        values[on_part, :3] = bilinear_lookup(texture.base_color, uv)
-        values[on_part, 3] = bilinear_lookup(texture.roughness, uv)
-        values[on_part, 4] = bilinear_lookup(texture.metallic, uv)
+        values[on_part, :3] = texture_lookup(texture.base_color, uv, texture.base_color_sampling)
+        values[on_part, 3] = texture_lookup(texture.roughness, uv, texture.metallic_roughness_sampling)
+        values[on_part, 4] = texture_lookup(texture.metallic, uv, texture.metallic_roughness_sampling)
     return values
 
 

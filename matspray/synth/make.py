@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,11 +20,13 @@ from matspray.lights import default_relight_names, load_envmap
 from matspray.synth.cameras import FOV_X, make_cameras
 from matspray.synth.config import SynthConfig
 from matspray.synth.groundtruth import cast_ground_truth
-from matspray.synth.materials import bake_textures, random_material
+from matspray.gltf.read import read_gltf
+from matspray.synth.gltf_object import asset_parts, write_object_glb
+from matspray.synth.materials import Textures, bake_textures, random_material
 from matspray.synth.mitsuba_scene import MAX_DEPTH, build_scene, render_view, sampler_for, select_variant
-from matspray.synth.shapes import make_shape, resolve_shape
+from matspray.synth.shapes import Part, make_shape, resolve_shape
 from matspray.synth.writer import (
-    prepare_output, write_envmap, write_ground_truth, write_render, write_scene_json,
+    OBJECT_GLB, prepare_output, write_envmap, write_ground_truth, write_render, write_scene_json,
 )
 
 # independent random streams of one seed
@@ -62,20 +65,57 @@ def resolve_lights(config: SynthConfig) -> tuple[str, list[str], dict[str, torch
     return train_name, relight_names, maps
 
 
-def make_object(config: SynthConfig, out, progress: bool = True, notify: Callable[[str], None] = print) -> SynthResult:
-    """Render a synthetic object with its ground truth into folder `out` (see matspray.synth.writer)."""
-    start = time.perf_counter()
-    out = Path(out)
-    config.validate()
-    shape = resolve_shape(config.shape, config.seed)
-    train_env, relight_envs, lights = resolve_lights(config)
-    prepare_output(out, config.identity(), config.overwrite)
-    variant = select_variant()
-    notify(f"Mitsuba variant: {variant}")
+@dataclass
+class ObjectContent:
+    """What is rendered: the parts, their textures, and how scene.json describes them."""
 
+    shape: str  # a procedural shape's name, or 'asset'
+    parts: list[Part]
+    textures: list[Textures]
+    description: dict  # scene.json entries: shape, parts, material or asset
+
+
+def procedural_content(config: SynthConfig) -> ObjectContent:
+    shape = resolve_shape(config.shape, config.seed)
     parts = make_shape(shape, np.random.default_rng([config.seed, SHAPE_STREAM]))
     material = random_material(np.random.default_rng([config.seed, MATERIAL_STREAM]))
     textures = [bake_textures(material, part, config.texture_height) for part in parts]
+    description = {"shape": shape, "parts": [{"name": p.name, **p.params} for p in parts], "material": material.to_json()}
+    return ObjectContent(shape, parts, textures, description)
+
+
+def asset_content(config: SynthConfig, notify: Callable[[str], None]) -> ObjectContent:
+    """A glTF asset's parts and textures (matspray.synth.gltf_object); what it ignores is said once."""
+    asset = read_gltf(config.asset)
+    if asset.notes:
+        notify(f"{config.asset}: ignored: {'; '.join(asset.notes)}")
+    parts, textures, matrix = asset_parts(asset, config.placement)
+    description = {
+        "shape": "asset",
+        "parts": [{"name": p.name, **p.params} for p in parts],
+        "asset": {"file": str(config.asset), "sha256": hashlib.sha256(Path(config.asset).read_bytes()).hexdigest(),
+                  "placement": config.placement, "asset_to_world": matrix.tolist(), "ignored": asset.notes,
+                  "up": "glTF +Y -> world +z"},
+    }
+    return ObjectContent("asset", parts, textures, description)
+
+
+def make_object(config: SynthConfig, out, progress: bool = True, notify: Callable[[str], None] = print) -> SynthResult:
+    """Render a synthetic object (procedural, or `config.asset`'s glTF file) with its ground truth into
+    folder `out` (see matspray.synth.writer). Everything is read and checked before anything is written."""
+    start = time.perf_counter()
+    out = Path(out)
+    config.validate()
+    content = procedural_content(config) if config.asset is None else asset_content(config, notify)
+    parts, textures, shape = content.parts, content.textures, content.shape
+    train_env, relight_envs, lights = resolve_lights(config)
+    identity = config.identity()
+    if config.asset is not None:
+        identity["asset_sha256"] = content.description["asset"]["sha256"]
+    prepare_output(out, identity, config.overwrite)
+    variant = select_variant()
+    notify(f"Mitsuba variant: {variant}")
+
     bounding_radius = float(max(np.linalg.norm(p.vertices, axis=1).max() for p in parts))
     train_cameras, test_cameras, distance = make_cameras(
         config.train_views, config.test_views, bounding_radius, config.resolution,
@@ -83,12 +123,10 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
     )
     record = {
         "matspray_version": __version__,
-        "settings": config.identity(),
+        "settings": identity,
         "seed": config.seed,
         "variant": variant,
-        "shape": shape,
-        "parts": [{"name": p.name, **p.params} for p in parts],
-        "material": material.to_json(),
+        **content.description,
         "lights": {"train": train_env, "relight": relight_envs},
         "cameras": {"fov_x": FOV_X, "distance": distance, "bounding_radius": bounding_radius, "up": [0, 0, 1],
                     "train": config.train_views, "test": config.test_views},
@@ -105,6 +143,8 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
     write_scene_json(out, record)
     for name, env in lights.items():
         write_envmap(out, name, env)
+    if config.asset is None:
+        write_object_glb(out / OBJECT_GLB, parts, textures, {"matspray": {"kind": "matspray-synth object", "shape": shape, "seed": config.seed}})
 
     splits = {"train": train_cameras, "test": test_cameras}
     total = len(train_cameras) + len(test_cameras) * (2 + len(relight_envs)) + len(train_cameras)

@@ -17,7 +17,10 @@ import colorsys
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
+from matspray.errors import ConfigError
+from matspray.gltf.sample import apply_uv_transform, sample_texture, wrap_index
 from matspray.synth.noise import ValueNoise, fbm, voronoi
 from matspray.synth.shapes import Part
 
@@ -169,13 +172,27 @@ def evaluate_material(material: Material, points: np.ndarray) -> tuple[np.ndarra
 
 
 # ------------------------------------------------------------------------------------------ textures
+@dataclass(frozen=True)
+class Sampling:
+    """How a texture is read at a mesh's UV: an affine map of the UV first (glTF's KHR_texture_transform),
+    then a bilinear lookup wrapped per axis ('repeat', 'clamp' or 'mirror')."""
+
+    to_uv: np.ndarray | None = None  # [3, 3] acting on (u, v, 1); None: identity
+    wrap_s: str = "repeat"  # along u
+    wrap_t: str = "repeat"  # along v
+
+
 @dataclass
 class Textures:
-    """A part's material baked into UV space (row 0 at v = 0, texel centres at +0.5, like Mitsuba)."""
+    """A part's material in UV space (row 0 at v = 0, texel centres at +0.5, like Mitsuba). Procedural
+    textures are [T, 2T] and repeat; a glTF asset's have any size and their file's `Sampling`
+    (roughness and metallic share one, as they share the metallic-roughness texture)."""
 
-    base_color: np.ndarray  # [T, 2T, 3] linear
-    roughness: np.ndarray  # [T, 2T]
-    metallic: np.ndarray  # [T, 2T]
+    base_color: np.ndarray  # [T, W, 3] linear
+    roughness: np.ndarray  # [T', W']
+    metallic: np.ndarray  # [T', W']
+    base_color_sampling: Sampling = Sampling()
+    metallic_roughness_sampling: Sampling = Sampling()
 
 
 def texel_uvs(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:  # -> u [T, W], v [T, W]
@@ -193,23 +210,45 @@ def bake_textures(material: Material, part: Part, height: int = TEXTURE_HEIGHT) 
                     metal.reshape(shape).astype(np.float32))
 
 
-def bilinear_lookup(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear lookup with repeat wrapping, as Mitsuba's bitmap texture does.
+def texture_lookup(texture: np.ndarray, uv: np.ndarray, sampling: Sampling = Sampling()) -> np.ndarray:
+    """Bilinear lookup as Mitsuba's bitmap texture does it (matspray.gltf.sample_texture, in float64).
 
-    texture: [T, W, ...], uv: [N, 2] -> [N, ...]
+    texture: [T, W] or [T, W, C], uv: [N, 2] -> [N] or [N, C]
     """
+    values = torch.from_numpy(np.asarray(texture, dtype=np.float64))
+    to_uv = None if sampling.to_uv is None else torch.from_numpy(np.asarray(sampling.to_uv, dtype=np.float64))
+    looked_up = sample_texture(values.reshape(*values.shape[:2], -1), torch.from_numpy(np.asarray(uv, dtype=np.float64)),
+                               sampling.wrap_s, sampling.wrap_t, to_uv)
+    return looked_up.numpy().reshape(len(uv), *texture.shape[2:])
+
+
+MAX_UNWRAPPED = 8192  # texels per axis of a texture unwrapped for one wrap mode
+
+
+def single_wrap(texture: np.ndarray, sampling: Sampling, uvs: np.ndarray) -> tuple[np.ndarray, Sampling]:
+    """The same lookup as (texture, sampling) over the UVs [V, 2] of a mesh, with one wrap mode for both axes
+    (Mitsuba's bitmap texture has one): with two different modes, the texels that the mesh's UV range
+    reaches (and one more each side) are laid out explicitly and read with 'clamp'. Bilinear weights
+    and neighbours stay those of the original lookup, so the values are identical."""
+    if sampling.wrap_s == sampling.wrap_t:
+        return texture, sampling
     height, width = texture.shape[:2]
-    x = uv[:, 0] * width - 0.5
-    y = uv[:, 1] * height - 0.5
-    x0, y0 = np.floor(x), np.floor(y)
-    wx, wy = x - x0, y - y0
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    extra = (slice(None),) + (None,) * (texture.ndim - 2)
-    wx, wy = wx[extra], wy[extra]
+    to_uv = np.eye(3) if sampling.to_uv is None else np.asarray(sampling.to_uv, dtype=np.float64)
+    uv = apply_uv_transform(torch.from_numpy(np.asarray(uvs, dtype=np.float64)), torch.from_numpy(to_uv)).numpy()
+    low = np.floor(uv.min(0) * [width, height] - 0.5).astype(np.int64) - 1  # [2] first texel reached, x and y
+    high = np.ceil(uv.max(0) * [width, height] - 0.5).astype(np.int64) + 1
+    if (high - low + 1 > MAX_UNWRAPPED).any():
+        raise ConfigError(f"a texture with wraps {sampling.wrap_s}/{sampling.wrap_t} is tiled over {(high - low + 1).tolist()} texels; "
+                         f"at most {MAX_UNWRAPPED} per axis are supported")
+    xs = wrap_index(torch.arange(low[0], high[0] + 1), width, sampling.wrap_s).numpy()
+    ys = wrap_index(torch.arange(low[1], high[1] + 1), height, sampling.wrap_t).numpy()
+    unwrapped = np.ascontiguousarray(texture[ys][:, xs])
+    # u' W' - 0.5 = u W - 0.5 - low_x: the texel that was x is now x - low_x
+    size = np.array([len(xs), len(ys)], dtype=np.float64)
+    shift = np.array([[width / size[0], 0.0, -low[0] / size[0]], [0.0, height / size[1], -low[1] / size[1]], [0.0, 0.0, 1.0]])
+    return unwrapped, Sampling(shift @ to_uv, "clamp", "clamp")
 
-    def at(yy, xx):
-        return texture[np.mod(yy, height), np.mod(xx, width)]
 
-    top = at(y0, x0) * (1 - wx) + at(y0, x0 + 1) * wx
-    bottom = at(y0 + 1, x0) * (1 - wx) + at(y0 + 1, x0 + 1) * wx
-    return top * (1 - wy) + bottom * wy
+def bilinear_lookup(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:  # [T, W, ...], [N, 2] -> [N, ...]
+    """The repeating, untransformed lookup of procedural textures."""
+    return texture_lookup(texture, uv)

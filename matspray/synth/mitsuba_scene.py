@@ -13,7 +13,7 @@ import numpy as np
 
 from matspray.data.camera import Camera
 from matspray.errors import ConfigError
-from matspray.synth.materials import Textures
+from matspray.synth.materials import Sampling, Textures, single_wrap
 from matspray.synth.shapes import Part
 
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")  # preference order
@@ -102,24 +102,34 @@ def mesh_of(part: Part, bsdf: dict):
     return mesh
 
 
-def bitmap_texture(values: np.ndarray) -> dict:
-    """A bilinear, repeating bitmap texture holding `values` [T, W] or [T, W, 3] as they are (linear)."""
+def bitmap_texture(values: np.ndarray, sampling: Sampling = Sampling(), uvs: np.ndarray | None = None) -> dict:
+    """A bilinear bitmap texture holding `values` [T, W] or [T, W, 3] as they are (linear), read through
+    `sampling` (its UV transform and wrap modes; two different modes need the mesh's `uvs` [V, 2])."""
     import mitsuba as mi
 
+    if sampling.wrap_s != sampling.wrap_t:
+        if uvs is None:
+            raise ConfigError("a texture with two wrap modes needs the mesh's UVs")
+        values, sampling = single_wrap(values, sampling, uvs)
     array = np.ascontiguousarray(values, dtype=np.float32)
     if array.ndim == 2:
         array = array[..., None]
-    return {"type": "bitmap", "bitmap": mi.Bitmap(array), "raw": True, "filter_type": "bilinear", "wrap_mode": "repeat"}
+    texture = {"type": "bitmap", "bitmap": mi.Bitmap(array), "raw": True, "filter_type": "bilinear", "wrap_mode": sampling.wrap_s}
+    if sampling.to_uv is not None:
+        to_uv = np.eye(4)
+        to_uv[:2, :2], to_uv[:2, 3] = sampling.to_uv[:2, :2], sampling.to_uv[:2, 2]
+        texture["to_uv"] = mi.ScalarTransform4f(to_uv.tolist())
+    return texture
 
 
-def principled_bsdf(textures: Textures) -> dict:
+def principled_bsdf(textures: Textures, uvs: np.ndarray | None = None) -> dict:
     """Mitsuba's principled BSDF: textured base colour, roughness (GGX alpha = r^2) and metallic;
     specular 0.5 (F0 = 0.04 for dielectrics), no sheen, clearcoat or transmission."""
     return {
         "type": "principled",
-        "base_color": bitmap_texture(textures.base_color),
-        "roughness": bitmap_texture(textures.roughness),
-        "metallic": bitmap_texture(textures.metallic),
+        "base_color": bitmap_texture(textures.base_color, textures.base_color_sampling, uvs),
+        "roughness": bitmap_texture(textures.roughness, textures.metallic_roughness_sampling, uvs),
+        "metallic": bitmap_texture(textures.metallic, textures.metallic_roughness_sampling, uvs),
         "specular": 0.5,
     }
 
@@ -201,7 +211,7 @@ def build_scene(parts: list[Part], textures: list[Textures], env: np.ndarray):
         "light": envmap_emitter(env),
     }
     for index, (part, texture) in enumerate(zip(parts, textures)):
-        scene[f"part_{index}"] = mesh_of(part, principled_bsdf(texture))
+        scene[f"part_{index}"] = mesh_of(part, principled_bsdf(texture, part.uvs))
     return mi.load_dict(scene)
 
 

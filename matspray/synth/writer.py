@@ -11,6 +11,7 @@ Layout (beside the Blender-layout `transforms_{split}.json` and `{split}/r_000.p
     test/r_000_relight_{env}.png       RGBA render under light {env} (straight colour, sRGB)
     envmaps/{env}.exr                  every light used, lat-long, linear, as rendered
     scene.json                         every setting, the seed, and what was made
+    object.glb                         a procedural object as glTF 2.0 (meshes, UVs, 8-bit textures)
 The alpha channel of the three material maps is the ground-truth coverage (fraction of the
 subpixel rays that hit the object); colour values are not premultiplied by it.
 """
@@ -30,7 +31,8 @@ from matspray.synth.groundtruth import GroundTruth
 
 KIND = "matspray-synth"
 MAP_BITS = 16
-ARTIFACT_PATTERNS = ("train/r_*", "test/r_*", "envmaps/*.exr", "transforms_train.json", "transforms_test.json",
+OBJECT_GLB = "object.glb"  # a procedural object's meshes and textures as glTF 2.0 (matspray.synth.gltf_object)
+ARTIFACT_PATTERNS = (OBJECT_GLB, "train/r_*", "test/r_*", "envmaps/*.exr", "transforms_train.json", "transforms_test.json",
                      "transforms_val.json", "scene.json")
 
 
