@@ -155,7 +155,7 @@ def export_run(run_dir, out, variant: str = "full", config: ExportConfig = Expor
     source = data if data is not None else read_json(run_dir / "dataset.json")["source"]
     scene = load_scene(source, downscale=run_downscale(run_dir))
     asset = read_asset(folder)
-    mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress, notes={"variant": variant})
+    mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress, notes={"variant": variant, "run": str(run_dir.resolve())})
     envmap = folder / "envmap.exr"
     files = write_export(mesh, out, envmap if envmap.exists() else None)
     return ExportReport(files, len(mesh.faces), len(mesh.positions), config.texture_size, mesh.seconds)

@@ -1,15 +1,16 @@
 """The two frames an export can be written in. The dataset's world is Z-up (Blender / NeRF-synthetic,
 see `render.latlong`); glTF 2.0 is Y-up with +Z towards the viewer. The rotation between them is
-Blender's own glTF convention: (x, y, z)_dataset -> (x, z, -y)_glTF."""
+Blender's own glTF convention (`matspray.gltf.model.GLTF_TO_WORLD`, the one `synth --asset` reads with):
+(x, y, z)_dataset -> (x, z, -y)_glTF."""
 
 from __future__ import annotations
 
 import numpy as np
 
-GLTF_FROM_DATASET = np.array([[1.0, 0.0, 0.0, 0.0],
-                              [0.0, 0.0, 1.0, 0.0],
-                              [0.0, -1.0, 0.0, 0.0],
-                              [0.0, 0.0, 0.0, 1.0]])
+from matspray.gltf.model import GLTF_TO_WORLD
+
+GLTF_FROM_DATASET = np.eye(4)
+GLTF_FROM_DATASET[:3, :3] = GLTF_TO_WORLD.T  # [4, 4] the inverse rotation
 
 
 def file_from_dataset(frame: str) -> np.ndarray:  # -> [4, 4] maps dataset points to the file's coordinates
