@@ -267,3 +267,54 @@ def test_a_failed_export_leaves_no_partial_file(disk_run, tmp_path, capsys):
     last = err.splitlines()[-1]  # above it: the progress bars
     assert code == 2 and last.startswith("matspray export: error:") and "envmap.exr" in last and "Traceback" not in err
     assert not list(out.parent.iterdir()), list(out.parent.iterdir())
+
+
+# ------------------------------------------------------------------------------------------ eval --glb
+@pytest.fixture(scope="module")
+def synth_run(tmp_path_factory):
+    """A tiny Mitsuba object (with its true mesh as object.glb) and a short run of the method on it."""
+    pytest.importorskip("mitsuba")
+    from dataclasses import replace
+
+    from matspray.pipeline import Pipeline, preset_config
+    from matspray.synth import SynthConfig, make_object
+
+    root = tmp_path_factory.mktemp("synth")
+    make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), root / "data",
+                progress=False, notify=lambda _: None)
+    config = preset_config("test", predictor="simulated")
+    config.refine = replace(config.refine, iterations=8)
+    Pipeline(root / "data", root / "run", config, progress=False, log=lambda _: None).run_all(["full"])
+    return root
+
+
+def test_eval_glb_of_the_true_object_reproduces_the_truth(synth_run, tmp_path):
+    from matspray.eval.glb import evaluate_glb
+
+    metrics = evaluate_glb(synth_run / "data" / "object.glb", data=synth_run / "data", out=tmp_path, spp=64, progress=False)
+    mesh = metrics["mesh"]["summary"]
+    assert "gaussians" not in metrics  # the true object was not exported from a run
+    assert mesh["basecolor"]["psnr"] > 40 and mesh["roughness"]["psnr"] > 40  # the same ray cast as the truth's maps
+    assert mesh["relighting"]["psnr"] > 25  # the same renderer; only Monte Carlo noise differs (26.7 dB: the truth has 4 spp)
+    assert (tmp_path / "report.html").exists() and (tmp_path / "metrics.json").exists()
+
+
+def test_eval_glb_scores_an_export_beside_its_gaussian_asset(synth_run, tmp_path, capsys):
+    out = tmp_path / "sphere.glb"
+    args = ["export", "--run", str(synth_run / "run"), "--out", str(out), "--frame", "dataset", "--faces", "2000", "--texture-size", "128", "--grid", "48"]
+    assert main(args) == 0
+    assert main(["eval", "--glb", str(out)]) == 0  # the run and the dataset are found through the file's extras
+    assert "Gaussians PSNR" in capsys.readouterr().out
+    metrics = json.loads((tmp_path / "sphere_eval" / "metrics.json").read_text())
+    assert metrics["frame"] == "dataset" and metrics["variant"] == "full"
+    mesh, gaussians = metrics["mesh"]["summary"], metrics["gaussians"]["summary"]
+    assert mesh["relighting"]["psnr"] > gaussians["relighting"]["psnr"] - 3.0
+    page = (tmp_path / "sphere_eval" / "report.html").read_text()
+    assert all(f"_{who}.png" in page for who in ("truth", "gaussians", "mesh"))
+
+
+def test_eval_glb_bad_inputs_are_one_clear_line(tmp_path, capsys):
+    code, err = run_cli(["eval", "--glb", str(tmp_path / "missing.glb")], capsys)
+    assert code == 2 and "no such file" in err and "matspray export" in err
+    code, err = run_cli(["eval"], capsys)
+    assert code == 2 and "give --run RUN" in err
