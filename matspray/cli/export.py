@@ -25,6 +25,8 @@ def add_parser(parser) -> None:
                         "The transform between the two is stored in the file's asset.extras.matspray")
     parser.add_argument("--grid", type=int, default=DEFAULTS.grid,
                         help=f"TSDF voxels along the object's longest side (default {DEFAULTS.grid}); finer surface, more time")
+    parser.add_argument("--normals", choices=("mesh", "asset"), default=DEFAULTS.normals,
+                        help="per-vertex normals: the surface's own (default) or the Gaussians' shading normals blended onto it")
     parser.add_argument("--data", type=Path, help="the run's dataset, for the training cameras (default: the folder the run was made from)")
 
 
@@ -33,7 +35,7 @@ def run(args) -> int:
     from matspray.export.export import export_run
 
     configure_threads()
-    config = ExportConfig(faces=args.faces, texture_size=args.texture_size, frame=args.frame, grid=args.grid)
+    config = ExportConfig(faces=args.faces, texture_size=args.texture_size, frame=args.frame, grid=args.grid, normals=args.normals)
     report = export_run(args.run, args.out, variant=args.variant, config=config, data=args.data)
     seconds = ", ".join(f"{name} {value:.1f} s" for name, value in report.seconds.items())
     print(f"wrote {report.files[0]}: {report.faces} faces, {report.vertices} vertices, {report.texture_size}x{report.texture_size} textures ({seconds})")

@@ -1,4 +1,8 @@
-"""A UV atlas with xatlas: charts packed into a square texture with a gutter between them."""
+"""A UV atlas with xatlas: charts packed into a square texture with a gutter between them.
+
+Charts are grown without xatlas' optimisation iterations (`max_iterations = 0`): on a 200k-face surface
+from a test-preset asset that took the atlas from 360 s to 24 s (14k charts instead of fewer, larger
+ones; the texture is filled just as well, 75 % of its area)."""
 
 from __future__ import annotations
 
@@ -26,7 +30,9 @@ def uv_atlas(mesh: trimesh.Trimesh, texture_size: int, padding: int) -> AtlasMes
     pack.resolution = texture_size
     pack.padding = padding
     pack.bilinear = True
-    atlas.generate(xatlas.ChartOptions(), pack)
+    charts = xatlas.ChartOptions()
+    charts.max_iterations = 0
+    atlas.generate(charts, pack)
     vmapping, indices, uvs = atlas[0]
     vmapping = vmapping.astype(np.int64)
     return AtlasMesh(np.asarray(mesh.vertices, dtype=np.float64)[vmapping], indices.astype(np.int64), uvs.astype(np.float64), vmapping)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from matspray.errors import ConfigError
 
 FRAMES = ("gltf", "dataset")
+NORMALS = ("mesh", "asset")
 MIN_FACES = 100
 TEXTURE_SIZES = tuple(2**k for k in range(6, 14))  # 64 .. 8192
 
@@ -22,6 +23,7 @@ class ExportConfig:
     keep_fraction: float = 0.05  # keep connected components with at least this share of the largest one's faces
     neighbours: int = 16  # Gaussians blended per texel when baking
     padding: int = 4  # xatlas gutter between charts, in texels
+    normals: str = "mesh"  # per-vertex normals: mesh (the surface's own) or asset (the Gaussians' normals blended)
 
     def __post_init__(self):
         if self.faces < MIN_FACES:
@@ -33,5 +35,7 @@ class ExportConfig:
         if self.grid < 16 or self.truncation <= 0 or not 0 < self.min_alpha < 1 or not 0 <= self.keep_fraction <= 1:
             raise ConfigError("the TSDF grid must be >= 16 voxels, the truncation > 0, the alpha threshold in (0, 1) "
                               "and the kept component share in [0, 1]")
+        if self.normals not in NORMALS:
+            raise ConfigError(f"unknown normals '{self.normals}'; choose one of {', '.join(NORMALS)}")
         if self.neighbours < 1 or self.padding < 0:
             raise ConfigError("baking needs >= 1 neighbour and a padding >= 0")

@@ -66,9 +66,10 @@ def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, p
     materials = asset.materials.detach().cpu().double().numpy()
     textures = bake_textures(atlas.positions, atlas.faces, atlas.uvs, asset.gaussians, materials, config.texture_size,
                              config.neighbours, voxel)
-    ids, weights = gaussian_weights(atlas.positions, asset.gaussians, config.neighbours, voxel)
-    geometric = np.asarray(mesh.vertex_normals, dtype=np.float64)[atlas.source]
-    normals = blend_normals(ids, weights, asset.normals.detach().cpu().double().numpy(), geometric)
+    normals = np.asarray(mesh.vertex_normals, dtype=np.float64)[atlas.source]
+    if config.normals == "asset":
+        ids, weights = gaussian_weights(atlas.positions, asset.gaussians, config.neighbours, voxel)
+        normals = blend_normals(ids, weights, asset.normals.detach().cpu().double().numpy(), normals)
     step("bake")
     bar.close()
     matrix = file_from_dataset(config.frame)
