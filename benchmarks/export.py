@@ -1,6 +1,6 @@
 """The exported mesh against the Gaussian asset it came from, on finished runs of `matspray synth` objects.
 
-    python -m benchmarks.export RUN [RUN ...] --out DIR [--faces 200000] [--texture-size 1024] [--grid 192]
+    python -m benchmarks.export RUN [RUN ...] --out DIR [--faces 200000] [--texture-size 1024] [--grid 128]
 
 For each run: `matspray export` in a child process (wall seconds and its peak resident memory, from
 the kernel's accounting of that process), then `matspray eval --glb` (Mitsuba renders the mesh under
@@ -40,7 +40,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--faces", type=int, default=200_000)
     parser.add_argument("--texture-size", type=int, default=1024)
-    parser.add_argument("--grid", type=int, default=192)
+    parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--normals", choices=("mesh", "asset"), default="mesh")
     args = parser.parse_args()
     rows = []

@@ -17,7 +17,7 @@ class ExportConfig:
     faces: int = 200_000  # face budget of the decimated mesh
     texture_size: int = 1024  # side of the square textures (a power of two in [64, 8192])
     frame: str = "gltf"  # gltf: Y-up; dataset: the dataset's world coordinates (Z-up)
-    grid: int = 192  # TSDF voxels along the longest side of the object's box
+    grid: int = 128  # TSDF voxels along the longest side of the object's box (the atlas' time grows fast with the faces this makes)
     truncation: float = 4.0  # TSDF truncation, in voxels
     min_alpha: float = 0.5  # rendered coverage above which a pixel holds surface (below: free space)
     keep_fraction: float = 0.05  # keep connected components with at least this share of the largest one's faces

@@ -9,9 +9,12 @@ import trimesh
 
 
 def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
-    """At most `faces` triangles; a mesh already within the budget comes back unchanged."""
+    """At most `faces` triangles; a mesh already within the budget only loses its zero-area triangles."""
     if len(mesh.faces) <= faces:
-        return mesh
+        kept = mesh.copy()
+        kept.update_faces(kept.nondegenerate_faces())
+        kept.remove_unreferenced_vertices()
+        return kept
     target = faces
     for _ in range(4):  # the simplifier may stop a little above its target: aim lower until it fits
         points, triangles = fast_simplification.simplify(np.asarray(mesh.vertices, dtype=np.float64),
