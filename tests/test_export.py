@@ -16,7 +16,7 @@ pytest.importorskip("skimage")
 pytest.importorskip("fast_simplification")
 pytest.importorskip("pygltflib")
 
-from matspray.asset import write_asset  # noqa: E402
+from matspray.asset import Asset, write_asset  # noqa: E402
 from matspray.cli import main  # noqa: E402
 from matspray.data import View  # noqa: E402
 from matspray.data.blender import write_blender  # noqa: E402
@@ -27,7 +27,7 @@ from matspray.export.frames import GLTF_FROM_DATASET, dataset_from_file, transfo
 from matspray.export.surface import fuse_surface  # noqa: E402
 from matspray.gltf.read import read_gltf  # noqa: E402
 from matspray.refine import RefineResult  # noqa: E402
-from matspray.relight import Asset, render_relit  # noqa: E402
+from matspray.relight import render_relit  # noqa: E402
 from matspray.render.envmap import EnvironmentMap  # noqa: E402
 from matspray.rundir import write_json  # noqa: E402
 from tests.scenes import ring_cameras, sky_map, sphere_of_disks  # noqa: E402

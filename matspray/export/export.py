@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from matspray.asset import read_asset
+from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
 from matspray.data.images import atomic_target, read_image, write_image
 from matspray.data.loader import load_scene
@@ -26,7 +26,7 @@ from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
 from matspray.pipeline import asset_stage
 from matspray.refine import VARIANTS
-from matspray.relight import Asset, run_downscale
+from matspray.relight import run_downscale
 from matspray.rundir import read_json
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
