@@ -318,3 +318,13 @@ def test_eval_glb_bad_inputs_are_one_clear_line(tmp_path, capsys):
     assert code == 2 and "no such file" in err and "matspray export" in err
     code, err = run_cli(["eval"], capsys)
     assert code == 2 and "give --run RUN" in err
+
+
+def test_unit_normals_replaces_zero_length_normals():
+    from matspray.export.export import unit_normals
+
+    positions = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 2.0, 0], [0, -2.0, 0]])
+    normals = np.array([[2.0, 0, 0], [0, 0, 0], [0, 1e-9, 0], [np.nan, 0, 0]])
+    out = unit_normals(normals, positions)
+    assert np.allclose(np.linalg.norm(out, axis=-1), 1.0)
+    assert np.allclose(out[0], [1, 0, 0]) and np.allclose(out[1], [-1, 0, 0]) and np.allclose(out[2], [0, 1, 0]) and np.allclose(out[3], [0, -1, 0])

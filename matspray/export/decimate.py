@@ -9,12 +9,9 @@ import trimesh
 
 
 def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
-    """At most `faces` triangles; a mesh already within the budget only loses its zero-area triangles."""
+    """At most `faces` triangles and none of zero area (a mesh already within the budget only loses those)."""
     if len(mesh.faces) <= faces:
-        kept = mesh.copy()
-        kept.update_faces(kept.nondegenerate_faces())
-        kept.remove_unreferenced_vertices()
-        return kept
+        return without_degenerate(mesh.copy())
     target = faces
     for _ in range(4):  # the simplifier may stop a little above its target: aim lower until it fits
         points, triangles = fast_simplification.simplify(np.asarray(mesh.vertices, dtype=np.float64),
@@ -22,6 +19,10 @@ def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
         if len(triangles) <= faces:
             break
         target = int(target * faces / len(triangles)) - 1
-    simplified = trimesh.Trimesh(points, triangles, process=True)
-    simplified.remove_unreferenced_vertices()
-    return simplified
+    return without_degenerate(trimesh.Trimesh(points, triangles, process=True))
+
+
+def without_degenerate(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.remove_unreferenced_vertices()
+    return mesh

@@ -66,7 +66,7 @@ def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, p
     materials = asset.materials.detach().cpu().double().numpy()
     textures = bake_textures(atlas.positions, atlas.faces, atlas.uvs, asset.gaussians, materials, config.texture_size,
                              config.neighbours, voxel)
-    normals = np.asarray(mesh.vertex_normals, dtype=np.float64)[atlas.source]
+    normals = unit_normals(np.asarray(mesh.vertex_normals, dtype=np.float64), np.asarray(mesh.vertices))[atlas.source]
     if config.normals == "asset":
         ids, weights = gaussian_weights(atlas.positions, asset.gaussians, config.neighbours, voxel)
         normals = blend_normals(ids, weights, asset.normals.detach().cpu().double().numpy(), normals)
@@ -76,6 +76,16 @@ def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, p
     extras = {**frame_extras(config.frame), "voxel": voxel, "faces": int(len(atlas.faces)), "texture_size": config.texture_size, **(notes or {})}
     return ExportedMesh(transform_points(matrix, atlas.positions), transform_directions(matrix, normals), atlas.uvs, atlas.faces,
                         textures, extras, seconds)
+
+
+def unit_normals(normals: np.ndarray, positions: np.ndarray) -> np.ndarray:  # [V, 3], [V, 3] -> [V, 3] unit
+    """Vertex normals with the zero-length ones (a vertex whose faces cancel out) replaced by the direction
+    from the mesh's centre: glTF requires unit normals."""
+    length = np.linalg.norm(normals, axis=-1, keepdims=True)
+    outward = positions - positions.mean(0)
+    outward = outward / np.maximum(np.linalg.norm(outward, axis=-1, keepdims=True), 1e-12)
+    outward[np.linalg.norm(outward, axis=-1) < 0.5] = (0.0, 0.0, 1.0)
+    return np.where((length > 1e-6) & np.isfinite(length), normals / np.maximum(length, 1e-12), outward)
 
 
 def gltf_material(textures: np.ndarray) -> PbrMaterial:  # [S, S, 5] linear materials
