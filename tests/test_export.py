@@ -1,6 +1,7 @@
 """`matspray export`: a run's asset as a textured glTF 2.0 mesh (surface, decimation, atlas, baking, frames)."""
 
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -18,7 +19,7 @@ pytest.importorskip("pygltflib")
 
 from matspray.asset import Asset, write_asset  # noqa: E402
 from matspray.cli import main  # noqa: E402
-from matspray.data import View  # noqa: E402
+from matspray.data import Camera, View  # noqa: E402
 from matspray.data.blender import write_blender  # noqa: E402
 from matspray.data.images import srgb_to_linear  # noqa: E402
 from matspray.export.bake import fill_empty, gaussian_weights, rasterize_uv  # noqa: E402
@@ -30,21 +31,33 @@ from matspray.refine import RefineResult  # noqa: E402
 from matspray.relight import render_relit  # noqa: E402
 from matspray.render.envmap import EnvironmentMap  # noqa: E402
 from matspray.rundir import write_json  # noqa: E402
-from tests.scenes import ring_cameras, sky_map, sphere_of_disks  # noqa: E402
+from tests.scenes import sky_map, sphere_of_disks  # noqa: E402
 
 SMALL = ["--faces", "3000", "--texture-size", "128", "--grid", "48"]
 VALIDATOR = Path(sys.prefix) / "node" / "node_modules" / "gltf-validator"  # `make setup` installs it there
 
 
+def sphere_cameras(count: int, size: int, distance: float = 4.0) -> list[Camera]:
+    """Cameras on a Fibonacci sphere around the origin (every side of the object is seen)."""
+    cameras = []
+    for i in range(count):
+        z = 1 - (2 * i + 1) / count
+        azimuth = i * math.pi * (3 - math.sqrt(5))
+        r = math.sqrt(1 - z * z)
+        eye = [distance * r * math.cos(azimuth), distance * r * math.sin(azimuth), distance * z]
+        cameras.append(Camera.look_at(eye, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.75, size, size))
+    return cameras
+
+
 def make_disk_run(root: Path) -> Path:
     """A run folder holding the disk sphere's asset (true materials, sky light) and a Blender dataset of
-    its renders at 10 ring cameras; returns the run folder."""
+    its renders at 12 cameras around it; returns the run folder."""
     gaussians, normals, materials = sphere_of_disks(1500)
     asset = Asset(gaussians, materials, normals)
     light = EnvironmentMap.from_tensor(sky_map(), learnable=False)
     prefiltered = light.prefilter()
     views = []
-    for i, camera in enumerate(ring_cameras(10, 40)):
+    for i, camera in enumerate(sphere_cameras(12, 40)):
         rgb, alpha = render_relit(asset, camera, prefiltered)
         views.append(View(f"r_{i:03d}", rgb / alpha[..., None].clamp_min(1e-4), alpha, camera))
     write_blender(root / "data", {"train": views, "test": views[:2]})
@@ -208,7 +221,7 @@ def test_fill_empty_takes_the_nearest_filled_texel():
 
 def test_surface_is_closed_and_decimation_keeps_the_budget():
     gaussians, _, _ = sphere_of_disks(1500)
-    mesh, voxel = fuse_surface(gaussians, ring_cameras(10, 40), 48, 4.0, 0.5, 0.05)
+    mesh, voxel = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05)
     assert mesh.is_watertight and mesh.volume > 0  # closed, faces wound outwards
     radius = np.linalg.norm(mesh.vertices, axis=-1)
     assert 0.95 < radius.min() and radius.max() < 1.25  # the disks' surface around the unit sphere
@@ -328,3 +341,19 @@ def test_unit_normals_replaces_zero_length_normals():
     out = unit_normals(normals, positions)
     assert np.allclose(np.linalg.norm(out, axis=-1), 1.0)
     assert np.allclose(out[0], [1, 0, 0]) and np.allclose(out[1], [-1, 0, 0]) and np.allclose(out[2], [0, 1, 0]) and np.allclose(out[3], [0, -1, 0])
+
+
+def test_unknown_space_reaching_the_border_is_outside_and_enclosed_unknown_space_inside():
+    from matspray.export.surface import open_to_outside
+
+    shape = (9, 9, 9)
+    field = torch.ones(shape)
+    unknown = torch.zeros(shape, dtype=torch.bool)
+    field[2:7, 2:7, 2:7] = -0.5  # an observed shell ...
+    field[3:6, 3:6, 3:6] = -1.0  # ... around unknown space
+    unknown[3:6, 3:6, 3:6] = True
+    field[:, :, 8] = -1.0  # an unknown slab on the border (space no view carved)
+    unknown[:, :, 8] = True
+    out = open_to_outside(field.reshape(-1), unknown.reshape(-1), shape).reshape(shape)
+    assert (out[3:6, 3:6, 3:6] == -1).all() and (out[:, :, 8] == 1).all()
+    assert torch.equal(out[~unknown], field[~unknown])

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 import trimesh
+from scipy.ndimage import label
 from skimage.measure import marching_cubes
 from torch import Tensor
 from tqdm import tqdm
@@ -72,10 +73,10 @@ def fuse_tsdf(
     depths: list[tuple[Tensor, Tensor]],  # per camera: weighted depth [H, W], alpha [H, W] (`render_depths`)
     truncation: float,  # distance (world units) beyond which the field saturates
     min_alpha: float = 0.5,
-) -> Tensor:  # -> [M] in [-1, 1]: > 0 outside (free space), < 0 inside
+) -> tuple[Tensor, Tensor]:  # -> field [M] in [-1, 1] (> 0 outside, < 0 inside), unknown [M] bool
     """Truncated signed distance along each camera's z axis, averaged over the views that saw the voxel
     in front of the surface or through empty pixels. A voxel that lies deeper than the truncation behind
-    the surface in every view that sees it is inside (-1); a voxel no camera sees is outside (+1)."""
+    the surface in every view that sees it is inside (-1) and unknown; a voxel no camera sees is outside (+1)."""
     total = torch.zeros(len(centres))
     weight = torch.zeros(len(centres))
     in_view = torch.zeros(len(centres), dtype=torch.bool)
@@ -92,7 +93,17 @@ def fuse_tsdf(
         weight.index_add_(0, idx[used], torch.ones(int(used.sum())))
         in_view[idx] = True
     field = torch.where(weight > 0, total / weight.clamp_min(1e-12), -torch.ones_like(total))
-    return torch.where(in_view, field, torch.ones_like(field))
+    return torch.where(in_view, field, torch.ones_like(field)), in_view & (weight == 0)
+
+
+def open_to_outside(field: Tensor, unknown: Tensor, shape: tuple[int, int, int]) -> Tensor:  # [M], [M] bool -> [M]
+    """Unknown voxels (behind the surface in every view that sees them) that reach the grid's border
+    through unknown voxels alone are outside: space that too few views carve would otherwise stay solid
+    and close the grid with walls. Unknown space that observed surface or free space encloses stays inside."""
+    grid = unknown.reshape(shape).numpy()
+    labels, _ = label(np.pad(grid, 1, constant_values=True))  # the padding joins the border's unknown voxels into one region
+    outside = (labels == labels[0, 0, 0])[1:-1, 1:-1, 1:-1].reshape(-1)
+    return torch.where(unknown & torch.from_numpy(outside), torch.ones_like(field), field)
 
 
 def extract_surface(field: Tensor, shape: tuple[int, int, int], origin: Tensor, voxel: float) -> trimesh.Trimesh:
@@ -110,14 +121,14 @@ def extract_surface(field: Tensor, shape: tuple[int, int, int], origin: Tensor, 
 
 
 def keep_object(mesh: trimesh.Trimesh, keep_fraction: float) -> trimesh.Trimesh:
-    """The connected components with at least `keep_fraction` of the largest one's faces (floaters and
-    small inner shells go)."""
-    parts = mesh.split(only_watertight=False)
-    if len(parts) <= 1:
+    """The connected components with at least `keep_fraction` of the largest one's faces (floaters go),
+    without cavities: closed components wound inwards (negative volume), which no outside view sees."""
+    parts = [p for p in mesh.split(only_watertight=False) if not (p.is_watertight and p.volume < 0)]
+    if not parts:
         return mesh
     largest = max(len(p.faces) for p in parts)
     kept = [p for p in parts if len(p.faces) >= keep_fraction * largest]
-    return trimesh.util.concatenate(kept)
+    return kept[0] if len(kept) == 1 else trimesh.util.concatenate(kept)
 
 
 def fuse_surface(gaussians: Gaussians, cameras: list[Camera], grid: int, truncation_voxels: float, min_alpha: float,
@@ -126,7 +137,8 @@ def fuse_surface(gaussians: Gaussians, cameras: list[Camera], grid: int, truncat
     also returns the voxel size (the surface's resolution)."""
     depths = render_depths(gaussians, cameras, progress)
     centres, voxel, shape = voxel_grid(object_box(gaussians).cpu(), grid)
-    field = fuse_tsdf(centres, [c.to("cpu") for c in cameras], depths, truncation_voxels * voxel, min_alpha)
+    field, unknown = fuse_tsdf(centres, [c.to("cpu") for c in cameras], depths, truncation_voxels * voxel, min_alpha)
+    field = open_to_outside(field, unknown, shape)
     mesh = extract_surface(field, shape, centres[0], voxel)
     mesh = keep_object(mesh, keep_fraction)
     trimesh.repair.fill_holes(mesh)
