@@ -34,6 +34,21 @@ def export_in_child(run: Path, out: Path, args) -> tuple[float, float]:  # -> se
     return seconds, usage.ru_maxrss / 1024  # Linux reports KiB
 
 
+def figure(eval_dir: Path, view: str, envs: list[str], path: Path, scale: int = 2) -> None:
+    """One picture from an eval --glb report: rows = lights, columns = truth, Gaussians, mesh (grey background)."""
+    from PIL import Image
+
+    names = [[eval_dir / "report" / f"{view}_{env}_{who}.png" for who in ("truth", "gaussians", "mesh")] for env in envs]
+    width, height = Image.open(names[0][0]).size
+    sheet = Image.new("RGBA", (3 * width, len(envs) * height), (128, 128, 128, 255))
+    for row, files in enumerate(names):
+        for column, name in enumerate(files):
+            image = Image.open(name).convert("RGBA")
+            sheet.paste(image, (column * width, row * height), image)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sheet.resize((3 * width * scale, len(envs) * height * scale), Image.LANCZOS).convert("RGB").save(path)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
@@ -42,6 +57,7 @@ def main() -> None:
     parser.add_argument("--texture-size", type=int, default=1024)
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--normals", choices=("mesh", "asset"), default="mesh")
+    parser.add_argument("--figure", type=Path, help="also write the first run's first test view as a PNG: truth | Gaussians | mesh, one row per light")
     args = parser.parse_args()
     rows = []
     for run in args.runs:
@@ -54,6 +70,8 @@ def main() -> None:
         rows.append(f"| {name} | {metrics['faces']} | {args.texture_size} | {seconds:.1f} | {peak:.0f} | {gaussians['relighting']['psnr']:.2f} | "
                     f"{mesh['relighting']['psnr']:.2f} | {gap:+.2f} | {gaussians['basecolor']['psnr']:.2f} | {mesh['basecolor']['psnr']:.2f} |")
         print(rows[-1], flush=True)
+        if args.figure is not None and run == args.runs[0]:
+            figure(glb.with_name(f"{glb.stem}_eval"), metrics["mesh"]["per_view"][0]["view"], metrics["relight_envs"], args.figure)
     print("\n| object | faces | texture | export s | peak MiB | relight PSNR Gaussians | relight PSNR mesh | gap dB | base colour PSNR Gaussians | mesh |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     print("\n".join(rows))
