@@ -1,8 +1,9 @@
 """A UV atlas with xatlas: charts packed into a square texture with a gutter between them.
 
-Charts are grown without xatlas' optimisation iterations (`max_iterations = 0`): on a 200k-face surface
-from a test-preset asset that took the atlas from 360 s to 24 s (14k charts instead of fewer, larger
-ones; the texture is filled just as well, 75 % of its area)."""
+Charts are grown without xatlas' optimisation iterations (`max_iterations = 0`; on a 200k-face surface
+from a test-preset asset 360 s -> 24 s) and their boundary is kept below a fifth of sqrt(surface area)
+(large flat charts were the slow part: a 40k-face box from a demo-preset asset 27 s -> 1.6 s, the texture
+filled 71 % instead of 59 %)."""
 
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ def uv_atlas(mesh: trimesh.Trimesh, texture_size: int, padding: int) -> AtlasMes
     pack.bilinear = True
     charts = xatlas.ChartOptions()
     charts.max_iterations = 0
+    charts.max_boundary_length = float(np.sqrt(mesh.area)) / 5
     atlas.generate(charts, pack)
     vmapping, indices, uvs = atlas[0]
     vmapping = vmapping.astype(np.int64)
