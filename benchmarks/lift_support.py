@@ -24,7 +24,7 @@ from matspray.lift import LiftConfig, lift, supported_views
 from matspray.merger import projection_average
 from matspray.pipeline import maps_to_tensor
 from matspray.predictors.ground_truth import read_ground_truth
-from matspray.relight import Asset
+from matspray.asset import Asset
 
 
 def main() -> None:

@@ -36,9 +36,10 @@ from pathlib import Path
 
 import torch
 
+from matspray.config import ADDITION_NAMES, METHODS, build_config
 from matspray.demo import make_demo_object, run_object
-from matspray.eval.run_eval import VARIANT_LABELS
 from matspray.rundir import RunDir
+from matspray.variants import LABELS as VARIANT_LABELS
 
 
 def fmt(value, digits=2):
@@ -55,11 +56,21 @@ def main() -> None:
     parser.add_argument("--refine-iterations", type=int, help="override the preset's refinement iterations (earlier stages are reused)")
     parser.add_argument("--refine-seeds", type=int, nargs="+", help="refine every variant once per seed and report the means "
                         "(default: the object's seed)")
+    parser.add_argument("--method", choices=METHODS, default="matspray", help="the method (default matspray); a run folder "
+                        "per method: OUT/run or OUT/run-paper")
+    parser.add_argument("--without", nargs="+", choices=ADDITION_NAMES, default=(), help="switch single additions of matspray off")
+    parser.add_argument("--light-tv-weight", type=float, help="override the light prior's weight")
     args = parser.parse_args()
     start = time.perf_counter()
     data = make_demo_object(args.out / "data", args.preset, args.shape, args.seed)
     seeds = args.refine_seeds or [args.seed]
-    runs = [run_object(data, args.out / "run", args.preset, refine_iterations=args.refine_iterations, refine_seed=seed) for seed in seeds]
+    settings = {"refine.iterations": args.refine_iterations, "refine.light_tv_weight": args.light_tv_weight}
+    settings = {k: v for k, v in settings.items() if v is not None}
+    run_dir = args.out / ("run" if args.method == "matspray" else f"run-{args.method}")
+    if run_dir.name != "run" and not (run_dir / "geometry").exists() and (args.out / "run" / "geometry").exists():
+        shutil.copytree(args.out / "run" / "geometry", run_dir / "geometry")  # geometry does not depend on the method
+    runs = [run_object(data, run_dir, build_config(args.preset, args.method, tuple(args.without), predictor="simulated", refine_seed=seed,
+                                                    **settings)) for seed in seeds]
     metrics = runs[-1]
     print(f"\nobject: {args.shape} seed {args.seed}, preset {args.preset}, torch threads {torch.get_num_threads()}")
     print(f"held-out lights: {', '.join(metrics['relight_envs'])}")
@@ -75,7 +86,7 @@ def main() -> None:
     if "predictions_2d" in metrics:
         p = metrics["predictions_2d"]
         print(f"{'2D predictions':<16}{'':>13}{'':>13}{fmt(p['basecolor']['psnr']):>15}{fmt(p['roughness']['psnr']):>11}{fmt(p['metallic']['psnr']):>11}")
-    timings = RunDir(args.out / "run").timings()
+    timings = RunDir(run_dir).timings()
     print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
     print(f"total wall time: {time.perf_counter() - start:.0f} s")
     if args.ceilings:
@@ -129,13 +140,13 @@ def lifted_truth(data: Path, out: Path, preset: str, full, views: list, truths: 
 
     from matspray.eval.run_eval import evaluate_asset
     from matspray.merger import clamp_to_seen_range
-    from matspray.pipeline import Pipeline, load_lift, preset_config
+    from matspray.pipeline import Pipeline, load_lift
 
     run, truth_run = out / "run", out / "run-truth"
     truth_run.mkdir(parents=True, exist_ok=True)
     if not (truth_run / "geometry").exists():
         shutil.copytree(run / "geometry", truth_run / "geometry")
-    pipeline = Pipeline(data, truth_run, preset_config(preset, predictor="ground-truth"), log=lambda _: None)
+    pipeline = Pipeline(data, truth_run, build_config(preset, predictor="ground-truth"), log=lambda _: None)
     averaged = pipeline.run_all(("proj-average",))["proj-average"]  # Asset
     truth, predicted = load_lift(truth_run / "lift" / "projected.pt", "cpu"), load_lift(run / "lift" / "projected.pt", "cpu")
     if not torch.equal(truth.kept, predicted.kept):

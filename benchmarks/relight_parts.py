@@ -21,7 +21,7 @@ from matspray.data import load_scene
 from matspray.data.images import read_raw
 from matspray.eval.evaluate import evaluate_images
 from matspray.eval.run_eval import load_relight_lights, read_view_truth, unpremultiply
-from matspray.pipeline import asset_stage
+from matspray.variants import asset_stage
 from matspray.relight import render_gbuffer
 from matspray.render.deferred import GBuffer, shade_gbuffer
 

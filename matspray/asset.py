@@ -4,23 +4,50 @@ Merger, when the variant has one) and `history.json` (the loss curves)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from torch import Tensor
 
+from matspray.data.images import save_torch_atomic, write_image
 from matspray.errors import file_error
+from matspray.gaussians import Gaussians
 from matspray.geometry.ply import read_ply, write_ply
+from matspray.material import CHANNELS, N_CHANNELS
 from matspray.merger import save_merger
-from matspray.relight import Asset
 from matspray.rundir import read_json, write_json
 
-MATERIAL_PROPERTIES = ("base_color_r", "base_color_g", "base_color_b", "roughness", "metallic")
 VISIBILITY_FILE = "visibility.pt"  # optional: directional visibility [N, D] as uint8 (1/255 steps)
+ENVMAP_FILE = "envmap.exr"  # the estimated light: linear HDR lat-long [H, 2H, 3], `render.latlong` orientation
+ENVMAP_PREVIEW = "envmap.png"  # the same, tone-mapped for people (exposure: its 99th percentile at 0.9, sRGB)
+
+
+@dataclass
+class Asset:
+    """What refinement produces: Gaussians with PBR materials and shading normals."""
+
+    gaussians: Gaussians
+    materials: Tensor  # [N, 5] `matspray.material` layout: base color rgb (linear), roughness, metallic
+    normals: Tensor  # [N, 3] unit; sign is fixed per view when rendering
+    visibility: Tensor | None = None  # [N, D] directional visibility (`render.visibility`); None = no shadowing
+
+    def __post_init__(self):
+        n = len(self.gaussians)
+        if self.materials.shape != (n, N_CHANNELS) or self.normals.shape != (n, 3):
+            raise ValueError(f"asset: materials must be [{n}, {N_CHANNELS}] and normals [{n}, 3], got {tuple(self.materials.shape)}, {tuple(self.normals.shape)}")
+        if self.visibility is not None and self.visibility.shape[0] != n:
+            raise ValueError(f"asset: visibility must be [{n}, D], got {tuple(self.visibility.shape)}")
+
+
+def envmap_preview(map: Tensor) -> Tensor:  # [H, 2H, 3] linear radiance -> [H, 2H, 3] linear, scaled for an 8-bit PNG
+    """The light scaled so its 99th percentile reaches 0.9 (sRGB-encoded on writing), so that a person
+    sees its structure; the EXR keeps the real values."""
+    peak = torch.quantile(map.detach().float().flatten(), 0.99).clamp_min(1e-8)
+    return (map.detach() * (0.9 / peak)).clamp(0.0, 1.0)
 
 
 def write_visibility(path: Path, visibility: torch.Tensor) -> None:
-    from matspray.data.images import save_torch_atomic
-
     save_torch_atomic({"format": "matspray-visibility-1", "values": (visibility.detach().cpu().clamp(0, 1) * 255).round().to(torch.uint8)}, path)
 
 
@@ -41,7 +68,8 @@ def write_asset(folder, gaussians, result) -> None:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     if result.envmap is not None:
-        result.envmap.save(folder / "envmap.exr")
+        result.envmap.save(folder / ENVMAP_FILE)
+        write_image(folder / ENVMAP_PREVIEW, envmap_preview(result.envmap.map))
     merger = getattr(result.source, "merger", None)
     if merger is not None:
         save_merger(merger, folder / "merger.pt")
@@ -52,16 +80,16 @@ def write_asset(folder, gaussians, result) -> None:
     elif visibility_path.exists():
         visibility_path.unlink()  # a stale file from an earlier run must not shadow this asset
     # the PLY last: its presence marks the asset complete
-    extra = {name: result.materials[:, i] for i, name in enumerate(MATERIAL_PROPERTIES)}
+    extra = {name: result.materials[:, i] for i, name in enumerate(CHANNELS)}
     write_ply(folder / "asset.ply", gaussians, result.normals, extra=extra)
 
 
 def read_asset(folder, device="cpu") -> Asset:
     path = Path(folder) / "asset.ply"
-    gaussians, normals, extra = read_ply(path, extra=MATERIAL_PROPERTIES)
+    gaussians, normals, extra = read_ply(path, extra=CHANNELS)
     if normals is None:
         raise file_error(path, "has no normals (nx, ny, nz)", "is this a MatSpray asset? geometry PLYs are not relightable")
-    materials = torch.stack([extra[name] for name in MATERIAL_PROPERTIES], dim=-1)
+    materials = torch.stack([extra[name] for name in CHANNELS], dim=-1)
     visibility_path = Path(folder) / VISIBILITY_FILE
     visibility = read_visibility(visibility_path, len(gaussians)).to(device) if visibility_path.exists() else None
     return Asset(gaussians.to(device), materials.to(device), torch.nn.functional.normalize(normals, dim=-1).to(device), visibility)

@@ -12,8 +12,15 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from matspray.errors import ConfigError
-from matspray.refine import VARIANTS
+from matspray.config import PipelineConfig, build_config
+from matspray.errors import SettingError
+from matspray.eval.report import write_report
+from matspray.eval.run_eval import evaluate_run
+from matspray.eval.tables import write_tables
+from matspray.pipeline import Pipeline
+from matspray.rundir import write_json
+from matspray.synth import SynthConfig, make_object
+from matspray.variants import VARIANT_NAMES
 
 SHAPES = ("composite", "blob", "rounded-cube", "torus", "capsule", "sphere")
 
@@ -35,8 +42,6 @@ DEMO_SIZES = {
 
 def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True) -> Path:
     """A `matspray synth` object for `preset` in `out` (reused when it is already there)."""
-    from matspray.synth import SynthConfig, make_object
-
     size = DEMO_SIZES[preset]
     config = SynthConfig(shape=shape, seed=seed, resolution=size.res, train_views=size.views, test_views=size.test_views, spp=size.spp)
     if not (out / "scene.json").exists():
@@ -44,19 +49,8 @@ def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bo
     return out
 
 
-def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progress: bool = True, log=print,
-               refine_iterations: int | None = None, refine_seed: int | None = None) -> dict:
-    """Run every variant of the method on one object, evaluate it and write its report
-    (`refine_iterations` and `refine_seed` override the preset's; earlier stages are reused)."""
-    from dataclasses import replace
-
-    from matspray.eval.report import write_report
-    from matspray.eval.run_eval import evaluate_run
-    from matspray.pipeline import Pipeline, preset_config
-
-    config = preset_config(preset, predictor="simulated", refine_seed=refine_seed)
-    if refine_iterations is not None:
-        config.refine = replace(config.refine, iterations=refine_iterations)
+def run_object(data: Path, run_dir: Path, config: PipelineConfig, variants=VARIANT_NAMES, progress: bool = True, log=print) -> dict:
+    """Run every variant of the method on one object, evaluate it and write its report (earlier stages are reused)."""
     pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)
     pipeline.run_all(variants)
     metrics = evaluate_run(run_dir, data, progress=progress)
@@ -64,22 +58,23 @@ def run_object(data: Path, run_dir: Path, preset: str, variants=VARIANTS, progre
     return metrics
 
 
-def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0, progress: bool = True, log=print) -> Path:
+def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0, progress: bool = True, log=print,
+             config: PipelineConfig | None = None) -> Path:
+    """The demo object of `preset` and every variant on it; `config` (default: the preset's matspray
+    method with the simulated predictor) chooses the method and its settings."""
     if preset not in DEMO_SIZES:
-        raise ConfigError(f"unknown preset '{preset}'; choose one of {', '.join(DEMO_SIZES)}")
+        raise SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(DEMO_SIZES)}")
     out = Path(out)
     data = make_demo_object(out / "data", preset, shape, seed, progress)
-    run_object(data, out / "run", preset, progress=progress, log=log)
+    run_object(data, out / "run", config or build_config(preset, predictor="simulated"), progress=progress, log=log)
     return out / "run" / "report.html"
 
 
-def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, log=print) -> dict:
+def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, log=print, config: PipelineConfig | None = None) -> dict:
     """Several objects (shapes in turn, seeds 0, 1, ...); returns and writes the averaged tables."""
-    from matspray.eval.tables import write_tables
-    from matspray.rundir import write_json
-
     if objects < 1:
-        raise ConfigError(f"--objects must be >= 1, got {objects}")
+        raise SettingError("objects", f"must be >= 1, got {objects}")
+    config = config or build_config(preset, predictor="simulated")
     out = Path(out)
     per_object = []
     for index in range(objects):
@@ -87,10 +82,10 @@ def run_bench(out, objects: int, preset: str = "demo", progress: bool = True, lo
         name = f"{index:02d}-{shape}"
         log(f"bench: object {index + 1}/{objects} ({shape}, seed {index})")
         data = make_demo_object(out / name / "data", preset, shape, index, progress)
-        per_object.append(run_object(data, out / name / "run", preset, progress=progress, log=log))
+        per_object.append(run_object(data, out / name / "run", config, progress=progress, log=log))
     averaged = average_tables(per_object)
     averaged["title"] = f"MatSpray benchmark: {objects} objects, preset {preset}"
-    write_json(out / "bench.json", {"objects": objects, "preset": preset, "tables": averaged})
+    write_json(out / "bench.json", {"objects": objects, "preset": preset, "method": config.method, "tables": averaged})
     write_tables(out / "tables.md", averaged)
     return averaged
 

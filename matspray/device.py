@@ -2,7 +2,7 @@
 
 import torch
 
-from matspray.errors import ConfigError
+from matspray.errors import ConfigError, SettingError
 
 
 def resolve_device(name: str) -> torch.device:
@@ -12,9 +12,9 @@ def resolve_device(name: str) -> torch.device:
     try:
         device = torch.device(name)
     except RuntimeError:
-        raise ConfigError(f"--device: unknown device '{name}'; use auto, cpu, cuda or cuda:N") from None
+        raise SettingError("device", f"unknown device '{name}'; use auto, cpu, cuda or cuda:N") from None
     if device.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError(f"--device {name}: this torch build or machine has no CUDA; use --device cpu")
+        raise SettingError("device", f"{name}: this torch build or machine has no CUDA; use cpu")
     return device
 
 

@@ -27,3 +27,13 @@ def file_error(path, problem: str, hint: str = "") -> DataError:
     if hint:
         message += f" ({hint})"
     return DataError(message)
+
+
+class SettingError(ConfigError):
+    """A named setting (e.g. `lift.min_support`) has a value it cannot take. The library speaks of the
+    setting; the CLI, which knows which flag sets it, names the flag."""
+
+    def __init__(self, setting: str, problem: str):
+        super().__init__(f"{setting}: {problem}")
+        self.setting = setting
+        self.problem = problem

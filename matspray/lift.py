@@ -33,17 +33,20 @@ from torch import Tensor
 from tqdm import tqdm
 
 from matspray.data.camera import Camera
-from matspray.errors import ConfigError
+from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
+from matspray.material import zeros as material_zeros
+from matspray.render.contributions import iter_contributions
+from matspray.render.rasterize import rasterize
 from matspray.render.settings import RasterSettings
 
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
 
 
-@dataclass
+@dataclass(frozen=True)
 class LiftConfig:
     samples_per_side: int = 4  # k: k x k rays per pixel (the paper uses 16)
-    visibility_threshold: float = 0.5  # a hit counts while transmittance before it is >= this
+    visibility_threshold: float = 0.5  # a hit counts while transmittance before it is >= this (the paper: 0, every hit)
     falloff: float = 1.0  # lambda of eq. (2)
     mask_threshold: float = 0.5  # pixels whose object mask is below this give nothing
     min_support: float = 0.5  # a view sees a Gaussian when it gets >= this share of its best view's hits (0: any hit)
@@ -51,12 +54,15 @@ class LiftConfig:
     # centre (the paper's released code intersects the 1-sigma ellipsoid); None: wherever alpha_max >= min_alpha (~3.3 sigma)
 
     def __post_init__(self):
-        if not 0.0 <= self.min_support <= 1.0:
-            raise ConfigError(f"lift min_support must be in [0, 1], got {self.min_support}")
-        if self.samples_per_side < 1:
-            raise ConfigError(f"samples per side must be >= 1, got {self.samples_per_side}")
+        for name in ("min_support", "visibility_threshold", "mask_threshold"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
+        if not 1 <= self.samples_per_side <= 32:
+            raise SettingError("samples_per_side", f"must be in 1..32, got {self.samples_per_side}")
         if self.footprint_sigmas is not None and not self.footprint_sigmas > 0:
-            raise ConfigError(f"lift footprint_sigmas must be > 0 (or None), got {self.footprint_sigmas}")
+            raise SettingError("footprint_sigmas", f"must be > 0 (or None: every hit), got {self.footprint_sigmas}")
+        if not self.falloff > 0:
+            raise SettingError("falloff", f"must be > 0, got {self.falloff}")
 
 
 @dataclass
@@ -109,8 +115,6 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
 
     Returns medians [N, 5], seen [N] bool, and hits [N] (number of (pixel, sample) hits received).
     """
-    from matspray.render.contributions import iter_contributions
-
     n = len(gaussians)
     s = config.samples_per_side
     n_pixels = camera.width * camera.height
@@ -150,7 +154,7 @@ def lift(gaussians: Gaussians, cameras: list[Camera], materials: list[Tensor], m
     """Lift every view's maps ([H, W, 5] each) and drop the Gaussians no view saw."""
     config = config or LiftConfig()
     n, v = len(gaussians), len(cameras)
-    values = torch.zeros(n, v, 5, device=gaussians.device)
+    values = material_zeros(n, v, device=gaussians.device)
     hits = torch.zeros(n, v, dtype=torch.int32, device=gaussians.device)
     with torch.no_grad():
         for index in tqdm(range(v), desc=f"lift ({config.samples_per_side}x{config.samples_per_side} rays/pixel)", disable=not progress):
@@ -181,8 +185,6 @@ def rendered_weight_per_gaussian(gaussians: Gaussians, camera: Camera) -> Tensor
     It is the gradient of the rendered image's sum with respect to a constant per-Gaussian feature,
     so it costs one forward and backward pass of the rasterizer.
     """
-    from matspray.render.rasterize import rasterize
-
     ones = torch.ones(len(gaussians), 1, device=gaussians.device, requires_grad=True)
     out = rasterize(gaussians.detach(), camera, ones, background=torch.zeros(1, device=gaussians.device))
     (grad,) = torch.autograd.grad(out.features.sum(), ones)

@@ -1,9 +1,11 @@
 """The Neural Merger (paper section 3.3): per-Gaussian softmax weights over views.
 
 For each channel group (base color, roughness, metallic) a separate MLP (3 hidden layers of 128,
-ReLU) reads the NeRF positional encoding of the Gaussian's position and the group's per-view values,
-and outputs one logit per view. Views in which the Gaussian was not seen are masked out before the
-softmax, so the merged value is a convex combination of what the Gaussian received:
+ReLU) reads the NeRF positional encoding of the Gaussian's position and the group's per-view values
+(and, with `seen_input`, which views saw it), and outputs one logit per view. Views in which the
+Gaussian was not seen are either masked out before the softmax (`unseen="mask"`) or, as in the paper's
+released code, filled with the mean of the views that saw it (`unseen="mean"`, softmax over all views);
+either way the merged value is a convex combination of what the Gaussian received:
 
     h_g = f_theta(PE(p_g), m_g1 .. m_gV)        w_gv = softmax_v(h_gv)        m_g = sum_v w_gv m_gv
 
@@ -23,19 +25,27 @@ import torch
 from torch import Tensor, nn
 
 from matspray.data.images import save_torch_atomic
-from matspray.errors import RunError, file_error
+from matspray.errors import RunError, SettingError, file_error
+from matspray.material import GROUPS
 
-# channel layout of the lifted values [N, V, 5]
-CHANNEL_GROUPS = {"base_color": slice(0, 3), "roughness": slice(3, 4), "metallic": slice(4, 5)}
-N_CHANNELS = 5
+UNSEEN_RULES = ("mask", "mean")
 
 
-@dataclass
+@dataclass(frozen=True)
 class MergerConfig:
     hidden: int = 128
     layers: int = 3
     frequencies: int = 6  # NeRF positional-encoding octaves
     softmax: bool = True
+    seen_input: bool = True  # the MLPs also read the seen mask [V] (the paper's: position and values only)
+    unseen: str = "mask"  # views that did not see a Gaussian: "mask" (weight 0) or "mean" (filled with the mean of the
+    # views that did, weighted like any view; the paper's released code)
+
+    def __post_init__(self):
+        if self.unseen not in UNSEEN_RULES:
+            raise SettingError("unseen", f"unknown rule '{self.unseen}'; choose one of {', '.join(UNSEEN_RULES)}")
+        if self.hidden < 1 or self.layers < 1 or self.frequencies < 0:
+            raise SettingError("hidden", f"hidden and layers must be >= 1 and frequencies >= 0, got {self.hidden}, {self.layers}, {self.frequencies}")
 
 
 def positional_encoding(x: Tensor, frequencies: int) -> Tensor:  # [N, 3] in ~[-1, 1] -> [N, 3 * (1 + 2F)]
@@ -75,8 +85,9 @@ class NeuralMerger(nn.Module):
         pe_dim = 3 * (1 + 2 * self.config.frequencies)
         self.mlps = nn.ModuleDict(
             {
-                name: mlp(pe_dim + self.n_views * (group.stop - group.start) + self.n_views, self.n_views, self.config.hidden, self.config.layers)
-                for name, group in CHANNEL_GROUPS.items()
+                name: mlp(pe_dim + self.n_views * (group.stop - group.start + int(self.config.seen_input)), self.n_views,
+                          self.config.hidden, self.config.layers)
+                for name, group in GROUPS.items()
             }
         )
 
@@ -86,19 +97,19 @@ class NeuralMerger(nn.Module):
         return positional_encoding(unit, self.config.frequencies)
 
     def group_inputs(self, positions: Tensor, masked_values: Tensor, seen: Tensor, encoded: Tensor | None = None) -> dict[str, Tensor]:
-        """Each channel group's MLP input {group: [N, pe_dim + V * c + V]}: PE(position), the group's
-        per-view values (`masked_values`: 0 where unseen) and the seen mask. Fixed for frozen Gaussians,
-        so callers may keep it."""
+        """Each channel group's MLP input {group: [N, pe_dim + V * c (+ V)]}: PE(position), the group's
+        per-view values (`masked_values`: 0 where unseen, or filled by `fill_unseen`) and, with
+        `seen_input`, the seen mask. Fixed for frozen Gaussians, so callers may keep it."""
         if masked_values.shape[1] != self.n_views or seen.shape != masked_values.shape[:2]:
             raise RunError(f"the merger was built for {self.n_views} views but got values for {masked_values.shape[1]}")
         encoded = self.encode_positions(positions) if encoded is None else encoded
-        return {name: torch.cat([encoded, masked_values[:, :, group].flatten(1), seen.to(masked_values.dtype)], dim=-1)
-                for name, group in CHANNEL_GROUPS.items()}
+        seen_part = [seen.to(masked_values.dtype)] if self.config.seen_input else []
+        return {name: torch.cat([encoded, masked_values[:, :, group].flatten(1), *seen_part], dim=-1) for name, group in GROUPS.items()}
 
     def merge(self, inputs: dict[str, Tensor], masked_values: Tensor, seen: Tensor, return_weights: bool = False):
         """Merged materials [N, 5] from `group_inputs` and the per-view values [N, V, 5] (0 where unseen) / seen [N, V]."""
         merged, weights = [], {}
-        for name, group in CHANNEL_GROUPS.items():
+        for name, group in GROUPS.items():
             w = merge_weights(self.mlps[name](inputs[name]), seen, self.config.softmax)  # [N, V]
             weights[name] = w
             merged.append((w[..., None] * masked_values[:, :, group]).sum(1))
@@ -113,7 +124,7 @@ class NeuralMerger(nn.Module):
         seen: [N, V] bool; encoded: `encode_positions(positions)` when the caller keeps it (fixed Gaussians).
         Returns merged materials [N, 5] (and the weights {group: [N, V]}).
         """
-        masked = values * seen[..., None]  # unseen entries carry no information
+        masked, seen = prepare_values(values, seen, self.config.unseen)
         return self.merge(self.group_inputs(positions, masked, seen, encoded), masked, seen, return_weights)
 
 
@@ -121,6 +132,20 @@ def projection_average(values: Tensor, seen: Tensor) -> Tensor:  # [N, V, 5], [N
     """The paper's "Proj. Average": mean of the per-view values over the views that saw the Gaussian."""
     n_seen = seen.sum(-1, keepdim=True).clamp_min(1)
     return (values * seen[..., None]).sum(1) / n_seen
+
+
+def fill_unseen(values: Tensor, seen: Tensor) -> Tensor:  # [N, V, 5], [N, V] -> [N, V, 5]
+    """Per-view values with each unseen view replaced by the mean of the views that saw the Gaussian
+    (the paper's released code); a Gaussian seen in no view gets zeros."""
+    return torch.where(seen[..., None], values, projection_average(values, seen)[:, None, :])
+
+
+def prepare_values(values: Tensor, seen: Tensor, unseen: str) -> tuple[Tensor, Tensor]:  # [N, V, 5], [N, V] -> same
+    """What the merger reads and weights under the `unseen` rule: "mask" zeroes the unseen views (they
+    get weight 0); "mean" fills them with the seen views' mean and lets every view count."""
+    if unseen == "mean":
+        return fill_unseen(values, seen), torch.ones_like(seen)
+    return values * seen[..., None], seen
 
 
 def clamp_to_seen_range(target: Tensor, values: Tensor, seen: Tensor) -> Tensor:  # [N, 5], [N, V, 5], [N, V] -> [N, 5]

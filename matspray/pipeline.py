@@ -2,65 +2,38 @@
 
 Each stage is skipped when its artifact exists and was made with the same settings (and from the
 same upstream artifacts); `timings.json` records the seconds each stage took (the paper's Table 3).
+The method (`paper` or `matspray`) is part of the fingerprints of the stages it changes (lift,
+visibility, refine), so a run folder resumed with the other method recomputes those and reuses the rest.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 
-from matspray.device import configure_threads, resolve_device
+from matspray.asset import Asset, read_asset, write_asset
+from matspray.config import PipelineConfig
 from matspray.data import Scene, load_scene
-from matspray.errors import ConfigError
-from matspray.lift import LiftConfig, LiftResult, lift
-from matspray.refine import VARIANTS, RefineConfig, refine
-from matspray.render.visibility import VisibilityConfig
+from matspray.data.images import save_torch_atomic
+from matspray.device import configure_threads, resolve_device
+from matspray.errors import RunError
+from matspray.geometry.ply import read_ply
+from matspray.geometry.train import train_geometry
+from matspray.lift import LiftResult, lift
+from matspray.material import stack
+from matspray.predictors import PredictorOptions, make_predictor, predict_views, read_materials2d, write_materials2d
+from matspray.refine import RefineConfig, RefineInputs, refine
+from matspray.render.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, timed, to_plain
-
-PRESETS = ("test", "demo", "paper")
-
-
-@dataclass
-class PipelineConfig:
-    preset: str = "demo"
-    predictor: str = "simulated"
-    predictor_options: dict = field(default_factory=dict)  # PredictorOptions fields
-    downscale: float = 1.0
-    seed: int = 0
-    refine_seed: int | None = None  # the refinement's own seed (view order, merger init); None: `seed`
-    device: str = "auto"
-    geometry: object = None  # GeometryConfig of the preset
-    lift: LiftConfig = field(default_factory=LiftConfig)
-    visibility: VisibilityConfig | None = field(default_factory=VisibilityConfig)  # None: no shadowing (the paper's shading)
-    refine: RefineConfig = field(default_factory=RefineConfig)
-
-
-def preset_config(preset: str, **overrides) -> PipelineConfig:
-    """The settings of a preset (DESIGN.md): `test` for CI, `demo` for 2 CPU cores, `paper` for a GPU."""
-    from matspray.geometry.config import preset as geometry_preset
-
-    if preset not in PRESETS:
-        raise ConfigError(f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
-    if preset == "test":
-        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=2), visibility=VisibilityConfig(rows=4, resolution=48),
-                                refine=RefineConfig(iterations=30, envmap_height=8, light_warmup=10))
-    elif preset == "demo":
-        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=4), refine=RefineConfig(iterations=600, envmap_height=16, light_warmup=200))
-    else:
-        config = PipelineConfig(preset=preset, lift=LiftConfig(samples_per_side=16), visibility=VisibilityConfig(rows=16, resolution=512),
-                                refine=RefineConfig(iterations=10000, envmap_height=32, light_warmup=1000))
-    config = replace(config, **overrides)
-    config.geometry = geometry_preset(preset, seed=config.seed)
-    return config
+from matspray.variants import asset_stage, get_variant
 
 
 def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
     """The refinement settings of one variant: the run's, with the variant and the refinement seed
     (`refine_seed`, else the run's `seed`)."""
-    if variant not in VARIANTS:
-        raise ConfigError(f"unknown variant '{variant}'; choose one of {', '.join(VARIANTS)}")
+    get_variant(variant)
     seed = config.seed if config.refine_seed is None else config.refine_seed
     return replace(config.refine, variant=variant, seed=seed)
 
@@ -75,9 +48,8 @@ def dataset_identity(scene: Scene) -> dict:
     }
 
 
-def asset_stage(variant: str) -> str:
-    """Folder of a variant's asset: `asset/` for the full method, `asset-{variant}/` for ablations."""
-    return "asset" if variant == "full" else f"asset-{variant}"
+def maps_to_tensor(maps) -> torch.Tensor:  # MaterialMaps -> [H, W, 5]
+    return stack(maps.basecolor, maps.roughness, maps.metallic)
 
 
 class Pipeline:
@@ -100,8 +72,6 @@ class Pipeline:
         return fingerprint("predict", self.dataset_fp, self.config.predictor, self.config.predictor_options)
 
     def predict(self):
-        from matspray.predictors import PredictorOptions, make_predictor, predict_views, read_materials2d, write_materials2d
-
         fp = self.predict_fingerprint()
         if not self.run.stage_done("materials2d", fp, ["predictor.json"]):
             self.log(f"predict: {self.config.predictor} on {len(self.scene.train)} training views")
@@ -120,9 +90,6 @@ class Pipeline:
 
     def geometry(self):
         """Trained Gaussians [N] and their oriented normals [N, 3]."""
-        from matspray.geometry.ply import read_ply
-        from matspray.geometry.train import train_geometry
-
         fp = self.geometry_fingerprint()
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
@@ -136,9 +103,9 @@ class Pipeline:
 
     # ---------------------------------------------------------------- lift
     def lift_fingerprint(self) -> str:
-        return fingerprint("lift", self.config.lift, self.predict_fingerprint(), self.geometry_fingerprint())
+        return fingerprint("lift", self.config.method, self.config.lift, self.predict_fingerprint(), self.geometry_fingerprint())
 
-    def lift(self, gaussians, normals, maps) -> LiftResult:
+    def lift(self, gaussians, maps) -> LiftResult:
         fp = self.lift_fingerprint()
         path = self.run.path("lift", "projected.pt")
         if not self.run.stage_done("lift", fp, ["projected.pt"]):
@@ -156,14 +123,13 @@ class Pipeline:
         return load_lift(path, self.device)
 
     # ---------------------------------------------------------------- visibility
-    def visibility_fingerprint(self) -> str:
+    def visibility_fingerprint(self) -> str | None:
+        if self.config.visibility is None:
+            return None
         return fingerprint("visibility", self.config.visibility, self.lift_fingerprint())
 
     def visibility(self, kept) -> torch.Tensor | None:
         """Directional visibility [N, D] of the lifted Gaussians `kept`, or None when shadowing is off."""
-        from matspray.data.images import save_torch_atomic
-        from matspray.render.visibility import bake_visibility
-
         if self.config.visibility is None:
             return None
         fp = self.visibility_fingerprint()
@@ -177,30 +143,32 @@ class Pipeline:
             self.log("visibility: done before, reusing visibility/visibility.pt")
         values = torch.load(path, map_location=self.device)
         if values.shape[0] != len(kept):
-            raise ConfigError(f"{path}: visibility of {values.shape[0]} Gaussians, but the lifted geometry has {len(kept)}; delete the file to bake it again")
+            raise RunError(f"{path}: visibility of {values.shape[0]} Gaussians, but the lifted geometry has {len(kept)}; delete the file to bake it again")
         return values
 
     # ---------------------------------------------------------------- refine
-    def refine(self, variant: str = "full"):
-        from matspray.asset import read_asset, write_asset
+    def refine_inputs(self) -> RefineInputs:
+        """Predict, geometry, lift and visibility (each reused when done): what refinement reads."""
+        maps = self.predict()
+        gaussians, normals = self.geometry()
+        lifted = self.lift(gaussians, maps)
+        kept = gaussians.subset(lifted.kept)
+        views = [v.to(self.device) for v in self.scene.train]
+        return RefineInputs(gaussians=kept, normals=normals[lifted.kept], values=lifted.values, seen=lifted.seen, views=views,
+                            targets=[maps_to_tensor(maps[v.name]).to(self.device) for v in views],
+                            bounds=self.scene.bounds.to(self.device), visibility=self.visibility(kept))
 
+    def refine(self, variant: str = "full") -> Asset:
         config = variant_refine_config(self.config, variant)
         stage = asset_stage(variant)
-        fp = fingerprint("refine", config, self.lift_fingerprint(), self.visibility_fingerprint() if self.config.visibility else None)
+        fp = fingerprint("refine", self.config.method, config, self.lift_fingerprint(), self.visibility_fingerprint())
         if self.run.stage_done(stage, fp, ["asset.ply"]):
             self.log(f"refine [{variant}]: done before, reusing {stage}/")
             return read_asset(self.run.path(stage), device=self.device)
-        maps = self.predict()
-        gaussians, normals = self.geometry()
-        lifted = self.lift(gaussians, normals, maps)
-        kept = gaussians.subset(lifted.kept)
-        views = [v.to(self.device) for v in self.scene.train]
-        targets = [maps_to_tensor(maps[v.name]).to(self.device) for v in views]
-        visibility = self.visibility(kept)
+        inputs = self.refine_inputs()
         with timed() as t:
-            result = refine(kept, normals[lifted.kept], lifted.values, lifted.seen, views, targets, self.scene.bounds.to(self.device), config,
-                            progress=self.progress, visibility=visibility)
-            write_asset(self.run.path(stage), kept, result)
+            result = refine(inputs, config, progress=self.progress)
+            write_asset(self.run.path(stage), inputs.gaussians, result)
         self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history})
         return read_asset(self.run.path(stage), device=self.device)
 
@@ -208,13 +176,7 @@ class Pipeline:
         return {variant: self.refine(variant) for variant in variants}
 
 
-def maps_to_tensor(maps) -> torch.Tensor:  # MaterialMaps -> [H, W, 5]
-    return torch.cat([maps.basecolor, maps.roughness[..., None], maps.metallic[..., None]], dim=-1)
-
-
 def save_lift(result: LiftResult, path: Path) -> None:
-    from matspray.data.images import save_torch_atomic
-
     save_torch_atomic({"values": result.values.cpu(), "seen": result.seen.cpu(), "kept": result.kept.cpu(), "view_names": result.view_names,
                        "stats": to_plain(result.stats), "hits": None if result.hits is None else result.hits.cpu()}, path)
 

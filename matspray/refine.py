@@ -2,24 +2,22 @@
 
 Each step takes a random training view, rasterizes the merged per-Gaussian materials and normals
 into a G-buffer, and
-  - compares the rasterized material maps with the view's 2D maps by L1 (updates the merger only);
-    the base color scale-invariantly (after the least-squares scale onto the 2D map, as the paper's
-    released code does), so a predictor's per-view exposure drift does not pull the merger,
+  - compares the rasterized material maps with the view's 2D maps by L1 (L_Image; updates the merger
+    only); with `basecolor_loss="scale-invariant"` the base colour after the least-squares scale onto
+    the 2D map, as the paper's released code does, so a predictor's per-view exposure drift does not
+    pull the merger,
   - shades the G-buffer with split-sum image-based lighting from the learnable environment map and
-    compares it with the photo by 0.8 L1 + 0.2 (1 - SSIM) (updates the merger and the environment map),
-    weighted 2 : 1 against the material loss (the released code adds it twice).
+    compares it with the photo by 0.8 L1 + 0.2 (1 - SSIM) (L_3DGS; updates the merger and the map),
+    weighted `photo_weight` against the material loss,
+  - keeps the environment map smooth: `light_tv_weight` times the total variation of its log radiance
+    (`render.latlong.total_variation`; the released code regularises its map by total variation too).
 Before that, `light_warmup` steps fit the environment map alone, with the materials the variant starts
-from, so that the merger's first steps are not driven by a wrong light. Geometry is frozen, so each
-view's blending weights are computed once and reused every step (and the merger runs only for the
-Gaussians that cover at least `min_coverage` pixels of the step's view). With a
-directional visibility per Gaussian (the pipeline bakes one unless `--shadows off`), the PBR render is
-shadowed (`render.visibility`), so the photo loss no longer pushes shadows into the base color.
+from. Geometry is frozen, so each view's blending weights are computed once and reused every step (and
+the merger runs only for the Gaussians that cover at least `min_coverage` pixels of the step's view).
+With a directional visibility per Gaussian (`RefineInputs.visibility`), the PBR render is shadowed
+(`render.visibility`), so the photo loss no longer pushes shadows into the base color.
 
-Variants (the paper's ablations) choose what produces the per-Gaussian materials:
-  full          Neural Merger with softmax over views
-  no-softmax    Neural Merger with unconstrained weights
-  supervised    free per-Gaussian materials trained with the 2D-map loss only
-  proj-average  the mean of the projected per-view values; no training at all
+The variants (`matspray.variants`) choose what produces the per-Gaussian materials.
 """
 
 from __future__ import annotations
@@ -31,34 +29,39 @@ from torch import Tensor, nn
 from tqdm import tqdm
 
 from matspray.data.images import linear_to_srgb
-from matspray.errors import ConfigError, NumericalError
+from matspray.data.scene import View
+from matspray.errors import NumericalError, SettingError
 from matspray.eval.metrics import ssim_loss
 from matspray.gaussians import Gaussians
-from matspray.merger import MergerConfig, NeuralMerger, projection_average
+from matspray.material import BASE_COLOR, METALLIC_INDEX, N_CHANNELS
+from matspray.merger import MergerConfig, NeuralMerger, prepare_values, projection_average
+from matspray.render.deferred import GBuffer, shade_gbuffer
+from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
+from matspray.render.latlong import total_variation
+from matspray.render.visibility import gaussian_shadows
+from matspray.variants import Variant, get_variant
 
-VARIANTS = ("full", "proj-average", "supervised", "no-softmax")
 BASECOLOR_LOSSES = ("l1", "scale-invariant")
 
 
-@dataclass
+@dataclass(frozen=True)
 class RefineConfig:
-    iterations: int = 1000
+    iterations: int = 600
     merger_lr: float = 1e-3  # paper: 0.001
     envmap_lr: float = 3e-2
     supervised_lr: float = 5e-2  # free per-Gaussian logits (3DGS's rate for per-Gaussian opacity logits);
     # at the merger's 1e-3 a Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey
     envmap_height: int = 16  # learnable lat-long map is H x 2H
     envmap_init: float = 0.5  # initial constant radiance
-    light_warmup: int = 0  # steps that fit only the environment map to the photos, materials fixed at their start
-    # (the presets use ~10-20 % of `iterations`): the merger then learns against a light that already fits
+    light_tv_weight: float = 1e-3  # weight of the total variation of the map's log radiance (0: no prior)
+    light_warmup: int = 200  # steps that fit only the environment map to the photos, materials fixed at their start
     min_coverage: float = 0.02  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
     material_weight: float = 1.0  # L_Image
-    photo_weight: float = 2.0  # L_3DGS; the paper gives no weights, its released code adds the photometric term twice
-    basecolor_loss: str = "scale-invariant"  # the base color maps are compared after the least-squares scale that fits
-    # them to the view's 2D map (the released code's default), so a predictor's per-view exposure errors do not pull the
-    # merger; only for variants with the PBR loss, which then sets the brightness (supervised keeps "l1")
+    photo_weight: float = 2.0  # L_3DGS (the paper: 1; its released code adds the photometric term twice)
+    basecolor_loss: str = "scale-invariant"  # "l1" (the paper) or "scale-invariant" (only for variants with the PBR loss, which then sets the
+    # brightness; supervised always compares by plain L1)
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
     variant: str = "full"
     refine_normals: bool = False  # optional: learn per-Gaussian normal offsets with the PBR loss
@@ -67,41 +70,62 @@ class RefineConfig:
     merger: MergerConfig = field(default_factory=MergerConfig)
 
     def __post_init__(self):
-        if self.variant not in VARIANTS:
-            raise ConfigError(f"unknown variant '{self.variant}'; choose one of {', '.join(VARIANTS)}")
+        get_variant(self.variant)
         if self.iterations < 0:
-            raise ConfigError(f"refine iterations must be >= 0, got {self.iterations}")
+            raise SettingError("iterations", f"must be >= 0, got {self.iterations}")
         if self.basecolor_loss not in BASECOLOR_LOSSES:
-            raise ConfigError(f"unknown base color loss '{self.basecolor_loss}'; choose one of {', '.join(BASECOLOR_LOSSES)}")
-        if not (self.material_weight >= 0 and self.photo_weight >= 0):
-            raise ConfigError(f"loss weights must be >= 0, got material {self.material_weight} and photo {self.photo_weight}")
-        if self.light_warmup < 0 or self.min_coverage < 0:
-            raise ConfigError(f"light_warmup and min_coverage must be >= 0, got {self.light_warmup} and {self.min_coverage}")
+            raise SettingError("basecolor_loss", f"unknown loss '{self.basecolor_loss}'; choose one of {', '.join(BASECOLOR_LOSSES)}")
+        for name in ("material_weight", "photo_weight", "light_tv_weight", "min_coverage", "light_warmup"):
+            if not getattr(self, name) >= 0:
+                raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
+        if self.envmap_height < 2:
+            raise SettingError("envmap_height", f"must be >= 2, got {self.envmap_height}")
+
+    @property
+    def kind(self) -> Variant:
+        return get_variant(self.variant)
+
+
+@dataclass(frozen=True)
+class RefineInputs:
+    """Everything refinement reads: the lifted Gaussians and the training views they were lifted from."""
+
+    gaussians: Gaussians  # [N] frozen geometry
+    normals: Tensor  # [N, 3] unit, any orientation (each view flips them to face it)
+    values: Tensor  # [N, V, 5] lifted per-view materials (`matspray.material` layout)
+    seen: Tensor  # [N, V] bool: the views that count for each Gaussian
+    views: list[View]  # the V training views, in the order of `values`
+    targets: list[Tensor]  # V 2D maps [H, W, 5] (base colour linear, roughness, metallic)
+    bounds: Tensor  # [2, 3] object box (the merger's positional encoding)
+    visibility: Tensor | None = None  # [N, D] directional visibility that shadows the PBR render; None: unshadowed
 
 
 class MaterialSource(nn.Module):
     """Per-Gaussian materials [N, 5] for one variant."""
 
-    def __init__(self, variant: str, positions: Tensor, values: Tensor, seen: Tensor, bounds: Tensor, merger_config: MergerConfig):
+    def __init__(self, variant: Variant, positions: Tensor, values: Tensor, seen: Tensor, bounds: Tensor, merger_config: MergerConfig):
         super().__init__()
         self.variant = variant
         self.register_buffer("positions", positions)
         self.register_buffer("values", values * seen[..., None])  # unseen entries carry no information
         self.register_buffer("seen", seen)
         self.merger = None
-        if variant in ("full", "no-softmax"):
-            config = MergerConfig(**{**merger_config.__dict__, "softmax": variant == "full"})
+        if variant.source == "merger":
+            config = MergerConfig(**{**merger_config.__dict__, "softmax": variant.softmax})
             self.merger = NeuralMerger(values.shape[1], bounds, config)
+            merger_values, merger_seen = prepare_values(values, seen, config.unseen)
+            self.register_buffer("merger_values", merger_values)
+            self.register_buffer("merger_seen", merger_seen)
             with torch.no_grad():  # geometry is frozen: the MLPs' inputs never change
-                self.inputs = self.merger.group_inputs(positions, self.values, seen)
-        elif variant == "supervised":  # free parameters, starting from an uninformed grey
+                self.inputs = self.merger.group_inputs(positions, merger_values, merger_seen)
+        elif variant.source == "free":  # free parameters, starting from an uninformed grey
             self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
 
     def forward(self, index: Tensor | None = None) -> Tensor:  # [N, 5], or [K, 5] for the Gaussians `index` [K]
         pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
         if self.merger is not None:
-            return self.merger.merge({name: pick(x) for name, x in self.inputs.items()}, pick(self.values), pick(self.seen))
-        if self.variant == "supervised":
+            return self.merger.merge({name: pick(x) for name, x in self.inputs.items()}, pick(self.merger_values), pick(self.merger_seen))
+        if self.variant.source == "free":
             return torch.sigmoid(pick(self.logits))
         return projection_average(pick(self.values), pick(self.seen))
 
@@ -110,6 +134,7 @@ class MaterialSource(nn.Module):
         return any(p.requires_grad for p in self.parameters())
 
 
+# ------------------------------------------------------------------------------------------ losses
 def masked_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
     weight = mask[..., None].expand_as(pred)
     return ((pred - target).abs() * weight).sum() / weight.sum().clamp_min(1.0)
@@ -128,8 +153,9 @@ def material_loss(maps: Tensor, target: Tensor, mask: Tensor, basecolor_loss: st
     channels scale-invariant when `basecolor_loss` says so."""
     if basecolor_loss == "l1":
         return masked_l1(maps, target, mask)
-    base = scale_invariant_l1(maps[..., :3], target[..., :3], mask)
-    return (3.0 * base + 2.0 * masked_l1(maps[..., 3:], target[..., 3:], mask)) / 5.0
+    base = scale_invariant_l1(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask)
+    rest = slice(BASE_COLOR.stop, N_CHANNELS)
+    return (3.0 * base + 2.0 * masked_l1(maps[..., rest], target[..., rest], mask)) / N_CHANNELS
 
 
 def photometric_loss(rendered: Tensor, photo: Tensor, l1_weight: float) -> Tensor:  # sRGB [H, W, 3] each
@@ -137,6 +163,60 @@ def photometric_loss(rendered: Tensor, photo: Tensor, l1_weight: float) -> Tenso
     return l1_weight * l1 + (1.0 - l1_weight) * ssim_loss(rendered, photo)
 
 
+def light_prior(envmap: EnvironmentMap) -> Tensor:  # -> []
+    """Total variation of the map's log radiance: small for a light made of smooth regions and sharp
+    sources, large for per-pixel noise (which the photos do not constrain)."""
+    return total_variation(envmap.log_map)
+
+
+# ------------------------------------------------------------------------------------------ one view
+class TrainingViews:
+    """The training views with their frozen blending weights, 2D maps and the Gaussians' shadowing."""
+
+    def __init__(self, inputs: RefineInputs):
+        self.frozen = FrozenViews(inputs.gaussians.detach(), [v.camera for v in inputs.views])
+        self.views = inputs.views
+        self.targets = inputs.targets
+        self.visibility = inputs.visibility
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+
+def view_losses(training: TrainingViews, index: int, materials: Tensor, normals: Tensor, envmap: EnvironmentMap | None,
+                config: RefineConfig, with_material: bool = True) -> dict[str, Tensor]:
+    """The losses of training view `index`: L1 of the rasterized material maps against the view's 2D maps
+    ("material", when `with_material`), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo
+    ("photo", only with an environment map). materials [N, 5], normals [N, 3] any orientation."""
+    frozen, view = training.frozen, training.views[index]
+    mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=materials.device)
+    oriented = frozen.orient_normals(index, normals)
+    features = [materials, oriented]
+    light = envmap.prefilter() if envmap is not None else None
+    if light is not None and training.visibility is not None:  # only for the Gaussians this view sees: the rest blend with weight 0
+        seen = frozen.visible_ids[index]
+        shadows = gaussian_shadows(training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen, METALLIC_INDEX], view.camera, light)
+        features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
+    gbuffer = GBuffer.from_blended(*frozen.render(index, torch.cat(features, dim=-1)))  # [H, W, 8 or 14], [H, W]
+    terms = {}
+    if with_material:
+        basecolor_loss = config.basecolor_loss if light is not None else "l1"  # without the PBR loss nothing sets the scale
+        terms["material"] = material_loss(gbuffer.materials, training.targets[index], mask * (gbuffer.alpha > 0.5), basecolor_loss)
+    if light is not None:
+        rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
+        photo = linear_to_srgb(view.image * mask[..., None])
+        terms["photo"] = photometric_loss(rendered, photo, config.photo_l1_weight)
+        if config.light_tv_weight > 0:
+            terms["light_tv"] = light_prior(envmap)
+    return terms
+
+
+def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
+    weights = {"material": config.material_weight, "photo": config.photo_weight, "light_tv": config.light_tv_weight}
+    return sum(weights[name] * value for name, value in terms.items())
+
+
+# ------------------------------------------------------------------------------------------ optimisation
 def check_finite(step: int, **terms: Tensor) -> None:
     for name, value in terms.items():
         if not torch.isfinite(value).all():
@@ -149,36 +229,6 @@ def check_finite_gradients(step: int, param_groups) -> None:
     bad = [group["name"] for group in param_groups if any(p.grad is not None and not torch.isfinite(p.grad).all() for p in group["params"])]
     if bad:
         raise NumericalError(f"refine step {step}: non-finite gradient for the {', '.join(bad)}; the last good checkpoint is kept")
-
-
-def view_losses(frozen, index: int, materials: Tensor, normals: Tensor, view, target: Tensor | None, envmap, config: RefineConfig,
-                visibility: Tensor | None = None) -> dict[str, Tensor]:
-    """The two losses of one training view: L1 of the rasterized material maps against the view's 2D
-    maps `target` [H, W, 5] ("material", skipped when `target` is None), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo ("photo",
-    only with an environment map). materials [N, 5], normals [N, 3] any orientation; visibility [N, D]
-    (optional) shadows the PBR render (`render.visibility`)."""
-    from matspray.render.deferred import GBuffer, shade_gbuffer
-    from matspray.render.visibility import gaussian_shadows
-
-    mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=materials.device)
-    oriented = frozen.orient_normals(index, normals)
-    features = [materials, oriented]
-    light = envmap.prefilter() if envmap is not None else None
-    if light is not None and visibility is not None:  # only for the Gaussians this view sees: the rest blend with weight 0
-        seen = frozen.visible_ids[index]
-        shadows = gaussian_shadows(visibility[seen], oriented[seen], frozen.means[seen], materials[seen, 3], view.camera, light)
-        features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
-    gbuffer = GBuffer.from_blended(*frozen.render(index, torch.cat(features, dim=-1)))  # [H, W, 8 or 14], [H, W]
-    terms = {}
-    if target is not None:
-        material_maps = torch.cat([gbuffer.base_color, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1)
-        basecolor_loss = config.basecolor_loss if light is not None else "l1"  # without the PBR loss nothing sets the scale
-        terms["material"] = material_loss(material_maps, target, mask * (gbuffer.alpha > 0.5), basecolor_loss)
-    if light is not None:
-        rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
-        photo = linear_to_srgb(view.image * mask[..., None])
-        terms["photo"] = photometric_loss(rendered, photo, config.photo_l1_weight)
-    return terms
 
 
 def optimize(optimizer, n_views: int, steps: int, losses_of_view, generator, desc: str, progress: bool, on_step=None) -> None:
@@ -198,21 +248,22 @@ def optimize(optimizer, n_views: int, steps: int, losses_of_view, generator, des
             on_step(step, terms, bar)
 
 
-def envmap_group(envmap, config: RefineConfig) -> dict:
+def envmap_group(envmap: EnvironmentMap, config: RefineConfig) -> dict:
     """The environment map's optimizer parameter group."""
     return {"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"}
 
 
-def warm_up_light(frozen, materials: Tensor, envmap, normals, views, config: RefineConfig, generator, visibility, progress: bool) -> None:
+def warm_up_light(training: TrainingViews, materials: Tensor, normals: Tensor, envmap: EnvironmentMap, config: RefineConfig,
+                  generator, progress: bool) -> None:
     """Fit the environment map alone to the photos for `config.light_warmup` steps, with fixed materials
     [N, 5] (what the source starts from: the projection average for the merger variants)."""
     optimizer = torch.optim.Adam([envmap_group(envmap, config)])
 
-    def photo_loss(index: int):
-        terms = view_losses(frozen, index, materials, normals, views[index], None, envmap, config, visibility)  # photo only
-        return terms, terms["photo"]
+    def photo_losses(index: int):
+        terms = view_losses(training, index, materials, normals, envmap, config, with_material=False)
+        return terms, total_loss(terms, config)
 
-    optimize(optimizer, len(views), config.light_warmup, photo_loss, generator, "light warm-up", progress)
+    optimize(optimizer, len(training), config.light_warmup, photo_losses, generator, "light warm-up", progress)
 
 
 @dataclass
@@ -220,36 +271,28 @@ class RefineResult:
     materials: Tensor  # [N, 5]
     normals: Tensor  # [N, 3] unoriented unit normals used for shading
     source: MaterialSource
-    envmap: nn.Module | None  # EnvironmentMap, None for variants without the PBR loss
+    envmap: EnvironmentMap | None  # None for variants without the PBR loss
     history: list[dict]
     visibility: Tensor | None = None  # [N, D] the shadowing used (kept with the asset for relighting)
 
 
-def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, views, maps2d: list[Tensor], bounds: Tensor, config: RefineConfig,
-           progress: bool = True, on_checkpoint=None, visibility: Tensor | None = None) -> RefineResult:
+def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on_checkpoint=None) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
-
-    normals [N, 3]: per-Gaussian unit normals (any orientation; each view flips them to face it).
-    values [N, V, 5], seen [N, V]: the lifted per-view materials; views/maps2d: the V training views
-    and their 2D maps [H, W, 5] (base color linear, roughness, metallic), in the same order.
-    visibility [N, D] (optional): directional visibility that shadows the PBR render (`render.visibility`).
-    `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end.
-    """
-    from matspray.render.envmap import EnvironmentMap
-
+    `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end."""
     torch.manual_seed(config.seed)
+    variant = config.kind
+    gaussians, normals = inputs.gaussians, inputs.normals
     device = gaussians.device
-    source = MaterialSource(config.variant, gaussians.means.detach(), values, seen, bounds, config.merger).to(device)
-    uses_light = config.variant in ("full", "no-softmax")
-    envmap = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if uses_light else None
-    normal_offsets = nn.Parameter(torch.zeros_like(normals)) if (config.refine_normals and uses_light) else None
+    source = MaterialSource(variant, gaussians.means.detach(), inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
+    envmap = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if variant.learns_light else None
+    normal_offsets = nn.Parameter(torch.zeros_like(normals)) if (config.refine_normals and variant.learns_light) else None
     history: list[dict] = []
     if not source.trainable or config.iterations == 0:
-        return RefineResult(source().detach(), normals, source, envmap, history, visibility)
+        return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility)
 
-    frozen = FrozenViews(gaussians.detach(), [v.camera for v in views])
-    source_lr = config.supervised_lr if config.variant == "supervised" else config.merger_lr
-    groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{config.variant} materials"}]
+    training = TrainingViews(inputs)
+    source_lr = config.supervised_lr if variant.source == "free" else config.merger_lr
+    groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
     if envmap is not None:
         groups.append(envmap_group(envmap, config))
     if normal_offsets is not None:
@@ -258,19 +301,19 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
     with torch.no_grad():
         last_materials = source()  # [N, 5] each Gaussian's latest merged value
     if envmap is not None and config.light_warmup > 0:
-        warm_up_light(frozen, last_materials, envmap, normals, views, config, generator, visibility, progress)
+        warm_up_light(training, last_materials, normals, envmap, config, generator, progress)
     optimizer = torch.optim.Adam(groups)
 
     def shading_normals() -> Tensor:  # [N, 3] the normals with the learned offsets (when refined)
         return normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
 
     def refine_losses(index: int):
-        active = frozen.contributing_ids(index, config.min_coverage)  # the merger only runs for the Gaussians this view shows
+        active = training.frozen.contributing_ids(index, config.min_coverage)  # the merger only runs for the Gaussians this view shows
         merged = source(active)
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
-        terms = view_losses(frozen, index, materials, shading_normals(), views[index], maps2d[index], envmap, config, visibility)
-        return terms, config.material_weight * terms["material"] + config.photo_weight * terms.get("photo", 0.0)
+        terms = view_losses(training, index, materials, shading_normals(), envmap, config)
+        return terms, total_loss(terms, config)
 
     def log(step: int, terms: dict, bar) -> None:
         if step % config.log_every == 0 or step == config.iterations:
@@ -280,7 +323,6 @@ def refine(gaussians: Gaussians, normals: Tensor, values: Tensor, seen: Tensor, 
         if on_checkpoint is not None and (step % 100 == 0 or step == config.iterations):
             on_checkpoint(step, source, envmap, history)
 
-    optimize(optimizer, len(views), config.iterations, refine_losses, generator, f"refine [{config.variant}]", progress, log)
+    optimize(optimizer, len(training), config.iterations, refine_losses, generator, f"refine [{variant.name}]", progress, log)
     with torch.no_grad():
-        return RefineResult(source().detach(), shading_normals().detach(), source, envmap, history, visibility)
-
+        return RefineResult(source().detach(), shading_normals().detach(), source, envmap, history, inputs.visibility)

@@ -19,6 +19,7 @@ import yaml
 
 from matspray.data.images import atomic_target
 from matspray.errors import RunError
+from matspray.variants import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
 
@@ -73,7 +74,7 @@ class RunDir:
             if previous != to_plain(dataset_id):
                 raise RunError(
                     f"{self.root}: this run folder was made from another dataset ({previous.get('source')}, "
-                    f"{previous.get('train_views')} training views); use a new --out folder or pass --overwrite"
+                    f"{previous.get('train_views')} training views); use a new run folder or allow overwriting it (overwrite)"
                 )
         self.root.mkdir(parents=True, exist_ok=True)
         write_json(record, dataset_id)
@@ -108,6 +109,37 @@ class RunDir:
 
     def write_config(self, config) -> None:
         write_text_atomic(self.path("config.yaml"), yaml.safe_dump(to_plain(config), sort_keys=False))
+
+    # ---------------------------------------------------------------- reads
+    def require(self) -> "RunDir":
+        """This folder, after checking that it is a run folder (raises RunError naming the command that makes one)."""
+        if not self.path("dataset.json").exists():
+            raise RunError(f"{self.root}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
+        return self
+
+    def config(self) -> dict:
+        """The settings the run was made with (config.yaml), as plain values; {} when it has none."""
+        path = self.path("config.yaml")
+        return (yaml.safe_load(path.read_text()) or {}) if path.exists() else {}
+
+    def dataset(self) -> dict:
+        """The dataset identity recorded by `claim` (source folder, views, resolution)."""
+        return read_json(self.require().path("dataset.json"))
+
+    def downscale(self) -> float:
+        return float(self.config().get("downscale", 1.0))
+
+    def asset_path(self, variant: str = "full") -> Path:
+        """Folder of a variant's asset; raises RunError when the run has none."""
+        folder = self.path(asset_stage(variant))
+        if not (folder / "asset.ply").exists():
+            raise RunError(f"{self.root}: no asset for variant '{variant}' ({folder.name}/asset.ply); "
+                           f"make it with `matspray run --variant {variant}`")
+        return folder
+
+    def asset_variants(self) -> list[str]:
+        """The variants that have a finished asset in this run, in the registry's order."""
+        return [v for v in VARIANT_NAMES if self.path(asset_stage(v), "asset.ply").exists()]
 
 
 @contextmanager

@@ -54,7 +54,8 @@ def ring_cameras(count: int, size: int = 32, distance: float = 4.0) -> list[Came
 def material_scene(n_views: int = 6, size: int = 32, seed: int = 0):
     """Views of the disk sphere lit by `sky_map`, true per-Gaussian materials, and per-view 2D maps
     [H, W, 5] that are the true maps with a different base-color gain per view (like a diffusion model)."""
-    from matspray.relight import Asset, render_gbuffer, render_relit
+    from matspray.asset import Asset
+    from matspray.relight import render_gbuffer, render_relit
     from matspray.render.envmap import EnvironmentMap
 
     gaussians, normals, materials = sphere_of_disks(seed=seed)

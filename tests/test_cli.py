@@ -44,17 +44,20 @@ def test_info_missing_path(tmp_path):
 def run_config(*argv):
     import argparse
 
-    from matspray.cli.run import add_parser, config_from_args
+    from matspray.cli.options import build_config_from_args
+    from matspray.cli.run import add_parser
 
     parser = argparse.ArgumentParser()
     add_parser(parser)
-    return config_from_args(parser.parse_args(["--data", "d", "--out", "o", *argv]))
+    return build_config_from_args(parser.parse_args(["--data", "d", "--out", "o", *argv]))
 
 
 def test_run_refines_the_base_color_scale_invariantly_unless_told_l1():
     assert run_config().refine.basecolor_loss == "scale-invariant"
     assert run_config("--basecolor-loss", "l1").refine.basecolor_loss == "l1"
-    with pytest.raises(SystemExit):
+    from matspray.errors import SettingError
+
+    with pytest.raises(SettingError, match="refine.basecolor_loss: unknown loss 'l2'"):
         run_config("--basecolor-loss", "l2")
 
 
@@ -63,7 +66,7 @@ def test_refine_seed_overrides_the_seed_for_refinement_only():
 
     config = run_config("--seed", "3")
     assert variant_refine_config(config, "full").seed == 3
-    config.refine_seed = 7
+    config = run_config("--seed", "3", "--refine-seed", "7")
     assert variant_refine_config(config, "full").seed == 7
     assert variant_refine_config(config, "supervised").variant == "supervised"
     assert config.geometry.seed == 3

@@ -1,8 +1,7 @@
-"""Ray contributions (3DGRT response, paper eq. 1-2) against a brute-force ray-Gaussian evaluation."""
+"""Ray contributions (3DGRT response, paper eq. 1-2) against the every-ray-every-Gaussian reference
+(matspray.render.reference.trace_rays)."""
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import pytest
@@ -11,54 +10,26 @@ import torch
 from matspray.gaussians import Gaussians
 from matspray.render.contributions import contributions, iter_contributions
 from matspray.render.rasterize import rasterize
+from matspray.render.reference import Hit, trace_rays
 from matspray.render.settings import RasterSettings
 from tests.test_rasterize import random_scene
 
 
-def brute_force(gaussians: Gaussians, camera, samples_per_side, falloff=1.0, near=0.01, min_alpha=1 / 255,
-                max_alpha=0.99, min_transmittance=1e-4):
-    """Eq. (1)-(2) literally, for every ray of camera.rays() and every Gaussian, in float64 numpy:
-    returns {ray: [(gaussian, alpha_max, weight), ...] front to back}."""
-    g = gaussians.to(dtype=torch.float64)
-    mu, opacity = g.means.numpy(), g.opacities.numpy()
-    inv_cov = np.linalg.inv(g.covariances().numpy())
-    origins, dirs = camera.rays(samples_per_side)
-    origins, dirs = origins.double().numpy(), dirs.double().numpy()
-    view = camera.viewmat.double().numpy()
-    hits = {}
-    for ray, (o, d) in enumerate(zip(origins, dirs)):
-        found = []
-        for i in range(len(mu)):
-            tau = (mu[i] - o) @ inv_cov[i] @ d / (d @ inv_cov[i] @ d)
-            x = o + tau * d
-            alpha = opacity[i] * math.exp(-0.5 * falloff * (x - mu[i]) @ inv_cov[i] @ (x - mu[i]))
-            z = view[2, :3] @ x + view[2, 3]
-            if alpha >= min_alpha and z > near:
-                found.append((tau, i, min(alpha, max_alpha)))
-        found.sort()
-        T, kept = 1.0, []
-        for _, i, alpha in found:
-            if T * (1 - alpha) < min_transmittance:
-                break
-            kept.append((i, alpha, alpha * T))
-            T *= 1 - alpha
-        if kept:
-            hits[ray] = kept
+def as_hits(c) -> list[list[Hit]]:
+    """Contributions as reference.trace_rays returns them: per ray, its hits front to back."""
+    hits = [[] for _ in range(c.num_rays)]
+    for ray, i, alpha, weight, depth in zip(*(t.tolist() for t in (c.sample_ids, c.gaussian_ids, c.alphas, c.weights, c.depths))):
+        hits[ray].append(Hit(i, alpha, weight, depth))
     return hits
 
 
-def as_dict(c):
-    out = {}
-    for ray, i, alpha, weight in zip(c.sample_ids.tolist(), c.gaussian_ids.tolist(), c.alphas.tolist(), c.weights.tolist()):
-        out.setdefault(ray, []).append((i, alpha, weight))
-    return out
-
-
-def assert_same_hits(got, expected, atol=1e-6):
-    assert got.keys() == expected.keys()
-    for ray in expected:
-        assert [i for i, _, _ in got[ray]] == [i for i, _, _ in expected[ray]], f"ray {ray}"
-        np.testing.assert_allclose(np.array(got[ray])[:, 1:], np.array(expected[ray])[:, 1:], atol=atol, rtol=0)
+def assert_same_hits(got: list[list[Hit]], expected: list[list[Hit]], atol=1e-6):
+    assert len(got) == len(expected)
+    for ray, (mine, theirs) in enumerate(zip(got, expected)):
+        assert [h.gaussian for h in mine] == [h.gaussian for h in theirs], f"ray {ray}"
+        if theirs:
+            np.testing.assert_allclose(np.array(mine)[:, 1:3], np.array(theirs)[:, 1:3], atol=atol, rtol=0, err_msg=f"ray {ray}")
+            np.testing.assert_allclose(np.array(mine)[:, 3], np.array(theirs)[:, 3], atol=0, rtol=1e-6, err_msg=f"ray {ray}")  # float32 depth
 
 
 def scene_with_awkward_gaussians(seed):
@@ -77,13 +48,13 @@ def scene_with_awkward_gaussians(seed):
 
 
 @pytest.mark.parametrize("seed,samples,falloff", [(0, 1, 1.0), (1, 2, 1.0), (2, 3, 2.0)])
-def test_matches_brute_force(seed, samples, falloff):
+def test_matches_reference(seed, samples, falloff):
     gaussians, camera = scene_with_awkward_gaussians(seed)
     c = contributions(gaussians, camera, samples, falloff=falloff)
-    expected = brute_force(gaussians, camera, samples, falloff=falloff)
-    assert len(expected) > 20
-    assert_same_hits(as_dict(c), expected)
-    assert any(12 in [i for i, _, _ in hits] for hits in expected.values())  # the Gaussian around the camera is hit
+    expected = trace_rays(gaussians, camera, samples, falloff=falloff)
+    assert sum(1 for hits in expected if hits) > 20
+    assert_same_hits(as_hits(c), expected)
+    assert any(12 in [h.gaussian for h in hits] for hits in expected)  # the Gaussian around the camera is hit
 
 
 def test_weights_sum_to_one_minus_transmittance():
@@ -126,7 +97,7 @@ def test_bands_and_parts_cover_all_rays_once():
     parts = list(iter_contributions(gaussians, camera, 2, max_samples=64))
     assert len(parts) > 3
     banded = type(whole).concatenate(parts)
-    assert_same_hits(as_dict(banded), as_dict(whole), atol=1e-7)
+    assert_same_hits(as_hits(banded), as_hits(whole), atol=1e-7)
     pixel_rows = [torch.div(p.pixel_ids, 12, rounding_mode="floor") for p in parts if len(p)]
     assert all(a.max() < b.min() for a, b in zip(pixel_rows, pixel_rows[1:]))  # disjoint bands, in order
 
@@ -138,7 +109,7 @@ def test_flat_gaussians_stay_exact():
     gaussians = Gaussians(torch.zeros(n, 3), torch.log(torch.tensor([[0.3, 0.2, 1e-4]])),
                           torch.tensor([[0.9, 0.3, 0.2, 0.1]]), torch.logit(torch.tensor([0.8])), torch.zeros(n, 1, 3))
     _, camera, _ = random_scene(1, 0, width=10, height=8)
-    assert_same_hits(as_dict(contributions(gaussians, camera, 2)), brute_force(gaussians, camera, 2), atol=1e-6)
+    assert_same_hits(as_hits(contributions(gaussians, camera, 2)), trace_rays(gaussians, camera, 2), atol=1e-6)
 
 
 def test_rejects_bad_arguments():

@@ -287,16 +287,14 @@ def test_a_failed_export_leaves_no_partial_file(disk_run, tmp_path, capsys):
 def synth_run(tmp_path_factory):
     """A tiny Mitsuba object (with its true mesh as object.glb) and a short run of the method on it."""
     pytest.importorskip("mitsuba")
-    from dataclasses import replace
-
-    from matspray.pipeline import Pipeline, preset_config
+    from matspray.config import build_config
+    from matspray.pipeline import Pipeline
     from matspray.synth import SynthConfig, make_object
 
     root = tmp_path_factory.mktemp("synth")
     make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), root / "data",
                 progress=False, notify=lambda _: None)
-    config = preset_config("test", predictor="simulated")
-    config.refine = replace(config.refine, iterations=8)
+    config = build_config("test", predictor="simulated", **{"refine.iterations": 8})
     Pipeline(root / "data", root / "run", config, progress=False, log=lambda _: None).run_all(["full"])
     return root
 

@@ -82,7 +82,7 @@ def test_interrupted_run_resumes_to_the_same_result(tiny_object, tmp_path, monke
 
     again = train_geometry(scene, config, tmp_path / "resumed", progress=False)  # finished: read back, not retrained
     assert torch.equal(again.means, resumed.means)
-    with pytest.raises(RunError, match="other geometry settings .*iterations: 40 -> 50.*--restart"):
+    with pytest.raises(RunError, match="other geometry settings .*iterations: 40 -> 50.*restart the geometry stage"):
         train_geometry(scene, replace(config, iterations=50), tmp_path / "resumed", progress=False)
 
 
@@ -111,7 +111,7 @@ def test_presets_and_overrides():
     assert short.densify_until == demo.densify_until // 10 and short.opacity_reset_every == demo.opacity_reset_every // 10
     with pytest.raises(ConfigError, match="unknown geometry preset 'fast'"):
         preset("fast")
-    with pytest.raises(ConfigError, match="sh_degree must be 0..3"):
+    with pytest.raises(ConfigError, match="sh_degree: must be 0..3"):
         preset("test", sh_degree=4)
     with pytest.raises(ConfigError, match="unknown settings colour"):
         preset("test", colour=1)

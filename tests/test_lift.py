@@ -84,7 +84,7 @@ def test_min_support_outside_zero_to_one_is_refused():
     from matspray.errors import ConfigError
     from matspray.lift import LiftConfig
 
-    with pytest.raises(ConfigError, match="min_support must be in"):
+    with pytest.raises(ConfigError, match="min_support: must be in"):
         LiftConfig(min_support=1.5)
 
 
@@ -129,5 +129,5 @@ def test_a_footprint_of_zero_sigmas_is_refused():
     from matspray.errors import ConfigError
     from matspray.lift import LiftConfig
 
-    with pytest.raises(ConfigError, match="footprint_sigmas must be > 0"):
+    with pytest.raises(ConfigError, match="footprint_sigmas: must be > 0"):
         LiftConfig(footprint_sigmas=0.0)

@@ -1,16 +1,18 @@
 """The method end to end on a tiny Mitsuba object: stages, artifacts, resuming, eval, report, relight."""
 
 import re
+from dataclasses import replace
 import subprocess
 import sys
-from dataclasses import replace
 
 import pytest
 import torch
 
 from matspray.errors import DataError, NumericalError, RunError
-from matspray.pipeline import Pipeline, asset_stage, preset_config
-from matspray.refine import VARIANTS, check_finite
+from matspray.config import build_config
+from matspray.pipeline import Pipeline
+from matspray.variants import VARIANT_NAMES as VARIANTS, asset_stage
+from matspray.refine import check_finite
 
 pytest.importorskip("mitsuba")
 
@@ -25,9 +27,7 @@ def tiny_object(tmp_path_factory):
 
 
 def tiny_config():
-    config = preset_config("test", predictor="simulated")
-    config.refine = replace(config.refine, iterations=8)
-    return config
+    return build_config("test", predictor="simulated", **{"refine.iterations": 8})
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +133,7 @@ def test_relight_refuses_a_map_that_is_not_latlong(finished_run, tmp_path):
 
 
 def test_eval_needs_ground_truth(tmp_path, finished_run):
-    with pytest.raises(DataError, match="not a MatSpray run folder"):
+    with pytest.raises(RunError, match="not a MatSpray run folder"):
         from matspray.eval.run_eval import evaluate_run
 
         evaluate_run(tmp_path, None)
@@ -142,3 +142,25 @@ def test_eval_needs_ground_truth(tmp_path, finished_run):
 def test_nan_loss_names_step_and_term():
     with pytest.raises(NumericalError, match="refine step 7: the photo loss is nan"):
         check_finite(7, material=torch.tensor(0.1), photo=torch.tensor(float("nan")))
+
+
+def test_a_pipeline_from_default_configs_runs(tiny_object, tmp_path):
+    from matspray.config import PipelineConfig
+
+    pipeline = Pipeline(tiny_object, tmp_path / "run", PipelineConfig(predictor="ground-truth"), progress=False, log=lambda _: None)
+    maps = pipeline.predict()
+    assert set(maps) == {v.name for v in pipeline.scene.train}
+    assert pipeline.config.geometry.iterations == 3000  # the demo preset's geometry, not None
+
+
+def test_resuming_with_the_other_method_recomputes_only_what_differs(tiny_object, finished_run):
+    ours = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
+    paper = Pipeline(tiny_object, finished_run, build_config("test", "paper", predictor="simulated", **{"refine.iterations": 8}),
+                     progress=False, log=lambda _: None)
+    assert paper.predict_fingerprint() == ours.predict_fingerprint()
+    assert paper.geometry_fingerprint() == ours.geometry_fingerprint()
+    assert paper.lift_fingerprint() != ours.lift_fingerprint()
+    # the same lift settings under another method name still do not share the stage: the method is in the fingerprint
+    relabelled = Pipeline(tiny_object, finished_run, replace(tiny_config(), method="paper"), progress=False, log=lambda _: None)
+    assert relabelled.lift_fingerprint() != ours.lift_fingerprint()
+    Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)  # leave config.yaml as the fixture's

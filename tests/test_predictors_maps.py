@@ -189,7 +189,7 @@ def test_make_predictor_rejects_bad_specs(tmp_path):
         make_predictor("simulated:x")
     with pytest.raises(ConfigError, match="--basecolor-encoding, --weights do\\(es\\) not apply to the simulated predictor"):
         make_predictor("simulated", PredictorOptions(weights="w", basecolor_encoding="srgb"))
-    with pytest.raises(ConfigError, match="--batch-size must be >= 1"):
+    with pytest.raises(ConfigError, match="batch_size: must be >= 1"):
         make_predictor("simulated", PredictorOptions(batch_size=0))
     assert make_predictor("simulated", PredictorOptions(severity=0.5, seed=3)).describe()["settings"]["severity"] == 0.5
     assert json.dumps(make_predictor("ground-truth").describe())  # predictor.json must be able to hold it

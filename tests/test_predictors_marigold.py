@@ -169,12 +169,12 @@ def test_weights_errors(weights, tmp_path, monkeypatch):
 
 
 def test_settings_errors(weights):
-    with pytest.raises(ConfigError, match="--ensemble-size must be >= 1"):
+    with pytest.raises(ConfigError, match="ensemble_size: must be >= 1"):
         MarigoldConfig(ensemble_size=0)
-    with pytest.raises(ConfigError, match="--device: unknown device 'gpu7'"):
+    with pytest.raises(ConfigError, match="device: unknown device 'gpu7'"):
         make_predictor("marigold", PredictorOptions(weights=str(weights), device="gpu7"))
     if not torch.cuda.is_available():
-        with pytest.raises(ConfigError, match="has no CUDA; use --device cpu"):
+        with pytest.raises(ConfigError, match="has no CUDA; use cpu"):
             make_predictor("marigold", PredictorOptions(weights=str(weights), device="cuda"))
     with pytest.raises(ConfigError, match="--severity do\\(es\\) not apply to the marigold predictor"):
         make_predictor("marigold", PredictorOptions(weights=str(weights), severity=1.0))

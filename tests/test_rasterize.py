@@ -1,10 +1,9 @@
-"""The torch rasterizer against a brute-force per-pixel loop, and its gradients."""
+"""The torch rasterizer against the per-pixel reference (matspray.render.reference.splat_pixels), and its gradients."""
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 import torch
 
@@ -12,6 +11,7 @@ from matspray.data.camera import Camera
 from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
 from matspray.render.rasterize import rasterize
+from matspray.render.reference import splat_pixels
 from matspray.render.settings import RasterSettings
 
 
@@ -29,57 +29,12 @@ def random_scene(n: int, seed: int, dtype=torch.float32, width: int = 16, height
     return gaussians, camera, features
 
 
-def brute_force(gaussians: Gaussians, camera: Camera, features, background, near=0.01, eps2d=0.3,
-                min_alpha=1 / 255, max_alpha=0.99, min_transmittance=1e-4):
-    """3DGS's forward pass written out per Gaussian and per pixel in float64 numpy."""
-    g = gaussians.to(dtype=torch.float64)
-    means, covs = g.means.numpy(), g.covariances().numpy()
-    opac = g.opacities.numpy()
-    feats = features.double().numpy()
-    V = camera.viewmat.double().numpy()
-    K = camera.K.double().numpy()
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    W, H = camera.width, camera.height
-    splats = []
-    for i in range(len(means)):
-        t = V[:3, :3] @ means[i] + V[:3, 3]
-        if t[2] <= near:
-            continue
-        x, y = t[0] / t[2], t[1] / t[2]
-        xc = min(max(x, -1.3 * cx / fx), 1.3 * (W - cx) / fx)
-        yc = min(max(y, -1.3 * cy / fy), 1.3 * (H - cy) / fy)
-        J = np.array([[fx / t[2], 0, -fx * xc / t[2]], [0, fy / t[2], -fy * yc / t[2]]])
-        cov2 = J @ V[:3, :3] @ covs[i] @ V[:3, :3].T @ J.T + eps2d * np.eye(2)
-        splats.append((t[2], np.array([fx * x + cx, fy * y + cy]), np.linalg.inv(cov2), opac[i], feats[i]))
-    splats.sort(key=lambda s: s[0])
-    image = np.zeros((H, W, feats.shape[1]))
-    alpha = np.zeros((H, W))
-    depth = np.zeros((H, W))
-    for row in range(H):
-        for col in range(W):
-            T, colour, d = 1.0, np.zeros(feats.shape[1]), 0.0
-            for z, mean, conic, o, f in splats:
-                delta = np.array([col + 0.5, row + 0.5]) - mean
-                a = min(max_alpha, o * math.exp(-0.5 * delta @ conic @ delta))
-                if a < min_alpha:
-                    continue
-                if T * (1 - a) < min_transmittance:
-                    break
-                colour += a * T * f
-                d += a * T * z
-                T *= 1 - a
-            image[row, col] = colour + T * background.double().numpy()
-            alpha[row, col] = 1 - T
-            depth[row, col] = d
-    return torch.from_numpy(image), torch.from_numpy(alpha), torch.from_numpy(depth)
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_matches_brute_force(seed):
+def test_matches_reference(seed):
     gaussians, camera, features = random_scene(40, seed)
     background = torch.tensor([0.2, 0.5, 1.0])
     out = rasterize(gaussians, camera, features, background)
-    image, alpha, depth = brute_force(gaussians, camera, features, background)
+    image, alpha, depth = splat_pixels(gaussians, camera, features, background)
     assert out.features.shape == (12, 16, 3) and out.alpha.shape == (12, 16) and out.depth.shape == (12, 16)
     assert alpha.max() > 0.9 and (alpha < 0.5).any()  # the scene has both covered and open pixels
     torch.testing.assert_close(out.features.double(), image, atol=1e-5, rtol=0)
@@ -87,7 +42,7 @@ def test_matches_brute_force(seed):
     torch.testing.assert_close(out.depth.double(), depth, atol=1e-5 * 5, rtol=1e-5)  # depth ~4, float32
 
 
-def test_early_termination_matches_brute_force():
+def test_early_termination_matches_reference():
     """Eight nearly opaque Gaussians stacked on the optical axis: blending stops once the transmittance
     would fall below 1e-4, so the farthest ones must not appear (they do without termination)."""
     n = 8
@@ -98,7 +53,7 @@ def test_early_termination_matches_brute_force():
     camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 8, 8)
     features = torch.eye(n)
     out = rasterize(gaussians, camera, features)
-    image, alpha, depth = brute_force(gaussians, camera, features, torch.zeros(n))
+    image, alpha, depth = splat_pixels(gaussians, camera, features, torch.zeros(n))
     torch.testing.assert_close(out.features.double(), image, atol=1e-5, rtol=0)
     torch.testing.assert_close(out.alpha.double(), alpha, atol=1e-5, rtol=0)
     assert out.features[3:5, 3:5, -1].max() == 0  # the four central pixels stop early

@@ -114,12 +114,6 @@ def test_colmap_projection(tmp_path):
     assert scene.points.shape == (1, 3)
 
 
-def test_colmap_distorted_model_is_refused(tmp_path):
-    write_colmap(tmp_path, model="OPENCV", params=(45.0, 47.0, 19.5, 15.5, 0.1, 0.0, 0.0, 0.0))
-    with pytest.raises(DataError, match="distorted model OPENCV.*image_undistorter"):
-        load_scene(tmp_path)
-
-
 def test_colmap_without_images_is_refused(tmp_path):
     write_colmap(tmp_path, n_images=0)
     with pytest.raises(DataError, match="no registered images"):

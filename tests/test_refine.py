@@ -4,9 +4,10 @@ import torch
 from matspray.errors import ConfigError
 from matspray.lift import LiftConfig, lift
 from matspray.merger import projection_average
-from matspray.refine import VARIANTS, RefineConfig, masked_l1, material_loss, refine, scale_invariant_l1, view_losses
+from matspray.refine import RefineConfig, RefineInputs, TrainingViews, masked_l1, material_loss, refine, scale_invariant_l1, view_losses, warm_up_light
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
+from matspray.variants import VARIANT_NAMES
 from tests.scenes import material_scene
 
 BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])
@@ -20,10 +21,14 @@ def lifted_scene():
     return kept, normals[result.kept], materials[result.kept], views, maps, result
 
 
+def refine_inputs(gaussians, normals, lifted, views, maps, visibility=None) -> RefineInputs:
+    return RefineInputs(gaussians, normals, lifted.values, lifted.seen, views, maps, BOUNDS, visibility)
+
+
 def mean_losses(gaussians, normals, materials, envmap, views, maps, config):
-    frozen = FrozenViews(gaussians, [v.camera for v in views])
+    training = TrainingViews(RefineInputs(gaussians, normals, torch.zeros(len(gaussians), len(views), 5), torch.ones(len(gaussians), len(views), dtype=torch.bool), views, maps, BOUNDS))
     with torch.no_grad():
-        terms = [view_losses(frozen, i, materials, normals, views[i], maps[i], envmap, config) for i in range(len(views))]
+        terms = [view_losses(training, i, materials, normals, envmap, config) for i in range(len(views))]
     return {name: sum(float(t[name]) for t in terms) / len(terms) for name in terms[0]}
 
 
@@ -32,17 +37,17 @@ def test_short_refinement_lowers_both_losses(lifted_scene):
     config = RefineConfig(iterations=40, envmap_height=8, seed=0)
     start_light = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height)
     before = mean_losses(gaussians, normals, projection_average(lifted.values, lifted.seen), start_light, views, maps, config)
-    result = refine(gaussians, normals, lifted.values, lifted.seen, views, maps, BOUNDS, config, progress=False)
+    result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
     after = mean_losses(gaussians, normals, result.materials, result.envmap, views, maps, config)
     assert after["photo"] < 0.7 * before["photo"], (before, after)
     assert after["material"] < before["material"], (before, after)
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("variant", VARIANT_NAMES)
 def test_each_variant_runs(lifted_scene, variant):
     gaussians, normals, _, views, maps, lifted = lifted_scene
     config = RefineConfig(iterations=3, variant=variant, envmap_height=8)
-    result = refine(gaussians, normals, lifted.values, lifted.seen, views, maps, BOUNDS, config, progress=False)
+    result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
     assert result.materials.shape == (len(gaussians), 5)
     assert torch.isfinite(result.materials).all()
     assert (result.envmap is not None) == (variant in ("full", "no-softmax"))
@@ -80,12 +85,12 @@ def test_material_loss_is_plain_l1_unless_the_base_color_is_scale_invariant():
 
 
 def test_unknown_basecolor_loss_is_refused():
-    with pytest.raises(ConfigError, match="unknown base color loss 'l2'.*l1, scale-invariant"):
+    with pytest.raises(ConfigError, match="basecolor_loss: unknown loss 'l2'.*l1, scale-invariant"):
         RefineConfig(basecolor_loss="l2")
 
 
 def test_negative_loss_weights_are_refused():
-    with pytest.raises(ConfigError, match="loss weights must be >= 0, got material 1.0 and photo -1"):
+    with pytest.raises(ConfigError, match="photo_weight: must be >= 0, got -1"):
         RefineConfig(photo_weight=-1)
 
 
@@ -108,7 +113,7 @@ def test_supervised_materials_converge_to_the_2d_maps_in_a_short_run(lifted_scen
     config = RefineConfig(iterations=60, variant="supervised", seed=0)
     grey = torch.full((len(gaussians), 5), 0.5)
     before = mean_losses(gaussians, normals, grey, None, views, maps, config)["material"]
-    result = refine(gaussians, normals, lifted.values, lifted.seen, views, maps, BOUNDS, config, progress=False)
+    result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
     after = mean_losses(gaussians, normals, result.materials, None, views, maps, config)["material"]
     assert after < 0.4 * before, (before, after)
 
@@ -127,15 +132,13 @@ def test_a_non_finite_gradient_stops_refinement_naming_the_step_and_parameter():
 def test_light_warm_up_fits_the_environment_map_and_leaves_the_merger_at_its_start(lifted_scene):
     """Warm-up steps train only the light: with no merger steps after it the materials are still the
     projection average, and the photo loss is lower than with the initial constant map."""
-    from matspray.refine import warm_up_light
-
     gaussians, normals, _, views, maps, lifted = lifted_scene
     config = RefineConfig(envmap_height=8, light_warmup=30)
     average = projection_average(lifted.values, lifted.seen)
     light = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height)
     before = mean_losses(gaussians, normals, average, light, views, maps, config)["photo"]
-    frozen = FrozenViews(gaussians, [v.camera for v in views])
-    warm_up_light(frozen, average, light, normals, views, config, torch.Generator().manual_seed(0), None, progress=False)
+    training = TrainingViews(refine_inputs(gaussians, normals, lifted, views, maps))
+    warm_up_light(training, average, normals, light, config, torch.Generator().manual_seed(0), progress=False)
     after = mean_losses(gaussians, normals, average, light, views, maps, config)["photo"]
     assert after < 0.8 * before, (before, after)
 
@@ -151,5 +154,5 @@ def test_min_coverage_runs_the_merger_on_fewer_gaussians_with_a_close_result(lif
     results = {}
     for min_coverage in (0.0, 0.05):
         config = RefineConfig(iterations=20, envmap_height=8, seed=0, min_coverage=min_coverage)
-        results[min_coverage] = refine(gaussians, normals, lifted.values, lifted.seen, views, maps, BOUNDS, config, progress=False).materials
+        results[min_coverage] = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False).materials
     assert (results[0.0] - results[0.05]).abs().mean() < 0.01

@@ -134,7 +134,7 @@ def test_refuses_a_folder_with_a_different_scene_unless_overwrite(tmp_path):
     small = dict(shape="sphere", resolution=16, train_views=2, test_views=1, spp=1, texture_height=16, env_height=16,
                  relight_envs=["overcast"])
     make_object(SynthConfig(seed=1, **small), tmp_path, progress=False, notify=lambda _: None)
-    with pytest.raises(ConfigError, match="already holds a different `matspray synth` scene.*--overwrite"):
+    with pytest.raises(ConfigError, match="already holds a different `matspray synth` scene.*overwrit"):
         make_object(SynthConfig(seed=2, **small), tmp_path, progress=False, notify=lambda _: None)
     other = tmp_path / "other"
     other.mkdir()
@@ -154,10 +154,10 @@ def test_refuses_a_folder_with_a_different_scene_unless_overwrite(tmp_path):
         (dict(shape="cube"), "unknown shape 'cube' .*sphere, rounded-cube, torus, capsule, blob, composite"),
         (dict(env="moon"), "unknown environment map 'moon'.*sky, studio"),
         (dict(relight_envs=["sky", "nowhere.exr"]), "unknown environment map 'nowhere.exr'"),
-        (dict(resolution=4), "--res must be an integer in \\[8, 2048\\]"),
-        (dict(train_views=0), "--views must be an integer in \\[1, 1000\\]"),
-        (dict(test_views=-1), "--test-views must be"),
-        (dict(spp=0), "--spp must be"),
+        (dict(resolution=4), "resolution: must be an integer in \\[8, 2048\\]"),
+        (dict(train_views=0), "train_views: must be an integer in \\[1, 1000\\]"),
+        (dict(test_views=-1), "test_views: must be"),
+        (dict(spp=0), "spp: must be"),
     ],
 )
 def test_bad_settings_are_refused_before_anything_is_written(tmp_path, changes, message):

@@ -5,7 +5,8 @@ import torch
 
 from matspray.asset import read_asset, write_asset
 from matspray.gaussians import Gaussians
-from matspray.relight import Asset, render_gbuffer
+from matspray.asset import Asset
+from matspray.relight import render_gbuffer
 from matspray.render.deferred import shade
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.visibility import (

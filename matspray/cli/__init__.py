@@ -8,11 +8,13 @@ import importlib
 import sys
 
 from matspray import __version__
-from matspray.errors import MatsprayError
+from matspray.cli.options import flag_message
+from matspray.errors import MatsprayError, SettingError
 
 # (module under matspray.cli, one-line help); order is the order of `matspray --help`
 COMMANDS = [
     ("info", "describe a dataset folder and list every problem found"),
+    ("colmap", "structure from motion on a folder of photos (pycolmap): a dataset folder for info and run"),
     ("synth", "a synthetic benchmark object with ground truth, rendered by Mitsuba 3"),
     ("geometry", "fit 3D Gaussians (3DGS with normals) to the photos: RUN/geometry/gaussians.ply"),
     ("predict", "per-view 2D material maps (base color, roughness, metallic) into RUN/materials2d/"),
@@ -52,6 +54,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
+    except SettingError as exc:
+        print(f"matspray {args.command}: error: {flag_message(exc)}", file=sys.stderr)
+        return 2
     except MatsprayError as exc:
         print(f"matspray {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -4,6 +4,8 @@
 import os
 from pathlib import Path
 
+from matspray.errors import ConfigError
+
 
 def add_parser(parser) -> None:
     parser.add_argument("--run", type=Path, help="run folder made by `matspray run` (with --glb: the run whose Gaussian asset to compare with; "
@@ -32,8 +34,6 @@ def run(args) -> int:
         print(f"report: {out / 'report.html'}")
         return 0
     if args.run is None:
-        from matspray.errors import ConfigError
-
         raise ConfigError("give --run RUN (a run to evaluate) or --glb FILE.glb (an exported mesh)")
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run

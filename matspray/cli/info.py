@@ -4,7 +4,7 @@ from pathlib import Path
 
 
 def add_parser(parser) -> None:
-    parser.add_argument("data", type=Path, help="dataset folder (Blender, TensoIR or COLMAP layout)")
+    parser.add_argument("data", type=Path, help="dataset folder (Blender, nerfstudio, TensoIR or COLMAP layout)")
     parser.add_argument("--downscale", type=float, default=1.0, help="shrink images by this factor on load (default 1)")
 
 

@@ -1,4 +1,6 @@
-"""`matspray relight --run RUN --env NAME|PATH`: render the asset under a new light."""
+"""`matspray relight --run RUN --env NAME|PATH`: render the asset under a new light.
+
+The run-folder glue lives here: which asset, which cameras, which files; `matspray.relight` only renders."""
 
 from pathlib import Path
 
@@ -18,12 +20,62 @@ def add_parser(parser) -> None:
     parser.add_argument("--env-height", type=int, default=64, help="rows of the prefiltered light (default 64)")
 
 
+def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", frames: int = 60, fps: int = 24,
+                background: str = "transparent", env_height: int = 64) -> list[Path]:
+    """Render a run's asset under `env` for the dataset's test cameras or an orbit; returns the files written."""
+    from tqdm import tqdm
+
+    from matspray.asset import read_asset
+    from matspray.data import load_scene, write_image
+    from matspray.data.images import linear_to_srgb
+    from matspray.data.video import write_video
+    from matspray.errors import ConfigError, RunError
+    from matspray.lights import load_envmap
+    from matspray.relight import background_radiance, orbit_cameras, render_relit
+    from matspray.render.envmap import EnvironmentMap
+    from matspray.rundir import RunDir
+
+    run = RunDir(run_dir).require()
+    asset_folder = run.asset_path(variant)
+    if frames < 1 or fps < 1 or env_height < 4:
+        raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
+    out_dir = Path(out_dir)
+    name, env_map = load_envmap(env)
+    light = EnvironmentMap.from_tensor(env_map, height=env_height, learnable=False)
+    prefiltered = light.prefilter()
+    asset = read_asset(asset_folder)
+    source = run.dataset()["source"]
+    scene = load_scene(source, downscale=run.downscale())
+    if views == "test":
+        if not scene.test:
+            raise RunError(f"{source}: the dataset has no test views; use --views orbit")
+        cameras = [(v.name, v.camera) for v in scene.test]
+    else:
+        center = scene.bounds.mean(0)
+        cameras = [(f"orbit_{i:03d}", c) for i, c in enumerate(orbit_cameras([v.camera for v in scene.train], center, frames))]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written, video_frames = [], []
+    for view_name, camera in tqdm(cameras, desc=f"relight [{name}]"):
+        rgb, alpha = render_relit(asset, camera, prefiltered)
+        path = out_dir / f"{view_name}_{name}.png"
+        if background == "env":
+            rgb = rgb + background_radiance(light, camera) * (1 - alpha[..., None])
+            write_image(path, rgb)
+        else:
+            write_image(path, rgb / alpha[..., None].clamp_min(1e-4), alpha)
+        written.append(path)
+        video_frames.append(linear_to_srgb(rgb))
+    if views == "orbit":
+        video = out_dir / f"orbit_{name}.mp4"
+        write_video(video_frames, video, fps)
+        written.append(video)
+    return written
+
+
 def run(args) -> int:
     from matspray.device import configure_threads
 
     configure_threads()
-    from matspray.relight import relight_run
-
     written = relight_run(args.run, args.env, args.views, args.out, variant=args.variant, frames=args.frames, fps=args.fps,
                           background=args.background, env_height=args.env_height)
     print(f"wrote {len(written)} files to {args.out}")

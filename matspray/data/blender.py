@@ -47,8 +47,15 @@ def resolve_image(root: Path, file_path: str, json_path: Path) -> Path:
     raise file_error(json_path, f"image '{file_path}' of a frame does not exist under {root}")
 
 
-def frame_intrinsics(meta: dict, frame: dict, width: int, height: int, json_path: Path) -> torch.Tensor:
-    """K [3, 3] for one frame, from per-frame keys first, then the file's top-level keys."""
+def view_name(file_path: str) -> str:
+    """A view's name: the file name of its `file_path`, without an image suffix."""
+    name = Path(str(file_path).replace("\\", "/")).name
+    return Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
+
+
+def frame_intrinsics(meta: dict, frame: dict, width: int, height: int, json_path: Path, label: str = "") -> torch.Tensor:
+    """K [3, 3] for one frame, from per-frame keys first, then the file's top-level keys
+    (`label` names the frame in the error when there are none)."""
 
     def get(key):
         return frame.get(key, meta.get(key))
@@ -68,7 +75,8 @@ def frame_intrinsics(meta: dict, frame: dict, width: int, height: int, json_path
         if get("camera_angle_y") is not None:
             fy = 0.5 * height / math.tan(0.5 * float(get("camera_angle_y")))
         return torch.tensor([[fx, 0, width / 2.0], [0, fy, height / 2.0], [0, 0, 1]], dtype=torch.float32)
-    raise file_error(json_path, "no intrinsics: need 'camera_angle_x' or 'fl_x' (with optional fl_y, cx, cy, w, h)")
+    raise file_error(json_path, f"{label + ' has ' if label else ''}no intrinsics: need 'camera_angle_x' or 'fl_x' "
+                     "(with optional fl_y, cx, cy, w, h) in the frame or at the top level")
 
 
 def read_pose(frame: dict, index: int, json_path: Path) -> torch.Tensor:  # [4, 4] camera-to-world, OpenGL
@@ -111,8 +119,7 @@ def read_split(root: Path, split: str) -> list[View]:
         height, width = rgb.shape[:2]
         K = frame_intrinsics(meta, frame, width, height, json_path)
         camera = Camera.from_camtoworld_opengl(pose, K, width, height)
-        name = Path(frame["file_path"]).name
-        name = Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
+        name = view_name(frame["file_path"])
         views.append(View(name=name, image=rgb, alpha=alpha, camera=camera, path=image_path))
     return views
 
@@ -127,23 +134,23 @@ def write_blender(root, splits: dict[str, list[View]], image_format: str = "png"
         for view in views:
             relative = f"{split}/{view.name}.{image_format}"
             write_image(root / relative, view.image, view.alpha)
-            K = view.camera.K.double()
-            frames.append(
-                {
-                    "file_path": f"{split}/{view.name}",
-                    "transform_matrix": view.camera.camtoworld_opengl.double().tolist(),
-                    "fl_x": float(K[0, 0]),
-                    "fl_y": float(K[1, 1]),
-                    "cx": float(K[0, 2]),
-                    "cy": float(K[1, 2]),
-                    "w": view.width,
-                    "h": view.height,
-                }
-            )
+            frames.append({"file_path": f"{split}/{view.name}", **pose_record(view.camera), **intrinsics_record(view.camera)})
         meta = {"frames": frames}
         if views:
             meta["camera_angle_x"] = views[0].camera.fov_x
         write_json(root / f"transforms_{split}.json", meta)
+
+
+def pose_record(camera: Camera) -> dict:
+    """A frame's camera-to-world matrix in OpenGL axes, in float64 so that a reader gets it back exactly."""
+    return {"transform_matrix": camera.camtoworld_opengl.double().tolist()}
+
+
+def intrinsics_record(camera: Camera) -> dict:
+    """nerfstudio-style intrinsics of a pinhole camera: any K round-trips exactly."""
+    K = camera.K.double()
+    return {"fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+            "w": camera.width, "h": camera.height}
 
 
 def write_json(path: Path, data) -> None:

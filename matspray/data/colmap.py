@@ -1,12 +1,13 @@
 """COLMAP sparse reconstructions (through pycolmap): `sparse/0` (or `sparse/`), `images/`, optional `masks/`.
 
-Only undistorted pinhole models are accepted (PINHOLE, SIMPLE_PINHOLE, and radial models whose
-distortion parameters are all zero); anything else is refused with the command that undistorts it.
-Every `test_every`-th image (sorted by name) is held out as a test view, as LLFF-style evaluations do.
+Pinhole models are read as they are; distorted ones (SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV,
+OPENCV_FISHEYE and the radial fisheye models) are undistorted on load, masks the same way
+(`matspray.data.undistort`). Every `test_every`-th image (sorted by name) is held out as a test view, as LLFF-style evaluations do.
 """
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -15,10 +16,21 @@ import torch
 from matspray.data.camera import Camera
 from matspray.data.images import read_image, srgb_to_linear
 from matspray.data.scene import View
+from matspray.data.undistort import Lens, Undistorter
 from matspray.errors import DataError, file_error
 
-PINHOLE_MODELS = {"PINHOLE", "SIMPLE_PINHOLE"}
-ZERO_DISTORTION_MODELS = {"SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV"}
+# COLMAP camera models as a Lens: (focal x, focal y, cx, cy, distortion coefficients, fisheye), from the params
+LENSES = {
+    "SIMPLE_PINHOLE": lambda p: (p[0], p[0], p[1], p[2], (), False),
+    "PINHOLE": lambda p: (p[0], p[1], p[2], p[3], (), False),
+    "SIMPLE_RADIAL": lambda p: (p[0], p[0], p[1], p[2], (p[3], 0.0, 0.0, 0.0), False),
+    "RADIAL": lambda p: (p[0], p[0], p[1], p[2], (p[3], p[4], 0.0, 0.0), False),
+    "OPENCV": lambda p: (p[0], p[1], p[2], p[3], tuple(p[4:8]), False),
+    "FULL_OPENCV": lambda p: (p[0], p[1], p[2], p[3], tuple(p[4:12]), False),
+    "OPENCV_FISHEYE": lambda p: (p[0], p[1], p[2], p[3], tuple(p[4:8]), True),
+    "SIMPLE_RADIAL_FISHEYE": lambda p: (p[0], p[0], p[1], p[2], (p[3], 0.0, 0.0, 0.0), True),
+    "RADIAL_FISHEYE": lambda p: (p[0], p[0], p[1], p[2], (p[3], p[4], 0.0, 0.0), True),
+}
 MASK_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
@@ -29,28 +41,14 @@ def find_model(root: Path) -> Path | None:
     return None
 
 
-def camera_matrix(camera, model_path: Path) -> torch.Tensor:  # [3, 3]
+def colmap_lens(camera, model_path: Path) -> Lens:
+    """The Lens of a COLMAP camera; models without an OpenCV equivalent are refused, naming the known ones."""
     name = camera.model_name
-    params = [float(p) for p in camera.params]
-    if name == "SIMPLE_PINHOLE":
-        f, cx, cy = params
-        fx = fy = f
-    elif name == "PINHOLE":
-        fx, fy, cx, cy = params
-    elif name in ZERO_DISTORTION_MODELS and all(abs(p) < 1e-12 for p in params[3 if name.startswith("SIMPLE") else 4 :]):
-        if name.startswith("SIMPLE") or name == "RADIAL":
-            f, cx, cy = params[:3]
-            fx = fy = f
-        else:
-            fx, fy, cx, cy = params[:4]
-    else:
-        raise file_error(
-            model_path,
-            f"camera {camera.camera_id} uses the distorted model {name}; MatSpray needs undistorted pinhole images",
-            "run 'colmap image_undistorter --image_path images --input_path sparse/0 --output_path undistorted' "
-            "and point MatSpray at the 'undistorted' folder",
-        )
-    return torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=torch.float32)
+    if name not in LENSES:
+        raise file_error(model_path, f"camera {camera.camera_id} uses the camera model {name}, which MatSpray cannot undistort",
+                         f"known: {', '.join(LENSES)}")
+    fx, fy, cx, cy, coeffs, fisheye = LENSES[name]([float(p) for p in camera.params])
+    return Lens(fx, fy, cx, cy, int(camera.width), int(camera.height), tuple(coeffs), fisheye, name)
 
 
 def find_mask(mask_dir: Path, image_name: str) -> Path | None:
@@ -62,8 +60,8 @@ def find_mask(mask_dir: Path, image_name: str) -> Path | None:
     return None
 
 
-def read_colmap(root: Path, test_every: int = 8) -> tuple[list[View], list[View], torch.Tensor, torch.Tensor]:
-    """Returns train views, test views, points [P, 3] and their linear colours [P, 3]."""
+def read_colmap(root: Path, test_every: int = 8) -> tuple[list[View], list[View], torch.Tensor, torch.Tensor, list[str]]:
+    """Returns train views, test views, points [P, 3], their linear colours [P, 3] and notes on what loading did."""
     import pycolmap
 
     model_path = find_model(root)
@@ -80,25 +78,22 @@ def read_colmap(root: Path, test_every: int = 8) -> tuple[list[View], list[View]
     image_dir = root / "images"
     mask_dir = root / "masks"
     views = []
+    undistorter = Undistorter(root)
     for image in images:
         camera = reconstruction.cameras[image.camera_id]
-        K = camera_matrix(camera, model_path)
+        lens = colmap_lens(camera, model_path)
         cam_from_world = torch.tensor(image.cam_from_world().matrix(), dtype=torch.float64)  # [3, 4]
         viewmat = torch.eye(4, dtype=torch.float64)
         viewmat[:3] = cam_from_world
         image_path = image_dir / image.name
-        rgb, alpha = read_image(image_path)
-        if rgb.shape[:2] != (camera.height, camera.width):
-            raise file_error(image_path, f"image is {rgb.shape[1]}x{rgb.shape[0]} but its COLMAP camera is {camera.width}x{camera.height}")
+        mask_path = None
         if mask_dir.is_dir():
             mask_path = find_mask(mask_dir, image.name)
             if mask_path is None:
                 raise file_error(mask_dir, f"no mask for image '{image.name}'", "give every image a mask or remove masks/")
-            mask_rgb, _ = read_image(mask_path)
-            alpha = mask_rgb.mean(-1)
-            if alpha.shape != rgb.shape[:2]:
-                raise file_error(mask_path, f"mask is {tuple(alpha.shape)} but the image is {tuple(rgb.shape[:2])}")
-        views.append(View(Path(image.name).stem, rgb, alpha, Camera(K, viewmat.float(), camera.width, camera.height), image_path))
+        load = partial(read_photo, image_path, mask_path, (camera.height, camera.width))
+        sources = () if mask_path is None else (mask_path,)
+        views.append(undistorter.view(Path(image.name).stem, image_path, lens, viewmat, load, sources))
     if test_every > 0 and len(views) > 1:
         test = [v for i, v in enumerate(views) if i % test_every == 0]
         train = [v for i, v in enumerate(views) if i % test_every != 0]
@@ -113,4 +108,17 @@ def read_colmap(root: Path, test_every: int = 8) -> tuple[list[View], list[View]
         colors = torch.zeros(0, 3)
     if not train:
         raise DataError(f"{model_path}: too few images to hold out test views")
-    return train, test, points, colors
+    return train, test, points, colors, undistorter.notes()
+
+
+def read_photo(image_path: Path, mask_path: Path | None, size: tuple[int, int]):
+    """rgb [H, W, 3] and alpha [H, W] (from the mask, or None) of one COLMAP image of `size` (H, W)."""
+    rgb, alpha = read_image(image_path)
+    if rgb.shape[:2] != size:
+        raise file_error(image_path, f"image is {rgb.shape[1]}x{rgb.shape[0]} but its COLMAP camera is {size[1]}x{size[0]}")
+    if mask_path is not None:
+        mask_rgb, _ = read_image(mask_path)
+        alpha = mask_rgb.mean(-1)
+        if alpha.shape != rgb.shape[:2]:
+            raise file_error(mask_path, f"mask is {tuple(alpha.shape)} but the image is {tuple(rgb.shape[:2])}")
+    return rgb, alpha

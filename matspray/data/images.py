@@ -56,13 +56,14 @@ def save_torch_atomic(obj, path) -> None:
 
 
 # ------------------------------------------------------------------------------------------ reading
-def read_image(path) -> tuple[Tensor, Tensor | None]:
+def read_image(path, orient: bool = False) -> tuple[Tensor, Tensor | None]:
     """Read an image file as linear float32.
 
     Returns rgb [H, W, 3] (a single-channel file is broadcast to 3 channels) and alpha [H, W] or None.
-    PNG/JPG are decoded from sRGB; EXR/HDR are read as stored.
+    PNG/JPG are decoded from sRGB; EXR/HDR are read as stored. `orient`: turn photos upright as their
+    EXIF orientation tag says (what a photo viewer shows).
     """
-    values = read_raw(path)  # [H, W, C] in the file's own encoding, [0, 1] for LDR
+    values = read_raw(path, orient=orient)  # [H, W, C] in the file's own encoding, [0, 1] for LDR
     path = Path(path)
     rgb, alpha = split_alpha(values)
     if path.suffix.lower() in LDR_SUFFIXES:
@@ -81,17 +82,18 @@ def split_alpha(values: Tensor) -> tuple[Tensor, Tensor | None]:  # [H, W, C] ->
     return values[..., :3].contiguous(), values[..., 3].contiguous()
 
 
-def read_raw(path) -> Tensor:
-    """Read stored values without colour decoding: [H, W, C] float32, LDR scaled to [0, 1]."""
+def read_raw(path, orient: bool = False) -> Tensor:
+    """Read stored values without colour decoding: [H, W, C] float32, LDR scaled to [0, 1]
+    (`orient`: apply the EXIF orientation of 8-bit PNG and JPEG files)."""
     path = Path(path)
     if not path.exists():
         raise file_error(path, "file does not exist")
     suffix = path.suffix.lower()
     try:
         if suffix == ".png":
-            array = _read_png(path)
+            array = _read_png(path, orient)
         elif suffix in (".jpg", ".jpeg"):
-            array = _read_pillow(path)
+            array = _read_pillow(path, orient)
         elif suffix == ".exr":
             array = _read_exr(path)
         elif suffix == ".hdr":
@@ -114,10 +116,37 @@ def read_raw(path) -> Tensor:
     return torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32))
 
 
-def _read_pillow(path: Path) -> np.ndarray:
-    from PIL import Image
+EXIF_ORIENTATION = 0x0112
+EXIF_TRANSPOSED = (5, 6, 7, 8)  # orientations that swap width and height
+
+
+def image_size(path, orient: bool = False) -> tuple[int, int]:
+    """(width, height) of an image file, read from its header where possible (`orient`: as the
+    EXIF orientation turns it)."""
+    path = Path(path)
+    if not path.exists():
+        raise file_error(path, "file does not exist")
+    if path.suffix.lower() in LDR_SUFFIXES:
+        from PIL import Image
+
+        try:
+            with Image.open(path) as img:
+                width, height = img.size
+                if orient and img.getexif().get(EXIF_ORIENTATION) in EXIF_TRANSPOSED:
+                    width, height = height, width
+            return width, height
+        except DECODER_ERRORS as exc:
+            raise file_error(path, f"cannot read image: {exc or type(exc).__name__}") from None
+    values = read_raw(path)
+    return int(values.shape[1]), int(values.shape[0])
+
+
+def _read_pillow(path: Path, orient: bool = False) -> np.ndarray:
+    from PIL import Image, ImageOps
 
     with Image.open(path) as img:
+        if orient:
+            img = ImageOps.exif_transpose(img)
         if img.mode in ("P", "CMYK", "YCbCr", "LAB", "HSV"):
             img = img.convert("RGBA" if "transparency" in img.info else "RGB")
         if img.mode in ("I;16", "I;16B", "I;16L", "I"):
@@ -127,23 +156,23 @@ def _read_pillow(path: Path) -> np.ndarray:
         return np.asarray(img, dtype=np.float32) / 255.0
 
 
-def _read_png(path: Path) -> np.ndarray:
+def _read_png(path: Path, orient: bool = False) -> np.ndarray:
     import png  # pypng: reads 16-bit colour PNGs, which Pillow reduces to 8 bit
 
     try:
-        return _read_png_unchecked(path, png)
+        return _read_png_unchecked(path, png, orient)
     except png.Error as exc:  # FormatError, ChunkError, ...
         raise ValueError(str(exc)) from None
 
 
-def _read_png_unchecked(path: Path, png) -> np.ndarray:
+def _read_png_unchecked(path: Path, png, orient: bool) -> np.ndarray:
     with open(path, "rb") as handle:
         header = handle.read(33)
     if header[:8] != b"\x89PNG\r\n\x1a\n":
         raise ValueError("not a PNG file")
     bit_depth = header[24]
     if bit_depth != 16:
-        return _read_pillow(path)
+        return _read_pillow(path, orient)
     width, height, rows, info = png.Reader(filename=str(path)).asDirect()
     planes = info["planes"]
     array = np.vstack([np.asarray(row, dtype=np.uint16) for row in rows]).reshape(height, width, planes)

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import torch
 
-from matspray.data import blender, colmap, tensoir
+from matspray.data import blender, colmap, nerfstudio, tensoir
 from matspray.data.scene import Scene, View, bounds_from_cameras, bounds_from_points, bounds_from_visual_hull
-from matspray.errors import ConfigError, DataError, file_error
+from matspray.errors import ConfigError, DataError, SettingError, file_error
 
-FORMATS = ("blender", "tensoir", "colmap")
+FORMATS = ("blender", "nerfstudio", "tensoir", "colmap")
 
 
 def detect_format(root: Path) -> str:
@@ -22,6 +22,8 @@ def detect_format(root: Path) -> str:
         raise file_error(root, "is not a folder", "point at the dataset folder, not a file inside it")
     if (root / "transforms_train.json").exists() or (root / "transforms_test.json").exists():
         return "blender"
+    if nerfstudio.is_nerfstudio(root):
+        return "nerfstudio"
     if tensoir.is_tensoir(root):
         return "tensoir"
     if colmap.find_model(root) is not None:
@@ -29,7 +31,7 @@ def detect_format(root: Path) -> str:
     raise file_error(
         root,
         "no dataset layout recognised",
-        "tried blender (transforms_train.json), tensoir (train_000/metadata.json), colmap (sparse/0/cameras.bin)",
+        "tried blender (transforms_train.json), nerfstudio (transforms.json), tensoir (train_000/metadata.json), colmap (sparse/0/cameras.bin)",
     )
 
 
@@ -50,15 +52,16 @@ def check_split(views: list[View], where: Path, split: str) -> None:
 
 
 def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:
-    """Load a dataset folder (Blender, TensoIR or COLMAP layout) into a Scene.
+    """Load a dataset folder (Blender, nerfstudio, TensoIR or COLMAP layout) into a Scene.
 
     `downscale` > 1 shrinks every image and camera by that factor (2 halves the resolution).
     """
     if downscale < 1.0:
-        raise ConfigError(f"--downscale must be >= 1, got {downscale}")
+        raise SettingError("downscale", f"must be >= 1, got {downscale}")
     root = Path(root)
     fmt = detect_format(root)
     points = colors = None
+    log = []
     if fmt == "blender":
         train, test = blender.read_split(root, "train"), blender.read_split(root, "test")
         if not train:
@@ -67,8 +70,13 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:
         train, test = tensoir.read_split(root, "train"), tensoir.read_split(root, "test")
         if not train:
             raise file_error(root, "TensoIR layout without train_*/ folders")
+    elif fmt == "nerfstudio":
+        capture = nerfstudio.read_nerfstudio(root, test_every=test_every)
+        train, test, log = capture.train, capture.test, capture.notes
+        if not train:
+            raise file_error(root / nerfstudio.TRANSFORMS, "has no train frames", "check train_filenames / test_filenames")
     else:
-        train, test, points, colors = colmap.read_colmap(root, test_every=test_every)
+        train, test, points, colors, log = colmap.read_colmap(root, test_every=test_every)
     for split, views in (("train", train), ("test", test)):
         check_split(views, root, split)
     if downscale != 1.0:
@@ -87,7 +95,7 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:
     if bounds is None:
         bounds = bounds_from_cameras(views)
         notes.append("object bounds guessed from where the cameras look (no masks or points)")
-    return Scene(train=train, test=test, bounds=bounds.float(), source=root, format=fmt, points=points, point_colors=colors, notes=notes)
+    return Scene(train=train, test=test, bounds=bounds.float(), source=root, format=fmt, points=points, point_colors=colors, notes=notes, log=log)
 
 
 @dataclass
@@ -98,7 +106,7 @@ class SceneSummary:
 
 def describe_scene(scene: Scene) -> SceneSummary:
     """What `matspray info` prints: layout, views, resolution, intrinsics, camera distances, masks."""
-    lines = [f"format: {scene.format}", f"source: {scene.source}"]
+    lines = [f"format: {scene.format}", f"source: {scene.source}"] + [f"loading: {line}" for line in scene.log]
     problems = list(scene.notes)
     center = scene.bounds.mean(0)
     for split in ("train", "test"):

@@ -49,6 +49,7 @@ class Scene:
     points: Tensor | None = None  # [P, 3] sparse points (COLMAP), for initialisation
     point_colors: Tensor | None = None  # [P, 3] linear RGB
     notes: list[str] = field(default_factory=list)  # non-fatal observations made while loading
+    log: list[str] = field(default_factory=list)  # what loading did to the data (undistortion, keys ignored)
 
     @property
     def views(self) -> list[View]:

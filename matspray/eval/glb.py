@@ -27,9 +27,8 @@ from matspray.eval.run_eval import (GroundTruth, ViewRenders, asset_renders, che
 from matspray.eval.tables import material_table
 from matspray.export.frames import GLTF_FROM_DATASET, transform_directions, transform_points
 from matspray.gltf.read import read_gltf
-from matspray.pipeline import asset_stage
-from matspray.relight import run_downscale
-from matspray.rundir import read_json, write_json, write_text_atomic
+from matspray.rundir import RunDir, read_json, write_json, write_text_atomic
+from matspray.variants import asset_stage
 from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.gltf_object import asset_parts
 from matspray.synth.mitsuba_scene import build_scene, render_view, select_variant
@@ -98,7 +97,7 @@ def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: st
             raise ConfigError(f"{glb}: which dataset? pass --data (the file does not name a run to take it from)")
         data = read_json(run / "dataset.json")["source"]
     data = Path(data)
-    scene = load_scene(data, downscale=run_downscale(run) if run is not None else 1.0)
+    scene = load_scene(data, downscale=RunDir(run).downscale() if run is not None else 1.0)
     check_synthetic(scene)
     views = scene.test
     truths = [read_view_truth(v) for v in views]

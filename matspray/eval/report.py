@@ -11,8 +11,18 @@ from pathlib import Path
 
 import torch
 
-from matspray.data import View, load_scene, write_image
-from matspray.rundir import read_json, write_text_atomic
+from matspray.asset import ENVMAP_FILE, read_asset, read_history
+from matspray.data import View, load_scene, read_image, write_image
+from matspray.data.images import srgb_to_linear
+from matspray.eval.light import light_figures, training_light
+from matspray.eval.run_eval import predict_test_views, read_view_truth, unpremultiply
+from matspray.eval.tables import tables_markdown
+from matspray.predictors import read_materials2d, read_predictor_info
+from matspray.relight import render_gbuffer
+from matspray.render.deferred import shade_gbuffer
+from matspray.render.envmap import EnvironmentMap
+from matspray.rundir import RunDir, write_text_atomic
+from matspray.variants import LABELS, asset_stage
 
 MAX_VIEWS = 3
 STYLE = """
@@ -100,8 +110,6 @@ class Figures:
 
     def scalar(self, name: str, values: torch.Tensor, caption: str, alpha: torch.Tensor | None = None) -> str:
         # scalar maps are shown as they are stored (linear values): undo the sRGB encoding of write_image
-        from matspray.data.images import srgb_to_linear
-
         return self.image(name, srgb_to_linear(values.clamp(0, 1))[..., None].expand(-1, -1, 3), caption, alpha)
 
 
@@ -113,19 +121,10 @@ def tone_map(env: torch.Tensor) -> torch.Tensor:  # HDR [H, W, 3] -> displayable
 
 def write_report(run_dir, metrics: dict, data=None) -> Path:
     """Write RUN/report.html (and RUN/report/*.png) from a run and its evaluation `metrics`."""
-    from matspray.asset import read_asset, read_history
-    from matspray.eval.run_eval import VARIANT_LABELS, predict_test_views, read_view_truth, unpremultiply
-    from matspray.eval.tables import tables_markdown
-    from matspray.pipeline import asset_stage
-    from matspray.predictors import read_materials2d, read_predictor_info
-    from matspray.relight import run_downscale, render_gbuffer
-    from matspray.render.deferred import shade_gbuffer
-    from matspray.render.envmap import EnvironmentMap
-
-    run_dir = Path(run_dir)
-    identity = read_json(run_dir / "dataset.json")
-    data = Path(data) if data is not None else Path(identity["source"])
-    scene = load_scene(data, downscale=run_downscale(run_dir))
+    run = RunDir(run_dir).require()
+    run_dir = run.root
+    data = Path(data) if data is not None else Path(run.dataset()["source"])
+    scene = load_scene(data, downscale=run.downscale())
     figures = Figures(run_dir / "report")
     sections = [f"<h1>MatSpray result: {html.escape(data.name)}</h1>"]
     info = read_predictor_info(run_dir) if (run_dir / "materials2d" / "predictor.json").exists() else {}
@@ -135,7 +134,7 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
     sections.append("<p>Each row shows one test view. <i>Ground truth</i> is Mitsuba 3's path-traced render of the "
                     "true object; <i>ours</i> is the reconstructed asset shaded by split-sum image-based lighting. "
                     "Lights marked relit were never seen during training.</p>")
-    assets = {v: read_asset(run_dir / asset_stage(v)) for v in VARIANT_LABELS if (run_dir / asset_stage(v) / "asset.ply").exists()}
+    assets = {v: read_asset(run_dir / asset_stage(v)) for v in run.asset_variants()}
     views: list[View] = scene.test[:MAX_VIEWS]
     env_names = metrics.get("relight_envs", [])
     lights = {name: EnvironmentMap.from_file(data / "envmaps" / f"{name}.exr", height=64).prefilter() for name in env_names}
@@ -148,7 +147,7 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
             for variant, asset in assets.items():
                 gbuffer = render_gbuffer(asset, view.camera, lights[env])
                 rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, lights[env]), gbuffer.alpha)
-                cells.append(figures.image(f"{view.name}_{env}_{variant}", rgb, f"{VARIANT_LABELS[variant]}, {env}", gbuffer.alpha))
+                cells.append(figures.image(f"{view.name}_{env}_{variant}", rgb, f"{LABELS[variant]}, {env}", gbuffer.alpha))
             rows.append("<div>" + "".join(cells) + "</div>")
         if "full" in assets:
             gbuffer = render_gbuffer(assets["full"], view.camera)
@@ -167,8 +166,6 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
                 cells[5:5] = [figures.scalar(f"pred2d_test_{view.name}_roughness", m.roughness, "roughness, 2D prediction", truth.mask)]
                 cells[8:8] = [figures.scalar(f"pred2d_test_{view.name}_metallic", m.metallic, "metallic, 2D prediction", truth.mask)]
             if gt_normal_path.exists():
-                from matspray.data import read_image
-
                 gt_normals, _ = read_image(gt_normal_path)
                 cells.append(figures.image(f"{view.name}_normal_gt", _srgb_inverse(gt_normals * 0.5 + 0.5), "normals, truth", truth.mask))
             rows.append("<div>" + "".join(cells) + "</div>")
@@ -185,15 +182,22 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
         sections.append("<h2>2D material predictions (input of the method, training views)</h2><div>" + "".join(cells) + "</div>")
     # the light
     cells = []
-    estimated = run_dir / "asset" / "envmap.exr"
+    estimated = run_dir / asset_stage("full") / ENVMAP_FILE
+    light_note = ""
     if estimated.exists():
-        cells.append(figures.image("envmap_estimated", tone_map(EnvironmentMap.from_file(estimated).map.detach()), "estimated light (full)", css="env"))
+        estimate = EnvironmentMap.from_file(estimated).map.detach()
+        cells.append(figures.image("envmap_estimated", tone_map(estimate), "estimated light (full)", css="env"))
+        truth = training_light(data)
+        if truth is not None:
+            figures_of_light = light_figures(estimate, truth[1])
+            light_note = (f" Estimate against the training light '{html.escape(truth[0])}': total variation of log radiance "
+                          f"{figures_of_light['tv_ratio']:.2f} x the truth's, irradiance correlation {figures_of_light['irradiance_correlation']:.3f}.")
     for path in sorted((data / "envmaps").glob("*.exr")) if (data / "envmaps").is_dir() else []:
         role = "held-out light" if path.stem in env_names else "training light"
         cells.append(figures.image(f"envmap_{path.stem}", tone_map(EnvironmentMap.from_file(path, height=64).map.detach()), f"{role}: {path.stem}", css="env"))
     if cells:
         sections.append("<h2>Environment light</h2><p>Tone-mapped lat-long maps (up is the top row). The estimated light "
-                        "is only determined up to what the training views reveal.</p><div>" + "".join(cells) + "</div>")
+                        "is only determined up to what the training views reveal." + light_note + "</p><div>" + "".join(cells) + "</div>")
     histories = {v: read_history(run_dir / asset_stage(v)) for v in assets}
     sections.append("<h2>Loss curves (refinement)</h2>" + loss_curves_svg({k: v for k, v in histories.items() if v}))
     sections.append(markdown_to_html(tables_markdown(metrics)))
@@ -206,6 +210,4 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
 
 def _srgb_inverse(values: torch.Tensor) -> torch.Tensor:
     """Values meant to be shown as stored (normals as colours): pre-decode so write_image stores them."""
-    from matspray.data.images import srgb_to_linear
-
     return srgb_to_linear(values.clamp(0, 1))

@@ -16,13 +16,23 @@ from pathlib import Path
 
 import torch
 
-from matspray.data import Scene, View, read_image
+from tqdm import tqdm
+
+from matspray.asset import read_asset
+from matspray.data import Scene, View, load_scene, read_image
 from matspray.errors import DataError, file_error
 from matspray.eval.evaluate import average_metrics, evaluate_images
+from matspray.eval.lpips import load_lpips
 from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
-
-VARIANT_LABELS = {"full": "Full", "supervised": "Supervised", "proj-average": "Proj. Average", "no-softmax": "Without Softmax"}
+from matspray.eval.tables import write_tables
+from matspray.predictors import PredictorOptions, make_predictor, predict_views
+from matspray.predictors.ground_truth import read_ground_truth
+from matspray.relight import render_gbuffer
+from matspray.render.deferred import shade_gbuffer
+from matspray.render.envmap import EnvironmentMap
+from matspray.rundir import RunDir, write_json
+from matspray.variants import ABLATION, LABELS, SOFTMAX_ABLATION, asset_stage
 EVAL_ENV_HEIGHT = 64  # relighting maps are prefiltered from this many rows (x 2 columns)
 
 
@@ -41,8 +51,6 @@ def relight_env_names(view: View) -> list[str]:
 
 
 def read_view_truth(view: View) -> GroundTruth:
-    from matspray.predictors.ground_truth import read_ground_truth
-
     maps = read_ground_truth(view)
     mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width)
     relit = {}
@@ -53,8 +61,6 @@ def read_view_truth(view: View) -> GroundTruth:
 
 
 def load_relight_lights(data: Path, names: list[str]):
-    from matspray.render.envmap import EnvironmentMap
-
     lights = {}
     for name in names:
         path = Path(data) / "envmaps" / f"{name}.exr"
@@ -81,9 +87,6 @@ class ViewRenders:
 
 def asset_renders(asset, view: View, lights: dict) -> ViewRenders:
     """The Gaussian asset's G-buffer at `view`, shaded under every light."""
-    from matspray.relight import render_gbuffer
-    from matspray.render.deferred import shade_gbuffer
-
     camera = view.camera.to(asset.gaussians.device)
     with torch.no_grad():
         # with visibility each light casts its own shadows; the material channels are the same in every G-buffer
@@ -169,11 +172,7 @@ def check_synthetic(scene: Scene) -> None:
 
 def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, str]:
     """Raw 2D predictions of the test views by the run's predictor, when it can make them here."""
-    import yaml
-
-    from matspray.predictors import PredictorOptions, make_predictor, predict_views
-
-    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    config = RunDir(run_dir).config()
     spec = config.get("predictor", "")
     if not (spec in ("simulated", "ground-truth") or spec.startswith("files:")):
         return None, f"raw 2D predictions of test views not evaluated (predictor '{spec}' would have to run again)"
@@ -187,23 +186,10 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
 def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, progress: bool = True) -> dict:
     """Evaluate every asset of `run_dir` on the dataset's test views; writes eval/metrics.json and
     eval/tables.md and returns the metrics."""
-    from tqdm import tqdm
-
-    from matspray.asset import read_asset
-    from matspray.data import load_scene
-    from matspray.eval.lpips import load_lpips
-    from matspray.eval.tables import write_tables
-    from matspray.pipeline import asset_stage
-    from matspray.relight import run_downscale
-    from matspray.rundir import RunDir, read_json, write_json
-
-    run = RunDir(run_dir)
-    identity_path = run.path("dataset.json")
-    if not identity_path.exists():
-        raise DataError(f"{run.root}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
-    identity = read_json(identity_path)
+    run = RunDir(run_dir).require()
+    identity = run.dataset()
     data = Path(data) if data is not None else Path(identity["source"])
-    scene = load_scene(data, downscale=run_downscale(run.root))
+    scene = load_scene(data, downscale=run.downscale())
     if [v.name for v in scene.train] != identity["train_views"]:
         raise DataError(f"{run.root}: this run was made from {identity['source']}, not from {data}")
     check_synthetic(scene)
@@ -215,7 +201,7 @@ def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, 
     if not env_names:
         metrics["notes"].append("no relit ground truth in the dataset: relighting not evaluated")
     variants = {}
-    stages = [(v, asset_stage(v)) for v in VARIANT_LABELS if run.path(asset_stage(v), "asset.ply").exists()]
+    stages = [(v, asset_stage(v)) for v in run.asset_variants()]
     for variant, stage in tqdm(stages, desc="eval", disable=not progress):
         variants[variant] = evaluate_asset(read_asset(run.path(stage)), scene.test, truths, lights, lpips, aligned)
     predictions, note = predict_test_views(run.root, scene.test)
@@ -238,8 +224,8 @@ def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dic
         table1["Ours"] = {row: summary[row] for row in rows if row in summary}
     if predictions is not None:
         table1["2D predictions"] = {row: predictions[row] for row in ("basecolor", "roughness", "metallic")}
-    table2 = {VARIANT_LABELS[v]: variants[v]["summary"]["relighting"] for v in ("full", "supervised", "proj-average") if v in variants}
-    softmax = {VARIANT_LABELS[v]: variants[v]["summary"]["relighting"] for v in ("full", "no-softmax") if v in variants}
+    table2 = {LABELS[v]: variants[v]["summary"]["relighting"] for v in ABLATION if v in variants}
+    softmax = {LABELS[v]: variants[v]["summary"]["relighting"] for v in SOFTMAX_ABLATION if v in variants}
     stage_names = {"materials2d": "predict", "geometry": "geometry", "lift": "lift", "visibility": "visibility", "asset": "refine"}
     stages = {stage_names[k]: v for k, v in timings.items() if k in stage_names}
     return {"table1": table1, "table2": table2, "softmax": softmax, "timings": {"Ours (this machine)": stages} if stages else {}}

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from matspray.data.images import atomic_target
+from matspray.variants import ABLATION, LABELS, SOFTMAX_ABLATION
 
 MISSING = "—"
 UNAVAILABLE = "n/a"
@@ -36,8 +37,8 @@ ALIGNED_ROWS = {
     "relighting_aligned": "Relighting (scale-aligned)",
     "basecolor_aligned": "BaseColor (scale-aligned)",
 }
-ABLATION_VARIANTS = ("Full", "Supervised", "Proj. Average")
-SOFTMAX_VARIANTS = ("Full", "Without Softmax")
+ABLATION_VARIANTS = tuple(LABELS[v] for v in ABLATION)
+SOFTMAX_VARIANTS = tuple(LABELS[v] for v in SOFTMAX_ABLATION)
 STAGE_LABELS = {
     "predict": "Diffusion predictions",
     "geometry": "Gaussian Splatting",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from matspray.errors import ConfigError
+from matspray.errors import SettingError
 
 FRAMES = ("gltf", "dataset")
 NORMALS = ("mesh", "asset")
@@ -27,15 +27,15 @@ class ExportConfig:
 
     def __post_init__(self):
         if self.faces < MIN_FACES:
-            raise ConfigError(f"the face budget must be >= {MIN_FACES}, got {self.faces}")
+            raise SettingError("export.faces", f"the face budget must be >= {MIN_FACES}, got {self.faces}")
         if self.texture_size not in TEXTURE_SIZES:
-            raise ConfigError(f"the texture size must be a power of two in [64, 8192], got {self.texture_size}")
+            raise SettingError("export.texture_size", f"the texture size must be a power of two in [64, 8192], got {self.texture_size}")
         if self.frame not in FRAMES:
-            raise ConfigError(f"unknown frame '{self.frame}'; choose one of {', '.join(FRAMES)}")
+            raise SettingError("export.frame", f"unknown frame '{self.frame}'; choose one of {', '.join(FRAMES)}")
         if self.grid < 16 or self.truncation <= 0 or not 0 < self.min_alpha < 1 or not 0 <= self.keep_fraction <= 1:
-            raise ConfigError("the TSDF grid must be >= 16 voxels, the truncation > 0, the alpha threshold in (0, 1) "
-                              "and the kept component share in [0, 1]")
+            raise SettingError("export", "the TSDF grid must be >= 16 voxels, the truncation > 0, the alpha threshold in (0, 1) "
+                                         "and the kept component share in [0, 1]")
         if self.normals not in NORMALS:
-            raise ConfigError(f"unknown normals '{self.normals}'; choose one of {', '.join(NORMALS)}")
+            raise SettingError("export.normals", f"unknown normals '{self.normals}'; choose one of {', '.join(NORMALS)}")
         if self.neighbours < 1 or self.padding < 0:
-            raise ConfigError("baking needs >= 1 neighbour and a padding >= 0")
+            raise SettingError("export", "baking needs >= 1 neighbour and a padding >= 0")

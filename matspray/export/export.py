@@ -24,10 +24,8 @@ from matspray.export.frames import file_from_dataset, frame_extras, transform_di
 from matspray.export.surface import fuse_surface
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
-from matspray.pipeline import asset_stage
-from matspray.refine import VARIANTS
-from matspray.relight import run_downscale
-from matspray.rundir import read_json
+from matspray.rundir import RunDir, read_json
+from matspray.variants import asset_stage, get_variant
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
 
@@ -132,16 +130,15 @@ def check_output(out: Path) -> Path:
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ConfigError(f"{out}: cannot create its folder ({exc.strerror}); choose another --out") from None
+        raise ConfigError(f"{out}: cannot create its folder ({exc.strerror}); choose another output path") from None
     if not os.access(out.parent, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
-        raise ConfigError(f"{out}: cannot be written (permission denied); choose another --out")
+        raise ConfigError(f"{out}: cannot be written (permission denied); choose another output path")
     return out
 
 
 def run_asset(run_dir: Path, variant: str) -> Path:
     """The asset folder of `variant` in a run, or a RunError that says how to make it."""
-    if variant not in VARIANTS:
-        raise ConfigError(f"unknown variant '{variant}'; choose one of {', '.join(VARIANTS)}")
+    get_variant(variant)  # an unknown variant: one clear line
     if not (run_dir / "dataset.json").exists():
         raise RunError(f"{run_dir}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
     folder = run_dir / asset_stage(variant)
@@ -164,7 +161,7 @@ def export_run(run_dir, out, variant: str = "full", config: ExportConfig = Expor
     run_dir, out = Path(run_dir), check_output(out)
     folder = run_asset(run_dir, variant)
     source = data if data is not None else read_json(run_dir / "dataset.json")["source"]
-    scene = load_scene(source, downscale=run_downscale(run_dir))
+    scene = load_scene(source, downscale=RunDir(run_dir).downscale())
     asset = read_asset(folder)
     mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress, notes={"variant": variant, "run": str(run_dir.resolve())})
     envmap = folder / "envmap.exr"

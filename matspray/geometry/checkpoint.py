@@ -27,15 +27,15 @@ def load_checkpoint(path, config: GeometryConfig) -> tuple[int, dict] | None:
     try:
         data = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # a truncated or foreign file
-        raise file_error(path, f"is not a readable checkpoint ({type(exc).__name__}: {exc})", "delete it, or pass --restart") from None
+        raise file_error(path, f"is not a readable checkpoint ({type(exc).__name__}: {exc})", "delete it, or restart the geometry stage") from None
     if not isinstance(data, dict) or data.get("version") != CHECKPOINT_VERSION:
-        raise file_error(path, "is not a matspray geometry checkpoint of this version", "delete it, or pass --restart")
+        raise file_error(path, "is not a matspray geometry checkpoint of this version", "delete it, or restart the geometry stage")
     saved = data["config"]
     differences = sorted(k for k, v in config.to_dict().items() if saved.get(k) != v)
     if differences:
         shown = ", ".join(f"{k}: {saved.get(k)!r} -> {getattr(config, k)!r}" for k in differences[:4])
         raise RunError(
             f"{path}: was made with other geometry settings ({shown}); "
-            "use another --out folder, or pass --restart to discard the earlier training"
+            "use another run folder, or restart the geometry stage to discard the earlier training"
         )
     return int(data["iteration"]), data["state"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
-from matspray.errors import ConfigError
+from matspray.errors import ConfigError, SettingError
 
 
 @dataclass(frozen=True)
@@ -57,14 +57,14 @@ class GeometryConfig:
         positive = ["iterations", "init_points", "densify_every", "opacity_reset_every", "max_gaussians", "checkpoint_every", "sh_degree_every"]
         for name in positive:
             if getattr(self, name) < 1:
-                raise ConfigError(f"geometry config: {name} must be >= 1, got {getattr(self, name)}")
+                raise SettingError(name, f"must be >= 1, got {getattr(self, name)}")
         if not 0 <= self.sh_degree <= 3:
-            raise ConfigError(f"geometry config: sh_degree must be 0..3, got {self.sh_degree}")
+            raise SettingError("sh_degree", f"must be 0..3, got {self.sh_degree}")
         if self.resolution < 0:
-            raise ConfigError(f"geometry config: resolution must be >= 0 (0 keeps the images' size), got {self.resolution}")
+            raise SettingError("resolution", f"must be >= 0 (0 keeps the images' size), got {self.resolution}")
         for name in ("ssim_weight", "normal_from", "init_opacity"):
             if not 0 <= getattr(self, name) <= 1:
-                raise ConfigError(f"geometry config: {name} must be in [0, 1], got {getattr(self, name)}")
+                raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -21,7 +21,7 @@ from tqdm import tqdm
 from matspray.device import resolve_device
 from matspray.data.images import linear_to_srgb, srgb_to_linear
 from matspray.data.scene import View
-from matspray.errors import ConfigError, DataError, file_error
+from matspray.errors import ConfigError, DataError, SettingError, file_error
 from matspray.predictors.base import Predictor
 from matspray.predictors.encodings import check_encoding, decode_basecolor
 from matspray.predictors.maps import MaterialMaps
@@ -48,9 +48,9 @@ class MarigoldConfig:
     def __post_init__(self) -> None:
         for name in ("batch_size", "ensemble_size"):
             if int(getattr(self, name)) < 1:
-                raise ConfigError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+                raise SettingError(name, f"must be >= 1, got {getattr(self, name)}")
         if self.steps is not None and int(self.steps) < 1:
-            raise ConfigError(f"--steps must be >= 1, got {self.steps}")
+            raise SettingError("steps", f"must be >= 1, got {self.steps}")
         if self.basecolor_encoding is not None:
             self.basecolor_encoding = check_encoding(self.basecolor_encoding)
 
@@ -77,7 +77,7 @@ def load_pipeline(weights: str):
         except (OSError, ValueError, KeyError, RuntimeError) as exc:
             raise file_error(path, f"cannot load the pipeline: {exc}") from None
     if weights.count("/") != 1 or weights.startswith((".", "/", "~")):
-        raise file_error(path, "does not exist", f"--weights takes a pipeline folder or a hub id; {DOWNLOAD_HINT}")
+        raise file_error(path, "does not exist", f"the weights setting takes a pipeline folder or a hub id; {DOWNLOAD_HINT}")
     try:
         return MarigoldIntrinsicsPipeline.from_pretrained(weights)
     except Exception as exc:  # no network, unknown repo, interrupted download: all end the same way

@@ -5,8 +5,12 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Callable
 
-from matspray.errors import ConfigError
+from matspray.errors import ConfigError, SettingError
 from matspray.predictors.base import Predictor
+from matspray.predictors.files import FilesPredictor
+from matspray.predictors.ground_truth import GroundTruthPredictor
+from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
+from matspray.predictors.simulated import SimulatedPredictor, SimulationConfig
 
 SPECS = ("files:DIR", "marigold", "simulated", "ground-truth")
 
@@ -43,27 +47,19 @@ def make_predictor(spec: str, options: PredictorOptions | None = None, notify: C
     kind, _, argument = str(spec).partition(":")
     kind = kind.strip().lower()
     if kind not in USES:
-        raise ConfigError(f"--predictor: unknown predictor '{spec}'; use one of {', '.join(SPECS)}")
+        raise SettingError("predictor", f"unknown predictor '{spec}'; use one of {', '.join(SPECS)}")
     if kind == "files" and not argument:
-        raise ConfigError("--predictor files:DIR needs the folder holding the maps, e.g. files:outputs/diffusion_renderer")
+        raise SettingError("predictor", "files:DIR needs the folder holding the maps, e.g. files:outputs/diffusion_renderer")
     if kind != "files" and argument:
-        raise ConfigError(f"--predictor {kind} takes no ':' argument (got '{spec}')")
+        raise SettingError("predictor", f"{kind} takes no ':' argument (got '{spec}')")
     unused = sorted(n for n in _given(options, {f.name for f in fields(options)}) if n not in USES[kind])
     if unused:
         flags = ", ".join("--" + n.replace("_", "-") for n in unused)
         raise ConfigError(f"{flags} do(es) not apply to the {kind} predictor")
     if kind == "files":
-        from matspray.predictors.files import FilesPredictor
-
         return FilesPredictor(argument, options.basecolor_encoding, notify=notify)
     if kind == "marigold":
-        from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
-
         return MarigoldPredictor(MarigoldConfig(**_given(options, USES["marigold"])), notify=notify)
     if kind == "simulated":
-        from matspray.predictors.simulated import SimulatedPredictor, SimulationConfig
-
         return SimulatedPredictor(SimulationConfig(**_given(options, USES["simulated"])))
-    from matspray.predictors.ground_truth import GroundTruthPredictor
-
     return GroundTruthPredictor()

@@ -40,7 +40,7 @@ from tqdm import tqdm
 
 from matspray.data.images import srgb_to_linear
 from matspray.data.scene import View
-from matspray.errors import ConfigError
+from matspray.errors import ConfigError, SettingError
 from matspray.predictors.base import Predictor
 from matspray.predictors.ground_truth import check_ground_truth, read_ground_truth
 from matspray.predictors.maps import MaterialMaps
@@ -68,9 +68,9 @@ class SimulationConfig:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.severity) and self.severity >= 0):
-            raise ConfigError(f"--severity must be a number >= 0, got {self.severity}")
+            raise SettingError("severity", f"must be a number >= 0, got {self.severity}")
         if int(self.batch_size) < 1:
-            raise ConfigError(f"--batch-size must be >= 1, got {self.batch_size}")
+            raise SettingError("batch_size", f"must be >= 1, got {self.batch_size}")
         if not 0.0 <= self.shading_spread <= 1.0:
             raise ConfigError(f"shading_spread must be in [0, 1], got {self.shading_spread}")
 

@@ -27,6 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from matspray.material import N_CHANNELS, stack, unstack
 from matspray.data.camera import Camera
 from matspray.render.brdf import (
     MIN_ROUGHNESS,
@@ -64,10 +65,16 @@ class GBuffer:
 
     @classmethod
     def from_blended(cls, blended: Tensor, alpha: Tensor):
-        """`from_accumulated` of blended per-Gaussian features [H, W, 8 | 14] laid out as base color 3,
-        roughness, metallic, normal 3 and optionally the 6 shadow factors (`render.visibility`)."""
-        shadow = blended[..., 8:14] if blended.shape[-1] > 8 else None
-        return cls.from_accumulated(blended[..., :3], blended[..., 3], blended[..., 4], blended[..., 5:8], alpha, shadow)
+        """`from_accumulated` of blended per-Gaussian features [H, W, 8 | 14] laid out as the 5 material
+        channels (`matspray.material`), normal 3 and optionally the 6 shadow factors (`render.visibility`)."""
+        base_color, roughness, metallic = unstack(blended[..., :N_CHANNELS])
+        normals = blended[..., N_CHANNELS:N_CHANNELS + 3]
+        shadow = blended[..., N_CHANNELS + 3:N_CHANNELS + 9] if blended.shape[-1] > N_CHANNELS + 3 else None
+        return cls.from_accumulated(base_color, roughness, metallic, normals, alpha, shadow)
+
+    @property
+    def materials(self) -> Tensor:  # [H, W, 5]
+        return stack(self.base_color, self.roughness, self.metallic)
 
 
 def specular_direction(n: Tensor, wo: Tensor, roughness: Tensor) -> Tensor:  # [..., 3], [..., 3], [...] -> [..., 3]

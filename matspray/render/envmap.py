@@ -30,6 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from matspray.data.images import read_image, write_image
 from matspray.errors import ConfigError, DataError, file_error
 from matspray.render.brdf import MIN_ROUGHNESS, ggx_ndf, roughness_to_alpha, smith_visibility
 from matspray.render.latlong import direction_to_uv, pixel_solid_angles
@@ -256,8 +257,6 @@ class EnvironmentMap(nn.Module):
     @classmethod
     def from_file(cls, path, height: int | None = None, learnable: bool = False):
         """Read an EXR/HDR (or LDR, decoded to linear) lat-long map, e.g. for relighting."""
-        from matspray.data.images import read_image
-
         rgb, _ = read_image(path)
         try:
             return cls.from_tensor(rgb, height, learnable, what="environment map")
@@ -288,6 +287,4 @@ class EnvironmentMap(nn.Module):
 
     def save(self, path) -> None:
         """Write the current map as linear EXR/HDR (atomically)."""
-        from matspray.data.images import write_image
-
         write_image(path, self.map.detach())

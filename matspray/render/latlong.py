@@ -14,6 +14,8 @@ import math
 import torch
 from torch import Tensor
 
+from matspray.render.sh import sh_basis
+
 
 def direction_to_uv(d: Tensor) -> Tensor:  # [..., 3] unit -> [..., 2] (u, v) in [0, 1]
     x, y, z = d.unbind(-1)
@@ -42,3 +44,40 @@ def pixel_solid_angles(height: int, width: int, device=None, dtype=torch.float32
     edges = torch.arange(height + 1, device=device, dtype=torch.float64) / height * math.pi
     band = (torch.cos(edges[:-1]) - torch.cos(edges[1:])) * (2 * math.pi / width)  # [H]
     return band.to(dtype)[:, None].expand(height, width)
+
+
+def total_variation(values: Tensor) -> Tensor:  # [H, 2H, C] -> [] mean gradient magnitude per steradian
+    """Anisotropic total variation of a lat-long field on the sphere, (1 / 4 pi) * integral of
+    |d f / d theta| + |d f / (sin theta d phi)| over the sphere, summed over channels. Per pixel pair:
+    a step between rows i and i+1 weighs sin(theta of their edge) * dphi, a step between neighbouring
+    columns (wrapping round) weighs dtheta, so the value does not grow at the poles, where pixels shrink.
+    Applied to log radiance it measures how noisy a light is, independent of its brightness."""
+    height, width = values.shape[:2]
+    d_theta, d_phi = math.pi / height, 2 * math.pi / width
+    edges = torch.arange(1, height, device=values.device, dtype=values.dtype) * d_theta  # [H - 1] row boundaries
+    vertical = (values[1:] - values[:-1]).abs() * (torch.sin(edges) * d_phi)[:, None, None]
+    horizontal = (values.roll(-1, dims=1) - values).abs() * d_theta
+    return (vertical.sum() + horizontal.sum()) / (4 * math.pi)
+
+
+def sh_irradiance_coefficients(map: Tensor) -> Tensor:  # [H, 2H, 3] linear radiance -> [9, 3]
+    """Projection of a lat-long map onto the 9 real spherical harmonics of order <= 2: what irradiance,
+    the cosine convolution, keeps of a light (Ramamoorthi and Hanrahan 2001)."""
+    height, width = map.shape[:2]
+    basis = sh_basis(pixel_directions(height, width, map.device, map.dtype), 2)  # [H, W, 9]
+    weights = pixel_solid_angles(height, width, map.device, map.dtype)[..., None, None]  # [H, W, 1, 1]
+    return (basis[..., :, None] * map[..., None, :] * weights).sum(dim=(0, 1))
+
+
+COSINE_LOBE_BANDS = (math.pi, 2 * math.pi / 3, math.pi / 4)  # the clamped cosine's SH coefficient per band l = 0, 1, 2
+
+
+def irradiance_correlation(a: Tensor, b: Tensor) -> float:  # [H, 2H, 3], [h, 2h, 3] -> Pearson r
+    """Correlation of two lights' irradiance: Pearson's r of their order-2 spherical-harmonic irradiance
+    over a 16 x 32 grid of normals (channels together); 1 means the same diffuse shading up to a scale."""
+    normals = pixel_directions(16, 32, dtype=torch.float64).reshape(-1, 3)
+    band_scale = torch.tensor([COSINE_LOBE_BANDS[0]] + [COSINE_LOBE_BANDS[1]] * 3 + [COSINE_LOBE_BANDS[2]] * 5, dtype=torch.float64)
+    basis = sh_basis(normals, 2) * band_scale  # [P, 9]
+    fa, fb = ((basis @ sh_irradiance_coefficients(light.double().cpu())).flatten() for light in (a, b))  # [P * 3] each
+    fa, fb = fa - fa.mean(), fb - fb.mean()
+    return float((fa * fb).sum() / (fa.norm() * fb.norm()).clamp_min(1e-30))

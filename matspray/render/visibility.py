@@ -29,10 +29,13 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+from tqdm import tqdm
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.render.brdf import roughness_to_alpha
+from matspray.render.deferred import specular_direction
+from matspray.render.envmap import EnvironmentMap, downsample_latlong
 from matspray.render.latlong import pixel_directions, pixel_solid_angles
 from matspray.render.rasterize import view_weights
 
@@ -102,8 +105,6 @@ def visibility_from(gaussians: Gaussians, camera: Camera, bias: Tensor) -> Tenso
 @torch.no_grad()
 def bake_visibility(gaussians: Gaussians, config: VisibilityConfig = VisibilityConfig(), progress: bool = False) -> Tensor:
     """V [N, D]: each Gaussian's visibility towards the D directions of `visibility_directions(config.rows)`."""
-    from tqdm import tqdm
-
     gaussians = gaussians.detach()
     means = gaussians.means
     center = (means.amax(0) + means.amin(0)) / 2
@@ -126,8 +127,6 @@ def shadow_factors(
     light_cells: Tensor,  # [rows, 2 rows, 3] the light averaged over the grid's cells (`downsample_latlong`)
 ) -> Tensor:  # [N, 6]: diffuse RGB and specular RGB scale factors in [0, 1]
     """How much of the split-sum diffuse and specular light actually reaches each Gaussian."""
-    from matspray.render.deferred import specular_direction
-
     rows = light_cells.shape[0]
     if visibility.shape[1] != 2 * rows * rows:
         raise ValueError(f"visibility has {visibility.shape[1]} directions but the light grid has {2 * rows * rows}")
@@ -148,8 +147,6 @@ def shadow_factors(
 
 def light_cells(light, rows: int) -> Tensor:  # EnvironmentMap | PrefilteredEnvironment -> [rows, 2 rows, 3]
     """The light averaged over the visibility grid's cells."""
-    from matspray.render.envmap import EnvironmentMap, downsample_latlong
-
     source = light.map if isinstance(light, EnvironmentMap) else light.source
     if source is None:
         raise ValueError("this prefiltered environment does not keep its source map; prefilter with `prefilter_latlong`")

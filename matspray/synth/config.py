@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from matspray.errors import ConfigError
+from matspray.errors import ConfigError, SettingError
 
 PLACEMENTS = ("fit", "keep")  # how a glTF asset is placed in the world (matspray.synth.gltf_object)
 
@@ -31,19 +31,19 @@ class SynthConfig:
     overwrite: bool = False  # replace a different scene already in the output folder
 
     def validate(self) -> None:
-        """Raise ConfigError naming the flag of the first setting out of range; normalise env specs to str."""
-        for flag, value, low, high in (
-            ("--res", self.resolution, 8, MAX_RESOLUTION),
-            ("--views", self.train_views, 1, MAX_VIEWS),
-            ("--test-views", self.test_views, 0, MAX_VIEWS),
-            ("--spp", self.spp, 1, MAX_SPP),
-            ("--seed", self.seed, 0, 2**31 - 1),
-            ("--env-height", self.env_height, 8, 4096),
+        """Raise SettingError naming the first setting out of range; normalise env specs to str."""
+        for name, value, low, high in (
+            ("resolution", self.resolution, 8, MAX_RESOLUTION),
+            ("train_views", self.train_views, 1, MAX_VIEWS),
+            ("test_views", self.test_views, 0, MAX_VIEWS),
+            ("spp", self.spp, 1, MAX_SPP),
+            ("seed", self.seed, 0, 2**31 - 1),
+            ("env_height", self.env_height, 8, 4096),
             ("gt_samples", self.gt_samples, 1, 16),
             ("texture_height", self.texture_height, 8, 4096),
         ):
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-                raise ConfigError(f"{flag} must be an integer in [{low}, {high}], got {value!r}")
+                raise SettingError(name, f"must be an integer in [{low}, {high}], got {value!r}")
         self.env = str(self.env)
         if self.placement not in PLACEMENTS:
             raise ConfigError(f"--placement must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
@@ -54,7 +54,7 @@ class SynthConfig:
         if self.relight_envs is not None:
             self.relight_envs = [str(spec) for spec in self.relight_envs]  # as scene.json will hold them
             if len(set(self.relight_envs)) != len(self.relight_envs):
-                raise ConfigError(f"--relight-env lists a light twice: {', '.join(self.relight_envs)}")
+                raise SettingError("relight_envs", f"lists a light twice: {', '.join(self.relight_envs)}")
 
     def identity(self) -> dict:
         """Everything that determines the files (all settings but `overwrite`)."""

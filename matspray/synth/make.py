@@ -15,7 +15,7 @@ from tqdm import tqdm
 from matspray import __version__
 from matspray.data.blender import write_blender
 from matspray.data.scene import View
-from matspray.errors import ConfigError
+from matspray.errors import ConfigError, SettingError
 from matspray.lights import default_relight_names, load_envmap
 from matspray.synth.cameras import FOV_X, make_cameras
 from matspray.synth.config import SynthConfig
@@ -59,7 +59,7 @@ def resolve_lights(config: SynthConfig) -> tuple[str, list[str], dict[str, torch
         if name in maps and not torch.equal(maps[name], env):
             raise ConfigError(f"two different lights are both called '{name}' ({spec!r} and another); rename one of the files")
         if name in relight_names:
-            raise ConfigError(f"--relight-env names the light '{name}' twice")
+            raise SettingError("relight_envs", f"names the light '{name}' twice")
         maps[name] = env
         relight_names.append(name)
     return train_name, relight_names, maps

@@ -26,7 +26,7 @@ import torch
 
 from matspray.data.blender import write_json
 from matspray.data.images import write_image, write_raw
-from matspray.errors import ConfigError
+from matspray.errors import ConfigError, SettingError
 from matspray.synth.groundtruth import GroundTruth
 
 KIND = "matspray-synth"
@@ -74,7 +74,7 @@ def prepare_output(out: Path, identity: dict, overwrite: bool) -> None:
     """Refuse to write into a folder holding anything but the same scene, unless `overwrite`; with it,
     remove the previous object's files (only those, nothing else in the folder)."""
     if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out {out}: is a file, not a folder")
+        raise SettingError("out", f"{out} is a file, not a folder")
     if not out.exists() or not any(out.iterdir()):
         return
     previous = read_scene_json(out)
@@ -83,7 +83,7 @@ def prepare_output(out: Path, identity: dict, overwrite: bool) -> None:
         return
     if not overwrite:
         what = "a different `matspray synth` scene" if previous and previous.get("kind") == KIND else "other files"
-        raise ConfigError(f"--out {out}: the folder already holds {what}; choose another folder or pass --overwrite")
+        raise SettingError("out", f"{out} already holds {what}; choose another folder or allow overwriting it (overwrite)")
     for pattern in ARTIFACT_PATTERNS:
         for path in sorted(out.glob(pattern)):
             if path.is_file():

@@ -1,0 +1,100 @@
+"""The method's command-line options, shared by `run`, `demo` and `bench`: each flag sets one named
+setting of `matspray.config` (the library validates; a bad value comes back as a SettingError, and
+`matspray.cli.main` names the flag that set it). Nothing here imports torch, so `--help` stays fast."""
+
+from __future__ import annotations
+
+PRESET_CHOICES = ("test", "demo", "paper")
+METHOD_CHOICES = ("matspray", "paper")
+VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax")  # matspray.variants.VARIANT_NAMES (a test checks)
+ADDITION_CHOICES = ("transmittance", "core-median", "min-support", "seen-input", "unseen-mask", "scale-invariant-base",
+                    "photo-weight", "light-warmup", "min-coverage", "shadows")  # matspray.config.ADDITION_NAMES (a test checks)
+
+
+def on_off(value: str) -> bool:
+    if value not in ("on", "off"):
+        raise ValueError(value)
+    return value == "on"
+
+
+# flag -> (setting, how the flag's text becomes the setting's value, help); None values mean "not given"
+SETTING_FLAGS = {
+    "--geometry-iterations": ("geometry.iterations", int, "override the preset's Gaussian Splatting iterations (the schedule follows)"),
+    "--refine-iterations": ("refine.iterations", int, "override the preset's refinement iterations"),
+    "--samples-per-side": ("lift.samples_per_side", int, "override the preset's k (k x k lifting rays per pixel, 1..32)"),
+    "--min-support": ("lift.min_support", float, "a view counts for a Gaussian when it gets at least this share of the hits of "
+                      "its best view (matspray: 0.5; paper: 0, every view with a hit)"),
+    "--transmittance-threshold": ("lift.visibility_threshold", float, "lifting writes only into hits whose transmittance in "
+                                  "front is at least this (matspray: 0.5; paper: 0, every hit)"),
+    "--footprint": ("lift.footprint_sigmas", lambda v: {"core": 1.0, "all": None}[v], "which hits feed a Gaussian's per-view "
+                    "median: core (rays within 1 sigma; matspray) or all (paper)"),
+    "--merger-seen-input": ("refine.merger.seen_input", on_off, "on: the merger also reads which views saw each Gaussian "
+                            "(matspray); off: position and values only (paper)"),
+    "--unseen": ("refine.merger.unseen", str, "views that never hit a Gaussian: mask (weight 0; matspray) or mean (filled with "
+                 "the mean of the views that did; paper)"),
+    "--basecolor-loss": ("refine.basecolor_loss", str, "scale-invariant (matspray: forgives each view's exposure error) or l1 (paper)"),
+    "--photo-weight": ("refine.photo_weight", float, "weight of the photometric loss against the material loss (matspray 2, paper 1)"),
+    "--light-warmup": ("refine.light_warmup", int, "steps that fit the light alone before the merger trains (paper: 0)"),
+    "--min-coverage": ("refine.min_coverage", float, "the merger skips Gaussians covering fewer pixels of a view (matspray 0.02, paper 0)"),
+    "--light-tv-weight": ("refine.light_tv_weight", float, "weight of the smoothness prior on the estimated light "
+                          "(total variation of its log radiance; both methods; 0 turns it off)"),
+    "--seed": ("seed", int, "random seed (default 0)"),
+    "--refine-seed": ("refine_seed", int, "the refinement's own seed (default: --seed)"),
+    "--downscale": ("downscale", float, "shrink images by this factor on load (default 1)"),
+    "--device": ("device", str, "auto (CUDA when available; default), cpu, cuda or cuda:N"),
+}
+FLAG_OF_SETTING = {setting: flag for flag, (setting, _, _) in SETTING_FLAGS.items()}
+FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "--without", "visibility": "--shadows", "objects": "--objects",
+                        "severity": "--severity", "batch_size": "--batch-size", "ensemble_size": "--ensemble-size", "steps": "--steps",
+                        "predictor": "--predictor", "relight_envs": "--relight-env", "out": "--out", "resolution": "--res",
+                        "train_views": "--views", "test_views": "--test-views", "spp": "--spp", "env_height": "--env-height",
+                        "export.faces": "--faces", "export.texture_size": "--texture-size", "export.frame": "--frame", "export.normals": "--normals"})
+
+
+def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "demo") -> None:
+    """--preset, --method, --without, --shadows and every setting flag."""
+    parser.add_argument("--preset", choices=presets, default=default_preset,
+                        help=f"sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), paper (512 px, one GPU); default {default_preset}")
+    parser.add_argument("--method", choices=METHOD_CHOICES, default="matspray",
+                        help="matspray (default): the paper plus our measured additions; paper: exactly the paper's method "
+                             "(and its released code where the text is silent)")
+    group = parser.add_argument_group("method settings (default: the method's; each matspray addition has its own switch)")
+    group.add_argument("--without", nargs="+", choices=ADDITION_CHOICES, default=(), metavar="ADDITION",
+                       help=f"switch single additions of matspray off: {', '.join(ADDITION_CHOICES)}")
+    group.add_argument("--shadows", choices=("on", "off"), help="on (matspray): bake each Gaussian's visibility and shadow the "
+                       "PBR shading with it; off (paper): unshadowed split-sum shading")
+    for flag, (_, _, text) in SETTING_FLAGS.items():
+        group.add_argument(flag, metavar=flag.lstrip("-").split("-")[-1].upper(), help=text)
+
+
+def method_settings_from_args(args) -> dict:
+    """{dotted setting: value} for the flags the user gave (parsed to the setting's type)."""
+    from matspray.config import PRESET_SETTINGS
+    from matspray.errors import SettingError
+    from matspray.render.visibility import VisibilityConfig
+
+    settings = {}
+    for flag, (setting, parse, _) in SETTING_FLAGS.items():
+        text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+        if text is None:
+            continue
+        try:
+            settings[setting] = parse(text)
+        except (ValueError, KeyError):
+            raise SettingError(setting, f"cannot read {text!r}") from None
+    if args.shadows is not None:
+        settings["visibility"] = PRESET_SETTINGS[args.preset].get("visibility", VisibilityConfig()) if args.shadows == "on" else None
+    return settings
+
+
+def build_config_from_args(args, **fixed):
+    """The run's PipelineConfig from the parsed flags (`fixed`: settings the command sets itself)."""
+    from matspray.config import build_config
+
+    return build_config(args.preset, args.method, tuple(args.without), **{**method_settings_from_args(args), **fixed})
+
+
+def flag_message(error, flags: dict = FLAG_OF_SETTING) -> str:
+    """A SettingError's message with the flag that set the setting, when one did."""
+    flag = flags.get(error.setting)
+    return f"{flag}: {error.problem}" if flag else str(error)

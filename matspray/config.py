@@ -1,0 +1,141 @@
+"""A run's settings: one frozen `PipelineConfig`, the presets (sizes) and the methods, as data.
+
+A config is built in three layers, each a plain mapping of settings:
+  1. the preset: image and model sizes (`test` for CI, `demo` for 2 CPU cores, `paper` for one GPU);
+  2. the method: `matspray` (default) is the preset as is; `paper` switches every addition of ours
+     off, leaving the paper's text (and its released code where the text is silent);
+  3. overrides, by dotted setting name (`lift.min_support`, `refine.iterations`, ...).
+
+Every addition of `matspray` over `paper` is one row of `ADDITIONS`: the setting it changes and the
+paper's value, so each can be measured on its own (`without=` switches single additions off).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+
+from matspray.errors import ConfigError, SettingError
+from matspray.geometry.config import GeometryConfig
+from matspray.geometry.config import preset as geometry_preset
+from matspray.lift import LiftConfig
+from matspray.refine import RefineConfig
+from matspray.render.visibility import VisibilityConfig
+
+PRESETS = ("test", "demo", "paper")
+METHODS = ("matspray", "paper")
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    preset: str = "demo"
+    method: str = "matspray"
+    predictor: str = "simulated"
+    predictor_options: dict = field(default_factory=dict)  # PredictorOptions fields
+    downscale: float = 1.0
+    seed: int = 0
+    refine_seed: int | None = None  # the refinement's own seed (view order, merger init); None: `seed`
+    device: str = "auto"
+    geometry: GeometryConfig = field(default_factory=GeometryConfig)
+    lift: LiftConfig = field(default_factory=LiftConfig)
+    visibility: VisibilityConfig | None = field(default_factory=VisibilityConfig)  # None: no shadowing (the paper's shading)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+
+    def __post_init__(self):
+        if self.preset not in PRESETS:
+            raise SettingError("preset", f"unknown preset '{self.preset}'; choose one of {', '.join(PRESETS)}")
+        if self.method not in METHODS:
+            raise SettingError("method", f"unknown method '{self.method}'; choose one of {', '.join(METHODS)}")
+        if not self.downscale > 0:
+            raise SettingError("downscale", f"must be > 0, got {self.downscale}")
+
+
+# ------------------------------------------------------------------------------------------ presets
+PRESET_SETTINGS: dict[str, dict] = {
+    "test": {"lift.samples_per_side": 2, "visibility": VisibilityConfig(rows=4, resolution=48),
+             "refine.iterations": 30, "refine.envmap_height": 8, "refine.light_warmup": 10},
+    "demo": {"lift.samples_per_side": 4, "refine.iterations": 600, "refine.envmap_height": 16, "refine.light_warmup": 200},
+    "paper": {"lift.samples_per_side": 16, "visibility": VisibilityConfig(rows=16, resolution=512),
+              "refine.iterations": 10000, "refine.envmap_height": 32, "refine.light_warmup": 1000},
+}
+
+
+# ------------------------------------------------------------------------------------------ methods
+@dataclass(frozen=True)
+class Addition:
+    """One thing the default method does beyond the paper: the setting, and the paper's value of it."""
+
+    name: str
+    setting: str
+    paper: object
+    what: str
+
+
+ADDITIONS = (
+    Addition("transmittance", "lift.visibility_threshold", 0.0, "lifting writes only into hits with transmittance >= 0.5 in front"),
+    Addition("core-median", "lift.footprint_sigmas", None, "a Gaussian's per-view median reads the rays through its 1-sigma core"),
+    Addition("min-support", "lift.min_support", 0.0, "a view counts for a Gaussian only with >= 0.5 of its best view's hits"),
+    Addition("seen-input", "refine.merger.seen_input", False, "the merger also reads which views saw the Gaussian"),
+    Addition("unseen-mask", "refine.merger.unseen", "mean", "unseen views get weight 0 (the paper's code fills them with the mean)"),
+    Addition("scale-invariant-base", "refine.basecolor_loss", "l1", "base colour compared after the least-squares scale"),
+    Addition("photo-weight", "refine.photo_weight", 1.0, "the photometric loss weighs 2 against the material loss"),
+    Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
+    Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering < 0.02 px of a view"),
+    Addition("shadows", "visibility", None, "baked per-Gaussian visibility shadows the PBR shading"),
+)
+ADDITION_NAMES = tuple(a.name for a in ADDITIONS)
+
+
+def method_settings(method: str, without: tuple[str, ...] = ()) -> dict:
+    """The settings a method changes: none for `matspray` (less the additions named in `without`), every
+    addition's paper value for `paper`."""
+    if method not in METHODS:
+        raise SettingError("method", f"unknown method '{method}'; choose one of {', '.join(METHODS)}")
+    unknown = sorted(set(without) - set(ADDITION_NAMES))
+    if unknown:
+        raise SettingError("without", f"unknown addition(s) {', '.join(unknown)}; choose from {', '.join(ADDITION_NAMES)}")
+    off = ADDITION_NAMES if method == "paper" else without
+    return {a.setting: a.paper for a in ADDITIONS if a.name in off}
+
+
+# ------------------------------------------------------------------------------------------ building
+def with_setting(config, path: str, value):
+    """`config` (a frozen dataclass) with the dotted setting `path` replaced; a bad value raises a
+    SettingError naming the setting by its full dotted path (relative to `config`)."""
+    head, _, rest = path.partition(".")
+    names = {f.name for f in fields(config)}
+    if head not in names:
+        raise SettingError(path, f"no such setting (known here: {', '.join(sorted(names))})")
+    if rest:
+        inner = getattr(config, head)
+        if not is_dataclass(inner):
+            raise SettingError(path, f"'{head}' is off or has no setting '{rest}'")
+        try:
+            value = with_setting(inner, rest, value)
+        except SettingError as exc:
+            raise SettingError(f"{head}.{exc.setting}", exc.problem) from None
+    try:
+        return replace(config, **{head: value})
+    except SettingError:
+        raise
+    except (ConfigError, TypeError, ValueError) as exc:
+        raise SettingError(head, str(exc)) from None
+
+
+def build_config(preset: str = "demo", method: str = "matspray", without: tuple[str, ...] = (), **settings) -> PipelineConfig:
+    """The config of `preset` and `method`, with `settings` by dotted name (pass them as a dict:
+    `build_config("demo", **{"lift.min_support": 0.3})`; top-level ones as keywords, e.g. `seed=1`).
+    Geometry follows the preset; `seed` seeds it too, and `geometry.iterations` alone stretches its schedule."""
+    if preset not in PRESETS:
+        raise SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
+    seed = settings.get("seed", 0)
+    geometry_settings = {k.split(".", 1)[1]: settings.pop(k) for k in list(settings) if k.startswith("geometry.")}
+    try:
+        geometry = geometry_preset(preset, seed=seed, **geometry_settings)
+    except SettingError as exc:
+        raise SettingError(f"geometry.{exc.setting}", exc.problem) from None
+    except ConfigError as exc:
+        raise SettingError("geometry", str(exc)) from None
+    config = PipelineConfig(preset=preset, method=method, geometry=geometry)
+    for path, value in {**PRESET_SETTINGS[preset], **method_settings(method, tuple(without)), **settings}.items():
+        config = with_setting(config, path, value)
+    return config

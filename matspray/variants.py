@@ -1,0 +1,54 @@
+"""The method's variants (the paper's ablations), in one registry used by refinement, the CLI, the
+evaluation and the tables.
+
+  full          Neural Merger with softmax over views, trained with both losses, learns the light
+  no-softmax    Neural Merger with unconstrained weights (the paper's softmax ablation)
+  supervised    free per-Gaussian materials trained with the 2D-map loss only
+  proj-average  the mean of the projected per-view values; no training at all
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from matspray.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Variant:
+    name: str
+    label: str  # as the paper's tables write it
+    source: str  # what produces the materials: "merger", "free" (per-Gaussian parameters) or "average"
+    softmax: bool = True  # merger only: softmax over views (False: the paper's ablation)
+    learns_light: bool = False  # trained with the PBR photometric loss and a learnable environment map
+
+    @property
+    def trains(self) -> bool:
+        return self.source != "average"
+
+
+VARIANTS: dict[str, Variant] = {
+    v.name: v
+    for v in (
+        Variant("full", "Full", "merger", softmax=True, learns_light=True),
+        Variant("proj-average", "Proj. Average", "average"),
+        Variant("supervised", "Supervised", "free"),
+        Variant("no-softmax", "Without Softmax", "merger", softmax=False, learns_light=True),
+    )
+}
+VARIANT_NAMES = tuple(VARIANTS)
+LABELS = {v.name: v.label for v in VARIANTS.values()}
+ABLATION = ("full", "supervised", "proj-average")  # the paper's Table 2
+SOFTMAX_ABLATION = ("full", "no-softmax")  # the paper's softmax ablation
+
+
+def get_variant(name: str) -> Variant:
+    if name not in VARIANTS:
+        raise ConfigError(f"unknown variant '{name}'; choose one of {', '.join(VARIANT_NAMES)}")
+    return VARIANTS[name]
+
+
+def asset_stage(name: str) -> str:
+    """Run-folder stage of a variant's asset: `asset/` for the full method, `asset-{variant}/` for ablations."""
+    get_variant(name)
+    return "asset" if name == "full" else f"asset-{name}"

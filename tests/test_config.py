@@ -1,0 +1,144 @@
+"""Run settings: presets and methods as data, `--method paper` switching every addition off, settings
+errors that name the setting (library) or the flag (CLI), and the light prior."""
+
+import subprocess
+import sys
+
+import pytest
+import torch
+import yaml
+
+from matspray.cli.options import ADDITION_CHOICES, VARIANT_CHOICES
+from matspray.config import ADDITION_NAMES, ADDITIONS, PipelineConfig, build_config, with_setting
+from matspray.errors import SettingError
+from matspray.lift import LiftConfig
+from matspray.merger import MergerConfig, fill_unseen, prepare_values
+from matspray.refine import RefineConfig
+from matspray.render.envmap import EnvironmentMap
+from matspray.render.latlong import irradiance_correlation, total_variation
+from matspray.rundir import RunDir
+from matspray.variants import VARIANT_NAMES
+
+
+def test_defaults_are_the_demo_preset_of_the_default_method():
+    assert PipelineConfig() == build_config("demo")
+    assert PipelineConfig().method == "matspray"
+    assert (RefineConfig(), LiftConfig(), MergerConfig()) == (build_config("demo").refine.__class__(), LiftConfig(), MergerConfig())
+
+
+def test_paper_method_sets_every_switch_as_the_paper_and_config_yaml_records_it(tmp_path):
+    run = RunDir(tmp_path)
+    run.write_config(build_config("test", "paper"))
+    written = yaml.safe_load((tmp_path / "config.yaml").read_text())
+    assert written["method"] == "paper"
+    lift, refine = written["lift"], written["refine"]
+    assert lift["visibility_threshold"] == 0.0  # every ray hit receives the pixel's value
+    assert lift["footprint_sigmas"] is None  # no core median
+    assert lift["min_support"] == 0.0  # every view that hit a Gaussian counts
+    assert refine["merger"]["unseen"] == "mean"  # unseen views filled with the mean (released code)
+    assert refine["merger"]["seen_input"] is False  # merger input: PE(position) + per-view values only
+    assert (refine["merger"]["hidden"], refine["merger"]["layers"], refine["merger_lr"]) == (128, 3, 1e-3)
+    assert refine["basecolor_loss"] == "l1" and refine["material_weight"] == 1.0
+    assert refine["photo_weight"] == 1.0 and refine["photo_l1_weight"] == 0.8
+    assert refine["light_warmup"] == 0 and refine["min_coverage"] == 0.0
+    assert written["visibility"] is None  # no shadowing
+    assert refine["light_tv_weight"] > 0  # the light prior is on in both methods (the released code has one)
+    assert lift["samples_per_side"] == 2  # presets keep their sizes
+    assert build_config("paper", "paper").lift.samples_per_side == 16
+
+
+def test_matspray_differs_from_paper_exactly_by_the_additions():
+    paper, ours = build_config("demo", "paper"), build_config("demo")
+    for addition in ADDITIONS:
+        assert with_setting(ours, addition.setting, addition.paper) != ours, addition.name
+    for addition in ADDITIONS:
+        ours = with_setting(ours, addition.setting, addition.paper)
+    assert ours == paper.__class__(**{**paper.__dict__, "method": "matspray"})
+
+
+def test_single_additions_switch_off():
+    config = build_config("demo", without=("shadows", "min-support"))
+    assert config.visibility is None and config.lift.min_support == 0.0
+    assert config.lift.footprint_sigmas == 1.0  # the others stay on
+    with pytest.raises(SettingError, match="unknown addition.*colour"):
+        build_config("demo", without=("colour",))
+
+
+def test_bad_settings_name_the_setting():
+    with pytest.raises(SettingError, match=r"^lift.min_support: must be in \[0, 1\], got 2") as error:
+        build_config("demo", **{"lift.min_support": 2})
+    assert error.value.setting == "lift.min_support"
+    with pytest.raises(SettingError, match="^refine.merger.unseen: unknown rule 'zero'; choose one of mask, mean"):
+        build_config("demo", **{"refine.merger.unseen": "zero"})
+    with pytest.raises(SettingError, match="^geometry.iterations: must be >= 1"):
+        build_config("demo", **{"geometry.iterations": 0})
+    with pytest.raises(SettingError, match="^method: unknown method 'exact'; choose one of matspray, paper"):
+        build_config("demo", "exact")
+    with pytest.raises(SettingError, match="^lift.colour: no such setting"):
+        build_config("demo", **{"lift.colour": 1})
+
+
+def test_cli_registries_match_the_library():
+    assert VARIANT_CHOICES == VARIANT_NAMES
+    assert ADDITION_CHOICES == ADDITION_NAMES
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "matspray", *map(str, args)], capture_output=True, text=True, timeout=120)
+
+
+def test_cli_names_the_flag_and_lists_methods(tmp_path):
+    result = run_cli("run", "--data", tmp_path, "--out", tmp_path / "run", "--method", "exact")
+    assert result.returncode == 2 and "invalid choice: 'exact'" in result.stderr and "matspray" in result.stderr.splitlines()[-1] and "paper" in result.stderr.splitlines()[-1]
+    result = run_cli("run", "--data", tmp_path, "--out", tmp_path / "run", "--min-support", "2")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.strip() == "matspray run: error: --min-support: must be in [0, 1], got 2.0"
+
+
+def test_unseen_views_are_filled_with_the_mean_of_the_seen_views():
+    values = torch.tensor([[[0.2] * 5, [0.6] * 5, [0.9] * 5]])  # [1, 3, 5]
+    seen = torch.tensor([[True, True, False]])
+    filled = fill_unseen(values, seen)
+    assert torch.allclose(filled[0, 2], torch.full((5,), 0.4))
+    assert torch.equal(filled[0, :2], values[0, :2])
+    masked, all_seen = prepare_values(values, seen, "mean")
+    assert all_seen.all() and torch.equal(masked, filled)
+    masked, same = prepare_values(values, seen, "mask")
+    assert torch.equal(same, seen) and float(masked[0, 2].abs().sum()) == 0.0
+
+
+def test_total_variation_is_zero_for_a_constant_and_rises_with_noise():
+    constant = torch.full((8, 16, 3), 0.3)
+    assert float(total_variation(constant)) == 0.0
+    noisy = constant + 0.1 * torch.randn(8, 16, 3, generator=torch.Generator().manual_seed(0))
+    assert float(total_variation(noisy)) > 0.1
+
+
+def test_total_variation_of_a_smooth_field_does_not_depend_on_resolution():
+    # f = cos(theta): integral over the sphere of |df/dtheta| / 4 pi = pi / 4 (the phi term is 0)
+    for height in (32, 128):
+        theta = (torch.arange(height, dtype=torch.float64) + 0.5) / height * torch.pi
+        field = torch.cos(theta)[:, None, None].expand(height, 2 * height, 1)
+        assert float(total_variation(field)) == pytest.approx(torch.pi / 4, rel=2e-2)
+
+
+def test_the_light_prior_lowers_the_total_variation_of_a_noisy_map():
+    generator = torch.Generator().manual_seed(0)
+    envmap = EnvironmentMap.from_tensor(torch.rand(8, 16, 3, generator=generator) * 2 + 0.1)
+    from matspray.refine import light_prior
+
+    before = float(light_prior(envmap))
+    optimizer = torch.optim.Adam(envmap.parameters(), lr=0.05)
+    for _ in range(50):
+        optimizer.zero_grad()
+        light_prior(envmap).backward()
+        optimizer.step()
+    assert float(light_prior(envmap)) < 0.5 * before
+
+
+def test_irradiance_correlation_is_one_for_a_scaled_copy_and_lower_for_a_rotated_light():
+    from matspray.lights import builtin_envmap
+
+    sky = builtin_envmap("sky", 32)
+    assert irradiance_correlation(sky, 3.0 * sky) == pytest.approx(1.0, abs=1e-9)
+    assert irradiance_correlation(sky, sky.roll(16, dims=1)) < 0.9  # the sun on the other side

@@ -1,0 +1,196 @@
+"""The package's import graph has no cycle, and `matspray --help` starts fast (imports no torch).
+
+The graph is read from the source with `ast`: every `import` / `from ... import` of the package's own
+modules, at module level or inside functions (relative imports resolved). Importing a.b.c also runs
+the `__init__` of a and a.b, so an edge to a module is also an edge to each package above it (except
+the importer's own packages, which Python has already started when the importer runs).
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import matspray
+
+PACKAGE_ROOT = Path(matspray.__file__).resolve().parent
+
+
+def module_names(root: Path) -> dict[str, Path]:
+    """Dotted module name -> source file, for every .py file of the package at `root`."""
+    modules = {}
+    for path in sorted(root.rglob("*.py")):
+        parts = (root.name, *path.relative_to(root).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        modules[".".join(parts)] = path
+    return modules
+
+
+def ancestors(name: str) -> list[str]:  # "a.b.c" -> ["a", "a.b"]
+    parts = name.split(".")
+    return [".".join(parts[:k]) for k in range(1, len(parts))]
+
+
+def imported_modules(name: str, path: Path, modules: dict[str, Path]) -> list[tuple[str, int]]:
+    """(module of the package, line) for every import statement in the file, wherever it is."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: from . import x, from ..y import z
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                source = ".".join(base + ([node.module] if node.module else []))
+            else:
+                source = node.module
+            # `from p import x` imports the submodule p.x when there is one, else a name defined in p
+            targets = [f"{source}.{alias.name}" if f"{source}.{alias.name}" in modules else source for alias in node.names]
+        else:
+            continue
+        for target in targets:
+            while target not in modules and "." in target:  # `import a.b.c` of a name that is not a module
+                target = target.rpartition(".")[0]
+            if target in modules:
+                found.append((target, node.lineno))
+    return sorted(found, key=lambda hit: hit[1])
+
+
+def import_graph(root: Path) -> dict[str, dict[str, str]]:
+    """module -> {imported module: "file:line" of the first import statement that causes the edge}."""
+    modules = module_names(root)
+    graph: dict[str, dict[str, str]] = {name: {} for name in modules}
+    for name, path in modules.items():
+        own_packages = {name, *ancestors(name)}
+        for target, line in imported_modules(name, path, modules):
+            where = f"{path.relative_to(root.parent)}:{line}"
+            for module in [*ancestors(target), target]:
+                implicit = module != target
+                if module in modules and not (implicit and module in own_packages) and module != name:
+                    graph[name].setdefault(module, where)
+    return graph
+
+
+def find_cycles(graph: dict[str, dict[str, str]]) -> list[tuple[list[str], list[str]]]:
+    """Per strongly connected component with more than one module (Tarjan): its modules, sorted, and
+    the shortest cycle through the first of them."""
+    index, low, stack, on_stack, components = {}, {}, [], set(), []
+
+    def connect(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                components.append(set(component))
+
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 10 * len(graph)))
+    try:
+        for v in sorted(graph):
+            if v not in index:
+                connect(v)
+    finally:
+        sys.setrecursionlimit(limit)
+    return [(sorted(component), shortest_cycle(graph, component)) for component in components]
+
+
+def shortest_cycle(graph: dict[str, dict[str, str]], component: set[str]) -> list[str]:
+    """The shortest cycle through the component's first module (breadth first): [m0, m1, ..., m0]."""
+    start = min(component)
+    parents, frontier = {start: None}, [start]
+    while frontier:
+        following = []
+        for v in frontier:
+            for w in sorted(graph[v]):
+                if w == start:
+                    path = [v]
+                    while parents[path[-1]] is not None:
+                        path.append(parents[path[-1]])
+                    return [*reversed(path), start]
+                if w in component and w not in parents:
+                    parents[w] = v
+                    following.append(w)
+        frontier = following
+    raise AssertionError(f"no cycle through {start}")  # unreachable for a strongly connected component
+
+
+def describe(graph: dict[str, dict[str, str]], cycle: list[str]) -> str:
+    return "\n".join(f"  {a} -> {b}  ({graph[a][b]})" for a, b in zip(cycle, cycle[1:]))
+
+
+def test_the_package_has_no_import_cycle():
+    graph = import_graph(PACKAGE_ROOT)
+    assert len(graph) > 50 and sum(len(edges) for edges in graph.values()) > 100  # the whole package was read
+    cycles = find_cycles(graph)
+    report = "\n".join(
+        f"cycle {k + 1} (its tangle: {', '.join(tangle)}):\n{describe(graph, cycle)}" for k, (tangle, cycle) in enumerate(cycles)
+    )
+    print(report or "no import cycle")
+    assert not cycles, f"{len(cycles)} import cycle(s) in matspray:\n{report}"
+
+
+def write_package(root: Path, files: dict[str, str]) -> Path:
+    for relative, text in files.items():
+        path = root / relative
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return root / "pkg"
+
+
+def test_finds_cycles_through_local_relative_and_package_imports(tmp_path):
+    """The checker itself: a function-local relative import closing a loop, and a loop that only exists
+    because a package's __init__ re-exports a module that imports back into it."""
+    root = write_package(tmp_path, {
+        "pkg/__init__.py": "",
+        "pkg/a.py": "import json\nfrom pkg.b import f\n",
+        "pkg/b.py": "def f():\n    from .sub import c\n",
+        "pkg/sub/__init__.py": "",
+        "pkg/sub/c.py": "from .. import a\n",
+        "pkg/lib/__init__.py": "from pkg.lib.x import X\n",
+        "pkg/lib/x.py": "from ..uses import helper\nX = 1\n",
+        "pkg/lib/y.py": "Y = 2\n",
+        "pkg/uses.py": "from pkg.lib.y import Y\ndef helper():\n    return Y\n",
+        "pkg/clean.py": "from pkg.lib import X\nfrom pkg.sub.c import a\nimport pkg.lib.x.X\n",
+    })
+    graph = import_graph(root)
+    assert graph["pkg.clean"] == {"pkg.lib": "pkg/clean.py:1", "pkg.sub": "pkg/clean.py:2", "pkg.sub.c": "pkg/clean.py:2",
+                                  "pkg.lib.x": "pkg/clean.py:3"}
+    assert graph["pkg.sub.c"] == {"pkg.a": "pkg/sub/c.py:1"}  # pkg itself is already importing when c runs
+    cycles = sorted(cycle for _, cycle in find_cycles(graph))
+    assert cycles == [["pkg.a", "pkg.b", "pkg.sub.c", "pkg.a"], ["pkg.lib", "pkg.lib.x", "pkg.uses", "pkg.lib"]]
+    assert "pkg.b -> pkg.sub.c  (pkg/b.py:2)" in describe(graph, cycles[0])
+    assert "pkg.uses -> pkg.lib  (pkg/uses.py:1)" in describe(graph, cycles[1])  # through pkg/lib/__init__.py
+
+
+def test_help_is_fast_and_imports_no_torch():
+    """`python -m matspray --help` builds every subcommand's parser; the library (torch) loads only
+    when a command runs."""
+    command = [sys.executable, "-m", "matspray", "--help"]
+    started = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, cwd=PACKAGE_ROOT.parent, timeout=60)
+    elapsed = time.perf_counter() - started
+    print(f"python -m matspray --help: {elapsed:.2f} s wall")
+    assert done.returncode == 0 and "usage: matspray" in done.stdout, done.stderr
+    assert elapsed < 3.0, f"`matspray --help` took {elapsed:.2f} s (goal: under 1 s)"
+    probe = "import sys\nfrom matspray.cli import build_parser\nbuild_parser()\nprint(sorted(m for m in ('torch', 'numpy') if m in sys.modules))"
+    loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=PACKAGE_ROOT.parent, timeout=60)
+    assert loaded.returncode == 0, loaded.stderr
+    assert loaded.stdout.strip() == "[]", f"building the CLI parser imports {loaded.stdout.strip()}"
