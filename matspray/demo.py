@@ -40,10 +40,13 @@ DEMO_SIZES = {
 }
 
 
-def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True) -> Path:
-    """A `matspray synth` object for `preset` in `out` (reused when it is already there)."""
+def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True, env: str = "sky",
+                     relight_envs: list[str] | None = None) -> Path:
+    """A `matspray synth` object for `preset` in `out` (reused when it is already there), trained under
+    `env` and relit under `relight_envs` (None: synth's default lights)."""
     size = DEMO_SIZES[preset]
-    config = SynthConfig(shape=shape, seed=seed, resolution=size.res, train_views=size.views, test_views=size.test_views, spp=size.spp)
+    config = SynthConfig(shape=shape, seed=seed, resolution=size.res, train_views=size.views, test_views=size.test_views, spp=size.spp,
+                         env=env, relight_envs=relight_envs)
     if not (out / "scene.json").exists():
         make_object(config, out, progress=progress)
     return out

@@ -23,7 +23,8 @@ from matspray.variants import VARIANT_NAMES
 def test_defaults_are_the_demo_preset_of_the_default_method():
     assert PipelineConfig() == build_config("demo")
     assert PipelineConfig().method == "matspray"
-    assert (RefineConfig(), LiftConfig(), MergerConfig()) == (build_config("demo").refine.__class__(), LiftConfig(), MergerConfig())
+    assert build_config("demo").refine == RefineConfig() and build_config("demo").lift == LiftConfig()
+    assert RefineConfig().merger == MergerConfig()
 
 
 def test_paper_method_sets_every_switch_as_the_paper_and_config_yaml_records_it(tmp_path):
@@ -142,3 +143,10 @@ def test_irradiance_correlation_is_one_for_a_scaled_copy_and_lower_for_a_rotated
     sky = builtin_envmap("sky", 32)
     assert irradiance_correlation(sky, 3.0 * sky) == pytest.approx(1.0, abs=1e-9)
     assert irradiance_correlation(sky, sky.roll(16, dims=1)) < 0.9  # the sun on the other side
+
+
+def test_cli_colmap_choices_match_the_library():
+    from matspray.cli import colmap
+    from matspray.data import sfm
+
+    assert (colmap.MATCHERS, colmap.CAMERA_MODELS) == (sfm.MATCHERS, sfm.CAMERA_MODELS)

@@ -181,11 +181,13 @@ def test_predict_views_errors():
 
 # ------------------------------------------------------------------------------------------ registry
 def test_make_predictor_rejects_bad_specs(tmp_path):
-    with pytest.raises(ConfigError, match="unknown predictor 'rgbx'; use one of files:DIR, marigold, simulated, ground-truth"):
+    with pytest.raises(ConfigError, match=r"unknown predictor 'rgbx'; use one of files:DIR, marigold, simulated\[:paper\|harsh\|outliers\], ground-truth"):
         make_predictor("rgbx")
     with pytest.raises(ConfigError, match="files:DIR needs the folder"):
         make_predictor("files:")
-    with pytest.raises(ConfigError, match="simulated takes no ':' argument"):
+    with pytest.raises(ConfigError, match="ground-truth takes no ':' argument"):
+        make_predictor("ground-truth:x")
+    with pytest.raises(ConfigError, match="'simulated:x': unknown error model"):
         make_predictor("simulated:x")
     with pytest.raises(ConfigError, match="--basecolor-encoding, --weights do\\(es\\) not apply to the simulated predictor"):
         make_predictor("simulated", PredictorOptions(weights="w", basecolor_encoding="srgb"))

@@ -148,7 +148,7 @@ def test_target_layout_needs_albedo_roughness_and_metallicity():
 
 
 def test_weights_errors(weights, tmp_path, monkeypatch):
-    with pytest.raises(DataError, match="missing-folder: does not exist \\(--weights takes a pipeline folder or a hub id; on a machine"):
+    with pytest.raises(DataError, match="missing-folder: does not exist \\(the weights setting takes a pipeline folder or a hub id; on a machine"):
         load_pipeline(str(tmp_path / "missing-folder"))
     with pytest.raises(DataError, match="is not a diffusers pipeline folder \\(no model_index.json\\)"):
         load_pipeline(str(tmp_path))

@@ -190,7 +190,7 @@ def test_baked_shading_strength_varies_by_batch_around_its_mean():
     flat = SimulationConfig(seed=4, shading_spread=0.0)
     assert {draw_batch_drift(flat, batch).shading for batch in range(5)} == {flat.shading_strength}
     assert draw_batch_drift(SimulationConfig(seed=4, severity=0.0), 3).shading == 0.0
-    with pytest.raises(Exception, match="shading_spread must be in"):
+    with pytest.raises(Exception, match="shading_spread: must be in"):
         SimulationConfig(shading_spread=1.5)
 
 
@@ -334,7 +334,7 @@ def test_cli_rejects_options_that_do_not_apply(sphere, tmp_path, capsys):
     assert "--severity do(es) not apply to the ground-truth predictor" in capsys.readouterr().err
     assert not (tmp_path / "run" / "materials2d").exists()
     assert main(["predict", "--data", str(root), "--out", str(tmp_path / "run"), "--predictor", "simulated", "--severity", "-1"]) == 2
-    assert "--severity must be a number >= 0" in capsys.readouterr().err
+    assert "--severity: must be a number >= 0" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------ benchmark

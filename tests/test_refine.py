@@ -34,7 +34,7 @@ def mean_losses(gaussians, normals, materials, envmap, views, maps, config):
 
 def test_short_refinement_lowers_both_losses(lifted_scene):
     gaussians, normals, _, views, maps, lifted = lifted_scene
-    config = RefineConfig(iterations=40, envmap_height=8, seed=0)
+    config = RefineConfig(iterations=40, envmap_height=8, seed=0, light_warmup=0)
     start_light = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height)
     before = mean_losses(gaussians, normals, projection_average(lifted.values, lifted.seen), start_light, views, maps, config)
     result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
@@ -46,7 +46,7 @@ def test_short_refinement_lowers_both_losses(lifted_scene):
 @pytest.mark.parametrize("variant", VARIANT_NAMES)
 def test_each_variant_runs(lifted_scene, variant):
     gaussians, normals, _, views, maps, lifted = lifted_scene
-    config = RefineConfig(iterations=3, variant=variant, envmap_height=8)
+    config = RefineConfig(iterations=3, variant=variant, envmap_height=8, light_warmup=0)
     result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
     assert result.materials.shape == (len(gaussians), 5)
     assert torch.isfinite(result.materials).all()
@@ -110,7 +110,7 @@ def test_supervised_materials_converge_to_the_2d_maps_in_a_short_run(lifted_scen
     """The free per-Gaussian materials start grey; with their own learning rate 60 steps bring the
     rasterized maps most of the way to the 2D maps (at the merger's 1e-3 they would barely move)."""
     gaussians, normals, _, views, maps, lifted = lifted_scene
-    config = RefineConfig(iterations=60, variant="supervised", seed=0)
+    config = RefineConfig(iterations=60, variant="supervised", seed=0, light_warmup=0)
     grey = torch.full((len(gaussians), 5), 0.5)
     before = mean_losses(gaussians, normals, grey, None, views, maps, config)["material"]
     result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
@@ -153,6 +153,6 @@ def test_min_coverage_runs_the_merger_on_fewer_gaussians_with_a_close_result(lif
     assert (frozen.coverage[0][covering] >= 0.05).all()
     results = {}
     for min_coverage in (0.0, 0.05):
-        config = RefineConfig(iterations=20, envmap_height=8, seed=0, min_coverage=min_coverage)
+        config = RefineConfig(iterations=20, envmap_height=8, seed=0, min_coverage=min_coverage, light_warmup=0)
         results[min_coverage] = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False).materials
     assert (results[0.0] - results[0.05]).abs().mean() < 0.01

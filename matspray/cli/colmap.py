@@ -2,7 +2,8 @@
 
 from pathlib import Path
 
-from matspray.data.sfm import CAMERA_MODELS, MATCHERS, SfmConfig, run_sfm
+MATCHERS = ("exhaustive", "sequential")  # matspray.data.sfm's (a test checks); kept here so `--help` loads no torch
+CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "SIMPLE_PINHOLE", "PINHOLE")
 
 
 def add_parser(parser) -> None:
@@ -32,6 +33,8 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
+    from matspray.data.sfm import SfmConfig, run_sfm
+
     config = SfmConfig(matcher=args.matcher, max_size=args.max_size, single_camera=args.single_camera,
                        camera_model=args.camera_model, threads=args.threads)
     log = (lambda _: None) if args.quiet else print

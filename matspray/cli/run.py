@@ -9,7 +9,8 @@ def add_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
     parser.add_argument("--out", type=Path, required=True, help="run folder; finished stages in it are reused")
     parser.add_argument("--predictor", default="simulated", metavar="SPEC",
-                        help="2D material maps: files:DIR, marigold, simulated or ground-truth (default: simulated, benchmarks only)")
+                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers] or ground-truth "
+                        "(default: simulated, = simulated:paper, benchmarks only)")
     parser.add_argument("--variant", choices=VARIANT_CHOICES, nargs="+", default=["full"],
                         help="method variants to refine (the paper's ablations); default: full")
     parser.add_argument("--weights", help="marigold: pipeline folder")

@@ -174,7 +174,7 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
     """Raw 2D predictions of the test views by the run's predictor, when it can make them here."""
     config = RunDir(run_dir).config()
     spec = config.get("predictor", "")
-    if not (spec in ("simulated", "ground-truth") or spec.startswith("files:")):
+    if spec.partition(":")[0] not in ("simulated", "ground-truth", "files"):
         return None, f"raw 2D predictions of test views not evaluated (predictor '{spec}' would have to run again)"
     try:
         predictor = make_predictor(spec, PredictorOptions(**config.get("predictor_options", {})), notify=lambda _: None)

@@ -1,4 +1,4 @@
-"""`--predictor SPEC` -> a Predictor. Specs: `files:DIR`, `marigold`, `simulated`, `ground-truth`."""
+"""`--predictor SPEC` -> a Predictor. Specs: `files:DIR`, `marigold`, `simulated[:MODEL]`, `ground-truth`."""
 
 from __future__ import annotations
 
@@ -7,12 +7,13 @@ from typing import Callable
 
 from matspray.errors import ConfigError, SettingError
 from matspray.predictors.base import Predictor
+from matspray.predictors.error_models import DEFAULT_MODEL, error_model
 from matspray.predictors.files import FilesPredictor
 from matspray.predictors.ground_truth import GroundTruthPredictor
 from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
-from matspray.predictors.simulated import SimulatedPredictor, SimulationConfig
+from matspray.predictors.simulated import SimulatedPredictor
 
-SPECS = ("files:DIR", "marigold", "simulated", "ground-truth")
+SPECS = ("files:DIR", "marigold", "simulated[:paper|harsh|outliers]", "ground-truth")
 
 
 @dataclass
@@ -50,7 +51,7 @@ def make_predictor(spec: str, options: PredictorOptions | None = None, notify: C
         raise SettingError("predictor", f"unknown predictor '{spec}'; use one of {', '.join(SPECS)}")
     if kind == "files" and not argument:
         raise SettingError("predictor", "files:DIR needs the folder holding the maps, e.g. files:outputs/diffusion_renderer")
-    if kind != "files" and argument:
+    if kind not in ("files", "simulated") and argument:
         raise SettingError("predictor", f"{kind} takes no ':' argument (got '{spec}')")
     unused = sorted(n for n in _given(options, {f.name for f in fields(options)}) if n not in USES[kind])
     if unused:
@@ -61,5 +62,5 @@ def make_predictor(spec: str, options: PredictorOptions | None = None, notify: C
     if kind == "marigold":
         return MarigoldPredictor(MarigoldConfig(**_given(options, USES["marigold"])), notify=notify)
     if kind == "simulated":
-        return SimulatedPredictor(SimulationConfig(**_given(options, USES["simulated"])))
+        return SimulatedPredictor(error_model(argument.strip() or DEFAULT_MODEL, **_given(options, USES["simulated"])))
     return GroundTruthPredictor()

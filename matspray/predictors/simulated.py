@@ -21,7 +21,15 @@ the paper describes for DiffusionRenderer, so that later stages can be measured 
    in a batch differ by a smaller jitter.
 4. Blur: a Gaussian of `blur_fraction` of the image size, restricted to the object (latent-space
    models lose fine detail).
-All effects apply to the object (alpha); background pixels keep their true values.
+5. Per-view outliers (the `outliers` model): a fraction `cast_fraction` of the views gets a colour cast
+   (per-channel gain exp(`cast_strength` * d), d a random unit direction with zero mean over RGB, so
+   hue moves and brightness stays), a fraction `highlight_fraction` gets the photo's highlights baked
+   into base colour (moved `highlight_amount` of the way to white where the photo is at least twice
+   as bright, relative to the true base colour, as the object's median; from 1x to 2x it ramps up).
+   Outlier views and metallic batches are spread evenly from a seeded start, so their count is the
+   stated fraction for every seed.
+All effects apply to the object (alpha); background pixels keep their true values. The magnitudes of
+each named error model are in `matspray.predictors.error_models`.
 
 `severity` scales every effect (0 gives the ground truth exactly, 1 the default strength). Random
 draws depend only on `seed` and positions, not on severity, so severities form one family.
@@ -40,39 +48,12 @@ from tqdm import tqdm
 
 from matspray.data.images import srgb_to_linear
 from matspray.data.scene import View
-from matspray.errors import ConfigError, SettingError
 from matspray.predictors.base import Predictor
+from matspray.predictors.error_models import SimulationConfig, model_name
 from matspray.predictors.ground_truth import check_ground_truth, read_ground_truth
 from matspray.predictors.maps import MaterialMaps
 
 LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights
-
-
-@dataclass
-class SimulationConfig:
-    severity: float = 1.0  # scales every effect; 0 = ground truth
-    seed: int = 0
-    batch_size: int = 8  # views per model window (DiffusionRenderer: 24)
-    # magnitudes at severity 1
-    shading_strength: float = 0.35  # mean exponent of the baked-in shading ratio
-    shading_spread: float = 0.8  # per batch the exponent is shading_strength x U[1 - spread, 1 + spread]
-    tone_strength: float = 1.0  # blend towards the filmic curve's output
-    exposure_sigma: float = 0.10  # per batch, std of log brightness gain
-    white_balance_sigma: float = 0.06  # per batch and channel, std of log gain
-    color_shift_sigma: float = 0.015  # per batch and channel, additive (linear)
-    roughness_offset_sigma: float = 0.08  # per batch, additive
-    view_jitter_sigma: float = 0.02  # per view inside a batch: log gain of colour, offset of roughness
-    metallic_probability: float = 0.3  # fraction of the batches that get spurious metallic
-    metallic_amplitude: tuple[float, float] = (0.1, 0.4)  # its strength, uniform in this range
-    blur_fraction: float = 1.0 / 200.0  # Gaussian sigma as a fraction of max(H, W)
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.severity) and self.severity >= 0):
-            raise SettingError("severity", f"must be a number >= 0, got {self.severity}")
-        if int(self.batch_size) < 1:
-            raise SettingError("batch_size", f"must be >= 1, got {self.batch_size}")
-        if not 0.0 <= self.shading_spread <= 1.0:
-            raise ConfigError(f"shading_spread must be in [0, 1], got {self.shading_spread}")
 
 
 @dataclass
@@ -133,15 +114,46 @@ def blur_inside(x: Tensor, weight: Tensor, sigma: float) -> Tensor:
     return weight[..., None] * blurred + (1.0 - weight[..., None]) * x
 
 
+@dataclass
+class ViewOutlier:
+    """What one view alone gets wrong (at the configured severity)."""
+
+    cast: list[float]  # [3] per-channel gain; [1, 1, 1] when the view has no colour cast
+    highlights: float  # how far base colour moves to white on a full highlight; 0 when none
+
+
+def evenly_spread(fraction: float, seed: int, stream: int, index: int) -> bool:
+    """Whether item `index` is among a `fraction` of the items picked at even spacing from a start drawn
+    from (seed, stream): any n consecutive items hold floor or ceil of fraction * n picks."""
+    q = min(1.0, fraction)
+    start = np.random.default_rng([int(seed), stream]).uniform()
+    return q > 0 and (start + index * q) % 1.0 < q
+
+
+def draw_view_outlier(config: SimulationConfig, index: int) -> ViewOutlier:
+    """The outliers of the view at position `index` of the predicted list."""
+    s = config.severity
+    cast = [1.0, 1.0, 1.0]
+    if evenly_spread(config.cast_fraction * s, config.seed, 4, index):
+        direction = np.random.default_rng([int(config.seed), 5, index]).standard_normal(3)
+        direction = direction - direction.mean()
+        direction = direction / max(float(np.linalg.norm(direction)), 1e-9)
+        cast = [float(v) for v in np.exp(config.cast_strength * s * direction)]
+    highlights = min(1.0, config.highlight_amount * s) if evenly_spread(config.highlight_fraction * s, config.seed, 6, index) else 0.0
+    return ViewOutlier(cast=cast, highlights=highlights)
+
+
+def highlight_weight(ratio: Tensor) -> Tensor:  # shading ratio S [H, W] (median 1) -> [H, W] in [0, 1]
+    """0 up to the object's median brightness, 1 from twice the median, linear in between."""
+    return (ratio - 1.0).clamp(0.0, 1.0)
+
+
 def draw_batch_drift(config: SimulationConfig, batch: int) -> BatchDrift:
     rng = np.random.default_rng([int(config.seed), 0, batch])
     s = config.severity
     normal = rng.standard_normal(8).clip(-3.0, 3.0)  # no freak outliers: severity alone sets the scale
-    # a fraction q of the batches gets spurious metallic, spread evenly from a seeded start (not left to chance,
-    # so that a 5-batch demo shows the failure mode for every seed)
-    q = min(1.0, config.metallic_probability * s)
-    start = np.random.default_rng([int(config.seed), 2]).uniform()
-    has_metal = q > 0 and (start + batch * q) % 1.0 < q
+    # (not left to chance, so that a 5-batch demo shows the failure mode for every seed)
+    has_metal = evenly_spread(config.metallic_probability * s, config.seed, 2, batch)
     low, high = config.metallic_amplitude
     amplitude = rng.uniform(low, high) * s
     return BatchDrift(
@@ -155,19 +167,24 @@ def draw_batch_drift(config: SimulationConfig, batch: int) -> BatchDrift:
     )
 
 
-def simulate_view(truth: MaterialMaps, photo: Tensor, alpha: Tensor | None, drift: BatchDrift, config: SimulationConfig, index: int) -> MaterialMaps:
+def simulate_view(truth: MaterialMaps, photo: Tensor, alpha: Tensor | None, drift: BatchDrift, config: SimulationConfig, index: int,
+                  outlier: ViewOutlier | None = None) -> MaterialMaps:
     """One view's simulated prediction. truth: true maps; photo [H, W, 3] linear; alpha [H, W] or None;
-    index: the view's position in the predicted list (seeds its jitter)."""
+    index: the view's position in the predicted list (seeds its jitter); outlier: its own errors, if any."""
     s = config.severity
     weight = torch.ones_like(truth.roughness) if alpha is None else alpha.to(truth.roughness).clamp(0.0, 1.0)
     mask = weight > 0.5
     jitter = np.random.default_rng([int(config.seed), 1, index]).standard_normal(2) * config.view_jitter_sigma * s
     tone = min(1.0, config.tone_strength * s)
 
-    basecolor = truth.basecolor * shading_ratio(photo.to(truth.basecolor), truth.basecolor, mask)[..., None] ** drift.shading
-    basecolor = basecolor.clamp(0.0, 1.0)
+    ratio = shading_ratio(photo.to(truth.basecolor), truth.basecolor, mask)  # [H, W]
+    basecolor = (truth.basecolor * ratio[..., None] ** drift.shading).clamp(0.0, 1.0)
+    if outlier is not None and outlier.highlights > 0:
+        basecolor = torch.lerp(basecolor, torch.ones_like(basecolor), outlier.highlights * highlight_weight(ratio)[..., None])
     basecolor = torch.lerp(basecolor, filmic_tone(basecolor), tone)
     gain = torch.tensor(drift.white_balance, dtype=basecolor.dtype, device=basecolor.device) * drift.exposure * float(np.exp(jitter[0]))
+    if outlier is not None:
+        gain = gain * torch.tensor(outlier.cast, dtype=basecolor.dtype, device=basecolor.device)
     basecolor = basecolor * gain + torch.tensor(drift.color_shift, dtype=basecolor.dtype, device=basecolor.device)
 
     roughness = torch.lerp(truth.roughness, filmic_tone(truth.roughness), tone)
@@ -191,16 +208,18 @@ class SimulatedPredictor(Predictor):
     def __init__(self, config: SimulationConfig | None = None):
         self.config = config or SimulationConfig()
         self.batches: list[dict] = []  # what each batch got, filled by predict (for predictor.json)
+        self.outliers: list[dict] = []  # the views with outliers of their own, filled by predict
 
     def describe(self) -> dict:
-        info = dict(super().describe(), note="SIMULATED from ground truth for benchmarks; not a real prediction")
+        note = f"SIMULATED from ground truth for benchmarks (error model '{model_name(self.config)}'); not a real prediction"
         config = asdict(self.config)
         config["metallic_amplitude"] = list(self.config.metallic_amplitude)
-        return dict(info, settings=config, batches=self.batches)
+        return dict(super().describe(), note=note, error_model=model_name(self.config), settings=config, batches=self.batches,
+                    outliers=self.outliers)
 
     def predict(self, views: list[View]) -> dict[str, MaterialMaps]:
         check_ground_truth(views)
-        out, self.batches = {}, []
+        out, self.batches, self.outliers = {}, [], []
         size = int(self.config.batch_size)
         with tqdm(total=len(views), desc="simulated predictions", unit="view") as bar:
             for batch, start in enumerate(range(0, len(views), size)):
@@ -209,6 +228,9 @@ class SimulatedPredictor(Predictor):
                 self.batches.append(dict(asdict(drift), views=[v.name for v in members]))
                 for offset, view in enumerate(members):
                     truth = read_ground_truth(view)
-                    out[view.name] = simulate_view(truth, view.image, view.alpha, drift, self.config, start + offset)
+                    outlier = draw_view_outlier(self.config, start + offset)
+                    if outlier != ViewOutlier([1.0, 1.0, 1.0], 0.0):
+                        self.outliers.append(dict(asdict(outlier), view=view.name))
+                    out[view.name] = simulate_view(truth, view.image, view.alpha, drift, self.config, start + offset, outlier)
                     bar.update(1)
         return out

@@ -1,0 +1,391 @@
+"""Does the method beat its baselines on objects it was never tuned on? The benchmark protocol (issue 21).
+
+    python -m benchmarks.generalise --set dev|eval [--objects K] [--preset demo|test]
+        [--models paper harsh outliers ground-truth] [--variants full proj-average supervised no-softmax]
+        [--method matspray|paper] [--without ADDITION ...] [setting flags of `matspray run`]
+        [--refine KEY=VALUE ...] [--tag NAME] [--out DIR]
+    python -m benchmarks.generalise --set dev --compare [--out DIR]
+
+Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every setting, `eval` (seeds
+2000 + i) to run once at the end. Object i is a procedural `random` shape (the seed picks it), trained
+under one HDRI of ../shared/data/hdri and relit under two other lights (HDRIs and built-ins), all drawn
+from its seed. Each object is run with every predictor error model (`simulated:paper`, `:harsh`,
+`:outliers`, and the ground truth as a sanity row): one run folder per (object, model), the Gaussian
+Splatting geometry trained once per object and shared by hard links (the pipeline's stage fingerprint
+checks it is the same). Every variant is refined, evaluated against the ground truth, and the raw 2D
+predictions of the test views are scored as the baseline 3D must beat.
+
+Prints, per error model, a table per object and the mean over objects (relighting PSNR of every variant;
+base colour, roughness, metallic PSNR of the full method's 3D materials and of the 2D predictions;
+metallic means follow the paper's infinity rule), the wins out of N (full vs proj-average, full vs
+no-softmax, 3D vs 2D per channel) and the seconds per object. Writes OUT/results-TAG.json and .md, and
+per model OUT/tables-TAG-MODEL.md (the paper's tables averaged over the objects).
+`--refine KEY=VALUE` overrides a refinement setting (RefineConfig field; `merger.KEY` for the merger)
+for development sweeps: earlier stages are reused, so a sweep costs only refinement and evaluation.
+Each configuration keeps its results file (its --tag), and `--compare` prints one row per configuration
+and error model from them: the development-set table of choices.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, fields, is_dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
+from matspray.demo import DEMO_SIZES, average_tables, make_demo_object, run_object
+from matspray.errors import ConfigError, MatsprayError, SettingError
+from matspray.eval.tables import write_tables
+from matspray.lights import BUILTINS, hdri_files
+from matspray.predictors.error_models import ERROR_MODELS
+from matspray.variants import VARIANT_NAMES as VARIANTS
+from matspray.rundir import RunDir, fingerprint, read_json, write_json, write_text_atomic
+
+SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
+MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
+MODELS = (*ERROR_MODELS, "ground-truth")
+CHANNELS = ("basecolor", "roughness", "metallic")
+SHORT = {"basecolor": "base", "roughness": "rough", "metallic": "metal"}
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    name: str
+    seed: int
+    env: str  # training light
+    relight_envs: tuple[str, ...]  # the two held-out lights
+
+
+def object_set(which: str, count: int, hdris: list[str]) -> list[ObjectSpec]:
+    """The first `count` objects of set `which`: a training HDRI (a built-in light when there are no
+    HDRIs) and two other relighting lights from HDRIs and built-ins, drawn from the object's seed."""
+    if which not in SET_SEEDS:
+        raise ConfigError(f"unknown object set '{which}'; choose one of {', '.join(SET_SEEDS)}")
+    if not 1 <= count <= MAX_OBJECTS:
+        raise ConfigError(f"--objects must be in [1, {MAX_OBJECTS}], got {count}")
+    train_pool = sorted(hdris) or list(BUILTINS)
+    pool = sorted(set(hdris) | set(BUILTINS))
+    objects = []
+    for index in range(count):
+        seed = SET_SEEDS[which] + index
+        rng = np.random.default_rng([seed, 21])
+        env = train_pool[int(rng.integers(len(train_pool)))]
+        others = [name for name in pool if name != env]
+        relight = tuple(others[int(i)] for i in rng.choice(len(others), size=2, replace=False))
+        objects.append(ObjectSpec(f"{which}-{index:02d}-seed{seed}", seed, env, relight))
+    return objects
+
+
+def predictor_spec(model: str) -> str:
+    if model not in MODELS:
+        raise ConfigError(f"--models: unknown error model '{model}'; choose from {', '.join(MODELS)}")
+    return model if model == "ground-truth" else f"simulated:{model}"
+
+
+# ------------------------------------------------------------------------------------------ settings
+def parse_value(text: str, current, key: str):
+    """`text` as the type of the setting's current value."""
+    kinds = ((bool, "true or false"), (int, "an integer"), (float, "a number"))
+    try:
+        if isinstance(current, bool):
+            if text.lower() not in ("true", "false", "1", "0"):
+                raise ValueError
+            return text.lower() in ("true", "1")
+        if isinstance(current, int):
+            return int(text)
+        if isinstance(current, float):
+            return float(text)
+    except ValueError:
+        expected = next(words for kind, words in kinds if isinstance(current, kind))
+        raise ConfigError(f"--refine {key}={text}: expected {expected}") from None
+    if isinstance(current, str) or current is None:
+        return text
+    raise ConfigError(f"--refine {key}: a {type(current).__name__} setting cannot be set from the command line")
+
+
+def with_overrides(config, items: list[str], prefix: str = ""):
+    """`config` (a dataclass) with KEY=VALUE items applied; `a.b=...` sets field b of the dataclass field a."""
+    changes, nested = {}, {}
+    names = {f.name for f in fields(config)}
+    for item in items:
+        key, sep, text = item.partition("=")
+        head, dot, rest = key.strip().partition(".")
+        if not sep or head not in names:
+            known = ", ".join(prefix + name for name in sorted(names))
+            raise ConfigError(f"--refine {prefix}{item}: expected KEY=VALUE with KEY one of {known}")
+        current = getattr(config, head)
+        if dot:
+            if not is_dataclass(current):
+                raise ConfigError(f"--refine {prefix}{item}: '{prefix}{head}' has no settings of its own")
+            nested.setdefault(head, []).append(f"{rest}={text}")
+        elif is_dataclass(current):
+            raise ConfigError(f"--refine {prefix}{item}: set the fields of '{prefix}{head}' as {prefix}{head}.KEY=VALUE")
+        else:
+            changes[head] = parse_value(text, current, prefix + key)
+    for head, sub in nested.items():
+        changes[head] = with_overrides(getattr(config, head), sub, prefix=f"{prefix}{head}.")
+    return replace(config, **changes)
+
+
+def refine_overrides(base, items: list[str]) -> dict:
+    """The fields of the refinement settings `base` (a RefineConfig) that `items` change."""
+    changed = with_overrides(base, items)
+    return {f.name: getattr(changed, f.name) for f in fields(base) if getattr(changed, f.name) != getattr(base, f.name)}
+
+
+def protocol_config(args, predictor: str):
+    """The run settings of one error model: the preset, --method, --without and setting flags (as
+    `matspray run` reads them), then the --refine overrides."""
+    config = build_config_from_args(args, predictor=predictor)
+    return replace(config, refine=with_overrides(config.refine, args.refine))
+
+
+# ------------------------------------------------------------------------------------------ geometry once
+def link_or_copy(source: str, target: str) -> None:
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copy2(source, target)
+
+
+def share_geometry(source_run: Path, target_run: Path) -> bool:
+    """Hard-link the finished geometry stage of `source_run` into `target_run` when that has none;
+    the target's pipeline still compares fingerprints and retrains if they differ."""
+    if not (source_run / "geometry" / "stage.json").exists() or (target_run / "geometry" / "stage.json").exists():
+        return False
+    shutil.copytree(source_run / "geometry", target_run / "geometry", copy_function=link_or_copy, dirs_exist_ok=True)
+    return True
+
+
+# ------------------------------------------------------------------------------------------ figures
+def object_figures(metrics: dict) -> dict:
+    """The protocol's figures of one (object, model) run from its eval/metrics.json content."""
+    variants = metrics.get("variants", {})
+    relight = {v: variants[v]["summary"]["relighting"]["psnr"] for v in VARIANTS if v in variants}
+    full = variants.get("full", {}).get("summary", {})
+    predictions = metrics.get("predictions_2d", {})
+    return {"relight": relight,
+            "materials_3d": {c: full[c]["psnr"] for c in CHANNELS if c in full},
+            "materials_2d": {c: predictions[c]["psnr"] for c in CHANNELS if c in predictions}}
+
+
+def wins(figures: list[dict], pairs) -> dict:
+    """For each (label, a, b): how many objects have a > b (strictly), out of those with both."""
+    out = {}
+    for label, a, b in pairs:
+        both = [(a(f), b(f)) for f in figures if a(f) is not None and b(f) is not None]
+        out[label] = {"wins": sum(x > y for x, y in both), "of": len(both)}
+    return out
+
+
+def model_summary(per_object: list[dict]) -> dict:
+    """Means over objects (the paper's averaging, via matspray.demo.average_tables) and wins out of N."""
+    averaged = average_tables([o["metrics"] for o in per_object])
+    table1 = averaged["table1"]
+    relight = {v: averaged["table2"].get(label, averaged["softmax"].get(label, {})).get("psnr")
+               for v, label in (("full", "Full"), ("proj-average", "Proj. Average"), ("supervised", "Supervised"), ("no-softmax", "Without Softmax"))}
+    figures = [o["figures"] for o in per_object]
+
+    def get(group, key):
+        return lambda f: f[group].get(key)
+
+    pairs = [("full > proj-average", get("relight", "full"), get("relight", "proj-average")),
+             ("full > no-softmax", get("relight", "full"), get("relight", "no-softmax"))]
+    pairs += [(f"3D > 2D {c}", get("materials_3d", c), get("materials_2d", c)) for c in CHANNELS]
+    return {"relight": {k: v for k, v in relight.items() if v is not None},
+            "materials_3d": {c: table1.get("Ours", {}).get(c, {}) for c in CHANNELS},
+            "materials_2d": {c: table1.get("2D predictions", {}).get(c, {}) for c in CHANNELS},
+            "wins": wins(figures, pairs), "tables": averaged}
+
+
+def fmt(value) -> str:
+    if value is None:
+        return "—"
+    if math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return f"{value:.2f}"
+
+
+def metallic_mean(entry: dict) -> str:
+    """The paper's rule: '∞*k/mean' when k objects had infinite metallic PSNR."""
+    if not entry:
+        return "—"
+    infinite = int(entry.get("psnr_infinite", 0))
+    if infinite == 0 or infinite == entry.get("objects"):
+        return fmt(entry.get("psnr"))
+    return f"inf*{infinite}/{fmt(entry.get('psnr'))}"
+
+
+def model_table(model: str, per_object: list[dict], summary: dict, variants) -> list[str]:
+    """Markdown lines: one row per object, the mean row, and the wins."""
+    label = "SIMULATED predictor" if model in ERROR_MODELS else "ground-truth maps (sanity row)"
+    head = ["object", "train light", "relit under"] + [f"relight {v}" for v in variants]
+    head += [f"3D {SHORT[c]}" for c in CHANNELS] + [f"2D {SHORT[c]}" for c in CHANNELS] + ["s"]
+    lines = [f"### error model `{model}` ({label})", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for o in per_object:
+        f = o["figures"]
+        cells = [o["object"]["name"], o["object"]["env"], ", ".join(o["object"]["relight_envs"])]
+        cells += [fmt(f["relight"].get(v)) for v in variants]
+        cells += [fmt(f["materials_3d"].get(c)) for c in CHANNELS] + [fmt(f["materials_2d"].get(c)) for c in CHANNELS]
+        lines.append("| " + " | ".join(cells + [f"{o['seconds']:.0f}"]) + " |")
+    s3, s2 = summary["materials_3d"], summary["materials_2d"]
+    mean = [f"**mean of {len(per_object)}**", "", ""] + [fmt(summary["relight"].get(v)) for v in variants]
+    mean += [fmt(s3[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(s3["metallic"])]
+    mean += [fmt(s2[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(s2["metallic"])]
+    lines.append("| " + " | ".join(mean + [f"{sum(o['seconds'] for o in per_object) / len(per_object):.0f}"]) + " |")
+    lines += ["", "wins: " + ", ".join(f"{k} {w['wins']}/{w['of']}" for k, w in summary["wins"].items()), ""]
+    return lines
+
+
+# ------------------------------------------------------------------------------------------ protocol
+def run_protocol(args, log=print) -> dict:
+    hdris = sorted(hdri_files())
+    if not hdris:
+        log("notice: no ../shared/data/hdri found; objects are trained under built-in lights instead of HDRIs")
+    objects = object_set(args.set, args.objects, hdris)
+    specs = {m: predictor_spec(m) for m in args.models}
+    configs = {m: protocol_config(args, spec) for m, spec in specs.items()}
+    refine = refine_overrides(build_config_from_args(args).refine, args.refine)
+    flags = method_settings_from_args(args)
+    choices = {"without": list(args.without), "settings": {k: str(v) for k, v in flags.items()}, "refine": refine}
+    tag = args.tag or ("default" if not (refine or flags or args.without) else fingerprint(choices)[:8])
+    tag = tag if args.method == "matspray" else f"{args.method}-{tag}"
+    settings = {"set": args.set, "preset": args.preset, "objects": len(objects), "models": list(args.models), "variants": list(args.variants),
+                "method": args.method, "without": list(args.without), "settings": choices["settings"], "refine_overrides": refine, "tag": tag}
+    log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
+    if args.set == "eval":
+        log("generalise: evaluation set — run it once, with settings chosen on the development set only")
+        earlier = sorted(p.stem[len("results-"):] for p in args.out.glob("results-*.json") if p.stem != f"results-{tag}")
+        if earlier:
+            log(f"warning: this evaluation set was already run with other settings ({', '.join(earlier)}); "
+                "choosing between them on it makes it a development set")
+    results = {m: [] for m in specs}
+    timing = []
+    for number, spec in enumerate(objects, 1):
+        start = time.perf_counter()
+        folder = args.out / "objects" / spec.name
+        log(f"generalise: object {number}/{len(objects)} {spec.name} (train {spec.env}, relit {', '.join(spec.relight_envs)})")
+        data = make_demo_object(folder / "data", args.preset, "random", spec.seed, progress=args.progress, env=spec.env,
+                                relight_envs=list(spec.relight_envs))
+        seconds = {"synth": time.perf_counter() - start, "models": {}}
+        first_run = folder / "runs" / next(iter(specs))
+        for model in specs:
+            run_dir = folder / "runs" / model
+            if run_dir != first_run and share_geometry(first_run, run_dir):
+                log(f"generalise: {spec.name} / {model}: geometry shared from {first_run.name}")
+            begin = time.perf_counter()
+            metrics = run_object(data, run_dir, configs[model], variants=args.variants, progress=args.progress, log=log)
+            seconds["models"][model] = time.perf_counter() - begin
+            results[model].append({"object": vars(spec) | {"relight_envs": list(spec.relight_envs)}, "figures": object_figures(metrics),
+                                   "metrics": metrics, "seconds": seconds["models"][model]})
+        seconds["geometry"] = RunDir(first_run).timings().get("geometry")
+        seconds["total"] = time.perf_counter() - start
+        timing.append({"object": spec.name, **seconds})
+    summaries = {m: model_summary(per_object) for m, per_object in results.items()}
+    report = {"settings": settings, "timing": timing, "models": {m: {"summary": {k: v for k, v in summaries[m].items() if k != "tables"},
+                                                                     "objects": [{k: o[k] for k in ("object", "figures", "seconds")} for o in results[m]]}
+                                                                 for m in results}}
+    lines = markdown(settings, results, summaries, timing)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_json(args.out / f"results-{tag}.json", report)
+    write_text_atomic(args.out / f"results-{tag}.md", "\n".join(lines) + "\n")
+    for model, summary in summaries.items():
+        tables = dict(summary["tables"], title=f"MatSpray generalisation: {args.set} set, {len(objects)} objects, error model {model}, preset {args.preset}")
+        write_tables(args.out / f"tables-{tag}-{model}.md", tables)
+    return {"report": report, "lines": lines}
+
+
+def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict]) -> list[str]:
+    size = DEMO_SIZES[settings["preset"]]
+    lines = [f"## Generalisation protocol: {settings['set']} set, preset {settings['preset']} ({size.res} px, {size.views} views)", "",
+             f"method: {settings['method']}; without: {', '.join(settings['without']) or 'nothing'}; settings: "
+             f"{settings['settings'] or 'as the method sets them'}; refine overrides: {settings['refine_overrides'] or 'none'}; tag {settings['tag']}",
+             "PSNR in dB on the test views (object mask); relighting under the two held-out lights; 3D = the full method's materials, "
+             "2D = the predictor's maps of the same test views. Simulated predictors are SIMULATED from the ground truth.", ""]
+    for model, per_object in results.items():
+        lines += model_table(model, per_object, summaries[model], settings["variants"])
+    lines += ["### seconds per object", "", "| object | synth | geometry (once) | " + " | ".join(f"{m} (all variants + eval)" for m in results) + " | total |",
+              "|" + "---|" * (4 + len(results))]
+    for t in timing:
+        cells = [t["object"], f"{t['synth']:.0f}", "—" if t["geometry"] is None else f"{t['geometry']:.0f}"]
+        lines.append("| " + " | ".join(cells + [f"{t['models'][m]:.0f}" for m in results] + [f"{t['total']:.0f}"]) + " |")
+    mean_total = sum(t["total"] for t in timing) / len(timing)
+    lines += ["", f"mean {mean_total:.0f} s per object ({len(timing)} objects, {sum(t['total'] for t in timing) / 3600:.2f} h in all)"]
+    return lines
+
+
+def choices_table(out: Path) -> list[str]:
+    """Markdown lines: one row per configuration (results-*.json in `out`) and error model, from the
+    saved results: the development-set table of choices."""
+    reports = sorted(out.glob("results-*.json"))
+    if not reports:
+        raise ConfigError(f"{out}: no results-*.json to compare; run the protocol first (with --out {out})")
+    lines = ["| tag | method | refine overrides | model | objects | relight full | full - proj-average | full - no-softmax | "
+             "full > proj-average | 3D - 2D base | 3D - 2D rough |", "|" + "---|" * 11]
+    for path in reports:
+        report = read_json(path)
+        settings = report["settings"]
+        overrides = ", ".join(f"{k}={v}" for k, v in settings["refine_overrides"].items()) or "none"
+        for model, result in report["models"].items():
+            summary = result["summary"]
+            relight, m3, m2 = summary["relight"], summary["materials_3d"], summary["materials_2d"]
+
+            def gap(a, b):
+                return None if a is None or b is None else a - b
+
+            win = summary["wins"]["full > proj-average"]
+            lines.append("| " + " | ".join([
+                settings["tag"], str(settings["method"]), overrides, model, str(settings["objects"]), fmt(relight.get("full")),
+                fmt(gap(relight.get("full"), relight.get("proj-average"))), fmt(gap(relight.get("full"), relight.get("no-softmax"))),
+                f"{win['wins']}/{win['of']}", fmt(gap(m3["basecolor"].get("psnr"), m2["basecolor"].get("psnr"))),
+                fmt(gap(m3["roughness"].get("psnr"), m2["roughness"].get("psnr")))]) + " |")
+    return lines
+
+
+def parse_args(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.generalise", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="dev: choose settings here; eval: run once at the end (default dev)")
+    parser.add_argument("--objects", type=int, default=6, help="objects of the set, the first K (default 6)")
+    parser.add_argument("--models", nargs="+", default=list(MODELS), metavar="MODEL", help=f"error models (default: {' '.join(MODELS)})")
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS, metavar="VARIANT",
+                        help=f"variants refined per run (default: {' '.join(VARIANTS)})")
+    parser.add_argument("--refine", nargs="+", default=[], metavar="KEY=VALUE", help="override refinement settings (RefineConfig fields, "
+                        "merger.KEY for the merger), e.g. --refine iterations=300 merger.hidden=64")
+    parser.add_argument("--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)")
+    parser.add_argument("--out", type=Path, help="folder (default runs/generalise-SET-PRESET); objects and runs in it are reused")
+    parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
+    parser.add_argument("--compare", action="store_true", help="run nothing: print one row per configuration already run in --out "
+                        "(its results-*.json), the table to choose settings from")
+    add_method_arguments(parser, presets=("test", "demo"))
+    args = parser.parse_args(argv)
+    args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        if args.compare:
+            print("\n".join(choices_table(args.out)))
+            return 0
+        result = run_protocol(args)
+    except SettingError as exc:
+        print(f"error: {flag_message(exc)}", file=sys.stderr)
+        return 2
+    except MatsprayError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print("\n" + "\n".join(result["lines"]))
+    print(f"\nwritten: {args.out / ('results-' + result['report']['settings']['tag'] + '.md')} (and .json, tables-*.md)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

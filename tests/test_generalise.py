@@ -1,0 +1,148 @@
+"""The generalisation protocol (benchmarks/generalise.py): object sets, settings overrides, geometry
+shared between error models, the tables' means and wins, and one tiny end-to-end run."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import pytest
+
+from benchmarks.generalise import (
+    MAX_OBJECTS,
+    SET_SEEDS,
+    main,
+    model_summary,
+    object_set,
+    predictor_spec,
+    refine_overrides,
+    share_geometry,
+    with_overrides,
+)
+from matspray.errors import ConfigError
+from matspray.lights import BUILTINS
+from matspray.refine import RefineConfig
+
+HDRIS = ["city", "forest", "interior", "studio", "sunrise", "sunset"]
+
+
+def test_object_sets_have_disjoint_seeds_and_draw_their_lights():
+    dev, evaluation = object_set("dev", 50, HDRIS), object_set("eval", 50, HDRIS)
+    assert {o.seed for o in dev}.isdisjoint({o.seed for o in evaluation})
+    assert [o.seed for o in dev] == list(range(SET_SEEDS["dev"], SET_SEEDS["dev"] + 50))
+    assert object_set("dev", 3, HDRIS) == dev[:3]  # the first K objects of a set do not depend on K
+    for o in dev + evaluation:
+        assert o.env in HDRIS  # trained under an HDRI
+        assert len(set(o.relight_envs)) == 2 and o.env not in o.relight_envs
+        assert set(o.relight_envs) <= set(HDRIS) | set(BUILTINS)
+    assert len({o.env for o in dev}) > 3 and any(set(o.relight_envs) & set(BUILTINS) for o in dev)  # the draws vary
+    assert all(o.env in BUILTINS for o in object_set("dev", 5, []))  # without the shared HDRIs
+    with pytest.raises(ConfigError, match=rf"--objects must be in \[1, {MAX_OBJECTS}\], got 0"):
+        object_set("dev", 0, HDRIS)
+    with pytest.raises(ConfigError, match="unknown object set 'test'"):
+        object_set("test", 1, HDRIS)
+
+
+def test_predictor_specs():
+    assert [predictor_spec(m) for m in ("paper", "harsh", "outliers", "ground-truth")] == [
+        "simulated:paper", "simulated:harsh", "simulated:outliers", "ground-truth"]
+    with pytest.raises(ConfigError, match="unknown error model 'mild'"):
+        predictor_spec("mild")
+
+
+def test_refine_overrides_are_typed_and_checked():
+    config = with_overrides(RefineConfig(), ["iterations=7", "photo_weight=0.5", "merger.softmax=false", "merger.hidden=32", "basecolor_loss=l1"])
+    assert (config.iterations, config.photo_weight, config.merger.softmax, config.merger.hidden, config.basecolor_loss) == (7, 0.5, False, 32, "l1")
+    assert refine_overrides(RefineConfig(), ["iterations=7"]) == {"iterations": 7}
+    assert refine_overrides(RefineConfig(), []) == {}
+    with pytest.raises(ConfigError, match=r"--refine iterations=many: expected an integer"):
+        with_overrides(RefineConfig(), ["iterations=many"])
+    with pytest.raises(ConfigError, match=r"--refine speed=3: expected KEY=VALUE with KEY one of"):
+        with_overrides(RefineConfig(), ["speed=3"])
+    with pytest.raises(ConfigError, match=r"--refine merger.width=3: expected KEY=VALUE with KEY one of merger.frequencies, merger.hidden"):
+        with_overrides(RefineConfig(), ["merger.width=3"])
+    with pytest.raises(ConfigError, match="set the fields of 'merger' as merger.KEY=VALUE"):
+        with_overrides(RefineConfig(), ["merger=3"])
+    with pytest.raises(ConfigError, match=r"--refine merger.softmax=maybe: expected true or false"):
+        with_overrides(RefineConfig(), ["merger.softmax=maybe"])
+    with pytest.raises(ConfigError, match="unknown loss 'l7'"):
+        with_overrides(RefineConfig(), ["basecolor_loss=l7"])
+
+
+def test_share_geometry_links_a_finished_stage_once(tmp_path):
+    source, target = tmp_path / "a", tmp_path / "b"
+    (source / "geometry" / "renders").mkdir(parents=True)
+    (source / "geometry" / "stage.json").write_text('{"fingerprint": "x"}')
+    (source / "geometry" / "renders" / "r.png").write_bytes(b"png")
+    assert share_geometry(source, target)
+    assert os.path.samefile(source / "geometry" / "stage.json", target / "geometry" / "stage.json")
+    assert (target / "geometry" / "renders" / "r.png").read_bytes() == b"png"
+    assert not share_geometry(source, target)  # already there
+    assert not share_geometry(tmp_path / "none", tmp_path / "c") and not (tmp_path / "c").exists()
+
+
+def fake_run(full, average, no_softmax, base3, base2, metal3, metal2):
+    """The parts of eval/metrics.json the protocol reads."""
+    def entry(psnr):
+        return {"psnr": psnr, "ssim": 0.9, "lpips": None}
+
+    variants = {v: {"summary": {"relighting": entry(p)}} for v, p in (("full", full), ("proj-average", average), ("no-softmax", no_softmax))}
+    summary = variants["full"]["summary"]
+    summary.update(basecolor=entry(base3), roughness=entry(20.0),
+                   metallic=dict(entry(metal3), psnr_infinite=int(math.isinf(metal3)), objects=1))
+    predictions = {"basecolor": entry(base2), "roughness": entry(21.0), "metallic": entry(metal2)}
+    table1 = {"Ours": {k: summary[k] for k in ("basecolor", "roughness", "metallic")},
+              "2D predictions": {**predictions, "metallic": dict(entry(metal2), psnr_infinite=int(math.isinf(metal2)), objects=1)}}
+    return {"variants": variants, "predictions_2d": predictions, "table1": table1,
+            "table2": {"Full": entry(full), "Proj. Average": entry(average)},
+            "softmax": {"Full": entry(full), "Without Softmax": entry(no_softmax)}, "timings": {}}
+
+
+def test_means_and_wins_over_objects():
+    from benchmarks.generalise import object_figures
+
+    runs = [fake_run(25.0, 24.0, 25.5, 22.0, 23.0, math.inf, 18.0), fake_run(26.0, 26.5, 25.0, 24.0, 23.0, 20.0, 19.0),
+            fake_run(27.0, 26.0, 26.0, 21.0, 21.0, 22.0, math.inf)]
+    summary = model_summary([{"metrics": m, "figures": object_figures(m)} for m in runs])
+    assert summary["relight"] == pytest.approx({"full": 26.0, "proj-average": 25.5, "no-softmax": 25.5})
+    assert summary["materials_3d"]["basecolor"]["psnr"] == pytest.approx(67.0 / 3)
+    assert summary["materials_3d"]["metallic"]["psnr"] == pytest.approx(21.0)  # the paper's rule: the infinite object left out
+    assert summary["materials_3d"]["metallic"]["psnr_infinite"] == 1
+    wins = {k: (w["wins"], w["of"]) for k, w in summary["wins"].items()}
+    assert wins == {"full > proj-average": (2, 3), "full > no-softmax": (2, 3), "3D > 2D basecolor": (1, 3),
+                    "3D > 2D roughness": (0, 3), "3D > 2D metallic": (2, 3)}
+
+
+@pytest.mark.slow
+def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
+    pytest.importorskip("mitsuba")
+    out = tmp_path / "g"
+    argv = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "ground-truth",
+            "--variants", "full", "proj-average", "--method", "paper", "--refine", "iterations=4", "light_warmup=2", "--out", str(out), "--no-progress"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "geometry shared from paper" in printed
+    assert "error model `paper` (SIMULATED predictor)" in printed and "error model `ground-truth`" in printed
+    runs = out / "objects" / "dev-00-seed1000" / "runs"
+    record = [json.loads((runs / m / "geometry" / "stage.json").read_text()) for m in ("paper", "ground-truth")]
+    assert record[0] == record[1]  # one geometry, reused by the second model's pipeline
+    assert "geometry" not in json.loads((runs / "ground-truth" / "timings.json").read_text())  # not trained again
+    tag = next(out.glob("results-*.json")).stem[len("results-"):]
+    report = json.loads((out / f"results-{tag}.json").read_text())
+    assert report["settings"]["refine_overrides"] == {"iterations": 4, "light_warmup": 2} and tag.startswith("paper-")
+    assert report["settings"]["method"] == "paper" and "method: paper" in (runs / "paper" / "config.yaml").read_text()
+    truth = report["models"]["ground-truth"]["objects"][0]["figures"]
+    assert math.isinf(truth["materials_2d"]["basecolor"])  # the sanity row: 2D maps are the truth
+    paper = report["models"]["paper"]["objects"][0]["figures"]
+    assert paper["materials_2d"]["basecolor"] < 40 and set(paper["relight"]) == {"full", "proj-average"}
+    assert json.loads((runs / "paper" / "materials2d" / "predictor.json").read_text())["error_model"] == "paper"
+    assert (out / f"tables-{tag}-paper.md").exists() and (out / f"results-{tag}.md").exists()
+    assert main(["--compare", "--out", str(out)]) == 0  # the table of choices, from the saved results
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(f"| {tag} |")]
+    assert [row.split(" | ")[3] for row in rows] == ["paper", "ground-truth"] and "iterations=4, light_warmup=2" in rows[0]
+    assert rows[1].split(" | ")[-2:] == ["-inf", "-inf |"]  # the 3D materials never reach the exact 2D truth
+    assert main(["--compare", "--out", str(tmp_path / "nothing")]) == 2
+    assert "no results-*.json to compare" in capsys.readouterr().err
+    assert main(argv[:-3] + ["--refine", "iterations=x", "--out", str(out)]) == 2
+    assert "--refine iterations=x: expected an integer" in capsys.readouterr().err
