@@ -18,6 +18,9 @@ $(STAMP): pyproject.toml Makefile
 	-@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! ldconfig -p | grep -q 'libLLVM.so.19'; then \
 		(apt-get install -y -q libllvm19 >/dev/null 2>&1 || (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libllvm19 >/dev/null 2>&1)) \
 		|| echo "note: libllvm19 not installed; Mitsuba will use its scalar_rgb variant"; fi
+	# The Khronos glTF Validator (npm) for the export tests; best effort: without node they skip.
+	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node gltf-validator >/dev/null 2>&1 \
+		|| echo "note: gltf-validator not installed; the export validation test will skip"; fi
 	touch $(STAMP)
 
 setup: $(STAMP)

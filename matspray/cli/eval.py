@@ -1,11 +1,19 @@
-"""`matspray eval --run RUN [--data DATA]`: metrics, the paper's tables and the HTML report."""
+"""`matspray eval --run RUN [--data DATA]`: metrics, the paper's tables and the HTML report.
+`matspray eval --glb FILE.glb [--data DATA]`: the same for a mesh made by `matspray export`."""
 
 import os
 from pathlib import Path
 
+from matspray.errors import ConfigError
+
 
 def add_parser(parser) -> None:
-    parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
+    parser.add_argument("--run", type=Path, help="run folder made by `matspray run` (with --glb: the run whose Gaussian asset to compare with; "
+                        "default: the run the file was exported from)")
+    parser.add_argument("--glb", type=Path, help="evaluate this mesh from `matspray export` instead: Mitsuba renders it under the held-out "
+                        "lights at the test cameras; metrics, tables and report.html go to FILE_eval/ beside it")
+    parser.add_argument("--frame", choices=("gltf", "dataset"), help="with --glb: the frame the file is in (default: what its extras say)")
+    parser.add_argument("--spp", type=int, help="with --glb: Mitsuba samples per pixel (default: as the dataset's truth)")
     parser.add_argument("--data", type=Path, help="the run's dataset (default: the folder the run was made from)")
     parser.add_argument("--lpips-weights", type=Path, default=os.environ.get("MATSPRAY_LPIPS_WEIGHTS"),
                         help="LPIPS v0.1 AlexNet weights (.npz); default: $MATSPRAY_LPIPS_WEIGHTS or ../shared/data/lpips")
@@ -17,6 +25,16 @@ def run(args) -> int:
     from matspray.device import configure_threads
 
     configure_threads()
+    if args.glb is not None:
+        from matspray.eval.glb import evaluate_glb
+
+        evaluate_glb(args.glb, args.data, run=args.run, frame=args.frame, lpips_weights=args.lpips_weights, spp=args.spp)
+        out = args.glb.with_name(f"{args.glb.stem}_eval")
+        print((out / "tables.md").read_text())
+        print(f"report: {out / 'report.html'}")
+        return 0
+    if args.run is None:
+        raise ConfigError("give --run RUN (a run to evaluate) or --glb FILE.glb (an exported mesh)")
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run
 

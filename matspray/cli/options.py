@@ -50,7 +50,8 @@ FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "
                         "train_views": "--views", "test_views": "--test-views", "spp": "--spp", "env_height": "--env-height",
                         "asset": "--asset", "assets": "--assets", "placement": "--placement",
                         "workers": "--workers", "address": "--address", "cpus_per_object": "--cpus-per-object",
-                        "gpus_per_object": "--gpus-per-object"})
+                        "gpus_per_object": "--gpus-per-object",
+                        "export.faces": "--faces", "export.texture_size": "--texture-size", "export.frame": "--frame", "export.normals": "--normals"})
 
 
 def add_run_arguments(parser) -> None:

@@ -74,29 +74,53 @@ def unpremultiply(rgb: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:  # [H
     return torch.where(alpha[..., None] > 1e-4, rgb / alpha[..., None].clamp_min(1e-4), torch.zeros_like(rgb))
 
 
+@dataclass
+class ViewRenders:
+    """What an asset shows at one test view: relit images and its material maps (clamped to [0, 1])."""
+
+    relit: dict[str, torch.Tensor]  # env name -> [H, W, 3] linear, straight (not premultiplied) colour
+    base_color: torch.Tensor  # [H, W, 3] linear
+    roughness: torch.Tensor  # [H, W]
+    metallic: torch.Tensor  # [H, W]
+    alpha: torch.Tensor  # [H, W] coverage
+
+
+def asset_renders(asset, view: View, lights: dict) -> ViewRenders:
+    """The Gaussian asset's G-buffer at `view`, shaded under every light."""
+    camera = view.camera.to(asset.gaussians.device)
+    with torch.no_grad():
+        # with visibility each light casts its own shadows; the material channels are the same in every G-buffer
+        lit = {env: render_gbuffer(asset, camera, light) for env, light in lights.items()} if asset.visibility is not None else {}
+        gbuffer = next(iter(lit.values())) if lit else render_gbuffer(asset, camera)
+        relit = {}
+        for env, light in lights.items():
+            shaded = lit.get(env, gbuffer)
+            relit[env] = unpremultiply(shade_gbuffer(shaded, camera, light), shaded.alpha).cpu()
+        return ViewRenders(relit, gbuffer.base_color.cpu().clamp(0, 1), gbuffer.roughness.cpu().clamp(0, 1), gbuffer.metallic.cpu().clamp(0, 1),
+                           gbuffer.alpha.cpu())
+
+
 def evaluate_asset(asset, views: list[View], truths: list[GroundTruth], lights: dict, lpips, aligned: bool = False) -> dict:
     """Per-view and averaged metrics of one asset: relighting (per light and overall) and materials."""
-    per_view, relit_records, aligned_records, metallic_objects = [], [], [], []
+    return score_renders((asset_renders(asset, view, lights) for view in views), views, truths, list(lights), lpips, aligned)
+
+
+def score_renders(renders, views: list[View], truths: list[GroundTruth], env_names: list[str], lpips, aligned: bool = False) -> dict:
+    """Per-view and averaged metrics of any renderer's `renders` (one ViewRenders per view) against the truth."""
+    per_view, relit_records, aligned_records = [], [], []
     channels = {"basecolor": [], "roughness": [], "metallic": []}
     aligned_base = []
     preds_metal, truths_metal, masks_metal = [], [], []
-    for view, truth in zip(views, truths):
-        camera = view.camera.to(asset.gaussians.device)
-        with torch.no_grad():
-            # with visibility each light casts its own shadows; the material channels are the same in every G-buffer
-            lit = {env: render_gbuffer(asset, camera, light) for env, light in lights.items()} if asset.visibility is not None else {}
-            gbuffer = next(iter(lit.values())) if lit else render_gbuffer(asset, camera)
-            record = {"view": view.name, "relighting": {}}
-            for env, light in lights.items():
-                shaded = lit.get(env, gbuffer)
-                rgb = unpremultiply(shade_gbuffer(shaded, camera, light), shaded.alpha).cpu()
-                metrics = evaluate_images(rgb, truth.relit[env], truth.mask, lpips)
-                record["relighting"][env] = metrics
-                relit_records.append(metrics)
-                if aligned:
-                    aligned_records.append(evaluate_images(align_scale(rgb, truth.relit[env], truth.mask), truth.relit[env], truth.mask, lpips))
-            base = gbuffer.base_color.cpu().clamp(0, 1)
-            rough, metal = gbuffer.roughness.cpu().clamp(0, 1), gbuffer.metallic.cpu().clamp(0, 1)
+    for view, truth, render in zip(views, truths, renders):
+        record = {"view": view.name, "relighting": {}}
+        for env in env_names:
+            rgb = render.relit[env]
+            metrics = evaluate_images(rgb, truth.relit[env], truth.mask, lpips)
+            record["relighting"][env] = metrics
+            relit_records.append(metrics)
+            if aligned:
+                aligned_records.append(evaluate_images(align_scale(rgb, truth.relit[env], truth.mask), truth.relit[env], truth.mask, lpips))
+        base, rough, metal = render.base_color, render.roughness, render.metallic
         record["basecolor"] = evaluate_images(base, truth.basecolor, truth.mask, lpips)
         record["roughness"] = evaluate_images(rough[..., None], truth.roughness[..., None], truth.mask, lpips, encoding="raw")
         record["metallic"] = evaluate_images(metal[..., None], truth.metallic[..., None], truth.mask, lpips, encoding="raw")
@@ -116,7 +140,7 @@ def evaluate_asset(asset, views: list[View], truths: list[GroundTruth], lights: 
         "metallic": {**average_metrics(channels["metallic"]), "psnr": metallic.mean if metallic.mean is not None else math.inf,
                      "psnr_infinite": metallic.infinite, "objects": 1},
     }
-    for env in lights:
+    for env in env_names:
         summary[f"relighting_{env}"] = average_metrics([r["relighting"][env] for r in per_view])
     if aligned:
         summary["relighting_aligned"] = average_metrics(aligned_records)

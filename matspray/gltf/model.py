@@ -9,6 +9,9 @@ import numpy as np
 
 from matspray.errors import ConfigError
 
+# glTF's frame (+Y up, +Z front) -> ours (+z up): x stays, glTF +Y becomes +z, glTF +Z becomes -y
+GLTF_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
 # glTF sampler wrap enums and our names for them (the names Mitsuba's bitmap texture uses)
 WRAP_MODES = {10497: "repeat", 33071: "clamp", 33648: "mirror"}
 WRAP_ENUMS = {name: enum for enum, name in WRAP_MODES.items()}

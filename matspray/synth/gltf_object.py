@@ -16,14 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from matspray.errors import ConfigError, file_error
-from matspray.gltf.model import GltfAsset, PbrMaterial, Primitive, TextureRef, TextureTransform
+from matspray.gltf.model import GLTF_TO_WORLD, GltfAsset, PbrMaterial, Primitive, TextureRef, TextureTransform
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
 from matspray.synth.config import PLACEMENTS  # fit: centre the bounding box, farthest vertex at FIT_RADIUS; keep: as in the file
 from matspray.synth.materials import Sampling, Textures, single_wrap, srgb_to_linear
 from matspray.synth.shapes import Part, drop_degenerate
 
-# glTF's frame (+Y up, +Z front) -> ours (+z up): x stays, glTF +Y becomes +z, glTF +Z becomes -y
-GLTF_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 FIT_RADIUS = 1.0
 
 

@@ -1,0 +1,160 @@
+"""`matspray eval --glb FILE.glb`: an exported mesh against the truth of a `matspray synth` object.
+
+The mesh is read by the glTF reader and turned into Mitsuba parts exactly as `synth --asset` does
+(`matspray.synth.gltf_object.asset_parts`, placement 'keep'), path traced under each held-out light at
+the test cameras, and ray cast for its material maps (`cast_ground_truth`, the maps `synth` writes as
+truth). Relighting and material PSNR / SSIM / LPIPS are scored beside the Gaussian asset's (when the
+run the file was exported from is known) and written with side-by-side pictures to FILE_eval/."""
+
+from __future__ import annotations
+
+import html
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from matspray.asset import read_asset
+from matspray.data import View, load_scene, read_image
+from matspray.errors import ConfigError
+from matspray.eval.lpips import load_lpips
+from matspray.eval.report import STYLE, Figures, markdown_to_html
+from matspray.eval.run_eval import (GroundTruth, ViewRenders, asset_renders, check_synthetic, load_relight_lights, read_view_truth,
+                                    relight_env_names, score_renders)
+from matspray.eval.tables import material_table
+from matspray.export.frames import GLTF_FROM_DATASET, transform_directions, transform_points
+from matspray.gltf.read import read_gltf
+from matspray.rundir import RunDir, read_json, write_json, write_text_atomic
+from matspray.variants import asset_stage
+from matspray.synth.groundtruth import cast_ground_truth
+from matspray.synth.gltf_object import asset_parts
+from matspray.synth.mitsuba_scene import build_scene, render_view, select_variant
+
+DEFAULT_SPP = 64
+REPORT_VIEWS = 3
+
+
+def read_glb_parts(path, frame: str | None = None):
+    """Mitsuba parts and textures of an exported file in the dataset's world, and its `matspray` extras.
+    `frame` (gltf | dataset) overrides the frame the file's extras state (gltf when they say none)."""
+    asset = read_gltf(path)
+    extras = asset.extras.get("matspray", {}) if isinstance(asset.extras.get("matspray"), dict) else {}
+    frame = frame or extras.get("frame", "gltf")
+    if frame not in ("gltf", "dataset"):
+        raise ConfigError(f"unknown frame '{frame}'; choose gltf or dataset")
+    if frame == "dataset":  # bring the file into glTF's frame, which the reader maps to the dataset's world
+        asset = replace(asset, primitives=[replace(p, positions=transform_points(GLTF_FROM_DATASET, p.positions),
+                                                   normals=None if p.normals is None else transform_directions(GLTF_FROM_DATASET, p.normals))
+                                           for p in asset.primitives])
+    parts, textures, _ = asset_parts(asset, placement="keep")
+    return parts, textures, extras
+
+
+def mesh_renders(parts, textures, views: list[View], envs: dict[str, np.ndarray], spp: int, progress: bool = True) -> list[ViewRenders]:
+    """Mitsuba's path-traced renders of the mesh under each light [H, 2H, 3] and its ray-cast material maps."""
+    select_variant()
+    bar = tqdm(total=len(views) * (len(envs) + 1), desc="eval --glb", unit="render", disable=not progress)
+    relit: list[dict] = [{} for _ in views]
+    maps, alphas = [], []
+    for light_index, (env, values) in enumerate(envs.items()):
+        scene = build_scene(parts, textures, values)
+        if light_index == 0:
+            for view in views:
+                truth = cast_ground_truth(scene, textures, view.camera)
+                maps.append(truth)
+                alphas.append(torch.from_numpy(truth.coverage))
+                bar.update()
+        for index, view in enumerate(views):
+            rgb, _ = render_view(scene, view.camera, spp, seed=index)
+            relit[index][env] = torch.from_numpy(rgb)
+            bar.update()
+    bar.close()
+    return [ViewRenders(r, torch.from_numpy(m.base_color).clamp(0, 1), torch.from_numpy(m.roughness).clamp(0, 1),
+                        torch.from_numpy(m.metallic).clamp(0, 1), a) for r, m, a in zip(relit, maps, alphas)]
+
+
+def dataset_spp(data: Path) -> int:
+    """The samples per pixel the dataset's truth was rendered with (scene.json), else DEFAULT_SPP."""
+    path = Path(data) / "scene.json"
+    return int(read_json(path).get("settings", {}).get("spp", DEFAULT_SPP)) if path.exists() else DEFAULT_SPP
+
+
+def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: str | None = None, lpips_weights=None,
+                 spp: int | None = None, out=None, progress: bool = True) -> dict:
+    """Score `glb` (and the Gaussian asset it came from, when its run is found) on the dataset's test
+    views; writes metrics.json, tables.md and report.html into `out` (default FILE_eval/ beside it)."""
+    glb = Path(glb)
+    if not glb.is_file():
+        raise ConfigError(f"{glb}: no such file; make one with `matspray export`")
+    parts, textures, extras = read_glb_parts(glb, frame)
+    run = Path(run) if run is not None else (Path(extras["run"]) if "run" in extras and Path(extras["run"], "dataset.json").exists() else None)
+    variant = variant or extras.get("variant", "full")
+    if data is None:
+        if run is None:
+            raise ConfigError(f"{glb}: which dataset? pass --data (the file does not name a run to take it from)")
+        data = read_json(run / "dataset.json")["source"]
+    data = Path(data)
+    scene = load_scene(data, downscale=RunDir(run).downscale() if run is not None else 1.0)
+    check_synthetic(scene)
+    views = scene.test
+    truths = [read_view_truth(v) for v in views]
+    env_names = sorted(set.intersection(*(set(relight_env_names(v)) for v in views)))
+    if not env_names:
+        raise ConfigError(f"{data}: no relit ground truth (test/*_relight_*.png): make the object with `matspray synth`")
+    envs = {name: read_image(data / "envmaps" / f"{name}.exr")[0].numpy() for name in env_names}
+    lpips, lpips_source = load_lpips(lpips_weights)
+    start = time.perf_counter()
+    renders = mesh_renders(parts, textures, views, envs, spp or dataset_spp(data), progress)
+    metrics = {"glb": str(glb), "data": str(data), "lpips": lpips_source, "relight_envs": env_names, "frame": frame or extras.get("frame", "gltf"),
+               "faces": int(sum(len(p.faces) for p in parts)), "render_seconds": round(time.perf_counter() - start, 2),
+               "mesh": score_renders(renders, views, truths, env_names, lpips)}
+    gaussian_renders = None
+    if run is not None and (run / asset_stage(variant) / "asset.ply").exists():
+        asset = read_asset(run / asset_stage(variant))
+        lights = load_relight_lights(data, env_names)
+        gaussian_renders = [asset_renders(asset, view, lights) for view in views]
+        metrics["gaussians"] = score_renders(gaussian_renders, views, truths, env_names, lpips)
+        metrics["run"], metrics["variant"] = str(run), variant
+    out = Path(out) if out is not None else glb.with_name(f"{glb.stem}_eval")
+    write_json(out / "metrics.json", metrics)
+    text = glb_tables(metrics)
+    write_text_atomic(out / "tables.md", text)
+    write_glb_report(out, metrics, text, views, truths, renders, gaussian_renders)
+    return metrics
+
+
+def glb_tables(metrics: dict) -> str:
+    methods = {"Mesh (Mitsuba)": metrics["mesh"]["summary"]}
+    if "gaussians" in metrics:
+        methods = {"Gaussians": metrics["gaussians"]["summary"], **methods}
+    lines = [f"# Exported mesh: {Path(metrics['glb']).name} ({metrics['faces']} faces)", "",
+             f"Held-out lights: {', '.join(metrics['relight_envs'])}; LPIPS: {metrics['lpips']}.", "", material_table(methods)]
+    if "gaussians" in metrics:
+        gap = metrics["gaussians"]["summary"]["relighting"]["psnr"] - metrics["mesh"]["summary"]["relighting"]["psnr"]
+        lines += ["", f"Relighting PSNR of the mesh is {gap:.2f} dB below the Gaussian asset's (negative: above)."]
+    return "\n".join(lines) + "\n"
+
+
+def write_glb_report(out: Path, metrics: dict, tables: str, views: list[View], truths: list[GroundTruth],
+                     mesh: list[ViewRenders], gaussians: list[ViewRenders] | None) -> Path:
+    """report.html: per test view and light, the truth, the Gaussian asset and the mesh side by side."""
+    figures = Figures(out / "report")
+    sections = [f"<h1>Exported mesh: {html.escape(Path(metrics['glb']).name)}</h1>",
+                "<p><i>Truth</i>: Mitsuba's render of the true object. <i>Gaussians</i>: the asset, split-sum shaded. "
+                "<i>Mesh</i>: the exported glTF file, path traced by Mitsuba exactly like the truth.</p>"]
+    for index, (view, truth) in enumerate(list(zip(views, truths))[:REPORT_VIEWS]):
+        sections.append(f"<h2>Test view {html.escape(view.name)}</h2>")
+        for env in metrics["relight_envs"]:
+            cells = [figures.image(f"{view.name}_{env}_truth", truth.relit[env], f"truth, {env}", truth.mask)]
+            if gaussians is not None:
+                cells.append(figures.image(f"{view.name}_{env}_gaussians", gaussians[index].relit[env], f"Gaussians, {env}", gaussians[index].alpha))
+            cells.append(figures.image(f"{view.name}_{env}_mesh", mesh[index].relit[env], f"mesh, {env}", mesh[index].alpha))
+            sections.append("<div>" + "".join(cells) + "</div>")
+    sections.append(markdown_to_html(tables))
+    page = f"<!doctype html><html><head><meta charset='utf-8'><title>MatSpray export</title><style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
+    path = out / "report.html"
+    write_text_atomic(path, page)
+    return path

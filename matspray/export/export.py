@@ -1,0 +1,169 @@
+"""The whole export: asset -> closed surface -> decimated mesh -> UV atlas -> baked textures -> GLB
+(one metallic-roughness material) + the estimated environment map beside it as .exr and .hdr."""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from matspray.asset import Asset, read_asset
+from matspray.data.camera import Camera
+from matspray.data.images import atomic_target, read_image, write_image
+from matspray.data.loader import load_scene
+from matspray.errors import ConfigError, RunError
+from matspray.export.atlas import uv_atlas
+from matspray.export.bake import bake_textures, blend_normals, gaussian_weights
+from matspray.export.config import ExportConfig
+from matspray.export.decimate import decimate
+from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
+from matspray.export.surface import fuse_surface
+from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
+from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
+from matspray.rundir import RunDir, read_json
+from matspray.variants import asset_stage, get_variant
+
+ENVMAP_SUFFIXES = (".exr", ".hdr")
+
+
+@dataclass(frozen=True)
+class ExportedMesh:
+    """A textured mesh in the file's frame, ready to write."""
+
+    positions: np.ndarray  # [V, 3]
+    normals: np.ndarray  # [V, 3] unit
+    uvs: np.ndarray  # [V, 2] glTF convention
+    faces: np.ndarray  # [F, 3] counter-clockwise seen from outside
+    textures: np.ndarray  # [S, S, 5] linear base colour rgb, roughness, metallic
+    extras: dict  # frame, transforms and settings, for the file's asset.extras
+    seconds: dict = field(default_factory=dict)  # per step
+
+
+def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, progress: bool = False, notes: dict | None = None) -> ExportedMesh:
+    """Surface, decimation, atlas and textures of `asset` seen from `cameras` (the training views)."""
+    seconds, start = {}, time.perf_counter()
+    bar = tqdm(total=4, desc="export", disable=not progress, dynamic_ncols=True, postfix="surface")
+
+    def step(name: str, following: str = "") -> None:
+        nonlocal start
+        now = time.perf_counter()
+        seconds[name], start = round(now - start, 2), now
+        bar.set_postfix_str(following, refresh=False)
+        bar.update()
+
+    mesh, voxel = fuse_surface(asset.gaussians, cameras, config.grid, config.truncation, config.min_alpha, config.keep_fraction, progress)
+    step("surface", "decimate")
+    mesh = decimate(mesh, config.faces)
+    step("decimate", "atlas")
+    atlas = uv_atlas(mesh, config.texture_size, config.padding)
+    step("atlas", "bake")
+    materials = asset.materials.detach().cpu().double().numpy()
+    textures = bake_textures(atlas.positions, atlas.faces, atlas.uvs, asset.gaussians, materials, config.texture_size,
+                             config.neighbours, voxel)
+    normals = unit_normals(np.asarray(mesh.vertex_normals, dtype=np.float64), np.asarray(mesh.vertices))[atlas.source]
+    if config.normals == "asset":
+        ids, weights = gaussian_weights(atlas.positions, asset.gaussians, config.neighbours, voxel)
+        normals = blend_normals(ids, weights, asset.normals.detach().cpu().double().numpy(), normals)
+    step("bake")
+    bar.close()
+    matrix = file_from_dataset(config.frame)
+    extras = {**frame_extras(config.frame), "voxel": voxel, "faces": int(len(atlas.faces)), "texture_size": config.texture_size, **(notes or {})}
+    return ExportedMesh(transform_points(matrix, atlas.positions), transform_directions(matrix, normals), atlas.uvs, atlas.faces,
+                        textures, extras, seconds)
+
+
+def unit_normals(normals: np.ndarray, positions: np.ndarray) -> np.ndarray:  # [V, 3], [V, 3] -> [V, 3] unit
+    """Vertex normals with the zero-length ones (a vertex whose faces cancel out) replaced by the direction
+    from the mesh's centre: glTF requires unit normals."""
+    length = np.linalg.norm(normals, axis=-1, keepdims=True)
+    outward = positions - positions.mean(0)
+    outward = outward / np.maximum(np.linalg.norm(outward, axis=-1, keepdims=True), 1e-12)
+    outward[np.linalg.norm(outward, axis=-1) < 0.5] = (0.0, 0.0, 1.0)
+    return np.where((length > 1e-6) & np.isfinite(length), normals / np.maximum(length, 1e-12), outward)
+
+
+def gltf_material(textures: np.ndarray) -> PbrMaterial:  # [S, S, 5] linear materials
+    base = TextureRef(encode_base_color(textures[..., :3]).astype(np.float32), wrap_s="clamp", wrap_t="clamp", source="base colour")
+    packed = pack_metallic_roughness(textures[..., 3], textures[..., 4]).astype(np.float32)
+    return PbrMaterial(name="matspray", base_color_texture=base,
+                       metallic_roughness_texture=TextureRef(packed, wrap_s="clamp", wrap_t="clamp", source="metallic-roughness"))
+
+
+def envmap_paths(out: Path) -> list[Path]:
+    """Where the environment map goes beside FILE.glb: FILE_envmap.exr and FILE_envmap.hdr."""
+    return [out.with_name(f"{out.stem}_envmap{suffix}") for suffix in ENVMAP_SUFFIXES]
+
+
+def write_export(mesh: ExportedMesh, out: Path, envmap: Path | None = None) -> list[Path]:
+    """The GLB and (when given) the environment map as .exr and .hdr; all or nothing: the maps are written
+    to temporary files first and renamed into place only after the GLB is complete."""
+    out = Path(out)
+    primitive = Primitive("matspray", mesh.positions, mesh.faces, uvs=(mesh.uvs,), normals=mesh.normals, material=0)
+    targets = envmap_paths(out) if envmap is not None else []
+    temporaries = [atomic_target(path) for path in targets]
+    try:
+        if envmap is not None:
+            rgb, _ = read_image(envmap)
+            for tmp in temporaries:
+                write_image(tmp, rgb)
+        write_glb(out, [primitive], [gltf_material(mesh.textures)], extras={"matspray": mesh.extras})
+        for tmp, path in zip(temporaries, targets):
+            os.replace(tmp, path)
+    finally:
+        for tmp in temporaries:
+            if tmp.exists():
+                tmp.unlink()
+    return [out, *targets]
+
+
+def check_output(out: Path) -> Path:
+    """A writable FILE.glb, checked before any work is done."""
+    out = Path(out)
+    if out.suffix.lower() != ".glb":
+        raise ConfigError(f"{out}: the output must be a .glb file")
+    if out.is_dir():
+        raise ConfigError(f"{out}: is a folder; give a file name ending in .glb")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{out}: cannot create its folder ({exc.strerror}); choose another output path") from None
+    if not os.access(out.parent, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
+        raise ConfigError(f"{out}: cannot be written (permission denied); choose another output path")
+    return out
+
+
+def run_asset(run_dir: Path, variant: str) -> Path:
+    """The asset folder of `variant` in a run, or a RunError that says how to make it."""
+    get_variant(variant)  # an unknown variant: one clear line
+    if not (run_dir / "dataset.json").exists():
+        raise RunError(f"{run_dir}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
+    folder = run_dir / asset_stage(variant)
+    if not (folder / "asset.ply").exists():
+        raise RunError(f"{run_dir}: no asset for variant '{variant}' ({folder.name}/asset.ply); make it with `matspray run --variant {variant}`")
+    return folder
+
+
+@dataclass(frozen=True)
+class ExportReport:
+    files: list[Path]
+    faces: int
+    vertices: int
+    texture_size: int
+    seconds: dict
+
+
+def export_run(run_dir, out, variant: str = "full", config: ExportConfig = ExportConfig(), data=None, progress: bool = True) -> ExportReport:
+    """`matspray export`: the run's asset of `variant` as `out` (.glb) plus its environment map."""
+    run_dir, out = Path(run_dir), check_output(out)
+    folder = run_asset(run_dir, variant)
+    source = data if data is not None else read_json(run_dir / "dataset.json")["source"]
+    scene = load_scene(source, downscale=RunDir(run_dir).downscale())
+    asset = read_asset(folder)
+    mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress, notes={"variant": variant, "run": str(run_dir.resolve())})
+    envmap = folder / "envmap.exr"
+    files = write_export(mesh, out, envmap if envmap.exists() else None)
+    return ExportReport(files, len(mesh.faces), len(mesh.positions), config.texture_size, mesh.seconds)
