@@ -41,7 +41,7 @@ import numpy as np
 
 from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
 from matspray.demo import DEMO_SIZES, make_demo_object, run_object
-from matspray.errors import ConfigError, MatsprayError, SettingError
+from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.average import average_tables
 from matspray.eval.tables import write_tables
 from matspray.lights import BUILTINS, hdri_files
@@ -377,11 +377,8 @@ def main(argv=None) -> int:
             print("\n".join(choices_table(args.out)))
             return 0
         result = run_protocol(args)
-    except SettingError as exc:
-        print(f"error: {flag_message(exc)}", file=sys.stderr)
-        return 2
     except MatsprayError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {flag_message(exc)}", file=sys.stderr)
         return 2
     print("\n" + "\n".join(result["lines"]))
     print(f"\nwritten: {args.out / ('results-' + result['report']['settings']['tag'] + '.md')} (and .json, tables-*.md)")

@@ -9,7 +9,7 @@ import sys
 
 from matspray import __version__
 from matspray.cli.options import flag_message
-from matspray.errors import MatsprayError, SettingError
+from matspray.errors import MatsprayError
 
 # (module under matspray.cli, one-line help); order is the order of `matspray --help`
 COMMANDS = [
@@ -55,11 +55,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
-    except SettingError as exc:
-        print(f"matspray {args.command}: error: {flag_message(exc)}", file=sys.stderr)
-        return 2
     except MatsprayError as exc:
-        print(f"matspray {args.command}: error: {exc}", file=sys.stderr)
+        print(f"matspray {args.command}: error: {flag_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         if args.command in RESUMING_COMMANDS:

@@ -114,6 +114,6 @@ def build_config_from_args(args, **fixed):
 
 
 def flag_message(error, flags: dict = FLAG_OF_SETTING) -> str:
-    """A SettingError's message with the flag that set the setting, when one did."""
-    flag = flags.get(error.setting)
+    """An error's one-line message; a SettingError names the flag that set the setting, when one did."""
+    flag = flags.get(getattr(error, "setting", None))
     return f"{flag}: {error.problem}" if flag else str(error)
