@@ -54,7 +54,7 @@ class RefineConfig:
     # at the merger's 1e-3 a Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey
     envmap_height: int = 16  # learnable lat-long map is H x 2H
     envmap_init: float = 0.5  # initial constant radiance
-    light_tv_weight: float = 1e-3  # weight of the total variation of the map's log radiance (0: no prior)
+    light_tv_weight: float = 3e-4  # weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)
     light_warmup: int = 200  # steps that fit only the environment map to the photos, materials fixed at their start
     min_coverage: float = 0.02  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
