@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 
 from matspray.errors import ConfigError, SettingError
+from matspray.render.backend import BACKENDS
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.config import preset as geometry_preset
 from matspray.lift import LiftConfig
@@ -35,6 +36,7 @@ class PipelineConfig:
     seed: int = 0
     refine_seed: int | None = None  # the refinement's own seed (view order, merger init); None: `seed`
     device: str = "auto"
+    backend: str = "auto"  # rasterizer: auto (gsplat when CUDA and gsplat are present), torch or gsplat
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
     lift: LiftConfig = field(default_factory=LiftConfig)
     visibility: VisibilityConfig | None = field(default_factory=VisibilityConfig)  # None: no shadowing (the paper's shading)
@@ -45,6 +47,8 @@ class PipelineConfig:
             raise SettingError("preset", f"unknown preset '{self.preset}'; choose one of {', '.join(PRESETS)}")
         if self.method not in METHODS:
             raise SettingError("method", f"unknown method '{self.method}'; choose one of {', '.join(METHODS)}")
+        if self.backend not in BACKENDS:
+            raise SettingError("backend", f"unknown backend '{self.backend}'; choose one of {', '.join(BACKENDS)}")
         if not self.downscale > 0:
             raise SettingError("downscale", f"must be > 0, got {self.downscale}")
 

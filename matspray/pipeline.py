@@ -18,6 +18,7 @@ from matspray.config import PipelineConfig
 from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
 from matspray.device import configure_threads, resolve_device
+from matspray.render.backend import resolve_backend
 from matspray.errors import RunError
 from matspray.geometry.ply import read_ply
 from matspray.geometry.train import train_geometry
@@ -59,6 +60,7 @@ class Pipeline:
         self.config = config
         self.device = resolve_device(config.device)
         configure_threads(self.device)
+        self.backend = resolve_backend(config.backend, self.device)  # "torch" or "gsplat"; fails here, before any work
         self.scene = load_scene(data, downscale=config.downscale)
         self.run = RunDir(out)
         self.run.claim(dataset_identity(self.scene), overwrite=overwrite)

@@ -42,6 +42,8 @@ SETTING_FLAGS = {
     "--refine-seed": ("refine_seed", int, "the refinement's own seed (default: --seed)"),
     "--downscale": ("downscale", float, "shrink images by this factor on load (default 1)"),
     "--device": ("device", str, "auto (CUDA when available; default), cpu, cuda or cuda:N"),
+    "--backend": ("backend", str, "rasterizer: auto (default; gsplat when CUDA and gsplat are installed, else torch), torch, "
+                  "or gsplat (CUDA only; pip install 'matspray[cuda]')"),
 }
 FLAG_OF_SETTING = {setting: flag for flag, (setting, _, _) in SETTING_FLAGS.items()}
 FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "--without", "visibility": "--shadows", "objects": "--objects",

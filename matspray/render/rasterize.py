@@ -21,16 +21,14 @@ import torch
 from torch import Tensor
 
 from matspray.data.camera import Camera
-from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
 from matspray.render.blend import blend_hits, hit_weights
+from matspray.render.backend import resolve_backend
 from matspray.render.compositing import ray_major_order
+from matspray.render.gsplat_backend import rasterize_gsplat
 from matspray.render.pairs import EMPTY_BOX, box_areas, clip_rows, ellipse_pixel_pairs, pixel_boxes, row_bands
 from matspray.render.projection import log_opacity_ratio, max_eigen_radius, project_gaussians
 from matspray.render.settings import RasterSettings
-
-BACKENDS = ("auto", "torch")
-
 
 @dataclass
 class RasterOutput:
@@ -57,13 +55,14 @@ def rasterize(
     features: Tensor,  # [N, C]
     background: Tensor | None = None,  # [C]; None means zeros
     *,
-    backend: str = "auto",
+    backend: str = "torch",
     settings: RasterSettings = RasterSettings(),
     max_pairs: int = 1 << 23,
 ) -> RasterOutput:
     """Render per-Gaussian `features` into `camera`; differentiable w.r.t. the Gaussians' means,
     log_scales, quats, opacity_logits and w.r.t. `features`.
 
+    `backend`: torch (ours), gsplat (CUDA, optional extra) or auto (see matspray.render.backend).
     `max_pairs` bounds the (Gaussian, pixel) candidate pairs processed at once: larger images are
     rendered in bands of rows (the autograd graph still keeps every band until backward).
     """
@@ -72,8 +71,9 @@ def rasterize(
         raise ValueError(f"rasterize: features must be [N={n}, C], got {tuple(features.shape)}")
     if background is not None and tuple(background.shape) != (features.shape[1],):
         raise ValueError(f"rasterize: background must be [C={features.shape[1]}], got {tuple(background.shape)}")
-    if backend not in BACKENDS:
-        raise ConfigError(f"rasterize: unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    if resolve_backend(backend, gaussians.device) == "gsplat":
+        colour, alpha, depth, means2d, radii, hits = rasterize_gsplat(gaussians, camera, features, background, settings)
+        return RasterOutput(features=colour, alpha=alpha, depth=depth, means2d=means2d, radii=radii, num_hits=hits)
     return _rasterize_torch(gaussians, camera, features, background, settings, max_pairs)
 
 
