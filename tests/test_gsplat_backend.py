@@ -3,12 +3,12 @@ and gsplat are present, parity of the gsplat backend with ours on small scenes."
 
 from __future__ import annotations
 
-import builtins
 import subprocess
 import sys
 
 import pytest
 import torch
+import yaml
 
 from matspray.config import PipelineConfig
 from matspray.errors import SettingError
@@ -16,18 +16,19 @@ from matspray.gaussians import Gaussians
 from matspray.render import backend as backend_module
 from matspray.render.backend import BACKENDS, gsplat_import_error, resolve_backend
 from matspray.render.rasterize import rasterize
+from matspray.rundir import RunDir
 from tests.test_rasterize import random_scene
 
 
 def block_gsplat(monkeypatch):
-    real_import = builtins.__import__
+    real_import = backend_module.importlib.import_module
 
-    def fake_import(name, *args, **kwargs):
-        if name == "gsplat" or name.startswith("gsplat."):
+    def fake_import(name, *args):
+        if name.split(".")[0] == "gsplat":
             raise ImportError("No module named 'gsplat'")
-        return real_import(name, *args, **kwargs)
+        return real_import(name, *args)
 
-    monkeypatch.setattr(backend_module.importlib, "import_module", lambda name: fake_import(name))
+    monkeypatch.setattr(backend_module.importlib, "import_module", fake_import)
 
 
 def fake_gsplat_present(monkeypatch):
@@ -43,6 +44,11 @@ def test_unknown_backend_names_the_setting():
         resolve_backend("optix", "cpu")
     with pytest.raises(SettingError, match="backend: unknown backend"):
         PipelineConfig(backend="optix")
+
+
+def test_config_yaml_records_the_backend(tmp_path):
+    RunDir(tmp_path).write_config(PipelineConfig(backend="torch"))
+    assert yaml.safe_load((tmp_path / "config.yaml").read_text())["backend"] == "torch"
 
 
 def test_torch_is_always_available():
