@@ -68,6 +68,7 @@ class Pipeline:
         self.progress = progress
         self.log = log
         self.dataset_fp = fingerprint(dataset_identity(self.scene), config.downscale)
+        self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
 
     # ---------------------------------------------------------------- predict
     def predict_fingerprint(self) -> str:
@@ -150,7 +151,13 @@ class Pipeline:
 
     # ---------------------------------------------------------------- refine
     def refine_inputs(self) -> RefineInputs:
-        """Predict, geometry, lift and visibility (each reused when done): what refinement reads."""
+        """Predict, geometry, lift and visibility (each reused when done): what refinement reads. Read
+        once per Pipeline: the variants of one run share them."""
+        if self._refine_inputs is None:
+            self._refine_inputs = self._read_refine_inputs()
+        return self._refine_inputs
+
+    def _read_refine_inputs(self) -> RefineInputs:
         maps = self.predict()
         gaussians, normals = self.geometry()
         lifted = self.lift(gaussians, maps)

@@ -106,25 +106,25 @@ class MaterialSource(nn.Module):
     def __init__(self, variant: Variant, positions: Tensor, values: Tensor, seen: Tensor, bounds: Tensor, merger_config: MergerConfig):
         super().__init__()
         self.variant = variant
-        self.register_buffer("positions", positions)
-        self.register_buffer("values", values * seen[..., None])  # unseen entries carry no information
-        self.register_buffer("seen", seen)
         self.merger = None
+        unseen = "mask"  # unseen entries carry no information; the merger may fill them instead (the paper's rule)
         if variant.source == "merger":
             config = MergerConfig(**{**merger_config.__dict__, "softmax": variant.softmax})
             self.merger = NeuralMerger(values.shape[1], bounds, config)
-            merger_values, merger_seen = prepare_values(values, seen, config.unseen)
-            self.register_buffer("merger_values", merger_values)
-            self.register_buffer("merger_seen", merger_seen)
+            unseen = config.unseen
+        values, seen = prepare_values(values, seen, unseen)  # [N, V, 5], [N, V] what the source reads
+        self.register_buffer("values", values)
+        self.register_buffer("seen", seen)
+        if self.merger is not None:
             with torch.no_grad():  # geometry is frozen: the MLPs' inputs never change
-                self.inputs = self.merger.group_inputs(positions, merger_values, merger_seen)
+                self.inputs = self.merger.group_inputs(positions, values, seen)
         elif variant.source == "free":  # free parameters, starting from an uninformed grey
             self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
 
     def forward(self, index: Tensor | None = None) -> Tensor:  # [N, 5], or [K, 5] for the Gaussians `index` [K]
         pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
         if self.merger is not None:
-            return self.merger.merge({name: pick(x) for name, x in self.inputs.items()}, pick(self.merger_values), pick(self.merger_seen))
+            return self.merger.merge({name: pick(x) for name, x in self.inputs.items()}, pick(self.values), pick(self.seen))
         if self.variant.source == "free":
             return torch.sigmoid(pick(self.logits))
         return projection_average(pick(self.values), pick(self.seen))
