@@ -10,7 +10,8 @@ Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every s
 2000 + i) to run once at the end. Object i is a procedural `random` shape (the seed picks it), trained
 under one HDRI of ../shared/data/hdri and relit under two other lights (HDRIs and built-ins), all drawn
 from its seed. Each object is run with every predictor error model (`simulated:paper`, `:harsh`,
-`:outliers`, and the ground truth as a sanity row): one run folder per (object, model), the Gaussian
+`:outliers`, and the ground truth as a sanity row; a simulated predictor draws its errors from the
+object's seed): one run folder per (object, model), the Gaussian
 Splatting geometry trained once per object and shared by hard links (the pipeline's stage fingerprint
 checks it is the same). Every variant is refined, evaluated against the ground truth, and the raw 2D
 predictions of the test views are scored as the baseline 3D must beat.
@@ -45,6 +46,7 @@ from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.average import average_tables
 from matspray.eval.tables import write_tables
 from matspray.lights import BUILTINS, hdri_files
+from matspray.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.variants import VARIANT_NAMES as VARIANTS
 from matspray.rundir import RunDir, fingerprint, read_json, write_json, write_text_atomic
@@ -146,6 +148,14 @@ def protocol_config(args, predictor: str):
     `matspray run` reads them), then the --refine overrides."""
     config = build_config_from_args(args, predictor=predictor)
     return replace(config, refine=with_overrides(config.refine, args.refine))
+
+
+def object_config(config, spec: ObjectSpec):
+    """`config` for one object: a simulated predictor draws its errors from the object's seed, so that
+    objects do not share one realisation of the error model (wins out of N count independent draws)."""
+    if not config.predictor.startswith("simulated"):
+        return config
+    return replace(config, predictor_options={**config.predictor_options, "seed": spec.seed})
 
 
 # ------------------------------------------------------------------------------------------ geometry once
@@ -277,18 +287,24 @@ def run_protocol(args, log=print) -> dict:
                                 relight_envs=list(spec.relight_envs))
         seconds = {"synth": time.perf_counter() - start, "models": {}}
         first_run = folder / "runs" / next(iter(specs))
+        if args.geometry_only:
+            Pipeline(data, first_run, object_config(configs[next(iter(specs))], spec), progress=args.progress, log=log).geometry()
+            log(f"generalise: {spec.name}: geometry in {first_run / 'geometry'} ({time.perf_counter() - start:.0f} s with synth)")
+            continue
         for model in specs:
             run_dir = folder / "runs" / model
             if run_dir != first_run and share_geometry(first_run, run_dir):
                 log(f"generalise: {spec.name} / {model}: geometry shared from {first_run.name}")
             begin = time.perf_counter()
-            metrics = run_object(data, run_dir, configs[model], variants=args.variants, progress=args.progress, log=log)
+            metrics = run_object(data, run_dir, object_config(configs[model], spec), variants=args.variants, progress=args.progress, log=log)
             seconds["models"][model] = time.perf_counter() - begin
             results[model].append({"object": vars(spec) | {"relight_envs": list(spec.relight_envs)}, "figures": object_figures(metrics),
                                    "metrics": metrics, "seconds": seconds["models"][model]})
         seconds["geometry"] = RunDir(first_run).timings().get("geometry")
         seconds["total"] = time.perf_counter() - start
         timing.append({"object": spec.name, **seconds})
+    if args.geometry_only:
+        return {"report": None, "lines": [f"geometry of {len(objects)} {args.set} objects ready in {args.out / 'objects'}"]}
     summaries = {m: model_summary(per_object) for m, per_object in results.items()}
     report = {"settings": settings, "timing": timing, "models": {m: {"summary": {k: v for k, v in summaries[m].items() if k != "tables"},
                                                                      "objects": [{k: o[k] for k in ("object", "figures", "seconds")} for o in results[m]]}
@@ -362,6 +378,8 @@ def parse_args(argv=None):
     parser.add_argument("--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)")
     parser.add_argument("--out", type=Path, help="folder (default runs/generalise-SET-PRESET); objects and runs in it are reused")
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
+    parser.add_argument("--geometry-only", action="store_true", help="make the objects and train their geometry only (shared by every "
+                        "later configuration), e.g. in the background while settings are still being chosen")
     parser.add_argument("--compare", action="store_true", help="run nothing: print one row per configuration already run in --out "
                         "(its results-*.json), the table to choose settings from")
     add_method_arguments(parser, presets=("test", "demo"))
@@ -381,6 +399,8 @@ def main(argv=None) -> int:
         print(f"error: {flag_message(exc)}", file=sys.stderr)
         return 2
     print("\n" + "\n".join(result["lines"]))
+    if result["report"] is None:
+        return 0
     print(f"\nwritten: {args.out / ('results-' + result['report']['settings']['tag'] + '.md')} (and .json, tables-*.md)")
     return 0
 

@@ -6,6 +6,7 @@ unless a test puts a highlight there), and its outputs are labelled SIMULATED.""
 from __future__ import annotations
 
 import math
+import shutil
 from dataclasses import replace
 
 import pytest
@@ -114,7 +115,7 @@ def test_batches_are_consistent_inside_and_differ_between(flat):
     level = log_gains([out[v.name] for v in flat], truths).mean(1).view(-1, 8)  # [batches, views in batch]
     within = float(((level - level.mean(1, keepdim=True)) ** 2).sum() / (level.numel() - level.shape[0])) ** 0.5
     assert within == pytest.approx(config.view_jitter_sigma, rel=0.25)  # only the view's jitter inside a batch
-    assert float(level.mean(1).std()) > 3 * within  # the batch's exposure and white balance between batches
+    assert float(level.mean(1).std()) > 2 * within  # (no batch drift: about within / sqrt(8)) the batch's exposure and white balance between batches
 
 
 def test_outlier_views_get_a_colour_cast_of_the_stated_size(flat):
@@ -198,3 +199,18 @@ def test_cli_writes_a_simulated_error_model_labelled_and_refuses_unknown_ones(fl
     err = capsys.readouterr().err
     assert "unknown error model" in err and "Traceback" not in err
     assert not (tmp_path / "bad" / "materials2d").exists()
+
+
+def test_another_set_of_views_draws_its_own_errors(flat, tmp_path):
+    """Views of the same names in another split folder (the test views) get drifts of their own; the
+    same views always get the same maps."""
+    config = replace(ERROR_MODELS["paper"], batch_size=8, seed=4)
+    first, info = predict(flat[:16], config)
+    again, _ = predict(flat[:16], config)
+    assert all(torch.equal(first[v.name].roughness, again[v.name].roughness) for v in flat[:16])
+    shutil.copytree(flat[0].path.parent, tmp_path / "test")  # the same files, as another split
+    other = [replace(v, path=tmp_path / "test" / v.path.name) for v in flat[:16]]
+    moved, moved_info = predict(other, config)
+    offsets = [b["roughness_offset"] for b in info["batches"]]
+    assert offsets != [b["roughness_offset"] for b in moved_info["batches"]]
+    assert not torch.equal(first[flat[0].name].roughness, moved[flat[0].name].roughness)

@@ -32,13 +32,17 @@ All effects apply to the object (alpha); background pixels keep their true value
 each named error model are in `matspray.predictors.error_models`.
 
 `severity` scales every effect (0 gives the ground truth exactly, 1 the default strength). Random
-draws depend only on `seed` and positions, not on severity, so severities form one family.
+draws depend only on `seed`, which views are predicted (split folder and names) and positions, not on
+severity, so severities form one family. The test views are one more set of frames: their batches draw
+their own drifts and outliers, independent of the training views' (with draws shared by the two sets,
+the 2D baseline of the test views would repeat the errors of a few training batches).
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import torch
@@ -148,6 +152,15 @@ def highlight_weight(ratio: Tensor) -> Tensor:  # shading ratio S [H, W] (median
     return (ratio - 1.0).clamp(0.0, 1.0)
 
 
+def views_seed(seed: int, views: list[View]) -> int:
+    """The seed of the draws for predicting `views`: `seed` and which views they are (split folder and
+    name), so that the test views are predicted in batches of their own, with drifts and outliers drawn
+    independently of the training views' (as a real model run on them would), while the same views
+    always get the same errors."""
+    ids = ",".join(f"{v.path.parent.name if v.path is not None else ''}/{v.name}" for v in views)
+    return int(hashlib.sha1(f"{int(seed)}|{ids}".encode()).hexdigest()[:15], 16)
+
+
 def draw_batch_drift(config: SimulationConfig, batch: int) -> BatchDrift:
     rng = np.random.default_rng([int(config.seed), 0, batch])
     s = config.severity
@@ -220,17 +233,18 @@ class SimulatedPredictor(Predictor):
     def predict(self, views: list[View]) -> dict[str, MaterialMaps]:
         check_ground_truth(views)
         out, self.batches, self.outliers = {}, [], []
+        draws = replace(self.config, seed=views_seed(self.config.seed, views))
         size = int(self.config.batch_size)
         with tqdm(total=len(views), desc="simulated predictions", unit="view") as bar:
             for batch, start in enumerate(range(0, len(views), size)):
-                drift = draw_batch_drift(self.config, batch)
+                drift = draw_batch_drift(draws, batch)
                 members = views[start : start + size]
                 self.batches.append(dict(asdict(drift), views=[v.name for v in members]))
                 for offset, view in enumerate(members):
                     truth = read_ground_truth(view)
-                    outlier = draw_view_outlier(self.config, start + offset)
+                    outlier = draw_view_outlier(draws, start + offset)
                     if outlier != ViewOutlier([1.0, 1.0, 1.0], 0.0):
                         self.outliers.append(dict(asdict(outlier), view=view.name))
-                    out[view.name] = simulate_view(truth, view.image, view.alpha, drift, self.config, start + offset, outlier)
+                    out[view.name] = simulate_view(truth, view.image, view.alpha, drift, draws, start + offset, outlier)
                     bar.update(1)
         return out
