@@ -11,7 +11,7 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import ENVMAP_FILE, read_asset, read_history
+from matspray.asset import ENVMAP_FILE, envmap_preview, read_asset, read_history
 from matspray.data import View, load_scene, read_image, write_image
 from matspray.data.images import srgb_to_linear
 from matspray.eval.light import light_figures, training_light
@@ -113,12 +113,6 @@ class Figures:
         return self.image(name, srgb_to_linear(values.clamp(0, 1))[..., None].expand(-1, -1, 3), caption, alpha)
 
 
-def tone_map(env: torch.Tensor) -> torch.Tensor:  # HDR [H, W, 3] -> displayable linear [H, W, 3] in [0, 1]
-    exposure = 0.5 / env.mean().clamp_min(1e-6)
-    x = env * exposure
-    return x / (1 + x)
-
-
 def write_report(run_dir, metrics: dict, data=None) -> Path:
     """Write RUN/report.html (and RUN/report/*.png) from a run and its evaluation `metrics`."""
     run = RunDir(run_dir).require()
@@ -186,7 +180,7 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
     light_note = ""
     if estimated.exists():
         estimate = EnvironmentMap.from_file(estimated).map.detach()
-        cells.append(figures.image("envmap_estimated", tone_map(estimate), "estimated light (full)", css="env"))
+        cells.append(figures.image("envmap_estimated", envmap_preview(estimate), "estimated light (full)", css="env"))
         truth = training_light(data)
         if truth is not None:
             figures_of_light = light_figures(estimate, truth[1])
@@ -194,7 +188,7 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
                           f"{figures_of_light['tv_ratio']:.2f} x the truth's, irradiance correlation {figures_of_light['irradiance_correlation']:.3f}.")
     for path in sorted((data / "envmaps").glob("*.exr")) if (data / "envmaps").is_dir() else []:
         role = "held-out light" if path.stem in env_names else "training light"
-        cells.append(figures.image(f"envmap_{path.stem}", tone_map(EnvironmentMap.from_file(path, height=64).map.detach()), f"{role}: {path.stem}", css="env"))
+        cells.append(figures.image(f"envmap_{path.stem}", envmap_preview(EnvironmentMap.from_file(path, height=64).map), f"{role}: {path.stem}", css="env"))
     if cells:
         sections.append("<h2>Environment light</h2><p>Tone-mapped lat-long maps (up is the top row). The estimated light "
                         "is only determined up to what the training views reveal." + light_note + "</p><div>" + "".join(cells) + "</div>")
