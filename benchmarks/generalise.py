@@ -166,6 +166,13 @@ def link_or_copy(source: str, target: str) -> None:
         shutil.copy2(source, target)
 
 
+def geometry_run(runs: Path, first_model: str) -> Path:
+    """The run folder whose geometry the object's other runs share: one that already has a finished
+    geometry stage (from any error model, e.g. a --geometry-only pass), else the first model's."""
+    done = sorted(p.parent.parent for p in runs.glob("*/geometry/stage.json"))
+    return done[0] if done else runs / first_model
+
+
 def share_geometry(source_run: Path, target_run: Path) -> bool:
     """Hard-link the finished geometry stage of `source_run` into `target_run` when that has none;
     the target's pipeline still compares fingerprints and retrains if they differ."""
@@ -273,7 +280,9 @@ def run_protocol(args, log=print) -> dict:
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
     if args.set == "eval":
         log("generalise: evaluation set — run it once, with settings chosen on the development set only")
-        earlier = sorted(p.stem[len("results-"):] for p in args.out.glob("results-*.json") if p.stem != f"results-{tag}")
+        chosen = {k: settings[k] for k in ("preset", "method", "without", "settings", "refine_overrides")}
+        earlier = sorted(p.stem[len("results-"):] for p in args.out.glob("results-*.json")
+                         if {k: read_json(p)["settings"].get(k) for k in chosen} != chosen)
         if earlier:
             log(f"warning: this evaluation set was already run with other settings ({', '.join(earlier)}); "
                 "choosing between them on it makes it a development set")
@@ -286,7 +295,7 @@ def run_protocol(args, log=print) -> dict:
         data = make_demo_object(folder / "data", args.preset, "random", spec.seed, progress=args.progress, env=spec.env,
                                 relight_envs=list(spec.relight_envs))
         seconds = {"synth": time.perf_counter() - start, "models": {}}
-        first_run = folder / "runs" / next(iter(specs))
+        first_run = geometry_run(folder / "runs", next(iter(specs)))
         if args.geometry_only:
             Pipeline(data, first_run, object_config(configs[next(iter(specs))], spec), progress=args.progress, log=log).geometry()
             log(f"generalise: {spec.name}: geometry in {first_run / 'geometry'} ({time.perf_counter() - start:.0f} s with synth)")

@@ -12,6 +12,7 @@ import pytest
 from benchmarks.generalise import (
     MAX_OBJECTS,
     SET_SEEDS,
+    geometry_run,
     main,
     model_summary,
     object_set,
@@ -82,6 +83,14 @@ def test_share_geometry_links_a_finished_stage_once(tmp_path):
     assert not share_geometry(tmp_path / "none", tmp_path / "c") and not (tmp_path / "c").exists()
 
 
+def test_geometry_run_is_one_with_finished_geometry(tmp_path):
+    assert geometry_run(tmp_path, "harsh") == tmp_path / "harsh"  # nothing trained yet: the first model's
+    (tmp_path / "paper" / "geometry").mkdir(parents=True)
+    assert geometry_run(tmp_path, "harsh") == tmp_path / "harsh"  # unfinished geometry does not count
+    (tmp_path / "paper" / "geometry" / "stage.json").write_text("{}")
+    assert geometry_run(tmp_path, "harsh") == tmp_path / "paper"
+
+
 def fake_run(full, average, no_softmax, base3, base2, metal3, metal2):
     """The parts of eval/metrics.json the protocol reads."""
     def entry(psnr):
@@ -132,6 +141,7 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     report = json.loads((out / f"results-{tag}.json").read_text())
     assert report["settings"]["refine_overrides"] == {"iterations": 4, "light_warmup": 2} and tag.startswith("paper-")
     assert report["settings"]["method"] == "paper" and "method: paper" in (runs / "paper" / "config.yaml").read_text()
+    assert "seed: 1000" in (runs / "paper" / "config.yaml").read_text()  # the predictor draws from the object's seed
     truth = report["models"]["ground-truth"]["objects"][0]["figures"]
     assert math.isinf(truth["materials_2d"]["basecolor"])  # the sanity row: 2D maps are the truth
     paper = report["models"]["paper"]["objects"][0]["figures"]
