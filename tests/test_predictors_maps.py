@@ -53,8 +53,17 @@ def test_encodings_match_their_definitions():
 
 @pytest.mark.parametrize("bad", ["gamma", "gamma0", "gamma-1", "rec709", ""])
 def test_unknown_encoding_is_rejected(bad):
-    with pytest.raises(ConfigError, match="--basecolor-encoding: unknown encoding"):
+    with pytest.raises(ConfigError, match="basecolor_encoding: unknown encoding"):
         decode_basecolor(torch.zeros(3), bad)
+
+
+def test_the_cli_names_the_encoding_flag():
+    from matspray.cli.options import flag_message
+    from matspray.predictors.encodings import check_encoding
+
+    with pytest.raises(ConfigError) as caught:
+        check_encoding("rec709")
+    assert flag_message(caught.value).startswith("--basecolor-encoding: unknown encoding 'rec709'")
 
 
 # ------------------------------------------------------------------------------------------ MaterialMaps

@@ -48,7 +48,7 @@ SETTING_FLAGS = {
 FLAG_OF_SETTING = {setting: flag for flag, (setting, _, _) in SETTING_FLAGS.items()}
 FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "--without", "visibility": "--shadows", "objects": "--objects",
                         "severity": "--severity", "batch_size": "--batch-size", "ensemble_size": "--ensemble-size", "steps": "--steps",
-                        "predictor": "--predictor", "relight_envs": "--relight-env", "out": "--out", "resolution": "--res",
+                        "predictor": "--predictor", "basecolor_encoding": "--basecolor-encoding", "relight_envs": "--relight-env", "out": "--out", "resolution": "--res",
                         "train_views": "--views", "test_views": "--test-views", "spp": "--spp", "env_height": "--env-height",
                         "asset": "--asset", "assets": "--assets", "placement": "--placement",
                         "workers": "--workers", "address": "--address", "cpus_per_object": "--cpus-per-object",

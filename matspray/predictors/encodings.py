@@ -16,23 +16,23 @@ import re
 from torch import Tensor
 
 from matspray.data.images import linear_to_srgb, srgb_to_linear
-from matspray.errors import ConfigError
+from matspray.errors import SettingError
 
 BASECOLOR_ENCODINGS = ("srgb", "gamma1.8", "linear")  # the documented choices; any `gammaG` with G > 0 works
 _GAMMA = re.compile(r"^gamma(\d+(?:\.\d*)?|\.\d+)$")
 
 
 def check_encoding(encoding: str) -> str:
-    """The encoding name, normalised; ConfigError for anything else."""
+    """The encoding name, normalised; SettingError for anything else."""
     name = str(encoding).strip().lower()
     if name in ("srgb", "linear"):
         return name
     match = _GAMMA.match(name)
     if match and float(match.group(1)) > 0:
         return name
-    raise ConfigError(
-        f"--basecolor-encoding: unknown encoding '{encoding}'; use one of {', '.join(BASECOLOR_ENCODINGS)} "
-        "(or gammaG for another power law, e.g. gamma2.2)"
+    raise SettingError(
+        "basecolor_encoding",
+        f"unknown encoding '{encoding}'; use one of {', '.join(BASECOLOR_ENCODINGS)} (or gammaG for another power law, e.g. gamma2.2)",
     )
 
 
