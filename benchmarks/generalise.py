@@ -44,6 +44,7 @@ from matspray.cli.options import add_method_arguments, build_config_from_args, f
 from matspray.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.average import average_tables
+from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
 from matspray.lights import BUILTINS, hdri_files
 from matspray.pipeline import Pipeline
@@ -182,6 +183,46 @@ def share_geometry(source_run: Path, target_run: Path) -> bool:
     return True
 
 
+# ------------------------------------------------------------------------------------------ one run
+RUN_SECONDS = "generalise.json"  # in RUN/eval/: the seconds the run's stages and evaluation took
+
+
+def finished_metrics(run_dir: Path, config, variants) -> tuple[dict, float] | None:
+    """The evaluation and seconds of a run this protocol finished before with the same settings: the
+    config.yaml recorded then, every variant evaluated, and no stage rewritten since; else None."""
+    metrics_path, seconds_path = run_dir / "eval" / "metrics.json", run_dir / "eval" / RUN_SECONDS
+    if not (metrics_path.exists() and seconds_path.exists()):
+        return None
+    record = read_json(seconds_path)
+    if record.get("config") != fingerprint(config) or record.get("variants") != sorted(variants):
+        return None
+    if any(stage.stat().st_mtime > metrics_path.stat().st_mtime for stage in run_dir.glob("*/stage.json")):
+        return None
+    return read_json(metrics_path), float(record["seconds"])
+
+
+def run_or_reuse(data: Path, run_dir: Path, config, args, log) -> tuple[dict, float]:
+    """The run's metrics and seconds: from a finished earlier pass (so a protocol over K objects can be
+    extended to K + 1 without evaluating the first K again), else run and evaluated now."""
+    finished = finished_metrics(run_dir, config, args.variants)
+    if finished is not None:
+        log(f"generalise: {run_dir}: finished before with these settings, reusing its evaluation")
+        metrics, seconds = finished
+    else:
+        begin = time.perf_counter()
+        metrics = run_object(data, run_dir, config, variants=args.variants, progress=args.progress, log=log)
+        seconds = time.perf_counter() - begin
+        write_json(run_dir / "eval" / RUN_SECONDS, {"config": fingerprint(config), "variants": sorted(args.variants), "seconds": seconds})
+    return only_variants(metrics, args.variants, RunDir(run_dir).timings()), seconds
+
+
+def only_variants(metrics: dict, variants, timings: dict) -> dict:
+    """`metrics` with just the variants of this configuration: the run folder may still hold assets
+    that another configuration refined (evaluation scores every asset it finds)."""
+    kept = {v: m for v, m in metrics.get("variants", {}).items() if v in variants}
+    return {**metrics, "variants": kept, **paper_tables(kept, metrics.get("predictions_2d"), timings)}
+
+
 # ------------------------------------------------------------------------------------------ figures
 def object_figures(metrics: dict) -> dict:
     """The protocol's figures of one (object, model) run from its eval/metrics.json content."""
@@ -304,9 +345,7 @@ def run_protocol(args, log=print) -> dict:
             run_dir = folder / "runs" / model
             if run_dir != first_run and share_geometry(first_run, run_dir):
                 log(f"generalise: {spec.name} / {model}: geometry shared from {first_run.name}")
-            begin = time.perf_counter()
-            metrics = run_object(data, run_dir, object_config(configs[model], spec), variants=args.variants, progress=args.progress, log=log)
-            seconds["models"][model] = time.perf_counter() - begin
+            metrics, seconds["models"][model] = run_or_reuse(data, run_dir, object_config(configs[model], spec), args, log)
             results[model].append({"object": vars(spec) | {"relight_envs": list(spec.relight_envs)}, "figures": object_figures(metrics),
                                    "metrics": metrics, "seconds": seconds["models"][model]})
         seconds["geometry"] = RunDir(first_run).timings().get("geometry")
@@ -354,7 +393,7 @@ def choices_table(out: Path) -> list[str]:
     if not reports:
         raise ConfigError(f"{out}: no results-*.json to compare; run the protocol first (with --out {out})")
     lines = ["| tag | method | refine overrides | model | objects | relight full | full - proj-average | full - no-softmax | "
-             "full > proj-average | 3D - 2D base | 3D - 2D rough |", "|" + "---|" * 11]
+             "full > proj-average | 3D - 2D base | 3D - 2D rough | 3D - 2D metal |", "|" + "---|" * 12]
     for path in reports:
         report = read_json(path)
         settings = report["settings"]
@@ -371,7 +410,8 @@ def choices_table(out: Path) -> list[str]:
                 settings["tag"], str(settings["method"]), overrides, model, str(settings["objects"]), fmt(relight.get("full")),
                 fmt(gap(relight.get("full"), relight.get("proj-average"))), fmt(gap(relight.get("full"), relight.get("no-softmax"))),
                 f"{win['wins']}/{win['of']}", fmt(gap(m3["basecolor"].get("psnr"), m2["basecolor"].get("psnr"))),
-                fmt(gap(m3["roughness"].get("psnr"), m2["roughness"].get("psnr")))]) + " |")
+                fmt(gap(m3["roughness"].get("psnr"), m2["roughness"].get("psnr"))),
+                fmt(gap(m3["metallic"].get("psnr"), m2["metallic"].get("psnr")))]) + " |")
     return lines
 
 

@@ -151,8 +151,16 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert main(["--compare", "--out", str(out)]) == 0  # the table of choices, from the saved results
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(f"| {tag} |")]
     assert [row.split(" | ")[3] for row in rows] == ["paper", "ground-truth"] and "iterations=4, light_warmup=2" in rows[0]
-    assert rows[1].split(" | ")[-2:] == ["-inf", "-inf |"]  # the 3D materials never reach the exact 2D truth
+    assert rows[1].split(" | ")[-3:] == ["-inf", "-inf", "-inf |"]  # the 3D materials never reach the exact 2D truth
     assert main(["--compare", "--out", str(tmp_path / "nothing")]) == 2
     assert "no results-*.json to compare" in capsys.readouterr().err
     assert main(argv[:-3] + ["--refine", "iterations=x", "--out", str(out)]) == 2
     assert "--refine iterations=x: expected an integer" in capsys.readouterr().err
+    # a second pass reuses both finished runs' evaluations, and a configuration with fewer variants
+    # reports only its own, not the assets an earlier configuration left in the run folders
+    assert main(argv) == 0
+    assert capsys.readouterr().out.count("finished before with these settings, reusing its evaluation") == 2
+    assert json.loads((out / f"results-{tag}.json").read_text())["models"] == report["models"]
+    assert main(argv[:argv.index("--variants") + 1] + ["full"] + argv[argv.index("--variants") + 3:-3] + ["--tag", "fewer", "--out", str(out), "--no-progress"]) == 0
+    fewer = json.loads((out / "results-paper-fewer.json").read_text())
+    assert set(fewer["models"]["paper"]["objects"][0]["figures"]["relight"]) == {"full"}
