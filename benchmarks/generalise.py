@@ -400,7 +400,9 @@ def choices_table(out: Path) -> list[str]:
         overrides = ", ".join(f"{k}={v}" for k, v in settings["refine_overrides"].items()) or "none"
         for model, result in report["models"].items():
             summary = result["summary"]
-            relight, m3, m2 = summary["relight"], summary["materials_3d"], summary["materials_2d"]
+            m3, m2 = summary["materials_3d"], summary["materials_2d"]
+            # results written before a run folder's leftover variants were filtered may list them: use the configuration's own
+            relight = {v: psnr for v, psnr in summary["relight"].items() if v in settings["variants"]}
 
             def gap(a, b):
                 return None if a is None or b is None else a - b
@@ -409,7 +411,7 @@ def choices_table(out: Path) -> list[str]:
             lines.append("| " + " | ".join([
                 settings["tag"], str(settings["method"]), overrides, model, str(settings["objects"]), fmt(relight.get("full")),
                 fmt(gap(relight.get("full"), relight.get("proj-average"))), fmt(gap(relight.get("full"), relight.get("no-softmax"))),
-                f"{win['wins']}/{win['of']}", fmt(gap(m3["basecolor"].get("psnr"), m2["basecolor"].get("psnr"))),
+                f"{win['wins']}/{win['of']}" if "proj-average" in relight else "—", fmt(gap(m3["basecolor"].get("psnr"), m2["basecolor"].get("psnr"))),
                 fmt(gap(m3["roughness"].get("psnr"), m2["roughness"].get("psnr"))),
                 fmt(gap(m3["metallic"].get("psnr"), m2["metallic"].get("psnr")))]) + " |")
     return lines
