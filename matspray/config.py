@@ -75,12 +75,10 @@ class Addition:
 
 
 ADDITIONS = (
-    Addition("transmittance", "lift.visibility_threshold", 0.0, "lifting writes only into hits with transmittance >= 0.5 in front"),
     Addition("core-median", "lift.footprint_sigmas", None, "a Gaussian's per-view median reads the rays through its 1-sigma core"),
     Addition("min-support", "lift.min_support", 0.0, "a view counts for a Gaussian only with >= 0.5 of its best view's hits"),
     Addition("seen-input", "refine.merger.seen_input", False, "the merger also reads which views saw the Gaussian"),
     Addition("unseen-mask", "refine.merger.unseen", "mean", "unseen views get weight 0 (the paper's code fills them with the mean)"),
-    Addition("scale-invariant-base", "refine.basecolor_loss", "l1", "base colour compared after the least-squares scale"),
     Addition("photo-weight", "refine.photo_weight", 1.0, "the photometric loss weighs 2 against the material loss"),
     Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
     Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering < 0.02 px of a view"),

@@ -53,8 +53,8 @@ def run_config(*argv):
 
 
 def test_run_refines_the_base_color_scale_invariantly_unless_told_l1():
-    assert run_config().refine.basecolor_loss == "scale-invariant"
-    assert run_config("--basecolor-loss", "l1").refine.basecolor_loss == "l1"
+    assert run_config().refine.basecolor_loss == "l1"
+    assert run_config("--basecolor-loss", "scale-invariant").refine.basecolor_loss == "scale-invariant"
     from matspray.errors import SettingError
 
     with pytest.raises(SettingError, match="refine.basecolor_loss: unknown loss 'l2'"):

@@ -51,7 +51,7 @@ def test_lifting_hand_made_scene_median_and_occlusion():
     materials[left_y, left_x] = 1.0  # one outlier inside G0's footprint: the median ignores it
     mask = torch.ones(32, 32)
     mask[int(pixels[3, 1]) - 3 :] = 0.0  # the bottom rows are background: G3 is a floater
-    result = lift(gaussians, [camera, camera], [materials, materials], [mask, mask], ["a", "b"], LiftConfig(samples_per_side=4), progress=False)
+    result = lift(gaussians, [camera, camera], [materials, materials], [mask, mask], ["a", "b"], LiftConfig(samples_per_side=4, visibility_threshold=0.5), progress=False)
     assert result.kept.tolist() == [True, False, True, False]  # hidden and floater Gaussians removed
     assert torch.allclose(result.values[0], torch.full((2, 5), 0.2))
     assert torch.allclose(result.values[1], torch.full((2, 5), 0.8))
