@@ -171,7 +171,8 @@ def geometry_run(runs: Path, first_model: str) -> Path:
     """The run folder whose geometry the object's other runs share: one that already has a finished
     geometry stage (from any error model, e.g. a --geometry-only pass), else the first model's."""
     done = sorted(p.parent.parent for p in runs.glob("*/geometry/stage.json"))
-    return done[0] if done else runs / first_model
+    trained = [run for run in done if "geometry" in RunDir(run).timings()]  # the one that trained it records its seconds
+    return (trained or done or [runs / first_model])[0]
 
 
 def share_geometry(source_run: Path, target_run: Path) -> bool:
@@ -202,16 +203,19 @@ def finished_metrics(run_dir: Path, config, variants) -> tuple[dict, float] | No
 
 
 def run_or_reuse(data: Path, run_dir: Path, config, args, log) -> tuple[dict, float]:
-    """The run's metrics and seconds: from a finished earlier pass (so a protocol over K objects can be
+    """The run's metrics and seconds (without training the geometry): from a finished earlier pass (so a protocol over K objects can be
     extended to K + 1 without evaluating the first K again), else run and evaluated now."""
     finished = finished_metrics(run_dir, config, args.variants)
     if finished is not None:
         log(f"generalise: {run_dir}: finished before with these settings, reusing its evaluation")
         metrics, seconds = finished
     else:
+        trains_geometry = not (run_dir / "geometry" / "stage.json").exists()
         begin = time.perf_counter()
         metrics = run_object(data, run_dir, config, variants=args.variants, progress=args.progress, log=log)
         seconds = time.perf_counter() - begin
+        if trains_geometry:  # the geometry has its own column (trained once per object)
+            seconds -= RunDir(run_dir).timings().get("geometry", 0.0)
         write_json(run_dir / "eval" / RUN_SECONDS, {"config": fingerprint(config), "variants": sorted(args.variants), "seconds": seconds})
     return only_variants(metrics, args.variants, RunDir(run_dir).timings()), seconds
 
@@ -349,7 +353,7 @@ def run_protocol(args, log=print) -> dict:
             results[model].append({"object": vars(spec) | {"relight_envs": list(spec.relight_envs)}, "figures": object_figures(metrics),
                                    "metrics": metrics, "seconds": seconds["models"][model]})
         seconds["geometry"] = RunDir(first_run).timings().get("geometry")
-        seconds["total"] = time.perf_counter() - start
+        seconds["total"] = seconds["synth"] + (seconds["geometry"] or 0.0) + sum(seconds["models"].values())  # earlier passes' work included
         timing.append({"object": spec.name, **seconds})
     if args.geometry_only:
         return {"report": None, "lines": [f"geometry of {len(objects)} {args.set} objects ready in {args.out / 'objects'}"]}

@@ -142,6 +142,8 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert report["settings"]["refine_overrides"] == {"iterations": 4, "light_warmup": 2} and tag.startswith("paper-")
     assert report["settings"]["method"] == "paper" and "method: paper" in (runs / "paper" / "config.yaml").read_text()
     assert "seed: 1000" in (runs / "paper" / "config.yaml").read_text()  # the predictor draws from the object's seed
+    timing = report["timing"][0]  # geometry once, in its own column; the models' seconds without it
+    assert timing["geometry"] > 0 and timing["total"] == pytest.approx(timing["synth"] + timing["geometry"] + sum(timing["models"].values()))
     truth = report["models"]["ground-truth"]["objects"][0]["figures"]
     assert math.isinf(truth["materials_2d"]["basecolor"])  # the sanity row: 2D maps are the truth
     paper = report["models"]["paper"]["objects"][0]["figures"]
