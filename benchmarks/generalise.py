@@ -189,8 +189,8 @@ RUN_SECONDS = "generalise.json"  # in RUN/eval/: the seconds the run's stages an
 
 
 def finished_metrics(run_dir: Path, config, variants) -> tuple[dict, float] | None:
-    """The evaluation and seconds of a run this protocol finished before with the same settings: the
-    config.yaml recorded then, every variant evaluated, and no stage rewritten since; else None."""
+    """The evaluation and seconds of a run this protocol finished before with the same settings (the
+    config's fingerprint recorded in RUN_SECONDS), the same variants, and no stage rewritten since; else None."""
     metrics_path, seconds_path = run_dir / "eval" / "metrics.json", run_dir / "eval" / RUN_SECONDS
     if not (metrics_path.exists() and seconds_path.exists()):
         return None
@@ -203,21 +203,23 @@ def finished_metrics(run_dir: Path, config, variants) -> tuple[dict, float] | No
 
 
 def run_or_reuse(data: Path, run_dir: Path, config, args, log) -> tuple[dict, float]:
-    """The run's metrics and seconds (without training the geometry): from a finished earlier pass (so a protocol over K objects can be
-    extended to K + 1 without evaluating the first K again), else run and evaluated now."""
+    """The run's metrics and seconds (without training the geometry): from a finished earlier pass (so a
+    protocol over K objects can be extended to K + 1 without evaluating the first K again), else run and
+    evaluated now."""
     finished = finished_metrics(run_dir, config, args.variants)
     if finished is not None:
         log(f"generalise: {run_dir}: finished before with these settings, reusing its evaluation")
         metrics, seconds = finished
-    else:
-        trains_geometry = not (run_dir / "geometry" / "stage.json").exists()
-        begin = time.perf_counter()
-        metrics = run_object(data, run_dir, config, variants=args.variants, progress=args.progress, log=log)
-        seconds = time.perf_counter() - begin
-        if trains_geometry:  # the geometry has its own column (trained once per object)
-            seconds -= RunDir(run_dir).timings().get("geometry", 0.0)
-        write_json(run_dir / "eval" / RUN_SECONDS, {"config": fingerprint(config), "variants": sorted(args.variants), "seconds": seconds})
-    return only_variants(metrics, args.variants, RunDir(run_dir).timings()), seconds
+        return only_variants(metrics, args.variants, RunDir(run_dir).timings()), seconds
+    trains_geometry = not (run_dir / "geometry" / "stage.json").exists()
+    begin = time.perf_counter()
+    metrics = run_object(data, run_dir, config, variants=args.variants, progress=args.progress, log=log)
+    seconds = time.perf_counter() - begin
+    timings = RunDir(run_dir).timings()
+    if trains_geometry:  # the geometry has its own column (trained once per object)
+        seconds -= timings.get("geometry", 0.0)
+    write_json(run_dir / "eval" / RUN_SECONDS, {"config": fingerprint(config), "variants": sorted(args.variants), "seconds": seconds})
+    return only_variants(metrics, args.variants, timings), seconds
 
 
 def only_variants(metrics: dict, variants, timings: dict) -> dict:
@@ -315,6 +317,7 @@ def run_protocol(args, log=print) -> dict:
     objects = object_set(args.set, args.objects, hdris)
     specs = {m: predictor_spec(m) for m in args.models}
     configs = {m: protocol_config(args, spec) for m, spec in specs.items()}
+    first_model = args.models[0]
     refine = refine_overrides(build_config_from_args(args).refine, args.refine)
     flags = method_settings_from_args(args)
     choices = {"without": list(args.without), "settings": {k: str(v) for k, v in flags.items()}, "refine": refine}
@@ -340,9 +343,9 @@ def run_protocol(args, log=print) -> dict:
         data = make_demo_object(folder / "data", args.preset, "random", spec.seed, progress=args.progress, env=spec.env,
                                 relight_envs=list(spec.relight_envs))
         seconds = {"synth": time.perf_counter() - start, "models": {}}
-        first_run = geometry_run(folder / "runs", next(iter(specs)))
+        first_run = geometry_run(folder / "runs", first_model)
         if args.geometry_only:
-            Pipeline(data, first_run, object_config(configs[next(iter(specs))], spec), progress=args.progress, log=log).geometry()
+            Pipeline(data, first_run, object_config(configs[first_model], spec), progress=args.progress, log=log).geometry()
             log(f"generalise: {spec.name}: geometry in {first_run / 'geometry'} ({time.perf_counter() - start:.0f} s with synth)")
             continue
         for model in specs:
@@ -404,9 +407,7 @@ def choices_table(out: Path) -> list[str]:
         overrides = ", ".join(f"{k}={v}" for k, v in settings["refine_overrides"].items()) or "none"
         for model, result in report["models"].items():
             summary = result["summary"]
-            m3, m2 = summary["materials_3d"], summary["materials_2d"]
-            # results written before a run folder's leftover variants were filtered may list them: use the configuration's own
-            relight = {v: psnr for v, psnr in summary["relight"].items() if v in settings["variants"]}
+            relight, m3, m2 = summary["relight"], summary["materials_3d"], summary["materials_2d"]
 
             def gap(a, b):
                 return None if a is None or b is None else a - b
@@ -415,7 +416,7 @@ def choices_table(out: Path) -> list[str]:
             lines.append("| " + " | ".join([
                 settings["tag"], str(settings["method"]), overrides, model, str(settings["objects"]), fmt(relight.get("full")),
                 fmt(gap(relight.get("full"), relight.get("proj-average"))), fmt(gap(relight.get("full"), relight.get("no-softmax"))),
-                f"{win['wins']}/{win['of']}" if "proj-average" in relight else "—", fmt(gap(m3["basecolor"].get("psnr"), m2["basecolor"].get("psnr"))),
+                f"{win['wins']}/{win['of']}", fmt(gap(m3["basecolor"].get("psnr"), m2["basecolor"].get("psnr"))),
                 fmt(gap(m3["roughness"].get("psnr"), m2["roughness"].get("psnr"))),
                 fmt(gap(m3["metallic"].get("psnr"), m2["metallic"].get("psnr")))]) + " |")
     return lines

@@ -31,7 +31,8 @@ SETTING_FLAGS = {
                             "(matspray); off: position and values only (paper)"),
     "--unseen": ("refine.merger.unseen", str, "views that never hit a Gaussian: mask (weight 0; matspray) or mean (filled with "
                  "the mean of the views that did; paper)"),
-    "--basecolor-loss": ("refine.basecolor_loss", str, "l1 (default, as the paper) or scale-invariant (forgives each view's exposure error; it did not pay on the development set)"),
+    "--basecolor-loss": ("refine.basecolor_loss", str, "l1 (default, as the paper) or scale-invariant (forgives each view's "
+                         "exposure error; it did not pay on the development set)"),
     "--photo-weight": ("refine.photo_weight", float, "weight of the photometric loss against the material loss (matspray 2, paper 1)"),
     "--light-warmup": ("refine.light_warmup", int, "steps that fit the light alone before the merger trains (paper: 0)"),
     "--min-coverage": ("refine.min_coverage", float, "the merger skips Gaussians covering fewer pixels of a view (matspray 0.02, paper 0)"),
