@@ -31,8 +31,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import shutil
 import sys
 import time
 from dataclasses import dataclass, fields, is_dataclass, replace
@@ -50,7 +48,7 @@ from matspray.lights import BUILTINS, hdri_files
 from matspray.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.variants import VARIANT_NAMES as VARIANTS
-from matspray.rundir import RunDir, fingerprint, read_json, write_json, write_text_atomic
+from matspray.rundir import RunDir, fingerprint, read_json, share_stage, write_json, write_text_atomic
 
 SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
@@ -160,28 +158,12 @@ def object_config(config, spec: ObjectSpec):
 
 
 # ------------------------------------------------------------------------------------------ geometry once
-def link_or_copy(source: str, target: str) -> None:
-    try:
-        os.link(source, target)
-    except OSError:
-        shutil.copy2(source, target)
-
-
 def geometry_run(runs: Path, first_model: str) -> Path:
     """The run folder whose geometry the object's other runs share: one that already has a finished
     geometry stage (from any error model, e.g. a --geometry-only pass), else the first model's."""
     done = sorted(p.parent.parent for p in runs.glob("*/geometry/stage.json"))
     trained = [run for run in done if "geometry" in RunDir(run).timings()]  # the one that trained it records its seconds
     return (trained or done or [runs / first_model])[0]
-
-
-def share_geometry(source_run: Path, target_run: Path) -> bool:
-    """Hard-link the finished geometry stage of `source_run` into `target_run` when that has none;
-    the target's pipeline still compares fingerprints and retrains if they differ."""
-    if not (source_run / "geometry" / "stage.json").exists() or (target_run / "geometry" / "stage.json").exists():
-        return False
-    shutil.copytree(source_run / "geometry", target_run / "geometry", copy_function=link_or_copy, dirs_exist_ok=True)
-    return True
 
 
 # ------------------------------------------------------------------------------------------ one run
@@ -350,7 +332,7 @@ def run_protocol(args, log=print) -> dict:
             continue
         for model in specs:
             run_dir = folder / "runs" / model
-            if run_dir != first_run and share_geometry(first_run, run_dir):
+            if run_dir != first_run and share_stage(first_run, run_dir, "geometry"):
                 log(f"generalise: {spec.name} / {model}: geometry shared from {first_run.name}")
             metrics, seconds["models"][model] = run_or_reuse(data, run_dir, object_config(configs[model], spec), args, log)
             results[model].append({"object": vars(spec) | {"relight_envs": list(spec.relight_envs)}, "figures": object_figures(metrics),

@@ -13,7 +13,6 @@ visibility are computed once, in OUT/base, and copied) and prints
 from __future__ import annotations
 
 import argparse
-import shutil
 import time
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from matspray.eval.light import light_figures, training_light
 from matspray.eval.run_eval import evaluate_asset
 from matspray.pipeline import Pipeline
 from matspray.render.envmap import EnvironmentMap
+from matspray.rundir import share_stage
 from matspray.variants import asset_stage
 from benchmarks.method import read_test_truth
 
@@ -40,8 +40,8 @@ def main() -> None:
     args = parser.parse_args()
 
     base = args.out / "base"
-    if args.geometry_from is not None and not (base / "geometry").exists():
-        shutil.copytree(args.geometry_from / "geometry", base / "geometry")
+    if args.geometry_from is not None:
+        share_stage(args.geometry_from, base, "geometry")
     views, truths, lights = read_test_truth(args.data)
     truth_name, truth_map = training_light(args.data)
     rows = []
@@ -49,13 +49,11 @@ def main() -> None:
         start = time.perf_counter()
         run = args.out / f"tv-{weight:g}"
         for stage in SHARED_STAGES:
-            if (base / stage).exists() and not (run / stage).exists():
-                shutil.copytree(base / stage, run / stage)
+            share_stage(base, run, stage)
         config = build_config(args.preset, args.method, predictor="simulated", **{"refine.light_tv_weight": weight})
         Pipeline(args.data, run, config, log=lambda _: None).refine("full")
-        for stage in SHARED_STAGES:
-            if (run / stage).exists() and not (base / stage).exists():
-                shutil.copytree(run / stage, base / stage)
+        for stage in SHARED_STAGES:  # what this weight's run computed first, the next ones reuse
+            share_stage(run, base, stage)
         folder = run / asset_stage("full")
         estimate = EnvironmentMap.from_file(folder / ENVMAP_FILE).map.detach()
         light = light_figures(estimate, truth_map)

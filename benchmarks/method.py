@@ -30,7 +30,6 @@ With --ceilings it also prints what no material estimate can beat on this object
 from __future__ import annotations
 
 import argparse
-import shutil
 import time
 from pathlib import Path
 
@@ -38,7 +37,7 @@ import torch
 
 from matspray.config import ADDITION_NAMES, METHODS, build_config
 from matspray.demo import make_demo_object, run_object
-from matspray.rundir import RunDir
+from matspray.rundir import RunDir, share_stage
 from matspray.variants import LABELS as VARIANT_LABELS
 
 
@@ -67,8 +66,8 @@ def main() -> None:
     settings = {"refine.iterations": args.refine_iterations, "refine.light_tv_weight": args.light_tv_weight}
     settings = {k: v for k, v in settings.items() if v is not None}
     run_dir = args.out / ("run" if args.method == "matspray" else f"run-{args.method}")
-    if run_dir.name != "run" and not (run_dir / "geometry").exists() and (args.out / "run" / "geometry").exists():
-        shutil.copytree(args.out / "run" / "geometry", run_dir / "geometry")  # geometry does not depend on the method
+    if run_dir.name != "run":
+        share_stage(args.out / "run", run_dir, "geometry")  # geometry does not depend on the method
     runs = [run_object(data, run_dir, build_config(args.preset, args.method, tuple(args.without), predictor="simulated", refine_seed=seed,
                                                     **settings)) for seed in seeds]
     metrics = runs[-1]
@@ -144,8 +143,7 @@ def lifted_truth(data: Path, out: Path, preset: str, full, views: list, truths: 
 
     run, truth_run = out / "run", out / "run-truth"
     truth_run.mkdir(parents=True, exist_ok=True)
-    if not (truth_run / "geometry").exists():
-        shutil.copytree(run / "geometry", truth_run / "geometry")
+    share_stage(run, truth_run, "geometry")
     pipeline = Pipeline(data, truth_run, build_config(preset, predictor="ground-truth"), log=lambda _: None)
     averaged = pipeline.run_all(("proj-average",))["proj-average"]  # Asset
     truth, predicted = load_lift(truth_run / "lift" / "projected.pt", "cpu"), load_lift(run / "lift" / "projected.pt", "cpu")

@@ -11,6 +11,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import shutil
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -140,6 +141,24 @@ class RunDir:
     def asset_variants(self) -> list[str]:
         """The variants that have a finished asset in this run, in the registry's order."""
         return [v for v in VARIANT_NAMES if self.path(asset_stage(v), "asset.ply").exists()]
+
+
+def _link_or_copy(source: str, target: str) -> None:
+    try:
+        os.link(source, target)
+    except OSError:  # another file system
+        shutil.copy2(source, target)
+
+
+def share_stage(source_run, target_run, stage: str) -> bool:
+    """Hard-link (else copy) the finished `stage` folder of one run folder into another that has none, so
+    runs of one object share work; the target's pipeline still compares fingerprints and redoes the stage
+    if they differ. False when there is nothing to share or the target has the stage already."""
+    source, target = Path(source_run) / stage, Path(target_run) / stage
+    if not (source / "stage.json").exists() or (target / "stage.json").exists():
+        return False
+    shutil.copytree(source, target, copy_function=_link_or_copy, dirs_exist_ok=True)
+    return True
 
 
 @contextmanager

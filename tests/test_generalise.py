@@ -18,12 +18,12 @@ from benchmarks.generalise import (
     object_set,
     predictor_spec,
     refine_overrides,
-    share_geometry,
     with_overrides,
 )
 from matspray.errors import ConfigError
 from matspray.lights import BUILTINS
 from matspray.refine import RefineConfig
+from matspray.rundir import share_stage
 
 HDRIS = ["city", "forest", "interior", "studio", "sunrise", "sunset"]
 
@@ -71,16 +71,16 @@ def test_refine_overrides_are_typed_and_checked():
         with_overrides(RefineConfig(), ["basecolor_loss=l7"])
 
 
-def test_share_geometry_links_a_finished_stage_once(tmp_path):
+def test_share_stage_links_a_finished_stage_once(tmp_path):
     source, target = tmp_path / "a", tmp_path / "b"
     (source / "geometry" / "renders").mkdir(parents=True)
     (source / "geometry" / "stage.json").write_text('{"fingerprint": "x"}')
     (source / "geometry" / "renders" / "r.png").write_bytes(b"png")
-    assert share_geometry(source, target)
+    assert share_stage(source, target, "geometry")
     assert os.path.samefile(source / "geometry" / "stage.json", target / "geometry" / "stage.json")
     assert (target / "geometry" / "renders" / "r.png").read_bytes() == b"png"
-    assert not share_geometry(source, target)  # already there
-    assert not share_geometry(tmp_path / "none", tmp_path / "c") and not (tmp_path / "c").exists()
+    assert not share_stage(source, target, "geometry")  # already there
+    assert not share_stage(tmp_path / "none", tmp_path / "c", "geometry") and not (tmp_path / "c").exists()
 
 
 def test_geometry_run_is_one_with_finished_geometry(tmp_path):
