@@ -19,6 +19,7 @@ from matspray.render.backend import BACKENDS
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.config import preset as geometry_preset
 from matspray.lift import LiftConfig
+from matspray.objectregion import given_region
 from matspray.refine import RefineConfig
 from matspray.render.visibility import VisibilityConfig
 
@@ -41,6 +42,7 @@ class PipelineConfig:
     lift: LiftConfig = field(default_factory=LiftConfig)
     visibility: VisibilityConfig | None = field(default_factory=VisibilityConfig)  # None: no shadowing (the paper's shading)
     refine: RefineConfig = field(default_factory=RefineConfig)
+    object_bounds: tuple[float, ...] | None = None  # captures without masks: the object region (4: sphere, 6: box); None: automatic
 
     def __post_init__(self):
         if self.preset not in PRESETS:
@@ -51,6 +53,9 @@ class PipelineConfig:
             raise SettingError("backend", f"unknown backend '{self.backend}'; choose one of {', '.join(BACKENDS)}")
         if not self.downscale > 0:
             raise SettingError("downscale", f"must be > 0, got {self.downscale}")
+        if self.object_bounds is not None:
+            object.__setattr__(self, "object_bounds", tuple(float(v) for v in self.object_bounds))
+            given_region(self.object_bounds)  # raises SettingError("object_bounds", ...) when malformed
 
 
 # ------------------------------------------------------------------------------------------ presets

@@ -1,4 +1,6 @@
 """The whole method as stages over one run directory: predict -> geometry -> lift -> refine.
+A capture without masks runs geometry first, then `masks` (the object region and every view's mask,
+matspray.objectregion), then predict on the masked views; only the Gaussians in the region are lifted.
 
 Each stage is skipped when its artifact exists and was made with the same settings (and from the
 same upstream artifacts); `timings.json` records the seconds each stage took (the paper's Table 3).
@@ -24,6 +26,7 @@ from matspray.geometry.ply import read_ply
 from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
 from matspray.material import stack
+from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, write_object_masks
 from matspray.predictors import PredictorOptions, make_predictor, predict_views, read_materials2d, write_materials2d
 from matspray.refine import RefineConfig, RefineInputs, refine
 from matspray.render.visibility import bake_visibility
@@ -68,13 +71,17 @@ class Pipeline:
         self.progress = progress
         self.log = log
         self.dataset_fp = fingerprint(dataset_identity(self.scene), config.downscale)
+        self.unmasked = not self.scene.has_masks  # masks then come from the geometry (stage `masks`)
+        self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
 
     # ---------------------------------------------------------------- predict
     def predict_fingerprint(self) -> str:
-        return fingerprint("predict", self.dataset_fp, self.config.predictor, self.config.predictor_options)
+        masks = () if not self.unmasked else (self.masks_fingerprint(),)  # the predictor sees the masked views
+        return fingerprint("predict", self.dataset_fp, self.config.predictor, self.config.predictor_options, *masks)
 
     def predict(self):
+        self.object_masks()
         fp = self.predict_fingerprint()
         if not self.run.stage_done("materials2d", fp, ["predictor.json"]):
             self.log(f"predict: {self.config.predictor} on {len(self.scene.train)} training views")
@@ -103,6 +110,41 @@ class Pipeline:
             self.log("geometry: done before, reusing geometry/gaussians.ply")
         gaussians, normals = read_ply(self.run.path("geometry", "gaussians.ply"))
         return gaussians.to(self.device), torch.nn.functional.normalize(normals, dim=-1).to(self.device)
+
+    # ---------------------------------------------------------------- object masks (captures without masks)
+    def masks_fingerprint(self) -> str:
+        return fingerprint("masks", self.config.object_bounds, self.geometry_fingerprint())
+
+    def object_masks(self) -> ObjectMasks | None:
+        """A capture without masks: the object region, which Gaussians it holds, and every view's mask (their
+        rendered alpha), which from here on is the views' alpha. None when the dataset has masks."""
+        if not self.unmasked:
+            return None
+        if self._object_masks is None:
+            fp = self.masks_fingerprint()
+            if not self.run.stage_done("masks", fp, ["masks.pt", "region.json"]):
+                gaussians, _ = self.geometry()
+                with timed() as t:
+                    masks = compute_object_masks(gaussians, self.scene, self.config.object_bounds, progress=self.progress)
+                    write_object_masks(self.run.path("masks"), masks)
+                self.run.finish_stage("masks", fp, {"object_bounds": self.config.object_bounds}, t.seconds,
+                                      {"region": masks.region.to_json(), "inside": int(masks.inside.sum())})
+            else:
+                self.log("masks: done before, reusing masks/")
+            self._object_masks = read_object_masks(self.run.path("masks"))
+            self.log(f"masks: the object is {int(self._object_masks.inside.sum())} of {len(self._object_masks.inside)} Gaussians, "
+                     f"inside the {self._object_masks.region.describe()}")
+            self._object_masks.apply(self.scene)
+        return self._object_masks
+
+    def object_geometry(self):
+        """The Gaussians [N] and normals [N, 3] of the object: all of them, or those in a capture's object region."""
+        gaussians, normals = self.geometry()
+        masks = self.object_masks()
+        if masks is None:
+            return gaussians, normals
+        inside = masks.inside.to(gaussians.means.device)
+        return gaussians.subset(inside), normals[inside]
 
     # ---------------------------------------------------------------- lift
     def lift_fingerprint(self) -> str:
@@ -159,7 +201,7 @@ class Pipeline:
 
     def _read_refine_inputs(self) -> RefineInputs:
         maps = self.predict()
-        gaussians, normals = self.geometry()
+        gaussians, normals = self.object_geometry()
         lifted = self.lift(gaussians, maps)
         kept = gaussians.subset(lifted.kept)
         views = [v.to(self.device) for v in self.scene.train]

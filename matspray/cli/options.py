@@ -38,6 +38,9 @@ SETTING_FLAGS = {
     "--min-coverage": ("refine.min_coverage", float, "the merger skips Gaussians covering fewer pixels of a view (matspray 0.02, paper 0)"),
     "--light-tv-weight": ("refine.light_tv_weight", float, "weight of the smoothness prior on the estimated light "
                           "(total variation of its log radiance; both methods; 0 turns it off)"),
+    "--object-bounds": ("object_bounds", lambda v: tuple(float(x) for x in v.replace(",", " ").split()),
+                        "captures without masks: the object region, 'x,y,z,r' (a sphere) or 'x0,y0,z0,x1,y1,z1' (a box) in world "
+                        "units (default: chosen automatically after geometry; see README, captures without masks)"),
     "--seed": ("seed", int, "random seed (default 0)"),
     "--refine-seed": ("refine_seed", int, "the refinement's own seed (default: --seed)"),
     "--downscale": ("downscale", float, "shrink images by this factor on load (default 1)"),

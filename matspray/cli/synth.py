@@ -25,6 +25,12 @@ def add_parser(parser) -> None:
     parser.add_argument("--relight-env", nargs="+", default=None, metavar="ENV",
                         help="lights of the relit test views (default: two built-ins other than --env)")
     parser.add_argument("--env-height", type=int, default=128, help="lights are rendered at H x 2H (default 128)")
+    parser.add_argument("--background", choices=("transparent", "env"), default="transparent",
+                        help="behind the object in the photos: transparent (alpha = the object's mask; default) or env (the training "
+                             "light, as a real photo shows it; the photos then carry no mask and the true masks stay in the ground truth)")
+    parser.add_argument("--ground", action="store_true",
+                        help="a grey ground plane under the object in the photos (cameras stay above it; photos carry no mask); "
+                             "the relit ground truth shows the object alone")
     parser.add_argument("--overwrite", action="store_true", help="replace a different scene already in --out")
 
 
@@ -36,7 +42,8 @@ def run(args) -> int:
         raise ConfigError("--shape and --asset exclude each other; give one")
     config = SynthConfig(
         shape=args.shape or "random", asset=args.asset, placement=args.placement, seed=args.seed, resolution=args.res, train_views=args.views, test_views=args.test_views,
-        spp=args.spp, env=args.env, relight_envs=args.relight_env, env_height=args.env_height, overwrite=args.overwrite,
+        spp=args.spp, env=args.env, relight_envs=args.relight_env, env_height=args.env_height, background=args.background,
+        ground=args.ground, overwrite=args.overwrite,
     )
     result = make_object(config, args.out)
     print(f"{result.out}: {result.shape} under {result.train_env}, relit under {', '.join(result.relight_envs) or 'nothing'} "

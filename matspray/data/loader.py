@@ -134,6 +134,9 @@ def describe_scene(scene: Scene) -> SceneSummary:
             x, y = float(pixels[0, 0]), float(pixels[0, 1])
             if float(depth[0]) <= 0 or not (0 <= x < view.width and 0 <= y < view.height):
                 problems.append(f"{view.path or view.name}: the object centre is not in front of this camera's image")
+    if not any(v.alpha is not None for v in scene.views):
+        lines.append("masks: none; after geometry the object is the Gaussians inside an object region (chosen automatically, "
+                     "or --object-bounds), and their rendered alpha becomes every view's mask (RUN/masks/)")
     lo, hi = scene.bounds.tolist()
     lines.append("object bounds: " + " .. ".join("(" + ", ".join(f"{v:.3f}" for v in b) + ")" for b in (lo, hi)))
     if scene.points is not None:

@@ -103,10 +103,15 @@ def bounds_from_visual_hull(views: list[View], resolution: int = 48, padding: fl
 
 def focus_point(views: list[View]) -> Tensor:
     """The point [3] closest (least squares) to every camera's optical axis: what the cameras look at."""
+    return cameras_focus([v.camera for v in views])
+
+
+def cameras_focus(cameras: list[Camera]) -> Tensor:  # -> [3] float64
+    """The point closest (least squares) to every camera's optical axis."""
     A = torch.zeros(3, 3, dtype=torch.float64)
     b = torch.zeros(3, dtype=torch.float64)
-    for view in views:
-        c2w = view.camera.camtoworld.double()
+    for camera in cameras:
+        c2w = camera.camtoworld.double().cpu()
         d = c2w[:3, 2] / c2w[:3, 2].norm()
         P = torch.eye(3, dtype=torch.float64) - torch.outer(d, d)
         A += P

@@ -17,6 +17,7 @@ from matspray.data.images import srgb_to_linear
 from matspray.eval.light import light_figures, training_light
 from matspray.eval.run_eval import predict_test_views, read_view_truth, unpremultiply
 from matspray.eval.tables import tables_markdown
+from matspray.objectmasks import ObjectMasks, read_object_masks
 from matspray.predictors import read_materials2d, read_predictor_info
 from matspray.relight import render_gbuffer
 from matspray.render.deferred import shade_gbuffer
@@ -164,6 +165,8 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
                 cells.append(figures.image(f"{view.name}_normal_gt", _srgb_inverse(gt_normals * 0.5 + 0.5), "normals, truth", truth.mask))
             rows.append("<div>" + "".join(cells) + "</div>")
         sections += rows
+    if (run_dir / "masks" / "masks.pt").exists():
+        sections.append(object_masks_section(read_object_masks(run_dir / "masks"), scene.train[:MAX_VIEWS], figures, metrics.get("masks")))
     # the 2D predictions the method started from (training views: those are the ones it saw)
     if (run_dir / "materials2d").is_dir():
         train_maps = read_materials2d(run_dir, scene.train[:MAX_VIEWS])
@@ -200,6 +203,19 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
     path = run_dir / "report.html"
     write_text_atomic(path, page)
     return path
+
+
+def object_masks_section(masks: ObjectMasks, views: list[View], figures: Figures, agreement: dict | None) -> str:
+    """A capture without masks: the object region and the masks made from it, over the training photos."""
+    cells = []
+    for view in views:
+        mask = masks.masks["train"][view.name]
+        cells.append(figures.image(f"mask_{view.name}", view.image * (0.25 + 0.75 * mask[..., None]), f"object mask, {view.name}"))
+    iou = "" if agreement is None else (f" Against the true masks of the test views: IoU {agreement['iou_mean']:.3f} on average, "
+                                        f"{agreement['iou_min']:.3f} at worst.")
+    return (f"<h2>Object masks (the capture has none)</h2><p>The object is the {int(masks.inside.sum())} Gaussians inside the "
+            f"{html.escape(masks.region.describe())}; their rendered alpha is each view's mask (dimmed outside).{iou}</p>"
+            "<div>" + "".join(cells) + "</div>")
 
 
 def _srgb_inverse(values: torch.Tensor) -> torch.Tensor:

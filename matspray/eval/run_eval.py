@@ -27,10 +27,12 @@ from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
 from matspray.eval.tables import write_tables
 from matspray.predictors import PredictorOptions, make_predictor, predict_views
-from matspray.predictors.ground_truth import read_ground_truth
+from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
 from matspray.relight import render_gbuffer
 from matspray.render.deferred import shade_gbuffer
 from matspray.render.envmap import EnvironmentMap
+from matspray.objectmasks import ObjectMasks, read_object_masks
+from matspray.objectregion import mask_iou
 from matspray.rundir import RunDir, write_json
 from matspray.variants import ABLATION, LABELS, SOFTMAX_ABLATION, asset_stage
 EVAL_ENV_HEIGHT = 64  # relighting maps are prefiltered from this many rows (x 2 columns)
@@ -52,7 +54,7 @@ def relight_env_names(view: View) -> list[str]:
 
 def read_view_truth(view: View) -> GroundTruth:
     maps = read_ground_truth(view)
-    mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width)
+    mask = view.alpha if view.alpha is not None else read_ground_truth_coverage(view)  # a photo without mask: the true one
     relit = {}
     for env in relight_env_names(view):
         rgb, _ = read_image(view.path.with_name(f"{view.name}_relight_{env}.png"))
@@ -209,10 +211,19 @@ def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, 
     if predictions is not None:
         metrics["predictions_2d"] = evaluate_predictions(predictions, scene.test, truths, lpips)
     metrics["variants"] = variants
+    if run.path("masks", "masks.pt").exists():
+        metrics["masks"] = mask_agreement(read_object_masks(run.path("masks")), scene.test, truths)
     metrics.update(paper_tables(variants, metrics.get("predictions_2d"), run.timings()))
     write_json(run.path("eval", "metrics.json"), metrics)
     write_tables(run.path("eval", "tables.md"), metrics)
     return metrics
+
+
+def mask_agreement(masks: ObjectMasks, views: list[View], truths: list[GroundTruth]) -> dict:
+    """IoU of a capture's object masks (made from its geometry) against the true masks of the test views."""
+    ious = {v.name: mask_iou(masks.masks["test"][v.name], t.mask) for v, t in zip(views, truths)}
+    values = list(ious.values())
+    return {"iou_mean": sum(values) / len(values), "iou_min": min(values), "views": ious, "region": masks.region.to_json()}
 
 
 def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dict:

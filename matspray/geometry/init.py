@@ -1,19 +1,24 @@
 """Initial Gaussians: COLMAP points when the scene has them; with masks, points on the visual hull's
 surface (the first point along a ray through an object pixel that every mask calls object), coloured
-by that pixel; otherwise random points in the object bounds."""
+by that pixel; otherwise random points in the object bounds plus, for the background of a capture
+without masks, a shell of points far beyond the cameras (BACKGROUND_SHARE of them)."""
 
 from __future__ import annotations
+
+import math
 
 import torch
 from torch import Tensor
 
 from matspray.data.images import linear_to_srgb
-from matspray.data.scene import Scene, View
+from matspray.data.scene import Scene, View, focus_point
 from matspray.errors import DataError
 from matspray.gaussians import Gaussians
 from matspray.render.sh import num_sh_bases, rgb_to_sh_dc
 
 MIN_COLMAP_POINTS = 100
+BACKGROUND_SHARE = 0.25  # of the initial points of a capture without masks or points: on the background shell
+BACKGROUND_RADIUS = 3.0  # the shell's radius, in farthest-camera distances from the focus
 
 
 def initial_gaussians(scene: Scene, views: list[View], count: int, sh_degree: int, opacity: float,
@@ -29,7 +34,9 @@ def initial_gaussians(scene: Scene, views: list[View], count: int, sh_degree: in
         points, colours = hull_surface_points(scene.bounds.float(), views, count, generator)
     else:
         bounds = scene.bounds.float()
-        points = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count, 3, generator=generator)
+        shell = int(BACKGROUND_SHARE * count)
+        inner = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count - shell, 3, generator=generator)
+        points = torch.cat([inner, background_shell(views, shell)])
         colours = projected_colours(points, views)
     sh = torch.zeros(len(points), num_sh_bases(sh_degree), 3)
     sh[:, 0] = rgb_to_sh_dc(colours)
@@ -80,6 +87,21 @@ def hull_surface_points(bounds: Tensor, views: list[View], count: int, generator
             "(check that the masks, i.e. the alpha channels, show the object and that the cameras are right: matspray info)"
         )
     return points, torch.cat(colours)
+
+
+def background_shell(views: list[View], count: int) -> Tensor:  # -> [count, 3]
+    """`count` points evenly spread (Fibonacci) on a sphere around the cameras' focus, BACKGROUND_RADIUS times
+    the farthest camera's distance: where a capture's far background (sky, walls) can start from."""
+    if count <= 0:
+        return torch.zeros(0, 3)
+    focus = focus_point(views)
+    radius = BACKGROUND_RADIUS * max(float((v.camera.center.double().cpu() - focus).norm()) for v in views)
+    k = torch.arange(count, dtype=torch.float64) + 0.5
+    z = 1.0 - 2.0 * k / count
+    ring = (1.0 - z**2).clamp_min(0).sqrt()
+    azimuth = math.pi * (3.0 - math.sqrt(5.0)) * k
+    directions = torch.stack([ring * torch.cos(azimuth), ring * torch.sin(azimuth), z], dim=-1)
+    return (focus + radius * directions).float()
 
 
 def box_entry_exit(origins: Tensor, dirs: Tensor, bounds: Tensor) -> tuple[Tensor, Tensor]:  # -> [R], [R]

@@ -13,7 +13,7 @@ from pathlib import Path
 from torch import Tensor
 from tqdm import tqdm
 
-from matspray.data.images import read_raw, srgb_to_linear
+from matspray.data.images import read_image, read_raw, srgb_to_linear
 from matspray.data.scene import View
 from matspray.errors import DataError, file_error
 from matspray.predictors.base import Predictor
@@ -55,6 +55,15 @@ def read_ground_truth(view: View) -> MaterialMaps:
                 "load the dataset without --downscale for benchmarks",
             )
     return MaterialMaps(srgb_to_linear(stored), roughness, metallic)
+
+
+def read_ground_truth_coverage(view: View) -> Tensor:  # [H, W] the object's true coverage (its mask)
+    """The alpha channel of the true base colour map: the object's coverage, also for photos without masks."""
+    path = ground_truth_path(view, "basecolor")
+    _, alpha = read_image(path)
+    if alpha is None:
+        raise file_error(path, "has no alpha channel, so the object's true coverage is unknown")
+    return alpha
 
 
 def read_ground_truth_depth(view: View) -> Tensor:  # [H, W] camera z, 0 on background

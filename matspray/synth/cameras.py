@@ -16,6 +16,7 @@ from matspray.data.camera import Camera
 FOV_X = 0.6911112070083618  # radians, NeRF-synthetic's camera_angle_x
 FILL = 0.92  # the bounding sphere's angular radius as a fraction of half the field of view
 MIN_ELEVATION, MAX_ELEVATION = -20.0, 70.0  # degrees; the poles are avoided (image up is world +z)
+GROUND_MIN_ELEVATION = 10.0  # degrees; with a ground plane every camera stays above it
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 
@@ -30,17 +31,22 @@ def band_point(azimuth: np.ndarray, height: np.ndarray) -> np.ndarray:  # [N], [
     return np.stack([ring * np.cos(azimuth), ring * np.sin(azimuth), height], axis=-1)
 
 
-def fibonacci_directions(count: int, phase: float) -> np.ndarray:  # [count, 3] unit
+def band_heights(min_elevation: float) -> tuple[float, float]:
+    """z range of the elevation band from `min_elevation` (degrees) to MAX_ELEVATION."""
+    return math.sin(math.radians(min_elevation)), math.sin(math.radians(MAX_ELEVATION))
+
+
+def fibonacci_directions(count: int, phase: float, min_elevation: float = MIN_ELEVATION) -> np.ndarray:  # [count, 3] unit
     """An even spiral over the elevation band, equal area per point, turned by `phase` radians."""
-    low, high = math.sin(math.radians(MIN_ELEVATION)), math.sin(math.radians(MAX_ELEVATION))
+    low, high = band_heights(min_elevation)
     k = np.arange(count)
     height = high - (k + 0.5) / count * (high - low)
     return band_point(phase + GOLDEN_ANGLE * k, height)
 
 
-def random_directions(count: int, rng: np.random.Generator) -> np.ndarray:  # [count, 3] unit
+def random_directions(count: int, rng: np.random.Generator, min_elevation: float = MIN_ELEVATION) -> np.ndarray:  # [count, 3] unit
     """Uniform (equal area) random points on the elevation band."""
-    low, high = math.sin(math.radians(MIN_ELEVATION)), math.sin(math.radians(MAX_ELEVATION))
+    low, high = band_heights(min_elevation)
     return band_point(rng.uniform(0.0, 2.0 * math.pi, count), rng.uniform(low, high, count))
 
 
@@ -53,9 +59,10 @@ def orbit_cameras(directions: np.ndarray, distance: float, resolution: int, fov_
 
 
 def make_cameras(train: int, test: int, bounding_radius: float, resolution: int,
-                 rng: np.random.Generator) -> tuple[list[Camera], list[Camera], float]:
-    """Train and test cameras and the distance they sit at."""
+                 rng: np.random.Generator, min_elevation: float = MIN_ELEVATION) -> tuple[list[Camera], list[Camera], float]:
+    """Train and test cameras (no lower than `min_elevation` degrees) and the distance they sit at."""
     distance = framing_distance(bounding_radius)
-    train_cameras = orbit_cameras(fibonacci_directions(train, rng.uniform(0.0, 2.0 * math.pi)), distance, resolution)
-    test_cameras = orbit_cameras(random_directions(test, rng), distance, resolution)
+    phase = rng.uniform(0.0, 2.0 * math.pi)
+    train_cameras = orbit_cameras(fibonacci_directions(train, phase, min_elevation), distance, resolution)
+    test_cameras = orbit_cameras(random_directions(test, rng, min_elevation), distance, resolution)
     return train_cameras, test_cameras, distance

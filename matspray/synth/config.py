@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass
 from matspray.errors import SettingError
 
 PLACEMENTS = ("fit", "keep")  # how a glTF asset is placed in the world (matspray.synth.gltf_object)
+BACKGROUNDS = ("transparent", "env")  # behind the object in the photos: nothing (alpha = mask) or the light itself
 
 MAX_RESOLUTION = 2048
 MAX_VIEWS = 1000
@@ -28,7 +29,14 @@ class SynthConfig:
     texture_height: int = 256  # texture rows per part (twice as many columns)
     asset: str | None = None  # a glTF 2.0 file (.glb/.gltf) to render instead of a procedural shape
     placement: str = "fit"  # of the asset: 'fit' (centred, scaled into the unit sphere) or 'keep' (the file's units)
+    background: str = "transparent"  # 'env': the photos show the light behind the object and carry no mask
+    ground: bool = False  # a grey ground plane under the object in the photos (cameras stay above it)
     overwrite: bool = False  # replace a different scene already in the output folder
+
+    @property
+    def unmasked(self) -> bool:
+        """Photos without masks: what a real capture gives (true masks stay in the ground truth)."""
+        return self.background != "transparent" or self.ground
 
     def validate(self) -> None:
         """Raise SettingError naming the first setting out of range; normalise env specs to str."""
@@ -45,6 +53,8 @@ class SynthConfig:
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise SettingError(name, f"must be an integer in [{low}, {high}], got {value!r}")
         self.env = str(self.env)
+        if self.background not in BACKGROUNDS:
+            raise SettingError("background", f"must be one of {', '.join(BACKGROUNDS)}, got {self.background!r}")
         if self.placement not in PLACEMENTS:
             raise SettingError("placement", f"must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
         if self.asset is not None:
@@ -60,4 +70,7 @@ class SynthConfig:
         """Everything that determines the files (all settings but `overwrite`)."""
         values = asdict(self)
         values.pop("overwrite")
+        for name, default in (("background", "transparent"), ("ground", False)):  # objects made before these existed
+            if values[name] == default:
+                values.pop(name)
         return values

@@ -18,12 +18,12 @@ from matspray.data.scene import View
 from matspray.errors import ConfigError, SettingError
 from matspray.gltf.read import read_gltf
 from matspray.lights import default_relight_names, load_envmap
-from matspray.synth.cameras import FOV_X, make_cameras
+from matspray.synth.cameras import FOV_X, GROUND_MIN_ELEVATION, MIN_ELEVATION, make_cameras
 from matspray.synth.config import SynthConfig
 from matspray.synth.gltf_object import asset_parts, write_object_glb
 from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.materials import Textures, bake_textures, random_material
-from matspray.synth.mitsuba_scene import MAX_DEPTH, build_scene, render_view, sampler_for, select_variant
+from matspray.synth.mitsuba_scene import GROUND_BASE_COLOR, GROUND_ROUGHNESS, MAX_DEPTH, GroundPlane, build_scene, render_view, sampler_for, select_variant
 from matspray.synth.shapes import Part, make_shape, resolve_shape
 from matspray.synth.writer import (
     OBJECT_GLB, prepare_output, write_envmap, write_ground_truth, write_render, write_scene_json,
@@ -119,8 +119,11 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
     bounding_radius = float(max(np.linalg.norm(p.vertices, axis=1).max() for p in parts))
     train_cameras, test_cameras, distance = make_cameras(
         config.train_views, config.test_views, bounding_radius, config.resolution,
-        np.random.default_rng([config.seed, CAMERA_STREAM]),
+        np.random.default_rng([config.seed, CAMERA_STREAM]), GROUND_MIN_ELEVATION if config.ground else MIN_ELEVATION,
     )
+    ground = None
+    if config.ground:  # touching the object's lowest point, wide enough to fill the lower background
+        ground = GroundPlane(z=float(min(p.vertices[:, 2].min() for p in parts)), half_size=4.0 * distance)
     record = {
         "matspray_version": __version__,
         "settings": identity,
@@ -137,6 +140,10 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
                          "basecolor": "sRGB-encoded 16-bit PNG", "roughness": "linear 16-bit PNG (GGX alpha = r^2)",
                          "metallic": "linear 16-bit PNG", "normal": "EXR world-space unit xyz",
                          "depth": "EXR camera z (OpenCV forward), 0 on background"},
+        "photos": {"background": config.background, "masks": "none (true masks: the ground truth's alpha)" if config.unmasked else "alpha channel",
+                   "ground": None if ground is None else {"z": ground.z, "half_size": ground.half_size, "base_color": GROUND_BASE_COLOR,
+                                                          "roughness": GROUND_ROUGHNESS, "metallic": 0.0},
+                   "relit": "the object alone (no ground, light hidden), alpha = coverage"},
         "status": "incomplete",
     }
     out.mkdir(parents=True, exist_ok=True)
@@ -150,12 +157,14 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
     total = len(train_cameras) + len(test_cameras) * (2 + len(relight_envs)) + len(train_cameras)
     bar = tqdm(total=total, desc="synth", unit="render", disable=not progress)
     views: dict[str, list[View]] = {"train": [], "test": []}
-    scene = build_scene(parts, textures, lights[train_env].numpy())
+    scene = build_scene(parts, textures, lights[train_env].numpy())  # the object alone: its ground truth
+    photo_scene = build_scene(parts, textures, lights[train_env].numpy(), config.background == "env", ground) if config.unmasked else scene
     for split_index, (split, cameras) in enumerate(splits.items()):
         for index, camera in enumerate(cameras):
             name = f"r_{index:03d}"
-            rgb, alpha = render_view(scene, camera, config.spp, render_seed(config.seed, 0, split_index, index))
-            views[split].append(View(name, torch.from_numpy(rgb), torch.from_numpy(alpha), camera))
+            rgb, alpha = render_view(photo_scene, camera, config.spp, render_seed(config.seed, 0, split_index, index))
+            mask = None if config.unmasked else torch.from_numpy(alpha)  # an unmasked photo is RGB only
+            views[split].append(View(name, torch.from_numpy(rgb), mask, camera))
             bar.update()
             write_ground_truth(out / split, name, cast_ground_truth(scene, textures, camera, config.gt_samples))
             bar.update()

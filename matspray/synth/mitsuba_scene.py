@@ -18,6 +18,7 @@ from matspray.synth.shapes import Part
 
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")  # preference order
 MAX_DEPTH = 8  # path length of the path tracer (bounces between parts of a composite need a few)
+GROUND_BASE_COLOR, GROUND_ROUGHNESS = 0.3, 0.8  # the ground plane of unmasked captures: grey, rough, dielectric
 
 # Our lat-long map (world +z up, u = atan2(y, -x) / 2pi + 0.5, v = acos(z) / pi) against Mitsuba's
 # envmap (local +y up, u = atan2(x, -z) / 2pi, v = acos(y) / pi): the local direction of world d is
@@ -202,18 +203,37 @@ def perspective_sensor(camera: Camera, spp: int) -> dict:
     }
 
 
-def build_scene(parts: list[Part], textures: list[Textures], env: np.ndarray):
-    """The object (one mesh and principled BSDF per part) under environment `env` [H, 2H, 3], path traced;
-    the emitter itself is hidden, so the film's alpha is the object's coverage."""
+@dataclass(frozen=True)
+class GroundPlane:
+    """A square, one-sided ground plane facing +z at height `z`, `half_size` wide each way."""
+
+    z: float
+    half_size: float
+
+    def shape(self) -> dict:
+        import mitsuba as mi
+
+        to_world = mi.ScalarTransform4f().translate([0.0, 0.0, self.z]) @ mi.ScalarTransform4f().scale([self.half_size, self.half_size, 1.0])
+        bsdf = {"type": "principled", "base_color": {"type": "rgb", "value": [GROUND_BASE_COLOR] * 3},
+                "roughness": GROUND_ROUGHNESS, "metallic": 0.0, "specular": 0.5}
+        return {"type": "rectangle", "to_world": to_world, "bsdf": bsdf}
+
+
+def build_scene(parts: list[Part], textures: list[Textures], env: np.ndarray, show_env: bool = False, ground: GroundPlane | None = None):
+    """The object (one mesh and principled BSDF per part) under environment `env` [H, 2H, 3], path traced.
+    By default the emitter is hidden, so the film's alpha is the object's coverage; `show_env` puts the
+    light behind the object and `ground` adds a ground plane, as in a real photo (alpha is then 1)."""
     import mitsuba as mi
 
     scene = {
         "type": "scene",
-        "integrator": {"type": "path", "max_depth": MAX_DEPTH, "hide_emitters": True},
+        "integrator": {"type": "path", "max_depth": MAX_DEPTH, "hide_emitters": not show_env},
         "light": envmap_emitter(env),
     }
     for index, (part, texture) in enumerate(zip(parts, textures)):
         scene[f"part_{index}"] = mesh_of(part, principled_bsdf(texture, part.uvs))
+    if ground is not None:
+        scene["ground"] = ground.shape()
     return mi.load_dict(scene)
 
 

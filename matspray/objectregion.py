@@ -1,0 +1,166 @@
+"""The object in a capture without masks: the region of space that holds it, and its masks.
+
+Geometry is fitted to the whole capture (background included). The object is then the Gaussians
+inside an object region, and their rendered alpha becomes every view's mask. The region is a sphere
+or a box, given (`--object-bounds`) or chosen automatically by this rule:
+
+  1. Centre: the point every camera's optical axis passes closest to (what the cameras look at).
+  2. Candidates: the opaque Gaussians (opacity >= 0.5) within 0.9 x the nearest camera's distance of it.
+  3. Support plane: a plane (RANSAC over the candidates) holding >= 20% of them within 2% of that
+     distance, with every camera on one side and a quarter of those points beyond half that distance
+     from the centre (it reaches past the framed object, so it is no face of the object), is the
+     ground or table: the region is cut 4% of that distance above it.
+  4. Radius: the candidates left are binned by distance from the centre; the region ends at the first
+     shell whose density (Gaussians per volume) falls below 5% of the mean density inside it, plus 5%.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from matspray.data.camera import Camera
+from matspray.data.scene import cameras_focus
+from matspray.errors import SettingError
+
+MIN_OPACITY = 0.5  # candidates of the automatic rule
+REACH = 0.9  # candidates lie within this fraction of the nearest camera's distance
+PLANE_TOLERANCE, PLANE_SHARE, PLANE_MARGIN = 0.02, 0.2, 0.04  # fractions of that distance (share: of the candidates)
+PLANE_TRIALS = 256
+PLANE_REACH, PLANE_REACH_SHARE = 0.5, 0.25  # a ground's points reach this far (fraction of that distance), this many of them
+SHELLS, DENSITY_FLOOR, RADIUS_MARGIN = 48, 0.05, 1.05
+
+
+@dataclass(frozen=True)
+class ObjectRegion:
+    """A sphere (`radius`) or a box (`low`, `high`) around `center`, optionally cut by a support plane:
+    points p with dot(plane[:3], p) + plane[3] < 0 are outside."""
+
+    center: tuple[float, float, float]
+    radius: float | None = None
+    low: tuple[float, float, float] | None = None
+    high: tuple[float, float, float] | None = None
+    plane: tuple[float, float, float, float] | None = None
+    rule: str = "given"  # 'given' (--object-bounds) or 'auto'
+
+    def contains(self, points: Tensor) -> Tensor:  # [N, 3] -> [N] bool
+        points = points.double()
+        if self.radius is not None:
+            inside = (points - points.new_tensor(self.center)).norm(dim=-1) <= self.radius
+        else:
+            inside = ((points >= points.new_tensor(self.low)) & (points <= points.new_tensor(self.high))).all(-1)
+        if self.plane is not None:
+            plane = points.new_tensor(self.plane)
+            inside &= points @ plane[:3] + plane[3] >= 0
+        return inside
+
+    def bounds(self) -> Tensor:  # [2, 3] axis-aligned box around the region
+        if self.radius is not None:
+            center = torch.tensor(self.center, dtype=torch.float32)
+            return torch.stack([center - self.radius, center + self.radius])
+        return torch.tensor([self.low, self.high], dtype=torch.float32)
+
+    def describe(self) -> str:
+        shape = (f"sphere at ({', '.join(f'{v:.3f}' for v in self.center)}) of radius {self.radius:.3f}" if self.radius is not None
+                 else f"box ({', '.join(f'{v:.3f}' for v in self.low)}) .. ({', '.join(f'{v:.3f}' for v in self.high)})")
+        cut = "" if self.plane is None else f", cut above the plane {' '.join(f'{v:+.3f}' for v in self.plane)} (n.x + d >= 0)"
+        return f"{shape}{cut} ({'chosen automatically' if self.rule == 'auto' else 'given'})"
+
+    def to_json(self) -> dict:
+        return {"center": list(self.center), "radius": self.radius, "low": None if self.low is None else list(self.low),
+                "high": None if self.high is None else list(self.high), "plane": None if self.plane is None else list(self.plane),
+                "rule": self.rule}
+
+    @staticmethod
+    def from_json(data: dict) -> "ObjectRegion":
+        as_tuple = lambda v: None if v is None else tuple(float(x) for x in v)  # noqa: E731
+        return ObjectRegion(center=as_tuple(data["center"]), radius=data.get("radius"), low=as_tuple(data.get("low")),
+                            high=as_tuple(data.get("high")), plane=as_tuple(data.get("plane")), rule=data.get("rule", "given"))
+
+
+def given_region(values) -> ObjectRegion:
+    """`--object-bounds`: 4 numbers (x y z radius) for a sphere or 6 (x0 y0 z0 x1 y1 z1) for a box."""
+    values = [float(v) for v in values]
+    if not all(math.isfinite(v) for v in values):
+        raise SettingError("object_bounds", f"must be finite numbers, got {values}")
+    if len(values) == 4:
+        if values[3] <= 0:
+            raise SettingError("object_bounds", f"the sphere's radius must be > 0, got {values[3]}")
+        return ObjectRegion(center=tuple(values[:3]), radius=values[3])
+    if len(values) == 6:
+        low, high = tuple(values[:3]), tuple(values[3:])
+        if not all(lo < hi for lo, hi in zip(low, high)):
+            raise SettingError("object_bounds", f"the box's first corner must be below its second on every axis, got {values}")
+        return ObjectRegion(center=tuple((lo + hi) / 2 for lo, hi in zip(low, high)), low=low, high=high)
+    raise SettingError("object_bounds", f"give 4 numbers (x y z radius: a sphere) or 6 (x0 y0 z0 x1 y1 z1: a box), got {len(values)}")
+
+
+def support_plane(points: Tensor, camera_centers: Tensor, tolerance: float, generator: torch.Generator,
+                  far: Tensor | None = None) -> Tensor | None:
+    """RANSAC plane [4] (unit normal n, offset d; cameras on the side n.x + d > 0) holding >= PLANE_SHARE of
+    `points` [P, 3] within `tolerance`, PLANE_REACH_SHARE of them among the `far` ones ([P] bool; None: any), or None."""
+    count = len(points)
+    if count < 3:
+        return None
+    best, best_inliers = None, int(PLANE_SHARE * count) - 1
+    for _ in range(PLANE_TRIALS):
+        a, b, c = points[torch.randint(count, (3,), generator=generator)]
+        normal = torch.linalg.cross(b - a, c - a)
+        if normal.norm() < 1e-12:
+            continue
+        normal = normal / normal.norm()
+        offset = -(normal @ a)
+        side = camera_centers @ normal + offset
+        if not ((side > tolerance).all() or (side < -tolerance).all()):
+            continue  # a ground or table has every camera on one side
+        on_plane = (points @ normal + offset).abs() <= tolerance
+        inliers = int(on_plane.sum())
+        if inliers > best_inliers and (far is None or int((on_plane & far).sum()) >= PLANE_REACH_SHARE * inliers):
+            sign = 1.0 if float(side[0]) > 0 else -1.0
+            best, best_inliers = torch.cat([sign * normal, (sign * offset).reshape(1)]), inliers
+    return best
+
+
+def dense_radius(distances: Tensor, reach: float) -> float:
+    """Where the density of points at `distances` [P] (from the centre) falls below DENSITY_FLOOR of the
+    mean density inside: the dense core's radius (rule step 4)."""
+    edges = torch.linspace(0.0, reach, SHELLS + 1, dtype=torch.float64)
+    counts = torch.histogram(distances.double().clamp(max=reach), bins=edges).hist
+    volumes = edges[1:] ** 3 - edges[:-1] ** 3
+    shell_density = counts / volumes
+    inside_density = counts.cumsum(0) / edges[1:] ** 3
+    first = int(torch.nonzero(counts > 0)[0]) if (counts > 0).any() else 0
+    for shell in range(first + 1, SHELLS):
+        if shell_density[shell] < DENSITY_FLOOR * inside_density[shell - 1]:
+            return float(edges[shell]) * RADIUS_MARGIN
+    return reach
+
+
+def auto_region(means: Tensor, opacities: Tensor, cameras: list[Camera], seed: int = 0) -> ObjectRegion:
+    """The object region of Gaussians (means [N, 3], opacities [N]) seen by `cameras`, by the module's rule."""
+    centers = torch.stack([c.center.double().cpu() for c in cameras])
+    focus = cameras_focus(cameras)
+    nearest = float((centers - focus).norm(dim=-1).min())
+    points = means.detach().double().cpu()
+    near = (points - focus).norm(dim=-1) <= REACH * nearest
+    candidates = points[near & (opacities.detach().cpu() >= MIN_OPACITY)]
+    if len(candidates) < 8:
+        candidates = points[near]
+    generator = torch.Generator().manual_seed(seed)
+    far = (candidates - focus).norm(dim=-1) > PLANE_REACH * nearest
+    plane = support_plane(candidates, centers, PLANE_TOLERANCE * nearest, generator, far)
+    if plane is not None:
+        plane = plane.clone()
+        plane[3] -= PLANE_MARGIN * nearest  # the region starts a margin above the plane
+        candidates = candidates[candidates @ plane[:3] + plane[3] >= 0]
+    radius = dense_radius((candidates - focus).norm(dim=-1), REACH * nearest) if len(candidates) else REACH * nearest
+    return ObjectRegion(center=tuple(focus.tolist()), radius=radius, plane=None if plane is None else tuple(plane.tolist()), rule="auto")
+
+
+def mask_iou(mask: Tensor, truth: Tensor, threshold: float = 0.5) -> float:  # [H, W], [H, W] -> IoU of the thresholded masks
+    a, b = mask >= threshold, truth >= threshold
+    union = int((a | b).sum())
+    return 1.0 if union == 0 else int((a & b).sum()) / union
