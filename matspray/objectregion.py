@@ -10,8 +10,10 @@ or a box, given (`--object-bounds`) or chosen automatically by this rule:
      distance, with every camera on one side and a quarter of those points beyond half that distance
      from the centre (it reaches past the framed object, so it is no face of the object), is the
      ground or table: the region is cut 4% of that distance above it.
-  4. Radius: the candidates left are binned by distance from the centre; the region ends at the first
-     shell whose density (Gaussians per volume) falls below 5% of the mean density inside it, plus 5%.
+  4. Radius: at most the framing radius, the largest sphere around the centre that every camera sees
+     whole (an object-centred capture frames its object); within it, the candidates left are binned by
+     distance from the centre, and outward from the densest shell the region ends at the first shell
+     whose density (Gaussians per volume) falls below 10% of that shell's, plus 5%.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ REACH = 0.9  # candidates lie within this fraction of the nearest camera's dista
 PLANE_TOLERANCE, PLANE_SHARE, PLANE_MARGIN = 0.02, 0.2, 0.04  # fractions of that distance (share: of the candidates)
 PLANE_TRIALS = 256
 PLANE_REACH, PLANE_REACH_SHARE = 0.5, 0.25  # a ground's points reach this far (fraction of that distance), this many of them
-SHELLS, DENSITY_FLOOR, RADIUS_MARGIN = 48, 0.05, 1.05
+SHELLS, DENSITY_FLOOR, RADIUS_MARGIN = 48, 0.1, 1.05
 
 
 @dataclass(frozen=True)
@@ -125,18 +127,29 @@ def support_plane(points: Tensor, camera_centers: Tensor, tolerance: float, gene
 
 
 def dense_radius(distances: Tensor, reach: float) -> float:
-    """Where the density of points at `distances` [P] (from the centre) falls below DENSITY_FLOOR of the
-    mean density inside: the dense core's radius (rule step 4)."""
+    """Where the density of points at `distances` [P] (from the centre) falls, outward from its densest
+    shell, below DENSITY_FLOOR of that shell's density: the dense core's radius (rule step 4). Surfaces
+    leave the inside of an object empty, so the scan starts at the densest shell, not at the centre."""
     edges = torch.linspace(0.0, reach, SHELLS + 1, dtype=torch.float64)
     counts = torch.histogram(distances.double().clamp(max=reach), bins=edges).hist
-    volumes = edges[1:] ** 3 - edges[:-1] ** 3
-    shell_density = counts / volumes
-    inside_density = counts.cumsum(0) / edges[1:] ** 3
-    first = int(torch.nonzero(counts > 0)[0]) if (counts > 0).any() else 0
-    for shell in range(first + 1, SHELLS):
-        if shell_density[shell] < DENSITY_FLOOR * inside_density[shell - 1]:
+    counts[-1] -= int((distances >= reach).sum())  # points beyond reach are not in the last shell
+    density = counts / (edges[1:] ** 3 - edges[:-1] ** 3)
+    peak = int(density.argmax())
+    for shell in range(peak + 1, SHELLS):
+        if density[shell] < DENSITY_FLOOR * density[peak]:
             return float(edges[shell]) * RADIUS_MARGIN
     return reach
+
+
+def framing_radius(cameras: list[Camera], focus: Tensor) -> float:
+    """The radius of the largest sphere around `focus` [3] inside every camera's field of view (centred
+    principal point assumed: the narrower half-angle of each camera)."""
+    radii = []
+    for camera in cameras:
+        K = camera.K.double().cpu()
+        half = min(math.atan(0.5 * camera.width / float(K[0, 0])), math.atan(0.5 * camera.height / float(K[1, 1])))
+        radii.append(float((camera.center.double().cpu() - focus).norm()) * math.sin(half))
+    return min(radii)
 
 
 def auto_region(means: Tensor, opacities: Tensor, cameras: list[Camera], seed: int = 0) -> ObjectRegion:
@@ -156,7 +169,8 @@ def auto_region(means: Tensor, opacities: Tensor, cameras: list[Camera], seed: i
         plane = plane.clone()
         plane[3] -= PLANE_MARGIN * nearest  # the region starts a margin above the plane
         candidates = candidates[candidates @ plane[:3] + plane[3] >= 0]
-    radius = dense_radius((candidates - focus).norm(dim=-1), REACH * nearest) if len(candidates) else REACH * nearest
+    framed = min(framing_radius(cameras, focus), REACH * nearest)
+    radius = dense_radius((candidates - focus).norm(dim=-1), framed) if len(candidates) else framed
     return ObjectRegion(center=tuple(focus.tolist()), radius=radius, plane=None if plane is None else tuple(plane.tolist()), rule="auto")
 
 

@@ -15,7 +15,7 @@ from matspray.data.scene import Scene
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.objectmasks import compute_object_masks, object_alpha, read_object_masks, write_object_masks
-from matspray.objectregion import ObjectRegion, auto_region, dense_radius, given_region, mask_iou, support_plane
+from matspray.objectregion import ObjectRegion, auto_region, dense_radius, framing_radius, given_region, mask_iou, support_plane
 from matspray.render.rasterize import rasterize
 
 
@@ -62,12 +62,20 @@ def test_support_plane_needs_every_camera_on_one_side():
     assert support_plane(flat_top.double(), centers, 0.08, generator, far(flat_top)) is None  # the object's own face is no ground
 
 
-def test_dense_radius_ends_where_the_density_drops():
+@pytest.mark.parametrize("hollow", [False, True])
+def test_dense_radius_ends_where_the_density_drops(hollow):
     g = torch.Generator().manual_seed(1)
-    core = 0.7 * torch.rand(5000, generator=g) ** (1 / 3)  # uniform in a ball of radius 0.7
-    sparse = 0.7 + 2.0 * torch.rand(30, generator=g)  # a few floaters beyond
-    radius = dense_radius(torch.cat([core, sparse]), 3.0)
-    assert 0.7 <= radius <= 0.7 * 1.05 + 3.0 / 48 + 1e-6
+    # an object of radius 0.7: solid, or a surface (Gaussians sit on surfaces, the inside stays empty)
+    core = 0.7 * (0.97 + 0.03 * torch.rand(5000, generator=g) if hollow else torch.rand(5000, generator=g) ** (1 / 3))
+    floaters = 3.0 * torch.rand(300, generator=g) ** (1 / 3)  # uniform in the whole reach
+    radius = dense_radius(torch.cat([core, floaters]), 3.0)
+    assert 0.7 <= radius <= (0.7 + 3.0 / 48) * 1.05 + 1e-6
+
+
+def test_framing_radius_is_the_sphere_every_camera_sees_whole():
+    cameras = orbit(6, distance=4.0)
+    half = math.atan(0.5 * 24 / float(cameras[0].K[0, 0]))
+    assert framing_radius(cameras, torch.zeros(3, dtype=torch.float64)) == pytest.approx(4.0 * math.sin(half), rel=1e-5)
 
 
 def test_given_regions_sphere_box_and_bad_values():
