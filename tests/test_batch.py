@@ -131,6 +131,15 @@ def test_other_settings_in_the_same_folder_are_refused(first_batch, capsys):
         claim_batch_folder(out, {"pipeline": {}, "variants": ["full"]})
 
 
+def test_a_setting_added_since_at_its_unset_default_does_not_refuse_the_folder(tmp_path):
+    claim_batch_folder(tmp_path, {"pipeline": {"preset": "demo"}, "variants": ["full"]})  # an older version's record
+    claim_batch_folder(tmp_path, {"pipeline": {"preset": "demo", "object_bounds": None}, "variants": ["full"]})
+    with pytest.raises(RunError, match=r"pipeline.preset 'test' here, 'demo' there; pipeline.seed 1 here, absent there"):
+        claim_batch_folder(tmp_path, {"pipeline": {"preset": "test", "seed": 1}, "variants": ["full"]})
+    with pytest.raises(RunError, match=r"object_bounds \[0.0, 0.0, 0.0, 1.0\] here, None there"):
+        claim_batch_folder(tmp_path, {"pipeline": {"preset": "demo", "object_bounds": [0.0, 0.0, 0.0, 1.0]}, "variants": ["full"]})
+
+
 def test_without_ray_the_objects_run_in_process_and_resume_an_interrupted_run(first_batch, objects, tmp_path, monkeypatch):
     out = first_batch[0]
     shutil.copytree(out / "ball", tmp_path / "ball")  # an interrupted object: its stages are there, its refinement is not

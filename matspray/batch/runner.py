@@ -55,19 +55,30 @@ def batch_settings(config: BatchConfig) -> dict:
     return {"pipeline": to_plain(config.pipeline), "variants": list(config.variants)}
 
 
+_ABSENT = object()  # a setting one record lacks
+
+
 def _differences(old, new, prefix: str = "") -> list[str]:
+    """The settings that differ, as 'name new here, old there'. A setting one side lacks counts as equal
+    when the other side leaves it unset (None): it was added (or dropped) since, at its neutral default."""
     if isinstance(old, dict) and isinstance(new, dict):
-        return [d for key in sorted(set(old) | set(new)) for d in _differences(old.get(key), new.get(key), f"{prefix}{key}.")]
-    return [] if old == new else [f"{prefix.rstrip('.')} {new!r} here, {old!r} there"]
+        return [d for key in sorted(set(old) | set(new))
+                for d in _differences(old.get(key, _ABSENT), new.get(key, _ABSENT), f"{prefix}{key}.")]
+    if old == new or (old is _ABSENT and new is None) or (new is _ABSENT and old is None):
+        return []
+    return [f"{prefix.rstrip('.')} {_shown(new)} here, {_shown(old)} there"]
+
+
+def _shown(value) -> str:
+    return "absent" if value is _ABSENT else repr(value)
 
 
 def claim_batch_folder(out: Path, settings: dict) -> None:
     """Record the batch's settings in `out`, or refuse a folder that holds another batch's."""
     record = out / SETTINGS_RECORD
     if record.exists():
-        previous = read_json(record).get("settings")
-        if previous != settings:
-            changes = _differences(previous or {}, settings)
+        changes = _differences(read_json(record).get("settings") or {}, settings)
+        if changes:
             raise RunError(f"{out}: holds a batch made with other settings ({'; '.join(changes[:3])}); use another output "
                            "folder, or the same settings to finish that batch")
     write_json(record, {"settings": settings, "fingerprint": fingerprint(settings)})
