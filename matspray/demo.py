@@ -138,7 +138,7 @@ def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=pri
         finished = {row["name"]: row for row in summary["objects"] if row["status"] != "failed"}
         averaged["title"] = f"MatSpray benchmark: {summary['averaged_over']} of {len(specs)} objects, preset {preset}"
         averaged["objects"] = {spec.name: object_row(spec, json.loads((out / spec.name / "eval" / "metrics.json").read_text()),
-                                                     synth_seconds[spec.name], finished[spec.name]["seconds"] or 0.0)
+                                                     synth_seconds[spec.name], sum(finished[spec.name]["stage_seconds"].values()))
                                for spec in specs if spec.name in finished and (out / spec.name / "eval" / "metrics.json").exists()}
         write_json(out / "bench.json", {"objects": len(specs), "preset": preset, "method": config.method, "tables": averaged})
         write_tables(out / "tables.md", averaged)
@@ -146,7 +146,8 @@ def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=pri
 
 
 def object_row(spec: BenchObject, metrics: dict, synth_seconds: float, method_seconds: float) -> dict:
-    """One object's line of the benchmark: relighting and base colour PSNR per variant, and its seconds."""
+    """One object's line of the benchmark: relighting and base colour PSNR per variant, and its seconds
+    (making the object in this call: 0 when made before; the method: its stages, whichever call ran them)."""
     variants = metrics.get("variants", {})
     psnr = {row: {LABELS[v]: variants[v]["summary"][row]["psnr"] for v in variants if row in variants[v]["summary"]}
             for row in ("relighting", "basecolor")}

@@ -1,13 +1,16 @@
-"""`matspray bench --assets`: the object list from files and folders, and the per-object table."""
+"""`matspray bench`: the object list from files and folders (`--assets`), the per-object table, and its seconds."""
 
 from __future__ import annotations
+
+import json
 
 import pytest
 
 pytest.importorskip("pygltflib")
 
 from matspray.cli import main  # noqa: E402
-from matspray.demo import BenchObject, asset_objects, procedural_objects  # noqa: E402
+from matspray.config import build_config  # noqa: E402
+from matspray.demo import BenchObject, asset_objects, procedural_objects, run_bench  # noqa: E402
 from matspray.errors import ConfigError  # noqa: E402
 from matspray.eval.tables import objects_table, tables_markdown  # noqa: E402
 
@@ -53,3 +56,21 @@ def test_bench_refuses_a_bad_asset_before_any_object_is_made(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code != 0 and "broken.glb" in err and "truncated" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_bench_reports_each_objects_stage_seconds_also_when_a_rerun_skips_it(tmp_path):
+    """Two tiny procedural objects through `run_bench` (in-process batch): the per-object table's
+    method seconds are the run's stage seconds, and stay so when a second call skips the finished objects."""
+    pytest.importorskip("mitsuba")
+    config = build_config("test", predictor="simulated", **{"geometry.iterations": 150, "refine.iterations": 8})
+    objects = [BenchObject("00-sphere", "sphere", 0), BenchObject("01-torus", "torus", 1)]
+    quiet = dict(preset="test", progress=False, log=lambda *_: None, config=config, use_ray=False)
+    for call in range(2):
+        summary = run_bench(tmp_path, objects, **quiet)
+        assert [o["status"] for o in summary["objects"]] == (["finished"] * 2 if call == 0 else ["skipped"] * 2)
+        rows = json.loads((tmp_path / "bench.json").read_text())["tables"]["objects"]
+        for obj in objects:
+            timings = json.loads((tmp_path / obj.name / "timings.json").read_text())
+            assert rows[obj.name]["seconds"]["method"] == pytest.approx(sum(timings.values()))
+            assert {"geometry", "lift", "asset"} <= set(timings)
+    assert "| 00-sphere (sphere (seed 0)) |" in (tmp_path / "tables.md").read_text()

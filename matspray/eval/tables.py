@@ -198,7 +198,7 @@ def objects_table(objects: Mapping[str, Mapping]) -> str:
             if relit.get("Full") is not None and relit.get(other) is not None:
                 wins[other][0] += relit["Full"] > relit[other]
                 wins[other][1] += 1
-    header = ["Object"] + [f"{v} relit PSNR" for v in variants] + ["order", "Full base colour PSNR", "synth (s)", "method (s)"]
+    header = ["Object"] + [f"{v} relit PSNR" for v in variants] + ["order", "Full base colour PSNR", "synth (s)", "stages (s)"]
     lines = [f"Full > {other} (relighting PSNR) on {k} of {n} objects" for other, (k, n) in wins.items() if n]
     return "\n\n".join([markdown_table(header, rows)] + (["\n".join(f"- {line}" for line in lines)] if lines else []))
 
