@@ -12,7 +12,7 @@ from matspray.data.scene import Scene, View
 from matspray.gaussians import Gaussians
 from matspray.geometry.config import preset
 from matspray.geometry.densify import DensityControl, split_gaussians
-from matspray.geometry.init import BACKGROUND_RADIUS, BACKGROUND_SHARE, hull_surface_points, initial_gaussians, neighbour_spacing
+from matspray.geometry.init import hull_surface_points, initial_gaussians, neighbour_spacing
 from matspray.eval.metrics import ssim_loss
 from matspray.geometry.losses import flatten_loss, normal_consistency_loss
 from matspray.geometry.normals import consensus_normals, depth_normals, oriented_normals, render_normals
@@ -155,24 +155,3 @@ def test_initial_points_lie_on_the_visual_hull():
     assert g.sh.shape[1:] == (9, 3) and (g.sh[:, 1:] == 0).all()
     torch.testing.assert_close(g.opacities, torch.full((len(g),), 0.3))
     torch.testing.assert_close(g.scales[:, 0], 0.5 * neighbour_spacing(g.means))
-
-
-def test_a_capture_without_masks_gets_a_background_shell_beside_its_sfm_points():
-    """Four unmasked cameras 3 units from the origin, 500 SfM points in the unit cube: a quarter of the
-    initial points sit on a sphere of BACKGROUND_RADIUS x 3 around the focus (the sky has no SfM points);
-    with masks there is no shell and every SfM point is kept."""
-    cameras = [Camera.look_at([3 * math.cos(a), 3 * math.sin(a), 0.0], [0, 0, 0], [0, 0, 1], math.radians(40), 16, 16)
-               for a in (0.0, math.pi / 2, math.pi, 3 * math.pi / 2)]
-    sfm = torch.rand(500, 3, generator=torch.Generator().manual_seed(1)) - 0.5
-    bounds = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
-    unmasked = [View(f"v{i}", torch.full((16, 16, 3), 0.5), None, c) for i, c in enumerate(cameras)]
-    g = initial_gaussians(Scene(train=unmasked, test=[], bounds=bounds, points=sfm), unmasked, 400, 0, 0.3,
-                          torch.Generator().manual_seed(0))
-    shell = int(BACKGROUND_SHARE * 400)
-    assert len(g) == 400
-    torch.testing.assert_close(g.means[-shell:].norm(dim=-1), torch.full((shell,), 3.0 * BACKGROUND_RADIUS))
-    assert g.means[:-shell].abs().max() <= 0.5  # the rest are SfM points
-    masked = [View(v.name, v.image, torch.ones(16, 16), v.camera) for v in unmasked]
-    g = initial_gaussians(Scene(train=masked, test=[], bounds=bounds, points=sfm), masked, 600, 0, 0.3,
-                          torch.Generator().manual_seed(0))
-    assert len(g) == 500 and g.means.abs().max() <= 0.5

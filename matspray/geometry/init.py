@@ -1,8 +1,7 @@
 """Initial Gaussians: COLMAP points when the scene has them; with masks, points on the visual hull's
-surface (the first point along a ray through an object pixel that every mask calls object); otherwise
-random points in the object bounds. A capture without masks also gets, for its far background (sky,
-walls: where SfM finds no points), a shell of points far beyond the cameras (BACKGROUND_SHARE of them).
-Hull points take their pixel's sRGB colour, the others the mean colour they project to."""
+surface (the first point along a ray through an object pixel that every mask calls object), coloured
+by that pixel; otherwise random points in the object bounds plus, for the background of a capture
+without masks, a shell of points far beyond the cameras (BACKGROUND_SHARE of them)."""
 
 from __future__ import annotations
 
@@ -18,7 +17,7 @@ from matspray.gaussians import Gaussians
 from matspray.render.sh import num_sh_bases, rgb_to_sh_dc
 
 MIN_COLMAP_POINTS = 100
-BACKGROUND_SHARE = 0.25  # of the initial points of a capture without masks: on the background shell
+BACKGROUND_SHARE = 0.25  # of the initial points of a capture without masks or points: on the background shell
 BACKGROUND_RADIUS = 3.0  # the shell's radius, in farthest-camera distances from the focus
 
 
@@ -26,22 +25,19 @@ def initial_gaussians(scene: Scene, views: list[View], count: int, sh_degree: in
                       generator: torch.Generator, scale: float = 1.0) -> Gaussians:
     """`count` isotropic Gaussians (fewer with COLMAP points or thin masks), `scale` times the RMS
     distance to their 3 nearest neighbours, coloured by the sRGB colour they project to."""
-    masked = any(v.alpha is not None for v in views)
-    shell = 0 if masked else int(BACKGROUND_SHARE * count)  # sky and far walls: SfM finds no points there
     if scene.points is not None and len(scene.points) >= MIN_COLMAP_POINTS:
         points = scene.points.float()
-        if len(points) > count - shell:
-            points = points[torch.randperm(len(points), generator=generator)[:count - shell]]
+        if len(points) > count:
+            points = points[torch.randperm(len(points), generator=generator)[:count]]
         colours = projected_colours(points, views)
-    elif masked:
+    elif any(v.alpha is not None for v in views):
         points, colours = hull_surface_points(scene.bounds.float(), views, count, generator)
     else:
         bounds = scene.bounds.float()
-        points = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count - shell, 3, generator=generator)
+        shell = int(BACKGROUND_SHARE * count)
+        inner = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count - shell, 3, generator=generator)
+        points = torch.cat([inner, background_shell(views, shell)])
         colours = projected_colours(points, views)
-    if shell:
-        far = background_shell(views, shell)
-        points, colours = torch.cat([points, far]), torch.cat([colours, projected_colours(far, views)])
     sh = torch.zeros(len(points), num_sh_bases(sh_degree), 3)
     sh[:, 0] = rgb_to_sh_dc(colours)
     quats = torch.zeros(len(points), 4)
