@@ -27,7 +27,7 @@ from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
 from matspray.material import stack
 from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, write_object_masks
-from matspray.predictors import PredictorOptions, make_predictor, predict_views, read_materials2d, write_materials2d
+from matspray.predictors import PredictorOptions, make_predictor, options_for_dataset, predict_views, read_materials2d, write_materials2d
 from matspray.refine import RefineConfig, RefineInputs, refine
 from matspray.render.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, timed, to_plain
@@ -76,9 +76,15 @@ class Pipeline:
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
 
     # ---------------------------------------------------------------- predict
+    def predictor_options(self) -> PredictorOptions:
+        """The configured options; a simulated predictor given no seed takes the synth object's."""
+        return options_for_dataset(self.config.predictor, PredictorOptions(**self.config.predictor_options), self.scene.source)
+
     def predict_fingerprint(self) -> str:
         masks = () if not self.unmasked else (self.masks_fingerprint(),)  # the predictor sees the masked views
-        return fingerprint("predict", self.dataset_fp, self.config.predictor, self.config.predictor_options, *masks)
+        seed = self.predictor_options().seed  # an object's own seed changes the draws, except 0 (the default draws)
+        derived = () if seed in (self.config.predictor_options.get("seed"), None, 0) else ({"object_seed": seed},)
+        return fingerprint("predict", self.dataset_fp, self.config.predictor, self.config.predictor_options, *masks, *derived)
 
     def predict(self):
         self.object_masks()
@@ -86,10 +92,12 @@ class Pipeline:
         if not self.run.stage_done("materials2d", fp, ["predictor.json"]):
             self.log(f"predict: {self.config.predictor} on {len(self.scene.train)} training views")
             with timed() as t:
-                predictor = make_predictor(self.config.predictor, PredictorOptions(**self.config.predictor_options), notify=self.log)
+                options = self.predictor_options()
+                predictor = make_predictor(self.config.predictor, options, notify=self.log)
                 maps = predict_views(self.scene.train, predictor, notify=self.log)
                 write_materials2d(self.run.root, maps, predictor.describe())
-            self.run.finish_stage("materials2d", fp, {"predictor": self.config.predictor, **self.config.predictor_options}, t.seconds)
+            used = {k: v for k, v in vars(options).items() if v is not None}
+            self.run.finish_stage("materials2d", fp, {"predictor": self.config.predictor, **self.config.predictor_options, **used}, t.seconds)
         else:
             self.log("predict: done before, reusing materials2d/")
         return read_materials2d(self.run.root, self.scene.train)

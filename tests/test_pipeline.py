@@ -164,3 +164,18 @@ def test_resuming_with_the_other_method_recomputes_only_what_differs(tiny_object
     relabelled = Pipeline(tiny_object, finished_run, replace(tiny_config(), method="paper"), progress=False, log=lambda _: None)
     assert relabelled.lift_fingerprint() != ours.lift_fingerprint()
     Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)  # leave config.yaml as the fixture's
+
+
+def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_object, finished_run):
+    import json
+
+    record = json.loads((finished_run / "materials2d" / "stage.json").read_text())
+    assert record["settings"]["seed"] == 1  # tiny_object is synth seed 1; the config gives no seed
+    pipeline = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
+    assert pipeline.predictor_options().seed == 1
+    given_zero = Pipeline(tiny_object, finished_run, replace(tiny_config(), predictor_options={"seed": 0}), progress=False, log=lambda _: None)
+    assert given_zero.predictor_options().seed == 0
+    assert given_zero.predict_fingerprint() != pipeline.predict_fingerprint()  # other draws: predict runs again
+    given_one = Pipeline(tiny_object, finished_run, replace(tiny_config(), predictor_options={"seed": 1}), progress=False, log=lambda _: None)
+    assert given_one.predictor_options() == pipeline.predictor_options()
+    Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)  # leave config.yaml as the fixture's

@@ -366,3 +366,38 @@ def test_benchmark_pieces_and_report(sphere, capsys):
     assert max(truth_spread) < 0.02 and simulated_spread[0] > 2 * truth_spread[0] and simulated_spread[1] > 2 * truth_spread[1]
     assert bench.main(["--data", str(root / "missing")]) == 2
     assert "matspray synth" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------ one draw per object
+def test_a_simulated_predictor_without_a_seed_draws_from_the_objects_own_seed(sphere, tmp_path):
+    """The objects of a benchmark (synth seeds 0, 1, ...) have views of the same names; without this
+    every object would get the same batches of spurious metallic, outliers and drifts."""
+    import shutil
+
+    from matspray.predictors import PredictorOptions, options_for_dataset
+
+    root, _ = sphere
+    copies = {}
+    for seed in (0, 5):
+        copy = tmp_path / f"seed{seed}"
+        shutil.copytree(root, copy)
+        (copy / "scene.json").write_text(json.dumps({"kind": "matspray-synth", "seed": seed}))
+        copies[seed] = copy
+    assert options_for_dataset("simulated", PredictorOptions(), copies[5]).seed == 5
+    assert options_for_dataset("simulated:outliers", PredictorOptions(), copies[5]).seed == 5
+    assert options_for_dataset("simulated", PredictorOptions(seed=2), copies[5]).seed == 2  # a given seed wins
+    assert options_for_dataset("ground-truth", PredictorOptions(), copies[5]).seed is None
+    assert options_for_dataset("simulated", PredictorOptions(), root).seed is None  # scene.json without a seed
+    assert options_for_dataset("simulated", PredictorOptions(), tmp_path).seed is None  # no scene.json
+
+    def predicted(data, *flags):
+        run = tmp_path / f"run-{data.name}{''.join(flags)}"
+        assert main(["predict", "--data", str(data), "--out", str(run), "--predictor", "simulated", *flags]) == 0
+        return read_materials2d(run, load_scene(data).train)
+
+    object0, object5, forced = predicted(copies[0]), predicted(copies[5]), predicted(copies[0], "--seed", "5")
+    default = predicted(copies[0], "--seed", "0")  # the error model's default seed
+    for name in object0:
+        assert torch.equal(object0[name].basecolor, default[name].basecolor)  # object seed 0: the default draws
+        assert torch.equal(object5[name].basecolor, forced[name].basecolor)  # object seed 5: as --seed 5
+    assert any(not torch.equal(object0[n].basecolor, object5[n].basecolor) for n in object0)

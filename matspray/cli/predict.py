@@ -34,7 +34,7 @@ def add_parser(parser) -> None:
     group.add_argument("--processing-resolution", type=int, help="resolution the model works at (default: the model's; 0 = native)")
     group = parser.add_argument_group("marigold and simulated")
     group.add_argument("--batch-size", type=int, help="views per model call / window (default: marigold 4, simulated 8)")
-    group.add_argument("--seed", type=int, help="random seed (default 0)")
+    group.add_argument("--seed", type=int, help="random seed (default: marigold 0; simulated: the synth object's seed, 0 for other data)")
     group = parser.add_argument_group("simulated")
     group.add_argument("--severity", type=float, help="strength of the simulated failure modes; 0 = ground truth (default 1)")
 
@@ -43,7 +43,7 @@ def run(args) -> int:
     from matspray import __version__
     from matspray.data import load_scene
     from matspray.errors import DataError
-    from matspray.predictors import PredictorOptions, make_predictor, predict_views, write_materials2d
+    from matspray.predictors import PredictorOptions, make_predictor, options_for_dataset, predict_views, write_materials2d
 
     check_run_split(args.out, args.split)
     scene = load_scene(args.data, downscale=args.downscale)
@@ -67,7 +67,7 @@ def run(args) -> int:
         seed=args.seed,
         severity=args.severity,
     )
-    predictor = make_predictor(args.predictor, options)
+    predictor = make_predictor(args.predictor, options_for_dataset(args.predictor, options, args.data))
     maps = predict_views(views, predictor)
     info = dict(
         predictor.describe(),

@@ -26,7 +26,7 @@ from matspray.eval.lpips import load_lpips
 from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
 from matspray.eval.tables import write_tables
-from matspray.predictors import PredictorOptions, make_predictor, predict_views
+from matspray.predictors import PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
 from matspray.relight import render_gbuffer
 from matspray.render.deferred import shade_gbuffer
@@ -179,7 +179,8 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
     if spec.partition(":")[0] not in ("simulated", "ground-truth", "files"):
         return None, f"raw 2D predictions of test views not evaluated (predictor '{spec}' would have to run again)"
     try:
-        predictor = make_predictor(spec, PredictorOptions(**config.get("predictor_options", {})), notify=lambda _: None)
+        options = options_for_dataset(spec, PredictorOptions(**config.get("predictor_options", {})), RunDir(run_dir).dataset().get("source"))
+        predictor = make_predictor(spec, options, notify=lambda _: None)
         return predict_views(views, predictor, notify=lambda _: None), f"raw 2D predictions: {spec}"
     except DataError as exc:
         return None, f"raw 2D predictions of test views not evaluated: {exc}"

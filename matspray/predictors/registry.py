@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+import json
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
 from typing import Callable
 
 from matspray.errors import ConfigError, SettingError
@@ -41,6 +43,29 @@ USES = {
 
 def _given(options: PredictorOptions, names: set[str]) -> dict:
     return {n: getattr(options, n) for n in names if getattr(options, n) is not None}
+
+
+def object_seed(data) -> int | None:
+    """The seed a `matspray synth` object was made with (its scene.json), or None for other datasets."""
+    path = Path(data) / "scene.json" if data is not None else None
+    if path is None or not path.is_file():
+        return None
+    try:
+        seed = json.loads(path.read_text()).get("seed")
+    except (OSError, json.JSONDecodeError, AttributeError):
+        return None
+    return seed if isinstance(seed, int) and not isinstance(seed, bool) else None
+
+
+def options_for_dataset(spec: str, options: PredictorOptions, data) -> PredictorOptions:
+    """`options` for predicting the views of the dataset folder `data`: a simulated predictor given no
+    `seed` draws its errors from the synth object's own seed, so that the objects of a benchmark (made
+    with seeds 0, 1, ...) get independent errors rather than one draw repeated on every object (the
+    views of every synth object have the same names). Object seed 0 gives the error model's default draws."""
+    if str(spec).partition(":")[0].strip().lower() != "simulated" or options.seed is not None:
+        return options
+    seed = object_seed(data)
+    return options if seed is None else replace(options, seed=seed)
 
 
 def make_predictor(spec: str, options: PredictorOptions | None = None, notify: Callable[[str], None] = print) -> Predictor:
