@@ -43,8 +43,8 @@ def error_stats(predictions: list[torch.Tensor], truths: list[GroundTruth], chan
 
 def run_bias(run: Path, channels) -> dict[str, dict[str, dict]]:
     """row name ('full', ..., '2D') -> channel -> error statistics, for one run."""
-    source = RunDir(run).dataset()["source"]
-    views = load_scene(Path(source), downscale=RunDir(run).downscale()).test
+    run_dir = RunDir(run)
+    views = load_scene(Path(run_dir.dataset()["source"]), downscale=run_dir.downscale()).test
     truths = [read_view_truth(view) for view in views]
     rows = {}
     for variant in VARIANTS:

@@ -74,11 +74,12 @@ class Pipeline:
         self.unmasked = not self.scene.has_masks  # masks then come from the geometry (stage `masks`)
         self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
+        self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
 
     # ---------------------------------------------------------------- predict
     def predictor_options(self) -> PredictorOptions:
         """The configured options; a simulated predictor given no seed takes the synth object's."""
-        return options_for_dataset(self.config.predictor, PredictorOptions(**self.config.predictor_options), self.scene.source)
+        return self._predictor_options
 
     def predict_fingerprint(self) -> str:
         masks = () if not self.unmasked else (self.masks_fingerprint(),)  # the predictor sees the masked views
@@ -96,8 +97,8 @@ class Pipeline:
                 predictor = make_predictor(self.config.predictor, options, notify=self.log)
                 maps = predict_views(self.scene.train, predictor, notify=self.log)
                 write_materials2d(self.run.root, maps, predictor.describe())
-            used = {k: v for k, v in vars(options).items() if v is not None}
-            self.run.finish_stage("materials2d", fp, {"predictor": self.config.predictor, **self.config.predictor_options, **used}, t.seconds)
+            used = {k: v for k, v in vars(options).items() if v is not None}  # the configured options and a derived seed
+            self.run.finish_stage("materials2d", fp, {"predictor": self.config.predictor, **used}, t.seconds)
         else:
             self.log("predict: done before, reusing materials2d/")
         return read_materials2d(self.run.root, self.scene.train)

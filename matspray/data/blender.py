@@ -153,6 +153,19 @@ def intrinsics_record(camera: Camera) -> dict:
             "w": camera.width, "h": camera.height}
 
 
+def read_scene_json(folder: Path) -> dict | None:
+    """The `scene.json` record a `matspray synth` object keeps in its folder: None when there is none,
+    {} when it cannot be read as a JSON object."""
+    path = Path(folder) / "scene.json"
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
 def write_json(path: Path, data) -> None:
     """Write JSON atomically (a reader never sees half a file)."""
     path = Path(path)

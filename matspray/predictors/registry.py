@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
 
+from matspray.data.blender import read_scene_json
 from matspray.errors import ConfigError, SettingError
 from matspray.predictors.base import Predictor
 from matspray.predictors.error_models import DEFAULT_MODEL, error_model
@@ -47,13 +47,7 @@ def _given(options: PredictorOptions, names: set[str]) -> dict:
 
 def object_seed(data) -> int | None:
     """The seed a `matspray synth` object was made with (its scene.json), or None for other datasets."""
-    path = Path(data) / "scene.json" if data is not None else None
-    if path is None or not path.is_file():
-        return None
-    try:
-        seed = json.loads(path.read_text()).get("seed")
-    except (OSError, json.JSONDecodeError, AttributeError):
-        return None
+    seed = (read_scene_json(Path(data)) or {}).get("seed") if data is not None else None
     return seed if isinstance(seed, int) and not isinstance(seed, bool) else None
 
 

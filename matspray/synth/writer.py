@@ -18,13 +18,12 @@ subpixel rays that hit the object); colour values are not premultiplied by it.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from matspray.data.blender import write_json
+from matspray.data.blender import read_scene_json, write_json
 from matspray.data.images import write_image, write_raw
 from matspray.errors import ConfigError, SettingError
 from matspray.synth.groundtruth import GroundTruth
@@ -59,17 +58,6 @@ def write_envmap(folder: Path, name: str, env: torch.Tensor) -> None:
 
 
 # ------------------------------------------------------------------------------------------ scene.json
-def read_scene_json(out: Path) -> dict | None:
-    path = out / "scene.json"
-    if not path.is_file():
-        return None
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return {}
-    return data if isinstance(data, dict) else {}
-
-
 def prepare_output(out: Path, identity: dict, overwrite: bool) -> None:
     """Refuse to write into a folder holding anything but the same scene, unless `overwrite`; with it,
     remove the previous object's files (only those, nothing else in the folder)."""
