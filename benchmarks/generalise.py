@@ -11,9 +11,10 @@ Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every s
 under one HDRI of ../shared/data/hdri and relit under two other lights (HDRIs and built-ins), all drawn
 from its seed. Each object is run with every predictor error model (`simulated:paper`, `:harsh`,
 `:outliers`, and the ground truth as a sanity row; a simulated predictor draws its errors from the
-object's seed): one run folder per (object, model), the Gaussian
-Splatting geometry trained once per object and shared by hard links (the pipeline's stage fingerprint
-checks it is the same). Every variant is refined, evaluated against the ground truth, and the raw 2D
+object's seed): one run folder per (object, model, configuration), the Gaussian Splatting geometry
+trained once per object and shared by hard links (the pipeline's stage fingerprint checks it is the
+same); a configuration other than the default also starts from the default run's predictions, lift and
+shadows, which its pipeline keeps when its settings leave them unchanged and redoes otherwise. Every variant is refined, evaluated against the ground truth, and the raw 2D
 predictions of the test views are scored as the baseline 3D must beat.
 
 Prints, per error model, a table per object and the mean over objects (relighting PSNR of every variant;
@@ -167,6 +168,18 @@ def geometry_run(runs: Path, first_model: str) -> Path:
 
 
 # ------------------------------------------------------------------------------------------ one run
+SHARED_STAGES = ("materials2d", "lift", "visibility")  # what another configuration of a model may reuse
+
+
+def run_name(model: str, method: str, choices: dict) -> str:
+    """The run folder of one error model under one configuration: `MODEL` for the default method as it
+    is, else `MODEL-METHOD-HASH`, so that configurations keep their stages side by side (compared and
+    resumed without redoing each other's work)."""
+    if method == "matspray" and not any(choices.values()):
+        return model
+    return f"{model}-{method}-{fingerprint(choices)[:8]}"
+
+
 RUN_SECONDS = "generalise.json"  # in RUN/eval/: the seconds the run's stages and evaluation took
 
 
@@ -325,15 +338,19 @@ def run_protocol(args, log=print) -> dict:
         data = make_demo_object(folder / "data", args.preset, "random", spec.seed, progress=args.progress, env=spec.env,
                                 relight_envs=list(spec.relight_envs))
         seconds = {"synth": time.perf_counter() - start, "models": {}}
-        first_run = geometry_run(folder / "runs", first_model)
+        first_run = geometry_run(folder / "runs", run_name(first_model, args.method, choices))
         if args.geometry_only:
             Pipeline(data, first_run, object_config(configs[first_model], spec), progress=args.progress, log=log).geometry()
             log(f"generalise: {spec.name}: geometry in {first_run / 'geometry'} ({time.perf_counter() - start:.0f} s with synth)")
             continue
         for model in specs:
-            run_dir = folder / "runs" / model
+            run_dir = folder / "runs" / run_name(model, args.method, choices)
             if run_dir != first_run and share_stage(first_run, run_dir, "geometry"):
-                log(f"generalise: {spec.name} / {model}: geometry shared from {first_run.name}")
+                log(f"generalise: {spec.name} / {run_dir.name}: geometry shared from {first_run.name}")
+            default_run = folder / "runs" / model
+            shared = [stage for stage in SHARED_STAGES if run_dir != default_run and share_stage(default_run, run_dir, stage)]
+            if shared:
+                log(f"generalise: {spec.name} / {run_dir.name}: starts from {model}'s {', '.join(shared)} (redone where its settings differ)")
             metrics, seconds["models"][model] = run_or_reuse(data, run_dir, object_config(configs[model], spec), args, log)
             results[model].append({"object": vars(spec) | {"relight_envs": list(spec.relight_envs)}, "figures": object_figures(metrics),
                                    "metrics": metrics, "seconds": seconds["models"][model]})

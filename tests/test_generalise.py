@@ -131,24 +131,26 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
             "--variants", "full", "proj-average", "--method", "paper", "--refine", "iterations=4", "light_warmup=2", "--out", str(out), "--no-progress"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
-    assert "geometry shared from paper" in printed
-    assert "error model `paper` (SIMULATED predictor)" in printed and "error model `ground-truth`" in printed
     runs = out / "objects" / "dev-00-seed1000" / "runs"
-    record = [json.loads((runs / m / "geometry" / "stage.json").read_text()) for m in ("paper", "ground-truth")]
+    paper_run = next(runs.glob("paper-paper-*"))  # a configuration other than the default has run folders of its own
+    truth_run = runs / paper_run.name.replace("paper-paper-", "ground-truth-paper-")
+    assert f"geometry shared from {paper_run.name}" in printed
+    assert "error model `paper` (SIMULATED predictor)" in printed and "error model `ground-truth`" in printed
+    record = [json.loads((run / "geometry" / "stage.json").read_text()) for run in (paper_run, truth_run)]
     assert record[0] == record[1]  # one geometry, reused by the second model's pipeline
-    assert "geometry" not in json.loads((runs / "ground-truth" / "timings.json").read_text())  # not trained again
+    assert "geometry" not in json.loads((truth_run / "timings.json").read_text())  # not trained again
     tag = next(out.glob("results-*.json")).stem[len("results-"):]
     report = json.loads((out / f"results-{tag}.json").read_text())
     assert report["settings"]["refine_overrides"] == {"iterations": 4, "light_warmup": 2} and tag.startswith("paper-")
-    assert report["settings"]["method"] == "paper" and "method: paper" in (runs / "paper" / "config.yaml").read_text()
-    assert "seed: 1000" in (runs / "paper" / "config.yaml").read_text()  # the predictor draws from the object's seed
+    assert report["settings"]["method"] == "paper" and "method: paper" in (paper_run / "config.yaml").read_text()
+    assert "seed: 1000" in (paper_run / "config.yaml").read_text()  # the predictor draws from the object's seed
     timing = report["timing"][0]  # geometry once, in its own column; the models' seconds without it
     assert timing["geometry"] > 0 and timing["total"] == pytest.approx(timing["synth"] + timing["geometry"] + sum(timing["models"].values()))
     truth = report["models"]["ground-truth"]["objects"][0]["figures"]
     assert math.isinf(truth["materials_2d"]["basecolor"])  # the sanity row: 2D maps are the truth
     paper = report["models"]["paper"]["objects"][0]["figures"]
     assert paper["materials_2d"]["basecolor"] < 40 and set(paper["relight"]) == {"full", "proj-average"}
-    assert json.loads((runs / "paper" / "materials2d" / "predictor.json").read_text())["error_model"] == "paper"
+    assert json.loads((paper_run / "materials2d" / "predictor.json").read_text())["error_model"] == "paper"
     assert (out / f"tables-{tag}-paper.md").exists() and (out / f"results-{tag}.md").exists()
     assert main(["--compare", "--out", str(out)]) == 0  # the table of choices, from the saved results
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(f"| {tag} |")]
@@ -166,3 +168,13 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert main(argv[:argv.index("--variants") + 1] + ["full"] + argv[argv.index("--variants") + 3:-3] + ["--tag", "fewer", "--out", str(out), "--no-progress"]) == 0
     fewer = json.loads((out / "results-paper-fewer.json").read_text())
     assert set(fewer["models"]["paper"]["objects"][0]["figures"]["relight"]) == {"full"}
+    # the default configuration runs in `runs/paper`; another configuration of the default method starts
+    # from its predictions and lift and keeps them where its settings leave them unchanged
+    base = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--variants", "proj-average", "--out", str(out), "--no-progress"]
+    assert main(base) == 0
+    assert "geometry shared from" in capsys.readouterr().out and (runs / "paper" / "lift" / "stage.json").exists()
+    assert main(base + ["--without", "shadows"]) == 0
+    assert "starts from paper's materials2d, lift, visibility" in capsys.readouterr().out
+    other = next(p for p in runs.glob("paper-matspray-*"))
+    assert (other / "lift" / "stage.json").read_text() == (runs / "paper" / "lift" / "stage.json").read_text()
+    assert not {"materials2d", "lift", "geometry"} & set(json.loads((other / "timings.json").read_text()))  # reused, not redone
