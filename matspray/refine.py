@@ -33,7 +33,7 @@ from matspray.data.scene import View
 from matspray.errors import NumericalError, SettingError
 from matspray.eval.metrics import ssim_loss
 from matspray.gaussians import Gaussians
-from matspray.material import BASE_COLOR, METALLIC_INDEX, N_CHANNELS
+from matspray.material import BASE_COLOR, N_CHANNELS
 from matspray.merger import MergerConfig, NeuralMerger, prepare_values, projection_average
 from matspray.render.deferred import GBuffer, shade_gbuffer
 from matspray.render.envmap import EnvironmentMap
@@ -196,7 +196,7 @@ def view_losses(training: TrainingViews, index: int, materials: Tensor, normals:
     light = envmap.prefilter() if envmap is not None else None
     if light is not None and training.visibility is not None:  # only for the Gaussians this view sees: the rest blend with weight 0
         seen = frozen.visible_ids[index]
-        shadows = gaussian_shadows(training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen, METALLIC_INDEX], view.camera, light)
+        shadows = gaussian_shadows(training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen], view.camera, light)
         features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
     gbuffer = GBuffer.from_blended(*frozen.render(index, torch.cat(features, dim=-1)))  # [H, W, 8 or 14], [H, W]
     terms = {}

@@ -11,7 +11,6 @@ from torch import Tensor
 
 from matspray.asset import Asset
 from matspray.data.camera import Camera
-from matspray.material import METALLIC_INDEX
 from matspray.render.deferred import GBuffer, shade_gbuffer
 from matspray.render.gbuffer import orient_normals
 from matspray.render.rasterize import rasterize
@@ -24,7 +23,7 @@ def render_gbuffer(asset: Asset, camera: Camera, light=None):
     normals = orient_normals(asset.normals, asset.gaussians.means, camera)
     features = [asset.materials, normals]
     if light is not None and asset.visibility is not None:
-        features.append(gaussian_shadows(asset.visibility, normals, asset.gaussians.means, asset.materials[:, METALLIC_INDEX], camera, light))
+        features.append(gaussian_shadows(asset.visibility, normals, asset.gaussians.means, asset.materials, camera, light))
     out = rasterize(asset.gaussians, camera, torch.cat(features, dim=-1))
     return GBuffer.from_blended(out.features, out.alpha)
 

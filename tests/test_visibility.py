@@ -9,10 +9,13 @@ from matspray.asset import Asset
 from matspray.relight import render_gbuffer
 from matspray.render.deferred import shade
 from matspray.render.envmap import EnvironmentMap
+from matspray.render.gbuffer import orient_normals
+from matspray.render.rasterize import rasterize
 from matspray.render.visibility import (
     VisibilityConfig,
     bake_visibility,
     gaussian_shadows,
+    light_cells,
     shadow_factors,
     transmittance_at,
     visibility_directions,
@@ -108,8 +111,32 @@ def test_shadowed_g_buffer_of_a_sphere_is_close_to_unshadowed_where_it_faces_the
     covered = gbuffer.alpha > 0.9
     # a convex object barely shadows itself: the diffuse factor is high where it is seen head on
     assert gbuffer.shadow[covered][:, :3].median() > 0.85
-    shadows = gaussian_shadows(asset.visibility, normals, gaussians.means, materials[:, 3], camera, light)
+    shadows = gaussian_shadows(asset.visibility, normals, gaussians.means, materials, camera, light)
     assert shadows.shape == (len(gaussians), 6) and shadows.min() >= 0 and shadows.max() <= 1
+
+
+def test_the_specular_shadow_kernel_reads_the_roughness_channel_not_the_metallic():
+    # rough dielectric: roughness 0.95 gives a broad specular kernel (kappa ~ 0.6), metallic 0 would give
+    # the sharpest one allowed (kappa 1.5); with half the directions blocked the two factors differ
+    gaussians, normals, materials = sphere_of_disks(n=60)
+    materials = materials.clone()
+    materials[:, 3], materials[:, 4] = 0.95, 0.0
+    rows = 4
+    visibility = (torch.arange(2 * rows * rows) % 2).float().expand(len(gaussians), -1).contiguous()
+    light = EnvironmentMap.from_tensor(sky_map(), learnable=False).prefilter()
+    camera = ring_cameras(1, 32)[0]
+    oriented = orient_normals(normals, gaussians.means, camera)
+    view_dirs = torch.nn.functional.normalize(camera.center.to(gaussians.means) - gaussians.means, dim=-1)
+    cells = light_cells(light, rows)
+    expected = shadow_factors(visibility, oriented, view_dirs, materials[:, 3], cells)
+    with_metallic = shadow_factors(visibility, oriented, view_dirs, materials[:, 4], cells)
+    assert (expected[:, 3:] - with_metallic[:, 3:]).abs().max() > 1e-3  # the test can tell the two apart
+    torch.testing.assert_close(gaussian_shadows(visibility, oriented, gaussians.means, materials, camera, light), expected)
+    # the relit G-buffer blends exactly those factors
+    gbuffer = render_gbuffer(Asset(gaussians, materials, normals, visibility), camera, light)
+    blended = rasterize(gaussians, camera, expected)
+    covered = blended.alpha > 0.5
+    torch.testing.assert_close(gbuffer.shadow[covered], (blended.features / blended.alpha[..., None].clamp_min(1e-8))[covered], atol=1e-4, rtol=1e-4)
 
 
 def test_visibility_round_trips_with_the_asset_and_a_wrong_count_is_refused(tmp_path):

@@ -33,6 +33,7 @@ from tqdm import tqdm
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
+from matspray.material import ROUGHNESS_INDEX
 from matspray.render.brdf import roughness_to_alpha
 from matspray.render.deferred import specular_direction
 from matspray.render.envmap import EnvironmentMap, downsample_latlong
@@ -160,8 +161,10 @@ def visibility_rows(visibility: Tensor) -> int:  # [N, D] with D = 2 rows^2
     return rows
 
 
-def gaussian_shadows(visibility: Tensor, normals: Tensor, means: Tensor, roughness: Tensor, camera: Camera, light) -> Tensor:
-    """`shadow_factors` [N, 6] of Gaussians seen from `camera` under `light`; normals [N, 3] facing the camera."""
+def gaussian_shadows(visibility: Tensor, normals: Tensor, means: Tensor, materials: Tensor, camera: Camera, light) -> Tensor:
+    """`shadow_factors` [N, 6] of Gaussians seen from `camera` under `light`; normals [N, 3] facing the
+    camera, materials [N, 5] (`matspray.material` layout: the specular kernel reads the roughness)."""
+    roughness = materials[:, ROUGHNESS_INDEX]
     view_dirs = F.normalize(camera.center.to(means) - means, dim=-1)
     normals = F.normalize(normals, dim=-1, eps=1e-12)
     cells = light_cells(light, visibility_rows(visibility))
