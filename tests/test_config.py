@@ -58,8 +58,8 @@ def test_matspray_differs_from_paper_exactly_by_the_additions():
 
 
 def test_single_additions_switch_off():
-    config = build_config("demo", without=("shadows", "min-support"))
-    assert config.visibility is None and config.lift.min_support == 0.0
+    config = build_config("demo", without=("light-warmup", "min-support"))
+    assert config.refine.light_warmup == 0 and config.lift.min_support == 0.0
     assert config.lift.footprint_sigmas == 1.0  # the others stay on
     with pytest.raises(SettingError, match="unknown addition.*colour"):
         build_config("demo", without=("colour",))
@@ -150,3 +150,21 @@ def test_cli_colmap_choices_match_the_library():
     from matspray.data import sfm
 
     assert (colmap.MATCHERS, colmap.CAMERA_MODELS) == (sfm.MATCHERS, sfm.CAMERA_MODELS)
+
+
+def test_shadows_are_off_by_default_and_on_with_the_presets_shadow_maps():
+    import argparse
+
+    from matspray.cli.options import add_method_arguments, build_config_from_args
+    from matspray.config import SHADOW_MAPS, shadow_maps
+
+    assert all(build_config(preset).visibility is None for preset in ("test", "demo", "paper"))
+    assert (shadow_maps("test").rows, shadow_maps("paper").rows, shadow_maps("paper").resolution) == (4, 16, 512)
+    parser = argparse.ArgumentParser()
+    add_method_arguments(parser)
+    for preset in SHADOW_MAPS:
+        on = build_config_from_args(parser.parse_args(["--preset", preset, "--shadows", "on"]))
+        assert on.visibility == shadow_maps(preset)
+        assert build_config_from_args(parser.parse_args(["--preset", preset, "--shadows", "off"])).visibility is None
+    with pytest.raises(SettingError, match="unknown preset 'huge'"):
+        shadow_maps("huge")

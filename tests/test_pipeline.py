@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from matspray.errors import DataError, NumericalError, RunError
-from matspray.config import build_config
+from matspray.config import build_config, shadow_maps
 from matspray.pipeline import Pipeline
 from matspray.variants import VARIANT_NAMES as VARIANTS, asset_stage
 from matspray.refine import check_finite
@@ -26,8 +26,8 @@ def tiny_object(tmp_path_factory):
     return out
 
 
-def tiny_config():
-    return build_config("test", predictor="simulated", **{"refine.iterations": 8})
+def tiny_config():  # with baked shadows (off by default), so that the run exercises every stage
+    return build_config("test", predictor="simulated", **{"refine.iterations": 8, "visibility": shadow_maps("test")})
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +61,7 @@ def test_asset_round_trip(finished_run):
     assert asset.visibility is not None and asset.visibility.shape == (len(asset.gaussians), 2 * 4 * 4)  # test preset: rows 4
 
 
-def test_shadows_off_makes_an_unshadowed_asset(tiny_object, finished_run, tmp_path):
+def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
     import shutil
 
     from matspray.asset import read_asset
@@ -71,7 +71,7 @@ def test_shadows_off_makes_an_unshadowed_asset(tiny_object, finished_run, tmp_pa
     for stage in ("materials2d", "geometry"):  # reuse the slow stages
         shutil.copytree(finished_run / stage, run / stage)
     shutil.copy(finished_run / "timings.json", run / "timings.json")
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4", "--shadows", "off"]
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
     assert main(args) == 0
     assert not (run / "visibility").exists()
     assert read_asset(run / "asset").visibility is None

@@ -7,7 +7,7 @@ from __future__ import annotations
 PRESET_CHOICES = ("test", "demo", "paper")
 METHOD_CHOICES = ("matspray", "paper")
 VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax")  # matspray.variants.VARIANT_NAMES (a test checks)
-ADDITION_CHOICES = ("core-median", "min-support", "seen-input", "unseen-mask", "photo-weight", "light-warmup", "min-coverage", "shadows")  # matspray.config.ADDITION_NAMES (a test checks)
+ADDITION_CHOICES = ("core-median", "min-support", "seen-input", "unseen-mask", "photo-weight", "light-warmup", "min-coverage")  # matspray.config.ADDITION_NAMES (a test checks)
 
 
 def on_off(value: str) -> bool:
@@ -85,17 +85,16 @@ def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "
     group = parser.add_argument_group("method settings (default: the method's; each matspray addition has its own switch)")
     group.add_argument("--without", nargs="+", choices=ADDITION_CHOICES, default=(), metavar="ADDITION",
                        help=f"switch single additions of matspray off: {', '.join(ADDITION_CHOICES)}")
-    group.add_argument("--shadows", choices=("on", "off"), help="on (matspray): bake each Gaussian's visibility and shadow the "
-                       "PBR shading with it; off (paper): unshadowed split-sum shading")
+    group.add_argument("--shadows", choices=("on", "off"), help="off (default, and the paper): unshadowed split-sum shading; on: bake "
+                       "each Gaussian's visibility and shadow the PBR shading with it (relit worse on the development set)")
     for flag, (_, _, text) in SETTING_FLAGS.items():
         group.add_argument(flag, metavar=flag.lstrip("-").split("-")[-1].upper(), help=text)
 
 
 def method_settings_from_args(args) -> dict:
     """{dotted setting: value} for the flags the user gave (parsed to the setting's type)."""
-    from matspray.config import PRESET_SETTINGS
+    from matspray.config import shadow_maps
     from matspray.errors import SettingError
-    from matspray.render.visibility import VisibilityConfig
 
     settings = {}
     for flag, (setting, parse, _) in SETTING_FLAGS.items():
@@ -107,7 +106,7 @@ def method_settings_from_args(args) -> dict:
         except (ValueError, KeyError):
             raise SettingError(setting, f"cannot read {text!r}") from None
     if args.shadows is not None:
-        settings["visibility"] = PRESET_SETTINGS[args.preset].get("visibility", VisibilityConfig()) if args.shadows == "on" else None
+        settings["visibility"] = shadow_maps(args.preset) if args.shadows == "on" else None
     return settings
 
 
