@@ -14,8 +14,9 @@ from its seed. Each object is run with every predictor error model (`simulated:p
 object's seed): one run folder per (object, model, configuration), the Gaussian Splatting geometry
 trained once per object and shared by hard links (the pipeline's stage fingerprint checks it is the
 same); a configuration other than the default also starts from the default run's predictions, lift and
-shadows, which its pipeline keeps when its settings leave them unchanged and redoes otherwise. Every variant is refined, evaluated against the ground truth, and the raw 2D
-predictions of the test views are scored as the baseline 3D must beat.
+shadows, which its pipeline keeps when its settings leave them unchanged and redoes otherwise. Every
+variant is refined, evaluated against the ground truth, and the raw 2D predictions of the test views are
+scored as the baseline 3D must beat.
 
 Prints, per error model, a table per object and the mean over objects (relighting PSNR of every variant;
 base colour, roughness, metallic PSNR of the full method's 3D materials and of the 2D predictions;
@@ -171,13 +172,19 @@ def geometry_run(runs: Path, first_model: str) -> Path:
 SHARED_STAGES = ("materials2d", "lift", "visibility")  # what another configuration of a model may reuse
 
 
-def run_name(model: str, method: str, choices: dict) -> str:
-    """The run folder of one error model under one configuration: `MODEL` for the default method as it
-    is, else `MODEL-METHOD-HASH`, so that configurations keep their stages side by side (compared and
-    resumed without redoing each other's work)."""
+def configuration_key(method: str, choices: dict) -> str | None:
+    """What names a configuration's run folders: None for the default method as it is, else
+    `METHOD-HASH` of its choices (--without, setting flags, --refine overrides)."""
     if method == "matspray" and not any(choices.values()):
-        return model
-    return f"{model}-{method}-{fingerprint(choices)[:8]}"
+        return None
+    return f"{method}-{fingerprint(choices)[:8]}"
+
+
+def run_name(model: str, key: str | None) -> str:
+    """The run folder of one error model under one configuration: `MODEL` for the default, else
+    `MODEL-KEY`, so that configurations keep their stages side by side (compared and resumed without
+    redoing each other's work)."""
+    return model if key is None else f"{model}-{key}"
 
 
 RUN_SECONDS = "generalise.json"  # in RUN/eval/: the seconds the run's stages and evaluation took
@@ -316,7 +323,8 @@ def run_protocol(args, log=print) -> dict:
     refine = refine_overrides(build_config_from_args(args).refine, args.refine)
     flags = method_settings_from_args(args)
     choices = {"without": list(args.without), "settings": {k: str(v) for k, v in flags.items()}, "refine": refine}
-    tag = args.tag or ("default" if not (refine or flags or args.without) else fingerprint(choices)[:8])
+    key = configuration_key(args.method, choices)
+    tag = args.tag or ("default" if not any(choices.values()) else fingerprint(choices)[:8])
     tag = tag if args.method == "matspray" else f"{args.method}-{tag}"
     settings = {"set": args.set, "preset": args.preset, "objects": len(objects), "models": list(args.models), "variants": list(args.variants),
                 "method": args.method, "without": list(args.without), "settings": choices["settings"], "refine_overrides": refine, "tag": tag}
@@ -338,17 +346,17 @@ def run_protocol(args, log=print) -> dict:
         data = make_demo_object(folder / "data", args.preset, "random", spec.seed, progress=args.progress, env=spec.env,
                                 relight_envs=list(spec.relight_envs))
         seconds = {"synth": time.perf_counter() - start, "models": {}}
-        first_run = geometry_run(folder / "runs", run_name(first_model, args.method, choices))
+        first_run = geometry_run(folder / "runs", run_name(first_model, key))
         if args.geometry_only:
             Pipeline(data, first_run, object_config(configs[first_model], spec), progress=args.progress, log=log).geometry()
             log(f"generalise: {spec.name}: geometry in {first_run / 'geometry'} ({time.perf_counter() - start:.0f} s with synth)")
             continue
         for model in specs:
-            run_dir = folder / "runs" / run_name(model, args.method, choices)
+            run_dir = folder / "runs" / run_name(model, key)
             if run_dir != first_run and share_stage(first_run, run_dir, "geometry"):
                 log(f"generalise: {spec.name} / {run_dir.name}: geometry shared from {first_run.name}")
-            default_run = folder / "runs" / model
-            shared = [stage for stage in SHARED_STAGES if run_dir != default_run and share_stage(default_run, run_dir, stage)]
+            default_run = folder / "runs" / run_name(model, None)
+            shared = [] if key is None else [stage for stage in SHARED_STAGES if share_stage(default_run, run_dir, stage)]
             if shared:
                 log(f"generalise: {spec.name} / {run_dir.name}: starts from {model}'s {', '.join(shared)} (redone where its settings differ)")
             metrics, seconds["models"][model] = run_or_reuse(data, run_dir, object_config(configs[model], spec), args, log)

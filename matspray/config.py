@@ -27,6 +27,10 @@ PRESETS = ("test", "demo", "paper")
 METHODS = ("matspray", "paper")
 
 
+def unknown_preset(preset: str) -> SettingError:
+    return SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     preset: str = "demo"
@@ -46,7 +50,7 @@ class PipelineConfig:
 
     def __post_init__(self):
         if self.preset not in PRESETS:
-            raise SettingError("preset", f"unknown preset '{self.preset}'; choose one of {', '.join(PRESETS)}")
+            raise unknown_preset(self.preset)
         if self.method not in METHODS:
             raise SettingError("method", f"unknown method '{self.method}'; choose one of {', '.join(METHODS)}")
         if self.backend not in BACKENDS:
@@ -77,7 +81,7 @@ SHADOW_MAPS: dict[str, VisibilityConfig] = {
 def shadow_maps(preset: str) -> VisibilityConfig:
     """The shadow maps of `preset`, for a run with baked shadows."""
     if preset not in SHADOW_MAPS:
-        raise SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
+        raise unknown_preset(preset)
     return SHADOW_MAPS[preset]
 
 
@@ -145,7 +149,7 @@ def build_config(preset: str = "demo", method: str = "matspray", without: tuple[
     `build_config("demo", **{"lift.min_support": 0.3})`; top-level ones as keywords, e.g. `seed=1`).
     Geometry follows the preset; `seed` seeds it too, and `geometry.iterations` alone stretches its schedule."""
     if preset not in PRESETS:
-        raise SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
+        raise unknown_preset(preset)
     seed = settings.get("seed", 0)
     geometry_settings = {k.split(".", 1)[1]: settings.pop(k) for k in list(settings) if k.startswith("geometry.")}
     try:

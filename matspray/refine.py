@@ -14,8 +14,9 @@ into a G-buffer, and
 Before that, `light_warmup` steps fit the environment map alone, with the materials the variant starts
 from. Geometry is frozen, so each view's blending weights are computed once and reused every step (and
 the merger runs only for the Gaussians that cover at least `min_coverage` pixels of the step's view).
-With a directional visibility per Gaussian (`RefineInputs.visibility`), the PBR render is shadowed
-(`render.visibility`), so the photo loss no longer pushes shadows into the base color.
+With a directional visibility per Gaussian (`RefineInputs.visibility`; only with `--shadows on`, off by
+default), the PBR render is shadowed (`render.visibility`), so the photo loss does not push shadows into
+the base color.
 
 The variants (`matspray.variants`) choose what produces the per-Gaussian materials.
 """
