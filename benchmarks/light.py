@@ -24,7 +24,7 @@ from matspray.pipeline import Pipeline
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import share_stage
 from matspray.variants import asset_stage
-from benchmarks.method import read_test_truth
+from benchmarks.ceilings import read_test_truth
 
 SHARED_STAGES = ("materials2d", "geometry", "lift", "visibility")
 

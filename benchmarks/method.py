@@ -39,6 +39,7 @@ from matspray.config import ADDITION_NAMES, METHODS, build_config
 from matspray.demo import make_demo_object, run_object
 from matspray.rundir import RunDir, share_stage
 from matspray.variants import LABELS as VARIANT_LABELS
+from benchmarks.ceilings import lift_truth, read_test_truth, shading_ceiling, softmax_reach
 
 
 def fmt(value, digits=2):
@@ -98,39 +99,6 @@ def seed_mean(summaries: list[dict], group: str, key: str):
     return None if any(v is None for v in values) else sum(values) / len(values)
 
 
-def read_test_truth(data: Path) -> tuple[list, list, dict]:
-    """The test views of `data`, their ground truth and the held-out lights (prefiltered), read once."""
-    from matspray.data import load_scene
-    from matspray.eval.run_eval import load_relight_lights, read_view_truth
-
-    views = load_scene(data).test
-    truths = [read_view_truth(v) for v in views]
-    return views, truths, load_relight_lights(data, sorted(set.intersection(*(set(t.relit) for t in truths))))
-
-
-def shading_ceiling(views: list, truths: list, lights: dict, shadows_from=None) -> dict:
-    """Relighting metrics of the true G-buffer of every test view shaded by our renderer, per light;
-    shadowed by the visibility of the asset `shadows_from` when given."""
-    from matspray.relight import render_gbuffer
-
-    from matspray.data.images import read_raw
-    from matspray.eval.evaluate import average_metrics, evaluate_images
-    from matspray.eval.run_eval import unpremultiply
-    from matspray.render.deferred import GBuffer, shade_gbuffer
-
-    records = {name: [] for name in lights}
-    for view, truth in zip(views, truths):
-        normals = read_raw(view.path.with_name(f"{view.name}_normal.exr"))[..., :3]
-        for name, light in lights.items():
-            with torch.no_grad():
-                shadow = None if shadows_from is None else render_gbuffer(shadows_from, view.camera, light).shadow
-                gbuffer = GBuffer(truth.basecolor, truth.roughness, truth.metallic, normals, truth.mask, shadow)
-                rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, light), truth.mask)
-            records[name].append(evaluate_images(rgb, truth.relit[name], truth.mask))
-    per_light = {name: average_metrics(r) for name, r in records.items()}
-    return {"relighting": average_metrics([m for r in records.values() for m in r]), **per_light}
-
-
 def lifted_truth(data: Path, out: Path, preset: str, full, views: list, truths: list, lights: dict) -> tuple[dict, dict]:
     """Summaries of the lifted ground-truth maps on the run's own Gaussians (geometry reused), averaged
     (proj-average) and clamped to the range of the predictor's per-view values (the softmax merger's reach,
@@ -138,18 +106,10 @@ def lifted_truth(data: Path, out: Path, preset: str, full, views: list, truths: 
     from dataclasses import replace
 
     from matspray.eval.run_eval import evaluate_asset
-    from matspray.merger import clamp_to_seen_range
-    from matspray.pipeline import Pipeline, load_lift
 
     run, truth_run = out / "run", out / "run-truth"
-    truth_run.mkdir(parents=True, exist_ok=True)
-    share_stage(run, truth_run, "geometry")
-    pipeline = Pipeline(data, truth_run, build_config(preset, predictor="ground-truth"), log=lambda _: None)
-    averaged = pipeline.run_all(("proj-average",))["proj-average"]  # Asset
-    truth, predicted = load_lift(truth_run / "lift" / "projected.pt", "cpu"), load_lift(run / "lift" / "projected.pt", "cpu")
-    if not torch.equal(truth.kept, predicted.kept):
-        raise RuntimeError(f"{truth_run} and {run} kept different Gaussians; delete {truth_run} and run again")
-    reach = clamp_to_seen_range(averaged.materials.cpu(), predicted.values, predicted.seen)  # [N, 5]
+    averaged = lift_truth(data, run, truth_run, build_config(preset))
+    reach = softmax_reach(averaged.materials, truth_run, run)  # [N, 5]
     return tuple(evaluate_asset(asset, views, truths, lights, None)["summary"]
                  for asset in (averaged, replace(full, materials=reach.to(full.materials))))
 

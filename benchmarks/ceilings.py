@@ -1,0 +1,244 @@
+"""How much can fusing the per-view predictions gain at all? Ceilings on the generalisation protocol's objects.
+
+    python -m benchmarks.ceilings [--set dev|eval] [--objects K] [--start I] [--models paper harsh outliers]
+                                  [--preset demo|test] [--out DIR]
+
+Reads the default runs that `python -m benchmarks.generalise` left in OUT (same --set, --preset, --out; run it
+first) and scores, per object and error model, on the test views under the held-out lights:
+
+  proj-average, full      the protocol's two assets (mean of the lifted per-view values; the Neural Merger)
+  softmax oracle          the lifted truth (below) clamped, per Gaussian and channel, to the range of the values
+                          that Gaussian received from the predictor (`merger.clamp_to_seen_range`): the nearest a
+                          softmax merger can get to the true materials (its relighting is not a strict bound: one
+                          wrong value can offset another's error)
+  ... base / rough / metal  proj-average with only that channel group taken from the softmax oracle: what fusing
+                          that channel perfectly would gain on its own
+  lifted truth            the true 2D maps lifted onto the same Gaussians with the same lift settings and averaged
+                          (a perfect predictor; OBJECT/runs/ground-truth, the protocol's sanity-row run): lifted
+                          truth - proj-average bounds what any fusion of better predictions could gain
+  true G-buffer           the true maps and normals of each test view shaded by our renderer (the shading ceiling:
+                          what the shading model alone costs against Mitsuba's path tracing)
+
+Writes OUT/ceilings-PRESET.json and .md; each (object, model)'s figures are kept in RUN/eval/ceilings.json and
+reused while no stage of the run changed, so an interrupted pass resumes. `benchmarks.method --ceilings` uses
+the same functions on the demo object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from matspray.errors import ConfigError, MatsprayError, RunError
+
+CHANNEL_GROUPS = {"base": slice(0, 3), "rough": slice(3, 4), "metal": slice(4, 5)}  # `matspray.material` layout
+ROWS = ("proj-average", "full", "softmax oracle", *(f"oracle {c} only" for c in CHANNEL_GROUPS), "lifted truth", "true G-buffer")
+FIGURES = ("relight", "basecolor", "roughness", "metallic")
+CEILINGS_FILE = "ceilings.json"  # in RUN/eval/
+
+
+# ------------------------------------------------------------------------------------------ ceilings of one run
+def read_test_truth(data: Path) -> tuple[list, list, dict]:
+    """The test views of `data`, their ground truth and the held-out lights (prefiltered), read once."""
+    from matspray.data import load_scene
+    from matspray.eval.run_eval import load_relight_lights, read_view_truth
+
+    views = load_scene(data).test
+    truths = [read_view_truth(v) for v in views]
+    return views, truths, load_relight_lights(data, sorted(set.intersection(*(set(t.relit) for t in truths))))
+
+
+def shading_ceiling(views: list, truths: list, lights: dict, shadows_from=None) -> dict:
+    """Relighting metrics of the true G-buffer of every test view shaded by our renderer, per light;
+    shadowed by the visibility of the asset `shadows_from` when given."""
+    from matspray.data.images import read_raw
+    from matspray.eval.evaluate import average_metrics, evaluate_images
+    from matspray.eval.run_eval import unpremultiply
+    from matspray.relight import render_gbuffer
+    from matspray.render.deferred import GBuffer, shade_gbuffer
+
+    records = {name: [] for name in lights}
+    for view, truth in zip(views, truths):
+        normals = read_raw(view.path.with_name(f"{view.name}_normal.exr"))[..., :3]
+        for name, light in lights.items():
+            with torch.no_grad():
+                shadow = None if shadows_from is None else render_gbuffer(shadows_from, view.camera, light).shadow
+                gbuffer = GBuffer(truth.basecolor, truth.roughness, truth.metallic, normals, truth.mask, shadow)
+                rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, light), truth.mask)
+            records[name].append(evaluate_images(rgb, truth.relit[name], truth.mask))
+    per_light = {name: average_metrics(r) for name, r in records.items()}
+    return {"relighting": average_metrics([m for r in records.values() for m in r]), **per_light}
+
+
+def lift_truth(data: Path, run: Path, truth_run: Path, config):
+    """The ground-truth 2D maps lifted onto `run`'s Gaussians (its geometry shared into `truth_run`) and averaged:
+    the proj-average asset of the ground-truth predictor. `config` must lift as `run` did (checked)."""
+    from matspray.pipeline import Pipeline
+    from matspray.rundir import RunDir, share_stage
+
+    truth_run.mkdir(parents=True, exist_ok=True)
+    share_stage(run, truth_run, "geometry")
+    pipeline = Pipeline(data, truth_run, replace(config, predictor="ground-truth", predictor_options={}), progress=False, log=lambda _: None)
+    asset = pipeline.run_all(("proj-average",))["proj-average"]
+    lifted, wanted = RunDir(truth_run).config().get("lift"), RunDir(run).config().get("lift")
+    if lifted != wanted:
+        raise RunError(f"{truth_run} lifted with other settings than {run} ({lifted} vs {wanted}); run both with one configuration")
+    return asset
+
+
+def softmax_reach(truth_materials: torch.Tensor, truth_run: Path, run: Path) -> torch.Tensor:  # [N, 5] -> [N, 5]
+    """`truth_materials` clamped to the range of the per-view values `run`'s predictor gave each Gaussian."""
+    from matspray.merger import clamp_to_seen_range
+    from matspray.pipeline import load_lift
+
+    truth, predicted = load_lift(truth_run / "lift" / "projected.pt", "cpu"), load_lift(run / "lift" / "projected.pt", "cpu")
+    if not torch.equal(truth.kept, predicted.kept):
+        raise RunError(f"{truth_run} and {run} kept different Gaussians; delete {truth_run / 'lift'} and run again")
+    return clamp_to_seen_range(truth_materials.cpu(), predicted.values, predicted.seen)
+
+
+def with_groups(asset, source: torch.Tensor, groups) -> object:
+    """`asset` with the channel `groups` (slices of the material layout) of its materials taken from `source` [N, 5]."""
+    materials = asset.materials.clone()
+    for group in groups:
+        materials[:, group] = source[:, group].to(materials)
+    return replace(asset, materials=materials)
+
+
+def summary_figures(summary: dict) -> dict:
+    """relight / basecolor / roughness / metallic PSNR of an evaluation summary."""
+    return {"relight": summary["relighting"]["psnr"], **{c: summary[c]["psnr"] for c in FIGURES[1:] if c in summary}}
+
+
+def run_ceilings(data: Path, run: Path, truth_run: Path, config, views=None, truths=None, lights=None) -> dict:
+    """{row: figures} for one run folder with `proj-average` and `full` assets (see the module's docstring)."""
+    from matspray.asset import read_asset
+    from matspray.eval.run_eval import evaluate_asset
+    from matspray.variants import asset_stage
+
+    if views is None:
+        views, truths, lights = read_test_truth(data)
+    averaged, full = (read_asset(run / asset_stage(v)) for v in ("proj-average", "full"))
+    truth_asset = lift_truth(data, run, truth_run, config)
+    reach = softmax_reach(truth_asset.materials, truth_run, run)
+    assets = {"proj-average": averaged, "full": full, "softmax oracle": with_groups(averaged, reach, CHANNEL_GROUPS.values())}
+    assets |= {f"oracle {name} only": with_groups(averaged, reach, [group]) for name, group in CHANNEL_GROUPS.items()}
+    assets["lifted truth"] = replace(averaged, materials=truth_asset.materials.to(averaged.materials))
+    rows = {name: summary_figures(evaluate_asset(asset, views, truths, lights, None)["summary"]) for name, asset in assets.items()}
+    rows["true G-buffer"] = {"relight": shading_ceiling(views, truths, lights)["relighting"]["psnr"]}
+    return rows
+
+
+# ------------------------------------------------------------------------------------------ the protocol's objects
+def cached_ceilings(data: Path, run: Path, truth_run: Path, config) -> dict:
+    """`run_ceilings`, reused from RUN/eval/ceilings.json while no stage of either run folder is newer."""
+    from matspray.rundir import read_json, write_json
+
+    path = run / "eval" / CEILINGS_FILE
+    stages = [*run.glob("*/stage.json"), *truth_run.glob("*/stage.json")]
+    if path.exists() and all(stage.stat().st_mtime <= path.stat().st_mtime for stage in stages):
+        return read_json(path)
+    rows = run_ceilings(data, run, truth_run, config)
+    write_json(path, rows)
+    return rows
+
+
+def mean_rows(per_object: list[dict]) -> dict:
+    """{row: {figure: mean over objects}} (a figure averaged only where every object has it, finite)."""
+    means = {}
+    for row in ROWS:
+        values = {f: [o[row].get(f) for o in per_object] for f in FIGURES}
+        means[row] = {f: sum(v) / len(v) for f, v in values.items() if all(x is not None and abs(x) != float("inf") for x in v)}
+    return means
+
+
+def fmt(value) -> str:
+    return "—" if value is None else f"{value:.2f}"
+
+
+def markdown(set_name: str, preset: str, results: dict) -> list[str]:
+    lines = [f"## Ceilings: {set_name} set, preset {preset}", "",
+             "Relighting PSNR (dB) on the test views under the held-out lights; material PSNR of each row's materials. "
+             "Per object: proj-average / full / softmax oracle / lifted truth relighting.", ""]
+    for model, per_object in results.items():
+        means = mean_rows([o["rows"] for o in per_object])
+        lines += [f"### error model `{model}` (SIMULATED predictor), mean of {len(per_object)} objects", "",
+                  "| row | relight | vs proj-average | base | rough | metal |", "|---|---|---|---|---|---|"]
+        for row in ROWS:
+            m = means[row]
+            gap = None if "relight" not in m else m["relight"] - means["proj-average"].get("relight", float("nan"))
+            lines.append(f"| {row} | {fmt(m.get('relight'))} | {'' if row == 'proj-average' else fmt(gap)} | "
+                         + " | ".join(fmt(m.get(c)) for c in FIGURES[1:]) + " |")
+        headroom = [o["rows"]["lifted truth"]["relight"] - o["rows"]["proj-average"]["relight"] for o in per_object]
+        lines += ["", "| object | " + " | ".join(("proj-average", "full", "softmax oracle", "lifted truth", "true G-buffer")) + " |",
+                  "|---|---|---|---|---|---|"]
+        for o in per_object:
+            r = o["rows"]
+            lines.append(f"| {o['object']} | " + " | ".join(fmt(r[k]["relight"]) for k in
+                                                             ("proj-average", "full", "softmax oracle", "lifted truth", "true G-buffer")) + " |")
+        lines += ["", f"lifted truth - proj-average >= 1 dB on {sum(h >= 1.0 for h in headroom)}/{len(headroom)} objects", ""]
+    return lines
+
+
+def run(args, log=print) -> list[str]:
+    from benchmarks.generalise import object_set, predictor_spec, run_name
+    from matspray.config import build_config
+    from matspray.lights import hdri_files
+    from matspray.rundir import write_json, write_text_atomic
+
+    objects = object_set(args.set, args.start + args.objects, sorted(hdri_files()))[args.start:]
+    results = {model: [] for model in args.models}
+    for number, spec in enumerate(objects, 1):
+        folder = args.out / "objects" / spec.name
+        truth_run = folder / "runs" / run_name("ground-truth", None)
+        for model in args.models:
+            config = build_config(args.preset, predictor=predictor_spec(model))
+            run_dir = folder / "runs" / run_name(model, None)
+            if not all((run_dir / stage / "stage.json").exists() for stage in ("asset", "asset-proj-average", "lift")):
+                raise ConfigError(f"{run_dir}: no finished full and proj-average assets; run `python -m benchmarks.generalise --set {args.set} "
+                                  f"--objects {args.start + args.objects} --models {model} --preset {args.preset} --out {args.out}` first")
+            log(f"ceilings: object {number}/{len(objects)} {spec.name}, error model {model}")
+            results[model].append({"object": spec.name, "rows": cached_ceilings(folder / "data", run_dir, truth_run, config)})
+    lines = markdown(args.set, args.preset, results)
+    suffix = args.preset if args.start == 0 else f"{args.preset}-from{args.start}"
+    write_json(args.out / f"ceilings-{suffix}.json", results)
+    write_text_atomic(args.out / f"ceilings-{suffix}.md", "\n".join(lines) + "\n")
+    return lines
+
+
+def parse_args(argv=None):
+    from benchmarks.generalise import SET_SEEDS
+    from matspray.predictors.error_models import ERROR_MODELS
+
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.ceilings", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="the protocol's object set (default dev)")
+    parser.add_argument("--objects", type=int, default=6, help="how many objects (default 6)")
+    parser.add_argument("--start", type=int, default=0, help="skip the set's first I objects (to split a pass over two jobs)")
+    parser.add_argument("--models", nargs="+", default=list(ERROR_MODELS), choices=ERROR_MODELS, metavar="MODEL",
+                        help=f"error models (default: {' '.join(ERROR_MODELS)})")
+    parser.add_argument("--preset", choices=("test", "demo"), default="demo")
+    parser.add_argument("--out", type=Path, help="the protocol's folder (default runs/generalise-SET-PRESET)")
+    args = parser.parse_args(argv)
+    if args.objects < 1 or args.start < 0:
+        parser.error("--objects must be >= 1 and --start >= 0")
+    args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        lines = run(args)
+    except MatsprayError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print("\n" + "\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

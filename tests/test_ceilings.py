@@ -1,0 +1,66 @@
+"""Ceilings on the generalisation protocol's objects (benchmarks/ceilings.py): the rows' arithmetic, and one
+tiny end-to-end pass over a protocol run, resumed from its saved figures."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+
+from benchmarks.ceilings import CHANNEL_GROUPS, ROWS, main, mean_rows, with_groups
+from benchmarks.generalise import main as generalise
+from matspray.asset import Asset
+from matspray.gaussians import Gaussians
+
+
+def tiny_asset(materials: torch.Tensor) -> Asset:
+    n = len(materials)
+    gaussians = Gaussians(torch.zeros(n, 3), torch.zeros(n, 3), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.zeros(n), torch.zeros(n, 1, 3))
+    return Asset(gaussians, materials, torch.nn.functional.normalize(torch.ones(n, 3), dim=-1))
+
+
+def test_with_groups_takes_only_the_named_channel_groups():
+    asset = tiny_asset(torch.zeros(4, 5))
+    source = torch.arange(20, dtype=torch.float32).reshape(4, 5) / 20
+    rough = with_groups(asset, source, [CHANNEL_GROUPS["rough"]])
+    assert torch.equal(rough.materials[:, 3], source[:, 3]) and not rough.materials[:, [0, 1, 2, 4]].any()
+    every = with_groups(asset, source, CHANNEL_GROUPS.values())
+    assert torch.equal(every.materials, source) and not asset.materials.any()  # the input asset is left as it was
+
+
+def test_mean_rows_average_over_objects_and_drop_a_figure_some_object_lacks():
+    def rows(relight, metal):
+        return {row: {"relight": relight + i, "basecolor": 20.0, "metallic": metal} for i, row in enumerate(ROWS)}
+
+    means = mean_rows([rows(20.0, 30.0), rows(22.0, math.inf)])
+    assert means["proj-average"]["relight"] == pytest.approx(21.0) and means["lifted truth"]["relight"] == pytest.approx(21.0 + ROWS.index("lifted truth"))
+    assert "metallic" not in means["full"] and means["full"]["basecolor"] == 20.0  # inf (an exact map) is not averaged
+
+
+@pytest.mark.slow
+def test_ceilings_of_a_protocol_run(tmp_path, capsys):
+    pytest.importorskip("mitsuba")
+    out = tmp_path / "g"
+    args = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--out", str(out)]
+    assert main(args) == 2  # the protocol has not run yet
+    assert "run `python -m benchmarks.generalise --set dev --objects 1 --models paper --preset test" in capsys.readouterr().err
+    assert generalise(args + ["--variants", "full", "proj-average", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "error model `paper` (SIMULATED predictor), mean of 1 objects" in printed
+    rows = json.loads((out / "ceilings-test.json").read_text())["paper"][0]["rows"]
+    assert list(rows) == list(ROWS)
+    protocol = json.loads((out / "results-default.json").read_text())["models"]["paper"]["objects"][0]["figures"]
+    assert rows["proj-average"]["relight"] == pytest.approx(protocol["relight"]["proj-average"], abs=1e-6)  # the protocol's own scores
+    assert rows["full"]["relight"] == pytest.approx(protocol["relight"]["full"], abs=1e-6)
+    assert rows["lifted truth"]["basecolor"] > rows["proj-average"]["basecolor"]  # the true maps beat the simulated ones
+    assert rows["oracle base only"]["roughness"] == pytest.approx(rows["proj-average"]["roughness"])  # one channel group swapped
+    truth_run = out / "objects" / "dev-00-seed1000" / "runs" / "ground-truth"
+    assert "lift" in json.loads((truth_run / "timings.json").read_text()) and "geometry" not in json.loads((truth_run / "timings.json").read_text())
+    saved = (out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json").stat().st_mtime_ns
+    assert main(args) == 0  # a second pass reads the saved figures
+    assert capsys.readouterr().out == printed
+    assert (out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json").stat().st_mtime_ns == saved
