@@ -9,7 +9,7 @@ import math
 import pytest
 import torch
 
-from benchmarks.ceilings import CHANNEL_GROUPS, ROWS, main, mean_rows, with_groups
+from benchmarks.ceilings import CHANNEL_GROUPS, ROWS, at_brightness, main, mean_rows, with_groups
 from benchmarks.generalise import main as generalise
 from matspray.asset import Asset
 from matspray.gaussians import Gaussians
@@ -28,6 +28,16 @@ def test_with_groups_takes_only_the_named_channel_groups():
     assert torch.equal(rough.materials[:, 3], source[:, 3]) and not rough.materials[:, [0, 1, 2, 4]].any()
     every = with_groups(asset, source, CHANNEL_GROUPS.values())
     assert torch.equal(every.materials, source) and not asset.materials.any()  # the input asset is left as it was
+
+
+def test_at_brightness_matches_the_reference_mean_base_colour_per_channel_and_keeps_the_rest():
+    torch.manual_seed(0)
+    materials, reference = torch.rand(50, 5) * 0.5, torch.rand(50, 5) * 0.5
+    scaled = at_brightness(materials, reference)
+    assert torch.allclose(scaled[:, :3].mean(0), reference[:, :3].mean(0), atol=1e-6)
+    ratio = scaled[:, :3] / materials[:, :3]  # one scale per channel: the base colour's pattern is kept
+    assert torch.allclose(ratio, ratio[:1].expand_as(ratio), atol=1e-5)
+    assert torch.equal(scaled[:, 3:], materials[:, 3:])
 
 
 def test_mean_rows_average_over_objects_and_drop_a_figure_some_object_lacks():
@@ -58,6 +68,7 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     assert rows["full"]["relight"] == pytest.approx(protocol["relight"]["full"], abs=1e-6)
     assert rows["lifted truth"]["basecolor"] > rows["proj-average"]["basecolor"]  # the true maps beat the simulated ones
     assert rows["oracle base only"]["roughness"] == pytest.approx(rows["proj-average"]["roughness"])  # one channel group swapped
+    assert rows["lifted truth, PA brightness"]["roughness"] == pytest.approx(rows["lifted truth"]["roughness"])  # only the base colour dimmed
     truth_run = out / "objects" / "dev-00-seed1000" / "runs" / "ground-truth"
     assert "lift" in json.loads((truth_run / "timings.json").read_text()) and "geometry" not in json.loads((truth_run / "timings.json").read_text())
     saved = (out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json").stat().st_mtime_ns
