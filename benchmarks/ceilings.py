@@ -24,8 +24,9 @@ first) and scores, per object and error model, on the test views under the held-
   true G-buffer           the true maps and normals of each test view shaded by our renderer (the shading ceiling:
                           what the shading model alone costs against Mitsuba's path tracing)
 
-Writes OUT/ceilings-PRESET.json and .md; each (object, model)'s figures are kept in RUN/eval/ceilings.json and
-reused while no stage of the run changed, so an interrupted pass resumes. `benchmarks.method --ceilings` uses
+Writes OUT/ceilings-PRESET.json and .md (the models of earlier passes kept, this pass's replaced); each (object,
+model)'s figures are kept in RUN/eval/ceilings.json and reused while no stage of the run changed, so an
+interrupted pass resumes. `benchmarks.method --ceilings` uses
 the same functions on the demo object.
 """
 
@@ -208,7 +209,7 @@ def run(args, log=print) -> list[str]:
     from benchmarks.generalise import object_set, predictor_spec, run_name
     from matspray.config import build_config
     from matspray.lights import hdri_files
-    from matspray.rundir import write_json, write_text_atomic
+    from matspray.rundir import read_json, write_json, write_text_atomic
 
     objects = object_set(args.set, args.start + args.objects, sorted(hdri_files()))[args.start:]
     results = {model: [] for model in args.models}
@@ -223,11 +224,12 @@ def run(args, log=print) -> list[str]:
                                   f"--objects {args.start + args.objects} --models {model} --preset {args.preset} --out {args.out}` first")
             log(f"ceilings: object {number}/{len(objects)} {spec.name}, error model {model}")
             results[model].append({"object": spec.name, "rows": cached_ceilings(folder / "data", run_dir, truth_run, config)})
-    lines = markdown(args.set, args.preset, results)
     suffix = args.preset if args.start == 0 else f"{args.preset}-from{args.start}"
-    write_json(args.out / f"ceilings-{suffix}.json", results)
-    write_text_atomic(args.out / f"ceilings-{suffix}.md", "\n".join(lines) + "\n")
-    return lines
+    path = args.out / f"ceilings-{suffix}.json"
+    kept = {model: per_object for model, per_object in (read_json(path) if path.exists() else {}).items() if model not in results}
+    write_json(path, kept | results)  # the models of earlier passes stay, this pass's replace theirs
+    write_text_atomic(path.with_suffix(".md"), "\n".join(markdown(args.set, args.preset, kept | results)) + "\n")
+    return markdown(args.set, args.preset, results)
 
 
 def parse_args(argv=None):

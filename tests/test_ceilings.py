@@ -72,6 +72,9 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     truth_run = out / "objects" / "dev-00-seed1000" / "runs" / "ground-truth"
     assert "lift" in json.loads((truth_run / "timings.json").read_text()) and "geometry" not in json.loads((truth_run / "timings.json").read_text())
     saved = (out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json").stat().st_mtime_ns
-    assert main(args) == 0  # a second pass reads the saved figures
+    saved_file = out / "ceilings-test.json"
+    saved_file.write_text(json.dumps({**json.loads(saved_file.read_text()), "harsh": [{"object": "another", "rows": rows}]}))
+    assert main(args) == 0  # a second pass reads the saved figures, and keeps the other model of an earlier pass
     assert capsys.readouterr().out == printed
+    assert set(json.loads(saved_file.read_text())) == {"paper", "harsh"} and "error model `harsh`" in (out / "ceilings-test.md").read_text()
     assert (out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json").stat().st_mtime_ns == saved
