@@ -65,6 +65,8 @@ class RefineConfig:
     # benchmarks/generalise.py) or "scale-invariant" (only for variants with the PBR loss, which then sets the brightness;
     # supervised always compares by plain L1)
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
+    basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
+    # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
     refine_normals: bool = False  # optional: learn per-Gaussian normal offsets with the PBR loss
     seed: int = 0
@@ -77,7 +79,7 @@ class RefineConfig:
             raise SettingError("iterations", f"must be >= 0, got {self.iterations}")
         if self.basecolor_loss not in BASECOLOR_LOSSES:
             raise SettingError("basecolor_loss", f"unknown loss '{self.basecolor_loss}'; choose one of {', '.join(BASECOLOR_LOSSES)}")
-        for name in ("material_weight", "photo_weight", "light_tv_weight", "min_coverage", "light_warmup"):
+        for name in ("material_weight", "photo_weight", "light_tv_weight", "min_coverage", "light_warmup", "basecolor_spread_weight"):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
         if self.envmap_height < 2:
@@ -123,10 +125,16 @@ class MaterialSource(nn.Module):
         elif variant.source == "free":  # free parameters, starting from an uninformed grey
             self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
 
-    def forward(self, index: Tensor | None = None) -> Tensor:  # [N, 5], or [K, 5] for the Gaussians `index` [K]
+    def forward(self, index: Tensor | None = None, return_weights: bool = False):
+        """Materials [N, 5], or [K, 5] for the Gaussians `index` [K]; with `return_weights` also the merger's
+        weights {group: [K, V]} (empty for a source without a merger)."""
         pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
         if self.merger is not None:
-            return self.merger.merge({name: pick(x) for name, x in self.inputs.items()}, pick(self.values), pick(self.seen))
+            return self.merger.merge({name: pick(x) for name, x in self.inputs.items()}, pick(self.values), pick(self.seen), return_weights)
+        materials = self.source_materials(pick)
+        return (materials, {}) if return_weights else materials
+
+    def source_materials(self, pick) -> Tensor:  # the materials of a source without a merger
         if self.variant.source == "free":
             return torch.sigmoid(pick(self.logits))
         return projection_average(pick(self.values), pick(self.seen))
@@ -158,6 +166,14 @@ def material_loss(maps: Tensor, target: Tensor, mask: Tensor, basecolor_loss: st
     base = scale_invariant_l1(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask)
     rest = slice(BASE_COLOR.stop, N_CHANNELS)
     return (3.0 * base + 2.0 * masked_l1(maps[..., rest], target[..., rest], mask)) / N_CHANNELS
+
+
+def spread_loss(weights: Tensor, seen: Tensor) -> Tensor:  # [K, V], [K, V] bool -> []
+    """Mean KL divergence of each Gaussian's merger weights from equal weights over its seen views,
+    log(n_seen) - H(w): 0 for the plain average, log(n_seen) for a single view."""
+    n_seen = seen.sum(-1).clamp_min(1).to(weights.dtype)
+    entropy = -(weights * weights.clamp_min(1e-12).log()).sum(-1)
+    return (n_seen.log() - entropy).mean()
 
 
 def photometric_loss(rendered: Tensor, photo: Tensor, l1_weight: float) -> Tensor:  # sRGB [H, W, 3] each
@@ -214,7 +230,8 @@ def view_losses(training: TrainingViews, index: int, materials: Tensor, normals:
 
 
 def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
-    weights = {"material": config.material_weight, "photo": config.photo_weight, "light_tv": config.light_tv_weight}
+    weights = {"material": config.material_weight, "photo": config.photo_weight, "light_tv": config.light_tv_weight,
+               "spread": config.basecolor_spread_weight}
     return sum(weights[name] * value for name, value in terms.items())
 
 
@@ -311,10 +328,12 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
 
     def refine_losses(index: int):
         active = training.frozen.contributing_ids(index, config.min_coverage)  # the merger only runs for the Gaussians this view shows
-        merged = source(active)
+        merged, weights = source(active, return_weights=True)
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
         terms = view_losses(training, index, materials, shading_normals(), envmap, config)
+        if config.basecolor_spread_weight > 0 and variant.softmax and "base_color" in weights:
+            terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
         return terms, total_loss(terms, config)
 
     def log(step: int, terms: dict, bar) -> None:

@@ -1,10 +1,13 @@
+import math
+
 import pytest
 import torch
 
 from matspray.errors import ConfigError
 from matspray.lift import LiftConfig, lift
 from matspray.merger import projection_average
-from matspray.refine import RefineConfig, RefineInputs, TrainingViews, masked_l1, material_loss, refine, scale_invariant_l1, view_losses, warm_up_light
+from matspray.refine import (RefineConfig, RefineInputs, TrainingViews, masked_l1, material_loss, refine, scale_invariant_l1, spread_loss,
+                             view_losses, warm_up_light)
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from matspray.variants import VARIANT_NAMES
@@ -156,3 +159,29 @@ def test_min_coverage_runs_the_merger_on_fewer_gaussians_with_a_close_result(lif
         config = RefineConfig(iterations=20, envmap_height=8, seed=0, min_coverage=min_coverage, light_warmup=0)
         results[min_coverage] = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False).materials
     assert (results[0.0] - results[0.05]).abs().mean() < 0.01
+
+
+def test_spread_loss_is_zero_for_equal_weights_and_log_n_for_one_view():
+    seen = torch.tensor([[True, True, True, True], [True, True, False, False]])
+    equal = seen.float() / seen.sum(-1, keepdim=True)
+    assert float(spread_loss(equal, seen)) == pytest.approx(0.0, abs=1e-6)
+    one = torch.tensor([[0.0, 1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]])
+    assert float(spread_loss(one, seen)) == pytest.approx((math.log(4) + math.log(2)) / 2, rel=1e-5)
+    w = torch.tensor([[0.7, 0.1, 0.1, 0.1]])  # against a brute-force KL divergence from 1/4 each
+    assert float(spread_loss(w, seen[:1])) == pytest.approx(float((w * (w * 4).log()).sum()), rel=1e-5)
+
+
+def test_the_spread_weight_keeps_the_base_colour_merger_near_the_average(lifted_scene):
+    gaussians, normals, _, views, maps, lifted = lifted_scene
+    inputs = refine_inputs(gaussians, normals, lifted, views, maps)
+    average = projection_average(lifted.values, lifted.seen)
+
+    def base_colour_change(weight):
+        config = RefineConfig(iterations=40, envmap_height=8, seed=0, light_warmup=0, basecolor_spread_weight=weight)
+        result = refine(inputs, config, progress=False)
+        assert ("spread" in result.history[-1]) == (weight > 0)
+        return float((result.materials[:, :3] - average[:, :3]).abs().mean()), float((result.materials[:, 3:] - average[:, 3:]).abs().mean())
+
+    (free_base, free_rest), (held_base, held_rest) = base_colour_change(0.0), base_colour_change(1.0)
+    assert held_base < 0.5 * free_base, (free_base, held_base)
+    assert held_rest > 0.5 * free_rest  # roughness and metallic are left to the losses
