@@ -108,7 +108,7 @@ def softmax_reach(truth_materials: torch.Tensor, truth_run: Path, run: Path) -> 
     return clamp_to_seen_range(truth_materials.cpu(), predicted.values, predicted.seen)
 
 
-def with_groups(asset, source: torch.Tensor, groups) -> object:
+def with_groups(asset, source: torch.Tensor, groups):
     """`asset` with the channel `groups` (slices of the material layout) of its materials taken from `source` [N, 5]."""
     materials = asset.materials.clone()
     for group in groups:
@@ -129,14 +129,13 @@ def summary_figures(summary: dict) -> dict:
     return {"relight": summary["relighting"]["psnr"], **{c: summary[c]["psnr"] for c in FIGURES[1:] if c in summary}}
 
 
-def run_ceilings(data: Path, run: Path, truth_run: Path, config, views=None, truths=None, lights=None) -> dict:
+def run_ceilings(data: Path, run: Path, truth_run: Path, config) -> dict:
     """{row: figures} for one run folder with `proj-average` and `full` assets (see the module's docstring)."""
     from matspray.asset import read_asset
     from matspray.eval.run_eval import evaluate_asset
     from matspray.variants import asset_stage
 
-    if views is None:
-        views, truths, lights = read_test_truth(data)
+    views, truths, lights = read_test_truth(data)
     averaged, full = (read_asset(run / asset_stage(v)) for v in ("proj-average", "full"))
     truth_asset = lift_truth(data, run, truth_run, config)
     reach = softmax_reach(truth_asset.materials, truth_run, run)
@@ -205,7 +204,7 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
     return lines
 
 
-def run(args, log=print) -> list[str]:
+def run_set(args, log=print) -> list[str]:
     from benchmarks.generalise import object_set, predictor_spec, run_name
     from matspray.config import build_config
     from matspray.lights import hdri_files
@@ -254,7 +253,7 @@ def parse_args(argv=None):
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        lines = run(args)
+        lines = run_set(args)
     except MatsprayError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
