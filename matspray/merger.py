@@ -134,6 +134,32 @@ def projection_average(values: Tensor, seen: Tensor) -> Tensor:  # [N, V, 5], [N
     return (values * seen[..., None]).sum(1) / n_seen
 
 
+def view_gains(values: Tensor, seen: Tensor, rounds: int = 2, min_value: float = 0.02) -> Tensor:  # [N, V, 5], [N, V] -> [V, 3]
+    """Each view's base-colour gain (per RGB channel) against the multi-view average: the median, over the Gaussians
+    the view saw, of its value / the Gaussians' average, in log space; normalised to a geometric mean of 1 over the
+    views that voted, so that the overall brightness stays the predictions'. A predictor whose batches differ in exposure or
+    white balance shows as gains away from 1. `rounds` re-estimates the average from the aligned values; Gaussians
+    darker than `min_value` in some channel do not vote. A view that saw no voting Gaussian keeps gain 1."""
+    base = values[..., :3]  # [N, V, 3]
+    log_gain = torch.zeros(values.shape[1], 3, dtype=values.dtype, device=values.device)  # [V, 3]
+    for _ in range(rounds):
+        aligned = base / log_gain.exp()  # [N, V, 3]
+        average = (aligned * seen[..., None]).sum(1) / seen.sum(1, keepdim=True).clamp_min(1)  # [N, 3]
+        voting = seen & (average.amin(-1, keepdim=True) > min_value) & (base.amin(-1) > 0)  # [N, V]
+        ratio = (base.clamp_min(1e-6) / average[:, None, :].clamp_min(1e-6)).log()  # [N, V, 3]
+        voted = voting.any(0)  # [V]
+        for view in voted.nonzero().flatten().tolist():
+            log_gain[view] = ratio[voting[:, view], view].median(0).values
+        if voted.any():
+            log_gain[voted] -= log_gain[voted].mean(0, keepdim=True)
+    return log_gain.exp()
+
+
+def align_view_gains(values: Tensor, gains: Tensor) -> Tensor:  # [N, V, 5], [V, 3] -> [N, V, 5]
+    """Per-view values with each view's base colour divided by its gain (`view_gains`), clamped to [0, 1]."""
+    return torch.cat([(values[..., :3] / gains).clamp(0.0, 1.0), values[..., 3:]], dim=-1)
+
+
 def fill_unseen(values: Tensor, seen: Tensor) -> Tensor:  # [N, V, 5], [N, V] -> [N, V, 5]
     """Per-view values with each unseen view replaced by the mean of the views that saw the Gaussian
     (the paper's released code); a Gaussian seen in no view gets zeros."""

@@ -23,7 +23,7 @@ The variants (`matspray.variants`) choose what produces the per-Gaussian materia
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor, nn
@@ -35,7 +35,7 @@ from matspray.errors import NumericalError, SettingError
 from matspray.eval.metrics import ssim_loss
 from matspray.gaussians import Gaussians
 from matspray.material import BASE_COLOR, N_CHANNELS
-from matspray.merger import MergerConfig, NeuralMerger, prepare_values, projection_average
+from matspray.merger import MergerConfig, NeuralMerger, align_view_gains, prepare_values, projection_average, view_gains
 from matspray.render.deferred import GBuffer, shade_gbuffer
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
@@ -65,6 +65,8 @@ class RefineConfig:
     # benchmarks/generalise.py) or "scale-invariant" (only for variants with the PBR loss, which then sets the brightness;
     # supervised always compares by plain L1)
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
+    align_view_gains: bool = False  # divide each view's base colour (lifted values and 2D map) by its gain against the
+    # multi-view average (`merger.view_gains`): per-view exposure and white balance removed before any variant fuses
     basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
@@ -295,6 +297,13 @@ class RefineResult:
     visibility: Tensor | None = None  # [N, D] the shadowing used (kept with the asset for relighting)
 
 
+def aligned_inputs(inputs: RefineInputs) -> RefineInputs:
+    """`inputs` with each view's base colour, in the lifted values and in its 2D map, divided by the view's gain."""
+    gains = view_gains(inputs.values, inputs.seen)  # [V, 3]
+    targets = [torch.cat([(t[..., :3] / g.to(t)).clamp(0.0, 1.0), t[..., 3:]], dim=-1) for t, g in zip(inputs.targets, gains)]
+    return replace(inputs, values=align_view_gains(inputs.values, gains), targets=targets)
+
+
 def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on_checkpoint=None) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
     `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end."""
@@ -302,6 +311,8 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
     variant = config.kind
     gaussians, normals = inputs.gaussians, inputs.normals
     device = gaussians.device
+    if config.align_view_gains:
+        inputs = aligned_inputs(inputs)
     source = MaterialSource(variant, gaussians.means.detach(), inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
     envmap = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if variant.learns_light else None
     normal_offsets = nn.Parameter(torch.zeros_like(normals)) if (config.refine_normals and variant.learns_light) else None

@@ -2,8 +2,8 @@ import pytest
 import torch
 
 from matspray.errors import DataError, RunError
-from matspray.merger import (MergerConfig, NeuralMerger, clamp_to_seen_range, load_merger, positional_encoding, projection_average,
-                             save_merger)
+from matspray.merger import (MergerConfig, NeuralMerger, align_view_gains, clamp_to_seen_range, load_merger, positional_encoding,
+                             projection_average, save_merger, view_gains)
 
 BOUNDS = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
@@ -112,3 +112,42 @@ def test_checkpoint_round_trip_and_mismatch(tmp_path):
         load_merger(tmp_path / "junk.pt", 6, BOUNDS)
     with pytest.raises(RunError, match="built for 6 views"):
         merger(positions, values[:, :5], seen[:, :5])
+
+
+def gained_values(seed=0, n=3000, v=6, spread=0.2):
+    """Per-view values of n Gaussians whose base colour every view sees times its own RGB gain [v, 3]."""
+    generator = torch.Generator().manual_seed(seed)
+    true = torch.rand(n, 3, generator=generator) * 0.6 + 0.2
+    gains = torch.exp(torch.randn(v, 3, generator=generator) * spread)
+    values = torch.rand(n, v, 5, generator=generator)
+    values[..., :3] = true[:, None, :] * gains
+    seen = torch.rand(n, v, generator=generator) > 0.3
+    return values, seen, gains, true
+
+
+def test_view_gains_recover_each_views_gain_up_to_one_factor_per_channel():
+    values, seen, gains, _ = gained_values()
+    estimated = view_gains(values, seen)  # [V, 3]
+    assert torch.allclose(estimated.log().mean(0), torch.zeros(3), atol=1e-5)  # the brightness stays the predictions'
+    relative = estimated / gains  # one common factor per channel: the geometric mean of the true gains
+    assert torch.allclose(relative, relative[:1].expand_as(relative), rtol=2e-3)
+    assert torch.allclose(relative[0], 1.0 / gains.log().mean(0).exp(), rtol=2e-3)
+
+
+def test_view_gains_ignore_a_minority_of_wrong_values_and_leave_an_empty_view_at_one():
+    values, seen, gains, _ = gained_values(seed=1)
+    values[:300, 2, :3] = 0.95  # a tenth of view 2's values are a baked highlight
+    seen[:, 5] = False  # view 5 saw nothing
+    estimated = view_gains(values, seen)
+    assert torch.equal(estimated[5], torch.ones(3))
+    relative = estimated[:5] / gains[:5]
+    assert torch.allclose(relative, relative[:1].expand_as(relative), rtol=0.03)
+
+
+def test_aligned_values_agree_between_views_and_keep_roughness_and_metallic():
+    values, seen, _, true = gained_values(seed=2)
+    aligned = align_view_gains(values, view_gains(values, seen))
+    base = aligned[..., :3]
+    spread_before = (values[..., :3].amax(1) - values[..., :3].amin(1)).mean()
+    assert (base.amax(1) - base.amin(1)).mean() < 0.02 * spread_before  # every view now says the same colour
+    assert torch.equal(aligned[..., 3:], values[..., 3:])

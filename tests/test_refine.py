@@ -6,8 +6,9 @@ import torch
 from matspray.errors import ConfigError
 from matspray.lift import LiftConfig, lift
 from matspray.merger import projection_average
-from matspray.refine import (RefineConfig, RefineInputs, TrainingViews, masked_l1, material_loss, refine, scale_invariant_l1, spread_loss,
-                             view_losses, warm_up_light)
+from matspray.merger import view_gains
+from matspray.refine import (RefineConfig, RefineInputs, TrainingViews, aligned_inputs, masked_l1, material_loss, refine, scale_invariant_l1,
+                             spread_loss, view_losses, warm_up_light)
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from matspray.variants import VARIANT_NAMES
@@ -185,3 +186,20 @@ def test_the_spread_weight_keeps_the_base_colour_merger_near_the_average(lifted_
     (free_base, free_rest), (held_base, held_rest) = base_colour_change(0.0), base_colour_change(1.0)
     assert held_base < 0.5 * free_base, (free_base, held_base)
     assert held_rest > 0.5 * free_rest  # roughness and metallic are left to the losses
+
+
+def test_aligned_inputs_divide_each_views_lifted_values_and_2d_map_by_one_gain(lifted_scene):
+    """The wiring: values and 2D maps of a view are divided by the gain `view_gains` finds for it (its estimate is
+    tested in test_merger on a scene with dense overlap between views)."""
+    gaussians, normals, _, views, maps, lifted = lifted_scene
+    scaled = [torch.cat([(m[..., :3] * 0.7).clamp(0, 1), m[..., 3:]], dim=-1) if i == 1 else m for i, m in enumerate(maps)]
+    values = lifted.values.clone()
+    values[:, 1, :3] *= 0.7  # view 1 is a darker batch, in its 2D map and so in what it lifted
+    darker = RefineInputs(gaussians, normals, values, lifted.seen, views, scaled, BOUNDS)
+    aligned, gains = aligned_inputs(darker), view_gains(darker.values, darker.seen)
+    assert not torch.allclose(gains, torch.ones_like(gains))
+    assert torch.allclose(aligned.values[..., :3], (values[..., :3] / gains).clamp(0, 1))
+    assert torch.equal(aligned.values[..., 3:], values[..., 3:])
+    for view in range(len(views)):
+        assert torch.allclose(aligned.targets[view][..., :3], (scaled[view][..., :3] / gains[view]).clamp(0, 1))
+        assert torch.equal(aligned.targets[view][..., 3:], scaled[view][..., 3:])
