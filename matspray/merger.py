@@ -155,8 +155,9 @@ def view_gains(values: Tensor, seen: Tensor, rounds: int = 2, min_value: float =
     return log_gain.exp()
 
 
-def align_view_gains(values: Tensor, gains: Tensor) -> Tensor:  # [N, V, 5], [V, 3] -> [N, V, 5]
-    """Per-view values with each view's base colour divided by its gain (`view_gains`), clamped to [0, 1]."""
+def align_view_gains(values: Tensor, gains: Tensor) -> Tensor:  # [N, V, 5], [V, 3] -> [N, V, 5] (or [..., 5], [3])
+    """Per-view values with each view's base colour divided by its gain (`view_gains`), clamped to [0, 1]; also one
+    view's 2D map [H, W, 5] with that view's gain [3]."""
     return torch.cat([(values[..., :3] / gains).clamp(0.0, 1.0), values[..., 3:]], dim=-1)
 
 

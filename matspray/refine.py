@@ -17,6 +17,10 @@ the merger runs only for the Gaussians that cover at least `min_coverage` pixels
 With a directional visibility per Gaussian (`RefineInputs.visibility`; only with `--shadows on`, off by
 default), the PBR render is shadowed (`render.visibility`), so the photo loss does not push shadows into
 the base color.
+Two optional settings, off by default because they did not pay on the development set of
+benchmarks/generalise.py: `basecolor_spread_weight` adds the KL divergence of the base-colour merger's
+weights from equal weights, and `align_view_gains` divides each view's base colour by its estimated gain
+before any variant fuses.
 
 The variants (`matspray.variants`) choose what produces the per-Gaussian materials.
 """
@@ -300,7 +304,7 @@ class RefineResult:
 def aligned_inputs(inputs: RefineInputs) -> RefineInputs:
     """`inputs` with each view's base colour, in the lifted values and in its 2D map, divided by the view's gain."""
     gains = view_gains(inputs.values, inputs.seen)  # [V, 3]
-    targets = [torch.cat([(t[..., :3] / g.to(t)).clamp(0.0, 1.0), t[..., 3:]], dim=-1) for t, g in zip(inputs.targets, gains)]
+    targets = [align_view_gains(target, gain.to(target)) for target, gain in zip(inputs.targets, gains)]
     return replace(inputs, values=align_view_gains(inputs.values, gains), targets=targets)
 
 
