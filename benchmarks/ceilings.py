@@ -33,12 +33,14 @@ the same functions on the demo object.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
 
+from benchmarks.generalise import SET_SEEDS, fmt, object_set, run_name
 from matspray.errors import ConfigError, MatsprayError, RunError
 
 CHANNEL_GROUPS = {"base": slice(0, 3), "rough": slice(3, 4), "metal": slice(4, 5)}  # `matspray.material` layout
@@ -81,20 +83,26 @@ def shading_ceiling(views: list, truths: list, lights: dict, shadows_from=None) 
     return {"relighting": average_metrics([m for r in records.values() for m in r]), **per_light}
 
 
+def require_same_lift(run: Path, config) -> None:
+    """Refuse `run` unless it lifted with `config`'s lift settings (the truth must be lifted the same way)."""
+    from matspray.rundir import RunDir, to_plain
+
+    lifted, wanted = RunDir(run).config().get("lift"), to_plain(config.lift)
+    if lifted != wanted:
+        raise RunError(f"{run} lifted with other settings than these ({lifted} vs {wanted}); run it with the protocol's default settings")
+
+
 def lift_truth(data: Path, run: Path, truth_run: Path, config):
     """The ground-truth 2D maps lifted onto `run`'s Gaussians (its geometry shared into `truth_run`) and averaged:
-    the proj-average asset of the ground-truth predictor. `config` must lift as `run` did (checked)."""
+    the proj-average asset of the ground-truth predictor. `run` must have lifted with `config` (checked first)."""
     from matspray.pipeline import Pipeline
-    from matspray.rundir import RunDir, share_stage
+    from matspray.rundir import share_stage
 
+    require_same_lift(run, config)
     truth_run.mkdir(parents=True, exist_ok=True)
     share_stage(run, truth_run, "geometry")
     pipeline = Pipeline(data, truth_run, replace(config, predictor="ground-truth", predictor_options={}), progress=False, log=lambda _: None)
-    asset = pipeline.run_all(("proj-average",))["proj-average"]
-    lifted, wanted = RunDir(truth_run).config().get("lift"), RunDir(run).config().get("lift")
-    if lifted != wanted:
-        raise RunError(f"{truth_run} lifted with other settings than {run} ({lifted} vs {wanted}); run both with one configuration")
-    return asset
+    return pipeline.run_all(("proj-average",))["proj-average"]
 
 
 def softmax_reach(truth_materials: torch.Tensor, truth_run: Path, run: Path) -> torch.Tensor:  # [N, 5] -> [N, 5]
@@ -129,40 +137,58 @@ def summary_figures(summary: dict) -> dict:
     return {"relight": summary["relighting"]["psnr"], **{c: summary[c]["psnr"] for c in FIGURES[1:] if c in summary}}
 
 
-def run_ceilings(data: Path, run: Path, truth_run: Path, config) -> dict:
+@dataclass(frozen=True)
+class ObjectTruth:
+    """What every error model of one object is scored against, computed once per object."""
+
+    views: list  # the test views
+    truths: list  # their ground truth
+    lights: dict  # the held-out lights, prefiltered
+    asset: object  # the lifted truth (an Asset)
+    run: Path  # the run folder it was lifted in
+    gbuffer_relight: float  # relighting PSNR of the true G-buffer (the shading ceiling)
+
+
+def object_truth(data: Path, run: Path, truth_run: Path, config) -> ObjectTruth:
+    """The test views, the truth lifted onto `run`'s Gaussians in `truth_run`, and the shading ceiling."""
+    views, truths, lights = read_test_truth(data)
+    asset = lift_truth(data, run, truth_run, config)
+    return ObjectTruth(views, truths, lights, asset, truth_run, shading_ceiling(views, truths, lights)["relighting"]["psnr"])
+
+
+def run_ceilings(run: Path, truth: ObjectTruth) -> dict:
     """{row: figures} for one run folder with `proj-average` and `full` assets (see the module's docstring)."""
     from matspray.asset import read_asset
     from matspray.eval.run_eval import evaluate_asset
     from matspray.variants import asset_stage
 
-    views, truths, lights = read_test_truth(data)
     averaged, full = (read_asset(run / asset_stage(v)) for v in ("proj-average", "full"))
-    truth_asset = lift_truth(data, run, truth_run, config)
-    reach = softmax_reach(truth_asset.materials, truth_run, run)
+    reach = softmax_reach(truth.asset.materials, truth.run, run)
+    true_materials = truth.asset.materials.to(averaged.materials)
+    dimmed = at_brightness(true_materials, averaged.materials)
     assets = {"proj-average": averaged, "full": full, "softmax oracle": with_groups(averaged, reach, CHANNEL_GROUPS.values())}
     assets |= {f"oracle {name} only": with_groups(averaged, reach, [group]) for name, group in CHANNEL_GROUPS.items()}
-    truth = truth_asset.materials.to(averaged.materials)
-    dimmed = at_brightness(truth, averaged.materials)
     assets["true base, PA brightness"] = with_groups(averaged, dimmed, [CHANNEL_GROUPS["base"]])
     assets["lifted truth, PA brightness"] = replace(averaged, materials=dimmed)
-    assets["lifted truth"] = replace(averaged, materials=truth)
-    rows = {name: summary_figures(evaluate_asset(asset, views, truths, lights, None)["summary"]) for name, asset in assets.items()}
-    rows["true G-buffer"] = {"relight": shading_ceiling(views, truths, lights)["relighting"]["psnr"]}
+    assets["lifted truth"] = replace(averaged, materials=true_materials)
+    rows = {name: summary_figures(evaluate_asset(asset, truth.views, truth.truths, truth.lights, None)["summary"])
+            for name, asset in assets.items()}
+    rows["true G-buffer"] = {"relight": truth.gbuffer_relight}
     return rows
 
 
 # ------------------------------------------------------------------------------------------ the protocol's objects
-def cached_ceilings(data: Path, run: Path, truth_run: Path, config) -> dict:
-    """`run_ceilings`, reused from RUN/eval/ceilings.json while no stage of either run folder is newer."""
-    from matspray.rundir import read_json, write_json
+def cached_ceilings(run: Path, truth_run: Path, truth) -> dict:
+    """`run_ceilings(run, truth())`, reused from RUN/eval/ceilings.json while no stage of either run folder is newer
+    (`truth` is called only when the figures are computed)."""
+    from matspray.rundir import newer_than_stages, read_json, write_json
 
     path = run / "eval" / CEILINGS_FILE
-    stages = [*run.glob("*/stage.json"), *truth_run.glob("*/stage.json")]
-    if path.exists() and all(stage.stat().st_mtime <= path.stat().st_mtime for stage in stages):
+    if newer_than_stages(path, run, truth_run):
         rows = read_json(path)
         if list(rows) == list(ROWS):  # saved by this version, with every row
             return rows
-    rows = run_ceilings(data, run, truth_run, config)
+    rows = run_ceilings(run, truth())
     write_json(path, rows)
     return rows
 
@@ -174,10 +200,6 @@ def mean_rows(per_object: list[dict]) -> dict:
         values = {f: [o[row].get(f) for o in per_object] for f in FIGURES}
         means[row] = {f: sum(v) / len(v) for f, v in values.items() if all(x is not None and abs(x) != float("inf") for x in v)}
     return means
-
-
-def fmt(value) -> str:
-    return "—" if value is None else f"{value:.2f}"
 
 
 def markdown(set_name: str, preset: str, results: dict) -> list[str]:
@@ -205,24 +227,25 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
 
 
 def run_set(args, log=print) -> list[str]:
-    from benchmarks.generalise import object_set, predictor_spec, run_name
     from matspray.config import build_config
     from matspray.lights import hdri_files
     from matspray.rundir import read_json, write_json, write_text_atomic
 
     objects = object_set(args.set, args.start + args.objects, sorted(hdri_files()))[args.start:]
+    config = build_config(args.preset)  # the protocol's default settings (lift included), whatever the predictor
     results = {model: [] for model in args.models}
     for number, spec in enumerate(objects, 1):
         folder = args.out / "objects" / spec.name
+        run_dirs = {model: folder / "runs" / run_name(model, None) for model in args.models}
         truth_run = folder / "runs" / run_name("ground-truth", None)
-        for model in args.models:
-            config = build_config(args.preset, predictor=predictor_spec(model))
-            run_dir = folder / "runs" / run_name(model, None)
+        truth = functools.cache(functools.partial(object_truth, folder / "data", run_dirs[args.models[0]], truth_run, config))
+        for model, run_dir in run_dirs.items():
             if not all((run_dir / stage / "stage.json").exists() for stage in ("asset", "asset-proj-average", "lift")):
                 raise ConfigError(f"{run_dir}: no finished full and proj-average assets; run `python -m benchmarks.generalise --set {args.set} "
                                   f"--objects {args.start + args.objects} --models {model} --preset {args.preset} --out {args.out}` first")
+            require_same_lift(run_dir, config)
             log(f"ceilings: object {number}/{len(objects)} {spec.name}, error model {model}")
-            results[model].append({"object": spec.name, "rows": cached_ceilings(folder / "data", run_dir, truth_run, config)})
+            results[model].append({"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth)})
     suffix = args.preset if args.start == 0 else f"{args.preset}-from{args.start}"
     path = args.out / f"ceilings-{suffix}.json"
     kept = {model: per_object for model, per_object in (read_json(path) if path.exists() else {}).items() if model not in results}
@@ -232,7 +255,6 @@ def run_set(args, log=print) -> list[str]:
 
 
 def parse_args(argv=None):
-    from benchmarks.generalise import SET_SEEDS
     from matspray.predictors.error_models import ERROR_MODELS
 
     parser = argparse.ArgumentParser(prog="python -m benchmarks.ceilings", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -50,7 +50,7 @@ from matspray.lights import BUILTINS, hdri_files
 from matspray.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.variants import VARIANT_NAMES as VARIANTS
-from matspray.rundir import RunDir, fingerprint, read_json, share_stage, write_json, write_text_atomic
+from matspray.rundir import RunDir, fingerprint, newer_than_stages, read_json, share_stage, write_json, write_text_atomic
 
 SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
@@ -199,7 +199,7 @@ def finished_metrics(run_dir: Path, config, variants) -> tuple[dict, float] | No
     record = read_json(seconds_path)
     if record.get("config") != fingerprint(config) or record.get("variants") != sorted(variants):
         return None
-    if any(stage.stat().st_mtime > metrics_path.stat().st_mtime for stage in run_dir.glob("*/stage.json")):
+    if not newer_than_stages(metrics_path, run_dir):
         return None
     return read_json(metrics_path), float(record["seconds"])
 

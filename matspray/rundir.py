@@ -59,6 +59,16 @@ def read_json(path: Path) -> dict:
     return json.loads(Path(path).read_text())
 
 
+def newer_than_stages(path: Path, *run_dirs) -> bool:
+    """True when `path` exists and no stage of the run folders (their `*/stage.json`) was written after it:
+    a figure derived from those stages is still current."""
+    path = Path(path)
+    if not path.exists():
+        return False
+    written = path.stat().st_mtime
+    return all(stage.stat().st_mtime <= written for run in run_dirs for stage in Path(run).glob(f"*/{STAGE_RECORD}"))
+
+
 class RunDir:
     def __init__(self, root):
         self.root = Path(root)
