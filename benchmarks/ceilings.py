@@ -7,6 +7,11 @@ Reads the default runs that `python -m benchmarks.generalise` left in OUT (same 
 first) and scores, per object and error model, on the test views under the held-out lights:
 
   proj-average, full      the protocol's two assets (mean of the lifted per-view values; the Neural Merger)
+  full, true light        `full` refined once more on the same lift with the object's true training light fixed (at the
+                          learned light's size) instead of learning one (`refine(..., light=...)`; kept in
+                          OBJECT/runs/MODEL-true-light): what estimating the light costs the merger
+  full, true light, PA brightness  the same with its base colour scaled to proj-average's brightness (below): what is
+                          left of that gain when the light may not set the brightness
   softmax oracle          the lifted truth (below) clamped, per Gaussian and channel, to the range of the values
                           that Gaussian received from the predictor (`merger.clamp_to_seen_range`): the nearest a
                           softmax merger can get to the true materials (its relighting is not a strict bound: one
@@ -40,11 +45,11 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.generalise import SET_SEEDS, fmt, object_set, run_name
+from benchmarks.generalise import SET_SEEDS, fmt, object_config, object_set, predictor_spec, run_name
 from matspray.errors import ConfigError, MatsprayError, RunError
 
 CHANNEL_GROUPS = {"base": slice(0, 3), "rough": slice(3, 4), "metal": slice(4, 5)}  # `matspray.material` layout
-ROWS = ("proj-average", "full", "softmax oracle", *(f"oracle {c} only" for c in CHANNEL_GROUPS), "true base, PA brightness",
+ROWS = ("proj-average", "full", "full, true light", "full, true light, PA brightness", "softmax oracle", *(f"oracle {c} only" for c in CHANNEL_GROUPS), "true base, PA brightness",
         "lifted truth, PA brightness", "lifted truth", "true G-buffer")
 FIGURES = ("relight", "basecolor", "roughness", "metallic")
 CEILINGS_FILE = "ceilings.json"  # in RUN/eval/
@@ -156,41 +161,81 @@ def object_truth(data: Path, run: Path, truth_run: Path, config) -> ObjectTruth:
     return ObjectTruth(views, truths, lights, asset, truth_run, shading_ceiling(views, truths, lights)["relighting"]["psnr"])
 
 
-def run_ceilings(run: Path, truth: ObjectTruth) -> dict:
-    """{row: figures} for one run folder with `proj-average` and `full` assets (see the module's docstring)."""
+def refine_under_true_light(data: Path, run: Path, folder: Path, config):
+    """`run`'s `full` refined again in `folder` (its predictions, geometry and lift shared from `run`, which must have
+    made them with `config`) with the object's true training light fixed, at the size of the light `config` learns.
+    Reused while newer than `run`'s stages."""
+    from matspray.asset import read_asset, write_asset
+    from matspray.eval.light import training_light
+    from matspray.pipeline import Pipeline, variant_refine_config
+    from matspray.refine import refine
+    from matspray.render.envmap import EnvironmentMap
+    from matspray.rundir import RunDir, newer_than_stages, share_stage
+
+    if newer_than_stages(folder / "asset" / "asset.ply", run):
+        return read_asset(folder / "asset")
+    found = training_light(data)
+    if found is None:
+        raise RunError(f"{data}: no scene.json naming the training light (a `matspray synth` object has one)")
+    for stage in ("materials2d", "geometry", "lift"):
+        share_stage(run, folder, stage)
+    pipeline = Pipeline(data, folder, config, progress=False, log=lambda _: None)
+    made = RunDir(run)
+    if (pipeline.predict_fingerprint(), pipeline.lift_fingerprint()) != (made.stage_fingerprint("materials2d"), made.stage_fingerprint("lift")):
+        raise RunError(f"{run} predicted or lifted with other settings than the protocol's defaults; run it with those")
+    light = EnvironmentMap.from_tensor(found[1], height=config.refine.envmap_height, learnable=False)
+    inputs = pipeline.refine_inputs()
+    write_asset(folder / "asset", inputs.gaussians, refine(inputs, variant_refine_config(config, "full"), progress=False, light=light))
+    return read_asset(folder / "asset")
+
+
+def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
+    """{row: figures} of `rows` for one run folder with `proj-average` and `full` assets (see the module's docstring).
+    `truth()`: its ObjectTruth (the test views and what they are scored against); `under_true_light()`: its `full`
+    refined under the true light (called only when a row needs it)."""
     from matspray.asset import read_asset
     from matspray.eval.run_eval import evaluate_asset
     from matspray.variants import asset_stage
 
     averaged, full = (read_asset(run / asset_stage(v)) for v in ("proj-average", "full"))
-    reach = softmax_reach(truth.asset.materials, truth.run, run)
-    true_materials = truth.asset.materials.to(averaged.materials)
-    dimmed = at_brightness(true_materials, averaged.materials)
-    assets = {"proj-average": averaged, "full": full, "softmax oracle": with_groups(averaged, reach, CHANNEL_GROUPS.values())}
-    assets |= {f"oracle {name} only": with_groups(averaged, reach, [group]) for name, group in CHANNEL_GROUPS.items()}
-    assets["true base, PA brightness"] = with_groups(averaged, dimmed, [CHANNEL_GROUPS["base"]])
-    assets["lifted truth, PA brightness"] = replace(averaged, materials=dimmed)
-    assets["lifted truth"] = replace(averaged, materials=true_materials)
-    rows = {name: summary_figures(evaluate_asset(asset, truth.views, truth.truths, truth.lights, None)["summary"])
-            for name, asset in assets.items()}
-    rows["true G-buffer"] = {"relight": truth.gbuffer_relight}
-    return rows
+    truth = functools.cache(truth)
+    under_true_light = functools.cache(under_true_light)
+
+    def reach():
+        return softmax_reach(truth().asset.materials, truth().run, run)
+
+    def true_materials():
+        return truth().asset.materials.to(averaged.materials)
+
+    assets = {
+        "proj-average": lambda: averaged,
+        "full": lambda: full,
+        "full, true light": under_true_light,
+        "full, true light, PA brightness": lambda: replace(under_true_light(), materials=at_brightness(under_true_light().materials, averaged.materials)),
+        "softmax oracle": lambda: with_groups(averaged, reach(), CHANNEL_GROUPS.values()),
+        **{f"oracle {name} only": functools.partial(lambda g: with_groups(averaged, reach(), [g]), group) for name, group in CHANNEL_GROUPS.items()},
+        "true base, PA brightness": lambda: with_groups(averaged, at_brightness(true_materials(), averaged.materials), [CHANNEL_GROUPS["base"]]),
+        "lifted truth, PA brightness": lambda: replace(averaged, materials=at_brightness(true_materials(), averaged.materials)),
+        "lifted truth": lambda: replace(averaged, materials=true_materials()),
+    }
+    t = truth()
+    return {row: {"relight": t.gbuffer_relight} if row == "true G-buffer"
+            else summary_figures(evaluate_asset(assets[row](), t.views, t.truths, t.lights, None)["summary"]) for row in rows}
 
 
 # ------------------------------------------------------------------------------------------ the protocol's objects
-def cached_ceilings(run: Path, truth_run: Path, truth) -> dict:
-    """`run_ceilings(run, truth())`, reused from RUN/eval/ceilings.json while no stage of either run folder is newer
-    (`truth` is called only when the figures are computed)."""
+def cached_ceilings(run: Path, truth_run: Path, truth, under_true_light) -> dict:
+    """`run_ceilings(run, truth, under_true_light)`; the rows already in RUN/eval/ceilings.json are reused while no stage
+    of either run folder is newer than it, so only missing rows (e.g. ones a newer version adds) are computed."""
     from matspray.rundir import newer_than_stages, read_json, write_json
 
     path = run / "eval" / CEILINGS_FILE
-    if newer_than_stages(path, run, truth_run):
-        rows = read_json(path)
-        if list(rows) == list(ROWS):  # saved by this version, with every row
-            return rows
-    rows = run_ceilings(run, truth())
-    write_json(path, rows)
-    return rows
+    kept = read_json(path) if newer_than_stages(path, run, truth_run) else {}
+    missing = [row for row in ROWS if row not in kept]
+    if missing:
+        kept |= run_ceilings(run, truth, under_true_light, missing)
+        write_json(path, {row: kept[row] for row in ROWS})
+    return {row: kept[row] for row in ROWS}
 
 
 def mean_rows(per_object: list[dict]) -> dict:
@@ -215,11 +260,11 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
             gap = None if "relight" not in m else m["relight"] - means["proj-average"].get("relight", float("nan"))
             lines.append(f"| {row} | {fmt(m.get('relight'))} | {'' if row == 'proj-average' else fmt(gap)} | "
                          + " | ".join(fmt(m.get(c)) for c in FIGURES[1:]) + " |")
-        columns = ("proj-average", "full", "softmax oracle", "lifted truth, PA brightness", "lifted truth", "true G-buffer")
+        columns = ("proj-average", "full", "full, true light", "softmax oracle", "lifted truth, PA brightness", "lifted truth", "true G-buffer")
         lines += ["", "| object | " + " | ".join(columns) + " |", "|" + "---|" * (1 + len(columns))]
         lines += [f"| {o['object']} | " + " | ".join(fmt(o["rows"][k]["relight"]) for k in columns) + " |" for o in per_object]
         lines.append("")
-        for row in ("full", "softmax oracle", "lifted truth, PA brightness", "lifted truth"):
+        for row in ("full", "full, true light", "full, true light, PA brightness", "softmax oracle", "lifted truth, PA brightness", "lifted truth"):
             gains = [o["rows"][row]["relight"] - o["rows"]["proj-average"]["relight"] for o in per_object]
             lines.append(f"- {row} - proj-average >= 1 dB on {sum(g >= 1.0 for g in gains)}/{len(gains)} objects")
         lines.append("")
@@ -240,12 +285,15 @@ def run_set(args, log=print) -> list[str]:
         truth_run = folder / "runs" / run_name("ground-truth", None)
         truth = functools.cache(functools.partial(object_truth, folder / "data", run_dirs[args.models[0]], truth_run, config))
         for model, run_dir in run_dirs.items():
+            model_config = object_config(replace(config, predictor=predictor_spec(model)), spec)
+            under_true_light = functools.partial(refine_under_true_light, folder / "data", run_dir, folder / "runs" / f"{run_dir.name}-true-light",
+                                                 model_config)
             if not all((run_dir / stage / "stage.json").exists() for stage in ("asset", "asset-proj-average", "lift")):
                 raise ConfigError(f"{run_dir}: no finished full and proj-average assets; run `python -m benchmarks.generalise --set {args.set} "
                                   f"--objects {args.start + args.objects} --models {model} --preset {args.preset} --out {args.out}` first")
             require_same_lift(run_dir, config)
             log(f"ceilings: object {number}/{len(objects)} {spec.name}, error model {model}")
-            results[model].append({"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth)})
+            results[model].append({"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light)})
     suffix = args.preset if args.start == 0 else f"{args.preset}-from{args.start}"
     path = args.out / f"ceilings-{suffix}.json"
     kept = {model: per_object for model, per_object in (read_json(path) if path.exists() else {}).items() if model not in results}

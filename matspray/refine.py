@@ -308,9 +308,12 @@ def aligned_inputs(inputs: RefineInputs) -> RefineInputs:
     return replace(inputs, values=align_view_gains(inputs.values, gains), targets=targets)
 
 
-def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on_checkpoint=None) -> RefineResult:
+def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on_checkpoint=None,
+           light: EnvironmentMap | None = None) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
-    `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end."""
+    `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end. `light`: a known
+    training light (a light probe, or the true light of a benchmark object) that variants with the PBR loss shade
+    with as given, instead of learning one: no warm-up, never optimised."""
     torch.manual_seed(config.seed)
     variant = config.kind
     gaussians, normals = inputs.gaussians, inputs.normals
@@ -318,7 +321,10 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
     if config.align_view_gains:
         inputs = aligned_inputs(inputs)
     source = MaterialSource(variant, gaussians.means.detach(), inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
-    envmap = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if variant.learns_light else None
+    envmap = None
+    if variant.learns_light:
+        envmap = (EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if light is None
+                  else EnvironmentMap(light.log_map.detach().to(device), learnable=False))
     normal_offsets = nn.Parameter(torch.zeros_like(normals)) if (config.refine_normals and variant.learns_light) else None
     history: list[dict] = []
     if not source.trainable or config.iterations == 0:
@@ -327,14 +333,14 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
     training = TrainingViews(inputs)
     source_lr = config.supervised_lr if variant.source == "free" else config.merger_lr
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
-    if envmap is not None:
+    if envmap is not None and light is None:
         groups.append(envmap_group(envmap, config))
     if normal_offsets is not None:
         groups.append({"params": [normal_offsets], "lr": 1e-3, "name": "normal offsets"})
     generator = torch.Generator().manual_seed(config.seed)
     with torch.no_grad():
         last_materials = source()  # [N, 5] each Gaussian's latest merged value
-    if envmap is not None and config.light_warmup > 0:
+    if envmap is not None and light is None and config.light_warmup > 0:
         warm_up_light(training, last_materials, normals, envmap, config, generator, progress)
     optimizer = torch.optim.Adam(groups)
 
