@@ -296,7 +296,14 @@ def run_set(args, log=print) -> list[str]:
             results[model].append({"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light)})
     suffix = args.preset if args.start == 0 else f"{args.preset}-from{args.start}"
     path = args.out / f"ceilings-{suffix}.json"
-    kept = {model: per_object for model, per_object in (read_json(path) if path.exists() else {}).items() if model not in results}
+    kept = {}
+    for model, per_object in (read_json(path) if path.exists() else {}).items():
+        if model in results:
+            continue
+        if all(list(o["rows"]) == list(ROWS) for o in per_object):
+            kept[model] = per_object
+        else:  # saved by a version with other rows: its runs' saved figures gain the new rows on the next pass over them
+            log(f"ceilings: error model {model} in {path} has other rows (an older version); dropped: pass --models {model} to add it again")
     write_json(path, kept | results)  # the models of earlier passes stay, this pass's replace theirs
     write_text_atomic(path.with_suffix(".md"), "\n".join(markdown(args.set, args.preset, kept | results)) + "\n")
     return markdown(args.set, args.preset, results)

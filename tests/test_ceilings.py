@@ -93,3 +93,9 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     again = json.loads((out / "ceilings-test.json").read_text())["paper"][0]["rows"]
     assert list(again) == list(ROWS) and again["lifted truth"]["relight"] == -1.0
     assert again["full, true light"]["relight"] == pytest.approx(rows["full, true light"]["relight"], abs=1e-6)  # the asset reused
+
+    # a model kept from an earlier pass of a version with other rows is dropped, with a notice, not averaged half
+    saved_file.write_text(json.dumps({**json.loads(saved_file.read_text()), "harsh": [{"object": "another", "rows": {"full": {"relight": 1.0}}}]}))
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "error model harsh in" in capsys.readouterr().out and set(json.loads(saved_file.read_text())) == {"paper"}
