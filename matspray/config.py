@@ -47,6 +47,8 @@ class PipelineConfig:
     visibility: VisibilityConfig | None = None  # None: no shadowing (the paper's, and our default); `shadow_maps(preset)` turns it on
     refine: RefineConfig = field(default_factory=RefineConfig)
     object_bounds: tuple[float, ...] | None = None  # captures without masks: the object region (4: sphere, 6: box); None: automatic
+    light_probe: str | None = None  # a known training light (an HDR lat-long map of the capture's light, world frame): the
+    # PBR variants shade with it instead of estimating one; None: estimate it (the paper)
 
     def __post_init__(self):
         if self.preset not in PRESETS:

@@ -21,7 +21,8 @@ from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
 from matspray.device import configure_threads, resolve_device
 from matspray.render.backend import resolve_backend
-from matspray.errors import RunError
+from matspray.render.envmap import EnvironmentMap
+from matspray.errors import RunError, file_error
 from matspray.geometry.ply import read_ply
 from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
@@ -75,6 +76,8 @@ class Pipeline:
         self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
         self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
+        self.light_probe_identity()  # a missing or unreadable light probe fails here, before any stage runs
+        self.light_probe()
 
     # ---------------------------------------------------------------- predict
     def predictor_options(self) -> PredictorOptions:
@@ -218,16 +221,34 @@ class Pipeline:
                             targets=[maps_to_tensor(maps[v.name]).to(self.device) for v in views],
                             bounds=self.scene.bounds.to(self.device), visibility=self.visibility(kept))
 
+    def light_probe(self) -> EnvironmentMap | None:
+        """The known training light (`light_probe`), at the size of the light refinement would learn; None when unset."""
+        if self.config.light_probe is None:
+            return None
+        return EnvironmentMap.from_file(self.config.light_probe, height=self.config.refine.envmap_height)
+
+    def light_probe_identity(self) -> tuple:
+        """What the refinement's fingerprint adds for a light probe: its path, size and time (nothing when unset, so
+        runs without one keep their fingerprints)."""
+        if self.config.light_probe is None:
+            return ()
+        path = Path(self.config.light_probe)
+        if not path.is_file():
+            raise file_error(path, "the light probe (--light-probe) does not exist", "give an HDR lat-long map (.exr or .hdr)")
+        stat = path.stat()
+        return ({"light_probe": str(path.resolve()), "bytes": stat.st_size, "modified_ns": stat.st_mtime_ns},)
+
     def refine(self, variant: str = "full") -> Asset:
         config = variant_refine_config(self.config, variant)
         stage = asset_stage(variant)
-        fp = fingerprint("refine", self.config.method, config, self.lift_fingerprint(), self.visibility_fingerprint())
+        probe = self.light_probe_identity() if get_variant(variant).learns_light else ()
+        fp = fingerprint("refine", self.config.method, config, self.lift_fingerprint(), self.visibility_fingerprint(), *probe)
         if self.run.stage_done(stage, fp, ["asset.ply"]):
             self.log(f"refine [{variant}]: done before, reusing {stage}/")
             return read_asset(self.run.path(stage), device=self.device)
         inputs = self.refine_inputs()
         with timed() as t:
-            result = refine(inputs, config, progress=self.progress)
+            result = refine(inputs, config, progress=self.progress, light=self.light_probe() if probe else None)
             write_asset(self.run.path(stage), inputs.gaussians, result)
         self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history})
         return read_asset(self.run.path(stage), device=self.device)

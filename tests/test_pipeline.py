@@ -179,3 +179,34 @@ def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_ob
     given_one = Pipeline(tiny_object, finished_run, replace(tiny_config(), predictor_options={"seed": 1}), progress=False, log=lambda _: None)
     assert given_one.predictor_options() == pipeline.predictor_options()
     Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)  # leave config.yaml as the fixture's
+
+
+def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_first(tiny_object, finished_run, tmp_path, capsys):
+    import json
+    import os
+    import shutil
+
+    from matspray.cli import main
+    from matspray.render.envmap import EnvironmentMap
+
+    run = tmp_path / "run"
+    for stage in ("materials2d", "geometry"):  # reuse the slow stages
+        shutil.copytree(finished_run / stage, run / stage)
+    shutil.copy(finished_run / "timings.json", run / "timings.json")
+    name = json.loads((tiny_object / "scene.json").read_text())["lights"]["train"]
+    probe = tmp_path / "probe.exr"
+    shutil.copy(tiny_object / "envmaps" / f"{name}.exr", probe)
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
+
+    assert main(args + ["--light-probe", str(tmp_path / "nowhere.exr")]) == 2
+    assert "nowhere.exr" in capsys.readouterr().err and not (run / "lift").exists()  # refused before any stage ran
+
+    assert main(args + ["--light-probe", str(probe)]) == 0
+    expected = EnvironmentMap.from_file(probe, height=8).map  # the test preset's light size
+    assert torch.allclose(EnvironmentMap.from_file(run / "asset" / "envmap.exr").map, expected, rtol=1e-3, atol=1e-6)
+    capsys.readouterr()
+    assert main(args + ["--light-probe", str(probe)]) == 0
+    assert "refine [full]: done before" in capsys.readouterr().out
+    os.utime(probe, ns=(probe.stat().st_atime_ns, probe.stat().st_mtime_ns + 10**9))  # a changed probe refines again
+    assert main(args + ["--light-probe", str(probe)]) == 0
+    assert "refine [full]: done before" not in capsys.readouterr().out

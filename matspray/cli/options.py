@@ -41,6 +41,9 @@ SETTING_FLAGS = {
     "--object-bounds": ("object_bounds", lambda v: tuple(float(x) for x in v.replace(",", " ").split()),
                         "captures without masks: the object region, 'x,y,z,r' (a sphere) or 'x0,y0,z0,x1,y1,z1' (a box) in world "
                         "units (default: chosen automatically after geometry; see README, captures without masks)"),
+    "--light-probe": ("light_probe", str, "a known training light: an HDR lat-long map (.exr/.hdr) of the light the photos were "
+                      "taken in, in the capture's world frame (a light probe); the PBR variants shade with it instead of "
+                      "estimating the light (default: estimate it)"),
     "--seed": ("seed", int, "random seed (default 0)"),
     "--refine-seed": ("refine_seed", int, "the refinement's own seed (default: --seed)"),
     "--downscale": ("downscale", float, "shrink images by this factor on load (default 1)"),
