@@ -4,6 +4,8 @@ setting of `matspray.config` (the library validates; a bad value comes back as a
 
 from __future__ import annotations
 
+import os
+
 PRESET_CHOICES = ("test", "demo", "paper")
 METHOD_CHOICES = ("matspray", "paper")
 VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax")  # matspray.variants.VARIANT_NAMES (a test checks)
@@ -41,7 +43,7 @@ SETTING_FLAGS = {
     "--object-bounds": ("object_bounds", lambda v: tuple(float(x) for x in v.replace(",", " ").split()),
                         "captures without masks: the object region, 'x,y,z,r' (a sphere) or 'x0,y0,z0,x1,y1,z1' (a box) in world "
                         "units (default: chosen automatically after geometry; see README, captures without masks)"),
-    "--light-probe": ("light_probe", str, "a known training light: an HDR lat-long map (.exr/.hdr) of the light the photos were "
+    "--light-probe": ("light_probe", lambda v: os.path.abspath(os.path.expanduser(v)), "a known training light: an HDR lat-long map (.exr/.hdr) of the light the photos were "
                       "taken in, in the capture's world frame (a light probe); the PBR variants shade with it instead of "
                       "estimating the light (default: estimate it)"),
     "--seed": ("seed", int, "random seed (default 0)"),
