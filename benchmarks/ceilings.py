@@ -8,7 +8,7 @@ first) and scores, per object and error model, on the test views under the held-
 
   proj-average, full      the protocol's two assets (mean of the lifted per-view values; the Neural Merger)
   full, true light        `full` refined once more on the same lift with the object's true training light fixed (at the
-                          learned light's size) instead of learning one (`refine(..., light=...)`; kept in
+                          learned light's size) instead of learning one (the pipeline's light probe; kept in
                           OBJECT/runs/MODEL-true-light): what estimating the light costs the merger
   full, true light, PA brightness  the same with its base colour scaled to proj-average's brightness (below): what is
                           left of that gain when the light may not set the brightness
@@ -47,8 +47,9 @@ import torch
 
 from benchmarks.generalise import SET_SEEDS, fmt, object_config, object_set, predictor_spec, run_name
 from matspray.errors import ConfigError, MatsprayError, RunError
+from matspray.material import GROUPS
 
-CHANNEL_GROUPS = {"base": slice(0, 3), "rough": slice(3, 4), "metal": slice(4, 5)}  # `matspray.material` layout
+CHANNEL_GROUPS = dict(zip(("base", "rough", "metal"), GROUPS.values()))  # row names of `matspray.material.GROUPS`
 ROWS = ("proj-average", "full", "full, true light", "full, true light, PA brightness", "softmax oracle", *(f"oracle {c} only" for c in CHANNEL_GROUPS), "true base, PA brightness",
         "lifted truth, PA brightness", "lifted truth", "true G-buffer")
 FIGURES = ("relight", "basecolor", "roughness", "metallic")
@@ -162,31 +163,23 @@ def object_truth(data: Path, run: Path, truth_run: Path, config) -> ObjectTruth:
 
 
 def refine_under_true_light(data: Path, run: Path, folder: Path, config):
-    """`run`'s `full` refined again in `folder` (its predictions, geometry and lift shared from `run`, which must have
-    made them with `config`) with the object's true training light fixed, at the size of the light `config` learns.
-    Reused while newer than `run`'s stages."""
-    from matspray.asset import read_asset, write_asset
-    from matspray.eval.light import training_light
-    from matspray.pipeline import Pipeline, variant_refine_config
-    from matspray.refine import refine
-    from matspray.render.envmap import EnvironmentMap
-    from matspray.rundir import RunDir, newer_than_stages, share_stage
+    """`run`'s `full` refined again in `folder` with the object's true training light as its light probe (the
+    pipeline's `light_probe`, at the size of the light `config` learns); its predictions, geometry and lift are shared
+    from `run`, which must have made them with `config`. Reused while the refinement's fingerprint holds."""
+    from matspray.eval.light import training_light_path
+    from matspray.pipeline import Pipeline
+    from matspray.rundir import RunDir, share_stage
 
-    if newer_than_stages(folder / "asset" / "asset.ply", run):
-        return read_asset(folder / "asset")
-    found = training_light(data)
-    if found is None:
+    probe = training_light_path(data)
+    if probe is None:
         raise RunError(f"{data}: no scene.json naming the training light (a `matspray synth` object has one)")
     for stage in ("materials2d", "geometry", "lift"):
         share_stage(run, folder, stage)
-    pipeline = Pipeline(data, folder, config, progress=False, log=lambda _: None)
+    pipeline = Pipeline(data, folder, replace(config, light_probe=str(probe)), progress=False, log=lambda _: None)
     made = RunDir(run)
     if (pipeline.predict_fingerprint(), pipeline.lift_fingerprint()) != (made.stage_fingerprint("materials2d"), made.stage_fingerprint("lift")):
         raise RunError(f"{run} predicted or lifted with other settings than the protocol's defaults; run it with those")
-    light = EnvironmentMap.from_tensor(found[1], height=config.refine.envmap_height, learnable=False)
-    inputs = pipeline.refine_inputs()
-    write_asset(folder / "asset", inputs.gaussians, refine(inputs, variant_refine_config(config, "full"), progress=False, light=light))
-    return read_asset(folder / "asset")
+    return pipeline.refine("full")
 
 
 def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
@@ -198,14 +191,15 @@ def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
     from matspray.variants import asset_stage
 
     averaged, full = (read_asset(run / asset_stage(v)) for v in ("proj-average", "full"))
-    truth = functools.cache(truth)
+    t = truth()
     under_true_light = functools.cache(under_true_light)
 
-    def reach():
-        return softmax_reach(truth().asset.materials, truth().run, run)
+    @functools.cache
+    def reach():  # the lifts are read once, whichever rows need them
+        return softmax_reach(t.asset.materials, t.run, run)
 
     def true_materials():
-        return truth().asset.materials.to(averaged.materials)
+        return t.asset.materials.to(averaged.materials)
 
     assets = {
         "proj-average": lambda: averaged,
@@ -218,7 +212,6 @@ def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
         "lifted truth, PA brightness": lambda: replace(averaged, materials=at_brightness(true_materials(), averaged.materials)),
         "lifted truth": lambda: replace(averaged, materials=true_materials()),
     }
-    t = truth()
     return {row: {"relight": t.gbuffer_relight} if row == "true G-buffer"
             else summary_figures(evaluate_asset(assets[row](), t.views, t.truths, t.lights, None)["summary"]) for row in rows}
 

@@ -22,9 +22,11 @@ from pathlib import Path
 
 import torch
 
+from benchmarks.generalise import fmt
 from matspray.errors import MatsprayError, file_error
+from matspray.material import GROUPS
 
-GROUP_NAMES = ("base_color", "roughness", "metallic")  # matspray.material.GROUPS
+GROUP_NAMES = tuple(GROUPS)
 
 
 def merger_weights(run: Path) -> tuple[dict[str, torch.Tensor], torch.Tensor, list[str]]:
@@ -75,10 +77,6 @@ def read_batches(run: Path) -> list[dict]:
     if not described.get("batches"):
         raise file_error(path, "lists no batches", "only a simulated predictor records the errors it drew")
     return described["batches"]
-
-
-def fmt(value) -> str:
-    return "—" if value is None else f"{value:.2f}"
 
 
 def report(run: Path) -> list[str]:

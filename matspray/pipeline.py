@@ -77,7 +77,7 @@ class Pipeline:
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
         self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
         self.light_probe_identity()  # a missing or unreadable light probe fails here, before any stage runs
-        self.light_probe()
+        self.probe = self.light_probe()  # EnvironmentMap | None, read once
 
     # ---------------------------------------------------------------- predict
     def predictor_options(self) -> PredictorOptions:
@@ -241,14 +241,15 @@ class Pipeline:
     def refine(self, variant: str = "full") -> Asset:
         config = variant_refine_config(self.config, variant)
         stage = asset_stage(variant)
-        probe = self.light_probe_identity() if get_variant(variant).learns_light else ()
-        fp = fingerprint("refine", self.config.method, config, self.lift_fingerprint(), self.visibility_fingerprint(), *probe)
+        probe = self.probe if get_variant(variant).learns_light else None  # variants without a light ignore it
+        fp = fingerprint("refine", self.config.method, config, self.lift_fingerprint(), self.visibility_fingerprint(),
+                         *(self.light_probe_identity() if probe is not None else ()))
         if self.run.stage_done(stage, fp, ["asset.ply"]):
             self.log(f"refine [{variant}]: done before, reusing {stage}/")
             return read_asset(self.run.path(stage), device=self.device)
         inputs = self.refine_inputs()
         with timed() as t:
-            result = refine(inputs, config, progress=self.progress, light=self.light_probe() if probe else None)
+            result = refine(inputs, config, progress=self.progress, light=probe)
             write_asset(self.run.path(stage), inputs.gaussians, result)
         self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history})
         return read_asset(self.run.path(stage), device=self.device)

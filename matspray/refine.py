@@ -325,6 +325,7 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
     if variant.learns_light:
         envmap = (EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if light is None
                   else EnvironmentMap(light.log_map.detach().to(device), learnable=False))
+    estimates_light = envmap is not None and light is None
     normal_offsets = nn.Parameter(torch.zeros_like(normals)) if (config.refine_normals and variant.learns_light) else None
     history: list[dict] = []
     if not source.trainable or config.iterations == 0:
@@ -333,14 +334,14 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
     training = TrainingViews(inputs)
     source_lr = config.supervised_lr if variant.source == "free" else config.merger_lr
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
-    if envmap is not None and light is None:
+    if estimates_light:
         groups.append(envmap_group(envmap, config))
     if normal_offsets is not None:
         groups.append({"params": [normal_offsets], "lr": 1e-3, "name": "normal offsets"})
     generator = torch.Generator().manual_seed(config.seed)
     with torch.no_grad():
         last_materials = source()  # [N, 5] each Gaussian's latest merged value
-    if envmap is not None and light is None and config.light_warmup > 0:
+    if estimates_light and config.light_warmup > 0:
         warm_up_light(training, last_materials, normals, envmap, config, generator, progress)
     optimizer = torch.optim.Adam(groups)
 

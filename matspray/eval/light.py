@@ -27,8 +27,8 @@ def light_figures(estimate: Tensor, truth: Tensor) -> dict:  # [h, 2h, 3], [H, 2
             "irradiance_correlation": irradiance_correlation(estimate, truth)}
 
 
-def training_light(data) -> tuple[str, Tensor] | None:
-    """The training light of a `matspray synth` object (name, [H, 2H, 3]), or None for other datasets."""
+def training_light_path(data) -> Path | None:
+    """The file of the training light of a `matspray synth` object (named in its scene.json), or None for other datasets."""
     scene_file = Path(data) / "scene.json"
     if not scene_file.exists():
         return None
@@ -39,4 +39,10 @@ def training_light(data) -> tuple[str, Tensor] | None:
     path = Path(data) / "envmaps" / f"{name}.exr"
     if not path.exists():
         raise file_error(path, f"the training light '{name}' named in scene.json is missing")
-    return name, EnvironmentMap.from_file(path).map.detach()
+    return path
+
+
+def training_light(data) -> tuple[str, Tensor] | None:
+    """The training light of a `matspray synth` object (name, [H, 2H, 3]), or None for other datasets."""
+    path = training_light_path(data)
+    return None if path is None else (path.stem, EnvironmentMap.from_file(path).map.detach())
