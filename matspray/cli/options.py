@@ -9,7 +9,7 @@ import os
 PRESET_CHOICES = ("test", "demo", "paper")
 METHOD_CHOICES = ("matspray", "paper")
 VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax")  # matspray.variants.VARIANT_NAMES (a test checks)
-ADDITION_CHOICES = ("core-median", "min-support", "seen-input", "unseen-mask", "photo-weight", "light-warmup", "min-coverage")  # matspray.config.ADDITION_NAMES (a test checks)
+ADDITION_CHOICES = ("core-median", "min-support", "seen-input", "unseen-mask", "light-warmup", "min-coverage")  # matspray.config.ADDITION_NAMES (a test checks)
 
 
 def on_off(value: str) -> bool:
@@ -35,7 +35,7 @@ SETTING_FLAGS = {
                  "the mean of the views that did; paper)"),
     "--basecolor-loss": ("refine.basecolor_loss", str, "l1 (default, as the paper) or scale-invariant (forgives each view's "
                          "exposure error; it did not pay on the development set)"),
-    "--photo-weight": ("refine.photo_weight", float, "weight of the photometric loss against the material loss (matspray 2, paper 1)"),
+    "--photo-weight": ("refine.photo_weight", float, "weight of the photometric loss against the material loss (1, as the paper)"),
     "--light-warmup": ("refine.light_warmup", int, "steps that fit the light alone before the merger trains (paper: 0)"),
     "--min-coverage": ("refine.min_coverage", float, "the merger skips Gaussians covering fewer pixels of a view (matspray 0.02, paper 0)"),
     "--light-tv-weight": ("refine.light_tv_weight", float, "weight of the smoothness prior on the estimated light "
