@@ -66,6 +66,9 @@ class Pipeline:
         configure_threads(self.device)
         self.backend = resolve_backend(config.backend, self.device)  # "torch" or "gsplat"; fails here, before any work
         self.scene = load_scene(data, downscale=config.downscale)
+        self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
+        self.light_probe_identity()  # a missing or unreadable light probe fails here, before the run folder is touched
+        self.probe = self.light_probe()  # EnvironmentMap | None, read once
         self.run = RunDir(out)
         self.run.claim(dataset_identity(self.scene), overwrite=overwrite)
         self.run.write_config(config)
@@ -75,9 +78,6 @@ class Pipeline:
         self.unmasked = not self.scene.has_masks  # masks then come from the geometry (stage `masks`)
         self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
-        self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
-        self.light_probe_identity()  # a missing or unreadable light probe fails here, before any stage runs
-        self.probe = self.light_probe()  # EnvironmentMap | None, read once
 
     # ---------------------------------------------------------------- predict
     def predictor_options(self) -> PredictorOptions:

@@ -198,8 +198,10 @@ def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_firs
     shutil.copy(tiny_object / "envmaps" / f"{name}.exr", probe)
     args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
 
+    before = sorted(p.relative_to(run) for p in run.rglob("*"))
     assert main(args + ["--light-probe", str(tmp_path / "nowhere.exr")]) == 2
-    assert "nowhere.exr" in capsys.readouterr().err and not (run / "lift").exists()  # refused before any stage ran
+    assert "nowhere.exr" in capsys.readouterr().err  # refused before the run folder is touched
+    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
 
     assert main(args + ["--light-probe", str(probe)]) == 0
     expected = EnvironmentMap.from_file(probe, height=8).map  # the test preset's light size
