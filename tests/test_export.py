@@ -331,6 +331,25 @@ def test_eval_glb_bad_inputs_are_one_clear_line(tmp_path, capsys):
     assert code == 2 and "give --run RUN" in err
 
 
+def test_the_truth_is_rendered_at_the_datasets_spp_and_a_synth_objects_training_light_is_found(tmp_path):
+    import json
+
+    from matspray.errors import DataError
+    from matspray.eval.glb import DEFAULT_SPP, dataset_spp
+    from matspray.eval.light import training_light_path
+
+    assert dataset_spp(tmp_path) == DEFAULT_SPP and training_light_path(tmp_path) is None  # not a synth object
+    (tmp_path / "scene.json").write_text("{not json")
+    assert dataset_spp(tmp_path) == DEFAULT_SPP and training_light_path(tmp_path) is None
+    (tmp_path / "scene.json").write_text(json.dumps({"settings": {"spp": 7}, "lights": {"train": "sky"}}))
+    assert dataset_spp(tmp_path) == 7
+    with pytest.raises(DataError, match="training light .sky. named in scene.json is missing"):
+        training_light_path(tmp_path)
+    (tmp_path / "envmaps").mkdir()
+    (tmp_path / "envmaps" / "sky.exr").write_bytes(b"")
+    assert training_light_path(tmp_path) == tmp_path / "envmaps" / "sky.exr"
+
+
 def test_unit_normals_replaces_zero_length_normals():
     from matspray.export.export import unit_normals
 

@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from matspray.asset import read_asset
 from matspray.data import View, load_scene, read_image
+from matspray.data.blender import read_scene_json
 from matspray.errors import ConfigError
 from matspray.eval.lpips import load_lpips
 from matspray.eval.report import STYLE, Figures, markdown_to_html
@@ -78,8 +79,8 @@ def mesh_renders(parts, textures, views: list[View], envs: dict[str, np.ndarray]
 
 def dataset_spp(data: Path) -> int:
     """The samples per pixel the dataset's truth was rendered with (scene.json), else DEFAULT_SPP."""
-    path = Path(data) / "scene.json"
-    return int(read_json(path).get("settings", {}).get("spp", DEFAULT_SPP)) if path.exists() else DEFAULT_SPP
+    settings = (read_scene_json(Path(data)) or {}).get("settings")
+    return int(settings.get("spp", DEFAULT_SPP)) if isinstance(settings, dict) else DEFAULT_SPP
 
 
 def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: str | None = None, lpips_weights=None,

@@ -9,11 +9,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from torch import Tensor
 
+from matspray.data.blender import read_scene_json
 from matspray.errors import file_error
 from matspray.render.envmap import MIN_RADIANCE, EnvironmentMap, downsample_latlong
 from matspray.render.latlong import irradiance_correlation, total_variation
@@ -29,12 +29,9 @@ def light_figures(estimate: Tensor, truth: Tensor) -> dict:  # [h, 2h, 3], [H, 2
 
 def training_light_path(data) -> Path | None:
     """The file of the training light of a `matspray synth` object (named in its scene.json), or None for other datasets."""
-    scene_file = Path(data) / "scene.json"
-    if not scene_file.exists():
-        return None
-    try:
-        name = json.loads(scene_file.read_text())["lights"]["train"]
-    except (KeyError, TypeError, json.JSONDecodeError):
+    lights = (read_scene_json(Path(data)) or {}).get("lights")
+    name = lights.get("train") if isinstance(lights, dict) else None
+    if not isinstance(name, str):
         return None
     path = Path(data) / "envmaps" / f"{name}.exr"
     if not path.exists():
