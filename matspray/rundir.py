@@ -165,9 +165,14 @@ def share_stage(source_run, target_run, stage: str) -> bool:
     runs of one object share work; the target's pipeline still compares fingerprints and redoes the stage
     if they differ. False when there is nothing to share or the target has the stage already."""
     source, target = Path(source_run) / stage, Path(target_run) / stage
-    if not (source / "stage.json").exists() or (target / "stage.json").exists():
+    if not (source / STAGE_RECORD).exists() or (target / STAGE_RECORD).exists():
         return False
-    shutil.copytree(source, target, copy_function=_link_or_copy, dirs_exist_ok=True)
+    shutil.copytree(source, target, copy_function=_link_or_copy, ignore=shutil.ignore_patterns(STAGE_RECORD), dirs_exist_ok=True)
+    # the record last, as a copy written now: a half-done share is no stage, and a figure the target derived
+    # from its earlier stage is older than the shared one (newer_than_stages), whatever the source's age
+    record = atomic_target(target / STAGE_RECORD)
+    shutil.copyfile(source / STAGE_RECORD, record)
+    os.replace(record, target / STAGE_RECORD)
     return True
 
 

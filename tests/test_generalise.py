@@ -23,7 +23,7 @@ from benchmarks.generalise import (
 from matspray.errors import ConfigError
 from matspray.lights import BUILTINS
 from matspray.refine import RefineConfig
-from matspray.rundir import share_stage
+from matspray.rundir import newer_than_stages, share_stage
 
 HDRIS = ["city", "forest", "interior", "studio", "sunrise", "sunset"]
 
@@ -76,9 +76,15 @@ def test_share_stage_links_a_finished_stage_once(tmp_path):
     (source / "geometry" / "renders").mkdir(parents=True)
     (source / "geometry" / "stage.json").write_text('{"fingerprint": "x"}')
     (source / "geometry" / "renders" / "r.png").write_bytes(b"png")
+    os.utime(source / "geometry" / "stage.json", (1e9, 1e9))  # finished long ago
+    (target / "eval").mkdir(parents=True)
+    (target / "eval" / "metrics.json").write_text("{}")  # a figure the target derived before the share (and after the source)
+    os.utime(target / "eval" / "metrics.json", (1.5e9, 1.5e9))
     assert share_stage(source, target, "geometry")
-    assert os.path.samefile(source / "geometry" / "stage.json", target / "geometry" / "stage.json")
-    assert (target / "geometry" / "renders" / "r.png").read_bytes() == b"png"
+    assert os.path.samefile(source / "geometry" / "renders" / "r.png", target / "geometry" / "renders" / "r.png")
+    assert (target / "geometry" / "stage.json").read_text() == '{"fingerprint": "x"}'
+    assert (source / "geometry" / "stage.json").stat().st_mtime == 1e9  # the source is left as it was
+    assert not newer_than_stages(target / "eval" / "metrics.json", target)  # the figure is older than the shared stage
     assert not share_stage(source, target, "geometry")  # already there
     assert not share_stage(tmp_path / "none", tmp_path / "c", "geometry") and not (tmp_path / "c").exists()
 
