@@ -235,7 +235,7 @@ class SimulatedPredictor(Predictor):
         out, self.batches, self.outliers = {}, [], []
         draws = replace(self.config, seed=views_seed(self.config.seed, views))
         size = int(self.config.batch_size)
-        with tqdm(total=len(views), desc="simulated predictions", unit="view") as bar:
+        with tqdm(total=len(views), desc="simulated predictions", unit="view", disable=None) as bar:  # no bar where output is not a terminal
             for batch, start in enumerate(range(0, len(views), size)):
                 drift = draw_batch_drift(draws, batch)
                 members = views[start : start + size]
