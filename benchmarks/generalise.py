@@ -307,7 +307,8 @@ def model_table(model: str, per_object: list[dict], summary: dict, variants) -> 
     mean += [fmt(s3[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(s3["metallic"])]
     mean += [fmt(s2[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(s2["metallic"])]
     lines.append("| " + " | ".join(mean + [f"{sum(o['seconds'] for o in per_object) / len(per_object):.0f}"]) + " |")
-    lines += ["", "wins: " + ", ".join(f"{k} {w['wins']}/{w['of']}" for k, w in summary["wins"].items()), ""]
+    counted = {k: w for k, w in summary["wins"].items() if w["of"]}  # a pair with a variant not run has no count
+    lines += ["", "wins: " + ", ".join(f"{k} {w['wins']}/{w['of']}" for k, w in counted.items()), ""]
     return lines
 
 

@@ -158,6 +158,8 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert paper["materials_2d"]["basecolor"] < 40 and set(paper["relight"]) == {"full", "proj-average"}
     assert json.loads((paper_run / "materials2d" / "predictor.json").read_text())["error_model"] == "paper"
     assert (out / f"tables-{tag}-paper.md").exists() and (out / f"results-{tag}.md").exists()
+    wins_line = next(line for line in (out / f"results-{tag}.md").read_text().splitlines() if line.startswith("wins:"))
+    assert "full > proj-average" in wins_line and "no-softmax" not in wins_line  # a variant not run has no count
     assert main(["--compare", "--out", str(out)]) == 0  # the table of choices, from the saved results
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(f"| {tag} |")]
     assert [row.split(" | ")[3] for row in rows] == ["paper", "ground-truth"] and "iterations=4, light_warmup=2" in rows[0]
