@@ -170,9 +170,7 @@ def share_stage(source_run, target_run, stage: str) -> bool:
     shutil.copytree(source, target, copy_function=_link_or_copy, ignore=shutil.ignore_patterns(STAGE_RECORD), dirs_exist_ok=True)
     # the record last, as a copy written now: a half-done share is no stage, and a figure the target derived
     # from its earlier stage is older than the shared one (newer_than_stages), whatever the source's age
-    record = atomic_target(target / STAGE_RECORD)
-    shutil.copyfile(source / STAGE_RECORD, record)
-    os.replace(record, target / STAGE_RECORD)
+    write_text_atomic(target / STAGE_RECORD, (source / STAGE_RECORD).read_text())
     return True
 
 
