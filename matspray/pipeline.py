@@ -67,8 +67,10 @@ class Pipeline:
         self.backend = resolve_backend(config.backend, self.device)  # "torch" or "gsplat"; fails here, before any work
         self.scene = load_scene(data, downscale=config.downscale)
         self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
-        self.light_probe_identity()  # a missing or unreadable light probe fails here, before the run folder is touched
-        self.probe = self.light_probe()  # EnvironmentMap | None, read once
+        # a missing or unreadable light probe fails here, before the run folder is touched; it is read once, and the
+        # refinement's fingerprint names the file as it was read
+        self.probe_identity = self.light_probe_identity()
+        self.probe = self.light_probe()  # EnvironmentMap | None
         self.run = RunDir(out)
         self.run.claim(dataset_identity(self.scene), overwrite=overwrite)
         self.run.write_config(config)
@@ -243,7 +245,7 @@ class Pipeline:
         stage = asset_stage(variant)
         probe = self.probe if get_variant(variant).learns_light else None  # variants without a light ignore it
         fp = fingerprint("refine", self.config.method, config, self.lift_fingerprint(), self.visibility_fingerprint(),
-                         *(self.light_probe_identity() if probe is not None else ()))
+                         *(self.probe_identity if probe is not None else ()))
         if self.run.stage_done(stage, fp, ["asset.ply"]):
             self.log(f"refine [{variant}]: done before, reusing {stage}/")
             return read_asset(self.run.path(stage), device=self.device)
