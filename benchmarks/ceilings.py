@@ -264,10 +264,27 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
     return lines
 
 
+def merge_with_saved(path: Path, results: dict, log=print) -> dict:
+    """Writes `results` ({model: [per-object figures]}) to `path`, keeping the models of earlier passes that this pass
+    did not run; returns what was written. Call it holding `held_exclusively(path)`."""
+    from matspray.rundir import read_json, write_json
+
+    kept = {}
+    for model, per_object in (read_json(path) if path.exists() else {}).items():
+        if model in results:
+            continue
+        if all(list(o["rows"]) == list(ROWS) for o in per_object):
+            kept[model] = per_object
+        else:  # saved by a version with other rows: its runs' saved figures gain the new rows on the next pass over them
+            log(f"ceilings: error model {model} in {path} has other rows (an older version); dropped: pass --models {model} to add it again")
+    write_json(path, kept | results)  # the models of earlier passes stay, this pass's replace theirs
+    return kept | results
+
+
 def run_set(args, log=print) -> list[str]:
     from matspray.config import build_config
     from matspray.lights import hdri_files
-    from matspray.rundir import read_json, write_json, write_text_atomic
+    from matspray.rundir import held_exclusively, write_text_atomic
 
     objects = object_set(args.set, args.start + args.objects, sorted(hdri_files()))[args.start:]
     config = build_config(args.preset)  # the protocol's default settings (lift included), whatever the predictor
@@ -289,16 +306,9 @@ def run_set(args, log=print) -> list[str]:
             results[model].append({"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light)})
     suffix = args.preset if args.start == 0 else f"{args.preset}-from{args.start}"
     path = args.out / f"ceilings-{suffix}.json"
-    kept = {}
-    for model, per_object in (read_json(path) if path.exists() else {}).items():
-        if model in results:
-            continue
-        if all(list(o["rows"]) == list(ROWS) for o in per_object):
-            kept[model] = per_object
-        else:  # saved by a version with other rows: its runs' saved figures gain the new rows on the next pass over them
-            log(f"ceilings: error model {model} in {path} has other rows (an older version); dropped: pass --models {model} to add it again")
-    write_json(path, kept | results)  # the models of earlier passes stay, this pass's replace theirs
-    write_text_atomic(path.with_suffix(".md"), "\n".join(markdown(args.set, args.preset, kept | results)) + "\n")
+    with held_exclusively(path):  # jobs for other error models may finish at the same time: each keeps the others' models
+        saved = merge_with_saved(path, results, log)
+        write_text_atomic(path.with_suffix(".md"), "\n".join(markdown(args.set, args.preset, saved)) + "\n")
     return markdown(args.set, args.preset, results)
 
 

@@ -69,6 +69,23 @@ def newer_than_stages(path: Path, *run_dirs) -> bool:
     return all(stage.stat().st_mtime <= written for run in run_dirs for stage in Path(run).glob(f"*/{STAGE_RECORD}"))
 
 
+@contextmanager
+def held_exclusively(path: Path):
+    """Runs the block while holding an exclusive lock on `path`'s sidecar `path.lock`: processes that read, change and
+    write back one shared file (a results table that keeps the entries of earlier passes) take turns, so none loses
+    another's entries. The sidecar stays behind (removing it would race with a waiting process); POSIX only."""
+    import fcntl
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_name(path.name + ".lock"), "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)  # blocks until the holder's block ends
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 class RunDir:
     def __init__(self, root):
         self.root = Path(root)

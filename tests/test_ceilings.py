@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
+import time
 
 import pytest
 import torch
 
-from benchmarks.ceilings import CHANNEL_GROUPS, ROWS, at_brightness, main, mean_rows, with_groups
+from benchmarks.ceilings import CHANNEL_GROUPS, ROWS, at_brightness, main, mean_rows, merge_with_saved, with_groups
 from benchmarks.generalise import main as generalise
 from matspray.asset import Asset
 from matspray.gaussians import Gaussians
+from matspray.rundir import held_exclusively
 
 
 def tiny_asset(materials: torch.Tensor) -> Asset:
@@ -47,6 +50,29 @@ def test_mean_rows_average_over_objects_and_drop_a_figure_some_object_lacks():
     means = mean_rows([rows(20.0, 30.0), rows(22.0, math.inf)])
     assert means["proj-average"]["relight"] == pytest.approx(21.0) and means["lifted truth"]["relight"] == pytest.approx(21.0 + ROWS.index("lifted truth"))
     assert "metallic" not in means["full"] and means["full"]["basecolor"] == 20.0  # inf (an exact map) is not averaged
+
+
+def merge_one_model(path, model):  # a ceilings job of another process finishing its pass
+    with held_exclusively(path):
+        merge_with_saved(path, {model: [{"object": "dev-00", "rows": {row: {"relight": 20.0} for row in ROWS}}]})
+
+
+def test_jobs_for_other_models_finishing_together_keep_each_others_figures(tmp_path):
+    path = tmp_path / "ceilings-demo.json"
+    merge_with_saved(path, {"paper": [{"object": "dev-00", "rows": {row: {"relight": 21.0} for row in ROWS}}]})
+    context = multiprocessing.get_context("spawn")
+    with held_exclusively(path):  # this process is mid-merge: the others wait for it
+        others = [context.Process(target=merge_one_model, args=(path, model)) for model in ("harsh", "outliers")]
+        for process in others:
+            process.start()
+        time.sleep(1.0)
+        assert set(json.loads(path.read_text())) == {"paper"}  # neither wrote while the lock was held
+        merge_with_saved(path, {"ground-truth": [{"object": "dev-00", "rows": {row: {"relight": 30.0} for row in ROWS}}]})
+    for process in others:
+        process.join(timeout=60)
+        assert process.exitcode == 0
+    saved = json.loads(path.read_text())
+    assert set(saved) == {"paper", "harsh", "outliers", "ground-truth"} and saved["paper"][0]["rows"]["full"]["relight"] == 21.0
 
 
 @pytest.mark.slow
