@@ -1,6 +1,6 @@
 """Does the method beat its baselines on objects it was never tuned on? The benchmark protocol (issue 21).
 
-    python -m benchmarks.generalise --set dev|eval [--objects K] [--preset demo|test]
+    python -m benchmarks.generalise --set dev|eval [--objects K] [--start I] [--preset demo|test]
         [--models paper harsh outliers ground-truth] [--variants full proj-average supervised no-softmax]
         [--method matspray|paper] [--without ADDITION ...] [setting flags of `matspray run`]
         [--refine KEY=VALUE ...] [--tag NAME] [--out DIR]
@@ -317,7 +317,7 @@ def run_protocol(args, log=print) -> dict:
     hdris = sorted(hdri_files())
     if not hdris:
         log("notice: no ../shared/data/hdri found; objects are trained under built-in lights instead of HDRIs")
-    objects = object_set(args.set, args.objects, hdris)
+    objects = object_set(args.set, args.start + args.objects, hdris)[args.start:]
     specs = {m: predictor_spec(m) for m in args.models}
     configs = {m: protocol_config(args, spec) for m, spec in specs.items()}
     first_model = args.models[0]
@@ -327,7 +327,8 @@ def run_protocol(args, log=print) -> dict:
     key = configuration_key(args.method, choices)
     tag = args.tag or ("default" if not any(choices.values()) else fingerprint(choices)[:8])
     tag = tag if args.method == "matspray" else f"{args.method}-{tag}"
-    settings = {"set": args.set, "preset": args.preset, "objects": len(objects), "models": list(args.models), "variants": list(args.variants),
+    tag = tag if args.start == 0 else f"{tag}-from{args.start}"  # a part of a pass keeps its own files; the whole pass reuses its runs
+    settings = {"set": args.set, "preset": args.preset, "objects": len(objects), "start": args.start, "models": list(args.models), "variants": list(args.variants),
                 "method": args.method, "without": list(args.without), "settings": choices["settings"], "refine_overrides": refine, "tag": tag}
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
     if args.set == "eval":
@@ -434,6 +435,8 @@ def parse_args(argv=None):
     parser = argparse.ArgumentParser(prog="python -m benchmarks.generalise", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="dev: choose settings here; eval: run once at the end (default dev)")
     parser.add_argument("--objects", type=int, default=6, help="objects of the set, the first K (default 6)")
+    parser.add_argument("--start", type=int, default=0, help="skip the set's first I objects, to split a pass over jobs that run at once "
+                        "(its files get the tag TAG-fromI; a later pass over all objects reuses every finished run)")
     parser.add_argument("--models", nargs="+", default=list(MODELS), metavar="MODEL", help=f"error models (default: {' '.join(MODELS)})")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS, metavar="VARIANT",
                         help=f"variants refined per run (default: {' '.join(VARIANTS)})")
@@ -448,6 +451,8 @@ def parse_args(argv=None):
                         "(its results-*.json), the table to choose settings from")
     add_method_arguments(parser, presets=("test", "demo"))
     args = parser.parse_args(argv)
+    if args.start < 0 or args.objects < 1:
+        parser.error(f"--objects must be >= 1 and --start >= 0 (got {args.objects} and {args.start})")
     args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
     return args
 

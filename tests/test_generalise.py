@@ -130,6 +130,23 @@ def test_means_and_wins_over_objects():
 
 
 @pytest.mark.slow
+def test_start_splits_a_pass_over_jobs(tmp_path, capsys):
+    pytest.importorskip("mitsuba")
+    out = tmp_path / "g"
+    assert main(["--set", "dev", "--start", "1", "--objects", "1", "--preset", "test", "--models", "paper", "--geometry-only",
+                 "--out", str(out), "--no-progress"]) == 0
+    assert [p.name for p in (out / "objects").iterdir()] == ["dev-01-seed1001"]  # the set's second object only
+    assert (out / "objects" / "dev-01-seed1001" / "runs" / "paper" / "geometry" / "stage.json").exists()
+    assert main(["--set", "dev", "--start", "1", "--objects", "1", "--preset", "test", "--models", "paper", "--variants", "proj-average",
+                 "--tag", "part", "--out", str(out), "--no-progress"]) == 0
+    report = json.loads((out / "results-part-from1.json").read_text())  # a part of a pass keeps its own files
+    assert report["settings"]["start"] == 1 and [o["object"]["name"] for o in report["models"]["paper"]["objects"]] == ["dev-01-seed1001"]
+    for bad in (["--start", "-1"], ["--objects", "0", "--start", "2"]):
+        with pytest.raises(SystemExit):
+            main(["--set", "dev", *bad, "--out", str(out)])
+        assert "--objects must be >= 1 and --start >= 0" in capsys.readouterr().err
+
+
 def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     pytest.importorskip("mitsuba")
     out = tmp_path / "g"
