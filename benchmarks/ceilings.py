@@ -45,7 +45,8 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.generalise import SET_SEEDS, fmt, object_config, object_set, predictor_spec, run_name
+from benchmarks.generalise import (SET_SEEDS, add_part_arguments, check_part_arguments, fmt, object_config, objects_part, part_name,
+                                   predictor_spec, run_name)
 from matspray.errors import ConfigError, MatsprayError, RunError
 from matspray.material import GROUPS
 
@@ -286,7 +287,7 @@ def run_set(args, log=print) -> list[str]:
     from matspray.lights import hdri_files
     from matspray.rundir import held_exclusively, write_text_atomic
 
-    objects = object_set(args.set, args.start + args.objects, sorted(hdri_files()))[args.start:]
+    objects = objects_part(args.set, args.start, args.objects, sorted(hdri_files()))
     config = build_config(args.preset)  # the protocol's default settings (lift included), whatever the predictor
     results = {model: [] for model in args.models}
     for number, spec in enumerate(objects, 1):
@@ -304,8 +305,7 @@ def run_set(args, log=print) -> list[str]:
             require_same_lift(run_dir, config)
             log(f"ceilings: object {number}/{len(objects)} {spec.name}, error model {model}")
             results[model].append({"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light)})
-    suffix = args.preset if args.start == 0 else f"{args.preset}-from{args.start}"
-    path = args.out / f"ceilings-{suffix}.json"
+    path = args.out / f"ceilings-{part_name(args.preset, args.start)}.json"
     with held_exclusively(path):  # jobs for other error models may finish at the same time: each keeps the others' models
         saved = merge_with_saved(path, results, log)
         write_text_atomic(path.with_suffix(".md"), "\n".join(markdown(args.set, args.preset, saved)) + "\n")
@@ -317,15 +317,13 @@ def parse_args(argv=None):
 
     parser = argparse.ArgumentParser(prog="python -m benchmarks.ceilings", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="the protocol's object set (default dev)")
-    parser.add_argument("--objects", type=int, default=6, help="how many objects (default 6)")
-    parser.add_argument("--start", type=int, default=0, help="skip the set's first I objects (to split a pass over two jobs)")
+    add_part_arguments(parser)
     parser.add_argument("--models", nargs="+", default=list(ERROR_MODELS), choices=ERROR_MODELS, metavar="MODEL",
                         help=f"error models (default: {' '.join(ERROR_MODELS)})")
     parser.add_argument("--preset", choices=("test", "demo"), default="demo")
     parser.add_argument("--out", type=Path, help="the protocol's folder (default runs/generalise-SET-PRESET)")
     args = parser.parse_args(argv)
-    if args.objects < 1 or args.start < 0:
-        parser.error("--objects must be >= 1 and --start >= 0")
+    check_part_arguments(parser, args)
     args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
     return args
 

@@ -87,6 +87,27 @@ def object_set(which: str, count: int, hdris: list[str]) -> list[ObjectSpec]:
     return objects
 
 
+def objects_part(which: str, start: int, count: int, hdris: list[str]) -> list[ObjectSpec]:
+    """Objects start .. start + count - 1 of set `which`: one part of a pass split over jobs (`--start`)."""
+    return object_set(which, start + count, hdris)[start:]
+
+
+def part_name(name: str, start: int) -> str:
+    """The name of a part's files: a pass split over jobs keeps each part's files apart from the whole pass's."""
+    return name if start == 0 else f"{name}-from{start}"
+
+
+def add_part_arguments(parser) -> None:
+    parser.add_argument("--objects", type=int, default=6, help="objects of the set, the first K (default 6)")
+    parser.add_argument("--start", type=int, default=0, help="skip the set's first I objects, to split a pass over jobs that run at once "
+                        "(a part's files get the suffix -fromI; a later pass over all objects reuses every finished run)")
+
+
+def check_part_arguments(parser, args) -> None:
+    if args.start < 0 or args.objects < 1:
+        parser.error(f"--objects must be >= 1 and --start >= 0 (got {args.objects} and {args.start})")
+
+
 def predictor_spec(model: str) -> str:
     if model not in MODELS:
         raise ConfigError(f"--models: unknown error model '{model}'; choose from {', '.join(MODELS)}")
@@ -317,7 +338,7 @@ def run_protocol(args, log=print) -> dict:
     hdris = sorted(hdri_files())
     if not hdris:
         log("notice: no ../shared/data/hdri found; objects are trained under built-in lights instead of HDRIs")
-    objects = object_set(args.set, args.start + args.objects, hdris)[args.start:]
+    objects = objects_part(args.set, args.start, args.objects, hdris)
     specs = {m: predictor_spec(m) for m in args.models}
     configs = {m: protocol_config(args, spec) for m, spec in specs.items()}
     first_model = args.models[0]
@@ -327,7 +348,7 @@ def run_protocol(args, log=print) -> dict:
     key = configuration_key(args.method, choices)
     tag = args.tag or ("default" if not any(choices.values()) else fingerprint(choices)[:8])
     tag = tag if args.method == "matspray" else f"{args.method}-{tag}"
-    tag = tag if args.start == 0 else f"{tag}-from{args.start}"  # a part of a pass keeps its own files; the whole pass reuses its runs
+    tag = part_name(tag, args.start)  # the whole pass reuses the part's runs
     settings = {"set": args.set, "preset": args.preset, "objects": len(objects), "start": args.start, "models": list(args.models), "variants": list(args.variants),
                 "method": args.method, "without": list(args.without), "settings": choices["settings"], "refine_overrides": refine, "tag": tag}
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
@@ -434,9 +455,7 @@ def choices_table(out: Path) -> list[str]:
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(prog="python -m benchmarks.generalise", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="dev: choose settings here; eval: run once at the end (default dev)")
-    parser.add_argument("--objects", type=int, default=6, help="objects of the set, the first K (default 6)")
-    parser.add_argument("--start", type=int, default=0, help="skip the set's first I objects, to split a pass over jobs that run at once "
-                        "(its files get the tag TAG-fromI; a later pass over all objects reuses every finished run)")
+    add_part_arguments(parser)
     parser.add_argument("--models", nargs="+", default=list(MODELS), metavar="MODEL", help=f"error models (default: {' '.join(MODELS)})")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS, metavar="VARIANT",
                         help=f"variants refined per run (default: {' '.join(VARIANTS)})")
@@ -451,8 +470,7 @@ def parse_args(argv=None):
                         "(its results-*.json), the table to choose settings from")
     add_method_arguments(parser, presets=("test", "demo"))
     args = parser.parse_args(argv)
-    if args.start < 0 or args.objects < 1:
-        parser.error(f"--objects must be >= 1 and --start >= 0 (got {args.objects} and {args.start})")
+    check_part_arguments(parser, args)
     args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
     return args
 
