@@ -6,14 +6,17 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing
+import threading
 import time
 
 import pytest
 import torch
 
+import benchmarks.ceilings as ceilings
 from benchmarks.ceilings import CHANNEL_GROUPS, ROWS, at_brightness, main, mean_rows, merge_with_saved, with_groups
 from benchmarks.generalise import main as generalise
 from matspray.asset import Asset
+from matspray.config import build_config
 from matspray.gaussians import Gaussians
 from matspray.rundir import held_exclusively
 
@@ -73,6 +76,31 @@ def test_jobs_for_other_models_finishing_together_keep_each_others_figures(tmp_p
         assert process.exitcode == 0
     saved = json.loads(path.read_text())
     assert set(saved) == {"paper", "harsh", "outliers", "ground-truth"} and saved["paper"][0]["rows"]["full"]["relight"] == 21.0
+
+
+def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(tmp_path, monkeypatch):
+    made = []  # (stage shared into, predictor) of each lift that ran
+
+    class RecordingPipeline:
+        def __init__(self, data, out, config, **_):
+            self.out, self.config = out, config
+
+        def run_all(self, variants):
+            made.append((self.out, self.config.predictor))
+            return {variant: "asset" for variant in variants}
+
+    monkeypatch.setattr(ceilings, "require_same_lift", lambda run, config: None)
+    monkeypatch.setattr("matspray.rundir.share_stage", lambda source, target, stage: made.append((target, stage)))
+    monkeypatch.setattr("matspray.pipeline.Pipeline", RecordingPipeline)
+    truth_run = tmp_path / "runs" / "ground-truth"
+    config = build_config("test")
+    job = threading.Thread(target=ceilings.lift_truth, args=(tmp_path / "data", tmp_path / "runs" / "harsh", truth_run, config))
+    with held_exclusively(truth_run):  # another job is lifting the truth of this object
+        job.start()
+        time.sleep(0.5)
+        assert made == [] and not truth_run.exists()  # this one waits for it
+    job.join(timeout=30)
+    assert not job.is_alive() and made == [(truth_run, "geometry"), (truth_run, "ground-truth")]
 
 
 @pytest.mark.slow
