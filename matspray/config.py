@@ -101,7 +101,6 @@ class Addition:
 ADDITIONS = (
     Addition("core-median", "lift.footprint_sigmas", None, "a Gaussian's per-view median reads the rays through its 1-sigma core"),
     Addition("min-support", "lift.min_support", 0.0, "a view counts for a Gaussian only with >= 0.5 of its best view's hits"),
-    Addition("seen-input", "refine.merger.seen_input", False, "the merger also reads which views saw the Gaussian"),
     Addition("unseen-mask", "refine.merger.unseen", "mean", "unseen views get weight 0 (the paper's code fills them with the mean)"),
     Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
     Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering < 0.02 px of a view"),

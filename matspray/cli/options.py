@@ -9,7 +9,7 @@ import os
 PRESET_CHOICES = ("test", "demo", "paper")
 METHOD_CHOICES = ("matspray", "paper")
 VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax")  # matspray.variants.VARIANT_NAMES (a test checks)
-ADDITION_CHOICES = ("core-median", "min-support", "seen-input", "unseen-mask", "light-warmup", "min-coverage")  # matspray.config.ADDITION_NAMES (a test checks)
+ADDITION_CHOICES = ("core-median", "min-support", "unseen-mask", "light-warmup", "min-coverage")  # matspray.config.ADDITION_NAMES (a test checks)
 
 
 def on_off(value: str) -> bool:
@@ -29,8 +29,8 @@ SETTING_FLAGS = {
                                   "front is at least this (default 0, every hit, as the paper; 0.5 relit 0.3 dB worse on the development set)"),
     "--footprint": ("lift.footprint_sigmas", lambda v: {"core": 1.0, "all": None}[v], "which hits feed a Gaussian's per-view "
                     "median: core (rays within 1 sigma; matspray) or all (paper)"),
-    "--merger-seen-input": ("refine.merger.seen_input", on_off, "on: the merger also reads which views saw each Gaussian "
-                            "(matspray); off: position and values only (paper)"),
+    "--merger-seen-input": ("refine.merger.seen_input", on_off, "on: the merger also reads which views saw each Gaussian; "
+                            "off (default, as the paper): position and values only"),
     "--unseen": ("refine.merger.unseen", str, "views that never hit a Gaussian: mask (weight 0; matspray) or mean (filled with "
                  "the mean of the views that did; paper)"),
     "--basecolor-loss": ("refine.basecolor_loss", str, "l1 (default, as the paper) or scale-invariant (forgives each view's "
