@@ -79,7 +79,7 @@ def test_jobs_for_other_models_finishing_together_keep_each_others_figures(tmp_p
 
 
 def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(tmp_path, monkeypatch):
-    made = []  # (stage shared into, predictor) of each lift that ran
+    made = []  # (run folder, stage shared into it) and (run folder, predictor lifted in it), in order
 
     class RecordingPipeline:
         def __init__(self, data, out, config, **_):
