@@ -104,14 +104,14 @@ def lift_truth(data: Path, run: Path, truth_run: Path, config):
     the proj-average asset of the ground-truth predictor. `run` must have lifted with `config` (checked first).
     Jobs for other error models of the same object share `truth_run`: they take turns, and the later ones reuse it."""
     from matspray.pipeline import Pipeline
-    from matspray.rundir import held_exclusively, share_stage
+    from matspray.rundir import RunDir, share_stage
 
     require_same_lift(run, config)
-    with held_exclusively(truth_run):
-        truth_run.mkdir(parents=True, exist_ok=True)
+    with RunDir(truth_run).hold(wait=True):  # another job lifting it goes first; this one then reuses its lift
         share_stage(run, truth_run, "geometry")
-        pipeline = Pipeline(data, truth_run, replace(config, predictor="ground-truth", predictor_options={}), progress=False, log=lambda _: None)
-        return pipeline.run_all(("proj-average",))["proj-average"]
+        with Pipeline(data, truth_run, replace(config, predictor="ground-truth", predictor_options={}), progress=False,
+                      log=lambda _: None) as pipeline:
+            return pipeline.run_all(("proj-average",))["proj-average"]
 
 
 def softmax_reach(truth_materials: torch.Tensor, truth_run: Path, run: Path) -> torch.Tensor:  # [N, 5] -> [N, 5]

@@ -50,7 +50,8 @@ from matspray.lights import BUILTINS, hdri_files
 from matspray.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.variants import VARIANT_NAMES as VARIANTS
-from matspray.rundir import RunDir, fingerprint, newer_than_stages, read_json, share_stage, write_json, write_text_atomic
+from matspray.rundir import (STAGE_RECORD, RunDir, fingerprint, held_exclusively, newer_than_stages, read_json, share_stage, write_json,
+                             write_text_atomic)
 
 SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
@@ -187,6 +188,17 @@ def geometry_run(runs: Path, first_model: str) -> Path:
     done = sorted(p.parent.parent for p in runs.glob("*/geometry/stage.json"))
     trained = [run for run in done if "geometry" in RunDir(run).timings()]  # the one that trained it records its seconds
     return (trained or done or [runs / first_model])[0]
+
+
+def object_geometry(data: Path, runs: Path, first_run_name: str, config, args, log) -> Path:
+    """The run folder holding the object's Gaussian Splatting (`geometry_run`), trained there first if no run has it.
+    Jobs for other models of the object that start meanwhile wait for it (the object's `geometry.lock`), then share it."""
+    with held_exclusively(runs / "geometry"):
+        first_run = geometry_run(runs, first_run_name)
+        if not (first_run / "geometry" / STAGE_RECORD).exists():
+            with Pipeline(data, first_run, config, progress=args.progress, log=log, wait=True) as pipeline:
+                pipeline.geometry()
+    return first_run
 
 
 # ------------------------------------------------------------------------------------------ one run
@@ -369,9 +381,8 @@ def run_protocol(args, log=print) -> dict:
         data = make_demo_object(folder / "data", args.preset, "random", spec.seed, progress=args.progress, env=spec.env,
                                 relight_envs=list(spec.relight_envs))
         seconds = {"synth": time.perf_counter() - start, "models": {}}
-        first_run = geometry_run(folder / "runs", run_name(first_model, key))
+        first_run = object_geometry(data, folder / "runs", run_name(first_model, key), object_config(configs[first_model], spec), args, log)
         if args.geometry_only:
-            Pipeline(data, first_run, object_config(configs[first_model], spec), progress=args.progress, log=log).geometry()
             log(f"generalise: {spec.name}: geometry in {first_run / 'geometry'} ({time.perf_counter() - start:.0f} s with synth)")
             continue
         for model in specs:

@@ -10,6 +10,7 @@ visibility, refine), so a run folder resumed with the other method recomputes th
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import replace
 from pathlib import Path
 
@@ -60,7 +61,8 @@ def maps_to_tensor(maps) -> torch.Tensor:  # MaterialMaps -> [H, W, 5]
 class Pipeline:
     """One run directory and the stages that fill it. Every stage method returns its artifact."""
 
-    def __init__(self, data, out, config: PipelineConfig, overwrite: bool = False, progress: bool = True, log=print):
+    def __init__(self, data, out, config: PipelineConfig, overwrite: bool = False, progress: bool = True, log=print,
+                 wait: bool = False):
         self.config = config
         self.device = resolve_device(config.device)
         configure_threads(self.device)
@@ -72,14 +74,32 @@ class Pipeline:
         self.probe_identity = self.light_probe_identity()
         self.probe = self.light_probe()  # EnvironmentMap | None
         self.run = RunDir(out)
-        self.run.claim(dataset_identity(self.scene), overwrite=overwrite)
-        self.run.write_config(config)
+        # the folder is this process's while the pipeline lives (or until close()): another process that wants to write
+        # it is refused, or with `wait` waits; a pipeline dropped or closed lets it go
+        held = self.run.hold(wait=wait, notify=log)
+        self._release = weakref.finalize(self, held.release)
+        try:
+            self.run.claim(dataset_identity(self.scene), overwrite=overwrite)
+            self.run.write_config(config)
+        except BaseException:
+            self.close()
+            raise
         self.progress = progress
         self.log = log
         self.dataset_fp = fingerprint(dataset_identity(self.scene), config.downscale)
         self.unmasked = not self.scene.has_masks  # masks then come from the geometry (stage `masks`)
         self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
+
+    def close(self) -> None:
+        """Lets the run folder go (see __init__); the pipeline must not write after this."""
+        self._release()
+
+    def __enter__(self) -> "Pipeline":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     # ---------------------------------------------------------------- predict
     def predictor_options(self) -> PredictorOptions:

@@ -69,21 +69,81 @@ def newer_than_stages(path: Path, *run_dirs) -> bool:
     return all(stage.stat().st_mtime <= written for run in run_dirs for stage in Path(run).glob(f"*/{STAGE_RECORD}"))
 
 
+RUN_LOCK = "run.lock"  # inside a run folder: held by the process writing it; holds that process's id
+_HELD: dict = {}  # (thread, lock file) -> [open handle, holders]: the locks this process holds, per thread
+
+
+class HeldLock:
+    """An exclusive `flock` on one lock file, taken by `hold_lock`; `release()` (idempotent) lets it go. Re-entrant in
+    one thread: a second hold of the same file there counts up instead of blocking; other threads and processes wait or
+    are refused. The kernel drops it when the process ends, however it ends, so no lock outlives its holder. POSIX only."""
+
+    def __init__(self, key):
+        self._key = key
+        self._released = False
+
+    def release(self) -> None:
+        if self._released:
+            return
+        self._released = True
+        entry = _HELD[self._key]
+        entry[1] -= 1
+        if entry[1] == 0:
+            import fcntl
+
+            del _HELD[self._key]
+            fcntl.flock(entry[0], fcntl.LOCK_UN)
+            entry[0].close()
+
+    def __enter__(self) -> "HeldLock":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def lock_owner(lock_file: Path) -> str:
+    """The process id written into a lock file by its holder ('?' when unreadable)."""
+    try:
+        return Path(lock_file).read_text().strip() or "?"
+    except OSError:
+        return "?"
+
+
+def hold_lock(lock_file: Path, wait: bool = True) -> HeldLock | None:
+    """Takes the exclusive lock on `lock_file` (made if missing) and writes this process's id into it. `wait`: block
+    until the holder lets go; else None at once when another thread or process holds it."""
+    import fcntl
+    import threading
+
+    lock_file = Path(lock_file)
+    key = (threading.get_ident(), str(lock_file.resolve()))
+    if key in _HELD:
+        _HELD[key][1] += 1
+        return HeldLock(key)
+    lock_file.parent.mkdir(parents=True, exist_ok=True)
+    handle = open(lock_file, "a+")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        return None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"{os.getpid()}\n")
+    handle.flush()
+    _HELD[key] = [handle, 1]
+    return HeldLock(key)
+
+
 @contextmanager
 def held_exclusively(path: Path):
     """Runs the block while holding an exclusive lock on `path`'s sidecar `path.lock`: processes that read, change and
     write back one shared file (a results table that keeps the entries of earlier passes) take turns, so none loses
-    another's entries. The sidecar stays behind (removing it would race with a waiting process); POSIX only."""
-    import fcntl
-
+    another's entries. The sidecar stays behind (removing it would race with a waiting process)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.with_name(path.name + ".lock"), "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)  # blocks until the holder's block ends
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    with hold_lock(path.with_name(path.name + ".lock")):
+        yield
 
 
 class RunDir:
@@ -92,6 +152,22 @@ class RunDir:
 
     def path(self, *parts) -> Path:
         return self.root.joinpath(*parts)
+
+    # ---------------------------------------------------------------- who writes it
+    def hold(self, wait: bool = False, notify=None) -> HeldLock:
+        """Takes the run folder for this thread (its `run.lock`), so that no other process writes it at the same time;
+        release the returned lock when done. Busy folder: RunError naming the process, or with `wait` block until it
+        is free (`notify` hears that it waits). Holding it again in the same thread is free."""
+        lock_file = self.path(RUN_LOCK)
+        held = hold_lock(lock_file, wait=False)
+        if held is None and wait:
+            if notify is not None:
+                notify(f"{self.root}: waiting for process {lock_owner(lock_file)}, which is writing this run folder")
+            held = hold_lock(lock_file, wait=True)
+        if held is None:
+            raise RunError(f"{self.root}: another MatSpray process (pid {lock_owner(lock_file)}) is writing this run folder; "
+                           f"wait for it to finish, or use another run folder")
+        return held
 
     # ---------------------------------------------------------------- identity
     def claim(self, dataset_id: dict, overwrite: bool = False) -> None:
@@ -180,14 +256,18 @@ def _link_or_copy(source: str, target: str) -> None:
 def share_stage(source_run, target_run, stage: str) -> bool:
     """Hard-link (else copy) the finished `stage` folder of one run folder into another that has none, so
     runs of one object share work; the target's pipeline still compares fingerprints and redoes the stage
-    if they differ. False when there is nothing to share or the target has the stage already."""
+    if they differ. False when there is nothing to share or the target has the stage already. Waits while another
+    process writes the target (its run lock)."""
     source, target = Path(source_run) / stage, Path(target_run) / stage
-    if not (source / STAGE_RECORD).exists() or (target / STAGE_RECORD).exists():
+    if not (source / STAGE_RECORD).exists():
         return False
-    shutil.copytree(source, target, copy_function=_link_or_copy, ignore=shutil.ignore_patterns(STAGE_RECORD), dirs_exist_ok=True)
-    # the record last, as a copy written now: a half-done share is no stage, and a figure the target derived
-    # from its earlier stage is older than the shared one (newer_than_stages), whatever the source's age
-    write_text_atomic(target / STAGE_RECORD, (source / STAGE_RECORD).read_text())
+    with RunDir(target_run).hold(wait=True):
+        if (target / STAGE_RECORD).exists():
+            return False
+        shutil.copytree(source, target, copy_function=_link_or_copy, ignore=shutil.ignore_patterns(STAGE_RECORD), dirs_exist_ok=True)
+        # the record last, as a copy written now: a half-done share is no stage, and a figure the target derived
+        # from its earlier stage is older than the shared one (newer_than_stages), whatever the source's age
+        write_text_atomic(target / STAGE_RECORD, (source / STAGE_RECORD).read_text())
     return True
 
 

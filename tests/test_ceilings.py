@@ -18,7 +18,7 @@ from benchmarks.generalise import main as generalise
 from matspray.asset import Asset
 from matspray.config import build_config
 from matspray.gaussians import Gaussians
-from matspray.rundir import held_exclusively
+from matspray.rundir import RUN_LOCK, RunDir, held_exclusively
 
 
 def tiny_asset(materials: torch.Tensor) -> Asset:
@@ -85,6 +85,12 @@ def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(
         def __init__(self, data, out, config, **_):
             self.out, self.config = out, config
 
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            pass
+
         def run_all(self, variants):
             made.append((self.out, self.config.predictor))
             return {variant: "asset" for variant in variants}
@@ -95,10 +101,10 @@ def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(
     truth_run = tmp_path / "runs" / "ground-truth"
     config = build_config("test")
     job = threading.Thread(target=ceilings.lift_truth, args=(tmp_path / "data", tmp_path / "runs" / "harsh", truth_run, config))
-    with held_exclusively(truth_run):  # another job is lifting the truth of this object
+    with RunDir(truth_run).hold():  # another job is lifting the truth of this object
         job.start()
         time.sleep(0.5)
-        assert made == [] and not truth_run.exists()  # this one waits for it
+        assert made == [] and [p.name for p in truth_run.iterdir()] == [RUN_LOCK]  # this one waits for it
     job.join(timeout=30)
     assert not job.is_alive() and made == [(truth_run, "geometry"), (truth_run, "ground-truth")]
 

@@ -212,3 +212,29 @@ def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_firs
     os.utime(probe, ns=(probe.stat().st_atime_ns, probe.stat().st_mtime_ns + 10**9))  # a changed probe refines again
     assert main(args + ["--light-probe", str(probe)]) == 0
     assert "refine [full]: done before" not in capsys.readouterr().out
+
+
+def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(tiny_object, finished_run, tmp_path, capsys):
+    import os
+    import shutil
+    from pathlib import Path
+
+    from matspray.cli import main
+
+    run = tmp_path / "run"
+    shutil.copytree(finished_run, run)
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom matspray.rundir import RunDir\nheld = RunDir(sys.argv[1]).hold()\n"
+                               "print('held', flush=True)\ntime.sleep(120)\n", str(run)], cwd=Path(__file__).resolve().parents[1],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        before = {p: p.stat().st_mtime_ns for p in run.rglob("*")}
+        assert main(["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]) == 2
+        assert capsys.readouterr().err.strip().endswith(f"{run}: another MatSpray process (pid {holder.pid}) is writing this run folder; "
+                                                        "wait for it to finish, or use another run folder")
+        assert {p: p.stat().st_mtime_ns for p in run.rglob("*")} == before  # not even config.yaml rewritten
+    finally:
+        holder.kill()
+        holder.wait()
+    assert main(["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]) == 0
+    assert os.path.exists(run / "run.lock")

@@ -60,20 +60,20 @@ def run_one_object(data, run_dir, config: PipelineConfig, variants=("full",), pr
     """The ordinary pipeline on one object into `run_dir`, then its evaluation and report when the
     dataset has ground truth; returns the metrics (None without ground truth). `stage` hears the
     name of each stage as it starts."""
-    pipeline = Pipeline(data, run_dir, config, progress=progress, log=log)
-    stage("predict")
-    pipeline.predict()
-    stage("geometry")
-    pipeline.geometry()
-    for variant in variants:
-        stage(f"refine [{variant}]")
-        pipeline.refine(variant)
-    if not has_ground_truth(pipeline):
-        log(f"{data}: no ground truth, not evaluated")
-        return None
-    stage("eval")
-    metrics = evaluate_run(run_dir, data, progress=progress)
-    write_report(run_dir, metrics, data)
+    with Pipeline(data, run_dir, config, progress=progress, log=log) as pipeline:  # the folder is ours until evaluated
+        stage("predict")
+        pipeline.predict()
+        stage("geometry")
+        pipeline.geometry()
+        for variant in variants:
+            stage(f"refine [{variant}]")
+            pipeline.refine(variant)
+        if not has_ground_truth(pipeline):
+            log(f"{data}: no ground truth, not evaluated")
+            return None
+        stage("eval")
+        metrics = evaluate_run(run_dir, data, progress=progress)
+        write_report(run_dir, metrics, data)
     return metrics
 
 

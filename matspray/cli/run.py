@@ -18,8 +18,8 @@ def run(args) -> int:
     from matspray.variants import asset_stage
 
     config = build_config_from_args(args, predictor=args.predictor, predictor_options=predictor_options_from_args(args))
-    pipeline = Pipeline(args.data, args.out, config, overwrite=args.overwrite)
-    pipeline.run_all(args.variant)
+    with Pipeline(args.data, args.out, config, overwrite=args.overwrite) as pipeline:  # refused while another process writes --out
+        pipeline.run_all(args.variant)
     timings = pipeline.run.timings()
     print(f"method {config.method}; seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
     for variant in args.variant:
