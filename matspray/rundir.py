@@ -89,11 +89,8 @@ class HeldLock:
         entry = _HELD[self._key]
         entry[1] -= 1
         if entry[1] == 0:
-            import fcntl
-
             del _HELD[self._key]
-            fcntl.flock(entry[0], fcntl.LOCK_UN)
-            entry[0].close()
+            entry[0].close()  # closing the last handle drops the flock
 
     def __enter__(self) -> "HeldLock":
         return self
@@ -112,9 +109,15 @@ def lock_owner(lock_file: Path) -> str:
 
 def hold_lock(lock_file: Path, wait: bool = True) -> HeldLock | None:
     """Takes the exclusive lock on `lock_file` (made if missing) and writes this process's id into it. `wait`: block
-    until the holder lets go; else None at once when another thread or process holds it."""
-    import fcntl
+    until the holder lets go; else None at once when another thread or process holds it. Where files cannot be locked
+    (no fcntl, or a file system without flock) it warns and holds nothing."""
     import threading
+    import warnings
+
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        fcntl = None
 
     lock_file = Path(lock_file)
     key = (threading.get_ident(), str(lock_file.resolve()))
@@ -124,10 +127,15 @@ def hold_lock(lock_file: Path, wait: bool = True) -> HeldLock | None:
     lock_file.parent.mkdir(parents=True, exist_ok=True)
     handle = open(lock_file, "a+")
     try:
+        if fcntl is None:
+            raise OSError("no fcntl")
         fcntl.flock(handle, fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         handle.close()
         return None
+    except OSError:  # e.g. a network mount without locks: go on, but say that nothing keeps writers apart
+        warnings.warn(f"{lock_file}: files cannot be locked here, so nothing stops two processes from writing "
+                      f"{lock_file.parent} at the same time", stacklevel=2)
     handle.seek(0)
     handle.truncate()
     handle.write(f"{os.getpid()}\n")

@@ -175,3 +175,15 @@ def test_held_exclusively_still_serialises_a_shared_file(tmp_path):
         order.append("holder")
     thread.join(timeout=30)
     assert order == ["holder", "worker"]
+
+
+def test_where_files_cannot_be_locked_it_warns_and_goes_on(tmp_path, monkeypatch):
+    import fcntl
+
+    def no_locks(handle, operation):
+        raise OSError(37, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    with pytest.warns(UserWarning, match="files cannot be locked here"):
+        held = RunDir(tmp_path / "run").hold()
+    held.release()
