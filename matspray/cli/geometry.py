@@ -27,6 +27,7 @@ def run(args) -> int:
     from matspray.data import load_scene
     from matspray.geometry.config import preset
     from matspray.geometry.train import train_geometry
+    from matspray.rundir import RunDir
 
     overrides = {}
     if args.iterations is not None:
@@ -38,7 +39,8 @@ def run(args) -> int:
         torch.set_num_threads(args.threads)
     scene = load_scene(args.data)
     out = args.out / "geometry"
-    gaussians = train_geometry(scene, config, out, restart=args.restart, progress=not args.quiet)
+    with RunDir(args.out).hold():  # refused while another process writes the run folder
+        gaussians = train_geometry(scene, config, out, restart=args.restart, progress=not args.quiet)
 
     import json
 

@@ -44,6 +44,7 @@ def run(args) -> int:
     from matspray.data import load_scene
     from matspray.errors import DataError
     from matspray.predictors import PredictorOptions, make_predictor, options_for_dataset, predict_views, write_materials2d
+    from matspray.rundir import RunDir
 
     check_run_split(args.out, args.split)
     scene = load_scene(args.data, downscale=args.downscale)
@@ -68,21 +69,22 @@ def run(args) -> int:
         severity=args.severity,
     )
     predictor = make_predictor(args.predictor, options_for_dataset(args.predictor, options, args.data))
-    maps = predict_views(views, predictor)
-    info = dict(
-        predictor.describe(),
-        spec=args.predictor,
-        data=str(args.data),
-        split=args.split,
-        downscale=args.downscale,
-        matspray_version=__version__,
-    )
-    replacing = (args.out / "materials2d").exists()
-    folder = write_materials2d(args.out, maps, info)
-    if replacing:
-        print(f"replaced the previous maps in {folder}")
-    label = "SIMULATED maps" if predictor.simulated else "maps"
-    print(f"wrote {label} of {len(maps)} {args.split} view(s) from the {predictor.name} predictor to {folder}")
+    with RunDir(args.out).hold():  # refused while another process writes the run folder, before predicting anything
+        maps = predict_views(views, predictor)
+        info = dict(
+            predictor.describe(),
+            spec=args.predictor,
+            data=str(args.data),
+            split=args.split,
+            downscale=args.downscale,
+            matspray_version=__version__,
+        )
+        replacing = (args.out / "materials2d").exists()
+        folder = write_materials2d(args.out, maps, info)
+        if replacing:
+            print(f"replaced the previous maps in {folder}")
+        label = "SIMULATED maps" if predictor.simulated else "maps"
+        print(f"wrote {label} of {len(maps)} {args.split} view(s) from the {predictor.name} predictor to {folder}")
     return 0
 
 
