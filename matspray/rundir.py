@@ -76,7 +76,7 @@ _HELD: dict = {}  # (thread, lock file) -> [open handle, holders]: the locks thi
 class HeldLock:
     """An exclusive `flock` on one lock file, taken by `hold_lock`; `release()` (idempotent) lets it go. Re-entrant in
     one thread: a second hold of the same file there counts up instead of blocking; other threads and processes wait or
-    are refused. The kernel drops it when the process ends, however it ends, so no lock outlives its holder. POSIX only."""
+    are refused. The kernel drops it when the process ends, however it ends, so no lock outlives its holder."""
 
     def __init__(self, key):
         self._key = key
