@@ -61,6 +61,18 @@ def test_run_refines_the_base_color_scale_invariantly_unless_told_l1():
         run_config("--basecolor-loss", "l2")
 
 
+def test_the_huber_base_color_loss_and_its_delta_come_from_their_flags():
+    from matspray.cli.options import flag_message
+    from matspray.errors import SettingError
+
+    refine = run_config("--basecolor-loss", "huber", "--basecolor-huber-delta", "0.1").refine
+    assert (refine.basecolor_loss, refine.basecolor_huber_delta) == ("huber", 0.1)
+    assert run_config().refine.basecolor_huber_delta == 0.05
+    with pytest.raises(SettingError) as error:
+        run_config("--basecolor-loss", "huber", "--basecolor-huber-delta", "0")
+    assert flag_message(error.value) == "--basecolor-huber-delta: must be > 0, got 0.0"
+
+
 def test_refine_seed_overrides_the_seed_for_refinement_only():
     from matspray.pipeline import variant_refine_config
 

@@ -88,8 +88,47 @@ def test_material_loss_is_plain_l1_unless_the_base_color_is_scale_invariant():
     assert float(material_loss(rough, target, mask, "scale-invariant")) == pytest.approx(0.2 / 5, rel=1e-5)
 
 
+def test_the_huber_base_color_loss_is_quadratic_below_delta_and_l1_above():
+    target = torch.rand(5, 6, 5, generator=torch.Generator().manual_seed(3))
+    mask = (torch.arange(30).reshape(5, 6) % 3 != 0).float()  # a third of the pixels do not count
+    for offset, per_pixel in ((0.02, 0.02 ** 2 / (2 * 0.05)), (0.3, 0.3 - 0.05 / 2)):
+        maps = target.clone()
+        maps[..., :3] += offset
+        maps[0, 0, :3] += 5.0  # masked out: changes nothing
+        assert float(material_loss(maps, target, mask, "huber", 0.05)) == pytest.approx(3 * per_pixel / 5, rel=1e-5)
+
+
+def test_across_views_the_huber_base_color_averages_close_views_and_outvotes_a_far_one():
+    """The merger's material loss sums over the views a Gaussian is seen in; its minimiser over one base-colour value is
+    what the loss makes of disagreeing views: L1 takes their median, Huber their mean while they agree to within delta
+    and stays near the others when one view is far off."""
+
+    def minimiser(values, loss, delta=0.05):
+        def maps(base):  # [1, 1, 5]: grey base colour `base`, roughness and metallic as in every view
+            return torch.tensor([[[base, base, base, 0.5, 0.0]]])
+
+        grid = torch.linspace(0.0, 1.0, 20001)
+        mask = torch.ones(1, 1)
+        total = lambda x: sum(material_loss(maps(float(x)), maps(v), mask, loss, delta) for v in values)
+        coarse = float(grid[::20][torch.stack([total(x) for x in grid[::20]]).argmin()])
+        fine = grid[(grid - coarse).abs() <= 1e-3]
+        return float(fine[torch.stack([total(x) for x in fine]).argmin()])
+
+    close = [0.30, 0.31, 0.33, 0.36, 0.38]  # within delta of their mean 0.336
+    assert minimiser(close, "huber") == pytest.approx(sum(close) / 5, abs=2e-4)
+    assert minimiser(close, "l1") == pytest.approx(0.33, abs=2e-4)  # the median
+    outlier = [0.30, 0.32, 0.34, 0.36, 0.90]  # one view far off: the mean would be 0.444
+    # four views in the quadratic part pull (4 x - 1.32) / 0.05, the far one pulls back by L1's slope 1
+    assert minimiser(outlier, "huber") == pytest.approx((1.32 + 0.05) / 4, abs=2e-4)
+
+
+def test_the_huber_delta_must_be_positive():
+    with pytest.raises(ConfigError, match="basecolor_huber_delta: must be > 0, got 0"):
+        RefineConfig(basecolor_loss="huber", basecolor_huber_delta=0.0)
+
+
 def test_unknown_basecolor_loss_is_refused():
-    with pytest.raises(ConfigError, match="basecolor_loss: unknown loss 'l2'.*l1, scale-invariant"):
+    with pytest.raises(ConfigError, match="basecolor_loss: unknown loss 'l2'.*l1, scale-invariant, huber"):
         RefineConfig(basecolor_loss="l2")
 
 

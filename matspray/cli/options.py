@@ -33,8 +33,11 @@ SETTING_FLAGS = {
                             "off (default, as the paper): position and values only"),
     "--unseen": ("refine.merger.unseen", str, "views that never hit a Gaussian: mask (weight 0; matspray) or mean (filled with "
                  "the mean of the views that did; paper)"),
-    "--basecolor-loss": ("refine.basecolor_loss", str, "l1 (default, as the paper) or scale-invariant (forgives each view's "
-                         "exposure error; it did not pay on the development set)"),
+    "--basecolor-loss": ("refine.basecolor_loss", str, "l1 (default, as the paper), scale-invariant (forgives each view's "
+                         "exposure error; it did not pay on the development set) or huber (averages views that differ by less "
+                         "than --basecolor-huber-delta, outvotes those that differ by more)"),
+    "--basecolor-huber-delta": ("refine.basecolor_huber_delta", float, "with --basecolor-loss huber: the base-colour residual "
+                                "(linear) where the loss turns from quadratic to linear (default 0.05)"),
     "--photo-weight": ("refine.photo_weight", float, "weight of the photometric loss against the material loss (1, as the paper)"),
     "--light-warmup": ("refine.light_warmup", int, "steps that fit the light alone before the merger trains (paper: 0)"),
     "--min-coverage": ("refine.min_coverage", float, "the merger skips Gaussians covering fewer pixels of a view (matspray 0.02, paper 0)"),
