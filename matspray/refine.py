@@ -175,7 +175,8 @@ def masked_huber(pred: Tensor, target: Tensor, mask: Tensor, delta: float) -> Te
     return (torch.nn.functional.smooth_l1_loss(pred, target, reduction="none", beta=delta) * weight).sum() / weight.sum().clamp_min(1.0)
 
 
-def material_loss(maps: Tensor, target: Tensor, mask: Tensor, basecolor_loss: str, huber_delta: float = 0.05) -> Tensor:
+def material_loss(maps: Tensor, target: Tensor, mask: Tensor, basecolor_loss: str,
+                  huber_delta: float = RefineConfig.basecolor_huber_delta) -> Tensor:
     """L1 of rendered material maps [H, W, 5] against the 2D maps [H, W, 5] over the mask [H, W], averaged over the 5
     channels; the base color channels scale-invariant or Huber (`huber_delta`) when `basecolor_loss` says so."""
     if basecolor_loss == "l1":

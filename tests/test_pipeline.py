@@ -13,6 +13,7 @@ from matspray.config import build_config, shadow_maps
 from matspray.pipeline import Pipeline
 from matspray.variants import VARIANT_NAMES as VARIANTS, asset_stage
 from matspray.refine import check_finite
+from tests.conftest import busy_message
 
 pytest.importorskip("mitsuba")
 
@@ -215,34 +216,6 @@ def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_firs
 
 
 
-@pytest.fixture
-def hold_in_another_process():
-    """hold(run) -> the id of a process that holds `run`'s lock until the test ends (or stop() kills it)."""
-    from pathlib import Path
-
-    holders = []
-
-    def hold(run):
-        code = "import sys, time\nfrom matspray.rundir import RunDir\nheld = RunDir(sys.argv[1]).hold()\nprint('held', flush=True)\ntime.sleep(120)\n"
-        holder = subprocess.Popen([sys.executable, "-c", code, str(run)], cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE, text=True)
-        holders.append(holder)
-        assert holder.stdout.readline().strip() == "held"
-        return holder.pid
-
-    def stop():
-        for holder in holders:
-            holder.kill()
-            holder.wait()
-
-    hold.stop = stop
-    yield hold
-    stop()
-
-
-def busy_message(run, pid) -> str:
-    return f"{run}: another MatSpray process (pid {pid}) is writing this run folder; wait for it to finish, or use another run folder"
-
-
 def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(tiny_object, finished_run, tmp_path, capsys, hold_in_another_process):
     import shutil
 
@@ -250,13 +223,14 @@ def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(tiny_
 
     run = tmp_path / "run"
     shutil.copytree(finished_run, run)
-    pid = hold_in_another_process(run)
+    holder = hold_in_another_process(run)
     before = {p: p.stat().st_mtime_ns for p in run.rglob("*")}
     args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
     assert main(args) == 2
-    assert capsys.readouterr().err.strip().endswith(busy_message(run, pid))
+    assert capsys.readouterr().err.strip().endswith(busy_message(run, holder.pid))
     assert {p: p.stat().st_mtime_ns for p in run.rglob("*")} == before  # not even config.yaml rewritten
-    hold_in_another_process.stop()
+    holder.kill()
+    holder.wait()
     assert main(args) == 0
 
 
@@ -265,9 +239,10 @@ def test_the_stage_commands_refuse_a_busy_run_folder_before_working(tiny_object,
     from matspray.cli import main
 
     run = tmp_path / "run"
-    pid = hold_in_another_process(run)
+    holder = hold_in_another_process(run)
     assert main([command[0], "--data", str(tiny_object), "--out", str(run), *command[1:]]) == 2
-    assert capsys.readouterr().err.strip().endswith(busy_message(run, pid))
+    assert capsys.readouterr().err.strip().endswith(busy_message(run, holder.pid))
     assert [p.name for p in run.iterdir()] == ["run.lock"]  # nothing predicted or trained into it
-    hold_in_another_process.stop()
+    holder.kill()
+    holder.wait()
     assert main([command[0], "--data", str(tiny_object), "--out", str(run), *command[1:]]) == 0

@@ -17,26 +17,9 @@ import pytest
 import benchmarks.generalise as generalise
 from matspray.errors import RunError
 from matspray.rundir import RUN_LOCK, RunDir, held_exclusively, share_stage
+from tests.conftest import busy_message
 
 ROOT = Path(__file__).resolve().parents[1]
-HOLDER = "import sys, time\nfrom matspray.rundir import RunDir\nheld = RunDir(sys.argv[1]).hold()\nprint('held', flush=True)\ntime.sleep(120)\n"
-
-
-@pytest.fixture
-def other_process_holds():
-    """Starts a process that holds a run folder's lock until the test ends (or kills it); yields the start function."""
-    started = []
-
-    def start(run: Path) -> subprocess.Popen:
-        process = subprocess.Popen([sys.executable, "-c", HOLDER, str(run)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
-        started.append(process)
-        assert process.stdout.readline().strip() == "held"
-        return process
-
-    yield start
-    for process in started:
-        process.kill()
-        process.wait()
 
 
 def try_hold_in_another_process(run: Path) -> str:
@@ -50,8 +33,7 @@ def test_a_held_folder_is_refused_to_another_process_with_the_holders_id(tmp_pat
     held = RunDir(run).hold()
     assert (run / RUN_LOCK).read_text().strip() == str(os.getpid())
     message = try_hold_in_another_process(run)
-    assert message == (f"{run}: another MatSpray process (pid {os.getpid()}) is writing this run folder; "
-                       "wait for it to finish, or use another run folder")
+    assert message == busy_message(run, os.getpid())
     held.release()
     assert try_hold_in_another_process(run) == "got it"
 
@@ -67,9 +49,9 @@ def test_holding_again_in_one_thread_counts_up_and_the_last_release_frees_it(tmp
     assert try_hold_in_another_process(run) == "got it"
 
 
-def test_the_lock_dies_with_its_process(tmp_path, other_process_holds):
+def test_the_lock_dies_with_its_process(tmp_path, hold_in_another_process):
     run = tmp_path / "run"
-    holder = other_process_holds(run)
+    holder = hold_in_another_process(run)
     with pytest.raises(RunError, match=f"pid {holder.pid}"):
         RunDir(run).hold()
     holder.send_signal(signal.SIGKILL)  # no clean-up runs: the kernel drops the lock
@@ -77,9 +59,9 @@ def test_the_lock_dies_with_its_process(tmp_path, other_process_holds):
     RunDir(run).hold().release()
 
 
-def test_waiting_blocks_until_the_holder_lets_go_and_says_so(tmp_path, other_process_holds):
+def test_waiting_blocks_until_the_holder_lets_go_and_says_so(tmp_path, hold_in_another_process):
     run = tmp_path / "run"
-    holder = other_process_holds(run)
+    holder = hold_in_another_process(run)
     heard, got = [], []
     waiter = threading.Thread(target=lambda: got.append(RunDir(run).hold(wait=True, notify=heard.append)))
     waiter.start()
@@ -108,12 +90,12 @@ def test_another_thread_of_one_process_is_not_the_holder(tmp_path):
     assert len(refused) == 1
 
 
-def test_share_stage_waits_while_another_process_writes_the_target(tmp_path, other_process_holds):
+def test_share_stage_waits_while_another_process_writes_the_target(tmp_path, hold_in_another_process):
     source, target = tmp_path / "a", tmp_path / "b"
     (source / "geometry").mkdir(parents=True)
     (source / "geometry" / "gaussians.ply").write_text("points")
     (source / "geometry" / "stage.json").write_text('{"fingerprint": "f"}')
-    holder = other_process_holds(target)
+    holder = hold_in_another_process(target)
     shared = []
     job = threading.Thread(target=lambda: shared.append(share_stage(source, target, "geometry")))
     job.start()

@@ -72,7 +72,7 @@ def run(args) -> int:
     with RunDir(args.out).hold():  # refused while another process writes the run folder, before predicting anything
         maps = predict_views(views, predictor)
         info = dict(
-            predictor.describe(),
+            predictor.describe(),  # after predicting: a simulated predictor describes the errors it drew
             spec=args.predictor,
             data=str(args.data),
             split=args.split,
@@ -81,10 +81,10 @@ def run(args) -> int:
         )
         replacing = (args.out / "materials2d").exists()
         folder = write_materials2d(args.out, maps, info)
-        if replacing:
-            print(f"replaced the previous maps in {folder}")
-        label = "SIMULATED maps" if predictor.simulated else "maps"
-        print(f"wrote {label} of {len(maps)} {args.split} view(s) from the {predictor.name} predictor to {folder}")
+    if replacing:
+        print(f"replaced the previous maps in {folder}")
+    label = "SIMULATED maps" if predictor.simulated else "maps"
+    print(f"wrote {label} of {len(maps)} {args.split} view(s) from the {predictor.name} predictor to {folder}")
     return 0
 
 
