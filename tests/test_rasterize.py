@@ -95,12 +95,14 @@ def test_screen_space_gradients_and_radii():
     behind[0] = camera.center + (camera.center - 0.0)  # far behind the camera
     gaussians.means = behind.requires_grad_(True)
     out = rasterize(gaussians, camera, features)
-    out.means2d.retain_grad()
+    assert out.screen_grads is None
+    out.retain_screen_grads()
     out.features.sum().backward()
-    assert out.means2d.grad is not None and out.means2d.grad.shape == (20, 2)
+    grads = out.screen_grads
+    assert grads is not None and grads.shape == (20, 2)
     assert out.radii[0] == 0 and not out.visible[0]
-    assert (out.means2d.grad[~out.visible] == 0).all()
-    assert out.means2d.grad[out.visible].abs().sum() > 0
+    assert (grads[~out.visible] == 0).all()
+    assert grads[out.visible].abs().sum() > 0
 
 
 def test_expected_depth_is_the_surface_depth():

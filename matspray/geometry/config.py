@@ -37,6 +37,9 @@ class GeometryConfig:
     densify_every: int = 100
     opacity_reset_every: int = 1000
     grad_threshold: float = 2e-4  # mean screen-space gradient (NDC units) that triggers clone / split
+    # densify on the summed |per-pixel gradient| of each projected centre instead of |summed gradient| (AbsGS, as gsplat's
+    # strategy offers it); gradients of opposite sign then no longer cancel, so it wants a larger grad_threshold (gsplat: 8e-4)
+    absgrad: bool = False
     percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
     prune_opacity: float = 0.005
     max_screen_fraction: float = 0.15  # prune Gaussians wider than this fraction of the image (after a reset)

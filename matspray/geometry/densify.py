@@ -9,7 +9,7 @@ from torch import Tensor
 from matspray.gaussians import Gaussians
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.optim import GaussianOptimizer
-from matspray.render.rasterize import RasterOutput
+from matspray.render.output import RasterOutput
 
 RESET_OPACITY = 0.01
 SPLIT_INTO = 2
@@ -29,11 +29,13 @@ class DensityControl:
         self.max_radius = torch.zeros(num_gaussians, device=device)  # largest 3-sigma radius, fraction of the image
 
     def observe(self, out: RasterOutput, width: int, height: int) -> None:
-        """Record one view's statistics; call after backward, with out.means2d.retain_grad() done before."""
-        if out.means2d.grad is None:
-            raise RuntimeError("DensityControl.observe: call out.means2d.retain_grad() before backward")
+        """Record one view's statistics; call after backward, with out.retain_screen_grads() done before."""
+        grads = out.screen_absgrads if self.config.absgrad else out.screen_grads
+        if grads is None:
+            raise RuntimeError("DensityControl.observe: call out.retain_screen_grads() before backward"
+                               + (" (and render with absgrad)" if self.config.absgrad else ""))
         visible = out.visible
-        ndc = out.means2d.grad.detach() * torch.tensor([0.5 * width, 0.5 * height], device=visible.device)
+        ndc = grads.detach() * torch.tensor([0.5 * width, 0.5 * height], device=visible.device)
         self.grad_sum[visible] += ndc[visible].norm(dim=-1).to(self.grad_sum)
         self.count[visible] += 1
         radius = out.radii.detach().to(self.max_radius) / max(width, height)

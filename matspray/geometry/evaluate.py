@@ -19,7 +19,8 @@ from matspray.data.images import atomic_target, linear_to_srgb, read_raw, resize
 from matspray.data.scene import View
 from matspray.gaussians import Gaussians
 from matspray.geometry.normals import angular_error_degrees, normal_map_to_rgb, oriented_normals
-from matspray.render.rasterize import RasterOutput, rasterize
+from matspray.render.output import RasterOutput
+from matspray.render.rasterize import rasterize
 from matspray.render.sh import sh_colors
 
 

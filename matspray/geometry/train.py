@@ -141,7 +141,7 @@ def training_losses(gaussians: Gaussians, view: View, config: GeometryConfig, it
     degree = min(config.sh_degree, iteration // config.sh_degree_every)
     background = torch.rand(3, generator=generator) if masked and config.random_background else torch.zeros(3)
     render = render_view(gaussians, view.camera, degree, background.to(gaussians.device))
-    render.raster.means2d.retain_grad()
+    render.raster.retain_screen_grads()
     target = target_srgb(view, background)
     # the prediction is not clamped here (DESIGN compares clamped values in metrics): a clamp would
     # stop the gradient of pixels that overshoot 1

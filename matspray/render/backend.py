@@ -2,11 +2,21 @@
 
 `resolve_backend` turns the setting `backend` (auto | torch | gsplat) into the one that runs, once per
 run; a request that cannot be met is a SettingError that says what is missing and how to get it.
+
+One run renders with one backend. Rather than add a `backend` argument to every function between a stage and
+`rasterize` (relighting, G-buffers, masks, evaluation, export all reach it through layers that have nothing
+to do with the choice), a stage runs inside `rendering_with(backend)`, and `rasterize` called without an
+explicit backend takes that one. The `RenderUse` it yields counts what each call really ran on, which is
+what a stage's record and the benchmarks report (not what was asked for).
 """
 
 from __future__ import annotations
 
 import importlib
+from collections import Counter
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import dataclass, field
 
 import torch
 
@@ -40,3 +50,43 @@ def resolve_backend(name: str, device) -> str:
     if error is not None:
         raise SettingError("backend", f"gsplat is not installed or does not import ({error}); {INSTALL_HINT}")
     return "gsplat"
+
+
+@dataclass
+class RenderUse:
+    """The backend a block of work renders with, and what it really ran: {"torch" | "gsplat" | "rays": calls}."""
+    backend: str
+    calls: Counter = field(default_factory=Counter)
+
+    def used(self) -> dict[str, int]:
+        return dict(sorted(self.calls.items()))
+
+
+_ACTIVE: ContextVar[RenderUse | None] = ContextVar("matspray_render_use", default=None)
+
+
+@contextmanager
+def rendering_with(backend: str):
+    """Within the block, `rasterize(..., backend=None)` renders with `backend` ('torch' or 'gsplat', already
+    resolved); yields the block's RenderUse. Blocks nest; each call is counted in the innermost one."""
+    if backend not in ("torch", "gsplat"):
+        raise ValueError(f"rendering_with: a resolved backend (torch or gsplat), got {backend!r}")
+    use = RenderUse(backend)
+    token = _ACTIVE.set(use)
+    try:
+        yield use
+    finally:
+        _ACTIVE.reset(token)
+
+
+def active_backend() -> str:
+    """The backend of the innermost `rendering_with` block; torch outside any."""
+    use = _ACTIVE.get()
+    return "torch" if use is None else use.backend
+
+
+def note_render(kind: str) -> None:
+    """Count one call of a renderer ('torch', 'gsplat', or 'rays' for the lifting ray tracer) in the active block."""
+    use = _ACTIVE.get()
+    if use is not None:
+        use.calls[kind] += 1

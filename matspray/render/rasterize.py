@@ -23,31 +23,13 @@ from torch import Tensor
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.render.blend import blend_hits, hit_weights
-from matspray.render.backend import resolve_backend
+from matspray.render.backend import active_backend, note_render, resolve_backend
 from matspray.render.compositing import ray_major_order
 from matspray.render.gsplat_backend import rasterize_gsplat
+from matspray.render.output import RasterOutput
 from matspray.render.pairs import EMPTY_BOX, box_areas, clip_rows, ellipse_pixel_pairs, pixel_boxes, row_bands
 from matspray.render.projection import log_opacity_ratio, max_eigen_radius, project_gaussians
 from matspray.render.settings import RasterSettings
-
-@dataclass
-class RasterOutput:
-    features: Tensor  # [H, W, C] blended features plus (1 - alpha) * background
-    alpha: Tensor  # [H, W] accumulated opacity sum_k w_k = 1 - prod_k (1 - alpha_k)
-    depth: Tensor  # [H, W] accumulated camera z, sum_k w_k z_k (NOT divided by alpha; see expected_depth)
-    means2d: Tensor  # [N, 2] projected centres inside the autograd graph: call .retain_grad() before
-    #                  backward to read the screen-space gradients that densification uses
-    radii: Tensor  # [N] 3-sigma pixel radius of the major axis of each drawn Gaussian, 0 if not drawn
-    num_hits: int  # blended (Gaussian, pixel) pairs
-
-    @property
-    def expected_depth(self) -> Tensor:  # [H, W] depth / alpha (the surface depth), 0 where alpha is 0
-        return torch.where(self.alpha > 0, self.depth / self.alpha.clamp_min(1e-12), torch.zeros_like(self.depth))
-
-    @property
-    def visible(self) -> Tensor:  # [N] bool: the Gaussian touches at least one pixel centre's footprint box
-        return self.radii > 0
-
 
 def rasterize(
     gaussians: Gaussians,
@@ -55,14 +37,15 @@ def rasterize(
     features: Tensor,  # [N, C]
     background: Tensor | None = None,  # [C]; None means zeros
     *,
-    backend: str = "torch",
+    backend: str | None = None,
     settings: RasterSettings = RasterSettings(),
     max_pairs: int = 1 << 23,
 ) -> RasterOutput:
     """Render per-Gaussian `features` into `camera`; differentiable w.r.t. the Gaussians' means,
     log_scales, quats, opacity_logits and w.r.t. `features`.
 
-    `backend`: torch (ours), gsplat (CUDA, optional extra) or auto (see matspray.render.backend).
+    `backend`: torch (ours), gsplat (CUDA, optional extra) or auto (see matspray.render.backend); None takes
+    the one of the enclosing `rendering_with` block (torch outside any).
     `max_pairs` bounds the (Gaussian, pixel) candidate pairs processed at once: larger images are
     rendered in bands of rows (the autograd graph still keeps every band until backward).
     """
@@ -71,9 +54,10 @@ def rasterize(
         raise ValueError(f"rasterize: features must be [N={n}, C], got {tuple(features.shape)}")
     if background is not None and tuple(background.shape) != (features.shape[1],):
         raise ValueError(f"rasterize: background must be [C={features.shape[1]}], got {tuple(background.shape)}")
-    if resolve_backend(backend, gaussians.device) == "gsplat":
-        colour, alpha, depth, means2d, radii, hits = rasterize_gsplat(gaussians, camera, features, background, settings)
-        return RasterOutput(features=colour, alpha=alpha, depth=depth, means2d=means2d, radii=radii, num_hits=hits)
+    chosen = resolve_backend(active_backend() if backend is None else backend, gaussians.device)
+    note_render(chosen)
+    if chosen == "gsplat":
+        return rasterize_gsplat(gaussians, camera, features, background, settings)
     return _rasterize_torch(gaussians, camera, features, background, settings, max_pairs)
 
 
@@ -158,7 +142,8 @@ def _rasterize_torch(gaussians, camera, features, background, settings: RasterSe
     colour = image[..., :-2]
     if background is not None:
         colour = colour + (1.0 - alpha)[..., None] * background.to(colour)
-    return RasterOutput(features=colour, alpha=alpha, depth=image[..., -2], means2d=proj.means2d, radii=radii, num_hits=num_hits)
+    return RasterOutput(features=colour, alpha=alpha, depth=image[..., -2], means2d=proj.means2d.detach(), radii=radii, backend="torch",
+                        screen=proj.means2d, pixel_hits=num_hits)
 
 
 def _candidate_pairs(boxes, footprints, ranks, row_start, width):
