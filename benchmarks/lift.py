@@ -17,7 +17,8 @@ import torch
 
 from matspray.data import load_scene
 from matspray.geometry.ply import read_ply
-from matspray.lift import LiftConfig, lift_view, rendered_weight_per_gaussian
+from matspray.lift import LiftConfig, lift_view
+from matspray.render.gbuffer import rendered_weights
 from matspray.pipeline import maps_to_tensor
 from matspray.predictors import read_materials2d
 from matspray.rundir import read_json
@@ -36,7 +37,7 @@ def main() -> None:
     views = scene.train[::step][: args.views]
     maps = read_materials2d(args.run, views)
     print(f"{len(gaussians)} Gaussians, {len(views)} views of {views[0].width}x{views[0].height} px, falloff {args.falloff}")
-    rendered = [rendered_weight_per_gaussian(gaussians, v.camera) > 0 for v in views]
+    rendered = [rendered_weights(gaussians, v.camera) > 0 for v in views]
     # "any hit": every Gaussian a ray reaches counts (the sampling question alone); "visible": the
     # default rule, hits behind an opaque front (transmittance < 0.5) do not receive the front's value
     print(f"{'rays/pixel':>10} {'missed, any hit':>24} {'missed, visible rule':>24} {'s/view':>8}")

@@ -17,6 +17,10 @@ class RunError(MatsprayError):
     """A run directory does not fit the current request (other dataset, other settings)."""
 
 
+class ResourceError(MatsprayError):
+    """The machine ran out of something (GPU or host memory) for the size asked for."""
+
+
 class NumericalError(MatsprayError):
     """An optimisation produced NaN or Inf."""
 

@@ -36,8 +36,8 @@ from matspray.data.camera import Camera
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.material import zeros as material_zeros
+from matspray.render.backend import note_render
 from matspray.render.contributions import iter_contributions
-from matspray.render.rasterize import rasterize
 from matspray.render.settings import RasterSettings
 
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
@@ -122,6 +122,7 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
     settings = RasterSettings()
     core_alpha = footprint_alpha(gaussians.opacities.detach(), config, settings.max_alpha)  # [N] or None
     pair_keys, pair_counts = [], []
+    note_render("rays")  # lifting traces rays with our torch code on the Gaussians' device, whatever the rasterizer
     for band in iter_contributions(gaussians, camera, s, falloff=config.falloff, settings=settings):  # whole rays, a band of rows at a time
         transmittance = band.weights / band.alphas.clamp_min(1e-12)  # in front of the hit
         visible = transmittance >= config.visibility_threshold
@@ -178,15 +179,3 @@ def lift(gaussians: Gaussians, cameras: list[Camera], materials: list[Tensor], m
         "min_support": config.min_support,
     }
     return LiftResult(values=values[kept], seen=seen[kept], kept=kept, view_names=list(view_names), stats=stats, hits=hits[kept])
-
-
-def rendered_weight_per_gaussian(gaussians: Gaussians, camera: Camera) -> Tensor:
-    """Total blending weight [N] each Gaussian gets in the rasterized image of `camera`.
-
-    It is the gradient of the rendered image's sum with respect to a constant per-Gaussian feature,
-    so it costs one forward and backward pass of the rasterizer.
-    """
-    ones = torch.ones(len(gaussians), 1, device=gaussians.device, requires_grad=True)
-    out = rasterize(gaussians.detach(), camera, ones, background=torch.zeros(1, device=gaussians.device))
-    (grad,) = torch.autograd.grad(out.features.sum(), ones)
-    return grad[:, 0]

@@ -11,6 +11,7 @@ visibility, refine), so a run folder resumed with the other method recomputes th
 from __future__ import annotations
 
 import weakref
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -20,8 +21,8 @@ from matspray.asset import Asset, read_asset, write_asset
 from matspray.config import PipelineConfig
 from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
-from matspray.device import configure_threads, resolve_device
-from matspray.render.backend import resolve_backend
+from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
+from matspray.render.backend import RenderUse, rendering_with, resolve_backend
 from matspray.render.envmap import EnvironmentMap
 from matspray.errors import RunError, file_error
 from matspray.geometry.ply import read_ply
@@ -66,7 +67,8 @@ class Pipeline:
         self.config = config
         self.device = resolve_device(config.device)
         configure_threads(self.device)
-        self.backend = resolve_backend(config.backend, self.device)  # "torch" or "gsplat"; fails here, before any work
+        # "torch" or "gsplat"; fails here, before any work. Every stage renders with it (see _working)
+        self.backend = resolve_backend(config.backend, self.device)
         self.scene = load_scene(data, downscale=config.downscale)
         self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
         # a missing or unreadable light probe fails here, before the run folder is touched; it is read once, and the
@@ -101,6 +103,17 @@ class Pipeline:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    @contextmanager
+    def _working(self, stage: str):
+        """One stage's work: timed, rendered with the run's backend, and out of memory said in one line.
+        Yields (timer, RenderUse)."""
+        with timed() as timer, rendering_with(self.backend) as use, out_of_memory_as_error(stage, self.device):
+            yield timer, use
+
+    def _ran(self, use: RenderUse) -> dict:
+        """What a stage's record says it ran on: the device, the run's backend and what each render call really used."""
+        return {"device": str(self.device), "backend": self.backend, "renders": use.used()}
+
     # ---------------------------------------------------------------- predict
     def predictor_options(self) -> PredictorOptions:
         """The configured options; a simulated predictor given no seed takes the synth object's."""
@@ -117,7 +130,7 @@ class Pipeline:
         fp = self.predict_fingerprint()
         if not self.run.stage_done("materials2d", fp, ["predictor.json"]):
             self.log(f"predict: {self.config.predictor} on {len(self.scene.train)} training views")
-            with timed() as t:
+            with self._working("predict") as (t, _):
                 options = self.predictor_options()
                 predictor = make_predictor(self.config.predictor, options, notify=self.log)
                 maps = predict_views(self.scene.train, predictor, notify=self.log)
@@ -137,9 +150,9 @@ class Pipeline:
         fp = self.geometry_fingerprint()
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
-            with timed() as t:
-                train_geometry(self.scene, self.config.geometry, self.run.path("geometry"), progress=self.progress)
-            self.run.finish_stage("geometry", fp, self.config.geometry, t.seconds)
+            with self._working("geometry") as (t, use):
+                train_geometry(self.scene, self.config.geometry, self.run.path("geometry"), device=self.device, progress=self.progress)
+            self.run.finish_stage("geometry", fp, self.config.geometry, t.seconds, self._ran(use))
         else:
             self.log("geometry: done before, reusing geometry/gaussians.ply")
         gaussians, normals = read_ply(self.run.path("geometry", "gaussians.ply"))
@@ -158,11 +171,11 @@ class Pipeline:
             fp = self.masks_fingerprint()
             if not self.run.stage_done("masks", fp, ["masks.pt", "region.json"]):
                 gaussians, _ = self.geometry()
-                with timed() as t:
+                with self._working("masks") as (t, use):
                     masks = compute_object_masks(gaussians, self.scene, self.config.object_bounds, progress=self.progress)
                     write_object_masks(self.run.path("masks"), masks)
                 self.run.finish_stage("masks", fp, {"object_bounds": self.config.object_bounds}, t.seconds,
-                                      {"region": masks.region.to_json(), "inside": int(masks.inside.sum())})
+                                      {"region": masks.region.to_json(), "inside": int(masks.inside.sum()), **self._ran(use)})
             else:
                 self.log("masks: done before, reusing masks/")
             self._object_masks = read_object_masks(self.run.path("masks"))
@@ -190,12 +203,12 @@ class Pipeline:
         if not self.run.stage_done("lift", fp, ["projected.pt"]):
             views = self.scene.train
             materials = [maps_to_tensor(maps[v.name]).to(self.device) for v in views]
-            with timed() as t:
+            with self._working("lift") as (t, use):
                 result = lift(gaussians, [v.camera.to(self.device) for v in views], materials,
                               [None if v.alpha is None else v.alpha.to(self.device) for v in views], [v.name for v in views],
                               self.config.lift, progress=self.progress)
                 save_lift(result, path)
-            self.run.finish_stage("lift", fp, self.config.lift, t.seconds, {"stats": result.stats})
+            self.run.finish_stage("lift", fp, self.config.lift, t.seconds, {"stats": result.stats, **self._ran(use)})
             self.log(f"lift: kept {result.stats['gaussians_kept']} of {result.stats['gaussians_in']} Gaussians")
         else:
             self.log("lift: done before, reusing lift/projected.pt")
@@ -215,9 +228,9 @@ class Pipeline:
         path = self.run.path("visibility", "visibility.pt")
         if not self.run.stage_done("visibility", fp, ["visibility.pt"]):
             self.log(f"visibility: shadow maps of {len(kept)} Gaussians towards {2 * self.config.visibility.rows ** 2} directions")
-            with timed() as t:
+            with self._working("visibility") as (t, use):
                 save_torch_atomic(bake_visibility(kept, self.config.visibility, progress=self.progress).cpu(), path)
-            self.run.finish_stage("visibility", fp, self.config.visibility, t.seconds)
+            self.run.finish_stage("visibility", fp, self.config.visibility, t.seconds, self._ran(use))
         else:
             self.log("visibility: done before, reusing visibility/visibility.pt")
         values = torch.load(path, map_location=self.device)
@@ -270,10 +283,10 @@ class Pipeline:
             self.log(f"refine [{variant}]: done before, reusing {stage}/")
             return read_asset(self.run.path(stage), device=self.device)
         inputs = self.refine_inputs()
-        with timed() as t:
+        with self._working(f"refine [{variant}]") as (t, use):
             result = refine(inputs, config, progress=self.progress, light=probe)
             write_asset(self.run.path(stage), inputs.gaussians, result)
-        self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history})
+        self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history, **self._ran(use)})
         return read_asset(self.run.path(stage), device=self.device)
 
     def run_all(self, variants=("full",)) -> dict:

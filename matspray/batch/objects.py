@@ -72,7 +72,7 @@ def run_one_object(data, run_dir, config: PipelineConfig, variants=("full",), pr
             log(f"{data}: no ground truth, not evaluated")
             return None
         stage("eval")
-        metrics = evaluate_run(run_dir, data, progress=progress)
+        metrics = evaluate_run(run_dir, data, progress=progress, device=pipeline.device, backend=pipeline.backend)
         write_report(run_dir, metrics, data)
     return metrics
 

@@ -4,6 +4,7 @@
 import os
 from pathlib import Path
 
+from matspray.cli.options import add_compute_arguments
 from matspray.errors import ConfigError
 
 
@@ -19,16 +20,19 @@ def add_parser(parser) -> None:
                         help="LPIPS v0.1 AlexNet weights (.npz); default: $MATSPRAY_LPIPS_WEIGHTS or ../shared/data/lpips")
     parser.add_argument("--aligned", action="store_true", help="also report base color and relighting after per-channel scale alignment")
     parser.add_argument("--no-report", action="store_true", help="skip report.html")
+    add_compute_arguments(parser)
 
 
 def run(args) -> int:
-    from matspray.device import configure_threads
+    from matspray.device import compute_target, out_of_memory_as_error
 
-    configure_threads()
+    device, backend = compute_target(args.device, args.backend)
     if args.glb is not None:
         from matspray.eval.glb import evaluate_glb
 
-        evaluate_glb(args.glb, args.data, run=args.run, frame=args.frame, lpips_weights=args.lpips_weights, spp=args.spp)
+        with out_of_memory_as_error("eval", device):
+            evaluate_glb(args.glb, args.data, run=args.run, frame=args.frame, lpips_weights=args.lpips_weights, spp=args.spp,
+                         device=device, backend=backend)
         out = args.glb.with_name(f"{args.glb.stem}_eval")
         print((out / "tables.md").read_text())
         print(f"report: {out / 'report.html'}")
@@ -38,7 +42,8 @@ def run(args) -> int:
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run
 
-    metrics = evaluate_run(args.run, args.data, lpips_weights=args.lpips_weights, aligned=args.aligned)
+    with out_of_memory_as_error("eval", device):
+        metrics = evaluate_run(args.run, args.data, lpips_weights=args.lpips_weights, aligned=args.aligned, device=device, backend=backend)
     print((args.run / "eval" / "tables.md").read_text())
     if not args.no_report:
         print(f"report: {write_report(args.run, metrics, args.data)}")

@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+from matspray.cli.options import add_compute_arguments
 from matspray.export.config import ExportConfig
 
 DEFAULTS = ExportConfig()
@@ -28,15 +29,17 @@ def add_parser(parser) -> None:
     parser.add_argument("--normals", choices=("mesh", "asset"), default=DEFAULTS.normals,
                         help="per-vertex normals: the surface's own (default) or the Gaussians' shading normals blended onto it")
     parser.add_argument("--data", type=Path, help="the run's dataset, for the training cameras (default: the folder the run was made from)")
+    add_compute_arguments(parser)
 
 
 def run(args) -> int:
-    from matspray.device import configure_threads
+    from matspray.device import compute_target, out_of_memory_as_error
     from matspray.export.export import export_run
 
-    configure_threads()
+    device, backend = compute_target(args.device, args.backend)
     config = ExportConfig(faces=args.faces, texture_size=args.texture_size, frame=args.frame, grid=args.grid, normals=args.normals)
-    report = export_run(args.run, args.out, variant=args.variant, config=config, data=args.data)
+    with out_of_memory_as_error("export", device):
+        report = export_run(args.run, args.out, variant=args.variant, config=config, data=args.data, device=device, backend=backend)
     seconds = ", ".join(f"{name} {value:.1f} s" for name, value in report.seconds.items())
     print(f"wrote {report.files[0]}: {report.faces} faces, {report.vertices} vertices, {report.texture_size}x{report.texture_size} textures ({seconds})")
     for path in report.files[1:]:

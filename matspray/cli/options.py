@@ -18,6 +18,10 @@ def on_off(value: str) -> bool:
     return value == "on"
 
 
+DEVICE_HELP = "auto (CUDA when available; default), cpu, cuda or cuda:N"
+BACKEND_HELP = ("rasterizer: auto (default; gsplat when on CUDA and its CUDA code builds, else torch), torch, or gsplat "
+                "(CUDA only; pip install 'matspray[cuda]')")
+
 # flag -> (setting, how the flag's text becomes the setting's value, help); None values mean "not given"
 SETTING_FLAGS = {
     "--geometry-iterations": ("geometry.iterations", int, "override the preset's Gaussian Splatting iterations (the schedule follows)"),
@@ -52,9 +56,10 @@ SETTING_FLAGS = {
     "--seed": ("seed", int, "random seed (default 0)"),
     "--refine-seed": ("refine_seed", int, "the refinement's own seed (default: --seed)"),
     "--downscale": ("downscale", float, "shrink images by this factor on load (default 1)"),
-    "--device": ("device", str, "auto (CUDA when available; default), cpu, cuda or cuda:N"),
-    "--backend": ("backend", str, "rasterizer: auto (default; gsplat when CUDA and gsplat are installed, else torch), torch, "
-                  "or gsplat (CUDA only; pip install 'matspray[cuda]')"),
+    "--max-gaussians": ("geometry.max_gaussians", int, "cap on the Gaussians densification may grow to (default: the preset's; "
+                        "lower it when a GPU runs out of memory)"),
+    "--device": ("device", str, DEVICE_HELP),
+    "--backend": ("backend", str, BACKEND_HELP),
 }
 FLAG_OF_SETTING = {setting: flag for flag, (setting, _, _) in SETTING_FLAGS.items()}
 FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "--without", "visibility": "--shadows", "objects": "--objects",
@@ -65,6 +70,12 @@ FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "
                         "workers": "--workers", "address": "--address", "cpus_per_object": "--cpus-per-object",
                         "gpus_per_object": "--gpus-per-object",
                         "export.faces": "--faces", "export.texture_size": "--texture-size", "export.frame": "--frame", "export.normals": "--normals"})
+
+
+def add_compute_arguments(parser) -> None:
+    """--device and --backend, for the commands that compute outside a pipeline (geometry, relight, eval, export)."""
+    parser.add_argument("--device", default="auto", help=DEVICE_HELP)
+    parser.add_argument("--backend", default="auto", help=BACKEND_HELP)
 
 
 def add_run_arguments(parser) -> None:

@@ -4,6 +4,8 @@ The run-folder glue lives here: which asset, which cameras, which files; `matspr
 
 from pathlib import Path
 
+from matspray.cli.options import add_compute_arguments
+
 
 def add_parser(parser) -> None:
     parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
@@ -18,11 +20,13 @@ def add_parser(parser) -> None:
     parser.add_argument("--background", choices=("transparent", "env"), default="transparent",
                         help="transparent PNGs (default), or the environment itself behind the object")
     parser.add_argument("--env-height", type=int, default=64, help="rows of the prefiltered light (default 64)")
+    add_compute_arguments(parser)
 
 
 def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", frames: int = 60, fps: int = 24,
-                background: str = "transparent", env_height: int = 64) -> list[Path]:
-    """Render a run's asset under `env` for the dataset's test cameras or an orbit; returns the files written."""
+                background: str = "transparent", env_height: int = 64, device="cpu", backend: str = "torch") -> list[Path]:
+    """Render a run's asset under `env` for the dataset's test cameras or an orbit, on `device` with the rasterizer
+    `backend` (both resolved); returns the files written."""
     from tqdm import tqdm
 
     from matspray.asset import read_asset
@@ -32,6 +36,7 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
     from matspray.errors import ConfigError, RunError
     from matspray.lights import load_envmap
     from matspray.relight import background_radiance, orbit_cameras, render_relit
+    from matspray.render.backend import rendering_with
     from matspray.render.envmap import EnvironmentMap
     from matspray.rundir import RunDir
 
@@ -41,9 +46,9 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
         raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
     out_dir = Path(out_dir)
     name, env_map = load_envmap(env)
-    light = EnvironmentMap.from_tensor(env_map, height=env_height, learnable=False)
+    light = EnvironmentMap.from_tensor(env_map.to(device), height=env_height, learnable=False)
     prefiltered = light.prefilter()
-    asset = read_asset(asset_folder)
+    asset = read_asset(asset_folder, device=device)
     source = run.dataset()["source"]
     scene = load_scene(source, downscale=run.downscale())
     if views == "test":
@@ -56,10 +61,14 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
     out_dir.mkdir(parents=True, exist_ok=True)
     written, video_frames = [], []
     for view_name, camera in tqdm(cameras, desc=f"relight [{name}]"):
-        rgb, alpha = render_relit(asset, camera, prefiltered)
-        path = out_dir / f"{view_name}_{name}.png"
+        camera = camera.to(device)
+        with rendering_with(backend):
+            rgb, alpha = render_relit(asset, camera, prefiltered)
         if background == "env":
             rgb = rgb + background_radiance(light, camera) * (1 - alpha[..., None])
+        rgb, alpha = rgb.cpu(), alpha.cpu()
+        path = out_dir / f"{view_name}_{name}.png"
+        if background == "env":
             write_image(path, rgb)
         else:
             write_image(path, rgb / alpha[..., None].clamp_min(1e-4), alpha)
@@ -73,10 +82,11 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
 
 
 def run(args) -> int:
-    from matspray.device import configure_threads
+    from matspray.device import compute_target, out_of_memory_as_error
 
-    configure_threads()
-    written = relight_run(args.run, args.env, args.views, args.out, variant=args.variant, frames=args.frames, fps=args.fps,
-                          background=args.background, env_height=args.env_height)
+    device, backend = compute_target(args.device, args.backend)
+    with out_of_memory_as_error("relight", device):
+        written = relight_run(args.run, args.env, args.views, args.out, variant=args.variant, frames=args.frames, fps=args.fps,
+                              background=args.background, env_height=args.env_height, device=device, backend=backend)
     print(f"wrote {len(written)} files to {args.out}")
     return 0

@@ -21,7 +21,7 @@ def run(args) -> int:
     with Pipeline(args.data, args.out, config, overwrite=args.overwrite) as pipeline:  # refused while another process writes --out
         pipeline.run_all(args.variant)
     timings = pipeline.run.timings()
-    print(f"method {config.method}; seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
+    print(f"method {config.method}, on {pipeline.device} with rasterizer {pipeline.backend}; seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
     for variant in args.variant:
         print(f"asset [{variant}]: {pipeline.run.path(asset_stage(variant), 'asset.ply')}")
     return 0

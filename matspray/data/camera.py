@@ -32,28 +32,31 @@ class Camera:
     @staticmethod
     def from_camtoworld_opengl(c2w: Tensor, K: Tensor, width: int, height: int) -> "Camera":
         """Camera from a Blender/NeRF camera-to-world matrix [4, 4] (OpenGL axes)."""
-        c2w = torch.as_tensor(c2w, dtype=torch.float64)
-        c2w_cv = c2w @ OPENGL_TO_OPENCV
+        c2w = torch.as_tensor(c2w, dtype=torch.float64, device=_device_of(c2w))
+        c2w_cv = c2w @ OPENGL_TO_OPENCV.to(c2w.device)
         viewmat = torch.linalg.inv(c2w_cv)
-        return Camera(K=torch.as_tensor(K, dtype=torch.float32), viewmat=viewmat.float(), width=width, height=height)
+        return Camera(K=torch.as_tensor(K, dtype=torch.float32, device=c2w.device), viewmat=viewmat.float(), width=width, height=height)
 
     @staticmethod
     def from_fov_x(fov_x: float, width: int, height: int, viewmat: Tensor) -> "Camera":
         """Camera with square pixels, horizontal field of view `fov_x` (radians), centred principal point."""
-        return Camera(K=intrinsics_from_fov(fov_x, width, height), viewmat=torch.as_tensor(viewmat).float(), width=width, height=height)
+        viewmat = torch.as_tensor(viewmat, device=_device_of(viewmat)).float()
+        return Camera(K=intrinsics_from_fov(fov_x, width, height, viewmat.device), viewmat=viewmat, width=width, height=height)
 
     @staticmethod
     def look_at(eye, target, up, fov_x: float, width: int, height: int) -> "Camera":
-        """Camera at `eye` looking at `target`; `up` is the world direction that appears up in the image."""
-        eye, target, up = (torch.as_tensor(v, dtype=torch.float64) for v in (eye, target, up))
+        """Camera at `eye` looking at `target`; `up` is the world direction that appears up in the image. It is made
+        on the device of whichever of them is a tensor (the CPU when none is)."""
+        device = next((v.device for v in (eye, target, up) if isinstance(v, Tensor)), torch.device("cpu"))
+        eye, target, up = (torch.as_tensor(v, dtype=torch.float64, device=device) for v in (eye, target, up))
         forward = target - eye
         forward = forward / forward.norm()
         right = torch.linalg.cross(forward, up)
         if right.norm() < 1e-9:  # looking along `up`: any perpendicular will do
-            right = torch.linalg.cross(forward, torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
+            right = torch.linalg.cross(forward, torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64, device=device))
         right = right / right.norm()
         down = torch.linalg.cross(forward, right)
-        c2w = torch.eye(4, dtype=torch.float64)
+        c2w = torch.eye(4, dtype=torch.float64, device=device)
         c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, down, forward, eye
         return Camera.from_fov_x(fov_x, width, height, torch.linalg.inv(c2w))
 
@@ -126,9 +129,13 @@ class Camera:
         return origins, dirs
 
 
-def intrinsics_from_fov(fov_x: float, width: int, height: int) -> Tensor:  # [3, 3]
+def intrinsics_from_fov(fov_x: float, width: int, height: int, device="cpu") -> Tensor:  # [3, 3]
     focal = 0.5 * width / math.tan(0.5 * fov_x)
-    return torch.tensor([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]], dtype=torch.float32)
+    return torch.tensor([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]], dtype=torch.float32, device=device)
+
+
+def _device_of(value) -> torch.device:  # a tensor's device; the CPU for arrays and lists (host data)
+    return value.device if isinstance(value, Tensor) else torch.device("cpu")
 
 
 def pixel_sample_grid(height: int, width: int, samples_per_side: int = 1, device=None) -> Tensor:

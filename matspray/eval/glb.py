@@ -28,6 +28,7 @@ from matspray.eval.run_eval import (GroundTruth, ViewRenders, asset_renders, che
 from matspray.eval.tables import material_table
 from matspray.export.frames import GLTF_FROM_DATASET, transform_directions, transform_points
 from matspray.gltf.read import read_gltf
+from matspray.render.backend import rendering_with
 from matspray.rundir import RunDir, read_json, write_json, write_text_atomic
 from matspray.variants import asset_stage
 from matspray.synth.groundtruth import cast_ground_truth
@@ -84,9 +85,10 @@ def dataset_spp(data: Path) -> int:
 
 
 def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: str | None = None, lpips_weights=None,
-                 spp: int | None = None, out=None, progress: bool = True) -> dict:
+                 spp: int | None = None, out=None, progress: bool = True, device="cpu", backend: str = "torch") -> dict:
     """Score `glb` (and the Gaussian asset it came from, when its run is found) on the dataset's test
-    views; writes metrics.json, tables.md and report.html into `out` (default FILE_eval/ beside it)."""
+    views; writes metrics.json, tables.md and report.html into `out` (default FILE_eval/ beside it). Mitsuba
+    renders the mesh; the Gaussian asset renders on `device` with the rasterizer `backend` (both resolved)."""
     glb = Path(glb)
     if not glb.is_file():
         raise ConfigError(f"{glb}: no such file; make one with `matspray export`")
@@ -114,9 +116,10 @@ def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: st
                "mesh": score_renders(renders, views, truths, env_names, lpips)}
     gaussian_renders = None
     if run is not None and (run / asset_stage(variant) / "asset.ply").exists():
-        asset = read_asset(run / asset_stage(variant))
-        lights = load_relight_lights(data, env_names)
-        gaussian_renders = [asset_renders(asset, view, lights) for view in views]
+        asset = read_asset(run / asset_stage(variant), device=device)
+        lights = load_relight_lights(data, env_names, device)
+        with rendering_with(backend):
+            gaussian_renders = [asset_renders(asset, view, lights) for view in views]
         metrics["gaussians"] = score_renders(gaussian_renders, views, truths, env_names, lpips)
         metrics["run"], metrics["variant"] = str(run), variant
     out = Path(out) if out is not None else glb.with_name(f"{glb.stem}_eval")

@@ -29,6 +29,7 @@ from matspray.eval.tables import write_tables
 from matspray.predictors import PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
 from matspray.relight import render_gbuffer
+from matspray.render.backend import rendering_with
 from matspray.render.deferred import shade_gbuffer
 from matspray.render.envmap import EnvironmentMap
 from matspray.objectmasks import ObjectMasks, read_object_masks
@@ -62,13 +63,14 @@ def read_view_truth(view: View) -> GroundTruth:
     return GroundTruth(mask, maps.basecolor, maps.roughness, maps.metallic, relit)
 
 
-def load_relight_lights(data: Path, names: list[str]):
+def load_relight_lights(data: Path, names: list[str], device="cpu"):
+    """The held-out lights {name: PrefilteredEnvironment}, prefiltered on `device`."""
     lights = {}
     for name in names:
         path = Path(data) / "envmaps" / f"{name}.exr"
         if not path.exists():
             raise file_error(path, f"the held-out light '{name}' has relit ground truth but no environment map")
-        lights[name] = EnvironmentMap.from_file(path, height=EVAL_ENV_HEIGHT).prefilter()
+        lights[name] = EnvironmentMap.from_file(path, height=EVAL_ENV_HEIGHT).to(device).prefilter()
     return lights
 
 
@@ -186,9 +188,10 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
         return None, f"raw 2D predictions of test views not evaluated: {exc}"
 
 
-def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, progress: bool = True) -> dict:
-    """Evaluate every asset of `run_dir` on the dataset's test views; writes eval/metrics.json and
-    eval/tables.md and returns the metrics."""
+def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, progress: bool = True, device="cpu",
+                 backend: str = "torch") -> dict:
+    """Evaluate every asset of `run_dir` on the dataset's test views, rendered on `device` with the rasterizer
+    `backend` (both resolved); writes eval/metrics.json and eval/tables.md and returns the metrics."""
     run = RunDir(run_dir).require()
     identity = run.dataset()
     data = Path(data) if data is not None else Path(identity["source"])
@@ -199,14 +202,15 @@ def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, 
     lpips, lpips_source = load_lpips(lpips_weights)
     truths = [read_view_truth(v) for v in scene.test]
     env_names = sorted(set.intersection(*(set(t.relit) for t in truths)))
-    lights = load_relight_lights(data, env_names)
+    lights = load_relight_lights(data, env_names, device)
     metrics = {"title": f"MatSpray evaluation: {identity['source']}", "lpips": lpips_source, "notes": [], "relight_envs": env_names}
     if not env_names:
         metrics["notes"].append("no relit ground truth in the dataset: relighting not evaluated")
     variants = {}
     stages = [(v, asset_stage(v)) for v in run.asset_variants()]
     for variant, stage in tqdm(stages, desc="eval", disable=not progress):
-        variants[variant] = evaluate_asset(read_asset(run.path(stage)), scene.test, truths, lights, lpips, aligned)
+        with rendering_with(backend):
+            variants[variant] = evaluate_asset(read_asset(run.path(stage), device=device), scene.test, truths, lights, lpips, aligned)
     predictions, note = predict_test_views(run.root, scene.test)
     metrics["notes"].append(note)
     if predictions is not None:

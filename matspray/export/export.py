@@ -12,6 +12,7 @@ import numpy as np
 from tqdm import tqdm
 
 from matspray.asset import Asset, read_asset
+from matspray.render.backend import rendering_with
 from matspray.data.camera import Camera
 from matspray.data.images import atomic_target, read_image, write_image
 from matspray.data.loader import load_scene
@@ -156,14 +157,18 @@ class ExportReport:
     seconds: dict
 
 
-def export_run(run_dir, out, variant: str = "full", config: ExportConfig = ExportConfig(), data=None, progress: bool = True) -> ExportReport:
-    """`matspray export`: the run's asset of `variant` as `out` (.glb) plus its environment map."""
+def export_run(run_dir, out, variant: str = "full", config: ExportConfig = ExportConfig(), data=None, progress: bool = True,
+               device="cpu", backend: str = "torch") -> ExportReport:
+    """`matspray export`: the run's asset of `variant` as `out` (.glb) plus its environment map. The asset's depth
+    renders on `device` with the rasterizer `backend` (both resolved); meshing and baking run on the CPU."""
     run_dir, out = Path(run_dir), check_output(out)
     folder = run_asset(run_dir, variant)
     source = data if data is not None else read_json(run_dir / "dataset.json")["source"]
     scene = load_scene(source, downscale=RunDir(run_dir).downscale())
-    asset = read_asset(folder)
-    mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress, notes={"variant": variant, "run": str(run_dir.resolve())})
+    asset = read_asset(folder, device=device)
+    with rendering_with(backend):
+        mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress,
+                               notes={"variant": variant, "run": str(run_dir.resolve())})
     envmap = folder / "envmap.exr"
     files = write_export(mesh, out, envmap if envmap.exists() else None)
     return ExportReport(files, len(mesh.faces), len(mesh.positions), config.texture_size, mesh.seconds)

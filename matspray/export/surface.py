@@ -30,8 +30,8 @@ def render_depths(gaussians: Gaussians, cameras: list[Camera], progress: bool = 
     out = []
     with torch.no_grad():
         for camera in tqdm(cameras, desc="export: depth", disable=not progress, dynamic_ncols=True):
-            raster = rasterize(gaussians, camera, ones)
-            out.append((raster.depth, raster.alpha))
+            raster = rasterize(gaussians, camera.to(ones.device), ones)
+            out.append((raster.depth.cpu(), raster.alpha.cpu()))  # the TSDF fuses on the CPU
     return out
 
 

@@ -51,7 +51,7 @@ class DensityControl:
             events.append(self.densify_and_prune(optimizer, generator, prune_large=done > c.opacity_reset_every))
         if done % c.opacity_reset_every == 0:
             opacities = optimizer.params["opacity_logits"].detach()
-            optimizer.replace_values("opacity_logits", torch.minimum(opacities, torch.logit(torch.tensor(RESET_OPACITY))))
+            optimizer.replace_values("opacity_logits", opacities.clamp(max=float(torch.logit(torch.tensor(RESET_OPACITY, device="cpu")))))
             events.append("opacity reset")
         return ", ".join(events)
 
@@ -87,10 +87,10 @@ def split_gaussians(g: Gaussians, generator: torch.Generator) -> Gaussians:
     if len(g) == 0:
         return g
     repeated = concat([g] * SPLIT_INTO)
-    noise = torch.randn(repeated.means.shape, generator=generator).to(repeated.means)
+    noise = torch.randn(repeated.means.shape, generator=generator, device="cpu").to(repeated.means)  # the same draws on every device
     offsets = (repeated.rotation_matrices() @ (noise * repeated.scales)[:, :, None])[..., 0]
     return Gaussians(
-        repeated.means + offsets, repeated.log_scales - torch.log(torch.tensor(SPLIT_SHRINK)), repeated.quats,
+        repeated.means + offsets, repeated.log_scales - float(torch.log(torch.tensor(SPLIT_SHRINK, device="cpu"))), repeated.quats,
         repeated.opacity_logits, repeated.sh,
     )
 

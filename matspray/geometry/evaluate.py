@@ -82,7 +82,7 @@ def evaluate_views(gaussians: Gaussians, views: list[View], sh_degree: int | Non
     psnr: whole image, both composited on white. psnr_masked: only the object's pixels (weighted by the
     true alpha). normal_error_deg: mean angle between rendered and true normals on the object (where
     `{view}_normal.exr` exists; uncovered pixels count as 90 degrees)."""
-    white = torch.ones(3)
+    white = torch.ones(3, device=gaussians.means.device)
     per_view = {}
     for view in views:
         with torch.no_grad():

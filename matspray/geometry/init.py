@@ -24,27 +24,30 @@ BACKGROUND_RADIUS = 3.0  # the shell's radius, in farthest-camera distances from
 def initial_gaussians(scene: Scene, views: list[View], count: int, sh_degree: int, opacity: float,
                       generator: torch.Generator, scale: float = 1.0) -> Gaussians:
     """`count` isotropic Gaussians (fewer with COLMAP points or thin masks), `scale` times the RMS
-    distance to their 3 nearest neighbours, coloured by the sRGB colour they project to."""
+    distance to their 3 nearest neighbours, coloured by the sRGB colour they project to. They are made on
+    the views' device; random draws come from the CPU `generator` (the same points on every device)."""
+    device = views[0].image.device
     if scene.points is not None and len(scene.points) >= MIN_COLMAP_POINTS:
         points = scene.points.float()
         if len(points) > count:
-            points = points[torch.randperm(len(points), generator=generator)[:count]]
+            points = points[torch.randperm(len(points), generator=generator, device="cpu")[:count]]
+        points = points.to(device)
         colours = projected_colours(points, views)
     elif any(v.alpha is not None for v in views):
-        points, colours = hull_surface_points(scene.bounds.float(), views, count, generator)
+        points, colours = hull_surface_points(scene.bounds.float().to(device), views, count, generator)
     else:
-        bounds = scene.bounds.float()
+        bounds = scene.bounds.float().to(device)
         shell = int(BACKGROUND_SHARE * count)
-        inner = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count - shell, 3, generator=generator)
-        points = torch.cat([inner, background_shell(views, shell)])
+        inner = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count - shell, 3, generator=generator).to(device)
+        points = torch.cat([inner, background_shell(views, shell).to(device)])
         colours = projected_colours(points, views)
-    sh = torch.zeros(len(points), num_sh_bases(sh_degree), 3)
+    sh = torch.zeros(len(points), num_sh_bases(sh_degree), 3, device=device)
     sh[:, 0] = rgb_to_sh_dc(colours)
-    quats = torch.zeros(len(points), 4)
+    quats = torch.zeros(len(points), 4, device=device)
     quats[:, 0] = 1.0
     return Gaussians(
         means=points, log_scales=torch.log(scale * neighbour_spacing(points))[:, None].repeat(1, 3), quats=quats,
-        opacity_logits=torch.full((len(points),), float(torch.logit(torch.tensor(opacity)))), sh=sh,
+        opacity_logits=torch.full((len(points),), float(torch.logit(torch.tensor(opacity, device="cpu"))), device=device), sh=sh,
     )
 
 
@@ -59,18 +62,18 @@ def hull_surface_points(bounds: Tensor, views: list[View], count: int, generator
     per_view = -(-count // len(masked))
     points, colours = [], []
     for view in masked:
-        weights = (view.alpha.reshape(-1) > 0.5).float()
+        weights = (view.alpha.reshape(-1) > 0.5).float().cpu()  # drawn on the CPU: the same picks on every device
         if float(weights.sum()) == 0:
             continue
         picks = torch.multinomial(weights, per_view, replacement=True, generator=generator)
-        jitter = torch.rand(per_view, 2, generator=generator)
-        pixels = torch.stack([picks % view.width, torch.div(picks, view.width, rounding_mode="floor")], -1).float() + jitter
+        jitter = torch.rand(per_view, 2, generator=generator, device="cpu")
+        pixels = (torch.stack([picks % view.width, torch.div(picks, view.width, rounding_mode="floor")], -1).float() + jitter).to(bounds.device)
         origins, dirs = view.camera.rays_through(pixels)
         near, far = box_entry_exit(origins, dirs, bounds)
-        steps = (torch.arange(samples_per_ray) + 0.5) / samples_per_ray
+        steps = (torch.arange(samples_per_ray, device=bounds.device) + 0.5) / samples_per_ray
         t = near[:, None] + (far - near)[:, None] * steps  # [R, S]
         samples = (origins[:, None, :] + t[..., None] * dirs[:, None, :]).reshape(-1, 3)
-        inside = torch.ones(len(samples), dtype=torch.bool)
+        inside = torch.ones(len(samples), dtype=torch.bool, device=samples.device)
         for other in masked:
             values, seen = sample_image(other.alpha[..., None], other, samples)
             inside &= ~seen | (values[:, 0] > 0.5)
@@ -80,7 +83,7 @@ def hull_surface_points(bounds: Tensor, views: list[View], count: int, generator
         rays = torch.nonzero(hit).squeeze(1)
         points.append(origins[rays] + t[rays, first[rays], None] * dirs[rays])
         colours.append(linear_to_srgb(view.image)[pixels[rays, 1].long(), pixels[rays, 0].long()])
-    points = torch.cat(points) if points else torch.zeros(0, 3)
+    points = torch.cat(points) if points else torch.zeros(0, 3, device=bounds.device)
     if len(points) < max(1, count // 100):
         raise DataError(
             f"the masks leave only {len(points)} initial points on the object "
@@ -125,7 +128,7 @@ def sample_image(image: Tensor, view: View, points: Tensor) -> tuple[Tensor, Ten
 
 def projected_colours(points: Tensor, views: list[View]) -> Tensor:  # [P, 3] -> [P, 3] sRGB
     """Mean sRGB colour at each point's projection over the views where it lands on the object."""
-    total, weight = torch.zeros(len(points), 3), torch.zeros(len(points), 1)
+    total, weight = torch.zeros(len(points), 3, device=points.device), torch.zeros(len(points), 1, device=points.device)
     for view in views:
         colours, seen = sample_image(linear_to_srgb(view.image), view, points)
         w = seen.float()[:, None]
@@ -138,11 +141,12 @@ def projected_colours(points: Tensor, views: list[View]) -> Tensor:  # [P, 3] ->
 
 def neighbour_spacing(points: Tensor, k: int = 3, chunk: int = 2048) -> Tensor:  # [P, 3] -> [P]
     """Root mean squared distance to the k nearest other points (3DGS's initial scale)."""
-    out = torch.empty(len(points))
+    out = torch.empty(len(points), device=points.device)
     k = min(k, max(1, len(points) - 1))
     for start in range(0, len(points), chunk):
         d2 = torch.cdist(points[start:start + chunk], points).square()
-        d2[torch.arange(d2.shape[0]), torch.arange(start, start + d2.shape[0])] = float("inf")
+        rows = torch.arange(d2.shape[0], device=points.device)
+        d2[rows, rows + start] = float("inf")
         nearest = torch.topk(d2, k, dim=1, largest=False).values
         out[start:start + chunk] = nearest.mean(dim=1).sqrt()
     return out.clamp_min(1e-7)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+from torch import Tensor
 from tqdm import tqdm
 
 from matspray.data.scene import Scene, View
@@ -22,7 +23,7 @@ from matspray.gaussians import Gaussians
 from matspray.geometry.checkpoint import load_checkpoint, save_checkpoint
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl, load_stats_state, stats_state
-from matspray.geometry.evaluate import evaluate_views, psnr, render_view, target_srgb, write_json
+from matspray.geometry.evaluate import evaluate_views, render_view, target_srgb, write_json
 from matspray.geometry.init import initial_gaussians
 from matspray.geometry.losses import flatten_loss, normal_consistency_loss, photometric_loss
 from matspray.geometry.normals import consensus_normals, depth_normals
@@ -30,6 +31,9 @@ from matspray.geometry.optim import GaussianOptimizer, exponential_lr
 from matspray.geometry.ply import read_ply, write_ply
 
 PLY_NAME, METRICS_NAME, CHECKPOINT_NAME = "gaussians.ply", "metrics.json", "checkpoint.pt"
+# the loss and PSNR reach the host (a GPU synchronisation) only every this many steps, for the progress bar and
+# the divergence check; on the CPU that costs nothing either way
+SYNC_EVERY = 25
 
 
 def prepare_views(views: list[View], resolution: int) -> list[View]:
@@ -54,20 +58,25 @@ def learning_rates(config: GeometryConfig, extent: float) -> dict[str, float]:
     }
 
 
-def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, restart: bool = False, progress: bool = True) -> Gaussians:
-    """Train Gaussians on `scene`'s training views and write the stage's artifacts into `out_dir`.
+def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, device="cpu", restart: bool = False,
+                   progress: bool = True) -> Gaussians:
+    """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`.
+    Renders with the backend of the enclosing `rendering_with` block (torch outside one).
 
-    Resumes from out_dir/checkpoint.pt when it exists (settings must match; `restart` discards it).
-    A finished run (checkpoint at the last iteration and gaussians.ply present) is not redone.
+    Resumes from out_dir/checkpoint.pt when it exists (settings must match; `restart` discards it; a
+    checkpoint made on another device resumes too). A finished run (checkpoint at the last iteration and
+    gaussians.ply present) is not redone. Random draws come from a CPU generator, so the same seed draws the
+    same numbers on every device.
     """
+    device = torch.device(device)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out_dir / CHECKPOINT_NAME
     if restart:
         for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME):
             (out_dir / name).unlink(missing_ok=True)
-    train_views = prepare_views(scene.train, config.resolution)
-    test_views = prepare_views(scene.test, config.resolution)
+    train_views = [v.to(device) for v in prepare_views(scene.train, config.resolution)]  # moved once
+    test_views = [v.to(device) for v in prepare_views(scene.test, config.resolution)]
     if not train_views:
         raise DataError(f"{scene.source}: no training views to fit geometry to")
     masked = all(v.alpha is not None for v in train_views)
@@ -76,50 +85,46 @@ def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, restart: bo
 
     resumed = load_checkpoint(checkpoint_path, config)
     if resumed is not None and resumed[0] >= config.iterations and (out_dir / PLY_NAME).exists() and (out_dir / METRICS_NAME).exists():
-        return read_ply(out_dir / PLY_NAME)[0]
+        return read_ply(out_dir / PLY_NAME)[0].to(device)
     if resumed is None:
         start, order = 0, []
         initial = initial_gaussians(scene, train_views, config.init_points, config.sh_degree, config.init_opacity, generator, config.init_scale)
         optimizer = GaussianOptimizer(initial, learning_rates(config, extent))
-        density = DensityControl(config, extent, len(initial))
+        density = DensityControl(config, extent, len(initial), device)
         elapsed = 0.0
     else:
         start, state = resumed
-        optimizer = GaussianOptimizer(_empty_like(state["optimizer"]["params"]), learning_rates(config, extent))
-        optimizer.load_state_dict(state["optimizer"])
-        density = DensityControl(config, extent, 0)
-        load_stats_state(density, state["density"])
+        params = {name: t.to(device) for name, t in state["optimizer"]["params"].items()}
+        optimizer = GaussianOptimizer(_empty_like(params), learning_rates(config, extent))
+        optimizer.load_state_dict(dict(state["optimizer"], params=params))  # Adam moves its moments to the parameters' device
+        density = DensityControl(config, extent, 0, device)
+        load_stats_state(density, {name: t.to(device) for name, t in state["density"].items()})
         generator.set_state(state["generator"])
         order, elapsed = state["order"], state["elapsed"]
 
     began = time.perf_counter() - elapsed
     bar = tqdm(range(start, config.iterations), initial=start, total=config.iterations, desc="geometry", disable=not progress, dynamic_ncols=True)
-    running_psnr = None
+    running = RunningStats(device)
     for iteration in bar:
         if not order:
-            order = torch.randperm(len(train_views), generator=generator).tolist()
+            order = torch.randperm(len(train_views), generator=generator, device="cpu").tolist()
         view = train_views[order.pop()]
         optimizer.set_lr("means", exponential_lr(iteration, config.iterations, config.lr_means * extent, config.lr_means_final * extent))
         losses, render, target = training_losses(optimizer.gaussians(), view, config, iteration, masked, generator)
         total = sum(losses.values())
-        if not torch.isfinite(total):
-            raise NumericalError(
-                f"geometry training diverged at iteration {iteration} (loss terms: "
-                + ", ".join(f"{k}={float(v):.3g}" for k, v in losses.items())
-                + "); try lower learning rates or another --seed"
-            )
+        running.add(iteration, total.detach(), render.rgb.detach(), target)
+        done = iteration + 1
+        checkpoint_now = done % config.checkpoint_every == 0 or done == config.iterations
+        if done % SYNC_EVERY == 0 or checkpoint_now:  # never checkpoint a state that diverged
+            running.check(losses)
+            bar.set_postfix(loss=f"{running.loss:.4f}", psnr=f"{running.psnr:.2f}", gaussians=len(optimizer.params["means"]), refresh=False)
         total.backward()
         density.observe(render.raster, view.width, view.height)
         optimizer.step()
         event = density.step(iteration, optimizer, generator)
-
-        step_psnr = psnr(render.rgb.detach(), target)
-        running_psnr = step_psnr if running_psnr is None else 0.9 * running_psnr + 0.1 * min(step_psnr, 99.0)
-        bar.set_postfix(loss=f"{float(total.detach()):.4f}", psnr=f"{running_psnr:.2f}", gaussians=len(optimizer.params["means"]), refresh=False)
         if event and progress:
             bar.write(f"iteration {iteration + 1}: {event}")
-        done = iteration + 1
-        if done % config.checkpoint_every == 0 or done == config.iterations:
+        if checkpoint_now:
             save_checkpoint(checkpoint_path, config, done, {
                 "optimizer": optimizer.state_dict(), "density": stats_state(density), "generator": generator.get_state(),
                 "order": order, "elapsed": time.perf_counter() - began,
@@ -136,11 +141,41 @@ def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, restart: bo
     return gaussians
 
 
+class RunningStats:
+    """The loss and a running PSNR of the training steps, kept on the device between host reads, and the first
+    step whose loss was not finite."""
+
+    def __init__(self, device: torch.device):
+        self.first_bad = torch.full((), -1, dtype=torch.long, device=device)
+        self._loss = torch.zeros((), device=device)
+        self._psnr = torch.full((), float("nan"), device=device)
+        self.loss, self.psnr = 0.0, 0.0
+
+    def add(self, iteration: int, loss: Tensor, rgb: Tensor, target: Tensor) -> None:
+        bad = ~torch.isfinite(loss)
+        self.first_bad = torch.where(bad & (self.first_bad < 0), torch.full_like(self.first_bad, iteration), self.first_bad)
+        self._loss = loss
+        mse = (rgb.clamp(0, 1) - target.clamp(0, 1)).square().mean().clamp_min(1e-10)
+        step_psnr = (-10.0 * torch.log10(mse)).clamp(max=99.0)
+        self._psnr = torch.where(torch.isnan(self._psnr), step_psnr, 0.9 * self._psnr + 0.1 * step_psnr)
+
+    def check(self, losses: dict[str, Tensor]) -> None:
+        """Read the figures on the host; raises when a step since the start diverged."""
+        first_bad, self.loss, self.psnr = (float(x) for x in torch.stack([self.first_bad.float(), self._loss.float(), self._psnr.float()]).cpu())
+        if first_bad >= 0:
+            raise NumericalError(
+                f"geometry training diverged at iteration {int(first_bad)} (loss terms now: "
+                + ", ".join(f"{k}={float(v):.3g}" for k, v in losses.items())
+                + "); try lower learning rates or another --seed"
+            )
+
+
 def training_losses(gaussians: Gaussians, view: View, config: GeometryConfig, iteration: int, masked: bool, generator):
     """The weighted loss terms of one step {name: scalar}, the render and the sRGB target."""
     degree = min(config.sh_degree, iteration // config.sh_degree_every)
-    background = torch.rand(3, generator=generator) if masked and config.random_background else torch.zeros(3)
-    render = render_view(gaussians, view.camera, degree, background.to(gaussians.device))
+    background = torch.rand(3, generator=generator, device="cpu") if masked and config.random_background else torch.zeros(3, device="cpu")
+    background = background.to(gaussians.device)  # drawn on the CPU: the same colours on every device
+    render = render_view(gaussians, view.camera, degree, background)
     render.raster.retain_screen_grads()
     target = target_srgb(view, background)
     # the prediction is not clamped here (DESIGN compares clamped values in metrics): a clamp would

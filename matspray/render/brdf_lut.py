@@ -31,10 +31,10 @@ DEFAULT_SAMPLES = 512
 _TABLES: dict[tuple, Tensor] = {}  # (size, samples, device, dtype) -> [size, size, 2]
 
 
-def hammersley(count: int, dtype=torch.float64) -> Tensor:  # -> [count, 2] in [0, 1)
+def hammersley(count: int, dtype=torch.float64, device="cpu") -> Tensor:  # -> [count, 2] in [0, 1)
     """The 2D Hammersley point set: ((i + 0.5) / count, radical inverse of i in base 2)."""
-    i = torch.arange(count, dtype=torch.int64)
-    bits = torch.zeros(count, dtype=torch.int64)
+    i = torch.arange(count, dtype=torch.int64, device=device)
+    bits = torch.zeros(count, dtype=torch.int64, device=device)
     for k in range(32):  # reverse the low 32 bits of i
         bits |= ((i >> k) & 1) << (31 - k)
     return torch.stack([(i.to(dtype) + 0.5) / count, bits.to(dtype) / 2.0**32], dim=-1)
@@ -67,7 +67,7 @@ def integrate_split_sum(n_dot_v: Tensor, roughness: Tensor, samples: int = DEFAU
     n_dot_v, roughness = torch.broadcast_tensors(n_dot_v, roughness)
     alpha = roughness_to_alpha(roughness)
     nv = n_dot_v.clamp(1e-4, 1.0)
-    h = sample_visible_normals(hammersley(samples, nv.dtype).to(nv.device), nv, alpha)  # [..., S, 3]
+    h = sample_visible_normals(hammersley(samples, nv.dtype, nv.device), nv, alpha)  # [..., S, 3]
     sin_v = torch.sqrt(1.0 - nv * nv)[..., None]
     v_dot_h = sin_v * h[..., 0] + nv[..., None] * h[..., 2]  # [..., S]
     n_dot_l = 2.0 * v_dot_h * h[..., 2] - nv[..., None]  # z of wi = 2 (wo.h) h - wo
@@ -85,7 +85,7 @@ def brdf_lut(size: int = DEFAULT_SIZE, samples: int = DEFAULT_SAMPLES, device=No
     if key not in _TABLES:
         base_key = (size, samples, "cpu", torch.float64)
         if base_key not in _TABLES:
-            centres = (torch.arange(size, dtype=torch.float64) + 0.5) / size
+            centres = (torch.arange(size, dtype=torch.float64, device="cpu") + 0.5) / size  # integrated once, on the CPU
             nv, r = torch.meshgrid(centres, centres, indexing="ij")
             _TABLES[base_key] = integrate_split_sum(nv, r, samples)
         _TABLES[key] = _TABLES[base_key].to(device=device, dtype=dtype)

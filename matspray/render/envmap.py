@@ -131,20 +131,21 @@ def _kernel_spectrum(kind: str, alpha: float, in_height: int, out_height: int, d
     pixel, 'ggx' (the lobe D V (r.l)+, normalised to sum to 1) or 'cosine' ((n.l)+, summing to pi),
     as their conjugated rfft along azimuth, laid out [2 in_height // 2 + 1, out_height, in_height]."""
     key = (kind, alpha, in_height, out_height, str(device), dtype)
-    if key not in _KERNELS:
+    if key not in _KERNELS:  # made once on the CPU in float64, then kept on `device`
+        host = torch.device("cpu")
         in_width, stride = 2 * in_height, in_height // out_height
-        theta_in = (torch.arange(in_height, dtype=torch.float64) + 0.5) / in_height * math.pi
-        theta_out = (torch.arange(out_height, dtype=torch.float64) + 0.5) / out_height * math.pi
+        theta_in = (torch.arange(in_height, dtype=torch.float64, device=host) + 0.5) / in_height * math.pi
+        theta_out = (torch.arange(out_height, dtype=torch.float64, device=host) + 0.5) / out_height * math.pi
         # azimuth of input column m relative to output column 0 (output pixels are `stride` input pixels wide)
-        dphi = (torch.arange(in_width, dtype=torch.float64) + 0.5 - stride / 2) * (2 * math.pi / in_width)
+        dphi = (torch.arange(in_width, dtype=torch.float64, device=host) + 0.5 - stride / 2) * (2 * math.pi / in_width)
         cos = (
             torch.cos(theta_out)[:, None, None] * torch.cos(theta_in)[None, :, None]
             + torch.sin(theta_out)[:, None, None] * torch.sin(theta_in)[None, :, None] * torch.cos(dphi)
         )  # [H_out, H_in, W_in]
-        solid_angle = pixel_solid_angles(in_height, in_width, dtype=torch.float64)[:, :1]  # [H_in, 1]
+        solid_angle = pixel_solid_angles(in_height, in_width, device=host, dtype=torch.float64)[:, :1]  # [H_in, 1]
         weights = cos.clamp_min(0.0) * solid_angle
         if kind == "ggx":  # the specular lobe D V (n.l) of a surface seen head-on: n = v = r
-            a = torch.tensor(alpha, dtype=torch.float64)
+            a = torch.tensor(alpha, dtype=torch.float64, device=host)
             n_dot_h = torch.sqrt(((1.0 + cos) / 2.0).clamp_min(0.0))
             weights = weights * ggx_ndf(n_dot_h, a) * smith_visibility(cos, torch.ones_like(cos), a)
             weights = weights / weights.sum(dim=(1, 2), keepdim=True)
@@ -168,7 +169,7 @@ def _correlate(map: Tensor, spectrum: Tensor) -> Tensor:  # [H_in, W_in, C], [F,
 
 def prefilter_specular(map: Tensor, roughness: float) -> Tensor:  # [H, 2H, 3] -> [h, 2h, 3]
     height = level_height(roughness, map.shape[0])
-    alpha = float(roughness_to_alpha(torch.tensor(roughness)))
+    alpha = float(roughness_to_alpha(torch.tensor(roughness, device="cpu")))  # a host-side number
     return _correlate(map, _kernel_spectrum("ggx", alpha, map.shape[0], height, map.device, map.dtype))
 
 

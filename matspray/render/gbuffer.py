@@ -2,6 +2,12 @@
 which rendering any per-Gaussian features is a sparse product (and so is its backward pass).
 
 This is what makes material refinement cheap: the Gaussians do not move, only their materials do.
+
+With backend gsplat nothing is kept per view: rendering the features again with the frozen Gaussians is one
+kernel call, cheaper on a GPU than the sparse product and free of the matrices' memory. With backend torch
+the matrices stay where `storage` says: on the Gaussians' device, on the host (copied to the device view by
+view), or "auto": on a CUDA device while it keeps DEVICE_RESERVE of its memory free, on the host after that
+(`frozen_views_bytes` says how large they are).
 """
 
 from __future__ import annotations
@@ -13,7 +19,18 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
-from matspray.render.rasterize import view_weights
+from matspray.render.backend import active_backend
+from matspray.render.rasterize import rasterize, view_weights
+
+# a (Gaussian, pixel) weight is kept twice (the matrix and its transpose): an int64 column index and a float32 value each
+BYTES_PER_HIT = 2 * (8 + 4)
+DEVICE_RESERVE = 0.25  # share of a GPU's memory left free for the rest of refinement (storage "auto")
+
+
+def frozen_views_bytes(hits: int, pixels: int, gaussians: int, views: int) -> int:
+    """Bytes the torch backend's frozen views keep: `hits` (Gaussian, pixel) weights over all views, plus each
+    view's row pointers of both matrices (pixels + 1 and gaussians + 1 int64)."""
+    return BYTES_PER_HIT * hits + 8 * views * (pixels + gaussians + 2)
 
 
 def blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: int, n_columns: int) -> Tensor:
@@ -40,27 +57,51 @@ class SparseBlend(torch.autograd.Function):
 
 
 class FrozenViews:
-    def __init__(self, gaussians: Gaussians, cameras: list[Camera]):
-        gaussians = gaussians.detach()
+    """Views of frozen Gaussians, rendered with the backend of the enclosing `rendering_with` block (or `backend`).
+    `storage` (torch backend): "device" keeps the blend matrices beside the Gaussians, "host" in (pinned) host
+    memory, "auto" on the device while it has room (see the module's docstring)."""
+
+    def __init__(self, gaussians: Gaussians, cameras: list[Camera], backend: str | None = None, storage: str = "auto"):
+        if storage not in ("device", "host", "auto"):
+            raise ValueError(f"FrozenViews: storage is device, host or auto, got {storage!r}")
+        self.gaussians = gaussians = gaussians.detach()
         self.cameras = cameras
         self.means = gaussians.means
-        n = len(gaussians)
-        self.matrices, self.transposed, self.visible_ids, self.coverage = [], [], [], []
+        self.backend = backend or active_backend()
+        self.storage = storage
+        device, n = self.means.device, len(gaussians)
+        self.matrices, self.transposed, self.visible_ids, self.coverage, self.on_host = [], [], [], [], []
+        self.kept_bytes = 0  # what the frozen views hold beyond the Gaussians
         for camera in cameras:
+            if self.backend == "gsplat":
+                coverage = rendered_weights(gaussians, camera, self.backend)  # [N]
+                self.visible_ids.append(torch.nonzero(coverage > 0).squeeze(1))
+                self.coverage.append(coverage)
+                continue
             gaussian_ids, pixel_ids, weights = view_weights(gaussians, camera)  # [M] each
             pixels = camera.height * camera.width
-            self.matrices.append(blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n))  # [HW, N]
-            self.transposed.append(blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels))  # [N, HW]
+            matrices = (blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n), blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels))  # [HW, N], [N, HW]
+            on_host = storage == "host" or (storage == "auto" and not _room_on(device))
+            if on_host:
+                matrices = tuple(_to_host(m) for m in matrices)
+            self.on_host.append(on_host)
+            self.kept_bytes += sum(_sparse_bytes(m) for m in matrices)
+            self.matrices.append(matrices[0])
+            self.transposed.append(matrices[1])
             self.visible_ids.append(torch.unique(gaussian_ids).long())  # [K] Gaussians that contribute to the view
-            self.coverage.append(torch.zeros(n, device=weights.device).index_add_(0, gaussian_ids.long(), weights.float()))  # [N] pixels' worth
-        self.alphas = [self._blend(index, torch.ones(n, 1, device=self.means.device))[..., 0] for index in range(len(cameras))]
+            self.coverage.append(torch.zeros(n, device=device).index_add_(0, gaussian_ids.long(), weights.float()))  # [N] pixels' worth
+        self.alphas = [self._blend(index, torch.ones(n, 1, device=device))[..., 0] for index in range(len(cameras))]
 
     def __len__(self) -> int:
         return len(self.cameras)
 
     def _blend(self, index: int, features: Tensor) -> Tensor:  # [N, C] -> [H, W, C]
         camera = self.cameras[index]
+        if self.backend == "gsplat":
+            return rasterize(self.gaussians, camera, features, backend=self.backend).features
         matrix, transposed = self.matrices[index], self.transposed[index]
+        if self.on_host[index]:
+            matrix, transposed = matrix.to(features.device, non_blocking=True), transposed.to(features.device, non_blocking=True)
         if features.dtype != matrix.dtype:  # e.g. float64 for gradcheck
             matrix, transposed = matrix.to(features.dtype), transposed.to(features.dtype)
         return SparseBlend.apply(features.contiguous(), matrix, transposed).reshape(camera.height, camera.width, -1)
@@ -81,6 +122,34 @@ class FrozenViews:
 
     def orient_normals(self, index: int, normals: Tensor) -> Tensor:  # [N, 3] -> [N, 3] facing view `index`
         return orient_normals(normals, self.means, self.cameras[index])
+
+
+def rendered_weights(gaussians: Gaussians, camera: Camera, backend: str | None = None) -> Tensor:  # -> [N]
+    """The blending weight each Gaussian gets over the image of `camera`, in pixels' worth: the gradient of the
+    rendered image's sum with respect to a constant per-Gaussian feature (one forward and backward pass)."""
+    ones = torch.ones(len(gaussians), 1, device=gaussians.means.device, requires_grad=True)
+    with torch.enable_grad():
+        out = rasterize(gaussians.detach(), camera, ones, background=torch.zeros(1, device=ones.device), backend=backend)
+        (grad,) = torch.autograd.grad(out.features.sum(), ones)
+    return grad[:, 0]
+
+
+def _room_on(device: torch.device) -> bool:
+    """Whether `device` still has DEVICE_RESERVE of its memory free (the host's memory always counts as room)."""
+    if device.type != "cuda":
+        return True
+    free, total = torch.cuda.mem_get_info(device)
+    return free >= DEVICE_RESERVE * total
+
+
+def _to_host(matrix: Tensor) -> Tensor:
+    host = matrix.cpu()
+    return host.pin_memory() if torch.cuda.is_available() else host
+
+
+def _sparse_bytes(matrix: Tensor) -> int:
+    parts = (matrix.crow_indices(), matrix.col_indices(), matrix.values())
+    return sum(p.numel() * p.element_size() for p in parts)
 
 
 def orient_normals(normals: Tensor, means: Tensor, camera: Camera) -> Tensor:  # [N, 3], [N, 3] -> [N, 3]
