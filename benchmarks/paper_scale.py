@@ -5,9 +5,11 @@
 
 A `matspray synth` object of the preset's size (paper: 512 px, 100 training views) is made once, then the
 ordinary pipeline (predict, geometry, lift, visibility, refine, evaluate) runs on it with the chosen
-rasterizer backend. Printed: the backend that ran, seconds per stage (the run's timings.json), peak host
-memory (getrusage max RSS), peak GPU memory (CUDA only), the number of Gaussians, relighting PSNR and the
-material PSNRs of the `full` variant.
+rasterizer backend. Printed: per stage, the device, the run's backend and what its render calls really ran
+on (each stage's record; "rays" is lifting's ray tracer), seconds per stage (the run's timings.json), peak host
+memory (getrusage max RSS), peak GPU memory (CUDA only), what refinement's frozen views keep and that size
+scaled to the paper's 100 views x 512 px, the number of Gaussians, relighting PSNR and the material PSNRs of
+the `full` variant.
 """
 
 from __future__ import annotations
@@ -25,13 +27,44 @@ from matspray.config import build_config
 from matspray.demo import make_demo_object, run_object
 from matspray.device import resolve_device
 from matspray.render.backend import BACKENDS, resolve_backend
-from matspray.rundir import RunDir
+from matspray.render.gbuffer import frozen_views_bytes
+from matspray.rundir import RunDir, read_json
 from matspray.variants import asset_stage
 
 
 def peak_host_mib() -> float:
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux, bytes on macOS
     return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
+
+
+PAPER_VIEWS, PAPER_PIXELS = 100, 512 * 512
+GPU_BYTES, HOST_BYTES = 24 * 2**30, 32 * 2**30  # the memory the issue asks the paper preset to fit
+
+
+def stage_lines(run: RunDir) -> list[str]:
+    """One line per finished stage: device, backend and the renderers its calls really used."""
+    lines = []
+    for record in sorted(run.root.glob("*/stage.json")):
+        data = read_json(record)
+        if "device" not in data:
+            continue
+        used = ", ".join(f"{kind} x{count}" for kind, count in data.get("renders", {}).items()) or "no rendering"
+        lines.append(f"  {record.parent.name:<10} device {data['device']}, backend {data['backend']}: {used}")
+    return lines
+
+
+def frozen_lines(frozen: dict | None) -> list[str]:
+    """What refinement's frozen views kept here, and the same hits per pixel at the paper's scale."""
+    if not frozen:
+        return ["  refinement kept no frozen views"]
+    if frozen["backend"] == "gsplat":
+        return ["  refinement keeps no blend matrices (gsplat renders each step again)"]
+    per_pixel = frozen["hits"] / max(frozen["pixels"], 1)
+    paper = frozen_views_bytes(round(per_pixel * PAPER_VIEWS * PAPER_PIXELS), PAPER_PIXELS, frozen["gaussians"], PAPER_VIEWS)
+    where = "on the GPU" if paper <= 0.75 * GPU_BYTES else "on the host, copied to the GPU view by view" if paper <= 0.75 * HOST_BYTES else "nowhere: too large"
+    return [f"  refinement's frozen views: {frozen['bytes'] / 2**20:.1f} MiB for {frozen['views']} views ({per_pixel:.1f} weights per pixel, "
+            f"{frozen['views_on_host']} views on the host)",
+            f"  at 100 views x 512 px with the same weights per pixel: {paper / 2**30:.2f} GiB (estimate) -> kept {where}"]
 
 
 def main() -> None:
@@ -57,7 +90,11 @@ def main() -> None:
     gaussians = len(read_asset(RunDir(out / "run").path(asset_stage("full")), device="cpu").gaussians)
     print(f"\npreset {preset}, backend {backend}, device {resolve_device(config.device)}, object {args.shape} seed {args.seed}")
     print(f"synth object: {synth_s:.1f} s (reused when already made)")
-    print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in RunDir(out / "run").timings().items()))
+    run = RunDir(out / "run")
+    print("stages (device, backend, what the render calls ran on):")
+    print("\n".join(stage_lines(run)))
+    print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in run.timings().items()))
+    print("\n".join(frozen_lines(read_json(run.path(asset_stage("full"), "stage.json")).get("frozen_views"))))
     print(f"peak host memory: {peak_host_mib():.0f} MiB")
     if cuda:
         print(f"peak GPU memory: {torch.cuda.max_memory_allocated() / 2**20:.0f} MiB")

@@ -286,7 +286,7 @@ class Pipeline:
         with self._working(f"refine [{variant}]") as (t, use):
             result = refine(inputs, config, progress=self.progress, light=probe)
             write_asset(self.run.path(stage), inputs.gaussians, result)
-        self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history, **self._ran(use)})
+        self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history, "frozen_views": result.frozen, **self._ran(use)})
         return read_asset(self.run.path(stage), device=self.device)
 
     def run_all(self, variants=("full",)) -> dict:

@@ -316,6 +316,7 @@ class RefineResult:
     envmap: EnvironmentMap | None  # None for variants without the PBR loss
     history: list[dict]
     visibility: Tensor | None = None  # [N, D] the shadowing used (kept with the asset for relighting)
+    frozen: dict | None = None  # what the frozen views kept (FrozenViews.describe()); None when none were made
 
 
 def aligned_inputs(inputs: RefineInputs) -> RefineInputs:
@@ -385,4 +386,5 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
 
     optimize(optimizer, len(training), config.iterations, refine_losses, generator, f"refine [{variant.name}]", progress, log)
     with torch.no_grad():
-        return RefineResult(source().detach(), shading_normals().detach(), source, envmap, history, inputs.visibility)
+        return RefineResult(source().detach(), shading_normals().detach(), source, envmap, history, inputs.visibility,
+                            training.frozen.describe())

@@ -7,9 +7,39 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 HOLDER = "import sys, time\nfrom matspray.rundir import RunDir\nheld = RunDir(sys.argv[1]).hold()\nprint('held', flush=True)\ntime.sleep(120)\n"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--device", default="cpu", help="where the tests marked `on_device` compute: cpu (default) or cuda "
+                     "(benchmarks/gpu_check.sh runs them there)")
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "on_device: runs on the device given by pytest --device (the CPU by default)")
+
+
+@pytest.fixture
+def device(request) -> torch.device:
+    """The device of `pytest --device`; a test taking it runs there (a CUDA run skips where no GPU is)."""
+    name = request.config.getoption("--device")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        pytest.skip(f"pytest --device {name}: no CUDA GPU here")
+    return torch.device(name)
+
+
+@pytest.fixture(scope="module")
+def tiny_object(tmp_path_factory):
+    """A 32 px Mitsuba sphere with 6 training and 2 test views (skips without Mitsuba)."""
+    pytest.importorskip("mitsuba")
+    from matspray.synth import SynthConfig, make_object
+
+    out = tmp_path_factory.mktemp("object") / "data"
+    make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), out, progress=False, notify=lambda _: None)
+    return out
 
 
 def busy_message(run, pid) -> str:

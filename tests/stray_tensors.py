@@ -7,7 +7,8 @@ mixes with it, anything larger raises): code run on the CPU under the check fail
 every such call is recorded with the line of ours that made it, also where the stray tensor would have been mixed
 in silently (a scalar) or moved on before use.
 
-Not counted as strays: parameters that torch.nn layers make when built (a module is built, then moved with
+Not counted as strays: what the dataset readers (matspray/data/, but camera.py) make, since data is read on the
+CPU and moved to the device once, by design; parameters that torch.nn layers make when built (a module is built, then moved with
 `.to(device)`), random draws from an explicit (CPU) generator, which the project makes on the CPU on purpose
 so that a seed draws the same numbers on every device, and `as_tensor` / `*_like` of a tensor, which keep its device.
 Why not `torch.set_default_device("meta")`: it also sends `torch.as_tensor(cpu_tensor)` to meta, which CUDA does not.
@@ -33,7 +34,8 @@ class _StrayMaker(TorchFunctionMode):
 
     def __torch_function__(self, func, types, args=(), kwargs=None):
         kwargs = dict(kwargs or {})
-        if "/torch/" in sys._getframe(1).f_code.co_filename:  # torch's own code (nn layers' parameters)
+        caller = sys._getframe(1).f_code.co_filename
+        if "/torch/" in caller or _is_reader(caller):  # torch's own code (nn layers' parameters), or reading data
             return func(*args, **kwargs)
         if func is torch.from_numpy:
             self._record()
@@ -48,6 +50,10 @@ class _StrayMaker(TorchFunctionMode):
         if ours:
             frame = ours[-1]
             self.strays.append(f"{frame.filename.split('/matspray/', 1)[-1]}:{frame.lineno}: {frame.line}")
+
+
+def _is_reader(filename: str) -> bool:
+    return "/matspray/data/" in filename and not filename.endswith("/camera.py")
 
 
 def _keeps_device(func, args) -> bool:  # as_tensor / tensor of a tensor keep (or copy on) its device

@@ -18,15 +18,6 @@ from tests.conftest import busy_message
 pytest.importorskip("mitsuba")
 
 
-@pytest.fixture(scope="module")
-def tiny_object(tmp_path_factory):
-    from matspray.synth import SynthConfig, make_object
-
-    out = tmp_path_factory.mktemp("object") / "data"
-    make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), out, progress=False, notify=lambda _: None)
-    return out
-
-
 def tiny_config():  # with baked shadows (off by default), so that the run exercises every stage
     return build_config("test", predictor="simulated", **{"refine.iterations": 8, "visibility": shadow_maps("test")})
 

@@ -71,7 +71,7 @@ class FrozenViews:
         self.storage = storage
         device, n = self.means.device, len(gaussians)
         self.matrices, self.transposed, self.visible_ids, self.coverage, self.on_host = [], [], [], [], []
-        self.kept_bytes = 0  # what the frozen views hold beyond the Gaussians
+        self.kept_bytes, self.hits = 0, 0  # what the frozen views hold beyond the Gaussians; (Gaussian, pixel) weights
         for camera in cameras:
             if self.backend == "gsplat":
                 coverage = rendered_weights(gaussians, camera, self.backend)  # [N]
@@ -85,6 +85,7 @@ class FrozenViews:
             if on_host:
                 matrices = tuple(_to_host(m) for m in matrices)
             self.on_host.append(on_host)
+            self.hits += len(weights)
             self.kept_bytes += sum(_sparse_bytes(m) for m in matrices)
             self.matrices.append(matrices[0])
             self.transposed.append(matrices[1])
@@ -109,6 +110,11 @@ class FrozenViews:
     def render(self, index: int, features: Tensor) -> tuple[Tensor, Tensor]:
         """features [N, C] -> blended features [H, W, C] over black, and the coverage alpha [H, W]."""
         return self._blend(index, features), self.alphas[index]
+
+    def describe(self) -> dict:
+        """What the views keep, for a stage record: the backend, bytes, (Gaussian, pixel) weights, pixels, views on the host."""
+        return {"backend": self.backend, "bytes": self.kept_bytes, "hits": self.hits, "gaussians": len(self.means),
+                "pixels": sum(c.width * c.height for c in self.cameras), "views": len(self.cameras), "views_on_host": sum(self.on_host)}
 
     def visible(self, index: int) -> Tensor:  # [N] bool: Gaussians that contribute to the view
         visible = torch.zeros(len(self.means), dtype=torch.bool, device=self.means.device)

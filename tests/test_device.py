@@ -1,0 +1,157 @@
+"""One device and one backend per run: what each stage really ran on, no tensor made on the wrong device, running
+out of memory, the frozen views' storage. Tests taking the `device` fixture run where `pytest --device` says."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from matspray.config import build_config, shadow_maps
+from matspray.device import out_of_memory_as_error, resolve_device
+from matspray.errors import ResourceError, SettingError
+from matspray.eval.run_eval import evaluate_run
+from matspray.pipeline import Pipeline
+from matspray.relight import render_relit
+from matspray.render.backend import rendering_with
+from matspray.render.envmap import EnvironmentMap
+from matspray.render.gbuffer import FrozenViews, frozen_views_bytes
+from matspray.render.latlong import pixel_solid_angles
+from matspray.variants import VARIANT_NAMES
+from tests.stray_tensors import stray_tensor_check
+from tests.test_rasterize import random_scene
+
+pytestmark = pytest.mark.on_device
+
+
+def run_config(device, **settings):
+    # with baked shadows (off by default), so that every stage runs
+    return build_config("test", predictor="simulated", device=str(device), backend="torch",
+                        **{"refine.iterations": 8, "visibility": shadow_maps("test"), **settings})
+
+
+def stage_record(run, stage: str) -> dict:
+    return json.loads((run / stage / "stage.json").read_text())
+
+
+def test_every_stage_records_its_device_and_what_it_rendered_with(tiny_object, tmp_path, device):
+    with Pipeline(tiny_object, tmp_path / "run", run_config(device), progress=False, log=lambda _: None) as pipeline:
+        pipeline.refine("full")
+    run = tmp_path / "run"
+    for stage in ("geometry", "lift", "visibility", "asset"):
+        record = stage_record(run, stage)
+        assert record["device"] == str(device) and record["backend"] == "torch", stage
+    geometry = stage_record(run, "geometry")["renders"]
+    assert geometry["torch"] >= 60 and "gsplat" not in geometry  # 60 steps of the test preset, then the test views
+    assert stage_record(run, "lift")["renders"] == {"rays": 6}  # one ray-traced view per training view
+    frozen = stage_record(run, "asset")["frozen_views"]
+    assert frozen["backend"] == "torch" and frozen["views"] == 6 and frozen["bytes"] > 0
+
+
+def test_no_tensor_is_made_without_its_device(tiny_object, tmp_path, device):
+    """Every stage, evaluation and relighting, under the stray-tensor check (see tests/stray_tensors.py)."""
+    config = run_config(device)
+    with stray_tensor_check() as strays:
+        with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lambda _: None) as pipeline:
+            assets = pipeline.run_all(VARIANT_NAMES)
+        evaluate_run(tmp_path / "run", progress=False, device=device, backend="torch")
+        light = EnvironmentMap.constant(0.5, height=8, device=device).prefilter()
+        with rendering_with("torch"):
+            rgb, alpha = render_relit(assets["full"], pipeline.scene.test[0].camera.to(device), light)
+    assert strays == []
+    assert rgb.device.type == device.type and torch.isfinite(rgb).all() and alpha.max() > 0.5
+
+
+def test_the_stray_check_catches_a_tensor_made_without_a_device():
+    generator = torch.Generator().manual_seed(0)
+    with stray_tensor_check() as strays:
+        made = pixel_solid_angles(4, 8)  # device=None: the default device
+        drawn = torch.rand(3, generator=generator)  # an explicit CPU generator: on the CPU on purpose
+        kept = torch.as_tensor(torch.ones(2, device="cpu"))
+    assert made.device.type == "meta" and drawn.device.type == "cpu" and kept.device.type == "cpu"
+    assert len(strays) == 1 and strays[0].startswith("render/latlong.py:"), strays
+
+
+def test_out_of_memory_is_one_line_and_the_run_resumes(tiny_object, tmp_path, monkeypatch):
+    run = tmp_path / "run"
+    config = run_config("cpu", visibility=None)
+
+    def out_of_memory(*args, **kwargs):
+        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB. GPU 0 has a total capacity of 23.6 GiB")
+
+    monkeypatch.setattr("matspray.pipeline.lift", out_of_memory)
+    with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
+        with pytest.raises(ResourceError) as raised:
+            pipeline.refine("full")
+    message = str(raised.value)
+    assert message.startswith("lift: out of memory on cpu allocating 2.00 GiB; lower the image size (--downscale 2)")
+    assert "\n" not in message and "(finished stages are reused)" in message
+    assert not (run / "lift").exists()  # nothing half-written
+    geometry_record = (run / "geometry" / "stage.json").read_text()
+    monkeypatch.undo()
+    with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
+        pipeline.refine("full")
+    assert (run / "lift" / "projected.pt").exists() and (run / "asset" / "asset.ply").exists()
+    assert (run / "geometry" / "stage.json").read_text() == geometry_record  # geometry was reused, not trained again
+
+
+def test_host_memory_running_out_is_one_line_and_other_errors_pass_through():
+    with pytest.raises(ResourceError, match=r"^export: out of host memory allocating 8589934592 bytes; lower"):
+        with out_of_memory_as_error("export", "cpu"):
+            raise RuntimeError("[enforce fail at alloc_cpu.cpp:118] DefaultCPUAllocator: can't allocate memory: you tried to allocate 8589934592 bytes")
+    with pytest.raises(RuntimeError, match="something else"):
+        with out_of_memory_as_error("export", "cpu"):
+            raise RuntimeError("something else")
+
+
+def test_cuda_without_cuda_is_one_line_that_says_what_to_do(tmp_path, monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(SettingError, match=r"^device: cuda: this (torch build has no CUDA|machine has no CUDA GPU that torch sees); "
+                       r"use cpu, or a CUDA build of torch on a machine with an NVIDIA GPU$"):
+        resolve_device("cuda")
+    with pytest.raises(SettingError, match="unsupported device 'mps'"):
+        resolve_device("mps")
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without CUDA")
+@pytest.mark.parametrize("command", ["geometry", "relight", "eval", "export"])
+def test_every_computing_command_refuses_cuda_without_it_in_one_line(tmp_path, command):
+    arguments = {"geometry": ["--data", tmp_path, "--out", tmp_path / "run"], "relight": ["--run", tmp_path, "--env", "studio", "--out", tmp_path / "o"],
+                 "eval": ["--run", tmp_path], "export": ["--run", tmp_path, "--out", tmp_path / "a.glb"]}[command]
+    result = subprocess.run([sys.executable, "-m", "matspray", command, *arguments, "--device", "cuda"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--device: cuda: this" in lines[0] and "no CUDA" in lines[0] and "use cpu" in lines[0], result.stderr
+
+
+def frozen_render(storage: str, features: torch.Tensor):
+    gaussians, camera, _ = random_scene(30, 4, width=20, height=16)
+    frozen = FrozenViews(gaussians, [camera, camera], backend="torch", storage=storage)
+    features = features.clone().requires_grad_(True)
+    image, alpha = frozen.render(1, features)
+    (image * torch.linspace(0.5, 1.5, image.shape[-1])).sum().backward()
+    return frozen, image.detach(), alpha, features.grad
+
+
+def test_frozen_views_kept_on_the_host_render_and_differentiate_the_same():
+    features = torch.rand(30, 4, generator=torch.Generator().manual_seed(1))
+    on_device, image, alpha, grad = frozen_render("device", features)
+    on_host, host_image, host_alpha, host_grad = frozen_render("host", features)
+    assert on_host.on_host == [True, True] and on_device.on_host == [False, False]
+    torch.testing.assert_close(host_image, image, rtol=0, atol=0)
+    torch.testing.assert_close(host_alpha, alpha, rtol=0, atol=0)
+    torch.testing.assert_close(host_grad, grad, rtol=0, atol=0)
+    described = on_device.describe()
+    assert described["bytes"] == on_device.kept_bytes == frozen_views_bytes(described["hits"], 20 * 16, 30, 2)
+    assert described["hits"] > 0 and described["pixels"] == 2 * 20 * 16
+
+
+def test_auto_storage_moves_views_to_the_host_when_the_gpu_runs_short(monkeypatch):
+    free = iter([10, 9, 1])  # bytes free of 10: the third view finds less than a quarter left
+    monkeypatch.setattr("matspray.render.gbuffer._room_on", lambda device: next(free) >= 0.25 * 10)
+    gaussians, camera, _ = random_scene(30, 4, width=20, height=16)
+    frozen = FrozenViews(gaussians, [camera] * 3, backend="torch", storage="auto")
+    assert frozen.on_host == [False, False, True]
