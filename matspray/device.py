@@ -30,12 +30,12 @@ def resolve_device(name: str) -> torch.device:
     return device
 
 
-def compute_target(device: str = "auto", backend: str = "auto") -> tuple[torch.device, str]:
+def compute_target(device: str = "auto", backend: str = "auto", notify=None) -> tuple[torch.device, str]:
     """The device and rasterizer a command computes with (--device, --backend), checked before any work, and the
-    CPU threads set for it."""
+    CPU threads set for it. `notify` hears gsplat's build time and why `auto` falls back (default: stderr)."""
     resolved = resolve_device(device)
     configure_threads(resolved)
-    return resolved, resolve_backend(backend, resolved)
+    return resolved, resolve_backend(backend, resolved, notify=notify)
 
 
 @contextmanager

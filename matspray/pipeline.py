@@ -68,7 +68,7 @@ class Pipeline:
         self.device = resolve_device(config.device)
         configure_threads(self.device)
         # "torch" or "gsplat"; fails here, before any work. Every stage renders with it (see _working)
-        self.backend = resolve_backend(config.backend, self.device)
+        self.backend = resolve_backend(config.backend, self.device, notify=log)
         self.scene = load_scene(data, downscale=config.downscale)
         self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
         # a missing or unreadable light probe fails here, before the run folder is touched; it is read once, and the

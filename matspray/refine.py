@@ -265,6 +265,14 @@ def check_finite(step: int, **terms: Tensor) -> None:
             raise NumericalError(f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept")
 
 
+def all_finite(terms: dict[str, Tensor], param_groups) -> Tensor:  # -> [] bool, on the device
+    """Whether every loss term and every gradient is finite, as one tensor: one host read per step instead of one
+    per term and parameter (on a GPU each read waits for the step's kernels)."""
+    flags = [torch.isfinite(value).all() for value in terms.values()]
+    flags += [torch.isfinite(p.grad).all() for group in param_groups for p in group["params"] if p.grad is not None]
+    return torch.stack(flags).all()
+
+
 def check_finite_gradients(step: int, param_groups) -> None:
     """A non-finite gradient would turn Adam's state (and every later step) into NaN without any loss showing it.
     param_groups: the optimizer's groups, each with a "name"."""
@@ -281,10 +289,11 @@ def optimize(optimizer, n_views: int, steps: int, losses_of_view, generator, des
     for step in bar:
         index = int(torch.randint(n_views, (1,), generator=generator))
         terms, total = losses_of_view(index)
-        check_finite(step, **terms)
         optimizer.zero_grad(set_to_none=True)
         total.backward()
-        check_finite_gradients(step, optimizer.param_groups)
+        if not bool(all_finite(terms, optimizer.param_groups)):  # then find which, for the message
+            check_finite(step, **terms)
+            check_finite_gradients(step, optimizer.param_groups)
         optimizer.step()
         if on_step is not None:
             on_step(step, terms, bar)

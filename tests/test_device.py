@@ -16,7 +16,7 @@ from matspray.errors import ResourceError, SettingError
 from matspray.eval.run_eval import evaluate_run
 from matspray.pipeline import Pipeline
 from matspray.relight import render_relit
-from matspray.render.backend import rendering_with
+from matspray.render.backend import gsplat_device_error, rendering_with
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews, frozen_views_bytes
 from matspray.render.latlong import pixel_solid_angles
@@ -29,8 +29,8 @@ pytestmark = pytest.mark.on_device
 
 def run_config(device, **settings):
     # with baked shadows (off by default), so that every stage runs
-    return build_config("test", predictor="simulated", device=str(device), backend="torch",
-                        **{"refine.iterations": 8, "visibility": shadow_maps("test"), **settings})
+    return build_config("test", predictor="simulated", **{"device": str(device), "backend": "torch", "refine.iterations": 8,
+                                                          "visibility": shadow_maps("test"), **settings})
 
 
 def stage_record(run, stage: str) -> dict:
@@ -38,17 +38,20 @@ def stage_record(run, stage: str) -> dict:
 
 
 def test_every_stage_records_its_device_and_what_it_rendered_with(tiny_object, tmp_path, device):
-    with Pipeline(tiny_object, tmp_path / "run", run_config(device), progress=False, log=lambda _: None) as pipeline:
+    backend = "gsplat" if device.type == "cuda" and gsplat_device_error(device) is None else "torch"  # on a GPU: the real gsplat
+    config = run_config(device, backend=backend)
+    with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lambda _: None) as pipeline:
         pipeline.refine("full")
     run = tmp_path / "run"
     for stage in ("geometry", "lift", "visibility", "asset"):
         record = stage_record(run, stage)
-        assert record["device"] == str(device) and record["backend"] == "torch", stage
+        assert record["device"] == str(device) and record["backend"] == backend, stage
     geometry = stage_record(run, "geometry")["renders"]
-    assert geometry["torch"] >= 60 and "gsplat" not in geometry  # 60 steps of the test preset, then the test views
+    assert set(geometry) == {backend} and geometry[backend] >= 60  # 60 steps of the test preset, then the test views
     assert stage_record(run, "lift")["renders"] == {"rays": 6}  # one ray-traced view per training view
+    assert stage_record(run, "visibility")["renders"] == {"torch": 2 * shadow_maps("test").rows ** 2}  # the shadow maps: torch's weights
     frozen = stage_record(run, "asset")["frozen_views"]
-    assert frozen["backend"] == "torch" and frozen["views"] == 6 and frozen["bytes"] > 0
+    assert frozen["backend"] == backend and frozen["views"] == 6 and (frozen["bytes"] > 0) == (backend == "torch")
 
 
 def test_no_tensor_is_made_without_its_device(tiny_object, tmp_path, device):
@@ -155,3 +158,36 @@ def test_auto_storage_moves_views_to_the_host_when_the_gpu_runs_short(monkeypatc
     gaussians, camera, _ = random_scene(30, 4, width=20, height=16)
     frozen = FrozenViews(gaussians, [camera] * 3, backend="torch", storage="auto")
     assert frozen.on_host == [False, False, True]
+
+
+def test_a_run_forced_to_gsplat_renders_every_stage_with_it(tiny_object, tmp_path, monkeypatch):
+    """gsplat's own rasterization() through the CPU harness: every rasterizing stage calls it, none falls back."""
+    pytest.importorskip("gsplat")
+    from matspray.export.surface import render_depths
+    from matspray.objectmasks import compute_object_masks
+    from tests.gsplat_cpu import gsplat_on_cpu
+
+    gsplat_on_cpu(monkeypatch)
+    run = tmp_path / "run"
+    config = run_config("cpu", backend="gsplat", visibility=None, **{"geometry.absgrad": True, "geometry.grad_threshold": 8e-4})
+    with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
+        assert pipeline.backend == "gsplat"
+        asset = pipeline.refine("full")
+        gaussians, _ = pipeline.geometry()
+        cameras = [v.camera for v in pipeline.scene.train]
+        with rendering_with(pipeline.backend) as use:
+            masks = compute_object_masks(gaussians, pipeline.scene, (0.0, 0.0, 0.0, 2.0), progress=False)
+            evaluate_run(run, progress=False, device=pipeline.device, backend=pipeline.backend)
+            rgb, alpha = render_relit(asset, cameras[0], EnvironmentMap.constant(0.5, height=8).prefilter())
+            depths = render_depths(asset.gaussians, cameras)
+    for stage in ("geometry", "lift", "asset"):
+        assert stage_record(run, stage)["backend"] == "gsplat", stage
+    geometry = stage_record(run, "geometry")
+    assert set(geometry["renders"]) == {"gsplat"} and geometry["renders"]["gsplat"] >= 60
+    assert stage_record(run, "lift")["renders"] == {"rays": 6}  # lifting traces rays with our code on every backend
+    refined = stage_record(run, "asset")
+    assert set(refined["renders"]) == {"gsplat"} and refined["frozen_views"]["backend"] == "gsplat" and refined["frozen_views"]["bytes"] == 0
+    # the object masks (8 views), evaluation (2 test views), relighting (1) and the export's depth maps (6)
+    assert set(use.used()) == {"gsplat"} and use.calls["gsplat"] >= 8 + 2 + 1 + 6
+    assert len(masks.masks["train"]) == 6 and all(m.max() > 0.5 for m in masks.masks["train"].values())
+    assert alpha.max() > 0.5 and torch.isfinite(rgb).all() and all(d.max() > 0 for d, _ in depths)

@@ -105,6 +105,28 @@ def test_screen_space_gradients_and_radii():
     assert grads[out.visible].abs().sum() > 0
 
 
+@pytest.mark.parametrize("max_pairs", [1 << 23, 40])
+def test_absgrad_is_the_sum_of_per_pixel_gradient_magnitudes(max_pairs):
+    """screen_absgrads against brute force: |d loss_p / d means2d| of each pixel's loss on its own, summed (in
+    one band and in several: every band adds its hits)."""
+    gaussians, camera, features = random_scene(6, 8, dtype=torch.float64, width=7, height=6, max_opacity=1.0)
+    gaussians.log_scales = gaussians.log_scales + math.log(2.5)  # footprints of a few pixels, overlapping
+    gaussians.opacity_logits[0] = 20.0  # an opaque one: its alpha clamps, and stops what is behind it
+    gaussians.means.requires_grad_(True)
+    out = rasterize(gaussians, camera, features.double(), torch.tensor([0.3, 0.1, 0.7], dtype=torch.float64),
+                    absgrad=True, max_pairs=max_pairs)
+    out.retain_screen_grads()
+    per_pixel = (out.features * torch.tensor([0.5, 1.0, 1.5], dtype=torch.float64)).sum(-1) + out.alpha.square() + 0.1 * out.depth
+    per_pixel.sum().backward(retain_graph=True)
+    absgrads, grads = out.screen_absgrads.clone(), out.screen_grads.clone()
+    reference = torch.zeros_like(absgrads)
+    for loss in per_pixel.reshape(-1):
+        reference += torch.autograd.grad(loss, out.screen, retain_graph=True)[0].abs()
+    torch.testing.assert_close(absgrads, reference, atol=1e-12, rtol=1e-10)
+    assert (reference > grads.abs() + 1e-6).any()  # pixels pull some centres different ways: not |screen_grads|
+    assert out.visible.all() and (reference[out.visible] > 0).all()
+
+
 def test_expected_depth_is_the_surface_depth():
     n = 1
     gaussians = Gaussians(torch.zeros(n, 3), torch.full((n, 3), math.log(0.2)), torch.tensor([[1.0, 0, 0, 0]]),

@@ -33,15 +33,17 @@ class ViewRender:
     raster: RasterOutput  # the rasterizer's full output (screen-space means, radii)
 
 
-def render_view(gaussians: Gaussians, camera: Camera, sh_degree: int | None = None, background: Tensor | None = None) -> ViewRender:
+def render_view(gaussians: Gaussians, camera: Camera, sh_degree: int | None = None, background: Tensor | None = None,
+                absgrad: bool = False) -> ViewRender:
     """Colour and normals in one rasterization. The Gaussians' SH give sRGB-encoded colour, as in
-    3DGS, so that 3DGS viewers show the PLY with the right colours; `background` [3] is sRGB too."""
+    3DGS, so that 3DGS viewers show the PLY with the right colours; `background` [3] is sRGB too. `absgrad`: also
+    collect the absolute screen-space gradients (RasterOutput.screen_absgrads) that densification may use."""
     colours = sh_colors(gaussians, camera, sh_degree)
     normals = oriented_normals(gaussians, camera)
     if background is None:
         background = torch.zeros(3, device=gaussians.device)
     background = torch.cat([background.to(colours), torch.zeros(3, dtype=colours.dtype, device=colours.device)])
-    out = rasterize(gaussians, camera, torch.cat([colours, normals], dim=1), background)
+    out = rasterize(gaussians, camera, torch.cat([colours, normals], dim=1), background, absgrad=absgrad)
     return ViewRender(
         rgb=out.features[..., :3], alpha=out.alpha, normals=F.normalize(out.features[..., 3:], dim=-1),
         depth=out.expected_depth, raster=out,

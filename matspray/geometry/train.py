@@ -175,7 +175,7 @@ def training_losses(gaussians: Gaussians, view: View, config: GeometryConfig, it
     degree = min(config.sh_degree, iteration // config.sh_degree_every)
     background = torch.rand(3, generator=generator, device="cpu") if masked and config.random_background else torch.zeros(3, device="cpu")
     background = background.to(gaussians.device)  # drawn on the CPU: the same colours on every device
-    render = render_view(gaussians, view.camera, degree, background)
+    render = render_view(gaussians, view.camera, degree, background, absgrad=config.absgrad)
     render.raster.retain_screen_grads()
     target = target_srgb(view, background)
     # the prediction is not clamped here (DESIGN compares clamped values in metrics): a clamp would

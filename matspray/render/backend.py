@@ -1,7 +1,13 @@
 """Which rasterizer renders: `torch` (ours, CPU and CUDA) or `gsplat` (CUDA only, an optional extra).
 
-`resolve_backend` turns the setting `backend` (auto | torch | gsplat) into the one that runs, once per
-run; a request that cannot be met is a SettingError that says what is missing and how to get it.
+`resolve_backend` turns the setting `backend` (auto | torch | gsplat) into the one that runs; a request that
+cannot be met is a SettingError of one line that says what is missing and how to get it, and `auto` falls
+back to torch, saying why in one line (once per process), where a CUDA device cannot run gsplat.
+
+gsplat (1.5) compiles its CUDA code at its first kernel call, not at import: `import gsplat` working says
+nothing about the build. So the first check on a CUDA device (`gsplat_device_error`, cached per process and
+device) loads the extension through `gsplat.cuda._backend`, renders one Gaussian with it, and says how long
+that took (minutes when it compiles, seconds from the build cache).
 
 One run renders with one backend. Rather than add a `backend` argument to every function between a stage and
 `rasterize` (relighting, G-buffers, masks, evaluation, export all reach it through layers that have nothing
@@ -13,43 +19,113 @@ what a stage's record and the benchmarks report (not what was asked for).
 from __future__ import annotations
 
 import importlib
+import sys
 from collections import Counter
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
+from time import perf_counter
+from typing import Callable
 
 import torch
 
 from matspray.errors import SettingError
 
 BACKENDS = ("auto", "torch", "gsplat")
-INSTALL_HINT = "pip install 'matspray[cuda]' (needs nvcc and ninja; the first import compiles CUDA code)"
+INSTALL_HINT = "pip install 'matspray[cuda]' (needs nvcc and ninja; the first use compiles CUDA code)"
+BUILD_HINT = ("gsplat compiles its CUDA code with nvcc and ninja: install the CUDA toolkit of torch's CUDA version "
+              "and `pip install ninja`, or use --backend torch")
+
+Notify = Callable[[str], None]
+# per process (one CUDA extension per process, whichever GPU): why gsplat cannot render on CUDA (None: it can),
+# and whether `auto` has said so
+_CHECKED: dict[str, str | None] = {}
+_TOLD: set[str] = set()
+
+
+def _to_stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
 
 
 def gsplat_import_error() -> str | None:
     """None when `import gsplat` works, else why it does not (one line)."""
     try:
         importlib.import_module("gsplat")
-    except Exception as exc:  # ImportError, or a failed CUDA build at import time
-        return f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": ")
+    except Exception as exc:  # ImportError, or anything gsplat's own imports raise
+        return _one_line(exc)
     return None
 
 
-def resolve_backend(name: str, device) -> str:
-    """'torch' or 'gsplat' for the setting `name` on `device` (a torch.device or its string)."""
+def gsplat_cuda_error(device, notify: Notify | None = None) -> str | None:
+    """None when gsplat's CUDA extension loads and renders one Gaussian on `device`, else why not (one line).
+    Loading compiles the extension the first time (minutes); `notify` (default: stderr) hears how long it took."""
+    start = perf_counter()
+    try:
+        extension = importlib.import_module("gsplat.cuda._backend")  # compiles here, or loads the cached build
+        if getattr(extension, "_C", None) is None:  # gsplat found no nvcc and printed so; it raises nothing
+            return "gsplat found no CUDA toolkit (nvcc) to compile its CUDA code with"
+        alpha = _render_one_gaussian(torch.device(device))
+    except Exception as exc:  # a failed build (RuntimeError from ninja), a missing symbol, no kernel for this GPU...
+        return _one_line(exc)
+    if not 0.45 < alpha <= 0.5:  # opacity 0.5, 4 px wide, centred on a pixel corner: 0.492 at the four centre pixels
+        return f"gsplat's CUDA extension rendered a test Gaussian wrongly (alpha {alpha:.3f} where 0.5 was drawn)"
+    (notify or _to_stderr)(f"gsplat: CUDA extension ready in {perf_counter() - start:.1f} s "
+                           "(compiled at its first use, reused from the build cache after that)")
+    return None
+
+
+def _render_one_gaussian(device: torch.device) -> float:
+    """The largest alpha of one Gaussian (opacity 0.5, 4 px sigma) rendered by gsplat at the centre of a 16 x 16 image."""
+    gsplat = importlib.import_module("gsplat")
+    with torch.no_grad():
+        _, alphas, _ = gsplat.rasterization(
+            torch.tensor([[0.0, 0.0, 2.0]], device=device), torch.tensor([[1.0, 0.0, 0.0, 0.0]], device=device),
+            torch.full((1, 3), 0.5, device=device), torch.tensor([0.5], device=device), torch.ones(1, 3, device=device),
+            torch.eye(4, device=device)[None], torch.tensor([[[16.0, 0.0, 8.0], [0.0, 16.0, 8.0], [0.0, 0.0, 1.0]]], device=device),
+            16, 16, packed=False)
+    return float(alphas.max())  # a float: waits for the kernels, so that their errors surface here
+
+
+def gsplat_device_error(device, notify: Notify | None = None) -> str | None:
+    """None when backend gsplat can render on `device`, else why not and how to get it (one line). Cached per
+    process. (tests/gsplat_cpu.py replaces this function to run gsplat's Python code on the CPU.)"""
+    device = torch.device(device)
+    if device.type != "cuda" or not torch.cuda.is_available():
+        return f"gsplat needs a CUDA device and there is none here (device {device}); use --backend torch"
+    key = device.type
+    if key not in _CHECKED:
+        error = gsplat_import_error()
+        if error is not None:
+            _CHECKED[key] = f"gsplat is not installed or does not import ({error}); {INSTALL_HINT}"
+        else:
+            error = gsplat_cuda_error(device, notify)
+            _CHECKED[key] = None if error is None else f"gsplat's CUDA extension does not build or run ({error}); {BUILD_HINT}"
+    return _CHECKED[key]
+
+
+def resolve_backend(name: str, device, notify: Notify | None = None) -> str:
+    """'torch' or 'gsplat' for the setting `name` on `device` (a torch.device or its string). `notify`
+    (default: stderr) hears, once per process, how long gsplat's CUDA extension took to load and why `auto`
+    renders with torch on a CUDA device."""
     if name not in BACKENDS:
         raise SettingError("backend", f"unknown backend '{name}'; choose one of {', '.join(BACKENDS)}")
     if name == "torch":
         return "torch"
-    on_cuda = torch.device(device).type == "cuda" and torch.cuda.is_available()
-    if name == "auto":
-        return "gsplat" if on_cuda and gsplat_import_error() is None else "torch"
-    if not on_cuda:
-        raise SettingError("backend", f"gsplat needs a CUDA device and there is none here (device {device}); use --backend torch")
-    error = gsplat_import_error()
-    if error is not None:
-        raise SettingError("backend", f"gsplat is not installed or does not import ({error}); {INSTALL_HINT}")
-    return "gsplat"
+    error = gsplat_device_error(device, notify)
+    if error is None:
+        return "gsplat"
+    if name == "gsplat":
+        raise SettingError("backend", error)
+    key = torch.device(device).type
+    if key == "cuda" and key not in _TOLD:  # auto on CPU is torch without a word
+        _TOLD.add(key)
+        (notify or _to_stderr)(f"backend auto: rendering with torch; {error}")
+    return "torch"
 
 
 @dataclass
@@ -57,6 +133,7 @@ class RenderUse:
     """The backend a block of work renders with, and what it really ran: {"torch" | "gsplat" | "rays": calls}."""
     backend: str
     calls: Counter = field(default_factory=Counter)
+    outer: "RenderUse | None" = None  # the enclosing block, which counts this block's calls too
 
     def used(self) -> dict[str, int]:
         return dict(sorted(self.calls.items()))
@@ -68,10 +145,11 @@ _ACTIVE: ContextVar[RenderUse | None] = ContextVar("matspray_render_use", defaul
 @contextmanager
 def rendering_with(backend: str):
     """Within the block, `rasterize(..., backend=None)` renders with `backend` ('torch' or 'gsplat', already
-    resolved); yields the block's RenderUse. Blocks nest; each call is counted in the innermost one."""
+    resolved); yields the block's RenderUse. Blocks nest: the innermost decides the backend, and each call is
+    counted in it and in every block around it."""
     if backend not in ("torch", "gsplat"):
         raise ValueError(f"rendering_with: a resolved backend (torch or gsplat), got {backend!r}")
-    use = RenderUse(backend)
+    use = RenderUse(backend, outer=_ACTIVE.get())
     token = _ACTIVE.set(use)
     try:
         yield use
@@ -88,5 +166,6 @@ def active_backend() -> str:
 def note_render(kind: str) -> None:
     """Count one call of a renderer ('torch', 'gsplat', or 'rays' for the lifting ray tracer) in the active block."""
     use = _ACTIVE.get()
-    if use is not None:
+    while use is not None:
         use.calls[kind] += 1
+        use = use.outer

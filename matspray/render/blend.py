@@ -9,6 +9,11 @@ Backward, with q_k = <dL/dout, f_k> and S_k = sum_{j>k} alpha_j T_j q_j on the s
     dL/dalpha_k = T_k q_k - S_k / (1 - alpha_k),   dL/df_k = alpha_k T_k dL/dout
 and the chain rule through G. It matches autograd through the same formulas (see the tests) but
 keeps far fewer per-hit tensors alive, which is what the CPU pays for.
+
+With `absgrad_of` (the projected means [N, 2] that `splats` rows 0-1 were taken from), the backward also adds
+sum over hits of |dL/dmean x|, |dL/dmean y| (one hit per pixel: each pixel's own gradient, as gsplat's absgrad)
+into `absgrad_of.absgrad` [N, 2], created at the first backward and added to by every row band and every later
+backward, as `.grad` is (gsplat replaces it at each backward; one backward per render reads the same).
 """
 
 from __future__ import annotations
@@ -29,8 +34,9 @@ def blend_hits(
     row_start: int,
     num_pixels: int,
     settings: RasterSettings,
+    absgrad_of: Tensor | None = None,  # [N, 2]: receives .absgrad in backward (see the module docstring)
 ) -> tuple[Tensor, int]:  # [num_pixels, C] blended values, number of blended hits
-    out, blended = _BlendHits.apply(splats, values, gaussian_ids, pixel_ids, (width, row_start, num_pixels, settings))
+    out, blended = _BlendHits.apply(splats, values, gaussian_ids, pixel_ids, (width, row_start, num_pixels, settings, absgrad_of))
     return out, int(blended)
 
 
@@ -72,7 +78,7 @@ def hit_weights(
 class _BlendHits(torch.autograd.Function):
     @staticmethod
     def forward(ctx, splats, values, gaussian_ids, pixel_ids, band):
-        width, row_start, num_pixels, settings = band
+        width, row_start, num_pixels, settings, absgrad_of = band
         response, opacity, a, b, c, dx, dy = _gaussian_response(splats, gaussian_ids, pixel_ids, width, row_start)
         raw = opacity * response
         keep, alphas, transmittance = _blended_hits(raw, pixel_ids, num_pixels, settings)
@@ -88,7 +94,8 @@ class _BlendHits(torch.autograd.Function):
             dx.index_select(0, keep), dy.index_select(0, keep), hit_values,
         )
         ctx.sizes = (splats.shape[1], num_pixels)
-        count = torch.tensor(int(keep.numel()))
+        ctx.absgrad_of = absgrad_of
+        count = torch.tensor(int(keep.numel()), device="cpu")  # a host-side count, wherever the hits are
         ctx.mark_non_differentiable(count)
         return out, count
 
@@ -122,4 +129,13 @@ class _BlendHits(torch.autograd.Function):
         grad_splats = grad_out.new_zeros(6, num_gaussians)
         for row, grad in enumerate(grads):
             grad_splats[row].index_add_(0, gaussian_ids, grad)
+        if ctx.absgrad_of is not None:
+            add_absgrad(ctx.absgrad_of, gaussian_ids, torch.stack(grads[:2], dim=-1))
         return grad_splats, grad_values, None, None, None
+
+
+def add_absgrad(means2d: Tensor, gaussian_ids: Tensor, grad_per_hit: Tensor) -> None:  # [N, 2], [M], [M, 2]
+    """means2d.absgrad [N, 2] += sum over each Gaussian's hits of |grad_per_hit| (created as zeros when absent)."""
+    if getattr(means2d, "absgrad", None) is None:
+        means2d.absgrad = torch.zeros_like(means2d, memory_format=torch.contiguous_format).detach()
+    means2d.absgrad.index_add_(0, gaussian_ids, grad_per_hit.abs().to(means2d.dtype))

@@ -13,7 +13,7 @@ class RasterOutput:
     features: Tensor  # [H, W, C] blended features plus (1 - alpha) * background
     alpha: Tensor  # [H, W] accumulated opacity sum_k w_k = 1 - prod_k (1 - alpha_k)
     depth: Tensor  # [H, W] accumulated camera z, sum_k w_k z_k (NOT divided by alpha; see expected_depth)
-    means2d: Tensor  # [N, 2] projected centres in pixels (for gradients use retain_screen_grads / screen_grads)
+    means2d: Tensor  # [N, 2] projected centres in pixels, 0 where gsplat did not draw (gradients: retain_screen_grads / screen_grads)
     radii: Tensor  # [N] 3-sigma pixel radius of the major axis of each drawn Gaussian, 0 if not drawn (both backends)
     backend: str  # "torch" or "gsplat": the rasterizer that drew this
     # the tensor through which d loss / d means2d flows: [N, 2] (torch) or gsplat's [1, N, 2]; a view of it taken
@@ -37,10 +37,14 @@ class RasterOutput:
 
     @property
     def screen_grads(self) -> Tensor | None:  # [N, 2] d loss / d means2d (pixels), None before backward
+        if not (self.screen.is_leaf or self.screen.retains_grad):  # no grad to read (and torch warns if we look)
+            return None
         grad = self.screen.grad
         return None if grad is None else grad.reshape(-1, 2)
 
     @property
-    def screen_absgrads(self) -> Tensor | None:  # [N, 2] sum over pixels of |d loss_pixel / d means2d|, when asked for
+    def screen_absgrads(self) -> Tensor | None:  # [N, 2] sum over pixels of |d loss_pixel / d means2d|, None unless
+        # rendered with rasterize(..., absgrad=True) and after backward. gsplat sets it at each backward, torch adds to
+        # it at each (as .grad): the same after the one backward per render that densification does
         absgrad = getattr(self.screen, "absgrad", None)
         return None if absgrad is None else absgrad.reshape(-1, 2)

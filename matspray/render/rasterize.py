@@ -40,12 +40,15 @@ def rasterize(
     backend: str | None = None,
     settings: RasterSettings = RasterSettings(),
     max_pairs: int = 1 << 23,
+    absgrad: bool = False,
 ) -> RasterOutput:
     """Render per-Gaussian `features` into `camera`; differentiable w.r.t. the Gaussians' means,
     log_scales, quats, opacity_logits and w.r.t. `features`.
 
     `backend`: torch (ours), gsplat (CUDA, optional extra) or auto (see matspray.render.backend); None takes
     the one of the enclosing `rendering_with` block (torch outside any).
+    `absgrad`: backward also computes, per Gaussian, the sum over pixels of |d loss_pixel / d means2d|
+    (gsplat's absgrad, which its densification strategy can use), read as `RasterOutput.screen_absgrads`.
     `max_pairs` bounds the (Gaussian, pixel) candidate pairs processed at once: larger images are
     rendered in bands of rows (the autograd graph still keeps every band until backward).
     """
@@ -57,8 +60,8 @@ def rasterize(
     chosen = resolve_backend(active_backend() if backend is None else backend, gaussians.device)
     note_render(chosen)
     if chosen == "gsplat":
-        return rasterize_gsplat(gaussians, camera, features, background, settings)
-    return _rasterize_torch(gaussians, camera, features, background, settings, max_pairs)
+        return rasterize_gsplat(gaussians, camera, features, background, settings, absgrad)
+    return _rasterize_torch(gaussians, camera, features, background, settings, max_pairs, absgrad)
 
 
 def depth_ranks(depths: Tensor) -> Tensor:  # [N] -> [N] long: 0 for the nearest centre
@@ -114,6 +117,7 @@ def view_weights(
     """The blending weights of every (Gaussian, pixel) hit `rasterize` would blend for this camera:
     Gaussian ids [M], row-major pixel ids [M], weights [M]. For frozen geometry, rendering any
     features [N, C] is then `zeros(H * W, C).index_add_(0, pixel_ids, weights[:, None] * f[gaussian_ids])`."""
+    note_render("torch")  # the weights are the torch backend's, whatever the run's rasterizer
     setup = _setup(gaussians, camera, settings)
     splats, width = setup.splats, camera.width
     parts = []
@@ -124,7 +128,7 @@ def view_weights(
     return tuple(torch.cat(column) for column in zip(*parts))
 
 
-def _rasterize_torch(gaussians, camera, features, background, settings: RasterSettings, max_pairs: int):
+def _rasterize_torch(gaussians, camera, features, background, settings: RasterSettings, max_pairs: int, absgrad: bool):
     height, width = camera.height, camera.width
     setup = _setup(gaussians, camera, settings)
     proj, opacities, boxes, radii, ranks, footprints = setup.proj, setup.opacities, setup.boxes, setup.radii, setup.ranks, setup.footprints
@@ -133,7 +137,8 @@ def _rasterize_torch(gaussians, camera, features, background, settings: RasterSe
     bands, num_hits = [], 0
     for row_start, row_end in row_bands(boxes, height, max_pairs):
         gaussian_ids, pixel_ids = _candidate_pairs(clip_rows(boxes, row_start, row_end), footprints, ranks, row_start, width)
-        band, blended = blend_hits(splats, values, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, settings)
+        band, blended = blend_hits(splats, values, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, settings,
+                                   absgrad_of=proj.means2d if absgrad else None)
         bands.append(band.reshape(row_end - row_start, width, -1))
         num_hits += blended
     image = torch.cat(bands, dim=0) if len(bands) > 1 else bands[0]  # [H, W, C + 2]

@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# Every GPU check of MatSpray in one call, built to finish within 10 minutes on one H100-class GPU:
+#   1. install what the machine lacks (wheels carried in .whl/, made here by benchmarks/gpu_wheels.sh) and matspray itself;
+#   2. build gsplat's CUDA extension (timed) and check that backend `auto` picks it;
+#   3. the test suite's device tests on CUDA (pytest --device cuda: the on_device tests and the gsplat parity tests);
+#   4. python -m benchmarks.paper_scale (the paper preset; what each stage ran on, seconds, memory, PSNR) within what is left;
+#   5. one summary.
+# Usage (on the GPU machine, in the repository root): bash benchmarks/gpu_check.sh [OUT_DIR]
+set -uo pipefail
+cd "$(dirname "$0")/.."
+OUT=${1:-${OUT:-runs/gpu-check}}
+mkdir -p "$OUT"
+BUDGET=${GPU_CHECK_SECONDS:-570}
+START=$(date +%s)
+left() { echo $((BUDGET - ($(date +%s) - START))); }
+export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16} TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0}
+summary=()
+
+if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+    && export PYTHONPATH=/tmp/site:$PWD || { echo "installing the carried wheels failed"; exit 1; }
+else
+  export PYTHONPATH=$PWD
+fi
+python3 -c "import torch; assert torch.cuda.is_available(), 'no CUDA GPU'; print('torch', torch.__version__, 'on', torch.cuda.get_device_name())" \
+  || { echo "gpu_check: no CUDA GPU that torch sees; nothing to check"; exit 1; }
+
+# 2. gsplat's CUDA code compiles at its first kernel call; time it once here, so that the rest finds it built
+python3 - <<'EOF' 2>&1 | tee "$OUT/gsplat_build.log"
+import time
+from matspray.render.backend import resolve_backend
+start = time.perf_counter()
+try:
+    from gsplat.cuda._backend import _C
+    built = _C is not None
+except Exception as exc:
+    built = False
+    print(f"gsplat build failed: {type(exc).__name__}: {exc}")
+print(f"gsplat CUDA extension: {'built' if built else 'NOT built'} in {time.perf_counter() - start:.0f} s")
+print(f"backend auto on cuda resolves to: {resolve_backend('auto', 'cuda')}")
+EOF
+summary+=("$(grep -h 'gsplat CUDA extension\|resolves to' "$OUT/gsplat_build.log" | paste -sd ';' -)")
+
+# 3. device tests on CUDA
+timeout $(( $(left) / 3 )) python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_device.py tests/test_gsplat_backend.py \
+  2>&1 | tee "$OUT/pytest_cuda.log"
+summary+=("pytest --device cuda: $(tail -n 1 "$OUT/pytest_cuda.log")")
+
+# 4. the paper preset, within what is left
+if [ "$(left)" -gt 60 ]; then
+  timeout "$(left)" python3 -m benchmarks.paper_scale --out "$OUT/paper-scale" 2>&1 | grep -v '\r' | tee "$OUT/paper_scale.log"
+  summary+=("paper_scale (exit ${PIPESTATUS[0]}, 124 = out of time):")
+  summary+=("$(sed -n '/^preset /,$p' "$OUT/paper_scale.log")")
+else
+  summary+=("paper_scale: not run, no time left")
+fi
+
+echo
+echo "==================== gpu_check summary ($(( $(date +%s) - START )) s) ===================="
+printf '%s\n' "${summary[@]}"
