@@ -49,7 +49,7 @@ from matspray.eval.tables import write_tables
 from matspray.lights import BUILTINS, hdri_files
 from matspray.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
-from matspray.variants import VARIANT_NAMES as VARIANTS
+from matspray.variants import BASELINE, LABELS, VARIANT_NAMES as VARIANTS
 from matspray.rundir import (STAGE_RECORD, RunDir, fingerprint, held_exclusively, newer_than_stages, read_json, share_stage, write_json,
                              write_text_atomic)
 
@@ -270,9 +270,11 @@ def object_figures(metrics: dict) -> dict:
     variants = metrics.get("variants", {})
     relight = {v: variants[v]["summary"]["relighting"]["psnr"] for v in VARIANTS if v in variants}
     full = variants.get("full", {}).get("summary", {})
+    baseline = variants.get(BASELINE, {}).get("summary", {})
     predictions = metrics.get("predictions_2d", {})
     return {"relight": relight,
             "materials_3d": {c: full[c]["psnr"] for c in CHANNELS if c in full},
+            "materials_no_prior": {c: baseline[c]["psnr"] for c in CHANNELS if c in baseline},
             "materials_2d": {c: predictions[c]["psnr"] for c in CHANNELS if c in predictions}}
 
 
@@ -291,16 +293,20 @@ def model_summary(per_object: list[dict]) -> dict:
     table1 = averaged["table1"]
     relight = {v: averaged["table2"].get(label, averaged["softmax"].get(label, {})).get("psnr")
                for v, label in (("full", "Full"), ("proj-average", "Proj. Average"), ("supervised", "Supervised"), ("no-softmax", "Without Softmax"))}
+    relight[BASELINE] = table1.get(LABELS[BASELINE], {}).get("relighting", {}).get("psnr")
     figures = [o["figures"] for o in per_object]
 
     def get(group, key):
         return lambda f: f[group].get(key)
 
     pairs = [("full > proj-average", get("relight", "full"), get("relight", "proj-average")),
-             ("full > no-softmax", get("relight", "full"), get("relight", "no-softmax"))]
+             ("full > no-softmax", get("relight", "full"), get("relight", "no-softmax")),
+             ("full > no-prior", get("relight", "full"), get("relight", BASELINE)),
+             ("full > no-prior basecolor", get("materials_3d", "basecolor"), lambda f: f.get("materials_no_prior", {}).get("basecolor"))]
     pairs += [(f"3D > 2D {c}", get("materials_3d", c), get("materials_2d", c)) for c in CHANNELS]
     return {"relight": {k: v for k, v in relight.items() if v is not None},
             "materials_3d": {c: table1.get("Ours", {}).get(c, {}) for c in CHANNELS},
+            "materials_no_prior": {c: table1.get(LABELS[BASELINE], {}).get(c, {}) for c in CHANNELS},
             "materials_2d": {c: table1.get("2D predictions", {}).get(c, {}) for c in CHANNELS},
             "wins": wins(figures, pairs), "tables": averaged}
 
@@ -327,17 +333,22 @@ def model_table(model: str, per_object: list[dict], summary: dict, variants) -> 
     """Markdown lines: one row per object, the mean row, and the wins."""
     label = "SIMULATED predictor" if model in ERROR_MODELS else "ground-truth maps (sanity row)"
     head = ["object", "train light", "relit under"] + [f"relight {v}" for v in variants]
-    head += [f"3D {SHORT[c]}" for c in CHANNELS] + [f"2D {SHORT[c]}" for c in CHANNELS] + ["s"]
+    baseline = BASELINE in variants  # the no-prior variant's materials, beside full's
+    head += [f"3D {SHORT[c]}" for c in CHANNELS] + ([f"no-prior {SHORT[c]}" for c in CHANNELS] if baseline else [])
+    head += [f"2D {SHORT[c]}" for c in CHANNELS] + ["s"]
     lines = [f"### error model `{model}` ({label})", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for o in per_object:
         f = o["figures"]
         cells = [o["object"]["name"], o["object"]["env"], ", ".join(o["object"]["relight_envs"])]
         cells += [fmt(f["relight"].get(v)) for v in variants]
-        cells += [fmt(f["materials_3d"].get(c)) for c in CHANNELS] + [fmt(f["materials_2d"].get(c)) for c in CHANNELS]
+        cells += [fmt(f["materials_3d"].get(c)) for c in CHANNELS]
+        cells += [fmt(f.get("materials_no_prior", {}).get(c)) for c in CHANNELS] if baseline else []
+        cells += [fmt(f["materials_2d"].get(c)) for c in CHANNELS]
         lines.append("| " + " | ".join(cells + [f"{o['seconds']:.0f}"]) + " |")
     s3, s2 = summary["materials_3d"], summary["materials_2d"]
     mean = [f"**mean of {len(per_object)}**", "", ""] + [fmt(summary["relight"].get(v)) for v in variants]
-    mean += [fmt(s3[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(s3["metallic"])]
+    for group in (s3, summary["materials_no_prior"]) if baseline else (s3,):
+        mean += [fmt(group[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(group["metallic"])]
     mean += [fmt(s2[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(s2["metallic"])]
     lines.append("| " + " | ".join(mean + [f"{sum(o['seconds'] for o in per_object) / len(per_object):.0f}"]) + " |")
     counted = {k: w for k, w in summary["wins"].items() if w["of"]}  # a pair with a variant not run has no count

@@ -30,11 +30,11 @@ from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
 from matspray.material import stack
 from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, write_object_masks
-from matspray.predictors import PredictorOptions, make_predictor, options_for_dataset, predict_views, read_materials2d, write_materials2d
+from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views, read_materials2d, write_materials2d
 from matspray.refine import RefineConfig, RefineInputs, refine
 from matspray.render.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, timed, to_plain
-from matspray.variants import asset_stage, get_variant
+from matspray.variants import asset_stage, get_variant, variants_for_maps
 
 
 def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
@@ -90,6 +90,7 @@ class Pipeline:
         self.log = log
         self.dataset_fp = fingerprint(dataset_identity(self.scene), config.downscale)
         self.unmasked = not self.scene.has_masks  # masks then come from the geometry (stage `masks`)
+        self.has_maps = config.predictor != NO_PREDICTOR  # without 2D maps only the variants that need none run
         self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
 
@@ -126,7 +127,10 @@ class Pipeline:
         return fingerprint("predict", self.dataset_fp, self.config.predictor, self.config.predictor_options, *masks, *derived)
 
     def predict(self):
+        """The 2D maps of the training views {name: MaterialMaps}; None in a run without a predictor."""
         self.object_masks()
+        if not self.has_maps:
+            return None
         fp = self.predict_fingerprint()
         if not self.run.stage_done("materials2d", fp, ["predictor.json"]):
             self.log(f"predict: {self.config.predictor} on {len(self.scene.train)} training views")
@@ -198,11 +202,14 @@ class Pipeline:
         return fingerprint("lift", self.config.method, self.config.lift, self.predict_fingerprint(), self.geometry_fingerprint())
 
     def lift(self, gaussians, maps) -> LiftResult:
+        """Lift the 2D maps onto the Gaussians. Without maps (None) lifting still decides, from the same rays and
+        masks, which Gaussians the views see (the kept ones); its values are zeros that no variant reads."""
         fp = self.lift_fingerprint()
         path = self.run.path("lift", "projected.pt")
         if not self.run.stage_done("lift", fp, ["projected.pt"]):
             views = self.scene.train
-            materials = [maps_to_tensor(maps[v.name]).to(self.device) for v in views]
+            materials = [maps_to_tensor(maps[v.name]).to(self.device) if maps is not None else
+                         torch.zeros(v.height, v.width, 5, device=self.device) for v in views]
             with self._working("lift") as (t, use):
                 result = lift(gaussians, [v.camera.to(self.device) for v in views], materials,
                               [None if v.alpha is None else v.alpha.to(self.device) for v in views], [v.name for v in views],
@@ -247,13 +254,13 @@ class Pipeline:
         return self._refine_inputs
 
     def _read_refine_inputs(self) -> RefineInputs:
-        maps = self.predict()
+        maps = self.predict() if self.has_maps else None
         gaussians, normals = self.object_geometry()
         lifted = self.lift(gaussians, maps)
         kept = gaussians.subset(lifted.kept)
         views = [v.to(self.device) for v in self.scene.train]
         return RefineInputs(gaussians=kept, normals=normals[lifted.kept], values=lifted.values, seen=lifted.seen, views=views,
-                            targets=[maps_to_tensor(maps[v.name]).to(self.device) for v in views],
+                            targets=[maps_to_tensor(maps[v.name]).to(self.device) for v in views] if maps is not None else [],
                             bounds=self.scene.bounds.to(self.device), visibility=self.visibility(kept))
 
     def light_probe(self) -> EnvironmentMap | None:
@@ -274,6 +281,7 @@ class Pipeline:
         return ({"light_probe": str(path.resolve()), "bytes": stat.st_size, "modified_ns": stat.st_mtime_ns},)
 
     def refine(self, variant: str = "full") -> Asset:
+        variants_for_maps([variant], self.has_maps)  # a variant that reads 2D maps is refused in a run without them
         config = variant_refine_config(self.config, variant)
         stage = asset_stage(variant)
         probe = self.probe if get_variant(variant).learns_light else None  # variants without a light ignore it
@@ -289,8 +297,9 @@ class Pipeline:
         self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history, "frozen_views": result.frozen, **self._ran(use)})
         return read_asset(self.run.path(stage), device=self.device)
 
-    def run_all(self, variants=("full",)) -> dict:
-        return {variant: self.refine(variant) for variant in variants}
+    def run_all(self, variants=None) -> dict:
+        """Refine `variants` (default: full, or in a run without 2D maps the variants that need none)."""
+        return {variant: self.refine(variant) for variant in variants_for_maps(variants, self.has_maps)}
 
 
 def save_lift(result: LiftResult, path: Path) -> None:

@@ -380,7 +380,7 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
         merged, weights = source(active, return_weights=True)
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
-        terms = view_losses(training, index, materials, shading_normals(), envmap, config)
+        terms = view_losses(training, index, materials, shading_normals(), envmap, config, with_material=variant.uses_maps)
         if config.basecolor_spread_weight > 0 and variant.softmax and "base_color" in weights:
             terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
         return terms, total_loss(terms, config)

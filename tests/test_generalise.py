@@ -15,6 +15,7 @@ from benchmarks.generalise import (
     geometry_run,
     main,
     model_summary,
+    model_table,
     object_set,
     predictor_spec,
     refine_overrides,
@@ -97,18 +98,23 @@ def test_geometry_run_is_one_with_finished_geometry(tmp_path):
     assert geometry_run(tmp_path, "harsh") == tmp_path / "paper"
 
 
-def fake_run(full, average, no_softmax, base3, base2, metal3, metal2):
+def fake_run(full, average, no_softmax, base3, base2, metal3, metal2, no_prior=None, base_no_prior=None):
     """The parts of eval/metrics.json the protocol reads."""
     def entry(psnr):
         return {"psnr": psnr, "ssim": 0.9, "lpips": None}
 
-    variants = {v: {"summary": {"relighting": entry(p)}} for v, p in (("full", full), ("proj-average", average), ("no-softmax", no_softmax))}
+    variants = {v: {"summary": {"relighting": entry(p)}} for v, p in (("full", full), ("proj-average", average), ("no-softmax", no_softmax),
+                                                                    ("no-prior", no_prior)) if p is not None}
     summary = variants["full"]["summary"]
     summary.update(basecolor=entry(base3), roughness=entry(20.0),
                    metallic=dict(entry(metal3), psnr_infinite=int(math.isinf(metal3)), objects=1))
     predictions = {"basecolor": entry(base2), "roughness": entry(21.0), "metallic": entry(metal2)}
     table1 = {"Ours": {k: summary[k] for k in ("basecolor", "roughness", "metallic")},
               "2D predictions": {**predictions, "metallic": dict(entry(metal2), psnr_infinite=int(math.isinf(metal2)), objects=1)}}
+    if no_prior is not None:
+        baseline = variants["no-prior"]["summary"]
+        baseline.update(basecolor=entry(base_no_prior), roughness=entry(15.0), metallic=dict(entry(10.0), psnr_infinite=0, objects=1))
+        table1["No prior (R3DGS-like)"] = dict(baseline)
     return {"variants": variants, "predictions_2d": predictions, "table1": table1,
             "table2": {"Full": entry(full), "Proj. Average": entry(average)},
             "softmax": {"Full": entry(full), "Without Softmax": entry(no_softmax)}, "timings": {}}
@@ -117,16 +123,21 @@ def fake_run(full, average, no_softmax, base3, base2, metal3, metal2):
 def test_means_and_wins_over_objects():
     from benchmarks.generalise import object_figures
 
-    runs = [fake_run(25.0, 24.0, 25.5, 22.0, 23.0, math.inf, 18.0), fake_run(26.0, 26.5, 25.0, 24.0, 23.0, 20.0, 19.0),
-            fake_run(27.0, 26.0, 26.0, 21.0, 21.0, 22.0, math.inf)]
+    runs = [fake_run(25.0, 24.0, 25.5, 22.0, 23.0, math.inf, 18.0, no_prior=23.0, base_no_prior=18.0),
+            fake_run(26.0, 26.5, 25.0, 24.0, 23.0, 20.0, 19.0, no_prior=26.5, base_no_prior=19.0),
+            fake_run(27.0, 26.0, 26.0, 21.0, 21.0, 22.0, math.inf, no_prior=24.5, base_no_prior=22.0)]
     summary = model_summary([{"metrics": m, "figures": object_figures(m)} for m in runs])
-    assert summary["relight"] == pytest.approx({"full": 26.0, "proj-average": 25.5, "no-softmax": 25.5})
+    assert summary["relight"] == pytest.approx({"full": 26.0, "proj-average": 25.5, "no-softmax": 25.5, "no-prior": 24.666666666666668})
+    assert summary["materials_no_prior"]["basecolor"]["psnr"] == pytest.approx(59.0 / 3)
     assert summary["materials_3d"]["basecolor"]["psnr"] == pytest.approx(67.0 / 3)
     assert summary["materials_3d"]["metallic"]["psnr"] == pytest.approx(21.0)  # the paper's rule: the infinite object left out
     assert summary["materials_3d"]["metallic"]["psnr_infinite"] == 1
     wins = {k: (w["wins"], w["of"]) for k, w in summary["wins"].items()}
-    assert wins == {"full > proj-average": (2, 3), "full > no-softmax": (2, 3), "3D > 2D basecolor": (1, 3),
-                    "3D > 2D roughness": (0, 3), "3D > 2D metallic": (2, 3)}
+    assert wins == {"full > proj-average": (2, 3), "full > no-softmax": (2, 3), "full > no-prior": (2, 3), "full > no-prior basecolor": (2, 3),
+                    "3D > 2D basecolor": (1, 3), "3D > 2D roughness": (0, 3), "3D > 2D metallic": (2, 3)}
+    table = "\n".join(model_table("paper", [{"object": {"name": f"o{i}", "env": "e", "relight_envs": ["a"]}, "figures": object_figures(m),
+                                            "seconds": 1.0} for i, m in enumerate(runs)], summary, ["full", "no-prior"]))
+    assert "| relight no-prior |" in table and "| no-prior base |" in table and "| 24.67 |" in table
 
 
 @pytest.mark.slow

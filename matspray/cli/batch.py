@@ -31,9 +31,11 @@ def add_parser(parser) -> None:
 
 def batch_config(args):
     from matspray.batch import BatchConfig
+    from matspray.predictors import NO_PREDICTOR
+    from matspray.variants import variants_for_maps
 
     pipeline = build_config_from_args(args, predictor=args.predictor, predictor_options=predictor_options_from_args(args))
-    return BatchConfig(pipeline=pipeline, variants=tuple(args.variant), workers=args.workers, address=args.address,
+    return BatchConfig(pipeline=pipeline, variants=variants_for_maps(args.variant, args.predictor != NO_PREDICTOR), workers=args.workers, address=args.address,
                        cpus_per_object=args.cpus_per_object, gpus_per_object=args.gpus_per_object, use_ray=not args.no_ray)
 
 

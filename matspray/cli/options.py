@@ -8,7 +8,7 @@ import os
 
 PRESET_CHOICES = ("test", "demo", "paper")
 METHOD_CHOICES = ("matspray", "paper")
-VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax")  # matspray.variants.VARIANT_NAMES (a test checks)
+VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax", "no-prior")  # matspray.variants.VARIANT_NAMES (a test checks)
 ADDITION_CHOICES = ("core-median", "min-support", "unseen-mask", "light-warmup", "min-coverage")  # matspray.config.ADDITION_NAMES (a test checks)
 
 
@@ -81,10 +81,11 @@ def add_compute_arguments(parser) -> None:
 def add_run_arguments(parser) -> None:
     """What `run` and `batch` take besides the method: the predictor, its options and the variants."""
     parser.add_argument("--predictor", default="simulated", metavar="SPEC",
-                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers] or ground-truth "
-                        "(default: simulated, = simulated:paper, benchmarks only)")
-    parser.add_argument("--variant", choices=VARIANT_CHOICES, nargs="+", default=["full"],
-                        help="method variants to refine (the paper's ablations); default: full")
+                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers], ground-truth, or none "
+                        "(no maps: only the no-prior variant) (default: simulated, = simulated:paper, benchmarks only)")
+    parser.add_argument("--variant", choices=VARIANT_CHOICES, nargs="+", default=None,
+                        help="method variants to refine (the paper's ablations, and no-prior: the baseline without a 2D prior); "
+                        "default: full, or no-prior with --predictor none")
     parser.add_argument("--weights", help="marigold: pipeline folder")
     parser.add_argument("--severity", type=float, help="simulated: strength of the simulated failure modes (default 1)")
 

@@ -15,13 +15,15 @@ def add_parser(parser) -> None:
 
 def run(args) -> int:
     from matspray.pipeline import Pipeline
-    from matspray.variants import asset_stage
+    from matspray.predictors import NO_PREDICTOR
+    from matspray.variants import asset_stage, variants_for_maps
 
     config = build_config_from_args(args, predictor=args.predictor, predictor_options=predictor_options_from_args(args))
+    variants = variants_for_maps(args.variant, config.predictor != NO_PREDICTOR)  # refused before the run folder is touched
     with Pipeline(args.data, args.out, config, overwrite=args.overwrite) as pipeline:  # refused while another process writes --out
-        pipeline.run_all(args.variant)
+        assets = pipeline.run_all(variants)
     timings = pipeline.run.timings()
     print(f"method {config.method}, on {pipeline.device} with rasterizer {pipeline.backend}; seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
-    for variant in args.variant:
+    for variant in assets:
         print(f"asset [{variant}]: {pipeline.run.path(asset_stage(variant), 'asset.ply')}")
     return 0

@@ -26,7 +26,7 @@ from matspray.eval.lpips import load_lpips
 from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
 from matspray.eval.tables import write_tables
-from matspray.predictors import PredictorOptions, make_predictor, options_for_dataset, predict_views
+from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
 from matspray.relight import render_gbuffer
 from matspray.render.backend import rendering_with
@@ -35,7 +35,7 @@ from matspray.render.envmap import EnvironmentMap
 from matspray.objectmasks import ObjectMasks, read_object_masks
 from matspray.objectregion import mask_iou
 from matspray.rundir import RunDir, write_json
-from matspray.variants import ABLATION, LABELS, SOFTMAX_ABLATION, asset_stage
+from matspray.variants import ABLATION, BASELINE, LABELS, SOFTMAX_ABLATION, asset_stage
 EVAL_ENV_HEIGHT = 64  # relighting maps are prefiltered from this many rows (x 2 columns)
 
 
@@ -178,6 +178,8 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
     """Raw 2D predictions of the test views by the run's predictor, when it can make them here."""
     config = RunDir(run_dir).config()
     spec = config.get("predictor", "")
+    if spec == NO_PREDICTOR:
+        return None, "no 2D predictions: the run had none (--predictor none)"
     if spec.partition(":")[0] not in ("simulated", "ground-truth", "files"):
         return None, f"raw 2D predictions of test views not evaluated (predictor '{spec}' would have to run again)"
     try:
@@ -238,6 +240,9 @@ def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dic
     if "full" in variants:
         summary = variants["full"]["summary"]
         table1["Ours"] = {row: summary[row] for row in rows if row in summary}
+    if BASELINE in variants:  # the paper's baseline column: no 2D prior
+        summary = variants[BASELINE]["summary"]
+        table1[LABELS[BASELINE]] = {row: summary[row] for row in rows if row in summary}
     if predictions is not None:
         table1["2D predictions"] = {row: predictions[row] for row in ("basecolor", "roughness", "metallic")}
     table2 = {LABELS[v]: variants[v]["summary"]["relighting"] for v in ABLATION if v in variants}

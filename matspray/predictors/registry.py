@@ -15,7 +15,8 @@ from matspray.predictors.ground_truth import GroundTruthPredictor
 from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
 from matspray.predictors.simulated import SimulatedPredictor
 
-SPECS = ("files:DIR", "marigold", "simulated[:paper|harsh|outliers]", "ground-truth")
+SPECS = ("files:DIR", "marigold", "simulated[:paper|harsh|outliers]", "ground-truth", "none")
+NO_PREDICTOR = "none"  # a run without 2D maps: only the variants that need none (matspray.variants.MAPLESS)
 
 
 @dataclass
@@ -64,6 +65,8 @@ def options_for_dataset(spec: str, options: PredictorOptions, data) -> Predictor
 
 def make_predictor(spec: str, options: PredictorOptions | None = None, notify: Callable[[str], None] = print) -> Predictor:
     options = options or PredictorOptions()
+    if spec == NO_PREDICTOR:
+        raise SettingError("predictor", "'none' predicts no maps; only a run refines without them (the no-prior variant)")
     kind, _, argument = str(spec).partition(":")
     kind = kind.strip().lower()
     if kind not in USES:

@@ -1,0 +1,74 @@
+"""The no-prior variant (the paper's Table 1 baseline): materials from the PBR loss alone, no 2D maps read, and runs
+without a predictor (--predictor none)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+
+import pytest
+import torch
+
+from matspray.config import build_config
+from matspray.errors import ConfigError
+from matspray.eval.run_eval import evaluate_run
+from matspray.pipeline import Pipeline, variant_refine_config
+from matspray.refine import refine
+from matspray.variants import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
+
+pytest.importorskip("mitsuba")
+
+
+def test_no_prior_is_the_only_variant_that_needs_no_maps():
+    assert MAPLESS == ("no-prior",) and "no-prior" in VARIANT_NAMES
+    variant = get_variant("no-prior")
+    assert variant.source == "free" and variant.learns_light and not variant.uses_maps
+    assert variants_for_maps(None, True) == ("full",) and variants_for_maps(None, False) == ("no-prior",)
+    assert variants_for_maps(["full", "no-prior"], True) == ("full", "no-prior")
+    with pytest.raises(ConfigError, match=r"^variant 'supervised' needs 2D material maps, and this run has none \(--predictor none\); "
+                                          r"give a predictor \(files:DIR, marigold, \.\.\.\) or ask for no-prior$"):
+        variants_for_maps(["no-prior", "supervised"], False)
+
+
+def test_no_prior_reads_neither_the_lifted_values_nor_the_maps(tiny_object, tmp_path):
+    config = build_config("test", predictor="simulated", **{"refine.iterations": 12})
+    with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lambda _: None) as pipeline:
+        inputs = pipeline.refine_inputs()
+    settings = variant_refine_config(config, "no-prior")
+    generator = torch.Generator().manual_seed(5)
+    scrambled = replace(inputs, values=torch.rand(inputs.values.shape, generator=generator),
+                        targets=[torch.rand(t.shape, generator=generator) for t in inputs.targets])
+    a, b = refine(inputs, settings, progress=False), refine(scrambled, settings, progress=False)
+    torch.testing.assert_close(a.materials, b.materials, rtol=0, atol=0)
+    assert all("material" not in record and "photo" in record for record in a.history)
+    # and it trained: the grey it starts from moved
+    assert (a.materials - 0.5).abs().max() > 1e-3
+
+
+def test_a_run_without_a_predictor_makes_the_no_prior_asset_and_its_table_row(tiny_object, tmp_path):
+    run = tmp_path / "run"
+    config = build_config("test", predictor="none", **{"refine.iterations": 8})
+    with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
+        assets = pipeline.run_all()
+        assert list(assets) == ["no-prior"]
+        with pytest.raises(ConfigError, match="variant 'full' needs 2D material maps"):
+            pipeline.refine("full")
+    assert not (run / "materials2d").exists() and not (run / "asset").exists()
+    assert (run / asset_stage("no-prior") / "asset.ply").exists() and (run / "lift" / "projected.pt").exists()
+    metrics = evaluate_run(run, progress=False)
+    assert set(metrics["variants"]) == {"no-prior"}
+    assert "no 2D predictions: the run had none (--predictor none)" in metrics["notes"]
+    assert set(metrics["table1"]) == {LABELS["no-prior"]}
+    assert metrics["table1"][LABELS["no-prior"]]["relighting"]["psnr"] > 10
+    assert "| Relighting |" in (run / "eval" / "tables.md").read_text()
+
+
+def test_cli_refuses_a_variant_that_needs_maps_without_a_predictor(tiny_object, tmp_path):
+    result = subprocess.run([sys.executable, "-m", "matspray", "run", "--data", tiny_object, "--out", tmp_path / "run", "--preset", "test",
+                             "--predictor", "none", "--variant", "full"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "variant 'full' needs 2D material maps" in lines[0], result.stderr
+    assert not (tmp_path / "run").exists()
