@@ -31,6 +31,12 @@ def device(request) -> torch.device:
     return torch.device(name)
 
 
+@pytest.fixture(autouse=True)
+def test_cache(tmp_path_factory, monkeypatch):
+    """Caches (undistorted images) go to a folder of the test session, not the user's ~/.cache."""
+    monkeypatch.setenv("MATSPRAY_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
 @pytest.fixture(scope="module")
 def tiny_object(tmp_path_factory):
     """A 32 px Mitsuba sphere with 6 training and 2 test views (skips without Mitsuba)."""

@@ -14,7 +14,7 @@ from matspray.cli import main
 from matspray.data import Camera, View, load_scene, write_image
 from matspray.data.images import linear_to_srgb, read_image
 from matspray.data.nerfstudio import write_nerfstudio
-from matspray.data.undistort import Lens, distort_view, plan_undistortion
+from matspray.data.undistort import Lens, cache_folder, distort_view, plan_undistortion
 from matspray.errors import DataError
 from tests.test_readers import write_colmap
 
@@ -86,7 +86,14 @@ def test_distorted_nerfstudio_capture_undistorts_to_the_ground_truth(synth_objec
                 first.height, (-0.12, 0.03, 0.002, -0.001, 0.0), model="OPENCV")
     distorted = {split: [distort_view(v, lens) for v in original.split(split)] for split in ("train", "test")}
     write_nerfstudio(tmp_path, distorted, lens=lens, separate_masks=True)
-    scene = load_scene(tmp_path)
+    written = sorted(p for p in tmp_path.rglob("*"))
+    tmp_path.chmod(0o555)  # a read-only capture, as ../shared is in CI: nothing is written into it
+    try:
+        scene = load_scene(tmp_path)
+    finally:
+        tmp_path.chmod(0o755)
+    assert sorted(p for p in tmp_path.rglob("*")) == written
+    assert len(list(cache_folder(tmp_path).glob("*.png"))) == 4  # the undistorted views, in the cache ($MATSPRAY_CACHE)
     assert scene.format == "nerfstudio"
     assert [v.name for v in scene.train] == [v.name for v in original.train]
     assert [v.name for v in scene.test] == [v.name for v in original.test]

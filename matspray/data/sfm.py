@@ -11,7 +11,8 @@ complete, so a failed or interrupted run leaves nothing half-made:
     DATASET/masks/              (with masks) the masks, sized as the photos
     DATASET/sparse/0/           the COLMAP model (distorted camera, e.g. SIMPLE_RADIAL)
     DATASET/colmap/database.db  features and matches
-    DATASET/matspray-undistorted/  the undistorted pinhole images the loader reads
+
+The undistorted pinhole images the loader reads are cached outside it (matspray.data.undistort.cache_folder).
 """
 
 from __future__ import annotations
@@ -159,6 +160,9 @@ def run_sfm(images, out, config: SfmConfig = SfmConfig(), masks=None, progress: 
         shutil.rmtree(work, ignore_errors=True)
     result.dataset = out
     result.notes = [note.replace(str(work.resolve()), str(out.resolve())) for note in result.notes]
+    log("undistorting the images ...")
+    scene = load_scene(out)  # undistorts into the cache under the dataset's final name, so that later loads read them
+    result.notes += [line for line in describe_scene(scene).lines if line.startswith("loading:")]
     result.seconds = time.perf_counter() - start
     return result
 
@@ -231,8 +235,5 @@ def reconstruct(photos: list[Path], work: Path, config: SfmConfig, mask_dir: Pat
     cameras = [f"camera {c.camera_id}: {c.model_name} {c.width}x{c.height} " + " ".join(f"{p:.4g}" for p in c.params)
                for c in model.cameras.values()]
     focal = float(np.mean([np.mean([c.params[i] for i in c.focal_length_idxs()]) for c in model.cameras.values()]))
-    log("undistorting the images ...")
-    scene = load_scene(work)  # fills matspray-undistorted/ so later loads read the pinhole images
-    notes += [line for line in describe_scene(scene).lines if line.startswith("loading:")]
     return SfmResult(work, len(photos), registered, model_sizes, float(model.compute_mean_reprojection_error()),
                      model.num_points3D(), cameras, focal, 0.0, notes)

@@ -240,14 +240,24 @@ def distort_view(view: View, lens: Lens) -> View:
 
 # ------------------------------------------------------------------------------------------ datasets
 def cache_folder(root: Path) -> Path:
-    """Beside the dataset when its folder is writable, else in the user's cache."""
+    """Where the undistorted images of the dataset at `root` are cached: never in the dataset (it may be read-only,
+    and a user's capture folder should not grow), but under $MATSPRAY_CACHE when set, else the user's cache folder
+    ($XDG_CACHE_HOME or ~/.cache), else the temporary folder; one subfolder per dataset."""
     root = Path(root).resolve()
-    if os.access(root, os.W_OK):
-        return root / CACHE_FOLDER
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    if not os.access(base.parent if not base.exists() else base, os.W_OK):
-        base = Path(tempfile.gettempdir())
-    return base / "matspray" / "undistorted" / hashlib.sha1(str(root).encode()).hexdigest()[:16]
+    named = os.environ.get("MATSPRAY_CACHE")
+    if named:
+        base = Path(named).expanduser()
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "matspray"
+        if not os.access(_existing_parent(base), os.W_OK):
+            base = Path(tempfile.gettempdir()) / "matspray"
+    return base / CACHE_FOLDER / f"{root.name}-{hashlib.sha1(str(root).encode()).hexdigest()[:12]}"
+
+
+def _existing_parent(path: Path) -> Path:
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
 
 
 class Undistorter:
