@@ -30,7 +30,7 @@ from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
 from matspray.material import stack
 from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, write_object_masks
-from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views, read_materials2d, write_materials2d
+from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, resolve_predictor, options_for_dataset, predict_views, read_materials2d, write_materials2d
 from matspray.refine import RefineConfig, RefineInputs, refine
 from matspray.render.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, timed, to_plain
@@ -70,6 +70,10 @@ class Pipeline:
         # "torch" or "gsplat"; fails here, before any work. Every stage renders with it (see _working)
         self.backend = resolve_backend(config.backend, self.device, notify=log)
         self.scene = load_scene(data, downscale=config.downscale)
+        # `auto` becomes a predictor here, and one that cannot serve these views fails here, before any training
+        predictor = resolve_predictor(config.predictor, self.scene.train, notify=log)
+        if predictor != config.predictor:
+            config = self.config = replace(config, predictor=predictor)
         self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
         # a missing or unreadable light probe fails here, before the run folder is touched; it is read once, and the
         # refinement's fingerprint names the file as it was read

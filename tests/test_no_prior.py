@@ -72,3 +72,36 @@ def test_cli_refuses_a_variant_that_needs_maps_without_a_predictor(tiny_object, 
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "variant 'full' needs 2D material maps" in lines[0], result.stderr
     assert not (tmp_path / "run").exists()
+
+
+@pytest.fixture
+def capture_without_truth(tiny_object, tmp_path):
+    """The tiny object as a capture would be: photos and cameras, no ground-truth material maps."""
+    import shutil
+
+    data = tmp_path / "capture"
+    shutil.copytree(tiny_object, data)
+    for path in data.rglob("*"):
+        if any(part in path.name for part in ("_basecolor", "_roughness", "_metallic")):
+            path.unlink()
+    return data
+
+
+def test_the_default_predictor_on_a_dataset_without_ground_truth_is_none(capture_without_truth, tmp_path):
+    said = []
+    config = build_config("test", predictor="auto", **{"refine.iterations": 4})
+    with Pipeline(capture_without_truth, tmp_path / "run", config, progress=False, log=said.append) as pipeline:
+        assert pipeline.config.predictor == "none" and not pipeline.has_maps
+        assert list(pipeline.run_all()) == ["no-prior"]
+    assert said[0].startswith("predictor: this dataset has no ground-truth maps, so the run makes the no-prior asset")
+    assert json.loads(json.dumps(pipeline.run.config()))["predictor"] == "none"  # config.yaml says what ran
+
+
+def test_a_predictor_that_needs_ground_truth_is_refused_before_training(capture_without_truth, tmp_path, tiny_object):
+    from matspray.errors import DataError
+
+    with pytest.raises(DataError, match=r"no ground-truth basecolor/roughness/metallic maps for 6 of 6 views"):
+        Pipeline(capture_without_truth, tmp_path / "run", build_config("test", predictor="simulated:harsh"), progress=False, log=lambda _: None)
+    assert not (tmp_path / "run").exists()
+    with Pipeline(tiny_object, tmp_path / "synth", build_config("test", predictor="auto"), progress=False, log=lambda _: None) as pipeline:
+        assert pipeline.config.predictor == "simulated"  # benchmarks: the synth object's true maps, degraded

@@ -19,6 +19,7 @@ from matspray.eval.run_eval import check_synthetic, evaluate_run
 from matspray.config import PipelineConfig
 from matspray.pipeline import Pipeline
 from matspray.rundir import read_json, write_json
+from matspray.variants import variants_for_maps
 
 OBJECT_RECORD = "batch-object.json"
 OBJECT_LOG = "batch.log"
@@ -55,7 +56,7 @@ def has_ground_truth(pipeline: Pipeline) -> bool:
     return True
 
 
-def run_one_object(data, run_dir, config: PipelineConfig, variants=("full",), progress: bool = True, log=print,
+def run_one_object(data, run_dir, config: PipelineConfig, variants=None, progress: bool = True, log=print,
                    stage: Callable[[str], None] = lambda _: None) -> dict | None:
     """The ordinary pipeline on one object into `run_dir`, then its evaluation and report when the
     dataset has ground truth; returns the metrics (None without ground truth). `stage` hears the
@@ -65,7 +66,7 @@ def run_one_object(data, run_dir, config: PipelineConfig, variants=("full",), pr
         pipeline.predict()
         stage("geometry")
         pipeline.geometry()
-        for variant in variants:
+        for variant in variants_for_maps(variants, pipeline.has_maps):
             stage(f"refine [{variant}]")
             pipeline.refine(variant)
         if not has_ground_truth(pipeline):

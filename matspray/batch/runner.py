@@ -30,7 +30,7 @@ POLL_S = 0.5
 @dataclass(frozen=True)
 class BatchConfig:
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)  # every object's run settings
-    variants: tuple[str, ...] = ("full",)
+    variants: tuple[str, ...] | None = ("full",)  # None: each run's default (full, or no-prior without 2D maps)
     workers: int | None = None  # objects at once; None: local CPUs // cpus_per_object, or the whole cluster
     address: str | None = None  # an existing Ray cluster ('HOST:PORT', 'ray://HOST:PORT', 'auto'); None: a local Ray
     cpus_per_object: int = 1  # Ray CPUs of one object's task, and its torch threads
@@ -45,14 +45,14 @@ def check_config(config: BatchConfig) -> None:
         raise SettingError("cpus_per_object", f"must be >= 1, got {config.cpus_per_object}")
     if config.gpus_per_object < 0:
         raise SettingError("gpus_per_object", f"must be >= 0, got {config.gpus_per_object:g}")
-    unknown = [v for v in config.variants if v not in VARIANT_NAMES]
-    if unknown or not config.variants:
+    unknown = [v for v in config.variants or () if v not in VARIANT_NAMES]
+    if unknown or config.variants == ():
         raise SettingError("variants", f"unknown variant '{(unknown or [''])[0]}'; choose from {', '.join(VARIANT_NAMES)}")
 
 
 def batch_settings(config: BatchConfig) -> dict:
     """What shapes the results (not how many machines make them)."""
-    return {"pipeline": to_plain(config.pipeline), "variants": list(config.variants)}
+    return {"pipeline": to_plain(config.pipeline), "variants": None if config.variants is None else list(config.variants)}
 
 
 _ABSENT = object()  # a setting one record lacks

@@ -35,7 +35,7 @@ def batch_config(args):
     from matspray.variants import variants_for_maps
 
     pipeline = build_config_from_args(args, predictor=args.predictor, predictor_options=predictor_options_from_args(args))
-    return BatchConfig(pipeline=pipeline, variants=variants_for_maps(args.variant, args.predictor != NO_PREDICTOR), workers=args.workers, address=args.address,
+    return BatchConfig(pipeline=pipeline, variants=None if args.variant is None else variants_for_maps(args.variant, args.predictor != NO_PREDICTOR), workers=args.workers, address=args.address,
                        cpus_per_object=args.cpus_per_object, gpus_per_object=args.gpus_per_object, use_ray=not args.no_ray)
 
 

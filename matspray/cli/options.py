@@ -80,9 +80,10 @@ def add_compute_arguments(parser) -> None:
 
 def add_run_arguments(parser) -> None:
     """What `run` and `batch` take besides the method: the predictor, its options and the variants."""
-    parser.add_argument("--predictor", default="simulated", metavar="SPEC",
-                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers], ground-truth, or none "
-                        "(no maps: only the no-prior variant) (default: simulated, = simulated:paper, benchmarks only)")
+    parser.add_argument("--predictor", default="auto", metavar="SPEC",
+                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers] or ground-truth (benchmarks "
+                        "only: they need the dataset's true maps), or none (no maps: only the no-prior variant); default auto: "
+                        "simulated where the dataset has ground-truth maps, else none")
     parser.add_argument("--variant", choices=VARIANT_CHOICES, nargs="+", default=None,
                         help="method variants to refine (the paper's ablations, and no-prior: the baseline without a 2D prior); "
                         "default: full, or no-prior with --predictor none")

@@ -19,7 +19,8 @@ def run(args) -> int:
     from matspray.variants import asset_stage, variants_for_maps
 
     config = build_config_from_args(args, predictor=args.predictor, predictor_options=predictor_options_from_args(args))
-    variants = variants_for_maps(args.variant, config.predictor != NO_PREDICTOR)  # refused before the run folder is touched
+    # refused before the run folder is touched; without --variant the run picks its default once its predictor is known
+    variants = None if args.variant is None else variants_for_maps(args.variant, config.predictor != NO_PREDICTOR)
     with Pipeline(args.data, args.out, config, overwrite=args.overwrite) as pipeline:  # refused while another process writes --out
         assets = pipeline.run_all(variants)
     timings = pipeline.run.timings()

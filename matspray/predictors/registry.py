@@ -7,16 +7,18 @@ from pathlib import Path
 from typing import Callable
 
 from matspray.data.blender import read_scene_json
-from matspray.errors import ConfigError, SettingError
+from matspray.errors import ConfigError, DataError, SettingError
 from matspray.predictors.base import Predictor
 from matspray.predictors.error_models import DEFAULT_MODEL, error_model
 from matspray.predictors.files import FilesPredictor
-from matspray.predictors.ground_truth import GroundTruthPredictor
+from matspray.predictors.ground_truth import GroundTruthPredictor, check_ground_truth
 from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
 from matspray.predictors.simulated import SimulatedPredictor
 
 SPECS = ("files:DIR", "marigold", "simulated[:paper|harsh|outliers]", "ground-truth", "none")
 NO_PREDICTOR = "none"  # a run without 2D maps: only the variants that need none (matspray.variants.MAPLESS)
+AUTO_PREDICTOR = "auto"  # `run`'s default: simulated where the dataset has ground-truth maps (benchmarks), else none
+NEEDS_GROUND_TRUTH = ("simulated", "ground-truth")
 
 
 @dataclass
@@ -61,6 +63,24 @@ def options_for_dataset(spec: str, options: PredictorOptions, data) -> Predictor
         return options
     seed = object_seed(data)
     return options if seed is None else replace(options, seed=seed)
+
+
+def resolve_predictor(spec: str, views: list, notify: Callable[[str], None] = print) -> str:
+    """The predictor a run uses for the training `views`: `auto` becomes simulated where every view has ground-truth
+    maps, else none (said in one line). A predictor that needs ground truth on views without it is refused here,
+    before any training, naming the dataset and the views."""
+    kind = str(spec).partition(":")[0].strip().lower()
+    if kind == AUTO_PREDICTOR:
+        try:
+            check_ground_truth(views)
+        except DataError:
+            notify("predictor: this dataset has no ground-truth maps, so the run makes the no-prior asset without 2D maps "
+                   "(give --predictor files:DIR or marigold for the full method)")
+            return NO_PREDICTOR
+        return "simulated"
+    if kind in NEEDS_GROUND_TRUTH:
+        check_ground_truth(views)
+    return spec
 
 
 def make_predictor(spec: str, options: PredictorOptions | None = None, notify: Callable[[str], None] = print) -> Predictor:
