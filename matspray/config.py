@@ -37,7 +37,7 @@ class PipelineConfig:
     method: str = "matspray"
     predictor: str = "simulated"
     predictor_options: dict = field(default_factory=dict)  # PredictorOptions fields
-    downscale: float = 1.0
+    downscale: float | None = None  # shrink images by this on load; None: bring photos larger than the preset's working size to it
     seed: int = 0
     refine_seed: int | None = None  # the refinement's own seed (view order, merger init); None: `seed`
     device: str = "auto"
@@ -57,7 +57,7 @@ class PipelineConfig:
             raise SettingError("method", f"unknown method '{self.method}'; choose one of {', '.join(METHODS)}")
         if self.backend not in BACKENDS:
             raise SettingError("backend", f"unknown backend '{self.backend}'; choose one of {', '.join(BACKENDS)}")
-        if not self.downscale > 0:
+        if self.downscale is not None and not self.downscale > 0:
             raise SettingError("downscale", f"must be > 0, got {self.downscale}")
         if self.object_bounds is not None:
             object.__setattr__(self, "object_bounds", tuple(float(v) for v in self.object_bounds))
@@ -65,6 +65,16 @@ class PipelineConfig:
 
 
 # ------------------------------------------------------------------------------------------ presets
+# the longest image side each preset works at: larger photos are shrunk to it on load unless --downscale is given
+# (test: CI-sized; demo: a real capture on a 2-core CPU; paper: 512 px data, and real captures up to 800 px)
+WORKING_SIZE = {"test": 128, "demo": 256, "paper": 800}
+
+
+def working_downscale(preset: str, width: int, height: int) -> float:
+    """The factor that brings a `width` x `height` photo to the preset's working size (1: it is not larger)."""
+    return max(1.0, max(width, height) / WORKING_SIZE[preset])
+
+
 PRESET_SETTINGS: dict[str, dict] = {
     "test": {"lift.samples_per_side": 2, "refine.iterations": 30, "refine.envmap_height": 8, "refine.light_warmup": 10},
     "demo": {"lift.samples_per_side": 4, "refine.iterations": 600, "refine.envmap_height": 16, "refine.light_warmup": 200},

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from matspray.errors import DataError, NumericalError, RunError
-from matspray.config import build_config, shadow_maps
+from matspray.config import WORKING_SIZE, build_config, shadow_maps
 from matspray.pipeline import Pipeline
 from matspray.variants import VARIANT_NAMES as VARIANTS, asset_stage
 from matspray.refine import check_finite
@@ -237,3 +237,14 @@ def test_the_stage_commands_refuse_a_busy_run_folder_before_working(tiny_object,
     holder.kill()
     holder.wait()
     assert main([command[0], "--data", str(tiny_object), "--out", str(run), *command[1:]]) == 0
+
+
+def test_photos_larger_than_the_working_size_are_brought_to_it(tiny_object, tmp_path, monkeypatch):
+    monkeypatch.setitem(WORKING_SIZE, "test", 16)  # the object is 32 px
+    said = []
+    with Pipeline(tiny_object, tmp_path / "small", build_config("test"), progress=False, log=said.append) as pipeline:
+        assert (pipeline.scene.train[0].width, pipeline.scene.train[0].height) == (16, 16) and pipeline.config.downscale == 2.0
+    assert "photos: 32x32 brought to 16x16, the test preset's working size (--downscale 1 keeps them as they are)" in said
+    assert pipeline.run.downscale() == 2.0  # config.yaml keeps the factor, so eval, relight and export load the same views
+    with Pipeline(tiny_object, tmp_path / "full", build_config("test", downscale=1.0), progress=False, log=lambda _: None) as pipeline:
+        assert pipeline.scene.train[0].width == 32  # --downscale given: kept as asked

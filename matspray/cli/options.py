@@ -55,7 +55,8 @@ SETTING_FLAGS = {
                       "estimating the light (default: estimate it)"),
     "--seed": ("seed", int, "random seed (default 0)"),
     "--refine-seed": ("refine_seed", int, "the refinement's own seed (default: --seed)"),
-    "--downscale": ("downscale", float, "shrink images by this factor on load (default 1)"),
+    "--downscale": ("downscale", float, "shrink images by this factor on load (default: photos whose long side exceeds the "
+                    "preset's working size, test 128 / demo 256 / paper 800 px, are brought to it; 1 keeps them)"),
     "--max-gaussians": ("geometry.max_gaussians", int, "cap on the Gaussians densification may grow to (default: the preset's; "
                         "lower it when a GPU runs out of memory)"),
     "--device": ("device", str, DEVICE_HELP),
