@@ -1,8 +1,16 @@
-"""Evaluation on the object: compositing with the ground-truth mask, and per-channel scale alignment.
+"""Evaluation on the object: compositing, the two scored regions, and per-channel scale alignment.
 
-Prediction and ground truth are both composited on the same background with the ground-truth mask,
-so the metrics see the object only and the background matches exactly; colour images are then
-sRGB-encoded, scalar maps (roughness, metallic) kept as stored; both clamped to [0, 1].
+Two figures are reported for every image (`matspray.eval.evaluate.evaluate_images`):
+  object mask (GT)   prediction and ground truth both composited on the same background with the
+                     ground-truth mask, scored over the full image. The background matches exactly by
+                     construction, so whatever the prediction shows at or outside the true silhouette
+                     is hidden: a mesh that bulges or misses a part is not penalised for it.
+  object + silhouette (union)
+                     each image composited with its OWN coverage (the prediction with its rendered
+                     alpha, the truth with the true mask) on the same background, scored over the union
+                     of the two: weights max(pred_alpha, true_mask) (`union_weights`). Extra and missing
+                     silhouette pixels then differ from the truth and count.
+Colour images are then sRGB-encoded, scalar maps (roughness, metallic) kept as stored; both clamped to [0, 1].
 
 Scale alignment (optional, reported separately) follows the NeRFactor / TensoIR evaluations: the
 prediction is multiplied per channel by the median of ground truth / prediction over object pixels,
@@ -47,6 +55,38 @@ def composite_on_background(image, mask, background=1.0, encoding: str = "srgb")
     weights = weights[..., None]  # [..., H, W, 1]
     composite = image * weights + fill * (1.0 - weights)
     return linear_to_srgb(composite) if encoding == "srgb" else composite.clamp(0.0, 1.0)
+
+
+def union_weights(pred_alpha, mask) -> Tensor:  # [..., H, W], [..., H, W] -> [..., H, W] float64 in [0, 1]
+    """Per-pixel weights of the silhouette-counting region: max(pred_alpha, mask).
+
+    Soft rather than a hard union at 0.5 because the composites are themselves soft blends by the same
+    coverages: a pixel's error already scales with how much either image covers it, so weighting it by
+    that coverage keeps the figure continuous in alpha (no threshold that a faint halo or a floater just
+    under 0.5 slips under, no flicker at the edge). For binary masks it is exactly the hard union.
+    """
+    alpha = torch.as_tensor(pred_alpha).to(torch.float64)
+    truth = torch.as_tensor(mask).to(alpha)
+    if alpha.shape != truth.shape:
+        raise DataError(f"pred_alpha {list(alpha.shape)} and mask {list(truth.shape)} differ in shape")
+    return torch.maximum(alpha, truth)
+
+
+def covered_box(weights, min_size: int = 1) -> tuple[slice, slice]:
+    """Rows and columns of the smallest box holding every pixel of `weights` [H, W] above zero, grown
+    about its centre to at least `min_size` per side (kept inside the image; the whole side when the
+    image is smaller). A spatial metric that cannot take weights (LPIPS) is scored on this box."""
+    covered = torch.as_tensor(weights) > 0  # [H, W]
+    if not covered.any():
+        raise DataError("mask: selects no pixels; the union of the silhouettes is empty")
+    spans = []
+    for axis in (1, 0):  # rows: any along width; columns: any along height
+        indices = torch.nonzero(covered.any(dim=axis)).flatten()
+        first, last, length = int(indices[0]), int(indices[-1]) + 1, covered.shape[1 - axis]
+        size = max(last - first, min(min_size, length))
+        first = min(max(0, first - (size - (last - first)) // 2), length - size)  # centred, then pushed inside
+        spans.append(slice(first, first + size))
+    return spans[0], spans[1]
 
 
 def _object_pixels(values: Tensor, mask, name: str) -> Tensor:  # [..., H, W, C], [..., H, W] -> [P, C]

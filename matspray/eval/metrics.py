@@ -2,7 +2,9 @@
 
 Images are [H, W, C] (a [H, W] map counts as one channel), compared as given: callers composite
 prediction and ground truth on the object first (`matspray.eval.masked.composite_on_background`),
-so both are sRGB-encoded (colour) or raw (roughness, metallic) values clamped to [0, 1].
+so both are sRGB-encoded (colour) or raw (roughness, metallic) values clamped to [0, 1]. Both
+metrics take an optional region `mask` [H, W] of weights (the union of the silhouettes, see
+`matspray.eval.masked.union_weights`); without it they cover the full image.
 
 SSIM follows Wang et al. 2004: an 11-tap Gaussian window with sigma 1.5, K1 = 0.01, K2 = 0.03,
 data range 1, statistics over the window positions that lie fully inside the image ("valid"
@@ -141,6 +143,22 @@ def ssim_loss(pred: Tensor, target: Tensor) -> Tensor:  # [H, W, C], [H, W, C] i
     return 1.0 - local_ssim(pred, target).mean()
 
 
-def ssim(pred, target) -> float:
-    """Mean SSIM of images [H, W, C] in [0, 1] (Gaussian window 11, sigma 1.5; Wang et al. 2004)."""
-    return float(ssim_map(pred, target).mean())
+def ssim(pred, target, mask=None) -> float:
+    """Mean SSIM of images [H, W, C] in [0, 1] (Gaussian window 11, sigma 1.5; Wang et al. 2004).
+
+    With `mask` [H, W] (weights in [0, 1]) the mean over window positions is weighted by how much of
+    each window lies in the region, measured with the window's own Gaussian taps (the weights'
+    windowed mean): windows wholly inside count fully, windows straddling the edge partly, windows
+    off it not at all. Every pixel with weight > 0 reaches some valid window (the taps are all
+    positive), so only an empty mask is refused; an all-ones mask gives the plain mean.
+    """
+    local = ssim_map(pred, target)  # [H-10, W-10, C]
+    if mask is None:
+        return float(local.mean())
+    height, width = local.shape[0] + SSIM_WINDOW - 1, local.shape[1] + SSIM_WINDOW - 1
+    weights = as_weights(mask, (height, width), local.device)  # [H, W]
+    windows = _window_mean(weights, gaussian_window(dtype=weights.dtype, device=weights.device))  # [H-10, W-10]
+    total = float(windows.sum())
+    if total == 0.0:
+        raise DataError("mask: selects no pixels; SSIM over an empty region is undefined")
+    return float((local * windows[..., None]).sum()) / (total * local.shape[-1])

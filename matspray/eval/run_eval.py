@@ -5,7 +5,9 @@ For each asset in the run (the full method and any ablation variant) and each te
               render of the same view (`test/{view}_relight_{env}.png`)
   materials   rasterized base color, roughness, metallic vs the true maps (`test/{view}_{channel}.png`)
 and, as the baseline the method must beat, the raw 2D predictions of the test views (when the run's
-predictor can make them). Everything is compared on the object (ground-truth mask, shared background).
+predictor can make them). Everything is compared on the object (ground-truth mask, shared background)
+and, under the same key + "_union", over the object and its silhouette (each image composited with its
+own alpha, scored over the union of the two silhouettes; see `matspray.eval.masked`).
 """
 
 from __future__ import annotations
@@ -21,11 +23,11 @@ from tqdm import tqdm
 from matspray.asset import read_asset
 from matspray.data import Scene, View, load_scene, read_image
 from matspray.errors import DataError, file_error
-from matspray.eval.evaluate import average_metrics, evaluate_images
+from matspray.eval.evaluate import average_metrics, evaluate_images, pooled_union_psnr
 from matspray.eval.lpips import load_lpips
 from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
-from matspray.eval.tables import write_tables
+from matspray.eval.tables import UNION, write_tables
 from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
 from matspray.relight import render_gbuffer
@@ -110,45 +112,52 @@ def evaluate_asset(asset, views: list[View], truths: list[GroundTruth], lights: 
 
 
 def score_renders(renders, views: list[View], truths: list[GroundTruth], env_names: list[str], lpips, aligned: bool = False) -> dict:
-    """Per-view and averaged metrics of any renderer's `renders` (one ViewRenders per view) against the truth."""
-    per_view, relit_records, aligned_records = [], [], []
-    channels = {"basecolor": [], "roughness": [], "metallic": []}
-    aligned_base = []
-    preds_metal, truths_metal, masks_metal = [], [], []
+    """Per-view and averaged metrics of any renderer's `renders` (one ViewRenders per view) against the truth.
+
+    Every figure twice: under its key the object-mask (GT) figure, and under the key + "_union" the
+    silhouette-counting one, where the render is composited with its own alpha and scored over the
+    union of its silhouette and the true one (`evaluate_images`), so a mesh and a Gaussian asset are
+    judged alike at and outside the silhouette.
+    """
+    per_view = []
+    keys = ("relighting", "basecolor", "roughness", "metallic") + (("relighting_aligned", "basecolor_aligned") if aligned else ())
+    records: dict[str, list] = {key + suffix: [] for key in keys for suffix in ("", UNION)}  # per-image metrics of all views (and lights)
+    preds_metal, alphas_metal, truths_metal, masks_metal = [], [], [], []
+
+    def both(key: str, pred, target, truth: GroundTruth, alpha, encoding: str = "srgb") -> tuple[dict, dict]:
+        scored = (evaluate_images(pred, target, truth.mask, lpips, encoding=encoding),
+                  evaluate_images(pred, target, truth.mask, lpips, encoding=encoding, pred_alpha=alpha))
+        records[key].append(scored[0])
+        records[key + UNION].append(scored[1])
+        return scored
+
     for view, truth, render in zip(views, truths, renders):
-        record = {"view": view.name, "relighting": {}}
+        record = {"view": view.name, "relighting": {}, "relighting" + UNION: {}}
         for env in env_names:
             rgb = render.relit[env]
-            metrics = evaluate_images(rgb, truth.relit[env], truth.mask, lpips)
-            record["relighting"][env] = metrics
-            relit_records.append(metrics)
+            record["relighting"][env], record["relighting" + UNION][env] = both("relighting", rgb, truth.relit[env], truth, render.alpha)
             if aligned:
-                aligned_records.append(evaluate_images(align_scale(rgb, truth.relit[env], truth.mask), truth.relit[env], truth.mask, lpips))
+                both("relighting_aligned", align_scale(rgb, truth.relit[env], truth.mask), truth.relit[env], truth, render.alpha)
         base, rough, metal = render.base_color, render.roughness, render.metallic
-        record["basecolor"] = evaluate_images(base, truth.basecolor, truth.mask, lpips)
-        record["roughness"] = evaluate_images(rough[..., None], truth.roughness[..., None], truth.mask, lpips, encoding="raw")
-        record["metallic"] = evaluate_images(metal[..., None], truth.metallic[..., None], truth.mask, lpips, encoding="raw")
+        record["basecolor"], record["basecolor" + UNION] = both("basecolor", base, truth.basecolor, truth, render.alpha)
+        record["roughness"], record["roughness" + UNION] = both("roughness", rough[..., None], truth.roughness[..., None], truth, render.alpha, "raw")
+        record["metallic"], record["metallic" + UNION] = both("metallic", metal[..., None], truth.metallic[..., None], truth, render.alpha, "raw")
         if aligned:
-            aligned_base.append(evaluate_images(align_scale(base, truth.basecolor, truth.mask), truth.basecolor, truth.mask, lpips))
-        for name in channels:
-            channels[name].append(record[name])
+            both("basecolor_aligned", align_scale(base, truth.basecolor, truth.mask), truth.basecolor, truth, render.alpha)
         preds_metal.append(metal)
+        alphas_metal.append(render.alpha)
         truths_metal.append(truth.metallic)
         masks_metal.append(truth.mask)
         per_view.append(record)
+    summary = {key: average_metrics(values) for key, values in records.items()}
+    # metallic PSNR: pooled over the views with the paper's infinity rule, under both regions
     metallic = metallic_psnr_over_objects([(torch.stack(preds_metal), torch.stack(truths_metal), torch.stack(masks_metal))])
-    summary = {
-        "relighting": average_metrics(relit_records),
-        "basecolor": average_metrics(channels["basecolor"]),
-        "roughness": average_metrics(channels["roughness"]),
-        "metallic": {**average_metrics(channels["metallic"]), "psnr": metallic.mean if metallic.mean is not None else math.inf,
-                     "psnr_infinite": metallic.infinite, "objects": 1},
-    }
+    metallic_union = pooled_union_psnr(preds_metal, alphas_metal, truths_metal, masks_metal)
+    summary["metallic"].update(psnr=metallic.mean if metallic.mean is not None else math.inf, psnr_infinite=metallic.infinite, objects=1)
+    summary["metallic" + UNION].update(psnr=metallic_union, psnr_infinite=int(math.isinf(metallic_union)), objects=1)
     for env in env_names:
         summary[f"relighting_{env}"] = average_metrics([r["relighting"][env] for r in per_view])
-    if aligned:
-        summary["relighting_aligned"] = average_metrics(aligned_records)
-        summary["basecolor_aligned"] = average_metrics(aligned_base)
+        summary[f"relighting_{env}{UNION}"] = average_metrics([r["relighting" + UNION][env] for r in per_view])
     return {"summary": summary, "per_view": per_view}
 
 
@@ -235,7 +244,10 @@ def mask_agreement(masks: ObjectMasks, views: list[View], truths: list[GroundTru
 
 def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dict:
     """The table dicts `matspray.eval.tables` renders, from per-variant summaries."""
-    rows = ("relighting", "basecolor", "roughness", "metallic", "relighting_aligned", "basecolor_aligned")
+    # each figure under the object mask (GT) and, as "<row>_union", counting the silhouette; the raw 2D
+    # predictions have no silhouette of their own (they are masked by the input), so no union rows
+    rows = tuple(row + suffix for row in ("relighting", "basecolor", "roughness", "metallic", "relighting_aligned", "basecolor_aligned")
+                 for suffix in ("", UNION))
     table1 = {}
     if "full" in variants:
         summary = variants["full"]["summary"]
@@ -247,6 +259,9 @@ def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dic
         table1["2D predictions"] = {row: predictions[row] for row in ("basecolor", "roughness", "metallic")}
     table2 = {LABELS[v]: variants[v]["summary"]["relighting"] for v in ABLATION if v in variants}
     softmax = {LABELS[v]: variants[v]["summary"]["relighting"] for v in SOFTMAX_ABLATION if v in variants}
+    union = {key + UNION: {LABELS[v]: variants[v]["summary"]["relighting" + UNION] for v in names
+                           if v in variants and "relighting" + UNION in variants[v]["summary"]}
+             for key, names in (("table2", ABLATION), ("softmax", SOFTMAX_ABLATION))}
     stage_names = {"materials2d": "predict", "geometry": "geometry", "lift": "lift", "visibility": "visibility", "asset": "refine"}
     stages = {stage_names[k]: v for k, v in timings.items() if k in stage_names}
-    return {"table1": table1, "table2": table2, "softmax": softmax, "timings": {"Ours (this machine)": stages} if stages else {}}
+    return {"table1": table1, "table2": table2, "softmax": softmax, **{k: v for k, v in union.items() if v}, "timings": {"Ours (this machine)": stages} if stages else {}}

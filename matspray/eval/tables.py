@@ -8,8 +8,9 @@ footnote gives k. Where two or more columns hold numbers, the best of a row is b
 Input shapes (every level optional):
   table1:  {method: {row: {"psnr": x, "ssim": x, "lpips": x}}}, rows "relighting", "basecolor",
            "roughness", "metallic" (also "psnr_infinite": k, "objects": n), and the scale-aligned
-           "relighting_aligned", "basecolor_aligned"
-  table2 / softmax:  {variant: {"psnr": x, "ssim": x, "lpips": x}}
+           "relighting_aligned", "basecolor_aligned"; each optionally also as "<row>_union", the
+           object + silhouette (union) figure, printed right below its object-mask (GT) row
+  table2 / softmax (and table2_union / softmax_union):  {variant: {"psnr": x, "ssim": x, "lpips": x}}
   timings: {column: {stage: seconds}}
   objects: {name: {"source": str, "psnr": {"relighting"|"basecolor": {variant: x}}, "seconds": {"synth": s, "method": s}}}
 """
@@ -38,6 +39,8 @@ ALIGNED_ROWS = {
     "relighting_aligned": "Relighting (scale-aligned)",
     "basecolor_aligned": "BaseColor (scale-aligned)",
 }
+UNION = "_union"  # key suffix of every silhouette-counting figure ("relighting" -> "relighting_union")
+UNION_LABEL = "object + silhouette (union)"
 ABLATION_VARIANTS = tuple(LABELS[v] for v in ABLATION)
 SOFTMAX_VARIANTS = tuple(LABELS[v] for v in SOFTMAX_ABLATION)
 STAGE_LABELS = {
@@ -51,6 +54,11 @@ STAGE_LABELS = {
 ALIGNED_NOTE = ("Scale-aligned rows: the prediction is multiplied per channel by the median ratio "
                 "ground truth / prediction over object pixels (NeRFactor/TensoIR convention) before "
                 "compositing; they are not comparable with the unaligned rows or the paper.")
+UNION_NOTE = ("Rows without a suffix: object mask (GT): prediction and truth both composited with the ground-truth "
+              "mask, full image, so nothing at or outside the true silhouette counts (the paper's convention). Rows "
+              f"marked '{UNION_LABEL}': each composited with its own alpha (the truth with its mask), scored over the "
+              "union of the two silhouettes (weights max(alpha, mask); LPIPS on the union's bounding box), so extra "
+              "and missing silhouette counts; the two are on different regions, compare like with like.")
 
 
 # ------------------------------------------------------------------------------------------ cells
@@ -109,13 +117,17 @@ def material_table(methods: Mapping[str, Mapping[str, Mapping]]) -> str:
         METRIC_HEADERS[m] if len(names) == 1 else f"{name} {METRIC_HEADERS[m]}" for name in names for m in metrics
     ]
     present_aligned = [key for key in ALIGNED_ROWS if any(key in methods[name] for name in names)]
-    row_labels = {**TABLE1_ROWS, **{key: ALIGNED_ROWS[key] for key in present_aligned}}
+    row_labels = {}
+    for key, label in {**TABLE1_ROWS, **{key: ALIGNED_ROWS[key] for key in present_aligned}}.items():
+        row_labels[key] = label
+        if any(key + UNION in methods[name] for name in names):  # the silhouette-counting figure right below
+            row_labels[key + UNION] = f"{label}, {UNION_LABEL}"
     rows = []
     for key, label in row_labels.items():
         columns = {}
         for metric in metrics:
             entries = [methods[name].get(key) for name in names]
-            if key == "metallic" and metric == "psnr":
+            if key in ("metallic", "metallic" + UNION) and metric == "psnr":
                 cells = [format_metallic_psnr(entry) for entry in entries]
             else:
                 cells = [format_metric(entry, metric) for entry in entries]
@@ -123,16 +135,20 @@ def material_table(methods: Mapping[str, Mapping[str, Mapping]]) -> str:
             columns[metric] = _bold_best(cells, values, HIGHER_IS_BETTER[metric])
         rows.append([label] + [columns[m][i] for i in range(len(names)) for m in metrics])
     notes = []
-    for name in names:
-        metallic = methods[name].get("metallic") or {}
-        infinite = int(metallic.get("psnr_infinite", 0))
-        if infinite:
-            of = f" of {metallic['objects']}" if "objects" in metallic else ""
-            who = f"{name}: " if len(names) > 1 else ""
-            notes.append(f"\\* {who}{infinite}{of} objects are non-metallic and predicted all zero, so their "
-                         "metallic PSNR is infinite; they are left out of the average after the slash.")
+    for key, why in (("metallic", "are non-metallic and predicted all zero"), ("metallic" + UNION, "have exact metallic maps and silhouettes")):
+        for name in names:
+            metallic = methods[name].get(key) or {}
+            infinite = int(metallic.get("psnr_infinite", 0))
+            if infinite:
+                of = f" of {metallic['objects']}" if "objects" in metallic else ""
+                who = f"{name}: " if len(names) > 1 else ""
+                where = f"Metallic, {UNION_LABEL}: " if key.endswith(UNION) else ""
+                notes.append(f"\\* {where}{who}{infinite}{of} objects {why}, so their "
+                             "metallic PSNR is infinite; they are left out of the average after the slash.")
     if present_aligned:
         notes.append(ALIGNED_NOTE)
+    if any(key.endswith(UNION) for key in row_labels):
+        notes.append(UNION_NOTE)
     return "\n\n".join([markdown_table(header, rows)] + notes)
 
 
@@ -219,13 +235,17 @@ def tables_markdown(metrics: Mapping) -> str:
     sections = (
         ("Table 1: relighting and material maps", "table1", material_table, "No relighting or material evaluation."),
         ("Table 2: ablation (Full / Supervised / Proj. Average)", "table2", ablation_table, "No ablation runs."),
+        (f"Table 2, {UNION_LABEL}", "table2" + UNION, ablation_table, None),
         ("Ablation: Neural Merger softmax", "softmax", softmax_table, "No softmax ablation runs."),
+        (f"Ablation: Neural Merger softmax, {UNION_LABEL}", "softmax" + UNION, softmax_table, None),
         ("Table 3: seconds per stage", "timings", timings_table, "No timings recorded."),
     )
     if metrics.get("objects"):
         sections += (("Per object: variants, their order, seconds", "objects", objects_table, ""),)
     for title, key, render, absent in sections:
         data = metrics.get(key)
+        if absent is None and not data:  # an optional section (the union tables of older metrics.json files)
+            continue
         parts.append(f"## {title}\n\n" + (render(data) if data else f"_{absent}_"))
     return "\n\n".join(parts) + "\n"
 
