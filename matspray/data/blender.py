@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from matspray.data.camera import Camera
+from matspray.data.camera import Camera, rigid_problem
 from matspray.data.images import atomic_target, read_image, write_image
 from matspray.data.scene import View
 from matspray.errors import file_error
@@ -40,6 +40,8 @@ def read_json(path: Path) -> dict:
 def resolve_image(root: Path, file_path: str, json_path: Path) -> Path:
     """The image a frame's `file_path` names; NeRF-synthetic omits the suffix, so try the usual ones."""
     base = root / file_path
+    if base.name in ("", ".", ".."):  # '/', '.', 'images/..': a folder, not a file
+        raise file_error(json_path, f"image '{file_path}' of a frame names a folder, not an image file")
     for suffix in IMAGE_SUFFIXES:
         candidate = base.with_name(base.name + suffix) if suffix else base
         if candidate.is_file():
@@ -53,44 +55,107 @@ def view_name(file_path: str) -> str:
     return Path(name).stem if Path(name).suffix.lower() in IMAGE_SUFFIXES else name
 
 
+# Ranges (open intervals) of the numbers a frame's camera takes; keys not listed (cx, cy, distortion
+# coefficients) need only be finite. A zero or negative focal length, or a field of view of 180 degrees
+# or more, still gives a K that renders, so without these checks training runs on and learns nonsense.
+NUMBER_RANGES = {
+    "fl_x": (0.0, math.inf), "fl_y": (0.0, math.inf), "w": (0.0, math.inf), "h": (0.0, math.inf),
+    "camera_angle_x": (0.0, math.pi), "camera_angle_y": (0.0, math.pi),
+}
+CAMERA_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
+FIX_HINT = "fix the file, or the exporter that wrote it"
+
+
+def frame_label(frame: dict, index: int) -> str:
+    """How messages name a frame: its index, and its file_path when it has one."""
+    file_path = frame.get("file_path") if isinstance(frame, dict) else None
+    return f"frame {index} ('{file_path}')" if isinstance(file_path, str) else f"frame {index}"
+
+
+def shown(value, limit: int = 40) -> str:
+    """A JSON value as it appears in the file, cut short for a one-line message."""
+    text = json.dumps(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def as_number(value) -> float | None:
+    """`value` as a float, None when it is no number. A numeric string ("50.0") counts, as nerfstudio's
+    own float() reads it; booleans, lists and other strings do not."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        return None
+    try:
+        return float(value)
+    except (ValueError, OverflowError):  # "50mm"; an integer too large for a float
+        return None
+
+
+def check_number(value, key: str, where: str, json_path: Path, kind: str = "") -> float:
+    """`value` of field `key` as a float, refused unless it is in the range of NUMBER_RANGES[`kind` or `key`];
+    `where` ("frame 3 ('a.png'): ", "top-level ") starts the message."""
+    low, high = NUMBER_RANGES.get(kind or key, (-math.inf, math.inf))
+    number = as_number(value)
+    if number is None or not low < number < high:  # NaN fails every comparison; Inf fails the open bound
+        need = ("a finite number" if low == -math.inf else "a number > 0" if high == math.inf
+                else "an angle in radians between 0 and pi")
+        raise file_error(json_path, f"{where}'{key}' must be {need}, got {shown(value)}", FIX_HINT)
+    return number
+
+
+def camera_number(meta: dict, frame: dict, key: str, label: str, json_path: Path) -> float | None:
+    """A camera field of a frame (its own, else the file's top-level one), checked; None when neither has it."""
+    if frame.get(key) is not None:
+        return check_number(frame[key], key, f"{label or 'a frame'}: ", json_path)
+    if meta.get(key) is not None:
+        return check_number(meta[key], key, "top-level ", json_path)
+    return None
+
+
 def frame_intrinsics(meta: dict, frame: dict, width: int, height: int, json_path: Path, label: str = "") -> torch.Tensor:
     """K [3, 3] for one frame, from per-frame keys first, then the file's top-level keys
-    (`label` names the frame in the error when there are none)."""
+    (`label` names the frame in errors)."""
 
-    def get(key):
-        return frame.get(key, meta.get(key))
-
+    get = {key: camera_number(meta, frame, key, label, json_path) for key in CAMERA_KEYS}.get
     w, h = get("w"), get("h")
-    sx = width / float(w) if w else 1.0  # intrinsics are given for (w, h); scale to the image read
-    sy = height / float(h) if h else 1.0
+    sx = width / w if w else 1.0  # intrinsics are given for (w, h); scale to the image read
+    sy = height / h if h else 1.0
     if get("fl_x") is not None:
-        fx = float(get("fl_x"))
-        fy = float(get("fl_y") if get("fl_y") is not None else fx)
-        cx = float(get("cx") if get("cx") is not None else (w or width) / 2.0)
-        cy = float(get("cy") if get("cy") is not None else (h or height) / 2.0)
-        return torch.tensor([[fx * sx, 0, cx * sx], [0, fy * sy, cy * sy], [0, 0, 1]], dtype=torch.float32)
-    if get("camera_angle_x") is not None:
-        fx = 0.5 * width / math.tan(0.5 * float(get("camera_angle_x")))
-        fy = fx
+        fx = get("fl_x")
+        fy = get("fl_y") if get("fl_y") is not None else fx
+        cx = get("cx") if get("cx") is not None else (w or width) / 2.0
+        cy = get("cy") if get("cy") is not None else (h or height) / 2.0
+        K = torch.tensor([[fx * sx, 0, cx * sx], [0, fy * sy, cy * sy], [0, 0, 1]], dtype=torch.float32)
+    elif get("camera_angle_x") is not None:
+        fx = fy = 0.5 * width / math.tan(0.5 * get("camera_angle_x"))
         if get("camera_angle_y") is not None:
-            fy = 0.5 * height / math.tan(0.5 * float(get("camera_angle_y")))
-        return torch.tensor([[fx, 0, width / 2.0], [0, fy, height / 2.0], [0, 0, 1]], dtype=torch.float32)
-    raise file_error(json_path, f"{label + ' has ' if label else ''}no intrinsics: need 'camera_angle_x' or 'fl_x' "
-                     "(with optional fl_y, cx, cy, w, h) in the frame or at the top level")
+            fy = 0.5 * height / math.tan(0.5 * get("camera_angle_y"))
+        K = torch.tensor([[fx, 0, width / 2.0], [0, fy, height / 2.0], [0, 0, 1]], dtype=torch.float32)
+    else:
+        raise file_error(json_path, f"{label + ' has ' if label else ''}no intrinsics: need 'camera_angle_x' or 'fl_x' "
+                         "(with optional fl_y, cx, cy, w, h) in the frame or at the top level")
+    # each number is in range, yet extreme ones (fl_x 1e300, an angle of 1e-320) overflow float32 or scale to 0
+    if not torch.isfinite(K).all() or not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise file_error(json_path, f"{label or 'a frame'}: its intrinsics give fx={float(K[0, 0]):.4g} fy={float(K[1, 1]):.4g} "
+                         f"for a {width}x{height} image, not usable focal lengths", FIX_HINT)
+    return K
 
 
 def read_pose(frame: dict, index: int, json_path: Path) -> torch.Tensor:  # [4, 4] camera-to-world, OpenGL
     matrix = frame.get("transform_matrix")
     if matrix is None:
         raise file_error(json_path, f"frame {index} has no 'transform_matrix' (camera pose)")
+    label = frame_label(frame, index)
     try:
         pose = torch.tensor(matrix, dtype=torch.float64)
-    except (TypeError, ValueError):
-        raise file_error(json_path, f"frame {index}: 'transform_matrix' is not a 4x4 list of numbers") from None
+    except (TypeError, ValueError, OverflowError, RuntimeError):  # ragged lists, strings, integers too large
+        raise file_error(json_path, f"{label}: 'transform_matrix' is not a 4x4 list of numbers") from None
     if pose.shape == (3, 4):
         pose = torch.cat([pose, torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=torch.float64)])
     if pose.shape != (4, 4) or not torch.isfinite(pose).all():
-        raise file_error(json_path, f"frame {index}: 'transform_matrix' must be a finite 4x4 matrix, got shape {tuple(pose.shape)}")
+        raise file_error(json_path, f"{label}: 'transform_matrix' must be a finite 4x4 matrix, got shape {tuple(pose.shape)}")
+    problem = rigid_problem(pose)
+    if problem:
+        raise file_error(json_path, f"{label}: 'transform_matrix' is not a rigid camera pose: {problem}",
+                         "give camera-to-world as rotation and translation only; scale the scene, not the poses")
     return pose
 
 
@@ -105,19 +170,22 @@ def read_split(root: Path, split: str) -> list[View]:
         raise file_error(json_path, "no 'frames' list")
     views = []
     for index, frame in enumerate(frames):
-        if not isinstance(frame, dict) or "file_path" not in frame:
+        if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
             raise file_error(json_path, f"frame {index} has no 'file_path'")
+        label = frame_label(frame, index)
         pose = read_pose(frame, index, json_path)
         image_path = resolve_image(root, frame["file_path"], json_path)
         rgb, alpha = read_image(image_path)
-        if "mask_path" in frame:
+        if frame.get("mask_path") is not None:
+            if not isinstance(frame["mask_path"], str):
+                raise file_error(json_path, f"{label}: 'mask_path' must be a file path, got {shown(frame['mask_path'])}")
             mask_path = root / frame["mask_path"]
             mask_rgb, mask_alpha = read_image(mask_path)
             alpha = mask_alpha if mask_alpha is not None else mask_rgb.mean(-1)  # linear, 0 and 1 survive
             if alpha.shape != rgb.shape[:2]:
                 raise file_error(mask_path, f"mask is {tuple(alpha.shape)} but the image is {tuple(rgb.shape[:2])}")
         height, width = rgb.shape[:2]
-        K = frame_intrinsics(meta, frame, width, height, json_path)
+        K = frame_intrinsics(meta, frame, width, height, json_path, label)
         camera = Camera.from_camtoworld_opengl(pose, K, width, height)
         name = view_name(frame["file_path"])
         views.append(View(name=name, image=rgb, alpha=alpha, camera=camera, path=image_path))

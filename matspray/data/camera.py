@@ -134,6 +134,33 @@ def intrinsics_from_fov(fov_x: float, width: int, height: int, device="cpu") -> 
     return torch.tensor([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]], dtype=torch.float32, device=device)
 
 
+def rigid_problem(c2w: Tensor, tolerance: float = 1e-3) -> str | None:
+    """Why a [4, 4] camera-to-world matrix is not a rotation plus a translation, or None when it is one.
+
+    A camera pose has no scale, shear or mirror: a scaled pose still renders, but every ray then comes out
+    of the wrong place, so training runs on and learns nonsense. `tolerance` bounds |R^T R - I| and the
+    last row's distance from (0, 0, 0, 1); poses rounded to float32 or to 6 decimals pass.
+    """
+    m = torch.as_tensor(c2w, device=_device_of(c2w)).double()
+    if tuple(m.shape) != (4, 4):
+        return f"it is {tuple(m.shape)}, not 4x4"
+    if not torch.isfinite(m).all() or not torch.isfinite(m.float()).all():  # the cameras are float32
+        return "it holds NaN, Inf or numbers too large for float32"
+    last = m[3]
+    if (last - torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64, device=m.device)).abs().max() > tolerance:
+        return f"its last row is ({', '.join(f'{v:.4g}' for v in last.tolist())}), not (0, 0, 0, 1)"
+    R = m[:3, :3]
+    lengths = R.norm(dim=0)
+    if float(lengths.min()) < tolerance or abs(float(torch.linalg.det(R))) < tolerance:
+        return "its rotation part is singular (zero or degenerate columns)"
+    if (R.T @ R - torch.eye(3, dtype=torch.float64, device=m.device)).abs().max() > tolerance:
+        return (f"its rotation part is scaled or sheared (column lengths {', '.join(f'{v:.4g}' for v in lengths.tolist())}, "
+                "not orthonormal)")
+    if float(torch.linalg.det(R)) < 0:
+        return "its rotation part is a mirror (determinant -1), not a rotation"
+    return None
+
+
 def _device_of(value) -> torch.device:  # a tensor's device; the CPU for arrays and lists (host data)
     return value.device if isinstance(value, Tensor) else torch.device("cpu")
 

@@ -7,6 +7,7 @@ OPENCV_FISHEYE and the radial fisheye models) are undistorted on load, masks the
 
 from __future__ import annotations
 
+import math
 from functools import partial
 from pathlib import Path
 
@@ -32,6 +33,7 @@ LENSES = {
     "RADIAL_FISHEYE": lambda p: (p[0], p[0], p[1], p[2], (p[3], p[4], 0.0, 0.0), True),
 }
 MASK_SUFFIXES = (".png", ".jpg", ".jpeg")
+MAX_SIZE = 1 << 16  # pixels on a side; more is a corrupt cameras file, not a photo
 
 
 def find_model(root: Path) -> Path | None:
@@ -47,7 +49,19 @@ def colmap_lens(camera, model_path: Path) -> Lens:
     if name not in LENSES:
         raise file_error(model_path, f"camera {camera.camera_id} uses the camera model {name}, which MatSpray cannot undistort",
                          f"known: {', '.join(LENSES)}")
-    fx, fy, cx, cy, coeffs, fisheye = LENSES[name]([float(p) for p in camera.params])
+    params = [float(p) for p in camera.params]
+    try:
+        fx, fy, cx, cy, coeffs, fisheye = LENSES[name](params)
+    except IndexError:
+        raise file_error(model_path, f"camera {camera.camera_id} ({name}) has only {len(params)} parameters") from None
+    # a zero, negative or NaN focal length still renders, so training would run on and learn nonsense; the
+    # cameras are float32, where 1e-320 is 0 and 1e39 is Inf
+    K = torch.tensor([fx, fy, cx, cy], dtype=torch.float32)
+    sizes_ok = all(1 <= size <= MAX_SIZE for size in (camera.width, camera.height))  # a negative size reads as 2**64 - n
+    if not all(math.isfinite(p) for p in params) or not (torch.isfinite(K).all() and K[0] > 0 and K[1] > 0) or not sizes_ok:
+        raise file_error(model_path, f"camera {camera.camera_id} ({name}) has parameters {', '.join(f'{p:.4g}' for p in params)} "
+                         f"for {camera.width}x{camera.height} px: focal lengths must be > 0 and every parameter finite",
+                         "rerun COLMAP's mapper, or fix cameras.txt")
     return Lens(fx, fy, cx, cy, int(camera.width), int(camera.height), tuple(coeffs), fisheye, name)
 
 

@@ -46,9 +46,23 @@ def check_split(views: list[View], where: Path, split: str) -> None:
             f"is {odd.width}x{odd.height} but '{first.name}' in the {split} split is {first.width}x{first.height}",
             "all images of a split must have the same size",
         )
+    check_alpha(views, where, split)
     names = [v.name for v in views]
     if len(set(names)) != len(names):
         raise DataError(f"{where}: the {split} split has repeated view names")
+
+
+def check_alpha(views: list[View], where: Path, split: str) -> None:
+    """Refuse a split where some views have alpha (or a mask) and others not: the unmasked views' backgrounds
+    would be trained as object, and the run fails much later, naming no image."""
+    bare = [v for v in views if v.alpha is None]
+    if 0 < len(bare) < len(views):
+        raise file_error(
+            bare[0].path or where,
+            f"has no alpha channel or mask, but {len(views) - len(bare)} of the {len(views)} views in the {split} split have one "
+            f"({len(bare)} have none)",
+            "give every view of a split alpha (RGBA images or mask_path) or none of them",
+        )
 
 
 def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:

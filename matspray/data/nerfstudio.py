@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from matspray.data.blender import (frame_intrinsics, intrinsics_record, pose_record, read_json, read_pose, resolve_image,
-                                   view_name, write_json)
+from matspray.data.blender import (CAMERA_KEYS, camera_number, frame_intrinsics, frame_label, intrinsics_record, pose_record,
+                                   read_json, read_pose, resolve_image, shown, view_name, write_json)
 from matspray.data.camera import Camera
 from matspray.data.images import image_size, read_image, read_raw, split_alpha, write_image, write_raw
 from matspray.data.scene import View
@@ -25,7 +25,7 @@ from matspray.errors import file_error
 TRANSFORMS = "transforms.json"
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "OPENCV_FISHEYE")
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
+INTRINSIC_KEYS = CAMERA_KEYS
 SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 FRAME_KEYS = {"file_path", "transform_matrix", "mask_path", "camera_model", *INTRINSIC_KEYS, *DISTORTION_KEYS}
 TOP_KEYS = {"frames", "camera_model", *INTRINSIC_KEYS, *DISTORTION_KEYS, *SPLIT_KEYS}
@@ -49,17 +49,11 @@ def is_nerfstudio(root: Path) -> bool:
 def frame_lens(meta: dict, frame: dict, label: str, json_path: Path, width: int, height: int) -> Lens:
     """The camera of one frame (per-frame keys first, then the top level) for its image of width x height."""
 
-    def get(key):
-        return frame.get(key, meta.get(key))
-
-    try:
-        coeffs = {key: float(get(key) or 0.0) for key in DISTORTION_KEYS}
-    except (TypeError, ValueError):
-        raise file_error(json_path, f"{label}: distortion coefficients {', '.join(DISTORTION_KEYS)} must be numbers") from None
-    model = get("camera_model")
+    coeffs = {key: camera_number(meta, frame, key, label, json_path) or 0.0 for key in DISTORTION_KEYS}
+    model = frame.get("camera_model", meta.get("camera_model"))
     if model is None:  # instant-ngp writes no model: k1.. mean OpenCV's
         model = "OPENCV" if any(coeffs.values()) else "PINHOLE"
-    if model not in CAMERA_MODELS:
+    if not isinstance(model, str) or model not in CAMERA_MODELS:
         raise file_error(json_path, f"{label}: unknown camera_model {model!r}", f"known: {', '.join(CAMERA_MODELS)}")
     unused = {"PINHOLE": DISTORTION_KEYS, "SIMPLE_PINHOLE": DISTORTION_KEYS, "OPENCV": ("k4",),
               "OPENCV_FISHEYE": ("p1", "p2")}[model]
@@ -67,8 +61,8 @@ def frame_lens(meta: dict, frame: dict, label: str, json_path: Path, width: int,
     if stray:
         raise file_error(json_path, f"{label}: camera_model {model} has no coefficient {', '.join(stray)}",
                          "OPENCV takes k1 k2 k3 p1 p2, OPENCV_FISHEYE k1 k2 k3 k4, PINHOLE none")
-    w, h = get("w"), get("h")
-    if w and h and abs(width * float(h) - height * float(w)) > 0.01 * width * float(h):
+    w, h = (camera_number(meta, frame, key, label, json_path) for key in ("w", "h"))
+    if w and h and abs(width * h - height * w) > 0.01 * width * h:
         raise file_error(json_path, f"{label}: its image is {width}x{height} but the file gives w={w} h={h}",
                          "EXIF orientation is applied; intrinsics must be for the upright photo")
     K = frame_intrinsics(meta, frame, width, height, json_path, label)
@@ -83,12 +77,18 @@ def normalised(name: str) -> str:
     return PurePosixPath(str(name).replace("\\", "/")).as_posix().removeprefix("./")
 
 
+def without_suffix(name: str) -> str:
+    """`name` normalised, without its suffix (split lists may omit it); names with no file name ('.') stay as they are."""
+    path = PurePosixPath(normalised(name))
+    return str(path.with_suffix("")) if path.name not in ("", ".", "..") else str(path)
+
+
 def assign_splits(meta: dict, paths: list[str], json_path: Path, test_every: int) -> tuple[list[int], list[int], list[str]]:
     """Indices (into `paths`, sorted) of the train and test frames, and notes on frames left out."""
     lookup = {}
     for i, path in enumerate(paths):
         lookup[normalised(path)] = i
-        lookup.setdefault(str(PurePosixPath(normalised(path)).with_suffix("")), i)
+        lookup.setdefault(without_suffix(path), i)
     lists = {}
     for key in SPLIT_KEYS:
         if key not in meta:
@@ -98,7 +98,7 @@ def assign_splits(meta: dict, paths: list[str], json_path: Path, test_every: int
             raise file_error(json_path, f"'{key}' must be a list of file paths")
         chosen = []
         for name in names:
-            index = lookup.get(normalised(name), lookup.get(str(PurePosixPath(normalised(name)).with_suffix(""))))
+            index = lookup.get(normalised(name), lookup.get(without_suffix(name)))
             if index is None:
                 raise file_error(json_path, f"'{key}' names '{name}', which is no frame's file_path")
             chosen.append(index)
@@ -158,9 +158,11 @@ def read_nerfstudio(root, test_every: int = 8) -> Capture:
 
 
 def read_frame(root: Path, meta: dict, frame: dict, index: int, json_path: Path, undistorter: Undistorter) -> View:
-    label = f"frame {index} ('{frame['file_path']}')"
+    label = frame_label(frame, index)
     pose = read_pose(frame, index, json_path)
     image_path = resolve_image(root, frame["file_path"], json_path)
+    if frame.get("mask_path") is not None and not isinstance(frame["mask_path"], str):
+        raise file_error(json_path, f"{label}: 'mask_path' must be a file path, got {shown(frame['mask_path'])}")
     mask_path = root / frame["mask_path"] if frame.get("mask_path") else None
     if mask_path is not None and not mask_path.is_file():
         raise file_error(json_path, f"{label}: its mask '{frame['mask_path']}' does not exist under {root}")

@@ -1,0 +1,169 @@
+"""Property-based tests of the transforms readers: corrupt a valid Blender `transforms_train.json` or nerfstudio
+`transforms.json` the way a careless exporter or a typo would (a field of the wrong type, NaN/Inf, zero or
+negative, wrong shapes, dropped fields, scaled/sheared/singular poses, missing files), then load it.
+
+Either load_scene refuses with a MatsprayError whose one-line message names a file of the dataset, or it
+returns a Scene that training can use (`check_scene`). Anything else, a traceback, is a bug in a reader.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+
+from matspray.data import load_scene
+from matspray.data.camera import rigid_problem
+from matspray.data.scene import Scene
+from matspray.errors import MatsprayError
+from tests.test_captures import one_frame
+from tests.test_readers import blender_folder
+
+# derandomize: every run tries the same cases; database=None: no example store left behind, nothing replayed from one
+FUZZ = settings(max_examples=200, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.too_slow])
+
+CAMERA_FIELDS = ("camera_angle_x", "camera_angle_y", "fl_x", "fl_y", "cx", "cy", "w", "h")
+FRAME_FIELDS = ("file_path", "transform_matrix", "mask_path", "camera_model", "k1", "p1", *CAMERA_FIELDS)
+
+# values of the wrong type, out of range or extreme, as a typo or a careless exporter writes them
+scalars = st.one_of(
+    st.none(), st.booleans(), st.integers(min_value=-(10**30), max_value=10**30), st.sampled_from([10**400, -(10**400)]),
+    st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([0, 0.0, -0.0, 1e-320, 1e300, -1.0]),
+    st.text(max_size=6), st.sampled_from(["50", "0.8", "nan", "inf", "-1", "1e999", "fifty"]),
+)
+values = st.one_of(scalars, st.lists(scalars, max_size=5), st.dictionaries(st.text(max_size=3), scalars, max_size=2),
+                   st.lists(st.lists(scalars, min_size=4, max_size=4), min_size=3, max_size=5))
+
+
+def pose_edits():
+    """A 4x4 matrix a pose is multiplied by: scale, shear, mirror, singular or arbitrary."""
+    scale = st.floats(min_value=-10, max_value=10).map(lambda s: np.diag([s, s, s, 1.0]))
+    shear = st.floats(min_value=-2, max_value=2).map(lambda k: np.array([[1, k, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]))
+    fixed = st.sampled_from([np.zeros((4, 4)), np.diag([1, 1, 0, 1.0]), np.diag([-1, 1, 1, 1.0]), np.diag([1, 1, 1, 0.0])])
+    arbitrary = st.lists(st.floats(min_value=-3, max_value=3), min_size=16, max_size=16).map(lambda v: np.reshape(v, (4, 4)))
+    return st.one_of(scale, shear, fixed, arbitrary)
+
+
+@st.composite
+def corruptions(draw, frame_count: int):
+    """A function that corrupts a transforms document in place (one to three edits)."""
+    edits = []
+    for _ in range(draw(st.integers(1, 3))):
+        kind = draw(st.sampled_from(["top", "frame", "drop", "element", "pose", "frames"]))
+        index = draw(st.integers(0, frame_count - 1))
+        if kind == "top":
+            edits.append(("top", draw(st.sampled_from(CAMERA_FIELDS)), draw(values)))
+        elif kind == "frame":
+            edits.append(("frame", index, draw(st.sampled_from(FRAME_FIELDS)), draw(values)))
+        elif kind == "drop":
+            edits.append(("drop", index, draw(st.sampled_from(("file_path", "transform_matrix", "camera_angle_x", "fl_x", "frames")))))
+        elif kind == "element":
+            edits.append(("element", index, draw(st.integers(0, 3)), draw(st.integers(0, 3)), draw(scalars)))
+        elif kind == "pose":
+            edits.append(("pose", index, draw(pose_edits())))
+        else:
+            edits.append(("frames", draw(st.sampled_from([[], {}, None, "frames", [1, 2], [[]]]))))
+    return edits
+
+
+def corrupt(meta: dict, edits) -> dict:
+    meta = copy.deepcopy(meta)
+    frames = meta["frames"]
+    for edit in edits:
+        kind, rest = edit[0], edit[1:]
+        if kind == "top":
+            meta[rest[0]] = rest[1]
+        elif kind == "frame":
+            frames[rest[0]][rest[1]] = rest[2]
+        elif kind == "drop":
+            index, key = rest
+            meta.pop(key, None) if key in ("frames", "camera_angle_x") else frames[index].pop(key, None)
+        elif kind == "element":
+            index, row, col, value = rest
+            matrix = frames[index].get("transform_matrix")
+            if isinstance(matrix, list) and len(matrix) > row and isinstance(matrix[row], list) and len(matrix[row]) > col:
+                matrix[row][col] = value
+        elif kind == "pose":
+            index, edit_matrix = rest
+            try:
+                frames[index]["transform_matrix"] = (np.array(frames[index]["transform_matrix"], dtype=float) @ edit_matrix).tolist()
+            except (TypeError, ValueError, KeyError):  # an earlier edit left no numeric matrix
+                pass
+        else:
+            meta["frames"] = rest[0]
+    return meta
+
+
+def write_document(path: Path, meta: dict) -> None:
+    path.write_text(json.dumps(meta))  # NaN and Infinity as Python's json writes them, which readers meet
+
+
+def check_scene(scene: Scene) -> None:
+    """What a loaded scene promises training: finite rigid cameras with positive focal lengths, finite images in
+    [0, 1] of one size per split, masks in [0, 1], finite bounds."""
+    for split in (scene.train, scene.test):
+        assert len({(v.width, v.height) for v in split}) <= 1
+        for view in split:
+            camera, image = view.camera, view.image
+            assert torch.isfinite(camera.K).all() and camera.K[0, 0] > 0 and camera.K[1, 1] > 0, camera.K
+            assert torch.isfinite(camera.viewmat).all()
+            assert rigid_problem(camera.camtoworld.double()) is None, camera.viewmat
+            assert image.ndim == 3 and image.shape[-1] == 3 and (camera.height, camera.width) == tuple(image.shape[:2])
+            assert torch.isfinite(image).all() and image.min() >= 0 and image.max() <= 1
+            if view.alpha is not None:
+                assert view.alpha.shape == image.shape[:2] and view.alpha.min() >= 0 and view.alpha.max() <= 1
+    assert torch.isfinite(scene.bounds).all()
+
+
+def load_or_refuse(root: Path) -> Scene | None:
+    """The property: a one-line MatsprayError naming a file of the dataset, or a usable Scene."""
+    try:
+        scene = load_scene(root, test_every=0)
+    except MatsprayError as exc:
+        message = str(exc)
+        assert "\n" not in message, message
+        assert str(root) in message, message
+        event(f"refused: {type(exc).__name__}")
+        return None
+    event("accepted")
+    check_scene(scene)
+    return scene
+
+
+@pytest.fixture(scope="module")
+def blender_root():
+    root = Path(tempfile.mkdtemp(prefix="fuzz-blender-"))
+    return blender_folder(root)
+
+
+@pytest.fixture(scope="module")
+def nerfstudio_root():
+    root = Path(tempfile.mkdtemp(prefix="fuzz-nerfstudio-"))
+    return one_frame(root)
+
+
+@FUZZ
+@given(edits=corruptions(frame_count=2))
+def test_corrupted_blender_transforms(blender_root, edits):
+    json_path = blender_root / "transforms_train.json"
+    original = getattr(test_corrupted_blender_transforms, "original", None) or json.loads(json_path.read_text())
+    test_corrupted_blender_transforms.original = original
+    write_document(json_path, corrupt(original, edits))
+    load_or_refuse(blender_root)
+
+
+@FUZZ
+@given(edits=corruptions(frame_count=1))
+def test_corrupted_nerfstudio_transforms(nerfstudio_root, edits):
+    json_path = nerfstudio_root / "transforms.json"
+    original = getattr(test_corrupted_nerfstudio_transforms, "original", None) or json.loads(json_path.read_text())
+    test_corrupted_nerfstudio_transforms.original = original
+    write_document(json_path, corrupt(original, edits))
+    load_or_refuse(nerfstudio_root)
