@@ -176,7 +176,7 @@ def read_envmap_file(path: Path, height: int | None = DEFAULT_HEIGHT) -> Tensor:
     if values.shape[-1] < 3:
         values = values[..., :1].expand(-1, -1, 3)
     rows, cols = values.shape[:2]
-    if cols != 2 * rows:
+    if rows == 0 or cols != 2 * rows:
         raise file_error(path, f"is {cols}x{rows} pixels but a lat-long environment map is twice as wide as tall",
                          "use an equirectangular (lat-long) panorama")
     env = values[..., :3].clamp_min(0.0).contiguous()

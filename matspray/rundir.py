@@ -19,7 +19,7 @@ from pathlib import Path
 import yaml
 
 from matspray.data.images import atomic_target
-from matspray.errors import RunError
+from matspray.errors import RunError, file_error
 from matspray.variants import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
@@ -232,14 +232,25 @@ class RunDir:
     def config(self) -> dict:
         """The settings the run was made with (config.yaml), as plain values; {} when it has none."""
         path = self.path("config.yaml")
-        return (yaml.safe_load(path.read_text()) or {}) if path.exists() else {}
+        if not path.exists():
+            return {}
+        try:
+            config = yaml.safe_load(path.read_text()) or {}
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise file_error(path, f"is not readable YAML ({' '.join(str(exc).split())})", "restore it or rerun `matspray run`") from None
+        if not isinstance(config, dict):
+            raise file_error(path, f"holds a {type(config).__name__}, not the mapping of settings `matspray run` writes")
+        return config
 
     def dataset(self) -> dict:
         """The dataset identity recorded by `claim` (source folder, views, resolution)."""
         return read_json(self.require().path("dataset.json"))
 
     def downscale(self) -> float:
-        return float(self.config().get("downscale", 1.0))
+        value = self.config().get("downscale", 1.0)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e308:
+            raise file_error(self.path("config.yaml"), f"downscale: {value!r} is not a number > 0", "set the factor the run used")
+        return float(value)
 
     def asset_path(self, variant: str = "full") -> Path:
         """Folder of a variant's asset; raises RunError when the run has none."""

@@ -211,6 +211,8 @@ def _read_hdr(path: Path) -> np.ndarray:
         raise ValueError("only '-Y H +X W' orientation is supported")
     height, width = int(match.group(2)), int(match.group(4))
     buf = np.frombuffer(data, dtype=np.uint8, offset=size_end + 1)
+    if height < 1 or width < 1 or height * width > 16 * len(buf):  # RLE stores at most 127 pixels in 8 bytes
+        raise ValueError(f"the header says {width}x{height} pixels but {len(buf)} bytes of pixel data follow")
     rgbe = np.empty((height, width, 4), dtype=np.uint8)
     pos = 0
     for row in range(height):

@@ -186,13 +186,19 @@ def check_synthetic(scene: Scene) -> None:
 def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, str]:
     """Raw 2D predictions of the test views by the run's predictor, when it can make them here."""
     config = RunDir(run_dir).config()
-    spec = config.get("predictor", "")
+    spec, given = config.get("predictor", ""), config.get("predictor_options", {})
     if spec == NO_PREDICTOR:
         return None, "no 2D predictions: the run had none (--predictor none)"
+    if not isinstance(spec, str) or not isinstance(given, dict):
+        return None, f"raw 2D predictions of test views not evaluated ({RunDir(run_dir).path('config.yaml')} names no readable predictor)"
     if spec.partition(":")[0] not in ("simulated", "ground-truth", "files"):
         return None, f"raw 2D predictions of test views not evaluated (predictor '{spec}' would have to run again)"
     try:
-        options = options_for_dataset(spec, PredictorOptions(**config.get("predictor_options", {})), RunDir(run_dir).dataset().get("source"))
+        stored = PredictorOptions(**given)
+    except TypeError:  # a key PredictorOptions does not have
+        return None, f"raw 2D predictions of test views not evaluated (unknown predictor_options in {RunDir(run_dir).path('config.yaml')})"
+    try:
+        options = options_for_dataset(spec, stored, RunDir(run_dir).dataset().get("source"))
         predictor = make_predictor(spec, options, notify=lambda _: None)
         return predict_views(views, predictor, notify=lambda _: None), f"raw 2D predictions: {spec}"
     except DataError as exc:

@@ -38,7 +38,7 @@ def write_ply(path, gaussians: Gaussians, normals: Tensor | None = None, extra: 
     g = gaussians.detach().to(device="cpu", dtype=torch.float32)
     n = len(g)
     normals = torch.zeros(n, 3) if normals is None else normals.detach().to("cpu", torch.float32)
-    rest = g.sh[:, 1:].transpose(1, 2).reshape(n, -1)  # [N, 3 (K - 1)] channel-major
+    rest = g.sh[:, 1:].transpose(1, 2).reshape(n, 3 * (g.sh.shape[1] - 1))  # [N, 3 (K - 1)] channel-major
     extra = {name: values.detach().to("cpu", torch.float32).reshape(n, 1) for name, values in (extra or {}).items()}
     columns = torch.cat([g.means, normals, g.sh[:, 0], rest, g.opacity_logits[:, None], g.log_scales, g.quats, *extra.values()], dim=1)
     names = property_names(g.sh.shape[1]) + list(extra)
@@ -91,6 +91,8 @@ def read_ply(path, extra: tuple[str, ...] = ()):
         if not torch.isfinite(getattr(gaussians, name)).all():
             raise file_error(path, f"has NaN or Inf values in its {name}")
     normals = column("nx", "ny", "nz") if all(k in names for k in ("nx", "ny", "nz")) else None
+    if normals is not None and not torch.isfinite(normals).all():
+        raise file_error(path, "has NaN or Inf values in its normals (nx, ny, nz)")
     if not extra:
         return gaussians, normals
     absent = [name for name in extra if name not in names]
