@@ -70,11 +70,6 @@ class PipelineConfig:
 WORKING_SIZE = {"test": 128, "demo": 256, "paper": 800}
 
 
-def working_downscale(preset: str, width: int, height: int) -> float:
-    """The factor that brings a `width` x `height` photo to the preset's working size (1: it is not larger)."""
-    return max(1.0, max(width, height) / WORKING_SIZE[preset])
-
-
 PRESET_SETTINGS: dict[str, dict] = {
     "test": {"lift.samples_per_side": 2, "refine.iterations": 30, "refine.envmap_height": 8, "refine.light_warmup": 10},
     "demo": {"lift.samples_per_side": 4, "refine.iterations": 600, "refine.envmap_height": 16, "refine.light_warmup": 200},

@@ -45,13 +45,15 @@ def out_of_memory_as_error(what: str, device):
     try:
         yield
     except torch.OutOfMemoryError as exc:  # CUDA's allocator
-        raise ResourceError(f"{what}: out of memory on {device}{_tried(str(exc))}; {LOWER_HINT}, then run the same command "
-                            "again (finished stages are reused)") from None
+        raise ResourceError(_out_of_memory(what, f"memory on {device}", str(exc))) from None
     except RuntimeError as exc:  # the CPU allocator says it in a RuntimeError
         if "DefaultCPUAllocator: can't allocate memory" not in str(exc) and "not enough memory" not in str(exc):
             raise
-        raise ResourceError(f"{what}: out of host memory{_tried(str(exc))}; {LOWER_HINT}, then run the same command again "
-                            "(finished stages are reused)") from None
+        raise ResourceError(_out_of_memory(what, "host memory", str(exc))) from None
+
+
+def _out_of_memory(what: str, memory: str, message: str) -> str:
+    return f"{what}: out of {memory}{_tried(message)}; {LOWER_HINT}, then run the same command again (finished stages are reused)"
 
 
 def _tried(message: str) -> str:

@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from matspray.asset import Asset, read_asset, write_asset
-from matspray.config import PipelineConfig, working_downscale
+from matspray.config import WORKING_SIZE, PipelineConfig
 from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
@@ -69,16 +69,14 @@ class Pipeline:
         configure_threads(self.device)
         # "torch" or "gsplat"; fails here, before any work. Every stage renders with it (see _working)
         self.backend = resolve_backend(config.backend, self.device, notify=log)
-        self.scene = load_scene(data, downscale=config.downscale or 1.0)
-        if config.downscale is None:  # photos larger than the preset's working size are brought to it
-            width, height = self.scene.train[0].width, self.scene.train[0].height
-            factor = working_downscale(config.preset, width, height)
-            if factor > 1.0:
-                self.scene = load_scene(data, downscale=factor)
+        # photos larger than the preset's working size are brought to it, unless the config names a downscale
+        self.scene = load_scene(data, downscale=config.downscale, max_size=WORKING_SIZE[config.preset])
+        if config.downscale is None:
+            if self.scene.downscale > 1.0:
                 shown = self.scene.train[0]
-                log(f"photos: {width}x{height} brought to {shown.width}x{shown.height}, the {config.preset} preset's working size "
-                    "(--downscale 1 keeps them as they are)")
-            config = self.config = replace(config, downscale=factor)
+                log(f"photos: {round(shown.width * self.scene.downscale)}x{round(shown.height * self.scene.downscale)} brought to "
+                    f"{shown.width}x{shown.height}, the {config.preset} preset's working size (--downscale 1 keeps them as they are)")
+            config = self.config = replace(config, downscale=self.scene.downscale)
         # `auto` becomes a predictor here, and one that cannot serve these views fails here, before any training
         predictor = resolve_predictor(config.predictor, self.scene.train, notify=log)
         if predictor != config.predictor:

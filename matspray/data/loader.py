@@ -65,12 +65,13 @@ def check_alpha(views: list[View], where: Path, split: str) -> None:
         )
 
 
-def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:
+def load_scene(root, downscale: float = 1.0, test_every: int = 8, max_size: int | None = None) -> Scene:
     """Load a dataset folder (Blender, nerfstudio, TensoIR or COLMAP layout) into a Scene.
 
-    `downscale` > 1 shrinks every image and camera by that factor (2 halves the resolution).
+    `downscale` > 1 shrinks every image and camera by that factor (2 halves the resolution). With `max_size`,
+    `downscale` None brings images whose longest side is larger to that size (Scene.downscale says by how much).
     """
-    if downscale < 1.0:
+    if downscale is not None and downscale < 1.0:
         raise SettingError("downscale", f"must be >= 1, got {downscale}")
     root = Path(root)
     fmt = detect_format(root)
@@ -93,6 +94,8 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:
         train, test, points, colors, log = colmap.read_colmap(root, test_every=test_every)
     for split, views in (("train", train), ("test", test)):
         check_split(views, root, split)
+    if downscale is None:
+        downscale = max(1.0, max(train[0].width, train[0].height) / max_size) if max_size else 1.0
     if downscale != 1.0:
         train = [v.scaled(1.0 / downscale) for v in train]
         test = [v.scaled(1.0 / downscale) for v in test]
@@ -109,7 +112,8 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8) -> Scene:
     if bounds is None:
         bounds = bounds_from_cameras(views)
         notes.append("object bounds guessed from where the cameras look (no masks or points)")
-    return Scene(train=train, test=test, bounds=bounds.float(), source=root, format=fmt, points=points, point_colors=colors, notes=notes, log=log)
+    return Scene(train=train, test=test, bounds=bounds.float(), source=root, format=fmt, points=points, point_colors=colors, notes=notes, log=log,
+                 downscale=float(downscale))
 
 
 @dataclass

@@ -50,6 +50,7 @@ class Scene:
     point_colors: Tensor | None = None  # [P, 3] linear RGB
     notes: list[str] = field(default_factory=list)  # non-fatal observations made while loading
     log: list[str] = field(default_factory=list)  # what loading did to the data (undistortion, keys ignored)
+    downscale: float = 1.0  # the factor the images were shrunk by on load
 
     @property
     def views(self) -> list[View]:

@@ -68,7 +68,6 @@ class FrozenViews:
         self.cameras = cameras
         self.means = gaussians.means
         self.backend = backend or active_backend()
-        self.storage = storage
         device, n = self.means.device, len(gaussians)
         self.matrices, self.transposed, self.visible_ids, self.coverage, self.on_host = [], [], [], [], []
         self.kept_bytes, self.hits = 0, 0  # what the frozen views hold beyond the Gaussians; (Gaussian, pixel) weights
