@@ -21,6 +21,14 @@ $(STAMP): pyproject.toml Makefile
 	# The Khronos glTF Validator (npm) for the export tests; best effort: without node they skip.
 	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node gltf-validator >/dev/null 2>&1 \
 		|| echo "note: gltf-validator not installed; the export validation test will skip"; fi
+	# Headless chromium and its driver for the browser tests (viewer, glb in a glTF viewer); best effort, as root only.
+	# Without them those tests skip with a reason.
+	-@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! command -v chromedriver >/dev/null; then \
+		(apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 || (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q chromium chromium-driver >/dev/null 2>&1)) \
+		|| echo "note: chromium not installed; the browser tests will skip"; fi
+	# model-viewer (npm, on three.js) for the test that opens the exported glb in a standard glTF viewer; best effort.
+	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node @google/model-viewer >/dev/null 2>&1 \
+		|| echo "note: model-viewer not installed; the glb browser test will skip"; fi
 	touch $(STAMP)
 
 setup: $(STAMP)
