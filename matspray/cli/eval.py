@@ -20,6 +20,9 @@ def add_parser(parser) -> None:
                         help="LPIPS v0.1 AlexNet weights (.npz); default: $MATSPRAY_LPIPS_WEIGHTS or ../shared/data/lpips")
     parser.add_argument("--aligned", action="store_true", help="also report base color and relighting after per-channel scale alignment")
     parser.add_argument("--no-report", action="store_true", help="skip report.html")
+    parser.add_argument("--credit", help="a run on a capture without ground truth: a line crediting the photos, shown in its report")
+    parser.add_argument("--relight", nargs="+", default=["studio", "sunset", "forest"], metavar="NAME|PATH",
+                        help="a run on a capture without ground truth: lights its report shows the asset under (default: studio sunset forest)")
     add_compute_arguments(parser)
 
 
@@ -39,9 +42,24 @@ def run(args) -> int:
         return 0
     if args.run is None:
         raise ConfigError("give --run RUN (a run to evaluate) or --glb FILE.glb (an exported mesh)")
+    from matspray.data import load_scene
+    from matspray.eval.heldout import evaluate_capture, has_ground_truth, heldout_table
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run
+    from matspray.rundir import RunDir
 
+    run_folder = RunDir(args.run).require()
+    scene = load_scene(args.data if args.data is not None else run_folder.dataset()["source"], downscale=run_folder.downscale())
+    if not has_ground_truth(scene):  # a real capture: its held-out photos are the only truth
+        from matspray.eval.capture_report import write_capture_report
+
+        print("eval: the dataset has no ground-truth materials (a real capture): scoring the held-out photos instead")
+        with out_of_memory_as_error("eval", device):
+            metrics = evaluate_capture(args.run, lpips_weights=args.lpips_weights, device=device, backend=backend, scene=scene)
+            print(heldout_table(metrics))
+            if not args.no_report:
+                print(f"report: {write_capture_report(args.run, metrics, args.relight, args.credit, device=device, backend=backend)}")
+        return 0
     with out_of_memory_as_error("eval", device):
         metrics = evaluate_run(args.run, args.data, lpips_weights=args.lpips_weights, aligned=args.aligned, device=device, backend=backend)
     print((args.run / "eval" / "tables.md").read_text())
