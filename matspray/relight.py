@@ -37,22 +37,37 @@ def render_relit(asset: Asset, camera: Camera, light, background: Tensor | None 
 
 
 def orbit_cameras(reference: list[Camera], target: Tensor, frames: int = 60, up=(0.0, 0.0, 1.0)) -> list[Camera]:
-    """Cameras circling `target` [3] about the world up axis, at the mean distance and elevation of the
-    reference cameras and with their intrinsics and image size."""
+    """Cameras circling `target` [3] about the `up` axis, at the mean distance and elevation of the
+    reference cameras and with their intrinsics and image size. The first frame looks from the side of
+    the first reference camera."""
     target = torch.as_tensor(target, dtype=torch.float64)
-    up_axis = F.normalize(torch.tensor(up, dtype=torch.float64), dim=0)
+    up_axis = F.normalize(torch.as_tensor(up, dtype=torch.float64), dim=0)
     offsets = torch.stack([c.center.double() - target for c in reference])
     distance = float(offsets.norm(dim=-1).mean())
     elevation = float(torch.asin((F.normalize(offsets, dim=-1) @ up_axis).clamp(-0.99, 0.99)).mean())
+    # a basis of the plane the orbit turns in: towards the first camera, and its right angle
+    side = offsets[0] - (offsets[0] @ up_axis) * up_axis
+    if float(side.norm()) < 1e-9 * max(distance, 1e-12):  # the first camera looks straight down the axis
+        side = torch.linalg.svd(up_axis[None]).Vh[1]
+    first_axis = F.normalize(side, dim=0)
+    second_axis = torch.linalg.cross(up_axis, first_axis)
     first = reference[0]
     cameras = []
     for i in range(frames):
         azimuth = 2 * math.pi * i / frames
-        direction = torch.tensor([math.cos(azimuth) * math.cos(elevation), math.sin(azimuth) * math.cos(elevation), math.sin(elevation)], dtype=torch.float64)
+        direction = (math.cos(elevation) * (math.cos(azimuth) * first_axis + math.sin(azimuth) * second_axis)
+                     + math.sin(elevation) * up_axis)
         camera = Camera.look_at(target + distance * direction, target, up_axis, first.fov_x, first.width, first.height)
         camera.K = first.K.clone()
         cameras.append(camera)
     return cameras
+
+
+def cameras_up(cameras: list[Camera]) -> Tensor:  # -> [3] unit, float64
+    """The world direction the cameras hold as up (the mean of their image-up axes): a capture's up, whatever
+    frame its poses came in (structure from motion picks an arbitrary one)."""
+    ups = torch.stack([-c.camtoworld[:3, 1].double() for c in cameras])  # OpenCV axes: image up is camera -y
+    return F.normalize(ups.mean(0), dim=0)
 
 
 def background_radiance(light, camera: Camera) -> Tensor:  # -> [H, W, 3] what the camera sees of the environment

@@ -27,6 +27,7 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
                 background: str = "transparent", env_height: int = 64, device="cpu", backend: str = "torch") -> list[Path]:
     """Render a run's asset under `env` for the dataset's test cameras or an orbit, on `device` with the rasterizer
     `backend` (both resolved); returns the files written."""
+    import torch
     from tqdm import tqdm
 
     from matspray.asset import read_asset
@@ -35,7 +36,8 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
     from matspray.data.video import write_video
     from matspray.errors import ConfigError, RunError
     from matspray.lights import load_envmap
-    from matspray.relight import background_radiance, orbit_cameras, render_relit
+    from matspray.objectmasks import read_object_masks
+    from matspray.relight import background_radiance, cameras_up, orbit_cameras, render_relit
     from matspray.render.backend import rendering_with
     from matspray.render.envmap import EnvironmentMap
     from matspray.rundir import RunDir
@@ -56,8 +58,12 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
             raise RunError(f"{source}: the dataset has no test views; use --views orbit")
         cameras = [(v.name, v.camera) for v in scene.test]
     else:
-        center = scene.bounds.mean(0)
-        cameras = [(f"orbit_{i:03d}", c) for i, c in enumerate(orbit_cameras([v.camera for v in scene.train], center, frames))]
+        # a capture without masks: circle its object region, not the middle of everything the photos show
+        masks_folder = run.path("masks")
+        center = (torch.tensor(read_object_masks(masks_folder).region.center) if (masks_folder / "masks.pt").exists()
+                  else scene.bounds.mean(0))
+        reference = [v.camera for v in scene.train]
+        cameras = [(f"orbit_{i:03d}", c) for i, c in enumerate(orbit_cameras(reference, center, frames, up=cameras_up(reference)))]
     out_dir.mkdir(parents=True, exist_ok=True)
     written, video_frames = [], []
     for view_name, camera in tqdm(cameras, desc=f"relight [{name}]"):
