@@ -233,7 +233,7 @@ def reconstruct(photos: list[Path], work: Path, config: SfmConfig, mask_dir: Pat
         raise DataError(f"{photos[0].parent}: only {registered} of {len(photos)} photos could be registered "
                         f"(at least {MIN_REGISTERED} needed); {ADVICE}")
     notes = []
-    if len(model_sizes) > 1:
+    if len(model_sizes) > 1 and registered < len(photos):  # smaller models of photos the largest holds too say nothing
         notes.append(f"the reconstruction split into {len(model_sizes)} parts ({', '.join(map(str, model_sizes))} photos); "
                      f"kept the largest: the other photos share too few features with it; {ADVICE}")
     if registered < len(photos):
