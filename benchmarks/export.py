@@ -24,7 +24,8 @@ from matspray.eval.glb import evaluate_glb
 
 def export_in_child(run: Path, out: Path, args) -> tuple[float, float]:  # -> seconds, peak MiB
     command = [sys.executable, "-m", "matspray", "export", "--run", str(run), "--out", str(out), "--faces", str(args.faces),
-               "--texture-size", str(args.texture_size), "--grid", str(args.grid), "--normals", args.normals]
+               "--texture-size", str(args.texture_size), "--grid", str(args.grid), "--normals", args.normals,
+               "--backend", args.backend]
     start = time.perf_counter()
     child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     _, status, usage = os.wait4(child.pid, 0)
@@ -34,6 +35,16 @@ def export_in_child(run: Path, out: Path, args) -> tuple[float, float]:  # -> se
         raise SystemExit(f"export of {run} failed: {printed}")
     print(printed.strip().splitlines()[0], flush=True)
     return seconds, usage.ru_maxrss / 1024  # Linux reports KiB
+
+
+def run_name(run: Path) -> str:
+    """A short name for a run folder: the object's folder for OBJECT/run and OBJECT/runs/CONFIG (the
+    generalisation layout, where every object's run folder has the same name), else the folder itself."""
+    if run.name == "run":
+        return run.parent.name
+    if run.parent.name == "runs":
+        return f"{run.parent.parent.name}-{run.name}"
+    return run.name
 
 
 def figure(eval_dir: Path, view: str, envs: list[str], path: Path, scale: int = 2) -> None:
@@ -55,15 +66,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--faces", type=int, default=200_000)
+    parser.add_argument("--faces", type=int, default=50_000)
     parser.add_argument("--texture-size", type=int, default=1024)
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--normals", choices=("mesh", "asset"), default="mesh")
+    parser.add_argument("--backend", default="torch", help="rasterizer of the export's depth renders (default torch: the reference; "
+                        "the Gaussians' eval renders use torch too)")
     parser.add_argument("--figure", type=Path, help="also write the first run's first test view as a PNG: truth | Gaussians | mesh, one row per light")
     args = parser.parse_args()
     rows = []
     for run in args.runs:
-        name = run.parent.name if run.name == "run" else run.name
+        name = run_name(run)
         glb = args.out / f"{name}.glb"
         seconds, peak = export_in_child(run, glb, args)
         metrics = evaluate_glb(glb, run=run, progress=False)

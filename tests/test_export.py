@@ -374,3 +374,79 @@ def test_unknown_space_reaching_the_border_is_outside_and_enclosed_unknown_space
     out = open_to_outside(field.reshape(-1), unknown.reshape(-1), shape).reshape(shape)
     assert (out[3:6, 3:6, 3:6] == -1).all() and (out[:, :, 8] == 1).all()
     assert torch.equal(out[~unknown], field[~unknown])
+
+
+# ------------------------------------------------------------------------------------------ atlas
+def torus_surface(grid: int = 96) -> "trimesh.Trimesh":
+    """Marching cubes of a torus' signed distance (major 0.65, minor 0.27, the size of a development object):
+    the same staircase-noisy normals and tiny faces a fused surface has."""
+    import trimesh
+    from skimage.measure import marching_cubes
+
+    axis = np.linspace(-1.1, 1.1, grid)
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    sdf = np.sqrt((np.sqrt(x**2 + y**2) - 0.65) ** 2 + z**2) - 0.27
+    verts, faces, _, _ = marching_cubes(sdf, 0.0, spacing=(axis[1] - axis[0],) * 3)
+    return trimesh.Trimesh(verts - 1.1, faces[:, ::-1], process=True)
+
+
+@pytest.mark.slow
+def test_atlas_has_no_zero_area_uv_faces_fills_half_the_texture_and_keeps_the_budget():
+    from matspray.export.atlas import atlas_fill, uv_areas, uv_atlas
+
+    surface = torus_surface()
+    assert len(surface.faces) > 30_000
+    mesh = decimate(surface, 20_000)
+    assert 18_000 < len(mesh.faces) <= 20_000
+    atlas = uv_atlas(mesh, 1024, 4)  # the export's default texture and gutter
+    assert len(atlas.faces) == len(mesh.faces)  # xatlas dropped no face
+    assert uv_areas(atlas.uvs, atlas.faces, 1024).min() > 1e-3  # every face owns some texture (main: 644 at UV (0, 0))
+    assert atlas_fill(atlas.uvs, atlas.faces, 1024) >= 0.5
+    assert atlas.charts < 300  # a few large charts, not one per handful of faces
+
+
+def test_decimation_drops_duplicate_faces_that_xatlas_would_leave_at_uv_origin():
+    import trimesh
+
+    from matspray.export.atlas import uv_areas, uv_atlas
+
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    fin = mesh.faces[0][::-1]  # the same three vertices again, wound the other way
+    doubled = trimesh.Trimesh(mesh.vertices, np.vstack([mesh.faces, fin[None]]), process=False)
+    clean = decimate(doubled, 10_000)
+    assert len(clean.faces) == len(mesh.faces) - 1  # both copies gone
+    atlas = uv_atlas(clean, 256, 2)
+    assert uv_areas(atlas.uvs, atlas.faces, 256).min() > 1e-3
+
+
+def test_padding_keeps_charts_apart_at_the_first_mip_level():
+    """With the 4-texel gutter split between neighbours by the nearest-texel fill, a 2 x 2 mip texel never
+    mixes two charts: level 1 of the mip chain keeps every chart's own colours at its border."""
+    from scipy.ndimage import distance_transform_edt
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from matspray.export.atlas import uv_atlas
+
+    size = 256
+    atlas = uv_atlas(decimate(torus_surface(64), 6000), size, 4)
+    faces, count = atlas.faces, len(atlas.uvs)
+    pairs = coo_matrix((np.ones(faces.size), (faces.ravel(), np.roll(faces, 1, axis=1).ravel())), shape=(count, count))
+    charts, vertex_chart = connected_components(pairs, directed=False)  # the atlas is split at seams: components = charts
+    assert charts > 1
+    texels = rasterize_uv(atlas.uvs, faces, size)
+    owner = -np.ones(size * size, dtype=np.int64)
+    owner[texels.index] = vertex_chart[faces[texels.face, 0]]
+    owner = owner.reshape(size, size)
+    filled = owner >= 0
+    nearest = distance_transform_edt(~filled, return_distances=False, return_indices=True)
+    owner = owner[nearest[0], nearest[1]]  # what `fill_empty` copies into every gutter texel
+    blocks = owner.reshape(size // 2, 2, size // 2, 2)
+    mixed = (blocks.max((1, 3)) != blocks.min((1, 3))) & filled.reshape(size // 2, 2, size // 2, 2).any((1, 3))
+    assert not mixed.any(), f"{int(mixed.sum())} level-1 mip texels mix two charts"
+
+
+def test_export_default_face_budget_is_fifty_thousand():
+    from matspray.export.config import ExportConfig
+
+    assert ExportConfig().faces == 50_000

@@ -14,7 +14,7 @@ TEXTURE_SIZES = tuple(2**k for k in range(6, 14))  # 64 .. 8192
 
 @dataclass(frozen=True)
 class ExportConfig:
-    faces: int = 200_000  # face budget of the decimated mesh
+    faces: int = 50_000  # face budget of the decimated mesh (a common budget for one real-time asset)
     texture_size: int = 1024  # side of the square textures (a power of two in [64, 8192])
     frame: str = "gltf"  # gltf: Y-up; dataset: the dataset's world coordinates (Z-up)
     grid: int = 128  # TSDF voxels along the longest side of the object's box (the atlas' time grows fast with the faces this makes)

@@ -23,6 +23,12 @@ def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
 
 
 def without_degenerate(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Without zero-area faces and without faces on the same three vertices (a pair of them is a zero-volume
+    fin the simplifier can leave behind: xatlas drops both and leaves their UVs at (0, 0)). Dropping every
+    copy keeps the rest of the surface closed."""
     mesh.update_faces(mesh.nondegenerate_faces())
+    key = np.sort(np.asarray(mesh.faces), axis=1)  # [F, 3]
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    mesh.update_faces(counts[inverse.reshape(-1)] == 1)
     mesh.remove_unreferenced_vertices()
     return mesh
