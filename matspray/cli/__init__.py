@@ -20,6 +20,7 @@ COMMANDS = [
     ("predict", "per-view 2D material maps (base color, roughness, metallic) into RUN/materials2d/"),
     ("run", "the whole method: predict, geometry, lift, refine (finished stages are reused)"),
     ("relight", "render a run's asset under a new environment light (PNG frames, orbit MP4)"),
+    ("view", "a browser viewer that relights the asset live under any light (viser)"),
     ("export", "the asset as a textured glTF 2.0 mesh (.glb) plus its environment map (.exr, .hdr)"),
     ("eval", "metrics against ground truth, the paper's tables and report.html"),
     ("demo", "make a benchmark object, run the method and its ablations, evaluate, write the report"),

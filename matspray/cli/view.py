@@ -1,0 +1,49 @@
+"""`matspray view RUN`: a browser viewer that relights the run's asset live (viser; `matspray.view`)."""
+
+from pathlib import Path
+
+from matspray.cli.options import add_compute_arguments
+
+
+def add_parser(parser) -> None:
+    parser.add_argument("run", type=Path, metavar="RUN", help="run folder made by `matspray run`")
+    parser.add_argument("--env", nargs="+", action="extend", default=[], metavar="FILE|FOLDER",
+                        help="HDR lights to offer besides the run's estimated light and the built-ins: .exr/.hdr files, "
+                             "or folders of them")
+    parser.add_argument("--port", type=int, default=8080, help="port to serve the page on (default 8080)")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address to listen on (default 127.0.0.1: this machine only; from another machine use "
+                             "ssh -L 8080:localhost:8080 HOST, or 0.0.0.0 to listen on every network)")
+    parser.add_argument("--resolution", type=int, default=256, help="long side of the still picture in pixels (default 256; "
+                        "half while the camera moves); the page has a slider too")
+    add_compute_arguments(parser)
+
+
+def run(args) -> int:
+    import time
+
+    from matspray.device import compute_target
+    from matspray.errors import ConfigError
+    from matspray.view.server import Viewer, ViewerConfig
+
+    try:
+        import viser  # noqa: F401
+    except ImportError:
+        raise ConfigError("the viewer needs viser: pip install 'matspray[view]'") from None
+    if not 32 <= args.resolution <= 4096:
+        raise ConfigError(f"--resolution {args.resolution}: choose 32 to 4096 pixels")
+    device, backend = compute_target(args.device, args.backend)
+    config = ViewerConfig(host=args.host, port=args.port, env=tuple(args.env), resolution=args.resolution)
+    viewer = Viewer(args.run, config, device=device, backend=backend)
+    url = viewer.start()
+    print(f"matspray view: {url}  ({args.run}, {backend} on {device}; Ctrl+C stops)", flush=True)
+    if args.host in ("127.0.0.1", "localhost", "::1"):
+        print(f"  from another machine: ssh -L {args.port}:localhost:{args.port} THIS_HOST, then open {url} there", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        print("matspray view: stopped", flush=True)
+    finally:
+        viewer.stop()
+    return 0

@@ -1,0 +1,96 @@
+"""What a run folder offers the viewer: its variants with an asset, each asset (read once, when first shown), the
+training photos (read in the background: a capture can take seconds to load, the first picture must not wait), the
+exported glb files, and a first camera that frames the object."""
+
+from __future__ import annotations
+
+import math
+import threading
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from matspray.asset import Asset, read_asset
+from matspray.data.camera import Camera
+from matspray.errors import MatsprayError, RunError
+from matspray.rundir import RunDir
+from matspray.view.glb import find_glbs
+from matspray.view.lights import estimated_light_path
+
+UP = (0.0, 0.0, 1.0)  # the dataset's world up (DESIGN: Blender / NeRF-synthetic, Z up)
+START_FOV = math.radians(40.0)  # vertical field of view of the first camera when the photos are not loaded yet
+
+
+class ViewerRun:
+    """A run folder opened for viewing. Raises RunError (one line naming the command to run first) when `root` is no
+    run folder or holds no asset."""
+
+    def __init__(self, root, device="cpu", notify=print):
+        root = Path(root)
+        if not root.is_dir():
+            raise RunError(f"{root}: no such run folder; make one with `matspray run --data DATA --out {root}`")
+        self.run = RunDir(root).require()
+        self.root = root
+        self.variants = self.run.asset_variants()
+        if not self.variants:
+            raise RunError(f"{root}: the run has no asset yet (no asset*/asset.ply); make it with `matspray run --data DATA --out {root}`")
+        self.device = torch.device(device)
+        self.notify = notify
+        self.glbs = find_glbs(root)
+        self._assets: dict[str, Asset] = {}
+        self._frames: dict[str, tuple[np.ndarray, float]] = {}
+        self._lock = threading.Lock()
+        self._views = None  # training views once loaded; [] when they cannot be
+        self._views_ready = threading.Event()
+
+    def asset(self, variant: str) -> Asset:
+        with self._lock:
+            if variant not in self._assets:
+                self._assets[variant] = read_asset(self.run.asset_path(variant), device=self.device)
+            return self._assets[variant]
+
+    def estimated_light(self, variant: str) -> Path | None:
+        return estimated_light_path(self.run.asset_path(variant))
+
+    # ---------------------------------------------------------------- photos
+    def load_photos(self) -> None:
+        """Read the training views in a background thread (`photos()` answers once they are there)."""
+        threading.Thread(target=self._load_photos, name="matspray-view-photos", daemon=True).start()
+
+    def _load_photos(self) -> None:
+        from matspray.data import load_scene
+
+        try:
+            source = self.run.dataset()["source"]
+            scene = load_scene(source, downscale=self.run.downscale())
+            self._views = list(scene.train)
+        except (MatsprayError, OSError, KeyError) as exc:
+            self._views = []
+            self.notify(f"matspray view: no training photos to compare with ({exc})")
+        finally:
+            self._views_ready.set()
+
+    def photos(self, wait: float | None = 0.0):
+        """The training views, or None while they are still loading."""
+        return self._views if self._views_ready.wait(wait) else None
+
+    # ---------------------------------------------------------------- framing
+    def object_frame(self, variant: str) -> tuple[np.ndarray, float]:
+        """Centre [3] and radius of the object: the median of the Gaussians' centres and the 95th percentile of their
+        distance from it (a few stray Gaussians far away must not shrink the object to a dot)."""
+        if variant not in self._frames:
+            means = self.asset(variant).gaussians.means.detach().double().cpu()
+            center = means.median(dim=0).values
+            radius = float(torch.quantile((means - center).norm(dim=-1), 0.95)) if len(means) else 1.0
+            self._frames[variant] = (center.numpy(), max(radius, 1e-6))
+        return self._frames[variant]
+
+    def start_camera(self, variant: str, width: int = 256, height: int = 256) -> Camera:
+        """A camera 25 degrees above the object's centre that fits the whole object in a 40 degree view."""
+        center, radius = self.object_frame(variant)
+        distance = 1.15 * radius / math.sin(0.5 * START_FOV)
+        elevation, azimuth = math.radians(25.0), math.radians(-60.0)
+        direction = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)])
+        fov_x = 2 * math.atan(math.tan(0.5 * START_FOV) * width / height)
+        return Camera.look_at(center + distance * direction, center, UP, fov_x, width, height)
