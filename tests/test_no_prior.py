@@ -57,6 +57,9 @@ def test_a_run_without_a_predictor_makes_the_no_prior_asset_and_its_table_row(ti
             pipeline.refine("full")
     assert not (run / "materials2d").exists() and not (run / "asset").exists()
     assert (run / asset_stage("no-prior") / "asset.ply").exists() and (run / "lift" / "projected.pt").exists()
+    # without maps the lift only decides which Gaussians are seen: one ray per pixel, not the preset's 2 x 2
+    lift_record = json.loads((run / "lift" / "stage.json").read_text())
+    assert lift_record["settings"]["samples_per_side"] == 1 and lift_record["stats"]["samples_per_side"] == 1
     metrics = evaluate_run(run, progress=False)
     assert set(metrics["variants"]) == {"no-prior"}
     assert "no 2D predictions: the run had none (--predictor none)" in metrics["notes"]
