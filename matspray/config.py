@@ -41,7 +41,7 @@ class PipelineConfig:
     seed: int = 0
     refine_seed: int | None = None  # the refinement's own seed (view order, merger init); None: `seed`
     device: str = "auto"
-    backend: str = "auto"  # rasterizer: auto (gsplat when CUDA and gsplat are present), torch or gsplat
+    backend: str = "auto"  # rasterizer: auto (gsplat when CUDA and gsplat are present, numba on the CPU), torch, numba or gsplat
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
     lift: LiftConfig = field(default_factory=LiftConfig)
     visibility: VisibilityConfig | None = None  # None: no shadowing (the paper's, and our default); `shadow_maps(preset)` turns it on

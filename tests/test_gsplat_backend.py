@@ -69,7 +69,7 @@ def fake_cuda(monkeypatch, cuda_error=None, calls=None):
 # ---------------------------------------------------------------- choosing the backend
 
 def test_unknown_backend_names_the_setting():
-    with pytest.raises(SettingError, match="backend: unknown backend 'optix'; choose one of auto, torch, gsplat"):
+    with pytest.raises(SettingError, match="backend: unknown backend 'optix'; choose one of auto, torch, numba, gsplat"):
         resolve_backend("optix", "cpu")
     with pytest.raises(SettingError, match="backend: unknown backend"):
         PipelineConfig(backend="optix")
@@ -85,10 +85,10 @@ def test_torch_is_always_available():
     assert resolve_backend("torch", "cuda") == "torch"
 
 
-def test_auto_on_cpu_is_torch_without_a_word(monkeypatch):
+def test_auto_on_cpu_is_numba_without_a_word(monkeypatch):
     told = []
     monkeypatch.setattr(backend_module, "gsplat_import_error", lambda: None)
-    assert resolve_backend("auto", "cpu", notify=told.append) == "torch"
+    assert resolve_backend("auto", "cpu", notify=told.append) == "numba"  # the compiled CPU rasterizer (a core dependency)
     assert told == []
 
 

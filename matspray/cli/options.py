@@ -19,8 +19,8 @@ def on_off(value: str) -> bool:
 
 
 DEVICE_HELP = "auto (CUDA when available; default), cpu, cuda or cuda:N"
-BACKEND_HELP = ("rasterizer: auto (default; gsplat when on CUDA and its CUDA code builds, else torch), torch, or gsplat "
-                "(CUDA only; pip install 'matspray[cuda]')")
+BACKEND_HELP = ("rasterizer: auto (default; on CUDA gsplat when its CUDA code builds, else torch; on the CPU numba), "
+                "torch (the readable reference), numba (compiled, CPU only) or gsplat (CUDA only; pip install 'matspray[cuda]')")
 
 # flag -> (setting, how the flag's text becomes the setting's value, help); None values mean "not given"
 SETTING_FLAGS = {

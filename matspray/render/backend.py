@@ -1,8 +1,10 @@
-"""Which rasterizer renders: `torch` (ours, CPU and CUDA) or `gsplat` (CUDA only, an optional extra).
+"""Which rasterizer renders: `torch` (ours, CPU and CUDA: the readable reference), `numba` (ours, compiled tile
+loops, CPU only; matspray.render.numba_backend) or `gsplat` (CUDA only, an optional extra).
 
-`resolve_backend` turns the setting `backend` (auto | torch | gsplat) into the one that runs; a request that
-cannot be met is a SettingError of one line that says what is missing and how to get it, and `auto` falls
-back to torch, saying why in one line (once per process), where a CUDA device cannot run gsplat.
+`resolve_backend` turns the setting `backend` (auto | torch | numba | gsplat) into the one that runs; a request
+that cannot be met is a SettingError of one line that says what is missing and how to get it. `auto` is gsplat
+on a CUDA device that can run it, else torch there (saying why in one line, once per process), and numba on
+the CPU (torch, silently, if numba does not import: it is a core dependency, so only a broken install).
 
 gsplat (1.5) compiles its CUDA code at its first kernel call, not at import: `import gsplat` working says
 nothing about the build. So the first check on a CUDA device (`gsplat_device_error`, cached per process and
@@ -31,7 +33,7 @@ import torch
 
 from matspray.errors import SettingError
 
-BACKENDS = ("auto", "torch", "gsplat")
+BACKENDS = ("auto", "torch", "numba", "gsplat")
 INSTALL_HINT = "pip install 'matspray[cuda]' (needs nvcc and ninja; the first use compiles CUDA code)"
 BUILD_HINT = ("gsplat compiles its CUDA code with nvcc and ninja: install the CUDA toolkit of torch's CUDA version "
               "and `pip install ninja`, or use --backend torch")
@@ -108,21 +110,39 @@ def gsplat_device_error(device, notify: Notify | None = None) -> str | None:
     return _CHECKED[key]
 
 
+def numba_device_error(device) -> str | None:
+    """None when backend numba can render on `device`, else why not and what to use instead (one line)."""
+    if torch.device(device).type != "cpu":
+        return f"numba renders on the CPU only (device {device}); use --backend torch or gsplat there, or --device cpu"
+    try:
+        importlib.import_module("numba")
+    except Exception as exc:  # numba is a core dependency: only a broken install gets here
+        return f"numba does not import ({_one_line(exc)}); reinstall matspray (pip install matspray) or use --backend torch"
+    return None
+
+
 def resolve_backend(name: str, device, notify: Notify | None = None) -> str:
-    """'torch' or 'gsplat' for the setting `name` on `device` (a torch.device or its string). `notify`
+    """'torch', 'numba' or 'gsplat' for the setting `name` on `device` (a torch.device or its string). `notify`
     (default: stderr) hears, once per process, how long gsplat's CUDA extension took to load and why `auto`
     renders with torch on a CUDA device."""
     if name not in BACKENDS:
         raise SettingError("backend", f"unknown backend '{name}'; choose one of {', '.join(BACKENDS)}")
     if name == "torch":
         return "torch"
+    if name == "numba":
+        error = numba_device_error(device)
+        if error is not None:
+            raise SettingError("backend", error)
+        return "numba"
     error = gsplat_device_error(device, notify)
     if error is None:
         return "gsplat"
     if name == "gsplat":
         raise SettingError("backend", error)
     key = torch.device(device).type
-    if key == "cuda" and key not in _TOLD:  # auto on CPU is torch without a word
+    if key != "cuda":  # auto on the CPU: the compiled rasterizer, without a word
+        return "numba" if numba_device_error(device) is None else "torch"
+    if key not in _TOLD:
         _TOLD.add(key)
         (notify or _to_stderr)(f"backend auto: rendering with torch; {error}")
     return "torch"
@@ -130,7 +150,7 @@ def resolve_backend(name: str, device, notify: Notify | None = None) -> str:
 
 @dataclass
 class RenderUse:
-    """The backend a block of work renders with, and what it really ran: {"torch" | "gsplat" | "rays": calls}."""
+    """The backend a block of work renders with, and what it really ran: {"torch" | "numba" | "gsplat" | "rays": calls}."""
     backend: str
     calls: Counter = field(default_factory=Counter)
     outer: "RenderUse | None" = None  # the enclosing block, which counts this block's calls too
@@ -144,11 +164,11 @@ _ACTIVE: ContextVar[RenderUse | None] = ContextVar("matspray_render_use", defaul
 
 @contextmanager
 def rendering_with(backend: str):
-    """Within the block, `rasterize(..., backend=None)` renders with `backend` ('torch' or 'gsplat', already
-    resolved); yields the block's RenderUse. Blocks nest: the innermost decides the backend, and each call is
-    counted in it and in every block around it."""
-    if backend not in ("torch", "gsplat"):
-        raise ValueError(f"rendering_with: a resolved backend (torch or gsplat), got {backend!r}")
+    """Within the block, `rasterize(..., backend=None)` renders with `backend` ('torch', 'numba' or 'gsplat',
+    already resolved); yields the block's RenderUse. Blocks nest: the innermost decides the backend, and each call
+    is counted in it and in every block around it."""
+    if backend not in ("torch", "numba", "gsplat"):
+        raise ValueError(f"rendering_with: a resolved backend (torch, numba or gsplat), got {backend!r}")
     use = RenderUse(backend, outer=_ACTIVE.get())
     token = _ACTIVE.set(use)
     try:
@@ -164,7 +184,7 @@ def active_backend() -> str:
 
 
 def note_render(kind: str) -> None:
-    """Count one call of a renderer ('torch', 'gsplat', or 'rays' for the lifting ray tracer) in the active block."""
+    """Count one call of a renderer ('torch', 'numba', 'gsplat', or 'rays' for the lifting ray tracer) in the active block."""
     use = _ACTIVE.get()
     while use is not None:
         use.calls[kind] += 1

@@ -5,8 +5,9 @@ This is what makes material refinement cheap: the Gaussians do not move, only th
 
 With backend gsplat nothing is kept per view: rendering the features again with the frozen Gaussians is one
 kernel call, cheaper on a GPU than the sparse product and free of the matrices' memory. With backend torch
-the matrices stay where `storage` says: on the Gaussians' device, on the host (copied to the device view by
-view), or "auto": on a CUDA device while it keeps DEVICE_RESERVE of its memory free, on the host after that
+(and numba, whose frozen views are these same matrices: `view_weights` is torch's for every backend) the
+matrices stay where `storage` says: on the Gaussians' device, on the host (copied to the device view by view),
+or "auto": on a CUDA device while it keeps DEVICE_RESERVE of its memory free, on the host after that
 (`frozen_views_bytes` says how large they are).
 """
 

@@ -1,0 +1,276 @@
+"""The compiled loops of backend `numba` (matspray.render.numba_backend): tile binning, forward blending, the
+reverse pass and the per-Gaussian reduction of its gradients.
+
+Every kernel is generic in the float type of its inputs (float32 for rendering, float64 for gradcheck): constants
+come in `consts`, an array of that type, and integers become floats through `grid` (grid[i] = i), because numba
+promotes float32 arithmetic with a Python float or an integer to float64, and the hit test must round exactly as
+the torch backend's float32 arithmetic does (see `_row_span`).
+
+consts: [0] 0.5, [1] min_alpha, [2] max_alpha, [3] 0 (RasterSettings' values in the float type of the inputs).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit as _njit
+from numba import prange
+
+def njit(**options):
+    """numba.njit with its on-disk cache (__pycache__ beside this file, or $NUMBA_CACHE_DIR), so that only the
+    first run compiles; where numba finds no writable place for it (it raises at decoration), compile per process."""
+    def wrap(function):
+        try:
+            return _njit(**options)(function)
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            return _njit(**{k: v for k, v in options.items() if k != "cache"})(function)
+    return wrap
+
+
+TILE = 16  # pixels per tile side
+PER_ENTRY = 8  # gradients kept per (tile, Gaussian) entry besides the values': mean x, y; conic a, b, c; opacity; |mean x|, |mean y|
+
+
+@njit(cache=True)
+def bin_tiles(boxes, order, tiles_x, tiles_y):
+    """Tile lists: entry e of tile t (offsets[t] <= e < offsets[t + 1]) is Gaussian ids[e]; each tile's Gaussians
+    are front to back because they are appended in `order` (the torch backend's depth order). Also the same
+    entries grouped by Gaussian (by_gaussian[g_offsets[g]:g_offsets[g + 1]] in increasing entry order), for the
+    backward's fixed-order reduction."""
+    n = boxes.shape[0]
+    num_tiles = tiles_x * tiles_y
+    offsets = np.zeros(num_tiles + 1, np.int64)
+    for g in range(n):
+        x0, y0, x1, y1 = boxes[g, 0], boxes[g, 1], boxes[g, 2], boxes[g, 3]
+        if x1 < x0 or y1 < y0:
+            continue
+        for ty in range(y0 // TILE, y1 // TILE + 1):
+            for tx in range(x0 // TILE, x1 // TILE + 1):
+                offsets[ty * tiles_x + tx + 1] += 1
+    for t in range(num_tiles):
+        offsets[t + 1] += offsets[t]
+    ids = np.empty(offsets[num_tiles], np.int64)
+    cursor = offsets[:num_tiles].copy()
+    g_counts = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        g = order[i]
+        x0, y0, x1, y1 = boxes[g, 0], boxes[g, 1], boxes[g, 2], boxes[g, 3]
+        if x1 < x0 or y1 < y0:
+            continue
+        for ty in range(y0 // TILE, y1 // TILE + 1):
+            for tx in range(x0 // TILE, x1 // TILE + 1):
+                t = ty * tiles_x + tx
+                ids[cursor[t]] = g
+                cursor[t] += 1
+                g_counts[g + 1] += 1
+    for g in range(n):
+        g_counts[g + 1] += g_counts[g]
+    by_gaussian = np.empty(offsets[num_tiles], np.int64)
+    g_cursor = g_counts[:n].copy()
+    for e in range(ids.shape[0]):
+        g = ids[e]
+        by_gaussian[g_cursor[g]] = e
+        g_cursor[g] += 1
+    return offsets, ids, g_counts, by_gaussian
+
+
+@njit(cache=True, inline="always")
+def _row_span(cx, cy, b, a, det, a_r2, row_f, half, zero, width_f):
+    """Columns [first, last] (as floats, clamped to [-1, width]) whose pixel centres lie in the footprint ellipse
+    on the row with top y = row_f: the torch backend's `ellipse_pixel_pairs` (touch="centre"), operation for
+    operation and in the same order, so both backends round alike and test the same pixels."""
+    top = row_f - cy
+    dy = top + half
+    inner = a_r2 - det * dy * dy
+    if inner < zero:
+        inner = zero
+    half_span = np.sqrt(inner) / a
+    shift = cx - b * dy / a
+    first = np.ceil((shift - half_span) - half)
+    last = np.floor((shift + half_span) - half)
+    minus_one = zero - (half + half)
+    if first < minus_one:
+        first = minus_one
+    if last > width_f:
+        last = width_f
+    return first, last
+
+
+@njit(cache=True, parallel=True)
+def forward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, tile_order, height, width, tiles_x, grid, consts,
+            min_transmittance):
+    """Blend every tile front to back. Returns the image [H, W, K], each pixel's transmittance after its last
+    blended hit (float64) and that hit's entry index (-1: none), and the number of blended hits per tile.
+
+    Within a tile the loop runs over its Gaussians in depth order and, for each, over the pixels whose centres
+    lie in its footprint ellipse (the torch backend's candidate pairs); per-pixel state (transmittance, sums,
+    stopped) lives in tile-sized buffers, so each pixel still sees its hits front to back."""
+    k_values = values.shape[1]
+    num_tiles = offsets.shape[0] - 1
+    half, min_alpha, max_alpha, zero = consts[0], consts[1], consts[2], consts[3]
+    width_f = grid[width]
+    image = np.zeros((height, width, k_values), values.dtype)
+    final_t = np.ones((height, width), np.float64)
+    last_entry = np.full((height, width), -1, np.int64)
+    tile_hits = np.zeros(num_tiles, np.int64)
+    for i in prange(num_tiles):
+        t = tile_order[i]  # a fixed shuffle: each thread's block of tiles gets busy and empty ones alike
+        x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
+        x_end, y_end = min(x_start + TILE, width) - 1, min(y_start + TILE, height) - 1
+        pixels = (x_end - x_start + 1) * (y_end - y_start + 1)
+        acc = np.zeros((TILE * TILE, k_values), np.float64)  # float64 sums: rounding stays far below 1e-5
+        # the transmittance as a float64 product of (1 - alpha): the torch backend's exp of a float64 sum of float32
+        # log(1 - alpha) to ~1e-7, without a log and an exp per hit
+        trans = np.ones(TILE * TILE, np.float64)
+        last = np.full(TILE * TILE, -1, np.int64)
+        stopped = np.zeros(TILE * TILE, np.bool_)
+        row_stopped = np.zeros(TILE, np.int64)  # stopped pixels per row: a row whose pixels all stopped is skipped
+        row_width = x_end - x_start + 1
+        num_stopped = 0
+        hits = 0
+        for e in range(offsets[t], offsets[t + 1]):
+            g = ids[e]
+            mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+            ha, hc = half * a, half * c
+            for row in range(max(boxes[g, 1], y_start), min(boxes[g, 3], y_end) + 1):
+                if row_stopped[row - y_start] == row_width:
+                    continue
+                first, last_col = _row_span(mx, my, b, a, det[g], a_r2[g], grid[row], half, zero, width_f)
+                if not first <= last_col:
+                    continue
+                col_lo, col_hi = max(int(first), boxes[g, 0], x_start), min(int(last_col), boxes[g, 2], x_end)
+                dy = (grid[row] + half) - my
+                bdy, cdy = b * dy, hc * dy * dy
+                base = (row - y_start) * TILE - x_start
+                for col in range(col_lo, col_hi + 1):
+                    p = base + col
+                    if stopped[p]:
+                        continue
+                    dx = (grid[col] + half) - mx
+                    raw = opacity * np.exp(-(dx * (ha * dx + bdy) + cdy))
+                    if not raw >= min_alpha:  # as torch's `raw >= min_alpha`: a NaN is skipped too
+                        continue
+                    alpha = min(raw, max_alpha)
+                    after = trans[p] * (1.0 - np.float64(alpha))
+                    if after < min_transmittance:  # 3DGS's early stop: this hit and all after it are dropped
+                        stopped[p] = True
+                        row_stopped[row - y_start] += 1
+                        num_stopped += 1
+                        continue
+                    weight = alpha * values.dtype.type(trans[p])
+                    for k in range(k_values):
+                        acc[p, k] += weight * values[g, k]
+                    trans[p] = after
+                    last[p] = e
+                    hits += 1
+            if num_stopped == pixels:
+                break
+        tile_hits[t] = hits
+        for row in range(y_start, y_end + 1):
+            for col in range(x_start, x_end + 1):
+                p = (row - y_start) * TILE + (col - x_start)
+                for k in range(k_values):
+                    image[row, col, k] = acc[p, k]
+                final_t[row, col] = trans[p]
+                last_entry[row, col] = last[p]
+    return image, final_t, last_entry, tile_hits
+
+
+@njit(cache=True, parallel=True)
+def backward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, tile_order, height, width, tiles_x, grid, consts,
+             final_t, last_entry, grad_image):
+    """The reverse pass, tile by tile: each tile's Gaussians back to front, each pixel's transmittance in front of
+    a hit recovered from the one behind it, T_k = T_(k+1) / (1 - alpha_k) (float64: alpha <= max_alpha and
+    T >= min_transmittance, so a few hundred divisions lose nothing near 1e-5), and S = sum of alpha_j T_j q_j
+    over the hits behind.
+    Gradients go to one row per (tile, Gaussian) entry [E, 8 + K]; `reduce_entries` sums them per Gaussian in a
+    fixed order, so the result does not depend on how tiles were spread over threads."""
+    k_values = values.shape[1]
+    num_tiles = offsets.shape[0] - 1
+    half, min_alpha, max_alpha, zero = consts[0], consts[1], consts[2], consts[3]
+    width_f = grid[width]
+    entry_grads = np.zeros((ids.shape[0], PER_ENTRY + k_values), values.dtype)
+    for i in prange(num_tiles):
+        t = tile_order[i]  # a fixed shuffle: each thread's block of tiles gets busy and empty ones alike
+        x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
+        x_end, y_end = min(x_start + TILE, width) - 1, min(y_start + TILE, height) - 1
+        trans = np.ones(TILE * TILE, np.float64)
+        behind = np.zeros(TILE * TILE, np.float64)  # S of each pixel
+        last = np.full(TILE * TILE, -1, np.int64)
+        row_last = np.full(TILE, -1, np.int64)  # the last entry any pixel of the row blended: rows past it are skipped
+        for row in range(y_start, y_end + 1):
+            for col in range(x_start, x_end + 1):
+                p = (row - y_start) * TILE + (col - x_start)
+                trans[p] = final_t[row, col]
+                last[p] = last_entry[row, col]
+                row_last[row - y_start] = max(row_last[row - y_start], last[p])
+        tile_last = row_last.max()  # entries behind every pixel's last hit (the far side of an object) are not visited
+        grad_values = np.zeros(k_values, np.float64)
+        for e in range(min(offsets[t + 1] - 1, tile_last), offsets[t] - 1, -1):
+            g = ids[e]
+            mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+            ha, hc = half * a, half * c
+            # this entry's sums in locals (registers), not an array: they are added to at every hit
+            g_x = g_y = g_a = g_b = g_c = g_o = abs_x = abs_y = 0.0
+            grad_values[:] = 0.0
+            for row in range(max(boxes[g, 1], y_start), min(boxes[g, 3], y_end) + 1):
+                if e > row_last[row - y_start]:
+                    continue
+                first, last_col = _row_span(mx, my, b, a, det[g], a_r2[g], grid[row], half, zero, width_f)
+                if not first <= last_col:
+                    continue
+                col_lo, col_hi = max(int(first), boxes[g, 0], x_start), min(int(last_col), boxes[g, 2], x_end)
+                dy = (grid[row] + half) - my
+                bdy, cdy = b * dy, hc * dy * dy
+                base = (row - y_start) * TILE - x_start
+                for col in range(col_lo, col_hi + 1):
+                    p = base + col
+                    if e > last[p]:  # behind the pixel's last blended hit (or the pixel blended nothing)
+                        continue
+                    dx = (grid[col] + half) - mx
+                    response = np.exp(-(dx * (ha * dx + bdy) + cdy))
+                    raw = opacity * response
+                    if not raw >= min_alpha:  # as torch's `raw >= min_alpha`: a NaN is skipped too
+                        continue
+                    alpha = min(raw, max_alpha)
+                    keep = 1.0 / (1.0 - np.float64(alpha))
+                    trans[p] *= keep
+                    transmittance = values.dtype.type(trans[p])
+                    weight = alpha * transmittance
+                    q = 0.0  # dL/dweight = <dL/dout, value>
+                    for k in range(k_values):
+                        grad = grad_image[row, col, k]
+                        q += grad * values[g, k]
+                        grad_values[k] += grad * weight
+                    grad_alpha = transmittance * q - behind[p] * keep
+                    behind[p] += weight * q
+                    if raw <= max_alpha:  # a clamped alpha does not move with the Gaussian
+                        grad_exponent = grad_alpha * alpha  # d(o G)/d(exponent) = o G
+                        grad_x = grad_exponent * (a * dx + b * dy)
+                        grad_y = grad_exponent * (b * dx + c * dy)
+                        g_x += grad_x
+                        g_y += grad_y
+                        g_a -= 0.5 * grad_exponent * dx * dx
+                        g_b -= grad_exponent * dx * dy
+                        g_c -= 0.5 * grad_exponent * dy * dy
+                        g_o += grad_alpha * response
+                        abs_x += abs(grad_x)  # each pixel's own gradient, as gsplat's absgrad
+                        abs_y += abs(grad_y)
+            entry_grads[e, 0], entry_grads[e, 1], entry_grads[e, 2], entry_grads[e, 3] = g_x, g_y, g_a, g_b
+            entry_grads[e, 4], entry_grads[e, 5], entry_grads[e, 6], entry_grads[e, 7] = g_c, g_o, abs_x, abs_y
+            for k in range(k_values):
+                entry_grads[e, PER_ENTRY + k] = grad_values[k]
+    return entry_grads
+
+
+@njit(cache=True, parallel=True)
+def reduce_entries(entry_grads, g_offsets, by_gaussian):
+    """Per Gaussian, the sum of its entries' gradients in increasing entry order (float64): [N, 8 + K]."""
+    n = g_offsets.shape[0] - 1
+    width = entry_grads.shape[1]
+    out = np.zeros((n, width), np.float64)
+    for g in prange(n):
+        for i in range(g_offsets[g], g_offsets[g + 1]):
+            e = by_gaussian[i]
+            for k in range(width):
+                out[g, k] += entry_grads[e, k]
+    return out

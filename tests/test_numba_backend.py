@@ -1,0 +1,207 @@
+"""Backend numba against backend torch (the readable reference): images, alpha, depths, every gradient, absgrad,
+on random scenes and on the edge cases (opaque and nearly transparent Gaussians, Gaussians behind the camera,
+footprints across tile borders, an empty image, sizes that are not multiples of 16); bitwise determinism; how
+`auto` chooses it; what a pipeline stage records; the one-line compile notice and numba's cache."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from matspray.config import build_config
+from matspray.data.camera import Camera
+from matspray.errors import SettingError
+from matspray.gaussians import Gaussians
+from matspray.pipeline import Pipeline
+from matspray.render.backend import BACKENDS, resolve_backend, rendering_with
+from matspray.render.rasterize import rasterize
+from matspray.render.settings import RasterSettings
+from tests.test_rasterize import random_scene
+
+PARAMS = ("means", "log_scales", "quats", "opacity_logits")
+
+
+def render_and_backward(backend, gaussians, camera, features, background=None, settings=RasterSettings(), seed=0):
+    """Render with `backend`, backpropagate a loss that weights every channel and pixel differently; returns the
+    output and the gradients of the Gaussians' parameters and the features (fresh leaves each call)."""
+    leaves = [getattr(gaussians, name).detach().clone().requires_grad_(True) for name in PARAMS]
+    g = Gaussians(*leaves, gaussians.sh.detach())
+    feats = features.detach().clone().requires_grad_(True)
+    out = rasterize(g, camera, feats, background, backend=backend, settings=settings, absgrad=True)
+    out.retain_screen_grads()
+    weights = torch.rand(out.features.shape, generator=torch.Generator().manual_seed(seed), dtype=out.features.dtype)
+    loss = (out.features * weights).sum() + out.alpha.square().sum() + 0.3 * out.depth.sum() + out.expected_depth.sum()
+    loss.backward()
+    grads = {name: leaf.grad for name, leaf in zip(PARAMS, leaves)}
+    grads["features"] = feats.grad
+    return out, grads
+
+
+def assert_backends_agree(gaussians, camera, features, background=None, settings=RasterSettings()):
+    ref, ref_grads = render_and_backward("torch", gaussians, camera, features, background, settings)
+    out, grads = render_and_backward("numba", gaussians, camera, features, background, settings)
+    assert out.backend == "numba" and ref.backend == "torch"
+    assert out.pixel_hits == ref.pixel_hits
+    for name in ("features", "alpha", "depth", "expected_depth"):
+        torch.testing.assert_close(getattr(out, name), getattr(ref, name), atol=1e-5, rtol=1e-5, msg=name)
+    torch.testing.assert_close(out.radii, ref.radii, atol=0, rtol=0)
+    torch.testing.assert_close(out.means2d, ref.means2d, atol=0, rtol=0)
+    for name, grad in ref_grads.items():
+        scale = grad.abs().max().clamp_min(1e-12)  # 1e-4 relative to the largest gradient of the parameter
+        torch.testing.assert_close(grads[name] / scale, grad / scale, atol=1e-4, rtol=0, msg=name)
+    for name in ("screen_grads", "screen_absgrads"):
+        mine, theirs = getattr(out, name), getattr(ref, name)
+        scale = theirs.abs().max().clamp_min(1e-12)
+        torch.testing.assert_close(mine / scale, theirs / scale, atol=1e-4, rtol=0, msg=name)
+    return ref, out
+
+
+@pytest.mark.parametrize("seed, width, height", [(0, 16, 12), (1, 53, 37), (2, 48, 32), (3, 17, 65)])
+def test_matches_torch_on_random_scenes(seed, width, height):
+    gaussians, camera, features = random_scene(300, seed, width=width, height=height)
+    ref, _ = assert_backends_agree(gaussians, camera, features, torch.tensor([0.2, 0.5, 1.0]))
+    assert ref.alpha.max() > 0.9 and (ref.alpha < 0.5).any() and ref.pixel_hits > 1000
+
+
+def test_opaque_and_nearly_transparent_gaussians():
+    gaussians, camera, features = random_scene(200, 4, width=40, height=33, max_opacity=1.0)
+    logits = gaussians.opacity_logits.clone()
+    logits[:40] = 20.0  # opacity 1 in float32: alpha clamps at max_alpha, and what is behind stops early
+    logits[40:80] = torch.logit(torch.tensor(0.0045))  # just above min_alpha at the centre only
+    logits[80:90] = torch.logit(torch.tensor(0.003))  # below min_alpha everywhere: never drawn
+    gaussians.opacity_logits = logits
+    ref, out = assert_backends_agree(gaussians, camera, features)
+    assert (out.radii[80:90] == 0).all()
+
+
+def test_early_termination_and_other_settings():
+    """Eight nearly opaque Gaussians stacked on the optical axis (as tests/test_rasterize.py), with the default
+    stop, without it, and with other alpha bounds."""
+    n = 8
+    means = torch.zeros(n, 3)
+    means[:, 2] = torch.linspace(-0.5, 0.5, n)
+    gaussians = Gaussians(means, torch.full((n, 3), math.log(0.3)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                          torch.logit(torch.full((n,), 0.95)), torch.zeros(n, 1, 3))
+    camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 8, 8)
+    features = torch.eye(n)
+    _, out = assert_backends_agree(gaussians, camera, features)
+    assert out.features[3:5, 3:5, -1].max() == 0  # the four central pixels stop before the last one
+    for settings in (RasterSettings(min_transmittance=0.0), RasterSettings(min_alpha=0.05, max_alpha=0.9)):
+        assert_backends_agree(gaussians, camera, features, settings=settings)
+
+
+def test_gaussians_behind_the_camera_get_nothing():
+    gaussians, camera, features = random_scene(60, 6, width=24, height=20)
+    means = gaussians.means.clone()
+    means[:10] = camera.center + 2.0 * (camera.center - means[:10])  # behind the camera
+    means[10] = camera.center  # on it
+    gaussians.means = means
+    _, out = assert_backends_agree(gaussians, camera, features)
+    assert (out.radii[:11] == 0).all()
+
+
+def test_footprints_across_tile_borders():
+    """Large Gaussians centred on tile corners and edges of a 40 x 40 image (tiles at 16 and 32)."""
+    centres = [(16.0, 16.0), (32.0, 15.5), (15.5, 32.5), (0.0, 0.0), (39.9, 20.0), (24.0, 16.2)]
+    camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(40), 40, 40)
+    K, R, t = camera.K, camera.viewmat[:3, :3], camera.viewmat[:3, 3]
+    depth = 4.0 + 0.1 * torch.arange(len(centres), dtype=torch.float32)
+    pixels = torch.tensor(centres)
+    in_camera = torch.stack([(pixels[:, 0] - K[0, 2]) / K[0, 0] * depth, (pixels[:, 1] - K[1, 2]) / K[1, 1] * depth, depth], dim=1)
+    means = (in_camera - t) @ R  # R^T (x - t), row by row: the points that project onto `centres`
+    n = len(centres)
+    g = torch.Generator().manual_seed(3)
+    gaussians = Gaussians(means, torch.log(torch.full((n, 3), 0.3) * (0.5 + torch.rand(n, 3, generator=g))),
+                          torch.randn(n, 4, generator=g), torch.logit(torch.linspace(0.4, 0.9, n)), torch.zeros(n, 1, 3))
+    ref, out = assert_backends_agree(gaussians, camera, torch.rand(n, 4, generator=g))
+    torch.testing.assert_close(out.means2d, pixels, atol=1e-3, rtol=0)
+    assert out.visible.all() and ref.alpha[15:17, 15:17].min() > 0.1  # the footprints do reach across the borders
+
+
+def test_empty_image():
+    gaussians, camera, features = random_scene(10, 7, width=20, height=18)
+    gaussians.means = camera.center + 2.0 * (camera.center - gaussians.means)  # all behind the camera
+    out, grads = render_and_backward("numba", gaussians, camera, features, torch.tensor([0.1, 0.2, 0.3]))
+    assert out.pixel_hits == 0 and (out.alpha == 0).all() and (out.depth == 0).all()
+    torch.testing.assert_close(out.features, torch.tensor([0.1, 0.2, 0.3]).expand(18, 20, 3))
+    assert all((grad == 0).all() for grad in grads.values())
+
+
+def test_deterministic_run_to_run_and_across_thread_counts():
+    gaussians, camera, features = random_scene(400, 8, width=61, height=47)
+    threads = torch.get_num_threads()
+    runs = []
+    try:
+        for count in (2, 2, 1):
+            torch.set_num_threads(count)  # numba takes as many threads as torch
+            out, grads = render_and_backward("numba", gaussians, camera, features)
+            runs.append([out.features, out.alpha, out.depth, out.screen_absgrads, *grads.values()])
+    finally:
+        torch.set_num_threads(threads)
+    for other in runs[1:]:
+        for a, b in zip(runs[0], other):
+            assert torch.equal(a, b)
+
+
+def test_gradcheck_float64():
+    """The kernels in float64 against finite differences (as tests/test_rasterize.py checks backend torch)."""
+    gaussians, camera, features = random_scene(4, 5, dtype=torch.float64, width=7, height=6, max_opacity=0.8)
+    gaussians.log_scales = gaussians.log_scales + math.log(2.5)  # footprints of a few pixels, overlapping
+    background = torch.tensor([0.3, 0.1, 0.7], dtype=torch.float64)
+
+    def render(means, log_scales, quats, opacity_logits, feats):
+        out = rasterize(Gaussians(means, log_scales, quats, opacity_logits, gaussians.sh), camera, feats, background, backend="numba")
+        return out.features, out.alpha, out.depth
+
+    inputs = tuple(t.clone().requires_grad_(True) for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
+                                                              gaussians.opacity_logits, features.double()))
+    assert render(*inputs)[1].max() > 0.5 and render(*inputs)[0].dtype == torch.float64
+    assert torch.autograd.gradcheck(render, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+# ---------------------------------------------------------------- choosing it, counting it, compiling it
+
+def test_auto_on_the_cpu_is_numba_and_torch_stays_available():
+    assert "numba" in BACKENDS
+    assert resolve_backend("auto", "cpu") == "numba" and resolve_backend("numba", "cpu") == "numba"
+    assert resolve_backend("torch", "cpu") == "torch"
+    with pytest.raises(SettingError, match="backend: numba renders on the CPU only"):
+        resolve_backend("numba", "cuda")
+    with rendering_with("numba") as use:
+        gaussians, camera, features = random_scene(5, 0)
+        assert rasterize(gaussians, camera, features).backend == "numba"
+        assert rasterize(gaussians, camera, features, backend="torch").backend == "torch"
+    assert use.used() == {"numba": 1, "torch": 1}
+
+
+def test_a_stage_record_counts_numba_renders(tiny_object, tmp_path):
+    config = build_config("test", predictor="simulated", device="cpu", backend="auto", visibility=None)
+    with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lambda _: None) as pipeline:
+        assert pipeline.backend == "numba"
+        pipeline.geometry()
+    record = json.loads((tmp_path / "run" / "geometry" / "stage.json").read_text())
+    assert record["backend"] == "numba" and set(record["renders"]) == {"numba"} and record["renders"]["numba"] >= 60
+
+
+@pytest.mark.slow  # compiles the kernels from scratch (about 20 s), then loads them
+def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
+    """A fresh cache folder: the first process compiles and says so in one line; the second loads from the cache
+    and says nothing."""
+    script = ("import torch; from tests.test_rasterize import random_scene; from matspray.render.rasterize import rasterize\n"
+              "g, c, f = random_scene(20, 0)\n"
+              "for _ in range(2): rasterize(g, c, f, backend='numba')\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    said = []
+    for _ in range(2):
+        done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600,
+                              cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        assert done.returncode == 0, done.stderr
+        said.append([line for line in done.stderr.splitlines() if line.startswith("numba:")])
+    assert len(said[0]) == 1 and "compiled the rasterizer's kernels" in said[0][0] and str(tmp_path / "cache") in said[0][0]
+    assert said[1] == []
