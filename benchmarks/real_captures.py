@@ -1,0 +1,160 @@
+"""Both real captures of the shared data through the whole method, as a user runs them (issue 39).
+
+    python -m benchmarks.real_captures [--captures skull stitch] [--preset demo] [--out runs/real-captures]
+        [--lights studio sunset forest] [--geometry-iterations N] [--refine-iterations N] [--backend auto]
+
+Per capture, the `matspray` commands a user types, each in its own process:
+  skull   `matspray colmap` on its 66 photos (no poses), then `run` on the dataset it made
+  stitch  `run` on its transforms.json (poses with lens distortion, cluttered room)
+then `relight` under each light (the held-out test cameras) and once as a turntable (orbit MP4 over the light),
+`export` (glb), and `eval` (held-out photos scored inside the object mask; report.html with the photo credit).
+Neither capture has 2D material maps here (no diffusion weights), so the run makes the no-prior asset.
+
+Prints per capture: photos registered and mean reprojection error (skull), held-out novel-view PSNR / SSIM /
+LPIPS inside the object mask on views never trained on, the share of each held-out view the mask covers,
+Gaussians (geometry and asset), seconds per stage and per command, the peak memory of each command, and the
+exported mesh's bounding box against the object region. Finished commands are not redone on a rerun (each
+one's outputs are checked); delete OUT/<capture> to start over.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CAPTURES_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "captures"
+SKULL_CREDIT = ('"Photogrammetry Test Set: Skull - Cameramoves - Flash - No Background" by alansartlog '
+                "(photogrammetry-test-sets), CC BY 4.0")
+CREDITS = {"skull": SKULL_CREDIT, "stitch": "toy figure video frames from a public TensoRF user-data repository (MIT)"}
+VARIANT = "no-prior"
+
+
+def command(args: list[str], log: Path) -> dict:
+    """Run `matspray ARGS` in its own process (output appended to `log`); its seconds and peak resident memory."""
+    start = time.perf_counter()
+    with open(log, "a") as out:
+        out.write(f"\n$ matspray {' '.join(args)}\n")
+        out.flush()
+        process = subprocess.Popen([sys.executable, "-m", "matspray", *args], stdout=out, stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(process.pid, 0)  # wait4: this child's own peak memory (ru_maxrss, KiB on Linux)
+        process.returncode = os.waitstatus_to_exitcode(status)
+    seconds = time.perf_counter() - start
+    if process.returncode != 0:
+        raise SystemExit(f"matspray {' '.join(args)} failed (exit {process.returncode}); see {log}")
+    return {"command": "matspray " + " ".join(args), "seconds": round(seconds, 1), "peak_mib": round(usage.ru_maxrss / 1024)}
+
+
+def skull_dataset(out: Path, log: Path, steps: list) -> tuple[Path, dict]:
+    dataset = out / "dataset"
+    if not (dataset / "sparse" / "0").is_dir():
+        steps.append(command(["colmap", str(CAPTURES_DIR / "skull" / "images"), "--out", str(dataset), "--single-camera", "--quiet"], log))
+    import pycolmap
+
+    model = pycolmap.Reconstruction(str(dataset / "sparse" / "0"))
+    photos = len(list((CAPTURES_DIR / "skull" / "images").glob("*.JPG")))
+    return dataset, {"photos": photos, "registered": model.num_reg_images(),
+                     "reprojection_px": round(float(model.compute_mean_reprojection_error()), 3), "points": model.num_points3D()}
+
+
+def run_capture(name: str, args, out_root: Path) -> dict:
+    out = out_root / name
+    out.mkdir(parents=True, exist_ok=True)
+    log = out / "commands.log"
+    steps: list[dict] = []
+    sfm = None
+    if name == "skull":
+        data, sfm = skull_dataset(out, log, steps)
+    else:
+        data = CAPTURES_DIR / name
+    run = out / "run"
+    compute = ["--backend", args.backend]
+    if not (run / "eval" / "heldout.json").exists():
+        extra = []
+        if args.geometry_iterations:
+            extra += ["--geometry-iterations", str(args.geometry_iterations)]
+        if args.refine_iterations:
+            extra += ["--refine-iterations", str(args.refine_iterations)]
+        steps.append(command(["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *extra, *compute], log))
+        for light in args.lights:
+            steps.append(command(["relight", "--run", str(run), "--variant", VARIANT, "--env", light, "--out", str(out / "relit"), *compute], log))
+        steps.append(command(["relight", "--run", str(run), "--variant", VARIANT, "--env", args.lights[0], "--views", "orbit",
+                              "--background", "env", "--out", str(out / "turntable"), *compute], log))
+        steps.append(command(["export", "--run", str(run), "--variant", VARIANT, "--out", str(out / f"{name}.glb"), "--frame", "dataset",
+                              *compute], log))
+        steps.append(command(["eval", "--run", str(run), "--credit", CREDITS[name], "--relight", *args.lights, *compute], log))
+    return summarise(name, out, run, sfm, steps)
+
+
+def glb_box(path: Path):
+    import trimesh
+
+    scene = trimesh.load(path, force="scene")
+    low, high = scene.bounds
+    return [round(float(v), 3) for v in low], [round(float(v), 3) for v in high]
+
+
+def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dict]) -> dict:
+    from matspray.asset import read_asset
+    from matspray.geometry.ply import read_ply
+    from matspray.objectmasks import read_object_masks
+    from matspray.rundir import RunDir
+
+    metrics = json.loads((run / "eval" / "heldout.json").read_text())
+    timings = json.loads((run / "timings.json").read_text())
+    region = read_object_masks(run / "masks").region
+    record = {"capture": name, "sfm": sfm, "steps": steps, "stage_seconds": timings,
+              "gaussians_geometry": len(read_ply(run / "geometry" / "gaussians.ply")[0]),
+              "gaussians_asset": len(read_asset(RunDir(run).asset_path(VARIANT)).gaussians),
+              "heldout": metrics["heldout"]["summary"], "train": metrics["train"]["summary"],
+              "mask_coverage": [(r["view"], round(r["mask_coverage"], 3)) for r in metrics["heldout"]["per_view"]],
+              "region": region.describe(), "glb_box": glb_box(out / f"{name}.glb") if (out / f"{name}.glb").exists() else None}
+    (out / "summary.json").write_text(json.dumps(record, indent=1))
+    return record
+
+
+def print_record(record: dict) -> None:
+    print(f"\n== {record['capture']} ==")
+    if record["sfm"]:
+        s = record["sfm"]
+        print(f"structure from motion: {s['registered']} of {s['photos']} photos registered, mean reprojection error "
+              f"{s['reprojection_px']:.3f} px, {s['points']} points")
+    for key, value in record["heldout"].items():
+        lpips = "n/a" if value["lpips"] is None else f"{value['lpips']:.3f}"
+        label = "geometry (3DGS colours)" if key == "radiance" else f"{key} asset under its estimated light"
+        print(f"held-out, inside the object mask, {label}: PSNR {value['psnr']:.2f} dB, SSIM {value['ssim']:.3f}, LPIPS {lpips}"
+              f"   (training views: {record['train'][key]['psnr']:.2f} dB)")
+    print("mask coverage of each held-out view: " + ", ".join(f"{view} {100 * c:.1f}%" for view, c in record["mask_coverage"]))
+    print(f"Gaussians: {record['gaussians_geometry']} in the geometry, {record['gaussians_asset']} in the asset")
+    print(f"object region: {record['region']}")
+    if record["glb_box"]:
+        print(f"exported glb box (dataset frame): {record['glb_box'][0]} .. {record['glb_box'][1]}")
+    print("seconds per stage: " + ", ".join(f"{k} {v:.0f}" for k, v in record["stage_seconds"].items()))
+    for step in record["steps"]:
+        print(f"  {step['seconds']:7.1f} s  peak {step['peak_mib']:6d} MiB  {step['command']}")
+    if record["steps"]:
+        print(f"total: {sum(s['seconds'] for s in record['steps']) / 60:.1f} min")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--captures", nargs="+", choices=("skull", "stitch"), default=["skull", "stitch"])
+    parser.add_argument("--preset", default="demo", choices=("test", "demo", "paper"))
+    parser.add_argument("--out", type=Path, default=Path("runs/real-captures"))
+    parser.add_argument("--lights", nargs="+", default=["studio", "sunset", "forest"])
+    parser.add_argument("--geometry-iterations", type=int)
+    parser.add_argument("--refine-iterations", type=int)
+    parser.add_argument("--backend", default="auto")
+    args = parser.parse_args()
+    if not CAPTURES_DIR.is_dir():
+        raise SystemExit(f"{CAPTURES_DIR}: the shared captures are not here")
+    for name in args.captures:
+        print_record(run_capture(name, args, args.out))
+
+
+if __name__ == "__main__":
+    main()
