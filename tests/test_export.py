@@ -450,3 +450,93 @@ def test_export_default_face_budget_is_fifty_thousand():
     from matspray.export.config import ExportConfig
 
     assert ExportConfig().faces == 50_000
+
+
+# ------------------------------------------------------------------------------------------ surface against wrong depths, normals
+def sphere_depths(cameras: list[Camera], radius: float = 1.0) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """What `render_depths` gives for an opaque sphere at the origin: camera z of the first hit (weighted
+    by alpha 1) and alpha, 0 where the ray misses."""
+    out = []
+    for camera in cameras:
+        origins, dirs = camera.rays()
+        b = (origins * dirs).sum(-1)
+        disc = b**2 - ((origins**2).sum(-1) - radius**2)
+        hit = disc > 0
+        t = -b - disc.clamp_min(0).sqrt()
+        z = camera.world_to_camera(origins + t[:, None] * dirs)[:, 2]
+        shape = (camera.height, camera.width)
+        out.append((torch.where(hit, z, 0.0).reshape(shape).float(), hit.float().reshape(shape)))
+    return out
+
+
+def test_one_view_with_a_wrong_depth_does_not_carve_a_pit():
+    """A reflection's Gaussians lie behind the mirror they show: a view whose depth runs deep behind the true
+    surface over a patch must not carve the inside that every other view sees as hidden behind the surface."""
+    from matspray.export.surface import fuse_tsdf, voxel_grid
+
+    cameras = sphere_cameras(24, 48)
+    depths = sphere_depths(cameras)
+    depth, alpha = depths[0]
+    deep = depth.clone()
+    deep[18:30, 18:30] += 0.6  # the patch at the centre of view 0 lies 0.6 behind the true surface
+    depths[0] = (deep, alpha)
+    centres, voxel, shape = voxel_grid(torch.tensor([[-1.0, -1, -1], [1, 1, 1]]), 40)
+    eye = cameras[0].center.float()
+    probe = (eye / eye.norm() * 0.6)[None]  # 0.4 under the surface, straight ahead of view 0: inside the pit
+    nearest = int(((centres - probe) ** 2).sum(-1).argmin())
+    carved, _ = fuse_tsdf(centres, cameras, depths, 4 * voxel, occluded_share=2.0)  # the plain TSDF: one view decides
+    field, _ = fuse_tsdf(centres, cameras, depths, 4 * voxel)
+    assert carved[nearest] > 0 and field[nearest] < 0
+    # the outside is untouched: voxels outside the sphere stay outside, the rest of the inside stays inside
+    radius = centres.norm(dim=-1)
+    assert (field[radius > 1.0 + 2 * voxel] > 0).all()
+    assert (field[radius < 1.0 - 6 * voxel] < 0).all()
+
+
+def noisy_sphere(subdivisions: int = 5, noise: float = 0.01, seed: int = 0):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    rng = np.random.default_rng(seed)
+    vertices = sphere.vertices * (1.0 + noise * rng.standard_normal(len(sphere.vertices)))[:, None]
+    return trimesh.Trimesh(vertices, sphere.faces, process=False)
+
+
+def trimesh_copy_smoothed(mesh, iterations: int) -> np.ndarray:
+    import trimesh
+
+    copy = mesh.copy()
+    trimesh.smoothing.filter_taubin(copy, iterations=iterations)
+    return np.asarray(copy.vertices)
+
+
+def test_smoothed_normals_of_a_noisy_sphere_are_closer_to_the_analytic_ones_and_positions_stay():
+    from matspray.export.normals import angle_degrees, smoothed_vertex_normals
+
+    mesh = noisy_sphere()
+    before = np.asarray(mesh.vertices).copy()
+    analytic = before / np.linalg.norm(before, axis=-1, keepdims=True)
+    raw = angle_degrees(smoothed_vertex_normals(mesh, 0), analytic)
+    smooth = angle_degrees(smoothed_vertex_normals(mesh, 10), analytic)  # the export's default
+    smoother = angle_degrees(smoothed_vertex_normals(mesh, 40), analytic)
+    assert np.allclose(smoothed_vertex_normals(mesh, 0), mesh.vertex_normals)  # 0 passes: the surface's own normals
+    assert smooth.mean() < 0.6 * raw.mean() and np.percentile(smooth, 90) < 0.6 * np.percentile(raw, 90)
+    assert smoother.mean() < 0.35 * raw.mean()
+    shrink = np.linalg.norm(trimesh_copy_smoothed(mesh, 40), axis=-1).mean() / np.linalg.norm(before, axis=-1).mean()
+    assert abs(shrink - 1.0) < 0.01  # Taubin, not Laplacian: the copy keeps its size, so its normals are the surface's
+    assert np.array_equal(np.asarray(mesh.vertices), before)  # only a copy is smoothed
+
+
+def test_depth_trust_is_low_on_smooth_metal_only():
+    from matspray.export.surface import depth_trust
+
+    gaussians, _, materials = sphere_of_disks(1500)
+    camera = sphere_cameras(1, 40)[0]
+    mirror, rough_metal, dielectric = materials.clone(), materials.clone(), materials.clone()
+    mirror[:, 3:5] = torch.tensor([0.05, 1.0])  # roughness, metallic
+    rough_metal[:, 3:5] = torch.tensor([0.7, 1.0])
+    dielectric[:, 3:5] = torch.tensor([0.05, 0.0])
+    centre = (slice(15, 25), slice(15, 25))
+    assert depth_trust(gaussians, mirror, [camera])[0][centre].max() < 0.05
+    assert depth_trust(gaussians, rough_metal, [camera])[0][centre].min() > 0.95
+    assert depth_trust(gaussians, dielectric, [camera])[0][centre].min() > 0.95

@@ -24,6 +24,7 @@ class ExportConfig:
     neighbours: int = 16  # Gaussians blended per texel when baking
     padding: int = 4  # xatlas gutter between charts, in texels
     normals: str = "mesh"  # per-vertex normals: mesh (the surface's own) or asset (the Gaussians' normals blended)
+    normal_smoothing: int = 10  # Taubin passes on the copy of the surface its normals come from (0: the raw surface's)
 
     def __post_init__(self):
         if self.faces < MIN_FACES:
@@ -39,3 +40,5 @@ class ExportConfig:
             raise SettingError("export.normals", f"unknown normals '{self.normals}'; choose one of {', '.join(NORMALS)}")
         if self.neighbours < 1 or self.padding < 0:
             raise SettingError("export", "baking needs >= 1 neighbour and a padding >= 0")
+        if self.normal_smoothing < 0:
+            raise SettingError("export.normal_smoothing", f"the normals' smoothing passes must be >= 0, got {self.normal_smoothing}")

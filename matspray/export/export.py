@@ -21,6 +21,7 @@ from matspray.export.atlas import uv_atlas
 from matspray.export.bake import bake_textures, blend_normals, gaussian_weights
 from matspray.export.config import ExportConfig
 from matspray.export.decimate import decimate
+from matspray.export.normals import smoothed_vertex_normals
 from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
 from matspray.export.surface import fuse_surface
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
@@ -56,7 +57,8 @@ def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, p
         bar.set_postfix_str(following, refresh=False)
         bar.update()
 
-    mesh, voxel = fuse_surface(asset.gaussians, cameras, config.grid, config.truncation, config.min_alpha, config.keep_fraction, progress)
+    mesh, voxel = fuse_surface(asset.gaussians, cameras, config.grid, config.truncation, config.min_alpha, config.keep_fraction, progress,
+                               materials=asset.materials.detach())
     step("surface", "decimate")
     mesh = decimate(mesh, config.faces)
     step("decimate", "atlas")
@@ -65,7 +67,7 @@ def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, p
     materials = asset.materials.detach().cpu().double().numpy()
     textures = bake_textures(atlas.positions, atlas.faces, atlas.uvs, asset.gaussians, materials, config.texture_size,
                              config.neighbours, voxel)
-    normals = unit_normals(np.asarray(mesh.vertex_normals, dtype=np.float64), np.asarray(mesh.vertices))[atlas.source]
+    normals = unit_normals(smoothed_vertex_normals(mesh, config.normal_smoothing), np.asarray(mesh.vertices))[atlas.source]
     if config.normals == "asset":
         ids, weights = gaussian_weights(atlas.positions, asset.gaussians, config.neighbours, voxel)
         normals = blend_normals(ids, weights, asset.normals.detach().cpu().double().numpy(), normals)

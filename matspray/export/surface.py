@@ -24,18 +24,54 @@ from matspray.render.rasterize import rasterize
 from matspray.export.silhouette import silhouette_offset
 
 CALIBRATION_STEPS = 2  # rounds of moving the surface's level to match the asset's silhouettes
+# A smooth metal shows a mirror image, and the Gaussians that reproduce it sit where the reflected scene
+# appears, behind the surface (for a convex mirror, up to half its radius of curvature deep), so their depth
+# carves pits into the object. A pixel counts as a mirror by its rendered metallic and roughness, ramped
+# between these bounds (perceptual roughness: GGX alpha = r^2, so 0.45 already blurs a reflection a lot).
+MIRROR_METALLIC = (0.5, 0.8)
+MIRROR_ROUGHNESS = (0.45, 0.25)
+# Those pits are what the plain TSDF cannot refuse: a view that sees a voxel deeper than the truncation behind
+# the surface casts no vote, so the one view whose depth runs deep decides alone. A voxel that at least this
+# share of the views seeing it (in front of or deep behind their surface) sees hidden is inside; a real
+# concavity is seen from fewer directions, so a share close to 1 keeps most of those open.
+OCCLUDED_SHARE = 0.9
+
+
+def render_views(gaussians: Gaussians, cameras: list[Camera], materials: Tensor | None = None,
+                 progress: bool = False) -> tuple[list[tuple[Tensor, Tensor]], list[Tensor] | None]:
+    """Per camera, coverage-weighted depth [H, W] (sum_k w_k z_k, see `RasterOutput.depth`) and coverage alpha
+    [H, W]; with the Gaussians' `materials` [N, 5], also each pixel's `depth_trust` [H, W], from the same
+    rasterization (roughness and metallic as its colour), else None."""
+    colours = materials[:, 3:5].to(gaussians.device) if materials is not None else torch.ones(len(gaussians), 1, device=gaussians.device)
+    depths, trust = [], []
+    with torch.no_grad():
+        for camera in tqdm(cameras, desc="export: depth", disable=not progress, dynamic_ncols=True):
+            raster = rasterize(gaussians, camera.to(colours.device), colours)
+            depths.append((raster.depth.cpu(), raster.alpha.cpu()))  # the TSDF fuses on the CPU
+            if materials is not None:
+                rough, metal = (raster.features / raster.alpha.clamp_min(1e-6)[..., None]).cpu().unbind(-1)
+                trust.append(mirror_trust(rough, metal))
+    return depths, trust if materials is not None else None
 
 
 def render_depths(gaussians: Gaussians, cameras: list[Camera], progress: bool = False) -> list[tuple[Tensor, Tensor]]:
-    """Coverage-weighted depth [H, W] (sum_k w_k z_k, see `RasterOutput.depth`) and coverage alpha [H, W]
-    of the Gaussians at each camera."""
-    ones = torch.ones(len(gaussians), 1, device=gaussians.device)
-    out = []
-    with torch.no_grad():
-        for camera in tqdm(cameras, desc="export: depth", disable=not progress, dynamic_ncols=True):
-            raster = rasterize(gaussians, camera.to(ones.device), ones)
-            out.append((raster.depth.cpu(), raster.alpha.cpu()))  # the TSDF fuses on the CPU
-    return out
+    """Depth and alpha of the Gaussians at each camera (`render_views`)."""
+    return render_views(gaussians, cameras, progress=progress)[0]
+
+
+def ramp(x: Tensor, start: float, end: float) -> Tensor:  # 0 at start, 1 at end (either order), linear between
+    return ((x - start) / (end - start)).clamp(0.0, 1.0)
+
+
+def mirror_trust(roughness: Tensor, metallic: Tensor) -> Tensor:
+    """How far a pixel's rendered depth is the depth of the surface: 1 for rough or dielectric material,
+    falling to 0 on smooth metal, whose depth is that of its reflection (see MIRROR_METALLIC)."""
+    return 1.0 - ramp(metallic, *MIRROR_METALLIC) * ramp(roughness, *MIRROR_ROUGHNESS)
+
+
+def depth_trust(gaussians: Gaussians, materials: Tensor, cameras: list[Camera]) -> list[Tensor]:  # materials [N, 5] -> [H, W] each
+    """`mirror_trust` of the pixels the Gaussians render at each camera."""
+    return render_views(gaussians, cameras, materials)[1]
 
 
 def object_box(gaussians: Gaussians, min_opacity: float = 0.05) -> Tensor:  # -> [2, 3] min, max of the visible centres
@@ -87,19 +123,25 @@ def fuse_tsdf(
     depths: list[tuple[Tensor, Tensor]],  # per camera: weighted depth [H, W], alpha [H, W] (`render_depths`)
     truncation: float,  # distance (world units) beyond which the field saturates
     min_alpha: float = 0.5,
+    trust: list[Tensor] | None = None,  # per camera [H, W] in [0, 1]: weight of a covered pixel's depth (`depth_trust`)
+    occluded_share: float = OCCLUDED_SHARE,
 ) -> tuple[Tensor, Tensor]:  # -> field [M] in [-1, 1] (> 0 outside, < 0 inside), unknown [M] bool
     """Truncated signed distance along each camera's z axis, averaged over the views that saw the voxel
-    in front of the surface or through empty pixels. A voxel that lies deeper than the truncation behind
-    the surface in every view that sees it is inside (-1) and unknown; a voxel no camera sees is outside (+1)."""
+    in front of the surface or through empty pixels (a covered pixel's vote weighted by its `trust`; an empty
+    pixel's, the silhouette's, always counts in full). A voxel that at least `occluded_share` of the views which
+    see it see deeper than the truncation behind the surface is inside (-1); one that lies that deep in every
+    view that sees it is inside (-1) and unknown; a voxel no camera sees is outside (+1)."""
     total = torch.zeros(len(centres))
     weight = torch.zeros(len(centres))
+    seen, hidden = torch.zeros(len(centres)), torch.zeros(len(centres))  # views that see the voxel in front of / deep behind the surface
     in_view = torch.zeros(len(centres), dtype=torch.bool)
-    for camera, (depth, alpha) in zip(cameras, depths):
+    for view, (camera, (depth, alpha)) in enumerate(zip(cameras, depths)):
         pixels, z = camera.project(centres)
         inside = (z > 1e-6) & (pixels[:, 0] >= 0) & (pixels[:, 0] < camera.width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < camera.height)
         idx = inside.nonzero().squeeze(1)
         gap = silhouette_gap(alpha.cpu(), min_alpha)
-        weighted, cover, off = sample_bilinear(torch.stack([depth.cpu(), alpha.cpu(), gap], dim=-1), pixels[idx]).unbind(-1)
+        confidence = trust[view].cpu() if trust is not None else torch.ones_like(gap)
+        weighted, cover, off, sure = sample_bilinear(torch.stack([depth.cpu(), alpha.cpu(), gap, confidence], dim=-1), pixels[idx]).unbind(-1)
         covered = cover >= min_alpha
         sdf = (weighted / cover.clamp_min(1e-6) - z[idx]) / truncation
         # an empty pixel: free space all along the ray, but only as far from the surface as the ray passes
@@ -109,11 +151,17 @@ def fuse_tsdf(
         focal = 0.5 * float(camera.K[0, 0] + camera.K[1, 1])
         free = (off * z[idx] / focal / truncation).clamp(min=1e-3, max=1.0)
         sdf = torch.where(covered, sdf, free)
-        used = sdf >= -1.0  # deeper than the truncation behind the surface: no information from this view
-        total.index_add_(0, idx[used], sdf[used].clamp(max=1.0))
-        weight.index_add_(0, idx[used], torch.ones(int(used.sum())))
+        vote = torch.where(covered, sure, torch.ones_like(sure))
+        used = (sdf >= -1.0) & (vote > 1e-3)  # deeper than the truncation behind the surface, or a mirror: no information
+        total.index_add_(0, idx[used], vote[used] * sdf[used].clamp(max=1.0))
+        weight.index_add_(0, idx[used], vote[used])
+        seen.index_add_(0, idx, torch.where(sdf > 0, vote, 0.0))
+        hidden.index_add_(0, idx, torch.where(sdf < -1.0, vote, 0.0))
         in_view[idx] = True
     field = torch.where(weight > 0, total / weight.clamp_min(1e-12), -torch.ones_like(total))
+    # nearly every view sees it hidden: inside, whatever the few others say (see OCCLUDED_SHARE)
+    hides = (hidden >= occluded_share * (hidden + seen)) & (hidden > 0)
+    field = torch.where(hides, -torch.ones_like(field), field)
     return torch.where(in_view, field, torch.ones_like(field)), in_view & (weight == 0)
 
 
@@ -153,13 +201,15 @@ def keep_object(mesh: trimesh.Trimesh, keep_fraction: float) -> trimesh.Trimesh:
 
 
 def fuse_surface(gaussians: Gaussians, cameras: list[Camera], grid: int, truncation_voxels: float, min_alpha: float,
-                 keep_fraction: float, progress: bool = False, calibrate: bool = True) -> tuple[trimesh.Trimesh, float]:
+                 keep_fraction: float, progress: bool = False, calibrate: bool = True,
+                 materials: Tensor | None = None) -> tuple[trimesh.Trimesh, float]:
     """The whole step: depths -> TSDF on a grid around the Gaussians -> marching cubes -> the object, its
-    level moved so its silhouettes cover what the asset's do (`calibrate`, `silhouette.silhouette_offset`);
-    also returns the voxel size (the surface's resolution)."""
-    depths = render_depths(gaussians, cameras, progress)
+    level moved so its silhouettes cover what the asset's do (`calibrate`, `silhouette.silhouette_offset`); with the
+    Gaussians' `materials` [N, 5], mirror-like pixels' depths are not trusted (`depth_trust`); also returns the
+    voxel size (the surface's resolution)."""
+    depths, trust = render_views(gaussians, cameras, materials, progress)
     centres, voxel, shape = voxel_grid(object_box(gaussians).cpu(), grid)
-    field, unknown = fuse_tsdf(centres, [c.to("cpu") for c in cameras], depths, truncation_voxels * voxel, min_alpha)
+    field, unknown = fuse_tsdf(centres, [c.to("cpu") for c in cameras], depths, truncation_voxels * voxel, min_alpha, trust)
     field = open_to_outside(field, unknown, shape)
     mesh = extract_surface(field, shape, centres[0], voxel)
     level = 0.0
