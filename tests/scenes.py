@@ -70,3 +70,30 @@ def material_scene(n_views: int = 6, size: int = 32, seed: int = 0):
         base = (gbuffer.base_color * gains[i]).clamp(0, 1)
         maps.append(torch.cat([base, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1).clamp(0, 1).detach())
     return gaussians, normals, materials, views, maps
+
+
+def write_disk_sphere_run(root, gaussians: int, cameras: list[Camera], train: slice, test: slice):
+    """A run folder `root/run` holding the disk sphere's asset (true materials, the sky light as its estimated
+    light) and a Blender dataset `root/data` of its renders at `cameras` (the `train` and `test` slices of them);
+    returns the run folder."""
+    from matspray.asset import Asset, write_asset
+    from matspray.data.blender import write_blender
+    from matspray.refine import RefineResult
+    from matspray.relight import render_relit
+    from matspray.render.envmap import EnvironmentMap
+    from matspray.rundir import write_json
+
+    g, normals, materials = sphere_of_disks(gaussians)
+    asset = Asset(g, materials, normals)
+    light = EnvironmentMap.from_tensor(sky_map(), learnable=False)
+    prefiltered = light.prefilter()
+    views = []
+    for i, camera in enumerate(cameras):
+        rgb, alpha = render_relit(asset, camera, prefiltered)
+        views.append(View(f"r_{i:03d}", rgb / alpha[..., None].clamp_min(1e-4), alpha, camera))
+    write_blender(root / "data", {"train": views[train], "test": views[test]})
+    run = root / "run"
+    run.mkdir(parents=True)
+    write_json(run / "dataset.json", {"source": str(root / "data"), "format": "blender"})
+    write_asset(run / "asset", g, RefineResult(materials, normals, source=None, envmap=light, history=[]))
+    return run

@@ -17,21 +17,15 @@ pytest.importorskip("skimage")
 pytest.importorskip("fast_simplification")
 pytest.importorskip("pygltflib")
 
-from matspray.asset import Asset, write_asset  # noqa: E402
 from matspray.cli import main  # noqa: E402
-from matspray.data import Camera, View  # noqa: E402
-from matspray.data.blender import write_blender  # noqa: E402
+from matspray.data import Camera  # noqa: E402
 from matspray.data.images import srgb_to_linear  # noqa: E402
 from matspray.export.bake import fill_empty, gaussian_weights, rasterize_uv  # noqa: E402
 from matspray.export.decimate import decimate  # noqa: E402
 from matspray.export.frames import GLTF_FROM_DATASET, dataset_from_file, transform_points  # noqa: E402
 from matspray.export.surface import fuse_surface  # noqa: E402
 from matspray.gltf.read import read_gltf  # noqa: E402
-from matspray.refine import RefineResult  # noqa: E402
-from matspray.relight import render_relit  # noqa: E402
-from matspray.render.envmap import EnvironmentMap  # noqa: E402
-from matspray.rundir import write_json  # noqa: E402
-from tests.scenes import sky_map, sphere_of_disks  # noqa: E402
+from tests.scenes import sphere_of_disks, write_disk_sphere_run  # noqa: E402
 
 SMALL = ["--faces", "3000", "--texture-size", "128", "--grid", "48"]
 VALIDATOR = Path(sys.prefix) / "node" / "node_modules" / "gltf-validator"  # `make setup` installs it there
@@ -51,21 +45,8 @@ def sphere_cameras(count: int, size: int, distance: float = 4.0) -> list[Camera]
 
 def make_disk_run(root: Path) -> Path:
     """A run folder holding the disk sphere's asset (true materials, sky light) and a Blender dataset of
-    its renders at 12 cameras around it; returns the run folder."""
-    gaussians, normals, materials = sphere_of_disks(1500)
-    asset = Asset(gaussians, materials, normals)
-    light = EnvironmentMap.from_tensor(sky_map(), learnable=False)
-    prefiltered = light.prefilter()
-    views = []
-    for i, camera in enumerate(sphere_cameras(12, 40)):
-        rgb, alpha = render_relit(asset, camera, prefiltered)
-        views.append(View(f"r_{i:03d}", rgb / alpha[..., None].clamp_min(1e-4), alpha, camera))
-    write_blender(root / "data", {"train": views, "test": views[:2]})
-    run = root / "run"
-    run.mkdir(parents=True)
-    write_json(run / "dataset.json", {"source": str(root / "data"), "format": "blender"})
-    write_asset(run / "asset", gaussians, RefineResult(materials, normals, source=None, envmap=light, history=[]))
-    return run
+    its renders at 12 cameras around it (all training views, the first two also test views)."""
+    return write_disk_sphere_run(root, 1500, sphere_cameras(12, 40), slice(None), slice(0, 2))
 
 
 @pytest.fixture(scope="module")

@@ -13,14 +13,10 @@ import numpy as np
 import pytest
 import torch
 
-from matspray.asset import Asset, write_asset
 from matspray.cli import main
-from matspray.data import Camera, View
-from matspray.data.blender import write_blender
+from matspray.data import Camera
 from matspray.data.images import read_raw, write_image
 from matspray.errors import ConfigError, DataError
-from matspray.refine import RefineResult
-from matspray.relight import render_relit
 from matspray.render.backend import rendering_with
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.latlong import pixel_directions
@@ -31,26 +27,13 @@ from matspray.view.glb import dataset_from_glb, glb_pose
 from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, RotatedLight, light_files, rotate_about_up
 from matspray.view.photos import nearest_view
 from matspray.view.snapshot import write_snapshot
-from tests.scenes import ring_cameras, sky_map, sphere_of_disks
+from tests.scenes import ring_cameras, sky_map, write_disk_sphere_run
 
 
 def make_view_run(root: Path, gaussians: int = 800) -> Path:
     """A run folder with the disk sphere's asset (true materials, the sky light as its estimated light) and a Blender
     dataset of 6 training and 2 test renders; returns the run folder."""
-    g, normals, materials = sphere_of_disks(gaussians)
-    asset = Asset(g, materials, normals)
-    light = EnvironmentMap.from_tensor(sky_map(), learnable=False)
-    prefiltered = light.prefilter()
-    views = []
-    for i, camera in enumerate(ring_cameras(8, 32)):
-        rgb, alpha = render_relit(asset, camera, prefiltered)
-        views.append(View(f"r_{i:03d}", rgb / alpha[..., None].clamp_min(1e-4), alpha, camera))
-    write_blender(root / "data", {"train": views[:6], "test": views[6:]})
-    run = root / "run"
-    run.mkdir(parents=True)
-    write_json(run / "dataset.json", {"source": str(root / "data"), "format": "blender"})
-    write_asset(run / "asset", g, RefineResult(materials, normals, source=None, envmap=light, history=[]))
-    return run
+    return write_disk_sphere_run(root, gaussians, ring_cameras(8, 32), slice(0, 6), slice(6, None))
 
 
 @pytest.fixture(scope="module")
