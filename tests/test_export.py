@@ -200,6 +200,22 @@ def test_fill_empty_takes_the_nearest_filled_texel():
     assert set(np.unique(out)) == {1.0, 2.0}
 
 
+def test_a_capture_region_bounds_the_surface():
+    """A capture's object region (here cut by a plane at z = 0.3, as a table cuts it) bounds the mesh: it closes at
+    the cut, with nothing below it, and keeps the part above."""
+    from matspray.objectregion import ObjectRegion
+
+    gaussians, _, _ = sphere_of_disks(1500)
+    region = ObjectRegion(center=(0.0, 0.0, 0.0), radius=2.0, plane=(0.0, 0.0, 1.0, -0.3))
+    mesh, voxel = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05, region=region)
+    assert mesh.is_watertight and mesh.volume > 0
+    z = np.asarray(mesh.vertices)[:, 2]
+    assert z.min() > 0.3 - 1.5 * voxel  # nothing below the cut (marching cubes places the cap within a voxel)
+    assert z.max() > 1.0  # the top of the sphere is kept
+    whole, _ = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05)
+    assert np.asarray(whole.vertices)[:, 2].min() < -0.9
+
+
 def test_surface_is_closed_and_decimation_keeps_the_budget():
     gaussians, _, _ = sphere_of_disks(1500)
     mesh, voxel = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05)

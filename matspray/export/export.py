@@ -24,6 +24,7 @@ from matspray.export.decimate import decimate
 from matspray.export.normals import smoothed_vertex_normals
 from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
 from matspray.export.surface import fuse_surface
+from matspray.objectregion import ObjectRegion
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
 from matspray.rundir import RunDir, read_json
@@ -45,8 +46,10 @@ class ExportedMesh:
     seconds: dict = field(default_factory=dict)  # per step
 
 
-def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, progress: bool = False, notes: dict | None = None) -> ExportedMesh:
-    """Surface, decimation, atlas and textures of `asset` seen from `cameras` (the training views)."""
+def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, progress: bool = False, notes: dict | None = None,
+                    region=None) -> ExportedMesh:
+    """Surface, decimation, atlas and textures of `asset` seen from `cameras` (the training views), bounded by
+    `region` (a capture's object region, or None)."""
     seconds, start = {}, time.perf_counter()
     bar = tqdm(total=4, desc="export", disable=not progress, dynamic_ncols=True, postfix="surface")
 
@@ -58,7 +61,7 @@ def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, p
         bar.update()
 
     mesh, voxel = fuse_surface(asset.gaussians, cameras, config.grid, config.truncation, config.min_alpha, config.keep_fraction, progress,
-                               materials=asset.materials.detach())
+                               materials=asset.materials.detach(), region=region)
     step("surface", "decimate")
     mesh = decimate(mesh, config.faces)
     step("decimate", "atlas")
@@ -168,9 +171,11 @@ def export_run(run_dir, out, variant: str = "full", config: ExportConfig = Expor
     source = data if data is not None else read_json(run_dir / "dataset.json")["source"]
     scene = load_scene(source, downscale=RunDir(run_dir).downscale())
     asset = read_asset(folder, device=device)
+    region_file = run_dir / "masks" / "region.json"  # a capture without masks: the mesh stays inside its object region
+    region = ObjectRegion.from_json(read_json(region_file)) if region_file.exists() else None
     with rendering_with(backend):
         mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress,
-                               notes={"variant": variant, "run": str(run_dir.resolve())})
+                               notes={"variant": variant, "run": str(run_dir.resolve())}, region=region)
     envmap = folder / "envmap.exr"
     files = write_export(mesh, out, envmap if envmap.exists() else None)
     return ExportReport(files, len(mesh.faces), len(mesh.positions), config.texture_size, mesh.seconds)

@@ -202,15 +202,19 @@ def keep_object(mesh: trimesh.Trimesh, keep_fraction: float) -> trimesh.Trimesh:
 
 def fuse_surface(gaussians: Gaussians, cameras: list[Camera], grid: int, truncation_voxels: float, min_alpha: float,
                  keep_fraction: float, progress: bool = False, calibrate: bool = True,
-                 materials: Tensor | None = None) -> tuple[trimesh.Trimesh, float]:
+                 materials: Tensor | None = None, region=None) -> tuple[trimesh.Trimesh, float]:
     """The whole step: depths -> TSDF on a grid around the Gaussians -> marching cubes -> the object, its
     level moved so its silhouettes cover what the asset's do (`calibrate`, `silhouette.silhouette_offset`); with the
     Gaussians' `materials` [N, 5], mirror-like pixels' depths are not trusted (`depth_trust`); also returns the
-    voxel size (the surface's resolution)."""
+    voxel size (the surface's resolution). `region` (an ObjectRegion: a capture's object region) bounds the
+    surface: space outside it is free, so the unseen underside of an object on a table closes at the region's
+    cut instead of reaching down into the table."""
     depths, trust = render_views(gaussians, cameras, materials, progress)
     centres, voxel, shape = voxel_grid(object_box(gaussians).cpu(), grid)
     field, unknown = fuse_tsdf(centres, [c.to("cpu") for c in cameras], depths, truncation_voxels * voxel, min_alpha, trust)
     field = open_to_outside(field, unknown, shape)
+    if region is not None:
+        field = torch.where(region.contains(centres.double()).to(field.device), field, torch.ones_like(field))
     mesh = extract_surface(field, shape, centres[0], voxel)
     level = 0.0
     for _ in range(CALIBRATION_STEPS if calibrate else 0):
