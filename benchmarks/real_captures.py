@@ -7,7 +7,7 @@ Per capture, the `matspray` commands a user types, each in its own process:
   skull   `matspray colmap` on its 66 photos (no poses), then `run` on the dataset it made
   stitch  `run` on its transforms.json (poses with lens distortion, cluttered room)
 then `relight` under each light (the held-out test cameras) and once as a turntable (orbit MP4 over the light),
-`export` (glb), and `eval` (held-out photos scored inside the object mask; report.html with the photo credit).
+`export` (RUN/export/NAME.glb, which the report and `matspray view` find), and `eval` (held-out photos scored inside the object mask; report.html with the photo credit).
 Neither capture has 2D material maps here (no diffusion weights), so the run makes the no-prior asset.
 
 Prints per capture: photos registered and mean reprojection error (skull), held-out novel-view PSNR / SSIM /
@@ -84,22 +84,15 @@ def run_capture(name: str, args, out_root: Path) -> dict:
             steps.append(command(["relight", "--run", str(run), "--variant", VARIANT, "--env", light, "--out", str(out / "relit"), *compute], log))
         steps.append(command(["relight", "--run", str(run), "--variant", VARIANT, "--env", args.lights[0], "--views", "orbit",
                               "--background", "env", "--out", str(out / "turntable"), *compute], log))
-        steps.append(command(["export", "--run", str(run), "--variant", VARIANT, "--out", str(out / f"{name}.glb"), "--frame", "dataset",
+        steps.append(command(["export", "--run", str(run), "--variant", VARIANT, "--out", str(run / "export" / f"{name}.glb"), "--frame", "dataset",
                               *compute], log))
         steps.append(command(["eval", "--run", str(run), "--credit", CREDITS[name], "--relight", *args.lights, *compute], log))
     return summarise(name, out, run, sfm, steps)
 
 
-def glb_box(path: Path):
-    import trimesh
-
-    scene = trimesh.load(path, force="scene")
-    low, high = scene.bounds
-    return [round(float(v), 3) for v in low], [round(float(v), 3) for v in high]
-
-
 def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dict]) -> dict:
     from matspray.asset import read_asset
+    from matspray.export.frames import glb_box
     from matspray.geometry.ply import read_ply
     from matspray.objectmasks import read_object_masks
     from matspray.rundir import RunDir
@@ -107,12 +100,13 @@ def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dic
     metrics = json.loads((run / "eval" / "heldout.json").read_text())
     timings = json.loads((run / "timings.json").read_text())
     region = read_object_masks(run / "masks").region
+    glb = run / "export" / f"{name}.glb"
     record = {"capture": name, "sfm": sfm, "steps": steps, "stage_seconds": timings,
               "gaussians_geometry": len(read_ply(run / "geometry" / "gaussians.ply")[0]),
               "gaussians_asset": len(read_asset(RunDir(run).asset_path(VARIANT)).gaussians),
               "heldout": metrics["heldout"]["summary"], "train": metrics["train"]["summary"],
               "mask_coverage": [(r["view"], round(r["mask_coverage"], 3)) for r in metrics["heldout"]["per_view"]],
-              "region": region.describe(), "glb_box": glb_box(out / f"{name}.glb") if (out / f"{name}.glb").exists() else None}
+              "region": region.describe(), "glb_box": [[round(v, 3) for v in corner] for corner in glb_box(glb)] if glb.exists() else None}
     (out / "summary.json").write_text(json.dumps(record, indent=1))
     return record
 

@@ -65,6 +65,15 @@ def exported(disk_run, tmp_path_factory):
     return paths
 
 
+def test_glb_box_is_in_the_dataset_world_whatever_the_files_frame(exported):
+    from matspray.export.frames import glb_box
+
+    y_up, z_up = glb_box(exported["gltf"]), glb_box(exported["dataset"])
+    assert np.allclose(y_up, z_up, atol=1e-5)  # both files hold the same mesh, each in its own frame
+    low, high = np.asarray(z_up)
+    assert (low > -1.4).all() and (high < 1.4).all() and (high - low > 1.8).all()  # the disk sphere around the unit sphere
+
+
 def test_export_opens_in_trimesh_and_pygltflib_with_its_textures(exported):
     import pygltflib
     import trimesh

@@ -23,7 +23,8 @@ from matspray.render.latlong import pixel_directions
 from matspray.rundir import write_json
 from matspray.view.camera import camera_from_viser, frame_size, matrix_to_quaternion, quaternion_to_matrix, viser_pose
 from matspray.view.frames import MODES, Progressive, progressive_size
-from matspray.view.glb import dataset_from_glb, glb_pose
+from matspray.export.frames import dataset_from_glb
+from matspray.view.glb import glb_pose
 from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, RotatedLight, light_files, rotate_about_up
 from matspray.view.photos import nearest_view
 from matspray.view.snapshot import write_snapshot

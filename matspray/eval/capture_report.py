@@ -15,13 +15,15 @@ import torch
 from matspray.asset import ENVMAP_FILE, envmap_preview, read_asset
 from matspray.data import load_scene
 from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders
+from matspray.export.frames import find_glbs, glb_box
 from matspray.eval.report import STYLE, Figures, _srgb_inverse, markdown_to_html, object_masks_section
 from matspray.lights import load_envmap
 from matspray.objectmasks import read_object_masks
+from matspray.objectregion import ObjectRegion
 from matspray.relight import background_radiance, render_gbuffer, render_relit
 from matspray.render.backend import rendering_with
 from matspray.render.envmap import EnvironmentMap
-from matspray.rundir import RunDir, write_text_atomic
+from matspray.rundir import RunDir, read_json, write_text_atomic
 from matspray.variants import LABELS, asset_stage
 
 MAX_VIEWS = 3
@@ -32,21 +34,28 @@ def _label(key: str) -> str:
     return "geometry (3DGS colours)" if key == RADIANCE else f"{LABELS.get(key, key)}, its estimated light"
 
 
-def asset_box_note(run: RunDir, glb_box=None) -> str:
-    """The asset's bounding box against the object region's, in words (and the exported mesh's, when given)."""
+def asset_box_note(run: RunDir) -> str:
+    """The boxes of the asset and of every mesh exported into the run folder (RUN/*.glb, RUN/export/*.glb), in the
+    dataset's world, beside the object region's: what shows that no table or room came along."""
     lines = []
     for variant in run.asset_variants():
         means = read_asset(run.path(asset_stage(variant))).gaussians.means.detach()
         low, high = means.min(0).values.tolist(), means.max(0).values.tolist()
         lines.append(f"{LABELS.get(variant, variant)} asset: {len(means)} Gaussians in the box "
                      f"({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
-    if glb_box is not None:
-        lines.append("exported mesh: box ({}) .. ({})".format(*(", ".join(f"{v:.3f}" for v in corner) for corner in glb_box)))
+    for path in find_glbs(run.root):
+        low, high = glb_box(path)
+        lines.append(f"exported mesh {path.relative_to(run.root)}: box ({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
+    region_file = run.path("masks", "region.json")
+    if region_file.exists():
+        region = ObjectRegion.from_json(read_json(region_file))
+        low, high = region.bounds().tolist()
+        lines.append(f"object region: {region.describe()}; box ({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
     return "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in lines) + "</ul>"
 
 
 def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "forest"), credit: str | None = None,
-                         glb_box=None, device="cpu", backend: str = "torch") -> Path:
+                         device="cpu", backend: str = "torch") -> Path:
     """Write RUN/report.html (and RUN/report/*.png) for a run without ground truth, from `evaluate_capture`'s metrics.
     `lights`: names or files the asset is relit under; `credit`: a line crediting the photos (shown at the top)."""
     run = RunDir(run_dir).require()
@@ -114,7 +123,7 @@ def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "fo
         sections.append("<h2>Estimated light</h2><p>Tone-mapped lat-long maps (up is the top row), determined only as far as the "
                         "photos reveal it.</p><div>" + "".join(cells) + "</div>")
 
-    sections.append("<h2>Object region</h2>" + asset_box_note(run, glb_box))
+    sections.append("<h2>Object region</h2>" + asset_box_note(run))
     if run.path("masks", "masks.pt").exists():
         sections.append(object_masks_section(read_object_masks(run.path("masks")), scene.train[:MAX_VIEWS], figures, None))
     page = f"<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title><style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"

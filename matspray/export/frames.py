@@ -5,9 +5,14 @@ Blender's own glTF convention (`matspray.gltf.model.GLTF_TO_WORLD`, the one `syn
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
+from matspray.errors import file_error
 from matspray.gltf.model import GLTF_TO_WORLD
+from matspray.gltf.read import split_glb
 
 GLTF_FROM_DATASET = np.eye(4)
 GLTF_FROM_DATASET[:3, :3] = GLTF_TO_WORLD.T  # [4, 4] the inverse rotation
@@ -34,3 +39,36 @@ def frame_extras(frame: str) -> dict:
 
 def dataset_from_file(extras: dict) -> np.ndarray:  # [4, 4] from a file's `extras` written by `frame_extras`
     return np.asarray(extras["dataset_from_file"], dtype=np.float64).reshape(4, 4)
+
+
+def find_glbs(run_root) -> list[Path]:
+    """.glb files in the run folder and its `export/` folder (where people put `matspray export --out`)."""
+    root = Path(run_root)
+    return sorted(set(root.glob("*.glb")) | set(root.glob("export/*.glb")))
+
+
+def dataset_from_glb(path: Path, data: bytes) -> np.ndarray:  # -> [4, 4] maps the file's coordinates into the dataset's world
+    """The file's frame from its `matspray` extras (`export.frames`); a glb without them is taken as glTF's own Y-up frame,
+    which Blender's convention (`GLTF_TO_WORLD`) turns into the dataset's Z-up world."""
+    text, _ = split_glb(path, data)
+    try:
+        document = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise file_error(path, f"its glTF JSON does not parse ({exc.msg} at {exc.pos})") from None
+    extras = ((document.get("asset") or {}).get("extras") or {}).get("matspray") if isinstance(document, dict) else None
+    if isinstance(extras, dict) and "dataset_from_file" in extras:
+        matrix = np.asarray(extras["dataset_from_file"], dtype=np.float64).reshape(4, 4)
+        if np.isfinite(matrix).all():
+            return matrix
+    matrix = np.eye(4)
+    matrix[:3, :3] = GLTF_TO_WORLD
+    return matrix
+
+
+def glb_box(path: Path) -> tuple[list[float], list[float]]:
+    """The axis-aligned box ([3] low, [3] high) of an exported glb's vertices in the dataset's world."""
+    import trimesh
+
+    mesh = trimesh.load(path, force="mesh")
+    points = transform_points(dataset_from_glb(path, Path(path).read_bytes()), np.asarray(mesh.vertices, dtype=np.float64))
+    return points.min(0).tolist(), points.max(0).tolist()

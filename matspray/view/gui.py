@@ -6,7 +6,8 @@ import math
 from pathlib import Path
 
 from matspray.view.frames import MODES
-from matspray.view.glb import PLACES, dataset_from_glb, glb_pose
+from matspray.export.frames import dataset_from_glb
+from matspray.view.glb import PLACES, glb_pose
 
 RESOLUTIONS = (64, 1024)  # the still frame's long side, pixels
 

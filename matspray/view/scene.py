@@ -15,7 +15,7 @@ from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
 from matspray.errors import MatsprayError, RunError
 from matspray.rundir import RunDir
-from matspray.view.glb import find_glbs
+from matspray.export.frames import find_glbs
 from matspray.view.lights import estimated_light_path
 
 UP = (0.0, 0.0, 1.0)  # the dataset's world up (DESIGN: Blender / NeRF-synthetic, Z up)
