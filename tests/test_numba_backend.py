@@ -1,7 +1,8 @@
 """Backend numba against backend torch (the readable reference): images, alpha, depths, every gradient, absgrad,
 on random scenes and on the edge cases (opaque and nearly transparent Gaussians, Gaussians behind the camera,
-footprints across tile borders, an empty image, sizes that are not multiples of 16); bitwise determinism; how
-`auto` chooses it; what a pipeline stage records; the one-line compile notice and numba's cache."""
+footprints across tile borders, an empty image, sizes that are not multiples of 16); bitwise determinism; the
+compiled projection against `project_gaussians` and `_setup` (bits, gradients, the near plane, degenerate
+footprints); how `auto` chooses it; what a pipeline stage records; the one-line compile notice and numba's cache."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import torch
 
@@ -20,7 +22,7 @@ from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.pipeline import Pipeline
 from matspray.render.backend import BACKENDS, resolve_backend, rendering_with
-from matspray.render.rasterize import rasterize
+from matspray.render.rasterize import _setup, rasterize
 from matspray.render.settings import RasterSettings
 from tests.test_rasterize import random_scene
 
@@ -163,6 +165,97 @@ def test_gradcheck_float64():
                                                               gaussians.opacity_logits, features.double()))
     assert render(*inputs)[1].max() > 0.5 and render(*inputs)[0].dtype == torch.float64
     assert torch.autograd.gradcheck(render, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+# ---------------------------------------------------------------- the compiled projection
+
+def compiled_projection(gaussians, camera, settings=RasterSettings()):
+    """means2d, conics, depths (differentiable), radii, boxes from backend numba's projection Function."""
+    from matspray.render import numba_backend
+
+    dtype = gaussians.means.dtype
+    np_dtype = np.float64 if dtype == torch.float64 else np.float32
+    numba_backend.ensure_compiled(np_dtype)
+    layout = numba_backend._Layout(camera, settings, np_dtype)
+    means2d, conics, depths = numba_backend._NumbaProjection.apply(gaussians.means, gaussians.scales, gaussians.quats,
+                                                                   gaussians.opacities, layout)
+    return means2d, conics, depths, layout.radii, torch.from_numpy(layout.boxes)
+
+
+def hard_scene(near=0.01, seed=9):
+    """Random Gaussians plus the hard cases, for a camera at the origin looking down +z (identity viewmat, so the
+    camera z of a centre is exactly its z): centres exactly on the near plane, just in front of it, just behind it,
+    behind the camera; needles and flat discs (scales 1e-20, degenerate without eps2d), a zero quaternion, huge
+    and tiny scales, and centres far outside the view (the Jacobian's clamp)."""
+    gaussians, _, _ = random_scene(200, seed, width=40, height=30)
+    means = gaussians.means.clone() * 2.0
+    means[:, 2] = 3.0 + means[:, 2]
+    log_scales, quats = gaussians.log_scales.clone(), gaussians.quats.clone()
+    means[0, 2] = near  # on the near plane: not drawn (z > near is required)
+    means[1, 2] = near * 1.01
+    means[2, 2] = near * 0.99
+    means[3:6, 2] = torch.tensor([-1.0, -0.5, 0.0])
+    log_scales[6] = torch.tensor([0.0, -46.0, -46.0])  # a needle (scales 1e-20)
+    log_scales[7] = torch.tensor([-1.0, -1.0, -46.0])  # a flat disc
+    log_scales[8] = torch.tensor([-46.0, -46.0, -46.0])
+    quats[9] = 0.0
+    log_scales[10] = torch.tensor([3.0, 2.0, 1.0])
+    means[11:14, 0] = torch.tensor([40.0, -60.0, 25.0])  # far outside the view
+    means[11:14, 1] = torch.tensor([-30.0, 5.0, 80.0])
+    gaussians = Gaussians(means, log_scales, quats, gaussians.opacity_logits, gaussians.sh)
+    K = torch.tensor([[40.0, 0.0, 20.0], [0.0, 40.0, 15.0], [0.0, 0.0, 1.0]])
+    return gaussians, Camera(K=K, viewmat=torch.eye(4), width=40, height=30)
+
+
+@pytest.mark.parametrize("settings", [RasterSettings(), RasterSettings(eps2d=0.0, near=0.2)])
+def test_compiled_projection_is_setups_bits(settings):
+    for gaussians, camera in (hard_scene(settings.near), random_scene(500, 3, width=53, height=37)[:2]):
+        ref = _setup(gaussians, camera, settings)
+        means2d, conics, depths, radii, boxes = compiled_projection(gaussians, camera, settings)
+        assert torch.equal(means2d, ref.proj.means2d) and torch.equal(depths, ref.proj.depths)
+        valid = ref.proj.valid  # invalid ones hold placeholder conics (both backends the same ones, but no more)
+        assert torch.equal(conics[valid], ref.proj.conics[valid]) and torch.equal(radii, ref.radii) and torch.equal(boxes, ref.boxes)
+    ref = _setup(*hard_scene(settings.near), settings)
+    assert not ref.proj.valid[[0, 2, 3, 4, 5]].any() and ref.proj.valid[1]  # the near plane and behind the camera
+    if settings.eps2d == 0.0:
+        assert not ref.proj.valid[[6, 8]].any()  # singular footprints
+
+
+@pytest.mark.parametrize("settings", [RasterSettings(), RasterSettings(eps2d=0.0, near=0.2)])
+def test_compiled_projection_gradients(settings):
+    """Every output weighted at random (the placeholders of invalid Gaussians too, which torch differentiates as
+    written), the gradients of means, log_scales and quats within 1e-4 of the largest."""
+    for gaussians, camera in (hard_scene(settings.near), random_scene(500, 3, width=53, height=37)[:2]):
+        grads = []
+        for compiled in (False, True):
+            leaves = [t.detach().clone().requires_grad_(True) for t in (gaussians.means, gaussians.log_scales, gaussians.quats)]
+            g = Gaussians(*leaves, gaussians.opacity_logits, gaussians.sh)
+            if compiled:
+                means2d, conics, depths = compiled_projection(g, camera, settings)[:3]
+            else:
+                proj = _setup(g, camera, settings).proj
+                means2d, conics, depths = proj.means2d, proj.conics, proj.depths
+            gen = torch.Generator().manual_seed(1)
+            loss = sum((t * torch.randn(t.shape, generator=gen)).sum() for t in (means2d, conics, depths))
+            loss.backward()
+            grads.append([leaf.grad for leaf in leaves])
+        for ref, mine, name in zip(*grads, ("means", "log_scales", "quats")):
+            assert torch.isfinite(mine).all(), name
+            scale = ref.abs().max().clamp_min(1e-12)
+            torch.testing.assert_close(mine / scale, ref / scale, atol=1e-4, rtol=0, msg=name)
+
+
+def test_compiled_projection_gradcheck_float64():
+    gaussians, camera = hard_scene()
+    keep = torch.tensor([1, 7, 9, 11, 20, 21, 22, 23])  # just in front of the near plane, a disc, q = 0, clamped, ordinary
+    sub = gaussians.subset(keep).to(dtype=torch.float64)
+    sub.quats[2] = torch.tensor([0.3, -0.2, 0.1, 0.5], dtype=torch.float64)  # gradcheck needs |q| > 0
+
+    def project(means, log_scales, quats):
+        return compiled_projection(Gaussians(means, log_scales, quats, sub.opacity_logits, sub.sh), camera)[:3]
+
+    inputs = tuple(t.clone().requires_grad_(True) for t in (sub.means, sub.log_scales, sub.quats))
+    assert torch.autograd.gradcheck(project, inputs, eps=1e-7, atol=1e-5, rtol=1e-4)
 
 
 # ---------------------------------------------------------------- choosing it, counting it, compiling it

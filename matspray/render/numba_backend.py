@@ -1,24 +1,30 @@
-"""Backend `numba` of `rasterize`: the torch backend's blending rule in compiled tile loops on the CPU.
+"""Backend `numba` of `rasterize`: the torch backend's projection and blending rule in compiled loops on the CPU.
 
-The projection (means2d, conics, depths) stays in torch autograd (matspray.render.projection), so gradients
-reach means, log_scales and quats through torch; this module is one autograd Function from the projected
-splats to the image:
+Two autograd Functions, each with a hand-written backward:
 
-    means2d [N, 2], conics [N, 3], opacities [N], values [N, K]  ->  image [H, W, K]
+    _NumbaProjection:  means [N, 3], scales [N, 3], quats [N, 4]  ->  means2d [N, 2], conics [N, 3], depths [N]
+    _NumbaRaster:      means2d, conics, opacities [N], features [N, C], depths  ->  image [H, W, C + 2]
 
-with a hand-written backward that returns the gradients of all four (and, on request, gsplat's absgrad).
+(the image carries the features, the accumulated depth and alpha). means2d is the tensor between them, so
+densification reads its gradient (`RasterOutput.screen`, retain_grad) as with backend torch. Only the exp of the
+scales and the sigmoid of the opacities stay torch operations (their rounding is the reference's; see
+numba_projection).
 
-  - Binning: each drawable Gaussian goes to every 16 x 16 tile its footprint box (the torch backend's pixel box)
-    meets, appended in the torch backend's depth order, so each tile's list is front to back with the same ties.
+  - Projection (numba_projection.project, Gaussians in parallel): `project_gaussians` and `rasterize._setup` in
+    the same float32 operations (the same bits: tests/test_numba_backend.py), the footprint boxes included; the
+    drawn Gaussians sorted by depth (a radix sort of the float bits).
+  - Binning: each drawn Gaussian goes to every 16 x 16 tile its footprint box meets, appended in depth order, so
+    each tile's list is front to back.
   - Forward (numba_kernels.forward, tiles in parallel): per tile, its Gaussians in order, each over the pixel
     centres inside its footprint ellipse (the same float32 arithmetic as the torch backend's candidate pairs),
-    alpha = min(max_alpha, o exp(-d^T conic d / 2)) skipped below min_alpha, the transmittance as a float64 sum of
-    log(1 - alpha), and the early stop before it would fall below min_transmittance. Kept per pixel: the final
-    log transmittance and the entry index of the last blended hit.
-  - Backward (numba_kernels.backward): per tile, its Gaussians back to front, recomputing each hit and the
-    transmittance in front of it (final log T minus the terms behind), with S = sum of alpha_j T_j q_j over the
-    hits behind (q = <dL/dout, value>), as blend.py's backward. One gradient row per (tile, Gaussian) entry,
-    then a per-Gaussian sum in entry order: the same bits whatever the thread count, run after run.
+    alpha = min(max_alpha, o exp(-d^T conic d / 2)) skipped below min_alpha, the transmittance as a float64
+    product, the early stop before it would fall below min_transmittance. When backward will run, each blended
+    hit is written down (its pixel and response), so backward neither finds the pixels again nor recomputes exp.
+  - Backward (numba_kernels.backward_recorded, or `backward` when the record would be too large): per tile, its
+    Gaussians back to front, the transmittance in front of each hit recovered from the one behind it, with
+    S = sum of alpha_j T_j q_j over the hits behind (q = <dL/dout, value>), as blend.py's backward. One gradient
+    row per (tile, Gaussian) entry, then a per-Gaussian sum in entry order: the same bits whatever the thread
+    count, run after run. Then the projection's backward, per Gaussian.
 
 The kernels are compiled at the first use in a process, or loaded from numba's cache (`cache=True`: __pycache__
 beside this module, or $NUMBA_CACHE_DIR); a compilation (a cache miss) is said once per process on stderr with
@@ -35,6 +41,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from matspray.render.projection import max_eigen_radius
 from matspray.render.settings import RasterSettings
 
 _READY: set = set()  # dtypes whose kernels this process has compiled or loaded
@@ -48,90 +55,187 @@ def kernels():
     return numba_kernels
 
 
-def rasterize_splats(
-    means2d: Tensor,  # [N, 2] projected centres (in the autograd graph)
-    conics: Tensor,  # [N, 3] (a, b, c) of the inverse 2D covariance
-    opacities: Tensor,  # [N]
-    values: Tensor,  # [N, K] what to blend
-    footprints: tuple[Tensor, Tensor, Tensor],  # boxes [N, 4] long, radius2 [N], ranks [N] (rasterize._setup's, no grad)
-    height: int,
-    width: int,
+def rasterize_gaussians(
+    gaussians,  # matspray.gaussians.Gaussians
+    camera,  # matspray.data.camera.Camera
+    features: Tensor,  # [N, C]
     settings: RasterSettings,
-    absgrad_of: Tensor | None = None,  # receives .absgrad [N, 2] in backward, as blend.blend_hits does
-) -> tuple[Tensor, int]:  # image [H, W, K], number of blended (Gaussian, pixel) hits
-    if means2d.device.type != "cpu":
-        raise ValueError(f"rasterize: backend numba renders on the CPU, the Gaussians are on {means2d.device}")
-    dtype = values.dtype
-    means2d, conics, opacities = means2d.to(dtype), conics.to(dtype), opacities.to(dtype)
-    layout = _Layout(conics.detach(), footprints, height, width, settings, dtype)
-    image, hits = _NumbaRaster.apply(means2d, conics, opacities, values, (layout, absgrad_of))
-    return image, int(hits)
+    absgrad: bool = False,  # backward also gives means2d.absgrad [N, 2], as blend.blend_hits does
+) -> tuple[Tensor, int, Tensor, Tensor]:  # image [H, W, C + 2] (features, depth, alpha), hits, means2d [N, 2], radii [N]
+    """Project and blend: two autograd Functions, the projection's output means2d between them, so that
+    `RasterOutput.screen` is a tensor of the graph whose gradient densification reads (retain_grad)."""
+    if gaussians.means.device.type != "cpu":
+        raise ValueError(f"rasterize: backend numba renders on the CPU, the Gaussians are on {gaussians.means.device}")
+    dtype = features.dtype
+    np_dtype = np.float64 if dtype == torch.float64 else np.float32
+    ensure_compiled(np_dtype)
+    layout = _Layout(camera, settings, np_dtype)
+    # only a render that backward will run through records its hits
+    layout.record = torch.is_grad_enabled() and any(t.requires_grad for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
+                                                                                 gaussians.opacity_logits, features))
+    # torch's exp and sigmoid (the reference's own rounding; see numba_projection), everything else compiled
+    opacities = gaussians.opacities.to(dtype)
+    means2d, conics, depths = _NumbaProjection.apply(gaussians.means.to(dtype), gaussians.scales.to(dtype),
+                                                     gaussians.quats.to(dtype), opacities, layout)
+    image, hits = _NumbaRaster.apply(means2d, conics, opacities, features, depths, (layout, means2d if absgrad else None))
+    return image, int(hits), means2d, layout.radii
 
 
 class _Layout:
-    """What forward and backward share beyond the differentiable inputs: the footprints as numpy arrays,
-    the tile lists and the constants."""
+    """What the two Functions share beyond the differentiable inputs: the camera and settings as arrays of the
+    float type, the footprints (projection forward) and the tile lists."""
 
-    def __init__(self, conics: Tensor, footprints, height: int, width: int, settings: RasterSettings, dtype):
-        boxes, radius2, ranks = footprints
-        with torch.no_grad():
-            a, b, c = conics.unbind(-1)
-            # the torch backend's candidate pairs compute these from float32 footprints: done here the same way
-            det = (a * c - b * b).clamp_min(1e-30)
-            a_r2 = a * radius2.to(dtype)
-            order = torch.empty_like(ranks)  # the depth order itself: the inverse of the ranks, no second sort
-            order[ranks] = torch.arange(len(ranks), device=ranks.device)
-        self.np_dtype = np.float64 if dtype == torch.float64 else np.float32
-        self.det, self.a_r2 = _numpy(det, self.np_dtype), _numpy(a_r2, self.np_dtype)
-        self.boxes = _numpy(boxes, np.int64)
-        self.height, self.width = height, width
-        self.tiles_x = -(-width // 16)
-        self.tiles_y = -(-height // 16)
-        # numba splits a parallel loop into one contiguous block per thread: the tiles are visited in a fixed shuffled
-        # order, so that each block mixes the object's busy middle with the empty border (numba's dynamic
-        # scheduling, set_parallel_chunksize, measured 2-4x slower kernels here)
-        self.tile_order = np.random.default_rng(0).permutation(self.tiles_x * self.tiles_y).astype(np.int64)
-        self.grid = np.arange(max(height, width) + 1, dtype=self.np_dtype)
-        self.consts = np.array([0.5, settings.min_alpha, settings.max_alpha, 0.0], dtype=self.np_dtype)
+    def __init__(self, camera, settings: RasterSettings, np_dtype):
+        self.np_dtype = np_dtype
+        self.height, self.width = height, width = camera.height, camera.width
+        self.view, self.consts = _camera_arrays(camera, settings, np_dtype)
+        self.tiles_x, self.tiles_y = -(-width // 16), -(-height // 16)
+        self.tile_order = _tile_order(self.tiles_x * self.tiles_y)
+        self.grid = _grid(max(height, width) + 1, np_dtype)
+        self.blend_consts = np.array([0.5, settings.min_alpha, settings.max_alpha, 0.0], dtype=np_dtype)
         self.min_transmittance = float(settings.min_transmittance)
-        ensure_compiled(self.np_dtype)
+
+    def footprints(self, boxes, det, a_r2, depths, cov2d, flags) -> None:
+        """From the projection's forward: the pixel boxes and footprint terms, the radii (`_setup`'s, in torch:
+        see numba_projection) and the tile lists in depth order."""
+        self.boxes, self.det, self.a_r2 = boxes, det, a_r2
+        radii = max_eigen_radius(torch.from_numpy(cov2d))
+        self.radii = radii.masked_fill_(torch.from_numpy(flags & 4) == 0, 0.0)
         with threads():
-            self.offsets, self.ids, self.g_offsets, self.by_gaussian = kernels().bin_tiles(
-                self.boxes, _numpy(order, np.int64), self.tiles_x, self.tiles_y)
+            order = projection().depth_order(depths, boxes)
+            self.offsets, self.ids, self.g_offsets, self.by_gaussian, self.record_offsets = kernels().bin_tiles(
+                boxes, order, self.tiles_x, self.tiles_y)
 
     def common(self, means2d, conics, opacities, values) -> tuple:
         return (means2d, conics, opacities, values, self.det, self.a_r2, self.boxes, self.offsets, self.ids,
-                self.tile_order, self.height, self.width, self.tiles_x, self.grid, self.consts)
+                self.tile_order, self.height, self.width, self.tiles_x, self.grid, self.blend_consts)
+
+
+RECORD_BUDGET = 1 << 25  # recorded hits at most (about 170 MB in float32)
+_TILE_ORDERS: dict = {}
+_GRIDS: dict = {}
+_CAMERAS: dict = {}
+
+
+def _tile_order(num_tiles: int) -> np.ndarray:
+    """numba splits a parallel loop into one contiguous block per thread: the tiles are visited in a fixed shuffled
+    order, so that each block mixes the object's busy middle with the empty border (numba's dynamic scheduling,
+    set_parallel_chunksize, measured 2-4x slower kernels here). Made once per tile count."""
+    if num_tiles not in _TILE_ORDERS:
+        _TILE_ORDERS[num_tiles] = np.random.default_rng(0).permutation(num_tiles).astype(np.int64)
+    return _TILE_ORDERS[num_tiles]
+
+
+def _grid(size: int, np_dtype) -> np.ndarray:  # grid[i] = i in the float type (see numba_kernels)
+    key = (size, np.dtype(np_dtype).name)
+    if key not in _GRIDS:
+        _GRIDS[key] = np.arange(size, dtype=np_dtype)
+    return _GRIDS[key]
+
+
+def _camera_arrays(camera, settings: RasterSettings, np_dtype) -> tuple[np.ndarray, np.ndarray]:
+    """viewmat's [3, 4] and numba_projection's constants, as float32 (or float64) arrays computed by the same
+    torch expressions as project_gaussians (the clamp limits round as there). Kept for the last few cameras:
+    training renders each view many times."""
+    key = (id(camera.viewmat), id(camera.K), camera.width, camera.height, settings, np.dtype(np_dtype).name)
+    hit = _CAMERAS.get(key)
+    if hit is not None and hit[0] is camera.viewmat and hit[1] is camera.K and hit[2] == (camera.viewmat._version, camera.K._version):
+        return hit[3], hit[4]
+    from matspray.render import numba_projection as P
+    from matspray.render.projection import JACOBIAN_FOV_MARGIN
+
+    dtype = torch.float64 if np_dtype == np.float64 else torch.float32
+    K = camera.K.to(dtype)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    width, height = camera.width, camera.height
+    consts = np.zeros(P.NUM_CONSTS, np_dtype)
+    limits = (JACOBIAN_FOV_MARGIN * cx / fx, JACOBIAN_FOV_MARGIN * (width - cx) / fx,
+              JACOBIAN_FOV_MARGIN * cy / fy, JACOBIAN_FOV_MARGIN * (height - cy) / fy)
+    for index, value in zip((P.LIM_X_LO, P.LIM_X_HI, P.LIM_Y_LO, P.LIM_Y_HI, P.FX, P.FY, P.CX, P.CY), (*limits, fx, fy, cx, cy)):
+        consts[index] = value.item()
+    for index, value in ((P.NEAR, settings.near), (P.EPS2D, settings.eps2d), (P.DET_REL, 1e-12), (P.DET_FLOOR, 1e-30),
+                         (P.MIN_ALPHA, settings.min_alpha), (P.MARGIN, 1e-3), (P.HALF, 0.5), (P.THREE, 3.0), (P.ONE, 1.0),
+                         (P.TWO, 2.0), (P.ZERO, 0.0), (P.WIDTH, width), (P.HEIGHT, height), (P.NORM_EPS, 1e-12), (P.CONIC_FLOOR, 1e-30)):
+        consts[index] = value
+    view = np.ascontiguousarray(camera.viewmat[:3, :4].to(dtype).cpu().numpy())
+    if len(_CAMERAS) > 256:
+        _CAMERAS.clear()
+    _CAMERAS[key] = (camera.viewmat, camera.K, (camera.viewmat._version, camera.K._version), view, consts)
+    return view, consts
+
+
+class _NumbaProjection(torch.autograd.Function):
+    """(means, scales, quats) -> (means2d, conics, depths); opacities only decide which Gaussians are drawn."""
+
+    @staticmethod
+    def forward(ctx, means, scales, quats, opacities, layout):
+        arrays = [_numpy(t, layout.np_dtype) for t in (means, scales, quats, opacities)]
+        with threads():
+            means2d, conics, depths, cov2d, boxes, det, a_r2, flags = projection().project(*arrays, layout.view, layout.consts)
+        layout.footprints(boxes, det, a_r2, depths, cov2d, flags)
+        layout.opacities = arrays[3]
+        ctx.layout, ctx.arrays, ctx.flags = layout, arrays[:3], flags
+        return torch.from_numpy(means2d), torch.from_numpy(conics), torch.from_numpy(depths)
+
+    @staticmethod
+    def backward(ctx, grad_means2d, grad_conics, grad_depths):
+        layout = ctx.layout
+        grads = [np.zeros(shape, layout.np_dtype) if grad is None else _numpy(grad, layout.np_dtype)
+                 for grad, shape in ((grad_means2d, (len(ctx.flags), 2)), (grad_conics, (len(ctx.flags), 3)), (grad_depths, len(ctx.flags)))]
+        with threads():
+            grad_means, grad_scales, grad_quats = projection().project_backward(*ctx.arrays, layout.view, layout.consts, ctx.flags, *grads)
+        return torch.from_numpy(grad_means), torch.from_numpy(grad_scales), torch.from_numpy(grad_quats), None, None
 
 
 class _NumbaRaster(torch.autograd.Function):
+    """(means2d, conics, opacities, features, depths) -> image [H, W, C + 2]: the features, the depths and 1 blended."""
+
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, values, extra):
+    def forward(ctx, means2d, conics, opacities, features, depths, extra):
         layout, absgrad_of = extra
-        arrays = [_numpy(t.detach(), layout.np_dtype) for t in (means2d, conics, opacities, values)]
+        values = np.empty((features.shape[0], features.shape[1] + 2), layout.np_dtype)
+        values[:, :-2] = features.detach().numpy()
+        values[:, -2] = depths.detach().numpy()
+        values[:, -1] = 1.0
+        arrays = [_numpy(t, layout.np_dtype) for t in (means2d, conics)] + [layout.opacities, values]
+        room = int(layout.record_offsets[-1])
+        # the blended hits written down for backward (pixel, response: 5 bytes in float32), unless that would take
+        # more than RECORD_BUDGET entries: then backward finds and recomputes them
+        record = (np.empty(room, np.uint8), np.empty(room, layout.np_dtype), np.empty(len(layout.ids), np.int64)) \
+            if layout.record and room <= RECORD_BUDGET else (np.empty(0, np.uint8), np.empty(0, layout.np_dtype), np.empty(0, np.int64))
         with threads():
-            image, final_t, last, tile_hits = kernels().forward(*layout.common(*arrays), layout.min_transmittance)
-        ctx.layout, ctx.absgrad_of, ctx.arrays, ctx.state = layout, absgrad_of, arrays, (final_t, last)
-        ctx.dtype = values.dtype
-        hits = torch.tensor(int(tile_hits.sum()))
-        ctx.mark_non_differentiable(hits)
-        return torch.from_numpy(image), hits
+            image, final_t, last, tile_hits = kernels().forward(*layout.common(*arrays), layout.min_transmittance, layout.record_offsets, *record)
+        ctx.layout, ctx.absgrad_of, ctx.arrays, ctx.state, ctx.record = layout, absgrad_of, arrays, (final_t, last), record
+        ctx.dtype = features.dtype
+        return torch.from_numpy(image), int(tile_hits.sum())
 
     @staticmethod
     def backward(ctx, grad_image, _grad_hits):
         layout = ctx.layout
-        grad = np.ascontiguousarray(grad_image.detach().to(ctx.dtype).numpy())
+        grad = _numpy(grad_image, layout.np_dtype)
         with threads():
-            entry_grads = kernels().backward(*layout.common(*ctx.arrays), *ctx.state, grad)
-        with threads():
+            if len(ctx.record[0]):
+                means2d, conics, opacities, values = ctx.arrays
+                entry_grads = kernels().backward_recorded(
+                    means2d, conics, opacities, values, layout.offsets, layout.ids, layout.tile_order, layout.width, layout.height,
+                    layout.tiles_x, layout.grid, layout.blend_consts, ctx.state[0], layout.record_offsets, *ctx.record, grad)
+            else:
+                entry_grads = kernels().backward(*layout.common(*ctx.arrays), *ctx.state, grad)
             per_gaussian = kernels().reduce_entries(entry_grads, layout.g_offsets, layout.by_gaussian)
-        sums = torch.from_numpy(per_gaussian).to(ctx.dtype)  # [N, 8 + K]
+        sums = torch.from_numpy(per_gaussian).to(ctx.dtype)  # [N, 8 + C + 2]
         if ctx.absgrad_of is not None:
             target = ctx.absgrad_of
             if getattr(target, "absgrad", None) is None:  # as blend.add_absgrad: created once, added to by each backward
                 target.absgrad = torch.zeros_like(target, memory_format=torch.contiguous_format).detach()
             target.absgrad += sums[:, 6:8].to(target.dtype)
-        return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 8:], None
+        return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 8:-2], sums[:, -2], None
+
+
+def projection():
+    """The projection kernels' module (imported on first use, as `kernels`)."""
+    from matspray.render import numba_projection
+
+    return numba_projection
 
 
 def _numpy(tensor: Tensor, dtype) -> np.ndarray:
@@ -161,8 +265,9 @@ def ensure_compiled(np_dtype) -> None:
     key = np.dtype(np_dtype).name
     if key in _READY:
         return
-    module = kernels()
-    dispatchers = (module.bin_tiles, module.forward, module.backward, module.reduce_entries)
+    module, projections = kernels(), projection()
+    dispatchers = (module.bin_tiles, module.forward, module.backward, module.backward_recorded, module.reduce_entries, projections.project,
+                   projections.project_backward, projections._radix_order, projections._merge_order)
     misses = sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
     start = time.perf_counter()
     _READY.add(key)  # before the call below, which builds a _Layout and comes back here
@@ -187,12 +292,18 @@ def ensure_compiled(np_dtype) -> None:
 
 @torch.enable_grad()  # the first render may come under no_grad; the backward kernels are warmed up too
 def _warm_up(np_dtype) -> None:
+    from matspray.data.camera import Camera
+    from matspray.gaussians import Gaussians
+
     dtype = torch.float64 if np_dtype == np.float64 else torch.float32
-    means2d = torch.tensor([[8.0, 8.0]], dtype=dtype, requires_grad=True)
-    conics = torch.tensor([[0.25, 0.0, 0.25]], dtype=dtype)
-    opacities = torch.tensor([0.5], dtype=dtype)
-    values = torch.ones(1, 1, dtype=dtype)
-    boxes = torch.tensor([[0, 0, 15, 15]])
-    image, _ = rasterize_splats(means2d, conics, opacities, values, (boxes, torch.tensor([20.0]), torch.zeros(1, dtype=torch.long)),
-                                16, 16, RasterSettings())
-    image.sum().backward()
+    camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], 0.7, 16, 16)
+    gaussians = Gaussians(torch.zeros(1, 3, dtype=dtype, requires_grad=True), torch.full((1, 3), -1.0, dtype=dtype),
+                          torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=dtype), torch.zeros(1, dtype=dtype), torch.zeros(1, 1, 3, dtype=dtype))
+    global RECORD_BUDGET
+    budget = RECORD_BUDGET
+    try:
+        for RECORD_BUDGET in (budget, -1):  # both backward kernels: with the forward's record and without
+            image, _, _, _ = rasterize_gaussians(gaussians, camera, torch.ones(1, 1, dtype=dtype), RasterSettings())
+            image.sum().backward()
+    finally:
+        RECORD_BUDGET = budget

@@ -35,7 +35,8 @@ def bin_tiles(boxes, order, tiles_x, tiles_y):
     """Tile lists: entry e of tile t (offsets[t] <= e < offsets[t + 1]) is Gaussian ids[e]; each tile's Gaussians
     are front to back because they are appended in `order` (the torch backend's depth order). Also the same
     entries grouped by Gaussian (by_gaussian[g_offsets[g]:g_offsets[g + 1]] in increasing entry order), for the
-    backward's fixed-order reduction."""
+    backward's fixed-order reduction; and record_offsets [T + 1], each tile's room for the forward's record of its
+    hits (every pixel of every entry's box in the tile: a bound on its hits)."""
     n = boxes.shape[0]
     num_tiles = tiles_x * tiles_y
     offsets = np.zeros(num_tiles + 1, np.int64)
@@ -51,7 +52,8 @@ def bin_tiles(boxes, order, tiles_x, tiles_y):
     ids = np.empty(offsets[num_tiles], np.int64)
     cursor = offsets[:num_tiles].copy()
     g_counts = np.zeros(n + 1, np.int64)
-    for i in range(n):
+    record_offsets = np.zeros(num_tiles + 1, np.int64)  # room for every pixel of each entry's box in its tile
+    for i in range(order.shape[0]):  # the drawn Gaussians (or all), front to back
         g = order[i]
         x0, y0, x1, y1 = boxes[g, 0], boxes[g, 1], boxes[g, 2], boxes[g, 3]
         if x1 < x0 or y1 < y0:
@@ -62,15 +64,19 @@ def bin_tiles(boxes, order, tiles_x, tiles_y):
                 ids[cursor[t]] = g
                 cursor[t] += 1
                 g_counts[g + 1] += 1
+                record_offsets[t + 1] += ((min(x1, tx * TILE + TILE - 1) - max(x0, tx * TILE) + 1)
+                                          * (min(y1, ty * TILE + TILE - 1) - max(y0, ty * TILE) + 1))
     for g in range(n):
         g_counts[g + 1] += g_counts[g]
+    for t in range(num_tiles):
+        record_offsets[t + 1] += record_offsets[t]
     by_gaussian = np.empty(offsets[num_tiles], np.int64)
     g_cursor = g_counts[:n].copy()
     for e in range(ids.shape[0]):
         g = ids[e]
         by_gaussian[g_cursor[g]] = e
         g_cursor[g] += 1
-    return offsets, ids, g_counts, by_gaussian
+    return offsets, ids, g_counts, by_gaussian, record_offsets
 
 
 @njit(cache=True, inline="always")
@@ -97,13 +103,17 @@ def _row_span(cx, cy, b, a, det, a_r2, row_f, half, zero, width_f):
 
 @njit(cache=True, parallel=True)
 def forward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, tile_order, height, width, tiles_x, grid, consts,
-            min_transmittance):
+            min_transmittance, record_offsets, rec_pixel, rec_response, entry_end):
     """Blend every tile front to back. Returns the image [H, W, K], each pixel's transmittance after its last
     blended hit (float64) and that hit's entry index (-1: none), and the number of blended hits per tile.
 
     Within a tile the loop runs over its Gaussians in depth order and, for each, over the pixels whose centres
     lie in its footprint ellipse (the torch backend's candidate pairs); per-pixel state (transmittance, sums,
-    stopped) lives in tile-sized buffers, so each pixel still sees its hits front to back."""
+    stopped) lives in tile-sized buffers, so each pixel still sees its hits front to back.
+
+    With record arrays (rec_pixel non-empty), each blended hit is also written down in blending order: its pixel in
+    the tile and its response exp(-d^T conic d / 2), at record_offsets[t] onwards; entry_end[e] is where entry e's
+    hits end (they start where the previous entry of the tile ends). `backward_recorded` reads them back."""
     k_values = values.shape[1]
     num_tiles = offsets.shape[0] - 1
     half, min_alpha, max_alpha, zero = consts[0], consts[1], consts[2], consts[3]
@@ -127,6 +137,11 @@ def forward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, 
         row_width = x_end - x_start + 1
         num_stopped = 0
         hits = 0
+        recording = rec_pixel.shape[0] > 0
+        cursor = record_offsets[t]
+        if recording:
+            for e in range(offsets[t], offsets[t + 1]):
+                entry_end[e] = cursor  # entries after an early end of the tile record nothing
         for e in range(offsets[t], offsets[t + 1]):
             g = ids[e]
             mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
@@ -146,7 +161,8 @@ def forward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, 
                     if stopped[p]:
                         continue
                     dx = (grid[col] + half) - mx
-                    raw = opacity * np.exp(-(dx * (ha * dx + bdy) + cdy))
+                    response = np.exp(-(dx * (ha * dx + bdy) + cdy))
+                    raw = opacity * response
                     if not raw >= min_alpha:  # as torch's `raw >= min_alpha`: a NaN is skipped too
                         continue
                     alpha = min(raw, max_alpha)
@@ -162,6 +178,12 @@ def forward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, 
                     trans[p] = after
                     last[p] = e
                     hits += 1
+                    if recording:
+                        rec_pixel[cursor] = p
+                        rec_response[cursor] = response
+                        cursor += 1
+            if recording:
+                entry_end[e] = cursor
             if num_stopped == pixels:
                 break
         tile_hits[t] = hits
@@ -274,3 +296,71 @@ def reduce_entries(entry_grads, g_offsets, by_gaussian):
             for k in range(width):
                 out[g, k] += entry_grads[e, k]
     return out
+
+
+@njit(cache=True, parallel=True)
+def backward_recorded(means2d, conics, opacities, values, offsets, ids, tile_order, width, height, tiles_x, grid, consts, final_t,
+                      record_offsets, rec_pixel, rec_response, entry_end, grad_image):
+    """`backward` from the forward's record of the blended hits: the same arithmetic per hit, without finding the
+    pixels again (row spans, the alpha test) or recomputing exp, and only over hits that were blended."""
+    k_values = values.shape[1]
+    num_tiles = offsets.shape[0] - 1
+    half, max_alpha = consts[0], consts[2]
+    entry_grads = np.zeros((ids.shape[0], PER_ENTRY + k_values), values.dtype)
+    for i in prange(num_tiles):
+        t = tile_order[i]
+        x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
+        x_end, y_end = min(x_start + TILE, width) - 1, min(y_start + TILE, height) - 1
+        trans = np.ones(TILE * TILE, np.float64)
+        behind = np.zeros(TILE * TILE, np.float64)  # S of each pixel
+        grad_tile = np.zeros((TILE * TILE, k_values), values.dtype)
+        for row in range(y_start, y_end + 1):
+            for col in range(x_start, x_end + 1):
+                p = (row - y_start) * TILE + (col - x_start)
+                trans[p] = final_t[row, col]
+                for k in range(k_values):
+                    grad_tile[p, k] = grad_image[row, col, k]
+        grad_values = np.zeros(k_values, np.float64)
+        for e in range(offsets[t + 1] - 1, offsets[t] - 1, -1):
+            start = entry_end[e - 1] if e > offsets[t] else record_offsets[t]
+            if entry_end[e] == start:
+                continue
+            g = ids[e]
+            mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+            g_x = g_y = g_a = g_b = g_c = g_o = abs_x = abs_y = 0.0
+            grad_values[:] = 0.0
+            for r in range(start, entry_end[e]):  # one hit per pixel: any order
+                p = np.int64(rec_pixel[r])
+                response = rec_response[r]
+                raw = opacity * response
+                alpha = min(raw, max_alpha)
+                keep = 1.0 / (1.0 - np.float64(alpha))
+                trans[p] *= keep
+                transmittance = values.dtype.type(trans[p])
+                weight = alpha * transmittance
+                q = 0.0  # dL/dweight = <dL/dout, value>
+                for k in range(k_values):
+                    grad = grad_tile[p, k]
+                    q += grad * values[g, k]
+                    grad_values[k] += grad * weight
+                grad_alpha = transmittance * q - behind[p] * keep
+                behind[p] += weight * q
+                if raw <= max_alpha:  # a clamped alpha does not move with the Gaussian
+                    dx = (grid[x_start + p % TILE] + half) - mx
+                    dy = (grid[y_start + p // TILE] + half) - my
+                    grad_exponent = grad_alpha * alpha  # d(o G)/d(exponent) = o G
+                    grad_x = grad_exponent * (a * dx + b * dy)
+                    grad_y = grad_exponent * (b * dx + c * dy)
+                    g_x += grad_x
+                    g_y += grad_y
+                    g_a -= 0.5 * grad_exponent * dx * dx
+                    g_b -= grad_exponent * dx * dy
+                    g_c -= 0.5 * grad_exponent * dy * dy
+                    g_o += grad_alpha * response
+                    abs_x += abs(grad_x)  # each pixel's own gradient, as gsplat's absgrad
+                    abs_y += abs(grad_y)
+            entry_grads[e, 0], entry_grads[e, 1], entry_grads[e, 2], entry_grads[e, 3] = g_x, g_y, g_a, g_b
+            entry_grads[e, 4], entry_grads[e, 5], entry_grads[e, 6], entry_grads[e, 7] = g_c, g_o, abs_x, abs_y
+            for k in range(k_values):
+                entry_grads[e, PER_ENTRY + k] = grad_values[k]
+    return entry_grads

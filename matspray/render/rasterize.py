@@ -12,9 +12,10 @@ Gaussian's footprint ellipse (enumerated row span by row span), one integer sort
 then `blend_hits`: transmittance by a segmented cumulative sum of log(1 - alpha) in float64, weights
 scattered with `index_add`, and a hand-written backward pass. It is the readable reference.
 
-Backend `numba` (CPU; matspray.render.numba_backend, docs/rasterizer.md) shares the projection, footprints and
-depth order below and blends the same hits in compiled 16 x 16 tile loops; tests/test_numba_backend.py holds it
-to this one within 1e-5 (images) and 1e-4 (gradients).
+Backend `numba` (CPU; matspray.render.numba_backend, docs/rasterizer.md) computes the projection, footprints and
+depth order of `_setup` below with the same float32 arithmetic in compiled code, with a hand-written backward,
+and blends the same hits in compiled 16 x 16 tile loops; tests/test_numba_backend.py holds it to this one within
+1e-5 (images) and 1e-4 (gradients).
 """
 
 from __future__ import annotations
@@ -72,7 +73,9 @@ def rasterize(
 
 
 def depth_ranks(depths: Tensor) -> Tensor:  # [N] -> [N] long: 0 for the nearest centre
-    order = torch.argsort(depths)
+    # stable: equal depths (a thousand pairs among 100 000 float32 depths) keep index order, as backend numba's
+    # radix sort does, so both blend the same hits in the same order
+    order = torch.argsort(depths, stable=True)
     ranks = torch.empty_like(order)
     ranks[order] = torch.arange(len(order), device=depths.device)
     return ranks
@@ -149,30 +152,26 @@ def _rasterize_torch(gaussians, camera, features, background, settings: RasterSe
         bands.append(band.reshape(row_end - row_start, width, -1))
         num_hits += blended
     image = torch.cat(bands, dim=0) if len(bands) > 1 else bands[0]  # [H, W, C + 2]
-    return _output(image, background, proj, radii, "torch", num_hits)
+    return _output(image, background, proj.means2d, radii, "torch", num_hits)
 
 
 def _rasterize_numba(gaussians, camera, features, background, settings: RasterSettings, absgrad: bool):
-    """The same setup (projection in torch autograd, footprints, depth order), then the compiled tile loops of
-    matspray.render.numba_backend instead of the pair list."""
-    from matspray.render.numba_backend import rasterize_splats  # imports numba: only when this backend runs
+    """Projection, footprints, depth order and blending all compiled (matspray.render.numba_backend): the same
+    float32 projection as `_setup`, the same hits as the pair list."""
+    from matspray.render.numba_backend import rasterize_gaussians  # imports numba: only when this backend runs
 
-    setup = _setup(gaussians, camera, settings)
-    proj = setup.proj
-    values = torch.cat([features, proj.depths[:, None].to(features), torch.ones_like(setup.opacities)[:, None].to(features)], dim=1)
-    image, num_hits = rasterize_splats(proj.means2d, proj.conics, setup.opacities, values, (setup.boxes, setup.footprints[2], setup.ranks),
-                                       camera.height, camera.width, settings, absgrad_of=proj.means2d if absgrad else None)
-    return _output(image, background, proj, setup.radii, "numba", num_hits)
+    image, num_hits, means2d, radii = rasterize_gaussians(gaussians, camera, features, settings, absgrad)
+    return _output(image, background, means2d, radii, "numba", num_hits)
 
 
-def _output(image, background, proj, radii, backend: str, num_hits: int) -> RasterOutput:
+def _output(image, background, means2d, radii, backend: str, num_hits: int) -> RasterOutput:
     """RasterOutput from the blended [H, W, C + 2] image (features, accumulated depth, alpha)."""
     alpha = image[..., -1]
     colour = image[..., :-2]
     if background is not None:
         colour = colour + (1.0 - alpha)[..., None] * background.to(colour)
-    return RasterOutput(features=colour, alpha=alpha, depth=image[..., -2], means2d=proj.means2d.detach(), radii=radii, backend=backend,
-                        screen=proj.means2d, pixel_hits=num_hits)
+    return RasterOutput(features=colour, alpha=alpha, depth=image[..., -2], means2d=means2d.detach(), radii=radii, backend=backend,
+                        screen=means2d, pixel_hits=num_hits)
 
 
 def _candidate_pairs(boxes, footprints, ranks, row_start, width):
