@@ -1,6 +1,6 @@
 """The corruptions that fuzzing found unhandled, kept as fixed cases: each is refused by `matspray info` with
 exit status 2 and one stderr line naming the file (and the frame and field), never a traceback or a run
-that trains on it. The generated cases are in tests/test_fuzz_transforms.py and tests/test_fuzz_images.py."""
+that trains on it. The generated cases are in tests/test_fuzz_*.py."""
 
 from __future__ import annotations
 
@@ -16,7 +16,10 @@ import torch
 from matspray.data import load_scene, write_image
 from matspray.data.images import write_raw
 from tests.test_captures import one_frame
-from tests.test_readers import C2W_GL, FOCAL, H, W, blender_folder
+from matspray.errors import DataError
+from matspray.geometry.ply import read_ply, write_ply
+from tests.test_ply import random_gaussians
+from tests.test_readers import C2W_GL, FOCAL, H, W, blender_folder, write_colmap
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -92,3 +95,27 @@ def test_focal_length_as_a_numeric_string_is_read_as_the_number(tmp_path):
     blender_folder(tmp_path, meta_extra={"fl_x": str(FOCAL), "w": W, "h": H})
     scene = load_scene(tmp_path)
     assert float(scene.train[0].camera.K[0, 0]) == pytest.approx(FOCAL)
+
+
+@pytest.mark.parametrize("name, edit, problem", [
+    ("points3D.bin", lambda blob: blob[:-4], "ends inside the number of track entries of point 1"),  # pycolmap hung on it
+    ("cameras.bin", lambda blob: (1 << 40).to_bytes(8, "little") + blob[8:], "says it holds 1099511627776 cameras"),
+    ("cameras.bin", lambda blob: blob[:12] + (99).to_bytes(4, "little") + blob[16:], "camera 1 has the unknown camera model id 99"),
+])
+def test_damaged_colmap_binary_model(tmp_path, name, edit, problem):
+    """pycolmap hangs or crashes on a truncated .bin file or a count past its end: refused before it reads them."""
+    pytest.importorskip("pycolmap")
+    write_colmap(tmp_path, n_images=2)
+    path = tmp_path / "sparse" / "0" / name
+    path.write_bytes(edit(path.read_bytes()))
+    line = refusal(tmp_path)
+    assert f"{path}: is not a valid COLMAP binary model: {problem}" in line
+
+
+def test_zero_quaternion_in_a_ply(tmp_path):
+    """A Gaussian with rot_0..3 all 0 has no rotation (3DGS divides by its length): refused, naming the row."""
+    gaussians = random_gaussians(5, 1)
+    gaussians.quats[3] = 0.0
+    write_ply(tmp_path / "g.ply", gaussians)
+    with pytest.raises(DataError, match=r"g\.ply: vertex row 3 has a zero quaternion \(rot_0\.\.3 all 0\).*set rot_0\.\.3 to 1 0 0 0"):
+        read_ply(tmp_path / "g.ply")

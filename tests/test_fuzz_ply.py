@@ -1,5 +1,5 @@
 """Property-based tests of Gaussian PLY reading: a small 3DGS PLY with materials (an asset's asset.ply) written by
-`write_ply`, holding NaN or Inf values, with a header line edited (the vertex count, a property's type or name,
+`write_ply`, holding NaN or Inf values or the zero quaternion (refused, naming the row), with a header line edited (the vertex count, a property's type or name,
 the format), then truncated at any byte or with random bytes flipped, read by `read_ply` and `read_asset`.
 
 Each reader refuses with a one-line MatsprayError naming the file, or returns finite Gaussians, normals and
@@ -66,6 +66,9 @@ def test_gaussian_ply(folder, count, sh_bases, seed, data):
         index = data.draw(st.integers(0, len(tensors) - 1), label="field"); tensor = tensors[index]
         tensor.view(-1)[data.draw(st.integers(0, tensor.numel() - 1))] = data.draw(SPECIALS)
         finite = False
+    zero_rows = data.draw(st.lists(st.integers(0, count - 1), max_size=2, unique=True)) if count else []
+    for row in zero_rows:  # a Gaussian with no rotation: the zero quaternion (or one too small to normalise)
+        gaussians.quats[row] = data.draw(st.sampled_from([0.0, -0.0, 1e-30, 1e-40]))
     path = folder / "asset.ply"
     write_ply(path, gaussians, normals, extra=dict(zip(CHANNELS, materials.T)))
     blob = path.read_bytes()
@@ -84,9 +87,10 @@ def test_gaussian_ply(folder, count, sh_bases, seed, data):
         got, got_normals, got_extra = read
         for tensor in (*fields_of(got), *([got_normals] if got_normals is not None else []), *got_extra.values()):
             assert torch.isfinite(tensor).all()
+        assert (got.quats.double().norm(dim=-1) >= 1e-12).all(), "a Gaussian without a rotation is accepted"
     if asset is not None:
         assert all(torch.isfinite(t).all() for t in (asset.materials, asset.normals, *fields_of(asset.gaussians)))
-    if edit is None and cut is None and not flips and finite:
+    if edit is None and cut is None and not flips and finite and not zero_rows:
         assert read is not None and asset is not None, "an intact file is refused"
         assert len(got) == count and torch.equal(got.means, gaussians.means) and torch.equal(got.sh, gaussians.sh)
         assert torch.equal(got_normals, normals) and torch.equal(torch.stack(list(got_extra.values()), -1), materials)

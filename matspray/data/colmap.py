@@ -8,6 +8,7 @@ OPENCV_FISHEYE and the radial fisheye models) are undistorted on load, masks the
 from __future__ import annotations
 
 import math
+import struct
 from functools import partial
 from pathlib import Path
 
@@ -34,6 +35,8 @@ LENSES = {
 }
 MASK_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_SIZE = 1 << 16  # pixels on a side; more is a corrupt cameras file, not a photo
+# parameters per COLMAP camera model id (colmap/sensor/models.h)
+MODEL_PARAMS = {0: 3, 1: 4, 2: 4, 3: 5, 4: 8, 5: 8, 6: 12, 7: 5, 8: 4, 9: 5, 10: 12, 11: 16}
 
 
 def find_model(root: Path) -> Path | None:
@@ -41,6 +44,91 @@ def find_model(root: Path) -> Path | None:
         if any((candidate / f"cameras{ext}").exists() for ext in (".bin", ".txt")):
             return candidate
     return None
+
+
+class _Binary:
+    """A cursor over one COLMAP .bin file that refuses, naming the file, what pycolmap would read past the end
+    of (pycolmap hangs or crashes on a truncated file or a wrong count)."""
+
+    def __init__(self, path: Path):
+        self.path, self.blob, self.at = path, path.read_bytes(), 0
+
+    def read(self, fmt: str, what: str) -> tuple:
+        size = struct.calcsize("<" + fmt)
+        if self.at + size > len(self.blob):
+            raise self.error(f"ends inside {what} (byte {self.at} of {len(self.blob)})")
+        values = struct.unpack_from("<" + fmt, self.blob, self.at)
+        self.at += size
+        return values
+
+    def count(self, what: str, record_bytes: int, fmt: str = "Q") -> int:
+        (n,) = self.read(fmt, f"the number of {what}")
+        if n * record_bytes > len(self.blob) - self.at:
+            raise self.error(f"says it holds {n} {what}, more than its {len(self.blob)} bytes can")
+        return n
+
+    def finite(self, values, what: str) -> None:
+        if not all(math.isfinite(v) for v in values):
+            raise self.error(f"has NaN or Inf in {what}")
+
+    def name(self, what: str) -> None:
+        end = self.blob.find(b"\0", self.at)
+        if end < 0:
+            raise self.error(f"ends inside {what}")
+        self.at = end + 1
+
+    def error(self, problem: str) -> DataError:
+        return file_error(self.path, f"is not a valid COLMAP binary model: {problem}",
+                          "the file is truncated or damaged; export the model again with colmap model_converter")
+
+    def done(self) -> None:
+        if self.at != len(self.blob):
+            raise self.error(f"has {len(self.blob) - self.at} bytes after its last record")
+
+
+def check_binary_model(model_path: Path) -> None:
+    """Refuse a damaged cameras.bin, images.bin, points3D.bin, rigs.bin or frames.bin (COLMAP 3.12 and later)
+    before pycolmap reads it."""
+    if (model_path / "cameras.bin").exists():
+        file = _Binary(model_path / "cameras.bin")
+        for i in range(file.count("cameras", 24)):
+            camera_id, model_id = file.read("iiQQ", f"camera {i}")[:2]
+            if model_id not in MODEL_PARAMS:
+                raise file.error(f"camera {camera_id} has the unknown camera model id {model_id}")
+            file.read(f"{MODEL_PARAMS[model_id]}d", f"the parameters of camera {camera_id}")
+        file.done()
+    if (model_path / "images.bin").exists():
+        file = _Binary(model_path / "images.bin")
+        for i in range(file.count("images", 64)):
+            values = file.read("i7di", f"image {i}")
+            file.finite(values[1:8], f"the pose of image {values[0]}")
+            file.name(f"the name of image {values[0]}")
+            file.read(f"{file.count(f'points of image {values[0]}', 24) * 3}d", f"the points of image {values[0]}")
+        file.done()
+    if (model_path / "points3D.bin").exists():
+        file = _Binary(model_path / "points3D.bin")
+        for i in range(file.count("points", 43)):
+            values = file.read("Q3d3Bd", f"point {i}")
+            file.finite(values[1:4], f"the position of point {values[0]}")
+            file.read(f"{2 * file.count(f'track entries of point {values[0]}', 8)}i", f"the track of point {values[0]}")
+        file.done()
+    if (model_path / "rigs.bin").exists():
+        file = _Binary(model_path / "rigs.bin")
+        for i in range(file.count("rigs", 8)):
+            rig_id, sensors = file.read("II", f"rig {i}")
+            if sensors:
+                file.read("iI", f"the reference sensor of rig {rig_id}")
+            for _ in range(max(0, sensors - 1)):
+                if file.read("iIB", f"a sensor of rig {rig_id}")[2]:
+                    file.finite(file.read("7d", f"a sensor pose of rig {rig_id}"), f"a sensor pose of rig {rig_id}")
+        file.done()
+    if (model_path / "frames.bin").exists():
+        file = _Binary(model_path / "frames.bin")
+        for i in range(file.count("frames", 68)):
+            values = file.read("II7d", f"frame {i}")
+            file.finite(values[2:], f"the pose of frame {values[0]}")
+            file.read("iIQ" * file.count(f"data ids of frame {values[0]}", 16, "I"), f"the data ids of frame {values[0]}")
+        file.done()
 
 
 def colmap_lens(camera, model_path: Path) -> Lens:
@@ -81,6 +169,7 @@ def read_colmap(root: Path, test_every: int = 8) -> tuple[list[View], list[View]
     model_path = find_model(root)
     if model_path is None:
         raise file_error(root, "no COLMAP model found", "expected sparse/0/cameras.bin or sparse/cameras.bin")
+    check_binary_model(model_path)
     try:
         reconstruction = pycolmap.Reconstruction(str(model_path))
     except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError subclasses

@@ -90,6 +90,10 @@ def read_ply(path, extra: tuple[str, ...] = ()):
     for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
         if not torch.isfinite(getattr(gaussians, name)).all():
             raise file_error(path, f"has NaN or Inf values in its {name}")
+    degenerate = (gaussians.quats.double().norm(dim=-1) < 1e-12).nonzero()  # no rotation: 3DGS divides by 0 here
+    if len(degenerate):
+        raise file_error(path, f"vertex row {int(degenerate[0])} has a zero quaternion (rot_0..3 all 0), which is no rotation "
+                         f"({len(degenerate)} such rows)", "set rot_0..3 to 1 0 0 0 (no rotation) or drop the row")
     normals = column("nx", "ny", "nz") if all(k in names for k in ("nx", "ny", "nz")) else None
     if normals is not None and not torch.isfinite(normals).all():
         raise file_error(path, "has NaN or Inf values in its normals (nx, ny, nz)")
