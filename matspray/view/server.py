@@ -121,6 +121,9 @@ class Viewer:
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
         self.run.load_photos()
+        # the first frame's one-off costs (the rasterizer's compiled kernels loaded from their cache, first allocations)
+        # are paid here, while the browser opens the page, not when it asks for its first picture
+        threading.Thread(target=self.render, args=(self.start_camera.scaled(0.25),), daemon=True, name="matspray-warmup").start()
         return self.url
 
     @property
