@@ -34,7 +34,7 @@ MIRROR_ROUGHNESS = (0.45, 0.25)
 # the surface casts no vote, so the one view whose depth runs deep decides alone. A voxel that at least this
 # share of the views seeing it (in front of or deep behind their surface) sees hidden is inside; a real
 # concavity is seen from fewer directions, so a share close to 1 keeps most of those open.
-OCCLUDED_SHARE = 0.9
+OCCLUDED_SHARE = 0.95
 
 
 def render_views(gaussians: Gaussians, cameras: list[Camera], materials: Tensor | None = None,
