@@ -97,3 +97,14 @@ def write_disk_sphere_run(root, gaussians: int, cameras: list[Camera], train: sl
     write_json(run / "dataset.json", {"source": str(root / "data"), "format": "blender"})
     write_asset(run / "asset", g, RefineResult(materials, normals, source=None, envmap=light, history=[]))
     return run
+
+
+def stacked_opaque_gaussians(n: int = 8) -> tuple[Gaussians, Camera, torch.Tensor]:
+    """`n` nearly opaque Gaussians (opacity 0.95) stacked on the optical axis of an 8 x 8 camera, one feature channel
+    each: blending stops before the farthest ones once the transmittance would fall below 1e-4."""
+    means = torch.zeros(n, 3)
+    means[:, 2] = torch.linspace(-0.5, 0.5, n)
+    gaussians = Gaussians(means, torch.full((n, 3), math.log(0.3)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                          torch.logit(torch.full((n,), 0.95)), torch.zeros(n, 1, 3))
+    camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 8, 8)
+    return gaussians, camera, torch.eye(n)

@@ -25,6 +25,7 @@ from matspray.render.backend import BACKENDS, resolve_backend, rendering_with
 from matspray.render.rasterize import _setup, rasterize
 from matspray.render.settings import RasterSettings
 from tests.test_rasterize import random_scene
+from tests.scenes import stacked_opaque_gaussians
 
 PARAMS = ("means", "log_scales", "quats", "opacity_logits")
 
@@ -85,13 +86,7 @@ def test_opaque_and_nearly_transparent_gaussians():
 def test_early_termination_and_other_settings():
     """Eight nearly opaque Gaussians stacked on the optical axis (as tests/test_rasterize.py), with the default
     stop, without it, and with other alpha bounds."""
-    n = 8
-    means = torch.zeros(n, 3)
-    means[:, 2] = torch.linspace(-0.5, 0.5, n)
-    gaussians = Gaussians(means, torch.full((n, 3), math.log(0.3)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                          torch.logit(torch.full((n,), 0.95)), torch.zeros(n, 1, 3))
-    camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 8, 8)
-    features = torch.eye(n)
+    gaussians, camera, features = stacked_opaque_gaussians()
     _, out = assert_backends_agree(gaussians, camera, features)
     assert out.features[3:5, 3:5, -1].max() == 0  # the four central pixels stop before the last one
     for settings in (RasterSettings(min_transmittance=0.0), RasterSettings(min_alpha=0.05, max_alpha=0.9)):

@@ -13,6 +13,7 @@ from matspray.gaussians import Gaussians
 from matspray.render.rasterize import rasterize
 from matspray.render.reference import splat_pixels
 from matspray.render.settings import RasterSettings
+from tests.scenes import stacked_opaque_gaussians
 
 
 def random_scene(n: int, seed: int, dtype=torch.float32, width: int = 16, height: int = 12, max_opacity: float = 0.97):
@@ -46,12 +47,7 @@ def test_early_termination_matches_reference():
     """Eight nearly opaque Gaussians stacked on the optical axis: blending stops once the transmittance
     would fall below 1e-4, so the farthest ones must not appear (they do without termination)."""
     n = 8
-    means = torch.zeros(n, 3)
-    means[:, 2] = torch.linspace(-0.5, 0.5, n)
-    gaussians = Gaussians(means, torch.full((n, 3), math.log(0.3)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                          torch.logit(torch.full((n,), 0.95)), torch.zeros(n, 1, 3))
-    camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 8, 8)
-    features = torch.eye(n)
+    gaussians, camera, features = stacked_opaque_gaussians(n)
     out = rasterize(gaussians, camera, features)
     image, alpha, depth = splat_pixels(gaussians, camera, features, torch.zeros(n))
     torch.testing.assert_close(out.features.double(), image, atol=1e-5, rtol=0)
