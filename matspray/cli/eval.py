@@ -61,7 +61,8 @@ def run(args) -> int:
                 print(f"report: {write_capture_report(args.run, metrics, args.relight, args.credit, device=device, backend=backend)}")
         return 0
     with out_of_memory_as_error("eval", device):
-        metrics = evaluate_run(args.run, args.data, lpips_weights=args.lpips_weights, aligned=args.aligned, device=device, backend=backend)
+        metrics = evaluate_run(args.run, args.data, lpips_weights=args.lpips_weights, aligned=args.aligned, device=device, backend=backend,
+                               scene=scene)
     print((args.run / "eval" / "tables.md").read_text())
     if not args.no_report:
         print(f"report: {write_report(args.run, metrics, args.data)}")

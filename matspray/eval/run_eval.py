@@ -206,13 +206,15 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
 
 
 def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, progress: bool = True, device="cpu",
-                 backend: str = "torch") -> dict:
+                 backend: str = "torch", scene: Scene | None = None) -> dict:
     """Evaluate every asset of `run_dir` on the dataset's test views, rendered on `device` with the rasterizer
-    `backend` (both resolved); writes eval/metrics.json and eval/tables.md and returns the metrics."""
+    `backend` (both resolved); writes eval/metrics.json and eval/tables.md and returns the metrics. `scene`: the
+    dataset already loaded (as `data` at the run's downscale), so that it is not read twice."""
     run = RunDir(run_dir).require()
     identity = run.dataset()
     data = Path(data) if data is not None else Path(identity["source"])
-    scene = load_scene(data, downscale=run.downscale())
+    if scene is None:
+        scene = load_scene(data, downscale=run.downscale())
     if [v.name for v in scene.train] != identity["train_views"]:
         raise DataError(f"{run.root}: this run was made from {identity['source']}, not from {data}")
     check_synthetic(scene)
