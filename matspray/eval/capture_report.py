@@ -12,9 +12,9 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import ENVMAP_FILE, envmap_preview, read_asset
+from matspray.asset import ENVMAP_FILE, envmap_preview
 from matspray.data import load_scene
-from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders
+from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
 from matspray.export.frames import find_glbs, glb_box
 from matspray.eval.report import STYLE, Figures, _srgb_inverse, markdown_to_html, object_masks_section
 from matspray.lights import load_envmap
@@ -34,12 +34,12 @@ def _label(key: str) -> str:
     return "geometry (3DGS colours)" if key == RADIANCE else f"{LABELS.get(key, key)}, its estimated light"
 
 
-def asset_box_note(run: RunDir) -> str:
+def asset_box_note(run: RunDir, assets: dict) -> str:
     """The boxes of the asset and of every mesh exported into the run folder (RUN/*.glb, RUN/export/*.glb), in the
     dataset's world, beside the object region's: what shows that no table or room came along."""
     lines = []
-    for variant in run.asset_variants():
-        means = read_asset(run.path(asset_stage(variant))).gaussians.means.detach()
+    for variant, asset in assets.items():
+        means = asset.gaussians.means.detach().cpu()
         low, high = means.min(0).values.tolist(), means.max(0).values.tolist()
         lines.append(f"{LABELS.get(variant, variant)} asset: {len(means)} Gaussians in the box "
                      f"({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
@@ -69,8 +69,9 @@ def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "fo
                     "run reproduces photos it never trained on (held out), inside the object's mask.</p>")
     sections.append(markdown_to_html(heldout_table(metrics)))
 
-    held = photo_renders(run, scene.test[:MAX_VIEWS], "test", device, backend, progress=False)
-    trained = photo_renders(run, scene.train[:1], "train", device, backend, progress=False)
+    loaded = read_renderables(run, device)
+    held = photo_renders(run, scene.test[:MAX_VIEWS], "test", device, backend, progress=False, renderables=loaded)
+    trained = photo_renders(run, scene.train[:1], "train", device, backend, progress=False, renderables=loaded)
     for title, items in (("Held-out photos (never trained on) and the run's renders", held),
                          ("A training photo and the run's renders", trained)):
         rows = [f"<h2>{title}</h2>"]
@@ -82,8 +83,7 @@ def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "fo
             rows.append("<div>" + "".join(cells) + "</div>")
         sections += rows
 
-    variants = run.asset_variants()
-    assets = {v: read_asset(run.path(asset_stage(v)), device=device) for v in variants}
+    variants, assets = list(loaded.assets), loaded.assets
     views = scene.test[:2] or scene.train[:2]
     cells = []
     with rendering_with(backend), torch.no_grad():
@@ -123,7 +123,7 @@ def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "fo
         sections.append("<h2>Estimated light</h2><p>Tone-mapped lat-long maps (up is the top row), determined only as far as the "
                         "photos reveal it.</p><div>" + "".join(cells) + "</div>")
 
-    sections.append("<h2>Object region</h2>" + asset_box_note(run))
+    sections.append("<h2>Object region</h2>" + asset_box_note(run, assets))
     if run.path("masks", "masks.pt").exists():
         sections.append(object_masks_section(read_object_masks(run.path("masks")), scene.train[:MAX_VIEWS], figures, None))
     page = f"<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title><style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"

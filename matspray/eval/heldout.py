@@ -71,24 +71,36 @@ def estimated_lights(run: RunDir, variants: list[str], device) -> dict:
     return lights
 
 
-def photo_renders(run: RunDir, views: list[View], split: str, device="cpu", backend: str = "torch",
-                  progress: bool = True) -> list[PhotoRenders]:
-    """Render every view's camera with the geometry and with each asset under its own estimated light."""
+@dataclass
+class RunRenderables:
+    """What a run renders photos with, read once: the geometry, each variant's asset and its estimated light."""
+    gaussians: object  # Gaussians
+    assets: dict  # variant -> Asset
+    lights: dict  # variant -> PrefilteredEnvironment (variants that estimated one)
+
+
+def read_renderables(run: RunDir, device="cpu") -> RunRenderables:
     geometry_ply = run.path("geometry", "gaussians.ply")
     if not geometry_ply.exists():
         raise RunError(f"{run.root}: no Gaussian Splatting geometry (geometry/gaussians.ply); make it with `matspray run`")
-    gaussians = read_ply(geometry_ply)[0].to(device)
     variants = run.asset_variants()
-    assets = {v: read_asset(run.path(asset_stage(v)), device=device) for v in variants}
-    lights = estimated_lights(run, variants, device)
+    return RunRenderables(read_ply(geometry_ply)[0].to(device), {v: read_asset(run.path(asset_stage(v)), device=device) for v in variants},
+                          estimated_lights(run, variants, device))
+
+
+def photo_renders(run: RunDir, views: list[View], split: str, device="cpu", backend: str = "torch",
+                  progress: bool = True, renderables: RunRenderables | None = None) -> list[PhotoRenders]:
+    """Render every view's camera with the geometry and with each asset under its own estimated light
+    (`renderables`: the run's, read here when not given)."""
+    loaded = renderables or read_renderables(run, device)
     masks = view_masks(run, views, split)
     result = []
     with rendering_with(backend), torch.no_grad():
         for view in tqdm(views, desc=f"held-out photos ({split})" if split == "test" else f"photos ({split})", disable=not progress):
             camera = view.camera.to(device)
-            renders = {RADIANCE: srgb_to_linear(render_view(gaussians, camera).rgb.clamp(0, 1)).cpu()}  # its SH colours are sRGB
-            for variant, light in lights.items():
-                rgb, alpha = render_relit(assets[variant], camera, light)
+            renders = {RADIANCE: srgb_to_linear(render_view(loaded.gaussians, camera).rgb.clamp(0, 1)).cpu()}  # its SH colours are sRGB
+            for variant, light in loaded.lights.items():
+                rgb, alpha = render_relit(loaded.assets[variant], camera, light)
                 renders[variant] = (rgb / alpha[..., None].clamp_min(1e-4)).cpu()  # unpremultiplied: scored inside the mask
             result.append(PhotoRenders(view, masks[view.name], renders))
     return result
@@ -131,11 +143,13 @@ def evaluate_capture(run_dir, data=None, lpips_weights=None, device="cpu", backe
         raise DataError(f"{identity['source']}: no held-out views (every photo was trained on); "
                         "a capture without split lists holds out every 8th frame: give it 8 or more photos")
     lpips, lpips_source = load_lpips(lpips_weights)
+    loaded = read_renderables(run, device)
     stride = max(1, len(scene.train) // max(1, train_views))
     metrics = {"title": f"MatSpray on a capture without ground truth: {identity['source']}", "lpips": lpips_source,
                "region": "inside the object mask (both images composited on white with it)",
-               "heldout": score_photos(photo_renders(run, scene.test, "test", device, backend, progress), lpips),
-               "train": score_photos(photo_renders(run, scene.train[::stride][:train_views], "train", device, backend, progress), lpips)}
+               "heldout": score_photos(photo_renders(run, scene.test, "test", device, backend, progress, loaded), lpips),
+               "train": score_photos(photo_renders(run, scene.train[::stride][:train_views], "train", device, backend, progress, loaded),
+                                     lpips)}
     write_json(run.path("eval", "heldout.json"), metrics)
     return metrics
 
