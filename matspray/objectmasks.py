@@ -77,8 +77,14 @@ def write_object_masks(folder: Path, masks: ObjectMasks) -> None:
     write_json(folder / "region.json", masks.region.to_json())
 
 
+def read_region(folder: Path) -> ObjectRegion | None:
+    """The object region of a masks stage (RUN/masks), without reading its masks; None where the run has none."""
+    path = Path(folder) / "region.json"
+    return ObjectRegion.from_json(json.loads(path.read_text())) if path.exists() else None
+
+
 def read_object_masks(folder: Path) -> ObjectMasks:
     folder = Path(folder)
     data = torch.load(folder / "masks.pt", weights_only=False)
     masks = {split: {name: m.float() / 255.0 for name, m in by_name.items()} for split, by_name in data["masks"].items()}
-    return ObjectMasks(ObjectRegion.from_json(json.loads((folder / "region.json").read_text())), data["inside"], masks)
+    return ObjectMasks(read_region(folder), data["inside"], masks)

@@ -36,7 +36,7 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
     from matspray.data.video import write_video
     from matspray.errors import ConfigError, RunError
     from matspray.lights import load_envmap
-    from matspray.objectmasks import read_object_masks
+    from matspray.objectmasks import read_region
     from matspray.relight import background_radiance, cameras_up, orbit_cameras, render_relit
     from matspray.render.backend import rendering_with
     from matspray.render.envmap import EnvironmentMap
@@ -59,9 +59,8 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
         cameras = [(v.name, v.camera) for v in scene.test]
     else:
         # a capture without masks: circle its object region, not the middle of everything the photos show
-        masks_folder = run.path("masks")
-        center = (torch.tensor(read_object_masks(masks_folder).region.center) if (masks_folder / "masks.pt").exists()
-                  else scene.bounds.mean(0))
+        region = read_region(run.path("masks"))
+        center = torch.tensor(region.center) if region is not None else scene.bounds.mean(0)
         reference = [v.camera for v in scene.train]
         cameras = [(f"orbit_{i:03d}", c) for i, c in enumerate(orbit_cameras(reference, center, frames, up=cameras_up(reference)))]
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -18,12 +18,11 @@ from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_r
 from matspray.export.frames import find_glbs, glb_box
 from matspray.eval.report import STYLE, Figures, _srgb_inverse, markdown_to_html, object_masks_section
 from matspray.lights import load_envmap
-from matspray.objectmasks import read_object_masks
-from matspray.objectregion import ObjectRegion
+from matspray.objectmasks import read_object_masks, read_region
 from matspray.relight import background_radiance, render_gbuffer, render_relit
 from matspray.render.backend import rendering_with
 from matspray.render.envmap import EnvironmentMap
-from matspray.rundir import RunDir, read_json, write_text_atomic
+from matspray.rundir import RunDir, write_text_atomic
 from matspray.variants import LABELS, asset_stage
 
 MAX_VIEWS = 3
@@ -46,9 +45,8 @@ def asset_box_note(run: RunDir, assets: dict) -> str:
     for path in find_glbs(run.root):
         low, high = glb_box(path)
         lines.append(f"exported mesh {path.relative_to(run.root)}: box ({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
-    region_file = run.path("masks", "region.json")
-    if region_file.exists():
-        region = ObjectRegion.from_json(read_json(region_file))
+    region = read_region(run.path("masks"))
+    if region is not None:
         low, high = region.bounds().tolist()
         lines.append(f"object region: {region.describe()}; box ({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
     return "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in lines) + "</ul>"

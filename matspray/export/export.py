@@ -24,7 +24,7 @@ from matspray.export.decimate import decimate
 from matspray.export.normals import smoothed_vertex_normals
 from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
 from matspray.export.surface import fuse_surface
-from matspray.objectregion import ObjectRegion
+from matspray.objectmasks import read_region
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
 from matspray.rundir import RunDir, read_json
@@ -171,8 +171,7 @@ def export_run(run_dir, out, variant: str = "full", config: ExportConfig = Expor
     source = data if data is not None else read_json(run_dir / "dataset.json")["source"]
     scene = load_scene(source, downscale=RunDir(run_dir).downscale())
     asset = read_asset(folder, device=device)
-    region_file = run_dir / "masks" / "region.json"  # a capture without masks: the mesh stays inside its object region
-    region = ObjectRegion.from_json(read_json(region_file)) if region_file.exists() else None
+    region = read_region(run_dir / "masks")  # a capture without masks: the mesh stays inside its object region
     with rendering_with(backend):
         mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress,
                                notes={"variant": variant, "run": str(run_dir.resolve())}, region=region)
