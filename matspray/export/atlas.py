@@ -1,14 +1,14 @@
 """A UV atlas with xatlas: charts packed into a square texture with a gutter between them.
 
-Three choices, each measured on a 50k-face surface of a demo-preset asset (dev-00, 1024 px):
-- xatlas drops faces whose area is below float32's epsilon (1.2e-7) and leaves their UVs at (0, 0): on the
-  object's own scale (~2 units) marching cubes makes hundreds of those (644 zero-area UV faces on main).
-  The mesh goes in scaled so that an average face has unit area: none are dropped (UVs are scale-free).
-- Charts are grown on a Taubin-smoothed copy (same topology, positions only): marching-cubes normals are
-  noisy and xatlas splits charts wherever normals turn, 1 439 charts of a few faces each (texture 30 %
-  filled, charts blurred together at the first mip levels); smoothed, 112-121 charts.
-- Chart growth is capped by boundary length (sqrt(area)), not by xatlas' iterations (those took 50-100 s),
-  round charts are preferred (roundness weight 4) and packed by brute force: fill 52 % in 8 s."""
+Three choices (measured in docs/export.md, "Atlas choices"):
+- xatlas drops faces whose area is below float32's epsilon and leaves their UVs at (0, 0); at an object's own
+  scale marching cubes makes many of those. The mesh goes in scaled so that an average face has unit area:
+  none are dropped (UVs are scale-free).
+- Charts are grown on a Taubin-smoothed copy (same topology, positions only): marching-cubes normals are noisy
+  and xatlas splits charts wherever normals turn, into many charts of a few faces that blur together at the
+  first mip levels.
+- Chart growth is capped by boundary length (sqrt(area)), not by xatlas' (slow) iterations; round charts are
+  preferred and packed by brute force, which packs tighter."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import trimesh
 import xatlas
 
 SMOOTHING_ITERATIONS = 20  # Taubin passes on the copy the charts are grown on
-ROUNDNESS = 4.0  # xatlas' roundness weight (default 0.01): compact charts pack tighter (2: 47.7 %, 4: 52.2 % fill on dev-00)
+ROUNDNESS = 4.0  # xatlas' roundness weight (default 0.01): compact charts pack tighter
 
 
 @dataclass(frozen=True)
