@@ -18,7 +18,7 @@ from pathlib import Path
 
 import yaml
 
-from matspray.data.images import atomic_target
+from matspray.files import atomic_target
 from matspray.errors import RunError, file_error
 from matspray.variants import VARIANT_NAMES, asset_stage
 

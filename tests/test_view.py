@@ -25,7 +25,8 @@ from matspray.view.camera import camera_from_viser, frame_size, matrix_to_quater
 from matspray.view.frames import MODES, Progressive, progressive_size
 from matspray.export.frames import dataset_from_glb
 from matspray.view.glb import glb_pose
-from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, RotatedLight, light_files, rotate_about_up
+from matspray.view.launch import light_files
+from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, RotatedLight, rotate_about_up
 from matspray.view.photos import nearest_view
 from matspray.view.snapshot import write_snapshot
 from tests.scenes import ring_cameras, sky_map, write_disk_sphere_run

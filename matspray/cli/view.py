@@ -22,23 +22,29 @@ def add_parser(parser) -> None:
 def run(args) -> int:
     import time
 
-    from matspray.device import compute_target
     from matspray.errors import ConfigError
-    from matspray.view.server import Viewer, ViewerConfig
+    from matspray.view.launch import light_files, open_page, run_variants
 
-    try:
-        import viser  # noqa: F401
-    except ImportError:
-        raise ConfigError("the viewer needs viser: pip install 'matspray[view]'") from None
     if not 32 <= args.resolution <= 4096:
         raise ConfigError(f"--resolution {args.resolution}: choose 32 to 4096 pixels")
-    device, backend = compute_target(args.device, args.backend)
-    config = ViewerConfig(host=args.host, port=args.port, env=tuple(args.env), resolution=args.resolution)
-    viewer = Viewer(args.run, config, device=device, backend=backend)
-    url = viewer.start()
-    print(f"matspray view: {url}  ({args.run}, {backend} on {device}; Ctrl+C stops)", flush=True)
+    run_variants(args.run)  # bad input is one line before anything starts
+    light_files(args.env)
+    page = open_page(args.host, args.port)  # served before torch loads: the browser opens the page meanwhile
+    print(f"matspray view: {page.url}  ({args.run}; Ctrl+C stops)", flush=True)
     if args.host in ("127.0.0.1", "localhost", "::1"):
-        print(f"  from another machine: ssh -L {args.port}:localhost:{args.port} THIS_HOST, then open {url} there", flush=True)
+        print(f"  from another machine: ssh -L {args.port}:localhost:{args.port} THIS_HOST, then open {page.url} there", flush=True)
+    try:
+        from matspray.device import compute_target
+        from matspray.view.server import Viewer, ViewerConfig
+
+        device, backend = compute_target(args.device, args.backend)
+        config = ViewerConfig(host=args.host, port=args.port, env=tuple(args.env), resolution=args.resolution)
+        viewer = Viewer(args.run, config, device=device, backend=backend, page=page)
+        viewer.start()
+    except BaseException:
+        page.stop()
+        raise
+    print(f"matspray view: ready ({backend} on {device})", flush=True)
     try:
         while True:
             time.sleep(3600)

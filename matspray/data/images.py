@@ -16,12 +16,12 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from matspray.errors import file_error
+from matspray.files import HDR_SUFFIXES, atomic_target  # noqa: F401 - data modules import them from here too
 
 LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
 # what the decoders raise on a corrupt or truncated file (pypng's FormatError and ChunkError are
 # Exception subclasses of their own; a truncated scanline shows up as an IndexError)
 DECODER_ERRORS = (OSError, ValueError, SyntaxError, RuntimeError, EOFError, IndexError, KeyError)
-HDR_SUFFIXES = (".exr", ".hdr")
 
 
 # ------------------------------------------------------------------------------------------ sRGB
@@ -36,12 +36,6 @@ def linear_to_srgb(x: Tensor) -> Tensor:  # [...] -> [...]
 
 
 # ------------------------------------------------------------------------------------------ atomic writes
-def atomic_target(path: Path) -> Path:
-    """A temporary sibling of `path` to write into before `os.replace` (same folder, same suffix)."""
-    path = Path(path)
-    return path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
-
-
 def _publish(tmp: Path, path: Path) -> None:
     os.replace(tmp, path)
 

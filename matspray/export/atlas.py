@@ -8,7 +8,7 @@ Three choices (measured in docs/export.md, "Atlas choices"):
   and xatlas splits charts wherever normals turn, into many charts of a few faces that blur together at the
   first mip levels.
 - Chart growth is capped by boundary length (sqrt(area)), not by xatlas' (slow) iterations; round charts are
-  preferred and packed by brute force, which packs tighter."""
+  preferred and packed by brute force, which packs tighter; no extra bilinear border beyond the padding."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import trimesh
 import xatlas
 
 SMOOTHING_ITERATIONS = 20  # Taubin passes on the copy the charts are grown on
-ROUNDNESS = 4.0  # xatlas' roundness weight (default 0.01): compact charts pack tighter
+ROUNDNESS = 6.0  # xatlas' roundness weight (default 0.01): compact charts pack tighter
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,7 @@ def uv_atlas(mesh: trimesh.Trimesh, texture_size: int, padding: int) -> AtlasMes
     pack = xatlas.PackOptions()
     pack.resolution = texture_size
     pack.padding = padding
-    pack.bilinear = True
+    pack.bilinear = False  # the padding already exceeds a bilinear tap; its extra texel cost fill
     pack.bruteForce = True
     atlas.generate(charts, pack)
     vmapping, indices, uvs = atlas[0]

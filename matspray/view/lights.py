@@ -21,7 +21,7 @@ from torch import Tensor
 
 from matspray.asset import ENVMAP_FILE
 from matspray.data.images import HDR_SUFFIXES
-from matspray.errors import ConfigError, DataError, MatsprayError, file_error
+from matspray.errors import DataError, MatsprayError, file_error
 from matspray.lights import BUILTINS, load_envmap
 from matspray.render.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
 from matspray.render.latlong import pixel_directions
@@ -85,28 +85,6 @@ class RotatedLight:
     def turned(self, angle: float) -> "RotatedLight":
         """The same light at another angle (the prefiltering is shared)."""
         return RotatedLight(self.light, self.prefiltered, angle)
-
-
-def light_files(paths) -> list[Path]:
-    """The .exr/.hdr files that `--env` names: files as given (any suffix: a wrong one is reported when the light is
-    chosen), folders by their .exr/.hdr files. A path that does not exist is a ConfigError of one line."""
-    files: list[Path] = []
-    for path in map(Path, paths):
-        path = path.expanduser()
-        if path.is_dir():
-            found = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in HDR_SUFFIXES)
-            if not found:
-                raise ConfigError(f"--env {path}: the folder holds no .exr or .hdr file")
-            files.extend(found)
-        elif path.is_file():
-            files.append(path)
-        else:
-            raise ConfigError(f"--env {path}: no such file or folder")
-    unique: list[Path] = []
-    for path in files:
-        if path.resolve() not in [p.resolve() for p in unique]:
-            unique.append(path)
-    return unique
 
 
 def light_choices(files, has_estimate: bool = True) -> list[LightChoice]:

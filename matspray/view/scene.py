@@ -13,9 +13,10 @@ import torch
 
 from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
-from matspray.errors import MatsprayError, RunError
+from matspray.errors import MatsprayError
 from matspray.rundir import RunDir
 from matspray.export.frames import find_glbs
+from matspray.view.launch import run_variants
 from matspray.view.lights import estimated_light_path
 
 UP = (0.0, 0.0, 1.0)  # the dataset's world up (DESIGN: Blender / NeRF-synthetic, Z up)
@@ -27,14 +28,9 @@ class ViewerRun:
     run folder or holds no asset."""
 
     def __init__(self, root, device="cpu", notify=print):
-        root = Path(root)
-        if not root.is_dir():
-            raise RunError(f"{root}: no such run folder; make one with `matspray run --data DATA --out {root}`")
-        self.run = RunDir(root).require()
-        self.root = root
-        self.variants = self.run.asset_variants()
-        if not self.variants:
-            raise RunError(f"{root}: the run has no asset yet (no asset*/asset.ply); make it with `matspray run --data DATA --out {root}`")
+        self.variants = run_variants(root)
+        self.root = Path(root)
+        self.run = RunDir(self.root)
         self.device = torch.device(device)
         self.notify = notify
         self.glbs = find_glbs(root)

@@ -8,11 +8,8 @@ at once would only share the cores.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import io
 import math
-import socket
 import sys
 import tempfile
 import threading
@@ -23,11 +20,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from matspray.errors import ConfigError, MatsprayError
+from matspray.errors import MatsprayError
 from matspray.render.backend import rendering_with
 from matspray.view.camera import camera_from_viser, viser_pose
 from matspray.view.frames import BACKDROP, FrameSettings, Progressive, progressive_size, render_frame
-from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, light_choices, light_files, unique_label
+from matspray.view.launch import Page, light_files, open_page
+from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, light_choices, unique_label
 from matspray.view.scene import UP, ViewerRun
 
 
@@ -54,30 +52,12 @@ class ViewState:
     glb: str = "hidden"  # glb.PLACES
 
 
-def port_problem(host: str, port: int) -> str | None:
-    """None when `port` can be listened on at `host`, else one line with the port and what to pass instead."""
-    def free(number: int) -> bool:
-        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as probe:
-            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server binds: a port in TIME_WAIT is free
-            try:
-                probe.bind((host, number))
-            except OSError:
-                return False
-        return True
-
-    if not 0 < port < 65536:
-        return f"--port {port}: a port is a number from 1 to 65535"
-    if free(port):
-        return None
-    other = next((p for p in range(port + 1, min(port + 50, 65536)) if free(p)), None)
-    instead = f"pass --port {other} (free now)" if other else "pass another --port"
-    return f"port {port} on {host} is in use (another viewer or program listens there); {instead}, or stop what uses it"
-
-
 class Viewer:
-    """`matspray view` as a library: `Viewer(run, config).start()` returns the URL; `stop()` ends it."""
+    """`matspray view` as a library: `Viewer(run, config).start()` returns the URL; `stop()` ends it. `page`: a page
+    opened already (`launch.open_page`, before torch was imported), which the viewer takes over instead of opening one."""
 
-    def __init__(self, run_root, config: ViewerConfig = ViewerConfig(), device="cpu", backend: str = "torch", notify=None):
+    def __init__(self, run_root, config: ViewerConfig = ViewerConfig(), device="cpu", backend: str = "torch", notify=None,
+                 page: Page | None = None):
         self.config, self.device, self.backend = config, torch.device(device), backend
         self.notify = notify or (lambda message: print(message, file=sys.stderr, flush=True))
         self.run = ViewerRun(run_root, device=self.device, notify=self.notify)
@@ -93,6 +73,7 @@ class Viewer:
             self.notify(f"matspray view: {exc}; showing the built-in light 'studio' instead")
             self.state = dataclasses.replace(self.state, light="studio")
             self.light = self._load("studio", variant)
+        self.page = page
         self.server = None
         self.gui = None
         self.views: dict[int, "ClientView"] = {}
@@ -103,47 +84,42 @@ class Viewer:
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> str:
-        import viser
-
         from matspray.view.gui import Controls
 
-        problem = port_problem(self.config.host, self.config.port)
-        if problem:
-            raise ConfigError(problem)
-        with contextlib.redirect_stdout(io.StringIO()):  # viser prints a banner of its own; the CLI prints the URL
-            self.server = viser.ViserServer(host=self.config.host, port=self.config.port, label="MatSpray", verbose=False)
+        if self.page is None:
+            self.page = open_page(self.config.host, self.config.port)
+        self.server = self.page.server
         self.server.scene.set_up_direction(UP)
         wxyz, position, fov = viser_pose(self.start_camera)
         center, _ = self.run.object_frame(self.state.variant)
         initial = self.server.initial_camera
         initial.position, initial.look_at, initial.up, initial.fov = tuple(position), tuple(center), UP, fov
         self.gui = Controls(self)
-        self.server.on_client_connect(self._connect)
-        self.server.on_client_disconnect(self._disconnect)
+        self.page.loading.remove()
         self.run.load_photos()
         # the first frame's one-off costs (the rasterizer's compiled kernels loaded from their cache, first allocations)
-        # are paid here, while the browser opens the page, not when it asks for its first picture
+        # are paid here, while the browser opens the page; a tab connected already waits for it on the render lock
         threading.Thread(target=self.render, args=(self.start_camera.scaled(0.25),), daemon=True, name="matspray-warmup").start()
+        self.server.on_client_connect(self._connect)  # also called now for the tabs that connected while the run loaded
+        self.server.on_client_disconnect(self._disconnect)
         return self.url
 
     @property
     def url(self) -> str:
-        host = self.config.host
-        shown = "localhost" if host in ("127.0.0.1", "0.0.0.0", "::", "::1") else host
-        return f"http://{shown}:{self.server.get_port() if self.server else self.config.port}"
+        return self.page.url if self.page else f"http://{self.config.host}:{self.config.port}"
 
     def stop(self) -> None:
         for view in list(self.views.values()):
             view.stop()
         for view in list(self.views.values()):
             view.thread.join(timeout=10.0)  # a frame being rendered is not sent to a closed page
-        if self.server is not None:
-            with contextlib.redirect_stdout(io.StringIO()):  # "(viser) Server stopped"
-                self.server.stop()
-            self.server = None
+        if self.page is not None:
+            self.page.stop()
+            self.page = self.server = None
         self.uploads.cleanup()
 
     def _connect(self, client) -> None:
+        print('TRACE connect', time.time(), flush=True)
         # a new tab starts at the start view: set here, before its first frame, because the page may report viser's
         # default camera before it has applied `initial_camera`
         wxyz, position, fov = viser_pose(self.start_camera)
@@ -310,6 +286,7 @@ class ClientView:
         if not self.running:  # the tab closed while this frame rendered
             return
         self.client.scene.set_background_image(frame.image, format="png")
+        print('TRACE frame', kind, frame.size, frame.seconds, time.time(), flush=True)
         self.last_frame = frame
         width, height = frame.size
         what = "moving: low resolution" if kind == "low" else "still: full resolution"
