@@ -389,3 +389,16 @@ def test_an_unreadable_estimated_light_starts_the_viewer_under_a_built_in(tmp_pa
     told = []
     viewer = Viewer(run, ViewerConfig(), device="cpu", backend="torch", notify=told.append)
     assert viewer.state.light == "studio" and len(told) == 1 and "envmap.exr" in told[0] and "studio" in told[0]
+
+
+def test_the_page_opens_before_torch_is_imported(view_run):
+    """`matspray view` serves its page while torch, the asset and the light load: the checks and the page need no torch."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from matspray.view.launch import light_files, open_page, run_variants; "
+            f"variants = run_variants({str(view_run)!r}); page = open_page('127.0.0.1', {free_port()}); "
+            "print(variants, 'torch' in sys.modules, page.url.startswith('http://localhost:')); page.stop()")
+    printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert printed.returncode == 0, printed.stderr
+    assert printed.stdout.split()[-2:] == ["False", "True"], printed.stdout
