@@ -25,6 +25,7 @@ from matspray.device import configure_threads, out_of_memory_as_error, resolve_d
 from matspray.render.backend import RenderUse, rendering_with, resolve_backend
 from matspray.render.envmap import EnvironmentMap
 from matspray.errors import RunError, file_error
+from matspray.estimate import Work, run_work
 from matspray.geometry.ply import read_ply
 from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
@@ -296,13 +297,17 @@ class Pipeline:
         stat = path.stat()
         return ({"light_probe": str(path.resolve()), "bytes": stat.st_size, "modified_ns": stat.st_mtime_ns},)
 
+    def refine_fingerprint(self, variant: str) -> str:
+        learns_light = self.probe is not None and get_variant(variant).learns_light  # variants without a light ignore the probe
+        return fingerprint("refine", self.config.method, variant_refine_config(self.config, variant), self.lift_fingerprint(),
+                           self.visibility_fingerprint(), *(self.probe_identity if learns_light else ()))
+
     def refine(self, variant: str = "full") -> Asset:
         variants_for_maps([variant], self.has_maps)  # a variant that reads 2D maps is refused in a run without them
         config = variant_refine_config(self.config, variant)
         stage = asset_stage(variant)
         probe = self.probe if get_variant(variant).learns_light else None  # variants without a light ignore it
-        fp = fingerprint("refine", self.config.method, config, self.lift_fingerprint(), self.visibility_fingerprint(),
-                         *(self.probe_identity if probe is not None else ()))
+        fp = self.refine_fingerprint(variant)
         if self.run.stage_done(stage, fp, ["asset.ply"]):
             self.log(f"refine [{variant}]: done before, reusing {stage}/")
             return read_asset(self.run.path(stage), device=self.device)
@@ -312,6 +317,18 @@ class Pipeline:
             write_asset(self.run.path(stage), inputs.gaussians, result)
         self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history, "frozen_views": result.frozen, **self._ran(use)})
         return read_asset(self.run.path(stage), device=self.device)
+
+    def work(self, variants=None) -> Work:
+        """What `run_all(variants)` has left to do, for `estimate.estimate_line`."""
+        names = variants_for_maps(variants, self.has_maps)
+        finished = {"geometry": (self.geometry_fingerprint(), ["gaussians.ply"]), "masks": (self.masks_fingerprint(), ["masks.pt"]),
+                    "lift": (self.lift_fingerprint(), ["projected.pt"])}
+        done = frozenset(stage for stage, (fp, files) in finished.items() if self.run.stage_done(stage, fp, files))
+        to_refine = [v for v in names if not self.run.stage_done(asset_stage(v), self.refine_fingerprint(v), ["asset.ply"])]
+        return run_work([(v.width, v.height) for v in self.scene.train], self.config.geometry.iterations, self.config.geometry.resolution,
+                        self.lift_config().samples_per_side ** 2,
+                        [(variant_refine_config(self.config, v).iterations, get_variant(v).uses_maps) for v in to_refine],
+                        self.unmasked, done)
 
     def run_all(self, variants=None) -> dict:
         """Refine `variants` (default: full, or in a run without 2D maps the variants that need none)."""

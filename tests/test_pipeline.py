@@ -248,3 +248,16 @@ def test_photos_larger_than_the_working_size_are_brought_to_it(tiny_object, tmp_
     assert pipeline.run.downscale() == 2.0  # config.yaml keeps the factor, so eval, relight and export load the same views
     with Pipeline(tiny_object, tmp_path / "full", build_config("test", downscale=1.0), progress=False, log=lambda _: None) as pipeline:
         assert pipeline.scene.train[0].width == 32  # --downscale given: kept as asked
+
+
+def test_run_says_its_estimate_first_and_counts_only_what_is_left(tiny_object, finished_run, tmp_path, capsys):
+    from matspray.cli import main
+
+    assert Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None).work(VARIANTS).stages() == \
+        {"geometry": 0.0, "masks": 0.0, "lift": 0.0, "refine": 0.0, "refine-mapless": 0.0}  # everything finished
+    run = tmp_path / "fresh"
+    assert main(["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--geometry-iterations", "5",
+                 "--refine-iterations", "3"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].startswith("estimate: ") and " on 2 CPU cores " in printed[0] and "geometry ~" in printed[0], printed
+    assert any(line.startswith("took ") for line in printed)

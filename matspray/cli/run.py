@@ -14,6 +14,9 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
+    import time
+
+    from matspray.estimate import estimate_line, minutes
     from matspray.pipeline import Pipeline
     from matspray.predictors import NO_PREDICTOR
     from matspray.variants import asset_stage, variants_for_maps
@@ -22,8 +25,11 @@ def run(args) -> int:
     # refused before the run folder is touched; without --variant the run picks its default once its predictor is known
     variants = None if args.variant is None else variants_for_maps(args.variant, config.predictor != NO_PREDICTOR)
     with Pipeline(args.data, args.out, config, overwrite=args.overwrite) as pipeline:  # refused while another process writes --out
+        print(estimate_line(pipeline.work(variants), pipeline.device.type), flush=True)
+        start = time.perf_counter()
         assets = pipeline.run_all(variants)
     timings = pipeline.run.timings()
+    print(f"took {minutes(time.perf_counter() - start)}", flush=True)
     print(f"method {config.method}, on {pipeline.device} with rasterizer {pipeline.backend}; seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
     for variant in assets:
         print(f"asset [{variant}]: {pipeline.run.path(asset_stage(variant), 'asset.ply')}")
