@@ -197,6 +197,39 @@ def forward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, 
     return image, final_t, last_entry, tile_hits
 
 
+@njit(cache=True, inline="always")
+def _hit_gradients(trans, behind, p, raw, response, max_alpha, dx, dy, a, b, c, value, grad, grad_values, sums):
+    """One blended hit of the reverse pass (both backward kernels): the pixel's transmittance in front of the hit
+    recovered (trans[p]), S of the pixel (behind[p]) and the value gradients (grad_values) updated in place; returns
+    the entry's sums (x, y, a, b, c, opacity, |x|, |y|) with this hit's share added. value: the Gaussian's [K] values,
+    grad: the pixel's [K] output gradient."""
+    g_x, g_y, g_a, g_b, g_c, g_o, abs_x, abs_y = sums
+    alpha = min(raw, max_alpha)
+    keep = 1.0 / (1.0 - np.float64(alpha))
+    trans[p] *= keep
+    transmittance = value.dtype.type(trans[p])
+    weight = alpha * transmittance
+    q = 0.0  # dL/dweight = <dL/dout, value>
+    for k in range(value.shape[0]):
+        q += grad[k] * value[k]
+        grad_values[k] += grad[k] * weight
+    grad_alpha = transmittance * q - behind[p] * keep
+    behind[p] += weight * q
+    if raw <= max_alpha:  # a clamped alpha does not move with the Gaussian
+        grad_exponent = grad_alpha * alpha  # d(o G)/d(exponent) = o G
+        grad_x = grad_exponent * (a * dx + b * dy)
+        grad_y = grad_exponent * (b * dx + c * dy)
+        g_x += grad_x
+        g_y += grad_y
+        g_a -= 0.5 * grad_exponent * dx * dx
+        g_b -= grad_exponent * dx * dy
+        g_c -= 0.5 * grad_exponent * dy * dy
+        g_o += grad_alpha * response
+        abs_x += abs(grad_x)  # each pixel's own gradient, as gsplat's absgrad
+        abs_y += abs(grad_y)
+    return g_x, g_y, g_a, g_b, g_c, g_o, abs_x, abs_y
+
+
 @njit(cache=True, parallel=True)
 def backward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, tile_order, height, width, tiles_x, grid, consts,
              final_t, last_entry, grad_image):
@@ -232,7 +265,7 @@ def backward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids,
             mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
             ha, hc = half * a, half * c
             # this entry's sums in locals (registers), not an array: they are added to at every hit
-            g_x = g_y = g_a = g_b = g_c = g_o = abs_x = abs_y = 0.0
+            sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             grad_values[:] = 0.0
             for row in range(max(boxes[g, 1], y_start), min(boxes[g, 3], y_end) + 1):
                 if e > row_last[row - y_start]:
@@ -253,30 +286,9 @@ def backward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids,
                     raw = opacity * response
                     if not raw >= min_alpha:  # as torch's `raw >= min_alpha`: a NaN is skipped too
                         continue
-                    alpha = min(raw, max_alpha)
-                    keep = 1.0 / (1.0 - np.float64(alpha))
-                    trans[p] *= keep
-                    transmittance = values.dtype.type(trans[p])
-                    weight = alpha * transmittance
-                    q = 0.0  # dL/dweight = <dL/dout, value>
-                    for k in range(k_values):
-                        grad = grad_image[row, col, k]
-                        q += grad * values[g, k]
-                        grad_values[k] += grad * weight
-                    grad_alpha = transmittance * q - behind[p] * keep
-                    behind[p] += weight * q
-                    if raw <= max_alpha:  # a clamped alpha does not move with the Gaussian
-                        grad_exponent = grad_alpha * alpha  # d(o G)/d(exponent) = o G
-                        grad_x = grad_exponent * (a * dx + b * dy)
-                        grad_y = grad_exponent * (b * dx + c * dy)
-                        g_x += grad_x
-                        g_y += grad_y
-                        g_a -= 0.5 * grad_exponent * dx * dx
-                        g_b -= grad_exponent * dx * dy
-                        g_c -= 0.5 * grad_exponent * dy * dy
-                        g_o += grad_alpha * response
-                        abs_x += abs(grad_x)  # each pixel's own gradient, as gsplat's absgrad
-                        abs_y += abs(grad_y)
+                    sums = _hit_gradients(trans, behind, p, raw, response, max_alpha, dx, dy, a, b, c, values[g], grad_image[row, col],
+                                          grad_values, sums)
+            g_x, g_y, g_a, g_b, g_c, g_o, abs_x, abs_y = sums
             entry_grads[e, 0], entry_grads[e, 1], entry_grads[e, 2], entry_grads[e, 3] = g_x, g_y, g_a, g_b
             entry_grads[e, 4], entry_grads[e, 5], entry_grads[e, 6], entry_grads[e, 7] = g_c, g_o, abs_x, abs_y
             for k in range(k_values):
@@ -327,38 +339,16 @@ def backward_recorded(means2d, conics, opacities, values, offsets, ids, tile_ord
                 continue
             g = ids[e]
             mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
-            g_x = g_y = g_a = g_b = g_c = g_o = abs_x = abs_y = 0.0
+            sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             grad_values[:] = 0.0
             for r in range(start, entry_end[e]):  # one hit per pixel: any order
                 p = np.int64(rec_pixel[r])
                 response = rec_response[r]
-                raw = opacity * response
-                alpha = min(raw, max_alpha)
-                keep = 1.0 / (1.0 - np.float64(alpha))
-                trans[p] *= keep
-                transmittance = values.dtype.type(trans[p])
-                weight = alpha * transmittance
-                q = 0.0  # dL/dweight = <dL/dout, value>
-                for k in range(k_values):
-                    grad = grad_tile[p, k]
-                    q += grad * values[g, k]
-                    grad_values[k] += grad * weight
-                grad_alpha = transmittance * q - behind[p] * keep
-                behind[p] += weight * q
-                if raw <= max_alpha:  # a clamped alpha does not move with the Gaussian
-                    dx = (grid[x_start + p % TILE] + half) - mx
-                    dy = (grid[y_start + p // TILE] + half) - my
-                    grad_exponent = grad_alpha * alpha  # d(o G)/d(exponent) = o G
-                    grad_x = grad_exponent * (a * dx + b * dy)
-                    grad_y = grad_exponent * (b * dx + c * dy)
-                    g_x += grad_x
-                    g_y += grad_y
-                    g_a -= 0.5 * grad_exponent * dx * dx
-                    g_b -= grad_exponent * dx * dy
-                    g_c -= 0.5 * grad_exponent * dy * dy
-                    g_o += grad_alpha * response
-                    abs_x += abs(grad_x)  # each pixel's own gradient, as gsplat's absgrad
-                    abs_y += abs(grad_y)
+                dx = (grid[x_start + p % TILE] + half) - mx
+                dy = (grid[y_start + p // TILE] + half) - my
+                sums = _hit_gradients(trans, behind, p, opacity * response, response, max_alpha, dx, dy, a, b, c, values[g], grad_tile[p],
+                                      grad_values, sums)
+            g_x, g_y, g_a, g_b, g_c, g_o, abs_x, abs_y = sums
             entry_grads[e, 0], entry_grads[e, 1], entry_grads[e, 2], entry_grads[e, 3] = g_x, g_y, g_a, g_b
             entry_grads[e, 4], entry_grads[e, 5], entry_grads[e, 6], entry_grads[e, 7] = g_c, g_o, abs_x, abs_y
             for k in range(k_values):
