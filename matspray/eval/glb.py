@@ -11,6 +11,7 @@ the silhouettes ("_union" keys), and under the same held-out lights."""
 from __future__ import annotations
 
 import html
+import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -22,7 +23,7 @@ from tqdm import tqdm
 from matspray.asset import read_asset
 from matspray.data import View, load_scene, read_image
 from matspray.data.blender import read_scene_json
-from matspray.errors import ConfigError
+from matspray.errors import ConfigError, file_error
 from matspray.eval.lpips import load_lpips
 from matspray.eval.report import STYLE, Figures, markdown_to_html
 from matspray.eval.run_eval import (GroundTruth, ViewRenders, asset_renders, check_synthetic, load_relight_lights, read_view_truth,
@@ -31,13 +32,14 @@ from matspray.eval.tables import UNION, UNION_LABEL, material_table
 from matspray.export.frames import GLTF_FROM_DATASET, transform_directions, transform_points
 from matspray.gltf.read import read_gltf
 from matspray.render.backend import rendering_with
-from matspray.rundir import RunDir, read_json, write_json, write_text_atomic
-from matspray.variants import asset_stage
+from matspray.rundir import RunDir, write_json, write_text_atomic
+from matspray.variants import VARIANT_NAMES, asset_stage
 from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.gltf_object import asset_parts
 from matspray.synth.mitsuba_scene import build_scene, render_view, select_variant
 
 DEFAULT_SPP = 64
+FRAMES = ("gltf", "dataset")
 REPORT_VIEWS = 3
 
 
@@ -46,9 +48,17 @@ def read_glb_parts(path, frame: str | None = None):
     `frame` (gltf | dataset) overrides the frame the file's extras state (gltf when they say none)."""
     asset = read_gltf(path)
     extras = asset.extras.get("matspray", {}) if isinstance(asset.extras.get("matspray"), dict) else {}
-    frame = frame or extras.get("frame", "gltf")
-    if frame not in ("gltf", "dataset"):
+    if frame is not None and frame not in FRAMES:
         raise ConfigError(f"unknown frame '{frame}'; choose gltf or dataset")
+    # what `matspray export` wrote into the file's extras; a damaged or hand-edited value is named here, before any work
+    for key, valid, hint in (("frame", FRAMES, "pass --frame gltf or --frame dataset"),
+                             ("variant", VARIANT_NAMES, "fix the extras or re-export the file"),
+                             ("run", None, "fix the extras, or pass --run and --data")):
+        value = extras.get(key)
+        if value is not None and (not isinstance(value, str) or not value or "\0" in value or valid is not None and value not in valid):
+            raise file_error(path, f"asset.extras.matspray.{key} is {json.dumps(value)[:60]}, "
+                                   f"not {' or '.join(valid) if valid and len(valid) < 3 else 'a ' + key + ' name'}", hint)
+    frame = frame or extras.get("frame", "gltf")
     if frame == "dataset":  # bring the file into glTF's frame, which the reader maps to the dataset's world
         asset = replace(asset, primitives=[replace(p, positions=transform_points(GLTF_FROM_DATASET, p.positions),
                                                    normals=None if p.normals is None else transform_directions(GLTF_FROM_DATASET, p.normals))
@@ -95,12 +105,12 @@ def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: st
     if not glb.is_file():
         raise ConfigError(f"{glb}: no such file; make one with `matspray export`")
     parts, textures, extras = read_glb_parts(glb, frame)
-    run = Path(run) if run is not None else (Path(extras["run"]) if "run" in extras and Path(extras["run"], "dataset.json").exists() else None)
+    run = Path(run) if run is not None else (Path(extras["run"]) if extras.get("run") and Path(extras["run"], "dataset.json").exists() else None)
     variant = variant or extras.get("variant", "full")
     if data is None:
         if run is None:
             raise ConfigError(f"{glb}: which dataset? pass --data (the file does not name a run to take it from)")
-        data = read_json(run / "dataset.json")["source"]
+        data = RunDir(run).dataset()["source"]
     data = Path(data)
     scene = load_scene(data, downscale=RunDir(run).downscale() if run is not None else 1.0)
     check_synthetic(scene)

@@ -78,9 +78,17 @@ def primitive_uvs(asset: GltfAsset, primitive: Primitive, material: PbrMaterial)
     index = sets.pop()
     if index >= len(primitive.uvs):
         raise file_error(asset.path, f"mesh '{primitive.name}': its material reads TEXCOORD_{index}, which the mesh does not have")
-    if not np.isfinite(primitive.uvs[index]).all():
+    uvs = primitive.uvs[index]
+    if not np.isfinite(uvs).all():
         raise file_error(asset.path, f"mesh '{primitive.name}': a texture coordinate is not finite")
-    return primitive.uvs[index]
+    for texture in (material.base_color_texture, material.metallic_roughness_texture):
+        if texture is not None and len(uvs):  # texel indices must stay exact integers (KHR_texture_transform can scale by 1e300)
+            matrix = texture.transform.matrix()
+            reach = float(np.abs(uvs @ matrix[:2, :2].T + matrix[:2, 2]).max()) * max(texture.image.shape[:2])
+            if not reach < 2.0**52:
+                raise file_error(asset.path, f"mesh '{primitive.name}': its texture coordinates, with the texture's KHR_texture_transform, "
+                                             f"reach texel {reach:.3g}", "fix the texture transform or the UVs")
+    return uvs
 
 
 def flat_shaded(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray) -> tuple[np.ndarray, ...]:
