@@ -205,3 +205,27 @@ def test_the_exported_glb_is_shown_beside_or_instead_of_the_gaussians(page):
     choose(driver, "glb", "hidden")
     wait_for(lambda: viewer.state.glb == "hidden" and viewer.gui.mesh is None, timeout=20, what="the glb hidden")
     assert trimesh  # (the fixture wrote the file with it)
+
+
+def test_a_tab_that_opened_the_page_before_the_run_loaded_gets_one_view_and_its_picture(tmp_path):
+    """`matspray view` serves the page first (launch.open_page) and attaches the viewer when the run is loaded: a tab
+    connected meanwhile is served then, once, however viser reports it."""
+    from matspray.view.launch import LOADING, open_page
+    from matspray.view.server import Viewer, ViewerConfig
+
+    run = make_view_run(tmp_path, gaussians=800)
+    page = open_page("127.0.0.1", free_port())
+    driver = open_chromium(*WINDOW)
+    viewer = None
+    try:
+        driver.get(page.url.replace("localhost", "127.0.0.1"))
+        wait_for(lambda: page.server.get_clients() or None, what="the tab to connect")
+        assert LOADING.split("**")[-1].strip() in driver.page_source  # the page says the run is loading
+        viewer = Viewer(run, ViewerConfig(resolution=96, settle=0.1), device="cpu", backend="torch", notify=lambda _: None, page=page)
+        viewer.start()
+        frame = full_frame(viewer)
+        assert len(viewer.views) == 1 and frame is not None
+        wait_for(lambda: shows_picture(page_image(driver)) or None, what="the picture in the page")
+    finally:
+        driver.quit()
+        (viewer.stop() if viewer is not None else page.stop())

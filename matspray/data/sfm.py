@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +36,7 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")
 MATCHERS = ("exhaustive", "sequential")
 CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "SIMPLE_PINHOLE", "PINHOLE")  # what SfM may estimate
 MIN_REGISTERED = 3
+MIN_PHOTO_SIDE = 24  # pixels; below it SIFT finds next to no features (a 2x2 file is a thumbnail or a tracking pixel)
 ADVICE = ("take more photos with more overlap (every part seen by 3 or more photos, about 15 degrees apart), "
           "keep them sharp and the object textured, or use the exhaustive matcher")
 
@@ -84,17 +86,26 @@ def list_photos(folder: Path) -> list[Path]:
     folder = Path(folder)
     if not folder.is_dir():
         raise file_error(folder, "is not a folder of photos" if folder.exists() else "folder does not exist")
-    photos = []
+    photos, subfolders = [], []
     for path in sorted(folder.iterdir()):
-        if path.name.startswith(".") or path.is_dir():
+        if path.name.startswith("."):
             continue
+        if path.is_dir():
+            subfolders.append(path)
+            continue
+        try:
+            path.name.encode("utf-8")
+        except UnicodeEncodeError:  # COLMAP keeps image names as UTF-8 text
+            raise file_error(path, "has a name that is not valid UTF-8", "rename it") from None
         if path.suffix.lower() not in PHOTO_SUFFIXES:
             raise file_error(path, f"is not a JPEG or PNG photo ('{path.suffix or 'no suffix'}')",
                              "pycolmap reads JPEG and PNG here; convert it or move it out of the folder")
         photos.append(path)
     if len(photos) < MIN_REGISTERED:
+        nested = next((d for d in subfolders if any(p.suffix.lower() in PHOTO_SUFFIXES for p in d.iterdir())), None)
         raise file_error(folder, f"has {len(photos)} photos; structure from motion needs at least {MIN_REGISTERED}",
-                         "photograph the object from 20 or more directions")
+                         f"photos in subfolders are not read: give the folder that holds them, e.g. {nested}" if nested is not None
+                         else "photograph the object from 20 or more directions")
     return photos
 
 
@@ -117,8 +128,13 @@ def prepare_photo(photo: Path, out_dir: Path, max_size: int, mask_dir: Path | No
             turned = img.getexif().get(0x0112, 1) not in (None, 1)
             upright = ImageOps.exif_transpose(img) if turned else img
             width, height = upright.size
+            if min(width, height) < MIN_PHOTO_SIDE:  # refused here, before structure from motion spends minutes on it
+                raise file_error(photo, f"is {width}x{height} pixels; structure from motion needs photos of at least "
+                                        f"{MIN_PHOTO_SIDE} pixels a side", "use the full-size photos, not thumbnails")
+            if upright.mode in ("I;16", "I;16B", "I;16L", "I"):  # 16-bit grey: convert("RGB") would clip it at 255, not scale it
+                upright = Image.fromarray(np.clip(np.round(np.asarray(upright, dtype=np.float64) / 257.0), 0, 255).astype(np.uint8))
             scale = min(1.0, max_size / max(width, height))
-            if scale == 1.0 and not turned and upright.mode in ("RGB", "L"):
+            if scale == 1.0 and not turned and img.mode in ("RGB", "L") and img.format in ("JPEG", "MPO", "PNG"):
                 shutil.copy2(photo, out_dir / photo.name)  # untouched: keep the file and its EXIF focal length
             else:
                 exif = img.getexif()
@@ -129,7 +145,7 @@ def prepare_photo(photo: Path, out_dir: Path, max_size: int, mask_dir: Path | No
                 picture.save(tmp, quality=95, exif=exif.tobytes()) if photo.suffix.lower() != ".png" else picture.save(tmp)
                 os.replace(tmp, out_dir / photo.name)
                 width, height = size
-    except DECODER_ERRORS as exc:
+    except (*DECODER_ERRORS, struct.error, Image.DecompressionBombError) as exc:  # struct.error: a damaged EXIF block
         raise file_error(photo, f"cannot read image: {exc or type(exc).__name__}", "pycolmap cannot read it either") from None
     if mask_dir is not None:
         mask_path = find_photo_mask(mask_dir, photo)
@@ -141,6 +157,21 @@ def prepare_photo(photo: Path, out_dir: Path, max_size: int, mask_dir: Path | No
             raise file_error(mask_path, f"is {mw}x{mh} but its photo is {upright.size[0]}x{upright.size[1]}")
         write_raw(mask_out / f"{photo.name}.png", resize(mask, height, width))
     return width, height
+
+
+def prepare_photos(photos: list[Path], image_dir: Path, config: SfmConfig, mask_dir: Path | None = None, mask_out: Path | None = None,
+                   progress: bool = False) -> dict[str, tuple[int, int]]:
+    """Every photo (and mask) prepared into `image_dir` (`prepare_photo`), and their sizes by name: the checks of each
+    file that refuse a folder, made before structure from motion starts."""
+    sizes = {}
+    for photo in tqdm(photos, desc="photos", unit="photo", disable=not progress):
+        sizes[photo.name] = prepare_photo(photo, image_dir, config.max_size, mask_dir, mask_out)
+    if config.single_camera and len(set(sizes.values())) > 1:
+        first = photos[0]
+        odd = next(p for p in photos if sizes[p.name] != sizes[first.name])
+        raise file_error(odd, f"is {sizes[odd.name][0]}x{sizes[odd.name][1]} but {first.name} is "
+                              f"{sizes[first.name][0]}x{sizes[first.name][1]}", "one camera for every photo needs photos of one size")
+    return sizes
 
 
 def run_sfm(images, out, config: SfmConfig = SfmConfig(), masks=None, progress: bool = True,
@@ -183,14 +214,7 @@ def reconstruct(photos: list[Path], work: Path, config: SfmConfig, mask_dir: Pat
     if mask_dir is not None:
         mask_out = work / "masks"
         mask_out.mkdir()
-    sizes = {}
-    for photo in tqdm(photos, desc="photos", unit="photo", disable=not progress):
-        sizes[photo.name] = prepare_photo(photo, image_dir, config.max_size, mask_dir, mask_out)
-    if config.single_camera and len(set(sizes.values())) > 1:
-        first = photos[0]
-        odd = next(p for p in photos if sizes[p.name] != sizes[first.name])
-        raise file_error(odd, f"is {sizes[odd.name][0]}x{sizes[odd.name][1]} but {first.name} is "
-                              f"{sizes[first.name][0]}x{sizes[first.name][1]}", "one camera for every photo needs photos of one size")
+    prepare_photos(photos, image_dir, config, mask_dir, mask_out, progress)
     pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
     names = [p.name for p in photos]
     reader = pycolmap.ImageReaderOptions()

@@ -52,6 +52,12 @@ class ViewState:
     glb: str = "hidden"  # glb.PLACES
 
 
+def load_numba_kernels() -> None:
+    from matspray.render.numba_backend import ensure_compiled
+
+    ensure_compiled(np.float32)  # the assets' dtype
+
+
 class Viewer:
     """`matspray view` as a library: `Viewer(run, config).start()` returns the URL; `stop()` ends it. `page`: a page
     opened already (`launch.open_page`, before torch was imported), which the viewer takes over instead of opening one."""
@@ -62,6 +68,8 @@ class Viewer:
         self.notify = notify or (lambda message: print(message, file=sys.stderr, flush=True))
         self.run = ViewerRun(run_root, device=self.device, notify=self.notify)
         files = light_files(config.env)  # a missing --env path: ConfigError before anything starts
+        if backend == "numba":  # its compiled kernels load from numba's cache while the asset and the light are read
+            threading.Thread(target=load_numba_kernels, daemon=True, name="matspray-kernels").start()
         variant = self.run.variants[0]
         self.choices = light_choices(files, has_estimate=True)
         self.loader = LightLoader(self.device)
@@ -77,6 +85,7 @@ class Viewer:
         self.server = None
         self.gui = None
         self.views: dict[int, "ClientView"] = {}
+        self.connected: set[int] = set()  # client ids whose view is made or being made
         self.render_lock = threading.Lock()
         self.state_lock = threading.RLock()
         self.uploads = tempfile.TemporaryDirectory(prefix="matspray-view-")
@@ -119,6 +128,10 @@ class Viewer:
         self.uploads.cleanup()
 
     def _connect(self, client) -> None:
+        with self.state_lock:  # viser may call this twice for a tab that connects while the handler is attached
+            if client.client_id in self.connected:
+                return
+            self.connected.add(client.client_id)
         print('TRACE connect', time.time(), flush=True)
         # a new tab starts at the start view: set here, before its first frame, because the page may report viser's
         # default camera before it has applied `initial_camera`
@@ -135,6 +148,7 @@ class Viewer:
 
     def _disconnect(self, client) -> None:
         view = self.views.pop(client.client_id, None)
+        self.connected.discard(client.client_id)
         if view is not None:
             view.stop()
 
