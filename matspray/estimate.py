@@ -1,5 +1,5 @@
 """How long `matspray run` will take, said before it starts: each stage's work, in a unit its time grows with, times a
-rate measured on the reference machine (2 CPU cores, numba rasterizer). The rates come from `python -m
+rate measured on the reference machine (2 free CPU cores, numba rasterizer). The rates come from `python -m
 benchmarks.estimate RUN...` on finished runs (docs/benchmarks.md, "Time estimates", has the runs, the rates and how
 far each estimate was from the time taken). Objects differ (how many Gaussians the geometry grows, how much of a view
 they cover), so the estimate is a range of about 2x each way, not a promise; a GPU has no measured rate yet."""
@@ -9,13 +9,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-# seconds per unit of work on the reference machine (see the module docstring); the units are Work's fields
+# seconds per unit of work with 2 free cores: the demo of `make demo` alone on the reference machine (docs/benchmarks.md,
+# "Time estimates"; runs that shared the cores with other jobs took 2 to 5 times longer)
 CPU_RATES = {
-    "geometry": 2.4e-6,  # per (iteration x pixel of a geometry view)
-    "masks": 1.4e-5,  # per (training view x pixel)
-    "lift": 1.2e-5,  # per ray
-    "refine": 2.1e-5,  # per (iteration x pixel of a training view), each variant that merges 2D maps
-    "refine-mapless": 6e-6,  # the same for each variant without 2D maps (no merger to train)
+    "geometry": 3.0e-6,  # per (iteration x pixel of a geometry view)
+    "masks": 1.0e-6,  # per (training view x pixel)
+    "lift": 4.3e-6,  # per ray
+    "refine": 8.9e-6,  # per (iteration x pixel of a training view), each variant that merges 2D maps
+    "refine-mapless": 3.8e-6,  # the same for each variant without 2D maps (no merger to train)
 }
 SPREAD = 2.0  # the range said: estimate / SPREAD to estimate * SPREAD
 
@@ -83,8 +84,8 @@ def estimate_line(work: Work, device_type: str) -> str:
         return "estimate: every stage is done already"
     parts = ", ".join(f"{stage} ~{minutes(s)}" for stage, s in sorted(seconds.items(), key=lambda kv: -kv[1]))
     low, high = total / SPREAD, total * SPREAD
-    return (f"estimate: {minutes(low)} to {minutes(high)} on 2 CPU cores like the reference machine ({parts}; "
-            "fewer cores or a busy machine take longer)")
+    return (f"estimate: {minutes(low)} to {minutes(high)} with 2 free CPU cores ({parts}; "
+            "other jobs on the cores make it longer)")
 
 
 def estimate_error(estimated: float, taken: float) -> float:

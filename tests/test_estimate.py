@@ -29,7 +29,7 @@ def test_the_estimate_is_the_work_times_the_rates_said_as_a_range():
     assert seconds["refine"] == pytest.approx(2e7 * CPU_RATES["refine"] + 1e7 * CPU_RATES["refine-mapless"])
     total = sum(seconds.values())
     line = estimate_line(work, "cpu")
-    assert line.startswith(f"estimate: {total / SPREAD / 60:.0f} min to {total * SPREAD / 60:.0f} min on 2 CPU cores"), line
+    assert line.startswith(f"estimate: {total / SPREAD / 60:.0f} min to {total * SPREAD / 60:.0f} min with 2 free CPU cores"), line
     largest, smallest = max(seconds, key=seconds.get), min(seconds, key=seconds.get)
     assert line.index(largest) < line.index(smallest)  # the largest stage first
 

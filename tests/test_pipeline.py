@@ -259,5 +259,5 @@ def test_run_says_its_estimate_first_and_counts_only_what_is_left(tiny_object, f
     assert main(["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--geometry-iterations", "5",
                  "--refine-iterations", "3"]) == 0
     printed = capsys.readouterr().out.splitlines()
-    assert printed[0].startswith("estimate: ") and " on 2 CPU cores " in printed[0] and "geometry ~" in printed[0], printed
+    assert printed[0].startswith("estimate: ") and " with 2 free CPU cores " in printed[0] and "geometry ~" in printed[0], printed
     assert any(line.startswith("took ") for line in printed)
