@@ -4,6 +4,7 @@ Merger, when the variant has one) and `history.json` (the loss curves)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,10 +17,11 @@ from matspray.gaussians import Gaussians
 from matspray.geometry.ply import read_ply, write_ply
 from matspray.material import CHANNELS, N_CHANNELS
 from matspray.merger import save_merger
-from matspray.rundir import read_json, write_json
+from matspray.rundir import read_record, stage_hint, write_json
 
 VISIBILITY_FILE = "visibility.pt"  # optional: directional visibility [N, D] as uint8 (1/255 steps)
 ENVMAP_FILE = "envmap.exr"  # the estimated light: linear HDR lat-long [H, 2H, 3], `render.latlong` orientation
+LOSS_TERMS = ("material", "photo")  # what the report draws of a history entry
 ENVMAP_PREVIEW = "envmap.png"  # the same, tone-mapped for people (exposure: its 99th percentile at 0.9, sRGB)
 
 
@@ -57,6 +59,8 @@ def read_visibility(path: Path, count: int) -> torch.Tensor:  # -> [count, D] fl
         values = data["values"]
     except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
         raise file_error(path, f"is not a MatSpray visibility file ({exc.__class__.__name__})", "delete it to relight without shadowing") from None
+    if not isinstance(values, torch.Tensor):
+        raise file_error(path, f"holds a {type(values).__name__} as its values, not a tensor", "delete it to relight without shadowing")
     if values.dim() != 2 or values.shape[0] != count or values.dtype != torch.uint8:
         raise file_error(path, f"holds visibility {tuple(values.shape)} ({values.dtype}) but the asset has {count} Gaussians",
                          "delete it to relight without shadowing")
@@ -88,7 +92,7 @@ def read_asset(folder, device="cpu") -> Asset:
     path = Path(folder) / "asset.ply"
     gaussians, normals, extra = read_ply(path, extra=CHANNELS)
     if normals is None:
-        raise file_error(path, "has no normals (nx, ny, nz)", "is this a MatSpray asset? geometry PLYs are not relightable")
+        raise file_error(path, "has no normals (nx, ny, nz)", stage_hint(path) or "is this a MatSpray asset? geometry PLYs are not relightable")
     materials = torch.stack([extra[name] for name in CHANNELS], dim=-1)
     visibility_path = Path(folder) / VISIBILITY_FILE
     visibility = read_visibility(visibility_path, len(gaussians)).to(device) if visibility_path.exists() else None
@@ -96,5 +100,14 @@ def read_asset(folder, device="cpu") -> Asset:
 
 
 def read_history(folder) -> list[dict]:
+    """The loss curves of a refinement (history.json): one {"step": n, term: loss, ...} per logged step; [] without one."""
     path = Path(folder) / "history.json"
-    return read_json(path) if path.exists() else []
+    if not path.exists():
+        return []
+    hint = "delete it: it only holds the loss curves the report draws"
+    history = read_record(path, hint)
+    finite = lambda v: not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)  # noqa: E731
+    if not isinstance(history, list) or not all(isinstance(r, dict) and finite(r.get("step")) and all(finite(v) for k, v in r.items()
+                                                                                                      if k in LOSS_TERMS) for r in history):
+        raise file_error(path, "is not a list of logged steps with finite losses", hint)
+    return history

@@ -8,7 +8,7 @@ Gaussians inside it, and every view's mask, their rendered alpha.
 
 from __future__ import annotations
 
-import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,11 +18,12 @@ from tqdm import tqdm
 
 from matspray.data.images import save_torch_atomic, write_raw
 from matspray.data.scene import Scene
-from matspray.errors import DataError
+from matspray.errors import DataError, MatsprayError, file_error
 from matspray.gaussians import Gaussians
+from matspray.geometry.ply import vertex_count
 from matspray.objectregion import ObjectRegion, auto_region, given_region
 from matspray.render.rasterize import rasterize
-from matspray.rundir import write_json
+from matspray.rundir import RunDir, read_record, stage_hint, write_json
 
 SPLITS = ("train", "test")
 
@@ -32,9 +33,17 @@ class ObjectMasks:
     region: ObjectRegion
     inside: Tensor  # [N] bool over the geometry's Gaussians
     masks: dict[str, dict[str, Tensor]]  # split -> view name -> [H, W] float in [0, 1]
+    source: Path | None = None  # the masks.pt read, for messages
 
     def apply(self, scene: Scene) -> None:
         """Give every view of `scene` its mask as alpha, and the scene the region's box as its bounds."""
+        for split in SPLITS:
+            for view in scene.split(split):
+                mask = self.masks.get(split, {}).get(view.name)
+                if mask is None or tuple(mask.shape) != (view.height, view.width):
+                    problem = "has no mask" if mask is None else f"has a {mask.shape[1]}x{mask.shape[0]} mask, but the view is {view.width}x{view.height}"
+                    raise file_error(self.source or "object masks", f"{split} view '{view.name}' {problem}",
+                                     masks_hint(self.source) if self.source else "")
         for split in SPLITS:
             for view in scene.split(split):
                 view.alpha = self.masks[split][view.name].to(view.image.device)
@@ -77,14 +86,63 @@ def write_object_masks(folder: Path, masks: ObjectMasks) -> None:
     write_json(folder / "region.json", masks.region.to_json())
 
 
+def masks_hint(path: Path) -> str:
+    return stage_hint(path) or f"delete {Path(path).parent} and rerun `matspray run` to make the masks again"
+
+
 def read_region(folder: Path) -> ObjectRegion | None:
     """The object region of a masks stage (RUN/masks), without reading its masks; None where the run has none."""
     path = Path(folder) / "region.json"
-    return ObjectRegion.from_json(json.loads(path.read_text())) if path.exists() else None
+    if not path.exists():
+        return None
+    data = read_record(path, masks_hint(path))
+    numbers = lambda v, n: isinstance(v, list) and len(v) == n and all(  # noqa: E731
+        not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) for x in v)
+    radius = data.get("radius") if isinstance(data, dict) else None
+    sphere = radius is not None and numbers([radius], 1) and radius > 0 and data.get("low") is None and data.get("high") is None
+    box = (radius is None and isinstance(data, dict) and numbers(data.get("low"), 3) and numbers(data.get("high"), 3)
+           and all(lo < hi for lo, hi in zip(data["low"], data["high"])))
+    if not (isinstance(data, dict) and numbers(data.get("center"), 3) and (sphere or box)
+            and (data.get("plane") is None or numbers(data.get("plane"), 4)) and isinstance(data.get("rule", "given"), str)):
+        raise file_error(path, "does not describe an object region (a sphere or a box, finite, with an optional plane)", masks_hint(path))
+    region = ObjectRegion.from_json(data)
+    if not torch.isfinite(region.bounds()).all():  # the scene's bounds, in float32
+        raise file_error(path, "describes an object region too large for the scene's bounds", masks_hint(path))
+    return region
 
 
 def read_object_masks(folder: Path) -> ObjectMasks:
+    """The masks stage of a run (RUN/masks): its region, the Gaussians inside, and every view's mask, checked against
+    the run's geometry (RUN/geometry/gaussians.ply) and views (RUN/dataset.json) where the folder is in a run."""
     folder = Path(folder)
-    data = torch.load(folder / "masks.pt", weights_only=False)
-    masks = {split: {name: m.float() / 255.0 for name, m in by_name.items()} for split, by_name in data["masks"].items()}
-    return ObjectMasks(read_region(folder), data["inside"], masks)
+    path = folder / "masks.pt"
+    hint = masks_hint(path)
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises (unpickling, zip, EOF): the same clear message
+        raise file_error(path, f"is not a readable masks file ({type(exc).__name__})", hint) from None
+    inside, by_split = (data.get("inside"), data.get("masks")) if isinstance(data, dict) else (None, None)
+    if not (isinstance(inside, Tensor) and inside.dtype == torch.bool and inside.dim() == 1 and bool(inside.any())):
+        raise file_error(path, "holds no 'inside' flags (a [N] bool tensor marking some Gaussians)", hint)
+    if not (isinstance(by_split, dict) and set(by_split) == set(SPLITS) and all(isinstance(v, dict) for v in by_split.values())):
+        raise file_error(path, f"holds no masks of the {' and '.join(SPLITS)} views", hint)
+    for split, by_name in by_split.items():
+        shapes = {tuple(m.shape) if isinstance(m, Tensor) and m.dtype == torch.uint8 and m.dim() == 2 and m.numel() else None
+                  for m in by_name.values()}
+        if None in shapes or len(shapes) > 1 or not all(isinstance(name, str) for name in by_name):
+            raise file_error(path, f"the masks of the {split} views are not [H, W] 8-bit images of one size", hint)
+    count = vertex_count(folder.parent / "geometry" / "gaussians.ply")
+    if count is not None and count != len(inside):
+        raise file_error(path, f"marks {len(inside)} Gaussians, but the run's geometry has {count}", hint)
+    try:
+        identity = RunDir(folder.parent).dataset() if (folder.parent / "dataset.json").exists() else None
+    except MatsprayError:
+        identity = None  # a damaged dataset record is named by whatever reads it
+    for split in SPLITS if identity is not None else ():
+        if f"{split}_views" in identity and sorted(by_split[split]) != sorted(identity[f"{split}_views"]):
+            raise file_error(path, f"its {split} masks are of other views than the run's", hint)
+    region = read_region(folder)
+    if region is None:
+        raise file_error(folder / "region.json", "does not exist", hint)
+    masks = {split: {name: m.float() / 255.0 for name, m in by_name.items()} for split, by_name in by_split.items()}
+    return ObjectMasks(region, inside, masks, path)

@@ -19,7 +19,7 @@ from pathlib import Path
 import yaml
 
 from matspray.files import atomic_target
-from matspray.errors import RunError, file_error
+from matspray.errors import MatsprayError, RunError, file_error
 from matspray.variants import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
@@ -57,6 +57,31 @@ def write_json(path: Path, data) -> None:
 
 def read_json(path: Path) -> dict:
     return json.loads(Path(path).read_text())
+
+
+def read_record(path: Path, hint: str):
+    """A JSON record of a run folder, or a DataError naming it and saying what to do (`hint`) when it cannot be read."""
+    path = Path(path)
+    try:
+        return read_json(path)
+    except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise file_error(path, f"is not readable JSON ({' '.join(str(exc).split())[:80]})", hint) from None
+
+
+def stage_folder(path: Path) -> Path | None:
+    """The stage folder of a run that `path` (a file in it, or in a subfolder of it) belongs to; None when it is no run
+    artifact. A stage folder holds a stage.json and sits in a folder with a dataset.json."""
+    for folder in list(Path(path).parents)[:2]:
+        if (folder / STAGE_RECORD).is_file() and (folder.parent / "dataset.json").is_file():
+            return folder
+    return None
+
+
+def stage_hint(path: Path) -> str:
+    """What to do about a damaged file of a finished stage ('' when `path` is no run artifact): a stage is not trusted
+    past its record, so the way out is to make it again."""
+    folder = stage_folder(path)
+    return "" if folder is None else f"delete {folder} and rerun `matspray run` with the same settings to make it again"
 
 
 def newer_than_stages(path: Path, *run_dirs) -> bool:
@@ -182,7 +207,10 @@ class RunDir:
         """Make sure this folder belongs to the dataset described by `dataset_id` (or is new)."""
         record = self.path("dataset.json")
         if record.exists() and not overwrite:
-            previous = read_json(record)
+            hint = "delete it, or allow overwriting the run folder (--overwrite) to claim it for this dataset"
+            previous = read_record(record, hint)
+            if not isinstance(previous, dict):
+                raise file_error(record, f"holds a {type(previous).__name__}, not the dataset record `matspray run` writes", hint)
             if previous != to_plain(dataset_id):
                 raise RunError(
                     f"{self.root}: this run folder was made from another dataset ({previous.get('source')}, "
@@ -196,28 +224,44 @@ class RunDir:
         record = self.path(stage, STAGE_RECORD)
         if not record.exists() or not all(self.path(stage, a).exists() for a in artifacts):
             return False
-        try:
-            return read_json(record).get("fingerprint") == stage_fingerprint
-        except (json.JSONDecodeError, OSError):
-            return False
+        return self.stage_fingerprint(stage) == stage_fingerprint
 
     def stage_fingerprint(self, stage: str) -> str | None:
+        """The fingerprint a stage's record holds; None when it has none or it cannot be read (a damaged record is no
+        finished stage: the stage is made again)."""
         record = self.path(stage, STAGE_RECORD)
-        return read_json(record).get("fingerprint") if record.exists() else None
+        try:
+            data = read_json(record)
+        except (OSError, ValueError):  # absent, unreadable, no JSON (JSONDecodeError and UnicodeDecodeError are ValueErrors)
+            return None
+        value = data.get("fingerprint") if isinstance(data, dict) else None
+        return value if isinstance(value, str) else None
 
     def finish_stage(self, stage: str, stage_fingerprint: str, settings, seconds: float, extra: dict | None = None) -> None:
         write_json(self.path(stage, STAGE_RECORD), {"fingerprint": stage_fingerprint, "settings": settings, "seconds": seconds, **(extra or {})})
         self.record_timing(stage, seconds)
 
     def record_timing(self, stage: str, seconds: float) -> None:
-        path = self.path("timings.json")
-        timings = read_json(path) if path.exists() else {}
+        try:
+            timings = self.timings()
+        except MatsprayError:  # a damaged record is replaced: it only says how long stages took
+            timings = {}
         timings[stage] = round(float(seconds), 3)
-        write_json(path, timings)
+        write_json(self.path("timings.json"), timings)
 
     def timings(self) -> dict:
+        """Seconds each finished stage took (timings.json), {} when there is none."""
         path = self.path("timings.json")
-        return read_json(path) if path.exists() else {}
+        if not path.exists():
+            return {}
+        hint = "delete it: it only records how long each stage took, and stages made again record their time anew"
+        timings = read_record(path, hint)
+        if not isinstance(timings, dict):
+            raise file_error(path, f"holds a {type(timings).__name__}, not the seconds of each stage", hint)
+        for stage, seconds in timings.items():
+            if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 <= seconds < float("inf"):
+                raise file_error(path, f"{stage}: {json.dumps(seconds)[:40]} is not a number of seconds", hint)
+        return timings
 
     def write_config(self, config) -> None:
         write_text_atomic(self.path("config.yaml"), yaml.safe_dump(to_plain(config), sort_keys=False))
@@ -236,7 +280,7 @@ class RunDir:
             return {}
         try:
             config = yaml.safe_load(path.read_text()) or {}
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        except (yaml.YAMLError, UnicodeDecodeError, OSError) as exc:
             raise file_error(path, f"is not readable YAML ({' '.join(str(exc).split())})", "restore it or rerun `matspray run`") from None
         if not isinstance(config, dict):
             raise file_error(path, f"holds a {type(config).__name__}, not the mapping of settings `matspray run` writes")
@@ -244,7 +288,17 @@ class RunDir:
 
     def dataset(self) -> dict:
         """The dataset identity recorded by `claim` (source folder, views, resolution)."""
-        return read_json(self.require().path("dataset.json"))
+        path = self.require().path("dataset.json")
+        hint = "rerun `matspray run --data DATA --out RUN --overwrite` to write it again (finished stages are kept)"
+        record = read_record(path, hint)
+        if not isinstance(record, dict):
+            raise file_error(path, f"holds a {type(record).__name__}, not the dataset record `matspray run` writes", hint)
+        if not isinstance(record.get("source"), str) or not record["source"] or "\0" in record["source"]:
+            raise file_error(path, f"'source' is {json.dumps(record.get('source'))[:60]}, not the dataset folder", hint)
+        for key in ("train_views", "test_views"):  # absent from records older than these keys
+            if key in record and (not isinstance(record[key], list) or not all(isinstance(name, str) for name in record[key])):
+                raise file_error(path, f"'{key}' is not a list of view names", hint)
+        return record
 
     def downscale(self) -> float:
         value = self.config().get("downscale", 1.0)

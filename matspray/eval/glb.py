@@ -51,14 +51,13 @@ def read_glb_parts(path, frame: str | None = None):
     if frame is not None and frame not in FRAMES:
         raise ConfigError(f"unknown frame '{frame}'; choose gltf or dataset")
     # what `matspray export` wrote into the file's extras; a damaged or hand-edited value is named here, before any work
-    for key, valid, hint in (("frame", FRAMES, "pass --frame gltf or --frame dataset"),
-                             ("variant", VARIANT_NAMES, "fix the extras or re-export the file"),
-                             ("run", None, "fix the extras, or pass --run and --data")):
+    for key, valid, wanted, hint in (("frame", FRAMES, "gltf or dataset", "pass --frame gltf or --frame dataset"),
+                                     ("variant", VARIANT_NAMES, "a variant's name", "fix the extras or re-export the file"),
+                                     ("run", None, "a run folder", "fix the extras, or pass --run and --data")):
         value = extras.get(key)
         if value is not None and (not isinstance(value, str) or not value or "\0" in value or valid is not None and value not in valid):
-            raise file_error(path, f"asset.extras.matspray.{key} is {json.dumps(value)[:60]}, "
-                                   f"not {' or '.join(valid) if valid and len(valid) < 3 else 'a ' + key + ' name'}", hint)
-    frame = frame or extras.get("frame", "gltf")
+            raise file_error(path, f"asset.extras.matspray.{key} is {json.dumps(value)[:60]}, not {wanted}", hint)
+    frame = frame or extras.get("frame") or "gltf"
     if frame == "dataset":  # bring the file into glTF's frame, which the reader maps to the dataset's world
         asset = replace(asset, primitives=[replace(p, positions=transform_points(GLTF_FROM_DATASET, p.positions),
                                                    normals=None if p.normals is None else transform_directions(GLTF_FROM_DATASET, p.normals))
@@ -123,7 +122,7 @@ def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: st
     lpips, lpips_source = load_lpips(lpips_weights)
     start = time.perf_counter()
     renders = mesh_renders(parts, textures, views, envs, spp or dataset_spp(data), progress)
-    metrics = {"glb": str(glb), "data": str(data), "lpips": lpips_source, "relight_envs": env_names, "frame": frame or extras.get("frame", "gltf"),
+    metrics = {"glb": str(glb), "data": str(data), "lpips": lpips_source, "relight_envs": env_names, "frame": frame or extras.get("frame") or "gltf",
                "faces": int(sum(len(p.faces) for p in parts)), "render_seconds": round(time.perf_counter() - start, 2),
                "mesh": score_renders(renders, views, truths, env_names, lpips)}
     gaussian_renders = None

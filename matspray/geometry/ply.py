@@ -21,6 +21,7 @@ from torch import Tensor
 from matspray.data.images import atomic_target
 from matspray.errors import file_error
 from matspray.gaussians import Gaussians
+from matspray.rundir import stage_hint
 
 REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
 
@@ -56,23 +57,28 @@ def read_ply(path, extra: tuple[str, ...] = ()):
     """Gaussians [N] and normals [N, 3] (None when the file has no nx/ny/nz) from a 3DGS PLY; with
     `extra` names, also {name: [N]} of those properties (all must be present)."""
     path = Path(path)
+    stage = stage_hint(path)  # a damaged artifact of a finished stage: say how to make it again
+
+    def refuse(problem: str, hint: str = ""):
+        return file_error(path, problem, stage or hint)
+
     if not path.exists():
-        raise file_error(path, "does not exist")
+        raise refuse("does not exist")
     try:
         ply = PlyData.read(str(path))
     except (PlyParseError, ValueError, OSError) as exc:
-        raise file_error(path, f"is not a readable PLY file ({exc})") from None
+        raise refuse(f"is not a readable PLY file ({exc})") from None
     if "vertex" not in [e.name for e in ply.elements]:
-        raise file_error(path, "has no 'vertex' element", "expected a 3D Gaussian Splatting PLY")
+        raise refuse("has no 'vertex' element", "expected a 3D Gaussian Splatting PLY")
     vertex = ply["vertex"].data
     names = vertex.dtype.names
     missing = [name for name in REQUIRED if name not in names]
     if missing:
-        raise file_error(path, f"lacks the 3DGS properties {', '.join(missing)}", "expected a 3D Gaussian Splatting PLY")
+        raise refuse(f"lacks the 3DGS properties {', '.join(missing)}", "expected a 3D Gaussian Splatting PLY")
     rest_names = sorted((name for name in names if re.fullmatch(r"f_rest_\d+", name)), key=lambda s: int(s[7:]))
     bases = 1 + len(rest_names) // 3
     if len(rest_names) % 3 or round(bases**0.5) ** 2 != bases or rest_names != [f"f_rest_{i}" for i in range(len(rest_names))]:
-        raise file_error(path, f"has {len(rest_names)} f_rest properties, which is no SH degree (expected 0, 9, 24 or 45)")
+        raise refuse(f"has {len(rest_names)} f_rest properties, which is no SH degree (expected 0, 9, 24 or 45)")
 
     def column(*keys) -> Tensor:
         return torch.from_numpy(np.stack([np.asarray(vertex[k], dtype=np.float32) for k in keys], axis=-1))
@@ -89,20 +95,31 @@ def read_ply(path, extra: tuple[str, ...] = ()):
     )
     for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
         if not torch.isfinite(getattr(gaussians, name)).all():
-            raise file_error(path, f"has NaN or Inf values in its {name}")
+            raise refuse(f"has NaN or Inf values in its {name}")
     degenerate = (gaussians.quats.double().norm(dim=-1) < 1e-12).nonzero()  # no rotation: 3DGS divides by 0 here
     if len(degenerate):
-        raise file_error(path, f"vertex row {int(degenerate[0])} has a zero quaternion (rot_0..3 all 0), which is no rotation "
+        raise refuse(f"vertex row {int(degenerate[0])} has a zero quaternion (rot_0..3 all 0), which is no rotation "
                          f"({len(degenerate)} such rows)", "set rot_0..3 to 1 0 0 0 (no rotation) or drop the row")
     normals = column("nx", "ny", "nz") if all(k in names for k in ("nx", "ny", "nz")) else None
     if normals is not None and not torch.isfinite(normals).all():
-        raise file_error(path, "has NaN or Inf values in its normals (nx, ny, nz)")
+        raise refuse("has NaN or Inf values in its normals (nx, ny, nz)")
     if not extra:
         return gaussians, normals
     absent = [name for name in extra if name not in names]
     if absent:
-        raise file_error(path, f"lacks the properties {', '.join(absent)}", "is it a MatSpray asset (matspray run writes asset/asset.ply)?")
+        raise refuse(f"lacks the properties {', '.join(absent)}", "is it a MatSpray asset (matspray run writes asset/asset.ply)?")
     values = {name: column(name)[:, 0] for name in extra}
     if not all(torch.isfinite(v).all() for v in values.values()):
-        raise file_error(path, "has NaN or Inf values in its materials")
+        raise refuse("has NaN or Inf values in its materials")
     return gaussians, normals, values
+
+
+def vertex_count(path) -> int | None:
+    """The vertex count a PLY file's header states, read without the data; None when the header does not say."""
+    try:
+        with open(path, "rb") as file:
+            head = file.read(1 << 16)
+    except OSError:
+        return None
+    match = re.search(rb"^element vertex (\d+)\s*$", head.split(b"end_header", 1)[0], re.MULTILINE)
+    return int(match.group(1)) if match else None

@@ -22,6 +22,7 @@ from matspray.data.images import linear_to_srgb, resize, srgb_to_linear, write_r
 from matspray.data.scene import View
 from matspray.errors import DataError, file_error
 from matspray.predictors.mapfile import read_color_map, read_scalar_map
+from matspray.rundir import stage_hint
 
 MATERIALS2D = "materials2d"
 INFO_FILE = "predictor.json"
@@ -120,9 +121,12 @@ def read_predictor_info(run_dir) -> dict:
     if not path.exists():
         raise file_error(path, "does not exist", "run `matspray predict` first")
     try:
-        return json.loads(path.read_text())
+        info = json.loads(path.read_text())
     except (json.JSONDecodeError, OSError, UnicodeDecodeError) as exc:
-        raise file_error(path, f"cannot read: {exc}") from None
+        raise file_error(path, f"cannot read: {' '.join(str(exc).split())}", "rerun `matspray predict` to write it again") from None
+    if not isinstance(info, dict):
+        raise file_error(path, f"holds a {type(info).__name__}, not the record `matspray predict` writes", "rerun `matspray predict` to write it again")
+    return info
 
 
 def read_materials2d(run_dir, views: list[View]) -> dict[str, MaterialMaps]:
@@ -142,14 +146,18 @@ def read_materials2d(run_dir, views: list[View]) -> dict[str, MaterialMaps]:
             "rerun `matspray predict` with the split these views come from (--split train|test|all)",
         )
     out = {}
+    hint = stage_hint(map_path(folder, "any", "basecolor"))  # a damaged map of a finished predict stage: make the stage again
     for view in views:
-        stored = read_color_map(map_path(folder, view.name, "basecolor"))
-        scalars = {}
-        for channel in ("roughness", "metallic", "confidence"):
-            path = map_path(folder, view.name, channel)
-            if channel == "confidence" and not path.exists():
-                continue
-            scalars[channel] = read_scalar_map(path, channel)
+        try:
+            stored = read_color_map(map_path(folder, view.name, "basecolor"))
+            scalars = {}
+            for channel in ("roughness", "metallic", "confidence"):
+                path = map_path(folder, view.name, channel)
+                if channel == "confidence" and not path.exists():
+                    continue
+                scalars[channel] = read_scalar_map(path, channel)
+        except DataError as exc:
+            raise (DataError(f"{exc}; {hint}") if hint else exc) from None
         for channel, values in {"basecolor": stored, **scalars}.items():
             if tuple(values.shape[:2]) != (view.height, view.width):
                 raise file_error(
