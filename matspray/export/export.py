@@ -27,7 +27,7 @@ from matspray.export.surface import fuse_surface
 from matspray.objectmasks import read_region
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
-from matspray.rundir import RunDir, read_json
+from matspray.rundir import RunDir
 from matspray.variants import asset_stage, get_variant
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
@@ -168,7 +168,7 @@ def export_run(run_dir, out, variant: str = "full", config: ExportConfig = Expor
     renders on `device` with the rasterizer `backend` (both resolved); meshing and baking run on the CPU."""
     run_dir, out = Path(run_dir), check_output(out)
     folder = run_asset(run_dir, variant)
-    source = data if data is not None else read_json(run_dir / "dataset.json")["source"]
+    source = data if data is not None else RunDir(run_dir).dataset()["source"]
     scene = load_scene(source, downscale=RunDir(run_dir).downscale())
     asset = read_asset(folder, device=device)
     region = read_region(run_dir / "masks")  # a capture without masks: the mesh stays inside its object region
