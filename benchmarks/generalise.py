@@ -1,7 +1,7 @@
 """Does the method beat its baselines on objects it was never tuned on? The benchmark protocol (issue 21).
 
     python -m benchmarks.generalise --set dev|eval [--objects K] [--start I] [--preset demo|test]
-        [--models paper harsh outliers ground-truth] [--variants full proj-average supervised no-softmax]
+        [--models paper harsh outliers dr ground-truth] [--variants full proj-average supervised no-softmax]
         [--method matspray|paper] [--without ADDITION ...] [setting flags of `matspray run`]
         [--refine KEY=VALUE ...] [--tag NAME] [--out DIR]
     python -m benchmarks.generalise --set dev --compare [--out DIR]
@@ -10,7 +10,7 @@ Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every s
 2000 + i) to run once at the end. Object i is a procedural `random` shape (the seed picks it), trained
 under one HDRI of ../shared/data/hdri and relit under two other lights (HDRIs and built-ins), all drawn
 from its seed. Each object is run with every predictor error model (`simulated:paper`, `:harsh`,
-`:outliers`, and the ground truth as a sanity row; a simulated predictor draws its errors from the
+`:outliers`, `:dr`, and the ground truth as a sanity row; a simulated predictor draws its errors from the
 object's seed): one run folder per (object, model, configuration), the Gaussian Splatting geometry
 trained once per object and shared by hard links (the pipeline's stage fingerprint checks it is the
 same); a configuration other than the default also starts from the default run's predictions, lift and

@@ -190,7 +190,7 @@ def test_predict_views_errors():
 
 # ------------------------------------------------------------------------------------------ registry
 def test_make_predictor_rejects_bad_specs(tmp_path):
-    with pytest.raises(ConfigError, match=r"unknown predictor 'rgbx'; use one of files:DIR, marigold, simulated\[:paper\|harsh\|outliers\], ground-truth"):
+    with pytest.raises(ConfigError, match=r"unknown predictor 'rgbx'; use one of files:DIR, marigold, simulated\[:paper\|harsh\|outliers\|dr\], ground-truth"):
         make_predictor("rgbx")
     with pytest.raises(ConfigError, match="files:DIR needs the folder"):
         make_predictor("files:")

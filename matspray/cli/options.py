@@ -82,7 +82,7 @@ def add_compute_arguments(parser) -> None:
 def add_run_arguments(parser) -> None:
     """What `run` and `batch` take besides the method: the predictor, its options and the variants."""
     parser.add_argument("--predictor", default="auto", metavar="SPEC",
-                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers] or ground-truth (benchmarks "
+                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers|dr] or ground-truth (benchmarks "
                         "only: they need the dataset's true maps), or none (no maps: only the no-prior variant); default auto: "
                         "simulated where the dataset has ground-truth maps, else none")
     parser.add_argument("--variant", choices=VARIANT_CHOICES, nargs="+", default=None,

@@ -13,7 +13,7 @@ def add_parser(parser) -> None:
         required=True,
         metavar="SPEC",
         help="files:DIR (precomputed maps: MatSpray, DiffusionRenderer or Marigold layout), marigold (diffusers, "
-        "from --weights), simulated[:paper|harsh|outliers] (an error model; plain simulated = paper) or ground-truth "
+        "from --weights), simulated[:paper|harsh|outliers|dr] (an error model; plain simulated = paper) or ground-truth "
         "(benchmarks on `matspray synth` objects only)",
     )
     parser.add_argument("--split", choices=SPLITS, default="train", help="views to predict (default: train, what lifting uses)")

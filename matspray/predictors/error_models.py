@@ -13,7 +13,13 @@ Named models (`--predictor simulated:NAME`; plain `simulated` is `paper`):
   harsh     every paper magnitude doubled (the same draws as `paper` at severity 2);
   outliers  half the paper's smooth per-batch drift, the tone curve and blur as in `paper`, and errors
             concentrated in a few views or batches: a batch with strong spurious metallic, views with a
-            colour cast, views with the photo's highlights baked into base colour.
+            colour cast, views with the photo's highlights baked into base colour;
+  dr        the paper's structure at the error level of the paper's Table 1: the per-batch drifts of
+            `paper`, larger in colour, roughness whose spread collapses towards its mean (the paper:
+            tone mapping hits roughness hardest), and partial metallicity in single views as well as
+            in whole batches. Its magnitudes are calibrated on the development objects so that its own
+            2D predictions score the paper's PSNRs (`python -m benchmarks.calibrate_dr`,
+            docs/error-models.md), never by what the method achieves from them.
 `severity` scales every effect of a model (0 = ground truth); `seed` and `batch_size` are free.
 """
 
@@ -47,6 +53,9 @@ class SimulationConfig:
     cast_strength: float = 0.0  # its size: norm of the per-channel log gain, which has zero mean over RGB
     highlight_fraction: float = 0.0  # fraction of the views with the photo's highlights baked into base colour
     highlight_amount: float = 0.0  # base colour moves this fraction of the way to white on a full highlight
+    # roughness collapse and per-view metallic (off in every model but `dr`)
+    roughness_compression: float = 0.0  # per view, roughness moves this fraction of the way to its mean over the object
+    metallic_view_fraction: float = 0.0  # fraction of the views with a spurious partial metallic of their own (metallic_amplitude)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.severity) and self.severity >= 0):
@@ -55,12 +64,33 @@ class SimulationConfig:
             raise SettingError("batch_size", f"must be >= 1, got {self.batch_size}")
         if not 0.0 <= self.shading_spread <= 1.0:
             raise SettingError("shading_spread", f"must be in [0, 1], got {self.shading_spread}")
-        for name in ("metallic_probability", "cast_fraction", "highlight_fraction", "highlight_amount"):
+        for name in ("metallic_probability", "cast_fraction", "highlight_fraction", "highlight_amount", "roughness_compression",
+                     "metallic_view_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
 
 
 PAPER = SimulationConfig()
+
+
+def dr_model(colour_scale: float, roughness_compression: float, metallic_view_fraction: float) -> SimulationConfig:
+    """The `dr` structure at one magnitude per channel, what its calibration searches over: `paper`'s colour
+    drifts and baked shading times `colour_scale`; `paper`'s roughness offsets and tone curve with the spread
+    collapsed by `roughness_compression`; `paper`'s metallic batches plus a `metallic_view_fraction` of
+    single views with spurious metallic. One knob per channel, and no knob acts on two channels, so the
+    three can be calibrated independently against the three figures of the paper."""
+    return replace(
+        PAPER, exposure_sigma=PAPER.exposure_sigma * colour_scale, white_balance_sigma=PAPER.white_balance_sigma * colour_scale,
+        color_shift_sigma=PAPER.color_shift_sigma * colour_scale, shading_strength=PAPER.shading_strength * colour_scale,
+        roughness_compression=roughness_compression, metallic_view_fraction=metallic_view_fraction,
+    )
+
+
+# `dr`'s magnitudes, found by `python -m benchmarks.calibrate_dr --search` (table and method: docs/error-models.md)
+DR_COLOUR_SCALE = 1.9
+DR_ROUGHNESS_COMPRESSION = 0.8
+DR_METALLIC_VIEW_FRACTION = 0.15
+
 ERROR_MODELS: dict[str, SimulationConfig] = {
     "paper": PAPER,
     "harsh": replace(
@@ -72,6 +102,7 @@ ERROR_MODELS: dict[str, SimulationConfig] = {
         view_jitter_sigma=0.01, metallic_probability=0.2, metallic_amplitude=(0.5, 0.9),
         cast_fraction=0.15, cast_strength=0.3, highlight_fraction=0.15, highlight_amount=0.7,
     ),
+    "dr": dr_model(DR_COLOUR_SCALE, DR_ROUGHNESS_COMPRESSION, DR_METALLIC_VIEW_FRACTION),
 }
 DEFAULT_MODEL = "paper"
 SETTINGS = ("severity", "seed", "batch_size")  # what a user may set on top of a named model

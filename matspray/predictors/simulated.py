@@ -28,6 +28,12 @@ the paper describes for DiffusionRenderer, so that later stages can be measured 
    as bright, relative to the true base colour, as the object's median; from 1x to 2x it ramps up).
    Outlier views and metallic batches are spread evenly from a seeded start, so their count is the
    stated fraction for every seed.
+6. Roughness collapse and single-view metallic (the `dr` model). The paper finds roughness hit hardest
+   by the tone mapping (its values "collapse"): after the curve, each view's roughness moves
+   `roughness_compression` of the way to its mean over the object, so the level stays the curve's and
+   the batch's while the spread shrinks. DiffusionRenderer "often predicts partial metallicity in
+   certain views": a fraction `metallic_view_fraction` of the views (spread evenly, like the outliers)
+   gets a spurious metallic of its own, in `metallic_amplitude`, on top of any its batch has.
 All effects apply to the object (alpha); background pixels keep their true values. The magnitudes of
 each named error model are in `matspray.predictors.error_models`.
 
@@ -124,6 +130,7 @@ class ViewOutlier:
 
     cast: list[float]  # [3] per-channel gain; [1, 1, 1] when the view has no colour cast
     highlights: float  # how far base colour moves to white on a full highlight; 0 when none
+    metallic: float = 0.0  # this view's own spurious partial metallic; 0 when none
 
 
 def evenly_spread(fraction: float, seed: int, stream: int, index: int) -> bool:
@@ -144,7 +151,24 @@ def draw_view_outlier(config: SimulationConfig, index: int) -> ViewOutlier:
         direction = direction / max(float(np.linalg.norm(direction)), 1e-9)
         cast = [float(v) for v in np.exp(config.cast_strength * s * direction)]
     highlights = min(1.0, config.highlight_amount * s) if evenly_spread(config.highlight_fraction * s, config.seed, 6, index) else 0.0
-    return ViewOutlier(cast=cast, highlights=highlights)
+    metallic = 0.0
+    if evenly_spread(config.metallic_view_fraction * s, config.seed, 7, index):
+        low, high = config.metallic_amplitude
+        metallic = min(1.0, float(np.random.default_rng([int(config.seed), 8, index]).uniform(low, high)) * s)
+    return ViewOutlier(cast=cast, highlights=highlights, metallic=metallic)
+
+
+def compress_towards_mean(x: Tensor, mask: Tensor, amount: float) -> Tensor:  # [H, W], [H, W] bool -> [H, W]
+    """x moved `amount` of the way to its mean over the mask: the spread shrinks by 1 - amount, the mean stays."""
+    if amount <= 0 or not mask.any():
+        return x
+    return torch.lerp(x, x[mask].mean(), amount)
+
+
+def combined_metallic(batch: float, view: float) -> float:
+    """The spurious metallic of a view whose batch has `batch` and which has `view` of its own, both in [0, 1]:
+    each moves the rest of the way to metal, so either alone is itself and together they stay <= 1."""
+    return batch + view - batch * view  # = 1 - (1 - batch)(1 - view), exactly `batch` when view is 0
 
 
 def highlight_weight(ratio: Tensor) -> Tensor:  # shading ratio S [H, W] (median 1) -> [H, W] in [0, 1]
@@ -201,8 +225,10 @@ def simulate_view(truth: MaterialMaps, photo: Tensor, alpha: Tensor | None, drif
     basecolor = basecolor * gain + torch.tensor(drift.color_shift, dtype=basecolor.dtype, device=basecolor.device)
 
     roughness = torch.lerp(truth.roughness, filmic_tone(truth.roughness), tone)
+    roughness = compress_towards_mean(roughness, mask, min(1.0, config.roughness_compression * s))
     roughness = roughness + drift.roughness_offset + float(jitter[1])
-    metallic = truth.metallic + drift.spurious_metallic * (1.0 - truth.metallic) * weight
+    spurious = combined_metallic(drift.spurious_metallic, outlier.metallic if outlier is not None else 0.0)
+    metallic = truth.metallic + spurious * (1.0 - truth.metallic) * weight
 
     maps = torch.cat([basecolor, roughness[..., None], metallic[..., None]], dim=-1)
     maps = blur_inside(maps, weight, config.blur_fraction * s * max(maps.shape[:2])).clamp(0.0, 1.0)
