@@ -151,16 +151,16 @@ def frame_times(run: Path, env: str | None, repeats: int, size: int, backend: st
     label = Path(env).name if Path(env).exists() else env
     assert viewer.set_light(label), f"could not load {env}"
     start = viewer.start_camera
-    results = {"threads": torch.get_num_threads(), "backend": backend, "light": label, "gaussians": len(viewer.run.asset("full").gaussians)}
+    results = {"threads": torch.get_num_threads(), "backend": backend, "light": label, "gaussians": len(viewer.run.asset(viewer.state.variant).gaussians)}
     for name, (width, height) in (("still", (size, size)), ("moving", progressive_size(1.0, size, moving=True))):
-        camera = Camera.look_at(start.center, torch.tensor(viewer.run.object_frame("full")[0]), (0.0, 0.0, 1.0), 0.7, width, height)
+        camera = Camera.look_at(start.center, torch.tensor(viewer.run.object_frame(viewer.state.variant)[0]), (0.0, 0.0, 1.0), 0.7, width, height)
         viewer.render(camera)  # warm-up: kernels, caches
         times, raster = [], []
         for _ in range(repeats):
             times.append(viewer.render(camera).seconds)
             t0 = time.perf_counter()
             with torch.no_grad(), rendering_with(backend):
-                render_gbuffer(viewer.run.asset("full"), camera)
+                render_gbuffer(viewer.run.asset(viewer.state.variant), camera)
             raster.append(time.perf_counter() - t0)
         results[name] = {"size": f"{width}x{height}", "median_ms": 1000 * statistics.median(times),
                          "min_ms": 1000 * min(times), "rasterize_ms": 1000 * statistics.median(raster)}
