@@ -402,3 +402,23 @@ def test_the_page_opens_before_torch_is_imported(view_run):
     printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert printed.returncode == 0, printed.stderr
     assert printed.stdout.split()[-2:] == ["False", "True"], printed.stdout
+
+
+@pytest.mark.on_device
+def test_the_viewer_renders_on_the_device_it_is_given(view_run, device):
+    """`matspray view --device cuda` renders there (asset and light on the device), and the picture is the CPU's.
+    On the GPU machine `pytest --device cuda` runs this on CUDA (benchmarks/gpu_check.sh)."""
+    from matspray.view.server import Viewer, ViewerConfig
+
+    on_device = Viewer(view_run, ViewerConfig(resolution=48), device=str(device), backend="torch", notify=lambda _: None)
+    on_cpu = Viewer(view_run, ViewerConfig(resolution=48), device="cpu", backend="torch", notify=lambda _: None)
+    try:
+        _, asset, light = on_device.frame_inputs()
+        assert asset.gaussians.means.device.type == device.type
+        camera = on_cpu.start_camera.scaled(0.25)
+        there, here = on_device.render(camera), on_cpu.render(camera)
+        assert there.image.shape == here.image.shape
+        assert np.abs(there.image.astype(int) - here.image.astype(int)).max() <= 2  # 8-bit pictures, float rounding apart
+    finally:
+        on_device.stop()
+        on_cpu.stop()
