@@ -77,7 +77,6 @@ class RefineConfig:
     basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
-    refine_normals: bool = False  # optional: learn per-Gaussian normal offsets with the PBR loss
     seed: int = 0
     log_every: int = 10
     merger: MergerConfig = field(default_factory=MergerConfig)
@@ -353,7 +352,6 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
         envmap = (EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if light is None
                   else EnvironmentMap(light.log_map.detach().to(device), learnable=False))
     estimates_light = envmap is not None and light is None
-    normal_offsets = nn.Parameter(torch.zeros_like(normals)) if (config.refine_normals and variant.learns_light) else None
     history: list[dict] = []
     if not source.trainable or config.iterations == 0:
         return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility)
@@ -363,8 +361,6 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
     if estimates_light:
         groups.append(envmap_group(envmap, config))
-    if normal_offsets is not None:
-        groups.append({"params": [normal_offsets], "lr": 1e-3, "name": "normal offsets"})
     generator = torch.Generator().manual_seed(config.seed)
     with torch.no_grad():
         last_materials = source()  # [N, 5] each Gaussian's latest merged value
@@ -372,15 +368,12 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
         warm_up_light(training, last_materials, normals, envmap, config, generator, progress)
     optimizer = torch.optim.Adam(groups)
 
-    def shading_normals() -> Tensor:  # [N, 3] the normals with the learned offsets (when refined)
-        return normals if normal_offsets is None else torch.nn.functional.normalize(normals + normal_offsets, dim=-1)
-
     def refine_losses(index: int):
         active = training.frozen.contributing_ids(index, config.min_coverage)  # the merger only runs for the Gaussians this view shows
         merged, weights = source(active, return_weights=True)
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
-        terms = view_losses(training, index, materials, shading_normals(), envmap, config, with_material=variant.uses_maps)
+        terms = view_losses(training, index, materials, normals, envmap, config, with_material=variant.uses_maps)
         if config.basecolor_spread_weight > 0 and variant.softmax and "base_color" in weights:
             terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
         return terms, total_loss(terms, config)
@@ -395,5 +388,5 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
 
     optimize(optimizer, len(training), config.iterations, refine_losses, generator, f"refine [{variant.name}]", progress, log)
     with torch.no_grad():
-        return RefineResult(source().detach(), shading_normals().detach(), source, envmap, history, inputs.visibility,
+        return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility,
                             training.frozen.describe())
