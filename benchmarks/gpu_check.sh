@@ -2,7 +2,9 @@
 # Every GPU check of MatSpray in one call, built to finish within 10 minutes on one H100-class GPU:
 #   1. install what the machine lacks (wheels carried in .whl/, made here by benchmarks/gpu_wheels.sh) and matspray itself;
 #   2. build gsplat's CUDA extension (timed) and check that backend `auto` picks it;
-#   3. the test suite's device tests on CUDA (pytest --device cuda: the on_device tests and the gsplat parity tests);
+#   3. the test suite's device tests on CUDA (pytest --device cuda: the on_device tests and the gsplat parity
+#      tests); then, with GPU_CHECK_DATA=DIR (a `matspray synth` object made elsewhere), the demo preset on it with
+#      gsplat (three variants, evaluated) and with backend torch;
 #   4. python -m benchmarks.paper_scale (the paper preset; what each stage ran on, seconds, memory, PSNR) within what is left,
 #      where Mitsuba is installed (it makes the object; see step 4);
 #   5. one summary.
@@ -27,7 +29,7 @@ python3 -c "import torch; assert torch.cuda.is_available(), 'no CUDA GPU'; print
   || { echo "gpu_check: no CUDA GPU that torch sees; nothing to check"; exit 1; }
 
 # 2. gsplat's CUDA code compiles at its first kernel call; time it once here, so that the rest finds it built
-python3 - <<'EOF' 2>&1 | tee "$OUT/gsplat_build.log"
+python3 - >"$OUT/gsplat_build.log" 2>&1 <<'EOF'
 import time
 from matspray.render.backend import resolve_backend
 start = time.perf_counter()
@@ -40,12 +42,32 @@ except Exception as exc:
 print(f"gsplat CUDA extension: {'built' if built else 'NOT built'} in {time.perf_counter() - start:.0f} s")
 print(f"backend auto on cuda resolves to: {resolve_backend('auto', 'cuda')}")
 EOF
-summary+=("$(grep -h 'gsplat CUDA extension\|resolves to' "$OUT/gsplat_build.log" | paste -sd ';' -)")
+summary+=("$(grep -h 'gsplat CUDA extension\|resolves to\|failed' "$OUT/gsplat_build.log" | paste -sd ';' -)")
 
-# 3. device tests on CUDA
+# 3. the device tests on CUDA (pytest --device cuda: the on_device tests and the gsplat parity tests), after the build:
+# two processes building gsplat at once break each other's build. Their tiny object needs Mitsuba; without it, one
+# made elsewhere (MATSPRAY_TINY_OBJECT, see tests/conftest.py)
 timeout $(( $(left) / 3 )) python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_device.py tests/test_gsplat_backend.py \
   2>&1 | tee "$OUT/pytest_cuda.log"
 summary+=("pytest --device cuda: $(tail -n 1 "$OUT/pytest_cuda.log")")
+
+# 3b. with a carried `matspray synth` object (GPU_CHECK_DATA=DIR): the demo preset on CUDA with gsplat (geometry, lift,
+# refinement of three variants, evaluation), then with backend torch (full only) in the time left
+RUNS=${GPU_CHECK_RUNS:-/tmp/gpu-check-runs}  # run folders stay out of OUT (too many files to bring back)
+demo_run() {  # backend, seconds, variants...
+  local backend=$1 limit=$2; shift 2
+  # progress bars: only their last state (100%) is kept
+  timeout "$limit" python3 -m benchmarks.paper_scale --preset demo --data "$GPU_CHECK_DATA" --device cuda --backend "$backend" \
+    --variants "$@" --out "$RUNS/demo-$backend" 2>&1 | tr '\r' '\n' | grep -E -v '(^|[^0-9])[0-9]{1,2}%\|' > "$OUT/demo_$backend.log"
+  summary+=("demo preset on CUDA, backend $backend (exit ${PIPESTATUS[0]}, 124 = out of time):")
+  summary+=("$(sed -n '/^preset /,$p' "$OUT/demo_$backend.log")")
+}
+if [ -n "${GPU_CHECK_DATA:-}" ] && [ "$(left)" -gt 30 ]; then
+  demo_run gsplat "$(( $(left) - 10 ))" full proj-average no-prior
+fi
+if [ -n "${GPU_CHECK_DATA:-}" ] && [ "$(left)" -gt 60 ]; then
+  demo_run torch "$(( $(left) - 10 ))" full
+fi
 
 # 4. the paper preset, within what is left. It makes its object with Mitsuba, which the GPU image lacks and which
 # cannot be carried there (its wheel, 62.5 MB, and drjit's, 5 MB, exceed the device tool's 64 MiB per call)

@@ -10,5 +10,5 @@ mkdir -p .whl
 python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
   --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
   --platform manylinux1_x86_64 --platform any -d .whl \
-  gsplat==1.5.3 pypng plyfile openexr
+  gsplat==1.5.3 pypng plyfile openexr pygltflib dataclasses-json marshmallow==3.26.2 trimesh==5.2.0
 du -sh .whl

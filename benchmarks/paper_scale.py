@@ -1,6 +1,7 @@
-"""The `paper` preset end to end on one object at paper scale (issue 24).
+"""A preset end to end on one object: what each stage ran on, its seconds and memory.
 
     python -m benchmarks.paper_scale [--backend auto|torch|gsplat] [--out DIR]   # 512 px, 100 views, one GPU
+    python -m benchmarks.paper_scale --preset demo --data DIR [--variants ...]  # an object made elsewhere (synth)
     python -m benchmarks.paper_scale --dry-run                                  # the same code, test size, CPU
 
 A `matspray synth` object of the preset's size (paper: 512 px, 100 training views) is made once, then the
@@ -72,34 +73,41 @@ def main() -> None:
     parser.add_argument("--dry-run", action="store_true", help="test preset, tiny object, CPU: checks the code path, measures nothing of interest")
     parser.add_argument("--backend", choices=BACKENDS, default="auto", help="rasterizer (default auto)")
     parser.add_argument("--out", type=Path, help="work folder (default runs/paper-scale, or runs/paper-scale-dry)")
+    parser.add_argument("--preset", choices=("demo", "paper"), default="paper",
+                        help="settings and object size (default paper: 512 px, 100 views)")
+    parser.add_argument("--data", type=Path, help="an object made by `matspray synth` to use instead of making one "
+                        "(for a machine without Mitsuba)")
+    parser.add_argument("--variants", nargs="+", default=["full"], help="variants to refine (default full)")
+    parser.add_argument("--device", default="auto", help="auto|cpu|cuda (default auto)")
     parser.add_argument("--shape", default="composite")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    preset, device = ("test", "cpu") if args.dry_run else ("paper", "auto")
-    out = args.out or Path("runs/paper-scale-dry" if args.dry_run else "runs/paper-scale")
+    preset, device = ("test", "cpu") if args.dry_run else (args.preset, args.device)
+    out = args.out or Path("runs/paper-scale-dry" if args.dry_run else f"runs/{args.preset}-scale")
     config = build_config(preset, predictor="simulated", device=device, backend=args.backend, seed=args.seed)
     backend = resolve_backend(config.backend, resolve_device(config.device))  # fail before the long work
-    cuda = torch.cuda.is_available() and not args.dry_run
+    cuda = resolve_device(config.device).type == "cuda"
     start = time.perf_counter()
-    data = make_demo_object(out / "data", preset, args.shape, args.seed)
+    data = args.data if args.data else make_demo_object(out / "data", preset, args.shape, args.seed)
     synth_s = time.perf_counter() - start
     if cuda:
         torch.cuda.reset_peak_memory_stats()
-    metrics = run_object(data, out / "run", config, variants=("full",))
-    summary = metrics["variants"]["full"]["summary"]
-    gaussians = len(read_asset(RunDir(out / "run").path(asset_stage("full")), device="cpu").gaussians)
-    print(f"\npreset {preset}, backend {backend}, device {resolve_device(config.device)}, object {args.shape} seed {args.seed}")
+    metrics = run_object(data, out / "run", config, variants=tuple(args.variants))
+    summary = metrics["variants"][args.variants[0]]["summary"]
+    gaussians = len(read_asset(RunDir(out / "run").path(asset_stage(args.variants[0])), device="cpu").gaussians)
+    where = args.data or f"{args.shape} seed {args.seed}"
+    print(f"\npreset {preset}, backend {backend}, device {resolve_device(config.device)}, object {where}")
     print(f"synth object: {synth_s:.1f} s (reused when already made)")
     run = RunDir(out / "run")
     print("stages (device, backend, what the render calls ran on):")
     print("\n".join(stage_lines(run)))
     print("seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in run.timings().items()))
-    print("\n".join(frozen_lines(read_json(run.path(asset_stage("full"), "stage.json")).get("frozen_views"))))
+    print("\n".join(frozen_lines(read_json(run.path(asset_stage(args.variants[0]), "stage.json")).get("frozen_views"))))
     print(f"peak host memory: {peak_host_mib():.0f} MiB")
     if cuda:
         print(f"peak GPU memory: {torch.cuda.max_memory_allocated() / 2**20:.0f} MiB")
     print(f"Gaussians: {gaussians}")
-    print(f"relighting PSNR {summary['relighting']['psnr']:.2f} dB; material PSNR: basecolor {summary['basecolor']['psnr']:.2f}, "
+    print(f"{args.variants[0]}: relighting PSNR {summary['relighting']['psnr']:.2f} dB; material PSNR: basecolor {summary['basecolor']['psnr']:.2f}, "
           f"roughness {summary['roughness']['psnr']:.2f}, metallic {summary['metallic']['psnr']:.2f} dB")
     print(f"total wall time: {time.perf_counter() - start:.0f} s")
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -39,11 +40,18 @@ def test_cache(tmp_path_factory, monkeypatch):
 
 @pytest.fixture(scope="module")
 def tiny_object(tmp_path_factory):
-    """A 32 px Mitsuba sphere with 6 training and 2 test views (skips without Mitsuba)."""
+    """A 32 px Mitsuba sphere with 6 training and 2 test views. Where Mitsuba is missing (a GPU machine), the same
+    object made elsewhere by `python -m tests.conftest DIR` and named by $MATSPRAY_TINY_OBJECT; else the test skips."""
+    made = os.environ.get("MATSPRAY_TINY_OBJECT")
+    if made and (Path(made) / "scene.json").is_file():
+        return Path(made)
     pytest.importorskip("mitsuba")
+    return make_tiny_object(tmp_path_factory.mktemp("object") / "data")
+
+
+def make_tiny_object(out: Path) -> Path:
     from matspray.synth import SynthConfig, make_object
 
-    out = tmp_path_factory.mktemp("object") / "data"
     make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), out, progress=False, notify=lambda _: None)
     return out
 
@@ -68,3 +76,7 @@ def hold_in_another_process():
     for process in started:
         process.kill()
         process.wait()
+
+
+if __name__ == "__main__":  # python -m tests.conftest DIR: the tiny object, for a machine without Mitsuba
+    make_tiny_object(Path(sys.argv[1]))
