@@ -75,8 +75,7 @@ PRESET_SETTINGS: dict[str, dict] = {
     "demo": {"lift.samples_per_side": 4, "refine.iterations": 600, "refine.envmap_height": 16, "refine.light_warmup": 200},
     "paper": {"lift.samples_per_side": 16, "refine.iterations": 10000, "refine.envmap_height": 32, "refine.light_warmup": 1000},
 }
-# Baked shadows are off by default: on the development set of benchmarks/generalise.py (3 objects, error
-# model `paper`) they relit 0.56 dB worse on average (README, "What each addition buys"). Where they are
+# Baked shadows are off by default: they relit worse in the benchmarks (docs/history.md). Where they are
 # switched on (`visibility=shadow_maps(preset)`, `--shadows on`), their shadow maps have the preset's size.
 SHADOW_MAPS: dict[str, VisibilityConfig] = {
     "test": VisibilityConfig(rows=4, resolution=48),

@@ -63,10 +63,9 @@ def _tried(message: str) -> str:
 
 
 def configure_threads(device: torch.device | None = None) -> int:
-    """Torch's CPU threads: $MATSPRAY_THREADS when set, else torch's default (one per core).
-    Measured on an idle 2-core machine, two threads against one: 400 geometry steps 71 s vs 107 s,
-    one lifting view at 4x4 rays 1.0 s vs 1.5 s, 40 refinement steps 16 s vs 24 s. (Under a second
-    CPU-bound process two threads fight over the cores; set MATSPRAY_THREADS=1 then.)"""
+    """Torch's CPU threads: $MATSPRAY_THREADS when set, else torch's default (one per core), which is faster on an
+    idle machine (docs/defaults.md). (Under a second CPU-bound process two threads fight over the
+    cores; set MATSPRAY_THREADS=1 then.)"""
     if device is not None and device.type == "cuda":
         return torch.get_num_threads()
     value = os.environ.get("MATSPRAY_THREADS")

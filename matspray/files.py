@@ -3,6 +3,8 @@ opens its page first; see view/launch.py)."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
 from pathlib import Path
 
@@ -13,3 +15,34 @@ def atomic_target(path: Path) -> Path:
     """A temporary sibling of `path` to write into before `os.replace` (same folder, same suffix)."""
     path = Path(path)
     return path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write `text` atomically (a reader never sees half a file), making the folder when needed."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def to_plain(value):
+    """Dataclasses, paths and tuples as plain JSON/YAML values."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: to_plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return {str(k): to_plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_plain(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_json(path: Path, data) -> None:
+    """`data` (dataclasses and paths included, see `to_plain`) as indented JSON, written atomically."""
+    write_text_atomic(path, json.dumps(to_plain(data), indent=2, sort_keys=False) + "\n")
+
+
+def read_json(path: Path):
+    return json.loads(Path(path).read_text())

@@ -47,7 +47,7 @@ QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at 
 class LiftConfig:
     samples_per_side: int = 4  # k: k x k rays per pixel (the paper uses 16)
     visibility_threshold: float = 0.0  # a hit counts while transmittance before it is >= this (0, every hit: the paper, and our
-    # default since 0.5 relit 0.3 dB worse on the development set of benchmarks/generalise.py)
+    # default since 0.5 relit worse in the benchmarks; docs/history.md)
     falloff: float = 1.0  # lambda of eq. (2)
     mask_threshold: float = 0.5  # pixels whose object mask is below this give nothing
     min_support: float = 0.5  # a view sees a Gaussian when it gets >= this share of its best view's hits (0: any hit)

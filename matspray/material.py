@@ -29,8 +29,3 @@ def unstack(materials: Tensor) -> tuple[Tensor, Tensor, Tensor]:  # [..., 5] -> 
 
 def zeros(*shape: int, device=None, dtype=torch.float32) -> Tensor:  # -> [*shape, 5]
     return torch.zeros(*shape, N_CHANNELS, device=device, dtype=dtype)
-
-
-def check_materials(materials: Tensor, what: str = "materials") -> None:
-    if materials.shape[-1] != N_CHANNELS:
-        raise ValueError(f"{what} must have {N_CHANNELS} channels ({', '.join(CHANNELS)}) on the last axis, got shape {tuple(materials.shape)}")

@@ -38,7 +38,7 @@ class MergerConfig:
     frequencies: int = 6  # NeRF positional-encoding octaves
     softmax: bool = True
     seen_input: bool = False  # the MLPs also read the seen mask [V]; off as the paper (position and values only): on, it
-    # bought -0.05 / -0.05 / +0.01 dB (error models paper / harsh / outliers) on the development set of benchmarks/generalise.py
+    # did not pay in the benchmarks (docs/history.md)
     unseen: str = "mask"  # views that did not see a Gaussian: "mask" (weight 0) or "mean" (filled with the mean of the
     # views that did, weighted like any view; the paper's released code)
 

@@ -67,7 +67,7 @@ def compute_object_masks(gaussians: Gaussians, scene: Scene, object_bounds=None,
     inside = region.contains(gaussians.means.detach()).cpu()
     if not inside.any():
         raise DataError(f"the object region ({region.describe()}) holds none of the {len(inside)} Gaussians; "
-                        "give one that does with --object-bounds")
+                        "give one that does (setting object_bounds)")
     obj = gaussians.subset(inside.to(gaussians.means.device))
     views = [(split, view) for split in SPLITS for view in scene.split(split)]
     masks: dict[str, dict[str, Tensor]] = {split: {} for split in SPLITS}

@@ -17,10 +17,9 @@ the merger runs only for the Gaussians that cover at least `min_coverage` pixels
 With a directional visibility per Gaussian (`RefineInputs.visibility`; only with `--shadows on`, off by
 default), the PBR render is shadowed (`render.visibility`), so the photo loss does not push shadows into
 the base color.
-Two optional settings, off by default because they did not pay on the development set of
-benchmarks/generalise.py: `basecolor_spread_weight` adds the KL divergence of the base-colour merger's
-weights from equal weights, and `align_view_gains` divides each view's base colour by its estimated gain
-before any variant fuses.
+Two optional settings, off by default because they did not pay in the benchmarks (docs/history.md):
+`basecolor_spread_weight` adds the KL divergence of the base-colour merger's weights from equal weights,
+and `align_view_gains` divides each view's base colour by its estimated gain before any variant fuses.
 
 The variants (`matspray.variants`) choose what produces the per-Gaussian materials.
 """
@@ -36,8 +35,8 @@ from tqdm import tqdm
 from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
 from matspray.errors import NumericalError, SettingError
-from matspray.eval.metrics import ssim_loss
 from matspray.gaussians import Gaussians
+from matspray.geometry.losses import photometric_loss
 from matspray.material import BASE_COLOR, N_CHANNELS
 from matspray.merger import MergerConfig, NeuralMerger, align_view_gains, prepare_values, projection_average, view_gains
 from matspray.render.deferred import GBuffer, shade_gbuffer
@@ -64,10 +63,10 @@ class RefineConfig:
     min_coverage: float = 0.02  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
     material_weight: float = 1.0  # L_Image
-    photo_weight: float = 1.0  # L_3DGS, as the paper (its released code adds the photometric term twice; 2 bought
-    # -0.01 dB on the development set of benchmarks/generalise.py, so it is no longer an addition)
-    basecolor_loss: str = "l1"  # "l1" (the paper; our default since scale-invariant did not pay on the development set of
-    # benchmarks/generalise.py), "scale-invariant" (only for variants with the PBR loss, which then sets the brightness;
+    photo_weight: float = 1.0  # L_3DGS, as the paper (its released code adds the photometric term twice; 2 did not
+    # pay in the benchmarks, docs/history.md, so it is no longer an addition)
+    basecolor_loss: str = "l1"  # "l1" (the paper; our default since scale-invariant did not pay in the benchmarks,
+    # docs/history.md), "scale-invariant" (only for variants with the PBR loss, which then sets the brightness;
     # supervised compares by plain L1 then) or "huber" (quadratic below `basecolor_huber_delta`, so views that differ by
     # a little are averaged, as proj-average does; linear above, so a wrong view or batch is outvoted, as by L1's median)
     basecolor_huber_delta: float = 0.05  # linear base colour; the residual where "huber" turns from quadratic to linear
@@ -196,11 +195,6 @@ def spread_loss(weights: Tensor, seen: Tensor) -> Tensor:  # [K, V], [K, V] bool
     return (n_seen.log() - entropy).mean()
 
 
-def photometric_loss(rendered: Tensor, photo: Tensor, l1_weight: float) -> Tensor:  # sRGB [H, W, 3] each
-    l1 = (rendered - photo).abs().mean()
-    return l1_weight * l1 + (1.0 - l1_weight) * ssim_loss(rendered, photo)
-
-
 def light_prior(envmap: EnvironmentMap) -> Tensor:  # -> []
     """Total variation of the map's log radiance: small for a light made of smooth regions and sharp
     sources, large for per-pixel noise (which the photos do not constrain)."""
@@ -245,7 +239,7 @@ def view_losses(training: TrainingViews, index: int, materials: Tensor, normals:
     if light is not None:
         rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
         photo = linear_to_srgb(view.image * mask[..., None])
-        terms["photo"] = photometric_loss(rendered, photo, config.photo_l1_weight)
+        terms["photo"] = photometric_loss(rendered, photo, ssim_weight=1.0 - config.photo_l1_weight)  # sRGB [H, W, 3]
         if config.light_tv_weight > 0:
             terms["light_tv"] = light_prior(envmap)
     return terms

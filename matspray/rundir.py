@@ -7,56 +7,29 @@ why. Every file is written atomically, so an interrupted run never leaves a half
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
 import shutil
+import threading
 import time
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
 import yaml
 
-from matspray.files import atomic_target
+# callers import these from here too
+from matspray.files import read_json, to_plain, write_json, write_text_atomic  # noqa: F401
 from matspray.errors import MatsprayError, RunError, file_error
 from matspray.variants import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
 
 
-def to_plain(value):
-    """Dataclasses, paths and tuples as plain JSON/YAML values."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: to_plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, dict):
-        return {str(k): to_plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [to_plain(v) for v in value]
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
 def fingerprint(*parts) -> str:
     text = json.dumps([to_plain(p) for p in parts], sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = atomic_target(path)
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
-def write_json(path: Path, data) -> None:
-    write_text_atomic(path, json.dumps(to_plain(data), indent=2, sort_keys=False) + "\n")
-
-
-def read_json(path: Path) -> dict:
-    return json.loads(Path(path).read_text())
 
 
 def read_record(path: Path, hint: str):
@@ -136,11 +109,8 @@ def hold_lock(lock_file: Path, wait: bool = True) -> HeldLock | None:
     """Takes the exclusive lock on `lock_file` (made if missing) and writes this process's id into it. `wait`: block
     until the holder lets go; else None at once when another thread or process holds it. Where files cannot be locked
     (no fcntl, or a file system without flock) it warns and holds nothing."""
-    import threading
-    import warnings
-
     try:
-        import fcntl
+        import fcntl  # POSIX only: imported where it is tried
     except ImportError:  # not POSIX
         fcntl = None
 
@@ -207,7 +177,7 @@ class RunDir:
         """Make sure this folder belongs to the dataset described by `dataset_id` (or is new)."""
         record = self.path("dataset.json")
         if record.exists() and not overwrite:
-            hint = "delete it, or allow overwriting the run folder (--overwrite) to claim it for this dataset"
+            hint = "delete it, or allow overwriting the run folder to claim it for this dataset"
             previous = read_record(record, hint)
             if not isinstance(previous, dict):
                 raise file_error(record, f"holds a {type(previous).__name__}, not the dataset record `matspray run` writes", hint)

@@ -52,7 +52,7 @@ def run_config(*argv):
     return build_config_from_args(parser.parse_args(["--data", "d", "--out", "o", *argv]))
 
 
-def test_run_refines_the_base_color_scale_invariantly_unless_told_l1():
+def test_run_refines_the_base_color_by_l1_unless_told_scale_invariant():
     assert run_config().refine.basecolor_loss == "l1"
     assert run_config("--basecolor-loss", "scale-invariant").refine.basecolor_loss == "scale-invariant"
     from matspray.errors import SettingError

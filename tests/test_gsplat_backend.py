@@ -121,7 +121,7 @@ def test_auto_on_cuda_without_gsplat_says_how_to_install(monkeypatch):
 
 def test_gsplat_without_cuda_says_so(monkeypatch):
     monkeypatch.setattr(backend_module, "gsplat_import_error", lambda: None)
-    with pytest.raises(SettingError, match="backend: gsplat needs a CUDA device.*use --backend torch"):
+    with pytest.raises(SettingError, match="backend: gsplat needs a CUDA device.*use backend torch"):
         resolve_backend("gsplat", "cpu")
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     with pytest.raises(SettingError, match="needs a CUDA device"):

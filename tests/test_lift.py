@@ -1,7 +1,10 @@
 import pytest
 import torch
 
-from matspray.lift import weighted_median
+from matspray.data import Camera
+from matspray.errors import ConfigError
+from matspray.gaussians import Gaussians
+from matspray.lift import LiftConfig, lift, supported_views, weighted_median
 
 
 def test_weighted_median_matches_brute_force():
@@ -27,8 +30,6 @@ def test_weighted_median_single_and_tied_values():
 def hand_made_scene():
     """Camera on -z looking at +z. G0: opaque disk on the left; G1: small, right behind G0 (hidden);
     G2: opaque disk on the right; G3: a disk far outside the object mask (a floater)."""
-    from matspray.data import Camera
-    from matspray.gaussians import Gaussians
 
     camera = Camera.look_at([0.0, 0.0, -5.0], [0.0, 0.0, 0.0], [0.0, -1.0, 0.0], 0.8, 32, 32)
     means = torch.tensor([[-0.8, 0.0, 0.0], [-0.8, 0.0, 0.6], [0.8, 0.0, 0.0], [0.0, 1.45, 0.0]])
@@ -40,9 +41,6 @@ def hand_made_scene():
 
 
 def test_lifting_hand_made_scene_median_and_occlusion():
-    pytest.importorskip("matspray.render.contributions")
-    from matspray.lift import LiftConfig, lift
-
     gaussians, camera = hand_made_scene()
     pixels, _ = camera.project(gaussians.means)
     cols = torch.arange(32) + 0.5
@@ -62,8 +60,6 @@ def test_lifting_hand_made_scene_median_and_occlusion():
 def test_a_view_that_only_glimpses_a_gaussian_does_not_count_as_seeing_it():
     """Camera a sees G0 (left disk) whole; camera b is turned so that only the edge of G0's footprint
     stays in the image: b's hits are a small share of a's, so b does not count (its median stays stored)."""
-    from matspray.data import Camera
-    from matspray.lift import LiftConfig, lift, supported_views
 
     gaussians, camera = hand_made_scene()
     glimpse = Camera.look_at([1.75, 0.0, -5.0], [1.75, 0.0, 0.0], [0.0, -1.0, 0.0], 0.8, 32, 32)
@@ -81,8 +77,6 @@ def test_a_view_that_only_glimpses_a_gaussian_does_not_count_as_seeing_it():
 
 
 def test_min_support_outside_zero_to_one_is_refused():
-    from matspray.errors import ConfigError
-    from matspray.lift import LiftConfig
 
     with pytest.raises(ConfigError, match="min_support: must be in"):
         LiftConfig(min_support=1.5)
@@ -92,9 +86,6 @@ def test_the_median_reads_a_gaussians_core_and_a_tiny_gaussian_still_gets_a_valu
     """G0, a disk covering ~2 px per standard deviation, sits on a 0.2 spot (radius 2.5 px) inside a 0.8 surround:
     its 1-sigma core reads 0.2, while all the pixels it reaches (out to ~3.3 sigma) are mostly 0.8. G1 is too
     small for any ray (one per pixel) to pass through its core: it takes the median of its few hits instead."""
-    from matspray.data import Camera
-    from matspray.gaussians import Gaussians
-    from matspray.lift import LiftConfig, lift
 
     camera = Camera.look_at([0.0, 0.0, -5.0], [0.0, 0.0, 0.0], [0.0, -1.0, 0.0], 0.8, 32, 32)
     focal = float(camera.K[0, 0])
@@ -126,8 +117,6 @@ def test_the_median_reads_a_gaussians_core_and_a_tiny_gaussian_still_gets_a_valu
 
 
 def test_a_footprint_of_zero_sigmas_is_refused():
-    from matspray.errors import ConfigError
-    from matspray.lift import LiftConfig
 
     with pytest.raises(ConfigError, match="footprint_sigmas: must be > 0"):
         LiftConfig(footprint_sigmas=0.0)

@@ -1,13 +1,16 @@
 """The turntable orbit of `matspray relight --views orbit` circles the object about the capture's own up axis,
-whatever frame structure from motion put the poses in (issue 39)."""
+whatever frame structure from motion put the poses in."""
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
 from matspray.data.camera import Camera
+from matspray.geometry.analytic import spiral_cameras
 from matspray.relight import cameras_up, orbit_cameras
+from matspray.synth.cameras import FOV_X, sphere_cameras
 
 
 def ring(up, target, count=6, distance=3.0, elevation=0.4):
@@ -41,3 +44,20 @@ def test_orbit_keeps_distance_and_elevation_about_the_cameras_up(up):
     # consecutive frames are one step of the circle apart
     step = orbit[1].center.double() - orbit[0].center.double()
     assert float(step.norm()) == pytest.approx(2 * 3.0 * math.cos(0.4) * math.sin(math.pi / 12), rel=1e-6)
+
+
+def test_sphere_and_spiral_cameras_are_the_formulas_they_were_before_the_rename():
+    """synth's cameras at given directions and the analytic object's Fibonacci spiral, against the formulas written
+    out (they were both called orbit_cameras; renaming must not move a camera, since datasets are made with them)."""
+    directions = np.array([[0.6, 0.0, 0.8], [0.0, -0.96, 0.28], [-0.36, 0.48, 0.8]])
+    for camera, d in zip(sphere_cameras(directions, 2.5, 16), directions):
+        expected = Camera.look_at((2.5 * d).tolist(), [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], FOV_X, 16, 16)
+        assert torch.equal(camera.viewmat, expected.viewmat) and torch.equal(camera.K, expected.K)
+    golden = math.pi * (3 - math.sqrt(5))
+    cameras = spiral_cameras(5, 12, phase=1.0)
+    for i, camera in enumerate(cameras):
+        elevation, azimuth = math.radians(-30 + 105 * (i + 0.5) / 5), i * golden + 1.0
+        eye = [3.2 * math.cos(elevation) * math.cos(azimuth), 3.2 * math.cos(elevation) * math.sin(azimuth),
+               3.2 * math.sin(elevation)]
+        expected = Camera.look_at(eye, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(40.0), 12, 12)
+        assert torch.equal(camera.viewmat, expected.viewmat) and torch.equal(camera.K, expected.K)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from matspray.data import Camera, View, read_raw, srgb_to_linear, write_raw
-from matspray.errors import ConfigError, DataError
+from matspray.errors import ConfigError, DataError, SettingError
 from matspray.predictors import (
     MaterialMaps,
     Predictor,
@@ -198,7 +198,7 @@ def test_make_predictor_rejects_bad_specs(tmp_path):
         make_predictor("ground-truth:x")
     with pytest.raises(ConfigError, match="'simulated:x': unknown error model"):
         make_predictor("simulated:x")
-    with pytest.raises(ConfigError, match="--basecolor-encoding, --weights do\\(es\\) not apply to the simulated predictor"):
+    with pytest.raises(SettingError, match=r"basecolor_encoding: does not apply to the simulated predictor \(nor do weights\)"):
         make_predictor("simulated", PredictorOptions(weights="w", basecolor_encoding="srgb"))
     with pytest.raises(ConfigError, match="batch_size: must be >= 1"):
         make_predictor("simulated", PredictorOptions(batch_size=0))

@@ -176,5 +176,5 @@ def test_settings_errors(weights):
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="has no CUDA; use cpu"):
             make_predictor("marigold", PredictorOptions(weights=str(weights), device="cuda"))
-    with pytest.raises(ConfigError, match="--severity do\\(es\\) not apply to the marigold predictor"):
+    with pytest.raises(ConfigError, match="severity: does not apply to the marigold predictor"):
         make_predictor("marigold", PredictorOptions(weights=str(weights), severity=1.0))

@@ -331,7 +331,7 @@ def test_cli_rejects_options_that_do_not_apply(sphere, tmp_path, capsys):
     root, _ = sphere
     code = main(["predict", "--data", str(root), "--out", str(tmp_path / "run"), "--predictor", "ground-truth", "--severity", "2"])
     assert code == 2
-    assert "--severity do(es) not apply to the ground-truth predictor" in capsys.readouterr().err
+    assert "--severity: does not apply to the ground-truth predictor" in capsys.readouterr().err
     assert not (tmp_path / "run" / "materials2d").exists()
     assert main(["predict", "--data", str(root), "--out", str(tmp_path / "run"), "--predictor", "simulated", "--severity", "-1"]) == 2
     assert "--severity: must be a number >= 0" in capsys.readouterr().err

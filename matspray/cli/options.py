@@ -30,7 +30,8 @@ SETTING_FLAGS = {
     "--min-support": ("lift.min_support", float, "a view counts for a Gaussian when it gets at least this share of the hits of "
                       "its best view (matspray: 0.5; paper: 0, every view with a hit)"),
     "--transmittance-threshold": ("lift.visibility_threshold", float, "lifting writes only into hits whose transmittance in "
-                                  "front is at least this (default 0, every hit, as the paper; 0.5 relit 0.3 dB worse on the development set)"),
+                                  "front is at least this (default 0, every hit, as the paper; 0.5 relit worse in the "
+                                  "benchmarks: docs/history.md)"),
     "--footprint": ("lift.footprint_sigmas", lambda v: {"core": 1.0, "all": None}[v], "which hits feed a Gaussian's per-view "
                     "median: core (rays within 1 sigma; matspray) or all (paper)"),
     "--merger-seen-input": ("refine.merger.seen_input", on_off, "on: the merger also reads which views saw each Gaussian; "
@@ -38,7 +39,8 @@ SETTING_FLAGS = {
     "--unseen": ("refine.merger.unseen", str, "views that never hit a Gaussian: mask (weight 0; matspray) or mean (filled with "
                  "the mean of the views that did; paper)"),
     "--basecolor-loss": ("refine.basecolor_loss", str, "l1 (default, as the paper), scale-invariant (forgives each view's "
-                         "exposure error; it did not pay on the development set) or huber (averages views that differ by less "
+                         "exposure error; it did not pay in the benchmarks: docs/history.md) or huber (averages views "
+                         "that differ by less "
                          "than --basecolor-huber-delta, outvotes those that differ by more)"),
     "--basecolor-huber-delta": ("refine.basecolor_huber_delta", float, "with --basecolor-loss huber: the base-colour residual "
                                 "(linear) where the loss turns from quadratic to linear (default 0.05)"),
@@ -49,7 +51,7 @@ SETTING_FLAGS = {
                           "(total variation of its log radiance; both methods; 0 turns it off)"),
     "--object-bounds": ("object_bounds", lambda v: tuple(float(x) for x in v.replace(",", " ").split()),
                         "captures without masks: the object region, 'x,y,z,r' (a sphere) or 'x0,y0,z0,x1,y1,z1' (a box) in world "
-                        "units (default: chosen automatically after geometry; see README, captures without masks)"),
+                        "units (default: chosen automatically after geometry; see docs/data.md, captures without masks)"),
     "--light-probe": ("light_probe", lambda v: os.path.abspath(os.path.expanduser(v)), "a known training light: an HDR lat-long map (.exr/.hdr) of the light the photos were "
                       "taken in, in the capture's world frame (a light probe); the PBR variants shade with it instead of "
                       "estimating the light (default: estimate it)"),
@@ -69,7 +71,7 @@ FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "
                         "train_views": "--views", "test_views": "--test-views", "spp": "--spp", "env_height": "--env-height",
                         "asset": "--asset", "assets": "--assets", "placement": "--placement",
                         "workers": "--workers", "address": "--address", "cpus_per_object": "--cpus-per-object",
-                        "gpus_per_object": "--gpus-per-object",
+                        "gpus_per_object": "--gpus-per-object", "weights": "--weights",
                         "export.faces": "--faces", "export.texture_size": "--texture-size", "export.frame": "--frame", "export.normals": "--normals"})
 
 
@@ -108,7 +110,8 @@ def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "
     group.add_argument("--without", nargs="+", choices=ADDITION_CHOICES, default=(), metavar="ADDITION",
                        help=f"switch single additions of matspray off: {', '.join(ADDITION_CHOICES)}")
     group.add_argument("--shadows", choices=("on", "off"), help="off (default, and the paper): unshadowed split-sum shading; on: bake "
-                       "each Gaussian's visibility and shadow the PBR shading with it (relit worse on the development set)")
+                       "each Gaussian's visibility and shadow the PBR shading with it (relit worse in the benchmarks: "
+                       "docs/history.md)")
     for flag, (_, _, text) in SETTING_FLAGS.items():
         group.add_argument(flag, metavar=flag.lstrip("-").split("-")[-1].upper(), help=text)
 

@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import torch
 
 from matspray.data.camera import Camera, rigid_problem
-from matspray.data.images import atomic_target, read_image, write_image
+from matspray.data.images import read_image, write_image
 from matspray.data.scene import View
 from matspray.errors import file_error
+from matspray.files import write_json
 
 IMAGE_SUFFIXES = ("", ".png", ".jpg", ".jpeg", ".exr")
 
@@ -232,13 +232,3 @@ def read_scene_json(folder: Path) -> dict | None:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return {}
     return data if isinstance(data, dict) else {}
-
-
-def write_json(path: Path, data) -> None:
-    """Write JSON atomically (a reader never sees half a file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = atomic_target(path)
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
-

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from matspray.data.camera import Camera
 from matspray.data.images import read_image, srgb_to_linear
 from matspray.data.scene import View
 from matspray.data.undistort import Lens, Undistorter

@@ -11,8 +11,11 @@ import re
 from pathlib import Path
 
 import numpy as np
+import OpenEXR
+import png  # pypng: reads 16-bit colour PNGs, which Pillow reduces to 8 bit
 import torch
 import torch.nn.functional as F
+from PIL import Image, ImageOps
 from torch import Tensor
 
 from matspray.errors import file_error
@@ -121,8 +124,6 @@ def image_size(path, orient: bool = False) -> tuple[int, int]:
     if not path.exists():
         raise file_error(path, "file does not exist")
     if path.suffix.lower() in LDR_SUFFIXES:
-        from PIL import Image
-
         try:
             with Image.open(path) as img:
                 width, height = img.size
@@ -136,8 +137,6 @@ def image_size(path, orient: bool = False) -> tuple[int, int]:
 
 
 def _read_pillow(path: Path, orient: bool = False) -> np.ndarray:
-    from PIL import Image, ImageOps
-
     with Image.open(path) as img:
         if orient:
             img = ImageOps.exif_transpose(img)
@@ -151,8 +150,6 @@ def _read_pillow(path: Path, orient: bool = False) -> np.ndarray:
 
 
 def _read_png(path: Path, orient: bool = False) -> np.ndarray:
-    import png  # pypng: reads 16-bit colour PNGs, which Pillow reduces to 8 bit
-
     try:
         return _read_png_unchecked(path, png, orient)
     except png.Error as exc:  # FormatError, ChunkError, ...
@@ -174,8 +171,6 @@ def _read_png_unchecked(path: Path, png, orient: bool) -> np.ndarray:
 
 
 def _read_exr(path: Path) -> np.ndarray:
-    import OpenEXR
-
     with OpenEXR.File(str(path), separate_channels=True) as exr:
         channels = {name: np.asarray(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
     if not channels:
@@ -254,8 +249,6 @@ def write_raw(path, values: Tensor, bits: int = 8) -> None:
     if suffix == ".png":
         _write_png(tmp, array, bits)
     elif suffix in (".jpg", ".jpeg"):
-        from PIL import Image
-
         Image.fromarray(np.round(np.clip(array, 0, 1) * 255).astype(np.uint8)).save(tmp, quality=95)
     elif suffix == ".exr":
         _write_exr(tmp, array)
@@ -270,12 +263,8 @@ def _write_png(path: Path, array: np.ndarray, bits: int) -> None:
     if bits not in (8, 16):
         raise ValueError(f"PNG bit depth must be 8 or 16, got {bits}")
     if bits == 8:
-        from PIL import Image
-
         Image.fromarray(np.round(np.clip(array, 0, 1) * 255).astype(np.uint8)).save(path)
         return
-    import png
-
     ints = np.round(np.clip(array, 0, 1) * 65535).astype(np.uint16)
     height, width = ints.shape[:2]
     planes = 1 if ints.ndim == 2 else ints.shape[2]
@@ -286,8 +275,6 @@ def _write_png(path: Path, array: np.ndarray, bits: int) -> None:
 
 
 def _write_exr(path: Path, array: np.ndarray) -> None:
-    import OpenEXR
-
     array = np.ascontiguousarray(array, dtype=np.float32)
     if array.ndim == 2:
         channels = {"Y": array}

@@ -9,7 +9,7 @@ import torch
 
 from matspray.data import blender, colmap, nerfstudio, tensoir
 from matspray.data.scene import Scene, View, bounds_from_cameras, bounds_from_points, bounds_from_visual_hull
-from matspray.errors import ConfigError, DataError, SettingError, file_error
+from matspray.errors import DataError, SettingError, file_error
 
 FORMATS = ("blender", "nerfstudio", "tensoir", "colmap")
 

@@ -15,12 +15,13 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from matspray.data.blender import (CAMERA_KEYS, camera_number, frame_intrinsics, frame_label, intrinsics_record, pose_record,
-                                   read_json, read_pose, resolve_image, shown, view_name, write_json)
+                                   read_json, read_pose, resolve_image, shown, view_name)
 from matspray.data.camera import Camera
 from matspray.data.images import image_size, read_image, read_raw, split_alpha, write_image, write_raw
 from matspray.data.scene import View
 from matspray.data.undistort import Lens, Undistorter
 from matspray.errors import file_error
+from matspray.files import write_json
 
 TRANSFORMS = "transforms.json"
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "OPENCV_FISHEYE")

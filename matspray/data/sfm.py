@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from PIL import Image, ImageOps
 from tqdm import tqdm
 
 from matspray.data.images import DECODER_ERRORS, atomic_target, read_raw, resize, split_alpha, write_raw
@@ -120,8 +121,6 @@ def find_photo_mask(mask_dir: Path, photo: Path) -> Path:
 
 def prepare_photo(photo: Path, out_dir: Path, max_size: int, mask_dir: Path | None, mask_out: Path | None) -> tuple[int, int]:
     """Copy one photo upright and at most `max_size` on its longest side (and its mask); returns (width, height)."""
-    from PIL import Image, ImageOps
-
     try:
         with Image.open(photo) as img:
             img.load()
@@ -182,7 +181,7 @@ def run_sfm(images, out, config: SfmConfig = SfmConfig(), masks=None, progress: 
     config.validate()
     out = Path(out)
     if out.exists() and any(out.iterdir()):
-        raise file_error(out, "already exists and is not empty", "choose another --out or remove it")
+        raise file_error(out, "already exists and is not empty", "choose another output folder or remove it")
     photos = list_photos(Path(images))
     mask_dir = None if masks is None else Path(masks)
     if mask_dir is not None and not mask_dir.is_dir():

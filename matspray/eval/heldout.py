@@ -34,7 +34,7 @@ from matspray.objectmasks import read_object_masks
 from matspray.relight import render_relit
 from matspray.render.backend import rendering_with
 from matspray.render.envmap import EnvironmentMap
-from matspray.rundir import RunDir, write_json
+from matspray.rundir import RunDir, write_json, write_text_atomic
 from matspray.variants import asset_stage
 
 RADIANCE = "radiance"  # the key of the geometry's own (view-dependent) colours
@@ -112,7 +112,7 @@ def score_photos(rendered: list[PhotoRenders], lpips) -> dict:
     for item in rendered:
         if float(item.mask.sum()) < 1.0:
             raise DataError(f"view {item.view.name}: its object mask is empty, so the object cannot be scored there; "
-                            "check the object region (--object-bounds) in the run's report")
+                            "check the object region (setting object_bounds) in the run's report")
         record = {"view": item.view.name, "mask_coverage": float(item.mask.mean())}
         for key, rgb in item.renders.items():
             record[key] = evaluate_images(rgb, item.view.image, item.mask, lpips)
@@ -174,6 +174,4 @@ def heldout_table(metrics: dict) -> str:
 
 
 def write_heldout_table(path: Path, metrics: dict) -> None:
-    from matspray.rundir import write_text_atomic
-
     write_text_atomic(Path(path), heldout_table(metrics))

@@ -18,6 +18,8 @@ import numpy as np
 import trimesh
 import xatlas
 
+from matspray.export.bake import rasterize_uv
+
 SMOOTHING_ITERATIONS = 20  # Taubin passes on the copy the charts are grown on
 ROUNDNESS = 6.0  # xatlas' roundness weight (default 0.01): compact charts pack tighter
 
@@ -63,6 +65,4 @@ def uv_areas(uvs: np.ndarray, faces: np.ndarray, size: int) -> np.ndarray:  # [V
 
 def atlas_fill(uvs: np.ndarray, faces: np.ndarray, size: int) -> float:
     """Share of the texture's texels whose centre lies on a triangle (what the bake writes, padding excluded)."""
-    from matspray.export.bake import rasterize_uv
-
     return len(rasterize_uv(uvs, faces, size).index) / size**2

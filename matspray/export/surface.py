@@ -147,7 +147,7 @@ def fuse_tsdf(
         # an empty pixel: free space all along the ray, but only as far from the surface as the ray passes
         # from the silhouette (pixels -> world at the voxel's depth). Saturating to +1 there instead let one
         # grazing view outvote the views that see the voxel just inside the surface, eroding the silhouette
-        # by about a pixel all round (the mesh covered 2-5 % fewer pixels than the truth and the Gaussians)
+        # by about a pixel all round (the mesh covered fewer pixels than the truth: docs/defaults.md)
         focal = 0.5 * float(camera.K[0, 0] + camera.K[1, 1])
         free = (off * z[idx] / focal / truncation).clamp(min=1e-3, max=1.0)
         sdf = torch.where(covered, sdf, free)

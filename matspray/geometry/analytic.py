@@ -70,7 +70,8 @@ def render_analytic(camera: Camera, supersample: int = 2) -> tuple[Tensor, Tenso
     return colour.reshape(h, w, 3), alpha.reshape(h, w), normal.reshape(h, w, 3)
 
 
-def orbit_cameras(count: int, resolution: int, distance: float = 3.2, fov_deg: float = 40.0, phase: float = 0.0) -> list[Camera]:
+def spiral_cameras(count: int, resolution: int, distance: float = 3.2, fov_deg: float = 40.0,
+                   phase: float = 0.0) -> list[Camera]:
     """Cameras on a Fibonacci sphere (elevations -30..75 degrees) looking at the origin, +z up."""
     cameras = []
     golden = math.pi * (3 - math.sqrt(5))
@@ -84,7 +85,7 @@ def orbit_cameras(count: int, resolution: int, distance: float = 3.2, fov_deg: f
 
 def analytic_views(count: int, resolution: int, prefix: str = "r", phase: float = 0.0) -> tuple[list[View], list[Tensor]]:
     views, normals = [], []
-    for i, camera in enumerate(orbit_cameras(count, resolution, phase=phase)):
+    for i, camera in enumerate(spiral_cameras(count, resolution, phase=phase)):
         colour, alpha, normal = render_analytic(camera)
         views.append(View(name=f"{prefix}_{i:03d}", image=colour, alpha=alpha, camera=camera))
         normals.append(normal)

@@ -72,14 +72,6 @@ class GeometryConfig:
     def to_dict(self) -> dict:
         return asdict(self)
 
-    @staticmethod
-    def from_dict(values: dict) -> "GeometryConfig":
-        known = {f.name for f in fields(GeometryConfig)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ConfigError(f"geometry config: unknown settings {', '.join(unknown)}")
-        return GeometryConfig(**values)
-
 
 PRESETS = {
     "test": GeometryConfig(

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,7 +12,7 @@ from torch import Tensor
 from matspray.eval import metrics
 
 from matspray.data.camera import Camera
-from matspray.data.images import atomic_target, linear_to_srgb, read_raw, resize, srgb_to_linear, write_image, write_raw
+from matspray.data.images import linear_to_srgb, read_raw, resize, srgb_to_linear, write_image, write_raw
 from matspray.data.scene import View
 from matspray.gaussians import Gaussians
 from matspray.geometry.normals import angular_error_degrees, normal_map_to_rgb, oriented_normals
@@ -87,6 +84,7 @@ def evaluate_views(gaussians: Gaussians, views: list[View], sh_degree: int | Non
     white = torch.ones(3, device=gaussians.means.device)
     per_view = {}
     for view in views:
+        view = view.to(white.device)  # the photo, its mask and the true normals are compared where the render is
         with torch.no_grad():
             render = render_view(gaussians, view.camera, sh_degree, white)
         target = target_srgb(view, white)
@@ -95,6 +93,7 @@ def evaluate_views(gaussians: Gaussians, views: list[View], sh_degree: int | Non
             entry["psnr_masked"] = psnr(render.rgb, target, view.alpha)
         normals = true_normals(view)
         if normals is not None:
+            normals = normals.to(white.device)
             on_object = (view.alpha > 0.5) if view.alpha is not None else (normals.norm(dim=-1) > 0.5)
             if bool(on_object.any()):
                 entry["normal_error_deg"] = float(angular_error_degrees(render.normals, normals)[on_object].mean())
@@ -108,11 +107,3 @@ def evaluate_views(gaussians: Gaussians, views: list[View], sh_degree: int | Non
         values = [v[key] for v in per_view.values() if key in v]
         summary[key] = sum(values) / len(values) if values else None
     return summary
-
-
-def write_json(path, data) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = atomic_target(path)
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    os.replace(tmp, path)

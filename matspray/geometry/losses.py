@@ -8,8 +8,10 @@ from torch import Tensor
 
 from matspray.eval.metrics import ssim_loss
 
+
 def photometric_loss(pred: Tensor, target: Tensor, ssim_weight: float) -> Tensor:  # [H, W, 3] x2 -> scalar
-    """(1 - w) L1 + w (1 - SSIM), the 3DGS loss (w = 0.2)."""
+    """(1 - w) L1 + w (1 - SSIM), the 3DGS loss (w = 0.2): geometry's `ssim_weight`; refinement passes
+    1 - `photo_l1_weight`."""
     return (1 - ssim_weight) * (pred - target).abs().mean() + ssim_weight * ssim_loss(pred, target)
 
 

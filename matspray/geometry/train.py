@@ -19,11 +19,12 @@ from tqdm import tqdm
 
 from matspray.data.scene import Scene, View
 from matspray.errors import DataError, NumericalError
+from matspray.files import write_json
 from matspray.gaussians import Gaussians
 from matspray.geometry.checkpoint import load_checkpoint, save_checkpoint
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl, load_stats_state, stats_state
-from matspray.geometry.evaluate import evaluate_views, render_view, target_srgb, write_json
+from matspray.geometry.evaluate import evaluate_views, render_view, target_srgb
 from matspray.geometry.init import initial_gaussians
 from matspray.geometry.losses import flatten_loss, normal_consistency_loss, photometric_loss
 from matspray.geometry.normals import consensus_normals, depth_normals
@@ -166,7 +167,7 @@ class RunningStats:
             raise NumericalError(
                 f"geometry training diverged at iteration {int(first_bad)} (loss terms now: "
                 + ", ".join(f"{k}={float(v):.3g}" for k, v in losses.items())
-                + "); try lower learning rates or another --seed"
+                + "); try lower learning rates or another seed"
             )
 
 

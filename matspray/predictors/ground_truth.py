@@ -52,7 +52,7 @@ def read_ground_truth(view: View) -> MaterialMaps:
             raise file_error(
                 ground_truth_path(view, what),
                 f"is {values.shape[1]}x{values.shape[0]} but the view is {view.width}x{view.height}",
-                "load the dataset without --downscale for benchmarks",
+                "load the dataset without downscaling for benchmarks",
             )
     return MaterialMaps(srgb_to_linear(stored), roughness, metallic)
 

@@ -143,7 +143,7 @@ def read_materials2d(run_dir, views: list[View]) -> dict[str, MaterialMaps]:
         raise file_error(
             folder,
             f"no maps for {len(missing)} of {len(views)} views: {shown}",
-            "rerun `matspray predict` with the split these views come from (--split train|test|all)",
+            "rerun `matspray predict` with the split these views come from (train, test or all)",
         )
     out = {}
     hint = stage_hint(map_path(folder, "any", "basecolor"))  # a damaged map of a finished predict stage: make the stage again
@@ -163,7 +163,7 @@ def read_materials2d(run_dir, views: list[View]) -> dict[str, MaterialMaps]:
                 raise file_error(
                     map_path(folder, view.name, channel),
                     f"is {values.shape[1]}x{values.shape[0]} but view '{view.name}' is {view.width}x{view.height}",
-                    "rerun `matspray predict` with the same dataset and --downscale as this stage",
+                    "rerun `matspray predict` with the same dataset and downscale as this stage",
                 )
         out[view.name] = MaterialMaps(srgb_to_linear(stored), scalars["roughness"], scalars["metallic"], scalars.get("confidence"))
     return out

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Callable
 
 from matspray.data.blender import read_scene_json
-from matspray.errors import ConfigError, DataError, SettingError
+from matspray.errors import DataError, SettingError
 from matspray.predictors.base import Predictor
 from matspray.predictors.error_models import DEFAULT_MODEL, error_model
 from matspray.predictors.files import FilesPredictor
@@ -97,8 +97,8 @@ def make_predictor(spec: str, options: PredictorOptions | None = None, notify: C
         raise SettingError("predictor", f"{kind} takes no ':' argument (got '{spec}')")
     unused = sorted(n for n in _given(options, {f.name for f in fields(options)}) if n not in USES[kind])
     if unused:
-        flags = ", ".join("--" + n.replace("_", "-") for n in unused)
-        raise ConfigError(f"{flags} do(es) not apply to the {kind} predictor")
+        others = f" (nor do {', '.join(unused[1:])})" if len(unused) > 1 else ""
+        raise SettingError(unused[0], f"does not apply to the {kind} predictor{others}")
     if kind == "files":
         return FilesPredictor(argument, options.basecolor_encoding, notify=notify)
     if kind == "marigold":

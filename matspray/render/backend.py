@@ -36,7 +36,7 @@ from matspray.errors import SettingError
 BACKENDS = ("auto", "torch", "numba", "gsplat")
 INSTALL_HINT = "pip install 'matspray[cuda]' (needs nvcc and ninja; the first use compiles CUDA code)"
 BUILD_HINT = ("gsplat compiles its CUDA code with nvcc and ninja: install the CUDA toolkit of torch's CUDA version "
-              "and `pip install ninja`, or use --backend torch")
+              "and `pip install ninja`, or use backend torch")
 
 Notify = Callable[[str], None]
 # per process (one CUDA extension per process, whichever GPU): why gsplat cannot render on CUDA (None: it can),
@@ -98,7 +98,7 @@ def gsplat_device_error(device, notify: Notify | None = None) -> str | None:
     process. (tests/gsplat_cpu.py replaces this function to run gsplat's Python code on the CPU.)"""
     device = torch.device(device)
     if device.type != "cuda" or not torch.cuda.is_available():
-        return f"gsplat needs a CUDA device and there is none here (device {device}); use --backend torch"
+        return f"gsplat needs a CUDA device and there is none here (device {device}); use backend torch"
     key = device.type
     if key not in _CHECKED:
         error = gsplat_import_error()
@@ -113,11 +113,11 @@ def gsplat_device_error(device, notify: Notify | None = None) -> str | None:
 def numba_device_error(device) -> str | None:
     """None when backend numba can render on `device`, else why not and what to use instead (one line)."""
     if torch.device(device).type != "cpu":
-        return f"numba renders on the CPU only (device {device}); use --backend torch or gsplat there, or --device cpu"
+        return f"numba renders on the CPU only (device {device}); use backend torch or gsplat there, or device cpu"
     try:
         importlib.import_module("numba")
     except Exception as exc:  # numba is a core dependency: only a broken install gets here
-        return f"numba does not import ({_one_line(exc)}); reinstall matspray (pip install matspray) or use --backend torch"
+        return f"numba does not import ({_one_line(exc)}); reinstall matspray (pip install matspray) or use backend torch"
     return None
 
 

@@ -25,7 +25,6 @@ cost O(rays x Gaussians) time and memory; use them on small scenes only.
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import torch

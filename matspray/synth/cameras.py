@@ -50,7 +50,7 @@ def random_directions(count: int, rng: np.random.Generator, min_elevation: float
     return band_point(rng.uniform(0.0, 2.0 * math.pi, count), rng.uniform(low, high, count))
 
 
-def orbit_cameras(directions: np.ndarray, distance: float, resolution: int, fov_x: float = FOV_X) -> list[Camera]:
+def sphere_cameras(directions: np.ndarray, distance: float, resolution: int, fov_x: float = FOV_X) -> list[Camera]:
     """Square cameras at `distance` along each direction [N, 3], looking at the origin, world +z up."""
     return [
         Camera.look_at((distance * d).tolist(), [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], fov_x, resolution, resolution)
@@ -63,6 +63,6 @@ def make_cameras(train: int, test: int, bounding_radius: float, resolution: int,
     """Train and test cameras (no lower than `min_elevation` degrees) and the distance they sit at."""
     distance = framing_distance(bounding_radius)
     phase = rng.uniform(0.0, 2.0 * math.pi)
-    train_cameras = orbit_cameras(fibonacci_directions(train, phase, min_elevation), distance, resolution)
-    test_cameras = orbit_cameras(random_directions(test, rng, min_elevation), distance, resolution)
+    train_cameras = sphere_cameras(fibonacci_directions(train, phase, min_elevation), distance, resolution)
+    test_cameras = sphere_cameras(random_directions(test, rng, min_elevation), distance, resolution)
     return train_cameras, test_cameras, distance

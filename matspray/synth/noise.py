@@ -67,16 +67,6 @@ def voronoi(points: np.ndarray, sites: np.ndarray, chunk: int = 1 << 16) -> tupl
     return nearest, gap
 
 
-def random_rotation(rng: np.random.Generator) -> np.ndarray:  # [3, 3] uniform over SO(3)
-    q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
 def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:  # [3], radians -> [3, 3] (Rodrigues)
     axis = np.asarray(axis, dtype=np.float64)
     axis = axis / np.linalg.norm(axis)
