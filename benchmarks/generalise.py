@@ -420,6 +420,10 @@ def run_protocol(args, log=print) -> dict:
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / f"results-{tag}.json", report)
     write_text_atomic(args.out / f"results-{tag}.md", "\n".join(lines) + "\n")
+    results_dir = getattr(args, "results_dir", None)
+    if results_dir is not None and args.start == 0:  # a whole pass only: the docs' tables are made from it
+        results_dir.mkdir(parents=True, exist_ok=True)
+        write_json(results_dir / f"generalise-{args.set}-{tag}.json", report)
     for model, summary in summaries.items():
         tables = dict(summary["tables"], title=f"MatSpray generalisation: {args.set} set, {len(objects)} objects, error model {model}, preset {args.preset}")
         write_tables(args.out / f"tables-{tag}-{model}.md", tables)
@@ -485,6 +489,9 @@ def parse_args(argv=None):
                         "merger.KEY for the merger), e.g. --refine iterations=300 merger.hidden=64")
     parser.add_argument("--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)")
     parser.add_argument("--out", type=Path, help="folder (default runs/generalise-SET-PRESET); objects and runs in it are reused")
+    parser.add_argument("--results-dir", type=Path, help="where a whole pass's results are also written as generalise-SET-TAG.json, "
+                        "the files the docs' tables are made from (python -m benchmarks.tables); default docs/results when --out is "
+                        "left at its default, else nowhere")
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
     parser.add_argument("--geometry-only", action="store_true", help="make the objects and train their geometry only (shared by every "
                         "later configuration), e.g. in the background while settings are still being chosen")
@@ -493,6 +500,8 @@ def parse_args(argv=None):
     add_method_arguments(parser, presets=("test", "demo"))
     args = parser.parse_args(argv)
     check_part_arguments(parser, args)
+    if args.results_dir is None and args.out is None:
+        args.results_dir = Path("docs") / "results"
     args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
     return args
 

@@ -138,16 +138,27 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--captures", nargs="+", choices=("skull", "stitch"), default=["skull", "stitch"])
     parser.add_argument("--preset", default="demo", choices=("test", "demo", "paper"))
-    parser.add_argument("--out", type=Path, default=Path("runs/real-captures"))
+    parser.add_argument("--out", type=Path, help="folder of the captures' datasets and runs (default runs/real-captures)")
+    parser.add_argument("--results-dir", type=Path, help="where each capture's summary is copied as real-captures-NAME.json, "
+                        "the files the docs' tables are made from (python -m benchmarks.tables); default docs/results "
+                        "when --out is left at its default, else nowhere")
     parser.add_argument("--lights", nargs="+", default=["studio", "sunset", "forest"])
     parser.add_argument("--geometry-iterations", type=int)
     parser.add_argument("--refine-iterations", type=int)
     parser.add_argument("--backend", default="auto")
     args = parser.parse_args()
+    if args.results_dir is None and args.out is None:
+        args.results_dir = Path("docs/results")
+    args.out = args.out or Path("runs/real-captures")
     if not CAPTURES_DIR.is_dir():
         raise SystemExit(f"{CAPTURES_DIR}: the shared captures are not here")
     for name in args.captures:
-        print_record(run_capture(name, args, args.out))
+        record = run_capture(name, args, args.out)
+        print_record(record)
+        if args.results_dir is not None:
+            args.results_dir.mkdir(parents=True, exist_ok=True)
+            (args.results_dir / f"real-captures-{name}.json").write_text(json.dumps(record, indent=1))
+            print(f"results: {args.results_dir / f'real-captures-{name}.json'}")
 
 
 if __name__ == "__main__":

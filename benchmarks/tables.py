@@ -1,0 +1,302 @@
+"""The generated tables of README.md and docs/*.md, from the result files committed under docs/results/.
+
+    python -m benchmarks.tables            # rewrite every generated table in place
+    python -m benchmarks.tables --check    # change nothing; exit 1 naming each table that differs
+
+A generated table sits between two markers in a markdown file:
+
+    <!-- table: NAME -->
+    ...                  (written by this script; do not edit by hand)
+    <!-- /table -->
+
+NAME is one of TABLES below; each is made from files in docs/results/ (which the benchmarks write:
+`benchmarks.generalise` and `benchmarks.real_captures` copy their results there when run with their
+default --out), except `cli`, which is docs/cli.md's reference made from the argparse parsers of
+`matspray`. The per-model tables reuse benchmarks.generalise's own formatting (`model_table`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = Path("docs") / "results"  # relative to the repository root
+MARKER = re.compile(r"(<!-- table: ([\w.-]+) -->\n)(.*?)(<!-- /table -->)", re.S)
+MODELS = ("paper", "harsh", "outliers")
+
+
+def read(results: Path, name: str) -> dict:
+    path = results / name
+    if not path.exists():
+        raise SystemExit(f"benchmarks.tables: {path} is missing; the table needs it")
+    return json.loads(path.read_text())
+
+
+def fmt(value, digits: int = 2) -> str:
+    return "—" if value is None else f"{value:.{digits}f}"
+
+
+def short(name: str) -> str:
+    """eval-00-seed2000 -> eval-00"""
+    return "-".join(name.split("-")[:2])
+
+
+# ------------------------------------------------------------------------------------------ generalisation
+EVAL_NOPRIOR = "generalise-eval-noprior.json"
+DEV_NOPRIOR = "generalise-dev-noprior-s38.json"
+
+
+def noprior_rows(report: dict, models) -> list[str]:
+    """Rows `| [model |] object | relight full | relight no-prior | base | rough | metal |` (full / no-prior)."""
+    rows = []
+    for model in models:
+        result = report["models"][model]
+        lead = [model] if len(models) > 1 else []
+        for o in result["objects"]:
+            f = o["figures"]
+            cells = lead + [short(o["object"]["name"]), fmt(f["relight"].get("full")), fmt(f["relight"].get("no-prior"))]
+            cells += [f"{fmt(f['materials_3d'][c])} / {fmt(f['materials_no_prior'][c])}" for c in ("basecolor", "roughness", "metallic")]
+            rows.append("| " + " | ".join(cells) + " |")
+        s = result["summary"]
+        cells = lead + [f"mean of {len(result['objects'])}", fmt(s["relight"].get("full")), fmt(s["relight"].get("no-prior"))]
+        cells += [f"{fmt(s['materials_3d'][c]['psnr'])} / {fmt(s['materials_no_prior'][c]['psnr'])}" for c in ("basecolor", "roughness", "metallic")]
+        rows.append("| " + " | ".join(cells) + " |")
+    return rows
+
+
+def noprior_head(with_model: bool) -> list[str]:
+    head = ["model"] if with_model else []
+    head += ["object", "relight full", "relight no-prior", "base full / no-prior", "rough full / no-prior", "metal full / no-prior"]
+    align = (["---"] if with_model else []) + ["---"] + ["---:"] * 5
+    return ["| " + " | ".join(head) + " |", "| " + " | ".join(align) + " |"]
+
+
+def wins_lines(report: dict, models) -> list[str]:
+    lines = []
+    for model in models:
+        wins = {k: w for k, w in report["models"][model]["summary"]["wins"].items() if w["of"]}
+        lines.append(f"- `{model}`: " + ", ".join(f"{k} {w['wins']}/{w['of']}" for k, w in wins.items()))
+    return lines
+
+
+def table_noprior_dev(results: Path) -> str:
+    report = read(results, DEV_NOPRIOR)
+    return "\n".join(noprior_head(False) + noprior_rows(report, ["paper"]))
+
+
+def table_noprior_eval(results: Path) -> str:
+    report = read(results, EVAL_NOPRIOR)
+    models = [m for m in MODELS if m in report["models"]]
+    return "\n".join(noprior_head(True) + noprior_rows(report, models) + ["", "Wins (out of 6):"] + wins_lines(report, models))
+
+
+def table_generalise_eval(results: Path) -> str:
+    """The protocol's full per-model tables (benchmarks.generalise's format), relighting and materials of
+    `full` and `no-prior` and the 2D predictions, per object, with the seconds."""
+    from benchmarks.generalise import model_table
+
+    report = read(results, EVAL_NOPRIOR)
+    variants = report["settings"]["variants"]
+    lines = []
+    for model in [m for m in MODELS if m in report["models"]]:
+        result = report["models"][model]
+        table = model_table(model, result["objects"], result["summary"], variants)
+        lines += [f"Error model `{model}` (SIMULATED predictor), {len(result['objects'])} objects:", ""] + table[2:]
+    return "\n".join(lines).rstrip()
+
+
+def table_headline(results: Path) -> str:
+    """README: means over the evaluation set per error model, full method against no-prior and the 2D maps."""
+    report = read(results, EVAL_NOPRIOR)
+    lines = ["| error model | relight full | relight no-prior | base colour full / no-prior / 2D | roughness full / no-prior / 2D "
+             "| metallic full / no-prior / 2D | full > no-prior |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for model in [m for m in MODELS if m in report["models"]]:
+        s = report["models"][model]["summary"]
+        win = s["wins"]["full > no-prior"]
+        cells = [f"`{model}`", fmt(s["relight"]["full"]), fmt(s["relight"]["no-prior"])]
+        cells += [" / ".join(fmt(s[g][c]["psnr"]) for g in ("materials_3d", "materials_no_prior", "materials_2d"))
+                  for c in ("basecolor", "roughness", "metallic")]
+        lines.append("| " + " | ".join(cells + [f"{win['wins']} of {win['of']}"]) + " |")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ real captures
+CAPTURES = ("skull", "stitch")
+
+
+def captures(results: Path) -> dict:
+    return {name: read(results, f"real-captures-{name}.json") for name in CAPTURES}
+
+
+def metric_triple(entry: dict) -> str:
+    return f"{entry['psnr']:.2f} / {entry['ssim']:.3f} / {entry['lpips']:.3f}"
+
+
+def table_real_captures(results: Path) -> str:
+    c = captures(results)
+
+    def row(label, get):
+        return f"| {label} | " + " | ".join(get(c[name]) for name in CAPTURES) + " |"
+
+    def sfm(r, key, text):
+        return text(r["sfm"]) if r.get("sfm") else ("(poses given)" if key == "registered" else "")
+
+    def coverage(r):
+        shares = [share for _, share in r["mask_coverage"]]
+        return f"{100 * min(shares):.1f} % to {100 * max(shares):.1f} %"
+
+    def stages(r):
+        s = r["stage_seconds"]
+        refine = next(v for k, v in s.items() if k.startswith("asset"))
+        return " / ".join(f"{v:.0f}" for v in (s["geometry"], s["masks"], s["lift"], refine))
+
+    def box(r):
+        lo, hi = r["glb_box"]
+        return "(" + ", ".join(f"{v:.3f}" for v in lo) + ") .. (" + ", ".join(f"{v:.3f}" for v in hi) + ")"
+
+    return "\n".join([
+        "| | " + " | ".join(CAPTURES) + " |", "| --- | " + " | ".join("---:" for _ in CAPTURES) + " |",
+        row("photos registered by `matspray colmap`", lambda r: sfm(r, "registered", lambda s: f"{s['registered']} of {s['photos']}")),
+        row("mean reprojection error", lambda r: sfm(r, "error", lambda s: f"{s['reprojection_px']:.3f} px")),
+        row("held-out views", lambda r: str(len(r["mask_coverage"]))),
+        row("held-out PSNR / SSIM / LPIPS, geometry", lambda r: metric_triple(r["heldout"]["radiance"])),
+        row("held-out PSNR / SSIM / LPIPS, asset under its light", lambda r: metric_triple(r["heldout"]["no-prior"])),
+        row("training-view PSNR, geometry / asset", lambda r: f"{r['train']['radiance']['psnr']:.2f} / {r['train']['no-prior']['psnr']:.2f}"),
+        row("mask coverage of the held-out views", coverage),
+        row("Gaussians: geometry / asset (object region)", lambda r: f"{r['gaussians_geometry']:,} / {r['gaussians_asset']:,}".replace(",", " ")),
+        row("object region (automatic)", lambda r: r["region"].replace(" (chosen automatically)", "")),
+        row("exported glb box (dataset world)", box),
+        row("geometry / masks / lift / refine seconds", stages),
+    ])
+
+
+def table_captures_headline(results: Path) -> str:
+    """README: held-out photos of the two real captures, inside the object mask."""
+    c = captures(results)
+    lines = ["| capture | held-out views | PSNR / SSIM / LPIPS, asset under its estimated light | Gaussians in the asset |",
+             "| --- | ---: | ---: | ---: |"]
+    for name in CAPTURES:
+        r = c[name]
+        lines.append(f"| {name} | {len(r['mask_coverage'])} | {metric_triple(r['heldout']['no-prior'])} | {r['gaussians_asset']:,} |".replace(",", " "))
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ CLI reference
+def cell(text: str) -> str:
+    return " ".join(str(text).split()).replace("|", "\\|")
+
+
+def table_cli(results: Path) -> str:
+    """docs/cli.md's reference: per command its usage, what it does and every option, from the parsers."""
+    import argparse as ap
+
+    from matspray.cli import COMMANDS, build_parser
+
+    columns = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "100"  # usage lines wrapped alike on every terminal
+    try:
+        parser = build_parser()
+        sub = next(a for a in parser._actions if isinstance(a, ap._SubParsersAction))
+        lines = []
+        for name, summary in COMMANDS:
+            command = sub.choices[name]
+            formatter = command._get_formatter()
+            lines += [f"## `matspray {name}`", "", summary[0].upper() + summary[1:] + ".", "", "```",
+                      "\n".join(line.removeprefix("usage: ").removeprefix("       ") for line in command.format_usage().strip().splitlines()),
+                      "```", ""]
+            for group in command._action_groups:
+                actions = [a for a in group._group_actions if not isinstance(a, ap._HelpAction)]
+                if not actions:
+                    continue
+                lines += [f"{group.title[0].upper() + group.title[1:]}:", "", "| option | value | default | what it does |", "| --- | --- | --- | --- |"]
+                for a in actions:
+                    option = ", ".join(f"`{s}`" for s in a.option_strings) or f"`{a.metavar or a.dest}`"
+                    if a.nargs == 0:
+                        value = ""
+                    elif a.choices is not None:
+                        value = " | ".join(f"`{c}`" for c in a.choices) + (" ..." if a.nargs in ("+", "*") else "")
+                    else:
+                        value = (a.metavar or a.dest.upper()) + (" ..." if a.nargs in ("+", "*") else "")
+                        value = f"`{value}`" if a.option_strings else ""
+                    default = "" if a.default in (None, False, ap.SUPPRESS) or a.nargs == 0 or a.required else f"`{a.default}`"
+                    required = "required; " if a.required and a.option_strings else ""
+                    lines.append(f"| {option} | {cell(value)} | {cell(default)} | {required}{cell(formatter._expand_help(a) if a.help else '')} |")
+                lines.append("")
+        return "\n".join(lines).rstrip()
+    finally:
+        if columns is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = columns
+
+
+# name -> (function of the results folder, the result files it reads)
+TABLES = {
+    "headline": (table_headline, [EVAL_NOPRIOR]),
+    "captures-headline": (table_captures_headline, [f"real-captures-{n}.json" for n in CAPTURES]),
+    "no-prior-dev": (table_noprior_dev, [DEV_NOPRIOR]),
+    "no-prior-eval": (table_noprior_eval, [EVAL_NOPRIOR]),
+    "generalise-eval": (table_generalise_eval, [EVAL_NOPRIOR]),
+    "real-captures": (table_real_captures, [f"real-captures-{n}.json" for n in CAPTURES]),
+    "cli": (table_cli, []),
+}
+
+
+def documents(root: Path) -> list[Path]:
+    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+
+
+def render(text: str, results: Path, cache: dict, where: str) -> str:
+    def replace(match):
+        name = match.group(2)
+        if name not in TABLES:
+            raise SystemExit(f"benchmarks.tables: {where}: unknown table '{name}' (known: {', '.join(TABLES)})")
+        if name not in cache:
+            cache[name] = TABLES[name][0](results)
+        return match.group(1) + cache[name] + "\n" + match.group(4)
+
+    return MARKER.sub(replace, text)
+
+
+def differing(root: Path = ROOT, results: Path | None = None, write: bool = False) -> list[str]:
+    """'FILE: table NAME' for each generated table whose text differs from what docs/results gives
+    (rewritten in place when `write`)."""
+    results = results or root / RESULTS
+    cache, found = {}, []
+    for path in documents(root):
+        text = path.read_text()
+        new = render(text, results, cache, path.name)
+        if new == text:
+            continue
+        old = {m.group(2): m.group(3) for m in MARKER.finditer(text)}
+        fresh = {m.group(2): m.group(3) for m in MARKER.finditer(new)}
+        found += [f"{path.relative_to(root)}: table {name}" for name in fresh if old.get(name) != fresh[name]]
+        if write:
+            path.write_text(new)
+    return found
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.tables", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--check", action="store_true", help="change nothing; exit 1 naming each table that differs from docs/results")
+    parser.add_argument("--root", type=Path, default=ROOT, help="repository root (default: this checkout)")
+    args = parser.parse_args(argv)
+    found = differing(args.root, write=not args.check)
+    if args.check:
+        for item in found:
+            print(f"differs from docs/results: {item}")
+        if found:
+            print("run `python -m benchmarks.tables` to regenerate them")
+        return 1 if found else 0
+    print("\n".join(f"rewritten: {item}" for item in found) or "every generated table is up to date")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
