@@ -90,7 +90,6 @@ class _Layout:
         self.height, self.width = height, width = camera.height, camera.width
         self.view, self.consts = _camera_arrays(camera, settings, np_dtype)
         self.tiles_x, self.tiles_y = -(-width // 16), -(-height // 16)
-        self.tile_order = _tile_order(self.tiles_x * self.tiles_y)
         self.grid = _grid(max(height, width) + 1, np_dtype)
         self.blend_consts = np.array([0.5, settings.min_alpha, settings.max_alpha, 0.0], dtype=np_dtype)
         self.min_transmittance = float(settings.min_transmittance)
@@ -101,29 +100,19 @@ class _Layout:
         self.boxes, self.det, self.a_r2 = boxes, det, a_r2
         radii = max_eigen_radius(torch.from_numpy(cov2d))
         self.radii = radii.masked_fill_(torch.from_numpy(flags & 4) == 0, 0.0)
-        with threads():
+        with threads() as pool:
             order = projection().depth_order(depths, boxes)
-            self.offsets, self.ids, self.g_offsets, self.by_gaussian, self.record_offsets = kernels().bin_tiles(
-                boxes, order, self.tiles_x, self.tiles_y)
+            (self.offsets, self.ids, self.g_offsets, self.slot, self.record_offsets, self.tile_order,
+             self.worker_offsets) = kernels().bin_tiles(boxes, order, self.tiles_x, self.tiles_y, pool.count)
 
     def common(self, means2d, conics, opacities, values) -> tuple:
         return (means2d, conics, opacities, values, self.det, self.a_r2, self.boxes, self.offsets, self.ids,
-                self.tile_order, self.height, self.width, self.tiles_x, self.grid, self.blend_consts)
+                self.tile_order, self.worker_offsets, self.height, self.width, self.tiles_x, self.grid, self.blend_consts)
 
 
 RECORD_BUDGET = 1 << 25  # recorded hits at most (about 170 MB in float32)
-_TILE_ORDERS: dict = {}
 _GRIDS: dict = {}
 _CAMERAS: dict = {}
-
-
-def _tile_order(num_tiles: int) -> np.ndarray:
-    """numba splits a parallel loop into one contiguous block per thread: the tiles are visited in a fixed shuffled
-    order, so that each block mixes the object's busy middle with the empty border (numba's dynamic scheduling,
-    set_parallel_chunksize, measured 2-4x slower kernels here). Made once per tile count."""
-    if num_tiles not in _TILE_ORDERS:
-        _TILE_ORDERS[num_tiles] = np.random.default_rng(0).permutation(num_tiles).astype(np.int64)
-    return _TILE_ORDERS[num_tiles]
 
 
 def _grid(size: int, np_dtype) -> np.ndarray:  # grid[i] = i in the float type (see numba_kernels)
@@ -206,6 +195,7 @@ class _NumbaRaster(torch.autograd.Function):
         with threads():
             image, final_t, last, tile_hits = kernels().forward(*layout.common(*arrays), layout.min_transmittance, layout.record_offsets, *record)
         ctx.layout, ctx.absgrad_of, ctx.arrays, ctx.state, ctx.record = layout, absgrad_of, arrays, (final_t, last), record
+        ctx.tile_hits = tile_hits
         ctx.dtype = features.dtype
         return torch.from_numpy(image), int(tile_hits.sum())
 
@@ -213,15 +203,18 @@ class _NumbaRaster(torch.autograd.Function):
     def backward(ctx, grad_image, _grad_hits):
         layout = ctx.layout
         grad = _numpy(grad_image, layout.np_dtype)
-        with threads():
+        with threads() as pool:
             if len(ctx.record[0]):
                 means2d, conics, opacities, values = ctx.arrays
+                # the tiles split among the threads by the hits each blended (the forward's split is by box pixels)
+                tile_order, worker_offsets = kernels().partition(ctx.tile_hits, pool.count)
                 entry_grads = kernels().backward_recorded(
-                    means2d, conics, opacities, values, layout.offsets, layout.ids, layout.tile_order, layout.width, layout.height,
-                    layout.tiles_x, layout.grid, layout.blend_consts, ctx.state[0], layout.record_offsets, *ctx.record, grad)
+                    means2d, conics, opacities, values, layout.offsets, layout.ids, tile_order, worker_offsets, layout.width,
+                    layout.height, layout.tiles_x, layout.grid, layout.blend_consts, layout.slot, ctx.state[0], layout.record_offsets,
+                    *ctx.record, grad)
             else:
-                entry_grads = kernels().backward(*layout.common(*ctx.arrays), *ctx.state, grad)
-            per_gaussian = kernels().reduce_entries(entry_grads, layout.g_offsets, layout.by_gaussian)
+                entry_grads = kernels().backward(*layout.common(*ctx.arrays), layout.slot, *ctx.state, grad)
+            per_gaussian = kernels().reduce_entries(entry_grads, layout.g_offsets)
         sums = torch.from_numpy(per_gaussian).to(ctx.dtype)  # [N, 8 + C + 2]
         if ctx.absgrad_of is not None:
             target = ctx.absgrad_of
@@ -249,7 +242,8 @@ class threads:
         import numba
 
         self.before = numba.get_num_threads()
-        numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+        self.count = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+        numba.set_num_threads(self.count)
         return self
 
     def __exit__(self, *exc):
@@ -266,8 +260,8 @@ def ensure_compiled(np_dtype) -> None:
     if key in _READY:
         return
     module, projections = kernels(), projection()
-    dispatchers = (module.bin_tiles, module.forward, module.backward, module.backward_recorded, module.reduce_entries, projections.project,
-                   projections.project_backward, projections._radix_order, projections._merge_order)
+    dispatchers = (module.bin_tiles, module.partition, module.forward, module.backward, module.backward_recorded, module.reduce_entries,
+                   projections.project, projections.project_backward, projections._radix_order, projections._merge_order)
     misses = sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
     start = time.perf_counter()
     _READY.add(key)  # before the call below, which builds a _Layout and comes back here

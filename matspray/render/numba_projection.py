@@ -113,7 +113,7 @@ def _rotation(w, x, y, z, one, two, norm_eps):
             two * (x * z - w * y), two * (y * z + w * x), one - two * (x * x + y * y))
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, fastmath={"reassoc", "contract", "arcp", "nsz"})  # decides nothing: only last bits move
 def project_backward(means, scales, quats, view, consts, flags, grad_means2d, grad_conics, grad_depths):
     """d loss / d (means [N, 3], scales [N, 3], quats [N, 4]) from d loss / d (means2d, conics, depths), computed in
     float64; `flags` is the forward's (bit 0: in front of the near plane, bit 1: its determinant test too)."""
