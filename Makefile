@@ -37,6 +37,7 @@ demo: $(STAMP)
 	$(VENV)/bin/matspray demo --preset $(PRESET)
 
 test: $(STAMP)
+	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q
 
 clean:

@@ -20,8 +20,8 @@ from pathlib import Path
 
 from matspray.batch import BatchConfig, run_batch
 from matspray.batch.runner import local_cpus
-from matspray.demo import SHAPES, make_demo_object
 from matspray.config import build_config
+from matspray.demo import SHAPES, make_demo_object
 
 
 def timed_batch(datas, out: Path, workers: int, use_ray: bool, preset: str) -> tuple[float, dict]:
@@ -40,21 +40,35 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/bench-batch"))
     parser.add_argument("--in-process", action="store_true", help="also time the objects one after another without Ray")
     args = parser.parse_args()
-    datas = [make_demo_object(args.out / "data" / f"{i:02d}-{SHAPES[i % len(SHAPES)]}", args.preset, SHAPES[i % len(SHAPES)], i, progress=False)
-             for i in range(args.objects)]
-    print(f"{args.objects} {args.preset}-preset objects, full variant; {local_cpus()} CPUs; "
-          f"MATSPRAY_THREADS={os.environ.get('MATSPRAY_THREADS', 'unset')}")
+    datas = [
+        make_demo_object(
+            args.out / "data" / f"{i:02d}-{SHAPES[i % len(SHAPES)]}",
+            args.preset,
+            SHAPES[i % len(SHAPES)],
+            i,
+            progress=False,
+        )
+        for i in range(args.objects)
+    ]
+    print(
+        f"{args.objects} {args.preset}-preset objects, full variant; {local_cpus()} CPUs; "
+        f"MATSPRAY_THREADS={os.environ.get('MATSPRAY_THREADS', 'unset')}"
+    )
     runs = [("in-process, one after another", 1, False)] if args.in_process else []
     runs += [(f"Ray, {w} worker{'s' if w > 1 else ''}", w, True) for w in args.workers]
     first = None
     for label, workers, use_ray in runs:
         load = os.getloadavg()[0]
-        seconds, summary = timed_batch(datas, args.out / (f"workers-{workers}" if use_ray else "in-process"), workers, use_ray, args.preset)
+        seconds, summary = timed_batch(
+            datas, args.out / (f"workers-{workers}" if use_ray else "in-process"), workers, use_ray, args.preset
+        )
         first = first or seconds
         per_object = [r["seconds"] for r in summary["objects"] if r["seconds"] is not None]
-        print(f"{label:32s} wall {seconds:7.1f} s  speed-up {first / seconds:4.2f}x  "
-              f"object seconds {min(per_object):.1f}..{max(per_object):.1f}  failed {len(summary['failed'])}  "
-              f"load average before {load:.1f}")
+        print(
+            f"{label:32s} wall {seconds:7.1f} s  speed-up {first / seconds:4.2f}x  "
+            f"object seconds {min(per_object):.1f}..{max(per_object):.1f}  failed {len(summary['failed'])}  "
+            f"load average before {load:.1f}"
+        )
 
 
 if __name__ == "__main__":

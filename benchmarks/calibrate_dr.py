@@ -29,7 +29,8 @@ import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from benchmarks.generalise import CHANNELS, SHORT, object_set
+from benchmarks.generalise import object_set
+from benchmarks.generalise_tables import CHANNELS, SHORT
 from matspray.data import View, load_scene
 from matspray.demo import make_demo_object
 from matspray.errors import MatsprayError
@@ -37,12 +38,22 @@ from matspray.eval.average import average_tables
 from matspray.eval.run_eval import GroundTruth, evaluate_predictions, paper_tables, read_view_truth
 from matspray.lights import hdri_files
 from matspray.predictors import predict_views
-from matspray.predictors.error_models import (DR_COLOUR_SCALE, DR_METALLIC_VIEW_FRACTION, DR_ROUGHNESS_COMPRESSION, ERROR_MODELS,
-                                              SimulationConfig, dr_model)
+from matspray.predictors.error_models import (
+    DR_COLOUR_SCALE,
+    DR_METALLIC_VIEW_FRACTION,
+    DR_ROUGHNESS_COMPRESSION,
+    ERROR_MODELS,
+    SimulationConfig,
+    dr_model,
+)
 from matspray.predictors.registry import object_seed
 from matspray.predictors.simulated import SimulatedPredictor
 
-TARGETS = {"basecolor": 21.341, "roughness": 15.331, "metallic": 27.202}  # the paper's Table 1 (dB), metallic where finite
+TARGETS = {
+    "basecolor": 21.341,
+    "roughness": 15.331,
+    "metallic": 27.202,
+}  # the paper's Table 1 (dB), metallic where finite
 TOLERANCE = 1.0  # dB: how close `dr`'s means must come to TARGETS
 PRESET = "demo"  # the protocol's default preset: 128 px, 40 training and 10 test views
 ROW = "2D predictions"  # the tables' row of the raw predictions
@@ -62,8 +73,15 @@ def load_objects(count: int, out: Path, progress: bool) -> list[DevObject]:
     """The first `count` development objects, made (Mitsuba, about a minute each) where not in `out` yet."""
     objects = []
     for spec in object_set("dev", count, sorted(hdri_files())):
-        data = make_demo_object(out / "objects" / spec.name / "data", PRESET, "random", spec.seed, progress=progress, env=spec.env,
-                                relight_envs=list(spec.relight_envs))
+        data = make_demo_object(
+            out / "objects" / spec.name / "data",
+            PRESET,
+            "random",
+            spec.seed,
+            progress=progress,
+            env=spec.env,
+            relight_envs=list(spec.relight_envs),
+        )
         views = load_scene(data).test
         objects.append(DevObject(spec.name, object_seed(data), views, [read_view_truth(v) for v in views]))
     return objects
@@ -104,9 +122,17 @@ def calibration_table(models: dict[str, SimulationConfig], objects: list[DevObje
     verdicts = []
     for name, config in models.items():
         per_object, mean = model_scores(config, objects)
-        lines += [f"| `{name}` | {obj.name} | " + " | ".join(fmt(scores[c]) for c in CHANNELS) + " |" for obj, scores in zip(objects, per_object)]
-        lines.append(f"| `{name}` | **mean of {len(objects)}** | " + " | ".join(mean_cell(mean[c]) for c in CHANNELS) + " |")
-        verdicts.append(f"{name}: means {'within' if within_target(mean) else 'NOT within'} {TOLERANCE:.0f} dB of the paper's figures")
+        lines += [
+            f"| `{name}` | {obj.name} | " + " | ".join(fmt(scores[c]) for c in CHANNELS) + " |"
+            for obj, scores in zip(objects, per_object)
+        ]
+        lines.append(
+            f"| `{name}` | **mean of {len(objects)}** | " + " | ".join(mean_cell(mean[c]) for c in CHANNELS) + " |"
+        )
+        verdicts.append(
+            f"{name}: means {'within' if within_target(mean) else 'NOT within'} {TOLERANCE:.0f} dB "
+            "of the paper's figures"
+        )
     lines.append("| paper, Table 1 | (17 objects) | " + " | ".join(f"{TARGETS[c]:.2f}" for c in CHANNELS) + " |")
     return lines + [""] + verdicts
 
@@ -114,34 +140,63 @@ def calibration_table(models: dict[str, SimulationConfig], objects: list[DevObje
 def bisect(objects: list[DevObject], steps: int, log=print) -> dict[str, float]:
     """`dr`'s three magnitudes by joint bisection (module docstring); returns the final midpoints per channel."""
     brackets = dict(BRACKETS)
-    log("| step | colour scale | roughness compression | metallic view fraction | " + " | ".join(f"2D {SHORT[c]}" for c in CHANNELS) + " |")
+    log(
+        "| step | colour scale | roughness compression | metallic view fraction | "
+        + " | ".join(f"2D {SHORT[c]}" for c in CHANNELS)
+        + " |"
+    )
     log("|---|---|---|---|---|---|---|")
     for step in range(1, steps + 1):
         mid = {c: 0.5 * (low + high) for c, (low, high) in brackets.items()}
         _, mean = model_scores(dr_model(mid["basecolor"], mid["roughness"], mid["metallic"]), objects)
-        log(f"| {step} | {mid['basecolor']:.4f} | {mid['roughness']:.4f} | {mid['metallic']:.4f} | "
-            + " | ".join(mean_cell(mean[c]) for c in CHANNELS) + " |")
+        log(
+            f"| {step} | {mid['basecolor']:.4f} | {mid['roughness']:.4f} | {mid['metallic']:.4f} | "
+            + " | ".join(mean_cell(mean[c]) for c in CHANNELS)
+            + " |"
+        )
         for c, (low, high) in brackets.items():
             too_good = mean[c]["psnr"] is None or mean[c]["psnr"] > TARGETS[c]  # more error needed: a larger magnitude
             brackets[c] = (mid[c], high) if too_good else (low, mid[c])
     final = {c: 0.5 * (low + high) for c, (low, high) in brackets.items()}
     for c, (low, high) in BRACKETS.items():
-        if min(final[c] - low, high - final[c]) < (high - low) / 2 ** steps:
-            log(f"warning: {c}'s magnitude ended at the edge of its bracket [{low}, {high}]: the paper's figure is out of its reach")
+        if min(final[c] - low, high - final[c]) < (high - low) / 2**steps:
+            log(
+                f"warning: {c}'s magnitude ended at the edge of its bracket [{low}, {high}]: "
+                "the paper's figure is out of its reach"
+            )
     return final
 
 
 def parse_args(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.calibrate_dr", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--objects", type=int, default=6, help="development objects, the first K (default 6, generalise's default)")
-    parser.add_argument("--out", type=Path, default=Path("runs") / f"generalise-dev-{PRESET}",
-                        help="the protocol's folder to read (and make) the objects in (default runs/generalise-dev-demo)")
-    parser.add_argument("--models", nargs="+", default=["paper", "harsh", "dr"], choices=tuple(ERROR_MODELS), metavar="MODEL",
-                        help="error models to score (default: paper harsh dr)")
-    parser.add_argument("--search", action="store_true", help="first redo the bisection for dr's magnitudes, then score the result too")
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.calibrate_dr",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--objects", type=int, default=6, help="development objects, the first K (default 6, generalise's default)"
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("runs") / f"generalise-dev-{PRESET}",
+        help="the protocol's folder to read (and make) the objects in (default runs/generalise-dev-demo)",
+    )
+    parser.add_argument(
+        "--models",
+        nargs="+",
+        default=["paper", "harsh", "dr"],
+        choices=tuple(ERROR_MODELS),
+        metavar="MODEL",
+        help="error models to score (default: paper harsh dr)",
+    )
+    parser.add_argument(
+        "--search", action="store_true", help="first redo the bisection for dr's magnitudes, then score the result too"
+    )
     parser.add_argument("--steps", type=int, default=8, help="bisection steps (default 8)")
-    parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars while making objects")
+    parser.add_argument(
+        "--no-progress", dest="progress", action="store_false", help="no progress bars while making objects"
+    )
     args = parser.parse_args(argv)
     if args.objects < 1 or args.steps < 1:
         parser.error("--objects and --steps must be >= 1")
@@ -153,14 +208,22 @@ def main(argv=None) -> int:
     try:
         objects = load_objects(args.objects, args.out, args.progress)
         models = {name: ERROR_MODELS[name] for name in args.models}
-        print(f"dr's magnitudes in error_models.py: colour scale {DR_COLOUR_SCALE}, roughness compression {DR_ROUGHNESS_COMPRESSION}, "
-              f"metallic view fraction {DR_METALLIC_VIEW_FRACTION}\n")
+        print(
+            f"dr's magnitudes in error_models.py: colour scale {DR_COLOUR_SCALE}, "
+            f"roughness compression {DR_ROUGHNESS_COMPRESSION}, "
+            f"metallic view fraction {DR_METALLIC_VIEW_FRACTION}\n"
+        )
         if args.search:
             found = bisect(objects, args.steps)
-            print(f"\nbisection: colour scale {found['basecolor']:.4f}, roughness compression {found['roughness']:.4f}, "
-                  f"metallic view fraction {found['metallic']:.4f}\n")
+            print(
+                f"\nbisection: colour scale {found['basecolor']:.4f}, roughness compression {found['roughness']:.4f}, "
+                f"metallic view fraction {found['metallic']:.4f}\n"
+            )
             models["dr (search)"] = dr_model(found["basecolor"], found["roughness"], found["metallic"])
-        print(f"2D PSNR (dB) of the simulated predictions of the test views, {len(objects)} development objects, preset {PRESET}:\n")
+        print(
+            "2D PSNR (dB) of the simulated predictions of the test views, "
+            f"{len(objects)} development objects, preset {PRESET}:\n"
+        )
         print("\n".join(calibration_table(models, objects)))
     except MatsprayError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -45,14 +45,33 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.generalise import (SET_SEEDS, add_part_arguments, check_part_arguments, fmt, object_config, objects_part, part_name,
-                                   predictor_spec, run_name)
+from benchmarks.generalise import (
+    SET_SEEDS,
+    add_part_arguments,
+    check_part_arguments,
+    object_config,
+    objects_part,
+    part_name,
+    predictor_spec,
+    run_name,
+)
+from benchmarks.generalise_tables import fmt
 from matspray.errors import ConfigError, MatsprayError, RunError
 from matspray.material import GROUPS
 
 CHANNEL_GROUPS = dict(zip(("base", "rough", "metal"), GROUPS.values()))  # row names of `matspray.material.GROUPS`
-ROWS = ("proj-average", "full", "full, true light", "full, true light, PA brightness", "softmax oracle", *(f"oracle {c} only" for c in CHANNEL_GROUPS), "true base, PA brightness",
-        "lifted truth, PA brightness", "lifted truth", "true G-buffer")
+ROWS = (
+    "proj-average",
+    "full",
+    "full, true light",
+    "full, true light, PA brightness",
+    "softmax oracle",
+    *(f"oracle {c} only" for c in CHANNEL_GROUPS),
+    "true base, PA brightness",
+    "lifted truth, PA brightness",
+    "lifted truth",
+    "true G-buffer",
+)
 FIGURES = ("relight", "basecolor", "roughness", "metallic")
 CEILINGS_FILE = "ceilings.json"  # in RUN/eval/
 
@@ -96,7 +115,10 @@ def require_same_lift(run: Path, config) -> None:
 
     lifted, wanted = RunDir(run).config().get("lift"), to_plain(config.lift)
     if lifted != wanted:
-        raise RunError(f"{run} lifted with other settings than these ({lifted} vs {wanted}); run it with the protocol's default settings")
+        raise RunError(
+            f"{run} lifted with other settings than these ({lifted} vs {wanted}); "
+            "run it with the protocol's default settings"
+        )
 
 
 def lift_truth(data: Path, run: Path, truth_run: Path, config):
@@ -109,8 +131,13 @@ def lift_truth(data: Path, run: Path, truth_run: Path, config):
     require_same_lift(run, config)
     with RunDir(truth_run).hold(wait=True):  # another job lifting it goes first; this one then reuses its lift
         share_stage(run, truth_run, "geometry")
-        with Pipeline(data, truth_run, replace(config, predictor="ground-truth", predictor_options={}), progress=False,
-                      log=lambda _: None) as pipeline:
+        with Pipeline(
+            data,
+            truth_run,
+            replace(config, predictor="ground-truth", predictor_options={}),
+            progress=False,
+            log=lambda _: None,
+        ) as pipeline:
             return pipeline.run_all(("proj-average",))["proj-average"]
 
 
@@ -119,7 +146,10 @@ def softmax_reach(truth_materials: torch.Tensor, truth_run: Path, run: Path) -> 
     from matspray.merger import clamp_to_seen_range
     from matspray.pipeline import load_lift
 
-    truth, predicted = load_lift(truth_run / "lift" / "projected.pt", "cpu"), load_lift(run / "lift" / "projected.pt", "cpu")
+    truth, predicted = (
+        load_lift(truth_run / "lift" / "projected.pt", "cpu"),
+        load_lift(run / "lift" / "projected.pt", "cpu"),
+    )
     if not torch.equal(truth.kept, predicted.kept):
         raise RunError(f"{truth_run} and {run} kept different Gaussians; delete {truth_run / 'lift'} and run again")
     return clamp_to_seen_range(truth_materials.cpu(), predicted.values, predicted.seen)
@@ -134,10 +164,13 @@ def with_groups(asset, source: torch.Tensor, groups):
 
 
 def at_brightness(materials: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:  # [N, 5], [N, 5] -> [N, 5]
-    """`materials` with its base colour scaled, per RGB channel, to the mean base colour of `reference` (over Gaussians)."""
+    """`materials` with its base colour scaled, per RGB channel, to the mean base colour of `reference`
+    (over Gaussians)."""
     base = CHANNEL_GROUPS["base"]
     scaled = materials.clone()
-    scaled[:, base] = (materials[:, base] * reference[:, base].mean(0) / materials[:, base].mean(0).clamp_min(1e-6)).clamp(0.0, 1.0)
+    scaled[:, base] = (
+        materials[:, base] * reference[:, base].mean(0) / materials[:, base].mean(0).clamp_min(1e-6)
+    ).clamp(0.0, 1.0)
     return scaled
 
 
@@ -162,7 +195,9 @@ def object_truth(data: Path, run: Path, truth_run: Path, config) -> ObjectTruth:
     """The test views, the truth lifted onto `run`'s Gaussians in `truth_run`, and the shading ceiling."""
     views, truths, lights = read_test_truth(data)
     asset = lift_truth(data, run, truth_run, config)
-    return ObjectTruth(views, truths, lights, asset, truth_run, shading_ceiling(views, truths, lights)["relighting"]["psnr"])
+    return ObjectTruth(
+        views, truths, lights, asset, truth_run, shading_ceiling(views, truths, lights)["relighting"]["psnr"]
+    )
 
 
 def refine_under_true_light(data: Path, run: Path, folder: Path, config):
@@ -180,7 +215,10 @@ def refine_under_true_light(data: Path, run: Path, folder: Path, config):
         share_stage(run, folder, stage)
     pipeline = Pipeline(data, folder, replace(config, light_probe=str(probe)), progress=False, log=lambda _: None)
     made = RunDir(run)
-    if (pipeline.predict_fingerprint(), pipeline.lift_fingerprint()) != (made.stage_fingerprint("materials2d"), made.stage_fingerprint("lift")):
+    if (pipeline.predict_fingerprint(), pipeline.lift_fingerprint()) != (
+        made.stage_fingerprint("materials2d"),
+        made.stage_fingerprint("lift"),
+    ):
         raise RunError(f"{run} predicted or lifted with other settings than the protocol's defaults; run it with those")
     return pipeline.refine("full")
 
@@ -208,21 +246,34 @@ def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
         "proj-average": lambda: averaged,
         "full": lambda: full,
         "full, true light": under_true_light,
-        "full, true light, PA brightness": lambda: replace(under_true_light(), materials=at_brightness(under_true_light().materials, averaged.materials)),
+        "full, true light, PA brightness": lambda: replace(
+            under_true_light(), materials=at_brightness(under_true_light().materials, averaged.materials)
+        ),
         "softmax oracle": lambda: with_groups(averaged, reach(), CHANNEL_GROUPS.values()),
-        **{f"oracle {name} only": functools.partial(lambda g: with_groups(averaged, reach(), [g]), group) for name, group in CHANNEL_GROUPS.items()},
-        "true base, PA brightness": lambda: with_groups(averaged, at_brightness(true_materials(), averaged.materials), [CHANNEL_GROUPS["base"]]),
-        "lifted truth, PA brightness": lambda: replace(averaged, materials=at_brightness(true_materials(), averaged.materials)),
+        **{
+            f"oracle {name} only": functools.partial(lambda g: with_groups(averaged, reach(), [g]), group)
+            for name, group in CHANNEL_GROUPS.items()
+        },
+        "true base, PA brightness": lambda: with_groups(
+            averaged, at_brightness(true_materials(), averaged.materials), [CHANNEL_GROUPS["base"]]
+        ),
+        "lifted truth, PA brightness": lambda: replace(
+            averaged, materials=at_brightness(true_materials(), averaged.materials)
+        ),
         "lifted truth": lambda: replace(averaged, materials=true_materials()),
     }
-    return {row: {"relight": t.gbuffer_relight} if row == "true G-buffer"
-            else summary_figures(evaluate_asset(assets[row](), t.views, t.truths, t.lights, None)["summary"]) for row in rows}
+    return {
+        row: {"relight": t.gbuffer_relight}
+        if row == "true G-buffer"
+        else summary_figures(evaluate_asset(assets[row](), t.views, t.truths, t.lights, None)["summary"])
+        for row in rows
+    }
 
 
 # ------------------------------------------------------------------------------------------ the protocol's objects
 def cached_ceilings(run: Path, truth_run: Path, truth, under_true_light) -> dict:
-    """`run_ceilings(run, truth, under_true_light)`; the rows already in RUN/eval/ceilings.json are reused while no stage
-    of either run folder is newer than it, so only missing rows (e.g. ones a newer version adds) are computed."""
+    """`run_ceilings(run, truth, under_true_light)`; the rows already in RUN/eval/ceilings.json are reused while no
+    stage of either run folder is newer than it, so only missing rows (e.g. ones a newer version adds) are computed."""
     from matspray.rundir import newer_than_stages, read_json, write_json
 
     path = run / "eval" / CEILINGS_FILE
@@ -239,28 +290,58 @@ def mean_rows(per_object: list[dict]) -> dict:
     means = {}
     for row in ROWS:
         values = {f: [o[row].get(f) for o in per_object] for f in FIGURES}
-        means[row] = {f: sum(v) / len(v) for f, v in values.items() if all(x is not None and abs(x) != float("inf") for x in v)}
+        means[row] = {
+            f: sum(v) / len(v) for f, v in values.items() if all(x is not None and abs(x) != float("inf") for x in v)
+        }
     return means
 
 
 def markdown(set_name: str, preset: str, results: dict) -> list[str]:
-    lines = [f"## Ceilings: {set_name} set, preset {preset}", "",
-             "Relighting PSNR (dB) on the test views under the held-out lights; material PSNR of each row's materials. "
-             "Per object: the relighting PSNR of the main rows.", ""]
+    lines = [
+        f"## Ceilings: {set_name} set, preset {preset}",
+        "",
+        "Relighting PSNR (dB) on the test views under the held-out lights; material PSNR of each row's materials. "
+        "Per object: the relighting PSNR of the main rows.",
+        "",
+    ]
     for model, per_object in results.items():
         means = mean_rows([o["rows"] for o in per_object])
-        lines += [f"### error model `{model}` (SIMULATED predictor), mean of {len(per_object)} objects", "",
-                  "| row | relight | vs proj-average | base | rough | metal |", "|---|---|---|---|---|---|"]
+        lines += [
+            f"### error model `{model}` (SIMULATED predictor), mean of {len(per_object)} objects",
+            "",
+            "| row | relight | vs proj-average | base | rough | metal |",
+            "|---|---|---|---|---|---|",
+        ]
         for row in ROWS:
             m = means[row]
             gap = None if "relight" not in m else m["relight"] - means["proj-average"].get("relight", float("nan"))
-            lines.append(f"| {row} | {fmt(m.get('relight'))} | {'' if row == 'proj-average' else fmt(gap)} | "
-                         + " | ".join(fmt(m.get(c)) for c in FIGURES[1:]) + " |")
-        columns = ("proj-average", "full", "full, true light", "softmax oracle", "lifted truth, PA brightness", "lifted truth", "true G-buffer")
+            lines.append(
+                f"| {row} | {fmt(m.get('relight'))} | {'' if row == 'proj-average' else fmt(gap)} | "
+                + " | ".join(fmt(m.get(c)) for c in FIGURES[1:])
+                + " |"
+            )
+        columns = (
+            "proj-average",
+            "full",
+            "full, true light",
+            "softmax oracle",
+            "lifted truth, PA brightness",
+            "lifted truth",
+            "true G-buffer",
+        )
         lines += ["", "| object | " + " | ".join(columns) + " |", "|" + "---|" * (1 + len(columns))]
-        lines += [f"| {o['object']} | " + " | ".join(fmt(o["rows"][k]["relight"]) for k in columns) + " |" for o in per_object]
+        lines += [
+            f"| {o['object']} | " + " | ".join(fmt(o["rows"][k]["relight"]) for k in columns) + " |" for o in per_object
+        ]
         lines.append("")
-        for row in ("full", "full, true light", "full, true light, PA brightness", "softmax oracle", "lifted truth, PA brightness", "lifted truth"):
+        for row in (
+            "full",
+            "full, true light",
+            "full, true light, PA brightness",
+            "softmax oracle",
+            "lifted truth, PA brightness",
+            "lifted truth",
+        ):
             gains = [o["rows"][row]["relight"] - o["rows"]["proj-average"]["relight"] for o in per_object]
             lines.append(f"- {row} - proj-average >= 1 dB on {sum(g >= 1.0 for g in gains)}/{len(gains)} objects")
         lines.append("")
@@ -278,8 +359,12 @@ def merge_with_saved(path: Path, results: dict, log=print) -> dict:
             continue
         if all(list(o["rows"]) == list(ROWS) for o in per_object):
             kept[model] = per_object
-        else:  # saved by a version with other rows: its runs' saved figures gain the new rows on the next pass over them
-            log(f"ceilings: error model {model} in {path} has other rows (an older version); dropped: pass --models {model} to add it again")
+        else:  # saved by a version with other rows: its runs' saved figures gain the new rows on the next pass
+            # over them
+            log(
+                f"ceilings: error model {model} in {path} has other rows (an older version); dropped: "
+                f"pass --models {model} to add it again"
+            )
     write_json(path, kept | results)  # the models of earlier passes stay, this pass's replace theirs
     return kept | results
 
@@ -296,19 +381,34 @@ def run_set(args, log=print) -> list[str]:
         folder = args.out / "objects" / spec.name
         run_dirs = {model: folder / "runs" / run_name(model, None) for model in args.models}
         truth_run = folder / "runs" / run_name("ground-truth", None)
-        truth = functools.cache(functools.partial(object_truth, folder / "data", run_dirs[args.models[0]], truth_run, config))
+        truth = functools.cache(
+            functools.partial(object_truth, folder / "data", run_dirs[args.models[0]], truth_run, config)
+        )
         for model, run_dir in run_dirs.items():
             model_config = object_config(replace(config, predictor=predictor_spec(model)), spec)
-            under_true_light = functools.partial(refine_under_true_light, folder / "data", run_dir, folder / "runs" / f"{run_dir.name}-true-light",
-                                                 model_config)
+            under_true_light = functools.partial(
+                refine_under_true_light,
+                folder / "data",
+                run_dir,
+                folder / "runs" / f"{run_dir.name}-true-light",
+                model_config,
+            )
             if not all((run_dir / stage / "stage.json").exists() for stage in ("asset", "asset-proj-average", "lift")):
-                raise ConfigError(f"{run_dir}: no finished full and proj-average assets; run `python -m benchmarks.generalise --set {args.set} "
-                                  f"--objects {args.start + args.objects} --models {model} --preset {args.preset} --out {args.out}` first")
+                raise ConfigError(
+                    f"{run_dir}: no finished full and proj-average assets; "
+                    f"run `python -m benchmarks.generalise --set {args.set} "
+                    f"--objects {args.start + args.objects} --models {model} --preset {args.preset} "
+                    f"--out {args.out}` first"
+                )
             require_same_lift(run_dir, config)
             log(f"ceilings: object {number}/{len(objects)} {spec.name}, error model {model}")
-            results[model].append({"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light)})
+            results[model].append(
+                {"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light)}
+            )
     path = args.out / f"ceilings-{part_name(args.preset, args.start)}.json"
-    with held_exclusively(path):  # jobs for other error models may finish at the same time: each keeps the others' models
+    with held_exclusively(
+        path
+    ):  # jobs for other error models may finish at the same time: each keeps the others' models
         saved = merge_with_saved(path, results, log)
         write_text_atomic(path.with_suffix(".md"), "\n".join(markdown(args.set, args.preset, saved)) + "\n")
     return markdown(args.set, args.preset, results)
@@ -317,11 +417,21 @@ def run_set(args, log=print) -> list[str]:
 def parse_args(argv=None):
     from matspray.predictors.error_models import ERROR_MODELS
 
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.ceilings", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="the protocol's object set (default dev)")
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.ceilings", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--set", choices=tuple(SET_SEEDS), default="dev", help="the protocol's object set (default dev)"
+    )
     add_part_arguments(parser)
-    parser.add_argument("--models", nargs="+", default=list(ERROR_MODELS), choices=ERROR_MODELS, metavar="MODEL",
-                        help=f"error models (default: {' '.join(ERROR_MODELS)})")
+    parser.add_argument(
+        "--models",
+        nargs="+",
+        default=list(ERROR_MODELS),
+        choices=ERROR_MODELS,
+        metavar="MODEL",
+        help=f"error models (default: {' '.join(ERROR_MODELS)})",
+    )
     parser.add_argument("--preset", choices=("test", "demo"), default="demo")
     parser.add_argument("--out", type=Path, help="the protocol's folder (default runs/generalise-SET-PRESET)")
     args = parser.parse_args(argv)

@@ -27,7 +27,9 @@ def stage_work(run: Path) -> dict[str, tuple[float, float]]:
     scene = load_scene(folder.dataset()["source"], downscale=folder.downscale())
     views = [(v.width, v.height) for v in scene.train]
     rays = 1 if config.get("predictor") == "none" else config["lift"]["samples_per_side"] ** 2
-    work = run_work(views, config["geometry"]["iterations"], config["geometry"]["resolution"], rays, [], not scene.has_masks)
+    work = run_work(
+        views, config["geometry"]["iterations"], config["geometry"]["resolution"], rays, [], not scene.has_masks
+    )
     pixels = sum(w * h for w, h in views) / len(views)
     found = {}
     for stage, seconds in timings.items():
@@ -45,7 +47,7 @@ def stage_kind(stage: str) -> str:
     """The rate a run-folder stage is estimated with: asset stages by whether their variant merges 2D maps."""
     if not stage.startswith("asset"):
         return stage
-    variant = "full" if stage == "asset" else stage[len("asset-"):]
+    variant = "full" if stage == "asset" else stage[len("asset-") :]
     return "refine" if get_variant(variant).uses_maps else "refine-mapless"
 
 

@@ -23,9 +23,26 @@ from matspray.eval.glb import evaluate_glb
 
 
 def export_in_child(run: Path, out: Path, args) -> tuple[float, float]:  # -> seconds, peak MiB
-    command = [sys.executable, "-m", "matspray", "export", "--run", str(run), "--out", str(out), "--faces", str(args.faces),
-               "--texture-size", str(args.texture_size), "--grid", str(args.grid), "--normals", args.normals,
-               "--backend", args.backend]
+    command = [
+        sys.executable,
+        "-m",
+        "matspray",
+        "export",
+        "--run",
+        str(run),
+        "--out",
+        str(out),
+        "--faces",
+        str(args.faces),
+        "--texture-size",
+        str(args.texture_size),
+        "--grid",
+        str(args.grid),
+        "--normals",
+        args.normals,
+        "--backend",
+        args.backend,
+    ]
     start = time.perf_counter()
     child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     _, status, usage = os.wait4(child.pid, 0)
@@ -51,7 +68,9 @@ def figure(eval_dir: Path, view: str, envs: list[str], path: Path, scale: int = 
     """One picture from an eval --glb report: rows = lights, columns = truth, Gaussians, mesh (grey background)."""
     from PIL import Image
 
-    names = [[eval_dir / "report" / f"{view}_{env}_{who}.png" for who in ("truth", "gaussians", "mesh")] for env in envs]
+    names = [
+        [eval_dir / "report" / f"{view}_{env}_{who}.png" for who in ("truth", "gaussians", "mesh")] for env in envs
+    ]
     width, height = Image.open(names[0][0]).size
     sheet = Image.new("RGBA", (3 * width, len(envs) * height), (128, 128, 128, 255))
     for row, files in enumerate(names):
@@ -70,9 +89,17 @@ def main() -> None:
     parser.add_argument("--texture-size", type=int, default=1024)
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--normals", choices=("mesh", "asset"), default="mesh")
-    parser.add_argument("--backend", default="torch", help="rasterizer of the export's depth renders (default torch: the reference; "
-                        "the Gaussians' eval renders use torch too)")
-    parser.add_argument("--figure", type=Path, help="also write the first run's first test view as a PNG: truth | Gaussians | mesh, one row per light")
+    parser.add_argument(
+        "--backend",
+        default="torch",
+        help="rasterizer of the export's depth renders (default torch: the reference; "
+        "the Gaussians' eval renders use torch too)",
+    )
+    parser.add_argument(
+        "--figure",
+        type=Path,
+        help="also write the first run's first test view as a PNG: truth | Gaussians | mesh, one row per light",
+    )
     args = parser.parse_args()
     rows = []
     for run in args.runs:
@@ -84,12 +111,23 @@ def main() -> None:
         for region, suffix in (("GT mask", ""), ("union", "_union")):
             relit, base = f"relighting{suffix}", f"basecolor{suffix}"
             gap = gaussians[relit]["psnr"] - mesh[relit]["psnr"]
-            rows.append(f"| {name} | {region} | {metrics['faces']} | {args.texture_size} | {seconds:.1f} | {peak:.0f} | {gaussians[relit]['psnr']:.2f} | "
-                        f"{mesh[relit]['psnr']:.2f} | {gap:+.2f} | {gaussians[base]['psnr']:.2f} | {mesh[base]['psnr']:.2f} |")
+            rows.append(
+                f"| {name} | {region} | {metrics['faces']} | {args.texture_size} | {seconds:.1f} | {peak:.0f} | "
+                f"{gaussians[relit]['psnr']:.2f} | "
+                f"{mesh[relit]['psnr']:.2f} | {gap:+.2f} | {gaussians[base]['psnr']:.2f} | {mesh[base]['psnr']:.2f} |"
+            )
             print(rows[-1], flush=True)
         if args.figure is not None and run == args.runs[0]:
-            figure(glb.with_name(f"{glb.stem}_eval"), metrics["mesh"]["per_view"][0]["view"], metrics["relight_envs"], args.figure)
-    print("\n| object | region | faces | texture | export s | peak MiB | relight PSNR Gaussians | relight PSNR mesh | gap dB | base colour PSNR Gaussians | mesh |")
+            figure(
+                glb.with_name(f"{glb.stem}_eval"),
+                metrics["mesh"]["per_view"][0]["view"],
+                metrics["relight_envs"],
+                args.figure,
+            )
+    print(
+        "\n| object | region | faces | texture | export s | peak MiB | relight PSNR Gaussians | relight PSNR mesh | "
+        "gap dB | base colour PSNR Gaussians | mesh |"
+    )
     print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     print("\n".join(rows))
 

@@ -32,7 +32,6 @@ and error model from them: the development-set table of choices.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from dataclasses import dataclass, fields, is_dataclass, replace
@@ -40,24 +39,31 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.generalise_tables import choices_table, markdown, model_summary, object_figures
 from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
-from matspray.demo import DEMO_SIZES, make_demo_object, run_object
+from matspray.demo import make_demo_object, run_object
 from matspray.errors import ConfigError, MatsprayError
-from matspray.eval.average import average_tables
 from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
 from matspray.lights import BUILTINS, hdri_files
 from matspray.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
-from matspray.variants import BASELINE, LABELS, VARIANT_NAMES as VARIANTS
-from matspray.rundir import (STAGE_RECORD, RunDir, fingerprint, held_exclusively, newer_than_stages, read_json, share_stage, write_json,
-                             write_text_atomic)
+from matspray.rundir import (
+    STAGE_RECORD,
+    RunDir,
+    fingerprint,
+    held_exclusively,
+    newer_than_stages,
+    read_json,
+    share_stage,
+    write_json,
+    write_text_atomic,
+)
+from matspray.variants import VARIANT_NAMES as VARIANTS
 
 SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
 MODELS = (*ERROR_MODELS, "ground-truth")
-CHANNELS = ("basecolor", "roughness", "metallic")
-SHORT = {"basecolor": "base", "roughness": "rough", "metallic": "metal"}
 
 
 @dataclass(frozen=True)
@@ -100,8 +106,13 @@ def part_name(name: str, start: int) -> str:
 
 def add_part_arguments(parser) -> None:
     parser.add_argument("--objects", type=int, default=6, help="objects of the set, the first K (default 6)")
-    parser.add_argument("--start", type=int, default=0, help="skip the set's first I objects, to split a pass over jobs that run at once "
-                        "(a part's files get the suffix -fromI; a later pass over all objects reuses every finished run)")
+    parser.add_argument(
+        "--start",
+        type=int,
+        default=0,
+        help="skip the set's first I objects, to split a pass over jobs that run at once "
+        "(a part's files get the suffix -fromI; a later pass over all objects reuses every finished run)",
+    )
 
 
 def check_part_arguments(parser, args) -> None:
@@ -152,7 +163,9 @@ def with_overrides(config, items: list[str], prefix: str = ""):
                 raise ConfigError(f"--refine {prefix}{item}: '{prefix}{head}' has no settings of its own")
             nested.setdefault(head, []).append(f"{rest}={text}")
         elif is_dataclass(current):
-            raise ConfigError(f"--refine {prefix}{item}: set the fields of '{prefix}{head}' as {prefix}{head}.KEY=VALUE")
+            raise ConfigError(
+                f"--refine {prefix}{item}: set the fields of '{prefix}{head}' as {prefix}{head}.KEY=VALUE"
+            )
         else:
             changes[head] = parse_value(text, current, prefix + key)
     for head, sub in nested.items():
@@ -186,13 +199,16 @@ def geometry_run(runs: Path, first_model: str) -> Path:
     """The run folder whose geometry the object's other runs share: one that already has a finished
     geometry stage (from any error model, e.g. a --geometry-only pass), else the first model's."""
     done = sorted(p.parent.parent for p in runs.glob("*/geometry/stage.json"))
-    trained = [run for run in done if "geometry" in RunDir(run).timings()]  # the one that trained it records its seconds
+    trained = [
+        run for run in done if "geometry" in RunDir(run).timings()
+    ]  # the one that trained it records its seconds
     return (trained or done or [runs / first_model])[0]
 
 
 def object_geometry(data: Path, runs: Path, first_run_name: str, config, args, log) -> Path:
     """The run folder holding the object's Gaussian Splatting (`geometry_run`), trained there first if no run has it.
-    Jobs for other models of the object that start meanwhile wait for it (the object's `geometry.lock`), then share it."""
+    Jobs for other models of the object that start meanwhile wait for it (the object's `geometry.lock`),
+    then share it."""
     with held_exclusively(runs / "geometry"):
         first_run = geometry_run(runs, first_run_name)
         if not (first_run / "geometry" / STAGE_RECORD).exists():
@@ -253,7 +269,10 @@ def run_or_reuse(data: Path, run_dir: Path, config, args, log) -> tuple[dict, fl
     timings = RunDir(run_dir).timings()
     if trains_geometry:  # the geometry has its own column (trained once per object)
         seconds -= timings.get("geometry", 0.0)
-    write_json(run_dir / "eval" / RUN_SECONDS, {"config": fingerprint(config), "variants": sorted(args.variants), "seconds": seconds})
+    write_json(
+        run_dir / "eval" / RUN_SECONDS,
+        {"config": fingerprint(config), "variants": sorted(args.variants), "seconds": seconds},
+    )
     return only_variants(metrics, args.variants, timings), seconds
 
 
@@ -262,98 +281,6 @@ def only_variants(metrics: dict, variants, timings: dict) -> dict:
     that another configuration refined (evaluation scores every asset it finds)."""
     kept = {v: m for v, m in metrics.get("variants", {}).items() if v in variants}
     return {**metrics, "variants": kept, **paper_tables(kept, metrics.get("predictions_2d"), timings)}
-
-
-# ------------------------------------------------------------------------------------------ figures
-def object_figures(metrics: dict) -> dict:
-    """The protocol's figures of one (object, model) run from its eval/metrics.json content."""
-    variants = metrics.get("variants", {})
-    relight = {v: variants[v]["summary"]["relighting"]["psnr"] for v in VARIANTS if v in variants}
-    full = variants.get("full", {}).get("summary", {})
-    baseline = variants.get(BASELINE, {}).get("summary", {})
-    predictions = metrics.get("predictions_2d", {})
-    return {"relight": relight,
-            "materials_3d": {c: full[c]["psnr"] for c in CHANNELS if c in full},
-            "materials_no_prior": {c: baseline[c]["psnr"] for c in CHANNELS if c in baseline},
-            "materials_2d": {c: predictions[c]["psnr"] for c in CHANNELS if c in predictions}}
-
-
-def wins(figures: list[dict], pairs) -> dict:
-    """For each (label, a, b): how many objects have a > b (strictly), out of those with both."""
-    out = {}
-    for label, a, b in pairs:
-        both = [(a(f), b(f)) for f in figures if a(f) is not None and b(f) is not None]
-        out[label] = {"wins": sum(x > y for x, y in both), "of": len(both)}
-    return out
-
-
-def model_summary(per_object: list[dict]) -> dict:
-    """Means over objects (the paper's averaging, via matspray.eval.average.average_tables) and wins out of N."""
-    averaged = average_tables([o["metrics"] for o in per_object])
-    table1 = averaged["table1"]
-    relight = {v: averaged["table2"].get(label, averaged["softmax"].get(label, {})).get("psnr")
-               for v, label in (("full", "Full"), ("proj-average", "Proj. Average"), ("supervised", "Supervised"), ("no-softmax", "Without Softmax"))}
-    relight[BASELINE] = table1.get(LABELS[BASELINE], {}).get("relighting", {}).get("psnr")
-    figures = [o["figures"] for o in per_object]
-
-    def get(group, key):
-        return lambda f: f[group].get(key)
-
-    pairs = [("full > proj-average", get("relight", "full"), get("relight", "proj-average")),
-             ("full > no-softmax", get("relight", "full"), get("relight", "no-softmax")),
-             ("full > no-prior", get("relight", "full"), get("relight", BASELINE)),
-             ("full > no-prior basecolor", get("materials_3d", "basecolor"), lambda f: f.get("materials_no_prior", {}).get("basecolor"))]
-    pairs += [(f"3D > 2D {c}", get("materials_3d", c), get("materials_2d", c)) for c in CHANNELS]
-    return {"relight": {k: v for k, v in relight.items() if v is not None},
-            "materials_3d": {c: table1.get("Ours", {}).get(c, {}) for c in CHANNELS},
-            "materials_no_prior": {c: table1.get(LABELS[BASELINE], {}).get(c, {}) for c in CHANNELS},
-            "materials_2d": {c: table1.get("2D predictions", {}).get(c, {}) for c in CHANNELS},
-            "wins": wins(figures, pairs), "tables": averaged}
-
-
-def fmt(value) -> str:
-    if value is None:
-        return "—"
-    if math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    return f"{value:.2f}"
-
-
-def metallic_mean(entry: dict) -> str:
-    """The paper's rule: '∞*k/mean' when k objects had infinite metallic PSNR."""
-    if not entry:
-        return "—"
-    infinite = int(entry.get("psnr_infinite", 0))
-    if infinite == 0 or infinite == entry.get("objects"):
-        return fmt(entry.get("psnr"))
-    return f"inf*{infinite}/{fmt(entry.get('psnr'))}"
-
-
-def model_table(model: str, per_object: list[dict], summary: dict, variants) -> list[str]:
-    """Markdown lines: one row per object, the mean row, and the wins."""
-    label = "SIMULATED predictor" if model in ERROR_MODELS else "ground-truth maps (sanity row)"
-    head = ["object", "train light", "relit under"] + [f"relight {v}" for v in variants]
-    baseline = BASELINE in variants  # the no-prior variant's materials, beside full's
-    head += [f"3D {SHORT[c]}" for c in CHANNELS] + ([f"no-prior {SHORT[c]}" for c in CHANNELS] if baseline else [])
-    head += [f"2D {SHORT[c]}" for c in CHANNELS] + ["s"]
-    lines = [f"### error model `{model}` ({label})", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for o in per_object:
-        f = o["figures"]
-        cells = [o["object"]["name"], o["object"]["env"], ", ".join(o["object"]["relight_envs"])]
-        cells += [fmt(f["relight"].get(v)) for v in variants]
-        cells += [fmt(f["materials_3d"].get(c)) for c in CHANNELS]
-        cells += [fmt(f.get("materials_no_prior", {}).get(c)) for c in CHANNELS] if baseline else []
-        cells += [fmt(f["materials_2d"].get(c)) for c in CHANNELS]
-        lines.append("| " + " | ".join(cells + [f"{o['seconds']:.0f}"]) + " |")
-    s3, s2 = summary["materials_3d"], summary["materials_2d"]
-    mean = [f"**mean of {len(per_object)}**", "", ""] + [fmt(summary["relight"].get(v)) for v in variants]
-    for group in (s3, summary["materials_no_prior"]) if baseline else (s3,):
-        mean += [fmt(group[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(group["metallic"])]
-    mean += [fmt(s2[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(s2["metallic"])]
-    lines.append("| " + " | ".join(mean + [f"{sum(o['seconds'] for o in per_object) / len(per_object):.0f}"]) + " |")
-    counted = {k: w for k, w in summary["wins"].items() if w["of"]}  # a pair with a variant not run has no count
-    lines += ["", "wins: " + ", ".join(f"{k} {w['wins']}/{w['of']}" for k, w in counted.items()), ""]
-    return lines
 
 
 # ------------------------------------------------------------------------------------------ protocol
@@ -372,50 +299,107 @@ def run_protocol(args, log=print) -> dict:
     tag = args.tag or ("default" if not any(choices.values()) else fingerprint(choices)[:8])
     tag = tag if args.method == "matspray" else f"{args.method}-{tag}"
     tag = part_name(tag, args.start)  # the whole pass reuses the part's runs
-    settings = {"set": args.set, "preset": args.preset, "objects": len(objects), "start": args.start, "models": list(args.models), "variants": list(args.variants),
-                "method": args.method, "without": list(args.without), "settings": choices["settings"], "refine_overrides": refine, "tag": tag}
+    settings = {
+        "set": args.set,
+        "preset": args.preset,
+        "objects": len(objects),
+        "start": args.start,
+        "models": list(args.models),
+        "variants": list(args.variants),
+        "method": args.method,
+        "without": list(args.without),
+        "settings": choices["settings"],
+        "refine_overrides": refine,
+        "tag": tag,
+    }
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
     if args.set == "eval":
         log("generalise: evaluation set — run it once, with settings chosen on the development set only")
         chosen = {k: settings[k] for k in ("preset", "method", "without", "settings", "refine_overrides")}
-        earlier = sorted(p.stem[len("results-"):] for p in args.out.glob("results-*.json")
-                         if {k: read_json(p)["settings"].get(k) for k in chosen} != chosen)
+        earlier = sorted(
+            p.stem[len("results-") :]
+            for p in args.out.glob("results-*.json")
+            if {k: read_json(p)["settings"].get(k) for k in chosen} != chosen
+        )
         if earlier:
-            log(f"warning: this evaluation set was already run with other settings ({', '.join(earlier)}); "
-                "choosing between them on it makes it a development set")
+            log(
+                f"warning: this evaluation set was already run with other settings ({', '.join(earlier)}); "
+                "choosing between them on it makes it a development set"
+            )
     results = {m: [] for m in specs}
     timing = []
     for number, spec in enumerate(objects, 1):
         start = time.perf_counter()
         folder = args.out / "objects" / spec.name
-        log(f"generalise: object {number}/{len(objects)} {spec.name} (train {spec.env}, relit {', '.join(spec.relight_envs)})")
-        data = make_demo_object(folder / "data", args.preset, "random", spec.seed, progress=args.progress, env=spec.env,
-                                relight_envs=list(spec.relight_envs))
+        log(
+            f"generalise: object {number}/{len(objects)} {spec.name} (train {spec.env}, "
+            f"relit {', '.join(spec.relight_envs)})"
+        )
+        data = make_demo_object(
+            folder / "data",
+            args.preset,
+            "random",
+            spec.seed,
+            progress=args.progress,
+            env=spec.env,
+            relight_envs=list(spec.relight_envs),
+        )
         seconds = {"synth": time.perf_counter() - start, "models": {}}
-        first_run = object_geometry(data, folder / "runs", run_name(first_model, key), object_config(configs[first_model], spec), args, log)
+        first_run = object_geometry(
+            data, folder / "runs", run_name(first_model, key), object_config(configs[first_model], spec), args, log
+        )
         if args.geometry_only:
-            log(f"generalise: {spec.name}: geometry in {first_run / 'geometry'} ({time.perf_counter() - start:.0f} s with synth)")
+            log(
+                f"generalise: {spec.name}: geometry in {first_run / 'geometry'} "
+                f"({time.perf_counter() - start:.0f} s with synth)"
+            )
             continue
         for model in specs:
             run_dir = folder / "runs" / run_name(model, key)
             if run_dir != first_run and share_stage(first_run, run_dir, "geometry"):
                 log(f"generalise: {spec.name} / {run_dir.name}: geometry shared from {first_run.name}")
             default_run = folder / "runs" / run_name(model, None)
-            shared = [] if key is None else [stage for stage in SHARED_STAGES if share_stage(default_run, run_dir, stage)]
+            shared = (
+                [] if key is None else [stage for stage in SHARED_STAGES if share_stage(default_run, run_dir, stage)]
+            )
             if shared:
-                log(f"generalise: {spec.name} / {run_dir.name}: starts from {model}'s {', '.join(shared)} (redone where its settings differ)")
-            metrics, seconds["models"][model] = run_or_reuse(data, run_dir, object_config(configs[model], spec), args, log)
-            results[model].append({"object": vars(spec) | {"relight_envs": list(spec.relight_envs)}, "figures": object_figures(metrics),
-                                   "metrics": metrics, "seconds": seconds["models"][model]})
+                log(
+                    f"generalise: {spec.name} / {run_dir.name}: starts from {model}'s {', '.join(shared)} (redone "
+                    "where its settings differ)"
+                )
+            metrics, seconds["models"][model] = run_or_reuse(
+                data, run_dir, object_config(configs[model], spec), args, log
+            )
+            results[model].append(
+                {
+                    "object": vars(spec) | {"relight_envs": list(spec.relight_envs)},
+                    "figures": object_figures(metrics),
+                    "metrics": metrics,
+                    "seconds": seconds["models"][model],
+                }
+            )
         seconds["geometry"] = RunDir(first_run).timings().get("geometry")
-        seconds["total"] = seconds["synth"] + (seconds["geometry"] or 0.0) + sum(seconds["models"].values())  # earlier passes' work included
+        seconds["total"] = (
+            seconds["synth"] + (seconds["geometry"] or 0.0) + sum(seconds["models"].values())
+        )  # earlier passes' work included
         timing.append({"object": spec.name, **seconds})
     if args.geometry_only:
-        return {"report": None, "lines": [f"geometry of {len(objects)} {args.set} objects ready in {args.out / 'objects'}"]}
+        return {
+            "report": None,
+            "lines": [f"geometry of {len(objects)} {args.set} objects ready in {args.out / 'objects'}"],
+        }
     summaries = {m: model_summary(per_object) for m, per_object in results.items()}
-    report = {"settings": settings, "timing": timing, "models": {m: {"summary": {k: v for k, v in summaries[m].items() if k != "tables"},
-                                                                     "objects": [{k: o[k] for k in ("object", "figures", "seconds")} for o in results[m]]}
-                                                                 for m in results}}
+    report = {
+        "settings": settings,
+        "timing": timing,
+        "models": {
+            m: {
+                "summary": {k: v for k, v in summaries[m].items() if k != "tables"},
+                "objects": [{k: o[k] for k in ("object", "figures", "seconds")} for o in results[m]],
+            }
+            for m in results
+        },
+    }
     lines = markdown(settings, results, summaries, timing)
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / f"results-{tag}.json", report)
@@ -425,78 +409,75 @@ def run_protocol(args, log=print) -> dict:
         results_dir.mkdir(parents=True, exist_ok=True)
         write_json(results_dir / f"generalise-{args.set}-{tag}.json", report)
     for model, summary in summaries.items():
-        tables = dict(summary["tables"], title=f"MatSpray generalisation: {args.set} set, {len(objects)} objects, error model {model}, preset {args.preset}")
+        tables = dict(
+            summary["tables"],
+            title=(
+                f"MatSpray generalisation: {args.set} set, {len(objects)} objects, error model {model}, "
+                f"preset {args.preset}"
+            ),
+        )
         write_tables(args.out / f"tables-{tag}-{model}.md", tables)
     return {"report": report, "lines": lines}
 
 
-def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict]) -> list[str]:
-    size = DEMO_SIZES[settings["preset"]]
-    lines = [f"## Generalisation protocol: {settings['set']} set, preset {settings['preset']} ({size.res} px, {size.views} views)", "",
-             f"method: {settings['method']}; without: {', '.join(settings['without']) or 'nothing'}; settings: "
-             f"{settings['settings'] or 'as the method sets them'}; refine overrides: {settings['refine_overrides'] or 'none'}; tag {settings['tag']}",
-             "PSNR in dB on the test views (object mask); relighting under the two held-out lights; 3D = the full method's materials, "
-             "2D = the predictor's maps of the same test views. Simulated predictors are SIMULATED from the ground truth.", ""]
-    for model, per_object in results.items():
-        lines += model_table(model, per_object, summaries[model], settings["variants"])
-    lines += ["### seconds per object", "", "| object | synth | geometry (once) | " + " | ".join(f"{m} (all variants + eval)" for m in results) + " | total |",
-              "|" + "---|" * (4 + len(results))]
-    for t in timing:
-        cells = [t["object"], f"{t['synth']:.0f}", "—" if t["geometry"] is None else f"{t['geometry']:.0f}"]
-        lines.append("| " + " | ".join(cells + [f"{t['models'][m]:.0f}" for m in results] + [f"{t['total']:.0f}"]) + " |")
-    mean_total = sum(t["total"] for t in timing) / len(timing)
-    lines += ["", f"mean {mean_total:.0f} s per object ({len(timing)} objects, {sum(t['total'] for t in timing) / 3600:.2f} h in all)"]
-    return lines
-
-
-def choices_table(out: Path) -> list[str]:
-    """Markdown lines: one row per configuration (results-*.json in `out`) and error model, from the
-    saved results: the development-set table of choices."""
-    reports = sorted(out.glob("results-*.json"))
-    if not reports:
-        raise ConfigError(f"{out}: no results-*.json to compare; run the protocol first (with --out {out})")
-    lines = ["| tag | method | refine overrides | model | objects | relight full | full - proj-average | full - no-softmax | "
-             "full > proj-average | 3D - 2D base | 3D - 2D rough | 3D - 2D metal |", "|" + "---|" * 12]
-    for path in reports:
-        report = read_json(path)
-        settings = report["settings"]
-        overrides = ", ".join(f"{k}={v}" for k, v in settings["refine_overrides"].items()) or "none"
-        for model, result in report["models"].items():
-            summary = result["summary"]
-            relight, m3, m2 = summary["relight"], summary["materials_3d"], summary["materials_2d"]
-
-            def gap(a, b):
-                return None if a is None or b is None else a - b
-
-            win = summary["wins"]["full > proj-average"]
-            lines.append("| " + " | ".join([
-                settings["tag"], str(settings["method"]), overrides, model, str(settings["objects"]), fmt(relight.get("full")),
-                fmt(gap(relight.get("full"), relight.get("proj-average"))), fmt(gap(relight.get("full"), relight.get("no-softmax"))),
-                f"{win['wins']}/{win['of']}", fmt(gap(m3["basecolor"].get("psnr"), m2["basecolor"].get("psnr"))),
-                fmt(gap(m3["roughness"].get("psnr"), m2["roughness"].get("psnr"))),
-                fmt(gap(m3["metallic"].get("psnr"), m2["metallic"].get("psnr")))]) + " |")
-    return lines
-
-
 def parse_args(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.generalise", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--set", choices=tuple(SET_SEEDS), default="dev", help="dev: choose settings here; eval: run once at the end (default dev)")
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.generalise",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--set",
+        choices=tuple(SET_SEEDS),
+        default="dev",
+        help="dev: choose settings here; eval: run once at the end (default dev)",
+    )
     add_part_arguments(parser)
-    parser.add_argument("--models", nargs="+", default=list(MODELS), metavar="MODEL", help=f"error models (default: {' '.join(MODELS)})")
-    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS, metavar="VARIANT",
-                        help=f"variants refined per run (default: {' '.join(VARIANTS)})")
-    parser.add_argument("--refine", nargs="+", default=[], metavar="KEY=VALUE", help="override refinement settings (RefineConfig fields, "
-                        "merger.KEY for the merger), e.g. --refine iterations=300 merger.hidden=64")
-    parser.add_argument("--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)")
-    parser.add_argument("--out", type=Path, help="folder (default runs/generalise-SET-PRESET); objects and runs in it are reused")
-    parser.add_argument("--results-dir", type=Path, help="where a whole pass's results are also written as generalise-SET-TAG.json, "
-                        "the files the docs' tables are made from (python -m benchmarks.tables); default docs/results when --out is "
-                        "left at its default, else nowhere")
+    parser.add_argument(
+        "--models", nargs="+", default=list(MODELS), metavar="MODEL", help=f"error models (default: {' '.join(MODELS)})"
+    )
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        default=list(VARIANTS),
+        choices=VARIANTS,
+        metavar="VARIANT",
+        help=f"variants refined per run (default: {' '.join(VARIANTS)})",
+    )
+    parser.add_argument(
+        "--refine",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override refinement settings (RefineConfig fields, "
+        "merger.KEY for the merger), e.g. --refine iterations=300 merger.hidden=64",
+    )
+    parser.add_argument(
+        "--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)"
+    )
+    parser.add_argument(
+        "--out", type=Path, help="folder (default runs/generalise-SET-PRESET); objects and runs in it are reused"
+    )
+    parser.add_argument(
+        "--results-dir",
+        type=Path,
+        help="where a whole pass's results are also written as generalise-SET-TAG.json, "
+        "the files the docs' tables are made from (python -m benchmarks.tables); default docs/results when --out is "
+        "left at its default, else nowhere",
+    )
     parser.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
-    parser.add_argument("--geometry-only", action="store_true", help="make the objects and train their geometry only (shared by every "
-                        "later configuration), e.g. in the background while settings are still being chosen")
-    parser.add_argument("--compare", action="store_true", help="run nothing: print one row per configuration already run in --out "
-                        "(its results-*.json), the table to choose settings from")
+    parser.add_argument(
+        "--geometry-only",
+        action="store_true",
+        help="make the objects and train their geometry only (shared by every "
+        "later configuration), e.g. in the background while settings are still being chosen",
+    )
+    parser.add_argument(
+        "--compare",
+        action="store_true",
+        help="run nothing: print one row per configuration already run in --out "
+        "(its results-*.json), the table to choose settings from",
+    )
     add_method_arguments(parser, presets=("test", "demo"))
     args = parser.parse_args(argv)
     check_part_arguments(parser, args)
@@ -519,7 +500,9 @@ def main(argv=None) -> int:
     print("\n" + "\n".join(result["lines"]))
     if result["report"] is None:
         return 0
-    print(f"\nwritten: {args.out / ('results-' + result['report']['settings']['tag'] + '.md')} (and .json, tables-*.md)")
+    print(
+        f"\nwritten: {args.out / ('results-' + result['report']['settings']['tag'] + '.md')} (and .json, tables-*.md)"
+    )
     return 0
 
 

@@ -4,9 +4,9 @@
 
 DATASET is a Blender-layout folder with `{split}/{name}_normal.exr` ground-truth normals (what
 `matspray synth` writes); `--data demo` makes (once) the default demo object of `matspray demo` (composite
-shape, seed 0, 128 px, 40 train / 10 test views) in $TMPDIR/matspray-demo-object. Without --data, the analytic test object of `matspray.geometry.analytic`
-(a sphere fused with a rounded box, baked diffuse lighting) is rendered at 128 px, 40 train and
-8 test views, into $TMPDIR/matspray-analytic128 (once).
+shape, seed 0, 128 px, 40 train / 10 test views) in $TMPDIR/matspray-demo-object. Without --data, the analytic test
+object of `matspray.geometry.analytic` (a sphere fused with a rounded box, baked diffuse lighting) is rendered at 128
+px, 40 train and 8 test views, into $TMPDIR/matspray-analytic128 (once).
 
 Prints: PSNR on the test views (sRGB; masked = object pixels only, full = composited on white), mean
 angular error of the rendered normals on the object, training wall time, peak resident memory, the
@@ -43,7 +43,9 @@ def step_milliseconds(n: int = 20000, resolution: int = 128, repeats: int = 5) -
     gaussians = sphere_object(n)
     for t in (gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits, gaussians.sh):
         t.requires_grad_(True)
-    camera = Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(40), resolution, resolution)
+    camera = Camera.look_at(
+        [0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(40), resolution, resolution
+    )
 
     def step():
         render = render_view(gaussians, camera, 3, torch.ones(3))
@@ -80,12 +82,16 @@ def main() -> None:
     train_geometry(scene, config, out / "geometry", restart=True)
     wall = time.perf_counter() - start
     metrics = json.loads((out / "geometry" / "metrics.json").read_text())
-    print(f"data: {data} ({len(scene.train)} train / {len(scene.test)} test views), preset {config.preset}, "
-          f"{config.iterations} iterations, torch threads {torch.get_num_threads()}")
+    print(
+        f"data: {data} ({len(scene.train)} train / {len(scene.test)} test views), preset {config.preset}, "
+        f"{config.iterations} iterations, torch threads {torch.get_num_threads()}"
+    )
     print(f"test PSNR, object pixels (sRGB): {metrics['psnr_masked']:.2f} dB")
     print(f"test PSNR, on white (sRGB):      {metrics['psnr']:.2f} dB")
     error = metrics.get("normal_error_deg")
-    print(f"normal mean angular error:       {'n/a (no ground-truth normals)' if error is None else f'{error:.2f} deg'}")
+    print(
+        f"normal mean angular error:       {'n/a (no ground-truth normals)' if error is None else f'{error:.2f} deg'}"
+    )
     print(f"gaussians: {metrics['gaussians']}, training {metrics['train_seconds']:.0f} s, whole stage {wall:.0f} s")
     print(f"peak resident memory: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
     print(f"one training render fwd+bwd, 128 px, 20k Gaussians: {step_milliseconds():.0f} ms")

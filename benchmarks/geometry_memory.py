@@ -1,6 +1,7 @@
 """Peak memory of Gaussian Splatting at the sizes of issue 41's target: 100 training views of 256 px, 100 000 Gaussians.
 
-    python -m benchmarks.geometry_memory [--iterations 300] [--views 100] [--resolution 256] [--gaussians 100000] [--backend auto]
+    python -m benchmarks.geometry_memory [--iterations 300] [--views 100] [--resolution 256]
+                                         [--gaussians 100000] [--backend auto]
 
 Renders the analytic test object (matspray.geometry.analytic) once into $TMPDIR, then trains its geometry from
 `--gaussians` initial points with densification capped at that count, and prints the process's peak resident memory
@@ -40,8 +41,16 @@ def main(argv=None) -> int:
     if not (data / "transforms_train.json").exists():
         write_analytic_dataset(data, train_views=args.views, test_views=2, resolution=args.resolution)
     scene = load_scene(data)
-    config = dataclasses.replace(preset("demo"), resolution=args.resolution, iterations=args.iterations, init_points=args.gaussians,
-                                 max_gaussians=args.gaussians, densify_from=50, densify_every=50, checkpoint_every=10**9)
+    config = dataclasses.replace(
+        preset("demo"),
+        resolution=args.resolution,
+        iterations=args.iterations,
+        init_points=args.gaussians,
+        max_gaussians=args.gaussians,
+        densify_from=50,
+        densify_every=50,
+        checkpoint_every=10**9,
+    )
     backend = resolve_backend(args.backend, torch.device("cpu"))
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     start = time.perf_counter()
@@ -49,9 +58,12 @@ def main(argv=None) -> int:
         gaussians = train_geometry(scene, config, out, progress=False)
     seconds = time.perf_counter() - start
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # Linux: KiB -> GiB
-    print(f"geometry, {len(scene.train)} views of {args.resolution} px, {args.gaussians} initial Gaussians (cap), {backend}: "
-          f"{len(gaussians.means)} Gaussians at the end, {seconds / args.iterations:.3f} s per iteration, "
-          f"peak resident memory {peak:.2f} GiB (target <= 4 GB; {before:.2f} GiB after loading the views)")
+    print(
+        f"geometry, {len(scene.train)} views of {args.resolution} px, "
+        f"{args.gaussians} initial Gaussians (cap), {backend}: "
+        f"{len(gaussians.means)} Gaussians at the end, {seconds / args.iterations:.3f} s per iteration, "
+        f"peak resident memory {peak:.2f} GiB (target <= 4 GB; {before:.2f} GiB after loading the views)"
+    )
     return 0
 
 

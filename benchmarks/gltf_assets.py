@@ -32,20 +32,34 @@ from matspray.synth.gltf_object import GLTF_TO_WORLD, write_object_glb
 from matspray.synth.materials import bake_textures, random_material
 from matspray.synth.noise import ValueNoise, fbm, rotation_about
 from matspray.synth.shapes import (
-    Part, capsule_surface, make_part, make_shape, placed, rounded_cube_surface, sphere_surface, torus_surface,
+    Part,
+    capsule_surface,
+    make_part,
+    make_shape,
+    placed,
+    rounded_cube_surface,
+    sphere_surface,
+    torus_surface,
 )
 
 TO_FILE = GLTF_TO_WORLD.T  # our world (+z up) -> glTF's frame (+Y up)
 
 
 def primitive(part: Part, material: int, name: str | None = None) -> Primitive:
-    return Primitive(name or part.name, part.vertices @ TO_FILE.T, part.faces, (part.uvs,), part.normals @ TO_FILE.T, material)
+    return Primitive(
+        name or part.name, part.vertices @ TO_FILE.T, part.faces, (part.uvs,), part.normals @ TO_FILE.T, material
+    )
 
 
 def procedural(path: Path, shape: str, seed: int, texture_height: int) -> None:
     parts = make_shape(shape, np.random.default_rng([seed, 2]))
     material = random_material(np.random.default_rng([seed, 3]))
-    write_object_glb(path, parts, [bake_textures(material, part, texture_height) for part in parts], {"source": f"{shape} seed {seed}"})
+    write_object_glb(
+        path,
+        parts,
+        [bake_textures(material, part, texture_height) for part in parts],
+        {"source": f"{shape} seed {seed}"},
+    )
 
 
 def box_part(name: str, half: np.ndarray, centre) -> Part:
@@ -68,7 +82,9 @@ def box_part(name: str, half: np.ndarray, centre) -> Part:
             faces += [[start, start + 1, start + 2], [start, start + 2, start + 3]]
     vertices, faces = np.array(vertices), np.array(faces)
     p = vertices[faces]
-    assert (np.einsum("fi,fi->f", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.array(normals)[faces[:, 0]]) > 0).all()
+    assert (
+        np.einsum("fi,fi->f", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), np.array(normals)[faces[:, 0]]) > 0
+    ).all()
     return Part(name, None, vertices, faces, np.array(uvs, dtype=np.float64), np.array(normals), {})
 
 
@@ -93,9 +109,14 @@ def checker_box(path: Path) -> None:
     stripes = (x // 32) % 2  # metal / dielectric stripes, roughness a ramp across them
     roughness = 0.1 + 0.8 * (y / (size - 1))
     mr = pack_metallic_roughness(roughness, stripes.astype(np.float64))
-    material = PbrMaterial("checker", (1.0, 1.0, 1.0, 1.0), 1.0, 1.0,
-                           TextureRef(encode_base_color(colour), 0, TextureTransform((0.1, 0.05), 0.3, (3.0, 2.0)), "repeat", "repeat"),
-                           TextureRef(mr, 0, TextureTransform((0.0, 0.0), 0.0, (1.5, 1.5)), "mirror", "mirror"))
+    material = PbrMaterial(
+        "checker",
+        (1.0, 1.0, 1.0, 1.0),
+        1.0,
+        1.0,
+        TextureRef(encode_base_color(colour), 0, TextureTransform((0.1, 0.05), 0.3, (3.0, 2.0)), "repeat", "repeat"),
+        TextureRef(mr, 0, TextureTransform((0.0, 0.0), 0.0, (1.5, 1.5)), "mirror", "mirror"),
+    )
     part = make_part("box", rounded_cube_surface(0.7, 6.0), {}, 192, 96)
     write_glb(path, [primitive(part, 0)], [material], {"source": "by hand"})
 
@@ -116,16 +137,26 @@ def vase(path: Path) -> None:
     vase_mr = pack_metallic_roughness((0.25 + 0.2 * np.abs(glaze)).clip(0, 1), np.zeros_like(glaze))
     band = make_part("band", placed(torus_surface(0.5, 0.04), np.eye(3), [0.0, 0.0, 0.25]), {}, 192, 24)
     knob = make_part("knob", placed(sphere_surface(0.12), np.eye(3), [0.0, 0.0, 1.0]), {}, 64, 32)
-    knob_mr = pack_metallic_roughness(np.tile(np.linspace(0.1, 0.9, 8), (8, 1)), np.tile(np.linspace(0.0, 1.0, 8)[:, None], (1, 8)))
+    knob_mr = pack_metallic_roughness(
+        np.tile(np.linspace(0.1, 0.9, 8), (8, 1)), np.tile(np.linspace(0.0, 1.0, 8)[:, None], (1, 8))
+    )
     materials = [
         PbrMaterial("glaze", (1.0, 1.0, 1.0, 1.0), 1.0, 1.0, TextureRef(encode_base_color(base)), TextureRef(vase_mr)),
         PbrMaterial("gold", (1.0, 0.78, 0.34, 1.0), 1.0, 0.25),
-        PbrMaterial("knob", (0.7, 0.7, 0.72, 1.0), 1.0, 1.0, None,
-                    TextureRef(knob_mr, 0, TextureTransform((0.2, 0.2), 0.0, (0.6, 0.6)), "clamp", "clamp")),
+        PbrMaterial(
+            "knob",
+            (0.7, 0.7, 0.72, 1.0),
+            1.0,
+            1.0,
+            None,
+            TextureRef(knob_mr, 0, TextureTransform((0.2, 0.2), 0.0, (0.6, 0.6)), "clamp", "clamp"),
+        ),
     ]
     with tempfile.TemporaryDirectory() as folder:
         glb = Path(folder) / "vase.glb"
-        write_glb(glb, [primitive(vase_part, 0), primitive(band, 1), primitive(knob, 2)], materials, {"source": "by hand"})
+        write_glb(
+            glb, [primitive(vase_part, 0), primitive(band, 1), primitive(knob, 2)], materials, {"source": "by hand"}
+        )
         gltf = pygltflib.GLTF2().load(str(glb))
         with contextlib.redirect_stdout(io.StringIO()):  # pygltflib reports every image it converts
             gltf.convert_images(pygltflib.ImageFormat.FILE, path=str(Path(folder)) + "/")
@@ -152,9 +183,14 @@ def main() -> None:
     for name, build in builders.items():
         build(args.out / name)
         asset = read_gltf(args.out / name)
-        textures = sum((m.base_color_texture is not None) + (m.metallic_roughness_texture is not None) for m in asset.materials)
+        textures = sum(
+            (m.base_color_texture is not None) + (m.metallic_roughness_texture is not None) for m in asset.materials
+        )
         triangles = sum(len(p.indices) for p in asset.primitives)
-        print(f"{name}: {len(asset.primitives)} primitives, {triangles} triangles, {len(asset.materials)} materials, {textures} textures")
+        print(
+            f"{name}: {len(asset.primitives)} primitives, {triangles} triangles, "
+            f"{len(asset.materials)} materials, {textures} textures"
+        )
 
 
 if __name__ == "__main__":

@@ -20,8 +20,13 @@ import numpy as np
 from matspray.data.images import read_raw
 from matspray.synth import SynthConfig, make_object
 
-KINDS = {"render": "r_???.png", "basecolor": "r_???_basecolor.png", "roughness": "r_???_roughness.png",
-         "metallic": "r_???_metallic.png", "relit": "r_???_relight_*.png"}
+KINDS = {
+    "render": "r_???.png",
+    "basecolor": "r_???_basecolor.png",
+    "roughness": "r_???_roughness.png",
+    "metallic": "r_???_metallic.png",
+    "relit": "r_???_relight_*.png",
+}
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -38,19 +43,33 @@ def main() -> None:
     parser.add_argument("--test-views", type=int, default=4)
     parser.add_argument("--spp", type=int, default=64)
     args = parser.parse_args()
-    settings = dict(seed=args.seed, resolution=args.res, train_views=args.views, test_views=args.test_views, spp=args.spp)
+    settings = dict(
+        seed=args.seed, resolution=args.res, train_views=args.views, test_views=args.test_views, spp=args.spp
+    )
     with tempfile.TemporaryDirectory() as folder:
         made, again = Path(folder) / "made", Path(folder) / "again"
         start = time.perf_counter()
         make_object(SynthConfig(shape=args.shape, **settings), made, progress=False, notify=lambda _: None)
         middle = time.perf_counter()
-        make_object(SynthConfig(asset=str(made / "object.glb"), placement="keep", **settings), again, progress=False, notify=lambda _: None)
+        make_object(
+            SynthConfig(asset=str(made / "object.glb"), placement="keep", **settings),
+            again,
+            progress=False,
+            notify=lambda _: None,
+        )
         end = time.perf_counter()
-        print(f"{args.shape} seed {args.seed}, {args.res} px, {args.views} train + {args.test_views} test views, {args.spp} spp; "
-              f"object.glb {(made / 'object.glb').stat().st_size / 1e6:.1f} MB; synth {middle - start:.1f} s, synth --asset {end - middle:.1f} s")
+        print(
+            f"{args.shape} seed {args.seed}, {args.res} px, {args.views} train + {args.test_views} test "
+            f"views, {args.spp} spp; "
+            f"object.glb {(made / 'object.glb').stat().st_size / 1e6:.1f} MB; synth {middle - start:.1f} s, "
+            f"synth --asset {end - middle:.1f} s"
+        )
         for kind, pattern in KINDS.items():
-            values = [psnr(read_raw(f).numpy(), read_raw(again / f.relative_to(made)).numpy())
-                      for split in ("train", "test") for f in sorted((made / split).glob(pattern))]
+            values = [
+                psnr(read_raw(f).numpy(), read_raw(again / f.relative_to(made)).numpy())
+                for split in ("train", "test")
+                for f in sorted((made / split).glob(pattern))
+            ]
             print(f"{kind:>10}: {len(values):3d} images, PSNR min {min(values):.2f} dB, mean {np.mean(values):.2f} dB")
 
 

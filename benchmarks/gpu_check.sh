@@ -48,7 +48,7 @@ summary+=("$(grep -h 'gsplat CUDA extension\|resolves to\|failed' "$OUT/gsplat_b
 # two processes building gsplat at once break each other's build. Their tiny object needs Mitsuba; without it, one
 # made elsewhere (MATSPRAY_TINY_OBJECT, see tests/conftest.py)
 timeout $(( $(left) / 3 )) python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_device.py tests/test_gsplat_backend.py \
-  2>&1 | tee "$OUT/pytest_cuda.log"
+  tests/test_gsplat_parity.py 2>&1 | tee "$OUT/pytest_cuda.log"
 summary+=("pytest --device cuda: $(tail -n 1 "$OUT/pytest_cuda.log")")
 
 # 3b. with a carried `matspray synth` object (GPU_CHECK_DATA=DIR): the demo preset on CUDA with gsplat (geometry, lift,

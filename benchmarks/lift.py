@@ -13,14 +13,12 @@ import argparse
 import time
 from pathlib import Path
 
-import torch
-
 from matspray.data import load_scene
 from matspray.geometry.ply import read_ply
 from matspray.lift import LiftConfig, lift_view
-from matspray.render.gbuffer import rendered_weights
 from matspray.pipeline import maps_to_tensor
 from matspray.predictors import read_materials2d
+from matspray.render.gbuffer import rendered_weights
 from matspray.rundir import read_json
 
 
@@ -29,14 +27,19 @@ def main() -> None:
     parser.add_argument("--run", type=Path, default=Path("runs/demo-demo/run"))
     parser.add_argument("--views", type=int, default=4, help="training views to measure (evenly spread)")
     parser.add_argument("--samples", type=int, nargs="+", default=[1, 4, 16])
-    parser.add_argument("--falloff", type=float, default=LiftConfig.falloff, help="lambda of eq. (2) (default: the lifting default)")
+    parser.add_argument(
+        "--falloff", type=float, default=LiftConfig.falloff, help="lambda of eq. (2) (default: the lifting default)"
+    )
     args = parser.parse_args()
     scene = load_scene(read_json(args.run / "dataset.json")["source"])
     gaussians, _ = read_ply(args.run / "geometry" / "gaussians.ply")
     step = max(1, len(scene.train) // args.views)
     views = scene.train[::step][: args.views]
     maps = read_materials2d(args.run, views)
-    print(f"{len(gaussians)} Gaussians, {len(views)} views of {views[0].width}x{views[0].height} px, falloff {args.falloff}")
+    print(
+        f"{len(gaussians)} Gaussians, {len(views)} views of {views[0].width}x{views[0].height} px, "
+        f"falloff {args.falloff}"
+    )
     rendered = [rendered_weights(gaussians, v.camera) > 0 for v in views]
     # "any hit": every Gaussian a ray reaches counts (the sampling question alone); "visible": the
     # default rule, hits behind an opaque front (transmittance < 0.5) do not receive the front's value

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import torch
 
+from matspray.asset import Asset
 from matspray.data import load_scene
 from matspray.eval.run_eval import evaluate_asset, read_view_truth
 from matspray.geometry.ply import read_ply
@@ -24,12 +25,13 @@ from matspray.lift import LiftConfig, lift, supported_views
 from matspray.merger import projection_average
 from matspray.pipeline import maps_to_tensor
 from matspray.predictors.ground_truth import read_ground_truth
-from matspray.asset import Asset
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("runs/demo-demo"), help="folder with data/ and run/ (a demo's output)")
+    parser.add_argument(
+        "--out", type=Path, default=Path("runs/demo-demo"), help="folder with data/ and run/ (a demo's output)"
+    )
     parser.add_argument("--samples", type=int, default=LiftConfig.samples_per_side)
     parser.add_argument("--support", type=float, nargs="+", default=[0.0, 0.1, 0.25, 0.5, 0.75])
     args = parser.parse_args()
@@ -37,14 +39,26 @@ def main() -> None:
     gaussians, normals = read_ply(args.out / "run" / "geometry" / "gaussians.ply")
     start = time.perf_counter()
     maps = [maps_to_tensor(read_ground_truth(view)) for view in scene.train]
-    lifted = lift(gaussians, [v.camera for v in scene.train], maps, [v.alpha for v in scene.train], [v.name for v in scene.train],
-                  LiftConfig(samples_per_side=args.samples, min_support=0.0), progress=True)
-    print(f"{len(gaussians)} Gaussians ({int(lifted.kept.sum())} hit), {len(scene.train)} views, {args.samples}x{args.samples} rays/pixel, "
-          f"lifted in {time.perf_counter() - start:.0f} s")
+    lifted = lift(
+        gaussians,
+        [v.camera for v in scene.train],
+        maps,
+        [v.alpha for v in scene.train],
+        [v.name for v in scene.train],
+        LiftConfig(samples_per_side=args.samples, min_support=0.0),
+        progress=True,
+    )
+    print(
+        f"{len(gaussians)} Gaussians ({int(lifted.kept.sum())} hit), {len(scene.train)} views, "
+        f"{args.samples}x{args.samples} rays/pixel, "
+        f"lifted in {time.perf_counter() - start:.0f} s"
+    )
     kept, kept_normals = gaussians.subset(lifted.kept), normals[lifted.kept]
     hits, values = lifted.hits.float(), lifted.values
     hit = hits > 0
-    consensus = torch.where(hit[..., None], values, torch.full_like(values, float("nan"))).nanmedian(dim=1).values  # [N, 5]
+    consensus = (
+        torch.where(hit[..., None], values, torch.full_like(values, float("nan"))).nanmedian(dim=1).values
+    )  # [N, 5]
     off = (values[..., :3] - consensus[:, None, :3]).abs().amax(-1) > 0.1  # [N, V]
     share = hits / hits.amax(1, keepdim=True)
     print("\nshare of best-view hits   (G, view) pairs   base color off by > 0.1")
@@ -56,9 +70,15 @@ def main() -> None:
     for support in args.support:
         seen = supported_views(lifted.hits, support)
         asset = Asset(kept, projection_average(values, seen), kept_normals)
-        psnr = {name: m["psnr"] for name, m in evaluate_asset(asset, scene.test, truths, {}, None)["summary"].items() if "psnr" in m}
-        print(f"{support:>11.2f}{float(seen.sum(1).float().mean()):>21.1f}   "
-              f"{psnr['basecolor']:.2f} / {psnr['roughness']:.2f} / {psnr['metallic']:.2f}")
+        psnr = {
+            name: m["psnr"]
+            for name, m in evaluate_asset(asset, scene.test, truths, {}, None)["summary"].items()
+            if "psnr" in m
+        }
+        print(
+            f"{support:>11.2f}{float(seen.sum(1).float().mean()):>21.1f}   "
+            f"{psnr['basecolor']:.2f} / {psnr['roughness']:.2f} / {psnr['metallic']:.2f}"
+        )
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ import argparse
 import time
 from pathlib import Path
 
+from benchmarks.ceilings import read_test_truth
 from matspray.asset import ENVMAP_FILE, read_asset
 from matspray.config import METHODS, build_config
 from matspray.eval.light import light_figures, training_light
@@ -24,7 +25,6 @@ from matspray.pipeline import Pipeline
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import share_stage
 from matspray.variants import asset_stage
-from benchmarks.ceilings import read_test_truth
 
 SHARED_STAGES = ("materials2d", "geometry", "lift", "visibility")
 
@@ -59,12 +59,16 @@ def main() -> None:
         light = light_figures(estimate, truth_map)
         summary = evaluate_asset(read_asset(folder), views, truths, lights, None)["summary"]["relighting"]
         rows.append((weight, light, summary, time.perf_counter() - start))
-    print(f"\nobject {args.data}, method {args.method}, preset {args.preset}; true training light: {truth_name}; "
-          f"held-out lights: {', '.join(lights)}")
+    print(
+        f"\nobject {args.data}, method {args.method}, preset {args.preset}; true training light: {truth_name}; "
+        f"held-out lights: {', '.join(lights)}"
+    )
     print(f"{'tv weight':>10}{'tv ratio':>10}{'irradiance r':>14}{'relight PSNR':>14}{'SSIM':>8}{'seconds':>9}")
     for weight, light, summary, seconds in rows:
-        print(f"{weight:>10g}{light['tv_ratio']:>10.2f}{light['irradiance_correlation']:>14.3f}{summary['psnr']:>14.2f}"
-              f"{summary['ssim']:>8.3f}{seconds:>9.0f}")
+        print(
+            f"{weight:>10g}{light['tv_ratio']:>10.2f}{light['irradiance_correlation']:>14.3f}{summary['psnr']:>14.2f}"
+            f"{summary['ssim']:>8.3f}{seconds:>9.0f}"
+        )
 
 
 if __name__ == "__main__":

@@ -37,8 +37,14 @@ def scalar_map(maps, channel: str) -> torch.Tensor:  # [H, W] or [H, W, 3] -> [H
 
 def error_stats(predictions: list[torch.Tensor], truths: list[GroundTruth], channel: str) -> dict:
     """Signed mean, mean absolute and RMS error of [H, W] maps against the truths, on the object."""
-    errors = torch.cat([(p - scalar_map(t, channel))[t.mask >= 0.5].reshape(-1) for p, t in zip(predictions, truths)]).double()
-    return {"signed": float(errors.mean()), "abs": float(errors.abs().mean()), "rmse": float(errors.pow(2).mean().sqrt())}
+    errors = torch.cat(
+        [(p - scalar_map(t, channel))[t.mask >= 0.5].reshape(-1) for p, t in zip(predictions, truths)]
+    ).double()
+    return {
+        "signed": float(errors.mean()),
+        "abs": float(errors.abs().mean()),
+        "rmse": float(errors.pow(2).mean().sqrt()),
+    }
 
 
 def run_bias(run: Path, channels) -> dict[str, dict[str, dict]]:
@@ -75,7 +81,9 @@ def main(argv=None) -> int:
         print("| row | " + " | ".join(f"{c} signed | {c} abs | {c} rmse" for c in args.channels) + " |")
         print("| --- |" + " ---: |" * (3 * len(args.channels)))
         for name, stats in rows.items():
-            cells = " | ".join(f"{stats[c]['signed']:+.3f} | {stats[c]['abs']:.3f} | {stats[c]['rmse']:.3f}" for c in args.channels)
+            cells = " | ".join(
+                f"{stats[c]['signed']:+.3f} | {stats[c]['abs']:.3f} | {stats[c]['rmse']:.3f}" for c in args.channels
+            )
             print(f"| {name} | {cells} |")
     return 0
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.generalise import fmt
+from benchmarks.generalise_tables import fmt
 from matspray.errors import MatsprayError, file_error
 from matspray.material import GROUPS
 
@@ -40,13 +40,17 @@ def merger_weights(run: Path) -> tuple[dict[str, torch.Tensor], torch.Tensor, li
             raise file_error(needed, "is missing", "run the full variant first (matspray run --variant full)")
     lift = load_lift(run / "lift" / "projected.pt", "cpu")
     asset = read_asset(run / "asset")
-    merger = load_merger(run / "asset" / "merger.pt", lift.values.shape[1], torch.zeros(2, 3))  # bounds come from the checkpoint
+    merger = load_merger(
+        run / "asset" / "merger.pt", lift.values.shape[1], torch.zeros(2, 3)
+    )  # bounds come from the checkpoint
     with torch.no_grad():
         _, weights = merger(asset.gaussians.means, lift.values, lift.seen, return_weights=True)
     return weights, lift.seen, list(lift.view_names)
 
 
-def batch_shares(weights: dict[str, torch.Tensor], seen: torch.Tensor, views: list[str], batches: list[dict]) -> list[dict]:
+def batch_shares(
+    weights: dict[str, torch.Tensor], seen: torch.Tensor, views: list[str], batches: list[dict]
+) -> list[dict]:
     """Per batch: its drawn errors and, per group, the mean over Gaussians of the weight on the batch's views
     divided by the same mean under equal weights over the seen views (None where no Gaussian saw the batch)."""
     equal = seen.float() / seen.sum(1, keepdim=True).clamp_min(1)  # [N, V]
@@ -55,9 +59,17 @@ def batch_shares(weights: dict[str, torch.Tensor], seen: torch.Tensor, views: li
         index = [views.index(v) for v in batch["views"] if v in views]
         uniform = float(equal[:, index].sum(1).mean()) if index else 0.0
         ratios = {g: (float(w[:, index].sum(1).mean()) / uniform if uniform > 0 else None) for g, w in weights.items()}
-        rows.append({"views": len(index), "exposure": batch["exposure"], "shading": batch["shading"],
-                     "roughness_offset": batch["roughness_offset"], "spurious_metallic": batch["spurious_metallic"],
-                     "uniform": uniform, "ratio": ratios})
+        rows.append(
+            {
+                "views": len(index),
+                "exposure": batch["exposure"],
+                "shading": batch["shading"],
+                "roughness_offset": batch["roughness_offset"],
+                "spurious_metallic": batch["spurious_metallic"],
+                "uniform": uniform,
+                "ratio": ratios,
+            }
+        )
     return rows
 
 
@@ -65,7 +77,9 @@ def pooled(rows: list[dict], with_metallic: bool) -> dict:
     """The weight ratio of the batches with (or without) spurious metallic taken together, per group."""
     chosen = [r for r in rows if (r["spurious_metallic"] > 0) == with_metallic and r["uniform"] > 0]
     uniform = sum(r["uniform"] for r in chosen)
-    return {g: (sum(r["ratio"][g] * r["uniform"] for r in chosen) / uniform if uniform > 0 else None) for g in GROUP_NAMES}
+    return {
+        g: (sum(r["ratio"][g] * r["uniform"] for r in chosen) / uniform if uniform > 0 else None) for g in GROUP_NAMES
+    }
 
 
 def read_batches(run: Path) -> list[dict]:
@@ -82,11 +96,18 @@ def read_batches(run: Path) -> list[dict]:
 def report(run: Path) -> list[str]:
     weights, seen, views = merger_weights(run)
     rows = batch_shares(weights, seen, views, read_batches(run))
-    lines = [f"{run}", "| batch | views | exposure | shading | rough offset | spurious metal | "
-             + " | ".join(f"w {g} / equal" for g in GROUP_NAMES) + " |", "|---" * (6 + len(GROUP_NAMES)) + "|"]
+    lines = [
+        f"{run}",
+        "| batch | views | exposure | shading | rough offset | spurious metal | "
+        + " | ".join(f"w {g} / equal" for g in GROUP_NAMES)
+        + " |",
+        "|---" * (6 + len(GROUP_NAMES)) + "|",
+    ]
     for number, r in enumerate(rows):
-        lines.append(f"| {number} | {r['views']} | {r['exposure']:.2f} | {r['shading']:.2f} | {r['roughness_offset']:+.2f} | "
-                     f"{r['spurious_metallic']:.2f} | " + " | ".join(fmt(r["ratio"][g]) for g in GROUP_NAMES) + " |")
+        lines.append(
+            f"| {number} | {r['views']} | {r['exposure']:.2f} | {r['shading']:.2f} | {r['roughness_offset']:+.2f} | "
+            f"{r['spurious_metallic']:.2f} | " + " | ".join(fmt(r["ratio"][g]) for g in GROUP_NAMES) + " |"
+        )
     for label, flag in (("with spurious metallic", True), ("without", False)):
         share = pooled(rows, flag)
         lines.append(f"- batches {label}: " + ", ".join(f"{g} {fmt(share[g])}" for g in GROUP_NAMES))
@@ -94,9 +115,14 @@ def report(run: Path) -> list[str]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.merger_batches", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", nargs="+", type=Path, metavar="RUN", help="run folders with a full asset and a simulated predictor")
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.merger_batches",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "runs", nargs="+", type=Path, metavar="RUN", help="run folders with a full asset and a simulated predictor"
+    )
     args = parser.parse_args(argv)
     try:
         for run in args.runs:

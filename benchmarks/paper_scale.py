@@ -61,22 +61,44 @@ def frozen_lines(frozen: dict | None) -> list[str]:
     if frozen["backend"] == "gsplat":
         return ["  refinement keeps no blend matrices (gsplat renders each step again)"]
     per_pixel = frozen["hits"] / max(frozen["pixels"], 1)
-    paper = frozen_views_bytes(round(per_pixel * PAPER_VIEWS * PAPER_PIXELS), PAPER_PIXELS, frozen["gaussians"], PAPER_VIEWS)
-    where = "on the GPU" if paper <= 0.75 * GPU_BYTES else "on the host, copied to the GPU view by view" if paper <= 0.75 * HOST_BYTES else "nowhere: too large"
-    return [f"  refinement's frozen views: {frozen['bytes'] / 2**20:.1f} MiB for {frozen['views']} views ({per_pixel:.1f} weights per pixel, "
-            f"{frozen['views_on_host']} views on the host)",
-            f"  at 100 views x 512 px with the same weights per pixel: {paper / 2**30:.2f} GiB (estimate) -> kept {where}"]
+    paper = frozen_views_bytes(
+        round(per_pixel * PAPER_VIEWS * PAPER_PIXELS), PAPER_PIXELS, frozen["gaussians"], PAPER_VIEWS
+    )
+    where = (
+        "on the GPU"
+        if paper <= 0.75 * GPU_BYTES
+        else "on the host, copied to the GPU view by view"
+        if paper <= 0.75 * HOST_BYTES
+        else "nowhere: too large"
+    )
+    return [
+        f"  refinement's frozen views: {frozen['bytes'] / 2**20:.1f} MiB for {frozen['views']} views "
+        f"({per_pixel:.1f} weights per pixel, "
+        f"{frozen['views_on_host']} views on the host)",
+        f"  at 100 views x 512 px with the same weights per pixel: {paper / 2**30:.2f} GiB (estimate) -> kept {where}",
+    ]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--dry-run", action="store_true", help="test preset, tiny object, CPU: checks the code path, measures nothing of interest")
+    parser.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="test preset, tiny object, CPU: checks the code path, measures nothing of interest",
+    )
     parser.add_argument("--backend", choices=BACKENDS, default="auto", help="rasterizer (default auto)")
     parser.add_argument("--out", type=Path, help="work folder (default runs/paper-scale, or runs/paper-scale-dry)")
-    parser.add_argument("--preset", choices=("demo", "paper"), default="paper",
-                        help="settings and object size (default paper: 512 px, 100 views)")
-    parser.add_argument("--data", type=Path, help="an object made by `matspray synth` to use instead of making one "
-                        "(for a machine without Mitsuba)")
+    parser.add_argument(
+        "--preset",
+        choices=("demo", "paper"),
+        default="paper",
+        help="settings and object size (default paper: 512 px, 100 views)",
+    )
+    parser.add_argument(
+        "--data",
+        type=Path,
+        help="an object made by `matspray synth` to use instead of making one (for a machine without Mitsuba)",
+    )
     parser.add_argument("--variants", nargs="+", default=["full"], help="variants to refine (default full)")
     parser.add_argument("--device", default="auto", help="auto|cpu|cuda (default auto)")
     parser.add_argument("--shape", default="composite")
@@ -107,8 +129,11 @@ def main() -> None:
     if cuda:
         print(f"peak GPU memory: {torch.cuda.max_memory_allocated() / 2**20:.0f} MiB")
     print(f"Gaussians: {gaussians}")
-    print(f"{args.variants[0]}: relighting PSNR {summary['relighting']['psnr']:.2f} dB; material PSNR: basecolor {summary['basecolor']['psnr']:.2f}, "
-          f"roughness {summary['roughness']['psnr']:.2f}, metallic {summary['metallic']['psnr']:.2f} dB")
+    print(
+        f"{args.variants[0]}: relighting PSNR {summary['relighting']['psnr']:.2f} dB; material PSNR: "
+        f"basecolor {summary['basecolor']['psnr']:.2f}, "
+        f"roughness {summary['roughness']['psnr']:.2f}, metallic {summary['metallic']['psnr']:.2f} dB"
+    )
     print(f"total wall time: {time.perf_counter() - start:.0f} s")
 
 

@@ -34,7 +34,11 @@ CHANNELS = ("basecolor", "roughness", "metallic")
 
 
 def channel_values(maps) -> dict[str, torch.Tensor]:  # name -> [H, W, C] in the space metrics use
-    return {"basecolor": linear_to_srgb(maps.basecolor), "roughness": maps.roughness[..., None], "metallic": maps.metallic[..., None]}
+    return {
+        "basecolor": linear_to_srgb(maps.basecolor),
+        "roughness": maps.roughness[..., None],
+        "metallic": maps.metallic[..., None],
+    }
 
 
 def psnr(prediction: torch.Tensor, truth: torch.Tensor, mask: torch.Tensor) -> float:
@@ -54,7 +58,9 @@ def evaluate(views, predicted, truths, depths) -> dict:
         scores = []
         for view in views:
             mask = view.alpha > 0.5 if view.alpha is not None else depths[view.name] > 0
-            scores.append(psnr(channel_values(predicted[view.name])[channel], channel_values(truths[view.name])[channel], mask))
+            scores.append(
+                psnr(channel_values(predicted[view.name])[channel], channel_values(truths[view.name])[channel], mask)
+            )
         figures[f"psnr_{channel}"], figures[f"infinite_{channel}"] = mean_psnr(scores)
     stacked = [torch.cat(list(channel_values(predicted[v.name]).values()), dim=-1) for v in views]  # [H, W, 5]
     spread = multiview_spread([v.camera for v in views], [depths[v.name] for v in views], stacked)
@@ -78,8 +84,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch-size", type=int, default=8)
     args = parser.parse_args(argv)
     if not args.data.exists():
-        print(f"{args.data} does not exist. Create a synthetic object with ground truth first: `matspray synth` "
-              f"(see `matspray synth --help`) writing to {args.data}, then rerun this benchmark.", file=sys.stderr)
+        print(
+            f"{args.data} does not exist. Create a synthetic object with ground truth first: `matspray synth` "
+            f"(see `matspray synth --help`) writing to {args.data}, then rerun this benchmark.",
+            file=sys.stderr,
+        )
         return 2
     try:
         scene = load_scene(args.data)
@@ -90,8 +99,11 @@ def main(argv: list[str] | None = None) -> int:
         rows = []
         for label, spec, options in (
             ("ground-truth", "ground-truth", PredictorOptions()),
-            (f"simulated (severity {args.severity:g})", "simulated",
-             PredictorOptions(severity=args.severity, seed=args.seed, batch_size=args.batch_size)),
+            (
+                f"simulated (severity {args.severity:g})",
+                "simulated",
+                PredictorOptions(severity=args.severity, seed=args.seed, batch_size=args.batch_size),
+            ),
         ):
             start = time.perf_counter()
             predicted = predict_views(views, make_predictor(spec, options))
@@ -101,19 +113,31 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     first = views[0]
-    print(f"\nobject: {args.data} ({len(views)} {args.split} views, {first.width}x{first.height} px; "
-          f"simulated: seed {args.seed}, batches of {args.batch_size})")
+    print(
+        f"\nobject: {args.data} ({len(views)} {args.split} views, {first.width}x{first.height} px; "
+        f"simulated: seed {args.seed}, batches of {args.batch_size})"
+    )
     print("PSNR in dB over object pixels (base color sRGB-encoded); spread = mean per-point std across views\n")
-    header = f"{'predictor':<24} {'PSNR base':>9} {'PSNR rough':>10} {'PSNR metal':>16}   {'spread base':>11} {'spread rough':>12} {'spread metal':>12}"
+    header = (
+        f"{'predictor':<24} {'PSNR base':>9} {'PSNR rough':>10} {'PSNR metal':>16}   "
+        f"{'spread base':>11} {'spread rough':>12} {'spread metal':>12}"
+    )
     print(header)
     print("-" * len(header))
     for label, f, _ in rows:
-        metal = fmt(f["psnr_metallic"]) + (f" ({f['infinite_metallic']} inf)" if f["infinite_metallic"] and math.isfinite(f["psnr_metallic"]) else "")
-        print(f"{label:<24} {fmt(f['psnr_basecolor']):>9} {fmt(f['psnr_roughness']):>10} {metal:>16}   "
-              f"{f['spread_basecolor']:>11.4f} {f['spread_roughness']:>12.4f} {f['spread_metallic']:>12.4f}")
+        metal = fmt(f["psnr_metallic"]) + (
+            f" ({f['infinite_metallic']} inf)" if f["infinite_metallic"] and math.isfinite(f["psnr_metallic"]) else ""
+        )
+        print(
+            f"{label:<24} {fmt(f['psnr_basecolor']):>9} {fmt(f['psnr_roughness']):>10} {metal:>16}   "
+            f"{f['spread_basecolor']:>11.4f} {f['spread_roughness']:>12.4f} {f['spread_metallic']:>12.4f}"
+        )
     f = rows[-1][1]
-    print(f"\nspread measured on {f['spread_points']} surface points, seen by {f['views_per_point']:.1f} views on average; "
-          f"simulated predictions took {rows[-1][2]:.2f} s")
+    print(
+        f"\nspread measured on {f['spread_points']} surface points, "
+        f"seen by {f['views_per_point']:.1f} views on average; "
+        f"simulated predictions took {rows[-1][2]:.2f} s"
+    )
     return 0
 
 

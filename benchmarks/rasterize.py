@@ -52,7 +52,9 @@ def sphere_object(n: int, seed: int = 0) -> Gaussians:
     sh = torch.zeros(n, 16, 3)
     sh[:, 0] = torch.rand(n, 3, generator=g) - 0.5
     sh[:, 1:] = 0.05 * torch.randn(n, 15, 3, generator=g)
-    return Gaussians(normals.clone(), log_scales, torch.nn.functional.normalize(quats, dim=-1), torch.logit(opacity), sh)
+    return Gaussians(
+        normals.clone(), log_scales, torch.nn.functional.normalize(quats, dim=-1), torch.logit(opacity), sh
+    )
 
 
 def time_ms(fn, repeats: int) -> float:
@@ -79,8 +81,11 @@ def interleaved_ms(fns: dict, repeats: int) -> dict[str, list[float]]:
 def report(label: str, times: dict[str, list[float]]) -> None:
     best = {name: min(t) for name, t in times.items()}
     median = {name: statistics.median(t) for name, t in times.items()}
-    print(f"  {label:<34} torch {best['torch']:8.1f} ms (median {median['torch']:8.1f})   numba {best['numba']:7.1f} ms "
-          f"(median {median['numba']:7.1f})   ratio {best['torch'] / best['numba']:5.1f}x (medians {median['torch'] / median['numba']:.1f}x)")
+    print(
+        f"  {label:<34} torch {best['torch']:8.1f} ms (median {median['torch']:8.1f})   numba {best['numba']:7.1f} ms "
+        f"(median {median['numba']:7.1f})   ratio {best['torch'] / best['numba']:5.1f}x (medians "
+        f"{median['torch'] / median['numba']:.1f}x)"
+    )
 
 
 def bench_case(n: int, res: int, repeats: int) -> None:
@@ -95,12 +100,16 @@ def bench_case(n: int, res: int, repeats: int) -> None:
         def run():
             with torch.no_grad():
                 return rasterize(gaussians, camera, colours, background, backend=backend)
+
         return run
 
     def forward_backward(backend, sh: bool):
         def run():
-            out = rasterize(gaussians, camera, sh_colors(gaussians, camera) if sh else colours, background, backend=backend)
+            out = rasterize(
+                gaussians, camera, sh_colors(gaussians, camera) if sh else colours, background, backend=backend
+            )
             (out.features.sum() + out.alpha.sum() + out.depth.sum()).backward()
+
         return run
 
     hits = {b: forward(b)().pixel_hits for b in BACKENDS}
@@ -122,7 +131,12 @@ def bench_stage(iterations: int) -> None:
     scene = load_scene(make_demo_object(DEMO_OBJECT, "demo", "composite", 0))
     config = preset("demo", iterations=iterations)
     small = sphere_object(10)  # numba's kernels compiled (or loaded from its cache) before the clock starts
-    rasterize(small, Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.7, 16, 16), torch.ones(10, 3), backend="numba")
+    rasterize(
+        small,
+        Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.7, 16, 16),
+        torch.ones(10, 3),
+        backend="numba",
+    )
     seconds, psnr = {}, {}
     for backend in BACKENDS:
         out = Path(tempfile.mkdtemp(prefix=f"matspray-bench-{backend}-"))
@@ -132,10 +146,15 @@ def bench_stage(iterations: int) -> None:
         seconds[backend] = time.perf_counter() - start
         metrics = json.loads((out / "geometry" / "metrics.json").read_text())
         psnr[backend] = metrics["psnr"]
-        print(f"  geometry stage, backend {backend}: {seconds[backend]:.1f} s ({metrics['gaussians']} Gaussians, "
-              f"test PSNR {metrics['psnr']:.2f} dB, renders {use.used()})", flush=True)
-    print(f"  geometry stage ({iterations} iterations of the demo preset, {config.resolution} px): "
-          f"ratio {seconds['torch'] / seconds['numba']:.1f}x, PSNR difference {psnr['numba'] - psnr['torch']:+.2f} dB")
+        print(
+            f"  geometry stage, backend {backend}: {seconds[backend]:.1f} s ({metrics['gaussians']} Gaussians, "
+            f"test PSNR {metrics['psnr']:.2f} dB, renders {use.used()})",
+            flush=True,
+        )
+    print(
+        f"  geometry stage ({iterations} iterations of the demo preset, {config.resolution} px): "
+        f"ratio {seconds['torch'] / seconds['numba']:.1f}x, PSNR difference {psnr['numba'] - psnr['torch']:+.2f} dB"
+    )
 
 
 def main() -> None:
@@ -143,7 +162,9 @@ def main() -> None:
     parser.add_argument("--cases", nargs="*", default=["20000:128", "100000:256"], help="GAUSSIANS:RESOLUTION")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--threads", type=int, default=2, help="threads of torch and of numba")
-    parser.add_argument("--stage-iterations", type=int, default=0, help="also time this many iterations of geometry training")
+    parser.add_argument(
+        "--stage-iterations", type=int, default=0, help="also time this many iterations of geometry training"
+    )
     parser.add_argument("--samples", type=int, nargs="*", default=[], help="rays per pixel side for contributions")
     args = parser.parse_args()
     import numba
@@ -151,8 +172,11 @@ def main() -> None:
     # numba's kernels take as many threads as torch has. (numba.set_num_threads is not called here: it would start
     # numba's OpenMP pool before the backend can make its idle threads sleep; see numba_backend.ensure_compiled)
     torch.set_num_threads(args.threads)
-    print(f"threads: torch and numba {torch.get_num_threads()}; OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}; "
-          f"load average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(
+        f"threads: torch and numba {torch.get_num_threads()}; "
+        f"OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}; "
+        f"load average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    )
     for case in args.cases:
         n, res = (int(x) for x in case.split(":"))
         bench_case(n, res, args.repeats)
@@ -166,8 +190,14 @@ def main() -> None:
         for s in args.samples:
             start = time.perf_counter()
             hits = sum(len(part) for part in iter_contributions(gaussians, camera, s))
-            print(f"contributions, 20000 gaussians, 128 px, {s}x{s} rays per pixel: {hits} hits, {time.perf_counter() - start:.2f} s")
-    print(f"load average at the end {os.getloadavg()[0]:.1f}; peak resident memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0:.0f} MiB")
+            print(
+                f"contributions, 20000 gaussians, 128 px, {s}x{s} rays per pixel: {hits} hits, "
+                f"{time.perf_counter() - start:.2f} s"
+            )
+    print(
+        f"load average at the end {os.getloadavg()[0]:.1f}; "
+        f"peak resident memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0:.0f} MiB"
+    )
 
 
 if __name__ == "__main__":

@@ -7,8 +7,9 @@ Per capture, the `matspray` commands a user types, each in its own process:
   skull   `matspray colmap` on its 66 photos (no poses), then `run` on the dataset it made
   stitch  `run` on its transforms.json (poses with lens distortion, cluttered room)
 then `relight` under each light (the held-out test cameras) and once as a turntable (orbit MP4 over the light),
-`export` (RUN/export/NAME.glb, which the report and `matspray view` find), and `eval` (held-out photos scored inside the object mask; report.html with the photo credit).
-Neither capture has 2D material maps here (no diffusion weights), so the run makes the no-prior asset.
+`export` (RUN/export/NAME.glb, which the report and `matspray view` find), and `eval` (held-out photos scored inside the
+object mask; report.html with the photo credit). Neither capture has 2D material maps here (no diffusion weights), so
+the run makes the no-prior asset.
 
 Prints per capture: photos registered and mean reprojection error (skull), held-out novel-view PSNR / SSIM /
 LPIPS inside the object mask on views never trained on, the share of each held-out view the mask covers,
@@ -28,8 +29,10 @@ import time
 from pathlib import Path
 
 CAPTURES_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "captures"
-SKULL_CREDIT = ('"Photogrammetry Test Set: Skull - Cameramoves - Flash - No Background" by alansartlog '
-                "(photogrammetry-test-sets), CC BY 4.0")
+SKULL_CREDIT = (
+    '"Photogrammetry Test Set: Skull - Cameramoves - Flash - No Background" by alansartlog '
+    "(photogrammetry-test-sets), CC BY 4.0"
+)
 CREDITS = {"skull": SKULL_CREDIT, "stitch": "toy figure video frames from a public TensoRF user-data repository (MIT)"}
 VARIANT = "no-prior"
 
@@ -46,19 +49,32 @@ def command(args: list[str], log: Path) -> dict:
     seconds = time.perf_counter() - start
     if process.returncode != 0:
         raise SystemExit(f"matspray {' '.join(args)} failed (exit {process.returncode}); see {log}")
-    return {"command": "matspray " + " ".join(args), "seconds": round(seconds, 1), "peak_mib": round(usage.ru_maxrss / 1024)}
+    return {
+        "command": "matspray " + " ".join(args),
+        "seconds": round(seconds, 1),
+        "peak_mib": round(usage.ru_maxrss / 1024),
+    }
 
 
 def skull_dataset(out: Path, log: Path, steps: list) -> tuple[Path, dict]:
     dataset = out / "dataset"
     if not (dataset / "sparse" / "0").is_dir():
-        steps.append(command(["colmap", str(CAPTURES_DIR / "skull" / "images"), "--out", str(dataset), "--single-camera", "--quiet"], log))
+        steps.append(
+            command(
+                ["colmap", str(CAPTURES_DIR / "skull" / "images"), "--out", str(dataset), "--single-camera", "--quiet"],
+                log,
+            )
+        )
     import pycolmap
 
     model = pycolmap.Reconstruction(str(dataset / "sparse" / "0"))
     photos = len(list((CAPTURES_DIR / "skull" / "images").glob("*.JPG")))
-    return dataset, {"photos": photos, "registered": model.num_reg_images(),
-                     "reprojection_px": round(float(model.compute_mean_reprojection_error()), 3), "points": model.num_points3D()}
+    return dataset, {
+        "photos": photos,
+        "registered": model.num_reg_images(),
+        "reprojection_px": round(float(model.compute_mean_reprojection_error()), 3),
+        "points": model.num_points3D(),
+    }
 
 
 def run_capture(name: str, args, out_root: Path) -> dict:
@@ -79,14 +95,68 @@ def run_capture(name: str, args, out_root: Path) -> dict:
             extra += ["--geometry-iterations", str(args.geometry_iterations)]
         if args.refine_iterations:
             extra += ["--refine-iterations", str(args.refine_iterations)]
-        steps.append(command(["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *extra, *compute], log))
+        steps.append(
+            command(["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *extra, *compute], log)
+        )
         for light in args.lights:
-            steps.append(command(["relight", "--run", str(run), "--variant", VARIANT, "--env", light, "--out", str(out / "relit"), *compute], log))
-        steps.append(command(["relight", "--run", str(run), "--variant", VARIANT, "--env", args.lights[0], "--views", "orbit",
-                              "--background", "env", "--out", str(out / "turntable"), *compute], log))
-        steps.append(command(["export", "--run", str(run), "--variant", VARIANT, "--out", str(run / "export" / f"{name}.glb"), "--frame", "dataset",
-                              *compute], log))
-        steps.append(command(["eval", "--run", str(run), "--credit", CREDITS[name], "--relight", *args.lights, *compute], log))
+            steps.append(
+                command(
+                    [
+                        "relight",
+                        "--run",
+                        str(run),
+                        "--variant",
+                        VARIANT,
+                        "--env",
+                        light,
+                        "--out",
+                        str(out / "relit"),
+                        *compute,
+                    ],
+                    log,
+                )
+            )
+        steps.append(
+            command(
+                [
+                    "relight",
+                    "--run",
+                    str(run),
+                    "--variant",
+                    VARIANT,
+                    "--env",
+                    args.lights[0],
+                    "--views",
+                    "orbit",
+                    "--background",
+                    "env",
+                    "--out",
+                    str(out / "turntable"),
+                    *compute,
+                ],
+                log,
+            )
+        )
+        steps.append(
+            command(
+                [
+                    "export",
+                    "--run",
+                    str(run),
+                    "--variant",
+                    VARIANT,
+                    "--out",
+                    str(run / "export" / f"{name}.glb"),
+                    "--frame",
+                    "dataset",
+                    *compute,
+                ],
+                log,
+            )
+        )
+        steps.append(
+            command(["eval", "--run", str(run), "--credit", CREDITS[name], "--relight", *args.lights, *compute], log)
+        )
     return summarise(name, out, run, sfm, steps)
 
 
@@ -101,12 +171,19 @@ def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dic
     timings = json.loads((run / "timings.json").read_text())
     region = read_object_masks(run / "masks").region
     glb = run / "export" / f"{name}.glb"
-    record = {"capture": name, "sfm": sfm, "steps": steps, "stage_seconds": timings,
-              "gaussians_geometry": len(read_ply(run / "geometry" / "gaussians.ply")[0]),
-              "gaussians_asset": len(read_asset(RunDir(run).asset_path(VARIANT)).gaussians),
-              "heldout": metrics["heldout"]["summary"], "train": metrics["train"]["summary"],
-              "mask_coverage": [(r["view"], round(r["mask_coverage"], 3)) for r in metrics["heldout"]["per_view"]],
-              "region": region.describe(), "glb_box": [[round(v, 3) for v in corner] for corner in glb_box(glb)] if glb.exists() else None}
+    record = {
+        "capture": name,
+        "sfm": sfm,
+        "steps": steps,
+        "stage_seconds": timings,
+        "gaussians_geometry": len(read_ply(run / "geometry" / "gaussians.ply")[0]),
+        "gaussians_asset": len(read_asset(RunDir(run).asset_path(VARIANT)).gaussians),
+        "heldout": metrics["heldout"]["summary"],
+        "train": metrics["train"]["summary"],
+        "mask_coverage": [(r["view"], round(r["mask_coverage"], 3)) for r in metrics["heldout"]["per_view"]],
+        "region": region.describe(),
+        "glb_box": [[round(v, 3) for v in corner] for corner in glb_box(glb)] if glb.exists() else None,
+    }
     (out / "summary.json").write_text(json.dumps(record, indent=1))
     return record
 
@@ -115,14 +192,22 @@ def print_record(record: dict) -> None:
     print(f"\n== {record['capture']} ==")
     if record["sfm"]:
         s = record["sfm"]
-        print(f"structure from motion: {s['registered']} of {s['photos']} photos registered, mean reprojection error "
-              f"{s['reprojection_px']:.3f} px, {s['points']} points")
+        print(
+            f"structure from motion: {s['registered']} of {s['photos']} photos registered, mean reprojection error "
+            f"{s['reprojection_px']:.3f} px, {s['points']} points"
+        )
     for key, value in record["heldout"].items():
         lpips = "n/a" if value["lpips"] is None else f"{value['lpips']:.3f}"
         label = "geometry (3DGS colours)" if key == "radiance" else f"{key} asset under its estimated light"
-        print(f"held-out, inside the object mask, {label}: PSNR {value['psnr']:.2f} dB, SSIM {value['ssim']:.3f}, LPIPS {lpips}"
-              f"   (training views: {record['train'][key]['psnr']:.2f} dB)")
-    print("mask coverage of each held-out view: " + ", ".join(f"{view} {100 * c:.1f}%" for view, c in record["mask_coverage"]))
+        print(
+            f"held-out, inside the object mask, {label}: PSNR {value['psnr']:.2f} dB, "
+            f"SSIM {value['ssim']:.3f}, LPIPS {lpips}"
+            f"   (training views: {record['train'][key]['psnr']:.2f} dB)"
+        )
+    print(
+        "mask coverage of each held-out view: "
+        + ", ".join(f"{view} {100 * c:.1f}%" for view, c in record["mask_coverage"])
+    )
     print(f"Gaussians: {record['gaussians_geometry']} in the geometry, {record['gaussians_asset']} in the asset")
     print(f"object region: {record['region']}")
     if record["glb_box"]:
@@ -138,10 +223,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--captures", nargs="+", choices=("skull", "stitch"), default=["skull", "stitch"])
     parser.add_argument("--preset", default="demo", choices=("test", "demo", "paper"))
-    parser.add_argument("--out", type=Path, help="folder of the captures' datasets and runs (default runs/real-captures)")
-    parser.add_argument("--results-dir", type=Path, help="where each capture's summary is copied as real-captures-NAME.json, "
-                        "the files the docs' tables are made from (python -m benchmarks.tables); default docs/results "
-                        "when --out is left at its default, else nowhere")
+    parser.add_argument(
+        "--out", type=Path, help="folder of the captures' datasets and runs (default runs/real-captures)"
+    )
+    parser.add_argument(
+        "--results-dir",
+        type=Path,
+        help="where each capture's summary is copied as real-captures-NAME.json, "
+        "the files the docs' tables are made from (python -m benchmarks.tables); default docs/results "
+        "when --out is left at its default, else nowhere",
+    )
     parser.add_argument("--lights", nargs="+", default=["studio", "sunset", "forest"])
     parser.add_argument("--geometry-iterations", type=int)
     parser.add_argument("--refine-iterations", type=int)

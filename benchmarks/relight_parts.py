@@ -21,9 +21,9 @@ from matspray.data import load_scene
 from matspray.data.images import read_raw
 from matspray.eval.evaluate import evaluate_images
 from matspray.eval.run_eval import load_relight_lights, read_view_truth, unpremultiply
-from matspray.variants import asset_stage
 from matspray.relight import render_gbuffer
 from matspray.render.deferred import GBuffer, shade_gbuffer
+from matspray.variants import asset_stage
 
 MATERIALS = {"base_color", "roughness", "metallic"}
 SWAPS = {
@@ -40,7 +40,9 @@ SWAPS = {
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("runs/demo-demo"), help="folder with data/ and run/ (a demo's output)")
+    parser.add_argument(
+        "--out", type=Path, default=Path("runs/demo-demo"), help="folder with data/ and run/ (a demo's output)"
+    )
     parser.add_argument("--variant", default="full")
     args = parser.parse_args()
     data, run = args.out / "data", args.out / "run"
@@ -50,8 +52,13 @@ def main() -> None:
     lights = load_relight_lights(data, sorted(set.intersection(*(set(t.relit) for t in truths))))
     psnr: dict[str, dict[str, list[float]]] = {}
     for view, truth in zip(scene.test, truths):
-        true_parts = {"base_color": truth.basecolor, "roughness": truth.roughness, "metallic": truth.metallic,
-                      "normals": read_raw(view.path.with_name(f"{view.name}_normal.exr"))[..., :3], "alpha": truth.mask}
+        true_parts = {
+            "base_color": truth.basecolor,
+            "roughness": truth.roughness,
+            "metallic": truth.metallic,
+            "normals": read_raw(view.path.with_name(f"{view.name}_normal.exr"))[..., :3],
+            "alpha": truth.mask,
+        }
         for env, light in lights.items():
             with torch.no_grad():
                 ours = render_gbuffer(asset, view.camera, light)
@@ -68,7 +75,10 @@ def main() -> None:
     print(f"{'G-buffer':<30}{'all':>8}" + "".join(f"{env:>10}" for env in lights))
     for name, per_env in psnr.items():
         every = [v for values in per_env.values() for v in values]
-        print(f"{name:<30}{sum(every) / len(every):>8.2f}" + "".join(f"{sum(v) / len(v):>10.2f}" for v in per_env.values()))
+        print(
+            f"{name:<30}{sum(every) / len(every):>8.2f}"
+            + "".join(f"{sum(v) / len(v):>10.2f}" for v in per_env.values())
+        )
 
 
 if __name__ == "__main__":

@@ -43,11 +43,15 @@ def lut_figures() -> None:
     seconds = timed(lambda: brdf_lut.brdf_lut(brdf_lut.DEFAULT_SIZE, brdf_lut.DEFAULT_SAMPLES))
     centres = (torch.arange(brdf_lut.DEFAULT_SIZE, dtype=f64) + 0.5) / brdf_lut.DEFAULT_SIZE
     nv, r = torch.meshgrid(centres, centres, indexing="ij")
-    reference = torch.cat([brdf_lut.integrate_split_sum(nv[i : i + 2], r[i : i + 2], 1 << 16) for i in range(0, len(centres), 2)])
+    reference = torch.cat(
+        [brdf_lut.integrate_split_sum(nv[i : i + 2], r[i : i + 2], 1 << 16) for i in range(0, len(centres), 2)]
+    )
     table = brdf_lut.brdf_lut(dtype=f64)
     error = (table - reference).abs()
-    print(f"BRDF table {brdf_lut.DEFAULT_SIZE}x{brdf_lut.DEFAULT_SIZE}, {brdf_lut.DEFAULT_SAMPLES} VNDF samples: "
-          f"built in {seconds:.3f} s; |A, B - 65k-sample reference| max {error.max():.2e}, mean {error.mean():.2e}")
+    print(
+        f"BRDF table {brdf_lut.DEFAULT_SIZE}x{brdf_lut.DEFAULT_SIZE}, {brdf_lut.DEFAULT_SAMPLES} VNDF samples: "
+        f"built in {seconds:.3f} s; |A, B - 65k-sample reference| max {error.max():.2e}, mean {error.mean():.2e}"
+    )
 
 
 def prefilter_figures() -> None:
@@ -64,8 +68,10 @@ def prefilter_figures() -> None:
 
         backward = timed(step, repeats=3)
         kernel_mb = sum(k.numel() * k.element_size() for k in _KERNELS.values()) / 2**20
-        print(f"prefilter {height}x{2 * height} float32, 12 levels + irradiance: first call (kernels) {cold:.3f} s, "
-              f"then {warm * 1000:.1f} ms forward, {backward * 1000:.1f} ms forward+backward; kernels {kernel_mb:.1f} MiB")
+        print(
+            f"prefilter {height}x{2 * height} float32, 12 levels + irradiance: first call (kernels) {cold:.3f} s, "
+            f"then {warm * 1000:.1f} ms forward, {backward * 1000:.1f} ms forward+backward; kernels {kernel_mb:.1f} MiB"
+        )
 
 
 def gbuffer_figures(size: int = 128) -> None:
@@ -87,7 +93,10 @@ def gbuffer_figures(size: int = 128) -> None:
         image.mean().backward()
 
     seconds = timed(step, repeats=3)
-    print(f"shade_gbuffer {size}x{size} with a 64x128 learnable map (prefilter included): {seconds * 1000:.0f} ms forward+backward")
+    print(
+        f"shade_gbuffer {size}x{size} with a 64x128 learnable map (prefilter included): "
+        f"{seconds * 1000:.0f} ms forward+backward"
+    )
 
 
 GEOMETRIES = {
@@ -110,7 +119,9 @@ def split_sum_figures() -> None:
         n, wo = (torch.nn.functional.normalize(torch.tensor(v, dtype=f64), dim=0).expand(3, 3) for v in (n, wo))
         for roughness in (0.2, 0.5, 0.9):
             r = torch.full((3,), roughness, dtype=f64)
-            reference = shade_by_quadrature(base.expand(3, 3), r, metallic, n, wo, light, rows=256 if roughness < 0.5 else 128)
+            reference = shade_by_quadrature(
+                base.expand(3, 3), r, metallic, n, wo, light, rows=256 if roughness < 0.5 else 128
+            )
             errors = []
             for direction in (dominant, lambda n, wo, r: reflect(-wo, n)):
                 deferred.specular_direction = direction
@@ -118,8 +129,12 @@ def split_sum_figures() -> None:
                 errors.append(((got - reference) / reference).abs().amax(-1).tolist())
             deferred.specular_direction = dominant
             with_d, without_d = errors
-            print(f"{name:>11} {roughness:4.1f}  " + " ".join(f"{e:6.3f}" for e in with_d)
-                  + "   " + " ".join(f"{e:6.3f}" for e in without_d[1:]))
+            print(
+                f"{name:>11} {roughness:4.1f}  "
+                + " ".join(f"{e:6.3f}" for e in with_d)
+                + "   "
+                + " ".join(f"{e:6.3f}" for e in without_d[1:])
+            )
 
 
 if __name__ == "__main__":

@@ -24,11 +24,14 @@ def main() -> None:
     for shape in args.shape or ["composite"]:
         with tempfile.TemporaryDirectory() as folder:
             start = time.perf_counter()
-            result = make_object(SynthConfig(shape=shape, seed=args.seed), Path(folder) / "object", progress=False,
-                                 notify=lambda _: None)
+            result = make_object(
+                SynthConfig(shape=shape, seed=args.seed), Path(folder) / "object", progress=False, notify=lambda _: None
+            )
             seconds = time.perf_counter() - start
-        print(f"{shape:>13}: {seconds:6.1f} s for 40 train + 10 test views at 128 px, 64 spp, relit under "
-              f"{' and '.join(result.relight_envs)} ({result.variant})")
+        print(
+            f"{shape:>13}: {seconds:6.1f} s for 40 train + 10 test views at 128 px, 64 spp, relit under "
+            f"{' and '.join(result.relight_envs)} ({result.variant})"
+        )
 
 
 if __name__ == "__main__":

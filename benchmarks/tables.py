@@ -59,19 +59,40 @@ def noprior_rows(report: dict, models) -> list[str]:
         lead = [model] if len(models) > 1 else []
         for o in result["objects"]:
             f = o["figures"]
-            cells = lead + [short(o["object"]["name"]), fmt(f["relight"].get("full")), fmt(f["relight"].get("no-prior"))]
-            cells += [f"{fmt(f['materials_3d'][c])} / {fmt(f['materials_no_prior'][c])}" for c in ("basecolor", "roughness", "metallic")]
+            cells = lead + [
+                short(o["object"]["name"]),
+                fmt(f["relight"].get("full")),
+                fmt(f["relight"].get("no-prior")),
+            ]
+            cells += [
+                f"{fmt(f['materials_3d'][c])} / {fmt(f['materials_no_prior'][c])}"
+                for c in ("basecolor", "roughness", "metallic")
+            ]
             rows.append("| " + " | ".join(cells) + " |")
         s = result["summary"]
-        cells = lead + [f"mean of {len(result['objects'])}", fmt(s["relight"].get("full")), fmt(s["relight"].get("no-prior"))]
-        cells += [f"{fmt(s['materials_3d'][c]['psnr'])} / {fmt(s['materials_no_prior'][c]['psnr'])}" for c in ("basecolor", "roughness", "metallic")]
+        cells = lead + [
+            f"mean of {len(result['objects'])}",
+            fmt(s["relight"].get("full")),
+            fmt(s["relight"].get("no-prior")),
+        ]
+        cells += [
+            f"{fmt(s['materials_3d'][c]['psnr'])} / {fmt(s['materials_no_prior'][c]['psnr'])}"
+            for c in ("basecolor", "roughness", "metallic")
+        ]
         rows.append("| " + " | ".join(cells) + " |")
     return rows
 
 
 def noprior_head(with_model: bool) -> list[str]:
     head = ["model"] if with_model else []
-    head += ["object", "relight full", "relight no-prior", "base full / no-prior", "rough full / no-prior", "metal full / no-prior"]
+    head += [
+        "object",
+        "relight full",
+        "relight no-prior",
+        "base full / no-prior",
+        "rough full / no-prior",
+        "metal full / no-prior",
+    ]
     align = (["---"] if with_model else []) + ["---"] + ["---:"] * 5
     return ["| " + " | ".join(head) + " |", "| " + " | ".join(align) + " |"]
 
@@ -92,13 +113,15 @@ def table_noprior_dev(results: Path) -> str:
 def table_noprior_eval(results: Path) -> str:
     report = read(results, EVAL_NOPRIOR)
     models = [m for m in MODELS if m in report["models"]]
-    return "\n".join(noprior_head(True) + noprior_rows(report, models) + ["", "Wins (out of 6):"] + wins_lines(report, models))
+    return "\n".join(
+        noprior_head(True) + noprior_rows(report, models) + ["", "Wins (out of 6):"] + wins_lines(report, models)
+    )
 
 
 def table_generalise_eval(results: Path) -> str:
     """The protocol's full per-model tables (benchmarks.generalise's format), relighting and materials of
     `full` and `no-prior` and the 2D predictions, per object, with the seconds."""
-    from benchmarks.generalise import model_table
+    from benchmarks.generalise_tables import model_table
 
     report = read(results, EVAL_NOPRIOR)
     variants = report["settings"]["variants"]
@@ -113,15 +136,20 @@ def table_generalise_eval(results: Path) -> str:
 def table_headline(results: Path) -> str:
     """README: means over the evaluation set per error model, full method against no-prior and the 2D maps."""
     report = read(results, EVAL_NOPRIOR)
-    lines = ["| error model | relight full | relight no-prior | base colour full / no-prior / 2D | roughness full / no-prior / 2D "
-             "| metallic full / no-prior / 2D | full > no-prior |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "| error model | relight full | relight no-prior | base colour full / no-prior / 2D | roughness "
+        "full / no-prior / 2D "
+        "| metallic full / no-prior / 2D | full > no-prior |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
     for model in [m for m in MODELS if m in report["models"]]:
         s = report["models"][model]["summary"]
         win = s["wins"]["full > no-prior"]
         cells = [f"`{model}`", fmt(s["relight"]["full"]), fmt(s["relight"]["no-prior"])]
-        cells += [" / ".join(fmt(s[g][c]["psnr"]) for g in ("materials_3d", "materials_no_prior", "materials_2d"))
-                  for c in ("basecolor", "roughness", "metallic")]
+        cells += [
+            " / ".join(fmt(s[g][c]["psnr"]) for g in ("materials_3d", "materials_no_prior", "materials_2d"))
+            for c in ("basecolor", "roughness", "metallic")
+        ]
         lines.append("| " + " | ".join(cells + [f"{win['wins']} of {win['of']}"]) + " |")
     return "\n".join(lines)
 
@@ -160,30 +188,49 @@ def table_real_captures(results: Path) -> str:
         lo, hi = r["glb_box"]
         return "(" + ", ".join(f"{v:.3f}" for v in lo) + ") .. (" + ", ".join(f"{v:.3f}" for v in hi) + ")"
 
-    return "\n".join([
-        "| | " + " | ".join(CAPTURES) + " |", "| --- | " + " | ".join("---:" for _ in CAPTURES) + " |",
-        row("photos registered by `matspray colmap`", lambda r: sfm(r, "registered", lambda s: f"{s['registered']} of {s['photos']}")),
-        row("mean reprojection error", lambda r: sfm(r, "error", lambda s: f"{s['reprojection_px']:.3f} px")),
-        row("held-out views", lambda r: str(len(r["mask_coverage"]))),
-        row("held-out PSNR / SSIM / LPIPS, geometry", lambda r: metric_triple(r["heldout"]["radiance"])),
-        row("held-out PSNR / SSIM / LPIPS, asset under its light", lambda r: metric_triple(r["heldout"]["no-prior"])),
-        row("training-view PSNR, geometry / asset", lambda r: f"{r['train']['radiance']['psnr']:.2f} / {r['train']['no-prior']['psnr']:.2f}"),
-        row("mask coverage of the held-out views", coverage),
-        row("Gaussians: geometry / asset (object region)", lambda r: f"{r['gaussians_geometry']:,} / {r['gaussians_asset']:,}".replace(",", " ")),
-        row("object region (automatic)", lambda r: r["region"].replace(" (chosen automatically)", "")),
-        row("exported glb box (dataset world)", box),
-        row("geometry / masks / lift / refine seconds", stages),
-    ])
+    return "\n".join(
+        [
+            "| | " + " | ".join(CAPTURES) + " |",
+            "| --- | " + " | ".join("---:" for _ in CAPTURES) + " |",
+            row(
+                "photos registered by `matspray colmap`",
+                lambda r: sfm(r, "registered", lambda s: f"{s['registered']} of {s['photos']}"),
+            ),
+            row("mean reprojection error", lambda r: sfm(r, "error", lambda s: f"{s['reprojection_px']:.3f} px")),
+            row("held-out views", lambda r: str(len(r["mask_coverage"]))),
+            row("held-out PSNR / SSIM / LPIPS, geometry", lambda r: metric_triple(r["heldout"]["radiance"])),
+            row(
+                "held-out PSNR / SSIM / LPIPS, asset under its light", lambda r: metric_triple(r["heldout"]["no-prior"])
+            ),
+            row(
+                "training-view PSNR, geometry / asset",
+                lambda r: f"{r['train']['radiance']['psnr']:.2f} / {r['train']['no-prior']['psnr']:.2f}",
+            ),
+            row("mask coverage of the held-out views", coverage),
+            row(
+                "Gaussians: geometry / asset (object region)",
+                lambda r: f"{r['gaussians_geometry']:,} / {r['gaussians_asset']:,}".replace(",", " "),
+            ),
+            row("object region (automatic)", lambda r: r["region"].replace(" (chosen automatically)", "")),
+            row("exported glb box (dataset world)", box),
+            row("geometry / masks / lift / refine seconds", stages),
+        ]
+    )
 
 
 def table_captures_headline(results: Path) -> str:
     """README: held-out photos of the two real captures, inside the object mask."""
     c = captures(results)
-    lines = ["| capture | held-out views | PSNR / SSIM / LPIPS, asset under its estimated light | Gaussians in the asset |",
-             "| --- | ---: | ---: | ---: |"]
+    lines = [
+        "| capture | held-out views | PSNR / SSIM / LPIPS, asset under its estimated light | Gaussians in the asset |",
+        "| --- | ---: | ---: | ---: |",
+    ]
     for name in CAPTURES:
         r = c[name]
-        lines.append(f"| {name} | {len(r['mask_coverage'])} | {metric_triple(r['heldout']['no-prior'])} | {r['gaussians_asset']:,} |".replace(",", " "))
+        lines.append(
+            f"| {name} | {len(r['mask_coverage'])} | {metric_triple(r['heldout']['no-prior'])} | "
+            f"{r['gaussians_asset']:,} |".replace(",", " ")
+        )
     return "\n".join(lines)
 
 
@@ -207,14 +254,29 @@ def table_cli(results: Path) -> str:
         for name, summary in COMMANDS:
             command = sub.choices[name]
             formatter = command._get_formatter()
-            lines += [f"## `matspray {name}`", "", summary[0].upper() + summary[1:] + ".", "", "```",
-                      "\n".join(line.removeprefix("usage: ").removeprefix("       ") for line in command.format_usage().strip().splitlines()),
-                      "```", ""]
+            lines += [
+                f"## `matspray {name}`",
+                "",
+                summary[0].upper() + summary[1:] + ".",
+                "",
+                "```",
+                "\n".join(
+                    line.removeprefix("usage: ").removeprefix("       ")
+                    for line in command.format_usage().strip().splitlines()
+                ),
+                "```",
+                "",
+            ]
             for group in command._action_groups:
                 actions = [a for a in group._group_actions if not isinstance(a, ap._HelpAction)]
                 if not actions:
                     continue
-                lines += [f"{group.title[0].upper() + group.title[1:]}:", "", "| option | value | default | what it does |", "| --- | --- | --- | --- |"]
+                lines += [
+                    f"{group.title[0].upper() + group.title[1:]}:",
+                    "",
+                    "| option | value | default | what it does |",
+                    "| --- | --- | --- | --- |",
+                ]
                 for a in actions:
                     option = ", ".join(f"`{s}`" for s in a.option_strings) or f"`{a.metavar or a.dest}`"
                     if a.nargs == 0:
@@ -224,9 +286,16 @@ def table_cli(results: Path) -> str:
                     else:
                         value = (a.metavar or a.dest.upper()) + (" ..." if a.nargs in ("+", "*") else "")
                         value = f"`{value}`" if a.option_strings else ""
-                    default = "" if a.default in (None, False, ap.SUPPRESS) or a.nargs == 0 or a.required else f"`{a.default}`"
+                    default = (
+                        ""
+                        if a.default in (None, False, ap.SUPPRESS) or a.nargs == 0 or a.required
+                        else f"`{a.default}`"
+                    )
                     required = "required; " if a.required and a.option_strings else ""
-                    lines.append(f"| {option} | {cell(value)} | {cell(default)} | {required}{cell(formatter._expand_help(a) if a.help else '')} |")
+                    lines.append(
+                        f"| {option} | {cell(value)} | {cell(default)} | "
+                        f"{required}{cell(formatter._expand_help(a) if a.help else '')} |"
+                    )
                 lines.append("")
         return "\n".join(lines).rstrip()
     finally:
@@ -283,8 +352,12 @@ def differing(root: Path = ROOT, results: Path | None = None, write: bool = Fals
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.tables", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--check", action="store_true", help="change nothing; exit 1 naming each table that differs from docs/results")
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.tables", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--check", action="store_true", help="change nothing; exit 1 naming each table that differs from docs/results"
+    )
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root (default: this checkout)")
     args = parser.parse_args(argv)
     found = differing(args.root, write=not args.check)

@@ -18,8 +18,8 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
-from dataclasses import replace
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -44,8 +44,15 @@ def fit(data: Path, out: Path, iterations: int, resolution: int) -> tuple[dict, 
 
 def scaled_lens(lens: Lens, factor: float) -> Lens:
     """The same lens for images resized by `factor` (distortion acts on normalised coordinates: unchanged)."""
-    return replace(lens, fx=lens.fx * factor, fy=lens.fy * factor, cx=lens.cx * factor, cy=lens.cy * factor,
-                   width=round(lens.width * factor), height=round(lens.height * factor))
+    return replace(
+        lens,
+        fx=lens.fx * factor,
+        fy=lens.fy * factor,
+        cx=lens.cx * factor,
+        cy=lens.cy * factor,
+        width=round(lens.width * factor),
+        height=round(lens.height * factor),
+    )
 
 
 def main() -> None:
@@ -63,15 +70,36 @@ def main() -> None:
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    work = Path(tempfile.gettempdir()) / f"matspray-undistort-{args.res}x{args.supersample}-{args.views}-{args.test_views}"
+    work = (
+        Path(tempfile.gettempdir()) / f"matspray-undistort-{args.res}x{args.supersample}-{args.views}-{args.test_views}"
+    )
     source_dir = work / "source"  # rendered at res x supersample, so that distorting it adds no blur of its own
     if not (source_dir / "scene.json").exists():
-        make_object(SynthConfig(shape="composite", seed=0, resolution=args.res * args.supersample, train_views=args.views,
-                                test_views=args.test_views, spp=64), source_dir, progress=False, notify=lambda _: None)
+        make_object(
+            SynthConfig(
+                shape="composite",
+                seed=0,
+                resolution=args.res * args.supersample,
+                train_views=args.views,
+                test_views=args.test_views,
+                spp=64,
+            ),
+            source_dir,
+            progress=False,
+            notify=lambda _: None,
+        )
     source = load_scene(source_dir)
     first = source.train[0].camera
-    fine = Lens(float(first.K[0, 0]), float(first.K[1, 1]), float(first.K[0, 2]), float(first.K[1, 2]), first.width,
-                first.height, (args.k1, args.k2, args.p1, args.p2, 0.0), model="OPENCV")
+    fine = Lens(
+        float(first.K[0, 0]),
+        float(first.K[1, 1]),
+        float(first.K[0, 2]),
+        float(first.K[1, 2]),
+        first.width,
+        first.height,
+        (args.k1, args.k2, args.p1, args.p2, 0.0),
+        model="OPENCV",
+    )
     factor = 1.0 / args.supersample
     lens = scaled_lens(fine, factor)
     original_dir = Path(tempfile.mkdtemp(prefix="matspray-original-"))
@@ -86,15 +114,26 @@ def main() -> None:
     bent, gaussians, bent_seconds = fit(distorted_dir, runs / "distorted", args.iterations, args.res)
     cross = evaluate_views(gaussians, original.test)
     scene = load_scene(distorted_dir)
-    print(f"object: composite seed 0, {args.res} px (distorted at {args.res * args.supersample} px), {len(original.train)} train / {len(original.test)} test views; "
-          f"geometry preset demo, {args.iterations} iterations; torch threads {torch.get_num_threads()}")
+    print(
+        f"object: composite seed 0, {args.res} px (distorted at {args.res * args.supersample} px), "
+        f"{len(original.train)} train / {len(original.test)} test views; "
+        f"geometry preset demo, {args.iterations} iterations; torch threads {torch.get_num_threads()}"
+    )
     print(f"lens: {lens.describe()}; " + "; ".join(scene.log))
     print(f"{'capture':<44} {'test PSNR on white':>18} {'object pixels':>14} {'seconds':>8}")
     print(f"{'original (pinhole)':<44} {base['psnr']:>15.2f} dB {base['psnr_masked']:>11.2f} dB {base_seconds:>8.0f}")
-    print(f"{'distorted, undistorted on load (own views)':<44} {bent['psnr']:>15.2f} dB {bent['psnr_masked']:>11.2f} dB {bent_seconds:>8.0f}")
-    print(f"{'distorted fit, at the original test cameras':<44} {cross['psnr']:>15.2f} dB {cross['psnr_masked']:>11.2f} dB")
-    print(f"difference (original - distorted fit at original cameras): {base['psnr'] - cross['psnr']:+.2f} dB on white, "
-          f"{base['psnr_masked'] - cross['psnr_masked']:+.2f} dB on the object")
+    print(
+        f"{'distorted, undistorted on load (own views)':<44} {bent['psnr']:>15.2f} dB {bent['psnr_masked']:>11.2f} dB "
+        f"{bent_seconds:>8.0f}"
+    )
+    print(
+        f"{'distorted fit, at the original test cameras':<44} {cross['psnr']:>15.2f} dB "
+        f"{cross['psnr_masked']:>11.2f} dB"
+    )
+    print(
+        f"difference (original - distorted fit at original cameras): {base['psnr'] - cross['psnr']:+.2f} dB on white, "
+        f"{base['psnr_masked'] - cross['psnr_masked']:+.2f} dB on the object"
+    )
 
 
 if __name__ == "__main__":

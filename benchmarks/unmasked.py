@@ -51,9 +51,14 @@ def run_capture(data: Path, run: Path, preset: str, object_bounds) -> dict:
     seconds = time.perf_counter() - start
     metrics = evaluate_run(run, progress=False)
     geometry = json.loads((run / "geometry" / "metrics.json").read_text())
-    return {"relight": metrics["variants"]["full"]["summary"]["relighting"]["psnr"], "geometry_psnr": geometry["psnr"],
-            "geometry_psnr_object": geometry.get("psnr_masked"), "iou": metrics.get("masks", {}).get("iou_mean"),
-            "iou_min": metrics.get("masks", {}).get("iou_min"), "seconds": seconds}
+    return {
+        "relight": metrics["variants"]["full"]["summary"]["relighting"]["psnr"],
+        "geometry_psnr": geometry["psnr"],
+        "geometry_psnr_object": geometry.get("psnr_masked"),
+        "iou": metrics.get("masks", {}).get("iou_mean"),
+        "iou_min": metrics.get("masks", {}).get("iou_min"),
+        "seconds": seconds,
+    }
 
 
 def main() -> None:
@@ -62,18 +67,37 @@ def main() -> None:
     parser.add_argument("--shape", default="composite")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--out", type=Path, default=Path("runs/unmasked"))
-    parser.add_argument("--object-bounds", default=None, help="x,y,z,r or x0,y0,z0,x1,y1,z1 for the unmasked run (default: automatic)")
+    parser.add_argument(
+        "--object-bounds", default=None, help="x,y,z,r or x0,y0,z0,x1,y1,z1 for the unmasked run (default: automatic)"
+    )
     args = parser.parse_args()
     size = DEMO_SIZES[args.preset]
     unmasked = args.out / "data-unmasked"
     if not (unmasked / "scene.json").exists():
-        make_object(SynthConfig(shape=args.shape, seed=args.seed, resolution=size.res, train_views=size.views, test_views=size.test_views,
-                                spp=size.spp, background="env", ground=True), unmasked, progress=False)
+        make_object(
+            SynthConfig(
+                shape=args.shape,
+                seed=args.seed,
+                resolution=size.res,
+                train_views=size.views,
+                test_views=size.test_views,
+                spp=size.spp,
+                background="env",
+                ground=True,
+            ),
+            unmasked,
+            progress=False,
+        )
     masked = masked_copy(unmasked, args.out / "data-masked")
     bounds = None if args.object_bounds is None else tuple(float(v) for v in args.object_bounds.split(","))
-    rows = {"unmasked (own masks)": run_capture(unmasked, args.out / "run-unmasked", args.preset, bounds),
-            "true masks": run_capture(masked, args.out / "run-masked", args.preset, None)}
-    print(f"\n{args.shape} seed {args.seed}, preset {args.preset} ({size.res} px, {size.views} views), background env + ground")
+    rows = {
+        "unmasked (own masks)": run_capture(unmasked, args.out / "run-unmasked", args.preset, bounds),
+        "true masks": run_capture(masked, args.out / "run-masked", args.preset, None),
+    }
+    print(
+        f"\n{args.shape} seed {args.seed}, preset {args.preset} ({size.res} px, {size.views} views), "
+        "background env + ground"
+    )
     print("| capture | geometry test PSNR | mask IoU (mean / min) | relight PSNR | s |")
     print("| --- | ---: | ---: | ---: | ---: |")
     for name, row in rows.items():
@@ -81,7 +105,10 @@ def main() -> None:
         geometry = row["geometry_psnr_object"] if row["geometry_psnr_object"] is not None else row["geometry_psnr"]
         print(f"| {name} | {geometry:.2f} | {iou} | {row['relight']:.2f} | {row['seconds']:.0f} |")
     gap = rows["true masks"]["relight"] - rows["unmasked (own masks)"]["relight"]
-    print(f"relighting: the unmasked run is {gap:.2f} dB below the run with true masks (target: within 1.5 dB); IoU target >= 0.9")
+    print(
+        f"relighting: the unmasked run is {gap:.2f} dB below the run with true masks (target: "
+        "within 1.5 dB); IoU target >= 0.9"
+    )
 
 
 if __name__ == "__main__":

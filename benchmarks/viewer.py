@@ -1,7 +1,8 @@
 """How fast `matspray view` is: one still frame (256 x 256, shading under an HDRI included), one frame while the camera
 moves, and the time from `matspray view RUN` to the first picture in a (headless) browser.
 
-    MATSPRAY_THREADS=2 python -m benchmarks.viewer [--run RUN] [--env HDRI] [--repeats 7] [--screenshot docs/images/viewer.png]
+    MATSPRAY_THREADS=2 python -m benchmarks.viewer [--run RUN] [--env HDRI] [--repeats 7]
+                                                   [--screenshot docs/images/viewer.png]
 
 Frame times are medians over --repeats renders of the demo asset through `Viewer.render` (what the page gets, PNG
 encoding aside), on the CPU with the rasterizer `--backend auto` picks, and the CPU threads of $MATSPRAY_THREADS.
@@ -28,7 +29,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 # software WebGL: headless chromium renders viser's three.js page without a GPU
-CHROMIUM_FLAGS = ("--headless=new", "--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--disable-gpu-sandbox")
+CHROMIUM_FLAGS = (
+    "--headless=new",
+    "--no-sandbox",
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+    "--disable-gpu-sandbox",
+)
 BACKDROP_SRGB = 63  # the viewer's backdrop (linear 0.05) as 8-bit sRGB
 
 
@@ -42,7 +49,10 @@ def chromium_missing() -> str | None:
     chromium = shutil.which("chromium") or (CHROMIUM if Path(CHROMIUM).exists() else None)
     driver = shutil.which("chromedriver") or (CHROMEDRIVER if Path(CHROMEDRIVER).exists() else None)
     if chromium is None or driver is None:
-        return "chromium and chromium-driver are not installed (make setup installs them: apt-get install chromium chromium-driver)"
+        return (
+            "chromium and chromium-driver are not installed "
+            "(make setup installs them: apt-get install chromium chromium-driver)"
+        )
     return None
 
 
@@ -104,7 +114,8 @@ def wait_for_text(driver, text: str, timeout: float) -> None:
 
 
 def dismiss_notices(driver) -> None:
-    """Close the page's notifications (headless chromium gets viser's "software WebGL" notice) for a clean screenshot."""
+    """Close the page's notifications (headless chromium gets viser's "software WebGL" notice) for a clean
+    screenshot."""
     from selenium.webdriver.common.by import By
 
     for button in driver.find_elements(By.CSS_SELECTOR, "[class*=Notification] button"):
@@ -147,13 +158,31 @@ def frame_times(run: Path, env: str | None, repeats: int, size: int, backend: st
     device, backend = compute_target("cpu", backend)
     shared = hdri_files()
     env = env or (str(next(iter(shared.values()))) if shared else "sunset")
-    viewer = Viewer(run, ViewerConfig(env=(env,) if Path(env).exists() else ()), device=device, backend=backend, notify=lambda _: None)
+    viewer = Viewer(
+        run,
+        ViewerConfig(env=(env,) if Path(env).exists() else ()),
+        device=device,
+        backend=backend,
+        notify=lambda _: None,
+    )
     label = Path(env).name if Path(env).exists() else env
     assert viewer.set_light(label), f"could not load {env}"
     start = viewer.start_camera
-    results = {"threads": torch.get_num_threads(), "backend": backend, "light": label, "gaussians": len(viewer.run.asset(viewer.state.variant).gaussians)}
+    results = {
+        "threads": torch.get_num_threads(),
+        "backend": backend,
+        "light": label,
+        "gaussians": len(viewer.run.asset(viewer.state.variant).gaussians),
+    }
     for name, (width, height) in (("still", (size, size)), ("moving", progressive_size(1.0, size, moving=True))):
-        camera = Camera.look_at(start.center, torch.tensor(viewer.run.object_frame(viewer.state.variant)[0]), (0.0, 0.0, 1.0), 0.7, width, height)
+        camera = Camera.look_at(
+            start.center,
+            torch.tensor(viewer.run.object_frame(viewer.state.variant)[0]),
+            (0.0, 0.0, 1.0),
+            0.7,
+            width,
+            height,
+        )
         viewer.render(camera)  # warm-up: kernels, caches
         times, raster = [], []
         for _ in range(repeats):
@@ -162,8 +191,12 @@ def frame_times(run: Path, env: str | None, repeats: int, size: int, backend: st
             with torch.no_grad(), rendering_with(backend):
                 render_gbuffer(viewer.run.asset(viewer.state.variant), camera)
             raster.append(time.perf_counter() - t0)
-        results[name] = {"size": f"{width}x{height}", "median_ms": 1000 * statistics.median(times),
-                         "min_ms": 1000 * min(times), "rasterize_ms": 1000 * statistics.median(raster)}
+        results[name] = {
+            "size": f"{width}x{height}",
+            "median_ms": 1000 * statistics.median(times),
+            "min_ms": 1000 * min(times),
+            "rasterize_ms": 1000 * statistics.median(raster),
+        }
     viewer.stop()
     return results
 
@@ -173,8 +206,25 @@ def first_picture(run: Path, port: int, timeout: float, screenshot: Path | None,
     driver = open_chromium(1200, 820)  # started first: a user's browser is open already
     url = f"http://127.0.0.1:{port}"
     start = time.monotonic()
-    process = subprocess.Popen([sys.executable, "-m", "matspray", "view", str(run), "--port", str(port), "--device", "cpu", "--backend", backend],
-                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "matspray",
+            "view",
+            str(run),
+            "--port",
+            str(port),
+            "--device",
+            "cpu",
+            "--backend",
+            backend,
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         open_when_up(driver, url, timeout)
         while not shows_picture(page_image(driver)):
@@ -211,12 +261,18 @@ def main(argv=None) -> int:
         print("no run with an asset under runs/; pass --run RUN", file=sys.stderr)
         return 2
     times = frame_times(run, args.env, args.repeats, args.size, args.backend)
-    print(f"viewer frame times: {run}, {times['gaussians']} Gaussians, light {times['light']}, backend {times['backend']}, "
-          f"{times['threads']} CPU threads (median of {args.repeats})")
+    print(
+        f"viewer frame times: {run}, {times['gaussians']} Gaussians, light {times['light']}, "
+        f"backend {times['backend']}, "
+        f"{times['threads']} CPU threads (median of {args.repeats})"
+    )
     for name, target in (("still", 150), ("moving", 50)):
         t = times[name]
-        print(f"  {name:6s} {t['size']:>8s}: {t['median_ms']:7.1f} ms (min {t['min_ms']:.1f}; rasterizing alone {t['rasterize_ms']:.1f}) "
-              f"target <= {target} ms")
+        print(
+            f"  {name:6s} {t['size']:>8s}: {t['median_ms']:7.1f} ms (min {t['min_ms']:.1f}; "
+            f"rasterizing alone {t['rasterize_ms']:.1f}) "
+            f"target <= {target} ms"
+        )
     if not args.no_browser:
         missing = chromium_missing()
         if missing:

@@ -37,7 +37,10 @@ class Asset:
     def __post_init__(self):
         n = len(self.gaussians)
         if self.materials.shape != (n, N_CHANNELS) or self.normals.shape != (n, 3):
-            raise ValueError(f"asset: materials must be [{n}, {N_CHANNELS}] and normals [{n}, 3], got {tuple(self.materials.shape)}, {tuple(self.normals.shape)}")
+            raise ValueError(
+                f"asset: materials must be [{n}, {N_CHANNELS}] and normals [{n}, 3], "
+                f"got {tuple(self.materials.shape)}, {tuple(self.normals.shape)}"
+            )
         if self.visibility is not None and self.visibility.shape[0] != n:
             raise ValueError(f"asset: visibility must be [{n}, D], got {tuple(self.visibility.shape)}")
 
@@ -50,7 +53,13 @@ def envmap_preview(map: Tensor) -> Tensor:  # [H, 2H, 3] linear radiance -> [H, 
 
 
 def write_visibility(path: Path, visibility: torch.Tensor) -> None:
-    save_torch_atomic({"format": "matspray-visibility-1", "values": (visibility.detach().cpu().clamp(0, 1) * 255).round().to(torch.uint8)}, path)
+    save_torch_atomic(
+        {
+            "format": "matspray-visibility-1",
+            "values": (visibility.detach().cpu().clamp(0, 1) * 255).round().to(torch.uint8),
+        },
+        path,
+    )
 
 
 def read_visibility(path: Path, count: int) -> torch.Tensor:  # -> [count, D] float in [0, 1]
@@ -58,12 +67,23 @@ def read_visibility(path: Path, count: int) -> torch.Tensor:  # -> [count, D] fl
         data = torch.load(path, map_location="cpu", weights_only=True)
         values = data["values"]
     except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same clear message
-        raise file_error(path, f"is not a MatSpray visibility file ({exc.__class__.__name__})", "delete it to relight without shadowing") from None
+        raise file_error(
+            path,
+            f"is not a MatSpray visibility file ({exc.__class__.__name__})",
+            "delete it to relight without shadowing",
+        ) from None
     if not isinstance(values, torch.Tensor):
-        raise file_error(path, f"holds a {type(values).__name__} as its values, not a tensor", "delete it to relight without shadowing")
+        raise file_error(
+            path,
+            f"holds a {type(values).__name__} as its values, not a tensor",
+            "delete it to relight without shadowing",
+        )
     if values.dim() != 2 or values.shape[0] != count or values.dtype != torch.uint8:
-        raise file_error(path, f"holds visibility {tuple(values.shape)} ({values.dtype}) but the asset has {count} Gaussians",
-                         "delete it to relight without shadowing")
+        raise file_error(
+            path,
+            f"holds visibility {tuple(values.shape)} ({values.dtype}) but the asset has {count} Gaussians",
+            "delete it to relight without shadowing",
+        )
     return values.float() / 255.0
 
 
@@ -92,22 +112,34 @@ def read_asset(folder, device="cpu") -> Asset:
     path = Path(folder) / "asset.ply"
     gaussians, normals, extra = read_ply(path, extra=CHANNELS)
     if normals is None:
-        raise file_error(path, "has no normals (nx, ny, nz)", stage_hint(path) or "is this a MatSpray asset? geometry PLYs are not relightable")
+        raise file_error(
+            path,
+            "has no normals (nx, ny, nz)",
+            stage_hint(path) or "is this a MatSpray asset? geometry PLYs are not relightable",
+        )
     materials = torch.stack([extra[name] for name in CHANNELS], dim=-1)
     visibility_path = Path(folder) / VISIBILITY_FILE
     visibility = read_visibility(visibility_path, len(gaussians)).to(device) if visibility_path.exists() else None
-    return Asset(gaussians.to(device), materials.to(device), torch.nn.functional.normalize(normals, dim=-1).to(device), visibility)
+    return Asset(
+        gaussians.to(device),
+        materials.to(device),
+        torch.nn.functional.normalize(normals, dim=-1).to(device),
+        visibility,
+    )
 
 
 def read_history(folder) -> list[dict]:
-    """The loss curves of a refinement (history.json): one {"step": n, term: loss, ...} per logged step; [] without one."""
+    """The loss curves of a refinement (history.json): one {"step": n, term: loss, ...} per logged step;
+    [] without one."""
     path = Path(folder) / "history.json"
     if not path.exists():
         return []
     hint = "delete it: it only holds the loss curves the report draws"
     history = read_record(path, hint)
     finite = lambda v: not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)  # noqa: E731
-    if not isinstance(history, list) or not all(isinstance(r, dict) and finite(r.get("step")) and all(finite(v) for k, v in r.items()
-                                                                                                      if k in LOSS_TERMS) for r in history):
+    if not isinstance(history, list) or not all(
+        isinstance(r, dict) and finite(r.get("step")) and all(finite(v) for k, v in r.items() if k in LOSS_TERMS)
+        for r in history
+    ):
         raise file_error(path, "is not a list of logged steps with finite losses", hint)
     return history

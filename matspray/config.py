@@ -15,12 +15,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 
 from matspray.errors import ConfigError, SettingError
-from matspray.render.backend import BACKENDS
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.config import preset as geometry_preset
 from matspray.lift import LiftConfig
 from matspray.objectregion import given_region
 from matspray.refine import RefineConfig
+from matspray.render.backend import BACKENDS
 from matspray.render.visibility import VisibilityConfig
 
 PRESETS = ("test", "demo", "paper")
@@ -37,17 +37,27 @@ class PipelineConfig:
     method: str = "matspray"
     predictor: str = "simulated"
     predictor_options: dict = field(default_factory=dict)  # PredictorOptions fields
-    downscale: float | None = None  # shrink images by this on load; None: bring photos larger than the preset's working size to it
+    downscale: float | None = (
+        None  # shrink images by this on load; None: bring photos larger than the preset's working size to it
+    )
     seed: int = 0
     refine_seed: int | None = None  # the refinement's own seed (view order, merger init); None: `seed`
     device: str = "auto"
-    backend: str = "auto"  # rasterizer: auto (gsplat when CUDA and gsplat are present, numba on the CPU), torch, numba or gsplat
+    backend: str = (
+        "auto"  # rasterizer: auto (gsplat when CUDA and gsplat are present, numba on the CPU), torch, numba or gsplat
+    )
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
     lift: LiftConfig = field(default_factory=LiftConfig)
-    visibility: VisibilityConfig | None = None  # None: no shadowing (the paper's, and our default); `shadow_maps(preset)` turns it on
+    visibility: VisibilityConfig | None = (
+        None  # None: no shadowing (the paper's, and our default); `shadow_maps(preset)` turns it on
+    )
     refine: RefineConfig = field(default_factory=RefineConfig)
-    object_bounds: tuple[float, ...] | None = None  # captures without masks: the object region (4: sphere, 6: box); None: automatic
-    light_probe: str | None = None  # a known training light (an HDR lat-long map of the capture's light, world frame): the
+    object_bounds: tuple[float, ...] | None = (
+        None  # captures without masks: the object region (4: sphere, 6: box); None: automatic
+    )
+    light_probe: str | None = (
+        None  # a known training light (an HDR lat-long map of the capture's light, world frame): the
+    )
     # PBR variants shade with it instead of estimating one; None: estimate it (the paper)
 
     def __post_init__(self):
@@ -72,8 +82,18 @@ WORKING_SIZE = {"test": 128, "demo": 256, "paper": 800}
 
 PRESET_SETTINGS: dict[str, dict] = {
     "test": {"lift.samples_per_side": 2, "refine.iterations": 30, "refine.envmap_height": 8, "refine.light_warmup": 10},
-    "demo": {"lift.samples_per_side": 4, "refine.iterations": 600, "refine.envmap_height": 16, "refine.light_warmup": 200},
-    "paper": {"lift.samples_per_side": 16, "refine.iterations": 10000, "refine.envmap_height": 32, "refine.light_warmup": 1000},
+    "demo": {
+        "lift.samples_per_side": 4,
+        "refine.iterations": 600,
+        "refine.envmap_height": 16,
+        "refine.light_warmup": 200,
+    },
+    "paper": {
+        "lift.samples_per_side": 16,
+        "refine.iterations": 10000,
+        "refine.envmap_height": 32,
+        "refine.light_warmup": 1000,
+    },
 }
 # Baked shadows are off by default: they relit worse in the benchmarks (docs/history.md). Where they are
 # switched on (`visibility=shadow_maps(preset)`, `--shadows on`), their shadow maps have the preset's size.
@@ -103,9 +123,21 @@ class Addition:
 
 
 ADDITIONS = (
-    Addition("core-median", "lift.footprint_sigmas", None, "a Gaussian's per-view median reads the rays through its 1-sigma core"),
-    Addition("min-support", "lift.min_support", 0.0, "a view counts for a Gaussian only with >= 0.5 of its best view's hits"),
-    Addition("unseen-mask", "refine.merger.unseen", "mean", "unseen views get weight 0 (the paper's code fills them with the mean)"),
+    Addition(
+        "core-median",
+        "lift.footprint_sigmas",
+        None,
+        "a Gaussian's per-view median reads the rays through its 1-sigma core",
+    ),
+    Addition(
+        "min-support", "lift.min_support", 0.0, "a view counts for a Gaussian only with >= 0.5 of its best view's hits"
+    ),
+    Addition(
+        "unseen-mask",
+        "refine.merger.unseen",
+        "mean",
+        "unseen views get weight 0 (the paper's code fills them with the mean)",
+    ),
     Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
     Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering < 0.02 px of a view"),
 )
@@ -119,7 +151,9 @@ def method_settings(method: str, without: tuple[str, ...] = ()) -> dict:
         raise SettingError("method", f"unknown method '{method}'; choose one of {', '.join(METHODS)}")
     unknown = sorted(set(without) - set(ADDITION_NAMES))
     if unknown:
-        raise SettingError("without", f"unknown addition(s) {', '.join(unknown)}; choose from {', '.join(ADDITION_NAMES)}")
+        raise SettingError(
+            "without", f"unknown addition(s) {', '.join(unknown)}; choose from {', '.join(ADDITION_NAMES)}"
+        )
     off = ADDITION_NAMES if method == "paper" else without
     return {a.setting: a.paper for a in ADDITIONS if a.name in off}
 
@@ -148,7 +182,9 @@ def with_setting(config, path: str, value):
         raise SettingError(head, str(exc)) from None
 
 
-def build_config(preset: str = "demo", method: str = "matspray", without: tuple[str, ...] = (), **settings) -> PipelineConfig:
+def build_config(
+    preset: str = "demo", method: str = "matspray", without: tuple[str, ...] = (), **settings
+) -> PipelineConfig:
     """The config of `preset` and `method`, with `settings` by dotted name (pass them as a dict:
     `build_config("demo", **{"lift.min_support": 0.3})`; top-level ones as keywords, e.g. `seed=1`).
     Geometry follows the preset; `seed` seeds it too, and `geometry.iterations` alone stretches its schedule."""

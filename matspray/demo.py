@@ -83,19 +83,38 @@ def check_assets(objects: list[BenchObject]) -> None:
             read_gltf(spec.asset)
 
 
-def make_demo_object(out: Path, preset: str, shape: str, seed: int, progress: bool = True, asset: str | None = None,
-                     env: str = "sky", relight_envs: list[str] | None = None) -> Path:
+def make_demo_object(
+    out: Path,
+    preset: str,
+    shape: str,
+    seed: int,
+    progress: bool = True,
+    asset: str | None = None,
+    env: str = "sky",
+    relight_envs: list[str] | None = None,
+) -> Path:
     """A `matspray synth` object for `preset` in `out` (reused when it is already there): a procedural `shape`
     or the glTF file `asset`, trained under `env` and relit under `relight_envs` (None: synth's default lights)."""
     size = DEMO_SIZES[preset]
-    config = SynthConfig(shape=shape if asset is None else "random", seed=seed, resolution=size.res, train_views=size.views,
-                         test_views=size.test_views, spp=size.spp, asset=asset, env=env, relight_envs=relight_envs)
+    config = SynthConfig(
+        shape=shape if asset is None else "random",
+        seed=seed,
+        resolution=size.res,
+        train_views=size.views,
+        test_views=size.test_views,
+        spp=size.spp,
+        asset=asset,
+        env=env,
+        relight_envs=relight_envs,
+    )
     if not (out / "scene.json").exists():
         make_object(config, out, progress=progress)
     return out
 
 
-def run_object(data: Path, run_dir: Path, config: PipelineConfig, variants=VARIANT_NAMES, progress: bool = True, log=print) -> dict:
+def run_object(
+    data: Path, run_dir: Path, config: PipelineConfig, variants=VARIANT_NAMES, progress: bool = True, log=print
+) -> dict:
     """Run every variant of the method on one object, evaluate it and write its report (earlier stages are reused)."""
     metrics = run_one_object(data, run_dir, config, variants, progress=progress, log=log)
     if metrics is None:
@@ -103,8 +122,15 @@ def run_object(data: Path, run_dir: Path, config: PipelineConfig, variants=VARIA
     return metrics
 
 
-def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0, progress: bool = True, log=print,
-             config: PipelineConfig | None = None) -> Path:
+def run_demo(
+    out,
+    preset: str = "demo",
+    shape: str = "composite",
+    seed: int = 0,
+    progress: bool = True,
+    log=print,
+    config: PipelineConfig | None = None,
+) -> Path:
     """The demo object of `preset` and every variant on it; `config` (default: the preset's matspray
     method with the simulated predictor) chooses the method and its settings."""
     if preset not in DEMO_SIZES:
@@ -115,8 +141,16 @@ def run_demo(out, preset: str = "demo", shape: str = "composite", seed: int = 0,
     return out / "run" / "report.html"
 
 
-def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=print, config: PipelineConfig | None = None,
-              workers: int | None = None, use_ray: bool = True) -> dict:
+def run_bench(
+    out,
+    objects,
+    preset: str = "demo",
+    progress: bool = True,
+    log=print,
+    config: PipelineConfig | None = None,
+    workers: int | None = None,
+    use_ray: bool = True,
+) -> dict:
     """Every object of `objects` (a count of procedural objects, or a list of BenchObject) made in
     OUT/data/<name>/ and run by `matspray batch` into OUT/<name>/ (`workers` at once); writes the averaged
     tables with one row per object (its variants and seconds) and returns the batch summary."""
@@ -129,18 +163,34 @@ def run_bench(out, objects, preset: str = "demo", progress: bool = True, log=pri
     for index, spec in enumerate(specs):
         log(f"bench: object {index + 1}/{len(specs)} ({spec.asset or spec.shape}, seed {spec.seed})")
         start = time.perf_counter()
-        datas.append(make_demo_object(out / "data" / spec.name, preset, spec.shape, spec.seed, progress, asset=spec.asset))
+        datas.append(
+            make_demo_object(out / "data" / spec.name, preset, spec.shape, spec.seed, progress, asset=spec.asset)
+        )
         synth_seconds[spec.name] = time.perf_counter() - start
-    summary = run_batch(datas, out, BatchConfig(pipeline=config, variants=VARIANT_NAMES, workers=workers, use_ray=use_ray),
-                        progress=progress, log=log)
+    summary = run_batch(
+        datas,
+        out,
+        BatchConfig(pipeline=config, variants=VARIANT_NAMES, workers=workers, use_ray=use_ray),
+        progress=progress,
+        log=log,
+    )
     averaged = summary["averages"]
     if averaged is not None:
         finished = {row["name"]: row for row in summary["objects"] if row["status"] != "failed"}
         averaged["title"] = f"MatSpray benchmark: {summary['averaged_over']} of {len(specs)} objects, preset {preset}"
-        averaged["objects"] = {spec.name: object_row(spec, json.loads((out / spec.name / "eval" / "metrics.json").read_text()),
-                                                     synth_seconds[spec.name], sum(finished[spec.name]["stage_seconds"].values()))
-                               for spec in specs if spec.name in finished and (out / spec.name / "eval" / "metrics.json").exists()}
-        write_json(out / "bench.json", {"objects": len(specs), "preset": preset, "method": config.method, "tables": averaged})
+        averaged["objects"] = {
+            spec.name: object_row(
+                spec,
+                json.loads((out / spec.name / "eval" / "metrics.json").read_text()),
+                synth_seconds[spec.name],
+                sum(finished[spec.name]["stage_seconds"].values()),
+            )
+            for spec in specs
+            if spec.name in finished and (out / spec.name / "eval" / "metrics.json").exists()
+        }
+        write_json(
+            out / "bench.json", {"objects": len(specs), "preset": preset, "method": config.method, "tables": averaged}
+        )
         write_tables(out / "tables.md", averaged)
     return summary
 
@@ -149,7 +199,12 @@ def object_row(spec: BenchObject, metrics: dict, synth_seconds: float, method_se
     """One object's line of the benchmark: relighting and base colour PSNR per variant, and its seconds
     (making the object in this call: 0 when made before; the method: its stages, whichever call ran them)."""
     variants = metrics.get("variants", {})
-    psnr = {row: {LABELS[v]: variants[v]["summary"][row]["psnr"] for v in variants if row in variants[v]["summary"]}
-            for row in ("relighting", "basecolor")}
-    return {"source": spec.asset or f"{spec.shape} (seed {spec.seed})", "psnr": psnr,
-            "seconds": {"synth": synth_seconds, "method": method_seconds}}
+    psnr = {
+        row: {LABELS[v]: variants[v]["summary"][row]["psnr"] for v in variants if row in variants[v]["summary"]}
+        for row in ("relighting", "basecolor")
+    }
+    return {
+        "source": spec.asset or f"{spec.shape} (seed {spec.seed})",
+        "psnr": psnr,
+        "seconds": {"synth": synth_seconds, "method": method_seconds},
+    }

@@ -21,10 +21,18 @@ def resolve_device(name: str) -> torch.device:
     except RuntimeError:
         raise SettingError("device", f"unknown device '{name}'; use auto, cpu, cuda or cuda:N") from None
     if device.type == "cuda" and not torch.cuda.is_available():
-        why = "this torch build has no CUDA" if torch.version.cuda is None else "this machine has no CUDA GPU that torch sees"
-        raise SettingError("device", f"{name}: {why}; use cpu, or a CUDA build of torch on a machine with an NVIDIA GPU")
+        why = (
+            "this torch build has no CUDA"
+            if torch.version.cuda is None
+            else "this machine has no CUDA GPU that torch sees"
+        )
+        raise SettingError(
+            "device", f"{name}: {why}; use cpu, or a CUDA build of torch on a machine with an NVIDIA GPU"
+        )
     if device.type == "cuda" and device.index is not None and device.index >= torch.cuda.device_count():
-        raise SettingError("device", f"{name}: this machine has {torch.cuda.device_count()} CUDA device(s), numbered from 0")
+        raise SettingError(
+            "device", f"{name}: this machine has {torch.cuda.device_count()} CUDA device(s), numbered from 0"
+        )
     if device.type not in ("cpu", "cuda"):
         raise SettingError("device", f"unsupported device '{name}'; use auto, cpu, cuda or cuda:N")
     return device
@@ -53,7 +61,10 @@ def out_of_memory_as_error(what: str, device):
 
 
 def _out_of_memory(what: str, memory: str, message: str) -> str:
-    return f"{what}: out of {memory}{_tried(message)}; {LOWER_HINT}, then run the same command again (finished stages are reused)"
+    return (
+        f"{what}: out of {memory}{_tried(message)}; {LOWER_HINT}, "
+        "then run the same command again (finished stages are reused)"
+    )
 
 
 def _tried(message: str) -> str:

@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-# seconds per unit of work with 2 free cores: the demo of `make demo` alone on the reference machine (docs/benchmarks.md,
-# "Time estimates"; runs that shared the cores with other jobs took 2 to 5 times longer)
+# seconds per unit of work with 2 free cores: the demo of `make demo` alone on the reference machine
+# (docs/benchmarks.md, "Time estimates"; runs that shared the cores with other jobs took 2 to 5 times longer)
 CPU_RATES = {
     "geometry": 3.0e-6,  # per (iteration x pixel of a geometry view)
     "masks": 1.0e-6,  # per (training view x pixel)
@@ -32,7 +32,13 @@ class Work:
     refine_mapless: float = 0.0  # the same for the variants without 2D maps
 
     def stages(self) -> dict[str, float]:
-        return {"geometry": self.geometry, "masks": self.masks, "lift": self.lift, "refine": self.refine, "refine-mapless": self.refine_mapless}
+        return {
+            "geometry": self.geometry,
+            "masks": self.masks,
+            "lift": self.lift,
+            "refine": self.refine,
+            "refine-mapless": self.refine_mapless,
+        }
 
 
 def view_pixels(width: int, height: int, long_side: int = 0) -> float:
@@ -41,8 +47,15 @@ def view_pixels(width: int, height: int, long_side: int = 0) -> float:
     return round(width * factor) * round(height * factor)
 
 
-def run_work(views: list[tuple[int, int]], geometry_iterations: int, geometry_resolution: int, rays_per_pixel: int,
-             refine_iterations: list[tuple[int, bool]], unmasked: bool, done: frozenset[str] = frozenset()) -> Work:
+def run_work(
+    views: list[tuple[int, int]],
+    geometry_iterations: int,
+    geometry_resolution: int,
+    rays_per_pixel: int,
+    refine_iterations: list[tuple[int, bool]],
+    unmasked: bool,
+    done: frozenset[str] = frozenset(),
+) -> Work:
     """The work of a run on training views of sizes `views` [(width, height)], refining variants of
     `refine_iterations` [(iterations, merges 2D maps)], with the stages in `done` skipped."""
     if not views:
@@ -84,8 +97,10 @@ def estimate_line(work: Work, device_type: str) -> str:
         return "estimate: every stage is done already"
     parts = ", ".join(f"{stage} ~{minutes(s)}" for stage, s in sorted(seconds.items(), key=lambda kv: -kv[1]))
     low, high = total / SPREAD, total * SPREAD
-    return (f"estimate: {minutes(low)} to {minutes(high)} with 2 free CPU cores ({parts}; "
-            "other jobs on the cores make it longer)")
+    return (
+        f"estimate: {minutes(low)} to {minutes(high)} with 2 free CPU cores ({parts}; "
+        "other jobs on the cores make it longer)"
+    )
 
 
 def estimate_error(estimated: float, taken: float) -> float:

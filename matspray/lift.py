@@ -46,13 +46,15 @@ QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at 
 @dataclass(frozen=True)
 class LiftConfig:
     samples_per_side: int = 4  # k: k x k rays per pixel (the paper uses 16)
-    visibility_threshold: float = 0.0  # a hit counts while transmittance before it is >= this (0, every hit: the paper, and our
-    # default since 0.5 relit worse in the benchmarks; docs/history.md)
+    # a hit counts while transmittance before it is >= this (0, every hit: the paper, and our default since 0.5 relit
+    # worse in the benchmarks; docs/history.md)
+    visibility_threshold: float = 0.0
     falloff: float = 1.0  # lambda of eq. (2)
     mask_threshold: float = 0.5  # pixels whose object mask is below this give nothing
     min_support: float = 0.5  # a view sees a Gaussian when it gets >= this share of its best view's hits (0: any hit)
-    footprint_sigmas: float | None = 1.0  # a ray hits a Gaussian when it passes within this many standard deviations of its
-    # centre (the paper's released code intersects the 1-sigma ellipsoid); None: wherever alpha_max >= min_alpha (~3.3 sigma)
+    # a ray hits a Gaussian when it passes within this many standard deviations of its centre (the paper's released
+    # code intersects the 1-sigma ellipsoid); None: wherever alpha_max >= min_alpha (~3.3 sigma)
+    footprint_sigmas: float | None = 1.0
 
     def __post_init__(self):
         for name in ("min_support", "visibility_threshold", "mask_threshold"):
@@ -111,7 +113,9 @@ def footprint_alpha(opacities: Tensor, config: LiftConfig, max_alpha: float) -> 
     return (opacities * math.exp(-0.5 * config.falloff * config.footprint_sigmas**2)).clamp(max=max_alpha)
 
 
-def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Tensor | None, config: LiftConfig) -> tuple[Tensor, Tensor, Tensor]:
+def lift_view(
+    gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Tensor | None, config: LiftConfig
+) -> tuple[Tensor, Tensor, Tensor]:
     """Lift one view's material maps [H, W, 5] (mask [H, W] or None) onto the Gaussians.
 
     Returns medians [N, 5], seen [N] bool, and hits [N] (number of (pixel, sample) hits received).
@@ -123,15 +127,23 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
     core_alpha = footprint_alpha(gaussians.opacities.detach(), config, settings.max_alpha)  # [N] or None
     pair_keys, pair_counts = [], []
     note_render("rays")  # lifting traces rays with our torch code on the Gaussians' device, whatever the rasterizer
-    for band in iter_contributions(gaussians, camera, s, falloff=config.falloff, settings=settings):  # whole rays, a band of rows at a time
+    for band in iter_contributions(
+        gaussians, camera, s, falloff=config.falloff, settings=settings
+    ):  # whole rays, a band of rows at a time
         transmittance = band.weights / band.alphas.clamp_min(1e-12)  # in front of the hit
         visible = transmittance >= config.visibility_threshold
         gaussian_ids, pixel_ids = band.gaussian_ids[visible], band.pixel_ids[visible]
-        in_core = torch.ones_like(gaussian_ids, dtype=torch.bool) if core_alpha is None else band.alphas[visible] >= core_alpha[gaussian_ids]
+        in_core = (
+            torch.ones_like(gaussian_ids, dtype=torch.bool)
+            if core_alpha is None
+            else band.alphas[visible] >= core_alpha[gaussian_ids]
+        )
         if mask is not None:
             on_object = mask.reshape(-1)[pixel_ids] >= config.mask_threshold
             gaussian_ids, pixel_ids, in_core = gaussian_ids[on_object], pixel_ids[on_object], in_core[on_object]
-        keys, counts = torch.unique((gaussian_ids.long() * n_pixels + pixel_ids.long()) * 2 + in_core.long(), return_counts=True)
+        keys, counts = torch.unique(
+            (gaussian_ids.long() * n_pixels + pixel_ids.long()) * 2 + in_core.long(), return_counts=True
+        )
         pair_keys.append(keys)
         pair_counts.append(counts)
     # one entry per (Gaussian, pixel, inside the core or not), weighted by how many of the pixel's samples
@@ -141,7 +153,8 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
     in_core, pairs = (keys % 2).bool(), keys // 2
     pair_gaussians, pair_pixels = pairs // n_pixels, pairs % n_pixels
     received = torch.zeros(n, dtype=torch.long, device=materials.device).index_add_(0, pair_gaussians, counts)
-    # the median runs over the core's pixels; a Gaussian whose core no ray met (tiny, or its core hidden) uses all its hits
+    # the median runs over the core's pixels; a Gaussian whose core no ray met (tiny, or its core hidden) uses all
+    # its hits
     has_core = torch.zeros(n, dtype=torch.bool, device=materials.device).index_fill_(0, pair_gaussians[in_core], True)
     use = in_core | ~has_core[pair_gaussians]
     pair_gaussians, pair_pixels, counts = pair_gaussians[use], pair_pixels[use], counts[use]
@@ -152,14 +165,26 @@ def lift_view(gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Ten
     return medians, received > 0, received  # every Gaussian with a hit keeps at least one entry
 
 
-def lift(gaussians: Gaussians, cameras: list[Camera], materials: list[Tensor], masks: list[Tensor | None], view_names: list[str], config: LiftConfig | None = None, progress: bool = True) -> LiftResult:
+def lift(
+    gaussians: Gaussians,
+    cameras: list[Camera],
+    materials: list[Tensor],
+    masks: list[Tensor | None],
+    view_names: list[str],
+    config: LiftConfig | None = None,
+    progress: bool = True,
+) -> LiftResult:
     """Lift every view's maps ([H, W, 5] each) and drop the Gaussians no view saw."""
     config = config or LiftConfig()
     n, v = len(gaussians), len(cameras)
     values = material_zeros(n, v, device=gaussians.device)
     hits = torch.zeros(n, v, dtype=torch.int32, device=gaussians.device)
     with torch.no_grad():
-        for index in tqdm(range(v), desc=f"lift ({config.samples_per_side}x{config.samples_per_side} rays/pixel)", disable=not progress):
+        for index in tqdm(
+            range(v),
+            desc=f"lift ({config.samples_per_side}x{config.samples_per_side} rays/pixel)",
+            disable=not progress,
+        ):
             medians, _, view_hits = lift_view(gaussians, cameras[index], materials[index], masks[index], config)
             values[:, index], hits[:, index] = medians, view_hits.to(torch.int32)
     received = hits.sum(1, dtype=torch.long)
@@ -178,4 +203,6 @@ def lift(gaussians: Gaussians, cameras: list[Camera], materials: list[Tensor], m
         "hit_views_per_gaussian_mean": float((hits[kept] > 0).sum(1).float().mean()) if kept.any() else 0.0,
         "min_support": config.min_support,
     }
-    return LiftResult(values=values[kept], seen=seen[kept], kept=kept, view_names=list(view_names), stats=stats, hits=hits[kept])
+    return LiftResult(
+        values=values[kept], seen=seen[kept], kept=kept, view_names=list(view_names), stats=stats, hits=hits[kept]
+    )

@@ -177,8 +177,11 @@ def read_envmap_file(path: Path, height: int | None = DEFAULT_HEIGHT) -> Tensor:
         values = values[..., :1].expand(-1, -1, 3)
     rows, cols = values.shape[:2]
     if rows == 0 or cols != 2 * rows:
-        raise file_error(path, f"is {cols}x{rows} pixels but a lat-long environment map is twice as wide as tall",
-                         "use an equirectangular (lat-long) panorama")
+        raise file_error(
+            path,
+            f"is {cols}x{rows} pixels but a lat-long environment map is twice as wide as tall",
+            "use an equirectangular (lat-long) panorama",
+        )
     env = values[..., :3].clamp_min(0.0).contiguous()
     if height is not None and height != rows:
         check_height(height)

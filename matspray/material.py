@@ -16,14 +16,20 @@ BASE_COLOR = slice(0, 3)
 ROUGHNESS_INDEX = 3
 METALLIC_INDEX = 4
 # the channel groups the Neural Merger fuses separately (one MLP each)
-GROUPS = {"base_color": BASE_COLOR, "roughness": slice(ROUGHNESS_INDEX, ROUGHNESS_INDEX + 1), "metallic": slice(METALLIC_INDEX, METALLIC_INDEX + 1)}
+GROUPS = {
+    "base_color": BASE_COLOR,
+    "roughness": slice(ROUGHNESS_INDEX, ROUGHNESS_INDEX + 1),
+    "metallic": slice(METALLIC_INDEX, METALLIC_INDEX + 1),
+}
 
 
 def stack(base_color: Tensor, roughness: Tensor, metallic: Tensor) -> Tensor:  # [..., 3], [...], [...] -> [..., 5]
     return torch.cat([base_color, roughness[..., None], metallic[..., None]], dim=-1)
 
 
-def unstack(materials: Tensor) -> tuple[Tensor, Tensor, Tensor]:  # [..., 5] -> base colour [..., 3], roughness [...], metallic [...]
+def unstack(
+    materials: Tensor,
+) -> tuple[Tensor, Tensor, Tensor]:  # [..., 5] -> base colour [..., 3], roughness [...], metallic [...]
     return materials[..., BASE_COLOR], materials[..., ROUGHNESS_INDEX], materials[..., METALLIC_INDEX]
 
 

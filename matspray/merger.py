@@ -37,7 +37,9 @@ class MergerConfig:
     layers: int = 3
     frequencies: int = 6  # NeRF positional-encoding octaves
     softmax: bool = True
-    seen_input: bool = False  # the MLPs also read the seen mask [V]; off as the paper (position and values only): on, it
+    seen_input: bool = (
+        False  # the MLPs also read the seen mask [V]; off as the paper (position and values only): on, it
+    )
     # did not pay in the benchmarks (docs/history.md)
     unseen: str = "mask"  # views that did not see a Gaussian: "mask" (weight 0) or "mean" (filled with the mean of the
     # views that did, weighted like any view; the paper's released code)
@@ -46,7 +48,11 @@ class MergerConfig:
         if self.unseen not in UNSEEN_RULES:
             raise SettingError("unseen", f"unknown rule '{self.unseen}'; choose one of {', '.join(UNSEEN_RULES)}")
         if self.hidden < 1 or self.layers < 1 or self.frequencies < 0:
-            raise SettingError("hidden", f"hidden and layers must be >= 1 and frequencies >= 0, got {self.hidden}, {self.layers}, {self.frequencies}")
+            raise SettingError(
+                "hidden",
+                f"hidden and layers must be >= 1 and frequencies >= 0, got {self.hidden}, "
+                f"{self.layers}, {self.frequencies}",
+            )
 
 
 def positional_encoding(x: Tensor, frequencies: int) -> Tensor:  # [N, 3] in ~[-1, 1] -> [N, 3 * (1 + 2F)]
@@ -86,8 +92,12 @@ class NeuralMerger(nn.Module):
         pe_dim = 3 * (1 + 2 * self.config.frequencies)
         self.mlps = nn.ModuleDict(
             {
-                name: mlp(pe_dim + self.n_views * (group.stop - group.start + int(self.config.seen_input)), self.n_views,
-                          self.config.hidden, self.config.layers)
+                name: mlp(
+                    pe_dim + self.n_views * (group.stop - group.start + int(self.config.seen_input)),
+                    self.n_views,
+                    self.config.hidden,
+                    self.config.layers,
+                )
                 for name, group in GROUPS.items()
             }
         )
@@ -97,7 +107,9 @@ class NeuralMerger(nn.Module):
         unit = 2.0 * (positions - lo) / (hi - lo).clamp_min(1e-8) - 1.0
         return positional_encoding(unit, self.config.frequencies)
 
-    def group_inputs(self, positions: Tensor, masked_values: Tensor, seen: Tensor, encoded: Tensor | None = None) -> dict[str, Tensor]:
+    def group_inputs(
+        self, positions: Tensor, masked_values: Tensor, seen: Tensor, encoded: Tensor | None = None
+    ) -> dict[str, Tensor]:
         """Each channel group's MLP input {group: [N, pe_dim + V * c (+ V)]}: PE(position), the group's
         per-view values (`masked_values`: 0 where unseen, or filled by `fill_unseen`) and, with
         `seen_input`, the seen mask. Fixed for frozen Gaussians, so callers may keep it."""
@@ -105,10 +117,14 @@ class NeuralMerger(nn.Module):
             raise RunError(f"the merger was built for {self.n_views} views but got values for {masked_values.shape[1]}")
         encoded = self.encode_positions(positions) if encoded is None else encoded
         seen_part = [seen.to(masked_values.dtype)] if self.config.seen_input else []
-        return {name: torch.cat([encoded, masked_values[:, :, group].flatten(1), *seen_part], dim=-1) for name, group in GROUPS.items()}
+        return {
+            name: torch.cat([encoded, masked_values[:, :, group].flatten(1), *seen_part], dim=-1)
+            for name, group in GROUPS.items()
+        }
 
     def merge(self, inputs: dict[str, Tensor], masked_values: Tensor, seen: Tensor, return_weights: bool = False):
-        """Merged materials [N, 5] from `group_inputs` and the per-view values [N, V, 5] (0 where unseen) / seen [N, V]."""
+        """Merged materials [N, 5] from `group_inputs` and the per-view values [N, V, 5] (0 where unseen) /
+        seen [N, V]."""
         merged, weights = [], {}
         for name, group in GROUPS.items():
             w = merge_weights(self.mlps[name](inputs[name]), seen, self.config.softmax)  # [N, V]
@@ -118,7 +134,14 @@ class NeuralMerger(nn.Module):
         out = torch.cat(merged, dim=-1).clamp(0.0, 1.0)
         return (out, weights) if return_weights else out
 
-    def forward(self, positions: Tensor, values: Tensor, seen: Tensor, return_weights: bool = False, encoded: Tensor | None = None):
+    def forward(
+        self,
+        positions: Tensor,
+        values: Tensor,
+        seen: Tensor,
+        return_weights: bool = False,
+        encoded: Tensor | None = None,
+    ):
         """Merge per-view values.
 
         positions: [N, 3]; values: [N, V, 5] (base color rgb, roughness, metallic; anything where unseen);
@@ -135,12 +158,14 @@ def projection_average(values: Tensor, seen: Tensor) -> Tensor:  # [N, V, 5], [N
     return (values * seen[..., None]).sum(1) / n_seen
 
 
-def view_gains(values: Tensor, seen: Tensor, rounds: int = 2, min_value: float = 0.02) -> Tensor:  # [N, V, 5], [N, V] -> [V, 3]
+def view_gains(
+    values: Tensor, seen: Tensor, rounds: int = 2, min_value: float = 0.02
+) -> Tensor:  # [N, V, 5], [N, V] -> [V, 3]
     """Each view's base-colour gain (per RGB channel) against the multi-view average: the median, over the Gaussians
     the view saw, of its value / the Gaussians' average, in log space; normalised to a geometric mean of 1 over the
-    views that voted, so that the overall brightness stays the predictions'. A predictor whose batches differ in exposure or
-    white balance shows as gains away from 1. `rounds` re-estimates the average from the aligned values; Gaussians
-    darker than `min_value` in some channel do not vote. A view that saw no voting Gaussian keeps gain 1."""
+    views that voted, so that the overall brightness stays the predictions'. A predictor whose batches differ in
+    exposure or white balance shows as gains away from 1. `rounds` re-estimates the average from the aligned values;
+    Gaussians darker than `min_value` in some channel do not vote. A view that saw no voting Gaussian keeps gain 1."""
     base = values[..., :3]  # [N, V, 3]
     log_gain = torch.zeros(values.shape[1], 3, dtype=values.dtype, device=values.device)  # [V, 3]
     for _ in range(rounds):
@@ -196,14 +221,21 @@ def load_merger(path, n_views: int, bounds: Tensor, map_location="cpu") -> Neura
     if not isinstance(state, dict) or "n_views" not in state or "state_dict" not in state:
         raise file_error(path, "is not a MatSpray merger checkpoint")
     if int(state["n_views"]) != int(n_views):
-        raise file_error(path, f"merger was trained for {state['n_views']} views, this run has {n_views}", "delete it to retrain")
+        raise file_error(
+            path, f"merger was trained for {state['n_views']} views, this run has {n_views}", "delete it to retrain"
+        )
     merger = NeuralMerger(n_views, bounds, MergerConfig(**state["config"]))
     try:
         merger.load_state_dict(state["state_dict"])
     except RuntimeError as exc:
-        raise file_error(path, f"merger weights do not fit: {str(exc).splitlines()[0]}", "delete it to retrain") from None
+        raise file_error(
+            path, f"merger weights do not fit: {str(exc).splitlines()[0]}", "delete it to retrain"
+        ) from None
     return merger
 
 
 def save_merger(merger: NeuralMerger, path) -> None:
-    save_torch_atomic({"n_views": merger.n_views, "config": dataclasses.asdict(merger.config), "state_dict": merger.state_dict()}, path)
+    save_torch_atomic(
+        {"n_views": merger.n_views, "config": dataclasses.asdict(merger.config), "state_dict": merger.state_dict()},
+        path,
+    )

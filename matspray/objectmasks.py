@@ -41,9 +41,16 @@ class ObjectMasks:
             for view in scene.split(split):
                 mask = self.masks.get(split, {}).get(view.name)
                 if mask is None or tuple(mask.shape) != (view.height, view.width):
-                    problem = "has no mask" if mask is None else f"has a {mask.shape[1]}x{mask.shape[0]} mask, but the view is {view.width}x{view.height}"
-                    raise file_error(self.source or "object masks", f"{split} view '{view.name}' {problem}",
-                                     masks_hint(self.source) if self.source else "")
+                    problem = (
+                        "has no mask"
+                        if mask is None
+                        else f"has a {mask.shape[1]}x{mask.shape[0]} mask, but the view is {view.width}x{view.height}"
+                    )
+                    raise file_error(
+                        self.source or "object masks",
+                        f"{split} view '{view.name}' {problem}",
+                        masks_hint(self.source) if self.source else "",
+                    )
         for split in SPLITS:
             for view in scene.split(split):
                 view.alpha = self.masks[split][view.name].to(view.image.device)
@@ -66,8 +73,10 @@ def compute_object_masks(gaussians: Gaussians, scene: Scene, object_bounds=None,
         region = auto_region(gaussians.means, gaussians.opacities, [v.camera for v in scene.train])
     inside = region.contains(gaussians.means.detach()).cpu()
     if not inside.any():
-        raise DataError(f"the object region ({region.describe()}) holds none of the {len(inside)} Gaussians; "
-                        "give one that does (setting object_bounds)")
+        raise DataError(
+            f"the object region ({region.describe()}) holds none of the {len(inside)} Gaussians; "
+            "give one that does (setting object_bounds)"
+        )
     obj = gaussians.subset(inside.to(gaussians.means.device))
     views = [(split, view) for split in SPLITS for view in scene.split(split)]
     masks: dict[str, dict[str, Tensor]] = {split: {} for split in SPLITS}
@@ -81,7 +90,10 @@ def write_object_masks(folder: Path, masks: ObjectMasks) -> None:
     for split, by_name in masks.masks.items():
         for name, mask in by_name.items():
             write_raw(folder / split / f"{name}.png", mask[..., None])
-    quantised = {split: {name: (m * 255).round().to(torch.uint8) for name, m in by_name.items()} for split, by_name in masks.masks.items()}
+    quantised = {
+        split: {name: (m * 255).round().to(torch.uint8) for name, m in by_name.items()}
+        for split, by_name in masks.masks.items()
+    }
     save_torch_atomic({"inside": masks.inside, "masks": quantised}, folder / "masks.pt")
     write_json(folder / "region.json", masks.region.to_json())
 
@@ -96,15 +108,41 @@ def read_region(folder: Path) -> ObjectRegion | None:
     if not path.exists():
         return None
     data = read_record(path, masks_hint(path))
-    numbers = lambda v, n: isinstance(v, list) and len(v) == n and all(  # noqa: E731
-        not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) for x in v)
+
+    def numbers(v, n):
+        return (
+            isinstance(v, list)
+            and len(v) == n
+            and all(not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) for x in v)
+        )
+
     radius = data.get("radius") if isinstance(data, dict) else None
-    sphere = radius is not None and numbers([radius], 1) and radius > 0 and data.get("low") is None and data.get("high") is None
-    box = (radius is None and isinstance(data, dict) and numbers(data.get("low"), 3) and numbers(data.get("high"), 3)
-           and all(lo < hi for lo, hi in zip(data["low"], data["high"])))
-    if not (isinstance(data, dict) and numbers(data.get("center"), 3) and (sphere or box)
-            and (data.get("plane") is None or numbers(data.get("plane"), 4)) and isinstance(data.get("rule", "given"), str)):
-        raise file_error(path, "does not describe an object region (a sphere or a box, finite, with an optional plane)", masks_hint(path))
+    sphere = (
+        radius is not None
+        and numbers([radius], 1)
+        and radius > 0
+        and data.get("low") is None
+        and data.get("high") is None
+    )
+    box = (
+        radius is None
+        and isinstance(data, dict)
+        and numbers(data.get("low"), 3)
+        and numbers(data.get("high"), 3)
+        and all(lo < hi for lo, hi in zip(data["low"], data["high"]))
+    )
+    if not (
+        isinstance(data, dict)
+        and numbers(data.get("center"), 3)
+        and (sphere or box)
+        and (data.get("plane") is None or numbers(data.get("plane"), 4))
+        and isinstance(data.get("rule", "given"), str)
+    ):
+        raise file_error(
+            path,
+            "does not describe an object region (a sphere or a box, finite, with an optional plane)",
+            masks_hint(path),
+        )
     region = ObjectRegion.from_json(data)
     if not torch.isfinite(region.bounds()).all():  # the scene's bounds, in float32
         raise file_error(path, "describes an object region too large for the scene's bounds", masks_hint(path))
@@ -124,11 +162,17 @@ def read_object_masks(folder: Path) -> ObjectMasks:
     inside, by_split = (data.get("inside"), data.get("masks")) if isinstance(data, dict) else (None, None)
     if not (isinstance(inside, Tensor) and inside.dtype == torch.bool and inside.dim() == 1 and bool(inside.any())):
         raise file_error(path, "holds no 'inside' flags (a [N] bool tensor marking some Gaussians)", hint)
-    if not (isinstance(by_split, dict) and set(by_split) == set(SPLITS) and all(isinstance(v, dict) for v in by_split.values())):
+    if not (
+        isinstance(by_split, dict)
+        and set(by_split) == set(SPLITS)
+        and all(isinstance(v, dict) for v in by_split.values())
+    ):
         raise file_error(path, f"holds no masks of the {' and '.join(SPLITS)} views", hint)
     for split, by_name in by_split.items():
-        shapes = {tuple(m.shape) if isinstance(m, Tensor) and m.dtype == torch.uint8 and m.dim() == 2 and m.numel() else None
-                  for m in by_name.values()}
+        shapes = {
+            tuple(m.shape) if isinstance(m, Tensor) and m.dtype == torch.uint8 and m.dim() == 2 and m.numel() else None
+            for m in by_name.values()
+        }
         if None in shapes or len(shapes) > 1 or not all(isinstance(name, str) for name in by_name):
             raise file_error(path, f"the masks of the {split} views are not [H, W] 8-bit images of one size", hint)
     count = vertex_count(folder.parent / "geometry" / "gaussians.ply")

@@ -32,7 +32,10 @@ MIN_OPACITY = 0.5  # candidates of the automatic rule
 REACH = 0.9  # candidates lie within this fraction of the nearest camera's distance
 PLANE_TOLERANCE, PLANE_SHARE, PLANE_MARGIN = 0.02, 0.2, 0.04  # fractions of that distance (share: of the candidates)
 PLANE_TRIALS = 256
-PLANE_REACH, PLANE_REACH_SHARE = 0.5, 0.25  # a ground's points reach this far (fraction of that distance), this many of them
+PLANE_REACH, PLANE_REACH_SHARE = (
+    0.5,
+    0.25,
+)  # a ground's points reach this far (fraction of that distance), this many of them
 SHELLS, DENSITY_FLOOR, RADIUS_MARGIN = 48, 0.1, 1.05
 
 
@@ -66,21 +69,39 @@ class ObjectRegion:
         return torch.tensor([self.low, self.high], dtype=torch.float32)
 
     def describe(self) -> str:
-        shape = (f"sphere at ({', '.join(f'{v:.3f}' for v in self.center)}) of radius {self.radius:.3f}" if self.radius is not None
-                 else f"box ({', '.join(f'{v:.3f}' for v in self.low)}) .. ({', '.join(f'{v:.3f}' for v in self.high)})")
-        cut = "" if self.plane is None else f", cut above the plane {' '.join(f'{v:+.3f}' for v in self.plane)} (n.x + d >= 0)"
+        shape = (
+            f"sphere at ({', '.join(f'{v:.3f}' for v in self.center)}) of radius {self.radius:.3f}"
+            if self.radius is not None
+            else f"box ({', '.join(f'{v:.3f}' for v in self.low)}) .. ({', '.join(f'{v:.3f}' for v in self.high)})"
+        )
+        cut = (
+            ""
+            if self.plane is None
+            else f", cut above the plane {' '.join(f'{v:+.3f}' for v in self.plane)} (n.x + d >= 0)"
+        )
         return f"{shape}{cut} ({'chosen automatically' if self.rule == 'auto' else 'given'})"
 
     def to_json(self) -> dict:
-        return {"center": list(self.center), "radius": self.radius, "low": None if self.low is None else list(self.low),
-                "high": None if self.high is None else list(self.high), "plane": None if self.plane is None else list(self.plane),
-                "rule": self.rule}
+        return {
+            "center": list(self.center),
+            "radius": self.radius,
+            "low": None if self.low is None else list(self.low),
+            "high": None if self.high is None else list(self.high),
+            "plane": None if self.plane is None else list(self.plane),
+            "rule": self.rule,
+        }
 
     @staticmethod
     def from_json(data: dict) -> "ObjectRegion":
         as_tuple = lambda v: None if v is None else tuple(float(x) for x in v)  # noqa: E731
-        return ObjectRegion(center=as_tuple(data["center"]), radius=data.get("radius"), low=as_tuple(data.get("low")),
-                            high=as_tuple(data.get("high")), plane=as_tuple(data.get("plane")), rule=data.get("rule", "given"))
+        return ObjectRegion(
+            center=as_tuple(data["center"]),
+            radius=data.get("radius"),
+            low=as_tuple(data.get("low")),
+            high=as_tuple(data.get("high")),
+            plane=as_tuple(data.get("plane")),
+            rule=data.get("rule", "given"),
+        )
 
 
 def given_region(values) -> ObjectRegion:
@@ -95,15 +116,21 @@ def given_region(values) -> ObjectRegion:
     if len(values) == 6:
         low, high = tuple(values[:3]), tuple(values[3:])
         if not all(lo < hi for lo, hi in zip(low, high)):
-            raise SettingError("object_bounds", f"the box's first corner must be below its second on every axis, got {values}")
+            raise SettingError(
+                "object_bounds", f"the box's first corner must be below its second on every axis, got {values}"
+            )
         return ObjectRegion(center=tuple((lo + hi) / 2 for lo, hi in zip(low, high)), low=low, high=high)
-    raise SettingError("object_bounds", f"give 4 numbers (x y z radius: a sphere) or 6 (x0 y0 z0 x1 y1 z1: a box), got {len(values)}")
+    raise SettingError(
+        "object_bounds", f"give 4 numbers (x y z radius: a sphere) or 6 (x0 y0 z0 x1 y1 z1: a box), got {len(values)}"
+    )
 
 
-def support_plane(points: Tensor, camera_centers: Tensor, tolerance: float, generator: torch.Generator,
-                  far: Tensor | None = None) -> Tensor | None:
+def support_plane(
+    points: Tensor, camera_centers: Tensor, tolerance: float, generator: torch.Generator, far: Tensor | None = None
+) -> Tensor | None:
     """RANSAC plane [4] (unit normal n, offset d; cameras on the side n.x + d > 0) holding >= PLANE_SHARE of
-    `points` [P, 3] within `tolerance`, PLANE_REACH_SHARE of them among the `far` ones ([P] bool; None: any), or None."""
+    `points` [P, 3] within `tolerance`, PLANE_REACH_SHARE of them among the `far` ones
+    ([P] bool; None: any), or None."""
     count = len(points)
     if count < 3:
         return None
@@ -171,10 +198,14 @@ def auto_region(means: Tensor, opacities: Tensor, cameras: list[Camera], seed: i
         candidates = candidates[candidates @ plane[:3] + plane[3] >= 0]
     framed = min(framing_radius(cameras, focus), REACH * nearest)
     radius = dense_radius((candidates - focus).norm(dim=-1), framed) if len(candidates) else framed
-    return ObjectRegion(center=tuple(focus.tolist()), radius=radius, plane=None if plane is None else tuple(plane.tolist()), rule="auto")
+    return ObjectRegion(
+        center=tuple(focus.tolist()), radius=radius, plane=None if plane is None else tuple(plane.tolist()), rule="auto"
+    )
 
 
-def mask_iou(mask: Tensor, truth: Tensor, threshold: float = 0.5) -> float:  # [H, W], [H, W] -> IoU of the thresholded masks
+def mask_iou(
+    mask: Tensor, truth: Tensor, threshold: float = 0.5
+) -> float:  # [H, W], [H, W] -> IoU of the thresholded masks
     a, b = mask >= threshold, truth >= threshold
     union = int((a | b).sum())
     return 1.0 if union == 0 else int((a & b).sum()) / union

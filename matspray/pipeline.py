@@ -22,8 +22,6 @@ from matspray.config import WORKING_SIZE, PipelineConfig
 from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
-from matspray.render.backend import RenderUse, rendering_with, resolve_backend
-from matspray.render.envmap import EnvironmentMap
 from matspray.errors import MatsprayError, RunError, file_error
 from matspray.estimate import Work, run_work
 from matspray.geometry.ply import read_ply, vertex_count
@@ -31,8 +29,19 @@ from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
 from matspray.material import stack
 from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, write_object_masks
-from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, resolve_predictor, options_for_dataset, predict_views, read_materials2d, write_materials2d
+from matspray.predictors import (
+    NO_PREDICTOR,
+    PredictorOptions,
+    make_predictor,
+    options_for_dataset,
+    predict_views,
+    read_materials2d,
+    resolve_predictor,
+    write_materials2d,
+)
 from matspray.refine import RefineConfig, RefineInputs, refine
+from matspray.render.backend import RenderUse, rendering_with, resolve_backend
+from matspray.render.envmap import EnvironmentMap
 from matspray.render.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, read_json, stage_folder, stage_hint, timed, to_plain
 from matspray.variants import asset_stage, get_variant, variants_for_maps
@@ -63,8 +72,16 @@ def maps_to_tensor(maps) -> torch.Tensor:  # MaterialMaps -> [H, W, 5]
 class Pipeline:
     """One run directory and the stages that fill it. Every stage method returns its artifact."""
 
-    def __init__(self, data, out, config: PipelineConfig, overwrite: bool = False, progress: bool = True, log=print,
-                 wait: bool = False):
+    def __init__(
+        self,
+        data,
+        out,
+        config: PipelineConfig,
+        overwrite: bool = False,
+        progress: bool = True,
+        log=print,
+        wait: bool = False,
+    ):
         self.config = config
         self.device = resolve_device(config.device)
         configure_threads(self.device)
@@ -75,14 +92,19 @@ class Pipeline:
         if config.downscale is None:
             if self.scene.downscale > 1.0:
                 shown = self.scene.train[0]
-                log(f"photos: {round(shown.width * self.scene.downscale)}x{round(shown.height * self.scene.downscale)} brought to "
-                    f"{shown.width}x{shown.height}, the {config.preset} preset's working size (--downscale 1 keeps them as they are)")
+                original = f"{round(shown.width * self.scene.downscale)}x{round(shown.height * self.scene.downscale)}"
+                log(
+                    f"photos: {original} brought to {shown.width}x{shown.height}, the {config.preset} preset's "
+                    "working size (--downscale 1 keeps them as they are)"
+                )
             config = self.config = replace(config, downscale=self.scene.downscale)
         # `auto` becomes a predictor here, and one that cannot serve these views fails here, before any training
         predictor = resolve_predictor(config.predictor, self.scene.train, notify=log)
         if predictor != config.predictor:
             config = self.config = replace(config, predictor=predictor)
-        self._predictor_options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), self.scene.source)
+        self._predictor_options = options_for_dataset(
+            config.predictor, PredictorOptions(**config.predictor_options), self.scene.source
+        )
         # a missing or unreadable light probe fails here, before the run folder is touched; it is read once, and the
         # refinement's fingerprint names the file as it was read
         self.probe_identity = self.light_probe_identity()
@@ -136,7 +158,9 @@ class Pipeline:
         masks = () if not self.unmasked else (self.masks_fingerprint(),)  # the predictor sees the masked views
         seed = self.predictor_options().seed  # an object's own seed changes the draws, except 0 (the default draws)
         derived = () if seed in (self.config.predictor_options.get("seed"), None, 0) else ({"object_seed": seed},)
-        return fingerprint("predict", self.dataset_fp, self.config.predictor, self.config.predictor_options, *masks, *derived)
+        return fingerprint(
+            "predict", self.dataset_fp, self.config.predictor, self.config.predictor_options, *masks, *derived
+        )
 
     def predict(self):
         """The 2D maps of the training views {name: MaterialMaps}; None in a run without a predictor."""
@@ -151,7 +175,9 @@ class Pipeline:
                 predictor = make_predictor(self.config.predictor, options, notify=self.log)
                 maps = predict_views(self.scene.train, predictor, notify=self.log)
                 write_materials2d(self.run.root, maps, predictor.describe())
-            used = {k: v for k, v in vars(options).items() if v is not None}  # the configured options and a derived seed
+            used = {
+                k: v for k, v in vars(options).items() if v is not None
+            }  # the configured options and a derived seed
             self.run.finish_stage("materials2d", fp, {"predictor": self.config.predictor, **used}, t.seconds)
         else:
             self.log("predict: done before, reusing materials2d/")
@@ -167,7 +193,13 @@ class Pipeline:
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             with self._working("geometry") as (t, use):
-                train_geometry(self.scene, self.config.geometry, self.run.path("geometry"), device=self.device, progress=self.progress)
+                train_geometry(
+                    self.scene,
+                    self.config.geometry,
+                    self.run.path("geometry"),
+                    device=self.device,
+                    progress=self.progress,
+                )
             self.run.finish_stage("geometry", fp, self.config.geometry, t.seconds, self._ran(use))
         else:
             self.log("geometry: done before, reusing geometry/gaussians.ply")
@@ -188,15 +220,25 @@ class Pipeline:
             if not self.run.stage_done("masks", fp, ["masks.pt", "region.json"]):
                 gaussians, _ = self.geometry()
                 with self._working("masks") as (t, use):
-                    masks = compute_object_masks(gaussians, self.scene, self.config.object_bounds, progress=self.progress)
+                    masks = compute_object_masks(
+                        gaussians, self.scene, self.config.object_bounds, progress=self.progress
+                    )
                     write_object_masks(self.run.path("masks"), masks)
-                self.run.finish_stage("masks", fp, {"object_bounds": self.config.object_bounds}, t.seconds,
-                                      {"region": masks.region.to_json(), "inside": int(masks.inside.sum()), **self._ran(use)})
+                self.run.finish_stage(
+                    "masks",
+                    fp,
+                    {"object_bounds": self.config.object_bounds},
+                    t.seconds,
+                    {"region": masks.region.to_json(), "inside": int(masks.inside.sum()), **self._ran(use)},
+                )
             else:
                 self.log("masks: done before, reusing masks/")
             self._object_masks = read_object_masks(self.run.path("masks"))
-            self.log(f"masks: the object is {int(self._object_masks.inside.sum())} of {len(self._object_masks.inside)} Gaussians, "
-                     f"inside the {self._object_masks.region.describe()}")
+            self.log(
+                f"masks: the object is {int(self._object_masks.inside.sum())} of "
+                f"{len(self._object_masks.inside)} Gaussians, "
+                f"inside the {self._object_masks.region.describe()}"
+            )
             self._object_masks.apply(self.scene)
         return self._object_masks
 
@@ -212,11 +254,14 @@ class Pipeline:
     # ---------------------------------------------------------------- lift
     def lift_config(self):
         """The lift's settings. A run without 2D maps lifts only to learn which Gaussians the views see (no value is
-        read), so one ray per pixel does: a sixteenth of the demo preset's rays (the skull capture: about 9 min less)."""
+        read), so one ray per pixel does: a sixteenth of the demo preset's rays
+        (the skull capture: about 9 min less)."""
         return self.config.lift if self.has_maps else replace(self.config.lift, samples_per_side=1)
 
     def lift_fingerprint(self) -> str:
-        return fingerprint("lift", self.config.method, self.lift_config(), self.predict_fingerprint(), self.geometry_fingerprint())
+        return fingerprint(
+            "lift", self.config.method, self.lift_config(), self.predict_fingerprint(), self.geometry_fingerprint()
+        )
 
     def lift(self, gaussians, maps) -> LiftResult:
         """Lift the 2D maps onto the Gaussians. Without maps (None) lifting still decides, from the same rays and
@@ -225,12 +270,22 @@ class Pipeline:
         path = self.run.path("lift", "projected.pt")
         if not self.run.stage_done("lift", fp, ["projected.pt"]):
             views = self.scene.train
-            materials = [maps_to_tensor(maps[v.name]).to(self.device) if maps is not None else
-                         torch.zeros(v.height, v.width, 5, device=self.device) for v in views]
+            materials = [
+                maps_to_tensor(maps[v.name]).to(self.device)
+                if maps is not None
+                else torch.zeros(v.height, v.width, 5, device=self.device)
+                for v in views
+            ]
             with self._working("lift") as (t, use):
-                result = lift(gaussians, [v.camera.to(self.device) for v in views], materials,
-                              [None if v.alpha is None else v.alpha.to(self.device) for v in views], [v.name for v in views],
-                              self.lift_config(), progress=self.progress)
+                result = lift(
+                    gaussians,
+                    [v.camera.to(self.device) for v in views],
+                    materials,
+                    [None if v.alpha is None else v.alpha.to(self.device) for v in views],
+                    [v.name for v in views],
+                    self.lift_config(),
+                    progress=self.progress,
+                )
                 save_lift(result, path)
             self.run.finish_stage("lift", fp, self.lift_config(), t.seconds, {"stats": result.stats, **self._ran(use)})
             self.log(f"lift: kept {result.stats['gaussians_kept']} of {result.stats['gaussians_in']} Gaussians")
@@ -251,7 +306,10 @@ class Pipeline:
         fp = self.visibility_fingerprint()
         path = self.run.path("visibility", "visibility.pt")
         if not self.run.stage_done("visibility", fp, ["visibility.pt"]):
-            self.log(f"visibility: shadow maps of {len(kept)} Gaussians towards {2 * self.config.visibility.rows ** 2} directions")
+            self.log(
+                f"visibility: shadow maps of {len(kept)} Gaussians towards "
+                f"{2 * self.config.visibility.rows**2} directions"
+            )
             with self._working("visibility") as (t, use):
                 save_torch_atomic(bake_visibility(kept, self.config.visibility, progress=self.progress).cpu(), path)
             self.run.finish_stage("visibility", fp, self.config.visibility, t.seconds, self._ran(use))
@@ -259,7 +317,10 @@ class Pipeline:
             self.log("visibility: done before, reusing visibility/visibility.pt")
         values = torch.load(path, map_location=self.device)
         if values.shape[0] != len(kept):
-            raise RunError(f"{path}: visibility of {values.shape[0]} Gaussians, but the lifted geometry has {len(kept)}; delete the file to bake it again")
+            raise RunError(
+                f"{path}: visibility of {values.shape[0]} Gaussians, but the lifted geometry has {len(kept)}; "
+                "delete the file to bake it again"
+            )
         return values
 
     # ---------------------------------------------------------------- refine
@@ -276,12 +337,20 @@ class Pipeline:
         lifted = self.lift(gaussians, maps)
         kept = gaussians.subset(lifted.kept)
         views = [v.to(self.device) for v in self.scene.train]
-        return RefineInputs(gaussians=kept, normals=normals[lifted.kept], values=lifted.values, seen=lifted.seen, views=views,
-                            targets=[maps_to_tensor(maps[v.name]).to(self.device) for v in views] if maps is not None else [],
-                            bounds=self.scene.bounds.to(self.device), visibility=self.visibility(kept))
+        return RefineInputs(
+            gaussians=kept,
+            normals=normals[lifted.kept],
+            values=lifted.values,
+            seen=lifted.seen,
+            views=views,
+            targets=[maps_to_tensor(maps[v.name]).to(self.device) for v in views] if maps is not None else [],
+            bounds=self.scene.bounds.to(self.device),
+            visibility=self.visibility(kept),
+        )
 
     def light_probe(self) -> EnvironmentMap | None:
-        """The known training light (`light_probe`), at the size of the light refinement would learn; None when unset."""
+        """The known training light (`light_probe`), at the size of the light refinement would learn;
+        None when unset."""
         if self.config.light_probe is None:
             return None
         return EnvironmentMap.from_file(self.config.light_probe, height=self.config.refine.envmap_height)
@@ -293,14 +362,24 @@ class Pipeline:
             return ()
         path = Path(self.config.light_probe)
         if not path.is_file():
-            raise file_error(path, "the light probe (--light-probe) does not exist", "give an HDR lat-long map (.exr or .hdr)")
+            raise file_error(
+                path, "the light probe (--light-probe) does not exist", "give an HDR lat-long map (.exr or .hdr)"
+            )
         stat = path.stat()
         return ({"light_probe": str(path.resolve()), "bytes": stat.st_size, "modified_ns": stat.st_mtime_ns},)
 
     def refine_fingerprint(self, variant: str) -> str:
-        learns_light = self.probe is not None and get_variant(variant).learns_light  # variants without a light ignore the probe
-        return fingerprint("refine", self.config.method, variant_refine_config(self.config, variant), self.lift_fingerprint(),
-                           self.visibility_fingerprint(), *(self.probe_identity if learns_light else ()))
+        learns_light = (
+            self.probe is not None and get_variant(variant).learns_light
+        )  # variants without a light ignore the probe
+        return fingerprint(
+            "refine",
+            self.config.method,
+            variant_refine_config(self.config, variant),
+            self.lift_fingerprint(),
+            self.visibility_fingerprint(),
+            *(self.probe_identity if learns_light else ()),
+        )
 
     def refine(self, variant: str = "full") -> Asset:
         variants_for_maps([variant], self.has_maps)  # a variant that reads 2D maps is refused in a run without them
@@ -315,20 +394,32 @@ class Pipeline:
         with self._working(f"refine [{variant}]") as (t, use):
             result = refine(inputs, config, progress=self.progress, light=probe)
             write_asset(self.run.path(stage), inputs.gaussians, result)
-        self.run.finish_stage(stage, fp, config, t.seconds, {"history": result.history, "frozen_views": result.frozen, **self._ran(use)})
+        self.run.finish_stage(
+            stage, fp, config, t.seconds, {"history": result.history, "frozen_views": result.frozen, **self._ran(use)}
+        )
         return read_asset(self.run.path(stage), device=self.device)
 
     def work(self, variants=None) -> Work:
         """What `run_all(variants)` has left to do, for `estimate.estimate_line`."""
         names = variants_for_maps(variants, self.has_maps)
-        finished = {"geometry": (self.geometry_fingerprint(), ["gaussians.ply"]), "masks": (self.masks_fingerprint(), ["masks.pt"]),
-                    "lift": (self.lift_fingerprint(), ["projected.pt"])}
+        finished = {
+            "geometry": (self.geometry_fingerprint(), ["gaussians.ply"]),
+            "masks": (self.masks_fingerprint(), ["masks.pt"]),
+            "lift": (self.lift_fingerprint(), ["projected.pt"]),
+        }
         done = frozenset(stage for stage, (fp, files) in finished.items() if self.run.stage_done(stage, fp, files))
-        to_refine = [v for v in names if not self.run.stage_done(asset_stage(v), self.refine_fingerprint(v), ["asset.ply"])]
-        return run_work([(v.width, v.height) for v in self.scene.train], self.config.geometry.iterations, self.config.geometry.resolution,
-                        self.lift_config().samples_per_side ** 2,
-                        [(variant_refine_config(self.config, v).iterations, get_variant(v).uses_maps) for v in to_refine],
-                        self.unmasked, done)
+        to_refine = [
+            v for v in names if not self.run.stage_done(asset_stage(v), self.refine_fingerprint(v), ["asset.ply"])
+        ]
+        return run_work(
+            [(v.width, v.height) for v in self.scene.train],
+            self.config.geometry.iterations,
+            self.config.geometry.resolution,
+            self.lift_config().samples_per_side ** 2,
+            [(variant_refine_config(self.config, v).iterations, get_variant(v).uses_maps) for v in to_refine],
+            self.unmasked,
+            done,
+        )
 
     def run_all(self, variants=None) -> dict:
         """Refine `variants` (default: full, or in a run without 2D maps the variants that need none)."""
@@ -336,8 +427,17 @@ class Pipeline:
 
 
 def save_lift(result: LiftResult, path: Path) -> None:
-    save_torch_atomic({"values": result.values.cpu(), "seen": result.seen.cpu(), "kept": result.kept.cpu(), "view_names": result.view_names,
-                       "stats": to_plain(result.stats), "hits": None if result.hits is None else result.hits.cpu()}, path)
+    save_torch_atomic(
+        {
+            "values": result.values.cpu(),
+            "seen": result.seen.cpu(),
+            "kept": result.kept.cpu(),
+            "view_names": result.view_names,
+            "stats": to_plain(result.stats),
+            "hits": None if result.hits is None else result.hits.cpu(),
+        },
+        path,
+    )
 
 
 def load_lift(path: Path, device) -> LiftResult:
@@ -355,34 +455,55 @@ def load_lift(path: Path, device) -> LiftResult:
 
     if not isinstance(data, dict) or not {"values", "seen", "kept", "view_names", "stats"} <= set(data):
         raise refuse("lacks the lift's values, seen, kept, view_names or stats")
-    values, seen, kept, names, stats, hits = (data.get(k) for k in ("values", "seen", "kept", "view_names", "stats", "hits"))
+    values, seen, kept, names, stats, hits = (
+        data.get(k) for k in ("values", "seen", "kept", "view_names", "stats", "hits")
+    )
     if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names) and isinstance(stats, dict)):
         raise refuse("its view_names are not a list of view names, or its stats no mapping")
     if not (isinstance(kept, torch.Tensor) and kept.dtype == torch.bool and kept.dim() == 1):
         raise refuse("its 'kept' flags are not a [N] bool tensor")
     count, views = int(kept.sum()), len(names)
-    if not (isinstance(values, torch.Tensor) and values.is_floating_point() and tuple(values.shape) == (count, views, 5)):
+    if not (
+        isinstance(values, torch.Tensor) and values.is_floating_point() and tuple(values.shape) == (count, views, 5)
+    ):
         raise refuse(f"its values are not [{count}, {views}, 5] (the kept Gaussians, the views, 5 channels)")
-    if not bool(torch.isfinite(values).all()) or (count and not 0.0 <= float(values.min()) <= float(values.max()) <= 1.0):
+    if not bool(torch.isfinite(values).all()) or (
+        count and not 0.0 <= float(values.min()) <= float(values.max()) <= 1.0
+    ):
         raise refuse("its values are not finite numbers in [0, 1]")
     if not (isinstance(seen, torch.Tensor) and seen.dtype == torch.bool and tuple(seen.shape) == (count, views)):
         raise refuse(f"its 'seen' flags are not a [{count}, {views}] bool tensor")
-    if hits is not None and not (isinstance(hits, torch.Tensor) and not hits.is_floating_point() and tuple(hits.shape) == (count, views)):
+    if hits is not None and not (
+        isinstance(hits, torch.Tensor) and not hits.is_floating_point() and tuple(hits.shape) == (count, views)
+    ):
         raise refuse(f"its hits are not a [{count}, {views}] integer tensor")
     run = path.parent.parent
     if stage_folder(path) is not None:
         try:
             masks = read_json(run / "masks" / "stage.json") if (run / "masks" / "stage.json").exists() else None
-            lifted = masks.get("inside") if isinstance(masks, dict) else vertex_count(run / "geometry" / "gaussians.ply")
+            lifted = (
+                masks.get("inside") if isinstance(masks, dict) else vertex_count(run / "geometry" / "gaussians.ply")
+            )
         except (OSError, ValueError):  # a damaged masks record: that stage is made again, and the lift with it
             lifted = None
         if isinstance(lifted, int) and lifted != len(kept):
-            raise refuse(f"lifted {len(kept)} Gaussians, but the run's {'object' if masks else 'geometry'} has {lifted}")
+            raise refuse(
+                f"lifted {len(kept)} Gaussians, but the run's {'object' if masks else 'geometry'} has {lifted}"
+            )
         try:
             train_views = RunDir(run).dataset().get("train_views")
         except MatsprayError:
             train_views = None  # a damaged dataset record is named by whatever reads it
         if train_views is not None and names != train_views:
-            raise refuse(f"was lifted from {views} views ({', '.join(names[:3])}...), not the run's {len(train_views)} training views")
-    return LiftResult(values=values.to(device), seen=seen.to(device), kept=kept.to(device), view_names=names, stats=stats,
-                      hits=None if hits is None else hits.to(device))
+            raise refuse(
+                f"was lifted from {views} views ({', '.join(names[:3])}...), "
+                f"not the run's {len(train_views)} training views"
+            )
+    return LiftResult(
+        values=values.to(device),
+        seen=seen.to(device),
+        kept=kept.to(device),
+        view_names=names,
+        stats=stats,
+        hits=None if hits is None else hits.to(device),
+    )

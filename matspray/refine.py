@@ -58,7 +58,9 @@ class RefineConfig:
     # at the merger's 1e-3 a Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey
     envmap_height: int = 16  # learnable lat-long map is H x 2H
     envmap_init: float = 0.5  # initial constant radiance
-    light_tv_weight: float = 3e-4  # weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)
+    light_tv_weight: float = (
+        3e-4  # weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)
+    )
     light_warmup: int = 200  # steps that fit only the environment map to the photos, materials fixed at their start
     min_coverage: float = 0.02  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
@@ -67,8 +69,9 @@ class RefineConfig:
     # pay in the benchmarks, docs/history.md, so it is no longer an addition)
     basecolor_loss: str = "l1"  # "l1" (the paper; our default since scale-invariant did not pay in the benchmarks,
     # docs/history.md), "scale-invariant" (only for variants with the PBR loss, which then sets the brightness;
-    # supervised compares by plain L1 then) or "huber" (quadratic below `basecolor_huber_delta`, so views that differ by
-    # a little are averaged, as proj-average does; linear above, so a wrong view or batch is outvoted, as by L1's median)
+    # supervised compares by plain L1 then) or "huber" (quadratic below `basecolor_huber_delta`, so views that differ
+    # by a little are averaged, as proj-average does; linear above, so a wrong view or batch is outvoted, as by L1's
+    # median)
     basecolor_huber_delta: float = 0.05  # linear base colour; the residual where "huber" turns from quadratic to linear
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
     align_view_gains: bool = False  # divide each view's base colour (lifted values and 2D map) by its gain against the
@@ -85,8 +88,17 @@ class RefineConfig:
         if self.iterations < 0:
             raise SettingError("iterations", f"must be >= 0, got {self.iterations}")
         if self.basecolor_loss not in BASECOLOR_LOSSES:
-            raise SettingError("basecolor_loss", f"unknown loss '{self.basecolor_loss}'; choose one of {', '.join(BASECOLOR_LOSSES)}")
-        for name in ("material_weight", "photo_weight", "light_tv_weight", "min_coverage", "light_warmup", "basecolor_spread_weight"):
+            raise SettingError(
+                "basecolor_loss", f"unknown loss '{self.basecolor_loss}'; choose one of {', '.join(BASECOLOR_LOSSES)}"
+            )
+        for name in (
+            "material_weight",
+            "photo_weight",
+            "light_tv_weight",
+            "min_coverage",
+            "light_warmup",
+            "basecolor_spread_weight",
+        ):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
         if not self.basecolor_huber_delta > 0:
@@ -116,7 +128,15 @@ class RefineInputs:
 class MaterialSource(nn.Module):
     """Per-Gaussian materials [N, 5] for one variant."""
 
-    def __init__(self, variant: Variant, positions: Tensor, values: Tensor, seen: Tensor, bounds: Tensor, merger_config: MergerConfig):
+    def __init__(
+        self,
+        variant: Variant,
+        positions: Tensor,
+        values: Tensor,
+        seen: Tensor,
+        bounds: Tensor,
+        merger_config: MergerConfig,
+    ):
         super().__init__()
         self.variant = variant
         self.merger = None
@@ -139,7 +159,9 @@ class MaterialSource(nn.Module):
         weights {group: [K, V]} (empty for a source without a merger)."""
         pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
         if self.merger is not None:
-            return self.merger.merge({name: pick(x) for name, x in self.inputs.items()}, pick(self.values), pick(self.seen), return_weights)
+            return self.merger.merge(
+                {name: pick(x) for name, x in self.inputs.items()}, pick(self.values), pick(self.seen), return_weights
+            )
         materials = self.source_materials(pick)
         return (materials, {}) if return_weights else materials
 
@@ -167,14 +189,23 @@ def scale_invariant_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  #
     return masked_l1(scale.clamp(0.1, 10.0) * pred, target, mask)
 
 
-def masked_huber(pred: Tensor, target: Tensor, mask: Tensor, delta: float) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
+def masked_huber(
+    pred: Tensor, target: Tensor, mask: Tensor, delta: float
+) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
     """Masked Huber loss: r^2 / (2 delta) for a residual |r| < delta, |r| - delta / 2 above (L1's slope, 1)."""
     weight = mask[..., None].expand_as(pred)
-    return (torch.nn.functional.smooth_l1_loss(pred, target, reduction="none", beta=delta) * weight).sum() / weight.sum().clamp_min(1.0)
+    return (
+        torch.nn.functional.smooth_l1_loss(pred, target, reduction="none", beta=delta) * weight
+    ).sum() / weight.sum().clamp_min(1.0)
 
 
-def material_loss(maps: Tensor, target: Tensor, mask: Tensor, basecolor_loss: str,
-                  huber_delta: float = RefineConfig.basecolor_huber_delta) -> Tensor:
+def material_loss(
+    maps: Tensor,
+    target: Tensor,
+    mask: Tensor,
+    basecolor_loss: str,
+    huber_delta: float = RefineConfig.basecolor_huber_delta,
+) -> Tensor:
     """L1 of rendered material maps [H, W, 5] against the 2D maps [H, W, 5] over the mask [H, W], averaged over the 5
     channels; the base color channels scale-invariant or Huber (`huber_delta`) when `basecolor_loss` says so."""
     if basecolor_loss == "l1":
@@ -215,8 +246,15 @@ class TrainingViews:
         return len(self.views)
 
 
-def view_losses(training: TrainingViews, index: int, materials: Tensor, normals: Tensor, envmap: EnvironmentMap | None,
-                config: RefineConfig, with_material: bool = True) -> dict[str, Tensor]:
+def view_losses(
+    training: TrainingViews,
+    index: int,
+    materials: Tensor,
+    normals: Tensor,
+    envmap: EnvironmentMap | None,
+    config: RefineConfig,
+    with_material: bool = True,
+) -> dict[str, Tensor]:
     """The losses of training view `index`: L1 of the rasterized material maps against the view's 2D maps
     ("material", when `with_material`), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo
     ("photo", only with an environment map). materials [N, 5], normals [N, 3] any orientation."""
@@ -225,17 +263,28 @@ def view_losses(training: TrainingViews, index: int, materials: Tensor, normals:
     oriented = frozen.orient_normals(index, normals)
     features = [materials, oriented]
     light = envmap.prefilter() if envmap is not None else None
-    if light is not None and training.visibility is not None:  # only for the Gaussians this view sees: the rest blend with weight 0
+    if (
+        light is not None and training.visibility is not None
+    ):  # only for the Gaussians this view sees: the rest blend with weight 0
         seen = frozen.visible_ids[index]
-        shadows = gaussian_shadows(training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen], view.camera, light)
+        shadows = gaussian_shadows(
+            training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen], view.camera, light
+        )
         features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
     gbuffer = GBuffer.from_blended(*frozen.render(index, torch.cat(features, dim=-1)))  # [H, W, 8 or 14], [H, W]
     terms = {}
     if with_material:
         scale_free = config.basecolor_loss == "scale-invariant"
-        basecolor_loss = "l1" if scale_free and light is None else config.basecolor_loss  # without the PBR loss nothing sets the scale
-        terms["material"] = material_loss(gbuffer.materials, training.targets[index], mask * (gbuffer.alpha > 0.5), basecolor_loss,
-                                          config.basecolor_huber_delta)
+        basecolor_loss = (
+            "l1" if scale_free and light is None else config.basecolor_loss
+        )  # without the PBR loss nothing sets the scale
+        terms["material"] = material_loss(
+            gbuffer.materials,
+            training.targets[index],
+            mask * (gbuffer.alpha > 0.5),
+            basecolor_loss,
+            config.basecolor_huber_delta,
+        )
     if light is not None:
         rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
         photo = linear_to_srgb(view.image * mask[..., None])
@@ -246,8 +295,12 @@ def view_losses(training: TrainingViews, index: int, materials: Tensor, normals:
 
 
 def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
-    weights = {"material": config.material_weight, "photo": config.photo_weight, "light_tv": config.light_tv_weight,
-               "spread": config.basecolor_spread_weight}
+    weights = {
+        "material": config.material_weight,
+        "photo": config.photo_weight,
+        "light_tv": config.light_tv_weight,
+        "spread": config.basecolor_spread_weight,
+    }
     return sum(weights[name] * value for name, value in terms.items())
 
 
@@ -255,7 +308,9 @@ def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
 def check_finite(step: int, **terms: Tensor) -> None:
     for name, value in terms.items():
         if not torch.isfinite(value).all():
-            raise NumericalError(f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept")
+            raise NumericalError(
+                f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept"
+            )
 
 
 def all_finite(terms: dict[str, Tensor], param_groups) -> Tensor:  # -> [] bool, on the device
@@ -269,12 +324,20 @@ def all_finite(terms: dict[str, Tensor], param_groups) -> Tensor:  # -> [] bool,
 def check_finite_gradients(step: int, param_groups) -> None:
     """A non-finite gradient would turn Adam's state (and every later step) into NaN without any loss showing it.
     param_groups: the optimizer's groups, each with a "name"."""
-    bad = [group["name"] for group in param_groups if any(p.grad is not None and not torch.isfinite(p.grad).all() for p in group["params"])]
+    bad = [
+        group["name"]
+        for group in param_groups
+        if any(p.grad is not None and not torch.isfinite(p.grad).all() for p in group["params"])
+    ]
     if bad:
-        raise NumericalError(f"refine step {step}: non-finite gradient for the {', '.join(bad)}; the last good checkpoint is kept")
+        raise NumericalError(
+            f"refine step {step}: non-finite gradient for the {', '.join(bad)}; the last good checkpoint is kept"
+        )
 
 
-def optimize(optimizer, n_views: int, steps: int, losses_of_view, generator, desc: str, progress: bool, on_step=None) -> None:
+def optimize(
+    optimizer, n_views: int, steps: int, losses_of_view, generator, desc: str, progress: bool, on_step=None
+) -> None:
     """The step driver shared by the warm-up and the refinement: `steps` times, draw a random training
     view, take `losses_of_view(index)` -> (terms {name: []}, total []), stop on a non-finite loss or
     gradient, and step the optimizer. `on_step(step, terms, bar)` runs after each step."""
@@ -297,8 +360,15 @@ def envmap_group(envmap: EnvironmentMap, config: RefineConfig) -> dict:
     return {"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"}
 
 
-def warm_up_light(training: TrainingViews, materials: Tensor, normals: Tensor, envmap: EnvironmentMap, config: RefineConfig,
-                  generator, progress: bool) -> None:
+def warm_up_light(
+    training: TrainingViews,
+    materials: Tensor,
+    normals: Tensor,
+    envmap: EnvironmentMap,
+    config: RefineConfig,
+    generator,
+    progress: bool,
+) -> None:
     """Fit the environment map alone to the photos for `config.light_warmup` steps, with fixed materials
     [N, 5] (what the source starts from: the projection average for the merger variants)."""
     optimizer = torch.optim.Adam([envmap_group(envmap, config)])
@@ -328,8 +398,13 @@ def aligned_inputs(inputs: RefineInputs) -> RefineInputs:
     return replace(inputs, values=align_view_gains(inputs.values, gains), targets=targets)
 
 
-def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on_checkpoint=None,
-           light: EnvironmentMap | None = None) -> RefineResult:
+def refine(
+    inputs: RefineInputs,
+    config: RefineConfig,
+    progress: bool = True,
+    on_checkpoint=None,
+    light: EnvironmentMap | None = None,
+) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
     `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end. `light`: a known
     training light (a light probe, or the true light of a benchmark object) that variants with the PBR loss shade
@@ -340,11 +415,16 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
     device = gaussians.device
     if config.align_view_gains:
         inputs = aligned_inputs(inputs)
-    source = MaterialSource(variant, gaussians.means.detach(), inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
+    source = MaterialSource(
+        variant, gaussians.means.detach(), inputs.values, inputs.seen, inputs.bounds, config.merger
+    ).to(device)
     envmap = None
     if variant.learns_light:
-        envmap = (EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device) if light is None
-                  else EnvironmentMap(light.log_map.detach().to(device), learnable=False))
+        envmap = (
+            EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device)
+            if light is None
+            else EnvironmentMap(light.log_map.detach().to(device), learnable=False)
+        )
     estimates_light = envmap is not None and light is None
     history: list[dict] = []
     if not source.trainable or config.iterations == 0:
@@ -363,7 +443,9 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
     optimizer = torch.optim.Adam(groups)
 
     def refine_losses(index: int):
-        active = training.frozen.contributing_ids(index, config.min_coverage)  # the merger only runs for the Gaussians this view shows
+        active = training.frozen.contributing_ids(
+            index, config.min_coverage
+        )  # the merger only runs for the Gaussians this view shows
         merged, weights = source(active, return_weights=True)
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
@@ -380,7 +462,10 @@ def refine(inputs: RefineInputs, config: RefineConfig, progress: bool = True, on
         if on_checkpoint is not None and (step % 100 == 0 or step == config.iterations):
             on_checkpoint(step, source, envmap, history)
 
-    optimize(optimizer, len(training), config.iterations, refine_losses, generator, f"refine [{variant.name}]", progress, log)
+    optimize(
+        optimizer, len(training), config.iterations, refine_losses, generator, f"refine [{variant.name}]", progress, log
+    )
     with torch.no_grad():
-        return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility,
-                            training.frozen.describe())
+        return RefineResult(
+            source().detach(), normals, source, envmap, history, inputs.visibility, training.frozen.describe()
+        )

@@ -23,7 +23,9 @@ def render_gbuffer(asset: Asset, camera: Camera, light=None):
     normals = orient_normals(asset.normals, asset.gaussians.means, camera)
     features = [asset.materials, normals]
     if light is not None and asset.visibility is not None:
-        features.append(gaussian_shadows(asset.visibility, normals, asset.gaussians.means, asset.materials, camera, light))
+        features.append(
+            gaussian_shadows(asset.visibility, normals, asset.gaussians.means, asset.materials, camera, light)
+        )
     out = rasterize(asset.gaussians, camera, torch.cat(features, dim=-1))
     return GBuffer.from_blended(out.features, out.alpha)
 
@@ -55,8 +57,10 @@ def orbit_cameras(reference: list[Camera], target: Tensor, frames: int = 60, up=
     cameras = []
     for i in range(frames):
         azimuth = 2 * math.pi * i / frames
-        direction = (math.cos(elevation) * (math.cos(azimuth) * first_axis + math.sin(azimuth) * second_axis)
-                     + math.sin(elevation) * up_axis)
+        direction = (
+            math.cos(elevation) * (math.cos(azimuth) * first_axis + math.sin(azimuth) * second_axis)
+            + math.sin(elevation) * up_axis
+        )
         camera = Camera.look_at(target + distance * direction, target, up_axis, first.fov_x, first.width, first.height)
         camera.K = first.K.clone()
         cameras.append(camera)

@@ -19,9 +19,10 @@ from pathlib import Path
 
 import yaml
 
+from matspray.errors import MatsprayError, RunError, file_error
+
 # callers import these from here too
 from matspray.files import read_json, to_plain, write_json, write_text_atomic  # noqa: F401
-from matspray.errors import MatsprayError, RunError, file_error
 from matspray.variants import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
@@ -129,8 +130,11 @@ def hold_lock(lock_file: Path, wait: bool = True) -> HeldLock | None:
         handle.close()
         return None
     except OSError:  # e.g. a network mount without locks: go on, but say that nothing keeps writers apart
-        warnings.warn(f"{lock_file}: files cannot be locked here, so nothing stops two processes from writing "
-                      f"{lock_file.parent} at the same time", stacklevel=2)
+        warnings.warn(
+            f"{lock_file}: files cannot be locked here, so nothing stops two processes from writing "
+            f"{lock_file.parent} at the same time",
+            stacklevel=2,
+        )
     handle.seek(0)
     handle.truncate()
     handle.write(f"{os.getpid()}\n")
@@ -168,8 +172,10 @@ class RunDir:
                 notify(f"{self.root}: waiting for process {lock_owner(lock_file)}, which is writing this run folder")
             held = hold_lock(lock_file, wait=True)
         if held is None:
-            raise RunError(f"{self.root}: another MatSpray process (pid {lock_owner(lock_file)}) is writing this run folder; "
-                           f"wait for it to finish, or use another run folder")
+            raise RunError(
+                f"{self.root}: another MatSpray process (pid {lock_owner(lock_file)}) is writing this run folder; "
+                f"wait for it to finish, or use another run folder"
+            )
         return held
 
     # ---------------------------------------------------------------- identity
@@ -180,11 +186,14 @@ class RunDir:
             hint = "delete it, or allow overwriting the run folder to claim it for this dataset"
             previous = read_record(record, hint)
             if not isinstance(previous, dict):
-                raise file_error(record, f"holds a {type(previous).__name__}, not the dataset record `matspray run` writes", hint)
+                raise file_error(
+                    record, f"holds a {type(previous).__name__}, not the dataset record `matspray run` writes", hint
+                )
             if previous != to_plain(dataset_id):
                 raise RunError(
                     f"{self.root}: this run folder was made from another dataset ({previous.get('source')}, "
-                    f"{previous.get('train_views')} training views); use a new run folder or allow overwriting it (overwrite)"
+                    f"{previous.get('train_views')} training views); "
+                    "use a new run folder or allow overwriting it (overwrite)"
                 )
         self.root.mkdir(parents=True, exist_ok=True)
         write_json(record, dataset_id)
@@ -202,13 +211,21 @@ class RunDir:
         record = self.path(stage, STAGE_RECORD)
         try:
             data = read_json(record)
-        except (OSError, ValueError):  # absent, unreadable, no JSON (JSONDecodeError and UnicodeDecodeError are ValueErrors)
+        except (
+            OSError,
+            ValueError,
+        ):  # absent, unreadable, no JSON (JSONDecodeError and UnicodeDecodeError are ValueErrors)
             return None
         value = data.get("fingerprint") if isinstance(data, dict) else None
         return value if isinstance(value, str) else None
 
-    def finish_stage(self, stage: str, stage_fingerprint: str, settings, seconds: float, extra: dict | None = None) -> None:
-        write_json(self.path(stage, STAGE_RECORD), {"fingerprint": stage_fingerprint, "settings": settings, "seconds": seconds, **(extra or {})})
+    def finish_stage(
+        self, stage: str, stage_fingerprint: str, settings, seconds: float, extra: dict | None = None
+    ) -> None:
+        write_json(
+            self.path(stage, STAGE_RECORD),
+            {"fingerprint": stage_fingerprint, "settings": settings, "seconds": seconds, **(extra or {})},
+        )
         self.record_timing(stage, seconds)
 
     def record_timing(self, stage: str, seconds: float) -> None:
@@ -251,9 +268,13 @@ class RunDir:
         try:
             config = yaml.safe_load(path.read_text()) or {}
         except (yaml.YAMLError, UnicodeDecodeError, OSError) as exc:
-            raise file_error(path, f"is not readable YAML ({' '.join(str(exc).split())})", "restore it or rerun `matspray run`") from None
+            raise file_error(
+                path, f"is not readable YAML ({' '.join(str(exc).split())})", "restore it or rerun `matspray run`"
+            ) from None
         if not isinstance(config, dict):
-            raise file_error(path, f"holds a {type(config).__name__}, not the mapping of settings `matspray run` writes")
+            raise file_error(
+                path, f"holds a {type(config).__name__}, not the mapping of settings `matspray run` writes"
+            )
         return config
 
     def dataset(self) -> dict:
@@ -262,26 +283,34 @@ class RunDir:
         hint = "rerun `matspray run --data DATA --out RUN --overwrite` to write it again (finished stages are kept)"
         record = read_record(path, hint)
         if not isinstance(record, dict):
-            raise file_error(path, f"holds a {type(record).__name__}, not the dataset record `matspray run` writes", hint)
+            raise file_error(
+                path, f"holds a {type(record).__name__}, not the dataset record `matspray run` writes", hint
+            )
         if not isinstance(record.get("source"), str) or not record["source"] or "\0" in record["source"]:
             raise file_error(path, f"'source' is {json.dumps(record.get('source'))[:60]}, not the dataset folder", hint)
         for key in ("train_views", "test_views"):  # absent from records older than these keys
-            if key in record and (not isinstance(record[key], list) or not all(isinstance(name, str) for name in record[key])):
+            if key in record and (
+                not isinstance(record[key], list) or not all(isinstance(name, str) for name in record[key])
+            ):
                 raise file_error(path, f"'{key}' is not a list of view names", hint)
         return record
 
     def downscale(self) -> float:
         value = self.config().get("downscale", 1.0)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < 1e308:
-            raise file_error(self.path("config.yaml"), f"downscale: {value!r} is not a number > 0", "set the factor the run used")
+            raise file_error(
+                self.path("config.yaml"), f"downscale: {value!r} is not a number > 0", "set the factor the run used"
+            )
         return float(value)
 
     def asset_path(self, variant: str = "full") -> Path:
         """Folder of a variant's asset; raises RunError when the run has none."""
         folder = self.path(asset_stage(variant))
         if not (folder / "asset.ply").exists():
-            raise RunError(f"{self.root}: no asset for variant '{variant}' ({folder.name}/asset.ply); "
-                           f"make it with `matspray run --variant {variant}`")
+            raise RunError(
+                f"{self.root}: no asset for variant '{variant}' ({folder.name}/asset.ply); "
+                f"make it with `matspray run --variant {variant}`"
+            )
         return folder
 
     def asset_variants(self) -> list[str]:
@@ -307,7 +336,9 @@ def share_stage(source_run, target_run, stage: str) -> bool:
     with RunDir(target_run).hold(wait=True):
         if (target / STAGE_RECORD).exists():
             return False
-        shutil.copytree(source, target, copy_function=_link_or_copy, ignore=shutil.ignore_patterns(STAGE_RECORD), dirs_exist_ok=True)
+        shutil.copytree(
+            source, target, copy_function=_link_or_copy, ignore=shutil.ignore_patterns(STAGE_RECORD), dirs_exist_ok=True
+        )
         # the record last, as a copy written now: a half-done share is no stage, and a figure the target derived
         # from its earlier stage is older than the shared one (newer_than_stages), whatever the source's age
         write_text_atomic(target / STAGE_RECORD, (source / STAGE_RECORD).read_text())

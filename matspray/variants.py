@@ -61,8 +61,10 @@ def variants_for_maps(requested: tuple[str, ...] | list[str] | None, has_maps: b
         return ("full",) if has_maps else MAPLESS
     for name in requested:
         if not has_maps and get_variant(name).uses_maps:
-            raise ConfigError(f"variant '{name}' needs 2D material maps, and this run has none (--predictor none); "
-                              f"give a predictor (files:DIR, marigold, ...) or ask for {' / '.join(MAPLESS)}")
+            raise ConfigError(
+                f"variant '{name}' needs 2D material maps, and this run has none (--predictor none); "
+                f"give a predictor (files:DIR, marigold, ...) or ask for {' / '.join(MAPLESS)}"
+            )
     return tuple(requested)
 
 

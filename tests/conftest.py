@@ -11,12 +11,19 @@ import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-HOLDER = "import sys, time\nfrom matspray.rundir import RunDir\nheld = RunDir(sys.argv[1]).hold()\nprint('held', flush=True)\ntime.sleep(120)\n"
+HOLDER = (
+    "import sys, time\nfrom matspray.rundir import RunDir\nheld = RunDir(sys.argv[1]).hold()\n"
+    "print('held', flush=True)\ntime.sleep(120)\n"
+)
 
 
 def pytest_addoption(parser):
-    parser.addoption("--device", default="cpu", help="where the tests marked `on_device` compute: cpu (default) or cuda "
-                     "(benchmarks/gpu_check.sh runs them there)")
+    parser.addoption(
+        "--device",
+        default="cpu",
+        help="where the tests marked `on_device` compute: cpu (default) or cuda "
+        "(benchmarks/gpu_check.sh runs them there)",
+    )
 
 
 def pytest_configure(config):
@@ -52,13 +59,21 @@ def tiny_object(tmp_path_factory):
 def make_tiny_object(out: Path) -> Path:
     from matspray.synth import SynthConfig, make_object
 
-    make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), out, progress=False, notify=lambda _: None)
+    make_object(
+        SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32),
+        out,
+        progress=False,
+        notify=lambda _: None,
+    )
     return out
 
 
 def busy_message(run, pid) -> str:
     """What a writer is told about a run folder that process `pid` holds."""
-    return f"{run}: another MatSpray process (pid {pid}) is writing this run folder; wait for it to finish, or use another run folder"
+    return (
+        f"{run}: another MatSpray process (pid {pid}) is writing this run folder; "
+        "wait for it to finish, or use another run folder"
+    )
 
 
 @pytest.fixture
@@ -67,7 +82,9 @@ def hold_in_another_process():
     started = []
 
     def hold(run: Path) -> subprocess.Popen:
-        process = subprocess.Popen([sys.executable, "-c", HOLDER, str(run)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+        process = subprocess.Popen(
+            [sys.executable, "-c", HOLDER, str(run)], cwd=ROOT, stdout=subprocess.PIPE, text=True
+        )
         started.append(process)
         assert process.stdout.readline().strip() == "held"
         return process

@@ -29,8 +29,14 @@ import math
 
 import gsplat.rendering
 import torch
-from gsplat.cuda._torch_impl import (_fully_fused_projection, _isect_offset_encode, _isect_tiles, _persp_proj,
-                                     _quat_scale_to_covar_preci, _world_to_cam)
+from gsplat.cuda._torch_impl import (
+    _fully_fused_projection,
+    _isect_offset_encode,
+    _isect_tiles,
+    _persp_proj,
+    _quat_scale_to_covar_preci,
+    _world_to_cam,
+)
 from torch import Tensor
 
 from matspray.render import backend as backend_module
@@ -43,7 +49,8 @@ MAX_EXTEND = 3.33  # ProjectionEWA3DGSFused.cu: radius in sigmas before the opac
 
 
 def gsplat_on_cpu(monkeypatch) -> None:
-    """Within the test: gsplat.rasterization runs on the CPU, and resolve_backend('gsplat' | 'auto', cpu) gives gsplat."""
+    """Within the test: gsplat.rasterization runs on the CPU, and
+    resolve_backend('gsplat' | 'auto', cpu) gives gsplat."""
     monkeypatch.setattr(gsplat.rendering, "fully_fused_projection", fully_fused_projection)
     monkeypatch.setattr(gsplat.rendering, "isect_tiles", isect_tiles)
     monkeypatch.setattr(gsplat.rendering, "isect_offset_encode", isect_offset_encode)
@@ -51,9 +58,25 @@ def gsplat_on_cpu(monkeypatch) -> None:
     monkeypatch.setattr(backend_module, "gsplat_device_error", lambda device, notify=None: None)
 
 
-def fully_fused_projection(means, covars, quats, scales, viewmats, Ks, width, height, eps2d=0.3, near_plane=0.01,
-                           far_plane=1e10, radius_clip=0.0, packed=False, sparse_grad=False, calc_compensations=False,
-                           camera_model="pinhole", opacities=None):
+def fully_fused_projection(
+    means,
+    covars,
+    quats,
+    scales,
+    viewmats,
+    Ks,
+    width,
+    height,
+    eps2d=0.3,
+    near_plane=0.01,
+    far_plane=1e10,
+    radius_clip=0.0,
+    packed=False,
+    sparse_grad=False,
+    calc_compensations=False,
+    camera_model="pinhole",
+    opacities=None,
+):
     """gsplat.fully_fused_projection (packed=False): radii [..., C, N, 2] int32, means2d [..., C, N, 2],
     depths [..., C, N], conics [..., C, N, 3], compensations [..., C, N] or None."""
     if packed or sparse_grad or camera_model != "pinhole":
@@ -63,9 +86,11 @@ def fully_fused_projection(means, covars, quats, scales, viewmats, Ks, width, he
     else:  # upper triangle [..., N, 6] -> [..., N, 3, 3]
         covars = covars[..., [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(covars.shape[:-1] + (3, 3))
     _, means2d, depths, conics, compensations = _fully_fused_projection(
-        means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, calc_compensations, camera_model)
-    radii = kernel_radii(means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip, opacities,
-                         compensations)
+        means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, calc_compensations, camera_model
+    )
+    radii = kernel_radii(
+        means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip, opacities, compensations
+    )
     # what the kernel never writes for a culled Gaussian is at::empty's memory: NaN here
     drawn = (radii > 0).any(dim=-1)  # [..., C, N]
     means2d, conics = (torch.where(drawn[..., None], t, torch.full_like(t, math.nan)) for t in (means2d, conics))
@@ -74,8 +99,9 @@ def fully_fused_projection(means, covars, quats, scales, viewmats, Ks, width, he
 
 
 @torch.no_grad()
-def kernel_radii(means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip, opacities,
-                 compensations) -> Tensor:  # [..., C, N, 2] int32
+def kernel_radii(
+    means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip, opacities, compensations
+) -> Tensor:  # [..., C, N, 2] int32
     """ProjectionEWA3DGSFused.cu's radii, in its order of tests: outside [near, far] -> 0; det of the blurred 2D
     covariance <= 0 -> 0; opacity (times compensation) < 1/255 -> 0; otherwise per axis
     ceil(extend * sqrt(cov2d_ii)) with extend = min(3.33, sqrt(2 ln(opacity * 255))); both <= radius_clip
@@ -93,19 +119,35 @@ def kernel_radii(means, covars, viewmats, Ks, width, height, eps2d, near_plane, 
             opacity = opacity * compensations
         keep &= opacity >= ALPHA_THRESHOLD
         extend = torch.minimum(extend, torch.sqrt(2.0 * torch.log((opacity / ALPHA_THRESHOLD).clamp_min(1.0))))
-    radius = torch.ceil(extend[..., None] * torch.sqrt(torch.diagonal(cov2d, dim1=-2, dim2=-1).clamp_min(0.0)))  # [..., C, N, 2]
+    radius = torch.ceil(
+        extend[..., None] * torch.sqrt(torch.diagonal(cov2d, dim1=-2, dim2=-1).clamp_min(0.0))
+    )  # [..., C, N, 2]
     keep &= (radius > radius_clip).any(dim=-1)
     size = torch.tensor([width, height], dtype=radius.dtype)
     keep &= ((means2d + radius > 0) & (means2d - radius < size)).all(dim=-1)
     return torch.where(keep[..., None], radius, torch.zeros_like(radius)).int()
 
 
-def isect_tiles(means2d, radii, depths, tile_size, tile_width, tile_height, sort=True, segmented=False, packed=False,
-                n_images=None, image_ids=None, gaussian_ids=None):
+def isect_tiles(
+    means2d,
+    radii,
+    depths,
+    tile_size,
+    tile_width,
+    tile_height,
+    sort=True,
+    segmented=False,
+    packed=False,
+    n_images=None,
+    image_ids=None,
+    gaussian_ids=None,
+):
     """gsplat.isect_tiles (packed=False): tiles_per_gauss [..., N], isect_ids [M], flatten_ids [M] int32."""
     if packed:
         raise NotImplementedError("gsplat_cpu: packed=False only")
-    tiles_per_gauss, isect_ids, flatten_ids = _isect_tiles(means2d, radii, depths, tile_size, tile_width, tile_height, sort)
+    tiles_per_gauss, isect_ids, flatten_ids = _isect_tiles(
+        means2d, radii, depths, tile_size, tile_width, tile_height, sort
+    )
     return tiles_per_gauss, isect_ids, flatten_ids.int()
 
 
@@ -114,14 +156,29 @@ def isect_offset_encode(isect_ids, n_images, tile_width, tile_height):
     return _isect_offset_encode(isect_ids, n_images, tile_width, tile_height)
 
 
-def rasterize_to_pixels(means2d, conics, colors, opacities, image_width, image_height, tile_size, isect_offsets,
-                        flatten_ids, backgrounds=None, masks=None, packed=False, absgrad=False):
+def rasterize_to_pixels(
+    means2d,
+    conics,
+    colors,
+    opacities,
+    image_width,
+    image_height,
+    tile_size,
+    isect_offsets,
+    flatten_ids,
+    backgrounds=None,
+    masks=None,
+    packed=False,
+    absgrad=False,
+):
     """gsplat.rasterize_to_pixels (packed=False, no masks): colours [..., H, W, D], alphas [..., H, W, 1]."""
     if packed or masks is not None:
         raise NotImplementedError("gsplat_cpu: packed=False without masks only")
     image_dims, num = means2d.shape[:-2], means2d.shape[-2]
     images = math.prod(image_dims)
-    ids, listed = pixel_hit_lists(isect_offsets.reshape(images, -1), flatten_ids.long(), image_width, image_height, tile_size)
+    ids, listed = pixel_hit_lists(
+        isect_offsets.reshape(images, -1), flatten_ids.long(), image_width, image_height, tile_size
+    )
     hit_means = _HitMeans.apply(means2d, ids, absgrad)  # [I, H * W, K, 2]
     hit_conics = conics.reshape(images * num, 3)[ids]  # [I, H * W, K, 3]
     hit_opacities = opacities.reshape(images * num)[ids]  # [I, H * W, K]
@@ -152,7 +209,9 @@ def pixel_hit_lists(offsets: Tensor, flatten_ids: Tensor, width: int, height: in
     pixel_tile = ((rows // tile_size) * tiles_x + cols // tile_size).reshape(-1)  # [H * W]
     images, tiles = offsets.shape
     image_tile = (torch.arange(images)[:, None] * tiles + pixel_tile).reshape(-1)  # [I * H * W]
-    return ids[image_tile].reshape(images, height * width, longest), listed[image_tile].reshape(images, height * width, longest)
+    return ids[image_tile].reshape(images, height * width, longest), listed[image_tile].reshape(
+        images, height * width, longest
+    )
 
 
 def blend_weights(delta: Tensor, conics: Tensor, opacities: Tensor, listed: Tensor) -> tuple[Tensor, Tensor]:
@@ -191,5 +250,7 @@ class _HitMeans(torch.autograd.Function):
         flat_ids = ids.reshape(-1)
         grad_means = torch.zeros_like(means2d).reshape(-1, 2).index_add_(0, flat_ids, per_hit)
         if ctx.absgrad:
-            means2d.absgrad = torch.zeros_like(means2d).reshape(-1, 2).index_add_(0, flat_ids, per_hit.abs()).reshape(means2d.shape)
+            means2d.absgrad = (
+                torch.zeros_like(means2d).reshape(-1, 2).index_add_(0, flat_ids, per_hit.abs()).reshape(means2d.shape)
+            )
         return grad_means.reshape(means2d.shape), None, None

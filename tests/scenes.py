@@ -16,7 +16,9 @@ def sky_map(height: int = 16) -> torch.Tensor:  # [H, 2H, 3] a bright warm top, 
     d = pixel_directions(height, 2 * height)
     up = d[..., 2:3].clamp_min(0)
     base = torch.tensor([0.25, 0.3, 0.4]) + up * torch.tensor([0.9, 0.8, 0.6])
-    sun = torch.exp(30 * ((d * torch.nn.functional.normalize(torch.tensor([0.5, 0.3, 0.8]), dim=0)).sum(-1, keepdim=True) - 1))
+    sun = torch.exp(
+        30 * ((d * torch.nn.functional.normalize(torch.tensor([0.5, 0.3, 0.8]), dim=0)).sum(-1, keepdim=True) - 1)
+    )
     return base + 6.0 * sun
 
 
@@ -35,7 +37,9 @@ def sphere_of_disks(n: int = 600, seed: int = 0) -> tuple[Gaussians, torch.Tenso
     g = torch.Generator().manual_seed(seed)
     normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
     scales = torch.tensor([0.16, 0.16, 0.01]).expand(n, 3)
-    gaussians = Gaussians(normals.clone(), scales.log(), quaternion_z_to(normals), torch.full((n,), 4.0), torch.zeros(n, 1, 3))
+    gaussians = Gaussians(
+        normals.clone(), scales.log(), quaternion_z_to(normals), torch.full((n,), 4.0), torch.zeros(n, 1, 3)
+    )
     base = torch.where((normals[:, :1] > 0), torch.tensor([0.7, 0.25, 0.2]), torch.tensor([0.2, 0.35, 0.7]))
     roughness = torch.where(normals[:, 1] > 0, 0.3, 0.8)[:, None]
     metallic = (normals[:, 2] > 0.6).float()[:, None]
@@ -65,10 +69,14 @@ def material_scene(n_views: int = 6, size: int = 32, seed: int = 0):
     gains = torch.linspace(0.7, 1.3, n_views)
     for i, camera in enumerate(ring_cameras(n_views, size)):
         rgb, alpha = render_relit(asset, camera, light)
-        views.append(View(f"r_{i:03d}", rgb / alpha[..., None].clamp_min(1e-4) * (alpha[..., None] > 1e-4), alpha, camera))
+        views.append(
+            View(f"r_{i:03d}", rgb / alpha[..., None].clamp_min(1e-4) * (alpha[..., None] > 1e-4), alpha, camera)
+        )
         gbuffer = render_gbuffer(asset, camera)
         base = (gbuffer.base_color * gains[i]).clamp(0, 1)
-        maps.append(torch.cat([base, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1).clamp(0, 1).detach())
+        maps.append(
+            torch.cat([base, gbuffer.roughness[..., None], gbuffer.metallic[..., None]], dim=-1).clamp(0, 1).detach()
+        )
     return gaussians, normals, materials, views, maps
 
 
@@ -104,7 +112,12 @@ def stacked_opaque_gaussians(n: int = 8) -> tuple[Gaussians, Camera, torch.Tenso
     each: blending stops before the farthest ones once the transmittance would fall below 1e-4."""
     means = torch.zeros(n, 3)
     means[:, 2] = torch.linspace(-0.5, 0.5, n)
-    gaussians = Gaussians(means, torch.full((n, 3), math.log(0.3)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                          torch.logit(torch.full((n,), 0.95)), torch.zeros(n, 1, 3))
+    gaussians = Gaussians(
+        means,
+        torch.full((n, 3), math.log(0.3)),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.logit(torch.full((n,), 0.95)),
+        torch.zeros(n, 1, 3),
+    )
     camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 8, 8)
     return gaussians, camera, torch.eye(n)

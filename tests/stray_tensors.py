@@ -8,8 +8,8 @@ every such call is recorded with the line of ours that made it, also where the s
 in silently (a scalar) or moved on before use.
 
 Not counted as strays: what the dataset readers (matspray/data/, but camera.py) make, since data is read on the
-CPU and moved to the device once, by design; parameters that torch.nn layers make when built (a module is built, then moved with
-`.to(device)`), random draws from an explicit (CPU) generator, which the project makes on the CPU on purpose
+CPU and moved to the device once, by design; parameters that torch.nn layers make when built (a module is built, then
+moved with `.to(device)`), random draws from an explicit (CPU) generator, which the project makes on the CPU on purpose
 so that a seed draws the same numbers on every device, and `as_tensor` / `*_like` of a tensor, which keep its device.
 Why not `torch.set_default_device("meta")`: it also sends `torch.as_tensor(cpu_tensor)` to meta, which CUDA does not.
 """
@@ -23,8 +23,24 @@ from contextlib import contextmanager
 import torch
 from torch.overrides import TorchFunctionMode
 
-FACTORIES = {torch.zeros, torch.ones, torch.empty, torch.full, torch.rand, torch.randn, torch.randint, torch.randperm, torch.arange,
-             torch.linspace, torch.logspace, torch.eye, torch.tensor, torch.as_tensor, torch.scalar_tensor, torch.empty_strided}
+FACTORIES = {
+    torch.zeros,
+    torch.ones,
+    torch.empty,
+    torch.full,
+    torch.rand,
+    torch.randn,
+    torch.randint,
+    torch.randperm,
+    torch.arange,
+    torch.linspace,
+    torch.logspace,
+    torch.eye,
+    torch.tensor,
+    torch.as_tensor,
+    torch.scalar_tensor,
+    torch.empty_strided,
+}
 
 
 class _StrayMaker(TorchFunctionMode):
@@ -40,7 +56,12 @@ class _StrayMaker(TorchFunctionMode):
         if func is torch.from_numpy:
             self._record()
             return func(*args, **kwargs).to("meta")
-        if func in FACTORIES and kwargs.get("device") is None and kwargs.get("generator") is None and not _keeps_device(func, args):
+        if (
+            func in FACTORIES
+            and kwargs.get("device") is None
+            and kwargs.get("generator") is None
+            and not _keeps_device(func, args)
+        ):
             self._record()
             kwargs["device"] = "meta"
         return func(*args, **kwargs)

@@ -30,8 +30,12 @@ def objects(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("objects")
     for name, shape, seed in (("ball", "sphere", 1), ("ring", "torus", 2)):
-        make_object(SynthConfig(shape=shape, seed=seed, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), root / name,
-                    progress=False, notify=lambda _: None)
+        make_object(
+            SynthConfig(shape=shape, seed=seed, resolution=32, train_views=6, test_views=2, spp=4, env_height=32),
+            root / name,
+            progress=False,
+            notify=lambda _: None,
+        )
     (root / "broken").mkdir()
     (root / "broken" / "transforms_train.json").write_text("{not json")
     return root
@@ -41,8 +45,14 @@ def objects(tmp_path_factory):
 def ray_local():
     """One small local Ray for the module (2 CPUs, 100 MB object store), shut down afterwards."""
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, object_store_memory=100 * 1024 ** 2, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": str(REPO)}})
+    ray.init(
+        num_cpus=2,
+        object_store_memory=100 * 1024**2,
+        include_dashboard=False,
+        logging_level="ERROR",
+        log_to_driver=False,
+        runtime_env={"env_vars": {"PYTHONPATH": str(REPO)}},
+    )
     yield ray
     ray.shutdown()
 
@@ -80,7 +90,9 @@ def test_two_workers_run_the_objects_side_by_side_and_a_broken_dataset_fails_alo
 def test_summary_averages_equal_a_hand_computation(first_batch):
     out = first_batch[0]
     summary = json.loads((out / "summary.json").read_text())
-    per_object = [json.loads((out / n / "eval" / "metrics.json").read_text())["table1"]["Ours"] for n in ("ball", "ring")]
+    per_object = [
+        json.loads((out / n / "eval" / "metrics.json").read_text())["table1"]["Ours"] for n in ("ball", "ring")
+    ]
     averaged = summary["averages"]["table1"]["Ours"]
     assert summary["averaged_over"] == 2
     for row in ("relighting", "basecolor", "roughness"):
@@ -97,16 +109,40 @@ def test_summary_averages_equal_a_hand_computation(first_batch):
 
 def test_metallic_infinity_rule_in_the_averages_and_the_summary():
     def metrics(relight, metallic):
-        return {"table1": {"Ours": {"relighting": {"psnr": relight, "ssim": 0.5, "lpips": 0.1},
-                                    "metallic": {"psnr": metallic, "ssim": 1.0, "lpips": 0.0}}}}
+        return {
+            "table1": {
+                "Ours": {
+                    "relighting": {"psnr": relight, "ssim": 0.5, "lpips": 0.1},
+                    "metallic": {"psnr": metallic, "ssim": 1.0, "lpips": 0.0},
+                }
+            }
+        }
 
     averaged = average_tables([metrics(20.0, math.inf), metrics(30.0, 24.0), metrics(25.0, 30.0)])["table1"]["Ours"]
     assert averaged["relighting"]["psnr"] == pytest.approx(25.0)
     assert averaged["metallic"] == {"psnr": 27.0, "ssim": 1.0, "lpips": 0.0, "psnr_infinite": 1, "objects": 3}
     assert average_tables([metrics(20.0, math.inf)])["table1"]["Ours"]["metallic"]["psnr"] == math.inf
-    rows = [{"name": "a", "status": "finished", "error": None, "seconds": 1.0, "stage_seconds": {}, "metrics": {"metallic": {"psnr": math.inf}}}]
-    md = summary_markdown({"title": "t", "engine": "e", "wall_seconds": 1.0, "objects": rows, "failed": [], "averaged_over": 1,
-                           "averages": {"table1": {"Ours": averaged}}})
+    rows = [
+        {
+            "name": "a",
+            "status": "finished",
+            "error": None,
+            "seconds": 1.0,
+            "stage_seconds": {},
+            "metrics": {"metallic": {"psnr": math.inf}},
+        }
+    ]
+    md = summary_markdown(
+        {
+            "title": "t",
+            "engine": "e",
+            "wall_seconds": 1.0,
+            "objects": rows,
+            "failed": [],
+            "averaged_over": 1,
+            "averages": {"table1": {"Ours": averaged}},
+        }
+    )
     assert "∞" in md and "∞*/27.000" in md
 
 
@@ -127,7 +163,20 @@ def test_rerun_skips_finished_objects_and_retries_the_failed_one(first_batch, ca
 
 def test_other_settings_in_the_same_folder_are_refused(first_batch, capsys):
     out, datas = first_batch[:2]
-    code = main(["batch", *datas[:1], "--out", str(out), "--preset", "test", "--refine-iterations", "9", "--geometry-iterations", "150"])
+    code = main(
+        [
+            "batch",
+            *datas[:1],
+            "--out",
+            str(out),
+            "--preset",
+            "test",
+            "--refine-iterations",
+            "9",
+            "--geometry-iterations",
+            "150",
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1
     assert "other settings" in err and "refine.iterations 9 here, 8 there" in err
@@ -138,15 +187,23 @@ def test_other_settings_in_the_same_folder_are_refused(first_batch, capsys):
 def test_a_setting_added_since_at_its_unset_default_does_not_refuse_the_folder(tmp_path):
     claim_batch_folder(tmp_path, {"pipeline": {"preset": "demo"}, "variants": ["full"]})  # an older version's record
     claim_batch_folder(tmp_path, {"pipeline": {"preset": "demo", "object_bounds": None}, "variants": ["full"]})
-    with pytest.raises(RunError, match=r"pipeline.preset 'test' here, 'demo' there; pipeline.seed 1 here, absent there"):
+    with pytest.raises(
+        RunError, match=r"pipeline.preset 'test' here, 'demo' there; pipeline.seed 1 here, absent there"
+    ):
         claim_batch_folder(tmp_path, {"pipeline": {"preset": "test", "seed": 1}, "variants": ["full"]})
     with pytest.raises(RunError, match=r"object_bounds \[0.0, 0.0, 0.0, 1.0\] here, None there"):
-        claim_batch_folder(tmp_path, {"pipeline": {"preset": "demo", "object_bounds": [0.0, 0.0, 0.0, 1.0]}, "variants": ["full"]})
+        claim_batch_folder(
+            tmp_path, {"pipeline": {"preset": "demo", "object_bounds": [0.0, 0.0, 0.0, 1.0]}, "variants": ["full"]}
+        )
 
 
-def test_without_ray_the_objects_run_in_process_and_resume_an_interrupted_run(first_batch, objects, tmp_path, monkeypatch):
+def test_without_ray_the_objects_run_in_process_and_resume_an_interrupted_run(
+    first_batch, objects, tmp_path, monkeypatch
+):
     out = first_batch[0]
-    shutil.copytree(out / "ball", tmp_path / "ball")  # an interrupted object: its stages are there, its refinement is not
+    shutil.copytree(
+        out / "ball", tmp_path / "ball"
+    )  # an interrupted object: its stages are there, its refinement is not
     shutil.rmtree(tmp_path / "ball" / "asset")
     (tmp_path / "ball" / "batch-object.json").unlink()
     (tmp_path / "ball" / "batch.log").unlink()
@@ -177,7 +234,10 @@ def test_two_inputs_with_one_name_are_refused(tmp_path, capsys):
     (tmp_path / "b" / "chair").mkdir(parents=True)
     with pytest.raises(ConfigError, match=r"two datasets are named 'chair'.*rename one"):
         batch_objects([tmp_path / "a" / "chair", tmp_path / "b" / "chair"], tmp_path / "out")
-    assert main(["batch", str(tmp_path / "a" / "chair"), str(tmp_path / "b" / "chair"), "--out", str(tmp_path / "out")]) == 2
+    assert (
+        main(["batch", str(tmp_path / "a" / "chair"), str(tmp_path / "b" / "chair"), "--out", str(tmp_path / "out")])
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(tmp_path / "a" / "chair") in err and str(tmp_path / "b" / "chair") in err
     assert not (tmp_path / "out").exists()
@@ -192,7 +252,9 @@ def free_port() -> int:
 def test_an_address_that_does_not_answer_is_reported_within_seconds(tmp_path):
     port = free_port()
     start = time.perf_counter()
-    with pytest.raises(SettingError, match=rf"address: nothing answers at 127.0.0.1:{port} within 3 s.*ray start --head --port={port}"):
+    with pytest.raises(
+        SettingError, match=rf"address: nothing answers at 127.0.0.1:{port} within 3 s.*ray start --head --port={port}"
+    ):
         check_reachable(f"127.0.0.1:{port}")
     assert time.perf_counter() - start < 4
     with socket.socket() as server:  # something listening answers
@@ -206,9 +268,28 @@ def test_the_cli_refuses_an_address_that_does_not_answer(tmp_path):
     import subprocess
 
     start = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "matspray", "batch", str(tmp_path), "--out", str(tmp_path / "out"),
-                           "--address", f"127.0.0.1:{free_port()}"], capture_output=True, text=True, cwd=REPO, timeout=60)
-    assert proc.returncode == 2 and "error: --address: nothing answers at 127.0.0.1" in proc.stderr and not (tmp_path / "out").exists()
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "matspray",
+            "batch",
+            str(tmp_path),
+            "--out",
+            str(tmp_path / "out"),
+            "--address",
+            f"127.0.0.1:{free_port()}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=60,
+    )
+    assert (
+        proc.returncode == 2
+        and "error: --address: nothing answers at 127.0.0.1" in proc.stderr
+        and not (tmp_path / "out").exists()
+    )
     assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
     assert time.perf_counter() - start < 30  # imports included; the check itself is bounded by 3 s
 
@@ -232,7 +313,10 @@ def test_failures_become_one_line_errors():
     from matspray.batch.objects import one_line
     from matspray.errors import NumericalError
 
-    assert one_line(NumericalError("refine step 3: NaN in the photometric loss")) == "refine step 3: NaN in the photometric loss"
+    assert (
+        one_line(NumericalError("refine step 3: NaN in the photometric loss"))
+        == "refine step 3: NaN in the photometric loss"
+    )
     oom = one_line(RuntimeError("CUDA out of memory.\nTried to allocate 2.00 GiB"))
     assert oom.startswith("out of memory (RuntimeError: CUDA out of memory. Tried") and "fewer workers" in oom
     assert one_line(MemoryError()).startswith("out of memory (MemoryError")

@@ -35,14 +35,29 @@ def test_asset_objects_from_files_and_folders(tmp_path):
 
 def test_objects_table_orders_variants_and_counts_wins():
     rows = {
-        "00-a": {"source": "a.glb", "psnr": {"relighting": {"Full": 30.0, "Supervised": 28.0, "Proj. Average": 29.0, "Without Softmax": 31.0},
-                                             "basecolor": {"Full": 25.0}}, "seconds": {"synth": 12.0, "method": 100.0}},
-        "01-b": {"source": "b.glb", "psnr": {"relighting": {"Full": 27.0, "Supervised": 28.5, "Proj. Average": 26.0}},
-                 "seconds": {"synth": 10.0, "method": 90.0}},
+        "00-a": {
+            "source": "a.glb",
+            "psnr": {
+                "relighting": {"Full": 30.0, "Supervised": 28.0, "Proj. Average": 29.0, "Without Softmax": 31.0},
+                "basecolor": {"Full": 25.0},
+            },
+            "seconds": {"synth": 12.0, "method": 100.0},
+        },
+        "01-b": {
+            "source": "b.glb",
+            "psnr": {"relighting": {"Full": 27.0, "Supervised": 28.5, "Proj. Average": 26.0}},
+            "seconds": {"synth": 10.0, "method": 90.0},
+        },
     }
     table = objects_table(rows)
-    assert "| 00-a (a.glb) | 30.00 | 28.00 | 29.00 | **31.00** | Without Softmax > Full > Proj. Average > Supervised | 25.00 | 12.0 | 100.0 |" in table
-    assert "| 01-b (b.glb) | 27.00 | **28.50** | 26.00 | — | Supervised > Full > Proj. Average | — | 10.0 | 90.0 |" in table
+    assert (
+        "| 00-a (a.glb) | 30.00 | 28.00 | 29.00 | **31.00** | Without Softmax > Full > Proj. Average > Supervised | "
+        "25.00 | 12.0 | 100.0 |" in table
+    )
+    assert (
+        "| 01-b (b.glb) | 27.00 | **28.50** | 26.00 | — | Supervised > Full > Proj. Average | — | 10.0 | 90.0 |"
+        in table
+    )
     assert "Full > Supervised (relighting PSNR) on 1 of 2 objects" in table
     assert "Full > Proj. Average (relighting PSNR) on 2 of 2 objects" in table
     assert "Full > Without Softmax (relighting PSNR) on 0 of 1 objects" in table

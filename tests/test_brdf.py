@@ -69,7 +69,9 @@ def test_fresnel_and_f0_limits():
     assert torch.allclose(specular_f0(base, torch.tensor([0.0], dtype=f64)), torch.full((1, 3), 0.04, dtype=f64))
     assert torch.allclose(specular_f0(base, torch.tensor([1.0], dtype=f64)), base)
     assert torch.allclose(fresnel_schlick(base, torch.tensor([1.0], dtype=f64)), base)  # head-on: F0
-    assert torch.allclose(fresnel_schlick(base, torch.tensor([0.0], dtype=f64)), torch.ones(1, 3, dtype=f64))  # grazing: 1
+    assert torch.allclose(
+        fresnel_schlick(base, torch.tensor([0.0], dtype=f64)), torch.ones(1, 3, dtype=f64)
+    )  # grazing: 1
 
 
 def test_reflect_mirrors_about_the_normal():
@@ -87,7 +89,9 @@ def random_configuration(count: int, seed: int = 0):
     rough = torch.rand(count, generator=g, dtype=f64) * 0.9 + 0.1
     metal = torch.rand(count, generator=g, dtype=f64)
     n = torch.nn.functional.normalize(torch.randn(count, 3, generator=g, dtype=f64), dim=-1)
-    wo, wi = (torch.nn.functional.normalize(n + torch.randn(count, 3, generator=g, dtype=f64) * 0.6, dim=-1) for _ in range(2))
+    wo, wi = (
+        torch.nn.functional.normalize(n + torch.randn(count, 3, generator=g, dtype=f64) * 0.6, dim=-1) for _ in range(2)
+    )
     return base, rough, metal, n, wo, wi
 
 
@@ -119,7 +123,9 @@ def test_white_furnace(roughness, n_dot_v):
     white = torch.ones(3, dtype=f64)
 
     def albedo(base_color, metallic):
-        f = cook_torrance(base_color, torch.tensor(roughness, dtype=f64), torch.tensor(metallic, dtype=f64), n, wo, dirs)
+        f = cook_torrance(
+            base_color, torch.tensor(roughness, dtype=f64), torch.tensor(metallic, dtype=f64), n, wo, dirs
+        )
         return (f[:, 0] * dirs[:, 2] * dw).sum()
 
     metal = float(albedo(white, 1.0))
@@ -162,7 +168,9 @@ def split_sum_by_quadrature(n_dot_v: float, roughness: float):
     return integral(1.0) - b, b
 
 
-@pytest.mark.parametrize("n_dot_v,roughness", [(0.1, 0.2), (0.15, 0.3), (0.5, 0.5), (0.8, 0.25), (0.95, 0.9), (0.3, 0.75)])
+@pytest.mark.parametrize(
+    "n_dot_v,roughness", [(0.1, 0.2), (0.15, 0.3), (0.5, 0.5), (0.8, 0.25), (0.95, 0.9), (0.3, 0.75)]
+)
 def test_lut_matches_quadrature(n_dot_v, roughness):
     a_ref, b_ref = split_sum_by_quadrature(n_dot_v, roughness)
     # the importance-sampled integrator itself, at the exact point

@@ -23,8 +23,22 @@ def capture_run(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("capture")
     made = root / "made"
-    make_object(SynthConfig(shape="sphere", seed=3, resolution=32, train_views=7, test_views=2, spp=4, env_height=32,
-                            background="env", ground=True), made, progress=False, notify=lambda _: None)
+    make_object(
+        SynthConfig(
+            shape="sphere",
+            seed=3,
+            resolution=32,
+            train_views=7,
+            test_views=2,
+            spp=4,
+            env_height=32,
+            background="env",
+            ground=True,
+        ),
+        made,
+        progress=False,
+        notify=lambda _: None,
+    )
     data = root / "data"
     data.mkdir()
     for name in ("transforms_train.json", "transforms_test.json"):
@@ -56,7 +70,13 @@ def test_eval_of_a_capture_scores_held_out_photos_inside_the_mask_and_writes_its
     page = (run / "report.html").read_text()
     assert "test photos by nobody (CC0)" in page and "Held-out photos" in page and "Relit under other lights" in page
     assert "Object region" in page and "Estimated light" in page
-    for name in ("photo_r_000", "render_r_000_radiance", "render_r_000_no-prior", "relit_r_000_no-prior_studio", "envmap_no-prior"):
+    for name in (
+        "photo_r_000",
+        "render_r_000_radiance",
+        "render_r_000_no-prior",
+        "relit_r_000_no-prior_studio",
+        "envmap_no-prior",
+    ):
         assert (run / "report" / f"{name}.png").exists(), name
 
 

@@ -28,7 +28,9 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:  # sRGB values compared, as
     return 10 * math.log10(1.0 / max(mse, 1e-12))
 
 
-def resample_pinhole(image: torch.Tensor, K_from: torch.Tensor, K_to: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def resample_pinhole(
+    image: torch.Tensor, K_from: torch.Tensor, K_to: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """A pinhole image [H, W, C] (intrinsics K_from) as the same camera with intrinsics K_to would see it,
     by brute-force bilinear sampling; also where that sample lies inside the source [H, W] (bool)."""
     height, width = image.shape[:2]
@@ -45,7 +47,9 @@ def ring_views(count: int, width: int = W, height: int = H) -> list[View]:
     views = []
     for i in range(count):
         angle = 2 * math.pi * i / count
-        camera = Camera.look_at([3 * math.cos(angle), 3 * math.sin(angle), 1.0], [0, 0, 0], [0, 0, 1], 0.8, width, height)
+        camera = Camera.look_at(
+            [3 * math.cos(angle), 3 * math.sin(angle), 1.0], [0, 0, 0], [0, 0, 1], 0.8, width, height
+        )
         camera.K[0, 2] += 0.25 * i  # per-view intrinsics that differ
         camera.K[0, 0] += i
         views.append(View(f"v{i:02d}", torch.rand(height, width, 3), None, camera))
@@ -73,8 +77,9 @@ def synth_object(tmp_path_factory):
     from matspray.synth import SynthConfig, make_object
 
     out = tmp_path_factory.mktemp("synth")
-    config = SynthConfig(shape="composite", seed=5, resolution=64, train_views=3, test_views=1, spp=64,
-                         texture_height=64, env_height=32)
+    config = SynthConfig(
+        shape="composite", seed=5, resolution=64, train_views=3, test_views=1, spp=64, texture_height=64, env_height=32
+    )
     make_object(config, out, progress=False, notify=lambda _: None)
     return load_scene(out)
 
@@ -82,8 +87,16 @@ def synth_object(tmp_path_factory):
 def test_distorted_nerfstudio_capture_undistorts_to_the_ground_truth(synth_object, tmp_path, capsys):
     original = synth_object
     first = original.train[0].camera
-    lens = Lens(float(first.K[0, 0]), float(first.K[1, 1]), float(first.K[0, 2]), float(first.K[1, 2]), first.width,
-                first.height, (-0.12, 0.03, 0.002, -0.001, 0.0), model="OPENCV")
+    lens = Lens(
+        float(first.K[0, 0]),
+        float(first.K[1, 1]),
+        float(first.K[0, 2]),
+        float(first.K[1, 2]),
+        first.width,
+        first.height,
+        (-0.12, 0.03, 0.002, -0.001, 0.0),
+        model="OPENCV",
+    )
     distorted = {split: [distort_view(v, lens) for v in original.split(split)] for split in ("train", "test")}
     write_nerfstudio(tmp_path, distorted, lens=lens, separate_masks=True)
     written = sorted(p for p in tmp_path.rglob("*"))
@@ -114,8 +127,10 @@ def test_distorted_nerfstudio_capture_undistorts_to_the_ground_truth(synth_objec
     assert "format: nerfstudio" in printed and "undistorted OPENCV (k1=-0.12" in printed
     assert "0 made, 4 read from the cache" in printed
     with capsys.disabled():
-        print(f"\nundistorted views against the undistorted ground truth ({lens.width}x{lens.height}): "
-              f"PSNR {', '.join(f'{s:.1f}' for s in scores)} dB")
+        print(
+            f"\nundistorted views against the undistorted ground truth ({lens.width}x{lens.height}): "
+            f"PSNR {', '.join(f'{s:.1f}' for s in scores)} dB"
+        )
 
 
 def test_write_read_round_trip_with_per_frame_intrinsics(tmp_path):
@@ -135,8 +150,10 @@ def test_per_frame_intrinsics_project_where_computed_by_hand(tmp_path):
     write_image(tmp_path / "a.png", torch.rand(H, W, 3))
     write_image(tmp_path / "b.png", torch.rand(H, W, 3))
     c2w = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]  # at z = 4 looking down -z, y up
-    frames = [{"file_path": "a", "transform_matrix": c2w, "fl_x": 50.0, "fl_y": 55.0, "cx": 21.0, "cy": 14.0},
-              {"file_path": "b.png", "transform_matrix": c2w, "fl_x": 30.0, "cx": 19.0, "cy": 16.0}]
+    frames = [
+        {"file_path": "a", "transform_matrix": c2w, "fl_x": 50.0, "fl_y": 55.0, "cx": 21.0, "cy": 14.0},
+        {"file_path": "b.png", "transform_matrix": c2w, "fl_x": 30.0, "cx": 19.0, "cy": 16.0},
+    ]
     (tmp_path / "transforms.json").write_text(json.dumps({"w": W, "h": H, "frames": frames}))
     scene = load_scene(tmp_path, test_every=0)
     for view, (fx, fy, cx, cy) in zip(scene.train, [(50, 55, 21, 14), (30, 30, 19, 16)]):
@@ -199,7 +216,9 @@ def test_exif_orientation_is_honoured(tmp_path, suffix):
 # ------------------------------------------------------------------------------------------ COLMAP distortion
 def analytic(xy: torch.Tensor) -> torch.Tensor:  # [..., 2] normalised pinhole coordinates -> [..., 3] smooth colours
     x, y = xy[..., 0], xy[..., 1]
-    return torch.stack([0.5 + 0.4 * torch.sin(4 * x) * torch.cos(3 * y), 0.5 + 0.4 * torch.cos(5 * y), 0.3 + 0.3 * x * x], -1)
+    return torch.stack(
+        [0.5 + 0.4 * torch.sin(4 * x) * torch.cos(3 * y), 0.5 + 0.4 * torch.cos(5 * y), 0.3 + 0.3 * x * x], -1
+    )
 
 
 def test_colmap_simple_radial_model_is_undistorted(tmp_path, capsys):
@@ -221,7 +240,7 @@ def test_colmap_simple_radial_model_is_undistorted(tmp_path, capsys):
     score = psnr(view.image, analytic(xy))
     print(f"COLMAP SIMPLE_RADIAL undistorted against the analytic image: PSNR {score:.1f} dB")
     assert score > 35.0
-    edge = (xy[..., 0].abs() < 1.0 / float(K[0, 0]))  # the mask's edge column may be blended
+    edge = xy[..., 0].abs() < 1.0 / float(K[0, 0])  # the mask's edge column may be blended
     assert torch.equal((view.alpha > 0.5)[~edge], (xy[..., 0] > 0)[~edge])
     # a 3D point lands on the undistorted pixel that samples where COLMAP projects it in the photo
     camera = pycolmap.Camera(model="SIMPLE_RADIAL", width=W, height=H, params=list(params), camera_id=1)
@@ -233,7 +252,10 @@ def test_colmap_simple_radial_model_is_undistorted(tmp_path, capsys):
         assert np.abs(lens.to_pixels(lens.distort(xy_und)) - expected).max() < 1e-3
     assert main(["info", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
-    assert "loading: undistorted SIMPLE_RADIAL (k1=-0.15) to pinhole" in printed and "0 made, 3 read from the cache" in printed
+    assert (
+        "loading: undistorted SIMPLE_RADIAL (k1=-0.15) to pinhole" in printed
+        and "0 made, 3 read from the cache" in printed
+    )
     write_image(tmp_path / "images" / "img1.png", analytic(truth_xy).flip(1))  # a changed photo is undistorted again
     again = load_scene(tmp_path, test_every=0)
     assert any("1 made, 2 read from the cache" in line for line in again.log)
@@ -255,14 +277,28 @@ def one_frame(root, frame_extra=None, meta_extra=None, image=True):
     "frame_extra, meta_extra, image, message",
     [
         ({}, {}, False, r"transforms.json: image 'images/a.png' of a frame does not exist"),
-        ({"camera_model": "EQUIRECTANGULAR"}, {}, True,
-         r"frame 0 \('images/a.png'\): unknown camera_model 'EQUIRECTANGULAR' \(known: PINHOLE, SIMPLE_PINHOLE, OPENCV, OPENCV_FISHEYE\)"),
+        (
+            {"camera_model": "EQUIRECTANGULAR"},
+            {},
+            True,
+            r"frame 0 \('images/a.png'\): unknown camera_model 'EQUIRECTANGULAR' \(known: PINHOLE, SIMPLE_PINHOLE, "
+            r"OPENCV, OPENCV_FISHEYE\)",
+        ),
         ({}, {"fl_x": None}, True, r"frame 0 \('images/a.png'\) has no intrinsics"),
-        ({"camera_model": "OPENCV", "k1": -0.3, "fl_x": 12.0}, {}, True,
-         r"images/a.png: the OPENCV \(k1=-0.3\) distortion is so strong that undistortion would keep only \d+%"),
+        (
+            {"camera_model": "OPENCV", "k1": -0.3, "fl_x": 12.0},
+            {},
+            True,
+            r"images/a.png: the OPENCV \(k1=-0.3\) distortion is so strong that undistortion would keep only \d+%",
+        ),
         ({"camera_model": "OPENCV", "k4": 0.1}, {}, True, r"camera_model OPENCV has no coefficient k4"),
         ({"mask_path": "masks/a.png"}, {}, True, r"its mask 'masks/a.png' does not exist"),
-        ({}, {"test_filenames": ["images/zzz.png"]}, True, r"'test_filenames' names 'images/zzz.png', which is no frame's"),
+        (
+            {},
+            {"test_filenames": ["images/zzz.png"]},
+            True,
+            r"'test_filenames' names 'images/zzz.png', which is no frame's",
+        ),
     ],
 )
 def test_bad_captures_are_named(tmp_path, frame_extra, meta_extra, image, message):
@@ -280,13 +316,18 @@ def test_undecodable_image_is_named(tmp_path):
 
 
 def test_strong_distortion_is_refused_with_the_fraction_kept():
-    with pytest.raises(DataError, match=r"photo.jpg: the OPENCV \(k1=-0.2\) distortion is so strong that undistortion "
-                                        r"would keep only 26% of the image"):
+    with pytest.raises(
+        DataError,
+        match=r"photo.jpg: the OPENCV \(k1=-0.2\) distortion is so strong that undistortion "
+        r"would keep only 26% of the image",
+    ):
         plan_undistortion(Lens(20, 20, 32, 24, 64, 48, (-0.2, 0.0, 0.0, 0.0), model="OPENCV"), "photo.jpg")
 
 
 def test_unknown_colmap_camera_model_is_refused(tmp_path):
     pytest.importorskip("pycolmap")
     write_colmap(tmp_path, model="FOV", params=(45.0, 47.0, 19.5, 15.5, 0.1))
-    with pytest.raises(DataError, match=r"camera model FOV, which MatSpray cannot undistort \(known: SIMPLE_PINHOLE, PINHOLE"):
+    with pytest.raises(
+        DataError, match=r"camera model FOV, which MatSpray cannot undistort \(known: SIMPLE_PINHOLE, PINHOLE"
+    ):
         load_scene(tmp_path)

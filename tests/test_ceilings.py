@@ -23,7 +23,13 @@ from matspray.rundir import RUN_LOCK, RunDir, held_exclusively
 
 def tiny_asset(materials: torch.Tensor) -> Asset:
     n = len(materials)
-    gaussians = Gaussians(torch.zeros(n, 3), torch.zeros(n, 3), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.zeros(n), torch.zeros(n, 1, 3))
+    gaussians = Gaussians(
+        torch.zeros(n, 3),
+        torch.zeros(n, 3),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.zeros(n),
+        torch.zeros(n, 1, 3),
+    )
     return Asset(gaussians, materials, torch.nn.functional.normalize(torch.ones(n, 3), dim=-1))
 
 
@@ -51,7 +57,9 @@ def test_mean_rows_average_over_objects_and_drop_a_figure_some_object_lacks():
         return {row: {"relight": relight + i, "basecolor": 20.0, "metallic": metal} for i, row in enumerate(ROWS)}
 
     means = mean_rows([rows(20.0, 30.0), rows(22.0, math.inf)])
-    assert means["proj-average"]["relight"] == pytest.approx(21.0) and means["lifted truth"]["relight"] == pytest.approx(21.0 + ROWS.index("lifted truth"))
+    assert means["proj-average"]["relight"] == pytest.approx(21.0) and means["lifted truth"][
+        "relight"
+    ] == pytest.approx(21.0 + ROWS.index("lifted truth"))
     assert "metallic" not in means["full"] and means["full"]["basecolor"] == 20.0  # inf (an exact map) is not averaged
 
 
@@ -70,12 +78,17 @@ def test_jobs_for_other_models_finishing_together_keep_each_others_figures(tmp_p
             process.start()
         time.sleep(1.0)
         assert set(json.loads(path.read_text())) == {"paper"}  # neither wrote while the lock was held
-        merge_with_saved(path, {"ground-truth": [{"object": "dev-00", "rows": {row: {"relight": 30.0} for row in ROWS}}]})
+        merge_with_saved(
+            path, {"ground-truth": [{"object": "dev-00", "rows": {row: {"relight": 30.0} for row in ROWS}}]}
+        )
     for process in others:
         process.join(timeout=60)
         assert process.exitcode == 0
     saved = json.loads(path.read_text())
-    assert set(saved) == {"paper", "harsh", "outliers", "ground-truth"} and saved["paper"][0]["rows"]["full"]["relight"] == 21.0
+    assert (
+        set(saved) == {"paper", "harsh", "outliers", "ground-truth"}
+        and saved["paper"][0]["rows"]["full"]["relight"] == 21.0
+    )
 
 
 def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(tmp_path, monkeypatch):
@@ -100,7 +113,9 @@ def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(
     monkeypatch.setattr("matspray.pipeline.Pipeline", RecordingPipeline)
     truth_run = tmp_path / "runs" / "ground-truth"
     config = build_config("test")
-    job = threading.Thread(target=ceilings.lift_truth, args=(tmp_path / "data", tmp_path / "runs" / "harsh", truth_run, config))
+    job = threading.Thread(
+        target=ceilings.lift_truth, args=(tmp_path / "data", tmp_path / "runs" / "harsh", truth_run, config)
+    )
     with RunDir(truth_run).hold():  # another job is lifting the truth of this object
         job.start()
         time.sleep(0.5)
@@ -115,7 +130,10 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     out = tmp_path / "g"
     args = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--out", str(out)]
     assert main(args) == 2  # the protocol has not run yet
-    assert "run `python -m benchmarks.generalise --set dev --objects 1 --models paper --preset test" in capsys.readouterr().err
+    assert (
+        "run `python -m benchmarks.generalise --set dev --objects 1 --models paper --preset test"
+        in capsys.readouterr().err
+    )
     assert generalise(args + ["--variants", "full", "proj-average", "--no-progress"]) == 0
     capsys.readouterr()
     assert main(args) == 0
@@ -124,24 +142,41 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     rows = json.loads((out / "ceilings-test.json").read_text())["paper"][0]["rows"]
     assert list(rows) == list(ROWS)
     protocol = json.loads((out / "results-default.json").read_text())["models"]["paper"]["objects"][0]["figures"]
-    assert rows["proj-average"]["relight"] == pytest.approx(protocol["relight"]["proj-average"], abs=1e-6)  # the protocol's own scores
+    assert rows["proj-average"]["relight"] == pytest.approx(
+        protocol["relight"]["proj-average"], abs=1e-6
+    )  # the protocol's own scores
     assert rows["full"]["relight"] == pytest.approx(protocol["relight"]["full"], abs=1e-6)
-    assert rows["lifted truth"]["basecolor"] > rows["proj-average"]["basecolor"]  # the true maps beat the simulated ones
-    assert rows["oracle base only"]["roughness"] == pytest.approx(rows["proj-average"]["roughness"])  # one channel group swapped
+    assert (
+        rows["lifted truth"]["basecolor"] > rows["proj-average"]["basecolor"]
+    )  # the true maps beat the simulated ones
+    assert rows["oracle base only"]["roughness"] == pytest.approx(
+        rows["proj-average"]["roughness"]
+    )  # one channel group swapped
     true_light = out / "objects" / "dev-00-seed1000" / "runs" / "paper-true-light"
     assert (true_light / "asset" / "asset.ply").exists() and (true_light / "asset" / "envmap.exr").exists()
     assert rows["full, true light"]["relight"] != rows["full"]["relight"]  # refined again, under another light
 
-    assert rows["lifted truth, PA brightness"]["roughness"] == pytest.approx(rows["lifted truth"]["roughness"])  # only the base colour dimmed
+    assert rows["lifted truth, PA brightness"]["roughness"] == pytest.approx(
+        rows["lifted truth"]["roughness"]
+    )  # only the base colour dimmed
     truth_run = out / "objects" / "dev-00-seed1000" / "runs" / "ground-truth"
-    assert "lift" in json.loads((truth_run / "timings.json").read_text()) and "geometry" not in json.loads((truth_run / "timings.json").read_text())
+    assert "lift" in json.loads((truth_run / "timings.json").read_text()) and "geometry" not in json.loads(
+        (truth_run / "timings.json").read_text()
+    )
     saved = (out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json").stat().st_mtime_ns
     saved_file = out / "ceilings-test.json"
-    saved_file.write_text(json.dumps({**json.loads(saved_file.read_text()), "harsh": [{"object": "another", "rows": rows}]}))
+    saved_file.write_text(
+        json.dumps({**json.loads(saved_file.read_text()), "harsh": [{"object": "another", "rows": rows}]})
+    )
     assert main(args) == 0  # a second pass reads the saved figures, and keeps the other model of an earlier pass
     assert capsys.readouterr().out == printed
-    assert set(json.loads(saved_file.read_text())) == {"paper", "harsh"} and "error model `harsh`" in (out / "ceilings-test.md").read_text()
-    assert (out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json").stat().st_mtime_ns == saved
+    assert (
+        set(json.loads(saved_file.read_text())) == {"paper", "harsh"}
+        and "error model `harsh`" in (out / "ceilings-test.md").read_text()
+    )
+    assert (
+        out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json"
+    ).stat().st_mtime_ns == saved
 
     # a row missing from the saved figures (as after an upgrade that adds one) is computed alone; the others are reused
     saved = out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "eval" / "ceilings.json"
@@ -152,10 +187,16 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     assert main(args) == 0
     again = json.loads((out / "ceilings-test.json").read_text())["paper"][0]["rows"]
     assert list(again) == list(ROWS) and again["lifted truth"]["relight"] == -1.0
-    assert again["full, true light"]["relight"] == pytest.approx(rows["full, true light"]["relight"], abs=1e-6)  # the asset reused
+    assert again["full, true light"]["relight"] == pytest.approx(
+        rows["full, true light"]["relight"], abs=1e-6
+    )  # the asset reused
 
     # a model kept from an earlier pass of a version with other rows is dropped, with a notice, not averaged half
-    saved_file.write_text(json.dumps({**json.loads(saved_file.read_text()), "harsh": [{"object": "another", "rows": {"full": {"relight": 1.0}}}]}))
+    saved_file.write_text(
+        json.dumps(
+            {**json.loads(saved_file.read_text()), "harsh": [{"object": "another", "rows": {"full": {"relight": 1.0}}}]}
+        )
+    )
     capsys.readouterr()
     assert main(args) == 0
     assert "error model harsh in" in capsys.readouterr().out and set(json.loads(saved_file.read_text())) == {"paper"}

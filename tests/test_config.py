@@ -85,12 +85,19 @@ def test_cli_registries_match_the_library():
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "matspray", *map(str, args)], capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "matspray", *map(str, args)], capture_output=True, text=True, timeout=120
+    )
 
 
 def test_cli_names_the_flag_and_lists_methods(tmp_path):
     result = run_cli("run", "--data", tmp_path, "--out", tmp_path / "run", "--method", "exact")
-    assert result.returncode == 2 and "invalid choice: 'exact'" in result.stderr and "matspray" in result.stderr.splitlines()[-1] and "paper" in result.stderr.splitlines()[-1]
+    assert (
+        result.returncode == 2
+        and "invalid choice: 'exact'" in result.stderr
+        and "matspray" in result.stderr.splitlines()[-1]
+        and "paper" in result.stderr.splitlines()[-1]
+    )
     result = run_cli("run", "--data", tmp_path, "--out", tmp_path / "run", "--min-support", "2")
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert result.stderr.strip() == "matspray run: error: --min-support: must be in [0, 1], got 2.0"

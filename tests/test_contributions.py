@@ -18,7 +18,9 @@ from tests.test_rasterize import random_scene
 def as_hits(c) -> list[list[Hit]]:
     """Contributions as reference.trace_rays returns them: per ray, its hits front to back."""
     hits = [[] for _ in range(c.num_rays)]
-    for ray, i, alpha, weight, depth in zip(*(t.tolist() for t in (c.sample_ids, c.gaussian_ids, c.alphas, c.weights, c.depths))):
+    for ray, i, alpha, weight, depth in zip(
+        *(t.tolist() for t in (c.sample_ids, c.gaussian_ids, c.alphas, c.weights, c.depths))
+    ):
         hits[ray].append(Hit(i, alpha, weight, depth))
     return hits
 
@@ -28,8 +30,12 @@ def assert_same_hits(got: list[list[Hit]], expected: list[list[Hit]], atol=1e-6)
     for ray, (mine, theirs) in enumerate(zip(got, expected)):
         assert [h.gaussian for h in mine] == [h.gaussian for h in theirs], f"ray {ray}"
         if theirs:
-            np.testing.assert_allclose(np.array(mine)[:, 1:3], np.array(theirs)[:, 1:3], atol=atol, rtol=0, err_msg=f"ray {ray}")
-            np.testing.assert_allclose(np.array(mine)[:, 3], np.array(theirs)[:, 3], atol=0, rtol=1e-6, err_msg=f"ray {ray}")  # float32 depth
+            np.testing.assert_allclose(
+                np.array(mine)[:, 1:3], np.array(theirs)[:, 1:3], atol=atol, rtol=0, err_msg=f"ray {ray}"
+            )
+            np.testing.assert_allclose(
+                np.array(mine)[:, 3], np.array(theirs)[:, 3], atol=0, rtol=1e-6, err_msg=f"ray {ray}"
+            )  # float32 depth
 
 
 def scene_with_awkward_gaussians(seed):
@@ -106,8 +112,13 @@ def test_flat_gaussians_stay_exact():
     """A Gaussian 1e-4 thin (as geometry training makes them) seen at a slant: eq. (2) in the whitened
     frame must not lose precision."""
     n = 1
-    gaussians = Gaussians(torch.zeros(n, 3), torch.log(torch.tensor([[0.3, 0.2, 1e-4]])),
-                          torch.tensor([[0.9, 0.3, 0.2, 0.1]]), torch.logit(torch.tensor([0.8])), torch.zeros(n, 1, 3))
+    gaussians = Gaussians(
+        torch.zeros(n, 3),
+        torch.log(torch.tensor([[0.3, 0.2, 1e-4]])),
+        torch.tensor([[0.9, 0.3, 0.2, 0.1]]),
+        torch.logit(torch.tensor([0.8])),
+        torch.zeros(n, 1, 3),
+    )
     _, camera, _ = random_scene(1, 0, width=10, height=8)
     assert_same_hits(as_hits(contributions(gaussians, camera, 2)), trace_rays(gaussians, camera, 2), atol=1e-6)
 

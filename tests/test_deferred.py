@@ -33,8 +33,13 @@ def reference_shading(light_map, base_color, roughness, metallic, n, wo):
     directions: within 2e-4 of a 512 x 1024 grid for these maps and r >= 0.2."""
     count = metallic.shape[0]
     return shade_by_quadrature(
-        base_color.expand(count, 3), roughness.expand(count), metallic, n.expand(count, 3), wo.expand(count, 3),
-        light_map, rows=128,
+        base_color.expand(count, 3),
+        roughness.expand(count),
+        metallic,
+        n.expand(count, 3),
+        wo.expand(count, 3),
+        light_map,
+        rows=128,
     )
 
 
@@ -120,8 +125,12 @@ def test_gbuffer_is_shaded_along_camera_rays_and_composited():
     for row, col in [(0, 0), (1, 2), (3, 4), (2, 1)]:
         _, ray = camera.rays_through(torch.tensor([[col + 0.5, row + 0.5]]))
         rgb = shade(
-            gbuffer.base_color[row, col], gbuffer.roughness[row, col], gbuffer.metallic[row, col],
-            gbuffer.normals[row, col], -ray[0], pre,
+            gbuffer.base_color[row, col],
+            gbuffer.roughness[row, col],
+            gbuffer.metallic[row, col],
+            gbuffer.normals[row, col],
+            -ray[0],
+            pre,
         )
         a = gbuffer.alpha[row, col]
         torch.testing.assert_close(image[row, col], rgb * a + background * (1 - a))
@@ -131,8 +140,11 @@ def test_gbuffer_is_shaded_along_camera_rays_and_composited():
 def test_gbuffer_from_accumulated_unpremultiplies():
     alpha = torch.tensor([[0.5, 1.0]])
     g = GBuffer.from_accumulated(
-        torch.tensor([[[0.2, 0.1, 0.3], [0.4, 0.4, 0.4]]]), torch.tensor([[0.25, 0.6]]), torch.tensor([[0.1, 0.0]]),
-        torch.ones(1, 2, 3), alpha,
+        torch.tensor([[[0.2, 0.1, 0.3], [0.4, 0.4, 0.4]]]),
+        torch.tensor([[0.25, 0.6]]),
+        torch.tensor([[0.1, 0.0]]),
+        torch.ones(1, 2, 3),
+        alpha,
     )
     torch.testing.assert_close(g.base_color[0, 0], torch.tensor([0.4, 0.2, 0.6]))
     torch.testing.assert_close(g.roughness, torch.tensor([[0.5, 0.6]]))
@@ -164,7 +176,9 @@ def test_shade_gradcheck():
     rough = torch.tensor([0.3, 0.55, 0.85], dtype=f64, requires_grad=True)
     metal = torch.tensor([0.2, 0.5, 0.9], dtype=f64, requires_grad=True)
     normals = torch.tensor([[0.1, 0.2, 0.9], [0.5, -0.4, 0.6], [-0.3, 0.8, 0.3]], dtype=f64, requires_grad=True)
-    view = torch.nn.functional.normalize(torch.tensor([[0.3, 0.1, 0.9], [0.2, -0.1, 0.9], [0.1, 0.9, -0.2]], dtype=f64), dim=-1)
+    view = torch.nn.functional.normalize(
+        torch.tensor([[0.3, 0.1, 0.9], [0.2, -0.1, 0.9], [0.1, 0.9, -0.2]], dtype=f64), dim=-1
+    )
     log_map = (torch.rand(2, 4, 3, generator=g, dtype=f64) + 0.2).log().requires_grad_(True)
 
     def render(base, rough, metal, normals, log_map):
@@ -180,8 +194,15 @@ def test_gradients_are_finite_at_the_ends_of_the_roughness_range(roughness):
     from matspray.render.deferred import specular_direction
 
     rough = torch.full((4,), roughness, requires_grad=True)
-    normals = torch.nn.functional.normalize(torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.1, 0.9], [0.2, -0.5, 0.8], [-0.4, 0.4, 0.7]]), dim=-1)
-    view = torch.nn.functional.normalize(torch.tensor([[0.2, 0.1, 0.9], [0.7, 0.0, 0.7], [0.0, 0.6, 0.8], [0.1, 0.1, 0.9]]), dim=-1)
+    normals = torch.nn.functional.normalize(
+        torch.tensor([[0.0, 0.0, 1.0], [0.3, 0.1, 0.9], [0.2, -0.5, 0.8], [-0.4, 0.4, 0.7]]), dim=-1
+    )
+    view = torch.nn.functional.normalize(
+        torch.tensor([[0.2, 0.1, 0.9], [0.7, 0.0, 0.7], [0.0, 0.6, 0.8], [0.1, 0.1, 0.9]]), dim=-1
+    )
     env = EnvironmentMap.from_tensor(sky_map(16).float())
-    (specular_direction(normals, view, rough).sum() + shade(torch.full((4, 3), 0.5), rough, torch.zeros(4), normals, view, env).sum()).backward()
+    (
+        specular_direction(normals, view, rough).sum()
+        + shade(torch.full((4, 3), 0.5), rough, torch.zeros(4), normals, view, env).sum()
+    ).backward()
     assert torch.isfinite(rough.grad).all()

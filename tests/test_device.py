@@ -29,8 +29,17 @@ pytestmark = pytest.mark.on_device
 
 def run_config(device, **settings):
     # with baked shadows (off by default), so that every stage runs
-    return build_config("test", predictor="simulated", **{"device": str(device), "backend": "torch", "refine.iterations": 8,
-                                                          "visibility": shadow_maps("test"), **settings})
+    return build_config(
+        "test",
+        predictor="simulated",
+        **{
+            "device": str(device),
+            "backend": "torch",
+            "refine.iterations": 8,
+            "visibility": shadow_maps("test"),
+            **settings,
+        },
+    )
 
 
 def stage_record(run, stage: str) -> dict:
@@ -50,9 +59,13 @@ def test_every_stage_records_its_device_and_what_it_rendered_with(tiny_object, t
     geometry = stage_record(run, "geometry")["renders"]
     assert set(geometry) == {backend} and geometry[backend] >= 60  # 60 steps of the test preset, then the test views
     assert stage_record(run, "lift")["renders"] == {"rays": 6}  # one ray-traced view per training view
-    assert stage_record(run, "visibility")["renders"] == {"torch": 2 * shadow_maps("test").rows ** 2}  # the shadow maps: torch's weights
+    assert stage_record(run, "visibility")["renders"] == {
+        "torch": 2 * shadow_maps("test").rows ** 2
+    }  # the shadow maps: torch's weights
     frozen = stage_record(run, "asset")["frozen_views"]
-    assert frozen["backend"] == backend and frozen["views"] == 6 and (frozen["bytes"] > 0) == (backend != "gsplat")  # numba keeps torch's matrices
+    assert (
+        frozen["backend"] == backend and frozen["views"] == 6 and (frozen["bytes"] > 0) == (backend != "gsplat")
+    )  # numba keeps torch's matrices
 
 
 def test_no_tensor_is_made_without_its_device(tiny_object, tmp_path, device):
@@ -84,7 +97,9 @@ def test_out_of_memory_is_one_line_and_the_run_resumes(tiny_object, tmp_path, mo
     config = run_config("cpu", visibility=None)
 
     def out_of_memory(*args, **kwargs):
-        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB. GPU 0 has a total capacity of 23.6 GiB")
+        raise torch.OutOfMemoryError(
+            "CUDA out of memory. Tried to allocate 2.00 GiB. GPU 0 has a total capacity of 23.6 GiB"
+        )
 
     monkeypatch.setattr("matspray.pipeline.lift", out_of_memory)
     with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
@@ -105,7 +120,10 @@ def test_out_of_memory_is_one_line_and_the_run_resumes(tiny_object, tmp_path, mo
 def test_host_memory_running_out_is_one_line_and_other_errors_pass_through():
     with pytest.raises(ResourceError, match=r"^export: out of host memory allocating 8589934592 bytes; lower"):
         with out_of_memory_as_error("export", "cpu"):
-            raise RuntimeError("[enforce fail at alloc_cpu.cpp:118] DefaultCPUAllocator: can't allocate memory: you tried to allocate 8589934592 bytes")
+            raise RuntimeError(
+                "[enforce fail at alloc_cpu.cpp:118] DefaultCPUAllocator: can't allocate memory: "
+                "you tried to allocate 8589934592 bytes"
+            )
     with pytest.raises(RuntimeError, match="something else"):
         with out_of_memory_as_error("export", "cpu"):
             raise RuntimeError("something else")
@@ -113,8 +131,11 @@ def test_host_memory_running_out_is_one_line_and_other_errors_pass_through():
 
 def test_cuda_without_cuda_is_one_line_that_says_what_to_do(tmp_path, monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    with pytest.raises(SettingError, match=r"^device: cuda: this (torch build has no CUDA|machine has no CUDA GPU that torch sees); "
-                       r"use cpu, or a CUDA build of torch on a machine with an NVIDIA GPU$"):
+    with pytest.raises(
+        SettingError,
+        match=r"^device: cuda: this (torch build has no CUDA|machine has no CUDA GPU that torch sees); "
+        r"use cpu, or a CUDA build of torch on a machine with an NVIDIA GPU$",
+    ):
         resolve_device("cuda")
     with pytest.raises(SettingError, match="unsupported device 'mps'"):
         resolve_device("mps")
@@ -123,12 +144,23 @@ def test_cuda_without_cuda_is_one_line_that_says_what_to_do(tmp_path, monkeypatc
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without CUDA")
 @pytest.mark.parametrize("command", ["geometry", "relight", "eval", "export"])
 def test_every_computing_command_refuses_cuda_without_it_in_one_line(tmp_path, command):
-    arguments = {"geometry": ["--data", tmp_path, "--out", tmp_path / "run"], "relight": ["--run", tmp_path, "--env", "studio", "--out", tmp_path / "o"],
-                 "eval": ["--run", tmp_path], "export": ["--run", tmp_path, "--out", tmp_path / "a.glb"]}[command]
-    result = subprocess.run([sys.executable, "-m", "matspray", command, *arguments, "--device", "cuda"], capture_output=True, text=True, timeout=120)
+    arguments = {
+        "geometry": ["--data", tmp_path, "--out", tmp_path / "run"],
+        "relight": ["--run", tmp_path, "--env", "studio", "--out", tmp_path / "o"],
+        "eval": ["--run", tmp_path],
+        "export": ["--run", tmp_path, "--out", tmp_path / "a.glb"],
+    }[command]
+    result = subprocess.run(
+        [sys.executable, "-m", "matspray", command, *arguments, "--device", "cuda"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 2 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and "--device: cuda: this" in lines[0] and "no CUDA" in lines[0] and "use cpu" in lines[0], result.stderr
+    assert len(lines) == 1 and "--device: cuda: this" in lines[0] and "no CUDA" in lines[0] and "use cpu" in lines[0], (
+        result.stderr
+    )
 
 
 def frozen_render(storage: str, features: torch.Tensor):
@@ -170,7 +202,9 @@ def test_a_run_forced_to_gsplat_renders_every_stage_with_it(tiny_object, tmp_pat
 
     gsplat_on_cpu(monkeypatch)
     run = tmp_path / "run"
-    config = run_config("cpu", backend="gsplat", visibility=None, **{"geometry.absgrad": True, "geometry.grad_threshold": 8e-4})
+    config = run_config(
+        "cpu", backend="gsplat", visibility=None, **{"geometry.absgrad": True, "geometry.grad_threshold": 8e-4}
+    )
     with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
         assert pipeline.backend == "gsplat"
         asset = pipeline.refine("full")
@@ -187,7 +221,11 @@ def test_a_run_forced_to_gsplat_renders_every_stage_with_it(tiny_object, tmp_pat
     assert set(geometry["renders"]) == {"gsplat"} and geometry["renders"]["gsplat"] >= 60
     assert stage_record(run, "lift")["renders"] == {"rays": 6}  # lifting traces rays with our code on every backend
     refined = stage_record(run, "asset")
-    assert set(refined["renders"]) == {"gsplat"} and refined["frozen_views"]["backend"] == "gsplat" and refined["frozen_views"]["bytes"] == 0
+    assert (
+        set(refined["renders"]) == {"gsplat"}
+        and refined["frozen_views"]["backend"] == "gsplat"
+        and refined["frozen_views"]["bytes"] == 0
+    )
     # the object masks (8 views), evaluation (2 test views), relighting (1) and the export's depth maps (6)
     assert set(use.used()) == {"gsplat"} and use.calls["gsplat"] >= 8 + 2 + 1 + 6
     assert len(masks.masks["train"]) == 6 and all(m.max() > 0.5 for m in masks.masks["train"].values())

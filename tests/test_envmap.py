@@ -114,8 +114,10 @@ def test_sample_latlong_matches_bilinear_by_hand():
         x0, y0 = math.floor(x), math.floor(y)
         fx, fy = x - x0, y - y0
         expected = (
-            source[y0, x0] * (1 - fx) * (1 - fy) + source[y0, x0 + 1] * fx * (1 - fy)
-            + source[y0 + 1, x0] * (1 - fx) * fy + source[y0 + 1, x0 + 1] * fx * fy
+            source[y0, x0] * (1 - fx) * (1 - fy)
+            + source[y0, x0 + 1] * fx * (1 - fy)
+            + source[y0 + 1, x0] * (1 - fx) * fy
+            + source[y0 + 1, x0 + 1] * fx * fy
         )
         torch.testing.assert_close(value, expected)
 
@@ -148,7 +150,11 @@ def test_specular_level_equals_the_normalised_lobe_sum(roughness):
     alpha = roughness_to_alpha(torch.tensor(roughness, dtype=f64))
 
     def lobe(c):
-        return ggx_ndf(torch.sqrt(((1 + c) / 2).clamp_min(0)), alpha) * smith_visibility(c, torch.ones_like(c), alpha) * c.clamp_min(0)
+        return (
+            ggx_ndf(torch.sqrt(((1 + c) / 2).clamp_min(0)), alpha)
+            * smith_visibility(c, torch.ones_like(c), alpha)
+            * c.clamp_min(0)
+        )
 
     out_dirs = pixel_directions(got.shape[0], got.shape[1], dtype=f64).reshape(-1, 3)
     total, norm = brute_force(source, out_dirs, lobe)
@@ -174,7 +180,9 @@ def test_lookup_specular_interpolates_between_levels():
 
 def test_prefilter_and_lookup_gradcheck():
     log_map = (random_map(2) * 0.5).log().requires_grad_(True)  # a 2 x 4 map keeps the numerical Jacobian cheap
-    d = torch.nn.functional.normalize(torch.tensor([[0.3, -0.2, 0.8], [-0.6, 0.1, -0.2], [0.1, 0.9, 0.2]], dtype=f64), dim=-1)
+    d = torch.nn.functional.normalize(
+        torch.tensor([[0.3, -0.2, 0.8], [-0.6, 0.1, -0.2], [0.1, 0.9, 0.2]], dtype=f64), dim=-1
+    )
     d.requires_grad_(True)
     r = torch.tensor([0.35, 0.8, 0.55], dtype=f64, requires_grad=True)
 

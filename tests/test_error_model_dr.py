@@ -19,10 +19,26 @@ from matspray.data import Camera, View, write_image, write_raw
 from matspray.eval.average import average_tables
 from matspray.eval.run_eval import evaluate_predictions, paper_tables, read_view_truth
 from matspray.predictors import make_predictor, predict_views
-from matspray.predictors.error_models import (DR_COLOUR_SCALE, DR_METALLIC_VIEW_FRACTION, DR_ROUGHNESS_COMPRESSION, ERROR_MODELS, PAPER,
-                                              SimulationConfig, dr_model, error_model, model_name)
+from matspray.predictors.error_models import (
+    DR_COLOUR_SCALE,
+    DR_METALLIC_VIEW_FRACTION,
+    DR_ROUGHNESS_COMPRESSION,
+    ERROR_MODELS,
+    PAPER,
+    SimulationConfig,
+    dr_model,
+    error_model,
+    model_name,
+)
 from matspray.predictors.ground_truth import read_ground_truth
-from matspray.predictors.simulated import BatchDrift, SimulatedPredictor, compress_towards_mean, draw_view_outlier, filmic_tone, simulate_view
+from matspray.predictors.simulated import (
+    BatchDrift,
+    SimulatedPredictor,
+    compress_towards_mean,
+    draw_view_outlier,
+    filmic_tone,
+    simulate_view,
+)
 from matspray.synth.materials import evaluate_material, random_material
 
 VIEWS, SIZE, BATCH = 24, 32, 4  # the structure tests' object
@@ -44,11 +60,19 @@ def sphere_view(material, index: int, views: int, size: int):
     z = (1 - (x**2 + y**2) / radius**2).clamp_min(0).sqrt()
     angle = 2 * math.pi * index / views
     normal = torch.stack([x / radius, y / radius, z], -1)[inside]  # [N, 3], the camera's frame
-    turn = torch.tensor([[math.cos(angle), 0.0, math.sin(angle)], [0.0, 1.0, 0.0], [-math.sin(angle), 0.0, math.cos(angle)]])
-    base, rough, metal = evaluate_material(material, (normal @ turn.T).double().numpy())  # the object turns in front of the camera
+    turn = torch.tensor(
+        [[math.cos(angle), 0.0, math.sin(angle)], [0.0, 1.0, 0.0], [-math.sin(angle), 0.0, math.cos(angle)]]
+    )
+    base, rough, metal = evaluate_material(
+        material, (normal @ turn.T).double().numpy()
+    )  # the object turns in front of the camera
     maps = torch.zeros(size, size, 5)
-    maps[inside] = torch.cat([torch.from_numpy(base), torch.from_numpy(rough)[:, None], torch.from_numpy(metal)[:, None]], -1).float()
-    light = (torch.stack([x, y, z], -1) @ torch.tensor([0.6 * math.cos(3 * angle), 0.6 * math.sin(3 * angle), 0.5])).clamp_min(0)
+    maps[inside] = torch.cat(
+        [torch.from_numpy(base), torch.from_numpy(rough)[:, None], torch.from_numpy(metal)[:, None]], -1
+    ).float()
+    light = (
+        torch.stack([x, y, z], -1) @ torch.tensor([0.6 * math.cos(3 * angle), 0.6 * math.sin(3 * angle), 0.5])
+    ).clamp_min(0)
     photo = maps[..., :3] * (0.15 + light)[..., None]
     return photo, inside.float(), maps[..., :3], maps[..., 3], maps[..., 4]
 
@@ -61,7 +85,9 @@ def sphere_object(root, seed: int, views: int, size: int) -> list[View]:
     out = []
     for i in range(views):
         photo, alpha, basecolor, roughness, metallic = sphere_view(material, i, views, size)
-        camera = Camera.look_at([3 * math.cos(i), 3 * math.sin(i), 1.0], [0, 0, 0], [0, 0, 1], math.radians(40), size, size)
+        camera = Camera.look_at(
+            [3 * math.cos(i), 3 * math.sin(i), 1.0], [0, 0, 0], [0, 0, 1], math.radians(40), size, size
+        )
         view = View(f"r_{i:03d}", photo, alpha, camera, path=root / "train" / f"r_{i:03d}.png")
         write_image(root / "train" / f"{view.name}_basecolor.png", basecolor, alpha)
         write_raw(root / "train" / f"{view.name}_roughness.png", roughness, bits=16)
@@ -88,15 +114,23 @@ def test_dr_is_registered_and_selectable():
     assert "dr" in ERROR_MODELS and model_name(ERROR_MODELS["dr"]) == "dr"
     assert make_predictor("simulated:dr").config == ERROR_MODELS["dr"] == error_model("dr")
     info = make_predictor("simulated:dr").describe()
-    assert info["error_model"] == "dr" and "SIMULATED" in info["note"] and info["settings"]["roughness_compression"] == DR_ROUGHNESS_COMPRESSION
-    assert model_name(replace(ERROR_MODELS["dr"], seed=3, severity=0.5, batch_size=24)) == "dr"  # the free settings stay free
+    assert (
+        info["error_model"] == "dr"
+        and "SIMULATED" in info["note"]
+        and info["settings"]["roughness_compression"] == DR_ROUGHNESS_COMPRESSION
+    )
+    assert (
+        model_name(replace(ERROR_MODELS["dr"], seed=3, severity=0.5, batch_size=24)) == "dr"
+    )  # the free settings stay free
     assert predictor_spec("dr") == "simulated:dr" and generalise_args(["--models", "dr"]).models == ["dr"]
     # the calibrated magnitudes are the model's, on `paper`'s structure
     dr = ERROR_MODELS["dr"]
     assert dr == dr_model(DR_COLOUR_SCALE, DR_ROUGHNESS_COMPRESSION, DR_METALLIC_VIEW_FRACTION)
     assert dr.exposure_sigma == pytest.approx(PAPER.exposure_sigma * DR_COLOUR_SCALE)
     assert dr.shading_strength == pytest.approx(PAPER.shading_strength * DR_COLOUR_SCALE)
-    assert dr.roughness_offset_sigma == PAPER.roughness_offset_sigma and dr.metallic_amplitude == PAPER.metallic_amplitude
+    assert (
+        dr.roughness_offset_sigma == PAPER.roughness_offset_sigma and dr.metallic_amplitude == PAPER.metallic_amplitude
+    )
     # the other models keep their maps: the new effects are off in them
     for name in ("paper", "harsh", "outliers"):
         assert ERROR_MODELS[name].roughness_compression == 0.0 and ERROR_MODELS[name].metallic_view_fraction == 0.0
@@ -106,8 +140,12 @@ def test_views_in_a_batch_share_a_drift_and_batches_differ(views):
     out, info = predict(views, replace(ERROR_MODELS["dr"], batch_size=BATCH, seed=2))
     truths = [read_ground_truth(v) for v in views]
     # per view: brightness against the tone-mapped truth, and mean roughness
-    level = torch.stack([(on_object(out[v.name].basecolor, v).mean(0) / on_object(filmic_tone(t.basecolor), v).mean(0)).log().mean()
-                         for v, t in zip(views, truths)]).view(-1, BATCH)  # [batches, views]
+    level = torch.stack(
+        [
+            (on_object(out[v.name].basecolor, v).mean(0) / on_object(filmic_tone(t.basecolor), v).mean(0)).log().mean()
+            for v, t in zip(views, truths)
+        ]
+    ).view(-1, BATCH)  # [batches, views]
     rough = torch.stack([on_object(out[v.name].roughness, v).mean() for v in views]).view(-1, BATCH)
     for figure in (level, rough):
         within = float((figure - figure.mean(1, keepdim=True)).std())
@@ -125,7 +163,9 @@ def test_some_views_get_partial_metallicity(views):
     low, high = config.metallic_amplitude
     assert all(low <= m <= high for m in own.values())
     for view in views:
-        dielectric = (read_ground_truth(view).metallic == 0) & (view.alpha > 0.99)  # (the blur of 1/200 of 32 px reaches no neighbour)
+        dielectric = (read_ground_truth(view).metallic == 0) & (
+            view.alpha > 0.99
+        )  # (the blur of 1/200 of 32 px reaches no neighbour)
         metal = out[view.name].metallic[dielectric]
         expected = 1 - (1 - batch_metal[view.name]) * (1 - own.get(view.name, 0.0))
         assert float(metal.mean()) == pytest.approx(expected, abs=1e-3)  # partial: between 0 and 1, not metal
@@ -148,7 +188,14 @@ def test_base_colour_darkened_and_roughness_compressed_towards_its_mean(views):
         assert spread < (1 - c) * float(on_object(filmic_tone(truth.roughness), view).std()) + 0.02
         assert spread < 0.7 * float(on_object(truth.roughness, view).std())
     # exactly: after the tone curve, each view's roughness moves c of the way to its mean over the object
-    neutral = BatchDrift(exposure=1.0, white_balance=[1.0] * 3, color_shift=[0.0] * 3, roughness_offset=0.0, spurious_metallic=0.0, shading=0.0)
+    neutral = BatchDrift(
+        exposure=1.0,
+        white_balance=[1.0] * 3,
+        color_shift=[0.0] * 3,
+        roughness_offset=0.0,
+        spurious_metallic=0.0,
+        shading=0.0,
+    )
     quiet_config = replace(ERROR_MODELS["dr"], view_jitter_sigma=0.0, blur_fraction=0.0)
     truth = truths[0]
     result = simulate_view(truth, views[0].image, views[0].alpha, neutral, quiet_config, 0).roughness

@@ -19,7 +19,14 @@ from matspray.predictors import make_predictor, predict_views, read_predictor_in
 from matspray.predictors.error_models import ERROR_MODELS, SimulationConfig, error_model, model_name
 from matspray.predictors.ground_truth import read_ground_truth
 from matspray.predictors.maps import MaterialMaps
-from matspray.predictors.simulated import BatchDrift, SimulatedPredictor, ViewOutlier, draw_view_outlier, filmic_tone, simulate_view
+from matspray.predictors.simulated import (
+    BatchDrift,
+    SimulatedPredictor,
+    ViewOutlier,
+    draw_view_outlier,
+    filmic_tone,
+    simulate_view,
+)
 
 VIEWS, SIZE = 120, 12
 GREY = 0.4
@@ -32,15 +39,22 @@ def quiet(_message):
 
 
 def flat_object(root, views: int = VIEWS, highlight: bool = False):
-    """A `matspray synth`-style folder of `views` flat views; with `highlight` the photo is 3x brighter on a 3x3 patch."""
+    """A `matspray synth`-style folder of `views` flat views;
+    with `highlight` the photo is 3x brighter on a 3x3 patch."""
     roughness = torch.tensor(BANDS).repeat_interleave(SIZE // 3).expand(SIZE, SIZE).contiguous()
     basecolor = torch.full((SIZE, SIZE, 3), GREY)
     photo = basecolor.clone()
     if highlight:
         photo[:3, :3] *= 3.0
-    train = [View(f"r_{i:03d}", photo, None,  # no mask: the whole image is the object
-                  Camera.look_at([3 * math.cos(i), 3 * math.sin(i), 1.0], [0, 0, 0], [0, 0, 1], math.radians(40), SIZE, SIZE))
-             for i in range(views)]
+    train = [
+        View(
+            f"r_{i:03d}",
+            photo,
+            None,  # no mask: the whole image is the object
+            Camera.look_at([3 * math.cos(i), 3 * math.sin(i), 1.0], [0, 0, 0], [0, 0, 1], math.radians(40), SIZE, SIZE),
+        )
+        for i in range(views)
+    ]
     write_blender(root, {"train": train})
     for view in train:
         write_image(root / "train" / f"{view.name}_basecolor.png", basecolor)
@@ -59,7 +73,9 @@ def predict(views, config: SimulationConfig):
     return predict_views(views, predictor, notify=quiet), predictor.describe()
 
 
-def log_gains(maps, truths) -> torch.Tensor:  # [V, 3]: per view and channel, log(predicted / tone-mapped true base colour)
+def log_gains(
+    maps, truths
+) -> torch.Tensor:  # [V, 3]: per view and channel, log(predicted / tone-mapped true base colour)
     return torch.stack([(m.basecolor / filmic_tone(t.basecolor)).log().mean((0, 1)) for m, t in zip(maps, truths)])
 
 
@@ -75,7 +91,9 @@ def test_per_batch_drift_and_tone_curve_at_their_stated_magnitudes(flat, name):
     tone = float(filmic_tone(truths[0].basecolor[0, 0, 0]))
     shift = CLIPPED * config.color_shift_sigma / tone  # the additive shift, as a log gain
     # exposure, white balance, colour shift and the view's own jitter: per channel
-    expected = math.sqrt(CLIPPED**2 * (config.exposure_sigma**2 + config.white_balance_sigma**2) + config.view_jitter_sigma**2 + shift**2)
+    expected = math.sqrt(
+        CLIPPED**2 * (config.exposure_sigma**2 + config.white_balance_sigma**2) + config.view_jitter_sigma**2 + shift**2
+    )
     assert float(gains.std(0).mean()) == pytest.approx(expected, rel=0.2)
     # white balance and colour shift alone change the hue (channel minus channel mean)
     chroma = gains - gains.mean(1, keepdim=True)
@@ -86,10 +104,10 @@ def test_per_batch_drift_and_tone_curve_at_their_stated_magnitudes(flat, name):
     assert abs(float(gains.mean())) < 3.0 * expected / math.sqrt(len(keep))  # zero-mean drift around the curve
     # roughness: per-batch offset around the tone-mapped value, and [0.2, 1] compressed to the curve's range
     third = SIZE // 3
-    middle = torch.stack([m.roughness[:, third:2 * third].mean() for m in maps]) - filmic_tone(torch.tensor(BANDS[1]))
+    middle = torch.stack([m.roughness[:, third : 2 * third].mean() for m in maps]) - filmic_tone(torch.tensor(BANDS[1]))
     expected_rough = math.sqrt(CLIPPED**2 * config.roughness_offset_sigma**2 + config.view_jitter_sigma**2)
     assert float(middle.std()) == pytest.approx(expected_rough, rel=0.2)
-    ranges = torch.stack([m.roughness[:, 2 * third:].mean() - m.roughness[:, :third].mean() for m in maps])
+    ranges = torch.stack([m.roughness[:, 2 * third :].mean() - m.roughness[:, :third].mean() for m in maps])
     curve = float(filmic_tone(torch.tensor(BANDS[2])) - filmic_tone(torch.tensor(BANDS[0])))
     assert float(ranges.median()) == pytest.approx(curve, abs=0.02) and curve < 0.55 * (BANDS[2] - BANDS[0])
 
@@ -115,7 +133,9 @@ def test_batches_are_consistent_inside_and_differ_between(flat):
     level = log_gains([out[v.name] for v in flat], truths).mean(1).view(-1, 8)  # [batches, views in batch]
     within = float(((level - level.mean(1, keepdim=True)) ** 2).sum() / (level.numel() - level.shape[0])) ** 0.5
     assert within == pytest.approx(config.view_jitter_sigma, rel=0.25)  # only the view's jitter inside a batch
-    assert float(level.mean(1).std()) > 2 * within  # (no batch drift: about within / sqrt(8)) the batch's exposure and white balance between batches
+    assert (
+        float(level.mean(1).std()) > 2 * within
+    )  # (no batch drift: about within / sqrt(8)) the batch's exposure and white balance between batches
 
 
 def test_outlier_views_get_a_colour_cast_of_the_stated_size(flat):
@@ -128,7 +148,9 @@ def test_outlier_views_get_a_colour_cast_of_the_stated_size(flat):
         ratio = (out[view.name].basecolor / plain[view.name].basecolor).log().mean((0, 1))  # [3]
         if view.name in cast_views:
             assert float(ratio.mean()) == pytest.approx(0.0, abs=0.01)  # a hue shift, not a brightness change
-            assert float(ratio.norm()) == pytest.approx(config.cast_strength, abs=0.02)  # (the additive shift blurs the ratio)
+            assert float(ratio.norm()) == pytest.approx(
+                config.cast_strength, abs=0.02
+            )  # (the additive shift blurs the ratio)
         else:
             assert torch.equal(out[view.name].basecolor, plain[view.name].basecolor)
     assert error_model("paper").cast_fraction == 0.0 and error_model("harsh").cast_fraction == 0.0
@@ -149,7 +171,14 @@ def test_baked_highlights_in_the_stated_fraction_of_views_and_amount(tmp_path):
         else:
             assert not changed.any()
     # the amount, with every other effect off: base colour moves highlight_amount of the way to white
-    neutral = BatchDrift(exposure=1.0, white_balance=[1.0] * 3, color_shift=[0.0] * 3, roughness_offset=0.0, spurious_metallic=0.0, shading=0.0)
+    neutral = BatchDrift(
+        exposure=1.0,
+        white_balance=[1.0] * 3,
+        color_shift=[0.0] * 3,
+        roughness_offset=0.0,
+        spurious_metallic=0.0,
+        shading=0.0,
+    )
     quiet_config = replace(config, tone_strength=0.0, view_jitter_sigma=0.0, blur_fraction=0.0)
     truth = MaterialMaps(torch.full((4, 4, 3), GREY), torch.full((4, 4), 0.5), torch.zeros(4, 4))
     photo = torch.full((4, 4, 3), GREY)
@@ -167,8 +196,10 @@ def test_harsh_is_the_paper_model_at_double_severity(flat):
     harsh, _ = predict(flat[:16], error_model("harsh", seed=4))
     doubled, _ = predict(flat[:16], error_model("paper", seed=4, severity=2.0))
     for name in harsh:
-        for a, b in zip((harsh[name].basecolor, harsh[name].roughness, harsh[name].metallic),
-                        (doubled[name].basecolor, doubled[name].roughness, doubled[name].metallic)):
+        for a, b in zip(
+            (harsh[name].basecolor, harsh[name].roughness, harsh[name].metallic),
+            (doubled[name].basecolor, doubled[name].roughness, doubled[name].metallic),
+        ):
             assert torch.allclose(a, b, atol=1e-5)
 
 
@@ -180,7 +211,9 @@ def test_named_models_from_the_spec_and_their_labels(flat):
         assert info["simulated"] is True and info["error_model"] == name and "SIMULATED" in info["note"]
     assert model_name(replace(ERROR_MODELS["harsh"], severity=0.5, seed=3, batch_size=2)) == "harsh"
     assert model_name(replace(ERROR_MODELS["harsh"], blur_fraction=0.0)) == "custom"
-    with pytest.raises(ConfigError, match=r"predictor: 'simulated:nope': unknown error model; use one of paper, harsh, outliers"):
+    with pytest.raises(
+        ConfigError, match=r"predictor: 'simulated:nope': unknown error model; use one of paper, harsh, outliers"
+    ):
         make_predictor("simulated:nope")
     with pytest.raises(ConfigError, match=r"cast_fraction: must be in \[0, 1\]"):
         SimulationConfig(cast_fraction=2.0)
@@ -189,7 +222,10 @@ def test_named_models_from_the_spec_and_their_labels(flat):
 def test_cli_writes_a_simulated_error_model_labelled_and_refuses_unknown_ones(flat, tmp_path, capsys):
     data = flat[0].path.parent.parent
     run = tmp_path / "run"
-    assert main(["predict", "--data", str(data), "--out", str(run), "--predictor", "simulated:outliers", "--seed", "1"]) == 0
+    assert (
+        main(["predict", "--data", str(data), "--out", str(run), "--predictor", "simulated:outliers", "--seed", "1"])
+        == 0
+    )
     assert "SIMULATED material maps" in capsys.readouterr().out
     info = read_predictor_info(run)
     assert info["simulated"] is True and info["error_model"] == "outliers" and "SIMULATED" in info["note"]

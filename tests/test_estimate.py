@@ -2,13 +2,28 @@
 
 import pytest
 
-from matspray.estimate import CPU_RATES, SPREAD, Work, estimate_error, estimate_line, estimate_seconds, run_work, view_pixels
+from matspray.estimate import (
+    CPU_RATES,
+    SPREAD,
+    Work,
+    estimate_error,
+    estimate_line,
+    estimate_seconds,
+    run_work,
+    view_pixels,
+)
 
 
 def test_work_counts_each_stage_in_its_unit():
     views = [(400, 200), (400, 200)]
-    work = run_work(views, geometry_iterations=10, geometry_resolution=100, rays_per_pixel=4,
-                    refine_iterations=[(30, True), (5, False)], unmasked=True)
+    work = run_work(
+        views,
+        geometry_iterations=10,
+        geometry_resolution=100,
+        rays_per_pixel=4,
+        refine_iterations=[(30, True), (5, False)],
+        unmasked=True,
+    )
     assert view_pixels(400, 200, 100) == 100 * 50  # the geometry trains on views brought to its long side
     assert work.geometry == 10 * 100 * 50
     assert work.masks == 2 * 400 * 200
@@ -29,7 +44,9 @@ def test_the_estimate_is_the_work_times_the_rates_said_as_a_range():
     assert seconds["refine"] == pytest.approx(2e7 * CPU_RATES["refine"] + 1e7 * CPU_RATES["refine-mapless"])
     total = sum(seconds.values())
     line = estimate_line(work, "cpu")
-    assert line.startswith(f"estimate: {total / SPREAD / 60:.0f} min to {total * SPREAD / 60:.0f} min with 2 free CPU cores"), line
+    assert line.startswith(
+        f"estimate: {total / SPREAD / 60:.0f} min to {total * SPREAD / 60:.0f} min with 2 free CPU cores"
+    ), line
     largest, smallest = max(seconds, key=seconds.get), min(seconds, key=seconds.get)
     assert line.index(largest) < line.index(smallest)  # the largest stage first
 

@@ -6,10 +6,14 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 import torch
+
+if TYPE_CHECKING:
+    import trimesh
 
 pytest.importorskip("trimesh")
 pytest.importorskip("xatlas")
@@ -71,7 +75,9 @@ def test_glb_box_is_in_the_dataset_world_whatever_the_files_frame(exported):
     y_up, z_up = glb_box(exported["gltf"]), glb_box(exported["dataset"])
     assert np.allclose(y_up, z_up, atol=1e-5)  # both files hold the same mesh, each in its own frame
     low, high = np.asarray(z_up)
-    assert (low > -1.4).all() and (high < 1.4).all() and (high - low > 1.8).all()  # the disk sphere around the unit sphere
+    assert (
+        (low > -1.4).all() and (high < 1.4).all() and (high - low > 1.8).all()
+    )  # the disk sphere around the unit sphere
 
 
 def test_export_opens_in_trimesh_and_pygltflib_with_its_textures(exported):
@@ -103,11 +109,15 @@ def test_export_passes_the_khronos_validator(exported):
         pytest.skip("node is not installed (the Khronos glTF Validator runs on node)")
     if not VALIDATOR.exists():
         pytest.skip(f"the gltf-validator npm package is not installed at {VALIDATOR} (`make setup` installs it)")
-    script = ("const v = require(process.argv[1]); const fs = require('fs');"
-              "v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[2])))"
-              ".then(r => console.log(JSON.stringify(r.issues)), e => { console.error(String(e)); process.exit(1); });")
+    script = (
+        "const v = require(process.argv[1]); const fs = require('fs');"
+        "v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[2])))"
+        ".then(r => console.log(JSON.stringify(r.issues)), e => { console.error(String(e)); process.exit(1); });"
+    )
     for path in exported.values():
-        result = subprocess.run(["node", "-e", script, str(VALIDATOR), str(path)], capture_output=True, text=True, timeout=120)
+        result = subprocess.run(
+            ["node", "-e", script, str(VALIDATOR), str(path)], capture_output=True, text=True, timeout=120
+        )
         assert result.returncode == 0, result.stderr
         issues = json.loads(result.stdout)
         assert issues["numErrors"] == 0, issues["messages"]
@@ -135,12 +145,16 @@ def test_bounding_box_matches_the_gaussians_in_either_frame_and_the_frames_round
     # the same mesh in both files, mapped onto each other by the stored transforms
     assert gltf.positions.shape == data.positions.shape
     assert np.allclose(transform_points(dataset_from_file(gltf_extras), gltf.positions), data.positions, atol=1e-5)
-    assert np.allclose(transform_points(np.asarray(gltf_extras["file_from_dataset"]), data.positions), gltf.positions, atol=1e-5)
+    assert np.allclose(
+        transform_points(np.asarray(gltf_extras["file_from_dataset"]), data.positions), gltf.positions, atol=1e-5
+    )
     assert np.allclose(transform_points(dataset_from_file(data_extras), data.positions), data.positions)
     normals_back = gltf.normals @ np.linalg.inv(GLTF_FROM_DATASET[:3, :3]).T
     assert np.allclose(normals_back, data.normals, atol=1e-5)
     # GLTF_FROM_DATASET takes the dataset's up (+Z) to glTF's up (+Y) and is a proper rotation
-    assert np.allclose(GLTF_FROM_DATASET[:3, :3] @ [0, 0, 1], [0, 1, 0]) and np.isclose(np.linalg.det(GLTF_FROM_DATASET[:3, :3]), 1)
+    assert np.allclose(GLTF_FROM_DATASET[:3, :3] @ [0, 0, 1], [0, 1, 0]) and np.isclose(
+        np.linalg.det(GLTF_FROM_DATASET[:3, :3]), 1
+    )
 
 
 def test_baked_texels_hold_the_materials_of_the_gaussians_on_the_surface(exported):
@@ -244,14 +258,17 @@ def run_cli(args, capsys):
     return code, err
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--variant", "fancy"], "unknown variant 'fancy'"),
-    (["--faces", "99"], "face budget must be >= 100"),
-    (["--texture-size", "100"], "power of two in [64, 8192]"),
-    (["--texture-size", "16384"], "power of two in [64, 8192]"),
-    (["--texture-size", "32"], "power of two in [64, 8192]"),
-    (["--variant", "no-softmax"], "make it with `matspray run --variant no-softmax`"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--variant", "fancy"], "unknown variant 'fancy'"),
+        (["--faces", "99"], "face budget must be >= 100"),
+        (["--texture-size", "100"], "power of two in [64, 8192]"),
+        (["--texture-size", "16384"], "power of two in [64, 8192]"),
+        (["--texture-size", "32"], "power of two in [64, 8192]"),
+        (["--variant", "no-softmax"], "make it with `matspray run --variant no-softmax`"),
+    ],
+)
 def test_bad_settings_are_one_clear_line(disk_run, tmp_path, capsys, extra, message):
     out = tmp_path / "x.glb"
     code, err = run_cli(["export", "--run", str(disk_run), "--out", str(out), *extra], capsys)
@@ -271,8 +288,11 @@ def test_a_run_without_an_asset_and_unwritable_outputs_are_one_clear_line(disk_r
     blocker.write_text("")
     folder = tmp_path / "folder.glb"
     folder.mkdir()
-    for out, message in ((blocker / "x.glb", "cannot create its folder"), (tmp_path / "x.gltf", "must be a .glb file"),
-                         (folder, "is a folder")):
+    for out, message in (
+        (blocker / "x.glb", "cannot create its folder"),
+        (tmp_path / "x.gltf", "must be a .glb file"),
+        (folder, "is a folder"),
+    ):
         code, err = run_cli(["export", "--run", str(disk_run), "--out", str(out)], capsys)
         assert code == 2 and message in err and "\n" not in err, err
 
@@ -298,8 +318,12 @@ def synth_run(tmp_path_factory):
     from matspray.synth import SynthConfig, make_object
 
     root = tmp_path_factory.mktemp("synth")
-    make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32), root / "data",
-                progress=False, notify=lambda _: None)
+    make_object(
+        SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32),
+        root / "data",
+        progress=False,
+        notify=lambda _: None,
+    )
     config = build_config("test", predictor="simulated", **{"refine.iterations": 8})
     Pipeline(root / "data", root / "run", config, progress=False, log=lambda _: None).run_all(["full"])
     return root
@@ -308,17 +332,35 @@ def synth_run(tmp_path_factory):
 def test_eval_glb_of_the_true_object_reproduces_the_truth(synth_run, tmp_path):
     from matspray.eval.glb import evaluate_glb
 
-    metrics = evaluate_glb(synth_run / "data" / "object.glb", data=synth_run / "data", out=tmp_path, spp=64, progress=False)
+    metrics = evaluate_glb(
+        synth_run / "data" / "object.glb", data=synth_run / "data", out=tmp_path, spp=64, progress=False
+    )
     mesh = metrics["mesh"]["summary"]
     assert "gaussians" not in metrics  # the true object was not exported from a run
     assert mesh["basecolor"]["psnr"] > 40 and mesh["roughness"]["psnr"] > 40  # the same ray cast as the truth's maps
-    assert mesh["relighting"]["psnr"] > 25  # the same renderer; only Monte Carlo noise differs (26.7 dB: the truth has 4 spp)
+    assert (
+        mesh["relighting"]["psnr"] > 25
+    )  # the same renderer; only Monte Carlo noise differs (26.7 dB: the truth has 4 spp)
     assert (tmp_path / "report.html").exists() and (tmp_path / "metrics.json").exists()
 
 
 def test_eval_glb_scores_an_export_beside_its_gaussian_asset(synth_run, tmp_path, capsys):
     out = tmp_path / "sphere.glb"
-    args = ["export", "--run", str(synth_run / "run"), "--out", str(out), "--frame", "dataset", "--faces", "2000", "--texture-size", "128", "--grid", "48"]
+    args = [
+        "export",
+        "--run",
+        str(synth_run / "run"),
+        "--out",
+        str(out),
+        "--frame",
+        "dataset",
+        "--faces",
+        "2000",
+        "--texture-size",
+        "128",
+        "--grid",
+        "48",
+    ]
     assert main(args) == 0
     assert main(["eval", "--glb", str(out)]) == 0  # the run and the dataset are found through the file's extras
     assert "Gaussians PSNR" in capsys.readouterr().out
@@ -363,7 +405,12 @@ def test_unit_normals_replaces_zero_length_normals():
     normals = np.array([[2.0, 0, 0], [0, 0, 0], [0, 1e-9, 0], [np.nan, 0, 0]])
     out = unit_normals(normals, positions)
     assert np.allclose(np.linalg.norm(out, axis=-1), 1.0)
-    assert np.allclose(out[0], [1, 0, 0]) and np.allclose(out[1], [-1, 0, 0]) and np.allclose(out[2], [0, 1, 0]) and np.allclose(out[3], [0, -1, 0])
+    assert (
+        np.allclose(out[0], [1, 0, 0])
+        and np.allclose(out[1], [-1, 0, 0])
+        and np.allclose(out[2], [0, 1, 0])
+        and np.allclose(out[3], [0, -1, 0])
+    )
 
 
 def test_unknown_space_reaching_the_border_is_outside_and_enclosed_unknown_space_inside():
@@ -438,7 +485,9 @@ def test_padding_keeps_charts_apart_at_the_first_mip_level():
     atlas = uv_atlas(decimate(torus_surface(64), 6000), size, 4)
     faces, count = atlas.faces, len(atlas.uvs)
     pairs = coo_matrix((np.ones(faces.size), (faces.ravel(), np.roll(faces, 1, axis=1).ravel())), shape=(count, count))
-    charts, vertex_chart = connected_components(pairs, directed=False)  # the atlas is split at seams: components = charts
+    charts, vertex_chart = connected_components(
+        pairs, directed=False
+    )  # the atlas is split at seams: components = charts
     assert charts > 1
     texels = rasterize_uv(atlas.uvs, faces, size)
     owner = -np.ones(size * size, dtype=np.int64)
@@ -458,7 +507,7 @@ def test_export_default_face_budget_is_fifty_thousand():
     assert ExportConfig().faces == 50_000
 
 
-# ------------------------------------------------------------------------------------------ surface against wrong depths, normals
+# -------------------------------------------------------------------------------- surface against wrong depths, normals
 def sphere_depths(cameras: list[Camera], radius: float = 1.0) -> list[tuple[torch.Tensor, torch.Tensor]]:
     """What `render_depths` gives for an opaque sphere at the origin: camera z of the first hit (weighted
     by alpha 1) and alpha, 0 where the ray misses."""

@@ -20,7 +20,9 @@ from tests.test_readers import write_colmap
 pycolmap = pytest.importorskip("pycolmap")
 
 FILES = ("cameras.txt", "images.txt")
-TOKENS = st.sampled_from(["nan", "inf", "-inf", "0", "-0", "-1", "-45", "1e400", "1e-320", "1e30", "abc", "", "3.5", "PINHOLE", "9"])
+TOKENS = st.sampled_from(
+    ["nan", "inf", "-inf", "0", "-0", "-1", "-45", "1e400", "1e-320", "1e30", "abc", "", "3.5", "PINHOLE", "9"]
+)
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +51,13 @@ def replace_token(text: str, line: int, column: int, token: str) -> str:
 
 
 @FUZZ
-@given(name=st.sampled_from(FILES), line=st.integers(0, 5), column=st.integers(0, 11), token=TOKENS,
-       cut=st.one_of(st.none(), st.integers(0, 400)))
+@given(
+    name=st.sampled_from(FILES),
+    line=st.integers(0, 5),
+    column=st.integers(0, 11),
+    token=TOKENS,
+    cut=st.one_of(st.none(), st.integers(0, 400)),
+)
 def test_corrupted_colmap_text_model(model, name, line, column, token, cut):
     root, intact = model
     folder = root / "sparse" / "0"

@@ -27,12 +27,26 @@ pytest.importorskip("pycolmap")
 
 FILES = ("cameras.bin", "images.bin", "points3D.bin", "rigs.bin", "frames.bin")
 # 4- and 8-byte values a damaged or hand-edited model holds: NaN, Inf, zero, negative, huge counts, unknown model ids
-VALUES = st.sampled_from([
-    struct.pack("<d", float("nan")), struct.pack("<d", float("inf")), struct.pack("<d", -1.0), struct.pack("<d", 0.0),
-    struct.pack("<d", 1e300), struct.pack("<Q", 0), struct.pack("<Q", 2), struct.pack("<Q", 1 << 40), struct.pack("<q", -1),
-    struct.pack("<i", 0), struct.pack("<i", -1), struct.pack("<i", 12), struct.pack("<i", 99), struct.pack("<i", 7),
-    struct.pack("<i", 2), struct.pack("<f", float("nan")),
-])
+VALUES = st.sampled_from(
+    [
+        struct.pack("<d", float("nan")),
+        struct.pack("<d", float("inf")),
+        struct.pack("<d", -1.0),
+        struct.pack("<d", 0.0),
+        struct.pack("<d", 1e300),
+        struct.pack("<Q", 0),
+        struct.pack("<Q", 2),
+        struct.pack("<Q", 1 << 40),
+        struct.pack("<q", -1),
+        struct.pack("<i", 0),
+        struct.pack("<i", -1),
+        struct.pack("<i", 12),
+        struct.pack("<i", 99),
+        struct.pack("<i", 7),
+        struct.pack("<i", 2),
+        struct.pack("<f", float("nan")),
+    ]
+)
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +65,7 @@ def corruptions(draw, intact: dict[str, bytes]):
     for _ in range(draw(st.integers(0, 3))):
         value = draw(VALUES)
         offset = draw(st.integers(0, max(0, (len(blob) - len(value)) // 4))) * 4
-        blob[offset:offset + len(value)] = value
+        blob[offset : offset + len(value)] = value
     cut, flips = draw(st.one_of(st.just((None, [])), damage(len(blob))))
     return name, damaged(bytes(blob), cut, flips)
 

@@ -24,12 +24,43 @@ from tests.test_fuzz_images import damage
 from tests.test_fuzz_transforms import FUZZ
 
 KEYS = st.sampled_from(["downscale", "predictor", "predictor_options", "preset", "geometry", "seed"])
-VALUES = st.sampled_from([
-    "null", "~", ".nan", ".inf", "-.inf", "0", "-1", "0.0", "1e400", "99999999999999999999999999", "true", "'2'", "two",
-    "[1, 2]", "{a: 1}", "", "[", "{", "'", "\"", "!!python/object:os.system x", "&a 1", "*b", "1 # c", "- 1", "0x10", "1_0",
-    "2020-01-01", "!!binary aGk=", "|\n  text",
-])
-DOCUMENTS = st.sampled_from(["", "null", "[]", "- 1\n- 2", "3", "text", "---\n---\na: 1", "\t", "a: 1\na: 2", "\x00", "\ufeffa: 1"])
+VALUES = st.sampled_from(
+    [
+        "null",
+        "~",
+        ".nan",
+        ".inf",
+        "-.inf",
+        "0",
+        "-1",
+        "0.0",
+        "1e400",
+        "99999999999999999999999999",
+        "true",
+        "'2'",
+        "two",
+        "[1, 2]",
+        "{a: 1}",
+        "",
+        "[",
+        "{",
+        "'",
+        '"',
+        "!!python/object:os.system x",
+        "&a 1",
+        "*b",
+        "1 # c",
+        "- 1",
+        "0x10",
+        "1_0",
+        "2020-01-01",
+        "!!binary aGk=",
+        "|\n  text",
+    ]
+)
+DOCUMENTS = st.sampled_from(
+    ["", "null", "[]", "- 1\n- 2", "3", "text", "---\n---\na: 1", "\t", "a: 1\na: 2", "\x00", "\ufeffa: 1"]
+)
 
 
 @pytest.fixture(scope="module")
@@ -63,10 +94,16 @@ def test_run_config(run, edit, data):
         assert downscale == 2.0 and config["predictor"] == "simulated"
 
 
-@pytest.mark.parametrize("predictor, options", [(["simulated"], {}), ("simulated", ["seed"]), ("simulated", {"colour": 1})])
+@pytest.mark.parametrize(
+    "predictor, options", [(["simulated"], {}), ("simulated", ["seed"]), ("simulated", {"colour": 1})]
+)
 def test_eval_says_what_it_cannot_read_of_a_config_predictor(tmp_path, predictor, options):
     from matspray.eval.run_eval import predict_test_views
 
     (tmp_path / "config.yaml").write_text(yaml.safe_dump({"predictor": predictor, "predictor_options": options}))
     predictions, note = predict_test_views(tmp_path, [])
-    assert predictions is None and note.startswith("raw 2D predictions of test views not evaluated (") and "config.yaml" in note
+    assert (
+        predictions is None
+        and note.startswith("raw 2D predictions of test views not evaluated (")
+        and "config.yaml" in note
+    )

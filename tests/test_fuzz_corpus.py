@@ -15,9 +15,9 @@ import torch
 
 from matspray.data import load_scene, write_image
 from matspray.data.images import write_raw
-from tests.test_captures import one_frame
 from matspray.errors import DataError
 from matspray.geometry.ply import read_ply, write_ply
+from tests.test_captures import one_frame
 from tests.test_ply import random_gaussians
 from tests.test_readers import C2W_GL, FOCAL, H, W, blender_folder, write_colmap
 
@@ -26,7 +26,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def refusal(data: Path) -> str:
     """The one line `python -m matspray info data` prints when it refuses the dataset (exit status 2)."""
-    done = subprocess.run([sys.executable, "-m", "matspray", "info", str(data)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [sys.executable, "-m", "matspray", "info", str(data)], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
     assert "Traceback" not in done.stderr
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
@@ -87,7 +89,9 @@ def test_one_view_without_alpha_among_views_with_alpha(tmp_path, bare):
     else:
         write_image(image, torch.rand(H, W, 3))
     line = refusal(tmp_path)
-    assert f"{image}: has no alpha channel or mask, but 2 of the 3 views in the train split have one (1 have none)" in line
+    assert (
+        f"{image}: has no alpha channel or mask, but 2 of the 3 views in the train split have one (1 have none)" in line
+    )
 
 
 def test_focal_length_as_a_numeric_string_is_read_as_the_number(tmp_path):
@@ -97,11 +101,22 @@ def test_focal_length_as_a_numeric_string_is_read_as_the_number(tmp_path):
     assert float(scene.train[0].camera.K[0, 0]) == pytest.approx(FOCAL)
 
 
-@pytest.mark.parametrize("name, edit, problem", [
-    ("points3D.bin", lambda blob: blob[:-4], "ends inside the number of track entries of point 1"),  # pycolmap hung on it
-    ("cameras.bin", lambda blob: (1 << 40).to_bytes(8, "little") + blob[8:], "says it holds 1099511627776 cameras"),
-    ("cameras.bin", lambda blob: blob[:12] + (99).to_bytes(4, "little") + blob[16:], "camera 1 has the unknown camera model id 99"),
-])
+@pytest.mark.parametrize(
+    "name, edit, problem",
+    [
+        (
+            "points3D.bin",
+            lambda blob: blob[:-4],
+            "ends inside the number of track entries of point 1",
+        ),  # pycolmap hung on it
+        ("cameras.bin", lambda blob: (1 << 40).to_bytes(8, "little") + blob[8:], "says it holds 1099511627776 cameras"),
+        (
+            "cameras.bin",
+            lambda blob: blob[:12] + (99).to_bytes(4, "little") + blob[16:],
+            "camera 1 has the unknown camera model id 99",
+        ),
+    ],
+)
 def test_damaged_colmap_binary_model(tmp_path, name, edit, problem):
     """pycolmap hangs or crashes on a truncated .bin file or a count past its end: refused before it reads them."""
     pytest.importorskip("pycolmap")
@@ -117,11 +132,13 @@ def test_zero_quaternion_in_a_ply(tmp_path):
     gaussians = random_gaussians(5, 1)
     gaussians.quats[3] = 0.0
     write_ply(tmp_path / "g.ply", gaussians)
-    with pytest.raises(DataError, match=r"g\.ply: vertex row 3 has a zero quaternion \(rot_0\.\.3 all 0\).*set rot_0\.\.3 to 1 0 0 0"):
+    with pytest.raises(
+        DataError, match=r"g\.ply: vertex row 3 has a zero quaternion \(rot_0\.\.3 all 0\).*set rot_0\.\.3 to 1 0 0 0"
+    ):
         read_ply(tmp_path / "g.ply")
 
 
-# ------------------------------------------------------------------------------------------ glTF (tests/test_fuzz_glb.py)
+# ---------------------------------------------------------------------------------------- glTF (tests/test_fuzz_glb.py)
 def glb_with(tmp_path: Path, edit) -> Path:
     """The fuzzed two-mesh textured .glb of tests/test_fuzz_glb.py with its JSON document edited by `edit`."""
     pytest.importorskip("pygltflib")
@@ -142,17 +159,34 @@ def one_line(error) -> str:
     return message
 
 
-@pytest.mark.parametrize("edit, problem", [
-    # IndexError, TypeError and AttributeError deep in the reader before
-    (lambda d: d["meshes"][0]["primitives"][0].update(indices=99), "meshes[0].primitives[0].indices refers to accessors[99], but the file has 6"),
-    (lambda d: d["accessors"][0].update(bufferView=None, count=None), "accessors[0].count must be a whole number >= 0, got null"),
-    (lambda d: d.update(asset=5), "not a glTF 2.0 document"),
-    # accepted before: a NaN colour, a POSITION of the wrong type, float indices truncated to integers
-    (lambda d: d["materials"][1]["pbrMetallicRoughness"].update(baseColorFactor=[float("nan"), 0, 0, 1]),
-     "materials[1].pbrMetallicRoughness.baseColorFactor must be a list of 4 finite numbers, got [NaN, 0, 0, 1]"),
-    (lambda d: d["accessors"][0].update(type="SCALAR", count=12), "accessor 0 (SCALAR of component type 5126) cannot be the POSITION of mesh 'quad'"),
-    (lambda d: d["accessors"][3].update(componentType=5126), "accessor 3 (SCALAR of component type 5126) cannot be the indices of mesh 'quad'"),
-])
+@pytest.mark.parametrize(
+    "edit, problem",
+    [
+        # IndexError, TypeError and AttributeError deep in the reader before
+        (
+            lambda d: d["meshes"][0]["primitives"][0].update(indices=99),
+            "meshes[0].primitives[0].indices refers to accessors[99], but the file has 6",
+        ),
+        (
+            lambda d: d["accessors"][0].update(bufferView=None, count=None),
+            "accessors[0].count must be a whole number >= 0, got null",
+        ),
+        (lambda d: d.update(asset=5), "not a glTF 2.0 document"),
+        # accepted before: a NaN colour, a POSITION of the wrong type, float indices truncated to integers
+        (
+            lambda d: d["materials"][1]["pbrMetallicRoughness"].update(baseColorFactor=[float("nan"), 0, 0, 1]),
+            "materials[1].pbrMetallicRoughness.baseColorFactor must be a list of 4 finite numbers, got [NaN, 0, 0, 1]",
+        ),
+        (
+            lambda d: d["accessors"][0].update(type="SCALAR", count=12),
+            "accessor 0 (SCALAR of component type 5126) cannot be the POSITION of mesh 'quad'",
+        ),
+        (
+            lambda d: d["accessors"][3].update(componentType=5126),
+            "accessor 3 (SCALAR of component type 5126) cannot be the indices of mesh 'quad'",
+        ),
+    ],
+)
 def test_glb_document_with_a_wrong_field(tmp_path, edit, problem):
     from matspray.gltf import read_gltf
 
@@ -167,19 +201,30 @@ def test_glb_texture_transform_scaled_past_any_texel(tmp_path):
     from matspray.gltf import read_gltf
     from matspray.synth.gltf_object import asset_parts
 
-    path = glb_with(tmp_path, lambda d: d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"].update(
-        extensions={"KHR_texture_transform": {"scale": [1e300, 1.0]}}))
+    path = glb_with(
+        tmp_path,
+        lambda d: d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"].update(
+            extensions={"KHR_texture_transform": {"scale": [1e300, 1.0]}}
+        ),
+    )
     with pytest.raises(DataError) as error:
         asset_parts(read_gltf(path), "fit")
-    assert "mesh 'quad': its texture coordinates, with the texture's KHR_texture_transform, reach texel 6e+300" in one_line(error)
+    assert (
+        "mesh 'quad': its texture coordinates, with the texture's KHR_texture_transform, reach texel 6e+300"
+        in one_line(error)
+    )
 
 
 def test_glb_null_texture_transform_field_is_its_default(tmp_path):
-    """"rotation": null was a TypeError; null is the schema's default, as for every other field."""
+    """ "rotation": null was a TypeError; null is the schema's default, as for every other field."""
     from matspray.gltf import read_gltf
 
-    path = glb_with(tmp_path, lambda d: d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"].update(
-        extensions={"KHR_texture_transform": {"rotation": None, "scale": [2.0, 2.0]}}))
+    path = glb_with(
+        tmp_path,
+        lambda d: d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"].update(
+            extensions={"KHR_texture_transform": {"rotation": None, "scale": [2.0, 2.0]}}
+        ),
+    )
     transform = read_gltf(path).materials[0].base_color_texture.transform
     assert transform.rotation == 0.0 and transform.scale == (2.0, 2.0)
 
@@ -199,10 +244,13 @@ def test_exported_glb_with_a_bad_frame_in_its_extras(tmp_path):
     path = glb_with(tmp_path, lambda d: d["asset"]["extras"]["matspray"].update(frame=5))
     with pytest.raises(DataError) as error:
         read_glb_parts(path)
-    assert one_line(error) == f"{path}: asset.extras.matspray.frame is 5, not gltf or dataset (pass --frame gltf or --frame dataset)"
+    assert (
+        one_line(error)
+        == f"{path}: asset.extras.matspray.frame is 5, not gltf or dataset (pass --frame gltf or --frame dataset)"
+    )
 
 
-# ------------------------------------------------------------------------------------------ photo folders (tests/test_fuzz_photo_folders.py)
+# --------------------------------------------------------------------- photo folders (tests/test_fuzz_photo_folders.py)
 def prepared(tmp_path: Path, name: str):
     from PIL import Image
 
@@ -239,10 +287,12 @@ def test_tiny_photo_is_refused_before_structure_from_motion(tmp_path):
     Image.new("RGB", (2, 2)).save(tmp_path / "tiny.png")
     with pytest.raises(DataError) as error:
         prepared(tmp_path, "tiny.png")
-    assert one_line(error).startswith(f"{tmp_path / 'tiny.png'}: is 2x2 pixels; structure from motion needs photos of at least 24 pixels a side")
+    assert one_line(error).startswith(
+        f"{tmp_path / 'tiny.png'}: is 2x2 pixels; structure from motion needs photos of at least 24 pixels a side"
+    )
 
 
-# ------------------------------------------------------------------------------------------ run folders (tests/test_fuzz_run_artifacts.py)
+# ----------------------------------------------------------------------- run folders (tests/test_fuzz_run_artifacts.py)
 def run_folder(tmp_path: Path) -> Path:
     """A run folder's bare bones: dataset.json, one finished stage (asset)."""
     from matspray.rundir import RunDir
@@ -273,7 +323,7 @@ def test_damaged_timings_are_replaced_when_a_stage_finishes_and_named_when_read(
     (run / "timings.json").write_text('{"geometry": "slow"}')
     with pytest.raises(DataError) as error:
         RunDir(run).timings()
-    assert one_line(error).startswith(f"{run / 'timings.json'}: geometry: \"slow\" is not a number of seconds (delete it")
+    assert one_line(error).startswith(f'{run / "timings.json"}: geometry: "slow" is not a number of seconds (delete it')
 
 
 def test_damaged_dataset_record(tmp_path):
@@ -284,7 +334,10 @@ def test_damaged_dataset_record(tmp_path):
     (run / "dataset.json").write_text("[]")
     with pytest.raises(DataError) as error:
         RunDir(run).claim({"source": "/data"})
-    assert "dataset.json: holds a list, not the dataset record `matspray run` writes (delete it, or allow overwriting" in one_line(error)
+    assert (
+        "dataset.json: holds a list, not the dataset record `matspray run` writes (delete it, or allow overwriting"
+        in one_line(error)
+    )
     (run / "dataset.json").write_text("{")
     with pytest.raises(DataError) as error:
         RunDir(run).dataset()
@@ -297,13 +350,24 @@ def test_damaged_lift_result(tmp_path):
     from matspray.pipeline import load_lift, save_lift
 
     path = tmp_path / "projected.pt"
-    save_lift(LiftResult(torch.rand(2, 1, 5), torch.ones(2, 1, dtype=torch.bool), torch.tensor([True, True, False]), ["a"], {}), path)
+    save_lift(
+        LiftResult(
+            torch.rand(2, 1, 5), torch.ones(2, 1, dtype=torch.bool), torch.tensor([True, True, False]), ["a"], {}
+        ),
+        path,
+    )
     assert load_lift(path, "cpu").values.shape == (2, 1, 5)
     path.write_bytes(path.read_bytes()[:300])
     with pytest.raises(DataError) as error:
         load_lift(path, "cpu")
-    assert one_line(error) == f"{path}: is not a readable lift result (RuntimeError) (delete it and rerun `matspray run` to lift again)"
-    save_lift(LiftResult(torch.rand(2, 1, 5), torch.ones(2, 1, dtype=torch.bool), torch.tensor([True, False]), ["a"], {}), path)
+    assert (
+        one_line(error)
+        == f"{path}: is not a readable lift result (RuntimeError) (delete it and rerun `matspray run` to lift again)"
+    )
+    save_lift(
+        LiftResult(torch.rand(2, 1, 5), torch.ones(2, 1, dtype=torch.bool), torch.tensor([True, False]), ["a"], {}),
+        path,
+    )
     with pytest.raises(DataError, match=r"its values are not \[1, 1, 5\]"):
         load_lift(path, "cpu")
 
@@ -314,12 +378,21 @@ def test_damaged_masks_stage(tmp_path):
     from matspray.objectregion import ObjectRegion
 
     folder = tmp_path / "masks"
-    write_object_masks(folder, ObjectMasks(ObjectRegion((0.0, 0.0, 0.0), 1.0), torch.ones(3, dtype=torch.bool), {"train": {"a": torch.rand(4, 4)}, "test": {}}))
+    write_object_masks(
+        folder,
+        ObjectMasks(
+            ObjectRegion((0.0, 0.0, 0.0), 1.0),
+            torch.ones(3, dtype=torch.bool),
+            {"train": {"a": torch.rand(4, 4)}, "test": {}},
+        ),
+    )
     assert len(read_object_masks(folder).inside) == 3
     (folder / "region.json").write_text('{"center": [0, 0, 0], "radius": "big"}')
     with pytest.raises(DataError) as error:
         read_region(folder)
-    assert one_line(error).startswith(f"{folder / 'region.json'}: does not describe an object region") and f"delete {folder}" in str(error.value)
+    assert one_line(error).startswith(
+        f"{folder / 'region.json'}: does not describe an object region"
+    ) and f"delete {folder}" in str(error.value)
     (folder / "masks.pt").write_bytes((folder / "masks.pt").read_bytes()[:200])
     with pytest.raises(DataError) as error:
         read_object_masks(folder)
@@ -336,7 +409,9 @@ def test_damaged_asset_side_files(tmp_path):
     with pytest.raises(DataError, match=r"visibility.pt: holds a dict as its values, not a tensor \(delete it"):
         read_visibility(tmp_path / "visibility.pt", 3)
     (tmp_path / "history.json").write_text('[{"step": ')
-    with pytest.raises(DataError, match=r"history.json: is not readable JSON .*\(delete it: it only holds the loss curves"):
+    with pytest.raises(
+        DataError, match=r"history.json: is not readable JSON .*\(delete it: it only holds the loss curves"
+    ):
         read_history(tmp_path)
     (tmp_path / "materials2d").mkdir()
     (tmp_path / "materials2d" / "predictor.json").write_text("[]")
@@ -355,4 +430,6 @@ def test_damaged_file_of_a_finished_stage_says_which_folder_to_delete(tmp_path):
     path.write_bytes(path.read_bytes()[:-10])
     with pytest.raises(DataError) as error:
         read_ply(path)
-    assert one_line(error).endswith(f"(delete {run / 'geometry'} and rerun `matspray run` with the same settings to make it again)")
+    assert one_line(error).endswith(
+        f"(delete {run / 'geometry'} and rerun `matspray run` with the same settings to make it again)"
+    )

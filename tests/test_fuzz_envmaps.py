@@ -38,7 +38,9 @@ def maps(draw, suffix: str) -> np.ndarray:  # [H, W, C] float32
     channels = draw(st.sampled_from([1, 2, 3, 4] if suffix == ".exr" else [1, 3]))  # RGBE stores 3
     values = np.random.default_rng(draw(st.integers(0, 2**16))).random((rows, cols, channels), dtype=np.float32) * 10
     for _ in range(draw(st.integers(0, 2)) if values.size else 0):  # RGBE holds no NaN or Inf: the writer's garbage
-        values.flat[draw(st.integers(0, values.size - 1))] = draw(SPECIALS.filter(lambda v: suffix == ".exr" or abs(v) < 1e300))
+        values.flat[draw(st.integers(0, values.size - 1))] = draw(
+            SPECIALS.filter(lambda v: suffix == ".exr" or abs(v) < 1e300)
+        )
     return values
 
 

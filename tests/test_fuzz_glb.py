@@ -42,40 +42,141 @@ TETRA_FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
 RNG = np.random.default_rng(7)
 COLOUR = np.round(RNG.uniform(size=(4, 6, 3)) * 255) / 255
 PACKED = np.round(RNG.uniform(size=(3, 5, 3)) * 255) / 255
-PRIMITIVES = [Primitive("quad", QUAD, QUAD_FACES, (QUAD_UVS,), np.tile([0.0, 0.0, 1.0], (4, 1)), 0),
-              Primitive("tetra", TETRA, TETRA_FACES, (), None, 1)]
-MATERIALS = [PbrMaterial("textured", (1.0, 0.5, 0.25, 1.0), 0.3, 0.7, TextureRef(COLOUR, 0, wrap_s="clamp", wrap_t="mirror"),
-                         TextureRef(PACKED)),
-             PbrMaterial("plain", (0.2, 0.3, 0.4, 1.0), 1.0, 0.25)]
+PRIMITIVES = [
+    Primitive("quad", QUAD, QUAD_FACES, (QUAD_UVS,), np.tile([0.0, 0.0, 1.0], (4, 1)), 0),
+    Primitive("tetra", TETRA, TETRA_FACES, (), None, 1),
+]
+MATERIALS = [
+    PbrMaterial(
+        "textured",
+        (1.0, 0.5, 0.25, 1.0),
+        0.3,
+        0.7,
+        TextureRef(COLOUR, 0, wrap_s="clamp", wrap_t="mirror"),
+        TextureRef(PACKED),
+    ),
+    PbrMaterial("plain", (0.2, 0.3, 0.4, 1.0), 1.0, 0.25),
+]
 EXTRAS = {"matspray": {"frame": "gltf", "variant": "full"}}
 
 GLB_MAGIC, JSON_CHUNK, BIN_CHUNK = b"glTF", b"JSON", b"BIN\0"
 # values a careless exporter or a damaged file puts into a field: wrong types, out-of-range indices and counts, NaN
 SCALARS = st.one_of(
-    st.none(), st.booleans(), st.integers(-3, 12),
-    st.sampled_from([255, 4096, 10**6, 2**31, 2**32 + 1, 2**53, -(2**31), 10**30, 5120, 5121, 5122, 5123, 5124, 5125, 5126, 5130,
-                     10497, 33071, 33648, 0.5, -0.0, 1.5, 1e300, float("nan"), float("inf"), -float("inf")]),
-    st.sampled_from(["", "VEC2", "VEC3", "VEC4", "SCALAR", "MAT2", "MAT4", "abc", "2.0", "OPAQUE", "BLEND", "missing.bin",
-                     "missing.png", "data:,", "data:application/octet-stream;base64,AAAA", "data:image/png;base64,!!",
-                     "KHR_texture_transform", "KHR_draco_mesh_compression"]),
+    st.none(),
+    st.booleans(),
+    st.integers(-3, 12),
+    st.sampled_from(
+        [
+            255,
+            4096,
+            10**6,
+            2**31,
+            2**32 + 1,
+            2**53,
+            -(2**31),
+            10**30,
+            5120,
+            5121,
+            5122,
+            5123,
+            5124,
+            5125,
+            5126,
+            5130,
+            10497,
+            33071,
+            33648,
+            0.5,
+            -0.0,
+            1.5,
+            1e300,
+            float("nan"),
+            float("inf"),
+            -float("inf"),
+        ]
+    ),
+    st.sampled_from(
+        [
+            "",
+            "VEC2",
+            "VEC3",
+            "VEC4",
+            "SCALAR",
+            "MAT2",
+            "MAT4",
+            "abc",
+            "2.0",
+            "OPAQUE",
+            "BLEND",
+            "missing.bin",
+            "missing.png",
+            "data:,",
+            "data:application/octet-stream;base64,AAAA",
+            "data:image/png;base64,!!",
+            "KHR_texture_transform",
+            "KHR_draco_mesh_compression",
+        ]
+    ),
 )
-VALUES = st.one_of(SCALARS, st.lists(SCALARS, max_size=17), st.dictionaries(st.sampled_from(["index", "texCoord", "count", "x"]), SCALARS, max_size=2))
-ADDED_KEYS = ["byteStride", "normalized", "sparse", "matrix", "rotation", "scale", "translation", "children", "mode", "targets", "texCoord",
-              "extensions", "sampler", "uri", "bufferView", "mimeType", "byteOffset", "scene", "skin", "extensionsRequired", "indices",
-              "TEXCOORD_1", "NORMAL", "material", "baseColorFactor", "emissiveFactor", "frame", "run", "variant"]
-TRANSFORM = st.fixed_dictionaries({"offset": st.lists(SCALARS, min_size=2, max_size=2), "rotation": SCALARS,
-                                   "scale": st.lists(SCALARS, min_size=2, max_size=2)})
-SPARSE = st.fixed_dictionaries({"count": st.integers(-1, 6), "indices": st.fixed_dictionaries({"bufferView": st.integers(-1, 8), "componentType": SCALARS}),
-                                "values": st.fixed_dictionaries({"bufferView": st.integers(-1, 8)})})
+VALUES = st.one_of(
+    SCALARS,
+    st.lists(SCALARS, max_size=17),
+    st.dictionaries(st.sampled_from(["index", "texCoord", "count", "x"]), SCALARS, max_size=2),
+)
+ADDED_KEYS = [
+    "byteStride",
+    "normalized",
+    "sparse",
+    "matrix",
+    "rotation",
+    "scale",
+    "translation",
+    "children",
+    "mode",
+    "targets",
+    "texCoord",
+    "extensions",
+    "sampler",
+    "uri",
+    "bufferView",
+    "mimeType",
+    "byteOffset",
+    "scene",
+    "skin",
+    "extensionsRequired",
+    "indices",
+    "TEXCOORD_1",
+    "NORMAL",
+    "material",
+    "baseColorFactor",
+    "emissiveFactor",
+    "frame",
+    "run",
+    "variant",
+]
+TRANSFORM = st.fixed_dictionaries(
+    {
+        "offset": st.lists(SCALARS, min_size=2, max_size=2),
+        "rotation": SCALARS,
+        "scale": st.lists(SCALARS, min_size=2, max_size=2),
+    }
+)
+SPARSE = st.fixed_dictionaries(
+    {
+        "count": st.integers(-1, 6),
+        "indices": st.fixed_dictionaries({"bufferView": st.integers(-1, 8), "componentType": SCALARS}),
+        "values": st.fixed_dictionaries({"bufferView": st.integers(-1, 8)}),
+    }
+)
 SPECIALS = [float("nan"), float("inf"), -float("inf"), 1e38, -1e38, 0.0]
 
 
 def split(blob: bytes) -> tuple[dict, bytes]:
     """The JSON document and binary chunk of a .glb made by write_glb."""
     json_length = struct.unpack_from("<I", blob, 12)[0]
-    document = json.loads(blob[20:20 + json_length])
+    document = json.loads(blob[20 : 20 + json_length])
     bin_length = struct.unpack_from("<I", blob, 20 + json_length)[0]
-    return document, blob[28 + json_length: 28 + json_length + bin_length]
+    return document, blob[28 + json_length : 28 + json_length + bin_length]
 
 
 def pack(document: dict, binary: bytes) -> bytes:
@@ -129,12 +230,25 @@ def document_edits(draw, document: dict):
             edits.append(("set", draw(st.sampled_from(objects)) + (draw(st.sampled_from(ADDED_KEYS)),), draw(VALUES)))
         elif kind == "transform":  # KHR_texture_transform on a texture of the first material
             which = draw(st.sampled_from(["baseColorTexture", "metallicRoughnessTexture"]))
-            edits.append(("set", ("materials", 0, "pbrMetallicRoughness", which, "extensions"), {"KHR_texture_transform": draw(TRANSFORM)}))
+            edits.append(
+                (
+                    "set",
+                    ("materials", 0, "pbrMetallicRoughness", which, "extensions"),
+                    {"KHR_texture_transform": draw(TRANSFORM)},
+                )
+            )
         elif kind == "sparse":
-            edits.append(("set", ("accessors", draw(st.integers(0, len(document["accessors"]) - 1)), "sparse"), draw(SPARSE)))
+            edits.append(
+                ("set", ("accessors", draw(st.integers(0, len(document["accessors"]) - 1)), "sparse"), draw(SPARSE))
+            )
         else:  # what `matspray export` writes for `eval --glb`: the frame, the variant and the run
             key = draw(st.sampled_from(["frame", "variant", "run"]))
-            value = draw(st.one_of(VALUES, st.sampled_from(["gltf", "dataset", "full", "no-prior", "bogus", "/nonexistent/run", "a\0b"])))
+            value = draw(
+                st.one_of(
+                    VALUES,
+                    st.sampled_from(["gltf", "dataset", "full", "no-prior", "bogus", "/nonexistent/run", "a\0b"]),
+                )
+            )
             edits.append(("set", ("asset", "extras", "matspray", key), value))
 
     def apply(copy: dict) -> dict:
@@ -185,12 +299,28 @@ def garbage_images():
         return buffer.getvalue()
 
     png = png_bytes(COLOUR)
-    return st.sampled_from([
-        b"", b"\0" * 16, b"\x89PNG\r\n\x1a\n", png[:40], png[:-12], png[: len(png) // 2], b"GIF89a" + b"\0" * 20,
-        encoded("RGB", (3, 2), "GIF"), encoded("RGB", (3, 2), "BMP"), encoded("RGB", (3, 2), "TIFF"), encoded("I;16", (3, 2), "PNG"),
-        encoded("P", (3, 2), "PNG"), encoded("1", (3, 2), "PNG"), encoded("LA", (3, 2), "PNG"), encoded("CMYK", (3, 2), "JPEG"),
-        encoded("RGB", (1, 1), "JPEG"), encoded("I", (3, 2), "TIFF"), encoded("F", (3, 2), "TIFF"),
-    ])
+    return st.sampled_from(
+        [
+            b"",
+            b"\0" * 16,
+            b"\x89PNG\r\n\x1a\n",
+            png[:40],
+            png[:-12],
+            png[: len(png) // 2],
+            b"GIF89a" + b"\0" * 20,
+            encoded("RGB", (3, 2), "GIF"),
+            encoded("RGB", (3, 2), "BMP"),
+            encoded("RGB", (3, 2), "TIFF"),
+            encoded("I;16", (3, 2), "PNG"),
+            encoded("P", (3, 2), "PNG"),
+            encoded("1", (3, 2), "PNG"),
+            encoded("LA", (3, 2), "PNG"),
+            encoded("CMYK", (3, 2), "JPEG"),
+            encoded("RGB", (1, 1), "JPEG"),
+            encoded("I", (3, 2), "TIFF"),
+            encoded("F", (3, 2), "TIFF"),
+        ]
+    )
 
 
 @st.composite
@@ -216,11 +346,39 @@ def header_edits(draw, blob: bytes) -> bytes:
     """The magic, version, total length, a chunk length or a chunk type overwritten."""
     out = bytearray(blob)
     json_length = struct.unpack_from("<I", blob, 12)[0]
-    fields = {"magic": 0, "version": 4, "length": 8, "json length": 12, "json type": 16, "bin length": 20 + json_length,
-              "bin type": 24 + json_length}
+    fields = {
+        "magic": 0,
+        "version": 4,
+        "length": 8,
+        "json length": 12,
+        "json type": 16,
+        "bin length": 20 + json_length,
+        "bin type": 24 + json_length,
+    }
     offset = fields[draw(st.sampled_from(sorted(fields)))]
-    value = draw(st.one_of(st.sampled_from([0, 1, 2, 3, 12, 19, 20, 2**31, 2**32 - 1, len(blob) - 1, len(blob) + 1, 0x46546C67,
-                                            0x4E4F534A, 0x004E4942]), st.integers(0, 2**32 - 1)))
+    value = draw(
+        st.one_of(
+            st.sampled_from(
+                [
+                    0,
+                    1,
+                    2,
+                    3,
+                    12,
+                    19,
+                    20,
+                    2**31,
+                    2**32 - 1,
+                    len(blob) - 1,
+                    len(blob) + 1,
+                    0x46546C67,
+                    0x4E4F534A,
+                    0x004E4942,
+                ]
+            ),
+            st.integers(0, 2**32 - 1),
+        )
+    )
     struct.pack_into("<I", out, offset, value)
     return bytes(out)
 
@@ -247,7 +405,11 @@ def check_asset(asset) -> None:
                 image = texture.image
                 assert image.ndim == 3 and image.shape[0] >= 1 and image.shape[1] >= 1 and 1 <= image.shape[2] <= 4
                 assert np.isfinite(image).all() and image.min() >= 0 and image.max() <= 1
-                assert texture.wrap_s in ("repeat", "clamp", "mirror") and texture.wrap_t in ("repeat", "clamp", "mirror")
+                assert texture.wrap_s in ("repeat", "clamp", "mirror") and texture.wrap_t in (
+                    "repeat",
+                    "clamp",
+                    "mirror",
+                )
                 assert np.isfinite(texture.transform.matrix()).all()
 
 
@@ -275,7 +437,8 @@ def read_everything(path: Path):
     if glb_parts is not None:
         parts, textures, extras = glb_parts
         check_parts((parts, textures, np.eye(4)))
-        assert extras.get("frame") in (None, "gltf", "dataset") and isinstance(extras.get("run", ""), str)
+        # a null run is no run (the reader then asks for --run and --data)
+        assert extras.get("frame") in (None, "gltf", "dataset") and isinstance(extras.get("run") or "", str)
     return asset
 
 
@@ -312,7 +475,10 @@ def test_intact_glb_reads_as_written(intact):
 @given(data=st.data())
 def test_corrupted_glb(intact, data):
     folder, blob, document, binary = intact
-    kind = data.draw(st.sampled_from(["bytes", "json bytes", "bin bytes", "header", "document", "document", "values", "image"]), label="kind")
+    kind = data.draw(
+        st.sampled_from(["bytes", "json bytes", "bin bytes", "header", "document", "document", "values", "image"]),
+        label="kind",
+    )
     json_end = 20 + struct.unpack_from("<I", blob, 12)[0]
     if kind == "bytes":  # anywhere, truncation included
         damaged_blob = damaged(blob, *data.draw(damage(len(blob))))
@@ -369,7 +535,8 @@ def test_corrupted_gltf_with_external_bin(intact, data):
 # ------------------------------------------------------------------------------------------ the commands
 @pytest.mark.parametrize("command", ["synth", "eval"])
 def test_commands_refuse_a_damaged_glb_in_one_line(intact, tmp_path, capsys, command):
-    """`matspray synth --asset` and `matspray eval --glb` on a .glb whose accessor reads past its buffer: exit 2, one line."""
+    """`matspray synth --asset` and `matspray eval --glb` on a .glb whose accessor reads past its buffer:
+    exit 2, one line."""
     from matspray.cli import main
 
     folder, blob, document, binary = intact
@@ -379,7 +546,19 @@ def test_commands_refuse_a_damaged_glb_in_one_line(intact, tmp_path, capsys, com
     path.write_bytes(pack(document, binary))
     if command == "synth":
         pytest.importorskip("mitsuba")
-        argv = ["synth", "--asset", str(path), "--out", str(tmp_path / "object"), "--res", "16", "--views", "2", "--test-views", "1"]
+        argv = [
+            "synth",
+            "--asset",
+            str(path),
+            "--out",
+            str(tmp_path / "object"),
+            "--res",
+            "16",
+            "--views",
+            "2",
+            "--test-views",
+            "1",
+        ]
     else:
         argv = ["eval", "--glb", str(path), "--data", str(tmp_path)]
     assert main(argv) == 2

@@ -88,10 +88,19 @@ def photo_files(draw, index: int, defect: str | None):
         cut, flips = draw(damage(len(blob)))
         blob, expected = damaged(blob, cut, flips), None
     elif defect == "garbage":
-        blob, expected = draw(st.sampled_from([b"", b"\0" * 64, b"not a photo\n", b"\xff\xd8\xff\xe0", b"\x89PNG\r\n\x1a\n", bytes(range(256))])), None
+        blob, expected = (
+            draw(
+                st.sampled_from(
+                    [b"", b"\0" * 64, b"not a photo\n", b"\xff\xd8\xff\xe0", b"\x89PNG\r\n\x1a\n", bytes(range(256))]
+                )
+            ),
+            None,
+        )
     elif defect == "other format":  # decodable, but GIF, BMP, TIFF or WebP behind a .jpg or .png suffix
         other = io.BytesIO()
-        Image.new("RGB", (width, height), (90, 120, 150)).save(other, format=draw(st.sampled_from(["GIF", "BMP", "TIFF", "WEBP"])))
+        Image.new("RGB", (width, height), (90, 120, 150)).save(
+            other, format=draw(st.sampled_from(["GIF", "BMP", "TIFF", "WEBP"]))
+        )
         blob, expected = other.getvalue(), (width, height, np.full((1, 1, 3), [90 / 255, 120 / 255, 150 / 255]))
         suffix = draw(st.sampled_from([".jpg", ".png"]))
     elif defect == "not UTF-8":
@@ -104,12 +113,28 @@ def folders(draw):
     """(files: [(name, bytes, expected)], extras: what else lies in the folder, masks: None or {photo name: mask kind}).
     Most photos are sound, so that a folder often gets through to the checks of its other photos: 0 to 2 defects."""
     count = draw(st.sampled_from([3, 4, 5, 3, 4, 5, 2, 1, 0]))
-    defects = {draw(st.integers(0, count - 1)): draw(st.sampled_from(DEFECTS)) for _ in range(draw(st.sampled_from([0, 1, 0, 1, 2])))} if count else {}
+    defects = (
+        {
+            draw(st.integers(0, count - 1)): draw(st.sampled_from(DEFECTS))
+            for _ in range(draw(st.sampled_from([0, 1, 0, 1, 2])))
+        }
+        if count
+        else {}
+    )
     files = [draw(photo_files(i, defects.get(i))) for i in range(count)]
-    extras = draw(st.lists(st.sampled_from(["hidden", "subfolder", "folder named like a photo"] * 3 + ["text"]), unique=True, max_size=2))
+    extras = draw(
+        st.lists(
+            st.sampled_from(["hidden", "subfolder", "folder named like a photo"] * 3 + ["text"]),
+            unique=True,
+            max_size=2,
+        )
+    )
     masks = None
     if draw(st.sampled_from([False, False, True])):
-        masks = {name: draw(st.sampled_from(["good", "good", "good", "good", "missing", "garbage", "other size"])) for name, _, _ in files}
+        masks = {
+            name: draw(st.sampled_from(["good", "good", "good", "good", "missing", "garbage", "other size"]))
+            for name, _, _ in files
+        }
     return files, extras, masks
 
 
@@ -165,15 +190,23 @@ def check_prepared(files, photos, out: Path, sizes: dict, config: SfmConfig, mas
     for photo in photos:
         with Image.open(out / photo.name) as prepared:
             prepared.load()
-            assert prepared.mode in ("L", "RGB") and prepared.format in ("JPEG", "MPO", "PNG"), (prepared.mode, prepared.format)
-            assert prepared.size == sizes[photo.name] and max(prepared.size) <= config.max_size and min(prepared.size) >= 1
+            assert prepared.mode in ("L", "RGB") and prepared.format in ("JPEG", "MPO", "PNG"), (
+                prepared.mode,
+                prepared.format,
+            )
+            assert (
+                prepared.size == sizes[photo.name] and max(prepared.size) <= config.max_size and min(prepared.size) >= 1
+            )
             shown = np.asarray(prepared.convert("RGB"), dtype=np.float64) / 255.0
         truth = expected.get(photo.name)
         if truth is not None:
             width, height, brightness = truth
             assert min(width, height) >= MIN_PHOTO_SIDE, "a tiny photo was accepted"
             scale = min(1.0, config.max_size / max(width, height))
-            assert abs(prepared.size[0] - width * scale) <= 1 and abs(prepared.size[1] - height * scale) <= 1, (prepared.size, truth[:2])
+            assert abs(prepared.size[0] - width * scale) <= 1 and abs(prepared.size[1] - height * scale) <= 1, (
+                prepared.size,
+                truth[:2],
+            )
             if brightness is not None:  # as bright as the photo: 16-bit values scaled, alpha dropped
                 assert abs(shown.mean() - brightness.mean()) < 0.06, (photo.name, shown.mean(), brightness.mean())
         if mask_out is not None:
@@ -227,13 +260,19 @@ def refused_folders(tmp_path: Path):
 
 
 def test_colmap_refuses_bad_folders_in_one_line(tmp_path):
-    """`python -m matspray colmap` on an empty folder and on one with a truncated JPEG: exit 2, one line, no traceback."""
+    """`python -m matspray colmap` on an empty folder and on one with a truncated JPEG: exit 2, one line,
+    no traceback."""
     pytest.importorskip("pycolmap")
     for named, problem in refused_folders(tmp_path)[::2]:
         folder = named if named.is_dir() else named.parent
         out = tmp_path / f"{folder.name}-dataset"
-        done = subprocess.run([sys.executable, "-m", "matspray", "colmap", str(folder), "--out", str(out), "--quiet"], cwd=ROOT,
-                              capture_output=True, text=True, timeout=120)
+        done = subprocess.run(
+            [sys.executable, "-m", "matspray", "colmap", str(folder), "--out", str(out), "--quiet"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert "Traceback" not in done.stderr and done.returncode == 2, done.stderr
         lines = done.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith(f"matspray colmap: error: {named}: {problem}"), done.stderr
@@ -241,7 +280,8 @@ def test_colmap_refuses_bad_folders_in_one_line(tmp_path):
 
 
 def test_bad_folders_are_refused_before_structure_from_motion(tmp_path, monkeypatch):
-    """run_sfm on the empty folder, the one with a 2x2 photo and the one with a truncated JPEG: refused, pycolmap not started."""
+    """run_sfm on the empty folder, the one with a 2x2 photo and the one with a truncated JPEG: refused,
+    pycolmap not started."""
     pycolmap = pytest.importorskip("pycolmap")
 
     def started(*args, **kwargs):

@@ -1,6 +1,7 @@
 """Property-based tests of Gaussian PLY reading: a small 3DGS PLY with materials (an asset's asset.ply) written by
-`write_ply`, holding NaN or Inf values or the zero quaternion (refused, naming the row), with a header line edited (the vertex count, a property's type or name,
-the format), then truncated at any byte or with random bytes flipped, read by `read_ply` and `read_asset`.
+`write_ply`, holding NaN or Inf values or the zero quaternion (refused, naming the row), with a header line edited (the
+vertex count, a property's type or name, the format), then truncated at any byte or with random bytes flipped, read by
+`read_ply` and `read_asset`.
 
 Each reader refuses with a one-line MatsprayError naming the file, or returns finite Gaussians, normals and
 materials; an intact file of finite values comes back as written, with the written count.
@@ -36,7 +37,8 @@ def header_edits(draw, lines: list[str]):
     """(index of a header line, its new text): the vertex count, a property's type or name, or the format."""
     kind = draw(st.sampled_from(["count", "type", "name", "format", "drop"]))
     if kind == "count":
-        return lines.index(next(l for l in lines if l.startswith("element vertex"))), f"element vertex {draw(COUNTS)}"
+        vertex = next(line for line in lines if line.startswith("element vertex"))
+        return lines.index(vertex), f"element vertex {draw(COUNTS)}"
     if kind == "format":
         return 1, f"format {draw(FORMATS)} 1.0"
     index = draw(st.integers(0, len(lines) - 1).filter(lambda i: lines[i].startswith("property")))
@@ -63,7 +65,8 @@ def test_gaussian_ply(folder, count, sh_bases, seed, data):
     tensors = [gaussians.means, gaussians.sh, gaussians.quats, normals, materials]
     finite = True
     for _ in range(data.draw(st.integers(0, 2)) if count else 0):  # a NaN or Inf in any field
-        index = data.draw(st.integers(0, len(tensors) - 1), label="field"); tensor = tensors[index]
+        index = data.draw(st.integers(0, len(tensors) - 1), label="field")
+        tensor = tensors[index]
         tensor.view(-1)[data.draw(st.integers(0, tensor.numel() - 1))] = data.draw(SPECIALS)
         finite = False
     zero_rows = data.draw(st.lists(st.integers(0, count - 1), max_size=2, unique=True)) if count else []

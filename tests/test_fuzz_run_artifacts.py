@@ -47,11 +47,32 @@ pytest.importorskip("mitsuba")
 
 STAGES = ("materials2d", "geometry", "lift", "asset", "masks")
 # JSON values of the wrong type or out of range, as a hand edit or a damaged file leaves them
-SCALARS = st.one_of(st.none(), st.booleans(), st.sampled_from([0, -1, 1, 2**63, 0.5, -0.0, 1e308, float("nan"), float("inf"), -float("inf")]),
-                    st.sampled_from(["", "abc", "0123456789abcdef", "/nonexistent", "a\0b", "full", "1.5"]))
-VALUES = st.one_of(SCALARS, st.lists(SCALARS, max_size=4), st.dictionaries(st.sampled_from(["fingerprint", "source", "x", "step"]), SCALARS, max_size=2))
-GARBAGE = st.sampled_from([b"", b"\0" * 32, b"{", b"[1, 2", b"null", b"\xff\xfe garbage \x80", b"PK\x03\x04 not a zip", b"ply\nformat ascii 1.0\n",
-                           b"- a\n- b\n", b"key: [unclosed", b"\x89PNG\r\n\x1a\n"])
+SCALARS = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.sampled_from([0, -1, 1, 2**63, 0.5, -0.0, 1e308, float("nan"), float("inf"), -float("inf")]),
+    st.sampled_from(["", "abc", "0123456789abcdef", "/nonexistent", "a\0b", "full", "1.5"]),
+)
+VALUES = st.one_of(
+    SCALARS,
+    st.lists(SCALARS, max_size=4),
+    st.dictionaries(st.sampled_from(["fingerprint", "source", "x", "step"]), SCALARS, max_size=2),
+)
+GARBAGE = st.sampled_from(
+    [
+        b"",
+        b"\0" * 32,
+        b"{",
+        b"[1, 2",
+        b"null",
+        b"\xff\xfe garbage \x80",
+        b"PK\x03\x04 not a zip",
+        b"ply\nformat ascii 1.0\n",
+        b"- a\n- b\n",
+        b"key: [unclosed",
+        b"\x89PNG\r\n\x1a\n",
+    ]
+)
 CONFIG = dict(predictor="simulated", **{"refine.iterations": 4})
 
 
@@ -69,7 +90,10 @@ def finished_run(tiny_object, tmp_path_factory):
         scene = pipeline.scene
     count = len(read_ply(run / "geometry" / "gaussians.ply")[0])
     masks = {split: {v.name: torch.rand(v.height, v.width) for v in scene.split(split)} for split in ("train", "test")}
-    write_object_masks(run / "masks", ObjectMasks(ObjectRegion(center=(0.0, 0.0, 0.0), radius=2.0), torch.ones(count, dtype=torch.bool), masks))
+    write_object_masks(
+        run / "masks",
+        ObjectMasks(ObjectRegion(center=(0.0, 0.0, 0.0), radius=2.0), torch.ones(count, dtype=torch.bool), masks),
+    )
     RunDir(run).finish_stage("masks", fingerprint("masks", "fuzz"), {}, 0.1, {"inside": count})
     write_visibility(run / "asset" / "visibility.pt", torch.rand(len(read_asset(run / "asset").gaussians), 8))
     return run, scene
@@ -103,7 +127,8 @@ def refused(read, path: Path, label: str, hint: tuple[str, ...] = ("delete", "re
 # ------------------------------------------------------------------------------------------ damage
 @st.composite
 def json_damage(draw, document):
-    """New bytes for a JSON file: garbage, cut or flipped bytes, a value of the wrong type, or a field set or dropped."""
+    """New bytes for a JSON file: garbage, cut or flipped bytes, a value of the wrong type,
+    or a field set or dropped."""
     kind = draw(st.sampled_from(["field", "field", "drop", "whole", "bytes", "garbage"]))
     blob = json.dumps(document).encode()
     if kind == "garbage":
@@ -130,12 +155,25 @@ def json_damage(draw, document):
 
 def tensor_edits():
     """A function changing one tensor: wrong dtype, shape or values."""
-    return st.sampled_from([
-        lambda t: t.float(), lambda t: t.to(torch.int64), lambda t: t.bool(), lambda t: t.to(torch.uint8), lambda t: t[:-1],
-        lambda t: t[:0], lambda t: t.unsqueeze(0), lambda t: t.reshape(-1), lambda t: torch.cat([t, t[:1]]),
-        lambda t: t.float().fill_(float("nan")), lambda t: t.float() * float("inf"), lambda t: t.float() + 2.0, lambda t: -t.float(),
-        lambda t: t.transpose(0, 1) if t.dim() > 1 else t.flip(0), lambda t: t.double(),
-    ])
+    return st.sampled_from(
+        [
+            lambda t: t.float(),
+            lambda t: t.to(torch.int64),
+            lambda t: t.bool(),
+            lambda t: t.to(torch.uint8),
+            lambda t: t[:-1],
+            lambda t: t[:0],
+            lambda t: t.unsqueeze(0),
+            lambda t: t.reshape(-1),
+            lambda t: torch.cat([t, t[:1]]),
+            lambda t: t.float().fill_(float("nan")),
+            lambda t: t.float() * float("inf"),
+            lambda t: t.float() + 2.0,
+            lambda t: -t.float(),
+            lambda t: t.transpose(0, 1) if t.dim() > 1 else t.flip(0),
+            lambda t: t.double(),
+        ]
+    )
 
 
 @st.composite
@@ -176,7 +214,9 @@ def test_intact_artifacts_read_as_written(finished_run):
     run, scene = finished_run
     folder = RunDir(run)
     assert all(folder.stage_done(stage, folder.stage_fingerprint(stage), []) for stage in STAGES)
-    assert set(folder.timings()) >= {"materials2d", "geometry", "lift", "asset"} and folder.dataset()["train_views"] == [v.name for v in scene.train]
+    assert set(folder.timings()) >= {"materials2d", "geometry", "lift", "asset"} and folder.dataset()[
+        "train_views"
+    ] == [v.name for v in scene.train]
     count = len(read_ply(run / "geometry" / "gaussians.ply")[0])
     lifted = load_lift(run / "lift" / "projected.pt", "cpu")
     assert len(lifted.kept) == count and lifted.values.shape == (int(lifted.kept.sum()), len(scene.train), 5)
@@ -185,10 +225,14 @@ def test_intact_artifacts_read_as_written(finished_run):
     maps = read_materials2d(run, scene.train)
     assert all((maps[v.name].height, maps[v.name].width) == (v.height, v.width) for v in scene.train)
     asset = read_asset(run / "asset")
-    assert asset.visibility is not None and asset.visibility.shape == (len(asset.gaussians), 8) and read_history(run / "asset")
+    assert (
+        asset.visibility is not None
+        and asset.visibility.shape == (len(asset.gaussians), 8)
+        and read_history(run / "asset")
+    )
 
 
-# ------------------------------------------------------------------------------------------ stage records and JSON/YAML records
+# ---------------------------------------------------------------------------------- stage records and JSON/YAML records
 @settings(FUZZ, max_examples=40)
 @given(stage=st.sampled_from(STAGES), data=st.data())
 def test_damaged_stage_record_is_no_finished_stage(finished_run, stage, data):
@@ -228,7 +272,9 @@ def test_damaged_config_yaml(finished_run, data):
         config = yaml.safe_load(blob)
         kind = data.draw(st.sampled_from(["downscale", "field", "bytes", "garbage"]))
         if kind in ("downscale", "field"):
-            config["downscale" if kind == "downscale" else data.draw(st.sampled_from(sorted(config)))] = data.draw(VALUES)
+            config["downscale" if kind == "downscale" else data.draw(st.sampled_from(sorted(config)))] = data.draw(
+                VALUES
+            )
             blob = yaml.safe_dump(config).encode()
         else:
             blob = damaged(blob, *data.draw(damage(len(blob)))) if kind == "bytes" else data.draw(GARBAGE)
@@ -249,7 +295,9 @@ def test_damaged_dataset_record(finished_run, data):
         path.write_bytes(data.draw(json_damage(identity)))
         read = refused(lambda: RunDir(run).dataset(), path, "dataset", hint=("--overwrite",))
         if read is not None:
-            assert isinstance(read["source"], str) and all(isinstance(n, str) for n in read.get("train_views", []) + read.get("test_views", []))
+            assert isinstance(read["source"], str) and all(
+                isinstance(n, str) for n in read.get("train_views", []) + read.get("test_views", [])
+            )
         # a record of another dataset is refused naming the run folder; one that cannot be read, naming the record
         if refused(lambda: RunDir(run).claim(identity), run, "claim", hint=("overwrit", "new run folder")) is not None:
             assert json.loads(path.read_text()) == identity  # claimed: the record is this dataset's
@@ -270,7 +318,9 @@ def ply_damage(draw, path: Path):
     extra = extra[0] if extra else {}
     field = draw(st.sampled_from(["means", "quats", "sh", "normals", *(["roughness"] if extra else [])]))
     tensor = normals if field == "normals" else extra[field] if field == "roughness" else getattr(gaussians, field)
-    tensor.view(-1)[draw(st.integers(0, tensor.numel() - 1))] = draw(st.sampled_from([float("nan"), float("inf"), -float("inf")]))
+    tensor.view(-1)[draw(st.integers(0, tensor.numel() - 1))] = draw(
+        st.sampled_from([float("nan"), float("inf"), -float("inf")])
+    )
     if field == "quats":
         gaussians.quats[draw(st.integers(0, len(gaussians) - 1))] = 0.0
     out = path.with_name(".damaged.ply")
@@ -312,9 +362,16 @@ def test_damaged_asset(finished_run, data):
         asset = refused(lambda: read_asset(folder), path, "asset", hint=("delete", "rerun"))
     if asset is not None:
         check_finite_gaussians(asset.gaussians)
-        assert len(asset.gaussians) == count and torch.isfinite(asset.materials).all() and torch.isfinite(asset.normals).all()
+        assert (
+            len(asset.gaussians) == count
+            and torch.isfinite(asset.materials).all()
+            and torch.isfinite(asset.normals).all()
+        )
         if asset.visibility is not None:
-            assert asset.visibility.shape[0] == count and 0 <= float(asset.visibility.min()) <= float(asset.visibility.max()) <= 1
+            assert (
+                asset.visibility.shape[0] == count
+                and 0 <= float(asset.visibility.min()) <= float(asset.visibility.max()) <= 1
+            )
 
 
 @settings(FUZZ, max_examples=15)
@@ -344,7 +401,9 @@ def test_damaged_lift(finished_run, data):
         lifted = refused(lambda: load_lift(path, "cpu"), path, "lift")
     if lifted is not None:
         count, views = int(lifted.kept.sum()), len(scene.train)
-        assert len(lifted.kept) == len(read_ply(run / "geometry" / "gaussians.ply")[0])  # the masks stage holds every Gaussian
+        assert len(lifted.kept) == len(
+            read_ply(run / "geometry" / "gaussians.ply")[0]
+        )  # the masks stage holds every Gaussian
         assert lifted.values.shape == (count, views, 5) and lifted.seen.shape == (count, views)
         assert torch.isfinite(lifted.values).all() and lifted.view_names == [v.name for v in scene.train]
 
@@ -366,7 +425,10 @@ def test_damaged_object_masks(finished_run, data):
             applied = refused(lambda: masks.apply(scene), run / "masks" / "masks.pt", "apply")
             if applied is None:
                 for view in scene.views:
-                    assert view.alpha.shape == (view.height, view.width) and 0 <= float(view.alpha.min()) <= float(view.alpha.max()) <= 1
+                    assert (
+                        view.alpha.shape == (view.height, view.width)
+                        and 0 <= float(view.alpha.min()) <= float(view.alpha.max()) <= 1
+                    )
         finally:
             for view, alpha in zip(scene.views, alphas):
                 view.alpha = alpha
@@ -376,7 +438,8 @@ def test_damaged_object_masks(finished_run, data):
 
 @st.composite
 def map_damage(draw, path: Path):
-    """New bytes for a 16-bit PNG map: cut, flipped, garbage, or a decodable map of another size, channel count or depth."""
+    """New bytes for a 16-bit PNG map: cut, flipped, garbage, or a decodable map of another size,
+    channel count or depth."""
     kind = draw(st.sampled_from(["bytes", "bytes", "garbage", "other map"]))
     blob = path.read_bytes()
     if kind == "garbage":
@@ -428,7 +491,19 @@ def one_line_error(capsys, named: Path, *words: str) -> str:
 
 
 def run_args(data: Path, run: Path) -> list[str]:  # the settings of the finished run (run_config)
-    return ["run", "--data", str(data), "--out", str(run), "--preset", "test", "--predictor", "simulated", "--refine-iterations", "4"]
+    return [
+        "run",
+        "--data",
+        str(data),
+        "--out",
+        str(run),
+        "--preset",
+        "test",
+        "--predictor",
+        "simulated",
+        "--refine-iterations",
+        "4",
+    ]
 
 
 def test_run_makes_a_stage_with_a_damaged_record_again(finished_run, tiny_object, tmp_path, capsys):

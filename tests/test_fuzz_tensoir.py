@@ -25,7 +25,12 @@ NUMBERS = st.sampled_from(["nan", "inf", "-inf", "0", "1e400", "abc", "", "1,2",
 
 
 def intact_meta() -> dict:
-    return {"cam_transform_mat": ",".join(str(float(v)) for row in C2W_GL for v in row), "cam_angle_x": FOV_X, "imw": W, "imh": H}
+    return {
+        "cam_transform_mat": ",".join(str(float(v)) for row in C2W_GL for v in row),
+        "cam_angle_x": FOV_X,
+        "imw": W,
+        "imh": H,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +67,7 @@ def corruptions(draw):
             matrix[draw(st.integers(0, 3))][draw(st.integers(0, 3))] = draw(scalars)
             meta["cam_transform_mat"] = matrix if draw(st.booleans()) else sum(matrix, [])
     text = json.dumps(meta)  # NaN and Infinity as Python's json writes them
-    return text[:draw(st.integers(0, len(text)))] if draw(st.booleans()) and draw(st.booleans()) else text
+    return text[: draw(st.integers(0, len(text)))] if draw(st.booleans()) and draw(st.booleans()) else text
 
 
 @FUZZ

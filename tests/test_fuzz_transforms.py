@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, event, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from matspray.data import load_scene
@@ -27,27 +27,44 @@ from tests.test_captures import one_frame
 from tests.test_readers import blender_folder
 
 # derandomize: every run tries the same cases; database=None: no example store left behind, nothing replayed from one
-FUZZ = settings(max_examples=200, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=200, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.too_slow]
+)
 
 CAMERA_FIELDS = ("camera_angle_x", "camera_angle_y", "fl_x", "fl_y", "cx", "cy", "w", "h")
 FRAME_FIELDS = ("file_path", "transform_matrix", "mask_path", "camera_model", "k1", "p1", *CAMERA_FIELDS)
 
 # values of the wrong type, out of range or extreme, as a typo or a careless exporter writes them
 scalars = st.one_of(
-    st.none(), st.booleans(), st.integers(min_value=-(10**30), max_value=10**30), st.sampled_from([10**400, -(10**400)]),
-    st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([0, 0.0, -0.0, 1e-320, 1e300, -1.0]),
-    st.text(max_size=6), st.sampled_from(["50", "0.8", "nan", "inf", "-1", "1e999", "fifty"]),
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(10**30), max_value=10**30),
+    st.sampled_from([10**400, -(10**400)]),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0, 0.0, -0.0, 1e-320, 1e300, -1.0]),
+    st.text(max_size=6),
+    st.sampled_from(["50", "0.8", "nan", "inf", "-1", "1e999", "fifty"]),
 )
-values = st.one_of(scalars, st.lists(scalars, max_size=5), st.dictionaries(st.text(max_size=3), scalars, max_size=2),
-                   st.lists(st.lists(scalars, min_size=4, max_size=4), min_size=3, max_size=5))
+values = st.one_of(
+    scalars,
+    st.lists(scalars, max_size=5),
+    st.dictionaries(st.text(max_size=3), scalars, max_size=2),
+    st.lists(st.lists(scalars, min_size=4, max_size=4), min_size=3, max_size=5),
+)
 
 
 def pose_edits():
     """A 4x4 matrix a pose is multiplied by: scale, shear, mirror, singular or arbitrary."""
     scale = st.floats(min_value=-10, max_value=10).map(lambda s: np.diag([s, s, s, 1.0]))
-    shear = st.floats(min_value=-2, max_value=2).map(lambda k: np.array([[1, k, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]))
-    fixed = st.sampled_from([np.zeros((4, 4)), np.diag([1, 1, 0, 1.0]), np.diag([-1, 1, 1, 1.0]), np.diag([1, 1, 1, 0.0])])
-    arbitrary = st.lists(st.floats(min_value=-3, max_value=3), min_size=16, max_size=16).map(lambda v: np.reshape(v, (4, 4)))
+    shear = st.floats(min_value=-2, max_value=2).map(
+        lambda k: np.array([[1, k, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    )
+    fixed = st.sampled_from(
+        [np.zeros((4, 4)), np.diag([1, 1, 0, 1.0]), np.diag([-1, 1, 1, 1.0]), np.diag([1, 1, 1, 0.0])]
+    )
+    arbitrary = st.lists(st.floats(min_value=-3, max_value=3), min_size=16, max_size=16).map(
+        lambda v: np.reshape(v, (4, 4))
+    )
     return st.one_of(scale, shear, fixed, arbitrary)
 
 
@@ -63,7 +80,13 @@ def corruptions(draw, frame_count: int):
         elif kind == "frame":
             edits.append(("frame", index, draw(st.sampled_from(FRAME_FIELDS)), draw(values)))
         elif kind == "drop":
-            edits.append(("drop", index, draw(st.sampled_from(("file_path", "transform_matrix", "camera_angle_x", "fl_x", "frames")))))
+            edits.append(
+                (
+                    "drop",
+                    index,
+                    draw(st.sampled_from(("file_path", "transform_matrix", "camera_angle_x", "fl_x", "frames"))),
+                )
+            )
         elif kind == "element":
             edits.append(("element", index, draw(st.integers(0, 3)), draw(st.integers(0, 3)), draw(scalars)))
         elif kind == "pose":
@@ -88,12 +111,19 @@ def corrupt(meta: dict, edits) -> dict:
         elif kind == "element":
             index, row, col, value = rest
             matrix = frames[index].get("transform_matrix")
-            if isinstance(matrix, list) and len(matrix) > row and isinstance(matrix[row], list) and len(matrix[row]) > col:
+            if (
+                isinstance(matrix, list)
+                and len(matrix) > row
+                and isinstance(matrix[row], list)
+                and len(matrix[row]) > col
+            ):
                 matrix[row][col] = value
         elif kind == "pose":
             index, edit_matrix = rest
             try:
-                frames[index]["transform_matrix"] = (np.array(frames[index]["transform_matrix"], dtype=float) @ edit_matrix).tolist()
+                frames[index]["transform_matrix"] = (
+                    np.array(frames[index]["transform_matrix"], dtype=float) @ edit_matrix
+                ).tolist()
             except (TypeError, ValueError, KeyError, OverflowError):  # an earlier edit left no numeric matrix
                 pass
         else:

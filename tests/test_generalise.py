@@ -14,13 +14,12 @@ from benchmarks.generalise import (
     SET_SEEDS,
     geometry_run,
     main,
-    model_summary,
-    model_table,
     object_set,
     predictor_spec,
     refine_overrides,
     with_overrides,
 )
+from benchmarks.generalise_tables import model_summary, model_table
 from matspray.errors import ConfigError
 from matspray.lights import BUILTINS
 from matspray.refine import RefineConfig
@@ -48,21 +47,37 @@ def test_object_sets_have_disjoint_seeds_and_draw_their_lights():
 
 def test_predictor_specs():
     assert [predictor_spec(m) for m in ("paper", "harsh", "outliers", "ground-truth")] == [
-        "simulated:paper", "simulated:harsh", "simulated:outliers", "ground-truth"]
+        "simulated:paper",
+        "simulated:harsh",
+        "simulated:outliers",
+        "ground-truth",
+    ]
     with pytest.raises(ConfigError, match="unknown error model 'mild'"):
         predictor_spec("mild")
 
 
 def test_refine_overrides_are_typed_and_checked():
-    config = with_overrides(RefineConfig(), ["iterations=7", "photo_weight=0.5", "merger.softmax=false", "merger.hidden=32", "basecolor_loss=l1"])
-    assert (config.iterations, config.photo_weight, config.merger.softmax, config.merger.hidden, config.basecolor_loss) == (7, 0.5, False, 32, "l1")
+    config = with_overrides(
+        RefineConfig(),
+        ["iterations=7", "photo_weight=0.5", "merger.softmax=false", "merger.hidden=32", "basecolor_loss=l1"],
+    )
+    assert (
+        config.iterations,
+        config.photo_weight,
+        config.merger.softmax,
+        config.merger.hidden,
+        config.basecolor_loss,
+    ) == (7, 0.5, False, 32, "l1")
     assert refine_overrides(RefineConfig(), ["iterations=7"]) == {"iterations": 7}
     assert refine_overrides(RefineConfig(), []) == {}
     with pytest.raises(ConfigError, match=r"--refine iterations=many: expected an integer"):
         with_overrides(RefineConfig(), ["iterations=many"])
     with pytest.raises(ConfigError, match=r"--refine speed=3: expected KEY=VALUE with KEY one of"):
         with_overrides(RefineConfig(), ["speed=3"])
-    with pytest.raises(ConfigError, match=r"--refine merger.width=3: expected KEY=VALUE with KEY one of merger.frequencies, merger.hidden"):
+    with pytest.raises(
+        ConfigError,
+        match=r"--refine merger.width=3: expected KEY=VALUE with KEY one of merger.frequencies, merger.hidden",
+    ):
         with_overrides(RefineConfig(), ["merger.width=3"])
     with pytest.raises(ConfigError, match="set the fields of 'merger' as merger.KEY=VALUE"):
         with_overrides(RefineConfig(), ["merger=3"])
@@ -79,7 +94,9 @@ def test_share_stage_links_a_finished_stage_once(tmp_path):
     (source / "geometry" / "renders" / "r.png").write_bytes(b"png")
     os.utime(source / "geometry" / "stage.json", (1e9, 1e9))  # finished long ago
     (target / "eval").mkdir(parents=True)
-    (target / "eval" / "metrics.json").write_text("{}")  # a figure the target derived before the share (and after the source)
+    (target / "eval" / "metrics.json").write_text(
+        "{}"
+    )  # a figure the target derived before the share (and after the source)
     os.utime(target / "eval" / "metrics.json", (1.5e9, 1.5e9))
     assert share_stage(source, target, "geometry")
     assert os.path.samefile(source / "geometry" / "renders" / "r.png", target / "geometry" / "renders" / "r.png")
@@ -100,43 +117,90 @@ def test_geometry_run_is_one_with_finished_geometry(tmp_path):
 
 def fake_run(full, average, no_softmax, base3, base2, metal3, metal2, no_prior=None, base_no_prior=None):
     """The parts of eval/metrics.json the protocol reads."""
+
     def entry(psnr):
         return {"psnr": psnr, "ssim": 0.9, "lpips": None}
 
-    variants = {v: {"summary": {"relighting": entry(p)}} for v, p in (("full", full), ("proj-average", average), ("no-softmax", no_softmax),
-                                                                    ("no-prior", no_prior)) if p is not None}
+    variants = {
+        v: {"summary": {"relighting": entry(p)}}
+        for v, p in (("full", full), ("proj-average", average), ("no-softmax", no_softmax), ("no-prior", no_prior))
+        if p is not None
+    }
     summary = variants["full"]["summary"]
-    summary.update(basecolor=entry(base3), roughness=entry(20.0),
-                   metallic=dict(entry(metal3), psnr_infinite=int(math.isinf(metal3)), objects=1))
+    summary.update(
+        basecolor=entry(base3),
+        roughness=entry(20.0),
+        metallic=dict(entry(metal3), psnr_infinite=int(math.isinf(metal3)), objects=1),
+    )
     predictions = {"basecolor": entry(base2), "roughness": entry(21.0), "metallic": entry(metal2)}
-    table1 = {"Ours": {k: summary[k] for k in ("basecolor", "roughness", "metallic")},
-              "2D predictions": {**predictions, "metallic": dict(entry(metal2), psnr_infinite=int(math.isinf(metal2)), objects=1)}}
+    table1 = {
+        "Ours": {k: summary[k] for k in ("basecolor", "roughness", "metallic")},
+        "2D predictions": {
+            **predictions,
+            "metallic": dict(entry(metal2), psnr_infinite=int(math.isinf(metal2)), objects=1),
+        },
+    }
     if no_prior is not None:
         baseline = variants["no-prior"]["summary"]
-        baseline.update(basecolor=entry(base_no_prior), roughness=entry(15.0), metallic=dict(entry(10.0), psnr_infinite=0, objects=1))
+        baseline.update(
+            basecolor=entry(base_no_prior),
+            roughness=entry(15.0),
+            metallic=dict(entry(10.0), psnr_infinite=0, objects=1),
+        )
         table1["No prior (R3DGS-like)"] = dict(baseline)
-    return {"variants": variants, "predictions_2d": predictions, "table1": table1,
-            "table2": {"Full": entry(full), "Proj. Average": entry(average)},
-            "softmax": {"Full": entry(full), "Without Softmax": entry(no_softmax)}, "timings": {}}
+    return {
+        "variants": variants,
+        "predictions_2d": predictions,
+        "table1": table1,
+        "table2": {"Full": entry(full), "Proj. Average": entry(average)},
+        "softmax": {"Full": entry(full), "Without Softmax": entry(no_softmax)},
+        "timings": {},
+    }
 
 
 def test_means_and_wins_over_objects():
-    from benchmarks.generalise import object_figures
+    from benchmarks.generalise_tables import object_figures
 
-    runs = [fake_run(25.0, 24.0, 25.5, 22.0, 23.0, math.inf, 18.0, no_prior=23.0, base_no_prior=18.0),
-            fake_run(26.0, 26.5, 25.0, 24.0, 23.0, 20.0, 19.0, no_prior=26.5, base_no_prior=19.0),
-            fake_run(27.0, 26.0, 26.0, 21.0, 21.0, 22.0, math.inf, no_prior=24.5, base_no_prior=22.0)]
+    runs = [
+        fake_run(25.0, 24.0, 25.5, 22.0, 23.0, math.inf, 18.0, no_prior=23.0, base_no_prior=18.0),
+        fake_run(26.0, 26.5, 25.0, 24.0, 23.0, 20.0, 19.0, no_prior=26.5, base_no_prior=19.0),
+        fake_run(27.0, 26.0, 26.0, 21.0, 21.0, 22.0, math.inf, no_prior=24.5, base_no_prior=22.0),
+    ]
     summary = model_summary([{"metrics": m, "figures": object_figures(m)} for m in runs])
-    assert summary["relight"] == pytest.approx({"full": 26.0, "proj-average": 25.5, "no-softmax": 25.5, "no-prior": 24.666666666666668})
+    assert summary["relight"] == pytest.approx(
+        {"full": 26.0, "proj-average": 25.5, "no-softmax": 25.5, "no-prior": 24.666666666666668}
+    )
     assert summary["materials_no_prior"]["basecolor"]["psnr"] == pytest.approx(59.0 / 3)
     assert summary["materials_3d"]["basecolor"]["psnr"] == pytest.approx(67.0 / 3)
-    assert summary["materials_3d"]["metallic"]["psnr"] == pytest.approx(21.0)  # the paper's rule: the infinite object left out
+    assert summary["materials_3d"]["metallic"]["psnr"] == pytest.approx(
+        21.0
+    )  # the paper's rule: the infinite object left out
     assert summary["materials_3d"]["metallic"]["psnr_infinite"] == 1
     wins = {k: (w["wins"], w["of"]) for k, w in summary["wins"].items()}
-    assert wins == {"full > proj-average": (2, 3), "full > no-softmax": (2, 3), "full > no-prior": (2, 3), "full > no-prior basecolor": (2, 3),
-                    "3D > 2D basecolor": (1, 3), "3D > 2D roughness": (0, 3), "3D > 2D metallic": (2, 3)}
-    table = "\n".join(model_table("paper", [{"object": {"name": f"o{i}", "env": "e", "relight_envs": ["a"]}, "figures": object_figures(m),
-                                            "seconds": 1.0} for i, m in enumerate(runs)], summary, ["full", "no-prior"]))
+    assert wins == {
+        "full > proj-average": (2, 3),
+        "full > no-softmax": (2, 3),
+        "full > no-prior": (2, 3),
+        "full > no-prior basecolor": (2, 3),
+        "3D > 2D basecolor": (1, 3),
+        "3D > 2D roughness": (0, 3),
+        "3D > 2D metallic": (2, 3),
+    }
+    table = "\n".join(
+        model_table(
+            "paper",
+            [
+                {
+                    "object": {"name": f"o{i}", "env": "e", "relight_envs": ["a"]},
+                    "figures": object_figures(m),
+                    "seconds": 1.0,
+                }
+                for i, m in enumerate(runs)
+            ],
+            summary,
+            ["full", "no-prior"],
+        )
+    )
     assert "| relight no-prior |" in table and "| no-prior base |" in table and "| 24.67 |" in table
 
 
@@ -144,14 +208,57 @@ def test_means_and_wins_over_objects():
 def test_start_splits_a_pass_over_jobs(tmp_path, capsys):
     pytest.importorskip("mitsuba")
     out = tmp_path / "g"
-    assert main(["--set", "dev", "--start", "1", "--objects", "1", "--preset", "test", "--models", "paper", "--geometry-only",
-                 "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "--set",
+                "dev",
+                "--start",
+                "1",
+                "--objects",
+                "1",
+                "--preset",
+                "test",
+                "--models",
+                "paper",
+                "--geometry-only",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert [p.name for p in (out / "objects").iterdir()] == ["dev-01-seed1001"]  # the set's second object only
     assert (out / "objects" / "dev-01-seed1001" / "runs" / "paper" / "geometry" / "stage.json").exists()
-    assert main(["--set", "dev", "--start", "1", "--objects", "1", "--preset", "test", "--models", "paper", "--variants", "proj-average",
-                 "--tag", "part", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "--set",
+                "dev",
+                "--start",
+                "1",
+                "--objects",
+                "1",
+                "--preset",
+                "test",
+                "--models",
+                "paper",
+                "--variants",
+                "proj-average",
+                "--tag",
+                "part",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     report = json.loads((out / "results-part-from1.json").read_text())  # a part of a pass keeps its own files
-    assert report["settings"]["start"] == 1 and [o["object"]["name"] for o in report["models"]["paper"]["objects"]] == ["dev-01-seed1001"]
+    assert report["settings"]["start"] == 1 and [o["object"]["name"] for o in report["models"]["paper"]["objects"]] == [
+        "dev-01-seed1001"
+    ]
     for bad in (["--start", "-1"], ["--objects", "0", "--start", "2"]):
         with pytest.raises(SystemExit):
             main(["--set", "dev", *bad, "--out", str(out)])
@@ -161,8 +268,28 @@ def test_start_splits_a_pass_over_jobs(tmp_path, capsys):
 def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     pytest.importorskip("mitsuba")
     out = tmp_path / "g"
-    argv = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "ground-truth",
-            "--variants", "full", "proj-average", "--method", "paper", "--refine", "iterations=4", "light_warmup=2", "--out", str(out), "--no-progress"]
+    argv = [
+        "--set",
+        "dev",
+        "--objects",
+        "1",
+        "--preset",
+        "test",
+        "--models",
+        "paper",
+        "ground-truth",
+        "--variants",
+        "full",
+        "proj-average",
+        "--method",
+        "paper",
+        "--refine",
+        "iterations=4",
+        "light_warmup=2",
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     runs = out / "objects" / "dev-00-seed1000" / "runs"
@@ -173,13 +300,15 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     record = [json.loads((run / "geometry" / "stage.json").read_text()) for run in (paper_run, truth_run)]
     assert record[0] == record[1]  # one geometry, reused by the second model's pipeline
     assert "geometry" not in json.loads((truth_run / "timings.json").read_text())  # not trained again
-    tag = next(out.glob("results-*.json")).stem[len("results-"):]
+    tag = next(out.glob("results-*.json")).stem[len("results-") :]
     report = json.loads((out / f"results-{tag}.json").read_text())
     assert report["settings"]["refine_overrides"] == {"iterations": 4, "light_warmup": 2} and tag.startswith("paper-")
     assert report["settings"]["method"] == "paper" and "method: paper" in (paper_run / "config.yaml").read_text()
     assert "seed: 1000" in (paper_run / "config.yaml").read_text()  # the predictor draws from the object's seed
     timing = report["timing"][0]  # geometry once, in its own column; the models' seconds without it
-    assert timing["geometry"] > 0 and timing["total"] == pytest.approx(timing["synth"] + timing["geometry"] + sum(timing["models"].values()))
+    assert timing["geometry"] > 0 and timing["total"] == pytest.approx(
+        timing["synth"] + timing["geometry"] + sum(timing["models"].values())
+    )
     truth = report["models"]["ground-truth"]["objects"][0]["figures"]
     assert math.isinf(truth["materials_2d"]["basecolor"])  # the sanity row: 2D maps are the truth
     paper = report["models"]["paper"]["objects"][0]["figures"]
@@ -190,7 +319,10 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert "full > proj-average" in wins_line and "no-softmax" not in wins_line  # a variant not run has no count
     assert main(["--compare", "--out", str(out)]) == 0  # the table of choices, from the saved results
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(f"| {tag} |")]
-    assert [row.split(" | ")[3] for row in rows] == ["paper", "ground-truth"] and "iterations=4, light_warmup=2" in rows[0]
+    assert [row.split(" | ")[3] for row in rows] == [
+        "paper",
+        "ground-truth",
+    ] and "iterations=4, light_warmup=2" in rows[0]
     assert rows[1].split(" | ")[-3:] == ["-inf", "-inf", "-inf |"]  # the 3D materials never reach the exact 2D truth
     assert main(["--compare", "--out", str(tmp_path / "nothing")]) == 2
     assert "no results-*.json to compare" in capsys.readouterr().err
@@ -201,16 +333,40 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert main(argv) == 0
     assert capsys.readouterr().out.count("finished before with these settings, reusing its evaluation") == 2
     assert json.loads((out / f"results-{tag}.json").read_text())["models"] == report["models"]
-    assert main(argv[:argv.index("--variants") + 1] + ["full"] + argv[argv.index("--variants") + 3:-3] + ["--tag", "fewer", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            argv[: argv.index("--variants") + 1]
+            + ["full"]
+            + argv[argv.index("--variants") + 3 : -3]
+            + ["--tag", "fewer", "--out", str(out), "--no-progress"]
+        )
+        == 0
+    )
     fewer = json.loads((out / "results-paper-fewer.json").read_text())
     assert set(fewer["models"]["paper"]["objects"][0]["figures"]["relight"]) == {"full"}
     # the default configuration runs in `runs/paper`; another configuration of the default method starts
     # from its predictions and lift and keeps them where its settings leave them unchanged
-    base = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--variants", "proj-average", "--out", str(out), "--no-progress"]
+    base = [
+        "--set",
+        "dev",
+        "--objects",
+        "1",
+        "--preset",
+        "test",
+        "--models",
+        "paper",
+        "--variants",
+        "proj-average",
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
     assert main(base) == 0
     assert "geometry shared from" in capsys.readouterr().out and (runs / "paper" / "lift" / "stage.json").exists()
     assert main(base + ["--without", "light-warmup"]) == 0
     assert "starts from paper's materials2d, lift (redone where" in capsys.readouterr().out
     other = next(p for p in runs.glob("paper-matspray-*"))
     assert (other / "lift" / "stage.json").read_text() == (runs / "paper" / "lift" / "stage.json").read_text()
-    assert not {"materials2d", "lift", "geometry"} & set(json.loads((other / "timings.json").read_text()))  # reused, not redone
+    assert not {"materials2d", "lift", "geometry"} & set(
+        json.loads((other / "timings.json").read_text())
+    )  # reused, not redone

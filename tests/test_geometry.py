@@ -38,8 +38,15 @@ def tiny_object(tmp_path_factory):
 def test_training_raises_test_psnr(tiny_object, tmp_path):
     scene = load_scene(tiny_object)
     config = preset("test", iterations=300)
-    initial = initial_gaussians(scene, prepare_views(scene.train, 40), config.init_points, config.sh_degree,
-                                config.init_opacity, torch.Generator().manual_seed(0), config.init_scale)
+    initial = initial_gaussians(
+        scene,
+        prepare_views(scene.train, 40),
+        config.init_points,
+        config.sh_degree,
+        config.init_opacity,
+        torch.Generator().manual_seed(0),
+        config.init_scale,
+    )
     before = evaluate_views(initial, scene.test)
     trained = train_geometry(scene, config, tmp_path / "geometry", progress=False)
     metrics = json.loads((tmp_path / "geometry" / "metrics.json").read_text())
@@ -51,7 +58,9 @@ def test_training_raises_test_psnr(tiny_object, tmp_path):
     assert torch.equal(saved.means, trained.means)
     torch.testing.assert_close(normals.norm(dim=-1), torch.ones(len(saved)))
     axes = trained.normals()
-    torch.testing.assert_close((normals * axes).sum(-1).abs(), torch.ones(len(saved)), atol=1e-5, rtol=0)  # ± the shortest axis
+    torch.testing.assert_close(
+        (normals * axes).sum(-1).abs(), torch.ones(len(saved)), atol=1e-5, rtol=0
+    )  # ± the shortest axis
     for view in scene.test:
         assert (tmp_path / "geometry" / "renders" / f"{view.name}.png").exists()
         assert (tmp_path / "geometry" / "normals" / f"{view.name}.png").exists()
@@ -59,7 +68,9 @@ def test_training_raises_test_psnr(tiny_object, tmp_path):
 
 def test_interrupted_run_resumes_to_the_same_result(tiny_object, tmp_path, monkeypatch):
     scene = load_scene(tiny_object)
-    config = replace(preset("test"), iterations=40, checkpoint_every=10, densify_from=5, densify_every=10, densify_until=35)
+    config = replace(
+        preset("test"), iterations=40, checkpoint_every=10, densify_from=5, densify_every=10, densify_until=35
+    )
     straight = train_geometry(scene, config, tmp_path / "straight", progress=False)
 
     import matspray.geometry.train as train_module
@@ -87,8 +98,20 @@ def test_interrupted_run_resumes_to_the_same_result(tiny_object, tmp_path, monke
 
 
 def test_cli_writes_the_stage_outputs(tiny_object, tmp_path, capsys):
-    code = cli_main(["geometry", "--data", str(tiny_object), "--out", str(tmp_path / "run"), "--preset", "test",
-                     "--iterations", "12", "--quiet"])
+    code = cli_main(
+        [
+            "geometry",
+            "--data",
+            str(tiny_object),
+            "--out",
+            str(tmp_path / "run"),
+            "--preset",
+            "test",
+            "--iterations",
+            "12",
+            "--quiet",
+        ]
+    )
     assert code == 0
     assert (tmp_path / "run" / "geometry" / "gaussians.ply").exists()
     metrics = json.loads((tmp_path / "run" / "geometry" / "metrics.json").read_text())
@@ -108,7 +131,9 @@ def test_presets_and_overrides():
     assert demo.resolution == 128 and 20000 <= demo.max_gaussians <= 50000
     assert preset("test").resolution <= 48 and preset("paper").resolution == 512
     short = preset("demo", iterations=300)  # the schedule follows the number of iterations
-    assert short.densify_until == demo.densify_until // 10 and short.opacity_reset_every == demo.opacity_reset_every // 10
+    assert (
+        short.densify_until == demo.densify_until // 10 and short.opacity_reset_every == demo.opacity_reset_every // 10
+    )
     with pytest.raises(ConfigError, match="unknown geometry preset 'fast'"):
         preset("fast")
     with pytest.raises(ConfigError, match="sh_degree: must be 0..3"):

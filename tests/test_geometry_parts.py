@@ -9,11 +9,11 @@ import torch
 
 from matspray.data.camera import Camera
 from matspray.data.scene import Scene, View
+from matspray.eval.metrics import ssim_loss
 from matspray.gaussians import Gaussians
 from matspray.geometry.config import preset
 from matspray.geometry.densify import DensityControl, split_gaussians
 from matspray.geometry.init import hull_surface_points, initial_gaussians, neighbour_spacing
-from matspray.eval.metrics import ssim_loss
 from matspray.geometry.losses import flatten_loss, normal_consistency_loss
 from matspray.geometry.normals import consensus_normals, depth_normals, oriented_normals, render_normals
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
@@ -26,14 +26,22 @@ def gaussians_from(means, scales, opacities):
     n = len(means)
     quats = torch.zeros(n, 4)
     quats[:, 0] = 1
-    return Gaussians(torch.tensor(means, dtype=torch.float32), torch.log(torch.tensor(scales, dtype=torch.float32)),
-                     quats, torch.logit(torch.tensor(opacities)), torch.zeros(n, 4, 3))
+    return Gaussians(
+        torch.tensor(means, dtype=torch.float32),
+        torch.log(torch.tensor(scales, dtype=torch.float32)),
+        quats,
+        torch.logit(torch.tensor(opacities)),
+        torch.zeros(n, 4, 3),
+    )
 
 
 def test_density_control_clones_splits_and_prunes():
     config = replace(preset("test"), grad_threshold=1e-3, percent_dense=0.01, prune_opacity=0.005, max_gaussians=100)
-    g = gaussians_from([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]],
-                       [[0.005] * 3, [0.5, 0.2, 0.1], [0.005] * 3, [0.005] * 3], [0.5, 0.5, 0.5, 0.001])
+    g = gaussians_from(
+        [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]],
+        [[0.005] * 3, [0.5, 0.2, 0.1], [0.005] * 3, [0.005] * 3],
+        [0.5, 0.5, 0.5, 0.001],
+    )
     optimizer = GaussianOptimizer(g, LRS)
     # one Adam step so that the moments are non-zero, then check they follow their rows
     sum(t.sum() for t in optimizer.params.values()).backward()
@@ -102,13 +110,25 @@ def test_normals_face_the_camera_and_agree_across_views():
     r = torch.sqrt(1 - z * z)
     outward = torch.stack([r * torch.cos(golden * i), r * torch.sin(golden * i), z], -1)
     half = torch.nn.functional.normalize(outward + torch.tensor([0.0, 0.0, 1.0]), dim=-1)  # rotates +z onto the normal
-    quats = torch.cat([half[:, 2:3],  # w = z . h, xyz = z x h: the rotation taking +z to the normal
-                       torch.linalg.cross(torch.tensor([0.0, 0.0, 1.0]).expand(n, 3), half)], -1)
+    quats = torch.cat(
+        [
+            half[:, 2:3],  # w = z . h, xyz = z x h: the rotation taking +z to the normal
+            torch.linalg.cross(torch.tensor([0.0, 0.0, 1.0]).expand(n, 3), half),
+        ],
+        -1,
+    )
     quats[outward[:, 2] < -0.999] = torch.tensor([0.0, 1.0, 0.0, 0.0])
-    g = Gaussians(outward, torch.log(torch.tensor([[0.12, 0.12, 0.005]])).repeat(n, 1), quats,
-                  torch.logit(torch.full((n,), 0.9)), torch.zeros(n, 1, 3))
-    cameras = [Camera.look_at([4 * math.cos(a), 4 * math.sin(a), 1.0], [0, 0, 0], [0, 0, 1], math.radians(40), 32, 32)
-               for a in (0.0, 2.1, 4.2)]
+    g = Gaussians(
+        outward,
+        torch.log(torch.tensor([[0.12, 0.12, 0.005]])).repeat(n, 1),
+        quats,
+        torch.logit(torch.full((n,), 0.9)),
+        torch.zeros(n, 1, 3),
+    )
+    cameras = [
+        Camera.look_at([4 * math.cos(a), 4 * math.sin(a), 1.0], [0, 0, 0], [0, 0, 1], math.radians(40), 32, 32)
+        for a in (0.0, 2.1, 4.2)
+    ]
     torch.testing.assert_close(g.normals().abs(), outward.abs(), atol=1e-5, rtol=0)
     facing = oriented_normals(g, cameras[0])
     assert ((facing * (cameras[0].center - g.means)).sum(-1) >= 0).all()
@@ -128,7 +148,9 @@ def test_losses():
     assert abs(1 - float(ssim_loss(image, image)) - 1) < 1e-6
     noisy = (image + 0.1 * torch.randn(24, 20, 3, generator=g)).clamp(0, 1)
     assert 1 - float(ssim_loss(image, noisy)) < 1 - float(ssim_loss(image, (image + noisy) / 2)) < 1
-    assert math.isclose(float(flatten_loss(torch.log(torch.tensor([[1.0, 0.1, 0.5], [2.0, 2.0, 2.0]])))), (0.2 + 1) / 2, rel_tol=1e-6)
+    assert math.isclose(
+        float(flatten_loss(torch.log(torch.tensor([[1.0, 0.1, 0.5], [2.0, 2.0, 2.0]])))), (0.2 + 1) / 2, rel_tol=1e-6
+    )
     n = torch.nn.functional.normalize(torch.randn(5, 6, 3, generator=g), dim=-1)
     weights = torch.ones(5, 6)
     assert float(normal_consistency_loss(3 * n, n, weights)) < 1e-6
@@ -137,8 +159,10 @@ def test_losses():
 
 def test_initial_points_lie_on_the_visual_hull():
     """A ball of radius 0.5 seen by 6 masked views: the hull points lie on (slightly inside) its surface."""
-    cameras = [Camera.look_at(list(v), [0, 0, 0], [0, 0, 1] if abs(v[2]) < 1 else [0, 1, 0], math.radians(40), 40, 40)
-               for v in ([3, 0, 0], [-3, 0, 0], [0, 3, 0], [0, -3, 0], [0, 0, 3], [0, 0, -3])]
+    cameras = [
+        Camera.look_at(list(v), [0, 0, 0], [0, 0, 1] if abs(v[2]) < 1 else [0, 1, 0], math.radians(40), 40, 40)
+        for v in ([3, 0, 0], [-3, 0, 0], [0, 3, 0], [0, -3, 0], [0, 0, 3], [0, 0, -3])
+    ]
     views = []
     for camera in cameras:
         origins, dirs = camera.rays()

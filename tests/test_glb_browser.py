@@ -33,14 +33,20 @@ CHROMIUM = Path("/usr/bin/chromium")
 DRIVER = Path("/usr/bin/chromedriver")
 MODEL_VIEWER = Path(sys.prefix) / "node" / "node_modules" / "@google" / "model-viewer" / "dist" / "model-viewer.min.js"
 SIZE = 160  # CSS pixels of the square viewer (device scale 1)
-ORBIT = (35.0, 70.0, 4.5)  # model-viewer camera orbit: azimuth about +Y from +Z (deg), polar angle from +Y (deg), radius
+ORBIT = (
+    35.0,
+    70.0,
+    4.5,
+)  # model-viewer camera orbit: azimuth about +Y from +Z (deg), polar angle from +Y (deg), radius
 FOV = 40.0  # vertical field of view, degrees
 BACKGROUND = (255, 0, 255)  # a colour the object never takes: every other pixel is the object
 
 PAGE = """<!doctype html><html><head><meta charset="utf-8">
-<style>html, body {{ margin: 0; background: rgb{background}; }} model-viewer {{ width: {size}px; height: {size}px; display: block;
+<style>html, body {{ margin: 0; background: rgb{background}; }} \
+model-viewer {{ width: {size}px; height: {size}px; display: block;
 --poster-color: transparent; background-color: rgb{background}; }}</style></head><body>
-<model-viewer id="mv" src="{src}" camera-target="0m 0m 0m" camera-orbit="{theta}deg {phi}deg {radius}m" field-of-view="{fov}deg"
+<model-viewer id="mv" src="{src}" camera-target="0m 0m 0m" camera-orbit="{theta}deg {phi}deg {radius}m" \
+field-of-view="{fov}deg"
  min-camera-orbit="auto auto 0m" max-camera-orbit="auto auto 100m" min-field-of-view="1deg" max-field-of-view="{fov}deg"
  interaction-prompt="none" shadow-intensity="0" exposure="1"></model-viewer>
 <script>
@@ -79,7 +85,9 @@ def served(tmp_path_factory):
     assert main(["export", "--run", str(run), "--out", str(site / "disks.glb"), *SMALL]) == 0
     shutil.copy(MODEL_VIEWER, site / "model-viewer.min.js")
     theta, phi, radius = ORBIT
-    (site / "index.html").write_text(PAGE.format(src="disks.glb", size=SIZE, background=BACKGROUND, theta=theta, phi=phi, radius=radius, fov=FOV))
+    (site / "index.html").write_text(
+        PAGE.format(src="disks.glb", size=SIZE, background=BACKGROUND, theta=theta, phi=phi, radius=radius, fov=FOV)
+    )
     handler = functools.partial(QuietHandler, directory=str(site))
     server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -102,8 +110,15 @@ def browser():
 
     options = webdriver.ChromeOptions()
     options.binary_location = str(CHROMIUM if CHROMIUM.exists() else shutil.which("chromium"))
-    for flag in ("--headless=new", "--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--disable-gpu",
-                 "--force-device-scale-factor=1", f"--window-size={SIZE + 400},{SIZE + 400}"):
+    for flag in (
+        "--headless=new",
+        "--no-sandbox",
+        "--enable-unsafe-swiftshader",
+        "--use-angle=swiftshader",
+        "--disable-gpu",
+        "--force-device-scale-factor=1",
+        f"--window-size={SIZE + 400},{SIZE + 400}",
+    ):
         options.add_argument(flag)
     return webdriver.Chrome(service=Service(str(DRIVER)), options=options)  # the explicit driver: no network lookup
 
@@ -111,7 +126,9 @@ def browser():
 def viewer_camera() -> Camera:
     """model-viewer's camera (orbit in glTF's Y-up frame) as a MatSpray camera in the dataset's frame."""
     theta, phi, radius = (math.radians(ORBIT[0]), math.radians(ORBIT[1]), ORBIT[2])
-    eye_gltf = np.array([radius * math.sin(phi) * math.sin(theta), radius * math.cos(phi), radius * math.sin(phi) * math.cos(theta)])
+    eye_gltf = np.array(
+        [radius * math.sin(phi) * math.sin(theta), radius * math.cos(phi), radius * math.sin(phi) * math.cos(theta)]
+    )
     eye = np.linalg.inv(GLTF_FROM_DATASET[:3, :3]) @ eye_gltf
     fov_x = 2 * math.atan(math.tan(math.radians(FOV) / 2))  # square image: the same both ways
     return Camera.look_at(eye.tolist(), [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], fov_x, SIZE, SIZE)
@@ -134,7 +151,11 @@ def test_model_viewer_loads_the_export_and_covers_the_assets_pixels(served):
         while time.monotonic() < deadline and not loaded:
             error = driver.execute_script("return window.viewerError")
             assert error is None, f"model-viewer failed to load the glb: {error}"
-            loaded = bool(driver.execute_script("const mv = document.getElementById('mv'); return window.viewerLoaded && mv.loaded === true"))
+            loaded = bool(
+                driver.execute_script(
+                    "const mv = document.getElementById('mv'); return window.viewerLoaded && mv.loaded === true"
+                )
+            )
             time.sleep(0.2)
         assert loaded, "model-viewer did not fire `load` within 60 s"
         element = driver.find_element("id", "mv")
@@ -153,4 +174,6 @@ def test_model_viewer_loads_the_export_and_covers_the_assets_pixels(served):
     assert seen.shape == expected.shape, (seen.shape, expected.shape)
     iou = (seen & expected).sum() / (seen | expected).sum()
     # the same object from the same camera: silhouettes agree but for antialiasing and the mesh's resolution
-    assert expected.mean() > 0.1 and iou > 0.85, f"browser coverage {seen.mean():.3f}, asset {expected.mean():.3f}, IoU {iou:.3f}"
+    assert expected.mean() > 0.1 and iou > 0.85, (
+        f"browser coverage {seen.mean():.3f}, asset {expected.mean():.3f}, IoU {iou:.3f}"
+    )

@@ -35,9 +35,14 @@ def test_write_read_round_trip_keeps_meshes_materials_textures_and_extras(tmp_pa
         Primitive("default", QUAD_POSITIONS - 2, QUAD_FACES, (), None, None),
     ]
     materials = [
-        PbrMaterial("textured", (1.0, 0.5, 0.25, 1.0), 0.3, 0.7,
-                    TextureRef(colour, 1, TextureTransform((0.1, 0.2), 0.3, (2.0, 3.0)), "clamp", "mirror"),
-                    TextureRef(packed, 0, TextureTransform(), "repeat", "clamp")),
+        PbrMaterial(
+            "textured",
+            (1.0, 0.5, 0.25, 1.0),
+            0.3,
+            0.7,
+            TextureRef(colour, 1, TextureTransform((0.1, 0.2), 0.3, (2.0, 3.0)), "clamp", "mirror"),
+            TextureRef(packed, 0, TextureTransform(), "repeat", "clamp"),
+        ),
         PbrMaterial("factors", (0.2, 0.3, 0.4, 1.0), 1.0, 0.25),
     ]
     path = tmp_path / "round.glb"
@@ -83,25 +88,40 @@ def quad_gltf(buffer_uri: str, image_uri: str, buffer_bytes: int, extra: dict | 
     """A hand-written .gltf of the unit quad: positions (48 bytes), uvs (32), indices (12)."""
     document = {
         "asset": {"version": "2.0"},
-        "scene": 0, "scenes": [{"nodes": [0]}],
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "translation": [1.0, 2.0, 3.0]}],
-        "meshes": [{"name": "quad", "primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
+        "meshes": [
+            {
+                "name": "quad",
+                "primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}],
+            }
+        ],
         "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0}}],
-        "textures": [{"source": 0}], "images": [{"uri": image_uri}],
+        "textures": [{"source": 0}],
+        "images": [{"uri": image_uri}],
         "buffers": [{"uri": buffer_uri, "byteLength": buffer_bytes}],
-        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 32},
-                        {"buffer": 0, "byteOffset": 80, "byteLength": 12}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-                      {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
-                      {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 48, "byteLength": 32},
+            {"buffer": 0, "byteOffset": 80, "byteLength": 12},
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
+        ],
     }
     document.update(extra or {})
     return document
 
 
 def quad_buffer() -> bytes:
-    return (QUAD_POSITIONS.astype("<f4").tobytes() + QUAD_UVS.astype("<f4").tobytes()
-            + QUAD_FACES.reshape(-1).astype("<u2").tobytes())
+    return (
+        QUAD_POSITIONS.astype("<f4").tobytes()
+        + QUAD_UVS.astype("<f4").tobytes()
+        + QUAD_FACES.reshape(-1).astype("<u2").tobytes()
+    )
 
 
 IMAGE = quantised(np.random.default_rng(1).uniform(size=(2, 3, 3)))
@@ -133,10 +153,16 @@ def bad(tmp_path, document: dict | None = None, name: str = "bad.gltf", raw: byt
     return message
 
 
-@pytest.mark.parametrize("extension", ["KHR_texture_basisu", "KHR_draco_mesh_compression", "EXT_meshopt_compression", "EXT_unknown_thing"])
+@pytest.mark.parametrize(
+    "extension", ["KHR_texture_basisu", "KHR_draco_mesh_compression", "EXT_meshopt_compression", "EXT_unknown_thing"]
+)
 def test_required_extension_we_cannot_read_is_named(tmp_path, extension):
-    document = quad_gltf(data_uri(quad_buffer()), data_uri(png_bytes(IMAGE), "image/png"), 92,
-                         {"extensionsUsed": [extension], "extensionsRequired": [extension]})
+    document = quad_gltf(
+        data_uri(quad_buffer()),
+        data_uri(png_bytes(IMAGE), "image/png"),
+        92,
+        {"extensionsUsed": [extension], "extensionsRequired": [extension]},
+    )
     message = bad(tmp_path, document)
     assert extension in message and "re-export" in message and "PNG/JPEG" in message
 
@@ -149,7 +175,9 @@ def test_bad_files_each_get_one_line_naming_the_file(tmp_path):
     assert "truncated" in bad(tmp_path, raw=data[:10], name="tiny.glb")
     assert "quad.bin" in bad(tmp_path, quad_gltf("quad.bin", data_uri(png_bytes(IMAGE), "image/png"), 92))
     assert "missing.png" in bad(tmp_path, quad_gltf(data_uri(quad_buffer()), "missing.png", 92), name="noimage.gltf")
-    assert "does not decode" in bad(tmp_path, quad_gltf(data_uri(quad_buffer()), data_uri(b"\x89PNG not really", "image/png"), 92), name="img.gltf")
+    assert "does not decode" in bad(
+        tmp_path, quad_gltf(data_uri(quad_buffer()), data_uri(b"\x89PNG not really", "image/png"), 92), name="img.gltf"
+    )
     assert "no triangles" in bad(tmp_path, {"asset": {"version": "2.0"}, "scenes": [{"nodes": []}]}, name="empty.gltf")
     points = quad_gltf(data_uri(quad_buffer()), data_uri(png_bytes(IMAGE), "image/png"), 92)
     points["meshes"][0]["primitives"][0]["mode"] = 0
@@ -157,7 +185,9 @@ def test_bad_files_each_get_one_line_naming_the_file(tmp_path):
     nan = QUAD_POSITIONS.astype("<f4")
     nan[2, 1] = np.nan
     payload = nan.tobytes() + quad_buffer()[48:]
-    assert "not finite" in bad(tmp_path, quad_gltf(data_uri(payload), data_uri(png_bytes(IMAGE), "image/png"), 92), name="nan.gltf")
+    assert "not finite" in bad(
+        tmp_path, quad_gltf(data_uri(payload), data_uri(png_bytes(IMAGE), "image/png"), 92), name="nan.gltf"
+    )
     assert "JSON" in bad(tmp_path, raw=b"{not json", name="broken.gltf")
     assert "glTF 2.0" in bad(tmp_path, {"asset": {"version": "1.0"}}, name="old.gltf")
     assert "no such file" in str(pytest.raises(DataError, read_gltf, tmp_path / "absent.glb").value)
@@ -168,13 +198,22 @@ def test_node_hierarchy_with_trs_and_matrix_places_every_primitive(tmp_path):
     document = quad_gltf(data_uri(quad_buffer()), data_uri(png_bytes(IMAGE), "image/png"), 92)
     document["scenes"] = [{"nodes": [0]}]
     document["nodes"] = [
-        {"translation": [1.0, 2.0, 3.0], "rotation": [0.0, 0.0, half, half], "scale": [2.0, 2.0, 2.0], "children": [1, 2]},
+        {
+            "translation": [1.0, 2.0, 3.0],
+            "rotation": [0.0, 0.0, half, half],
+            "scale": [2.0, 2.0, 2.0],
+            "children": [1, 2],
+        },
         {"mesh": 0, "matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0.5, 0, 0, 1]},  # column-major: translate x by 0.5
         {"mesh": 1, "scale": [-1.0, 1.0, 1.0]},  # mirrored: the winding turns round
         {"mesh": 0},  # not in the scene
     ]
-    document["meshes"].append({"name": "dots", "primitives": [{"attributes": {"POSITION": 0}, "mode": 0},
-                                                              {"attributes": {"POSITION": 0}, "indices": 2}]})
+    document["meshes"].append(
+        {
+            "name": "dots",
+            "primitives": [{"attributes": {"POSITION": 0}, "mode": 0}, {"attributes": {"POSITION": 0}, "indices": 2}],
+        }
+    )
     path = tmp_path / "tree.gltf"
     path.write_text(json.dumps(document))
     asset = read_gltf(path)
@@ -191,14 +230,31 @@ def test_node_hierarchy_with_trs_and_matrix_places_every_primitive(tmp_path):
 
 
 def test_what_is_ignored_is_listed_once(tmp_path):
-    document = quad_gltf(data_uri(quad_buffer()), data_uri(png_bytes(IMAGE), "image/png"), 92,
-                         {"extensionsUsed": ["KHR_materials_clearcoat"]})
-    document["materials"][0].update({"normalTexture": {"index": 0}, "occlusionTexture": {"index": 0}, "emissiveFactor": [1, 0, 0],
-                                     "alphaMode": "BLEND", "extensions": {"KHR_materials_clearcoat": {"clearcoatFactor": 1}}})
+    document = quad_gltf(
+        data_uri(quad_buffer()),
+        data_uri(png_bytes(IMAGE), "image/png"),
+        92,
+        {"extensionsUsed": ["KHR_materials_clearcoat"]},
+    )
+    document["materials"][0].update(
+        {
+            "normalTexture": {"index": 0},
+            "occlusionTexture": {"index": 0},
+            "emissiveFactor": [1, 0, 0],
+            "alphaMode": "BLEND",
+            "extensions": {"KHR_materials_clearcoat": {"clearcoatFactor": 1}},
+        }
+    )
     document["materials"].append(dict(document["materials"][0]))
     document["meshes"][0]["primitives"].append(dict(document["meshes"][0]["primitives"][0], material=1))
     path = tmp_path / "extras.gltf"
     path.write_text(json.dumps(document))
     asset = read_gltf(path)
-    assert asset.notes == ["alpha mode BLEND", "emissive factors", "extension KHR_materials_clearcoat", "normal textures", "occlusion textures"]
+    assert asset.notes == [
+        "alpha mode BLEND",
+        "emissive factors",
+        "extension KHR_materials_clearcoat",
+        "normal textures",
+        "occlusion textures",
+    ]
     assert len(asset.primitives) == 2 and asset.materials[0].base_color_texture is not None

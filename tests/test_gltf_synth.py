@@ -55,7 +55,11 @@ def reference_lookup(image, uv, matrix, wrap_s, wrap_t):  # brute force: texel i
     for dy in (0, 1):
         for dx in (0, 1):
             weight = (1 - abs(x - x0 - dx)) * (1 - abs(y - y0 - dy))
-            out = out + weight[:, None] * image[wrap(y0 + dy, height, wrap_t)][np.arange(len(x)), wrap(x0 + dx, width, wrap_s)]
+            out = (
+                out
+                + weight[:, None]
+                * image[wrap(y0 + dy, height, wrap_t)][np.arange(len(x)), wrap(x0 + dx, width, wrap_s)]
+            )
     return out
 
 
@@ -73,14 +77,22 @@ def surface_uv(camera, samples):  # -> uv [R, 2] of each subpixel ray on the qua
     return UV_LOW + UV_SPAN * xy, hit
 
 
-@pytest.mark.parametrize("wrap", [("repeat", "repeat"), ("clamp", "clamp"), ("mirror", "mirror"), ("repeat", "mirror"), ("clamp", "repeat")])
+@pytest.mark.parametrize(
+    "wrap", [("repeat", "repeat"), ("clamp", "clamp"), ("mirror", "mirror"), ("repeat", "mirror"), ("clamp", "repeat")]
+)
 def test_ground_truth_is_the_texel_at_the_surface_point(tmp_path, wrap):
     rng = np.random.default_rng(7)
     colour, packed = q8(rng.uniform(size=(3, 4, 3))), q8(rng.uniform(size=(5, 3, 3)))
     base_transform = TextureTransform((0.1, -0.2), 0.35, (1.3, 0.8))
     mr_transform = TextureTransform((0.05, 0.15), -0.6, (0.9, 1.7))
-    material = PbrMaterial("quad", (0.9, 0.8, 0.6, 1.0), 0.8, 0.6,
-                           TextureRef(colour, 1, base_transform, *wrap), TextureRef(packed, 1, mr_transform, wrap[1], wrap[0]))
+    material = PbrMaterial(
+        "quad",
+        (0.9, 0.8, 0.6, 1.0),
+        0.8,
+        0.6,
+        TextureRef(colour, 1, base_transform, *wrap),
+        TextureRef(packed, 1, mr_transform, wrap[1], wrap[0]),
+    )
     uvs = UV_LOW + UV_SPAN * QUAD[:, :2]
     path = tmp_path / "quad.glb"
     write_glb(path, [Primitive("quad", QUAD, FACES, (np.zeros((4, 2)), uvs), None, 0)], [material])
@@ -90,7 +102,11 @@ def test_ground_truth_is_the_texel_at_the_surface_point(tmp_path, wrap):
     camera = quad_camera()
     truth = cast_ground_truth(scene, textures, camera, samples_per_side=2)
     uv, hit = surface_uv(camera, 2)
-    expected_base = reference_lookup(srgb_to_linear(colour), uv, base_transform.matrix(), *wrap) * [0.9, 0.8, 0.6]  # decoded, then filtered
+    expected_base = reference_lookup(srgb_to_linear(colour), uv, base_transform.matrix(), *wrap) * [
+        0.9,
+        0.8,
+        0.6,
+    ]  # decoded, then filtered
     expected_mr = reference_lookup(packed, uv, mr_transform.matrix(), wrap[1], wrap[0])
     full = hit.reshape(24, 24, 4).all(-1)
     assert full.sum() > 200 and np.array_equal(truth.coverage == 1.0, full)
@@ -100,7 +116,9 @@ def test_ground_truth_is_the_texel_at_the_surface_point(tmp_path, wrap):
     np.testing.assert_allclose(truth.metallic[full], mean(expected_mr[:, 2] * 0.8)[:, 0], atol=2e-4)
 
 
-@pytest.mark.parametrize("wrap", [("repeat", "repeat"), ("clamp", "clamp"), ("mirror", "mirror"), ("mirror", "clamp"), ("clamp", "repeat")])
+@pytest.mark.parametrize(
+    "wrap", [("repeat", "repeat"), ("clamp", "clamp"), ("mirror", "mirror"), ("mirror", "clamp"), ("clamp", "repeat")]
+)
 def test_mitsuba_reads_a_texture_as_the_ground_truth_does(wrap):
     """The renderer's bitmap (its to_uv, its one wrap mode; mixed modes unwrapped over the mesh's UVs) is our lookup."""
     import drjit as dr
@@ -122,19 +140,27 @@ def test_mitsuba_reads_a_texture_as_the_ground_truth_does(wrap):
 def test_two_primitives_two_materials_factors_and_the_default_material(tmp_path):
     path = tmp_path / "two.glb"
     left, right = QUAD * [0.45, 1, 1], QUAD * [0.45, 1, 1] + [0.55, 0, 0]
-    write_glb(path, [Primitive("left", left, FACES, (), None, 0), Primitive("right", right, FACES, (), None, None)],
-              [PbrMaterial("red", (0.8, 0.1, 0.2, 1.0), 0.25, 0.4)])
+    write_glb(
+        path,
+        [Primitive("left", left, FACES, (), None, 0), Primitive("right", right, FACES, (), None, None)],
+        [PbrMaterial("red", (0.8, 0.1, 0.2, 1.0), 0.25, 0.4)],
+    )
     parts, textures, _ = asset_parts(read_gltf(path), "keep")
     assert [p.params["material"] for p in parts] == ["red", "default"]
     truth = cast_ground_truth(build_scene(parts, textures, np.ones((8, 16, 3), np.float32)), textures, quad_camera(), 2)
-    x = np.linspace(0.5 - 0.5 * 2.2 * math.tan(0.25), 0.5 + 0.5 * 2.2 * math.tan(0.25), 24, endpoint=False) + 1.1 * math.tan(0.25) / 24
+    x = (
+        np.linspace(0.5 - 0.5 * 2.2 * math.tan(0.25), 0.5 + 0.5 * 2.2 * math.tan(0.25), 24, endpoint=False)
+        + 1.1 * math.tan(0.25) / 24
+    )
     full = truth.coverage == 1.0
     on_left, on_right = full & (x < 0.43)[None, :], full & (x > 0.57)[None, :]
     assert on_left.sum() > 50 and on_right.sum() > 50
     np.testing.assert_allclose(truth.base_color[on_left], np.tile([0.8, 0.1, 0.2], (on_left.sum(), 1)), atol=1e-6)
     np.testing.assert_allclose(truth.roughness[on_left], 0.4, atol=1e-6)
     np.testing.assert_allclose(truth.metallic[on_left], 0.25, atol=1e-6)
-    np.testing.assert_allclose(truth.base_color[on_right], 1.0, atol=1e-6)  # glTF's default: white, metallic 1, roughness 1
+    np.testing.assert_allclose(
+        truth.base_color[on_right], 1.0, atol=1e-6
+    )  # glTF's default: white, metallic 1, roughness 1
     np.testing.assert_allclose(truth.roughness[on_right], 1.0, atol=1e-6)
     np.testing.assert_allclose(truth.metallic[on_right], 1.0, atol=1e-6)
 
@@ -168,8 +194,12 @@ def test_round_trip_through_object_glb_reproduces_images_and_ground_truth(tmp_pa
     settings = dict(seed=4, **SMALL)
     make_object(SynthConfig(shape="composite", **settings), tmp_path / "made", progress=False, notify=lambda _: None)
     notes = []
-    make_object(SynthConfig(asset=str(tmp_path / "made" / "object.glb"), placement="keep", **settings), tmp_path / "again",
-                progress=False, notify=notes.append)
+    make_object(
+        SynthConfig(asset=str(tmp_path / "made" / "object.glb"), placement="keep", **settings),
+        tmp_path / "again",
+        progress=False,
+        notify=notes.append,
+    )
     assert not [n for n in notes if "ignored" in n]
     compared = 0
     for made in sorted((tmp_path / "made").glob("*/r_*.png")):
@@ -199,8 +229,11 @@ def test_cli_rejects_bad_assets_in_one_line_and_writes_nothing(tmp_path, capsys)
     with pytest.raises(DataError, match="two UV sets"):
         two = tmp_path / "two.glb"
         image = np.zeros((2, 2, 3))
-        write_glb(two, [Primitive("q", QUAD, FACES, (QUAD[:, :2], QUAD[:, :2]), None, 0)],
-                  [PbrMaterial(base_color_texture=TextureRef(image, 0), metallic_roughness_texture=TextureRef(image, 1))])
+        write_glb(
+            two,
+            [Primitive("q", QUAD, FACES, (QUAD[:, :2], QUAD[:, :2]), None, 0)],
+            [PbrMaterial(base_color_texture=TextureRef(image, 0), metallic_roughness_texture=TextureRef(image, 1))],
+        )
         make_object(SynthConfig(asset=str(two), **SMALL), tmp_path / "out2", progress=False, notify=lambda _: None)
     assert not (tmp_path / "out2").exists()
 
@@ -211,7 +244,11 @@ def test_a_double_sided_face_is_shaded_from_behind_with_its_normal_turned(tmp_pa
 
     path = tmp_path / "plane.glb"
     back_first = FACES[:, [0, 2, 1]]  # the quad's front faces away from the camera (glTF -Z, world +y)
-    write_glb(path, [Primitive("plane", QUAD, back_first, (), None, 0)], [PbrMaterial("grey", (0.5, 0.5, 0.5, 1.0), 0.0, 1.0, double_sided=double_sided)])
+    write_glb(
+        path,
+        [Primitive("plane", QUAD, back_first, (), None, 0)],
+        [PbrMaterial("grey", (0.5, 0.5, 0.5, 1.0), 0.0, 1.0, double_sided=double_sided)],
+    )
     parts, textures, _ = asset_parts(read_gltf(path), "keep")
     scene = build_scene(parts, textures, np.ones((8, 16, 3), np.float32))
     camera = quad_camera(16)
@@ -230,8 +267,11 @@ def test_a_double_sided_face_is_shaded_from_behind_with_its_normal_turned(tmp_pa
 def test_a_texture_tiled_too_far_for_two_wrap_modes_is_refused_before_writing(tmp_path):
     path = tmp_path / "tiled.glb"
     image = np.zeros((64, 64, 3))
-    write_glb(path, [Primitive("q", QUAD, FACES, (QUAD[:, :2] * 200.0,), None, 0)],
-              [PbrMaterial(base_color_texture=TextureRef(image, 0, TextureTransform(), "repeat", "clamp"))])
+    write_glb(
+        path,
+        [Primitive("q", QUAD, FACES, (QUAD[:, :2] * 200.0,), None, 0)],
+        [PbrMaterial(base_color_texture=TextureRef(image, 0, TextureTransform(), "repeat", "clamp"))],
+    )
     with pytest.raises(DataError, match="tiled.glb: mesh 'q': a texture with wraps repeat/clamp"):
         make_object(SynthConfig(asset=str(path), **SMALL), tmp_path / "out", progress=False, notify=lambda _: None)
     assert not (tmp_path / "out").exists()

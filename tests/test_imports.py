@@ -49,7 +49,9 @@ def imported_modules(name: str, path: Path, modules: dict[str, Path]) -> list[tu
             else:
                 source = node.module
             # `from p import x` imports the submodule p.x when there is one, else a name defined in p
-            targets = [f"{source}.{alias.name}" if f"{source}.{alias.name}" in modules else source for alias in node.names]
+            targets = [
+                f"{source}.{alias.name}" if f"{source}.{alias.name}" in modules else source for alias in node.names
+            ]
         else:
             continue
         for target in targets:
@@ -141,7 +143,8 @@ def test_the_package_has_no_import_cycle():
     assert len(graph) > 50 and sum(len(edges) for edges in graph.values()) > 100  # the whole package was read
     cycles = find_cycles(graph)
     report = "\n".join(
-        f"cycle {k + 1} (its tangle: {', '.join(tangle)}):\n{describe(graph, cycle)}" for k, (tangle, cycle) in enumerate(cycles)
+        f"cycle {k + 1} (its tangle: {', '.join(tangle)}):\n{describe(graph, cycle)}"
+        for k, (tangle, cycle) in enumerate(cycles)
     )
     print(report or "no import cycle")
     assert not cycles, f"{len(cycles)} import cycle(s) in matspray:\n{report}"
@@ -158,21 +161,28 @@ def write_package(root: Path, files: dict[str, str]) -> Path:
 def test_finds_cycles_through_local_relative_and_package_imports(tmp_path):
     """The checker itself: a function-local relative import closing a loop, and a loop that only exists
     because a package's __init__ re-exports a module that imports back into it."""
-    root = write_package(tmp_path, {
-        "pkg/__init__.py": "",
-        "pkg/a.py": "import json\nfrom pkg.b import f\n",
-        "pkg/b.py": "def f():\n    from .sub import c\n",
-        "pkg/sub/__init__.py": "",
-        "pkg/sub/c.py": "from .. import a\n",
-        "pkg/lib/__init__.py": "from pkg.lib.x import X\n",
-        "pkg/lib/x.py": "from ..uses import helper\nX = 1\n",
-        "pkg/lib/y.py": "Y = 2\n",
-        "pkg/uses.py": "from pkg.lib.y import Y\ndef helper():\n    return Y\n",
-        "pkg/clean.py": "from pkg.lib import X\nfrom pkg.sub.c import a\nimport pkg.lib.x.X\n",
-    })
+    root = write_package(
+        tmp_path,
+        {
+            "pkg/__init__.py": "",
+            "pkg/a.py": "import json\nfrom pkg.b import f\n",
+            "pkg/b.py": "def f():\n    from .sub import c\n",
+            "pkg/sub/__init__.py": "",
+            "pkg/sub/c.py": "from .. import a\n",
+            "pkg/lib/__init__.py": "from pkg.lib.x import X\n",
+            "pkg/lib/x.py": "from ..uses import helper\nX = 1\n",
+            "pkg/lib/y.py": "Y = 2\n",
+            "pkg/uses.py": "from pkg.lib.y import Y\ndef helper():\n    return Y\n",
+            "pkg/clean.py": "from pkg.lib import X\nfrom pkg.sub.c import a\nimport pkg.lib.x.X\n",
+        },
+    )
     graph = import_graph(root)
-    assert graph["pkg.clean"] == {"pkg.lib": "pkg/clean.py:1", "pkg.sub": "pkg/clean.py:2", "pkg.sub.c": "pkg/clean.py:2",
-                                  "pkg.lib.x": "pkg/clean.py:3"}
+    assert graph["pkg.clean"] == {
+        "pkg.lib": "pkg/clean.py:1",
+        "pkg.sub": "pkg/clean.py:2",
+        "pkg.sub.c": "pkg/clean.py:2",
+        "pkg.lib.x": "pkg/clean.py:3",
+    }
     assert graph["pkg.sub.c"] == {"pkg.a": "pkg/sub/c.py:1"}  # pkg itself is already importing when c runs
     cycles = sorted(cycle for _, cycle in find_cycles(graph))
     assert cycles == [["pkg.a", "pkg.b", "pkg.sub.c", "pkg.a"], ["pkg.lib", "pkg.lib.x", "pkg.uses", "pkg.lib"]]
@@ -190,7 +200,12 @@ def test_help_is_fast_and_imports_no_torch():
     print(f"python -m matspray --help: {elapsed:.2f} s wall")
     assert done.returncode == 0 and "usage: matspray" in done.stdout, done.stderr
     assert elapsed < 3.0, f"`matspray --help` took {elapsed:.2f} s (goal: under 1 s)"
-    probe = "import sys\nfrom matspray.cli import build_parser\nbuild_parser()\nprint(sorted(m for m in ('torch', 'numpy') if m in sys.modules))"
-    loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=PACKAGE_ROOT.parent, timeout=60)
+    probe = (
+        "import sys\nfrom matspray.cli import build_parser\nbuild_parser()\n"
+        "print(sorted(m for m in ('torch', 'numpy') if m in sys.modules))"
+    )
+    loaded = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, cwd=PACKAGE_ROOT.parent, timeout=60
+    )
     assert loaded.returncode == 0, loaded.stderr
     assert loaded.stdout.strip() == "[]", f"building the CLI parser imports {loaded.stdout.strip()}"

@@ -23,7 +23,9 @@ def test_weighted_median_matches_brute_force():
 
 
 def test_weighted_median_single_and_tied_values():
-    medians, has = weighted_median(torch.tensor([0, 0, 0, 1]), torch.tensor([0.2, 0.9, 0.9, 0.4]), torch.tensor([1, 1, 1, 7]), 2)
+    medians, has = weighted_median(
+        torch.tensor([0, 0, 0, 1]), torch.tensor([0.2, 0.9, 0.9, 0.4]), torch.tensor([1, 1, 1, 7]), 2
+    )
     assert medians.tolist() == [0.8999999761581421, 0.4000000059604645] and has.all()
 
 
@@ -49,7 +51,15 @@ def test_lifting_hand_made_scene_median_and_occlusion():
     materials[left_y, left_x] = 1.0  # one outlier inside G0's footprint: the median ignores it
     mask = torch.ones(32, 32)
     mask[int(pixels[3, 1]) - 3 :] = 0.0  # the bottom rows are background: G3 is a floater
-    result = lift(gaussians, [camera, camera], [materials, materials], [mask, mask], ["a", "b"], LiftConfig(samples_per_side=4, visibility_threshold=0.5), progress=False)
+    result = lift(
+        gaussians,
+        [camera, camera],
+        [materials, materials],
+        [mask, mask],
+        ["a", "b"],
+        LiftConfig(samples_per_side=4, visibility_threshold=0.5),
+        progress=False,
+    )
     assert result.kept.tolist() == [True, False, True, False]  # hidden and floater Gaussians removed
     assert torch.allclose(result.values[0], torch.full((2, 5), 0.2))
     assert torch.allclose(result.values[1], torch.full((2, 5), 0.8))
@@ -65,15 +75,30 @@ def test_a_view_that_only_glimpses_a_gaussian_does_not_count_as_seeing_it():
     glimpse = Camera.look_at([1.75, 0.0, -5.0], [1.75, 0.0, 0.0], [0.0, -1.0, 0.0], 0.8, 32, 32)
     materials = torch.full((32, 32, 5), 0.3)
     config = LiftConfig(samples_per_side=2)
-    result = lift(gaussians, [camera, glimpse], [materials, materials], [None, None], ["a", "b"], config, progress=False)
+    result = lift(
+        gaussians, [camera, glimpse], [materials, materials], [None, None], ["a", "b"], config, progress=False
+    )
     left = 0  # G0 is the first kept Gaussian
     hits_a, hits_b = result.hits[left].tolist()
     assert 0 < hits_b < 0.5 * hits_a
     assert result.seen[left].tolist() == [True, False]
-    assert torch.allclose(result.values[left, 1], torch.full((5,), 0.3))  # the glimpse's median is kept, just not counted
-    everything = lift(gaussians, [camera, glimpse], [materials, materials], [None, None], ["a", "b"], LiftConfig(samples_per_side=2, min_support=0.0), progress=False)
+    assert torch.allclose(
+        result.values[left, 1], torch.full((5,), 0.3)
+    )  # the glimpse's median is kept, just not counted
+    everything = lift(
+        gaussians,
+        [camera, glimpse],
+        [materials, materials],
+        [None, None],
+        ["a", "b"],
+        LiftConfig(samples_per_side=2, min_support=0.0),
+        progress=False,
+    )
     assert everything.seen[left].tolist() == [True, True]
-    assert supported_views(torch.tensor([[10, 4, 0], [0, 2, 1]]), 0.5).tolist() == [[True, False, False], [False, True, True]]
+    assert supported_views(torch.tensor([[10, 4, 0], [0, 2, 1]]), 0.5).tolist() == [
+        [True, False, False],
+        [False, True, True],
+    ]
 
 
 def test_min_support_outside_zero_to_one_is_refused():
@@ -92,14 +117,21 @@ def test_the_median_reads_a_gaussians_core_and_a_tiny_gaussian_still_gets_a_valu
     px = 5.0 / focal  # world units per pixel at the disks' depth
     target_pixel = torch.tensor([[20.5 + 0.3, 8.5]])  # 0.3 px from a pixel centre
     offset = (target_pixel - camera.K[:2, 2]) * px
-    axis_signs = torch.sign(camera.project(torch.tensor([[1.0, 1.0, 0.0]]))[0][0] - camera.K[:2, 2])  # image axes vs world x, y
+    axis_signs = torch.sign(
+        camera.project(torch.tensor([[1.0, 1.0, 0.0]]))[0][0] - camera.K[:2, 2]
+    )  # image axes vs world x, y
     means = torch.zeros(2, 3)
     means[1, :2] = offset[0] * axis_signs
     pixels, _ = camera.project(means)
     assert torch.allclose(pixels[1], target_pixel[0], atol=1e-3)
     scales = torch.tensor([[2.0 * px, 2.0 * px, 0.01], [0.15 * px, 0.15 * px, 0.01]])
-    gaussians = Gaussians(means, scales.log(), torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(2, 4).clone(),
-                          torch.logit(torch.tensor([0.99, 0.99])), torch.zeros(2, 1, 3))
+    gaussians = Gaussians(
+        means,
+        scales.log(),
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(2, 4).clone(),
+        torch.logit(torch.tensor([0.99, 0.99])),
+        torch.zeros(2, 1, 3),
+    )
     ys, xs = torch.meshgrid(torch.arange(32) + 0.5, torch.arange(32) + 0.5, indexing="ij")
     spot = (xs - pixels[0, 0]) ** 2 + (ys - pixels[0, 1]) ** 2 <= 2.5**2
     materials = torch.where(spot[..., None], torch.tensor(0.2), torch.tensor(0.8)).expand(32, 32, 5).clone()

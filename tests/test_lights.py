@@ -11,7 +11,13 @@ import matspray.lights as lights
 from matspray.data.images import write_raw
 from matspray.errors import ConfigError, DataError
 from matspray.lights import (
-    BUILTINS, builtin_envmap, check_envmap, default_relight_names, direction_from_angles, list_envmaps, load_envmap,
+    BUILTINS,
+    builtin_envmap,
+    check_envmap,
+    default_relight_names,
+    direction_from_angles,
+    list_envmaps,
+    load_envmap,
     lookup_envmap,
 )
 from matspray.render.latlong import direction_to_uv, pixel_directions, pixel_solid_angles
@@ -88,7 +94,9 @@ def test_bad_files_and_names_are_clear_errors(tmp_path):
         load_envmap(tmp_path / "light.png")
     with pytest.raises(DataError, match="missing.hdr: file does not exist"):
         load_envmap(tmp_path / "missing.hdr")
-    with pytest.raises(ConfigError, match="unknown environment map 'moon'.*built-in \\(sky, studio, sunset, overcast\\)"):
+    with pytest.raises(
+        ConfigError, match="unknown environment map 'moon'.*built-in \\(sky, studio, sunset, overcast\\)"
+    ):
         load_envmap("moon")
     with pytest.raises(ConfigError, match="height must be an integer"):
         load_envmap("sky", height=2)

@@ -236,14 +236,17 @@ def test_official_package_without_cached_backbone_is_not_used(no_defaults, monke
 
 
 def test_official_package_is_preferred_and_called_with_inputs_in_minus_one_one(no_defaults, monkeypatch, tmp_path):
-    fake_lpips_package(tmp_path, (
-        "import torch\n__version__ = '9.9'\ncalls = []\n"
-        "class LPIPS(torch.nn.Module):\n"
-        "    def __init__(self, net, version, verbose):\n        super().__init__(); calls.append((net, version))\n"
-        "    def forward(self, x0, x1):\n"
-        "        calls.append((tuple(x0.shape), float(x0.min()), float(x0.max())))\n"
-        "        return (x0 - x1).abs().mean().view(1, 1, 1, 1)\n"
-    ))
+    fake_lpips_package(
+        tmp_path,
+        (
+            "import torch\n__version__ = '9.9'\ncalls = []\n"
+            "class LPIPS(torch.nn.Module):\n"
+            "    def __init__(self, net, version, verbose):\n        super().__init__(); calls.append((net, version))\n"
+            "    def forward(self, x0, x1):\n"
+            "        calls.append((tuple(x0.shape), float(x0.min()), float(x0.max())))\n"
+            "        return (x0 - x1).abs().mean().view(1, 1, 1, 1)\n"
+        ),
+    )
     (tmp_path / "torch_home" / "hub" / "checkpoints").mkdir(parents=True)
     (tmp_path / "torch_home" / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth").write_bytes(b"")
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch_home"))

@@ -13,7 +13,9 @@ from matspray.eval.run_eval import GroundTruth
 
 def truth(roughness, mask):
     h, w = roughness.shape
-    return GroundTruth(mask=mask, basecolor=torch.zeros(h, w, 3), roughness=roughness, metallic=torch.zeros(h, w), relit={})
+    return GroundTruth(
+        mask=mask, basecolor=torch.zeros(h, w, 3), roughness=roughness, metallic=torch.zeros(h, w), relit={}
+    )
 
 
 def test_error_stats_count_only_the_object_and_keep_the_sign():
@@ -36,5 +38,6 @@ def test_error_stats_pool_the_views_pixels_not_their_means():
 def test_base_colour_is_the_mean_over_rgb_whichever_name_the_maps_use():
     class Renders:  # the asset renders name it base_color; truths and predictions basecolor
         base_color = torch.tensor([[[0.0, 0.3, 0.6]]])
+
     assert float(scalar_map(Renders(), "basecolor")) == pytest.approx(0.3)
     assert float(scalar_map(truth(torch.zeros(1, 1), torch.ones(1, 1)), "roughness")) == 0.0

@@ -2,8 +2,17 @@ import pytest
 import torch
 
 from matspray.errors import DataError, RunError
-from matspray.merger import (MergerConfig, NeuralMerger, align_view_gains, clamp_to_seen_range, load_merger, positional_encoding,
-                             projection_average, save_merger, view_gains)
+from matspray.merger import (
+    MergerConfig,
+    NeuralMerger,
+    align_view_gains,
+    clamp_to_seen_range,
+    load_merger,
+    positional_encoding,
+    projection_average,
+    save_merger,
+    view_gains,
+)
 
 BOUNDS = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 

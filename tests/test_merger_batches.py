@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import pytest
 import torch
 
@@ -22,9 +21,13 @@ def test_shares_are_ratios_to_equal_weights_over_the_seen_views_and_pool_by_meta
     rows = batch_shares(weights, seen, views, [batch(["a", "b"], 0.3), batch(["c", "d"], 0.0)])
     # equal weights put (0.5 + 1.0) / 2 = 0.75 on batch 0 and 0.25 on batch 1; the merger puts 1.0 and 0.0
     assert rows[0]["uniform"] == pytest.approx(0.75) and rows[1]["uniform"] == pytest.approx(0.25)
-    assert rows[0]["ratio"]["base_color"] == pytest.approx(1.0 / 0.75) and rows[1]["ratio"]["base_color"] == pytest.approx(0.0)
+    assert rows[0]["ratio"]["base_color"] == pytest.approx(1.0 / 0.75) and rows[1]["ratio"][
+        "base_color"
+    ] == pytest.approx(0.0)
     assert rows[0]["ratio"]["roughness"] == pytest.approx(1.0) and rows[1]["ratio"]["roughness"] == pytest.approx(1.0)
-    assert pooled(rows, True)["base_color"] == pytest.approx(1.0 / 0.75) and pooled(rows, False)["metallic"] == pytest.approx(0.0)
+    assert pooled(rows, True)["base_color"] == pytest.approx(1.0 / 0.75) and pooled(rows, False)[
+        "metallic"
+    ] == pytest.approx(0.0)
 
 
 def test_a_batch_no_gaussian_saw_has_no_ratio():

@@ -180,12 +180,14 @@ def test_non_metallic_object_predicted_all_zero_is_infinite_and_left_out():
     outside[:, 0, 0] = 0.7  # prediction off the object (mask 0) does not count
     metallic_gt = mask * 1.0
     metallic_pred = mask * 0.9  # error 0.1 on 16 of 64 pixels per view: mse 0.0025
-    result = metallic_psnr_over_objects([
-        (zeros, zeros, mask),  # non-metallic, predicted all zero: infinite
-        (outside, zeros, mask),  # same, with junk on the background: infinite
-        (metallic_pred, metallic_gt, mask),  # 26.0206 dB
-        (zeros + 0.1 * mask, zeros, mask),  # non-metallic, predicted 0.1: mse 0.0025 too
-    ])
+    result = metallic_psnr_over_objects(
+        [
+            (zeros, zeros, mask),  # non-metallic, predicted all zero: infinite
+            (outside, zeros, mask),  # same, with junk on the background: infinite
+            (metallic_pred, metallic_gt, mask),  # 26.0206 dB
+            (zeros + 0.1 * mask, zeros, mask),  # non-metallic, predicted 0.1: mse 0.0025 too
+        ]
+    )
     assert result.infinite == 2
     assert result.per_object[:2] == [math.inf, math.inf]
     expected = -10 * math.log10(0.0025)

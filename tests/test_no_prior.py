@@ -27,8 +27,11 @@ def test_no_prior_is_the_only_variant_that_needs_no_maps():
     assert variant.source == "free" and variant.learns_light and not variant.uses_maps
     assert variants_for_maps(None, True) == ("full",) and variants_for_maps(None, False) == ("no-prior",)
     assert variants_for_maps(["full", "no-prior"], True) == ("full", "no-prior")
-    with pytest.raises(ConfigError, match=r"^variant 'supervised' needs 2D material maps, and this run has none \(--predictor none\); "
-                                          r"give a predictor \(files:DIR, marigold, \.\.\.\) or ask for no-prior$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^variant 'supervised' needs 2D material maps, and this run has none \(--predictor none\); "
+        r"give a predictor \(files:DIR, marigold, \.\.\.\) or ask for no-prior$",
+    ):
         variants_for_maps(["no-prior", "supervised"], False)
 
 
@@ -38,8 +41,11 @@ def test_no_prior_reads_neither_the_lifted_values_nor_the_maps(tiny_object, tmp_
         inputs = pipeline.refine_inputs()
     settings = variant_refine_config(config, "no-prior")
     generator = torch.Generator().manual_seed(5)
-    scrambled = replace(inputs, values=torch.rand(inputs.values.shape, generator=generator),
-                        targets=[torch.rand(t.shape, generator=generator) for t in inputs.targets])
+    scrambled = replace(
+        inputs,
+        values=torch.rand(inputs.values.shape, generator=generator),
+        targets=[torch.rand(t.shape, generator=generator) for t in inputs.targets],
+    )
     a, b = refine(inputs, settings, progress=False), refine(scrambled, settings, progress=False)
     torch.testing.assert_close(a.materials, b.materials, rtol=0, atol=0)
     assert all("material" not in record and "photo" in record for record in a.history)
@@ -69,8 +75,27 @@ def test_a_run_without_a_predictor_makes_the_no_prior_asset_and_its_table_row(ti
 
 
 def test_cli_refuses_a_variant_that_needs_maps_without_a_predictor(tiny_object, tmp_path):
-    result = subprocess.run([sys.executable, "-m", "matspray", "run", "--data", tiny_object, "--out", tmp_path / "run", "--preset", "test",
-                             "--predictor", "none", "--variant", "full"], capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "matspray",
+            "run",
+            "--data",
+            tiny_object,
+            "--out",
+            tmp_path / "run",
+            "--preset",
+            "test",
+            "--predictor",
+            "none",
+            "--variant",
+            "full",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 2 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "variant 'full' needs 2D material maps" in lines[0], result.stderr
@@ -104,7 +129,15 @@ def test_a_predictor_that_needs_ground_truth_is_refused_before_training(capture_
     from matspray.errors import DataError
 
     with pytest.raises(DataError, match=r"no ground-truth basecolor/roughness/metallic maps for 6 of 6 views"):
-        Pipeline(capture_without_truth, tmp_path / "run", build_config("test", predictor="simulated:harsh"), progress=False, log=lambda _: None)
+        Pipeline(
+            capture_without_truth,
+            tmp_path / "run",
+            build_config("test", predictor="simulated:harsh"),
+            progress=False,
+            log=lambda _: None,
+        )
     assert not (tmp_path / "run").exists()
-    with Pipeline(tiny_object, tmp_path / "synth", build_config("test", predictor="auto"), progress=False, log=lambda _: None) as pipeline:
+    with Pipeline(
+        tiny_object, tmp_path / "synth", build_config("test", predictor="auto"), progress=False, log=lambda _: None
+    ) as pipeline:
         assert pipeline.config.predictor == "simulated"  # benchmarks: the synth object's true maps, degraded

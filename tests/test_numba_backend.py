@@ -21,11 +21,11 @@ from matspray.data.camera import Camera
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.pipeline import Pipeline
-from matspray.render.backend import BACKENDS, resolve_backend, rendering_with
+from matspray.render.backend import BACKENDS, rendering_with, resolve_backend
 from matspray.render.rasterize import _setup, rasterize
 from matspray.render.settings import RasterSettings
-from tests.test_rasterize import random_scene
 from tests.scenes import stacked_opaque_gaussians
+from tests.test_rasterize import random_scene
 
 PARAMS = ("means", "log_scales", "quats", "opacity_logits")
 
@@ -110,12 +110,19 @@ def test_footprints_across_tile_borders():
     K, R, t = camera.K, camera.viewmat[:3, :3], camera.viewmat[:3, 3]
     depth = 4.0 + 0.1 * torch.arange(len(centres), dtype=torch.float32)
     pixels = torch.tensor(centres)
-    in_camera = torch.stack([(pixels[:, 0] - K[0, 2]) / K[0, 0] * depth, (pixels[:, 1] - K[1, 2]) / K[1, 1] * depth, depth], dim=1)
+    in_camera = torch.stack(
+        [(pixels[:, 0] - K[0, 2]) / K[0, 0] * depth, (pixels[:, 1] - K[1, 2]) / K[1, 1] * depth, depth], dim=1
+    )
     means = (in_camera - t) @ R  # R^T (x - t), row by row: the points that project onto `centres`
     n = len(centres)
     g = torch.Generator().manual_seed(3)
-    gaussians = Gaussians(means, torch.log(torch.full((n, 3), 0.3) * (0.5 + torch.rand(n, 3, generator=g))),
-                          torch.randn(n, 4, generator=g), torch.logit(torch.linspace(0.4, 0.9, n)), torch.zeros(n, 1, 3))
+    gaussians = Gaussians(
+        means,
+        torch.log(torch.full((n, 3), 0.3) * (0.5 + torch.rand(n, 3, generator=g))),
+        torch.randn(n, 4, generator=g),
+        torch.logit(torch.linspace(0.4, 0.9, n)),
+        torch.zeros(n, 1, 3),
+    )
     ref, out = assert_backends_agree(gaussians, camera, torch.rand(n, 4, generator=g))
     torch.testing.assert_close(out.means2d, pixels, atol=1e-3, rtol=0)
     assert out.visible.all() and ref.alpha[15:17, 15:17].min() > 0.1  # the footprints do reach across the borders
@@ -153,16 +160,25 @@ def test_gradcheck_float64():
     background = torch.tensor([0.3, 0.1, 0.7], dtype=torch.float64)
 
     def render(means, log_scales, quats, opacity_logits, feats):
-        out = rasterize(Gaussians(means, log_scales, quats, opacity_logits, gaussians.sh), camera, feats, background, backend="numba")
+        out = rasterize(
+            Gaussians(means, log_scales, quats, opacity_logits, gaussians.sh),
+            camera,
+            feats,
+            background,
+            backend="numba",
+        )
         return out.features, out.alpha, out.depth
 
-    inputs = tuple(t.clone().requires_grad_(True) for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
-                                                              gaussians.opacity_logits, features.double()))
+    inputs = tuple(
+        t.clone().requires_grad_(True)
+        for t in (gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits, features.double())
+    )
     assert render(*inputs)[1].max() > 0.5 and render(*inputs)[0].dtype == torch.float64
     assert torch.autograd.gradcheck(render, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
 
 
 # ---------------------------------------------------------------- the compiled projection
+
 
 def compiled_projection(gaussians, camera, settings=RasterSettings()):
     """means2d, conics, depths (differentiable), radii, boxes from backend numba's projection Function."""
@@ -172,8 +188,9 @@ def compiled_projection(gaussians, camera, settings=RasterSettings()):
     np_dtype = np.float64 if dtype == torch.float64 else np.float32
     numba_backend.ensure_compiled(np_dtype)
     layout = numba_backend._Layout(camera, settings, np_dtype)
-    means2d, conics, depths = numba_backend._NumbaProjection.apply(gaussians.means, gaussians.scales, gaussians.quats,
-                                                                   gaussians.opacities, layout)
+    means2d, conics, depths = numba_backend._NumbaProjection.apply(
+        gaussians.means, gaussians.scales, gaussians.quats, gaussians.opacities, layout
+    )
     return means2d, conics, depths, layout.radii, torch.from_numpy(layout.boxes)
 
 
@@ -209,7 +226,11 @@ def test_compiled_projection_is_setups_bits(settings):
         means2d, conics, depths, radii, boxes = compiled_projection(gaussians, camera, settings)
         assert torch.equal(means2d, ref.proj.means2d) and torch.equal(depths, ref.proj.depths)
         valid = ref.proj.valid  # invalid ones hold placeholder conics (both backends the same ones, but no more)
-        assert torch.equal(conics[valid], ref.proj.conics[valid]) and torch.equal(radii, ref.radii) and torch.equal(boxes, ref.boxes)
+        assert (
+            torch.equal(conics[valid], ref.proj.conics[valid])
+            and torch.equal(radii, ref.radii)
+            and torch.equal(boxes, ref.boxes)
+        )
     ref = _setup(*hard_scene(settings.near), settings)
     assert not ref.proj.valid[[0, 2, 3, 4, 5]].any() and ref.proj.valid[1]  # the near plane and behind the camera
     if settings.eps2d == 0.0:
@@ -223,7 +244,10 @@ def test_compiled_projection_gradients(settings):
     for gaussians, camera in (hard_scene(settings.near), random_scene(500, 3, width=53, height=37)[:2]):
         grads = []
         for compiled in (False, True):
-            leaves = [t.detach().clone().requires_grad_(True) for t in (gaussians.means, gaussians.log_scales, gaussians.quats)]
+            leaves = [
+                t.detach().clone().requires_grad_(True)
+                for t in (gaussians.means, gaussians.log_scales, gaussians.quats)
+            ]
             g = Gaussians(*leaves, gaussians.opacity_logits, gaussians.sh)
             if compiled:
                 means2d, conics, depths = compiled_projection(g, camera, settings)[:3]
@@ -242,7 +266,9 @@ def test_compiled_projection_gradients(settings):
 
 def test_compiled_projection_gradcheck_float64():
     gaussians, camera = hard_scene()
-    keep = torch.tensor([1, 7, 9, 11, 20, 21, 22, 23])  # just in front of the near plane, a disc, q = 0, clamped, ordinary
+    keep = torch.tensor(
+        [1, 7, 9, 11, 20, 21, 22, 23]
+    )  # just in front of the near plane, a disc, q = 0, clamped, ordinary
     sub = gaussians.subset(keep).to(dtype=torch.float64)
     sub.quats[2] = torch.tensor([0.3, -0.2, 0.1, 0.5], dtype=torch.float64)  # gradcheck needs |q| > 0
 
@@ -254,6 +280,7 @@ def test_compiled_projection_gradcheck_float64():
 
 
 # ---------------------------------------------------------------- choosing it, counting it, compiling it
+
 
 def test_auto_on_the_cpu_is_numba_and_torch_stays_available():
     assert "numba" in BACKENDS
@@ -281,15 +308,27 @@ def test_a_stage_record_counts_numba_renders(tiny_object, tmp_path):
 def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
     """A fresh cache folder: the first process compiles and says so in one line; the second loads from the cache
     and says nothing."""
-    script = ("import torch; from tests.test_rasterize import random_scene; from matspray.render.rasterize import rasterize\n"
-              "g, c, f = random_scene(20, 0)\n"
-              "for _ in range(2): rasterize(g, c, f, backend='numba')\n")
+    script = (
+        "import torch; from tests.test_rasterize import random_scene; from matspray.render.rasterize import rasterize\n"
+        "g, c, f = random_scene(20, 0)\n"
+        "for _ in range(2): rasterize(g, c, f, backend='numba')\n"
+    )
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     said = []
     for _ in range(2):
-        done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600,
-                              cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        done = subprocess.run(
+            [sys.executable, "-c", script],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+        )
         assert done.returncode == 0, done.stderr
         said.append([line for line in done.stderr.splitlines() if line.startswith("numba:")])
-    assert len(said[0]) == 1 and "compiled the rasterizer's kernels" in said[0][0] and str(tmp_path / "cache") in said[0][0]
+    assert (
+        len(said[0]) == 1
+        and "compiled the rasterizer's kernels" in said[0][0]
+        and str(tmp_path / "cache") in said[0][0]
+    )
     assert said[1] == []

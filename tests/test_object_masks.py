@@ -15,23 +15,39 @@ from matspray.data.scene import Scene
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.objectmasks import compute_object_masks, object_alpha, read_object_masks, write_object_masks
-from matspray.objectregion import ObjectRegion, auto_region, dense_radius, framing_radius, given_region, mask_iou, support_plane
+from matspray.objectregion import (
+    ObjectRegion,
+    auto_region,
+    dense_radius,
+    framing_radius,
+    given_region,
+    mask_iou,
+    support_plane,
+)
 from matspray.render.rasterize import rasterize
 
 
 def orbit(count: int, distance: float = 4.0, elevation_deg: float = 25.0, size: int = 24) -> list[Camera]:
     z = distance * math.sin(math.radians(elevation_deg))
     ring = distance * math.cos(math.radians(elevation_deg))
-    return [Camera.look_at([ring * math.cos(a), ring * math.sin(a), z], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.8, size, size)
-            for a in (2 * math.pi * i / count for i in range(count))]
+    return [
+        Camera.look_at([ring * math.cos(a), ring * math.sin(a), z], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.8, size, size)
+        for a in (2 * math.pi * i / count for i in range(count))
+    ]
 
 
 def object_on_a_table(seed: int = 0):
     """Points of a ball (radius 0.5 at the origin) resting on a table z = -0.5 (radius 3), and a far shell."""
     g = torch.Generator().manual_seed(seed)
-    ball = torch.nn.functional.normalize(torch.randn(3000, 3, generator=g), dim=-1) * 0.5 * torch.rand(3000, 1, generator=g) ** (1 / 3)
+    ball = (
+        torch.nn.functional.normalize(torch.randn(3000, 3, generator=g), dim=-1)
+        * 0.5
+        * torch.rand(3000, 1, generator=g) ** (1 / 3)
+    )
     r, a = 3.0 * torch.rand(4000, generator=g).sqrt(), 2 * math.pi * torch.rand(4000, generator=g)
-    table = torch.stack([r * torch.cos(a), r * torch.sin(a), torch.full_like(r, -0.5) + 0.01 * torch.randn(4000, generator=g)], -1)
+    table = torch.stack(
+        [r * torch.cos(a), r * torch.sin(a), torch.full_like(r, -0.5) + 0.01 * torch.randn(4000, generator=g)], -1
+    )
     table = table[(table[:, :2].norm(dim=-1) > 0.3)]  # under the ball the table is hidden
     far = torch.nn.functional.normalize(torch.randn(500, 3, generator=g), dim=-1) * 12.0
     return ball, table, far
@@ -59,7 +75,9 @@ def test_support_plane_needs_every_camera_on_one_side():
     straddled = torch.cat([centers, -centers])  # cameras above and below the table: it is not a ground
     assert support_plane(table.double(), straddled, 0.08, generator, far(table)) is None
     flat_top = torch.cat([ball, ball[:1500] * torch.tensor([1.0, 1.0, 0.0]) + torch.tensor([0.0, 0.0, 0.5])])
-    assert support_plane(flat_top.double(), centers, 0.08, generator, far(flat_top)) is None  # the object's own face is no ground
+    assert (
+        support_plane(flat_top.double(), centers, 0.08, generator, far(flat_top)) is None
+    )  # the object's own face is no ground
 
 
 @pytest.mark.parametrize("hollow", [False, True])
@@ -87,8 +105,12 @@ def test_given_regions_sphere_box_and_bad_values():
     assert box.bounds().tolist() == [[0, 0, 0], [1, 2, 3]]
     for region in (sphere, box, ObjectRegion(center=(1, 2, 3), radius=2.0, plane=(0, 0, 1, 0.5), rule="auto")):
         assert ObjectRegion.from_json(region.to_json()) == region
-    for values, message in (([0, 0, 0], "give 4 numbers"), ([0, 0, 0, -1], "radius must be > 0"),
-                            ([0, 0, 0, 1, -1, 1], "first corner must be below"), ([0, 0, float("nan"), 1], "finite")):
+    for values, message in (
+        ([0, 0, 0], "give 4 numbers"),
+        ([0, 0, 0, -1], "radius must be > 0"),
+        ([0, 0, 0, 1, -1, 1], "first corner must be below"),
+        ([0, 0, float("nan"), 1], "finite"),
+    ):
         with pytest.raises(SettingError, match=message) as caught:
             given_region(values)
         assert caught.value.setting == "object_bounds"
@@ -105,8 +127,13 @@ def test_mask_iou_against_hand_counts():
 
 def disks(centers: torch.Tensor, size: float = 0.15) -> Gaussians:
     n = len(centers)
-    return Gaussians(centers.float(), torch.full((n, 3), math.log(size)), torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                     torch.full((n,), 5.0), torch.zeros(n, 1, 3))
+    return Gaussians(
+        centers.float(),
+        torch.full((n, 3), math.log(size)),
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n,), 5.0),
+        torch.zeros(n, 1, 3),
+    )
 
 
 def test_masks_are_the_rendered_alpha_of_the_gaussians_inside(tmp_path):
@@ -136,8 +163,22 @@ def test_masks_are_the_rendered_alpha_of_the_gaussians_inside(tmp_path):
 
 
 def test_cli_refuses_malformed_object_bounds(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "matspray", "run", "--data", str(tmp_path), "--out", str(tmp_path / "run"),
-                             "--object-bounds", "0,0,0"], capture_output=True, text=True)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "matspray",
+            "run",
+            "--data",
+            str(tmp_path),
+            "--out",
+            str(tmp_path / "run"),
+            "--object-bounds",
+            "0,0,0",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert result.returncode != 0 and "Traceback" not in result.stderr
     assert "--object-bounds: give 4 numbers" in result.stderr
 
@@ -149,8 +190,22 @@ def unmasked_object(tmp_path_factory):
     from matspray.synth import SynthConfig, make_object
 
     out = tmp_path_factory.mktemp("unmasked") / "data"
-    make_object(SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32,
-                            background="env", ground=True), out, progress=False, notify=lambda _: None)
+    make_object(
+        SynthConfig(
+            shape="sphere",
+            seed=1,
+            resolution=32,
+            train_views=6,
+            test_views=2,
+            spp=4,
+            env_height=32,
+            background="env",
+            ground=True,
+        ),
+        out,
+        progress=False,
+        notify=lambda _: None,
+    )
     return out
 
 
@@ -200,8 +255,15 @@ def test_pipeline_masks_stage_on_an_unmasked_capture(unmasked_object, tmp_path):
     assert logged == ["refine [full]: done before, reusing asset/"]
     again.predict()
     assert "masks: done before, reusing masks/" in logged and "predict: done before, reusing materials2d/" in logged
-    given = Pipeline(unmasked_object, run, build_config("test", predictor="simulated", object_bounds=(0, 0, 0, 0.5),
-                                                         **{"refine.iterations": 4}), progress=False, log=logged.append)
+    given = Pipeline(
+        unmasked_object,
+        run,
+        build_config("test", predictor="simulated", object_bounds=(0, 0, 0, 0.5), **{"refine.iterations": 4}),
+        progress=False,
+        log=logged.append,
+    )
     given.predict()
-    assert read_object_masks(run / "masks").region == given_region((0, 0, 0, 0.5))  # a new region: masks and predictions redone
+    assert read_object_masks(run / "masks").region == given_region(
+        (0, 0, 0, 0.5)
+    )  # a new region: masks and predictions redone
     assert "predict: done before, reusing materials2d/" not in logged[-3:]

@@ -40,7 +40,13 @@ def test_orbit_keeps_distance_and_elevation_about_the_cameras_up(up):
         assert torch.allclose(camera.K, reference[0].K)
     # the first frame looks from the side of the first reference camera
     first = orbit[0].center.double() - target
-    assert float(torch.nn.functional.normalize(first, dim=0) @ torch.nn.functional.normalize(reference[0].center.double() - target, dim=0)) > 0.999
+    assert (
+        float(
+            torch.nn.functional.normalize(first, dim=0)
+            @ torch.nn.functional.normalize(reference[0].center.double() - target, dim=0)
+        )
+        > 0.999
+    )
     # consecutive frames are one step of the circle apart
     step = orbit[1].center.double() - orbit[0].center.double()
     assert float(step.norm()) == pytest.approx(2 * 3.0 * math.cos(0.4) * math.sin(math.pi / 12), rel=1e-6)
@@ -57,7 +63,10 @@ def test_sphere_and_spiral_cameras_are_the_formulas_they_were_before_the_rename(
     cameras = spiral_cameras(5, 12, phase=1.0)
     for i, camera in enumerate(cameras):
         elevation, azimuth = math.radians(-30 + 105 * (i + 0.5) / 5), i * golden + 1.0
-        eye = [3.2 * math.cos(elevation) * math.cos(azimuth), 3.2 * math.cos(elevation) * math.sin(azimuth),
-               3.2 * math.sin(elevation)]
+        eye = [
+            3.2 * math.cos(elevation) * math.cos(azimuth),
+            3.2 * math.cos(elevation) * math.sin(azimuth),
+            3.2 * math.sin(elevation),
+        ]
         expected = Camera.look_at(eye, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(40.0), 12, 12)
         assert torch.equal(camera.viewmat, expected.viewmat) and torch.equal(camera.K, expected.K)

@@ -1,18 +1,19 @@
 """The method end to end on a tiny Mitsuba object: stages, artifacts, resuming, eval, report, relight."""
 
 import re
-from dataclasses import replace
 import subprocess
 import sys
+from dataclasses import replace
 
 import pytest
 import torch
 
-from matspray.errors import DataError, NumericalError, RunError
 from matspray.config import WORKING_SIZE, build_config, shadow_maps
+from matspray.errors import NumericalError, RunError
 from matspray.pipeline import Pipeline
-from matspray.variants import VARIANT_NAMES as VARIANTS, asset_stage
 from matspray.refine import check_finite
+from matspray.variants import VARIANT_NAMES as VARIANTS
+from matspray.variants import asset_stage
 from tests.conftest import busy_message
 
 pytest.importorskip("mitsuba")
@@ -31,9 +32,19 @@ def finished_run(tiny_object, tmp_path_factory):
 
 
 def test_every_stage_writes_its_artifact(finished_run):
-    for path in ("config.yaml", "dataset.json", "timings.json", "materials2d/predictor.json", "geometry/gaussians.ply",
-                 "lift/projected.pt", "visibility/visibility.pt", "asset/asset.ply", "asset/envmap.exr", "asset/merger.pt",
-                 "asset/visibility.pt"):
+    for path in (
+        "config.yaml",
+        "dataset.json",
+        "timings.json",
+        "materials2d/predictor.json",
+        "geometry/gaussians.ply",
+        "lift/projected.pt",
+        "visibility/visibility.pt",
+        "asset/asset.ply",
+        "asset/envmap.exr",
+        "asset/merger.pt",
+        "asset/visibility.pt",
+    ):
         assert (finished_run / path).exists(), path
     for variant in VARIANTS:
         assert (finished_run / asset_stage(variant) / "asset.ply").exists()
@@ -50,7 +61,10 @@ def test_asset_round_trip(finished_run):
     assert asset.materials.shape[1] == 5 and len(asset.gaussians) == len(asset.materials)
     assert (asset.materials >= 0).all() and (asset.materials <= 1).all()
     assert torch.allclose(asset.normals.norm(dim=-1), torch.ones(len(asset.normals)), atol=1e-4)
-    assert asset.visibility is not None and asset.visibility.shape == (len(asset.gaussians), 2 * 4 * 4)  # test preset: rows 4
+    assert asset.visibility is not None and asset.visibility.shape == (
+        len(asset.gaussians),
+        2 * 4 * 4,
+    )  # test preset: rows 4
 
 
 def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
@@ -80,7 +94,12 @@ def test_run_folder_of_another_dataset_is_refused(tmp_path, finished_run):
     from matspray.synth import SynthConfig, make_object
 
     other = tmp_path / "other"
-    make_object(SynthConfig(shape="sphere", seed=2, resolution=16, train_views=3, test_views=1, spp=2, env_height=16), other, progress=False, notify=lambda _: None)
+    make_object(
+        SynthConfig(shape="sphere", seed=2, resolution=16, train_views=3, test_views=1, spp=2, env_height=16),
+        other,
+        progress=False,
+        notify=lambda _: None,
+    )
     with pytest.raises(RunError, match="made from another dataset"):
         Pipeline(other, finished_run, tiny_config(), progress=False, log=lambda _: None)
 
@@ -107,8 +126,27 @@ def test_eval_tables_and_report(tiny_object, finished_run):
 
 def test_relight_cli_writes_frames_and_video(finished_run, tmp_path):
     out = tmp_path / "relit"
-    result = subprocess.run([sys.executable, "-m", "matspray", "relight", "--run", str(finished_run), "--env", "studio",
-                             "--views", "orbit", "--frames", "3", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "matspray",
+            "relight",
+            "--run",
+            str(finished_run),
+            "--env",
+            "studio",
+            "--views",
+            "orbit",
+            "--frames",
+            "3",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr
     assert len(list(out.glob("orbit_*_studio.png"))) == 3
     assert (out / "orbit_studio.mp4").stat().st_size > 0
@@ -118,8 +156,23 @@ def test_relight_refuses_a_map_that_is_not_latlong(finished_run, tmp_path):
     from matspray.data import write_image
 
     write_image(tmp_path / "square.exr", torch.ones(8, 8, 3))
-    result = subprocess.run([sys.executable, "-m", "matspray", "relight", "--run", str(finished_run), "--env", str(tmp_path / "square.exr"),
-                             "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "matspray",
+            "relight",
+            "--run",
+            str(finished_run),
+            "--env",
+            str(tmp_path / "square.exr"),
+            "--out",
+            str(tmp_path / "o"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "lat-long" in result.stderr
 
@@ -139,7 +192,9 @@ def test_nan_loss_names_step_and_term():
 def test_a_pipeline_from_default_configs_runs(tiny_object, tmp_path):
     from matspray.config import PipelineConfig
 
-    pipeline = Pipeline(tiny_object, tmp_path / "run", PipelineConfig(predictor="ground-truth"), progress=False, log=lambda _: None)
+    pipeline = Pipeline(
+        tiny_object, tmp_path / "run", PipelineConfig(predictor="ground-truth"), progress=False, log=lambda _: None
+    )
     maps = pipeline.predict()
     assert set(maps) == {v.name for v in pipeline.scene.train}
     assert pipeline.config.geometry.iterations == 3000  # the demo preset's geometry, not None
@@ -147,15 +202,24 @@ def test_a_pipeline_from_default_configs_runs(tiny_object, tmp_path):
 
 def test_resuming_with_the_other_method_recomputes_only_what_differs(tiny_object, finished_run):
     ours = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
-    paper = Pipeline(tiny_object, finished_run, build_config("test", "paper", predictor="simulated", **{"refine.iterations": 8}),
-                     progress=False, log=lambda _: None)
+    paper = Pipeline(
+        tiny_object,
+        finished_run,
+        build_config("test", "paper", predictor="simulated", **{"refine.iterations": 8}),
+        progress=False,
+        log=lambda _: None,
+    )
     assert paper.predict_fingerprint() == ours.predict_fingerprint()
     assert paper.geometry_fingerprint() == ours.geometry_fingerprint()
     assert paper.lift_fingerprint() != ours.lift_fingerprint()
     # the same lift settings under another method name still do not share the stage: the method is in the fingerprint
-    relabelled = Pipeline(tiny_object, finished_run, replace(tiny_config(), method="paper"), progress=False, log=lambda _: None)
+    relabelled = Pipeline(
+        tiny_object, finished_run, replace(tiny_config(), method="paper"), progress=False, log=lambda _: None
+    )
     assert relabelled.lift_fingerprint() != ours.lift_fingerprint()
-    Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)  # leave config.yaml as the fixture's
+    Pipeline(
+        tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None
+    )  # leave config.yaml as the fixture's
 
 
 def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_object, finished_run):
@@ -165,15 +229,31 @@ def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_ob
     assert record["settings"]["seed"] == 1  # tiny_object is synth seed 1; the config gives no seed
     pipeline = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
     assert pipeline.predictor_options().seed == 1
-    given_zero = Pipeline(tiny_object, finished_run, replace(tiny_config(), predictor_options={"seed": 0}), progress=False, log=lambda _: None)
+    given_zero = Pipeline(
+        tiny_object,
+        finished_run,
+        replace(tiny_config(), predictor_options={"seed": 0}),
+        progress=False,
+        log=lambda _: None,
+    )
     assert given_zero.predictor_options().seed == 0
     assert given_zero.predict_fingerprint() != pipeline.predict_fingerprint()  # other draws: predict runs again
-    given_one = Pipeline(tiny_object, finished_run, replace(tiny_config(), predictor_options={"seed": 1}), progress=False, log=lambda _: None)
+    given_one = Pipeline(
+        tiny_object,
+        finished_run,
+        replace(tiny_config(), predictor_options={"seed": 1}),
+        progress=False,
+        log=lambda _: None,
+    )
     assert given_one.predictor_options() == pipeline.predictor_options()
-    Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)  # leave config.yaml as the fixture's
+    Pipeline(
+        tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None
+    )  # leave config.yaml as the fixture's
 
 
-def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_first(tiny_object, finished_run, tmp_path, capsys):
+def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_first(
+    tiny_object, finished_run, tmp_path, capsys
+):
     import json
     import os
     import shutil
@@ -206,8 +286,9 @@ def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_firs
     assert "refine [full]: done before" not in capsys.readouterr().out
 
 
-
-def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(tiny_object, finished_run, tmp_path, capsys, hold_in_another_process):
+def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(
+    tiny_object, finished_run, tmp_path, capsys, hold_in_another_process
+):
     import shutil
 
     from matspray.cli import main
@@ -225,8 +306,13 @@ def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(tiny_
     assert main(args) == 0
 
 
-@pytest.mark.parametrize("command", [["geometry", "--preset", "test", "--iterations", "5", "--quiet"], ["predict", "--predictor", "simulated"]])
-def test_the_stage_commands_refuse_a_busy_run_folder_before_working(tiny_object, tmp_path, capsys, hold_in_another_process, command):
+@pytest.mark.parametrize(
+    "command",
+    [["geometry", "--preset", "test", "--iterations", "5", "--quiet"], ["predict", "--predictor", "simulated"]],
+)
+def test_the_stage_commands_refuse_a_busy_run_folder_before_working(
+    tiny_object, tmp_path, capsys, hold_in_another_process, command
+):
     from matspray.cli import main
 
     run = tmp_path / "run"
@@ -243,21 +329,55 @@ def test_photos_larger_than_the_working_size_are_brought_to_it(tiny_object, tmp_
     monkeypatch.setitem(WORKING_SIZE, "test", 16)  # the object is 32 px
     said = []
     with Pipeline(tiny_object, tmp_path / "small", build_config("test"), progress=False, log=said.append) as pipeline:
-        assert (pipeline.scene.train[0].width, pipeline.scene.train[0].height) == (16, 16) and pipeline.config.downscale == 2.0
-    assert "photos: 32x32 brought to 16x16, the test preset's working size (--downscale 1 keeps them as they are)" in said
-    assert pipeline.run.downscale() == 2.0  # config.yaml keeps the factor, so eval, relight and export load the same views
-    with Pipeline(tiny_object, tmp_path / "full", build_config("test", downscale=1.0), progress=False, log=lambda _: None) as pipeline:
+        assert (pipeline.scene.train[0].width, pipeline.scene.train[0].height) == (
+            16,
+            16,
+        ) and pipeline.config.downscale == 2.0
+    assert (
+        "photos: 32x32 brought to 16x16, the test preset's working size (--downscale 1 keeps them as they are)" in said
+    )
+    assert (
+        pipeline.run.downscale() == 2.0
+    )  # config.yaml keeps the factor, so eval, relight and export load the same views
+    with Pipeline(
+        tiny_object, tmp_path / "full", build_config("test", downscale=1.0), progress=False, log=lambda _: None
+    ) as pipeline:
         assert pipeline.scene.train[0].width == 32  # --downscale given: kept as asked
 
 
 def test_run_says_its_estimate_first_and_counts_only_what_is_left(tiny_object, finished_run, tmp_path, capsys):
     from matspray.cli import main
 
-    assert Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None).work(VARIANTS).stages() == \
-        {"geometry": 0.0, "masks": 0.0, "lift": 0.0, "refine": 0.0, "refine-mapless": 0.0}  # everything finished
+    assert Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None).work(
+        VARIANTS
+    ).stages() == {
+        "geometry": 0.0,
+        "masks": 0.0,
+        "lift": 0.0,
+        "refine": 0.0,
+        "refine-mapless": 0.0,
+    }  # everything finished
     run = tmp_path / "fresh"
-    assert main(["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--geometry-iterations", "5",
-                 "--refine-iterations", "3"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--data",
+                str(tiny_object),
+                "--out",
+                str(run),
+                "--preset",
+                "test",
+                "--geometry-iterations",
+                "5",
+                "--refine-iterations",
+                "3",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out.splitlines()
-    assert printed[0].startswith("estimate: ") and " with 2 free CPU cores " in printed[0] and "geometry ~" in printed[0], printed
+    assert (
+        printed[0].startswith("estimate: ") and " with 2 free CPU cores " in printed[0] and "geometry ~" in printed[0]
+    ), printed
     assert any(line.startswith("took ") for line in printed)

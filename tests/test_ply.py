@@ -14,8 +14,13 @@ from matspray.geometry.ply import read_ply, write_ply
 
 def random_gaussians(n, sh_bases, seed=0):
     g = torch.Generator().manual_seed(seed)
-    return Gaussians(torch.randn(n, 3, generator=g), torch.randn(n, 3, generator=g), torch.randn(n, 4, generator=g),
-                     torch.randn(n, generator=g), torch.randn(n, sh_bases, 3, generator=g))
+    return Gaussians(
+        torch.randn(n, 3, generator=g),
+        torch.randn(n, 3, generator=g),
+        torch.randn(n, 4, generator=g),
+        torch.randn(n, generator=g),
+        torch.randn(n, sh_bases, 3, generator=g),
+    )
 
 
 @pytest.mark.parametrize("sh_bases", [1, 4, 16])
@@ -45,7 +50,22 @@ def test_standard_3dgs_layout(tmp_path):
 
 
 def test_reads_files_without_normals(tmp_path):
-    names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    names = [
+        "x",
+        "y",
+        "z",
+        "f_dc_0",
+        "f_dc_1",
+        "f_dc_2",
+        "opacity",
+        "scale_0",
+        "scale_1",
+        "scale_2",
+        "rot_0",
+        "rot_1",
+        "rot_2",
+        "rot_3",
+    ]
     data = np.zeros(3, dtype=[(n, "f4") for n in names])
     data["rot_0"] = 1
     PlyData([PlyElement.describe(data, "vertex")]).write(str(tmp_path / "plain.ply"))

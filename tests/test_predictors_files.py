@@ -35,7 +35,11 @@ def dataset(tmp_path):
 
 
 def constant_maps(i: int, height: int = H, width: int = W):
-    return (torch.tensor(COLORS[i]).expand(height, width, 3), torch.full((height, width), ROUGH[i]), torch.full((height, width), METAL[i]))
+    return (
+        torch.tensor(COLORS[i]).expand(height, width, 3),
+        torch.full((height, width), ROUGH[i]),
+        torch.full((height, width), METAL[i]),
+    )
 
 
 def assert_constants(maps, names, atol):
@@ -67,7 +71,9 @@ def write_frames(folder, count, suffix, chunk_size=3, scale=2, encoding="gamma1.
         for name, values in (("roughness", rough), ("metallic", metal)):
             values = values[..., None].expand(-1, -1, 3) if passes_as_rgb else values
             write_raw(stem.with_name(stem.name + f".{name}.{suffix}"), values)
-        write_raw(stem.with_name(stem.name + f".normal.{suffix}"), torch.rand(H * scale, W * scale, 3))  # other passes are ignored
+        write_raw(
+            stem.with_name(stem.name + f".normal.{suffix}"), torch.rand(H * scale, W * scale, 3)
+        )  # other passes are ignored
 
 
 # ------------------------------------------------------------------------------------------ layouts
@@ -167,13 +173,25 @@ def test_missing_views_are_listed(dataset, tmp_path):
     folder = tmp_path / "maps"
     folder.mkdir()
     write_matspray(folder, ["r_000", "r_001"])
-    with pytest.raises(DataError, match=r"no matspray maps for 2 of 4 views: r_002, r_003 \(maps are matched by view name; the folder has maps for r_000, r_001\)"):
+    with pytest.raises(
+        DataError,
+        match=(
+            r"no matspray maps for 2 of 4 views: r_002, r_003 \(maps are matched by view name; "
+            r"the folder has maps for r_000, r_001\)"
+        ),
+    ):
         predict_views(views, make_predictor(f"files:{folder}"), notify=quiet)
 
 
 def test_incomplete_maps_say_what_is_missing(tmp_path):
-    write_matspray(tmp_path, ["r_000", "r_001", "r_002"], skip={("r_001", "metallic"), ("r_002", "metallic"), ("r_000", "basecolor")})
-    with pytest.raises(DataError, match="incomplete matspray maps: no basecolor for r_000; no metallic for r_001, r_002"):
+    write_matspray(
+        tmp_path,
+        ["r_000", "r_001", "r_002"],
+        skip={("r_001", "metallic"), ("r_002", "metallic"), ("r_000", "basecolor")},
+    )
+    with pytest.raises(
+        DataError, match="incomplete matspray maps: no basecolor for r_000; no metallic for r_001, r_002"
+    ):
         make_predictor(f"files:{tmp_path}")
 
 
@@ -195,7 +213,9 @@ def test_wrong_channels_and_ranges_are_rejected(dataset, tmp_path):
         predict_views(views, make_predictor(f"files:{folder}"), notify=quiet)
     write_raw(folder / "r_002_roughness.png", torch.rand(H, W), bits=16)
     write_raw(folder / "r_001_basecolor.png", torch.rand(H, W), bits=16)
-    with pytest.raises(DataError, match="r_001_basecolor.png: is a single-channel image; a base color map needs 3 channels"):
+    with pytest.raises(
+        DataError, match="r_001_basecolor.png: is a single-channel image; a base color map needs 3 channels"
+    ):
         predict_views(views, make_predictor(f"files:{folder}"), notify=quiet)
     write_raw(folder / "r_001_basecolor.png", torch.rand(H, W, 3), bits=16)
     write_raw(folder / "r_003_metallic.png", torch.rand(H + 1, W), bits=16)
@@ -218,8 +238,11 @@ def test_values_outside_unit_range_are_rejected(dataset, tmp_path):
 
 def test_undetectable_layout_names_every_layout_tried(tmp_path):
     (tmp_path / "photo.png").write_bytes(b"")
-    with pytest.raises(DataError, match="no known map layout found \\(tried marigold: .*; matspray: .*; "
-                       "diffusionrenderer-cosmos: .*; diffusionrenderer-svd: .*\\) \\(found photo.png\\)"):
+    with pytest.raises(
+        DataError,
+        match="no known map layout found \\(tried marigold: .*; matspray: .*; "
+        "diffusionrenderer-cosmos: .*; diffusionrenderer-svd: .*\\) \\(found photo.png\\)",
+    ):
         detect_layout(tmp_path)
     with pytest.raises(DataError, match="nowhere: does not exist"):
         detect_layout(tmp_path / "nowhere")
@@ -251,7 +274,10 @@ def test_failed_predict_leaves_no_materials2d(dataset, tmp_path, capsys):
     assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 2
     assert "r_003_metallic.png: cannot read image" in capsys.readouterr().err
     assert not (run / "materials2d").exists() and not any(run.glob(".materials2d*"))
-    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}", "--split", "test"]) == 2
+    assert (
+        main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}", "--split", "test"])
+        == 2
+    )
     assert "no matspray maps for 2 of 2 views: r_004, r_005" in capsys.readouterr().err
 
 
@@ -267,10 +293,28 @@ def test_predicting_another_split_into_the_same_run_is_refused(dataset, tmp_path
     assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 0
     assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 0
     assert "replaced the previous maps" in capsys.readouterr().out
-    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}", "--split", "test"]) == 2
+    assert (
+        main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}", "--split", "test"])
+        == 2
+    )
     assert "holds maps of the train split; predicting the test split would replace them" in capsys.readouterr().err
     assert read_predictor_info(run)["split"] == "train"
-    assert main(["predict", "--data", str(root), "--out", str(tmp_path / "all"), "--predictor", f"files:{folder}", "--split", "all"]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                "--data",
+                str(root),
+                "--out",
+                str(tmp_path / "all"),
+                "--predictor",
+                f"files:{folder}",
+                "--split",
+                "all",
+            ]
+        )
+        == 0
+    )
     assert read_predictor_info(tmp_path / "all")["views"] == [f"r_{i:03d}" for i in range(6)]
 
 
@@ -278,5 +322,20 @@ def test_split_all_refuses_views_that_share_names(tmp_path, capsys):
     camera = Camera.look_at([3.0, 0.0, 0.5], [0, 0, 0], [0, 0, 1], 0.8, W, H)
     view = View("r_0", torch.rand(H, W, 3), None, camera)
     write_blender(tmp_path / "data", {"train": [view], "test": [view]})
-    assert main(["predict", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--predictor", "ground-truth", "--split", "all"]) == 2
+    assert (
+        main(
+            [
+                "predict",
+                "--data",
+                str(tmp_path / "data"),
+                "--out",
+                str(tmp_path / "run"),
+                "--predictor",
+                "ground-truth",
+                "--split",
+                "all",
+            ]
+        )
+        == 2
+    )
     assert "train and test views share names (r_0)" in capsys.readouterr().err

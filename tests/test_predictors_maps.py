@@ -32,7 +32,12 @@ def make_view(name: str, height: int = 6, width: int = 8) -> View:
 def random_maps(height: int = 6, width: int = 8, confidence: bool = False, seed: int = 0) -> MaterialMaps:
     g = torch.Generator().manual_seed(seed)
     conf = torch.rand(height, width, generator=g) if confidence else None
-    return MaterialMaps(torch.rand(height, width, 3, generator=g), torch.rand(height, width, generator=g), torch.rand(height, width, generator=g), conf)
+    return MaterialMaps(
+        torch.rand(height, width, 3, generator=g),
+        torch.rand(height, width, generator=g),
+        torch.rand(height, width, generator=g),
+        conf,
+    )
 
 
 # ------------------------------------------------------------------------------------------ encodings
@@ -84,7 +89,9 @@ def test_resized_keeps_constant_maps_and_changes_size():
     m = MaterialMaps(torch.full((8, 8, 3), 0.25), torch.full((8, 8), 0.5), torch.ones(8, 8), torch.full((8, 8), 0.75))
     r = m.resized(4, 6)
     assert (r.height, r.width) == (4, 6)
-    assert torch.allclose(r.basecolor, torch.full((4, 6, 3), 0.25)) and torch.allclose(r.confidence, torch.full((4, 6), 0.75))
+    assert torch.allclose(r.basecolor, torch.full((4, 6, 3), 0.25)) and torch.allclose(
+        r.confidence, torch.full((4, 6), 0.75)
+    )
 
 
 # ------------------------------------------------------------------------------------------ materials2d folder
@@ -93,8 +100,16 @@ def test_materials2d_round_trip_is_accurate(tmp_path):
     written = {"a": random_maps(confidence=True, seed=1), "b": random_maps(seed=2)}
     folder = write_materials2d(tmp_path / "run", written, {"predictor": "test"})
     names = sorted(p.name for p in folder.iterdir())
-    assert names == ["a_basecolor.png", "a_confidence.png", "a_metallic.png", "a_roughness.png",
-                     "b_basecolor.png", "b_metallic.png", "b_roughness.png", "predictor.json"]
+    assert names == [
+        "a_basecolor.png",
+        "a_confidence.png",
+        "a_metallic.png",
+        "a_roughness.png",
+        "b_basecolor.png",
+        "b_metallic.png",
+        "b_roughness.png",
+        "predictor.json",
+    ]
     assert read_raw(folder / "a_roughness.png").shape == (6, 8, 1)  # grey 16-bit
     back = read_materials2d(tmp_path / "run", views)
     for name in ("a", "b"):
@@ -133,7 +148,9 @@ def test_failed_write_leaves_no_folder_and_keeps_the_previous_one(tmp_path, monk
     assert sorted(p.name for p in run.iterdir()) == ["materials2d"]
     assert read_predictor_info(run)["predictor"] == "first"
     with pytest.raises(DataError, match="roughness values outside"):  # invalid maps never reach the disk
-        write_materials2d(run, {"a": MaterialMaps(torch.zeros(2, 2, 3), torch.full((2, 2), 2.0), torch.zeros(2, 2))}, {})
+        write_materials2d(
+            run, {"a": MaterialMaps(torch.zeros(2, 2, 3), torch.full((2, 2), 2.0), torch.zeros(2, 2))}, {}
+        )
     assert read_predictor_info(run)["predictor"] == "first"
 
 
@@ -173,8 +190,10 @@ def test_predict_views_resamples_with_one_notice_per_size():
     out = predict_views(views, FixedPredictor({"a": constant, "b": constant}), notify=notes.append)
     assert list(out) == ["a", "b"] and out["a"].basecolor.shape == (6, 8, 3)
     assert torch.allclose(out["b"].roughness, torch.full((6, 8), 0.25))
-    assert notes == ["notice: fixed maps are 12x12, the views 8x6; resampled 2 view(s) (aspect ratios differ: "
-                     "if the model cropped its input, the maps will not line up)"]
+    assert notes == [
+        "notice: fixed maps are 12x12, the views 8x6; resampled 2 view(s) (aspect ratios differ: "
+        "if the model cropped its input, the maps will not line up)"
+    ]
 
 
 def test_predict_views_errors():
@@ -190,7 +209,13 @@ def test_predict_views_errors():
 
 # ------------------------------------------------------------------------------------------ registry
 def test_make_predictor_rejects_bad_specs(tmp_path):
-    with pytest.raises(ConfigError, match=r"unknown predictor 'rgbx'; use one of files:DIR, marigold, simulated\[:paper\|harsh\|outliers\|dr\], ground-truth"):
+    with pytest.raises(
+        ConfigError,
+        match=(
+            r"unknown predictor 'rgbx'; use one of files:DIR, marigold, "
+            r"simulated\[:paper\|harsh\|outliers\|dr\], ground-truth"
+        ),
+    ):
         make_predictor("rgbx")
     with pytest.raises(ConfigError, match="files:DIR needs the folder"):
         make_predictor("files:")
@@ -198,7 +223,9 @@ def test_make_predictor_rejects_bad_specs(tmp_path):
         make_predictor("ground-truth:x")
     with pytest.raises(ConfigError, match="'simulated:x': unknown error model"):
         make_predictor("simulated:x")
-    with pytest.raises(SettingError, match=r"basecolor_encoding: does not apply to the simulated predictor \(nor do weights\)"):
+    with pytest.raises(
+        SettingError, match=r"basecolor_encoding: does not apply to the simulated predictor \(nor do weights\)"
+    ):
         make_predictor("simulated", PredictorOptions(weights="w", basecolor_encoding="srgb"))
     with pytest.raises(ConfigError, match="batch_size: must be >= 1"):
         make_predictor("simulated", PredictorOptions(batch_size=0))
@@ -206,7 +233,9 @@ def test_make_predictor_rejects_bad_specs(tmp_path):
     assert json.dumps(make_predictor("ground-truth").describe())  # predictor.json must be able to hold it
 
 
-@pytest.mark.parametrize("content", [b"\x89PNG\r\n\x1a\nshort", b"\x89PNG\r\n\x1a\n" + bytes(range(60)), b"not an image"])
+@pytest.mark.parametrize(
+    "content", [b"\x89PNG\r\n\x1a\nshort", b"\x89PNG\r\n\x1a\n" + bytes(range(60)), b"not an image"]
+)
 def test_corrupt_map_files_give_one_clear_error(tmp_path, content):
     write_materials2d(tmp_path, {"a": random_maps()}, {})
     (tmp_path / "materials2d" / "a_metallic.png").write_bytes(content)

@@ -45,17 +45,54 @@ def build_tiny_pipeline(folder):
     (vocab / "merges.txt").write_text("#version: 0.2\n")
     tokenizer = CLIPTokenizer(str(vocab / "vocab.json"), str(vocab / "merges.txt"), model_max_length=8)
     torch.manual_seed(0)
-    text_encoder = CLIPTextModel(CLIPTextConfig(vocab_size=4, hidden_size=16, intermediate_size=16, num_hidden_layers=1,
-                                                num_attention_heads=2, max_position_embeddings=8, bos_token_id=0, eos_token_id=1, pad_token_id=1))
-    vae = AutoencoderKL(in_channels=3, out_channels=3, down_block_types=("DownEncoderBlock2D",) * 2, up_block_types=("UpDecoderBlock2D",) * 2,
-                        block_out_channels=(8, 8), layers_per_block=1, latent_channels=4, norm_num_groups=4, sample_size=16)
-    unet = UNet2DConditionModel(sample_size=8, in_channels=12, out_channels=8, down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
-                                up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"), block_out_channels=(8, 16), layers_per_block=1,
-                                cross_attention_dim=16, attention_head_dim=2, norm_num_groups=4)
+    text_encoder = CLIPTextModel(
+        CLIPTextConfig(
+            vocab_size=4,
+            hidden_size=16,
+            intermediate_size=16,
+            num_hidden_layers=1,
+            num_attention_heads=2,
+            max_position_embeddings=8,
+            bos_token_id=0,
+            eos_token_id=1,
+            pad_token_id=1,
+        )
+    )
+    vae = AutoencoderKL(
+        in_channels=3,
+        out_channels=3,
+        down_block_types=("DownEncoderBlock2D",) * 2,
+        up_block_types=("UpDecoderBlock2D",) * 2,
+        block_out_channels=(8, 8),
+        layers_per_block=1,
+        latent_channels=4,
+        norm_num_groups=4,
+        sample_size=16,
+    )
+    unet = UNet2DConditionModel(
+        sample_size=8,
+        in_channels=12,
+        out_channels=8,
+        down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
+        up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"),
+        block_out_channels=(8, 16),
+        layers_per_block=1,
+        cross_attention_dim=16,
+        attention_head_dim=2,
+        norm_num_groups=4,
+    )
     scheduler = DDIMScheduler(num_train_timesteps=10, prediction_type="v_prediction", timestep_spacing="trailing")
-    pipe = MarigoldIntrinsicsPipeline(unet=unet, vae=vae, scheduler=scheduler, text_encoder=text_encoder, tokenizer=tokenizer,
-                                      prediction_type="intrinsics", target_properties=APPEARANCE, default_denoising_steps=2,
-                                      default_processing_resolution=16)
+    pipe = MarigoldIntrinsicsPipeline(
+        unet=unet,
+        vae=vae,
+        scheduler=scheduler,
+        text_encoder=text_encoder,
+        tokenizer=tokenizer,
+        prediction_type="intrinsics",
+        target_properties=APPEARANCE,
+        default_denoising_steps=2,
+        default_processing_resolution=16,
+    )
     pipe.save_pretrained(str(folder))
     return folder
 
@@ -84,14 +121,37 @@ def quiet(_message):
 
 def test_marigold_runs_end_to_end_through_predict(weights, dataset, tmp_path, capsys):
     run = tmp_path / "run"
-    args = ["predict", "--data", str(dataset), "--out", str(run), "--predictor", "marigold", "--weights", str(weights),
-            "--device", "cpu", "--batch-size", "2", "--steps", "1", "--ensemble-size", "3", "--seed", "4"]
+    args = [
+        "predict",
+        "--data",
+        str(dataset),
+        "--out",
+        str(run),
+        "--predictor",
+        "marigold",
+        "--weights",
+        str(weights),
+        "--device",
+        "cpu",
+        "--batch-size",
+        "2",
+        "--steps",
+        "1",
+        "--ensemble-size",
+        "3",
+        "--seed",
+        "4",
+    ]
     assert main(args) == 0
     assert "wrote maps of 3 train view(s) from the marigold predictor" in capsys.readouterr().out
     views = load_scene(dataset).train
     maps = read_materials2d(run, views)
     info = read_predictor_info(run)
-    assert info["predictor"] == "marigold" and info["settings"]["ensemble_size"] == 3 and info["targets"] == ["albedo", "material"]
+    assert (
+        info["predictor"] == "marigold"
+        and info["settings"]["ensemble_size"] == 3
+        and info["targets"] == ["albedo", "material"]
+    )
     # the same settings in process give the same maps (seeded), at the views' size, with a confidence map
     config = MarigoldConfig(weights=str(weights), device="cpu", batch_size=2, steps=1, ensemble_size=3, seed=4)
     direct = predict_views(views, MarigoldPredictor(config, notify=quiet), notify=quiet)
@@ -142,13 +202,22 @@ class _Callable:
 
 
 def test_target_layout_needs_albedo_roughness_and_metallicity():
-    assert target_layout(APPEARANCE) == {"albedo": (0, None, "srgb"), "roughness": (1, 0, "linear"), "metallicity": (1, 1, "linear")}
-    with pytest.raises(ConfigError, match="predicts albedo, residual, shading but not roughness, metallicity; .* appearance model"):
+    assert target_layout(APPEARANCE) == {
+        "albedo": (0, None, "srgb"),
+        "roughness": (1, 0, "linear"),
+        "metallicity": (1, 1, "linear"),
+    }
+    with pytest.raises(
+        ConfigError, match="predicts albedo, residual, shading but not roughness, metallicity; .* appearance model"
+    ):
         target_layout(LIGHTING)
 
 
 def test_weights_errors(weights, tmp_path, monkeypatch):
-    with pytest.raises(DataError, match="missing-folder: does not exist \\(the weights setting takes a pipeline folder or a hub id; on a machine"):
+    with pytest.raises(
+        DataError,
+        match="missing-folder: does not exist \\(the weights setting takes a pipeline folder or a hub id; on a machine",
+    ):
         load_pipeline(str(tmp_path / "missing-folder"))
     with pytest.raises(DataError, match="is not a diffusers pipeline folder \\(no model_index.json\\)"):
         load_pipeline(str(tmp_path))
@@ -163,8 +232,11 @@ def test_weights_errors(weights, tmp_path, monkeypatch):
         raise OSError("We couldn't connect to 'https://huggingface.co'")
 
     monkeypatch.setattr(MarigoldIntrinsicsPipeline, "from_pretrained", offline)
-    with pytest.raises(ConfigError, match="cannot get Marigold weights 'prs-eth/marigold-iid-appearance-v1-1' from the Hugging Face hub "
-                       "\\(OSError\\); on a machine with network access run `hf download"):
+    with pytest.raises(
+        ConfigError,
+        match="cannot get Marigold weights 'prs-eth/marigold-iid-appearance-v1-1' from the Hugging Face hub "
+        "\\(OSError\\); on a machine with network access run `hf download",
+    ):
         make_predictor("marigold", PredictorOptions(device="cpu"))
 
 

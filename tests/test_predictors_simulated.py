@@ -27,7 +27,9 @@ from matspray.predictors.simulated import (
 LIGHT = torch.tensor([0.3, 0.5, 0.8]) / torch.tensor([0.3, 0.5, 0.8]).norm()
 
 
-def sphere_materials(points: torch.Tensor):  # [P, 3] on the unit sphere -> basecolor [P, 3], roughness [P], metallic [P]
+def sphere_materials(
+    points: torch.Tensor,
+):  # [P, 3] on the unit sphere -> basecolor [P, 3], roughness [P], metallic [P]
     longitude = torch.atan2(points[:, 1], points[:, 0])
     checker = (torch.floor(longitude / (math.pi / 2)) % 2 == 0)[:, None]
     basecolor = torch.where(checker, torch.tensor([0.7, 0.25, 0.1]), torch.tensor([0.1, 0.3, 0.6]))
@@ -63,8 +65,15 @@ def render_sphere(camera: Camera):
     def image(x):
         return (x * (mask if x.ndim == 1 else mask[:, None])).reshape(H, W, *x.shape[1:])
 
-    return dict(mask=mask.reshape(H, W), depth=depth.reshape(H, W), normal=image(normals), basecolor=image(basecolor),
-                roughness=image(roughness), metallic=image(metallic), photo=image(photo))
+    return dict(
+        mask=mask.reshape(H, W),
+        depth=depth.reshape(H, W),
+        normal=image(normals),
+        basecolor=image(basecolor),
+        roughness=image(roughness),
+        metallic=image(metallic),
+        photo=image(photo),
+    )
 
 
 def make_sphere_object(root, n_train: int = 6, n_test: int = 2, size: int = 32):
@@ -121,7 +130,9 @@ def test_benchmark_predictors_refuse_data_without_ground_truth(tmp_path):
     write_blender(tmp_path, {"train": [View("r_000", torch.rand(16, 16, 3), None, camera)]})
     views = load_scene(tmp_path).train
     for spec in ("simulated", "ground-truth"):
-        with pytest.raises(DataError, match=r"no ground-truth basecolor/roughness/metallic maps for 1 of 1 views \(r_000\)"):
+        with pytest.raises(
+            DataError, match=r"no ground-truth basecolor/roughness/metallic maps for 1 of 1 views \(r_000\)"
+        ):
             predict_views(views, make_predictor(spec), notify=quiet)
 
 
@@ -131,7 +142,10 @@ def test_severity_zero_is_the_ground_truth(sphere):
     simulated = predict_views(scene.train, SimulatedPredictor(SimulationConfig(severity=0.0)), notify=quiet)
     for view in scene.train:
         truth = read_ground_truth(view)
-        for a, b in zip((truth.basecolor, truth.roughness, truth.metallic), (simulated[view.name].basecolor, simulated[view.name].roughness, simulated[view.name].metallic)):
+        for a, b in zip(
+            (truth.basecolor, truth.roughness, truth.metallic),
+            (simulated[view.name].basecolor, simulated[view.name].roughness, simulated[view.name].metallic),
+        ):
             assert torch.equal(a, b)
 
 
@@ -151,8 +165,16 @@ def test_simulation_is_seeded_and_inconsistent_across_batches(sphere):
 
 def test_batches_share_their_colour_drift():
     """With only the per-batch gain on, prediction / truth is one colour per batch, different between batches."""
-    config = SimulationConfig(batch_size=2, seed=3, shading_strength=0.0, tone_strength=0.0, color_shift_sigma=0.0,
-                              view_jitter_sigma=0.0, blur_fraction=0.0, metallic_probability=0.0)
+    config = SimulationConfig(
+        batch_size=2,
+        seed=3,
+        shading_strength=0.0,
+        tone_strength=0.0,
+        color_shift_sigma=0.0,
+        view_jitter_sigma=0.0,
+        blur_fraction=0.0,
+        metallic_probability=0.0,
+    )
     drifts = [draw_batch_drift(config, b) for b in range(3)]
     assert drifts[0] == draw_batch_drift(config, 0)
     assert len({(d.exposure, tuple(d.white_balance)) for d in drifts}) == 3
@@ -167,7 +189,9 @@ def test_batches_share_their_colour_drift():
         gains.append(out.basecolor[0, 0] / 0.4)
         expected = torch.tensor(drifts[index // 2].white_balance) * drifts[index // 2].exposure
         assert torch.allclose(out.basecolor[0, 0] / 0.4, expected.clamp(max=2.5), atol=1e-5)
-        assert torch.allclose(out.roughness, (0.5 + torch.tensor(drifts[index // 2].roughness_offset)).clamp(0, 1).expand(4, 4), atol=1e-6)
+        assert torch.allclose(
+            out.roughness, (0.5 + torch.tensor(drifts[index // 2].roughness_offset)).clamp(0, 1).expand(4, 4), atol=1e-6
+        )
     assert torch.equal(gains[0], gains[1]) and not torch.equal(gains[1], gains[2])
 
 
@@ -176,14 +200,23 @@ def test_a_fraction_of_batches_gets_spurious_metallic():
         config = SimulationConfig(seed=seed, metallic_probability=0.3)
         metal = [draw_batch_drift(config, b).spurious_metallic > 0 for b in range(10)]
         assert sum(metal) == 3
-        assert sum(draw_batch_drift(SimulationConfig(seed=seed, metallic_probability=0.3), b).spurious_metallic > 0 for b in range(5)) >= 1
+        assert (
+            sum(
+                draw_batch_drift(SimulationConfig(seed=seed, metallic_probability=0.3), b).spurious_metallic > 0
+                for b in range(5)
+            )
+            >= 1
+        )
     assert not any(draw_batch_drift(SimulationConfig(severity=0.0), b).spurious_metallic for b in range(10))
 
 
 def test_baked_shading_strength_varies_by_batch_around_its_mean():
     config = SimulationConfig(seed=4)
     exponents = [draw_batch_drift(config, batch).shading for batch in range(400)]
-    low, high = config.shading_strength * (1 - config.shading_spread), config.shading_strength * (1 + config.shading_spread)
+    low, high = (
+        config.shading_strength * (1 - config.shading_spread),
+        config.shading_strength * (1 + config.shading_spread),
+    )
     assert all(low <= e <= high for e in exponents)
     assert abs(sum(exponents) / len(exponents) - config.shading_strength) < 0.03
     assert max(exponents) - min(exponents) > 0.9 * (high - low)  # batches really differ
@@ -205,8 +238,12 @@ def test_effects_change_the_object_only():
     alpha[:, :2] = 1.0
     truth = MaterialMaps(torch.full((4, 4, 3), 0.4), torch.full((4, 4), 0.5), torch.zeros(4, 4))
     out = simulate_view(truth, torch.full((4, 4, 3), 0.3), alpha, drift, config, 0)
-    assert torch.allclose(out.metallic[:, :2], torch.full((4, 2), 0.3)) and torch.equal(out.metallic[:, 2:], torch.zeros(4, 2))
-    assert torch.equal(out.basecolor[:, 2:], truth.basecolor[:, 2:]) and torch.equal(out.roughness[:, 2:], truth.roughness[:, 2:])
+    assert torch.allclose(out.metallic[:, :2], torch.full((4, 2), 0.3)) and torch.equal(
+        out.metallic[:, 2:], torch.zeros(4, 2)
+    )
+    assert torch.equal(out.basecolor[:, 2:], truth.basecolor[:, 2:]) and torch.equal(
+        out.roughness[:, 2:], truth.roughness[:, 2:]
+    )
     assert not torch.allclose(out.basecolor[:, :2], truth.basecolor[:, :2], atol=0.01)
 
 
@@ -217,7 +254,9 @@ def test_filmic_tone_darkens_base_color_and_compresses_roughness():
     assert float(filmic_tone(torch.tensor(0.18))) == pytest.approx(0.18, abs=2e-3)  # middle grey kept
     assert float(filmic_tone(torch.tensor(1.0))) == pytest.approx(0.6038, abs=2e-3)  # display 0.8 read as sRGB
     assert (y[25:] < x[25:]).all()  # darker above 0.25
-    assert float(filmic_tone(torch.tensor(1.0)) - filmic_tone(torch.tensor(0.2))) < 0.55 * 0.8  # roughness range about halved
+    assert (
+        float(filmic_tone(torch.tensor(1.0)) - filmic_tone(torch.tensor(0.2))) < 0.55 * 0.8
+    )  # roughness range about halved
 
 
 def test_shading_ratio_recovers_the_shading_of_the_photo():
@@ -280,14 +319,20 @@ def test_spread_of_true_maps_is_near_zero_and_of_view_offsets_matches_analytic_v
     constants = torch.tensor([0.1, 0.9, 0.3, 0.5, 0.7, 0.2], dtype=torch.float64)
     flat = [torch.full_like(d, float(c))[..., None] for d, c in zip(depths, constants)]
     measured = multiview_spread(cameras, depths, flat, points_per_view=10**6)
-    stds, total = [], 0
+    stds = []
     for source, (camera, depth) in enumerate(zip(cameras, depths)):
         points = backproject(camera, depth)
         normals = points / points.norm(dim=-1, keepdim=True)
         seen = []
         for target in cameras:  # a convex sphere: visible iff facing the camera and inside the frame
             pixels, z = target.project(points)
-            inside = (z > 0) & (pixels[:, 0] >= 0) & (pixels[:, 1] >= 0) & (pixels[:, 0] < target.width) & (pixels[:, 1] < target.height)
+            inside = (
+                (z > 0)
+                & (pixels[:, 0] >= 0)
+                & (pixels[:, 1] >= 0)
+                & (pixels[:, 0] < target.width)
+                & (pixels[:, 1] < target.height)
+            )
             facing = ((target.center.double() - points) * normals).sum(-1) > 0
             seen.append(inside & facing)
         seen = torch.stack(seen).double()  # [V, P]
@@ -304,7 +349,24 @@ def test_spread_of_true_maps_is_near_zero_and_of_view_offsets_matches_analytic_v
 def test_predict_simulated_and_ground_truth_through_the_cli(sphere, tmp_path, capsys):
     root, scene = sphere
     run = tmp_path / "run"
-    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", "simulated", "--batch-size", "2", "--seed", "5"]) == 0
+    assert (
+        main(
+            [
+                "predict",
+                "--data",
+                str(root),
+                "--out",
+                str(run),
+                "--predictor",
+                "simulated",
+                "--batch-size",
+                "2",
+                "--seed",
+                "5",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "SIMULATED" in printed
     info = read_predictor_info(run)
@@ -316,24 +378,57 @@ def test_predict_simulated_and_ground_truth_through_the_cli(sphere, tmp_path, ca
         assert torch.allclose(m.roughness, expected[name].roughness, atol=1e-4)
         assert torch.allclose(m.basecolor, expected[name].basecolor, atol=1e-3)
     copied = tmp_path / "copied"  # maps read back from a simulated run stay labelled as simulated
-    assert main(["predict", "--data", str(root), "--out", str(copied), "--predictor", f"files:{run / 'materials2d'}"]) == 0
+    assert (
+        main(["predict", "--data", str(root), "--out", str(copied), "--predictor", f"files:{run / 'materials2d'}"]) == 0
+    )
     assert "SIMULATED" in capsys.readouterr().out
     info = read_predictor_info(copied)
     assert info["simulated"] is True and info["source_predictor"]["predictor"] == "simulated"
     run = tmp_path / "evaluation"
-    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", "ground-truth", "--split", "test"]) == 0
+    assert (
+        main(["predict", "--data", str(root), "--out", str(run), "--predictor", "ground-truth", "--split", "test"]) == 0
+    )
     assert "GROUND-TRUTH" in capsys.readouterr().out
     info = read_predictor_info(run)
-    assert info["predictor"] == "ground-truth" and info["benchmark_only"] is True and info["views"] == ["r_006", "r_007"]
+    assert (
+        info["predictor"] == "ground-truth" and info["benchmark_only"] is True and info["views"] == ["r_006", "r_007"]
+    )
 
 
 def test_cli_rejects_options_that_do_not_apply(sphere, tmp_path, capsys):
     root, _ = sphere
-    code = main(["predict", "--data", str(root), "--out", str(tmp_path / "run"), "--predictor", "ground-truth", "--severity", "2"])
+    code = main(
+        [
+            "predict",
+            "--data",
+            str(root),
+            "--out",
+            str(tmp_path / "run"),
+            "--predictor",
+            "ground-truth",
+            "--severity",
+            "2",
+        ]
+    )
     assert code == 2
     assert "--severity: does not apply to the ground-truth predictor" in capsys.readouterr().err
     assert not (tmp_path / "run" / "materials2d").exists()
-    assert main(["predict", "--data", str(root), "--out", str(tmp_path / "run"), "--predictor", "simulated", "--severity", "-1"]) == 2
+    assert (
+        main(
+            [
+                "predict",
+                "--data",
+                str(root),
+                "--out",
+                str(tmp_path / "run"),
+                "--predictor",
+                "simulated",
+                "--severity",
+                "-1",
+            ]
+        )
+        == 2
+    )
     assert "--severity: must be a number >= 0" in capsys.readouterr().err
 
 
@@ -363,7 +458,11 @@ def test_benchmark_pieces_and_report(sphere, capsys):
     assert truth_row.split()[1:4] == ["inf", "inf", "inf"]
     truth_spread = [float(x) for x in truth_row.split()[-3:]]
     simulated_spread = [float(x) for x in simulated_row.split()[-3:]]
-    assert max(truth_spread) < 0.02 and simulated_spread[0] > 2 * truth_spread[0] and simulated_spread[1] > 2 * truth_spread[1]
+    assert (
+        max(truth_spread) < 0.02
+        and simulated_spread[0] > 2 * truth_spread[0]
+        and simulated_spread[1] > 2 * truth_spread[1]
+    )
     assert bench.main(["--data", str(root / "missing")]) == 2
     assert "matspray synth" in capsys.readouterr().err
 

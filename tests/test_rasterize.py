@@ -53,15 +53,30 @@ def test_early_termination_matches_reference():
     torch.testing.assert_close(out.features.double(), image, atol=1e-5, rtol=0)
     torch.testing.assert_close(out.alpha.double(), alpha, atol=1e-5, rtol=0)
     assert out.features[3:5, 3:5, -1].max() == 0  # the four central pixels stop early
-    assert rasterize(gaussians, camera, features, settings=RasterSettings(min_transmittance=0.0)).features[3:5, 3:5, -1].min() > 1e-6
+    assert (
+        rasterize(gaussians, camera, features, settings=RasterSettings(min_transmittance=0.0))
+        .features[3:5, 3:5, -1]
+        .min()
+        > 1e-6
+    )
 
 
 def test_row_bands_give_the_same_image_and_gradients():
     gaussians, camera, features = random_scene(30, 3)
     results = []
     for max_pairs in (1 << 23, 40):
-        g = Gaussians(*(t.clone().requires_grad_(True) for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
-                                                                   gaussians.opacity_logits, gaussians.sh)))
+        g = Gaussians(
+            *(
+                t.clone().requires_grad_(True)
+                for t in (
+                    gaussians.means,
+                    gaussians.log_scales,
+                    gaussians.quats,
+                    gaussians.opacity_logits,
+                    gaussians.sh,
+                )
+            )
+        )
         out = rasterize(g, camera, features, max_pairs=max_pairs)
         (out.features.square().sum() + out.depth.sum()).backward()
         results.append((out.features.detach(), out.alpha.detach(), g.means.grad, g.log_scales.grad))
@@ -79,8 +94,10 @@ def test_gradcheck_float64():
         out = rasterize(g, camera, feats, background)
         return out.features, out.alpha, out.depth
 
-    inputs = tuple(t.clone().requires_grad_(True) for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
-                                                              gaussians.opacity_logits, features.double()))
+    inputs = tuple(
+        t.clone().requires_grad_(True)
+        for t in (gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits, features.double())
+    )
     assert render(*inputs)[1].max() > 0.5
     assert torch.autograd.gradcheck(render, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
 
@@ -109,10 +126,20 @@ def test_absgrad_is_the_sum_of_per_pixel_gradient_magnitudes(max_pairs):
     gaussians.log_scales = gaussians.log_scales + math.log(2.5)  # footprints of a few pixels, overlapping
     gaussians.opacity_logits[0] = 20.0  # an opaque one: its alpha clamps, and stops what is behind it
     gaussians.means.requires_grad_(True)
-    out = rasterize(gaussians, camera, features.double(), torch.tensor([0.3, 0.1, 0.7], dtype=torch.float64),
-                    absgrad=True, max_pairs=max_pairs)
+    out = rasterize(
+        gaussians,
+        camera,
+        features.double(),
+        torch.tensor([0.3, 0.1, 0.7], dtype=torch.float64),
+        absgrad=True,
+        max_pairs=max_pairs,
+    )
     out.retain_screen_grads()
-    per_pixel = (out.features * torch.tensor([0.5, 1.0, 1.5], dtype=torch.float64)).sum(-1) + out.alpha.square() + 0.1 * out.depth
+    per_pixel = (
+        (out.features * torch.tensor([0.5, 1.0, 1.5], dtype=torch.float64)).sum(-1)
+        + out.alpha.square()
+        + 0.1 * out.depth
+    )
     per_pixel.sum().backward(retain_graph=True)
     absgrads, grads = out.screen_absgrads.clone(), out.screen_grads.clone()
     reference = torch.zeros_like(absgrads)
@@ -125,8 +152,13 @@ def test_absgrad_is_the_sum_of_per_pixel_gradient_magnitudes(max_pairs):
 
 def test_expected_depth_is_the_surface_depth():
     n = 1
-    gaussians = Gaussians(torch.zeros(n, 3), torch.full((n, 3), math.log(0.2)), torch.tensor([[1.0, 0, 0, 0]]),
-                          torch.logit(torch.tensor([0.9])), torch.zeros(n, 1, 3))
+    gaussians = Gaussians(
+        torch.zeros(n, 3),
+        torch.full((n, 3), math.log(0.2)),
+        torch.tensor([[1.0, 0, 0, 0]]),
+        torch.logit(torch.tensor([0.9])),
+        torch.zeros(n, 1, 3),
+    )
     camera = Camera.look_at([0.0, 0.0, -3.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 9, 9)
     out = rasterize(gaussians, camera, torch.ones(n, 1))
     covered = out.alpha > 0

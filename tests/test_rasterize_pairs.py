@@ -13,7 +13,10 @@ def random_ellipses(n=40, seed=0):
     g = torch.Generator().manual_seed(seed)
     centres = torch.rand(n, 2, generator=g, dtype=torch.float64) * torch.tensor([WIDTH + 6.0, HEIGHT + 6.0]) - 3
     angle = torch.rand(n, generator=g, dtype=torch.float64) * 3.2
-    sx, sy = 0.2 + 4 * torch.rand(n, generator=g, dtype=torch.float64), 0.2 + 2 * torch.rand(n, generator=g, dtype=torch.float64)
+    sx, sy = (
+        0.2 + 4 * torch.rand(n, generator=g, dtype=torch.float64),
+        0.2 + 2 * torch.rand(n, generator=g, dtype=torch.float64),
+    )
     c, s = torch.cos(angle), torch.sin(angle)
     cov = torch.stack([c * c * sx**2 + s * s * sy**2, c * s * (sx**2 - sy**2), s * s * sx**2 + c * c * sy**2], -1)
     det = cov[:, 0] * cov[:, 2] - cov[:, 1] ** 2
@@ -38,7 +41,11 @@ def test_centre_mode_lists_exactly_the_pixels_whose_centre_is_inside():
     got = as_set(*ellipse_pixel_pairs(boxes, centres, conics, radius2, WIDTH))
     ys, xs = torch.meshgrid(torch.arange(HEIGHT), torch.arange(WIDTH), indexing="ij")
     pixel_centres = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).double() + 0.5
-    expected = {(i, p) for i in range(len(centres)) for p in torch.nonzero(inside(pixel_centres, centres[i], conics[i], radius2[i])).flatten().tolist()}
+    expected = {
+        (i, p)
+        for i in range(len(centres))
+        for p in torch.nonzero(inside(pixel_centres, centres[i], conics[i], radius2[i])).flatten().tolist()
+    }
     assert got == expected and len(expected) > 100
 
 
@@ -51,7 +58,11 @@ def test_area_mode_lists_every_pixel_the_ellipse_touches():
     ys, xs = torch.meshgrid(torch.arange(HEIGHT * s), torch.arange(WIDTH * s), indexing="ij")
     samples = (torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).double() + 0.5) / s
     pixel_of = (ys.reshape(-1) // s) * WIDTH + xs.reshape(-1) // s
-    touched = {(i, p) for i in range(len(centres)) for p in pixel_of[inside(samples, centres[i], conics[i], radius2[i])].unique().tolist()}
+    touched = {
+        (i, p)
+        for i in range(len(centres))
+        for p in pixel_of[inside(samples, centres[i], conics[i], radius2[i])].unique().tolist()
+    }
     assert touched <= got
     assert len(got) < 1.15 * len(touched)
     in_boxes = as_set(*box_pixel_pairs(boxes, WIDTH))

@@ -35,7 +35,10 @@ def write_rgba(path, width=W, height=H):
 def blender_folder(root, frames=None, meta_extra=None):
     (root / "train").mkdir(parents=True, exist_ok=True)
     if frames is None:
-        frames = [{"file_path": "train/r_000", "transform_matrix": C2W_GL}, {"file_path": "train/r_001", "transform_matrix": C2W_GL}]
+        frames = [
+            {"file_path": "train/r_000", "transform_matrix": C2W_GL},
+            {"file_path": "train/r_001", "transform_matrix": C2W_GL},
+        ]
     for frame in frames:
         if "file_path" in frame and not (root / (frame["file_path"] + ".png")).exists():
             write_rgba(root / (frame["file_path"] + ".png"))

@@ -5,10 +5,20 @@ import torch
 
 from matspray.errors import ConfigError
 from matspray.lift import LiftConfig, lift
-from matspray.merger import projection_average
-from matspray.merger import view_gains
-from matspray.refine import (RefineConfig, RefineInputs, TrainingViews, aligned_inputs, masked_l1, material_loss, refine, scale_invariant_l1,
-                             spread_loss, view_losses, warm_up_light)
+from matspray.merger import projection_average, view_gains
+from matspray.refine import (
+    RefineConfig,
+    RefineInputs,
+    TrainingViews,
+    aligned_inputs,
+    masked_l1,
+    material_loss,
+    refine,
+    scale_invariant_l1,
+    spread_loss,
+    view_losses,
+    warm_up_light,
+)
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from matspray.variants import VARIANT_NAMES
@@ -20,7 +30,15 @@ BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])
 @pytest.fixture(scope="module")
 def lifted_scene():
     gaussians, normals, materials, views, maps = material_scene()
-    result = lift(gaussians, [v.camera for v in views], maps, [v.alpha for v in views], [v.name for v in views], LiftConfig(samples_per_side=2), progress=False)
+    result = lift(
+        gaussians,
+        [v.camera for v in views],
+        maps,
+        [v.alpha for v in views],
+        [v.name for v in views],
+        LiftConfig(samples_per_side=2),
+        progress=False,
+    )
     kept = gaussians.subset(result.kept)
     return kept, normals[result.kept], materials[result.kept], views, maps, result
 
@@ -30,7 +48,17 @@ def refine_inputs(gaussians, normals, lifted, views, maps, visibility=None) -> R
 
 
 def mean_losses(gaussians, normals, materials, envmap, views, maps, config):
-    training = TrainingViews(RefineInputs(gaussians, normals, torch.zeros(len(gaussians), len(views), 5), torch.ones(len(gaussians), len(views), dtype=torch.bool), views, maps, BOUNDS))
+    training = TrainingViews(
+        RefineInputs(
+            gaussians,
+            normals,
+            torch.zeros(len(gaussians), len(views), 5),
+            torch.ones(len(gaussians), len(views), dtype=torch.bool),
+            views,
+            maps,
+            BOUNDS,
+        )
+    )
     with torch.no_grad():
         terms = [view_losses(training, i, materials, normals, envmap, config) for i in range(len(views))]
     return {name: sum(float(t[name]) for t in terms) / len(terms) for name in terms[0]}
@@ -40,7 +68,9 @@ def test_short_refinement_lowers_both_losses(lifted_scene):
     gaussians, normals, _, views, maps, lifted = lifted_scene
     config = RefineConfig(iterations=40, envmap_height=8, seed=0, light_warmup=0)
     start_light = EnvironmentMap.constant(config.envmap_init, height=config.envmap_height)
-    before = mean_losses(gaussians, normals, projection_average(lifted.values, lifted.seen), start_light, views, maps, config)
+    before = mean_losses(
+        gaussians, normals, projection_average(lifted.values, lifted.seen), start_light, views, maps, config
+    )
     result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
     after = mean_losses(gaussians, normals, result.materials, result.envmap, views, maps, config)
     assert after["photo"] < 0.7 * before["photo"], (before, after)
@@ -91,7 +121,7 @@ def test_material_loss_is_plain_l1_unless_the_base_color_is_scale_invariant():
 def test_the_huber_base_color_loss_is_quadratic_below_delta_and_l1_above():
     target = torch.rand(5, 6, 5, generator=torch.Generator().manual_seed(3))
     mask = (torch.arange(30).reshape(5, 6) % 3 != 0).float()  # a third of the pixels do not count
-    for offset, per_pixel in ((0.02, 0.02 ** 2 / (2 * 0.05)), (0.3, 0.3 - 0.05 / 2)):
+    for offset, per_pixel in ((0.02, 0.02**2 / (2 * 0.05)), (0.3, 0.3 - 0.05 / 2)):
         maps = target.clone()
         maps[..., :3] += offset
         maps[0, 0, :3] += 5.0  # masked out: changes nothing
@@ -109,7 +139,10 @@ def test_across_views_the_huber_base_color_averages_close_views_and_outvotes_a_f
 
         grid = torch.linspace(0.0, 1.0, 20001)
         mask = torch.ones(1, 1)
-        total = lambda x: sum(material_loss(maps(float(x)), maps(v), mask, loss, delta) for v in values)
+
+        def total(x):
+            return sum(material_loss(maps(float(x)), maps(v), mask, loss, delta) for v in values)
+
         coarse = float(grid[::20][torch.stack([total(x) for x in grid[::20]]).argmin()])
         fine = grid[(grid - coarse).abs() <= 1e-3]
         return float(fine[torch.stack([total(x) for x in fine]).argmin()])
@@ -144,7 +177,9 @@ def test_the_base_color_is_compared_scale_invariantly_only_with_the_photometric_
     darker = torch.cat([0.6 * materials[:, :3], materials[:, 3:]], dim=-1)
     light = EnvironmentMap.constant(0.5, height=8)
     plain = mean_losses(gaussians, normals, darker, None, views, maps, RefineConfig(basecolor_loss="scale-invariant"))
-    assert plain["material"] == pytest.approx(mean_losses(gaussians, normals, darker, None, views, maps, RefineConfig(basecolor_loss="l1"))["material"])
+    assert plain["material"] == pytest.approx(
+        mean_losses(gaussians, normals, darker, None, views, maps, RefineConfig(basecolor_loss="l1"))["material"]
+    )
     lit = mean_losses(gaussians, normals, darker, light, views, maps, RefineConfig(basecolor_loss="scale-invariant"))
     assert lit["material"] < 0.8 * plain["material"], (lit, plain)
 
@@ -169,7 +204,9 @@ def test_a_non_finite_gradient_stops_refinement_naming_the_step_and_parameter():
     good.grad, bad.grad = torch.ones(2), torch.tensor([0.0, float("nan"), 1.0])
     check_finite_gradients(7, [{"name": "environment map", "params": [good]}])
     with pytest.raises(NumericalError, match="refine step 7: non-finite gradient for the full materials"):
-        check_finite_gradients(7, [{"name": "environment map", "params": [good]}, {"name": "full materials", "params": [good, bad]}])
+        check_finite_gradients(
+            7, [{"name": "environment map", "params": [good]}, {"name": "full materials", "params": [good, bad]}]
+        )
 
 
 def test_light_warm_up_fits_the_environment_map_and_leaves_the_merger_at_its_start(lifted_scene):
@@ -197,7 +234,9 @@ def test_min_coverage_runs_the_merger_on_fewer_gaussians_with_a_close_result(lif
     results = {}
     for min_coverage in (0.0, 0.05):
         config = RefineConfig(iterations=20, envmap_height=8, seed=0, min_coverage=min_coverage, light_warmup=0)
-        results[min_coverage] = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False).materials
+        results[min_coverage] = refine(
+            refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False
+        ).materials
     assert (results[0.0] - results[0.05]).abs().mean() < 0.01
 
 
@@ -220,7 +259,9 @@ def test_the_spread_weight_keeps_the_base_colour_merger_near_the_average(lifted_
         config = RefineConfig(iterations=40, envmap_height=8, seed=0, light_warmup=0, basecolor_spread_weight=weight)
         result = refine(inputs, config, progress=False)
         assert ("spread" in result.history[-1]) == (weight > 0)
-        return float((result.materials[:, :3] - average[:, :3]).abs().mean()), float((result.materials[:, 3:] - average[:, 3:]).abs().mean())
+        return float((result.materials[:, :3] - average[:, :3]).abs().mean()), float(
+            (result.materials[:, 3:] - average[:, 3:]).abs().mean()
+        )
 
     (free_base, free_rest), (held_base, held_rest) = base_colour_change(0.0), base_colour_change(1.0)
     assert held_base < 0.5 * free_base, (free_base, held_base)
@@ -231,7 +272,9 @@ def test_aligned_inputs_divide_each_views_lifted_values_and_2d_map_by_one_gain(l
     """The wiring: values and 2D maps of a view are divided by the gain `view_gains` finds for it (its estimate is
     tested in test_merger on a scene with dense overlap between views)."""
     gaussians, normals, _, views, maps, lifted = lifted_scene
-    scaled = [torch.cat([(m[..., :3] * 0.7).clamp(0, 1), m[..., 3:]], dim=-1) if i == 1 else m for i, m in enumerate(maps)]
+    scaled = [
+        torch.cat([(m[..., :3] * 0.7).clamp(0, 1), m[..., 3:]], dim=-1) if i == 1 else m for i, m in enumerate(maps)
+    ]
     values = lifted.values.clone()
     values[:, 1, :3] *= 0.7  # view 1 is a darker batch, in its 2D map and so in what it lifted
     darker = RefineInputs(gaussians, normals, values, lifted.seen, views, scaled, BOUNDS)
@@ -242,7 +285,6 @@ def test_aligned_inputs_divide_each_views_lifted_values_and_2d_map_by_one_gain(l
     for view in range(len(views)):
         assert torch.allclose(aligned.targets[view][..., :3], (scaled[view][..., :3] / gains[view]).clamp(0, 1))
         assert torch.equal(aligned.targets[view][..., 3:], scaled[view][..., 3:])
-
 
 
 def test_a_known_light_is_used_as_given_and_sets_the_base_colours_brightness(lifted_scene):
@@ -258,7 +300,15 @@ def test_a_known_light_is_used_as_given_and_sets_the_base_colours_brightness(lif
     known = EnvironmentMap.from_tensor(sky_map(), height=8, learnable=False)
     average, truth = projection_average(values, lifted.seen)[:, :3].mean(), materials[:, :3].mean()
     for variant in ("full", "no-softmax"):
-        config = RefineConfig(variant=variant, iterations=60, envmap_height=8, light_warmup=30, material_weight=0.0, merger_lr=1e-2, seed=0)
+        config = RefineConfig(
+            variant=variant,
+            iterations=60,
+            envmap_height=8,
+            light_warmup=30,
+            material_weight=0.0,
+            merger_lr=1e-2,
+            seed=0,
+        )
         result = refine(inputs, config, progress=False, light=known)
         assert torch.equal(result.envmap.map, known.map)
         assert not any(p.requires_grad for p in result.envmap.parameters())

@@ -1,6 +1,6 @@
-"""Who writes a run folder: `RunDir.hold` (its run.lock), re-entrant in one thread, refused or waited for elsewhere, gone
-with its process; `share_stage` waits for the target's writer; the generalisation protocol trains an object's geometry
-once when jobs for several models start together."""
+"""Who writes a run folder: `RunDir.hold` (its run.lock), re-entrant in one thread, refused or waited for elsewhere,
+gone with its process; `share_stage` waits for the target's writer; the generalisation protocol trains an object's
+geometry once when jobs for several models start together."""
 
 from __future__ import annotations
 
@@ -23,9 +23,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def try_hold_in_another_process(run: Path) -> str:
-    code = ("import sys\nfrom matspray.errors import RunError\nfrom matspray.rundir import RunDir\n"
-            "try:\n    RunDir(sys.argv[1]).hold().release()\n    print('got it')\nexcept RunError as error:\n    print(error)\n")
-    return subprocess.run([sys.executable, "-c", code, str(run)], cwd=ROOT, capture_output=True, text=True, timeout=120).stdout.strip()
+    code = (
+        "import sys\nfrom matspray.errors import RunError\nfrom matspray.rundir import RunDir\n"
+        "try:\n    RunDir(sys.argv[1]).hold().release()\n    print('got it')\n"
+        "except RunError as error:\n    print(error)\n"
+    )
+    return subprocess.run(
+        [sys.executable, "-c", code, str(run)], cwd=ROOT, capture_output=True, text=True, timeout=120
+    ).stdout.strip()
 
 
 def test_a_held_folder_is_refused_to_another_process_with_the_holders_id(tmp_path):

@@ -38,14 +38,20 @@ def test_four_real_photos_register_and_load(tmp_path):
         mask[200:600, 300:800] = 1.0
         write_image(masks / f"{Path(name).stem}.png", mask[..., None].expand(-1, -1, 3))
     out = tmp_path / "dataset"
-    result = run_sfm(subset, out, SfmConfig(max_size=400, single_camera=True), masks=masks, progress=False, log=lambda _: None)
+    result = run_sfm(
+        subset, out, SfmConfig(max_size=400, single_camera=True), masks=masks, progress=False, log=lambda _: None
+    )
     assert result.registered == 4 and result.model_sizes == [4]
     assert result.mean_reprojection_error < 1.5
     assert not list(tmp_path.glob(".dataset.tmp-*"))  # the work folder was renamed, nothing left behind
     true_focal = 1050.7137 * 400 / 1024  # K.txt, at the size given to SfM
     assert abs(result.focal / true_focal - 1) < 0.15, result.focal
     scene = load_scene(out)
-    assert scene.format == "colmap" and len(scene.views) == 4 and (scene.views[0].width, scene.views[0].height) == (400, 300)
+    assert (
+        scene.format == "colmap"
+        and len(scene.views) == 4
+        and (scene.views[0].width, scene.views[0].height) == (400, 300)
+    )
     assert any("undistorted images: 0 made, 4 read from the cache" in line for line in scene.log)
     coverage = float(scene.views[0].alpha.mean())  # the box covers 400 x 500 of 769 x 1024 before undistortion
     assert abs(coverage - 400 * 500 / (769 * 1024)) < 0.03, coverage
@@ -64,10 +70,15 @@ def test_photos_that_do_not_match_are_explained(tmp_path, capsys):
     "make, message",
     [
         (lambda d: photos(d, 2), r"has 2 photos; structure from motion needs at least 3"),
-        (lambda d: (photos(d, 3), (d / "p9.heic").write_bytes(b"x")), r"p9.heic: is not a JPEG or PNG photo \('.heic'\)"),
+        (
+            lambda d: (photos(d, 3), (d / "p9.heic").write_bytes(b"x")),
+            r"p9.heic: is not a JPEG or PNG photo \('.heic'\)",
+        ),
         (lambda d: (photos(d, 3), (d / "p1.png").write_bytes(b"broken")), r"p1.png: cannot read image"),
-        (lambda d: (photos(d, 2), write_image(d / "z.png", torch.rand(30, 64, 3))),
-         r"z.png: is 64x30 but p0.png is 64x48 \(one camera for every photo needs photos of one size\)"),
+        (
+            lambda d: (photos(d, 2), write_image(d / "z.png", torch.rand(30, 64, 3))),
+            r"z.png: is 64x30 but p0.png is 64x48 \(one camera for every photo needs photos of one size\)",
+        ),
     ],
 )
 def test_bad_photo_folders_are_named(tmp_path, make, message):

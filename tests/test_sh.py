@@ -25,11 +25,11 @@ def test_basis_is_real_form_of_scipy_harmonics():
     polar = torch.acos(dirs[:, 2]).numpy()
     azimuth = torch.atan2(dirs[:, 1], dirs[:, 0]).numpy()
     ours = sh_basis(dirs, 3).numpy()
-    for l in range(4):
-        for m in range(-l, l + 1):
-            y = sph_harm_y(l, abs(m), polar, azimuth)
+    for band in range(4):
+        for m in range(-band, band + 1):
+            y = sph_harm_y(band, abs(m), polar, azimuth)
             expected = y.real if m == 0 else math.sqrt(2) * (y.imag if m < 0 else y.real)
-            np.testing.assert_allclose(ours[:, l * l + l + m], expected, atol=1e-12, err_msg=f"l={l} m={m}")
+            np.testing.assert_allclose(ours[:, band * band + band + m], expected, atol=1e-12, err_msg=f"l={band} m={m}")
 
 
 def test_basis_is_orthonormal_on_the_sphere():
@@ -43,9 +43,9 @@ def test_basis_is_orthonormal_on_the_sphere():
 def test_band_energy_is_rotation_invariant():
     """Unsold's theorem: sum_m Y_lm(d)^2 = (2l + 1) / (4 pi) for every direction."""
     basis = sh_basis(random_directions(100, 1), 3)
-    for l in range(4):
-        energy = basis[:, l * l:(l + 1) ** 2].square().sum(-1)
-        torch.testing.assert_close(energy, torch.full_like(energy, (2 * l + 1) / (4 * math.pi)))
+    for band in range(4):
+        energy = basis[:, band * band : (band + 1) ** 2].square().sum(-1)
+        torch.testing.assert_close(energy, torch.full_like(energy, (2 * band + 1) / (4 * math.pi)))
 
 
 def test_colour_helpers():

@@ -12,7 +12,7 @@ from matspray.eval.average import average_tables
 from matspray.eval.evaluate import evaluate_images, pooled_union_psnr
 from matspray.eval.glb import relighting_gap_line
 from matspray.eval.masked import covered_box, union_weights
-from matspray.eval.metrics import psnr, ssim
+from matspray.eval.metrics import ssim
 from matspray.eval.run_eval import GroundTruth, ViewRenders, paper_tables, score_renders
 from matspray.eval.tables import UNION_LABEL, material_table, tables_markdown
 
@@ -139,20 +139,32 @@ def test_pooled_union_psnr_by_hand():
 # ------------------------------------------------------------------------------------------ end to end
 def fake_object(extra: bool):
     mask = square()
-    truth = GroundTruth(mask=mask.float(), basecolor=grey(0.5).float(), roughness=torch.full((SIZE, SIZE), 0.5),
-                        metallic=(mask * 0.5).float(), relit={"sky": grey(0.5).float()})
+    truth = GroundTruth(
+        mask=mask.float(),
+        basecolor=grey(0.5).float(),
+        roughness=torch.full((SIZE, SIZE), 0.5),
+        metallic=(mask * 0.5).float(),
+        relit={"sky": grey(0.5).float()},
+    )
     alpha = mask.clone()
     if extra:
         alpha[4:12, 12:14] = 1.0
-    render = ViewRenders(relit={"sky": grey(0.5).float()}, base_color=grey(0.5).float(), roughness=torch.full((SIZE, SIZE), 0.5),
-                         metallic=torch.full((SIZE, SIZE), 0.5), alpha=alpha.float())
+    render = ViewRenders(
+        relit={"sky": grey(0.5).float()},
+        base_color=grey(0.5).float(),
+        roughness=torch.full((SIZE, SIZE), 0.5),
+        metallic=torch.full((SIZE, SIZE), 0.5),
+        alpha=alpha.float(),
+    )
     return SimpleNamespace(name="v0"), truth, render
 
 
 def test_score_renders_reports_both_figures_under_distinct_keys():
     view, truth, render = fake_object(extra=True)
     summary = score_renders([render], [view], [truth], ["sky"], None, aligned=True)["summary"]
-    assert summary["relighting"]["psnr"] == math.inf and summary["basecolor"]["psnr"] == math.inf  # GT mask: blind to it
+    assert (
+        summary["relighting"]["psnr"] == math.inf and summary["basecolor"]["psnr"] == math.inf
+    )  # GT mask: blind to it
     difference = 1.0 - float(linear_to_srgb(torch.tensor(0.5, dtype=torch.float64)))
     expected = -10 * math.log10(16 * difference**2 / 80)
     for key in ("relighting_union", "relighting_sky_union", "basecolor_union", "relighting_aligned_union"):
@@ -183,18 +195,27 @@ def test_tables_and_averages_show_both_figures():
     assert "Rows without a suffix: object mask (GT)" in text
     averaged = average_tables(per_object)
     finite = per_object[0]["table1"]["Ours"]["metallic_union"]["psnr"]
-    assert averaged["table1"]["Ours"]["metallic_union"] == {"psnr": pytest.approx(finite), "ssim": pytest.approx(
-        (table1["metallic_union"]["ssim"] + 1.0) / 2), "lpips": None, "psnr_infinite": 1, "objects": 2}
+    assert averaged["table1"]["Ours"]["metallic_union"] == {
+        "psnr": pytest.approx(finite),
+        "ssim": pytest.approx((table1["metallic_union"]["ssim"] + 1.0) / 2),
+        "lpips": None,
+        "psnr_infinite": 1,
+        "objects": 2,
+    }
     assert averaged["table1"]["Ours"]["relighting_union"]["psnr"] == math.inf  # one object exact
     assert averaged["table2_union"]["Full"]["psnr"] == math.inf
     assert "table2_union" not in average_tables([{"table2": {"Full": {"psnr": 20.0}}}])  # older metrics.json: none
     document = tables_markdown(averaged)
     assert f"## Table 2, {UNION_LABEL}" in document and f"Metallic, {UNION_LABEL} | ∞*/" in document
-    assert "(union)" not in tables_markdown({"table1": {"Ours": {"relighting": {"psnr": 20.0}}}})  # old files: as before
+    assert "(union)" not in tables_markdown(
+        {"table1": {"Ours": {"relighting": {"psnr": 20.0}}}}
+    )  # old files: as before
 
 
 def test_the_mesh_gap_line_states_both_gaps():
     gaussians = {"relighting": {"psnr": 24.33}, "relighting_union": {"psnr": 16.9}}
     mesh = {"relighting": {"psnr": 25.10}, "relighting_union": {"psnr": 14.5}}
-    assert relighting_gap_line(gaussians, mesh) == ("Relighting PSNR of the mesh is below the Gaussian asset's by -0.77 dB under "
-                                                    f"the object mask (GT) and 2.40 dB under the {UNION_LABEL} (negative: above).")
+    assert relighting_gap_line(gaussians, mesh) == (
+        "Relighting PSNR of the mesh is below the Gaussian asset's by -0.77 dB under "
+        f"the object mask (GT) and 2.40 dB under the {UNION_LABEL} (negative: above)."
+    )

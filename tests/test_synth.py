@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 import torch
 
 pytest.importorskip("mitsuba")
 
 from matspray.data import load_scene  # noqa: E402
-from matspray.data.images import read_image, read_raw  # noqa: E402
+from matspray.data.images import read_raw  # noqa: E402
 from matspray.errors import ConfigError, DataError  # noqa: E402
 from matspray.synth import SynthConfig, make_object  # noqa: E402
 
@@ -116,8 +115,17 @@ def test_ground_truth_is_consistent_with_the_render(composite):
 
 
 def test_same_arguments_give_the_same_files(tmp_path):
-    config = dict(shape="sphere", seed=5, resolution=16, train_views=2, test_views=1, spp=2, texture_height=16,
-                  env_height=16, relight_envs=["overcast"])
+    config = dict(
+        shape="sphere",
+        seed=5,
+        resolution=16,
+        train_views=2,
+        test_views=1,
+        spp=2,
+        texture_height=16,
+        env_height=16,
+        relight_envs=["overcast"],
+    )
     first, second = tmp_path / "a", tmp_path / "b"
     make_object(SynthConfig(**config), first, progress=False, notify=lambda _: None)
     make_object(SynthConfig(**config), second, progress=False, notify=lambda _: None)
@@ -131,8 +139,16 @@ def test_same_arguments_give_the_same_files(tmp_path):
 
 
 def test_refuses_a_folder_with_a_different_scene_unless_overwrite(tmp_path):
-    small = dict(shape="sphere", resolution=16, train_views=2, test_views=1, spp=1, texture_height=16, env_height=16,
-                 relight_envs=["overcast"])
+    small = dict(
+        shape="sphere",
+        resolution=16,
+        train_views=2,
+        test_views=1,
+        spp=1,
+        texture_height=16,
+        env_height=16,
+        relight_envs=["overcast"],
+    )
     make_object(SynthConfig(seed=1, **small), tmp_path, progress=False, notify=lambda _: None)
     with pytest.raises(ConfigError, match="already holds a different `matspray synth` scene.*overwrit"):
         make_object(SynthConfig(seed=2, **small), tmp_path, progress=False, notify=lambda _: None)
@@ -141,8 +157,12 @@ def test_refuses_a_folder_with_a_different_scene_unless_overwrite(tmp_path):
     (other / "notes.txt").write_text("mine")
     with pytest.raises(ConfigError, match="already holds other files"):
         make_object(SynthConfig(seed=2, **small), other, progress=False, notify=lambda _: None)
-    make_object(SynthConfig(seed=2, overwrite=True, **{**small, "train_views": 1}), tmp_path, progress=False,
-                notify=lambda _: None)
+    make_object(
+        SynthConfig(seed=2, overwrite=True, **{**small, "train_views": 1}),
+        tmp_path,
+        progress=False,
+        notify=lambda _: None,
+    )
     assert json.loads((tmp_path / "scene.json").read_text())["seed"] == 2
     assert not (tmp_path / "train" / "r_001.png").exists()  # the old scene's extra view is gone
     assert (other / "notes.txt").read_text() == "mine"
@@ -177,8 +197,25 @@ def test_unreadable_hdr_file_is_a_clear_error(tmp_path):
 def test_cli_prints_variant_and_one_line_errors(tmp_path, capsys):
     from matspray.cli import main
 
-    code = main(["synth", "--out", str(tmp_path / "o"), "--shape", "blob", "--res", "12", "--views", "1",
-                 "--test-views", "1", "--spp", "1", "--relight-env", "studio"])
+    code = main(
+        [
+            "synth",
+            "--out",
+            str(tmp_path / "o"),
+            "--shape",
+            "blob",
+            "--res",
+            "12",
+            "--views",
+            "1",
+            "--test-views",
+            "1",
+            "--spp",
+            "1",
+            "--relight-env",
+            "studio",
+        ]
+    )
     printed = capsys.readouterr()
     assert code == 0 and "Mitsuba variant: " in printed.out and "blob under sky" in printed.out
     assert (tmp_path / "o" / "test" / "r_000_relight_studio.png").exists()
@@ -203,10 +240,20 @@ def test_scalar_variant_fallback_makes_the_same_object(tmp_path):
     import subprocess
     import sys
 
-    settings = dict(shape="sphere", resolution=10, train_views=1, test_views=1, spp=32, gt_samples=2, texture_height=16,
-                    env_height=16, relight_envs=["studio"])
-    done = subprocess.run([sys.executable, "-c", FALLBACK, str(tmp_path / "scalar")], capture_output=True, text=True,
-                          timeout=240)
+    settings = dict(
+        shape="sphere",
+        resolution=10,
+        train_views=1,
+        test_views=1,
+        spp=32,
+        gt_samples=2,
+        texture_height=16,
+        env_height=16,
+        relight_envs=["studio"],
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", FALLBACK, str(tmp_path / "scalar")], capture_output=True, text=True, timeout=240
+    )
     assert done.returncode == 0, done.stderr
     assert "Mitsuba variant: scalar_rgb" in done.stdout
     make_object(SynthConfig(**settings), tmp_path / "vectorised", progress=False, notify=lambda _: None)

@@ -17,7 +17,12 @@ from matspray.lights import lookup_envmap  # noqa: E402
 from matspray.synth.groundtruth import cast_ground_truth  # noqa: E402
 from matspray.synth.materials import Textures, bake_textures, bilinear_lookup, random_material  # noqa: E402
 from matspray.synth.mitsuba_scene import (  # noqa: E402
-    build_scene, envmap_emitter, mitsuba_envmap_rows, render_view, sampler_for, select_variant,
+    build_scene,
+    envmap_emitter,
+    mitsuba_envmap_rows,
+    render_view,
+    sampler_for,
+    select_variant,
 )
 from matspray.synth.shapes import sphere  # noqa: E402
 from matspray.synth.writer import write_render  # noqa: E402
@@ -93,7 +98,9 @@ def test_bilinear_lookup_is_mitsubas_bitmap_lookup():
         interaction = dr.zeros(mi.SurfaceInteraction3f, len(uv))
         interaction.uv = mi.Point2f(uv[:, 0].astype(np.float32), uv[:, 1].astype(np.float32))
         mitsuba_values = np.array(bitmap.eval(interaction)).reshape(3, -1).T
-    np.testing.assert_allclose(bilinear_lookup(texture, uv.astype(np.float32).astype(np.float64)), mitsuba_values, atol=2e-5)
+    np.testing.assert_allclose(
+        bilinear_lookup(texture, uv.astype(np.float32).astype(np.float64)), mitsuba_values, atol=2e-5
+    )
 
 
 def test_white_furnace_render_matches_base_color_in_linear_and_srgb(tmp_path):
@@ -118,7 +125,9 @@ def test_white_furnace_render_matches_base_color_in_linear_and_srgb(tmp_path):
 def test_metal_mirror_reflects_the_constant_sky_times_base_color():
     """A metallic sphere has F0 = base colour: under a constant sky it reflects the base colour too."""
     base = np.array([0.9, 0.6, 0.3])
-    scene = build_scene(sphere(np.random.default_rng(0)), [uniform_textures(base, 0.2, 1.0)], np.ones((8, 16, 3), np.float32))
+    scene = build_scene(
+        sphere(np.random.default_rng(0)), [uniform_textures(base, 0.2, 1.0)], np.ones((8, 16, 3), np.float32)
+    )
     camera = Camera.look_at([0.0, -3.5, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.69, 24, 24)
     rgb, alpha = render_view(scene, camera, spp=16, seed=2)
     centre = rgb[alpha > 0.999].mean(0)
@@ -151,7 +160,9 @@ def test_ground_truth_maps_equal_texture_values_at_the_surface_points(textured_s
     points, hit, _ = analytic_sphere_hits(camera, part.params["radius"], 4)
     rotation = np.asarray(part.params["rotation"])
     d = points @ rotation / part.params["radius"]  # the sphere's own frame
-    uv = np.stack([np.mod(np.arctan2(d[:, 1], d[:, 0]) / (2 * math.pi), 1.0), np.arccos(np.clip(d[:, 2], -1, 1)) / math.pi], -1)
+    uv = np.stack(
+        [np.mod(np.arctan2(d[:, 1], d[:, 0]) / (2 * math.pi), 1.0), np.arccos(np.clip(d[:, 2], -1, 1)) / math.pi], -1
+    )
     expected_base = bilinear_lookup(texture.base_color, uv).reshape(24, 24, 16, 3).mean(2)
     expected_rough = bilinear_lookup(texture.roughness, uv).reshape(24, 24, 16).mean(2)
     full = (truth.coverage == 1.0) & hit.reshape(24, 24, 16).all(-1)
@@ -191,7 +202,6 @@ def test_stratified_renders_are_less_noisy_than_independent_ones():
     """Same sample count, a diffuse sphere under a sky with a sun: the stratified render's error
     against a 1024-spp reference is clearly below the independent sampler's."""
     import matspray.synth.mitsuba_scene as ms
-
     from matspray.lights import load_envmap
 
     _, env = load_envmap("sky", 16)
@@ -204,7 +214,14 @@ def test_stratified_renders_are_less_noisy_than_independent_ones():
         original = ms.sampler_for
         ms.sampler_for = lambda spp, s=sampler: s
         try:
-            errors[sampler] = float(np.mean([np.square(render_view(scene, camera, spp=16, seed=s)[0] - reference)[inside].mean() for s in (5, 6)]))
+            errors[sampler] = float(
+                np.mean(
+                    [
+                        np.square(render_view(scene, camera, spp=16, seed=s)[0] - reference)[inside].mean()
+                        for s in (5, 6)
+                    ]
+                )
+            )
         finally:
             ms.sampler_for = original
     assert errors["stratified"] < 0.7 * errors["independent"], errors

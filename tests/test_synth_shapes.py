@@ -59,7 +59,10 @@ def test_random_shape_comes_from_the_seed_and_bad_names_list_the_valid_ones():
     assert picks <= set(SHAPES) and len(picks) >= 4
     assert resolve_shape("random", 7) == resolve_shape("random", 7)
     assert resolve_shape("torus", 7) == "torus"
-    with pytest.raises(ConfigError, match="unknown shape 'cone' \\(valid: sphere, rounded-cube, torus, capsule, blob, composite, random\\)"):
+    with pytest.raises(
+        ConfigError,
+        match="unknown shape 'cone' \\(valid: sphere, rounded-cube, torus, capsule, blob, composite, random\\)",
+    ):
         resolve_shape("cone", 0)
 
 
@@ -104,8 +107,12 @@ def test_bilinear_lookup_hits_texels_at_centres_and_wraps():
     u, v = texel_uvs(4, 6)
     centres = np.stack([u.reshape(-1), v.reshape(-1)], -1)
     np.testing.assert_allclose(bilinear_lookup(texture, centres), texture.reshape(-1))
-    np.testing.assert_allclose(bilinear_lookup(texture, np.array([[0.0, 1.5 / 4]])), [0.5 * (texture[1, 0] + texture[1, 5])])
-    np.testing.assert_allclose(bilinear_lookup(texture, np.array([[1.5 / 6, 0.0]])), [0.5 * (texture[0, 1] + texture[3, 1])])
+    np.testing.assert_allclose(
+        bilinear_lookup(texture, np.array([[0.0, 1.5 / 4]])), [0.5 * (texture[1, 0] + texture[1, 5])]
+    )
+    np.testing.assert_allclose(
+        bilinear_lookup(texture, np.array([[1.5 / 6, 0.0]])), [0.5 * (texture[0, 1] + texture[3, 1])]
+    )
 
 
 def test_noise_is_seeded_bounded_and_smooth():
@@ -132,7 +139,9 @@ def test_cameras_frame_the_object_and_train_and_test_differ():
     train, test, distance = make_cameras(20, 5, 1.0, 64, np.random.default_rng(0))
     assert len(train) == 20 and len(test) == 5
     centres = torch.stack([c.center for c in train + test]).double()
-    torch.testing.assert_close(centres.norm(dim=-1), torch.full((25,), distance, dtype=torch.float64), atol=1e-4, rtol=0)
+    torch.testing.assert_close(
+        centres.norm(dim=-1), torch.full((25,), distance, dtype=torch.float64), atol=1e-4, rtol=0
+    )
     gaps = torch.cdist(centres[20:], centres[:20])
     assert gaps.min() > 1e-3  # no test camera repeats a training camera
     assert centres[:, 2].min() < 0 < centres[:, 2].max()  # views from below and above

@@ -19,22 +19,27 @@ OURS = {
 
 
 def test_table1_single_method_matches_the_paper_layout():
-    assert material_table({"Ours": OURS}) == "\n".join([
-        "| Task | PSNR ↑ | SSIM ↑ | LPIPS ↓ |",
-        "| :--- | ---: | ---: | ---: |",
-        "| Relighting | 27.282 | 0.897 | 0.080 |",
-        "| BaseColor | 21.341 | 0.873 | 0.125 |",
-        "| Roughness | 15.331 | 0.820 | 0.181 |",
-        "| Metallic | ∞*/27.202 | 0.893 | 0.106 |",
-    ]) + ("\n\n\\* 9 of 17 objects are non-metallic and predicted all zero, so their metallic PSNR is infinite; "
-          "they are left out of the average after the slash.")
+    assert material_table({"Ours": OURS}) == "\n".join(
+        [
+            "| Task | PSNR ↑ | SSIM ↑ | LPIPS ↓ |",
+            "| :--- | ---: | ---: | ---: |",
+            "| Relighting | 27.282 | 0.897 | 0.080 |",
+            "| BaseColor | 21.341 | 0.873 | 0.125 |",
+            "| Roughness | 15.331 | 0.820 | 0.181 |",
+            "| Metallic | ∞*/27.202 | 0.893 | 0.106 |",
+        ]
+    ) + (
+        "\n\n\\* 9 of 17 objects are non-metallic and predicted all zero, so their metallic PSNR is infinite; "
+        "they are left out of the average after the slash."
+    )
 
 
 def test_table1_missing_rows_unavailable_lpips_and_best_in_bold():
     other = {"relighting": {"psnr": 25.483, "ssim": 0.875, "lpips": None}, "roughness": {"psnr": 16.182}}
     lines = material_table({"Ours": OURS, "R3DGS": other}).splitlines()
-    assert lines[0] == ("| Task | Ours PSNR ↑ | Ours SSIM ↑ | Ours LPIPS ↓ | R3DGS PSNR ↑ | R3DGS SSIM ↑ "
-                        "| R3DGS LPIPS ↓ |")
+    assert lines[0] == (
+        "| Task | Ours PSNR ↑ | Ours SSIM ↑ | Ours LPIPS ↓ | R3DGS PSNR ↑ | R3DGS SSIM ↑ | R3DGS LPIPS ↓ |"
+    )
     assert lines[2] == "| Relighting | **27.282** | **0.897** | 0.080 | 25.483 | 0.875 | n/a |"
     assert lines[3] == "| BaseColor | 21.341 | 0.873 | 0.125 | — | — | — |"
     assert lines[4] == "| Roughness | 15.331 | 0.820 | 0.181 | **16.182** | — | — |"
@@ -59,8 +64,12 @@ def test_metallic_cell_variants():
 
 
 def test_ablation_tables_list_the_paper_variants_in_order():
-    table2 = ablation_table({"Proj. Average": {"psnr": 25.555, "ssim": 0.866, "lpips": 0.122},
-                             "Full": {"psnr": 29.164, "ssim": 0.9105, "lpips": 0.0626}})
+    table2 = ablation_table(
+        {
+            "Proj. Average": {"psnr": 25.555, "ssim": 0.866, "lpips": 0.122},
+            "Full": {"psnr": 29.164, "ssim": 0.9105, "lpips": 0.0626},
+        }
+    )
     assert table2.splitlines()[2:] == [
         "| Full | **29.164** | **0.910** | **0.063** |",
         "| Supervised | — | — | — |",
@@ -75,8 +84,9 @@ def test_ablation_tables_list_the_paper_variants_in_order():
 
 
 def test_timings_table_sums_the_stages():
-    table = timings_table({"Ours": {"refine": 975.0, "predict": 112.0, "geometry": 131.0, "eval": 10.25},
-                           "Other": {"geometry": 2490.0}})
+    table = timings_table(
+        {"Ours": {"refine": 975.0, "predict": 112.0, "geometry": 131.0, "eval": 10.25}, "Other": {"geometry": 2490.0}}
+    )
     assert table.splitlines() == [
         "| Stage | Ours (s) | Other (s) |",
         "| :--- | ---: | ---: |",
@@ -100,8 +110,10 @@ def test_document_has_every_section_and_says_what_is_missing(tmp_path):
         "notes": ["Material predictions are simulated from ground truth."],
     }
     text = tables_markdown(metrics)
-    assert text.startswith("# MatSpray evaluation\n\n- Material predictions are simulated from ground truth.\n"
-                           "- LPIPS: LPIPS unavailable: no weights file\n")
+    assert text.startswith(
+        "# MatSpray evaluation\n\n- Material predictions are simulated from ground truth.\n"
+        "- LPIPS: LPIPS unavailable: no weights file\n"
+    )
     assert "## Table 1: relighting and material maps\n\n| Task |" in text
     assert "## Table 2: ablation (Full / Supervised / Proj. Average)\n\n_No ablation runs._" in text
     assert "## Ablation: Neural Merger softmax\n\n_No softmax ablation runs._" in text

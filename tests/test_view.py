@@ -17,13 +17,13 @@ from matspray.cli import main
 from matspray.data import Camera
 from matspray.data.images import read_raw, write_image
 from matspray.errors import ConfigError, DataError
+from matspray.export.frames import dataset_from_glb
 from matspray.render.backend import rendering_with
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.latlong import pixel_directions
 from matspray.rundir import write_json
 from matspray.view.camera import camera_from_viser, frame_size, matrix_to_quaternion, quaternion_to_matrix, viser_pose
 from matspray.view.frames import MODES, Progressive, progressive_size
-from matspray.export.frames import dataset_from_glb
 from matspray.view.glb import glb_pose
 from matspray.view.launch import light_files
 from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, RotatedLight, rotate_about_up
@@ -74,12 +74,20 @@ def test_viser_camera_projects_points_as_a_brute_force_pinhole_does():
     rng = np.random.default_rng(1)
     for _ in range(10):
         R, t = random_rotation(rng), rng.normal(size=3) * 3
-        wxyz, fov, width, height = matrix_to_quaternion(R), rng.uniform(0.3, 1.5), int(rng.integers(40, 400)), int(rng.integers(40, 400))
+        wxyz, fov, width, height = (
+            matrix_to_quaternion(R),
+            rng.uniform(0.3, 1.5),
+            int(rng.integers(40, 400)),
+            int(rng.integers(40, 400)),
+        )
         camera = camera_from_viser(wxyz, t, fov, width, height)
         p_camera = np.stack([rng.uniform(-1, 1, 20), rng.uniform(-1, 1, 20), rng.uniform(1, 5, 20)], axis=-1)
         points = p_camera @ R.T + t
         focal = (height / 2) / math.tan(fov / 2)  # vertical field of view over the image height
-        expected = np.stack([width / 2 + focal * p_camera[:, 0] / p_camera[:, 2], height / 2 + focal * p_camera[:, 1] / p_camera[:, 2]], -1)
+        expected = np.stack(
+            [width / 2 + focal * p_camera[:, 0] / p_camera[:, 2], height / 2 + focal * p_camera[:, 1] / p_camera[:, 2]],
+            -1,
+        )
         pixels, depth = camera.project(torch.tensor(points, dtype=torch.float32))
         assert np.allclose(pixels.numpy(), expected, atol=2e-3 * width)
         assert np.allclose(depth.numpy(), p_camera[:, 2], atol=1e-4)
@@ -140,9 +148,13 @@ def test_a_turned_light_is_the_map_shifted_by_whole_columns_and_zero_is_exact():
     sun = torch.nn.functional.normalize(torch.tensor([0.5, 0.3, 0.8]), dim=0)
     angle = 1.0
     turned = light.turned(angle)
-    assert torch.allclose(turned.lookup_diffuse(rotate_about_up(sun, angle)[None]), light.lookup_diffuse(sun[None]), atol=1e-5)
+    assert torch.allclose(
+        turned.lookup_diffuse(rotate_about_up(sun, angle)[None]), light.lookup_diffuse(sun[None]), atol=1e-5
+    )
     r = torch.tensor([0.3])
-    assert torch.allclose(turned.lookup_specular(rotate_about_up(sun, angle)[None], r), light.lookup_specular(sun[None], r), atol=1e-5)
+    assert torch.allclose(
+        turned.lookup_specular(rotate_about_up(sun, angle)[None], r), light.lookup_specular(sun[None], r), atol=1e-5
+    )
     # unturned: the very lookups of the prefiltered light
     n = torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
     assert torch.equal(light.turned(0.0).lookup_diffuse(n), light.prefiltered.lookup_diffuse(n))
@@ -160,11 +172,14 @@ def test_light_files_expand_folders_and_refuse_missing_paths(tmp_path):
         light_files([tmp_path / "empty"])
 
 
-@pytest.mark.parametrize("name, content, problem", [
-    ("photo.png", None, "is not an HDR light"),
-    ("broken.exr", b"this is not an OpenEXR file at all", "broken.exr"),
-    ("square.exr", "square", "twice as wide as tall"),
-])
+@pytest.mark.parametrize(
+    "name, content, problem",
+    [
+        ("photo.png", None, "is not an HDR light"),
+        ("broken.exr", b"this is not an OpenEXR file at all", "broken.exr"),
+        ("square.exr", "square", "twice as wide as tall"),
+    ],
+)
 def test_bad_light_files_are_one_line_naming_the_file(tmp_path, name, content, problem):
     path = tmp_path / name
     if content is None:
@@ -208,7 +223,12 @@ def test_the_viewer_starts_with_the_runs_estimated_light_and_keeps_it_after_a_ba
     viewer.choices.append(LightChoice("gone.exr", str(listed)))
     shown = viewer.light
     assert not viewer.set_light("gone.exr")
-    assert viewer.state.light == "sunset" and viewer.light is shown and len(viewer.told) == 2 and "gone.exr" in viewer.told[1]
+    assert (
+        viewer.state.light == "sunset"
+        and viewer.light is shown
+        and len(viewer.told) == 2
+        and "gone.exr" in viewer.told[1]
+    )
 
 
 def test_every_display_mode_draws_the_object_with_matsprays_renderer(viewer, monkeypatch):
@@ -226,7 +246,12 @@ def test_every_display_mode_draws_the_object_with_matsprays_renderer(viewer, mon
         assert frame.image.shape == (48, 48, 3) and frame.image.dtype == np.uint8
         covered = frame.alpha > 0.9
         assert covered.float().mean() > 0.2 and (~covered).float().mean() > 0.2  # a sphere in the middle
-        assert np.abs(frame.image[covered.numpy()].astype(float).mean(0) - frame.image[~covered.numpy()].astype(float).mean(0)).max() > 10, mode
+        assert (
+            np.abs(
+                frame.image[covered.numpy()].astype(float).mean(0) - frame.image[~covered.numpy()].astype(float).mean(0)
+            ).max()
+            > 10
+        ), mode
     assert len(calls) == 2  # relit and relit over light shade through relight's render_relit
     viewer.update(mode="relit")
 
@@ -246,12 +271,31 @@ def test_exposure_and_turn_change_the_relit_picture(viewer):
 
 
 def test_the_viewers_picture_is_relights_picture(viewer, view_run, tmp_path):
-    """Same camera, light and size: `matspray relight --background env` writes what the viewer shows in `relit over light`."""
+    """Same camera, light and size: `matspray relight --background env` writes what the viewer shows in `relit over
+    light`."""
     from matspray.data import load_scene
 
     out = tmp_path / "relit"
-    assert main(["relight", "--run", str(view_run), "--env", "studio", "--out", str(out), "--background", "env",
-                 "--device", "cpu", "--backend", "torch"]) == 0
+    assert (
+        main(
+            [
+                "relight",
+                "--run",
+                str(view_run),
+                "--env",
+                "studio",
+                "--out",
+                str(out),
+                "--background",
+                "env",
+                "--device",
+                "cpu",
+                "--backend",
+                "torch",
+            ]
+        )
+        == 0
+    )
     scene = load_scene(json.loads((view_run / "dataset.json").read_text())["source"])
     viewer.set_light("studio")
     viewer.update(mode="relit over light", exposure=0.0, turn=0.0)
@@ -284,7 +328,11 @@ def test_snapshots_are_written_whole_with_unique_names(tmp_path, monkeypatch):
     image = np.random.default_rng(0).integers(0, 256, (20, 30, 3), dtype=np.uint8)
     first = write_snapshot(tmp_path, image, "full", "estimated (run)", "relit", stamp=0.0)
     second = write_snapshot(tmp_path, image, "full", "estimated (run)", "relit", stamp=0.0)
-    assert first.parent == tmp_path / "view" and first.name.startswith("full_estimated-run_relit_") and second.name.endswith("-2.png")
+    assert (
+        first.parent == tmp_path / "view"
+        and first.name.startswith("full_estimated-run_relit_")
+        and second.name.endswith("-2.png")
+    )
     assert np.array_equal(np.round(read_raw(first).numpy() * 255).astype(np.uint8), image)
     import matspray.data.images as images
 
@@ -317,7 +365,9 @@ def test_a_glb_is_placed_in_the_datasets_world_by_its_frame(tmp_path):
     assert np.allclose(plain[:3, :3] @ [0, 1, 0], [0, 0, 1])  # glTF's +Y up becomes the dataset's +Z up
     moved = np.eye(4)
     moved[:3, 3] = (1.0, 2.0, 3.0)
-    marked = dataset_from_glb(path, glb_bytes({"asset": {"version": "2.0", "extras": {"matspray": {"dataset_from_file": moved.tolist()}}}}))
+    marked = dataset_from_glb(
+        path, glb_bytes({"asset": {"version": "2.0", "extras": {"matspray": {"dataset_from_file": moved.tolist()}}}})
+    )
     assert np.allclose(marked, moved)
     wxyz, position = glb_pose(plain, (0.5, 0.0, 0.0))
     assert np.allclose(quaternion_to_matrix(wxyz), plain[:3, :3]) and np.allclose(position, (0.5, 0.0, 0.0))
@@ -349,12 +399,29 @@ def test_a_port_in_use_is_one_line_with_the_port_and_what_to_pass_instead(view_r
         port = taken.getsockname()[1]
         assert main(["view", str(view_run), "--port", str(port), "--device", "cpu", "--backend", "torch"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and f"port {port}" in err and "in use" in err and "--port" in err.split("in use")[1]
+    assert (
+        len(err.splitlines()) == 1 and f"port {port}" in err and "in use" in err and "--port" in err.split("in use")[1]
+    )
 
 
 def test_a_missing_env_file_is_refused_before_anything_starts(view_run, tmp_path, capsys):
-    assert main(["view", str(view_run), "--env", str(tmp_path / "nope.exr"), "--port", str(free_port()),
-                 "--device", "cpu", "--backend", "torch"]) == 2
+    assert (
+        main(
+            [
+                "view",
+                str(view_run),
+                "--env",
+                str(tmp_path / "nope.exr"),
+                "--port",
+                str(free_port()),
+                "--device",
+                "cpu",
+                "--backend",
+                "torch",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "nope.exr" in err and "no such file" in err
 
@@ -367,12 +434,31 @@ def test_the_command_prints_its_url_and_serves_the_page(view_run):
 
     pytest.importorskip("viser")
     port = free_port()
-    process = subprocess.Popen([sys.executable, "-m", "matspray", "view", str(view_run), "--port", str(port), "--device", "cpu",
-                                "--backend", "torch"], cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "matspray",
+            "view",
+            str(view_run),
+            "--port",
+            str(port),
+            "--device",
+            "cpu",
+            "--backend",
+            "torch",
+        ],
+        cwd=Path(__file__).resolve().parents[1],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         first = process.stdout.readline().strip()
-        assert first.startswith(f"matspray view: http://localhost:{port}"), (first, process.stderr.read() if process.poll() is not None else "")
+        assert first.startswith(f"matspray view: http://localhost:{port}"), (
+            first,
+            process.stderr.read() if process.poll() is not None else "",
+        )
         assert f"ssh -L {port}:localhost:{port}" in process.stdout.readline()
         with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=10) as page:
             assert page.status == 200 and b"<html" in page.read().lower()
@@ -392,13 +478,16 @@ def test_an_unreadable_estimated_light_starts_the_viewer_under_a_built_in(tmp_pa
 
 
 def test_the_page_opens_before_torch_is_imported(view_run):
-    """`matspray view` serves its page while torch, the asset and the light load: the checks and the page need no torch."""
+    """`matspray view` serves its page while torch, the asset and the light load:
+    the checks and the page need no torch."""
     import subprocess
     import sys
 
-    code = ("import sys; from matspray.view.launch import light_files, open_page, run_variants; "
-            f"variants = run_variants({str(view_run)!r}); page = open_page('127.0.0.1', {free_port()}); "
-            "print(variants, 'torch' in sys.modules, page.url.startswith('http://localhost:')); page.stop()")
+    code = (
+        "import sys; from matspray.view.launch import light_files, open_page, run_variants; "
+        f"variants = run_variants({str(view_run)!r}); page = open_page('127.0.0.1', {free_port()}); "
+        "print(variants, 'torch' in sys.modules, page.url.startswith('http://localhost:')); page.stop()"
+    )
     printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert printed.returncode == 0, printed.stderr
     assert printed.stdout.split()[-2:] == ["False", "True"], printed.stdout
@@ -410,7 +499,9 @@ def test_the_viewer_renders_on_the_device_it_is_given(view_run, device):
     On the GPU machine `pytest --device cuda` runs this on CUDA (benchmarks/gpu_check.sh)."""
     from matspray.view.server import Viewer, ViewerConfig
 
-    on_device = Viewer(view_run, ViewerConfig(resolution=48), device=str(device), backend="torch", notify=lambda _: None)
+    on_device = Viewer(
+        view_run, ViewerConfig(resolution=48), device=str(device), backend="torch", notify=lambda _: None
+    )
     on_cpu = Viewer(view_run, ViewerConfig(resolution=48), device="cpu", backend="torch", notify=lambda _: None)
     try:
         _, asset, light = on_device.frame_inputs()
@@ -418,7 +509,9 @@ def test_the_viewer_renders_on_the_device_it_is_given(view_run, device):
         camera = on_cpu.start_camera.scaled(0.25)
         there, here = on_device.render(camera), on_cpu.render(camera)
         assert there.image.shape == here.image.shape
-        assert np.abs(there.image.astype(int) - here.image.astype(int)).max() <= 2  # 8-bit pictures, float rounding apart
+        assert (
+            np.abs(there.image.astype(int) - here.image.astype(int)).max() <= 2
+        )  # 8-bit pictures, float rounding apart
     finally:
         on_device.stop()
         on_cpu.stop()

@@ -51,7 +51,13 @@ def page(tmp_path_factory):
     except ImportError:
         pass
     told = []
-    viewer = Viewer(run, ViewerConfig(port=free_port(), resolution=160, settle=0.15), device="cpu", backend="torch", notify=told.append)
+    viewer = Viewer(
+        run,
+        ViewerConfig(port=free_port(), resolution=160, settle=0.15),
+        device="cpu",
+        backend="torch",
+        notify=told.append,
+    )
     viewer.told = told
     url = viewer.start()
     driver = open_chromium(*WINDOW)
@@ -65,6 +71,7 @@ def page(tmp_path_factory):
 
 def full_frame(viewer, after=None, timeout: float = 60.0):
     """The tab's latest full-size frame once there is one (newer than `after`)."""
+
     def ready():
         views = list(viewer.views.values())
         if not views:
@@ -75,6 +82,7 @@ def full_frame(viewer, after=None, timeout: float = 60.0):
         if frame is None or not still or frame is after or max(frame.size) != viewer.state.resolution:
             return None
         return frame
+
     return wait_for(ready, timeout=timeout, what="a full-size frame")
 
 
@@ -86,10 +94,12 @@ def object_mask(frame, shape) -> np.ndarray:
     rows = np.minimum((np.arange(height) + 0.5) * alpha.shape[0] / height, alpha.shape[0] - 1).astype(int)
     cols = np.minimum((np.arange(width) + 0.5) * alpha.shape[1] / width, alpha.shape[1] - 1).astype(int)
     inside = alpha > 0.99
-    inside[1:-1, 1:-1] &= inside[:-2, 1:-1] & inside[2:, 1:-1] & inside[1:-1, :-2] & inside[1:-1, 2:]  # one pixel in from the edge
+    inside[1:-1, 1:-1] &= (
+        inside[:-2, 1:-1] & inside[2:, 1:-1] & inside[1:-1, :-2] & inside[1:-1, 2:]
+    )  # one pixel in from the edge
     mask = inside[rows][:, cols]
-    mask[:, width - PANEL:] = False
-    mask[:NOTICE[1], :NOTICE[0]] = False
+    mask[:, width - PANEL :] = False
+    mask[: NOTICE[1], : NOTICE[0]] = False
     return mask
 
 
@@ -110,7 +120,10 @@ def settled(viewer, driver, after=None):
         image = page_image(driver)
         mask = object_mask(frame, image.shape)
         errors.append(np.abs(image[mask].astype(float) - stretched(frame, image.shape)[mask]).mean())
-        return (frame, image) if errors[-1] < 12 and frame is viewer.views[next(iter(viewer.views))].last_frame else None
+        return (
+            (frame, image) if errors[-1] < 12 and frame is viewer.views[next(iter(viewer.views))].last_frame else None
+        )
+
     try:
         return wait_for(matches, what="the page to show the frame", every=0.3)
     except AssertionError:
@@ -133,11 +146,19 @@ def choose(driver, label: str, option: str) -> None:
     """Pick `option` in the page's dropdown labelled `label`, as a person does: click it, click the entry."""
     from selenium.webdriver.common.by import By
 
-    field = wait_for(lambda: next((el for el in driver.find_elements(By.TAG_NAME, "label") if el.text.strip() == label), None),
-                     timeout=30, what=f"the control {label!r}")
+    field = wait_for(
+        lambda: next((el for el in driver.find_elements(By.TAG_NAME, "label") if el.text.strip() == label), None),
+        timeout=30,
+        what=f"the control {label!r}",
+    )
     driver.find_element(By.ID, field.get_attribute("for")).click()
-    entry = wait_for(lambda: next((el for el in driver.find_elements(By.CSS_SELECTOR, "[role=option]") if el.text.strip() == option), None),
-                     timeout=10, what=f"the entry {option!r}")
+    entry = wait_for(
+        lambda: next(
+            (el for el in driver.find_elements(By.CSS_SELECTOR, "[role=option]") if el.text.strip() == option), None
+        ),
+        timeout=10,
+        what=f"the entry {option!r}",
+    )
     entry.click()
 
 
@@ -159,7 +180,9 @@ def test_a_bad_upload_is_one_line_in_the_page_and_the_light_stays(page, tmp_path
     bad = tmp_path / "not-a-light.exr"
     bad.write_bytes(b"this is no OpenEXR file")
     driver.find_element(By.CSS_SELECTOR, "input[type=file]").send_keys(str(bad))
-    wait_for(lambda: "not-a-light.exr" in driver.find_element(By.TAG_NAME, "body").text, timeout=20, what="the notification")
+    wait_for(
+        lambda: "not-a-light.exr" in driver.find_element(By.TAG_NAME, "body").text, timeout=20, what="the notification"
+    )
     assert viewer.state.light == light and any("not-a-light.exr" in line and "\n" not in line for line in viewer.told)
 
 
@@ -184,7 +207,9 @@ def test_the_snapshot_button_writes_a_png_into_the_run(page):
     folder = viewer.run.root / "view"
     button = next(el for el in driver.find_elements(By.TAG_NAME, "button") if el.text.strip().startswith("snapshot"))
     button.click()
-    files = wait_for(lambda: list(folder.glob("*.png")) if folder.exists() else None, timeout=30, what="the snapshot file")
+    files = wait_for(
+        lambda: list(folder.glob("*.png")) if folder.exists() else None, timeout=30, what="the snapshot file"
+    )
     assert len(files) == 1 and files[0].stat().st_size > 1000
     assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # no temporary file left
 
@@ -200,7 +225,11 @@ def test_the_exported_glb_is_shown_beside_or_instead_of_the_gaussians(page):
     wait_for(lambda: viewer.state.glb == "beside" and viewer.gui.mesh is not None, timeout=20, what="the glb beside")
     assert full_frame(viewer) is not None  # the Gaussians are still drawn by MatSpray
     choose(driver, "glb", "instead")
-    wait_for(lambda: "glb shown instead" in driver.find_element(By.TAG_NAME, "body").text, timeout=20, what="the Gaussians hidden")
+    wait_for(
+        lambda: "glb shown instead" in driver.find_element(By.TAG_NAME, "body").text,
+        timeout=20,
+        what="the Gaussians hidden",
+    )
     assert viewer.gui.mesh is not None
     choose(driver, "glb", "hidden")
     wait_for(lambda: viewer.state.glb == "hidden" and viewer.gui.mesh is None, timeout=20, what="the glb hidden")
@@ -221,7 +250,14 @@ def test_a_tab_that_opened_the_page_before_the_run_loaded_gets_one_view_and_its_
         driver.get(page.url.replace("localhost", "127.0.0.1"))
         wait_for(lambda: page.server.get_clients() or None, what="the tab to connect")
         assert LOADING.split("**")[-1].strip() in driver.page_source  # the page says the run is loading
-        viewer = Viewer(run, ViewerConfig(resolution=96, settle=0.1), device="cpu", backend="torch", notify=lambda _: None, page=page)
+        viewer = Viewer(
+            run,
+            ViewerConfig(resolution=96, settle=0.1),
+            device="cpu",
+            backend="torch",
+            notify=lambda _: None,
+            page=page,
+        )
         viewer.start()
         frame = full_frame(viewer)
         assert len(viewer.views) == 1 and frame is not None

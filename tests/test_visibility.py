@@ -3,9 +3,8 @@ import math
 import pytest
 import torch
 
-from matspray.asset import read_asset, write_asset
+from matspray.asset import Asset, read_asset, write_asset
 from matspray.gaussians import Gaussians
-from matspray.asset import Asset
 from matspray.relight import render_gbuffer
 from matspray.render.deferred import shade
 from matspray.render.envmap import EnvironmentMap
@@ -37,9 +36,19 @@ def test_transmittance_is_one_minus_the_weights_in_front_on_the_queried_pixel():
 
 def with_centre_disk(gaussians: Gaussians) -> Gaussians:
     """The disk sphere plus one small Gaussian at its centre, which no direction can see."""
-    centre = Gaussians(torch.zeros(1, 3), torch.full((1, 3), math.log(0.05)), torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
-                       torch.full((1,), 4.0), torch.zeros(1, 1, 3))
-    return Gaussians(*(torch.cat([getattr(gaussians, f), getattr(centre, f)]) for f in ("means", "log_scales", "quats", "opacity_logits", "sh")))
+    centre = Gaussians(
+        torch.zeros(1, 3),
+        torch.full((1, 3), math.log(0.05)),
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+        torch.full((1,), 4.0),
+        torch.zeros(1, 1, 3),
+    )
+    return Gaussians(
+        *(
+            torch.cat([getattr(gaussians, f), getattr(centre, f)])
+            for f in ("means", "log_scales", "quats", "opacity_logits", "sh")
+        )
+    )
 
 
 def test_closed_sphere_sees_out_only_through_its_own_side():
@@ -59,7 +68,9 @@ def test_a_disk_above_shadows_the_point_below_only_from_above():
     # a wide opaque disk at z = 1 over a small one at z = 0
     means = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
     scales = torch.tensor([[3.0, 3.0, 0.01], [0.05, 0.05, 0.01]])
-    gaussians = Gaussians(means, scales.log(), torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2), torch.full((2,), 6.0), torch.zeros(2, 1, 3))
+    gaussians = Gaussians(
+        means, scales.log(), torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2), torch.full((2,), 6.0), torch.zeros(2, 1, 3)
+    )
     visibility = bake_visibility(gaussians, VisibilityConfig(rows=4, resolution=96))
     directions, _ = visibility_directions(4)
     up, down = directions[:, 2].argmax(), directions[:, 2].argmin()
@@ -71,11 +82,15 @@ def test_shadow_factors_are_one_when_everything_is_visible_and_zero_when_nothing
     light = sky_map(8)
     n = 50
     normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
-    view_dirs = torch.nn.functional.normalize(normals + 0.3 * torch.randn(n, 3, generator=torch.Generator().manual_seed(1)), dim=-1)
+    view_dirs = torch.nn.functional.normalize(
+        normals + 0.3 * torch.randn(n, 3, generator=torch.Generator().manual_seed(1)), dim=-1
+    )
     roughness = torch.rand(n, generator=torch.Generator().manual_seed(2))
     d = 2 * 8 * 8
     torch.testing.assert_close(shadow_factors(torch.ones(n, d), normals, view_dirs, roughness, light), torch.ones(n, 6))
-    torch.testing.assert_close(shadow_factors(torch.zeros(n, d), normals, view_dirs, roughness, light), torch.zeros(n, 6))
+    torch.testing.assert_close(
+        shadow_factors(torch.zeros(n, d), normals, view_dirs, roughness, light), torch.zeros(n, 6)
+    )
 
 
 def test_diffuse_shadow_factor_is_the_cosine_weighted_visible_share_of_a_uniform_light():
@@ -131,12 +146,19 @@ def test_the_specular_shadow_kernel_reads_the_roughness_channel_not_the_metallic
     expected = shadow_factors(visibility, oriented, view_dirs, materials[:, 3], cells)
     with_metallic = shadow_factors(visibility, oriented, view_dirs, materials[:, 4], cells)
     assert (expected[:, 3:] - with_metallic[:, 3:]).abs().max() > 1e-3  # the test can tell the two apart
-    torch.testing.assert_close(gaussian_shadows(visibility, oriented, gaussians.means, materials, camera, light), expected)
+    torch.testing.assert_close(
+        gaussian_shadows(visibility, oriented, gaussians.means, materials, camera, light), expected
+    )
     # the relit G-buffer blends exactly those factors
     gbuffer = render_gbuffer(Asset(gaussians, materials, normals, visibility), camera, light)
     blended = rasterize(gaussians, camera, expected)
     covered = blended.alpha > 0.5
-    torch.testing.assert_close(gbuffer.shadow[covered], (blended.features / blended.alpha[..., None].clamp_min(1e-8))[covered], atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(
+        gbuffer.shadow[covered],
+        (blended.features / blended.alpha[..., None].clamp_min(1e-8))[covered],
+        atol=1e-4,
+        rtol=1e-4,
+    )
 
 
 def test_visibility_round_trips_with_the_asset_and_a_wrong_count_is_refused(tmp_path):
@@ -146,11 +168,15 @@ def test_visibility_round_trips_with_the_asset_and_a_wrong_count_is_refused(tmp_
 
     gaussians, normals, materials = sphere_of_disks(n=40)
     visibility = torch.rand(40, 32)
-    result = SimpleNamespace(materials=materials, normals=normals, envmap=None, source=None, history=[], visibility=visibility)
+    result = SimpleNamespace(
+        materials=materials, normals=normals, envmap=None, source=None, history=[], visibility=visibility
+    )
     write_asset(tmp_path, gaussians, result)
     asset = read_asset(tmp_path)
     torch.testing.assert_close(asset.visibility, visibility, atol=1 / 510 + 1e-6, rtol=0)
-    torch.save({"format": "matspray-visibility-1", "values": torch.zeros(7, 32, dtype=torch.uint8)}, tmp_path / "visibility.pt")
+    torch.save(
+        {"format": "matspray-visibility-1", "values": torch.zeros(7, 32, dtype=torch.uint8)}, tmp_path / "visibility.pt"
+    )
     with pytest.raises(DataError, match="visibility.pt.*7, 32.*40 Gaussians"):
         read_asset(tmp_path)
     write_asset(tmp_path, gaussians, SimpleNamespace(**{**result.__dict__, "visibility": None}))

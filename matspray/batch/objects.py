@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from matspray.config import PipelineConfig
 from matspray.errors import ConfigError, DataError, MatsprayError
 from matspray.eval.report import write_report
 from matspray.eval.run_eval import check_synthetic, evaluate_run
-from matspray.config import PipelineConfig
 from matspray.pipeline import Pipeline
 from matspray.rundir import read_json, write_json
 from matspray.variants import variants_for_maps
@@ -40,8 +40,10 @@ def batch_objects(datas, out) -> list[BatchObject]:
         data = Path(data).resolve()
         name = data.name
         if name in seen:
-            raise ConfigError(f"two datasets are named '{name}': {seen[name]} and {data}; each object's run folder is "
-                              f"OUT/<folder name>, so rename one of the folders (or link it under another name)")
+            raise ConfigError(
+                f"two datasets are named '{name}': {seen[name]} and {data}; each object's run folder is "
+                f"OUT/<folder name>, so rename one of the folders (or link it under another name)"
+            )
         seen[name] = data
         objects.append(BatchObject(name=name, data=data, run=Path(out) / name))
     return objects
@@ -56,8 +58,15 @@ def has_ground_truth(pipeline: Pipeline) -> bool:
     return True
 
 
-def run_one_object(data, run_dir, config: PipelineConfig, variants=None, progress: bool = True, log=print,
-                   stage: Callable[[str], None] = lambda _: None) -> dict | None:
+def run_one_object(
+    data,
+    run_dir,
+    config: PipelineConfig,
+    variants=None,
+    progress: bool = True,
+    log=print,
+    stage: Callable[[str], None] = lambda _: None,
+) -> dict | None:
     """The ordinary pipeline on one object into `run_dir`, then its evaluation and report when the
     dataset has ground truth; returns the metrics (None without ground truth). `stage` hears the
     name of each stage as it starts."""
@@ -92,16 +101,29 @@ def finished_record(obj: BatchObject, settings_fp: str) -> dict | None:
     return record
 
 
-def object_result(obj: BatchObject, status: str, error: str | None = None, seconds: float | None = None,
-                  span: tuple[float, float] | None = None) -> dict:
+def object_result(
+    obj: BatchObject,
+    status: str,
+    error: str | None = None,
+    seconds: float | None = None,
+    span: tuple[float, float] | None = None,
+) -> dict:
     """The row a batch reports for one object; metrics and timings are read from its run folder.
     `span`: the wall-clock (unix) times its work started and ended here."""
     metrics_path = obj.run / "eval" / "metrics.json"
     timings_path = obj.run / "timings.json"
     ok = status != "failed"
-    return {"name": obj.name, "data": str(obj.data), "run": str(obj.run), "status": status, "error": error, "seconds": seconds, "span": span,
-            "timings": read_json(timings_path) if timings_path.exists() else {},
-            "metrics": read_json(metrics_path) if ok and metrics_path.exists() else None}
+    return {
+        "name": obj.name,
+        "data": str(obj.data),
+        "run": str(obj.run),
+        "status": status,
+        "error": error,
+        "seconds": seconds,
+        "span": span,
+        "timings": read_json(timings_path) if timings_path.exists() else {},
+        "metrics": read_json(metrics_path) if ok and metrics_path.exists() else None,
+    }
 
 
 def one_line(exc: BaseException) -> str:
@@ -111,12 +133,16 @@ def one_line(exc: BaseException) -> str:
     if isinstance(exc, MatsprayError):
         return text
     if isinstance(exc, MemoryError) or "out of memory" in text.lower():
-        return f"out of memory ({type(exc).__name__}: {text[:200]}); use fewer workers, more CPUs/GPUs per object or a smaller preset"
+        return (
+            f"out of memory ({type(exc).__name__}: {text[:200]}); "
+            "use fewer workers, more CPUs/GPUs per object or a smaller preset"
+        )
     return f"{type(exc).__name__}: {text[:300]}"
 
 
-def process_object(obj: BatchObject, config: PipelineConfig, variants, settings_fp: str, threads: int,
-                   stage: Callable[[str], None]) -> dict:
+def process_object(
+    obj: BatchObject, config: PipelineConfig, variants, settings_fp: str, threads: int, stage: Callable[[str], None]
+) -> dict:
     """One object of a batch, run with `threads` torch threads; any failure is caught and returned as
     the object's one-line error. Never raises (but for Ctrl-C)."""
     start, started = time.perf_counter(), time.time()
@@ -125,6 +151,7 @@ def process_object(obj: BatchObject, config: PipelineConfig, variants, settings_
     try:
         obj.run.mkdir(parents=True, exist_ok=True)
         with open(obj.run / OBJECT_LOG, "a", encoding="utf-8") as log_file:
+
             def log(message: str) -> None:
                 log_file.write(f"{message}\n")
                 log_file.flush()
@@ -134,11 +161,20 @@ def process_object(obj: BatchObject, config: PipelineConfig, variants, settings_
 
             metrics = run_one_object(obj.data, obj.run, config, variants, progress=False, log=log, stage=stage)
         seconds = time.perf_counter() - start
-        write_json(obj.run / OBJECT_RECORD, {"source": str(obj.data), "settings": settings_fp, "seconds": round(seconds, 3),
-                                             "evaluated": metrics is not None})
+        write_json(
+            obj.run / OBJECT_RECORD,
+            {
+                "source": str(obj.data),
+                "settings": settings_fp,
+                "seconds": round(seconds, 3),
+                "evaluated": metrics is not None,
+            },
+        )
         return object_result(obj, "finished", seconds=seconds, span=(started, time.time()))
     except Exception as exc:  # noqa: BLE001 - one object's failure must not stop the others
-        return object_result(obj, "failed", one_line(exc), seconds=time.perf_counter() - start, span=(started, time.time()))
+        return object_result(
+            obj, "failed", one_line(exc), seconds=time.perf_counter() - start, span=(started, time.time())
+        )
     finally:
         if previous is None:
             os.environ.pop("MATSPRAY_THREADS", None)

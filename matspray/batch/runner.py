@@ -20,8 +20,8 @@ from matspray.batch.objects import BatchObject, batch_objects, finished_record, 
 from matspray.batch.summary import batch_summary, write_summary
 from matspray.config import PipelineConfig
 from matspray.errors import ConfigError, RunError, SettingError
-from matspray.variants import VARIANT_NAMES
 from matspray.rundir import fingerprint, read_json, to_plain, write_json
+from matspray.variants import VARIANT_NAMES
 
 SETTINGS_RECORD = "batch.json"
 POLL_S = 0.5
@@ -47,12 +47,17 @@ def check_config(config: BatchConfig) -> None:
         raise SettingError("gpus_per_object", f"must be >= 0, got {config.gpus_per_object:g}")
     unknown = [v for v in config.variants or () if v not in VARIANT_NAMES]
     if unknown or config.variants == ():
-        raise SettingError("variants", f"unknown variant '{(unknown or [''])[0]}'; choose from {', '.join(VARIANT_NAMES)}")
+        raise SettingError(
+            "variants", f"unknown variant '{(unknown or [''])[0]}'; choose from {', '.join(VARIANT_NAMES)}"
+        )
 
 
 def batch_settings(config: BatchConfig) -> dict:
     """What shapes the results (not how many machines make them)."""
-    return {"pipeline": to_plain(config.pipeline), "variants": None if config.variants is None else list(config.variants)}
+    return {
+        "pipeline": to_plain(config.pipeline),
+        "variants": None if config.variants is None else list(config.variants),
+    }
 
 
 _ABSENT = object()  # a setting one record lacks
@@ -62,8 +67,11 @@ def _differences(old, new, prefix: str = "") -> list[str]:
     """The settings that differ, as 'name new here, old there'. A setting one side lacks counts as equal
     when the other side leaves it unset (None): it was added (or dropped) since, at its neutral default."""
     if isinstance(old, dict) and isinstance(new, dict):
-        return [d for key in sorted(set(old) | set(new))
-                for d in _differences(old.get(key, _ABSENT), new.get(key, _ABSENT), f"{prefix}{key}.")]
+        return [
+            d
+            for key in sorted(set(old) | set(new))
+            for d in _differences(old.get(key, _ABSENT), new.get(key, _ABSENT), f"{prefix}{key}.")
+        ]
     if old == new or (old is _ABSENT and new is None) or (new is _ABSENT and old is None):
         return []
     return [f"{prefix.rstrip('.')} {_shown(new)} here, {_shown(old)} there"]
@@ -79,8 +87,10 @@ def claim_batch_folder(out: Path, settings: dict) -> None:
     if record.exists():
         changes = _differences(read_json(record).get("settings") or {}, settings)
         if changes:
-            raise RunError(f"{out}: holds a batch made with other settings ({'; '.join(changes[:3])}); use another output "
-                           "folder, or the same settings to finish that batch")
+            raise RunError(
+                f"{out}: holds a batch made with other settings ({'; '.join(changes[:3])}); use another output "
+                "folder, or the same settings to finish that batch"
+            )
     write_json(record, {"settings": settings, "fingerprint": fingerprint(settings)})
 
 
@@ -111,7 +121,9 @@ def _ray_task(obj: BatchObject, config: PipelineConfig, variants, settings_fp: s
 
     if config.device == "auto" and not ray.get_gpu_ids():
         config = replace(config, device="cpu")
-    result = process_object(obj, config, variants, settings_fp, threads, lambda stage: board.update.remote(obj.name, stage))
+    result = process_object(
+        obj, config, variants, settings_fp, threads, lambda stage: board.update.remote(obj.name, stage)
+    )
     board.update.remote(obj.name, None)
     return result
 
@@ -125,11 +137,14 @@ def run_serial(objects, config: BatchConfig, settings_fp: str, progress: bool) -
     results = []
     with progress_bar(len(objects), progress) as bar:
         for obj in objects:
+
             def stage(name, obj=obj):
                 board.update(obj.name, name)
                 _show(bar, board.snapshot())
 
-            results.append(process_object(obj, config.pipeline, config.variants, settings_fp, config.cpus_per_object, stage))
+            results.append(
+                process_object(obj, config.pipeline, config.variants, settings_fp, config.cpus_per_object, stage)
+            )
             board.update(obj.name, None)
             bar.update(1)
     return results
@@ -138,7 +153,9 @@ def run_serial(objects, config: BatchConfig, settings_fp: str, progress: bool) -
 def run_ray(ray, objects, config: BatchConfig, settings_fp: str, workers: int | None, progress: bool) -> list[dict]:
     """One task per object, at most `workers` in flight; a task that dies (killed for memory, a lost
     node) fails its object alone."""
-    task = ray.remote(_ray_task).options(num_cpus=config.cpus_per_object, num_gpus=config.gpus_per_object, max_retries=0)
+    task = ray.remote(_ray_task).options(
+        num_cpus=config.cpus_per_object, num_gpus=config.gpus_per_object, max_retries=0
+    )
     board = ray.remote(StageBoard).options(num_cpus=0).remote()
     queue, pending, results = list(objects), {}, {}
     bar = progress_bar(len(objects), progress)
@@ -146,14 +163,18 @@ def run_ray(ray, objects, config: BatchConfig, settings_fp: str, workers: int | 
         while queue or pending:
             while queue and (workers is None or len(pending) < workers):
                 obj = queue.pop(0)
-                pending[task.remote(obj, config.pipeline, config.variants, settings_fp, config.cpus_per_object, board)] = obj
+                pending[
+                    task.remote(obj, config.pipeline, config.variants, settings_fp, config.cpus_per_object, board)
+                ] = obj
             done, _ = ray.wait(list(pending), num_returns=1, timeout=POLL_S)
             for ref in done:
                 obj = pending.pop(ref)
                 try:
                     results[obj.name] = ray.get(ref)
                 except ray.exceptions.RayError as exc:
-                    results[obj.name] = object_result(obj, "failed", one_line(exc.cause if getattr(exc, "cause", None) else exc))
+                    results[obj.name] = object_result(
+                        obj, "failed", one_line(exc.cause if getattr(exc, "cause", None) else exc)
+                    )
                 bar.update(1)
             _show(bar, ray.get(board.snapshot.remote()))
     finally:
@@ -177,11 +198,16 @@ def run_objects(ray, objects, config: BatchConfig, settings_fp: str, progress: b
         log(f"batch: {why}; running the {len(objects)} objects one after another in this process")
         return run_serial(objects, config, settings_fp, progress), "in-process, one object after another"
     workers = config.workers or (None if config.address else max(1, local_cpus() // config.cpus_per_object))
-    engine = (f"Ray {'at ' + config.address if config.address else 'local'}, "
-              + (f"{workers} workers" if workers else "as many workers as the cluster holds")
-              + f", {config.cpus_per_object} CPU(s)" + (f" and {config.gpus_per_object:g} GPU(s)" if config.gpus_per_object else "")
-              + " per object")
-    with ray_session(ray, config.address, (workers or 1) * config.cpus_per_object, config.cpus_per_object, config.gpus_per_object):
+    engine = (
+        f"Ray {'at ' + config.address if config.address else 'local'}, "
+        + (f"{workers} workers" if workers else "as many workers as the cluster holds")
+        + f", {config.cpus_per_object} CPU(s)"
+        + (f" and {config.gpus_per_object:g} GPU(s)" if config.gpus_per_object else "")
+        + " per object"
+    )
+    with ray_session(
+        ray, config.address, (workers or 1) * config.cpus_per_object, config.cpus_per_object, config.gpus_per_object
+    ):
         log(f"batch: {len(objects)} objects on {engine}")
         return run_ray(ray, objects, config, settings_fp, workers, progress), engine
 

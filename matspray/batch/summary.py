@@ -16,9 +16,17 @@ def object_row(result: dict) -> dict:
     """The summary row of one object: status, error, seconds, seconds per stage and the full
     method's relighting and material metrics (None without ground truth or when it failed)."""
     ours = ((result.get("metrics") or {}).get("table1") or {}).get("Ours")
-    return {"name": result["name"], "data": result["data"], "run": result["run"], "status": result["status"], "error": result["error"],
-            "seconds": None if result["seconds"] is None else round(result["seconds"], 3), "span": result.get("span"), "stage_seconds": result["timings"],
-            "metrics": None if ours is None else {row: ours[row] for row in MATERIAL_ROWS if row in ours}}
+    return {
+        "name": result["name"],
+        "data": result["data"],
+        "run": result["run"],
+        "status": result["status"],
+        "error": result["error"],
+        "seconds": None if result["seconds"] is None else round(result["seconds"], 3),
+        "span": result.get("span"),
+        "stage_seconds": result["timings"],
+        "metrics": None if ours is None else {row: ours[row] for row in MATERIAL_ROWS if row in ours},
+    }
 
 
 def batch_summary(results: list[dict], settings: dict, engine: str, wall_seconds: float) -> dict:
@@ -26,9 +34,16 @@ def batch_summary(results: list[dict], settings: dict, engine: str, wall_seconds
     evaluated = [r["metrics"] for r in results if r["status"] != "failed" and r.get("metrics")]
     averages = average_tables(evaluated) if evaluated else None
     failed = [{"name": r["name"], "error": r["error"]} for r in results if r["status"] == "failed"]
-    return {"title": f"MatSpray batch: {len(results)} objects, preset {settings['pipeline']['preset']}", "settings": settings,
-            "engine": engine, "wall_seconds": round(wall_seconds, 3), "objects": [object_row(r) for r in results], "failed": failed,
-            "averaged_over": len(evaluated), "averages": averages}
+    return {
+        "title": f"MatSpray batch: {len(results)} objects, preset {settings['pipeline']['preset']}",
+        "settings": settings,
+        "engine": engine,
+        "wall_seconds": round(wall_seconds, 3),
+        "objects": [object_row(r) for r in results],
+        "failed": failed,
+        "averaged_over": len(evaluated),
+        "averages": averages,
+    }
 
 
 def _cell(metrics: dict | None, row: str, metric: str) -> str:
@@ -38,14 +53,37 @@ def _cell(metrics: dict | None, row: str, metric: str) -> str:
 def summary_markdown(summary: dict) -> str:
     """summary.md: the per-object table, seconds per stage, failures, then the averaged paper tables."""
     rows = summary["objects"]
-    parts = [f"# {summary['title']}",
-             f"- engine: {summary['engine']}; wall time {summary['wall_seconds']:.1f} s\n"
-             f"- {len(rows) - len(summary['failed'])} of {len(rows)} objects finished; averages over the "
-             f"{summary['averaged_over']} with ground truth"]
-    header = ["Object", "Status", "Relighting PSNR ↑", "SSIM ↑", "LPIPS ↓", "BaseColor PSNR ↑", "Roughness PSNR ↑", "Metallic PSNR ↑", "Seconds"]
-    table = [[r["name"], STATUS_WORDS[r["status"]], _cell(r["metrics"], "relighting", "psnr"), _cell(r["metrics"], "relighting", "ssim"),
-              _cell(r["metrics"], "relighting", "lpips"), _cell(r["metrics"], "basecolor", "psnr"), _cell(r["metrics"], "roughness", "psnr"),
-              _cell(r["metrics"], "metallic", "psnr"), "—" if r["seconds"] is None else f"{r['seconds']:.1f}"] for r in rows]
+    parts = [
+        f"# {summary['title']}",
+        f"- engine: {summary['engine']}; wall time {summary['wall_seconds']:.1f} s\n"
+        f"- {len(rows) - len(summary['failed'])} of {len(rows)} objects finished; averages over the "
+        f"{summary['averaged_over']} with ground truth",
+    ]
+    header = [
+        "Object",
+        "Status",
+        "Relighting PSNR ↑",
+        "SSIM ↑",
+        "LPIPS ↓",
+        "BaseColor PSNR ↑",
+        "Roughness PSNR ↑",
+        "Metallic PSNR ↑",
+        "Seconds",
+    ]
+    table = [
+        [
+            r["name"],
+            STATUS_WORDS[r["status"]],
+            _cell(r["metrics"], "relighting", "psnr"),
+            _cell(r["metrics"], "relighting", "ssim"),
+            _cell(r["metrics"], "relighting", "lpips"),
+            _cell(r["metrics"], "basecolor", "psnr"),
+            _cell(r["metrics"], "roughness", "psnr"),
+            _cell(r["metrics"], "metallic", "psnr"),
+            "—" if r["seconds"] is None else f"{r['seconds']:.1f}",
+        ]
+        for r in rows
+    ]
     parts.append("## Objects\n\n" + markdown_table(header, table))
     stages = list(dict.fromkeys(s for r in rows for s in r["stage_seconds"]))
     if stages:
@@ -54,7 +92,9 @@ def summary_markdown(summary: dict) -> str:
     if summary["failed"]:
         parts.append("## Failures\n\n" + "\n".join(f"- **{f['name']}**: {f['error']}" for f in summary["failed"]))
     if summary["averages"]:
-        averaged = tables_markdown({**summary["averages"], "title": f"Averages over {summary['averaged_over']} objects"})
+        averaged = tables_markdown(
+            {**summary["averages"], "title": f"Averages over {summary['averaged_over']} objects"}
+        )
         parts.append(averaged.replace("\n## ", "\n### ").replace("# ", "## ", 1).rstrip("\n"))
     return "\n\n".join(parts) + "\n"
 

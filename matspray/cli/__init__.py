@@ -61,9 +61,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         if args.command in RESUMING_COMMANDS:
-            print(f"matspray {args.command}: interrupted; finished stages are kept and a rerun resumes", file=sys.stderr)
+            print(
+                f"matspray {args.command}: interrupted; finished stages are kept and a rerun resumes", file=sys.stderr
+            )
         else:
-            print(f"matspray {args.command}: interrupted; run it again to start over (no file is left half-written)", file=sys.stderr)
+            print(
+                f"matspray {args.command}: interrupted; run it again to start over (no file is left half-written)",
+                file=sys.stderr,
+            )
         return 130
 
 

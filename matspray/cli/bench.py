@@ -8,13 +8,31 @@ from matspray.cli.options import add_method_arguments, build_config_from_args
 
 
 def add_parser(parser) -> None:
-    parser.add_argument("--objects", type=int, default=None, help="number of procedural objects (shapes in turn, seeds 0..N-1; default 3)")
-    parser.add_argument("--assets", nargs="+", type=Path, default=None, metavar="PATH",
-                        help="glTF 2.0 files (.glb/.gltf) or folders of them: one benchmark object each (`synth --asset`), "
-                             "instead of procedural ones")
-    parser.add_argument("--out", type=Path, help="folder for everything (default: runs/bench-PRESET, with --assets runs/bench-assets-PRESET)")
-    parser.add_argument("--workers", type=int, help="objects at once, as Ray tasks (default: one per CPU core; "
-                        "without Ray installed, one after another)")
+    parser.add_argument(
+        "--objects",
+        type=int,
+        default=None,
+        help="number of procedural objects (shapes in turn, seeds 0..N-1; default 3)",
+    )
+    parser.add_argument(
+        "--assets",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="glTF 2.0 files (.glb/.gltf) or folders of them: one benchmark object each (`synth --asset`), "
+        "instead of procedural ones",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="folder for everything (default: runs/bench-PRESET, with --assets runs/bench-assets-PRESET)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help="objects at once, as Ray tasks (default: one per CPU core; without Ray installed, one after another)",
+    )
     add_method_arguments(parser)
 
 
@@ -27,9 +45,16 @@ def run(args) -> int:
     objects = asset_objects(args.assets) if args.assets is not None else (3 if args.objects is None else args.objects)
     if args.assets is not None:
         check_assets(objects)
-    out = args.out or Path("runs") / (f"bench-assets-{args.preset}" if args.assets is not None else f"bench-{args.preset}")
-    summary = run_bench(out, objects, preset=args.preset, config=build_config_from_args(args, predictor="simulated"),
-                        workers=args.workers)
+    out = args.out or Path("runs") / (
+        f"bench-assets-{args.preset}" if args.assets is not None else f"bench-{args.preset}"
+    )
+    summary = run_bench(
+        out,
+        objects,
+        preset=args.preset,
+        config=build_config_from_args(args, predictor="simulated"),
+        workers=args.workers,
+    )
     for failure in summary["failed"]:
         print(f"failed: {failure['name']}: {failure['error']}", file=sys.stderr)
     if summary["averages"] is not None:

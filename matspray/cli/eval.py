@@ -9,20 +9,50 @@ from matspray.errors import ConfigError
 
 
 def add_parser(parser) -> None:
-    parser.add_argument("--run", type=Path, help="run folder made by `matspray run` (with --glb: the run whose Gaussian asset to compare with; "
-                        "default: the run the file was exported from)")
-    parser.add_argument("--glb", type=Path, help="evaluate this mesh from `matspray export` instead: Mitsuba renders it under the held-out "
-                        "lights at the test cameras; metrics, tables and report.html go to FILE_eval/ beside it")
-    parser.add_argument("--frame", choices=("gltf", "dataset"), help="with --glb: the frame the file is in (default: what its extras say)")
-    parser.add_argument("--spp", type=int, help="with --glb: Mitsuba samples per pixel (default: as the dataset's truth)")
+    parser.add_argument(
+        "--run",
+        type=Path,
+        help="run folder made by `matspray run` (with --glb: the run whose Gaussian asset to compare with; "
+        "default: the run the file was exported from)",
+    )
+    parser.add_argument(
+        "--glb",
+        type=Path,
+        help="evaluate this mesh from `matspray export` instead: Mitsuba renders it under the held-out "
+        "lights at the test cameras; metrics, tables and report.html go to FILE_eval/ beside it",
+    )
+    parser.add_argument(
+        "--frame",
+        choices=("gltf", "dataset"),
+        help="with --glb: the frame the file is in (default: what its extras say)",
+    )
+    parser.add_argument(
+        "--spp", type=int, help="with --glb: Mitsuba samples per pixel (default: as the dataset's truth)"
+    )
     parser.add_argument("--data", type=Path, help="the run's dataset (default: the folder the run was made from)")
-    parser.add_argument("--lpips-weights", type=Path, default=os.environ.get("MATSPRAY_LPIPS_WEIGHTS"),
-                        help="LPIPS v0.1 AlexNet weights (.npz); default: $MATSPRAY_LPIPS_WEIGHTS or ../shared/data/lpips")
-    parser.add_argument("--aligned", action="store_true", help="also report base color and relighting after per-channel scale alignment")
+    parser.add_argument(
+        "--lpips-weights",
+        type=Path,
+        default=os.environ.get("MATSPRAY_LPIPS_WEIGHTS"),
+        help="LPIPS v0.1 AlexNet weights (.npz); default: $MATSPRAY_LPIPS_WEIGHTS or ../shared/data/lpips",
+    )
+    parser.add_argument(
+        "--aligned", action="store_true", help="also report base color and relighting after per-channel scale alignment"
+    )
     parser.add_argument("--no-report", action="store_true", help="skip report.html")
-    parser.add_argument("--credit", help="a run on a capture without ground truth: a line crediting the photos, shown in its report")
-    parser.add_argument("--relight", nargs="+", default=["studio", "sunset", "forest"], metavar="NAME|PATH",
-                        help="a run on a capture without ground truth: lights its report shows the asset under (default: studio sunset forest)")
+    parser.add_argument(
+        "--credit", help="a run on a capture without ground truth: a line crediting the photos, shown in its report"
+    )
+    parser.add_argument(
+        "--relight",
+        nargs="+",
+        default=["studio", "sunset", "forest"],
+        metavar="NAME|PATH",
+        help=(
+            "a run on a capture without ground truth: lights its report shows the asset under "
+            "(default: studio sunset forest)"
+        ),
+    )
     add_compute_arguments(parser)
 
 
@@ -34,8 +64,16 @@ def run(args) -> int:
         from matspray.eval.glb import evaluate_glb
 
         with out_of_memory_as_error("eval", device):
-            evaluate_glb(args.glb, args.data, run=args.run, frame=args.frame, lpips_weights=args.lpips_weights, spp=args.spp,
-                         device=device, backend=backend)
+            evaluate_glb(
+                args.glb,
+                args.data,
+                run=args.run,
+                frame=args.frame,
+                lpips_weights=args.lpips_weights,
+                spp=args.spp,
+                device=device,
+                backend=backend,
+            )
         out = args.glb.with_name(f"{args.glb.stem}_eval")
         print((out / "tables.md").read_text())
         print(f"report: {out / 'report.html'}")
@@ -49,20 +87,34 @@ def run(args) -> int:
     from matspray.rundir import RunDir
 
     run_folder = RunDir(args.run).require()
-    scene = load_scene(args.data if args.data is not None else run_folder.dataset()["source"], downscale=run_folder.downscale())
+    scene = load_scene(
+        args.data if args.data is not None else run_folder.dataset()["source"], downscale=run_folder.downscale()
+    )
     if not has_ground_truth(scene):  # a real capture: its held-out photos are the only truth
         from matspray.eval.capture_report import write_capture_report
 
         print("eval: the dataset has no ground-truth materials (a real capture): scoring the held-out photos instead")
         with out_of_memory_as_error("eval", device):
-            metrics = evaluate_capture(args.run, lpips_weights=args.lpips_weights, device=device, backend=backend, scene=scene)
+            metrics = evaluate_capture(
+                args.run, lpips_weights=args.lpips_weights, device=device, backend=backend, scene=scene
+            )
             print(heldout_table(metrics))
             if not args.no_report:
-                print(f"report: {write_capture_report(args.run, metrics, args.relight, args.credit, device=device, backend=backend)}")
+                page = write_capture_report(
+                    args.run, metrics, args.relight, args.credit, device=device, backend=backend
+                )
+                print(f"report: {page}")
         return 0
     with out_of_memory_as_error("eval", device):
-        metrics = evaluate_run(args.run, args.data, lpips_weights=args.lpips_weights, aligned=args.aligned, device=device, backend=backend,
-                               scene=scene)
+        metrics = evaluate_run(
+            args.run,
+            args.data,
+            lpips_weights=args.lpips_weights,
+            aligned=args.aligned,
+            device=device,
+            backend=backend,
+            scene=scene,
+        )
     print((args.run / "eval" / "tables.md").read_text())
     if not args.no_report:
         print(f"report: {write_report(args.run, metrics, args.data)}")

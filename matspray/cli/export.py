@@ -14,21 +14,44 @@ def add_parser(parser) -> None:
         "from the asset's depth at the training cameras (TSDF + marching cubes), decimated to --faces, UV-unwrapped "
         "(xatlas), with baked base colour (sRGB) and metallic-roughness textures (G = roughness, B = metallic) and "
         "per-vertex normals, in one binary glTF 2.0 file. The estimated environment map is written beside it as "
-        "FILE_envmap.exr and FILE_envmap.hdr (lat-long, Blender's Z-up convention).")
+        "FILE_envmap.exr and FILE_envmap.hdr (lat-long, Blender's Z-up convention)."
+    )
     parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
     parser.add_argument("--out", type=Path, required=True, help="the .glb file to write")
     parser.add_argument("--variant", default="full", help="which asset of the run (default: full)")
-    parser.add_argument("--faces", type=int, default=DEFAULTS.faces, help=f"face budget, >= 100 (default {DEFAULTS.faces})")
-    parser.add_argument("--texture-size", type=int, default=DEFAULTS.texture_size,
-                        help=f"side of the square textures, a power of two in [64, 8192] (default {DEFAULTS.texture_size})")
-    parser.add_argument("--frame", choices=("gltf", "dataset"), default=DEFAULTS.frame,
-                        help="gltf: Y-up as glTF expects (default); dataset: the dataset's own Z-up world coordinates. "
-                        "The transform between the two is stored in the file's asset.extras.matspray")
-    parser.add_argument("--grid", type=int, default=DEFAULTS.grid,
-                        help=f"TSDF voxels along the object's longest side (default {DEFAULTS.grid}); finer surface, more time")
-    parser.add_argument("--normals", choices=("mesh", "asset"), default=DEFAULTS.normals,
-                        help="per-vertex normals: the surface's own (default) or the Gaussians' shading normals blended onto it")
-    parser.add_argument("--data", type=Path, help="the run's dataset, for the training cameras (default: the folder the run was made from)")
+    parser.add_argument(
+        "--faces", type=int, default=DEFAULTS.faces, help=f"face budget, >= 100 (default {DEFAULTS.faces})"
+    )
+    parser.add_argument(
+        "--texture-size",
+        type=int,
+        default=DEFAULTS.texture_size,
+        help=f"side of the square textures, a power of two in [64, 8192] (default {DEFAULTS.texture_size})",
+    )
+    parser.add_argument(
+        "--frame",
+        choices=("gltf", "dataset"),
+        default=DEFAULTS.frame,
+        help="gltf: Y-up as glTF expects (default); dataset: the dataset's own Z-up world coordinates. "
+        "The transform between the two is stored in the file's asset.extras.matspray",
+    )
+    parser.add_argument(
+        "--grid",
+        type=int,
+        default=DEFAULTS.grid,
+        help=f"TSDF voxels along the object's longest side (default {DEFAULTS.grid}); finer surface, more time",
+    )
+    parser.add_argument(
+        "--normals",
+        choices=("mesh", "asset"),
+        default=DEFAULTS.normals,
+        help="per-vertex normals: the surface's own (default) or the Gaussians' shading normals blended onto it",
+    )
+    parser.add_argument(
+        "--data",
+        type=Path,
+        help="the run's dataset, for the training cameras (default: the folder the run was made from)",
+    )
     add_compute_arguments(parser)
 
 
@@ -37,11 +60,18 @@ def run(args) -> int:
     from matspray.export.export import export_run
 
     device, backend = compute_target(args.device, args.backend)
-    config = ExportConfig(faces=args.faces, texture_size=args.texture_size, frame=args.frame, grid=args.grid, normals=args.normals)
+    config = ExportConfig(
+        faces=args.faces, texture_size=args.texture_size, frame=args.frame, grid=args.grid, normals=args.normals
+    )
     with out_of_memory_as_error("export", device):
-        report = export_run(args.run, args.out, variant=args.variant, config=config, data=args.data, device=device, backend=backend)
+        report = export_run(
+            args.run, args.out, variant=args.variant, config=config, data=args.data, device=device, backend=backend
+        )
     seconds = ", ".join(f"{name} {value:.1f} s" for name, value in report.seconds.items())
-    print(f"wrote {report.files[0]}: {report.faces} faces, {report.vertices} vertices, {report.texture_size}x{report.texture_size} textures ({seconds})")
+    print(
+        f"wrote {report.files[0]}: {report.faces} faces, {report.vertices} vertices, "
+        f"{report.texture_size}x{report.texture_size} textures ({seconds})"
+    )
     for path in report.files[1:]:
         print(f"wrote {path}")
     return 0

@@ -8,8 +8,20 @@ import os
 
 PRESET_CHOICES = ("test", "demo", "paper")
 METHOD_CHOICES = ("matspray", "paper")
-VARIANT_CHOICES = ("full", "proj-average", "supervised", "no-softmax", "no-prior")  # matspray.variants.VARIANT_NAMES (a test checks)
-ADDITION_CHOICES = ("core-median", "min-support", "unseen-mask", "light-warmup", "min-coverage")  # matspray.config.ADDITION_NAMES (a test checks)
+VARIANT_CHOICES = (
+    "full",
+    "proj-average",
+    "supervised",
+    "no-softmax",
+    "no-prior",
+)  # matspray.variants.VARIANT_NAMES (a test checks)
+ADDITION_CHOICES = (
+    "core-median",
+    "min-support",
+    "unseen-mask",
+    "light-warmup",
+    "min-coverage",
+)  # matspray.config.ADDITION_NAMES (a test checks)
 
 
 def on_off(value: str) -> bool:
@@ -19,60 +31,154 @@ def on_off(value: str) -> bool:
 
 
 DEVICE_HELP = "auto (CUDA when available; default), cpu, cuda or cuda:N"
-BACKEND_HELP = ("rasterizer: auto (default; on CUDA gsplat when its CUDA code builds, else torch; on the CPU numba), "
-                "torch (the readable reference), numba (compiled, CPU only) or gsplat (CUDA only; pip install 'matspray[cuda]')")
+BACKEND_HELP = (
+    "rasterizer: auto (default; on CUDA gsplat when its CUDA code builds, else torch; on the CPU numba), "
+    "torch (the readable reference), numba (compiled, CPU only) or gsplat (CUDA only; pip install 'matspray[cuda]')"
+)
 
 # flag -> (setting, how the flag's text becomes the setting's value, help); None values mean "not given"
 SETTING_FLAGS = {
-    "--geometry-iterations": ("geometry.iterations", int, "override the preset's Gaussian Splatting iterations (the schedule follows)"),
+    "--geometry-iterations": (
+        "geometry.iterations",
+        int,
+        "override the preset's Gaussian Splatting iterations (the schedule follows)",
+    ),
     "--refine-iterations": ("refine.iterations", int, "override the preset's refinement iterations"),
-    "--samples-per-side": ("lift.samples_per_side", int, "override the preset's k (k x k lifting rays per pixel, 1..32)"),
-    "--min-support": ("lift.min_support", float, "a view counts for a Gaussian when it gets at least this share of the hits of "
-                      "its best view (matspray: 0.5; paper: 0, every view with a hit)"),
-    "--transmittance-threshold": ("lift.visibility_threshold", float, "lifting writes only into hits whose transmittance in "
-                                  "front is at least this (default 0, every hit, as the paper; 0.5 relit worse in the "
-                                  "benchmarks: docs/history.md)"),
-    "--footprint": ("lift.footprint_sigmas", lambda v: {"core": 1.0, "all": None}[v], "which hits feed a Gaussian's per-view "
-                    "median: core (rays within 1 sigma; matspray) or all (paper)"),
-    "--merger-seen-input": ("refine.merger.seen_input", on_off, "on: the merger also reads which views saw each Gaussian; "
-                            "off (default, as the paper): position and values only"),
-    "--unseen": ("refine.merger.unseen", str, "views that never hit a Gaussian: mask (weight 0; matspray) or mean (filled with "
-                 "the mean of the views that did; paper)"),
-    "--basecolor-loss": ("refine.basecolor_loss", str, "l1 (default, as the paper), scale-invariant (forgives each view's "
-                         "exposure error; it did not pay in the benchmarks: docs/history.md) or huber (averages views "
-                         "that differ by less "
-                         "than --basecolor-huber-delta, outvotes those that differ by more)"),
-    "--basecolor-huber-delta": ("refine.basecolor_huber_delta", float, "with --basecolor-loss huber: the base-colour residual "
-                                "(linear) where the loss turns from quadratic to linear (default 0.05)"),
-    "--photo-weight": ("refine.photo_weight", float, "weight of the photometric loss against the material loss (1, as the paper)"),
-    "--light-warmup": ("refine.light_warmup", int, "steps that fit the light alone before the merger trains (paper: 0)"),
-    "--min-coverage": ("refine.min_coverage", float, "the merger skips Gaussians covering fewer pixels of a view (matspray 0.02, paper 0)"),
-    "--light-tv-weight": ("refine.light_tv_weight", float, "weight of the smoothness prior on the estimated light "
-                          "(total variation of its log radiance; both methods; 0 turns it off)"),
-    "--object-bounds": ("object_bounds", lambda v: tuple(float(x) for x in v.replace(",", " ").split()),
-                        "captures without masks: the object region, 'x,y,z,r' (a sphere) or 'x0,y0,z0,x1,y1,z1' (a box) in world "
-                        "units (default: chosen automatically after geometry; see docs/data.md, captures without masks)"),
-    "--light-probe": ("light_probe", lambda v: os.path.abspath(os.path.expanduser(v)), "a known training light: an HDR lat-long map (.exr/.hdr) of the light the photos were "
-                      "taken in, in the capture's world frame (a light probe); the PBR variants shade with it instead of "
-                      "estimating the light (default: estimate it)"),
+    "--samples-per-side": (
+        "lift.samples_per_side",
+        int,
+        "override the preset's k (k x k lifting rays per pixel, 1..32)",
+    ),
+    "--min-support": (
+        "lift.min_support",
+        float,
+        "a view counts for a Gaussian when it gets at least this share of the hits of "
+        "its best view (matspray: 0.5; paper: 0, every view with a hit)",
+    ),
+    "--transmittance-threshold": (
+        "lift.visibility_threshold",
+        float,
+        "lifting writes only into hits whose transmittance in "
+        "front is at least this (default 0, every hit, as the paper; 0.5 relit worse in the "
+        "benchmarks: docs/history.md)",
+    ),
+    "--footprint": (
+        "lift.footprint_sigmas",
+        lambda v: {"core": 1.0, "all": None}[v],
+        "which hits feed a Gaussian's per-view median: core (rays within 1 sigma; matspray) or all (paper)",
+    ),
+    "--merger-seen-input": (
+        "refine.merger.seen_input",
+        on_off,
+        "on: the merger also reads which views saw each Gaussian; "
+        "off (default, as the paper): position and values only",
+    ),
+    "--unseen": (
+        "refine.merger.unseen",
+        str,
+        "views that never hit a Gaussian: mask (weight 0; matspray) or mean (filled with "
+        "the mean of the views that did; paper)",
+    ),
+    "--basecolor-loss": (
+        "refine.basecolor_loss",
+        str,
+        "l1 (default, as the paper), scale-invariant (forgives each view's "
+        "exposure error; it did not pay in the benchmarks: docs/history.md) or huber (averages views "
+        "that differ by less "
+        "than --basecolor-huber-delta, outvotes those that differ by more)",
+    ),
+    "--basecolor-huber-delta": (
+        "refine.basecolor_huber_delta",
+        float,
+        "with --basecolor-loss huber: the base-colour residual "
+        "(linear) where the loss turns from quadratic to linear (default 0.05)",
+    ),
+    "--photo-weight": (
+        "refine.photo_weight",
+        float,
+        "weight of the photometric loss against the material loss (1, as the paper)",
+    ),
+    "--light-warmup": (
+        "refine.light_warmup",
+        int,
+        "steps that fit the light alone before the merger trains (paper: 0)",
+    ),
+    "--min-coverage": (
+        "refine.min_coverage",
+        float,
+        "the merger skips Gaussians covering fewer pixels of a view (matspray 0.02, paper 0)",
+    ),
+    "--light-tv-weight": (
+        "refine.light_tv_weight",
+        float,
+        "weight of the smoothness prior on the estimated light "
+        "(total variation of its log radiance; both methods; 0 turns it off)",
+    ),
+    "--object-bounds": (
+        "object_bounds",
+        lambda v: tuple(float(x) for x in v.replace(",", " ").split()),
+        "captures without masks: the object region, 'x,y,z,r' (a sphere) or 'x0,y0,z0,x1,y1,z1' (a box) in world "
+        "units (default: chosen automatically after geometry; see docs/data.md, captures without masks)",
+    ),
+    "--light-probe": (
+        "light_probe",
+        lambda v: os.path.abspath(os.path.expanduser(v)),
+        "a known training light: an HDR lat-long map (.exr/.hdr) of the light the photos were "
+        "taken in, in the capture's world frame (a light probe); the PBR variants shade with it instead of "
+        "estimating the light (default: estimate it)",
+    ),
     "--seed": ("seed", int, "random seed (default 0)"),
     "--refine-seed": ("refine_seed", int, "the refinement's own seed (default: --seed)"),
-    "--downscale": ("downscale", float, "shrink images by this factor on load (default: photos whose long side exceeds the "
-                    "preset's working size, test 128 / demo 256 / paper 800 px, are brought to it; 1 keeps them)"),
-    "--max-gaussians": ("geometry.max_gaussians", int, "cap on the Gaussians densification may grow to (default: the preset's; "
-                        "lower it when a GPU runs out of memory)"),
+    "--downscale": (
+        "downscale",
+        float,
+        "shrink images by this factor on load (default: photos whose long side exceeds the "
+        "preset's working size, test 128 / demo 256 / paper 800 px, are brought to it; 1 keeps them)",
+    ),
+    "--max-gaussians": (
+        "geometry.max_gaussians",
+        int,
+        "cap on the Gaussians densification may grow to (default: the preset's; "
+        "lower it when a GPU runs out of memory)",
+    ),
     "--device": ("device", str, DEVICE_HELP),
     "--backend": ("backend", str, BACKEND_HELP),
 }
 FLAG_OF_SETTING = {setting: flag for flag, (setting, _, _) in SETTING_FLAGS.items()}
-FLAG_OF_SETTING.update({"preset": "--preset", "method": "--method", "without": "--without", "visibility": "--shadows", "objects": "--objects",
-                        "severity": "--severity", "batch_size": "--batch-size", "ensemble_size": "--ensemble-size", "steps": "--steps",
-                        "predictor": "--predictor", "basecolor_encoding": "--basecolor-encoding", "relight_envs": "--relight-env", "out": "--out", "resolution": "--res",
-                        "train_views": "--views", "test_views": "--test-views", "spp": "--spp", "env_height": "--env-height",
-                        "asset": "--asset", "assets": "--assets", "placement": "--placement",
-                        "workers": "--workers", "address": "--address", "cpus_per_object": "--cpus-per-object",
-                        "gpus_per_object": "--gpus-per-object", "weights": "--weights",
-                        "export.faces": "--faces", "export.texture_size": "--texture-size", "export.frame": "--frame", "export.normals": "--normals"})
+FLAG_OF_SETTING.update(
+    {
+        "preset": "--preset",
+        "method": "--method",
+        "without": "--without",
+        "visibility": "--shadows",
+        "objects": "--objects",
+        "severity": "--severity",
+        "batch_size": "--batch-size",
+        "ensemble_size": "--ensemble-size",
+        "steps": "--steps",
+        "predictor": "--predictor",
+        "basecolor_encoding": "--basecolor-encoding",
+        "relight_envs": "--relight-env",
+        "out": "--out",
+        "resolution": "--res",
+        "train_views": "--views",
+        "test_views": "--test-views",
+        "spp": "--spp",
+        "env_height": "--env-height",
+        "asset": "--asset",
+        "assets": "--assets",
+        "placement": "--placement",
+        "workers": "--workers",
+        "address": "--address",
+        "cpus_per_object": "--cpus-per-object",
+        "gpus_per_object": "--gpus-per-object",
+        "weights": "--weights",
+        "export.faces": "--faces",
+        "export.texture_size": "--texture-size",
+        "export.frame": "--frame",
+        "export.normals": "--normals",
+    }
+)
 
 
 def add_compute_arguments(parser) -> None:
@@ -83,35 +189,68 @@ def add_compute_arguments(parser) -> None:
 
 def add_run_arguments(parser) -> None:
     """What `run` and `batch` take besides the method: the predictor, its options and the variants."""
-    parser.add_argument("--predictor", default="auto", metavar="SPEC",
-                        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers|dr] or ground-truth (benchmarks "
-                        "only: they need the dataset's true maps), or none (no maps: only the no-prior variant); default auto: "
-                        "simulated where the dataset has ground-truth maps, else none")
-    parser.add_argument("--variant", choices=VARIANT_CHOICES, nargs="+", default=None,
-                        help="method variants to refine (the paper's ablations, and no-prior: the baseline without a 2D prior); "
-                        "default: full, or no-prior with --predictor none")
+    parser.add_argument(
+        "--predictor",
+        default="auto",
+        metavar="SPEC",
+        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers|dr] or ground-truth (benchmarks "
+        "only: they need the dataset's true maps), or none (no maps: only the no-prior variant); default auto: "
+        "simulated where the dataset has ground-truth maps, else none",
+    )
+    parser.add_argument(
+        "--variant",
+        choices=VARIANT_CHOICES,
+        nargs="+",
+        default=None,
+        help="method variants to refine (the paper's ablations, and no-prior: the baseline without a 2D prior); "
+        "default: full, or no-prior with --predictor none",
+    )
     parser.add_argument("--weights", help="marigold: pipeline folder")
     parser.add_argument("--severity", type=float, help="simulated: strength of the simulated failure modes (default 1)")
 
 
 def predictor_options_from_args(args) -> dict:
     """PredictorOptions fields from --weights and --severity, when given."""
-    return {name: value for name, value in (("weights", args.weights), ("severity", args.severity)) if value is not None}
+    return {
+        name: value for name, value in (("weights", args.weights), ("severity", args.severity)) if value is not None
+    }
 
 
 def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "demo") -> None:
     """--preset, --method, --without, --shadows and every setting flag."""
-    parser.add_argument("--preset", choices=presets, default=default_preset,
-                        help=f"sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), paper (512 px, one GPU); default {default_preset}")
-    parser.add_argument("--method", choices=METHOD_CHOICES, default="matspray",
-                        help="matspray (default): the paper plus our measured additions; paper: exactly the paper's method "
-                             "(and its released code where the text is silent)")
-    group = parser.add_argument_group("method settings (default: the method's; each matspray addition has its own switch)")
-    group.add_argument("--without", nargs="+", choices=ADDITION_CHOICES, default=(), metavar="ADDITION",
-                       help=f"switch single additions of matspray off: {', '.join(ADDITION_CHOICES)}")
-    group.add_argument("--shadows", choices=("on", "off"), help="off (default, and the paper): unshadowed split-sum shading; on: bake "
-                       "each Gaussian's visibility and shadow the PBR shading with it (relit worse in the benchmarks: "
-                       "docs/history.md)")
+    parser.add_argument(
+        "--preset",
+        choices=presets,
+        default=default_preset,
+        help=(
+            f"sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), paper (512 px, one GPU); default {default_preset}"
+        ),
+    )
+    parser.add_argument(
+        "--method",
+        choices=METHOD_CHOICES,
+        default="matspray",
+        help="matspray (default): the paper plus our measured additions; paper: exactly the paper's method "
+        "(and its released code where the text is silent)",
+    )
+    group = parser.add_argument_group(
+        "method settings (default: the method's; each matspray addition has its own switch)"
+    )
+    group.add_argument(
+        "--without",
+        nargs="+",
+        choices=ADDITION_CHOICES,
+        default=(),
+        metavar="ADDITION",
+        help=f"switch single additions of matspray off: {', '.join(ADDITION_CHOICES)}",
+    )
+    group.add_argument(
+        "--shadows",
+        choices=("on", "off"),
+        help="off (default, and the paper): unshadowed split-sum shading; on: bake "
+        "each Gaussian's visibility and shadow the PBR shading with it (relit worse in the benchmarks: "
+        "docs/history.md)",
+    )
     for flag, (_, _, text) in SETTING_FLAGS.items():
         group.add_argument(flag, metavar=flag.lstrip("-").split("-")[-1].upper(), help=text)
 

@@ -13,10 +13,13 @@ def add_parser(parser) -> None:
         required=True,
         metavar="SPEC",
         help="files:DIR (precomputed maps: MatSpray, DiffusionRenderer or Marigold layout), marigold (diffusers, "
-        "from --weights), simulated[:paper|harsh|outliers|dr] (an error model; plain simulated = paper) or ground-truth "
+        "from --weights), simulated[:paper|harsh|outliers|dr] (an error model; "
+        "plain simulated = paper) or ground-truth "
         "(benchmarks on `matspray synth` objects only)",
     )
-    parser.add_argument("--split", choices=SPLITS, default="train", help="views to predict (default: train, what lifting uses)")
+    parser.add_argument(
+        "--split", choices=SPLITS, default="train", help="views to predict (default: train, what lifting uses)"
+    )
     parser.add_argument("--downscale", type=float, default=1.0, help="shrink images by this factor on load (default 1)")
     group = parser.add_argument_group("files and marigold")
     group.add_argument(
@@ -26,24 +29,45 @@ def add_parser(parser) -> None:
         "(default: gamma1.8 for DiffusionRenderer output, srgb otherwise)",
     )
     group = parser.add_argument_group("marigold")
-    group.add_argument("--weights", help="MarigoldIntrinsicsPipeline folder, or a hub id when the network allows "
-                       "(default prs-eth/marigold-iid-appearance-v1-1)")
+    group.add_argument(
+        "--weights",
+        help="MarigoldIntrinsicsPipeline folder, or a hub id when the network allows "
+        "(default prs-eth/marigold-iid-appearance-v1-1)",
+    )
     group.add_argument("--device", help="auto (default: CUDA when available), cpu, cuda or cuda:N")
     group.add_argument("--steps", type=int, help="denoising steps (default: the model's)")
-    group.add_argument("--ensemble-size", type=int, help="predictions per view; >= 3 also writes a confidence map (default 1)")
-    group.add_argument("--processing-resolution", type=int, help="resolution the model works at (default: the model's; 0 = native)")
+    group.add_argument(
+        "--ensemble-size", type=int, help="predictions per view; >= 3 also writes a confidence map (default 1)"
+    )
+    group.add_argument(
+        "--processing-resolution", type=int, help="resolution the model works at (default: the model's; 0 = native)"
+    )
     group = parser.add_argument_group("marigold and simulated")
-    group.add_argument("--batch-size", type=int, help="views per model call / window (default: marigold 4, simulated 8)")
-    group.add_argument("--seed", type=int, help="random seed (default: marigold 0; simulated: the synth object's seed, 0 for other data)")
+    group.add_argument(
+        "--batch-size", type=int, help="views per model call / window (default: marigold 4, simulated 8)"
+    )
+    group.add_argument(
+        "--seed",
+        type=int,
+        help="random seed (default: marigold 0; simulated: the synth object's seed, 0 for other data)",
+    )
     group = parser.add_argument_group("simulated")
-    group.add_argument("--severity", type=float, help="strength of the simulated failure modes; 0 = ground truth (default 1)")
+    group.add_argument(
+        "--severity", type=float, help="strength of the simulated failure modes; 0 = ground truth (default 1)"
+    )
 
 
 def run(args) -> int:
     from matspray import __version__
     from matspray.data import load_scene
     from matspray.errors import DataError
-    from matspray.predictors import PredictorOptions, make_predictor, options_for_dataset, predict_views, write_materials2d
+    from matspray.predictors import (
+        PredictorOptions,
+        make_predictor,
+        options_for_dataset,
+        predict_views,
+        write_materials2d,
+    )
     from matspray.rundir import RunDir
 
     check_run_split(args.out, args.split)
@@ -54,7 +78,8 @@ def run(args) -> int:
     shared = sorted({v.name for v in scene.train} & {v.name for v in scene.test})
     if args.split == "all" and shared:
         raise DataError(
-            f"{args.data}: train and test views share names ({', '.join(shared[:5])}), and maps are stored by view name; "
+            f"{args.data}: train and test views share names ({', '.join(shared[:5])}), "
+            "and maps are stored by view name; "
             "predict one split at a time (--split train, or --split test into another --out)"
         )
     options = PredictorOptions(
@@ -98,6 +123,7 @@ def check_run_split(run_dir: Path, split: str) -> None:
     previous = read_predictor_info(run_dir).get("split")
     if previous is not None and previous != split:
         raise RunError(
-            f"{run_dir / 'materials2d'}: holds maps of the {previous} split; predicting the {split} split would replace them "
+            f"{run_dir / 'materials2d'}: holds maps of the {previous} split; "
+            f"predicting the {split} split would replace them "
             f"(use another --out, e.g. for evaluation predictions, or delete that folder first)"
         )

@@ -9,22 +9,45 @@ from matspray.cli.options import add_compute_arguments
 
 def add_parser(parser) -> None:
     parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
-    parser.add_argument("--env", required=True, metavar="NAME|PATH",
-                        help="environment light: a built-in name, a lat-long .exr/.hdr file, or a name in ../shared/data/hdri")
-    parser.add_argument("--views", choices=("test", "orbit"), default="test",
-                        help="test: the dataset's test cameras (default); orbit: a circle around the object, also as MP4")
+    parser.add_argument(
+        "--env",
+        required=True,
+        metavar="NAME|PATH",
+        help="environment light: a built-in name, a lat-long .exr/.hdr file, or a name in ../shared/data/hdri",
+    )
+    parser.add_argument(
+        "--views",
+        choices=("test", "orbit"),
+        default="test",
+        help="test: the dataset's test cameras (default); orbit: a circle around the object, also as MP4",
+    )
     parser.add_argument("--out", type=Path, required=True, help="folder for the PNG frames (and orbit.mp4)")
     parser.add_argument("--variant", default="full", help="which asset of the run (default: full)")
     parser.add_argument("--frames", type=int, default=60, help="orbit: number of frames (default 60)")
     parser.add_argument("--fps", type=int, default=24, help="orbit: frames per second of the video (default 24)")
-    parser.add_argument("--background", choices=("transparent", "env"), default="transparent",
-                        help="transparent PNGs (default), or the environment itself behind the object")
+    parser.add_argument(
+        "--background",
+        choices=("transparent", "env"),
+        default="transparent",
+        help="transparent PNGs (default), or the environment itself behind the object",
+    )
     parser.add_argument("--env-height", type=int, default=64, help="rows of the prefiltered light (default 64)")
     add_compute_arguments(parser)
 
 
-def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", frames: int = 60, fps: int = 24,
-                background: str = "transparent", env_height: int = 64, device="cpu", backend: str = "torch") -> list[Path]:
+def relight_run(
+    run_dir,
+    env: str,
+    views: str,
+    out_dir,
+    variant: str = "full",
+    frames: int = 60,
+    fps: int = 24,
+    background: str = "transparent",
+    env_height: int = 64,
+    device="cpu",
+    backend: str = "torch",
+) -> list[Path]:
     """Render a run's asset under `env` for the dataset's test cameras or an orbit, on `device` with the rasterizer
     `backend` (both resolved); returns the files written."""
     import torch
@@ -62,7 +85,10 @@ def relight_run(run_dir, env: str, views: str, out_dir, variant: str = "full", f
         region = read_region(run.path("masks"))
         center = torch.tensor(region.center) if region is not None else scene.bounds.mean(0)
         reference = [v.camera for v in scene.train]
-        cameras = [(f"orbit_{i:03d}", c) for i, c in enumerate(orbit_cameras(reference, center, frames, up=cameras_up(reference)))]
+        cameras = [
+            (f"orbit_{i:03d}", c)
+            for i, c in enumerate(orbit_cameras(reference, center, frames, up=cameras_up(reference)))
+        ]
     out_dir.mkdir(parents=True, exist_ok=True)
     written, video_frames = [], []
     for view_name, camera in tqdm(cameras, desc=f"relight [{name}]"):
@@ -91,7 +117,18 @@ def run(args) -> int:
 
     device, backend = compute_target(args.device, args.backend)
     with out_of_memory_as_error("relight", device):
-        written = relight_run(args.run, args.env, args.views, args.out, variant=args.variant, frames=args.frames, fps=args.fps,
-                              background=args.background, env_height=args.env_height, device=device, backend=backend)
+        written = relight_run(
+            args.run,
+            args.env,
+            args.views,
+            args.out,
+            variant=args.variant,
+            frames=args.frames,
+            fps=args.fps,
+            background=args.background,
+            env_height=args.env_height,
+            device=device,
+            backend=backend,
+        )
     print(f"wrote {len(written)} files to {args.out}")
     return 0

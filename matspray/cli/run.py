@@ -2,7 +2,12 @@
 
 from pathlib import Path
 
-from matspray.cli.options import add_method_arguments, add_run_arguments, build_config_from_args, predictor_options_from_args
+from matspray.cli.options import (
+    add_method_arguments,
+    add_run_arguments,
+    build_config_from_args,
+    predictor_options_from_args,
+)
 
 
 def add_parser(parser) -> None:
@@ -24,13 +29,18 @@ def run(args) -> int:
     config = build_config_from_args(args, predictor=args.predictor, predictor_options=predictor_options_from_args(args))
     # refused before the run folder is touched; without --variant the run picks its default once its predictor is known
     variants = None if args.variant is None else variants_for_maps(args.variant, config.predictor != NO_PREDICTOR)
-    with Pipeline(args.data, args.out, config, overwrite=args.overwrite) as pipeline:  # refused while another process writes --out
+    with Pipeline(
+        args.data, args.out, config, overwrite=args.overwrite
+    ) as pipeline:  # refused while another process writes --out
         print(estimate_line(pipeline.work(variants), pipeline.device.type), flush=True)
         start = time.perf_counter()
         assets = pipeline.run_all(variants)
     timings = pipeline.run.timings()
     print(f"took {minutes(time.perf_counter() - start)}", flush=True)
-    print(f"method {config.method}, on {pipeline.device} with rasterizer {pipeline.backend}; seconds per stage: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
+    print(
+        f"method {config.method}, on {pipeline.device} with rasterizer {pipeline.backend}; seconds per stage: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in timings.items())
+    )
     for variant in assets:
         print(f"asset [{variant}]: {pipeline.run.path(asset_stage(variant), 'asset.ply')}")
     return 0

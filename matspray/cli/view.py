@@ -7,15 +7,29 @@ from matspray.cli.options import add_compute_arguments
 
 def add_parser(parser) -> None:
     parser.add_argument("run", type=Path, metavar="RUN", help="run folder made by `matspray run`")
-    parser.add_argument("--env", nargs="+", action="extend", default=[], metavar="FILE|FOLDER",
-                        help="HDR lights to offer besides the run's estimated light and the built-ins: .exr/.hdr files, "
-                             "or folders of them")
+    parser.add_argument(
+        "--env",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="FILE|FOLDER",
+        help="HDR lights to offer besides the run's estimated light and the built-ins: .exr/.hdr files, "
+        "or folders of them",
+    )
     parser.add_argument("--port", type=int, default=8080, help="port to serve the page on (default 8080)")
-    parser.add_argument("--host", default="127.0.0.1",
-                        help="address to listen on (default 127.0.0.1: this machine only; from another machine use "
-                             "ssh -L 8080:localhost:8080 HOST, or 0.0.0.0 to listen on every network)")
-    parser.add_argument("--resolution", type=int, default=256, help="long side of the still picture in pixels (default 256; "
-                        "half while the camera moves); the page has a slider too")
+    parser.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1: this machine only; from another machine use "
+        "ssh -L 8080:localhost:8080 HOST, or 0.0.0.0 to listen on every network)",
+    )
+    parser.add_argument(
+        "--resolution",
+        type=int,
+        default=256,
+        help="long side of the still picture in pixels (default 256; "
+        "half while the camera moves); the page has a slider too",
+    )
     add_compute_arguments(parser)
 
 
@@ -32,7 +46,10 @@ def run(args) -> int:
     page = open_page(args.host, args.port)  # served before torch loads: the browser opens the page meanwhile
     print(f"matspray view: {page.url}  ({args.run}; Ctrl+C stops)", flush=True)
     if args.host in ("127.0.0.1", "localhost", "::1"):
-        print(f"  from another machine: ssh -L {args.port}:localhost:{args.port} THIS_HOST, then open {page.url} there", flush=True)
+        print(
+            f"  from another machine: ssh -L {args.port}:localhost:{args.port} THIS_HOST, then open {page.url} there",
+            flush=True,
+        )
     try:
         from matspray.device import compute_target
         from matspray.view.server import Viewer, ViewerConfig

@@ -59,8 +59,12 @@ def view_name(file_path: str) -> str:
 # coefficients) need only be finite. A zero or negative focal length, or a field of view of 180 degrees
 # or more, still gives a K that renders, so without these checks training runs on and learns nonsense.
 NUMBER_RANGES = {
-    "fl_x": (0.0, math.inf), "fl_y": (0.0, math.inf), "w": (0.0, math.inf), "h": (0.0, math.inf),
-    "camera_angle_x": (0.0, math.pi), "camera_angle_y": (0.0, math.pi),
+    "fl_x": (0.0, math.inf),
+    "fl_y": (0.0, math.inf),
+    "w": (0.0, math.inf),
+    "h": (0.0, math.inf),
+    "camera_angle_x": (0.0, math.pi),
+    "camera_angle_y": (0.0, math.pi),
 }
 CAMERA_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
 FIX_HINT = "fix the file, or the exporter that wrote it"
@@ -95,8 +99,13 @@ def check_number(value, key: str, where: str, json_path: Path, kind: str = "") -
     low, high = NUMBER_RANGES.get(kind or key, (-math.inf, math.inf))
     number = as_number(value)
     if number is None or not low < number < high:  # NaN fails every comparison; Inf fails the open bound
-        need = ("a finite number" if low == -math.inf else "a number > 0" if high == math.inf
-                else "an angle in radians between 0 and pi")
+        need = (
+            "a finite number"
+            if low == -math.inf
+            else "a number > 0"
+            if high == math.inf
+            else "an angle in radians between 0 and pi"
+        )
         raise file_error(json_path, f"{where}'{key}' must be {need}, got {shown(value)}", FIX_HINT)
     return number
 
@@ -110,7 +119,9 @@ def camera_number(meta: dict, frame: dict, key: str, label: str, json_path: Path
     return None
 
 
-def frame_intrinsics(meta: dict, frame: dict, width: int, height: int, json_path: Path, label: str = "") -> torch.Tensor:
+def frame_intrinsics(
+    meta: dict, frame: dict, width: int, height: int, json_path: Path, label: str = ""
+) -> torch.Tensor:
     """K [3, 3] for one frame, from per-frame keys first, then the file's top-level keys
     (`label` names the frame in errors)."""
 
@@ -130,12 +141,19 @@ def frame_intrinsics(meta: dict, frame: dict, width: int, height: int, json_path
             fy = 0.5 * height / math.tan(0.5 * get("camera_angle_y"))
         K = torch.tensor([[fx, 0, width / 2.0], [0, fy, height / 2.0], [0, 0, 1]], dtype=torch.float32)
     else:
-        raise file_error(json_path, f"{label + ' has ' if label else ''}no intrinsics: need 'camera_angle_x' or 'fl_x' "
-                         "(with optional fl_y, cx, cy, w, h) in the frame or at the top level")
+        raise file_error(
+            json_path,
+            f"{label + ' has ' if label else ''}no intrinsics: need 'camera_angle_x' or 'fl_x' "
+            "(with optional fl_y, cx, cy, w, h) in the frame or at the top level",
+        )
     # each number is in range, yet extreme ones (fl_x 1e300, an angle of 1e-320) overflow float32 or scale to 0
     if not torch.isfinite(K).all() or not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise file_error(json_path, f"{label or 'a frame'}: its intrinsics give fx={float(K[0, 0]):.4g} fy={float(K[1, 1]):.4g} "
-                         f"for a {width}x{height} image, not usable focal lengths", FIX_HINT)
+        raise file_error(
+            json_path,
+            f"{label or 'a frame'}: its intrinsics give fx={float(K[0, 0]):.4g} fy={float(K[1, 1]):.4g} "
+            f"for a {width}x{height} image, not usable focal lengths",
+            FIX_HINT,
+        )
     return K
 
 
@@ -151,11 +169,16 @@ def read_pose(frame: dict, index: int, json_path: Path) -> torch.Tensor:  # [4, 
     if pose.shape == (3, 4):
         pose = torch.cat([pose, torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=torch.float64)])
     if pose.shape != (4, 4) or not torch.isfinite(pose).all():
-        raise file_error(json_path, f"{label}: 'transform_matrix' must be a finite 4x4 matrix, got shape {tuple(pose.shape)}")
+        raise file_error(
+            json_path, f"{label}: 'transform_matrix' must be a finite 4x4 matrix, got shape {tuple(pose.shape)}"
+        )
     problem = rigid_problem(pose)
     if problem:
-        raise file_error(json_path, f"{label}: 'transform_matrix' is not a rigid camera pose: {problem}",
-                         "give camera-to-world as rotation and translation only; scale the scene, not the poses")
+        raise file_error(
+            json_path,
+            f"{label}: 'transform_matrix' is not a rigid camera pose: {problem}",
+            "give camera-to-world as rotation and translation only; scale the scene, not the poses",
+        )
     return pose
 
 
@@ -178,7 +201,9 @@ def read_split(root: Path, split: str) -> list[View]:
         rgb, alpha = read_image(image_path)
         if frame.get("mask_path") is not None:
             if not isinstance(frame["mask_path"], str):
-                raise file_error(json_path, f"{label}: 'mask_path' must be a file path, got {shown(frame['mask_path'])}")
+                raise file_error(
+                    json_path, f"{label}: 'mask_path' must be a file path, got {shown(frame['mask_path'])}"
+                )
             mask_path = root / frame["mask_path"]
             mask_rgb, mask_alpha = read_image(mask_path)
             alpha = mask_alpha if mask_alpha is not None else mask_rgb.mean(-1)  # linear, 0 and 1 survive
@@ -202,7 +227,9 @@ def write_blender(root, splits: dict[str, list[View]], image_format: str = "png"
         for view in views:
             relative = f"{split}/{view.name}.{image_format}"
             write_image(root / relative, view.image, view.alpha)
-            frames.append({"file_path": f"{split}/{view.name}", **pose_record(view.camera), **intrinsics_record(view.camera)})
+            frames.append(
+                {"file_path": f"{split}/{view.name}", **pose_record(view.camera), **intrinsics_record(view.camera)}
+            )
         meta = {"frames": frames}
         if views:
             meta["camera_angle_x"] = views[0].camera.fov_x
@@ -217,8 +244,14 @@ def pose_record(camera: Camera) -> dict:
 def intrinsics_record(camera: Camera) -> dict:
     """nerfstudio-style intrinsics of a pinhole camera: any K round-trips exactly."""
     K = camera.K.double()
-    return {"fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
-            "w": camera.width, "h": camera.height}
+    return {
+        "fl_x": float(K[0, 0]),
+        "fl_y": float(K[1, 1]),
+        "cx": float(K[0, 2]),
+        "cy": float(K[1, 2]),
+        "w": camera.width,
+        "h": camera.height,
+    }
 
 
 def read_scene_json(folder: Path) -> dict | None:

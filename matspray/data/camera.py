@@ -25,7 +25,9 @@ class Camera:
 
     def __post_init__(self) -> None:
         if tuple(self.K.shape) != (3, 3) or tuple(self.viewmat.shape) != (4, 4):
-            raise ValueError(f"Camera needs K [3, 3] and viewmat [4, 4], got {tuple(self.K.shape)} and {tuple(self.viewmat.shape)}")
+            raise ValueError(
+                f"Camera needs K [3, 3] and viewmat [4, 4], got {tuple(self.K.shape)} and {tuple(self.viewmat.shape)}"
+            )
         self.width, self.height = int(self.width), int(self.height)
 
     # ---------------------------------------------------------------- construction
@@ -35,13 +37,20 @@ class Camera:
         c2w = torch.as_tensor(c2w, dtype=torch.float64, device=_device_of(c2w))
         c2w_cv = c2w @ OPENGL_TO_OPENCV.to(c2w.device)
         viewmat = torch.linalg.inv(c2w_cv)
-        return Camera(K=torch.as_tensor(K, dtype=torch.float32, device=c2w.device), viewmat=viewmat.float(), width=width, height=height)
+        return Camera(
+            K=torch.as_tensor(K, dtype=torch.float32, device=c2w.device),
+            viewmat=viewmat.float(),
+            width=width,
+            height=height,
+        )
 
     @staticmethod
     def from_fov_x(fov_x: float, width: int, height: int, viewmat: Tensor) -> "Camera":
         """Camera with square pixels, horizontal field of view `fov_x` (radians), centred principal point."""
         viewmat = torch.as_tensor(viewmat, device=_device_of(viewmat)).float()
-        return Camera(K=intrinsics_from_fov(fov_x, width, height, viewmat.device), viewmat=viewmat, width=width, height=height)
+        return Camera(
+            K=intrinsics_from_fov(fov_x, width, height, viewmat.device), viewmat=viewmat, width=width, height=height
+        )
 
     @staticmethod
     def look_at(eye, target, up, fov_x: float, width: int, height: int) -> "Camera":
@@ -131,7 +140,9 @@ class Camera:
 
 def intrinsics_from_fov(fov_x: float, width: int, height: int, device="cpu") -> Tensor:  # [3, 3]
     focal = 0.5 * width / math.tan(0.5 * fov_x)
-    return torch.tensor([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]], dtype=torch.float32, device=device)
+    return torch.tensor(
+        [[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]], dtype=torch.float32, device=device
+    )
 
 
 def rigid_problem(c2w: Tensor, tolerance: float = 1e-3) -> str | None:
@@ -154,8 +165,11 @@ def rigid_problem(c2w: Tensor, tolerance: float = 1e-3) -> str | None:
     if float(lengths.min()) < tolerance or abs(float(torch.linalg.det(R))) < tolerance:
         return "its rotation part is singular (zero or degenerate columns)"
     if (R.T @ R - torch.eye(3, dtype=torch.float64, device=m.device)).abs().max() > tolerance:
-        return (f"its rotation part is scaled or sheared (column lengths {', '.join(f'{v:.4g}' for v in lengths.tolist())}, "
-                "not orthonormal)")
+        return (
+            "its rotation part is scaled or sheared (column lengths "
+            f"{', '.join(f'{v:.4g}' for v in lengths.tolist())}, "
+            "not orthonormal)"
+        )
     if float(torch.linalg.det(R)) < 0:
         return "its rotation part is a mirror (determinant -1), not a rotation"
     return None

@@ -2,7 +2,8 @@
 
 Pinhole models are read as they are; distorted ones (SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV,
 OPENCV_FISHEYE and the radial fisheye models) are undistorted on load, masks the same way
-(`matspray.data.undistort`). Every `test_every`-th image (sorted by name) is held out as a test view, as LLFF-style evaluations do.
+(`matspray.data.undistort`). Every `test_every`-th image (sorted by name) is held out as a test view, as LLFF-style
+evaluations do.
 """
 
 from __future__ import annotations
@@ -77,8 +78,11 @@ class _Binary:
         self.at = end + 1
 
     def error(self, problem: str) -> DataError:
-        return file_error(self.path, f"is not a valid COLMAP binary model: {problem}",
-                          "the file is truncated or damaged; export the model again with colmap model_converter")
+        return file_error(
+            self.path,
+            f"is not a valid COLMAP binary model: {problem}",
+            "the file is truncated or damaged; export the model again with colmap model_converter",
+        )
 
     def done(self) -> None:
         if self.at != len(self.blob):
@@ -126,7 +130,9 @@ def check_binary_model(model_path: Path) -> None:
         for i in range(file.count("frames", 68)):
             values = file.read("II7d", f"frame {i}")
             file.finite(values[2:], f"the pose of frame {values[0]}")
-            file.read("iIQ" * file.count(f"data ids of frame {values[0]}", 16, "I"), f"the data ids of frame {values[0]}")
+            file.read(
+                "iIQ" * file.count(f"data ids of frame {values[0]}", 16, "I"), f"the data ids of frame {values[0]}"
+            )
         file.done()
 
 
@@ -134,8 +140,11 @@ def colmap_lens(camera, model_path: Path) -> Lens:
     """The Lens of a COLMAP camera; models without an OpenCV equivalent are refused, naming the known ones."""
     name = camera.model_name
     if name not in LENSES:
-        raise file_error(model_path, f"camera {camera.camera_id} uses the camera model {name}, which MatSpray cannot undistort",
-                         f"known: {', '.join(LENSES)}")
+        raise file_error(
+            model_path,
+            f"camera {camera.camera_id} uses the camera model {name}, which MatSpray cannot undistort",
+            f"known: {', '.join(LENSES)}",
+        )
     params = [float(p) for p in camera.params]
     try:
         fx, fy, cx, cy, coeffs, fisheye = LENSES[name](params)
@@ -144,11 +153,20 @@ def colmap_lens(camera, model_path: Path) -> Lens:
     # a zero, negative or NaN focal length still renders, so training would run on and learn nonsense; the
     # cameras are float32, where 1e-320 is 0 and 1e39 is Inf
     K = torch.tensor([fx, fy, cx, cy], dtype=torch.float32)
-    sizes_ok = all(1 <= size <= MAX_SIZE for size in (camera.width, camera.height))  # a negative size reads as 2**64 - n
-    if not all(math.isfinite(p) for p in params) or not (torch.isfinite(K).all() and K[0] > 0 and K[1] > 0) or not sizes_ok:
-        raise file_error(model_path, f"camera {camera.camera_id} ({name}) has parameters {', '.join(f'{p:.4g}' for p in params)} "
-                         f"for {camera.width}x{camera.height} px: focal lengths must be > 0 and every parameter finite",
-                         "rerun COLMAP's mapper, or fix cameras.txt")
+    sizes_ok = all(
+        1 <= size <= MAX_SIZE for size in (camera.width, camera.height)
+    )  # a negative size reads as 2**64 - n
+    if (
+        not all(math.isfinite(p) for p in params)
+        or not (torch.isfinite(K).all() and K[0] > 0 and K[1] > 0)
+        or not sizes_ok
+    ):
+        raise file_error(
+            model_path,
+            f"camera {camera.camera_id} ({name}) has parameters {', '.join(f'{p:.4g}' for p in params)} "
+            f"for {camera.width}x{camera.height} px: focal lengths must be > 0 and every parameter finite",
+            "rerun COLMAP's mapper, or fix cameras.txt",
+        )
     return Lens(fx, fy, cx, cy, int(camera.width), int(camera.height), tuple(coeffs), fisheye, name)
 
 
@@ -161,7 +179,9 @@ def find_mask(mask_dir: Path, image_name: str) -> Path | None:
     return None
 
 
-def read_colmap(root: Path, test_every: int = 8) -> tuple[list[View], list[View], torch.Tensor, torch.Tensor, list[str]]:
+def read_colmap(
+    root: Path, test_every: int = 8
+) -> tuple[list[View], list[View], torch.Tensor, torch.Tensor, list[str]]:
     """Returns train views, test views, points [P, 3], their linear colours [P, 3] and notes on what loading did."""
     import pycolmap
 
@@ -192,7 +212,9 @@ def read_colmap(root: Path, test_every: int = 8) -> tuple[list[View], list[View]
         if mask_dir.is_dir():
             mask_path = find_mask(mask_dir, image.name)
             if mask_path is None:
-                raise file_error(mask_dir, f"no mask for image '{image.name}'", "give every image a mask or remove masks/")
+                raise file_error(
+                    mask_dir, f"no mask for image '{image.name}'", "give every image a mask or remove masks/"
+                )
         load = partial(read_photo, image_path, mask_path, (camera.height, camera.width))
         sources = () if mask_path is None else (mask_path,)
         views.append(undistorter.view(Path(image.name).stem, image_path, lens, viewmat, load, sources))
@@ -217,7 +239,9 @@ def read_photo(image_path: Path, mask_path: Path | None, size: tuple[int, int]):
     """rgb [H, W, 3] and alpha [H, W] (from the mask, or None) of one COLMAP image of `size` (H, W)."""
     rgb, alpha = read_image(image_path)
     if rgb.shape[:2] != size:
-        raise file_error(image_path, f"image is {rgb.shape[1]}x{rgb.shape[0]} but its COLMAP camera is {size[1]}x{size[0]}")
+        raise file_error(
+            image_path, f"image is {rgb.shape[1]}x{rgb.shape[0]} but its COLMAP camera is {size[1]}x{size[0]}"
+        )
     if mask_path is not None:
         mask_rgb, _ = read_image(mask_path)
         alpha = mask_rgb.mean(-1)

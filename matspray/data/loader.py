@@ -31,7 +31,8 @@ def detect_format(root: Path) -> str:
     raise file_error(
         root,
         "no dataset layout recognised",
-        "tried blender (transforms_train.json), nerfstudio (transforms.json), tensoir (train_000/metadata.json), colmap (sparse/0/cameras.bin)",
+        "tried blender (transforms_train.json), nerfstudio (transforms.json), tensoir (train_000/metadata.json), "
+        "colmap (sparse/0/cameras.bin)",
     )
 
 
@@ -59,7 +60,8 @@ def check_alpha(views: list[View], where: Path, split: str) -> None:
     if 0 < len(bare) < len(views):
         raise file_error(
             bare[0].path or where,
-            f"has no alpha channel or mask, but {len(views) - len(bare)} of the {len(views)} views in the {split} split have one "
+            f"has no alpha channel or mask, but {len(views) - len(bare)} of the {len(views)} views in the "
+            f"{split} split have one "
             f"({len(bare)} have none)",
             "give every view of a split alpha (RGBA images or mask_path) or none of them",
         )
@@ -80,7 +82,10 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8, max_size: int 
     if fmt == "blender":
         train, test = blender.read_split(root, "train"), blender.read_split(root, "test")
         if not train:
-            raise file_error(root / "transforms_train.json", "has no frames" if (root / "transforms_train.json").exists() else "does not exist")
+            raise file_error(
+                root / "transforms_train.json",
+                "has no frames" if (root / "transforms_train.json").exists() else "does not exist",
+            )
     elif fmt == "tensoir":
         train, test = tensoir.read_split(root, "train"), tensoir.read_split(root, "test")
         if not train:
@@ -89,7 +94,9 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8, max_size: int 
         capture = nerfstudio.read_nerfstudio(root, test_every=test_every)
         train, test, log = capture.train, capture.test, capture.notes
         if not train:
-            raise file_error(root / nerfstudio.TRANSFORMS, "has no train frames", "check train_filenames / test_filenames")
+            raise file_error(
+                root / nerfstudio.TRANSFORMS, "has no train frames", "check train_filenames / test_filenames"
+            )
     else:
         train, test, points, colors, log = colmap.read_colmap(root, test_every=test_every)
     for split, views in (("train", train), ("test", test)):
@@ -112,8 +119,18 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8, max_size: int 
     if bounds is None:
         bounds = bounds_from_cameras(views)
         notes.append("object bounds guessed from where the cameras look (no masks or points)")
-    return Scene(train=train, test=test, bounds=bounds.float(), source=root, format=fmt, points=points, point_colors=colors, notes=notes, log=log,
-                 downscale=float(downscale))
+    return Scene(
+        train=train,
+        test=test,
+        bounds=bounds.float(),
+        source=root,
+        format=fmt,
+        points=points,
+        point_colors=colors,
+        notes=notes,
+        log=log,
+        downscale=float(downscale),
+    )
 
 
 @dataclass
@@ -140,7 +157,8 @@ def describe_scene(scene: Scene) -> SceneSummary:
         masks = sum(v.alpha is not None for v in views)
         lines += [
             f"{split}: {len(views)} views, {first.width}x{first.height} px",
-            f"  intrinsics: fx={float(K[0, 0]):.2f} fy={float(K[1, 1]):.2f} cx={float(K[0, 2]):.2f} cy={float(K[1, 2]):.2f}"
+            f"  intrinsics: fx={float(K[0, 0]):.2f} fy={float(K[1, 1]):.2f} cx={float(K[0, 2]):.2f} "
+            f"cy={float(K[1, 2]):.2f}"
             f" (fov_x {first.camera.fov_x * 57.29578:.1f} deg)",
             f"  camera distance to object centre: {float(distances.min()):.3f} .. {float(distances.max()):.3f}",
             f"  masks: {masks} of {len(views)}",
@@ -153,8 +171,10 @@ def describe_scene(scene: Scene) -> SceneSummary:
             if float(depth[0]) <= 0 or not (0 <= x < view.width and 0 <= y < view.height):
                 problems.append(f"{view.path or view.name}: the object centre is not in front of this camera's image")
     if not any(v.alpha is not None for v in scene.views):
-        lines.append("masks: none; after geometry the object is the Gaussians inside an object region (chosen automatically, "
-                     "or --object-bounds), and their rendered alpha becomes every view's mask (RUN/masks/)")
+        lines.append(
+            "masks: none; after geometry the object is the Gaussians inside an object region (chosen automatically, "
+            "or --object-bounds), and their rendered alpha becomes every view's mask (RUN/masks/)"
+        )
     lo, hi = scene.bounds.tolist()
     lines.append("object bounds: " + " .. ".join("(" + ", ".join(f"{v:.3f}" for v in b) + ")" for b in (lo, hi)))
     if scene.points is not None:

@@ -14,8 +14,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from matspray.data.blender import (CAMERA_KEYS, camera_number, frame_intrinsics, frame_label, intrinsics_record, pose_record,
-                                   read_json, read_pose, resolve_image, shown, view_name)
+from matspray.data.blender import (
+    CAMERA_KEYS,
+    camera_number,
+    frame_intrinsics,
+    frame_label,
+    intrinsics_record,
+    pose_record,
+    read_json,
+    read_pose,
+    resolve_image,
+    shown,
+    view_name,
+)
 from matspray.data.camera import Camera
 from matspray.data.images import image_size, read_image, read_raw, split_alpha, write_image, write_raw
 from matspray.data.scene import View
@@ -56,16 +67,26 @@ def frame_lens(meta: dict, frame: dict, label: str, json_path: Path, width: int,
         model = "OPENCV" if any(coeffs.values()) else "PINHOLE"
     if not isinstance(model, str) or model not in CAMERA_MODELS:
         raise file_error(json_path, f"{label}: unknown camera_model {model!r}", f"known: {', '.join(CAMERA_MODELS)}")
-    unused = {"PINHOLE": DISTORTION_KEYS, "SIMPLE_PINHOLE": DISTORTION_KEYS, "OPENCV": ("k4",),
-              "OPENCV_FISHEYE": ("p1", "p2")}[model]
+    unused = {
+        "PINHOLE": DISTORTION_KEYS,
+        "SIMPLE_PINHOLE": DISTORTION_KEYS,
+        "OPENCV": ("k4",),
+        "OPENCV_FISHEYE": ("p1", "p2"),
+    }[model]
     stray = [key for key in unused if coeffs[key] != 0.0]
     if stray:
-        raise file_error(json_path, f"{label}: camera_model {model} has no coefficient {', '.join(stray)}",
-                         "OPENCV takes k1 k2 k3 p1 p2, OPENCV_FISHEYE k1 k2 k3 k4, PINHOLE none")
+        raise file_error(
+            json_path,
+            f"{label}: camera_model {model} has no coefficient {', '.join(stray)}",
+            "OPENCV takes k1 k2 k3 p1 p2, OPENCV_FISHEYE k1 k2 k3 k4, PINHOLE none",
+        )
     w, h = (camera_number(meta, frame, key, label, json_path) for key in ("w", "h"))
     if w and h and abs(width * h - height * w) > 0.01 * width * h:
-        raise file_error(json_path, f"{label}: its image is {width}x{height} but the file gives w={w} h={h}",
-                         "EXIF orientation is applied; intrinsics must be for the upright photo")
+        raise file_error(
+            json_path,
+            f"{label}: its image is {width}x{height} but the file gives w={w} h={h}",
+            "EXIF orientation is applied; intrinsics must be for the upright photo",
+        )
     K = frame_intrinsics(meta, frame, width, height, json_path, label)
     if model == "OPENCV_FISHEYE":
         values, fisheye = tuple(coeffs[k] for k in ("k1", "k2", "k3", "k4")), True
@@ -79,12 +100,15 @@ def normalised(name: str) -> str:
 
 
 def without_suffix(name: str) -> str:
-    """`name` normalised, without its suffix (split lists may omit it); names with no file name ('.') stay as they are."""
+    """`name` normalised, without its suffix (split lists may omit it); names with no file name ('.')
+    stay as they are."""
     path = PurePosixPath(normalised(name))
     return str(path.with_suffix("")) if path.name not in ("", ".", "..") else str(path)
 
 
-def assign_splits(meta: dict, paths: list[str], json_path: Path, test_every: int) -> tuple[list[int], list[int], list[str]]:
+def assign_splits(
+    meta: dict, paths: list[str], json_path: Path, test_every: int
+) -> tuple[list[int], list[int], list[str]]:
     """Indices (into `paths`, sorted) of the train and test frames, and notes on frames left out."""
     lookup = {}
     for i, path in enumerate(paths):
@@ -189,15 +213,23 @@ def read_frame(root: Path, meta: dict, frame: dict, index: int, json_path: Path,
 def lens_record(lens: Lens) -> dict:
     """camera_model and coefficients of `lens` as nerfstudio names them."""
     if lens.fisheye:
-        return {"camera_model": "OPENCV_FISHEYE", **dict(zip(("k1", "k2", "k3", "k4"), (tuple(lens.coeffs) + (0.0,) * 4)[:4]))}
+        return {
+            "camera_model": "OPENCV_FISHEYE",
+            **dict(zip(("k1", "k2", "k3", "k4"), (tuple(lens.coeffs) + (0.0,) * 4)[:4])),
+        }
     coeffs = (tuple(lens.coeffs) + (0.0,) * 8)[:8]
     if any(coeffs[5:]):
         raise ValueError("nerfstudio's OPENCV model has no k4, k5, k6 (OpenCV's rational terms)")
     return {"camera_model": "OPENCV", **dict(zip(("k1", "k2", "p1", "p2", "k3"), coeffs[:5]))}
 
 
-def write_nerfstudio(root, splits: dict[str, list[View]], lens: Lens | None = None, image_format: str = "png",
-                     separate_masks: bool = False) -> Path:
+def write_nerfstudio(
+    root,
+    splits: dict[str, list[View]],
+    lens: Lens | None = None,
+    image_format: str = "png",
+    separate_masks: bool = False,
+) -> Path:
     """Write views as a nerfstudio capture: `{split}/{name}.{format}`, `transforms.json` with split lists.
 
     Every view's pinhole intrinsics are written per frame, unless `lens` is given: then it is the one

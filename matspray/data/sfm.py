@@ -38,8 +38,10 @@ MATCHERS = ("exhaustive", "sequential")
 CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "SIMPLE_PINHOLE", "PINHOLE")  # what SfM may estimate
 MIN_REGISTERED = 3
 MIN_PHOTO_SIDE = 24  # pixels; below it SIFT finds next to no features (a 2x2 file is a thumbnail or a tracking pixel)
-ADVICE = ("take more photos with more overlap (every part seen by 3 or more photos, about 15 degrees apart), "
-          "keep them sharp and the object textured, or use the exhaustive matcher")
+ADVICE = (
+    "take more photos with more overlap (every part seen by 3 or more photos, about 15 degrees apart), "
+    "keep them sharp and the object textured, or use the exhaustive matcher"
+)
 
 
 @dataclass(frozen=True)
@@ -99,14 +101,21 @@ def list_photos(folder: Path) -> list[Path]:
         except UnicodeEncodeError:  # COLMAP keeps image names as UTF-8 text
             raise file_error(path, "has a name that is not valid UTF-8", "rename it") from None
         if path.suffix.lower() not in PHOTO_SUFFIXES:
-            raise file_error(path, f"is not a JPEG or PNG photo ('{path.suffix or 'no suffix'}')",
-                             "pycolmap reads JPEG and PNG here; convert it or move it out of the folder")
+            raise file_error(
+                path,
+                f"is not a JPEG or PNG photo ('{path.suffix or 'no suffix'}')",
+                "pycolmap reads JPEG and PNG here; convert it or move it out of the folder",
+            )
         photos.append(path)
     if len(photos) < MIN_REGISTERED:
         nested = next((d for d in subfolders if any(p.suffix.lower() in PHOTO_SUFFIXES for p in d.iterdir())), None)
-        raise file_error(folder, f"has {len(photos)} photos; structure from motion needs at least {MIN_REGISTERED}",
-                         f"photos in subfolders are not read: give the folder that holds them, e.g. {nested}" if nested is not None
-                         else "photograph the object from 20 or more directions")
+        raise file_error(
+            folder,
+            f"has {len(photos)} photos; structure from motion needs at least {MIN_REGISTERED}",
+            f"photos in subfolders are not read: give the folder that holds them, e.g. {nested}"
+            if nested is not None
+            else "photograph the object from 20 or more directions",
+        )
     return photos
 
 
@@ -119,7 +128,9 @@ def find_photo_mask(mask_dir: Path, photo: Path) -> Path:
     raise file_error(mask_dir, f"has no mask for photo '{photo.name}'", f"expected {mask_dir / (photo.stem + '.png')}")
 
 
-def prepare_photo(photo: Path, out_dir: Path, max_size: int, mask_dir: Path | None, mask_out: Path | None) -> tuple[int, int]:
+def prepare_photo(
+    photo: Path, out_dir: Path, max_size: int, mask_dir: Path | None, mask_out: Path | None
+) -> tuple[int, int]:
     """Copy one photo upright and at most `max_size` on its longest side (and its mask); returns (width, height)."""
     try:
         with Image.open(photo) as img:
@@ -128,10 +139,21 @@ def prepare_photo(photo: Path, out_dir: Path, max_size: int, mask_dir: Path | No
             upright = ImageOps.exif_transpose(img) if turned else img
             width, height = upright.size
             if min(width, height) < MIN_PHOTO_SIDE:  # refused here, before structure from motion spends minutes on it
-                raise file_error(photo, f"is {width}x{height} pixels; structure from motion needs photos of at least "
-                                        f"{MIN_PHOTO_SIDE} pixels a side", "use the full-size photos, not thumbnails")
-            if upright.mode in ("I;16", "I;16B", "I;16L", "I"):  # 16-bit grey: convert("RGB") would clip it at 255, not scale it
-                upright = Image.fromarray(np.clip(np.round(np.asarray(upright, dtype=np.float64) / 257.0), 0, 255).astype(np.uint8))
+                raise file_error(
+                    photo,
+                    f"is {width}x{height} pixels; structure from motion needs photos of at least "
+                    f"{MIN_PHOTO_SIDE} pixels a side",
+                    "use the full-size photos, not thumbnails",
+                )
+            if upright.mode in (
+                "I;16",
+                "I;16B",
+                "I;16L",
+                "I",
+            ):  # 16-bit grey: convert("RGB") would clip it at 255, not scale it
+                upright = Image.fromarray(
+                    np.clip(np.round(np.asarray(upright, dtype=np.float64) / 257.0), 0, 255).astype(np.uint8)
+                )
             scale = min(1.0, max_size / max(width, height))
             if scale == 1.0 and not turned and img.mode in ("RGB", "L") and img.format in ("JPEG", "MPO", "PNG"):
                 shutil.copy2(photo, out_dir / photo.name)  # untouched: keep the file and its EXIF focal length
@@ -141,11 +163,15 @@ def prepare_photo(photo: Path, out_dir: Path, max_size: int, mask_dir: Path | No
                 size = (max(1, round(width * scale)), max(1, round(height * scale)))
                 picture = upright.convert("RGB").resize(size, Image.Resampling.LANCZOS)
                 tmp = atomic_target(out_dir / photo.name)
-                picture.save(tmp, quality=95, exif=exif.tobytes()) if photo.suffix.lower() != ".png" else picture.save(tmp)
+                picture.save(tmp, quality=95, exif=exif.tobytes()) if photo.suffix.lower() != ".png" else picture.save(
+                    tmp
+                )
                 os.replace(tmp, out_dir / photo.name)
                 width, height = size
     except (*DECODER_ERRORS, struct.error, Image.DecompressionBombError) as exc:  # struct.error: a damaged EXIF block
-        raise file_error(photo, f"cannot read image: {exc or type(exc).__name__}", "pycolmap cannot read it either") from None
+        raise file_error(
+            photo, f"cannot read image: {exc or type(exc).__name__}", "pycolmap cannot read it either"
+        ) from None
     if mask_dir is not None:
         mask_path = find_photo_mask(mask_dir, photo)
         values = read_raw(mask_path, orient=True)
@@ -158,8 +184,14 @@ def prepare_photo(photo: Path, out_dir: Path, max_size: int, mask_dir: Path | No
     return width, height
 
 
-def prepare_photos(photos: list[Path], image_dir: Path, config: SfmConfig, mask_dir: Path | None = None, mask_out: Path | None = None,
-                   progress: bool = False) -> dict[str, tuple[int, int]]:
+def prepare_photos(
+    photos: list[Path],
+    image_dir: Path,
+    config: SfmConfig,
+    mask_dir: Path | None = None,
+    mask_out: Path | None = None,
+    progress: bool = False,
+) -> dict[str, tuple[int, int]]:
     """Every photo (and mask) prepared into `image_dir` (`prepare_photo`), and their sizes by name: the checks of each
     file that refuse a folder, made before structure from motion starts."""
     sizes = {}
@@ -168,13 +200,18 @@ def prepare_photos(photos: list[Path], image_dir: Path, config: SfmConfig, mask_
     if config.single_camera and len(set(sizes.values())) > 1:
         first = photos[0]
         odd = next(p for p in photos if sizes[p.name] != sizes[first.name])
-        raise file_error(odd, f"is {sizes[odd.name][0]}x{sizes[odd.name][1]} but {first.name} is "
-                              f"{sizes[first.name][0]}x{sizes[first.name][1]}", "one camera for every photo needs photos of one size")
+        raise file_error(
+            odd,
+            f"is {sizes[odd.name][0]}x{sizes[odd.name][1]} but {first.name} is "
+            f"{sizes[first.name][0]}x{sizes[first.name][1]}",
+            "one camera for every photo needs photos of one size",
+        )
     return sizes
 
 
-def run_sfm(images, out, config: SfmConfig = SfmConfig(), masks=None, progress: bool = True,
-            log: Callable[[str], None] = print) -> SfmResult:
+def run_sfm(
+    images, out, config: SfmConfig = SfmConfig(), masks=None, progress: bool = True, log: Callable[[str], None] = print
+) -> SfmResult:
     """Make the dataset folder `out` from the photos in `images` (optional masks in `masks`)."""
     import pycolmap
 
@@ -205,7 +242,9 @@ def run_sfm(images, out, config: SfmConfig = SfmConfig(), masks=None, progress: 
     return result
 
 
-def reconstruct(photos: list[Path], work: Path, config: SfmConfig, mask_dir: Path | None, pycolmap, progress: bool, log) -> SfmResult:
+def reconstruct(
+    photos: list[Path], work: Path, config: SfmConfig, mask_dir: Path | None, pycolmap, progress: bool, log
+) -> SfmResult:
     image_dir, database = work / "images", work / "colmap" / "database.db"
     image_dir.mkdir(parents=True)
     database.parent.mkdir(parents=True)
@@ -224,11 +263,18 @@ def reconstruct(photos: list[Path], work: Path, config: SfmConfig, mask_dir: Pat
     mode = pycolmap.CameraMode.SINGLE if config.single_camera else pycolmap.CameraMode.AUTO
     bar = tqdm(total=len(names), desc="SIFT features", unit="photo", disable=not progress)
     for batch in range(0, len(names), 4):  # in small batches, for the progress bar
-        pycolmap.extract_features(database, image_dir, image_names=names[batch:batch + 4], camera_mode=mode,
-                                  reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+        pycolmap.extract_features(
+            database,
+            image_dir,
+            image_names=names[batch : batch + 4],
+            camera_mode=mode,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
         if config.single_camera:
             reader.existing_camera_id = 1  # later batches share the first batch's camera
-        bar.update(len(names[batch:batch + 4]))
+        bar.update(len(names[batch : batch + 4]))
     bar.close()
     log(f"matching features ({config.matcher}) ...")
     matching = pycolmap.FeatureMatchingOptions()
@@ -244,29 +290,52 @@ def reconstruct(photos: list[Path], work: Path, config: SfmConfig, mask_dir: Pat
     models_dir = work / "colmap" / "models"
     models_dir.mkdir()
     bar = tqdm(total=len(names), desc="registering photos", unit="photo", disable=not progress)
-    models = pycolmap.incremental_mapping(database, image_dir, models_dir, options,
-                                          initial_image_pair_callback=lambda: bar.update(2),
-                                          next_image_callback=lambda: bar.update(1))
+    models = pycolmap.incremental_mapping(
+        database,
+        image_dir,
+        models_dir,
+        options,
+        initial_image_pair_callback=lambda: bar.update(2),
+        next_image_callback=lambda: bar.update(1),
+    )
     bar.close()
     shutil.rmtree(models_dir, ignore_errors=True)
     ranked = sorted(models.values(), key=lambda m: m.num_reg_images(), reverse=True)
     model_sizes = [m.num_reg_images() for m in ranked]
     registered = model_sizes[0] if model_sizes else 0
     if registered < MIN_REGISTERED:
-        raise DataError(f"{photos[0].parent}: only {registered} of {len(photos)} photos could be registered "
-                        f"(at least {MIN_REGISTERED} needed); {ADVICE}")
+        raise DataError(
+            f"{photos[0].parent}: only {registered} of {len(photos)} photos could be registered "
+            f"(at least {MIN_REGISTERED} needed); {ADVICE}"
+        )
     notes = []
     if len(model_sizes) > 1 and registered < len(photos):  # smaller models of photos the largest holds too say nothing
-        notes.append(f"the reconstruction split into {len(model_sizes)} parts ({', '.join(map(str, model_sizes))} photos); "
-                     f"kept the largest: the other photos share too few features with it; {ADVICE}")
+        notes.append(
+            f"the reconstruction split into {len(model_sizes)} parts ({', '.join(map(str, model_sizes))} photos); "
+            f"kept the largest: the other photos share too few features with it; {ADVICE}"
+        )
     if registered < len(photos):
         kept = {ranked[0].image(i).name for i in ranked[0].reg_image_ids()}
-        notes.append(f"{len(photos) - registered} photos not registered (left out): {', '.join(sorted(set(names) - kept))}")
+        notes.append(
+            f"{len(photos) - registered} photos not registered (left out): {', '.join(sorted(set(names) - kept))}"
+        )
     model = ranked[0]
     (work / "sparse" / "0").mkdir(parents=True)
     model.write(str(work / "sparse" / "0"))
-    cameras = [f"camera {c.camera_id}: {c.model_name} {c.width}x{c.height} " + " ".join(f"{p:.4g}" for p in c.params)
-               for c in model.cameras.values()]
+    cameras = [
+        f"camera {c.camera_id}: {c.model_name} {c.width}x{c.height} " + " ".join(f"{p:.4g}" for p in c.params)
+        for c in model.cameras.values()
+    ]
     focal = float(np.mean([np.mean([c.params[i] for i in c.focal_length_idxs()]) for c in model.cameras.values()]))
-    return SfmResult(work, len(photos), registered, model_sizes, float(model.compute_mean_reprojection_error()),
-                     model.num_points3D(), cameras, focal, 0.0, notes)
+    return SfmResult(
+        work,
+        len(photos),
+        registered,
+        model_sizes,
+        float(model.compute_mean_reprojection_error()),
+        model.num_points3D(),
+        cameras,
+        focal,
+        0.0,
+        notes,
+    )

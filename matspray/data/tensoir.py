@@ -30,7 +30,9 @@ def view_folders(root: Path, split: str) -> list[Path]:
 
 
 def is_tensoir(root: Path) -> bool:
-    return any((folder / "metadata.json").exists() for split in ("train", "test") for folder in view_folders(root, split))
+    return any(
+        (folder / "metadata.json").exists() for split in ("train", "test") for folder in view_folders(root, split)
+    )
 
 
 def read_split(root: Path, split: str) -> list[View]:
@@ -49,8 +51,11 @@ def read_view(folder: Path) -> View:
     image_path = folder / "rgba.png"
     rgb, alpha = read_image(image_path)
     if width != int(width) or height != int(height) or not image_fits(rgb.shape[1], rgb.shape[0], width, height):
-        raise file_error(meta_path, f"imw={shown(meta['imw'])} imh={shown(meta['imh'])} do not fit its image "
-                         f"{rgb.shape[1]}x{rgb.shape[0]}", "give the size the views are rendered at: whole pixels, the image's aspect ratio")
+        raise file_error(
+            meta_path,
+            f"imw={shown(meta['imw'])} imh={shown(meta['imh'])} do not fit its image {rgb.shape[1]}x{rgb.shape[0]}",
+            "give the size the views are rendered at: whole pixels, the image's aspect ratio",
+        )
     width, height = int(width), int(height)
     if rgb.shape[:2] != (height, width):  # metadata is authoritative; images may be stored resized
         rgb = resize(rgb, height, width)
@@ -74,7 +79,9 @@ def read_pose(meta: dict, meta_path: Path) -> torch.Tensor:  # [4, 4] camera-to-
     if pose is None:
         raise file_error(meta_path, "no 'cam_transform_mat' (camera pose)")
     try:
-        numbers = [float(x) for x in pose.split(",")] if isinstance(pose, str) else torch.tensor(pose).flatten().tolist()
+        numbers = (
+            [float(x) for x in pose.split(",")] if isinstance(pose, str) else torch.tensor(pose).flatten().tolist()
+        )
     except (ValueError, TypeError, OverflowError, RuntimeError):
         raise file_error(meta_path, "'cam_transform_mat' is not 16 comma-separated numbers") from None
     if len(numbers) != 16:
@@ -82,6 +89,9 @@ def read_pose(meta: dict, meta_path: Path) -> torch.Tensor:  # [4, 4] camera-to-
     matrix = torch.tensor(numbers, dtype=torch.float64).reshape(4, 4)
     problem = rigid_problem(matrix)
     if problem:
-        raise file_error(meta_path, f"'cam_transform_mat' is not a rigid camera pose: {problem}",
-                         "give camera-to-world as rotation and translation only; scale the scene, not the poses")
+        raise file_error(
+            meta_path,
+            f"'cam_transform_mat' is not a rigid camera pose: {problem}",
+            "give camera-to-world as rotation and translation only; scale the scene, not the poses",
+        )
     return matrix

@@ -87,7 +87,9 @@ class Lens:
         K = np.array([[self.fx, 0.0, self.cx - 0.5], [0.0, self.fy, self.cy - 0.5], [0.0, 0.0, 1.0]])
         return K, np.array(self.coeffs if self.coeffs else (0.0,) * 4, dtype=np.float64)
 
-    def undistort_pixels(self, pixels: np.ndarray) -> np.ndarray:  # [N, 2] distorted pixels -> [N, 2] normalised pinhole
+    def undistort_pixels(
+        self, pixels: np.ndarray
+    ) -> np.ndarray:  # [N, 2] distorted pixels -> [N, 2] normalised pinhole
         cv2 = opencv()
         K, D = self.opencv()
         points = (pixels - 0.5).reshape(-1, 1, 2).astype(np.float64)
@@ -126,8 +128,9 @@ def opencv():
     try:
         import cv2
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise DataError(f"undistorting images needs OpenCV, which cannot be imported ({exc}); "
-                        "pip install opencv-python-headless") from None
+        raise DataError(
+            f"undistorting images needs OpenCV, which cannot be imported ({exc}); pip install opencv-python-headless"
+        ) from None
     return cv2
 
 
@@ -139,10 +142,14 @@ def output_grid(width: int, height: int) -> np.ndarray:  # [H, W, 2] pixel centr
 def border_pixels(width: int, height: int, samples: int = 256) -> np.ndarray:  # [4 * samples, 2]
     u = np.linspace(0.5, width - 0.5, samples)
     v = np.linspace(0.5, height - 0.5, samples)
-    return np.concatenate([
-        np.stack([u, np.full_like(u, 0.5)], -1), np.stack([u, np.full_like(u, height - 0.5)], -1),
-        np.stack([np.full_like(v, 0.5), v], -1), np.stack([np.full_like(v, width - 0.5), v], -1),
-    ])
+    return np.concatenate(
+        [
+            np.stack([u, np.full_like(u, 0.5)], -1),
+            np.stack([u, np.full_like(u, height - 0.5)], -1),
+            np.stack([np.full_like(v, 0.5), v], -1),
+            np.stack([np.full_like(v, width - 0.5), v], -1),
+        ]
+    )
 
 
 def source_pixels(lens: Lens, K: np.ndarray, pixels: np.ndarray) -> np.ndarray:
@@ -189,7 +196,9 @@ def plan_undistortion(lens: Lens, where) -> Undistortion:
     try:
         K = pinhole_for(lens)
     except ValueError:
-        raise file_error(where, f"the {lens.describe()} distortion leaves no undistorted view inside the image", advice) from None
+        raise file_error(
+            where, f"the {lens.describe()} distortion leaves no undistorted view inside the image", advice
+        ) from None
     grid = output_grid(lens.width, lens.height).reshape(-1, 2)
     source = source_pixels(lens, K, grid).reshape(lens.height, lens.width, 2)
     # the area of the photo the output covers: the sum of the map's Jacobian determinants
@@ -197,12 +206,15 @@ def plan_undistortion(lens: Lens, where) -> Undistortion:
     dv = np.gradient(source, axis=0)
     det = du[..., 0] * dv[..., 1] - du[..., 1] * dv[..., 0]  # [H, W]
     if (det <= 0).mean() > 1e-3:  # a fold inside the image (a few pixels at a corner touching it are tolerated)
-        raise file_error(where, f"the {lens.describe()} distortion folds over inside the image (not invertible)", advice)
+        raise file_error(
+            where, f"the {lens.describe()} distortion folds over inside the image (not invertible)", advice
+        )
     kept = float(det.clip(min=0).sum()) / (lens.width * lens.height)
     if kept < MIN_KEPT:
         raise file_error(
             where,
-            f"the {lens.describe()} distortion is so strong that undistortion would keep only {100 * kept:.0f}% of the image "
+            f"the {lens.describe()} distortion is so strong that undistortion would keep only "
+            f"{100 * kept:.0f}% of the image "
             f"(at least {100 * MIN_KEPT:.0f}% needed)",
             advice,
         )
@@ -328,8 +340,10 @@ class Undistorter:
             fx = [float(plan.K[0, 0]) for plan in plans]
             kept = [100 * plan.kept for plan in plans]
             models = ", ".join(sorted({plan.lens.model for plan in plans}))
-            lines.append(f"undistorted {len(plans)} {models} cameras to pinhole, fx {min(fx):.2f} .. {max(fx):.2f}, "
-                         f"{min(kept):.0f} .. {max(kept):.0f}% of the image kept")
+            lines.append(
+                f"undistorted {len(plans)} {models} cameras to pinhole, fx {min(fx):.2f} .. {max(fx):.2f}, "
+                f"{min(kept):.0f} .. {max(kept):.0f}% of the image kept"
+            )
         for plan in self.plans.values() if len(self.plans) <= 3 else ():
             K = plan.K
             lines.append(
@@ -337,5 +351,7 @@ class Undistorter:
                 f"cx={float(K[0, 2]):.2f} cy={float(K[1, 2]):.2f}, {100 * plan.kept:.0f}% of the image kept"
             )
         if self.plans:
-            lines.append(f"undistorted images: {self.undistorted} made, {self.from_cache} read from the cache {self.cache}")
+            lines.append(
+                f"undistorted images: {self.undistorted} made, {self.from_cache} read from the cache {self.cache}"
+            )
         return lines

@@ -31,6 +31,10 @@ def write_video(frames: list[Tensor], path, fps: int) -> None:
         writer.close()
     except (OSError, RuntimeError) as exc:  # ffmpeg refused the stream: say so in one line, leave nothing behind
         tmp.unlink(missing_ok=True)
-        raise file_error(Path(path), f"the video encoder (ffmpeg) failed: {str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__}",
-                         "the PNG frames are written; try another frame rate") from None
+        raise file_error(
+            Path(path),
+            "the video encoder (ffmpeg) failed: "
+            f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__}",
+            "the PNG frames are written; try another frame rate",
+        ) from None
     os.replace(tmp, path)

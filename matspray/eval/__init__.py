@@ -15,7 +15,22 @@ from matspray.eval.tables import (
 )
 
 __all__ = [
-    "LPIPS", "MetallicPsnr", "ablation_table", "align_scale", "average_metrics", "channel_scale",
-    "composite_on_background", "evaluate_images", "load_lpips", "material_table", "metallic_psnr_over_objects",
-    "object_metallic_psnr", "psnr", "softmax_table", "ssim", "tables_markdown", "timings_table", "write_tables",
+    "LPIPS",
+    "MetallicPsnr",
+    "ablation_table",
+    "align_scale",
+    "average_metrics",
+    "channel_scale",
+    "composite_on_background",
+    "evaluate_images",
+    "load_lpips",
+    "material_table",
+    "metallic_psnr_over_objects",
+    "object_metallic_psnr",
+    "psnr",
+    "softmax_table",
+    "ssim",
+    "tables_markdown",
+    "timings_table",
+    "write_tables",
 ]

@@ -20,13 +20,21 @@ def average_tables(metrics: list[dict]) -> dict:
     the paper's infinity rule (objects with infinite PSNR are counted and left out of the mean), under
     the object mask (GT) and the silhouette-counting union ("metallic_union") alike. Every row of
     table1, "<row>_union" included, is averaged; a row averages only the objects that have it."""
-    out: dict = {"notes": sorted({n for m in metrics for n in m.get("notes", [])}), "lpips": metrics[0].get("lpips") if metrics else None}
+    out: dict = {
+        "notes": sorted({n for m in metrics for n in m.get("notes", [])}),
+        "lpips": metrics[0].get("lpips") if metrics else None,
+    }
     for key in ("table2", "softmax", "table2" + UNION, "softmax" + UNION):  # UNION: the silhouette-counting figures
         names = {name for m in metrics for name in m.get(key, {})}
         if not names and key.endswith(UNION):
             continue  # only older metrics.json files: no union tables at all rather than empty ones
-        out[key] = {name: {metric: mean_or_none([m[key][name].get(metric) for m in metrics if name in m.get(key, {})])
-                           for metric in ("psnr", "ssim", "lpips")} for name in names}
+        out[key] = {
+            name: {
+                metric: mean_or_none([m[key][name].get(metric) for m in metrics if name in m.get(key, {})])
+                for metric in ("psnr", "ssim", "lpips")
+            }
+            for name in names
+        }
     table1 = {}
     for method in {name for m in metrics for name in m.get("table1", {})}:
         rows = {}
@@ -34,14 +42,23 @@ def average_tables(metrics: list[dict]) -> dict:
             entries = [m["table1"][method][row] for m in metrics if row in m.get("table1", {}).get(method, {})]
             if row in ("metallic", "metallic" + UNION):
                 finite = [e["psnr"] for e in entries if e.get("psnr") is not None and math.isfinite(e["psnr"])]
-                rows[row] = {"psnr": mean_or_none(finite) if finite else math.inf, "ssim": mean_or_none([e.get("ssim") for e in entries]),
-                             "lpips": mean_or_none([e.get("lpips") for e in entries]), "psnr_infinite": len(entries) - len(finite),
-                             "objects": len(entries)}
+                rows[row] = {
+                    "psnr": mean_or_none(finite) if finite else math.inf,
+                    "ssim": mean_or_none([e.get("ssim") for e in entries]),
+                    "lpips": mean_or_none([e.get("lpips") for e in entries]),
+                    "psnr_infinite": len(entries) - len(finite),
+                    "objects": len(entries),
+                }
             else:
-                rows[row] = {metric: mean_or_none([e.get(metric) for e in entries]) for metric in ("psnr", "ssim", "lpips")}
+                rows[row] = {
+                    metric: mean_or_none([e.get(metric) for e in entries]) for metric in ("psnr", "ssim", "lpips")
+                }
         table1[method] = rows
     out["table1"] = table1
     stages = {stage for m in metrics for column in m.get("timings", {}).values() for stage in column}
-    out["timings"] = {"Ours (mean per object)": {s: mean_or_none([c.get(s) for m in metrics for c in m.get("timings", {}).values()])
-                                                 for s in stages}}
+    out["timings"] = {
+        "Ours (mean per object)": {
+            s: mean_or_none([c.get(s) for m in metrics for c in m.get("timings", {}).values()]) for s in stages
+        }
+    }
     return out

@@ -15,8 +15,8 @@ import torch
 from matspray.asset import ENVMAP_FILE, envmap_preview
 from matspray.data import load_scene
 from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
-from matspray.export.frames import find_glbs, glb_box
 from matspray.eval.report import STYLE, Figures, _srgb_inverse, markdown_to_html, object_masks_section
+from matspray.export.frames import find_glbs, glb_box
 from matspray.lights import load_envmap
 from matspray.objectmasks import read_object_masks, read_region
 from matspray.relight import background_radiance, render_gbuffer, render_relit
@@ -40,20 +40,34 @@ def asset_box_note(run: RunDir, assets: dict) -> str:
     for variant, asset in assets.items():
         means = asset.gaussians.means.detach().cpu()
         low, high = means.min(0).values.tolist(), means.max(0).values.tolist()
-        lines.append(f"{LABELS.get(variant, variant)} asset: {len(means)} Gaussians in the box "
-                     f"({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
+        lines.append(
+            f"{LABELS.get(variant, variant)} asset: {len(means)} Gaussians in the box "
+            f"({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})"
+        )
     for path in find_glbs(run.root):
         low, high = glb_box(path)
-        lines.append(f"exported mesh {path.relative_to(run.root)}: box ({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
+        lines.append(
+            f"exported mesh {path.relative_to(run.root)}: box ({', '.join(f'{v:.3f}' for v in low)}) "
+            f".. ({', '.join(f'{v:.3f}' for v in high)})"
+        )
     region = read_region(run.path("masks"))
     if region is not None:
         low, high = region.bounds().tolist()
-        lines.append(f"object region: {region.describe()}; box ({', '.join(f'{v:.3f}' for v in low)}) .. ({', '.join(f'{v:.3f}' for v in high)})")
+        lines.append(
+            f"object region: {region.describe()}; box ({', '.join(f'{v:.3f}' for v in low)}) "
+            f".. ({', '.join(f'{v:.3f}' for v in high)})"
+        )
     return "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in lines) + "</ul>"
 
 
-def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "forest"), credit: str | None = None,
-                         device="cpu", backend: str = "torch") -> Path:
+def write_capture_report(
+    run_dir,
+    metrics: dict,
+    lights=("studio", "sunset", "forest"),
+    credit: str | None = None,
+    device="cpu",
+    backend: str = "torch",
+) -> Path:
     """Write RUN/report.html (and RUN/report/*.png) for a run without ground truth, from `evaluate_capture`'s metrics.
     `lights`: names or files the asset is relit under; `credit`: a line crediting the photos (shown at the top)."""
     run = RunDir(run_dir).require()
@@ -63,21 +77,31 @@ def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "fo
     sections = [f"<h1>MatSpray result: {html.escape(Path(source).name)}</h1>"]
     if credit:
         sections.append(f"<p><i>Photos: {html.escape(credit)}</i></p>")
-    sections.append("<p>A real capture: there is no ground truth for materials or light. What can be checked is how well the "
-                    "run reproduces photos it never trained on (held out), inside the object's mask.</p>")
+    sections.append(
+        "<p>A real capture: there is no ground truth for materials or light. What can be checked is how well the "
+        "run reproduces photos it never trained on (held out), inside the object's mask.</p>"
+    )
     sections.append(markdown_to_html(heldout_table(metrics)))
 
     loaded = read_renderables(run, device)
     held = photo_renders(run, scene.test[:MAX_VIEWS], "test", device, backend, progress=False, renderables=loaded)
     trained = photo_renders(run, scene.train[:1], "train", device, backend, progress=False, renderables=loaded)
-    for title, items in (("Held-out photos (never trained on) and the run's renders", held),
-                         ("A training photo and the run's renders", trained)):
+    for title, items in (
+        ("Held-out photos (never trained on) and the run's renders", held),
+        ("A training photo and the run's renders", trained),
+    ):
         rows = [f"<h2>{title}</h2>"]
         for item in items:
             name = item.view.name
-            cells = [figures.image(f"photo_{name}", item.view.image, f"photo {name}"),
-                     figures.image(f"mask_overlay_{name}", item.view.image * (0.25 + 0.75 * item.mask[..., None]), "object mask")]
-            cells += [figures.image(f"render_{name}_{key}", rgb, _label(key), item.mask) for key, rgb in item.renders.items()]
+            cells = [
+                figures.image(f"photo_{name}", item.view.image, f"photo {name}"),
+                figures.image(
+                    f"mask_overlay_{name}", item.view.image * (0.25 + 0.75 * item.mask[..., None]), "object mask"
+                ),
+            ]
+            cells += [
+                figures.image(f"render_{name}_{key}", rgb, _label(key), item.mask) for key, rgb in item.renders.items()
+            ]
             rows.append("<div>" + "".join(cells) + "</div>")
         sections += rows
 
@@ -94,9 +118,17 @@ def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "fo
                     camera = view.camera.to(device)
                     rgb, alpha = render_relit(asset, camera, prefiltered)
                     rgb = rgb + background_radiance(light, camera) * (1 - alpha[..., None])
-                    cells.append(figures.image(f"relit_{view.name}_{variant}_{name}", rgb, f"{LABELS.get(variant, variant)}, {name}, {view.name}"))
-        sections.append("<h2>Relit under other lights</h2><p>The asset shaded under lights it never saw, over the light itself.</p>"
-                        "<div>" + "".join(cells) + "</div>")
+                    cells.append(
+                        figures.image(
+                            f"relit_{view.name}_{variant}_{name}",
+                            rgb,
+                            f"{LABELS.get(variant, variant)}, {name}, {view.name}",
+                        )
+                    )
+        sections.append(
+            "<h2>Relit under other lights</h2><p>The asset shaded under lights it never saw, over the light itself.</p>"
+            "<div>" + "".join(cells) + "</div>"
+        )
 
         rows = ["<h2>Material maps</h2>"]
         for variant, asset in assets.items():
@@ -104,11 +136,38 @@ def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "fo
             gbuffer = render_gbuffer(asset, camera)
             normals = torch.nn.functional.normalize(gbuffer.normals, dim=-1) * 0.5 + 0.5
             label = LABELS.get(variant, variant)
-            rows.append("<div>" + "".join([
-                figures.image(f"maps_{variant}_basecolor", gbuffer.base_color.cpu(), f"base colour, {label}", gbuffer.alpha.cpu()),
-                figures.scalar(f"maps_{variant}_roughness", gbuffer.roughness.cpu(), f"roughness, {label}", gbuffer.alpha.cpu()),
-                figures.scalar(f"maps_{variant}_metallic", gbuffer.metallic.cpu(), f"metallic, {label}", gbuffer.alpha.cpu()),
-                figures.image(f"maps_{variant}_normal", _srgb_inverse(normals.cpu()), f"normals, {label}", gbuffer.alpha.cpu())]) + "</div>")
+            rows.append(
+                "<div>"
+                + "".join(
+                    [
+                        figures.image(
+                            f"maps_{variant}_basecolor",
+                            gbuffer.base_color.cpu(),
+                            f"base colour, {label}",
+                            gbuffer.alpha.cpu(),
+                        ),
+                        figures.scalar(
+                            f"maps_{variant}_roughness",
+                            gbuffer.roughness.cpu(),
+                            f"roughness, {label}",
+                            gbuffer.alpha.cpu(),
+                        ),
+                        figures.scalar(
+                            f"maps_{variant}_metallic",
+                            gbuffer.metallic.cpu(),
+                            f"metallic, {label}",
+                            gbuffer.alpha.cpu(),
+                        ),
+                        figures.image(
+                            f"maps_{variant}_normal",
+                            _srgb_inverse(normals.cpu()),
+                            f"normals, {label}",
+                            gbuffer.alpha.cpu(),
+                        ),
+                    ]
+                )
+                + "</div>"
+            )
         sections += rows
 
     cells = []
@@ -116,15 +175,29 @@ def write_capture_report(run_dir, metrics: dict, lights=("studio", "sunset", "fo
         path = run.path(asset_stage(variant), ENVMAP_FILE)
         if path.exists():
             estimate = EnvironmentMap.from_file(path).map.detach()
-            cells.append(figures.image(f"envmap_{variant}", envmap_preview(estimate), f"estimated light ({LABELS.get(variant, variant)})", css="env"))
+            cells.append(
+                figures.image(
+                    f"envmap_{variant}",
+                    envmap_preview(estimate),
+                    f"estimated light ({LABELS.get(variant, variant)})",
+                    css="env",
+                )
+            )
     if cells:
-        sections.append("<h2>Estimated light</h2><p>Tone-mapped lat-long maps (up is the top row), determined only as far as the "
-                        "photos reveal it.</p><div>" + "".join(cells) + "</div>")
+        sections.append(
+            "<h2>Estimated light</h2><p>Tone-mapped lat-long maps (up is the top row), determined only as far as the "
+            "photos reveal it.</p><div>" + "".join(cells) + "</div>"
+        )
 
     sections.append("<h2>Object region</h2>" + asset_box_note(run, assets))
     if run.path("masks", "masks.pt").exists():
-        sections.append(object_masks_section(read_object_masks(run.path("masks")), scene.train[:MAX_VIEWS], figures, None))
-    page = f"<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title><style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
+        sections.append(
+            object_masks_section(read_object_masks(run.path("masks")), scene.train[:MAX_VIEWS], figures, None)
+        )
+    page = (
+        "<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title>"
+        f"<style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
+    )
     path = run.path("report.html")
     write_text_atomic(path, page)
     return path

@@ -20,8 +20,9 @@ from matspray.eval.metrics import as_image, mse, psnr, psnr_from_mse, ssim
 METRICS = ("psnr", "ssim", "lpips")
 
 
-def evaluate_images(pred, target, mask, lpips: PerceptualMetric | None = None, background=1.0,
-                    encoding: str = "srgb", pred_alpha=None) -> dict[str, float | None]:
+def evaluate_images(
+    pred, target, mask, lpips: PerceptualMetric | None = None, background=1.0, encoding: str = "srgb", pred_alpha=None
+) -> dict[str, float | None]:
     """Metrics of linear `pred` vs `target` [H, W, C] (or [H, W] maps) on `background`, encoded as
     `encoding` ("srgb" for colour, "raw" for roughness/metallic). LPIPS sees single-channel maps
     repeated to RGB; it is None when `lpips` is None (unavailable), never a made-up number.
@@ -51,7 +52,9 @@ def evaluate_images(pred, target, mask, lpips: PerceptualMetric | None = None, b
         "lpips": None,
     }
     if lpips is not None:
-        result["lpips"] = lpips.distance(_as_rgb(pred_on_object[rows, columns]), _as_rgb(target_on_object[rows, columns]))
+        result["lpips"] = lpips.distance(
+            _as_rgb(pred_on_object[rows, columns]), _as_rgb(target_on_object[rows, columns])
+        )
     return result
 
 
@@ -68,7 +71,9 @@ def _as_rgb(image):  # [H, W, 1 | 3] -> [H, W, 3]
     return image.expand(-1, -1, 3) if image.shape[-1] == 1 else image
 
 
-def pooled_union_psnr(preds: Sequence, pred_alphas: Sequence, targets: Sequence, masks: Sequence, background=0.0) -> float:
+def pooled_union_psnr(
+    preds: Sequence, pred_alphas: Sequence, targets: Sequence, masks: Sequence, background=0.0
+) -> float:
     """PSNR (dB) of the squared error pooled over views, silhouette-counting: each prediction [H, W]
     composited with its own alpha, each truth with its mask, on `background` (raw values), weighted
     by the union of each view's silhouettes. The union counterpart of `metallic.object_metallic_psnr`

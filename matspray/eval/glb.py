@@ -26,17 +26,25 @@ from matspray.data.blender import read_scene_json
 from matspray.errors import ConfigError, file_error
 from matspray.eval.lpips import load_lpips
 from matspray.eval.report import STYLE, Figures, markdown_to_html
-from matspray.eval.run_eval import (GroundTruth, ViewRenders, asset_renders, check_synthetic, load_relight_lights, read_view_truth,
-                                    relight_env_names, score_renders)
+from matspray.eval.run_eval import (
+    GroundTruth,
+    ViewRenders,
+    asset_renders,
+    check_synthetic,
+    load_relight_lights,
+    read_view_truth,
+    relight_env_names,
+    score_renders,
+)
 from matspray.eval.tables import UNION, UNION_LABEL, material_table
 from matspray.export.frames import GLTF_FROM_DATASET, transform_directions, transform_points
 from matspray.gltf.read import read_gltf
 from matspray.render.backend import rendering_with
 from matspray.rundir import RunDir, write_json, write_text_atomic
-from matspray.variants import VARIANT_NAMES, asset_stage
-from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.gltf_object import asset_parts
+from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.mitsuba_scene import build_scene, render_view, select_variant
+from matspray.variants import VARIANT_NAMES, asset_stage
 
 DEFAULT_SPP = 64
 FRAMES = ("gltf", "dataset")
@@ -51,22 +59,36 @@ def read_glb_parts(path, frame: str | None = None):
     if frame is not None and frame not in FRAMES:
         raise ConfigError(f"unknown frame '{frame}'; choose gltf or dataset")
     # what `matspray export` wrote into the file's extras; a damaged or hand-edited value is named here, before any work
-    for key, valid, wanted, hint in (("frame", FRAMES, "gltf or dataset", "pass --frame gltf or --frame dataset"),
-                                     ("variant", VARIANT_NAMES, "a variant's name", "fix the extras or re-export the file"),
-                                     ("run", None, "a run folder", "fix the extras, or pass --run and --data")):
+    for key, valid, wanted, hint in (
+        ("frame", FRAMES, "gltf or dataset", "pass --frame gltf or --frame dataset"),
+        ("variant", VARIANT_NAMES, "a variant's name", "fix the extras or re-export the file"),
+        ("run", None, "a run folder", "fix the extras, or pass --run and --data"),
+    ):
         value = extras.get(key)
-        if value is not None and (not isinstance(value, str) or not value or "\0" in value or valid is not None and value not in valid):
+        if value is not None and (
+            not isinstance(value, str) or not value or "\0" in value or valid is not None and value not in valid
+        ):
             raise file_error(path, f"asset.extras.matspray.{key} is {json.dumps(value)[:60]}, not {wanted}", hint)
     frame = frame or extras.get("frame") or "gltf"
     if frame == "dataset":  # bring the file into glTF's frame, which the reader maps to the dataset's world
-        asset = replace(asset, primitives=[replace(p, positions=transform_points(GLTF_FROM_DATASET, p.positions),
-                                                   normals=None if p.normals is None else transform_directions(GLTF_FROM_DATASET, p.normals))
-                                           for p in asset.primitives])
+        asset = replace(
+            asset,
+            primitives=[
+                replace(
+                    p,
+                    positions=transform_points(GLTF_FROM_DATASET, p.positions),
+                    normals=None if p.normals is None else transform_directions(GLTF_FROM_DATASET, p.normals),
+                )
+                for p in asset.primitives
+            ],
+        )
     parts, textures, _ = asset_parts(asset, placement="keep")
     return parts, textures, extras
 
 
-def mesh_renders(parts, textures, views: list[View], envs: dict[str, np.ndarray], spp: int, progress: bool = True) -> list[ViewRenders]:
+def mesh_renders(
+    parts, textures, views: list[View], envs: dict[str, np.ndarray], spp: int, progress: bool = True
+) -> list[ViewRenders]:
     """Mitsuba's path-traced renders of the mesh under each light [H, 2H, 3] and its ray-cast material maps."""
     select_variant()
     bar = tqdm(total=len(views) * (len(envs) + 1), desc="eval --glb", unit="render", disable=not progress)
@@ -85,8 +107,16 @@ def mesh_renders(parts, textures, views: list[View], envs: dict[str, np.ndarray]
             relit[index][env] = torch.from_numpy(rgb)
             bar.update()
     bar.close()
-    return [ViewRenders(r, torch.from_numpy(m.base_color).clamp(0, 1), torch.from_numpy(m.roughness).clamp(0, 1),
-                        torch.from_numpy(m.metallic).clamp(0, 1), a) for r, m, a in zip(relit, maps, alphas)]
+    return [
+        ViewRenders(
+            r,
+            torch.from_numpy(m.base_color).clamp(0, 1),
+            torch.from_numpy(m.roughness).clamp(0, 1),
+            torch.from_numpy(m.metallic).clamp(0, 1),
+            a,
+        )
+        for r, m, a in zip(relit, maps, alphas)
+    ]
 
 
 def dataset_spp(data: Path) -> int:
@@ -95,8 +125,19 @@ def dataset_spp(data: Path) -> int:
     return int(settings.get("spp", DEFAULT_SPP)) if isinstance(settings, dict) else DEFAULT_SPP
 
 
-def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: str | None = None, lpips_weights=None,
-                 spp: int | None = None, out=None, progress: bool = True, device="cpu", backend: str = "torch") -> dict:
+def evaluate_glb(
+    glb,
+    data=None,
+    run=None,
+    variant: str | None = None,
+    frame: str | None = None,
+    lpips_weights=None,
+    spp: int | None = None,
+    out=None,
+    progress: bool = True,
+    device="cpu",
+    backend: str = "torch",
+) -> dict:
     """Score `glb` (and the Gaussian asset it came from, when its run is found) on the dataset's test
     views; writes metrics.json, tables.md and report.html into `out` (default FILE_eval/ beside it). Mitsuba
     renders the mesh; the Gaussian asset renders on `device` with the rasterizer `backend` (both resolved)."""
@@ -104,7 +145,11 @@ def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: st
     if not glb.is_file():
         raise ConfigError(f"{glb}: no such file; make one with `matspray export`")
     parts, textures, extras = read_glb_parts(glb, frame)
-    run = Path(run) if run is not None else (Path(extras["run"]) if extras.get("run") and Path(extras["run"], "dataset.json").exists() else None)
+    run = (
+        Path(run)
+        if run is not None
+        else (Path(extras["run"]) if extras.get("run") and Path(extras["run"], "dataset.json").exists() else None)
+    )
     variant = variant or extras.get("variant", "full")
     if data is None:
         if run is None:
@@ -117,14 +162,23 @@ def evaluate_glb(glb, data=None, run=None, variant: str | None = None, frame: st
     truths = [read_view_truth(v) for v in views]
     env_names = sorted(set.intersection(*(set(relight_env_names(v)) for v in views)))
     if not env_names:
-        raise ConfigError(f"{data}: no relit ground truth (test/*_relight_*.png): make the object with `matspray synth`")
+        raise ConfigError(
+            f"{data}: no relit ground truth (test/*_relight_*.png): make the object with `matspray synth`"
+        )
     envs = {name: read_image(data / "envmaps" / f"{name}.exr")[0].numpy() for name in env_names}
     lpips, lpips_source = load_lpips(lpips_weights)
     start = time.perf_counter()
     renders = mesh_renders(parts, textures, views, envs, spp or dataset_spp(data), progress)
-    metrics = {"glb": str(glb), "data": str(data), "lpips": lpips_source, "relight_envs": env_names, "frame": frame or extras.get("frame") or "gltf",
-               "faces": int(sum(len(p.faces) for p in parts)), "render_seconds": round(time.perf_counter() - start, 2),
-               "mesh": score_renders(renders, views, truths, env_names, lpips)}
+    metrics = {
+        "glb": str(glb),
+        "data": str(data),
+        "lpips": lpips_source,
+        "relight_envs": env_names,
+        "frame": frame or extras.get("frame") or "gltf",
+        "faces": int(sum(len(p.faces) for p in parts)),
+        "render_seconds": round(time.perf_counter() - start, 2),
+        "mesh": score_renders(renders, views, truths, env_names, lpips),
+    }
     gaussian_renders = None
     if run is not None and (run / asset_stage(variant) / "asset.ply").exists():
         asset = read_asset(run / asset_stage(variant), device=device)
@@ -145,8 +199,13 @@ def glb_tables(metrics: dict) -> str:
     methods = {"Mesh (Mitsuba)": metrics["mesh"]["summary"]}
     if "gaussians" in metrics:
         methods = {"Gaussians": metrics["gaussians"]["summary"], **methods}
-    lines = [f"# Exported mesh: {Path(metrics['glb']).name} ({metrics['faces']} faces)", "",
-             f"Held-out lights: {', '.join(metrics['relight_envs'])}; LPIPS: {metrics['lpips']}.", "", material_table(methods)]
+    lines = [
+        f"# Exported mesh: {Path(metrics['glb']).name} ({metrics['faces']} faces)",
+        "",
+        f"Held-out lights: {', '.join(metrics['relight_envs'])}; LPIPS: {metrics['lpips']}.",
+        "",
+        material_table(methods),
+    ]
     if "gaussians" in metrics:
         lines += ["", relighting_gap_line(metrics["gaussians"]["summary"], metrics["mesh"]["summary"])]
     return "\n".join(lines) + "\n"
@@ -164,23 +223,44 @@ def relighting_gap_line(gaussians: dict, mesh: dict) -> str:
     return f"Relighting PSNR of the mesh is below the Gaussian asset's by {' and '.join(parts)} (negative: above)."
 
 
-def write_glb_report(out: Path, metrics: dict, tables: str, views: list[View], truths: list[GroundTruth],
-                     mesh: list[ViewRenders], gaussians: list[ViewRenders] | None) -> Path:
+def write_glb_report(
+    out: Path,
+    metrics: dict,
+    tables: str,
+    views: list[View],
+    truths: list[GroundTruth],
+    mesh: list[ViewRenders],
+    gaussians: list[ViewRenders] | None,
+) -> Path:
     """report.html: per test view and light, the truth, the Gaussian asset and the mesh side by side."""
     figures = Figures(out / "report")
-    sections = [f"<h1>Exported mesh: {html.escape(Path(metrics['glb']).name)}</h1>",
-                "<p><i>Truth</i>: Mitsuba's render of the true object. <i>Gaussians</i>: the asset, split-sum shaded. "
-                "<i>Mesh</i>: the exported glTF file, path traced by Mitsuba exactly like the truth.</p>"]
+    sections = [
+        f"<h1>Exported mesh: {html.escape(Path(metrics['glb']).name)}</h1>",
+        "<p><i>Truth</i>: Mitsuba's render of the true object. <i>Gaussians</i>: the asset, split-sum shaded. "
+        "<i>Mesh</i>: the exported glTF file, path traced by Mitsuba exactly like the truth.</p>",
+    ]
     for index, (view, truth) in enumerate(list(zip(views, truths))[:REPORT_VIEWS]):
         sections.append(f"<h2>Test view {html.escape(view.name)}</h2>")
         for env in metrics["relight_envs"]:
             cells = [figures.image(f"{view.name}_{env}_truth", truth.relit[env], f"truth, {env}", truth.mask)]
             if gaussians is not None:
-                cells.append(figures.image(f"{view.name}_{env}_gaussians", gaussians[index].relit[env], f"Gaussians, {env}", gaussians[index].alpha))
-            cells.append(figures.image(f"{view.name}_{env}_mesh", mesh[index].relit[env], f"mesh, {env}", mesh[index].alpha))
+                cells.append(
+                    figures.image(
+                        f"{view.name}_{env}_gaussians",
+                        gaussians[index].relit[env],
+                        f"Gaussians, {env}",
+                        gaussians[index].alpha,
+                    )
+                )
+            cells.append(
+                figures.image(f"{view.name}_{env}_mesh", mesh[index].relit[env], f"mesh, {env}", mesh[index].alpha)
+            )
             sections.append("<div>" + "".join(cells) + "</div>")
     sections.append(markdown_to_html(tables))
-    page = f"<!doctype html><html><head><meta charset='utf-8'><title>MatSpray export</title><style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
+    page = (
+        "<!doctype html><html><head><meta charset='utf-8'><title>MatSpray export</title>"
+        f"<style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
+    )
     path = out / "report.html"
     write_text_atomic(path, page)
     return path

@@ -44,6 +44,7 @@ ENV_HEIGHT = 64  # rows of the prefiltered estimated light
 @dataclass
 class PhotoRenders:
     """What a run makes of one photo's camera: linear RGB [H, W, 3] per render (radiance, variants)."""
+
     view: View
     mask: Tensor  # [H, W] in [0, 1]: the object
     renders: dict[str, Tensor]
@@ -56,8 +57,11 @@ def view_masks(run: RunDir, views: list[View], split: str) -> dict[str, Tensor]:
         return {v.name: masks[v.name].float() for v in views}
     missing = [v.name for v in views if v.alpha is None]
     if missing:
-        raise RunError(f"{run.root}: views {', '.join(missing[:3])} have no object mask (no masks stage and no alpha in the dataset); "
-                       "rerun `matspray run` on this run folder")
+        raise RunError(
+            f"{run.root}: views {', '.join(missing[:3])} have no object mask (no masks stage and no "
+            "alpha in the dataset); "
+            "rerun `matspray run` on this run folder"
+        )
     return {v.name: v.alpha.float() for v in views}
 
 
@@ -74,6 +78,7 @@ def estimated_lights(run: RunDir, variants: list[str], device) -> dict:
 @dataclass
 class RunRenderables:
     """What a run renders photos with, read once: the geometry, each variant's asset and its estimated light."""
+
     gaussians: object  # Gaussians
     assets: dict  # variant -> Asset
     lights: dict  # variant -> PrefilteredEnvironment (variants that estimated one)
@@ -82,37 +87,58 @@ class RunRenderables:
 def read_renderables(run: RunDir, device="cpu") -> RunRenderables:
     geometry_ply = run.path("geometry", "gaussians.ply")
     if not geometry_ply.exists():
-        raise RunError(f"{run.root}: no Gaussian Splatting geometry (geometry/gaussians.ply); make it with `matspray run`")
+        raise RunError(
+            f"{run.root}: no Gaussian Splatting geometry (geometry/gaussians.ply); make it with `matspray run`"
+        )
     variants = run.asset_variants()
-    return RunRenderables(read_ply(geometry_ply)[0].to(device), {v: read_asset(run.path(asset_stage(v)), device=device) for v in variants},
-                          estimated_lights(run, variants, device))
+    return RunRenderables(
+        read_ply(geometry_ply)[0].to(device),
+        {v: read_asset(run.path(asset_stage(v)), device=device) for v in variants},
+        estimated_lights(run, variants, device),
+    )
 
 
-def photo_renders(run: RunDir, views: list[View], split: str, device="cpu", backend: str = "torch",
-                  progress: bool = True, renderables: RunRenderables | None = None) -> list[PhotoRenders]:
+def photo_renders(
+    run: RunDir,
+    views: list[View],
+    split: str,
+    device="cpu",
+    backend: str = "torch",
+    progress: bool = True,
+    renderables: RunRenderables | None = None,
+) -> list[PhotoRenders]:
     """Render every view's camera with the geometry and with each asset under its own estimated light
     (`renderables`: the run's, read here when not given)."""
     loaded = renderables or read_renderables(run, device)
     masks = view_masks(run, views, split)
     result = []
     with rendering_with(backend), torch.no_grad():
-        for view in tqdm(views, desc=f"held-out photos ({split})" if split == "test" else f"photos ({split})", disable=not progress):
+        for view in tqdm(
+            views, desc=f"held-out photos ({split})" if split == "test" else f"photos ({split})", disable=not progress
+        ):
             camera = view.camera.to(device)
-            renders = {RADIANCE: srgb_to_linear(render_view(loaded.gaussians, camera).rgb.clamp(0, 1)).cpu()}  # its SH colours are sRGB
+            renders = {
+                RADIANCE: srgb_to_linear(render_view(loaded.gaussians, camera).rgb.clamp(0, 1)).cpu()
+            }  # its SH colours are sRGB
             for variant, light in loaded.lights.items():
                 rgb, alpha = render_relit(loaded.assets[variant], camera, light)
-                renders[variant] = (rgb / alpha[..., None].clamp_min(1e-4)).cpu()  # unpremultiplied: scored inside the mask
+                renders[variant] = (
+                    rgb / alpha[..., None].clamp_min(1e-4)
+                ).cpu()  # unpremultiplied: scored inside the mask
             result.append(PhotoRenders(view, masks[view.name], renders))
     return result
 
 
 def score_photos(rendered: list[PhotoRenders], lpips) -> dict:
-    """PSNR / SSIM / LPIPS inside the object mask per render (mean over views, and per view), and each mask's coverage."""
+    """PSNR / SSIM / LPIPS inside the object mask per render (mean over views, and per view),
+    and each mask's coverage."""
     per_view, records = [], {}
     for item in rendered:
         if float(item.mask.sum()) < 1.0:
-            raise DataError(f"view {item.view.name}: its object mask is empty, so the object cannot be scored there; "
-                            "check the object region (setting object_bounds) in the run's report")
+            raise DataError(
+                f"view {item.view.name}: its object mask is empty, so the object cannot be scored there; "
+                "check the object region (setting object_bounds) in the run's report"
+            )
         record = {"view": item.view.name, "mask_coverage": float(item.mask.mean())}
         for key, rgb in item.renders.items():
             record[key] = evaluate_images(rgb, item.view.image, item.mask, lpips)
@@ -120,17 +146,30 @@ def score_photos(rendered: list[PhotoRenders], lpips) -> dict:
         per_view.append(record)
     coverage = [r["mask_coverage"] for r in per_view]
     summary = {key: average_metrics(values) for key, values in records.items()}
-    return {"summary": summary, "per_view": per_view, "views": len(per_view),
-            "mask_coverage": {"mean": sum(coverage) / len(coverage), "min": min(coverage), "max": max(coverage)}}
+    return {
+        "summary": summary,
+        "per_view": per_view,
+        "views": len(per_view),
+        "mask_coverage": {"mean": sum(coverage) / len(coverage), "min": min(coverage), "max": max(coverage)},
+    }
 
 
 def has_ground_truth(scene) -> bool:
-    """Whether the dataset's test views have true material maps (a `matspray synth` object), as `matspray eval` scores."""
+    """Whether the dataset's test views have true material maps (a `matspray synth` object),
+    as `matspray eval` scores."""
     return bool(scene.test) and all(v.path.with_name(f"{v.name}_basecolor.png").exists() for v in scene.test)
 
 
-def evaluate_capture(run_dir, data=None, lpips_weights=None, device="cpu", backend: str = "torch", progress: bool = True,
-                     train_views: int = 8, scene=None) -> dict:
+def evaluate_capture(
+    run_dir,
+    data=None,
+    lpips_weights=None,
+    device="cpu",
+    backend: str = "torch",
+    progress: bool = True,
+    train_views: int = 8,
+    scene=None,
+) -> dict:
     """Score a run on its capture's held-out photos (and on up to `train_views` training photos); writes
     eval/heldout.json and returns the metrics."""
     run = RunDir(run_dir).require()
@@ -140,24 +179,34 @@ def evaluate_capture(run_dir, data=None, lpips_weights=None, device="cpu", backe
     if [v.name for v in scene.train] != identity["train_views"]:
         raise DataError(f"{run.root}: this run was made from {identity['source']}, not from {scene.source}")
     if not scene.test:
-        raise DataError(f"{identity['source']}: no held-out views (every photo was trained on); "
-                        "a capture without split lists holds out every 8th frame: give it 8 or more photos")
+        raise DataError(
+            f"{identity['source']}: no held-out views (every photo was trained on); "
+            "a capture without split lists holds out every 8th frame: give it 8 or more photos"
+        )
     lpips, lpips_source = load_lpips(lpips_weights)
     loaded = read_renderables(run, device)
     stride = max(1, len(scene.train) // max(1, train_views))
-    metrics = {"title": f"MatSpray on a capture without ground truth: {identity['source']}", "lpips": lpips_source,
-               "region": "inside the object mask (both images composited on white with it)",
-               "heldout": score_photos(photo_renders(run, scene.test, "test", device, backend, progress, loaded), lpips),
-               "train": score_photos(photo_renders(run, scene.train[::stride][:train_views], "train", device, backend, progress, loaded),
-                                     lpips)}
+    metrics = {
+        "title": f"MatSpray on a capture without ground truth: {identity['source']}",
+        "lpips": lpips_source,
+        "region": "inside the object mask (both images composited on white with it)",
+        "heldout": score_photos(photo_renders(run, scene.test, "test", device, backend, progress, loaded), lpips),
+        "train": score_photos(
+            photo_renders(run, scene.train[::stride][:train_views], "train", device, backend, progress, loaded), lpips
+        ),
+    }
     write_json(run.path("eval", "heldout.json"), metrics)
     return metrics
 
 
 def heldout_table(metrics: dict) -> str:
     """Markdown: PSNR / SSIM / LPIPS of every render on held-out and training photos, and the masks' coverage."""
-    lines = [f"Scored {metrics['region']}.", "",
-             "| render | held-out PSNR | SSIM | LPIPS | training PSNR |", "| --- | ---: | ---: | ---: | ---: |"]
+    lines = [
+        f"Scored {metrics['region']}.",
+        "",
+        "| render | held-out PSNR | SSIM | LPIPS | training PSNR |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
     held, train = metrics["heldout"]["summary"], metrics["train"]["summary"]
 
     def number(value, digits):
@@ -165,11 +214,17 @@ def heldout_table(metrics: dict) -> str:
 
     for key in held:
         label = "geometry (3DGS colours)" if key == RADIANCE else f"{key} asset, its estimated light"
-        lines.append(f"| {label} | {number(held[key]['psnr'], 2)} | {number(held[key]['ssim'], 3)} | {number(held[key]['lpips'], 3)} "
-                     f"| {number(train.get(key, {}).get('psnr'), 2)} |")
+        lines.append(
+            f"| {label} | {number(held[key]['psnr'], 2)} | {number(held[key]['ssim'], 3)} | "
+            f"{number(held[key]['lpips'], 3)} "
+            f"| {number(train.get(key, {}).get('psnr'), 2)} |"
+        )
     cover = metrics["heldout"]["mask_coverage"]
-    lines += ["", f"{metrics['heldout']['views']} held-out views; the object mask covers {100 * cover['mean']:.1f}% of a view on "
-              f"average ({100 * cover['min']:.1f}% to {100 * cover['max']:.1f}%)."]
+    lines += [
+        "",
+        f"{metrics['heldout']['views']} held-out views; the object mask covers {100 * cover['mean']:.1f}% of a view on "
+        f"average ({100 * cover['min']:.1f}% to {100 * cover['max']:.1f}%).",
+    ]
     return "\n".join(lines) + "\n"
 
 

@@ -1,10 +1,10 @@
 """How good an estimated environment light is, against the true training light of a synthetic object.
 
-  tv_ratio                total variation of the estimate's log radiance over the truth's, the truth
-                          first area-resampled to the estimate's size (1: as smooth as the real light;
-                          a noisy estimate is several times rougher)
-  irradiance_correlation  Pearson's r of the two lights' order-2 spherical-harmonic irradiance (what
-                          diffuse shading sees; 1: the same up to a scale)
+tv_ratio                total variation of the estimate's log radiance over the truth's, the truth
+                        first area-resampled to the estimate's size (1: as smooth as the real light;
+                        a noisy estimate is several times rougher)
+irradiance_correlation  Pearson's r of the two lights' order-2 spherical-harmonic irradiance (what
+                        diffuse shading sees; 1: the same up to a scale)
 """
 
 from __future__ import annotations
@@ -23,12 +23,17 @@ def light_figures(estimate: Tensor, truth: Tensor) -> dict:  # [h, 2h, 3], [H, 2
     truth_at_size = downsample_latlong(truth.double(), estimate.shape[0])
     tv_estimate = float(total_variation(estimate.double().clamp_min(MIN_RADIANCE).log()))
     tv_truth = float(total_variation(truth_at_size.clamp_min(MIN_RADIANCE).log()))
-    return {"tv_estimate": tv_estimate, "tv_truth": tv_truth, "tv_ratio": tv_estimate / max(tv_truth, 1e-12),
-            "irradiance_correlation": irradiance_correlation(estimate, truth)}
+    return {
+        "tv_estimate": tv_estimate,
+        "tv_truth": tv_truth,
+        "tv_ratio": tv_estimate / max(tv_truth, 1e-12),
+        "irradiance_correlation": irradiance_correlation(estimate, truth),
+    }
 
 
 def training_light_path(data) -> Path | None:
-    """The file of the training light of a `matspray synth` object (named in its scene.json), or None for other datasets."""
+    """The file of the training light of a `matspray synth` object (named in its scene.json),
+    or None for other datasets."""
     lights = (read_scene_json(Path(data)) or {}).get("lights")
     name = lights.get("train") if isinstance(lights, dict) else None
     if not isinstance(name, str):

@@ -72,7 +72,9 @@ class LPIPS(nn.Module):
             self.register_buffer(f"kernel{i}", kernel.float())
             self.register_buffer(f"bias{i}", bias.float())
             self.register_buffer(f"head{i}", head.float())
-        self.register_buffer("shift", torch.tensor(INPUT_SHIFT, device="cpu").view(1, 3, 1, 1))  # built on the host, moved by distance()
+        self.register_buffer(
+            "shift", torch.tensor(INPUT_SHIFT, device="cpu").view(1, 3, 1, 1)
+        )  # built on the host, moved by distance()
         self.register_buffer("scale", torch.tensor(INPUT_SCALE, device="cpu").view(1, 3, 1, 1))
         self.source = source
 

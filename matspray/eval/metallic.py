@@ -50,8 +50,10 @@ def object_metallic_psnr(pred, target, mask) -> float:
     pred, target = _as_views(pred, "pred"), _as_views(target, "target")
     weights = _as_views(mask, "mask")[..., 0]
     if pred.shape != target.shape or weights.shape != pred.shape[:-1]:
-        raise DataError(f"pred {list(pred.shape[:-1])}, target {list(target.shape[:-1])} and mask "
-                        f"{list(weights.shape)} must have the same shape")
+        raise DataError(
+            f"pred {list(pred.shape[:-1])}, target {list(target.shape[:-1])} and mask "
+            f"{list(weights.shape)} must have the same shape"
+        )
     for name, values in (("pred", pred), ("target", target)):
         if not torch.isfinite(values).all() or float(values.min()) < 0.0 or float(values.max()) > 1.0:
             raise DataError(f"{name}: metallic values must be finite and in [0, 1]")

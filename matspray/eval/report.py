@@ -29,9 +29,11 @@ MAX_VIEWS = 3
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
 h1 { font-size: 1.6em; } h2 { margin-top: 2em; border-bottom: 1px solid #ccc; }
-table { border-collapse: collapse; margin: 0.5em 0 1.5em; } td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: center; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; } \
+td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: center; }
 figure { display: inline-block; margin: 4px; text-align: center; } figcaption { font-size: 0.8em; color: #555; }
-img { image-rendering: pixelated; width: 160px; background: repeating-conic-gradient(#ddd 0% 25%, #fff 0% 50%) 50% / 16px 16px; }
+img { image-rendering: pixelated; width: 160px; \
+background: repeating-conic-gradient(#ddd 0% 25%, #fff 0% 50%) 50% / 16px 16px; }
 img.env { width: 320px; } .warn { background: #fff3cd; padding: 0.6em; border: 1px solid #e0c060; }
 """
 
@@ -43,8 +45,13 @@ def markdown_to_html(text: str) -> str:
     def flush_table():
         if rows:
             head, body = rows[0], [r for r in rows[2:]]
-            out.append("<table><tr>" + "".join(f"<th>{inline(c)}</th>" for c in head) + "</tr>"
-                       + "".join("<tr>" + "".join(f"<td>{inline(c)}</td>" for c in r) + "</tr>" for r in body) + "</table>")
+            out.append(
+                "<table><tr>"
+                + "".join(f"<th>{inline(c)}</th>" for c in head)
+                + "</tr>"
+                + "".join("<tr>" + "".join(f"<td>{inline(c)}</td>" for c in r) + "</tr>" for r in body)
+                + "</table>"
+            )
             rows.clear()
 
     def inline(cell: str) -> str:
@@ -85,15 +92,23 @@ def loss_curves_svg(histories: dict[str, list[dict]], width: int = 520, height: 
     max_step = max(p[0] for _, pts in series for p in pts)
     logs = [math.log10(p[1]) for _, pts in series for p in pts]
     lo, hi = min(logs), max(logs) + 1e-9
-    parts = [f'<svg width="{width}" height="{height + 20 * len(series)}" xmlns="http://www.w3.org/2000/svg">',
-             f'<rect x="40" y="5" width="{width - 50}" height="{height - 30}" fill="none" stroke="#999"/>',
-             f'<text x="0" y="15" font-size="10">{10 ** hi:.3g}</text><text x="0" y="{height - 25}" font-size="10">{10 ** lo:.3g}</text>',
-             f'<text x="{width - 60}" y="{height - 10}" font-size="10">step {max_step}</text>']
+    parts = [
+        f'<svg width="{width}" height="{height + 20 * len(series)}" xmlns="http://www.w3.org/2000/svg">',
+        f'<rect x="40" y="5" width="{width - 50}" height="{height - 30}" fill="none" stroke="#999"/>',
+        f'<text x="0" y="15" font-size="10">{10**hi:.3g}</text><text x="0" y="{height - 25}" '
+        f'font-size="10">{10**lo:.3g}</text>',
+        f'<text x="{width - 60}" y="{height - 10}" font-size="10">step {max_step}</text>',
+    ]
     for i, (label, points) in enumerate(series):
         color = colors[i % len(colors)]
-        coords = " ".join(f"{40 + (width - 50) * s / max_step:.1f},{5 + (height - 30) * (hi - math.log10(v)) / (hi - lo):.1f}" for s, v in points)
+        coords = " ".join(
+            f"{40 + (width - 50) * s / max_step:.1f},{5 + (height - 30) * (hi - math.log10(v)) / (hi - lo):.1f}"
+            for s, v in points
+        )
         parts.append(f'<polyline fill="none" stroke="{color}" stroke-width="1.2" points="{coords}"/>')
-        parts.append(f'<text x="45" y="{height + 12 + 20 * i}" font-size="12" fill="{color}">{html.escape(label)}</text>')
+        parts.append(
+            f'<text x="45" y="{height + 12 + 20 * i}" font-size="12" fill="{color}">{html.escape(label)}</text>'
+        )
     parts.append("</svg>")
     return "\n".join(parts)
 
@@ -105,9 +120,16 @@ class Figures:
         self.folder = folder
         folder.mkdir(parents=True, exist_ok=True)
 
-    def image(self, name: str, rgb: torch.Tensor, caption: str, alpha: torch.Tensor | None = None, css: str = "") -> str:
-        write_image(self.folder / f"{name}.png", rgb.detach().float().cpu().clamp_min(0), None if alpha is None else alpha.cpu())
-        return f'<figure><img class="{css}" src="report/{name}.png" alt="{html.escape(caption)}"><figcaption>{html.escape(caption)}</figcaption></figure>'
+    def image(
+        self, name: str, rgb: torch.Tensor, caption: str, alpha: torch.Tensor | None = None, css: str = ""
+    ) -> str:
+        write_image(
+            self.folder / f"{name}.png", rgb.detach().float().cpu().clamp_min(0), None if alpha is None else alpha.cpu()
+        )
+        return (
+            f'<figure><img class="{css}" src="report/{name}.png" alt="{html.escape(caption)}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+        )
 
     def scalar(self, name: str, values: torch.Tensor, caption: str, alpha: torch.Tensor | None = None) -> str:
         # scalar maps are shown as they are stored (linear values): undo the sRGB encoding of write_image
@@ -124,15 +146,21 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
     sections = [f"<h1>MatSpray result: {html.escape(data.name)}</h1>"]
     info = read_predictor_info(run_dir) if (run_dir / "materials2d" / "predictor.json").exists() else {}
     if info.get("simulated"):
-        sections.append('<p class="warn">The 2D material maps of this run are <b>SIMULATED</b> from the ground truth '
-                        "(a benchmark of the method, not a real diffusion model's output).</p>")
-    sections.append("<p>Each row shows one test view. <i>Ground truth</i> is Mitsuba 3's path-traced render of the "
-                    "true object; <i>ours</i> is the reconstructed asset shaded by split-sum image-based lighting. "
-                    "Lights marked relit were never seen during training.</p>")
+        sections.append(
+            '<p class="warn">The 2D material maps of this run are <b>SIMULATED</b> from the ground truth '
+            "(a benchmark of the method, not a real diffusion model's output).</p>"
+        )
+    sections.append(
+        "<p>Each row shows one test view. <i>Ground truth</i> is Mitsuba 3's path-traced render of the "
+        "true object; <i>ours</i> is the reconstructed asset shaded by split-sum image-based lighting. "
+        "Lights marked relit were never seen during training.</p>"
+    )
     assets = {v: read_asset(run_dir / asset_stage(v)) for v in run.asset_variants()}
     views: list[View] = scene.test[:MAX_VIEWS]
     env_names = metrics.get("relight_envs", [])
-    lights = {name: EnvironmentMap.from_file(data / "envmaps" / f"{name}.exr", height=64).prefilter() for name in env_names}
+    lights = {
+        name: EnvironmentMap.from_file(data / "envmaps" / f"{name}.exr", height=64).prefilter() for name in env_names
+    }
     test_predictions, _ = predict_test_views(run_dir, views)  # the baseline of Table 1, None when it cannot run here
     for view in views:
         truth = read_view_truth(view)
@@ -142,41 +170,73 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
             for variant, asset in assets.items():
                 gbuffer = render_gbuffer(asset, view.camera, lights[env])
                 rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, lights[env]), gbuffer.alpha)
-                cells.append(figures.image(f"{view.name}_{env}_{variant}", rgb, f"{LABELS[variant]}, {env}", gbuffer.alpha))
+                cells.append(
+                    figures.image(f"{view.name}_{env}_{variant}", rgb, f"{LABELS[variant]}, {env}", gbuffer.alpha)
+                )
             rows.append("<div>" + "".join(cells) + "</div>")
         if "full" in assets:
             gbuffer = render_gbuffer(assets["full"], view.camera)
             normals = torch.nn.functional.normalize(gbuffer.normals, dim=-1) * 0.5 + 0.5
             gt_normal_path = view.path.with_name(f"{view.name}_normal.exr")
-            cells = [figures.image(f"{view.name}_basecolor_ours", gbuffer.base_color, "base color, ours", gbuffer.alpha),
-                     figures.image(f"{view.name}_basecolor_gt", truth.basecolor, "base color, truth", truth.mask),
-                     figures.scalar(f"{view.name}_roughness_ours", gbuffer.roughness, "roughness, ours", gbuffer.alpha),
-                     figures.scalar(f"{view.name}_roughness_gt", truth.roughness, "roughness, truth", truth.mask),
-                     figures.scalar(f"{view.name}_metallic_ours", gbuffer.metallic, "metallic, ours", gbuffer.alpha),
-                     figures.scalar(f"{view.name}_metallic_gt", truth.metallic, "metallic, truth", truth.mask),
-                     figures.image(f"{view.name}_normal_ours", _srgb_inverse(normals), "normals, ours", gbuffer.alpha)]
+            cells = [
+                figures.image(f"{view.name}_basecolor_ours", gbuffer.base_color, "base color, ours", gbuffer.alpha),
+                figures.image(f"{view.name}_basecolor_gt", truth.basecolor, "base color, truth", truth.mask),
+                figures.scalar(f"{view.name}_roughness_ours", gbuffer.roughness, "roughness, ours", gbuffer.alpha),
+                figures.scalar(f"{view.name}_roughness_gt", truth.roughness, "roughness, truth", truth.mask),
+                figures.scalar(f"{view.name}_metallic_ours", gbuffer.metallic, "metallic, ours", gbuffer.alpha),
+                figures.scalar(f"{view.name}_metallic_gt", truth.metallic, "metallic, truth", truth.mask),
+                figures.image(f"{view.name}_normal_ours", _srgb_inverse(normals), "normals, ours", gbuffer.alpha),
+            ]
             if test_predictions is not None:
                 m = test_predictions[view.name]
-                cells[2:2] = [figures.image(f"pred2d_test_{view.name}_basecolor", m.basecolor, "base color, 2D prediction", truth.mask)]
-                cells[5:5] = [figures.scalar(f"pred2d_test_{view.name}_roughness", m.roughness, "roughness, 2D prediction", truth.mask)]
-                cells[8:8] = [figures.scalar(f"pred2d_test_{view.name}_metallic", m.metallic, "metallic, 2D prediction", truth.mask)]
+                cells[2:2] = [
+                    figures.image(
+                        f"pred2d_test_{view.name}_basecolor", m.basecolor, "base color, 2D prediction", truth.mask
+                    )
+                ]
+                cells[5:5] = [
+                    figures.scalar(
+                        f"pred2d_test_{view.name}_roughness", m.roughness, "roughness, 2D prediction", truth.mask
+                    )
+                ]
+                cells[8:8] = [
+                    figures.scalar(
+                        f"pred2d_test_{view.name}_metallic", m.metallic, "metallic, 2D prediction", truth.mask
+                    )
+                ]
             if gt_normal_path.exists():
                 gt_normals, _ = read_image(gt_normal_path)
-                cells.append(figures.image(f"{view.name}_normal_gt", _srgb_inverse(gt_normals * 0.5 + 0.5), "normals, truth", truth.mask))
+                cells.append(
+                    figures.image(
+                        f"{view.name}_normal_gt", _srgb_inverse(gt_normals * 0.5 + 0.5), "normals, truth", truth.mask
+                    )
+                )
             rows.append("<div>" + "".join(cells) + "</div>")
         sections += rows
     if (run_dir / "masks" / "masks.pt").exists():
-        sections.append(object_masks_section(read_object_masks(run_dir / "masks"), scene.train[:MAX_VIEWS], figures, metrics.get("masks")))
+        sections.append(
+            object_masks_section(
+                read_object_masks(run_dir / "masks"), scene.train[:MAX_VIEWS], figures, metrics.get("masks")
+            )
+        )
     # the 2D predictions the method started from (training views: those are the ones it saw)
     if (run_dir / "materials2d").is_dir():
         train_maps = read_materials2d(run_dir, scene.train[:MAX_VIEWS])
         cells = []
         for view in scene.train[:MAX_VIEWS]:
             m = train_maps[view.name]
-            cells.append(figures.image(f"pred2d_{view.name}_basecolor", m.basecolor, f"2D base color, {view.name}", view.alpha))
-            cells.append(figures.scalar(f"pred2d_{view.name}_roughness", m.roughness, f"2D roughness, {view.name}", view.alpha))
-            cells.append(figures.scalar(f"pred2d_{view.name}_metallic", m.metallic, f"2D metallic, {view.name}", view.alpha))
-        sections.append("<h2>2D material predictions (input of the method, training views)</h2><div>" + "".join(cells) + "</div>")
+            cells.append(
+                figures.image(f"pred2d_{view.name}_basecolor", m.basecolor, f"2D base color, {view.name}", view.alpha)
+            )
+            cells.append(
+                figures.scalar(f"pred2d_{view.name}_roughness", m.roughness, f"2D roughness, {view.name}", view.alpha)
+            )
+            cells.append(
+                figures.scalar(f"pred2d_{view.name}_metallic", m.metallic, f"2D metallic, {view.name}", view.alpha)
+            )
+        sections.append(
+            "<h2>2D material predictions (input of the method, training views)</h2><div>" + "".join(cells) + "</div>"
+        )
     # the light
     cells = []
     estimated = run_dir / asset_stage("full") / ENVMAP_FILE
@@ -187,19 +247,41 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
         truth = training_light(data)
         if truth is not None:
             figures_of_light = light_figures(estimate, truth[1])
-            light_note = (f" Estimate against the training light '{html.escape(truth[0])}': total variation of log radiance "
-                          f"{figures_of_light['tv_ratio']:.2f} x the truth's, irradiance correlation {figures_of_light['irradiance_correlation']:.3f}.")
+            light_note = (
+                f" Estimate against the training light '{html.escape(truth[0])}': total variation of log radiance "
+                f"{figures_of_light['tv_ratio']:.2f} x the truth's, "
+                f"irradiance correlation {figures_of_light['irradiance_correlation']:.3f}."
+            )
     for path in sorted((data / "envmaps").glob("*.exr")) if (data / "envmaps").is_dir() else []:
         role = "held-out light" if path.stem in env_names else "training light"
-        cells.append(figures.image(f"envmap_{path.stem}", envmap_preview(EnvironmentMap.from_file(path, height=64).map), f"{role}: {path.stem}", css="env"))
+        cells.append(
+            figures.image(
+                f"envmap_{path.stem}",
+                envmap_preview(EnvironmentMap.from_file(path, height=64).map),
+                f"{role}: {path.stem}",
+                css="env",
+            )
+        )
     if cells:
-        sections.append("<h2>Environment light</h2><p>Tone-mapped lat-long maps (up is the top row). The estimated light "
-                        "is only determined up to what the training views reveal." + light_note + "</p><div>" + "".join(cells) + "</div>")
+        sections.append(
+            "<h2>Environment light</h2><p>Tone-mapped lat-long maps (up is the top row). The estimated light "
+            "is only determined up to what the training views reveal."
+            + light_note
+            + "</p><div>"
+            + "".join(cells)
+            + "</div>"
+        )
     histories = {v: read_history(run_dir / asset_stage(v)) for v in assets}
     sections.append("<h2>Loss curves (refinement)</h2>" + loss_curves_svg({k: v for k, v in histories.items() if v}))
     sections.append(markdown_to_html(tables_markdown(metrics)))
-    sections.append(f"<details><summary>metrics.json</summary><pre>{html.escape(json.dumps(metrics.get('table1', {}), indent=1))}</pre></details>")
-    page = f"<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title><style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
+    sections.append(
+        "<details><summary>metrics.json</summary><pre>"
+        f"{html.escape(json.dumps(metrics.get('table1', {}), indent=1))}</pre></details>"
+    )
+    page = (
+        "<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title>"
+        f"<style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
+    )
     path = run_dir / "report.html"
     write_text_atomic(path, page)
     return path
@@ -210,12 +292,25 @@ def object_masks_section(masks: ObjectMasks, views: list[View], figures: Figures
     cells = []
     for view in views:
         mask = masks.masks["train"][view.name]
-        cells.append(figures.image(f"mask_{view.name}", view.image * (0.25 + 0.75 * mask[..., None]), f"object mask, {view.name}"))
-    iou = "" if agreement is None else (f" Against the true masks of the test views: IoU {agreement['iou_mean']:.3f} on average, "
-                                        f"{agreement['iou_min']:.3f} at worst.")
-    return (f"<h2>Object masks (the capture has none)</h2><p>The object is the {int(masks.inside.sum())} Gaussians inside the "
-            f"{html.escape(masks.region.describe())}; their rendered alpha is each view's mask (dimmed outside).{iou}</p>"
-            "<div>" + "".join(cells) + "</div>")
+        cells.append(
+            figures.image(
+                f"mask_{view.name}", view.image * (0.25 + 0.75 * mask[..., None]), f"object mask, {view.name}"
+            )
+        )
+    iou = (
+        ""
+        if agreement is None
+        else (
+            f" Against the true masks of the test views: IoU {agreement['iou_mean']:.3f} on average, "
+            f"{agreement['iou_min']:.3f} at worst."
+        )
+    )
+    return (
+        f"<h2>Object masks (the capture has none)</h2><p>The object is the {int(masks.inside.sum())} "
+        "Gaussians inside the "
+        f"{html.escape(masks.region.describe())}; their rendered alpha is each view's mask (dimmed outside).{iou}</p>"
+        "<div>" + "".join(cells) + "</div>"
+    )
 
 
 def _srgb_inverse(values: torch.Tensor) -> torch.Tensor:

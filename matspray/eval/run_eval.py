@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-
 from tqdm import tqdm
 
 from matspray.asset import read_asset
@@ -28,16 +27,17 @@ from matspray.eval.lpips import load_lpips
 from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
 from matspray.eval.tables import UNION, write_tables
+from matspray.objectmasks import ObjectMasks, read_object_masks
+from matspray.objectregion import mask_iou
 from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
 from matspray.relight import render_gbuffer
 from matspray.render.backend import rendering_with
 from matspray.render.deferred import shade_gbuffer
 from matspray.render.envmap import EnvironmentMap
-from matspray.objectmasks import ObjectMasks, read_object_masks
-from matspray.objectregion import mask_iou
 from matspray.rundir import RunDir, write_json
 from matspray.variants import ABLATION, BASELINE, LABELS, SOFTMAX_ABLATION, asset_stage
+
 EVAL_ENV_HEIGHT = 64  # relighting maps are prefiltered from this many rows (x 2 columns)
 
 
@@ -52,12 +52,14 @@ class GroundTruth:
 
 def relight_env_names(view: View) -> list[str]:
     prefix = f"{view.name}_relight_"
-    return sorted(p.stem[len(prefix):] for p in view.path.parent.glob(f"{prefix}*.png"))
+    return sorted(p.stem[len(prefix) :] for p in view.path.parent.glob(f"{prefix}*.png"))
 
 
 def read_view_truth(view: View) -> GroundTruth:
     maps = read_ground_truth(view)
-    mask = view.alpha if view.alpha is not None else read_ground_truth_coverage(view)  # a photo without mask: the true one
+    mask = (
+        view.alpha if view.alpha is not None else read_ground_truth_coverage(view)
+    )  # a photo without mask: the true one
     relit = {}
     for env in relight_env_names(view):
         rgb, _ = read_image(view.path.with_name(f"{view.name}_relight_{env}.png"))
@@ -96,22 +98,37 @@ def asset_renders(asset, view: View, lights: dict) -> ViewRenders:
     camera = view.camera.to(asset.gaussians.device)
     with torch.no_grad():
         # with visibility each light casts its own shadows; the material channels are the same in every G-buffer
-        lit = {env: render_gbuffer(asset, camera, light) for env, light in lights.items()} if asset.visibility is not None else {}
+        lit = (
+            {env: render_gbuffer(asset, camera, light) for env, light in lights.items()}
+            if asset.visibility is not None
+            else {}
+        )
         gbuffer = next(iter(lit.values())) if lit else render_gbuffer(asset, camera)
         relit = {}
         for env, light in lights.items():
             shaded = lit.get(env, gbuffer)
             relit[env] = unpremultiply(shade_gbuffer(shaded, camera, light), shaded.alpha).cpu()
-        return ViewRenders(relit, gbuffer.base_color.cpu().clamp(0, 1), gbuffer.roughness.cpu().clamp(0, 1), gbuffer.metallic.cpu().clamp(0, 1),
-                           gbuffer.alpha.cpu())
+        return ViewRenders(
+            relit,
+            gbuffer.base_color.cpu().clamp(0, 1),
+            gbuffer.roughness.cpu().clamp(0, 1),
+            gbuffer.metallic.cpu().clamp(0, 1),
+            gbuffer.alpha.cpu(),
+        )
 
 
-def evaluate_asset(asset, views: list[View], truths: list[GroundTruth], lights: dict, lpips, aligned: bool = False) -> dict:
+def evaluate_asset(
+    asset, views: list[View], truths: list[GroundTruth], lights: dict, lpips, aligned: bool = False
+) -> dict:
     """Per-view and averaged metrics of one asset: relighting (per light and overall) and materials."""
-    return score_renders((asset_renders(asset, view, lights) for view in views), views, truths, list(lights), lpips, aligned)
+    return score_renders(
+        (asset_renders(asset, view, lights) for view in views), views, truths, list(lights), lpips, aligned
+    )
 
 
-def score_renders(renders, views: list[View], truths: list[GroundTruth], env_names: list[str], lpips, aligned: bool = False) -> dict:
+def score_renders(
+    renders, views: list[View], truths: list[GroundTruth], env_names: list[str], lpips, aligned: bool = False
+) -> dict:
     """Per-view and averaged metrics of any renderer's `renders` (one ViewRenders per view) against the truth.
 
     Every figure twice: under its key the object-mask (GT) figure, and under the key + "_union" the
@@ -120,13 +137,19 @@ def score_renders(renders, views: list[View], truths: list[GroundTruth], env_nam
     judged alike at and outside the silhouette.
     """
     per_view = []
-    keys = ("relighting", "basecolor", "roughness", "metallic") + (("relighting_aligned", "basecolor_aligned") if aligned else ())
-    records: dict[str, list] = {key + suffix: [] for key in keys for suffix in ("", UNION)}  # per-image metrics of all views (and lights)
+    keys = ("relighting", "basecolor", "roughness", "metallic") + (
+        ("relighting_aligned", "basecolor_aligned") if aligned else ()
+    )
+    records: dict[str, list] = {
+        key + suffix: [] for key in keys for suffix in ("", UNION)
+    }  # per-image metrics of all views (and lights)
     preds_metal, alphas_metal, truths_metal, masks_metal = [], [], [], []
 
     def both(key: str, pred, target, truth: GroundTruth, alpha, encoding: str = "srgb") -> tuple[dict, dict]:
-        scored = (evaluate_images(pred, target, truth.mask, lpips, encoding=encoding),
-                  evaluate_images(pred, target, truth.mask, lpips, encoding=encoding, pred_alpha=alpha))
+        scored = (
+            evaluate_images(pred, target, truth.mask, lpips, encoding=encoding),
+            evaluate_images(pred, target, truth.mask, lpips, encoding=encoding, pred_alpha=alpha),
+        )
         records[key].append(scored[0])
         records[key + UNION].append(scored[1])
         return scored
@@ -135,15 +158,33 @@ def score_renders(renders, views: list[View], truths: list[GroundTruth], env_nam
         record = {"view": view.name, "relighting": {}, "relighting" + UNION: {}}
         for env in env_names:
             rgb = render.relit[env]
-            record["relighting"][env], record["relighting" + UNION][env] = both("relighting", rgb, truth.relit[env], truth, render.alpha)
+            record["relighting"][env], record["relighting" + UNION][env] = both(
+                "relighting", rgb, truth.relit[env], truth, render.alpha
+            )
             if aligned:
-                both("relighting_aligned", align_scale(rgb, truth.relit[env], truth.mask), truth.relit[env], truth, render.alpha)
+                both(
+                    "relighting_aligned",
+                    align_scale(rgb, truth.relit[env], truth.mask),
+                    truth.relit[env],
+                    truth,
+                    render.alpha,
+                )
         base, rough, metal = render.base_color, render.roughness, render.metallic
         record["basecolor"], record["basecolor" + UNION] = both("basecolor", base, truth.basecolor, truth, render.alpha)
-        record["roughness"], record["roughness" + UNION] = both("roughness", rough[..., None], truth.roughness[..., None], truth, render.alpha, "raw")
-        record["metallic"], record["metallic" + UNION] = both("metallic", metal[..., None], truth.metallic[..., None], truth, render.alpha, "raw")
+        record["roughness"], record["roughness" + UNION] = both(
+            "roughness", rough[..., None], truth.roughness[..., None], truth, render.alpha, "raw"
+        )
+        record["metallic"], record["metallic" + UNION] = both(
+            "metallic", metal[..., None], truth.metallic[..., None], truth, render.alpha, "raw"
+        )
         if aligned:
-            both("basecolor_aligned", align_scale(base, truth.basecolor, truth.mask), truth.basecolor, truth, render.alpha)
+            both(
+                "basecolor_aligned",
+                align_scale(base, truth.basecolor, truth.mask),
+                truth.basecolor,
+                truth,
+                render.alpha,
+            )
         preds_metal.append(metal)
         alphas_metal.append(render.alpha)
         truths_metal.append(truth.metallic)
@@ -151,9 +192,13 @@ def score_renders(renders, views: list[View], truths: list[GroundTruth], env_nam
         per_view.append(record)
     summary = {key: average_metrics(values) for key, values in records.items()}
     # metallic PSNR: pooled over the views with the paper's infinity rule, under both regions
-    metallic = metallic_psnr_over_objects([(torch.stack(preds_metal), torch.stack(truths_metal), torch.stack(masks_metal))])
+    metallic = metallic_psnr_over_objects(
+        [(torch.stack(preds_metal), torch.stack(truths_metal), torch.stack(masks_metal))]
+    )
     metallic_union = pooled_union_psnr(preds_metal, alphas_metal, truths_metal, masks_metal)
-    summary["metallic"].update(psnr=metallic.mean if metallic.mean is not None else math.inf, psnr_infinite=metallic.infinite, objects=1)
+    summary["metallic"].update(
+        psnr=metallic.mean if metallic.mean is not None else math.inf, psnr_infinite=metallic.infinite, objects=1
+    )
     summary["metallic" + UNION].update(psnr=metallic_union, psnr_infinite=int(math.isinf(metallic_union)), objects=1)
     for env in env_names:
         summary[f"relighting_{env}"] = average_metrics([r["relighting"][env] for r in per_view])
@@ -167,8 +212,12 @@ def evaluate_predictions(maps: dict, views: list[View], truths: list[GroundTruth
     for view, truth in zip(views, truths):
         m = maps[view.name]
         records["basecolor"].append(evaluate_images(m.basecolor.clamp(0, 1), truth.basecolor, truth.mask, lpips))
-        records["roughness"].append(evaluate_images(m.roughness[..., None], truth.roughness[..., None], truth.mask, lpips, encoding="raw"))
-        records["metallic"].append(evaluate_images(m.metallic[..., None], truth.metallic[..., None], truth.mask, lpips, encoding="raw"))
+        records["roughness"].append(
+            evaluate_images(m.roughness[..., None], truth.roughness[..., None], truth.mask, lpips, encoding="raw")
+        )
+        records["metallic"].append(
+            evaluate_images(m.metallic[..., None], truth.metallic[..., None], truth.mask, lpips, encoding="raw")
+        )
     return {name: average_metrics(values) for name, values in records.items()}
 
 
@@ -178,7 +227,8 @@ def check_synthetic(scene: Scene) -> None:
     missing = [v.name for v in scene.test if not v.path.with_name(f"{v.name}_basecolor.png").exists()]
     if missing:
         raise file_error(
-            scene.source, f"test views without ground-truth material maps: {', '.join(missing[:5])}",
+            scene.source,
+            f"test views without ground-truth material maps: {', '.join(missing[:5])}",
             "evaluation needs a `matspray synth` object (or the same layout of ground truth)",
         )
 
@@ -190,13 +240,21 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
     if spec == NO_PREDICTOR:
         return None, "no 2D predictions: the run had none (--predictor none)"
     if not isinstance(spec, str) or not isinstance(given, dict):
-        return None, f"raw 2D predictions of test views not evaluated ({RunDir(run_dir).path('config.yaml')} names no readable predictor)"
+        return (
+            None,
+            f"raw 2D predictions of test views not evaluated ({RunDir(run_dir).path('config.yaml')} names "
+            "no readable predictor)",
+        )
     if spec.partition(":")[0] not in ("simulated", "ground-truth", "files"):
         return None, f"raw 2D predictions of test views not evaluated (predictor '{spec}' would have to run again)"
     try:
         stored = PredictorOptions(**given)
     except TypeError:  # a key PredictorOptions does not have
-        return None, f"raw 2D predictions of test views not evaluated (unknown predictor_options in {RunDir(run_dir).path('config.yaml')})"
+        return (
+            None,
+            "raw 2D predictions of test views not evaluated (unknown predictor_options in "
+            f"{RunDir(run_dir).path('config.yaml')})",
+        )
     try:
         options = options_for_dataset(spec, stored, RunDir(run_dir).dataset().get("source"))
         predictor = make_predictor(spec, options, notify=lambda _: None)
@@ -205,8 +263,16 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
         return None, f"raw 2D predictions of test views not evaluated: {exc}"
 
 
-def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, progress: bool = True, device="cpu",
-                 backend: str = "torch", scene: Scene | None = None) -> dict:
+def evaluate_run(
+    run_dir,
+    data=None,
+    lpips_weights=None,
+    aligned: bool = False,
+    progress: bool = True,
+    device="cpu",
+    backend: str = "torch",
+    scene: Scene | None = None,
+) -> dict:
     """Evaluate every asset of `run_dir` on the dataset's test views, rendered on `device` with the rasterizer
     `backend` (both resolved); writes eval/metrics.json and eval/tables.md and returns the metrics. `scene`: the
     dataset already loaded (as `data` at the run's downscale), so that it is not read twice."""
@@ -222,14 +288,21 @@ def evaluate_run(run_dir, data=None, lpips_weights=None, aligned: bool = False, 
     truths = [read_view_truth(v) for v in scene.test]
     env_names = sorted(set.intersection(*(set(t.relit) for t in truths)))
     lights = load_relight_lights(data, env_names, device)
-    metrics = {"title": f"MatSpray evaluation: {identity['source']}", "lpips": lpips_source, "notes": [], "relight_envs": env_names}
+    metrics = {
+        "title": f"MatSpray evaluation: {identity['source']}",
+        "lpips": lpips_source,
+        "notes": [],
+        "relight_envs": env_names,
+    }
     if not env_names:
         metrics["notes"].append("no relit ground truth in the dataset: relighting not evaluated")
     variants = {}
     stages = [(v, asset_stage(v)) for v in run.asset_variants()]
     for variant, stage in tqdm(stages, desc="eval", disable=not progress):
         with rendering_with(backend):
-            variants[variant] = evaluate_asset(read_asset(run.path(stage), device=device), scene.test, truths, lights, lpips, aligned)
+            variants[variant] = evaluate_asset(
+                read_asset(run.path(stage), device=device), scene.test, truths, lights, lpips, aligned
+            )
     predictions, note = predict_test_views(run.root, scene.test)
     metrics["notes"].append(note)
     if predictions is not None:
@@ -247,15 +320,23 @@ def mask_agreement(masks: ObjectMasks, views: list[View], truths: list[GroundTru
     """IoU of a capture's object masks (made from its geometry) against the true masks of the test views."""
     ious = {v.name: mask_iou(masks.masks["test"][v.name], t.mask) for v, t in zip(views, truths)}
     values = list(ious.values())
-    return {"iou_mean": sum(values) / len(values), "iou_min": min(values), "views": ious, "region": masks.region.to_json()}
+    return {
+        "iou_mean": sum(values) / len(values),
+        "iou_min": min(values),
+        "views": ious,
+        "region": masks.region.to_json(),
+    }
 
 
 def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dict:
     """The table dicts `matspray.eval.tables` renders, from per-variant summaries."""
     # each figure under the object mask (GT) and, as "<row>_union", counting the silhouette; the raw 2D
     # predictions have no silhouette of their own (they are masked by the input), so no union rows
-    rows = tuple(row + suffix for row in ("relighting", "basecolor", "roughness", "metallic", "relighting_aligned", "basecolor_aligned")
-                 for suffix in ("", UNION))
+    rows = tuple(
+        row + suffix
+        for row in ("relighting", "basecolor", "roughness", "metallic", "relighting_aligned", "basecolor_aligned")
+        for suffix in ("", UNION)
+    )
     table1 = {}
     if "full" in variants:
         summary = variants["full"]["summary"]
@@ -267,9 +348,26 @@ def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dic
         table1["2D predictions"] = {row: predictions[row] for row in ("basecolor", "roughness", "metallic")}
     table2 = {LABELS[v]: variants[v]["summary"]["relighting"] for v in ABLATION if v in variants}
     softmax = {LABELS[v]: variants[v]["summary"]["relighting"] for v in SOFTMAX_ABLATION if v in variants}
-    union = {key + UNION: {LABELS[v]: variants[v]["summary"]["relighting" + UNION] for v in names
-                           if v in variants and "relighting" + UNION in variants[v]["summary"]}
-             for key, names in (("table2", ABLATION), ("softmax", SOFTMAX_ABLATION))}
-    stage_names = {"materials2d": "predict", "geometry": "geometry", "lift": "lift", "visibility": "visibility", "asset": "refine"}
+    union = {
+        key + UNION: {
+            LABELS[v]: variants[v]["summary"]["relighting" + UNION]
+            for v in names
+            if v in variants and "relighting" + UNION in variants[v]["summary"]
+        }
+        for key, names in (("table2", ABLATION), ("softmax", SOFTMAX_ABLATION))
+    }
+    stage_names = {
+        "materials2d": "predict",
+        "geometry": "geometry",
+        "lift": "lift",
+        "visibility": "visibility",
+        "asset": "refine",
+    }
     stages = {stage_names[k]: v for k, v in timings.items() if k in stage_names}
-    return {"table1": table1, "table2": table2, "softmax": softmax, **{k: v for k, v in union.items() if v}, "timings": {"Ours (this machine)": stages} if stages else {}}
+    return {
+        "table1": table1,
+        "table2": table2,
+        "softmax": softmax,
+        **{k: v for k, v in union.items() if v},
+        "timings": {"Ours (this machine)": stages} if stages else {},
+    }

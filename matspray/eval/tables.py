@@ -12,7 +12,8 @@ Input shapes (every level optional):
            object + silhouette (union) figure, printed right below its object-mask (GT) row
   table2 / softmax (and table2_union / softmax_union):  {variant: {"psnr": x, "ssim": x, "lpips": x}}
   timings: {column: {stage: seconds}}
-  objects: {name: {"source": str, "psnr": {"relighting"|"basecolor": {variant: x}}, "seconds": {"synth": s, "method": s}}}
+  objects: {name: {"source": str, "psnr": {"relighting"|"basecolor": {variant: x}},
+           "seconds": {"synth": s, "method": s}}}
 """
 
 from __future__ import annotations
@@ -51,14 +52,18 @@ STAGE_LABELS = {
     "visibility": "Shadow maps (visibility)",
     "refine": "Material optimization",
 }
-ALIGNED_NOTE = ("Scale-aligned rows: the prediction is multiplied per channel by the median ratio "
-                "ground truth / prediction over object pixels (NeRFactor/TensoIR convention) before "
-                "compositing; they are not comparable with the unaligned rows or the paper.")
-UNION_NOTE = ("Rows without a suffix: object mask (GT): prediction and truth both composited with the ground-truth "
-              "mask, full image, so nothing at or outside the true silhouette counts (the paper's convention). Rows "
-              f"marked '{UNION_LABEL}': each composited with its own alpha (the truth with its mask), scored over the "
-              "union of the two silhouettes (weights max(alpha, mask); LPIPS on the union's bounding box), so extra "
-              "and missing silhouette counts; the two are on different regions, compare like with like.")
+ALIGNED_NOTE = (
+    "Scale-aligned rows: the prediction is multiplied per channel by the median ratio "
+    "ground truth / prediction over object pixels (NeRFactor/TensoIR convention) before "
+    "compositing; they are not comparable with the unaligned rows or the paper."
+)
+UNION_NOTE = (
+    "Rows without a suffix: object mask (GT): prediction and truth both composited with the ground-truth "
+    "mask, full image, so nothing at or outside the true silhouette counts (the paper's convention). Rows "
+    f"marked '{UNION_LABEL}': each composited with its own alpha (the truth with its mask), scored over the "
+    "union of the two silhouettes (weights max(alpha, mask); LPIPS on the union's bounding box), so extra "
+    "and missing silhouette counts; the two are on different regions, compare like with like."
+)
 
 
 # ------------------------------------------------------------------------------------------ cells
@@ -135,7 +140,10 @@ def material_table(methods: Mapping[str, Mapping[str, Mapping]]) -> str:
             columns[metric] = _bold_best(cells, values, HIGHER_IS_BETTER[metric])
         rows.append([label] + [columns[m][i] for i in range(len(names)) for m in metrics])
     notes = []
-    for key, why in (("metallic", "are non-metallic and predicted all zero"), ("metallic" + UNION, "have exact metallic maps and silhouettes")):
+    for key, why in (
+        ("metallic", "are non-metallic and predicted all zero"),
+        ("metallic" + UNION, "have exact metallic maps and silhouettes"),
+    ):
         for name in names:
             metallic = methods[name].get(key) or {}
             infinite = int(metallic.get("psnr_infinite", 0))
@@ -143,8 +151,10 @@ def material_table(methods: Mapping[str, Mapping[str, Mapping]]) -> str:
                 of = f" of {metallic['objects']}" if "objects" in metallic else ""
                 who = f"{name}: " if len(names) > 1 else ""
                 where = f"Metallic, {UNION_LABEL}: " if key.endswith(UNION) else ""
-                notes.append(f"\\* {where}{who}{infinite}{of} objects {why}, so their "
-                             "metallic PSNR is infinite; they are left out of the average after the slash.")
+                notes.append(
+                    f"\\* {where}{who}{infinite}{of} objects {why}, so their "
+                    "metallic PSNR is infinite; they are left out of the average after the slash."
+                )
     if present_aligned:
         notes.append(ALIGNED_NOTE)
     if any(key.endswith(UNION) for key in row_labels):
@@ -208,13 +218,25 @@ def objects_table(objects: Mapping[str, Mapping]) -> str:
         order = " > ".join(sorted((v for v in variants if relit.get(v) is not None), key=lambda v: -relit[v]))
         base = row["psnr"].get("basecolor", {}).get("Full")
         seconds = row.get("seconds", {})
-        rows.append([f"{name} ({row.get('source', '')})"] + cells + [order, MISSING if base is None else format_number(base, 2),
-                                                                      _seconds(seconds.get("synth")), _seconds(seconds.get("method"))])
+        rows.append(
+            [f"{name} ({row.get('source', '')})"]
+            + cells
+            + [
+                order,
+                MISSING if base is None else format_number(base, 2),
+                _seconds(seconds.get("synth")),
+                _seconds(seconds.get("method")),
+            ]
+        )
         for other in wins:
             if relit.get("Full") is not None and relit.get(other) is not None:
                 wins[other][0] += relit["Full"] > relit[other]
                 wins[other][1] += 1
-    header = ["Object"] + [f"{v} relit PSNR" for v in variants] + ["order", "Full base colour PSNR", "synth (s)", "stages (s)"]
+    header = (
+        ["Object"]
+        + [f"{v} relit PSNR" for v in variants]
+        + ["order", "Full base colour PSNR", "synth (s)", "stages (s)"]
+    )
     lines = [f"Full > {other} (relighting PSNR) on {k} of {n} objects" for other, (k, n) in wins.items() if n]
     return "\n\n".join([markdown_table(header, rows)] + (["\n".join(f"- {line}" for line in lines)] if lines else []))
 

@@ -53,8 +53,13 @@ def uv_atlas(mesh: trimesh.Trimesh, texture_size: int, padding: int) -> AtlasMes
     atlas.generate(charts, pack)
     vmapping, indices, uvs = atlas[0]
     vmapping = vmapping.astype(np.int64)
-    return AtlasMesh(np.asarray(mesh.vertices, dtype=np.float64)[vmapping], indices.astype(np.int64), uvs.astype(np.float64), vmapping,
-                     int(atlas.chart_count))
+    return AtlasMesh(
+        np.asarray(mesh.vertices, dtype=np.float64)[vmapping],
+        indices.astype(np.int64),
+        uvs.astype(np.float64),
+        vmapping,
+        int(atlas.chart_count),
+    )
 
 
 def uv_areas(uvs: np.ndarray, faces: np.ndarray, size: int) -> np.ndarray:  # [V, 2], [F, 3] -> [F] texels^2

@@ -32,7 +32,9 @@ def rasterize_uv(uvs: np.ndarray, faces: np.ndarray, size: int) -> Texels:  # [V
     extent = np.maximum(hi - lo + 1, 0)  # [F, 2]
     counts = extent[:, 0] * extent[:, 1]
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])  # [F] twice the signed area
+    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (
+        c[:, 0] - a[:, 0]
+    )  # [F] twice the signed area
     counts[np.abs(area) < 1e-12] = 0
     found_index, found_face, found_bary = [], [], []
     ends = np.cumsum(counts)
@@ -78,10 +80,10 @@ def gaussian_weights(
     opacity = gaussians.opacities.detach().cpu().double().numpy()  # [N]
     weights = np.empty((len(points), k))
     for s in range(0, len(points), chunk):
-        i = ids[s:s + chunk]  # [p, k]
-        offset = points[s:s + chunk, None, :] - means[i]  # [p, k, 3]
+        i = ids[s : s + chunk]  # [p, k]
+        offset = points[s : s + chunk, None, :] - means[i]  # [p, k, 3]
         local = np.einsum("pkji,pkj->pki", rotations[i], offset) / scales[i]  # [p, k, 3]
-        weights[s:s + chunk] = opacity[i] * np.exp(-0.5 * (local**2).sum(-1))
+        weights[s : s + chunk] = opacity[i] * np.exp(-0.5 * (local**2).sum(-1))
     total = weights.sum(-1, keepdims=True)
     lonely = total[:, 0] < 1e-12
     weights[lonely] = 0.0

@@ -17,7 +17,8 @@ class ExportConfig:
     faces: int = 50_000  # face budget of the decimated mesh (a common budget for one real-time asset)
     texture_size: int = 1024  # side of the square textures (a power of two in [64, 8192])
     frame: str = "gltf"  # gltf: Y-up; dataset: the dataset's world coordinates (Z-up)
-    grid: int = 128  # TSDF voxels along the longest side of the object's box (the atlas' time grows fast with the faces this makes)
+    grid: int = 128  # TSDF voxels along the longest side of the object's box (the atlas' time grows fast with the
+    # faces this makes)
     truncation: float = 4.0  # TSDF truncation, in voxels
     min_alpha: float = 0.5  # rendered coverage above which a pixel holds surface (below: free space)
     keep_fraction: float = 0.05  # keep connected components with at least this share of the largest one's faces
@@ -30,15 +31,24 @@ class ExportConfig:
         if self.faces < MIN_FACES:
             raise SettingError("export.faces", f"the face budget must be >= {MIN_FACES}, got {self.faces}")
         if self.texture_size not in TEXTURE_SIZES:
-            raise SettingError("export.texture_size", f"the texture size must be a power of two in [64, 8192], got {self.texture_size}")
+            raise SettingError(
+                "export.texture_size", f"the texture size must be a power of two in [64, 8192], got {self.texture_size}"
+            )
         if self.frame not in FRAMES:
             raise SettingError("export.frame", f"unknown frame '{self.frame}'; choose one of {', '.join(FRAMES)}")
         if self.grid < 16 or self.truncation <= 0 or not 0 < self.min_alpha < 1 or not 0 <= self.keep_fraction <= 1:
-            raise SettingError("export", "the TSDF grid must be >= 16 voxels, the truncation > 0, the alpha threshold in (0, 1) "
-                                         "and the kept component share in [0, 1]")
+            raise SettingError(
+                "export",
+                "the TSDF grid must be >= 16 voxels, the truncation > 0, the alpha threshold in (0, 1) "
+                "and the kept component share in [0, 1]",
+            )
         if self.normals not in NORMALS:
-            raise SettingError("export.normals", f"unknown normals '{self.normals}'; choose one of {', '.join(NORMALS)}")
+            raise SettingError(
+                "export.normals", f"unknown normals '{self.normals}'; choose one of {', '.join(NORMALS)}"
+            )
         if self.neighbours < 1 or self.padding < 0:
             raise SettingError("export", "baking needs >= 1 neighbour and a padding >= 0")
         if self.normal_smoothing < 0:
-            raise SettingError("export.normal_smoothing", f"the normals' smoothing passes must be >= 0, got {self.normal_smoothing}")
+            raise SettingError(
+                "export.normal_smoothing", f"the normals' smoothing passes must be >= 0, got {self.normal_smoothing}"
+            )

@@ -14,8 +14,9 @@ def decimate(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
         return without_degenerate(mesh.copy())
     target = faces
     for _ in range(4):  # the simplifier may stop a little above its target: aim lower until it fits
-        points, triangles = fast_simplification.simplify(np.asarray(mesh.vertices, dtype=np.float64),
-                                                         np.asarray(mesh.faces, dtype=np.int32), target_count=target)
+        points, triangles = fast_simplification.simplify(
+            np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32), target_count=target
+        )
         if len(triangles) <= faces:
             break
         target = int(target * faces / len(triangles)) - 1

@@ -12,7 +12,6 @@ import numpy as np
 from tqdm import tqdm
 
 from matspray.asset import Asset, read_asset
-from matspray.render.backend import rendering_with
 from matspray.data.camera import Camera
 from matspray.data.images import atomic_target, read_image, write_image
 from matspray.data.loader import load_scene
@@ -21,12 +20,13 @@ from matspray.export.atlas import uv_atlas
 from matspray.export.bake import bake_textures, blend_normals, gaussian_weights
 from matspray.export.config import ExportConfig
 from matspray.export.decimate import decimate
-from matspray.export.normals import smoothed_vertex_normals
 from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
+from matspray.export.normals import smoothed_vertex_normals
 from matspray.export.surface import fuse_surface
-from matspray.objectmasks import read_region
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
+from matspray.objectmasks import read_region
+from matspray.render.backend import rendering_with
 from matspray.rundir import RunDir
 from matspray.variants import asset_stage, get_variant
 
@@ -46,8 +46,14 @@ class ExportedMesh:
     seconds: dict = field(default_factory=dict)  # per step
 
 
-def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, progress: bool = False, notes: dict | None = None,
-                    region=None) -> ExportedMesh:
+def mesh_from_asset(
+    asset: Asset,
+    cameras: list[Camera],
+    config: ExportConfig,
+    progress: bool = False,
+    notes: dict | None = None,
+    region=None,
+) -> ExportedMesh:
     """Surface, decimation, atlas and textures of `asset` seen from `cameras` (the training views), bounded by
     `region` (a capture's object region, or None)."""
     seconds, start = {}, time.perf_counter()
@@ -60,26 +66,58 @@ def mesh_from_asset(asset: Asset, cameras: list[Camera], config: ExportConfig, p
         bar.set_postfix_str(following, refresh=False)
         bar.update()
 
-    mesh, voxel = fuse_surface(asset.gaussians, cameras, config.grid, config.truncation, config.min_alpha, config.keep_fraction, progress,
-                               materials=asset.materials.detach(), region=region)
+    mesh, voxel = fuse_surface(
+        asset.gaussians,
+        cameras,
+        config.grid,
+        config.truncation,
+        config.min_alpha,
+        config.keep_fraction,
+        progress,
+        materials=asset.materials.detach(),
+        region=region,
+    )
     step("surface", "decimate")
     mesh = decimate(mesh, config.faces)
     step("decimate", "atlas")
     atlas = uv_atlas(mesh, config.texture_size, config.padding)
     step("atlas", "bake")
     materials = asset.materials.detach().cpu().double().numpy()
-    textures = bake_textures(atlas.positions, atlas.faces, atlas.uvs, asset.gaussians, materials, config.texture_size,
-                             config.neighbours, voxel)
-    normals = unit_normals(smoothed_vertex_normals(mesh, config.normal_smoothing), np.asarray(mesh.vertices))[atlas.source]
+    textures = bake_textures(
+        atlas.positions,
+        atlas.faces,
+        atlas.uvs,
+        asset.gaussians,
+        materials,
+        config.texture_size,
+        config.neighbours,
+        voxel,
+    )
+    normals = unit_normals(smoothed_vertex_normals(mesh, config.normal_smoothing), np.asarray(mesh.vertices))[
+        atlas.source
+    ]
     if config.normals == "asset":
         ids, weights = gaussian_weights(atlas.positions, asset.gaussians, config.neighbours, voxel)
         normals = blend_normals(ids, weights, asset.normals.detach().cpu().double().numpy(), normals)
     step("bake")
     bar.close()
     matrix = file_from_dataset(config.frame)
-    extras = {**frame_extras(config.frame), "voxel": voxel, "faces": int(len(atlas.faces)), "texture_size": config.texture_size, **(notes or {})}
-    return ExportedMesh(transform_points(matrix, atlas.positions), transform_directions(matrix, normals), atlas.uvs, atlas.faces,
-                        textures, extras, seconds)
+    extras = {
+        **frame_extras(config.frame),
+        "voxel": voxel,
+        "faces": int(len(atlas.faces)),
+        "texture_size": config.texture_size,
+        **(notes or {}),
+    }
+    return ExportedMesh(
+        transform_points(matrix, atlas.positions),
+        transform_directions(matrix, normals),
+        atlas.uvs,
+        atlas.faces,
+        textures,
+        extras,
+        seconds,
+    )
 
 
 def unit_normals(normals: np.ndarray, positions: np.ndarray) -> np.ndarray:  # [V, 3], [V, 3] -> [V, 3] unit
@@ -93,10 +131,15 @@ def unit_normals(normals: np.ndarray, positions: np.ndarray) -> np.ndarray:  # [
 
 
 def gltf_material(textures: np.ndarray) -> PbrMaterial:  # [S, S, 5] linear materials
-    base = TextureRef(encode_base_color(textures[..., :3]).astype(np.float32), wrap_s="clamp", wrap_t="clamp", source="base colour")
+    base = TextureRef(
+        encode_base_color(textures[..., :3]).astype(np.float32), wrap_s="clamp", wrap_t="clamp", source="base colour"
+    )
     packed = pack_metallic_roughness(textures[..., 3], textures[..., 4]).astype(np.float32)
-    return PbrMaterial(name="matspray", base_color_texture=base,
-                       metallic_roughness_texture=TextureRef(packed, wrap_s="clamp", wrap_t="clamp", source="metallic-roughness"))
+    return PbrMaterial(
+        name="matspray",
+        base_color_texture=base,
+        metallic_roughness_texture=TextureRef(packed, wrap_s="clamp", wrap_t="clamp", source="metallic-roughness"),
+    )
 
 
 def envmap_paths(out: Path) -> list[Path]:
@@ -149,7 +192,10 @@ def run_asset(run_dir: Path, variant: str) -> Path:
         raise RunError(f"{run_dir}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
     folder = run_dir / asset_stage(variant)
     if not (folder / "asset.ply").exists():
-        raise RunError(f"{run_dir}: no asset for variant '{variant}' ({folder.name}/asset.ply); make it with `matspray run --variant {variant}`")
+        raise RunError(
+            f"{run_dir}: no asset for variant '{variant}' ({folder.name}/asset.ply); "
+            f"make it with `matspray run --variant {variant}`"
+        )
     return folder
 
 
@@ -162,8 +208,16 @@ class ExportReport:
     seconds: dict
 
 
-def export_run(run_dir, out, variant: str = "full", config: ExportConfig = ExportConfig(), data=None, progress: bool = True,
-               device="cpu", backend: str = "torch") -> ExportReport:
+def export_run(
+    run_dir,
+    out,
+    variant: str = "full",
+    config: ExportConfig = ExportConfig(),
+    data=None,
+    progress: bool = True,
+    device="cpu",
+    backend: str = "torch",
+) -> ExportReport:
     """`matspray export`: the run's asset of `variant` as `out` (.glb) plus its environment map. The asset's depth
     renders on `device` with the rasterizer `backend` (both resolved); meshing and baking run on the CPU."""
     run_dir, out = Path(run_dir), check_output(out)
@@ -173,8 +227,14 @@ def export_run(run_dir, out, variant: str = "full", config: ExportConfig = Expor
     asset = read_asset(folder, device=device)
     region = read_region(run_dir / "masks")  # a capture without masks: the mesh stays inside its object region
     with rendering_with(backend):
-        mesh = mesh_from_asset(asset, [view.camera for view in scene.train], config, progress,
-                               notes={"variant": variant, "run": str(run_dir.resolve())}, region=region)
+        mesh = mesh_from_asset(
+            asset,
+            [view.camera for view in scene.train],
+            config,
+            progress,
+            notes={"variant": variant, "run": str(run_dir.resolve())},
+            region=region,
+        )
     envmap = folder / "envmap.exr"
     files = write_export(mesh, out, envmap if envmap.exists() else None)
     return ExportReport(files, len(mesh.faces), len(mesh.positions), config.texture_size, mesh.seconds)

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from matspray.errors import file_error
+from matspray.gltf.document import split_glb
 from matspray.gltf.model import GLTF_TO_WORLD
-from matspray.gltf.read import split_glb
 
 GLTF_FROM_DATASET = np.eye(4)
 GLTF_FROM_DATASET[:3, :3] = GLTF_TO_WORLD.T  # [4, 4] the inverse rotation
@@ -33,8 +33,12 @@ def transform_directions(matrix: np.ndarray, directions: np.ndarray) -> np.ndarr
 def frame_extras(frame: str) -> dict:
     """What the file's `extras` record: its frame and the 4x4 matrices (row-major) both ways."""
     forward = file_from_dataset(frame)
-    return {"frame": frame, "up": "+Y" if frame == "gltf" else "+Z",
-            "file_from_dataset": forward.tolist(), "dataset_from_file": np.linalg.inv(forward).tolist()}
+    return {
+        "frame": frame,
+        "up": "+Y" if frame == "gltf" else "+Z",
+        "file_from_dataset": forward.tolist(),
+        "dataset_from_file": np.linalg.inv(forward).tolist(),
+    }
 
 
 def dataset_from_file(extras: dict) -> np.ndarray:  # [4, 4] from a file's `extras` written by `frame_extras`
@@ -47,9 +51,11 @@ def find_glbs(run_root) -> list[Path]:
     return sorted(set(root.glob("*.glb")) | set(root.glob("export/*.glb")))
 
 
-def dataset_from_glb(path: Path, data: bytes) -> np.ndarray:  # -> [4, 4] maps the file's coordinates into the dataset's world
-    """The file's frame from its `matspray` extras (`export.frames`); a glb without them is taken as glTF's own Y-up frame,
-    which Blender's convention (`GLTF_TO_WORLD`) turns into the dataset's Z-up world."""
+def dataset_from_glb(
+    path: Path, data: bytes
+) -> np.ndarray:  # -> [4, 4] maps the file's coordinates into the dataset's world
+    """The file's frame from its `matspray` extras (`export.frames`); a glb without them is taken as glTF's own Y-up
+    frame, which Blender's convention (`GLTF_TO_WORLD`) turns into the dataset's Z-up world."""
     text, _ = split_glb(path, data)
     try:
         document = json.loads(text)
@@ -70,5 +76,7 @@ def glb_box(path: Path) -> tuple[list[float], list[float]]:
     import trimesh
 
     mesh = trimesh.load(path, force="mesh")
-    points = transform_points(dataset_from_glb(path, Path(path).read_bytes()), np.asarray(mesh.vertices, dtype=np.float64))
+    points = transform_points(
+        dataset_from_glb(path, Path(path).read_bytes()), np.asarray(mesh.vertices, dtype=np.float64)
+    )
     return points.min(0).tolist(), points.max(0).tolist()

@@ -12,8 +12,6 @@ import numpy as np
 import trimesh
 
 
-
-
 def smoothed_vertex_normals(mesh: trimesh.Trimesh, iterations: int = 10) -> np.ndarray:  # -> [V, 3]
     """Area-weighted vertex normals [V, 3] (not yet unit: see `export.unit_normals`) of `mesh` after `iterations`
     Taubin passes (trimesh's lambda 0.5, mu -0.53) on a copy; the mesh itself is left as it is."""

@@ -18,7 +18,9 @@ from matspray.data.camera import Camera
 from matspray.export.bake import rasterize_uv
 
 
-def mesh_coverage(vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> np.ndarray:  # [V, 3], [F, 3] -> [H, W] bool
+def mesh_coverage(
+    vertices: np.ndarray, faces: np.ndarray, camera: Camera
+) -> np.ndarray:  # [V, 3], [F, 3] -> [H, W] bool
     """Pixels whose centre a triangle of the mesh covers (in front of the camera), by the UV rasterizer on
     the projected vertices: a square raster of the image's longer side, cropped."""
     pixels, z = camera.project(torch.as_tensor(vertices, dtype=torch.float32))
@@ -27,7 +29,7 @@ def mesh_coverage(vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> np
     texels = rasterize_uv(pixels.double().numpy() / side, faces[front], side)
     covered = np.zeros(side * side, dtype=bool)
     covered[texels.index] = True
-    return covered.reshape(side, side)[:camera.height, :camera.width]
+    return covered.reshape(side, side)[: camera.height, : camera.width]
 
 
 def rim_length(mask: np.ndarray) -> int:  # [H, W] bool -> pixels of the mask with a 4-neighbour outside it
@@ -36,8 +38,9 @@ def rim_length(mask: np.ndarray) -> int:  # [H, W] bool -> pixels of the mask wi
     return int((mask & ~inner).sum())
 
 
-def silhouette_offset(mesh: trimesh.Trimesh, cameras: list[Camera], alphas: list[Tensor], min_alpha: float,
-                      views: int = 12) -> float:
+def silhouette_offset(
+    mesh: trimesh.Trimesh, cameras: list[Camera], alphas: list[Tensor], min_alpha: float, views: int = 12
+) -> float:
     """World distance (> 0: outwards) to move the surface so that its silhouettes cover as many pixels as the
     asset's (alpha >= min_alpha) in up to `views` of the cameras, spread over them: the summed deficit of
     covered pixels over the summed rim length, in pixels, times a pixel's size at the object's depth."""
@@ -48,7 +51,9 @@ def silhouette_offset(mesh: trimesh.Trimesh, cameras: list[Camera], alphas: list
         camera, target = cameras[i], (alphas[i] >= min_alpha).numpy()
         covered = mesh_coverage(vertices, faces, camera)
         _, z = camera.project(torch.as_tensor(vertices, dtype=torch.float32))
-        pixel = float(z.median()) / (0.5 * float(camera.K[0, 0] + camera.K[1, 1]))  # world size of a pixel at the object
+        pixel = float(z.median()) / (
+            0.5 * float(camera.K[0, 0] + camera.K[1, 1])
+        )  # world size of a pixel at the object
         shift += (int(target.sum()) - int(covered.sum())) * pixel
         rim += rim_length(target)
     return shift / rim if rim else 0.0

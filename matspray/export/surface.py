@@ -19,9 +19,9 @@ from tqdm import tqdm
 
 from matspray.data.camera import Camera
 from matspray.errors import DataError
+from matspray.export.silhouette import silhouette_offset
 from matspray.gaussians import Gaussians
 from matspray.render.rasterize import rasterize
-from matspray.export.silhouette import silhouette_offset
 
 CALIBRATION_STEPS = 2  # rounds of moving the surface's level to match the asset's silhouettes
 # A smooth metal shows a mirror image, and the Gaussians that reproduce it sit where the reflected scene
@@ -37,12 +37,17 @@ MIRROR_ROUGHNESS = (0.45, 0.25)
 OCCLUDED_SHARE = 0.95
 
 
-def render_views(gaussians: Gaussians, cameras: list[Camera], materials: Tensor | None = None,
-                 progress: bool = False) -> tuple[list[tuple[Tensor, Tensor]], list[Tensor] | None]:
+def render_views(
+    gaussians: Gaussians, cameras: list[Camera], materials: Tensor | None = None, progress: bool = False
+) -> tuple[list[tuple[Tensor, Tensor]], list[Tensor] | None]:
     """Per camera, coverage-weighted depth [H, W] (sum_k w_k z_k, see `RasterOutput.depth`) and coverage alpha
     [H, W]; with the Gaussians' `materials` [N, 5], also each pixel's `depth_trust` [H, W], from the same
     rasterization (roughness and metallic as its colour), else None."""
-    colours = materials[:, 3:5].to(gaussians.device) if materials is not None else torch.ones(len(gaussians), 1, device=gaussians.device)
+    colours = (
+        materials[:, 3:5].to(gaussians.device)
+        if materials is not None
+        else torch.ones(len(gaussians), 1, device=gaussians.device)
+    )
     depths, trust = [], []
     with torch.no_grad():
         for camera in tqdm(cameras, desc="export: depth", disable=not progress, dynamic_ncols=True):
@@ -69,7 +74,9 @@ def mirror_trust(roughness: Tensor, metallic: Tensor) -> Tensor:
     return 1.0 - ramp(metallic, *MIRROR_METALLIC) * ramp(roughness, *MIRROR_ROUGHNESS)
 
 
-def depth_trust(gaussians: Gaussians, materials: Tensor, cameras: list[Camera]) -> list[Tensor]:  # materials [N, 5] -> [H, W] each
+def depth_trust(
+    gaussians: Gaussians, materials: Tensor, cameras: list[Camera]
+) -> list[Tensor]:  # materials [N, 5] -> [H, W] each
     """`mirror_trust` of the pixels the Gaussians render at each camera."""
     return render_views(gaussians, cameras, materials)[1]
 
@@ -133,15 +140,26 @@ def fuse_tsdf(
     view that sees it is inside (-1) and unknown; a voxel no camera sees is outside (+1)."""
     total = torch.zeros(len(centres))
     weight = torch.zeros(len(centres))
-    seen, hidden = torch.zeros(len(centres)), torch.zeros(len(centres))  # views that see the voxel in front of / deep behind the surface
+    seen, hidden = (
+        torch.zeros(len(centres)),
+        torch.zeros(len(centres)),
+    )  # views that see the voxel in front of / deep behind the surface
     in_view = torch.zeros(len(centres), dtype=torch.bool)
     for view, (camera, (depth, alpha)) in enumerate(zip(cameras, depths)):
         pixels, z = camera.project(centres)
-        inside = (z > 1e-6) & (pixels[:, 0] >= 0) & (pixels[:, 0] < camera.width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < camera.height)
+        inside = (
+            (z > 1e-6)
+            & (pixels[:, 0] >= 0)
+            & (pixels[:, 0] < camera.width)
+            & (pixels[:, 1] >= 0)
+            & (pixels[:, 1] < camera.height)
+        )
         idx = inside.nonzero().squeeze(1)
         gap = silhouette_gap(alpha.cpu(), min_alpha)
         confidence = trust[view].cpu() if trust is not None else torch.ones_like(gap)
-        weighted, cover, off, sure = sample_bilinear(torch.stack([depth.cpu(), alpha.cpu(), gap, confidence], dim=-1), pixels[idx]).unbind(-1)
+        weighted, cover, off, sure = sample_bilinear(
+            torch.stack([depth.cpu(), alpha.cpu(), gap, confidence], dim=-1), pixels[idx]
+        ).unbind(-1)
         covered = cover >= min_alpha
         sdf = (weighted / cover.clamp_min(1e-6) - z[idx]) / truncation
         # an empty pixel: free space all along the ray, but only as far from the surface as the ray passes
@@ -152,7 +170,9 @@ def fuse_tsdf(
         free = (off * z[idx] / focal / truncation).clamp(min=1e-3, max=1.0)
         sdf = torch.where(covered, sdf, free)
         vote = torch.where(covered, sure, torch.ones_like(sure))
-        used = (sdf >= -1.0) & (vote > 1e-3)  # deeper than the truncation behind the surface, or a mirror: no information
+        used = (sdf >= -1.0) & (
+            vote > 1e-3
+        )  # deeper than the truncation behind the surface, or a mirror: no information
         total.index_add_(0, idx[used], vote[used] * sdf[used].clamp(max=1.0))
         weight.index_add_(0, idx[used], vote[used])
         seen.index_add_(0, idx, torch.where(sdf > 0, vote, 0.0))
@@ -170,12 +190,16 @@ def open_to_outside(field: Tensor, unknown: Tensor, shape: tuple[int, int, int])
     through unknown voxels alone are outside: space that too few views carve would otherwise stay solid
     and close the grid with walls. Unknown space that observed surface or free space encloses stays inside."""
     grid = unknown.reshape(shape).numpy()
-    labels, _ = label(np.pad(grid, 1, constant_values=True))  # the padding joins the border's unknown voxels into one region
+    labels, _ = label(
+        np.pad(grid, 1, constant_values=True)
+    )  # the padding joins the border's unknown voxels into one region
     outside = (labels == labels[0, 0, 0])[1:-1, 1:-1, 1:-1].reshape(-1)
     return torch.where(unknown & torch.from_numpy(outside), torch.ones_like(field), field)
 
 
-def extract_surface(field: Tensor, shape: tuple[int, int, int], origin: Tensor, voxel: float, level: float = 0.0) -> trimesh.Trimesh:
+def extract_surface(
+    field: Tensor, shape: tuple[int, int, int], origin: Tensor, voxel: float, level: float = 0.0
+) -> trimesh.Trimesh:
     """Marching cubes on the `level` set of `field` [X * Y * Z] (padded with free space, so the result is
     closed; level > 0 grows the surface outwards), faces wound counter-clockwise seen from outside."""
     volume = np.pad(field.reshape(shape).numpy().astype(np.float32), 1, constant_values=1.0)
@@ -200,9 +224,18 @@ def keep_object(mesh: trimesh.Trimesh, keep_fraction: float) -> trimesh.Trimesh:
     return kept[0] if len(kept) == 1 else trimesh.util.concatenate(kept)
 
 
-def fuse_surface(gaussians: Gaussians, cameras: list[Camera], grid: int, truncation_voxels: float, min_alpha: float,
-                 keep_fraction: float, progress: bool = False, calibrate: bool = True,
-                 materials: Tensor | None = None, region=None) -> tuple[trimesh.Trimesh, float]:
+def fuse_surface(
+    gaussians: Gaussians,
+    cameras: list[Camera],
+    grid: int,
+    truncation_voxels: float,
+    min_alpha: float,
+    keep_fraction: float,
+    progress: bool = False,
+    calibrate: bool = True,
+    materials: Tensor | None = None,
+    region=None,
+) -> tuple[trimesh.Trimesh, float]:
     """The whole step: depths -> TSDF on a grid around the Gaussians -> marching cubes -> the object, its
     level moved so its silhouettes cover what the asset's do (`calibrate`, `silhouette.silhouette_offset`); with the
     Gaussians' `materials` [N, 5], mirror-like pixels' depths are not trusted (`depth_trust`); also returns the
@@ -211,7 +244,9 @@ def fuse_surface(gaussians: Gaussians, cameras: list[Camera], grid: int, truncat
     cut instead of reaching down into the table."""
     depths, trust = render_views(gaussians, cameras, materials, progress)
     centres, voxel, shape = voxel_grid(object_box(gaussians).cpu(), grid)
-    field, unknown = fuse_tsdf(centres, [c.to("cpu") for c in cameras], depths, truncation_voxels * voxel, min_alpha, trust)
+    field, unknown = fuse_tsdf(
+        centres, [c.to("cpu") for c in cameras], depths, truncation_voxels * voxel, min_alpha, trust
+    )
     field = open_to_outside(field, unknown, shape)
     if region is not None:
         field = torch.where(region.contains(centres.double()).to(field.device), field, torch.ones_like(field))

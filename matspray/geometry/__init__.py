@@ -7,6 +7,16 @@ from matspray.geometry.ply import read_ply, write_ply
 from matspray.geometry.train import train_geometry
 
 __all__ = [
-    "GeometryConfig", "PRESETS", "consensus_normals", "depth_normals", "evaluate_views", "oriented_normals", "preset",
-    "read_ply", "render_normals", "render_view", "train_geometry", "write_ply",
+    "GeometryConfig",
+    "PRESETS",
+    "consensus_normals",
+    "depth_normals",
+    "evaluate_views",
+    "oriented_normals",
+    "preset",
+    "read_ply",
+    "render_normals",
+    "render_view",
+    "train_geometry",
+    "write_ply",
 ]

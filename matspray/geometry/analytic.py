@@ -65,25 +65,36 @@ def render_analytic(camera: Camera, supersample: int = 2) -> tuple[Tensor, Tenso
     colour = torch.where(hit[:, None], albedo(points) * shade[:, None], torch.zeros_like(points))
     h, w = camera.height, camera.width
     alpha = hit.float().reshape(h * w, s * s).mean(1)
-    colour = colour.reshape(h * w, s * s, 3).sum(1) / (s * s) / alpha.clamp_min(1e-6)[:, None]  # straight (unpremultiplied)
+    colour = (
+        colour.reshape(h * w, s * s, 3).sum(1) / (s * s) / alpha.clamp_min(1e-6)[:, None]
+    )  # straight (unpremultiplied)
     normal = F.normalize(normals.reshape(h * w, s * s, 3).sum(1), dim=-1)
     return colour.reshape(h, w, 3), alpha.reshape(h, w), normal.reshape(h, w, 3)
 
 
-def spiral_cameras(count: int, resolution: int, distance: float = 3.2, fov_deg: float = 40.0,
-                   phase: float = 0.0) -> list[Camera]:
+def spiral_cameras(
+    count: int, resolution: int, distance: float = 3.2, fov_deg: float = 40.0, phase: float = 0.0
+) -> list[Camera]:
     """Cameras on a Fibonacci sphere (elevations -30..75 degrees) looking at the origin, +z up."""
     cameras = []
     golden = math.pi * (3 - math.sqrt(5))
     for i in range(count):
         elevation = math.radians(-30 + 105 * (i + 0.5) / count)
         azimuth = i * golden + phase
-        eye = [distance * math.cos(elevation) * math.cos(azimuth), distance * math.cos(elevation) * math.sin(azimuth), distance * math.sin(elevation)]
-        cameras.append(Camera.look_at(eye, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(fov_deg), resolution, resolution))
+        eye = [
+            distance * math.cos(elevation) * math.cos(azimuth),
+            distance * math.cos(elevation) * math.sin(azimuth),
+            distance * math.sin(elevation),
+        ]
+        cameras.append(
+            Camera.look_at(eye, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(fov_deg), resolution, resolution)
+        )
     return cameras
 
 
-def analytic_views(count: int, resolution: int, prefix: str = "r", phase: float = 0.0) -> tuple[list[View], list[Tensor]]:
+def analytic_views(
+    count: int, resolution: int, prefix: str = "r", phase: float = 0.0
+) -> tuple[list[View], list[Tensor]]:
     views, normals = [], []
     for i, camera in enumerate(spiral_cameras(count, resolution, phase=phase)):
         colour, alpha, normal = render_analytic(camera)

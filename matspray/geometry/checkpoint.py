@@ -15,7 +15,9 @@ CHECKPOINT_VERSION = 1
 
 def save_checkpoint(path, config: GeometryConfig, iteration: int, state: dict) -> None:
     """`state`: tensors and plain values (optimizer, density statistics, random generator...)."""
-    save_torch_atomic({"version": CHECKPOINT_VERSION, "config": config.to_dict(), "iteration": iteration, "state": state}, path)
+    save_torch_atomic(
+        {"version": CHECKPOINT_VERSION, "config": config.to_dict(), "iteration": iteration, "state": state}, path
+    )
 
 
 def load_checkpoint(path, config: GeometryConfig) -> tuple[int, dict] | None:
@@ -27,9 +29,15 @@ def load_checkpoint(path, config: GeometryConfig) -> tuple[int, dict] | None:
     try:
         data = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # a truncated or foreign file
-        raise file_error(path, f"is not a readable checkpoint ({type(exc).__name__}: {exc})", "delete it, or restart the geometry stage") from None
+        raise file_error(
+            path,
+            f"is not a readable checkpoint ({type(exc).__name__}: {exc})",
+            "delete it, or restart the geometry stage",
+        ) from None
     if not isinstance(data, dict) or data.get("version") != CHECKPOINT_VERSION:
-        raise file_error(path, "is not a matspray geometry checkpoint of this version", "delete it, or restart the geometry stage")
+        raise file_error(
+            path, "is not a matspray geometry checkpoint of this version", "delete it, or restart the geometry stage"
+        )
     saved = data["config"]
     differences = sorted(k for k, v in config.to_dict().items() if saved.get(k) != v)
     if differences:

@@ -37,8 +37,9 @@ class GeometryConfig:
     densify_every: int = 100
     opacity_reset_every: int = 1000
     grad_threshold: float = 2e-4  # mean screen-space gradient (NDC units) that triggers clone / split
-    # densify on the summed |per-pixel gradient| of each projected centre instead of |summed gradient| (AbsGS, as gsplat's
-    # strategy offers it); gradients of opposite sign then no longer cancel, so it wants a larger grad_threshold (gsplat: 8e-4)
+    # densify on the summed |per-pixel gradient| of each projected centre instead of |summed gradient| (AbsGS, as
+    # gsplat's strategy offers it); gradients of opposite sign then no longer cancel, so it wants a larger
+    # grad_threshold (gsplat: 8e-4)
     absgrad: bool = False
     percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
     prune_opacity: float = 0.005
@@ -57,7 +58,15 @@ class GeometryConfig:
     checkpoint_every: int = 500
 
     def __post_init__(self) -> None:
-        positive = ["iterations", "init_points", "densify_every", "opacity_reset_every", "max_gaussians", "checkpoint_every", "sh_degree_every"]
+        positive = [
+            "iterations",
+            "init_points",
+            "densify_every",
+            "opacity_reset_every",
+            "max_gaussians",
+            "checkpoint_every",
+            "sh_degree_every",
+        ]
         for name in positive:
             if getattr(self, name) < 1:
                 raise SettingError(name, f"must be >= 1, got {getattr(self, name)}")
@@ -75,21 +84,48 @@ class GeometryConfig:
 
 PRESETS = {
     "test": GeometryConfig(
-        preset="test", resolution=40, iterations=60, init_points=1000, sh_degree=1, sh_degree_every=30,
-        densify_from=20, densify_until=50, densify_every=10, opacity_reset_every=1000, max_gaussians=3000,
-        checkpoint_every=20, normal_from=0.5,
+        preset="test",
+        resolution=40,
+        iterations=60,
+        init_points=1000,
+        sh_degree=1,
+        sh_degree_every=30,
+        densify_from=20,
+        densify_until=50,
+        densify_every=10,
+        opacity_reset_every=1000,
+        max_gaussians=3000,
+        checkpoint_every=20,
+        normal_from=0.5,
     ),
     "demo": GeometryConfig(preset="demo"),
     "paper": GeometryConfig(
-        preset="paper", resolution=512, iterations=30000, init_points=100000, sh_degree_every=1000,
-        densify_from=500, densify_until=15000, densify_every=100, opacity_reset_every=3000,
-        max_screen_fraction=20 / 512, max_gaussians=1_000_000, checkpoint_every=2000, normal_from=0.25,
+        preset="paper",
+        resolution=512,
+        iterations=30000,
+        init_points=100000,
+        sh_degree_every=1000,
+        densify_from=500,
+        densify_until=15000,
+        densify_every=100,
+        opacity_reset_every=3000,
+        max_screen_fraction=20 / 512,
+        max_gaussians=1_000_000,
+        checkpoint_every=2000,
+        normal_from=0.25,
     ),
 }
 
 
 # iteration counts that follow `iterations` when only that is overridden
-SCHEDULE = ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "sh_degree_every", "checkpoint_every")
+SCHEDULE = (
+    "densify_from",
+    "densify_until",
+    "densify_every",
+    "opacity_reset_every",
+    "sh_degree_every",
+    "checkpoint_every",
+)
 
 
 def preset(name: str, **overrides) -> GeometryConfig:

@@ -32,8 +32,10 @@ class DensityControl:
         """Record one view's statistics; call after backward, with out.retain_screen_grads() done before."""
         grads = out.screen_absgrads if self.config.absgrad else out.screen_grads
         if grads is None:
-            raise RuntimeError("DensityControl.observe: call out.retain_screen_grads() before backward"
-                               + (" (and render with absgrad)" if self.config.absgrad else ""))
+            raise RuntimeError(
+                "DensityControl.observe: call out.retain_screen_grads() before backward"
+                + (" (and render with absgrad)" if self.config.absgrad else "")
+            )
         visible = out.visible
         ndc = grads.detach() * torch.tensor([0.5 * width, 0.5 * height], device=visible.device)
         self.grad_sum[visible] += ndc[visible].norm(dim=-1).to(self.grad_sum)
@@ -51,7 +53,9 @@ class DensityControl:
             events.append(self.densify_and_prune(optimizer, generator, prune_large=done > c.opacity_reset_every))
         if done % c.opacity_reset_every == 0:
             opacities = optimizer.params["opacity_logits"].detach()
-            optimizer.replace_values("opacity_logits", opacities.clamp(max=float(torch.logit(torch.tensor(RESET_OPACITY, device="cpu")))))
+            optimizer.replace_values(
+                "opacity_logits", opacities.clamp(max=float(torch.logit(torch.tensor(RESET_OPACITY, device="cpu"))))
+            )
             events.append("opacity reset")
         return ", ".join(events)
 
@@ -79,7 +83,10 @@ class DensityControl:
         keep = ~(prune | split)
         optimizer.edit(keep, appended)
         self.reset_stats(len(optimizer.params["means"]), grads.device)
-        return f"+{int(clone.sum())} cloned, +{len(children)} split from {int(split.sum())}, -{int((prune & ~split).sum())} pruned"
+        return (
+            f"+{int(clone.sum())} cloned, +{len(children)} split from {int(split.sum())}, "
+            f"-{int((prune & ~split).sum())} pruned"
+        )
 
 
 def split_gaussians(g: Gaussians, generator: torch.Generator) -> Gaussians:
@@ -87,16 +94,26 @@ def split_gaussians(g: Gaussians, generator: torch.Generator) -> Gaussians:
     if len(g) == 0:
         return g
     repeated = concat([g] * SPLIT_INTO)
-    noise = torch.randn(repeated.means.shape, generator=generator, device="cpu").to(repeated.means)  # the same draws on every device
+    noise = torch.randn(repeated.means.shape, generator=generator, device="cpu").to(
+        repeated.means
+    )  # the same draws on every device
     offsets = (repeated.rotation_matrices() @ (noise * repeated.scales)[:, :, None])[..., 0]
     return Gaussians(
-        repeated.means + offsets, repeated.log_scales - float(torch.log(torch.tensor(SPLIT_SHRINK, device="cpu"))), repeated.quats,
-        repeated.opacity_logits, repeated.sh,
+        repeated.means + offsets,
+        repeated.log_scales - float(torch.log(torch.tensor(SPLIT_SHRINK, device="cpu"))),
+        repeated.quats,
+        repeated.opacity_logits,
+        repeated.sh,
     )
 
 
 def concat(parts: list[Gaussians]) -> Gaussians:
-    return Gaussians(*(torch.cat([getattr(p, name) for p in parts]) for name in ("means", "log_scales", "quats", "opacity_logits", "sh")))
+    return Gaussians(
+        *(
+            torch.cat([getattr(p, name) for p in parts])
+            for name in ("means", "log_scales", "quats", "opacity_logits", "sh")
+        )
+    )
 
 
 def stats_state(control: DensityControl) -> dict[str, Tensor]:

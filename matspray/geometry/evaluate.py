@@ -9,11 +9,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from matspray.eval import metrics
-
 from matspray.data.camera import Camera
 from matspray.data.images import linear_to_srgb, read_raw, resize, srgb_to_linear, write_image, write_raw
 from matspray.data.scene import View
+from matspray.eval import metrics
 from matspray.gaussians import Gaussians
 from matspray.geometry.normals import angular_error_degrees, normal_map_to_rgb, oriented_normals
 from matspray.render.output import RasterOutput
@@ -30,8 +29,13 @@ class ViewRender:
     raster: RasterOutput  # the rasterizer's full output (screen-space means, radii)
 
 
-def render_view(gaussians: Gaussians, camera: Camera, sh_degree: int | None = None, background: Tensor | None = None,
-                absgrad: bool = False) -> ViewRender:
+def render_view(
+    gaussians: Gaussians,
+    camera: Camera,
+    sh_degree: int | None = None,
+    background: Tensor | None = None,
+    absgrad: bool = False,
+) -> ViewRender:
     """Colour and normals in one rasterization. The Gaussians' SH give sRGB-encoded colour, as in
     3DGS, so that 3DGS viewers show the PLY with the right colours; `background` [3] is sRGB too. `absgrad`: also
     collect the absolute screen-space gradients (RasterOutput.screen_absgrads) that densification may use."""
@@ -42,8 +46,11 @@ def render_view(gaussians: Gaussians, camera: Camera, sh_degree: int | None = No
     background = torch.cat([background.to(colours), torch.zeros(3, dtype=colours.dtype, device=colours.device)])
     out = rasterize(gaussians, camera, torch.cat([colours, normals], dim=1), background, absgrad=absgrad)
     return ViewRender(
-        rgb=out.features[..., :3], alpha=out.alpha, normals=F.normalize(out.features[..., 3:], dim=-1),
-        depth=out.expected_depth, raster=out,
+        rgb=out.features[..., :3],
+        alpha=out.alpha,
+        normals=F.normalize(out.features[..., 3:], dim=-1),
+        depth=out.expected_depth,
+        raster=out,
     )
 
 
@@ -101,7 +108,10 @@ def evaluate_views(gaussians: Gaussians, views: list[View], sh_degree: int | Non
         if out_dir is not None:
             out_dir = Path(out_dir)
             write_image(out_dir / "renders" / f"{view.name}.png", srgb_to_linear(render.rgb.clamp(0, 1)))
-            write_raw(out_dir / "normals" / f"{view.name}.png", normal_map_to_rgb(render.normals) * (render.alpha[..., None] > 0))
+            write_raw(
+                out_dir / "normals" / f"{view.name}.png",
+                normal_map_to_rgb(render.normals) * (render.alpha[..., None] > 0),
+            )
     summary = {"views": per_view}
     for key in ("psnr", "psnr_masked", "normal_error_deg"):
         values = [v[key] for v in per_view.values() if key in v]

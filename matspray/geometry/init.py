@@ -21,8 +21,15 @@ BACKGROUND_SHARE = 0.25  # of the initial points of a capture without masks or p
 BACKGROUND_RADIUS = 3.0  # the shell's radius, in farthest-camera distances from the focus
 
 
-def initial_gaussians(scene: Scene, views: list[View], count: int, sh_degree: int, opacity: float,
-                      generator: torch.Generator, scale: float = 1.0) -> Gaussians:
+def initial_gaussians(
+    scene: Scene,
+    views: list[View],
+    count: int,
+    sh_degree: int,
+    opacity: float,
+    generator: torch.Generator,
+    scale: float = 1.0,
+) -> Gaussians:
     """`count` isotropic Gaussians (fewer with COLMAP points or thin masks), `scale` times the RMS
     distance to their 3 nearest neighbours, coloured by the sRGB colour they project to. They are made on
     the views' device; random draws come from the CPU `generator` (the same points on every device)."""
@@ -46,13 +53,19 @@ def initial_gaussians(scene: Scene, views: list[View], count: int, sh_degree: in
     quats = torch.zeros(len(points), 4, device=device)
     quats[:, 0] = 1.0
     return Gaussians(
-        means=points, log_scales=torch.log(scale * neighbour_spacing(points))[:, None].repeat(1, 3), quats=quats,
-        opacity_logits=torch.full((len(points),), float(torch.logit(torch.tensor(opacity, device="cpu"))), device=device), sh=sh,
+        means=points,
+        log_scales=torch.log(scale * neighbour_spacing(points))[:, None].repeat(1, 3),
+        quats=quats,
+        opacity_logits=torch.full(
+            (len(points),), float(torch.logit(torch.tensor(opacity, device="cpu"))), device=device
+        ),
+        sh=sh,
     )
 
 
-def hull_surface_points(bounds: Tensor, views: list[View], count: int, generator: torch.Generator,
-                        samples_per_ray: int = 128) -> tuple[Tensor, Tensor]:
+def hull_surface_points(
+    bounds: Tensor, views: list[View], count: int, generator: torch.Generator, samples_per_ray: int = 128
+) -> tuple[Tensor, Tensor]:
     """About `count` points [P, 3] on the visual hull of the masked views, with sRGB colours [P, 3].
 
     Rays through random object pixels (alpha > 0.5) of every masked view are sampled across the
@@ -67,7 +80,9 @@ def hull_surface_points(bounds: Tensor, views: list[View], count: int, generator
             continue
         picks = torch.multinomial(weights, per_view, replacement=True, generator=generator)
         jitter = torch.rand(per_view, 2, generator=generator, device="cpu")
-        pixels = (torch.stack([picks % view.width, torch.div(picks, view.width, rounding_mode="floor")], -1).float() + jitter).to(bounds.device)
+        pixels = (
+            torch.stack([picks % view.width, torch.div(picks, view.width, rounding_mode="floor")], -1).float() + jitter
+        ).to(bounds.device)
         origins, dirs = view.camera.rays_through(pixels)
         near, far = box_entry_exit(origins, dirs, bounds)
         steps = (torch.arange(samples_per_ray, device=bounds.device) + 0.5) / samples_per_ray
@@ -87,7 +102,8 @@ def hull_surface_points(bounds: Tensor, views: list[View], count: int, generator
     if len(points) < max(1, count // 100):
         raise DataError(
             f"the masks leave only {len(points)} initial points on the object "
-            "(check that the masks, i.e. the alpha channels, show the object and that the cameras are right: matspray info)"
+            "(check that the masks, i.e. the alpha channels, show the object and that the cameras are "
+            "right: matspray info)"
         )
     return points, torch.cat(colours)
 
@@ -144,9 +160,9 @@ def neighbour_spacing(points: Tensor, k: int = 3, chunk: int = 2048) -> Tensor: 
     out = torch.empty(len(points), device=points.device)
     k = min(k, max(1, len(points) - 1))
     for start in range(0, len(points), chunk):
-        d2 = torch.cdist(points[start:start + chunk], points).square()
+        d2 = torch.cdist(points[start : start + chunk], points).square()
         rows = torch.arange(d2.shape[0], device=points.device)
         d2[rows, rows + start] = float("inf")
         nearest = torch.topk(d2, k, dim=1, largest=False).values
-        out[start:start + chunk] = nearest.mean(dim=1).sqrt()
+        out[start : start + chunk] = nearest.mean(dim=1).sqrt()
     return out.clamp_min(1e-7)

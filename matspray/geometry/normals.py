@@ -41,8 +41,11 @@ def camera_points(depth: Tensor, camera: Camera) -> Tensor:  # [H, W] z-depth ->
     """Back-project pixel centres with their camera z."""
     height, width = depth.shape
     K = camera.K.to(depth)
-    rows, cols = torch.meshgrid(torch.arange(height, device=depth.device, dtype=depth.dtype),
-                                torch.arange(width, device=depth.device, dtype=depth.dtype), indexing="ij")
+    rows, cols = torch.meshgrid(
+        torch.arange(height, device=depth.device, dtype=depth.dtype),
+        torch.arange(width, device=depth.device, dtype=depth.dtype),
+        indexing="ij",
+    )
     x = (cols + 0.5 - K[0, 2]) / K[0, 0]
     y = (rows + 0.5 - K[1, 2]) / K[1, 1]
     cam = torch.stack([x, y, torch.ones_like(x)], dim=-1) * depth[..., None]

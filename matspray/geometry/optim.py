@@ -16,8 +16,12 @@ PARAMETERS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_res
 def split_sh(gaussians: Gaussians) -> dict[str, Tensor]:
     """The trainable tensors: SH DC and the higher bands get separate learning rates."""
     return {
-        "means": gaussians.means, "log_scales": gaussians.log_scales, "quats": gaussians.quats,
-        "opacity_logits": gaussians.opacity_logits, "sh_dc": gaussians.sh[:, :1], "sh_rest": gaussians.sh[:, 1:],
+        "means": gaussians.means,
+        "log_scales": gaussians.log_scales,
+        "quats": gaussians.quats,
+        "opacity_logits": gaussians.opacity_logits,
+        "sh_dc": gaussians.sh[:, :1],
+        "sh_rest": gaussians.sh[:, 1:],
     }
 
 
@@ -33,7 +37,9 @@ class GaussianOptimizer:
     def gaussians(self) -> Gaussians:
         """The current Gaussians, differentiable w.r.t. the optimised tensors."""
         p = self.params
-        return Gaussians(p["means"], p["log_scales"], p["quats"], p["opacity_logits"], torch.cat([p["sh_dc"], p["sh_rest"]], dim=1))
+        return Gaussians(
+            p["means"], p["log_scales"], p["quats"], p["opacity_logits"], torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
+        )
 
     def set_lr(self, name: str, lr: float) -> None:
         for group in self.adam.param_groups:

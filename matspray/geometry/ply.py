@@ -23,16 +23,51 @@ from matspray.errors import file_error
 from matspray.gaussians import Gaussians
 from matspray.rundir import stage_hint
 
-REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+REQUIRED = [
+    "x",
+    "y",
+    "z",
+    "f_dc_0",
+    "f_dc_1",
+    "f_dc_2",
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "scale_2",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
+]
 
 
 def property_names(sh_bases: int) -> list[str]:
     rest = [f"f_rest_{i}" for i in range(3 * (sh_bases - 1))]
-    return ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", *rest, "opacity",
-            "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    return [
+        "x",
+        "y",
+        "z",
+        "nx",
+        "ny",
+        "nz",
+        "f_dc_0",
+        "f_dc_1",
+        "f_dc_2",
+        *rest,
+        "opacity",
+        "scale_0",
+        "scale_1",
+        "scale_2",
+        "rot_0",
+        "rot_1",
+        "rot_2",
+        "rot_3",
+    ]
 
 
-def write_ply(path, gaussians: Gaussians, normals: Tensor | None = None, extra: dict[str, Tensor] | None = None) -> None:
+def write_ply(
+    path, gaussians: Gaussians, normals: Tensor | None = None, extra: dict[str, Tensor] | None = None
+) -> None:
     """Write `gaussians` (and normals [N, 3], zeros when None) atomically as a binary 3DGS PLY.
     `extra` adds float properties {name: [N]} after the standard ones (e.g. an asset's materials)."""
     path = Path(path)
@@ -41,7 +76,9 @@ def write_ply(path, gaussians: Gaussians, normals: Tensor | None = None, extra: 
     normals = torch.zeros(n, 3) if normals is None else normals.detach().to("cpu", torch.float32)
     rest = g.sh[:, 1:].transpose(1, 2).reshape(n, 3 * (g.sh.shape[1] - 1))  # [N, 3 (K - 1)] channel-major
     extra = {name: values.detach().to("cpu", torch.float32).reshape(n, 1) for name, values in (extra or {}).items()}
-    columns = torch.cat([g.means, normals, g.sh[:, 0], rest, g.opacity_logits[:, None], g.log_scales, g.quats, *extra.values()], dim=1)
+    columns = torch.cat(
+        [g.means, normals, g.sh[:, 0], rest, g.opacity_logits[:, None], g.log_scales, g.quats, *extra.values()], dim=1
+    )
     names = property_names(g.sh.shape[1]) + list(extra)
     data = np.empty(n, dtype=[(name, "f4") for name in names])
     values = columns.numpy()
@@ -77,7 +114,11 @@ def read_ply(path, extra: tuple[str, ...] = ()):
         raise refuse(f"lacks the 3DGS properties {', '.join(missing)}", "expected a 3D Gaussian Splatting PLY")
     rest_names = sorted((name for name in names if re.fullmatch(r"f_rest_\d+", name)), key=lambda s: int(s[7:]))
     bases = 1 + len(rest_names) // 3
-    if len(rest_names) % 3 or round(bases**0.5) ** 2 != bases or rest_names != [f"f_rest_{i}" for i in range(len(rest_names))]:
+    if (
+        len(rest_names) % 3
+        or round(bases**0.5) ** 2 != bases
+        or rest_names != [f"f_rest_{i}" for i in range(len(rest_names))]
+    ):
         raise refuse(f"has {len(rest_names)} f_rest properties, which is no SH degree (expected 0, 9, 24 or 45)")
 
     def column(*keys) -> Tensor:
@@ -98,8 +139,11 @@ def read_ply(path, extra: tuple[str, ...] = ()):
             raise refuse(f"has NaN or Inf values in its {name}")
     degenerate = (gaussians.quats.double().norm(dim=-1) < 1e-12).nonzero()  # no rotation: 3DGS divides by 0 here
     if len(degenerate):
-        raise refuse(f"vertex row {int(degenerate[0])} has a zero quaternion (rot_0..3 all 0), which is no rotation "
-                         f"({len(degenerate)} such rows)", "set rot_0..3 to 1 0 0 0 (no rotation) or drop the row")
+        raise refuse(
+            f"vertex row {int(degenerate[0])} has a zero quaternion (rot_0..3 all 0), which is no rotation "
+            f"({len(degenerate)} such rows)",
+            "set rot_0..3 to 1 0 0 0 (no rotation) or drop the row",
+        )
     normals = column("nx", "ny", "nz") if all(k in names for k in ("nx", "ny", "nz")) else None
     if normals is not None and not torch.isfinite(normals).all():
         raise refuse("has NaN or Inf values in its normals (nx, ny, nz)")
@@ -107,7 +151,9 @@ def read_ply(path, extra: tuple[str, ...] = ()):
         return gaussians, normals
     absent = [name for name in extra if name not in names]
     if absent:
-        raise refuse(f"lacks the properties {', '.join(absent)}", "is it a MatSpray asset (matspray run writes asset/asset.ply)?")
+        raise refuse(
+            f"lacks the properties {', '.join(absent)}", "is it a MatSpray asset (matspray run writes asset/asset.ply)?"
+        )
     values = {name: column(name)[:, 0] for name in extra}
     if not all(torch.isfinite(v).all() for v in values.values()):
         raise refuse("has NaN or Inf values in its materials")

@@ -54,13 +54,18 @@ def scene_extent(views: list[View]) -> float:
 
 def learning_rates(config: GeometryConfig, extent: float) -> dict[str, float]:
     return {
-        "means": config.lr_means * extent, "log_scales": config.lr_scales, "quats": config.lr_quats,
-        "opacity_logits": config.lr_opacity, "sh_dc": config.lr_sh_dc, "sh_rest": config.lr_sh_rest,
+        "means": config.lr_means * extent,
+        "log_scales": config.lr_scales,
+        "quats": config.lr_quats,
+        "opacity_logits": config.lr_opacity,
+        "sh_dc": config.lr_sh_dc,
+        "sh_rest": config.lr_sh_rest,
     }
 
 
-def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, device="cpu", restart: bool = False,
-                   progress: bool = True) -> Gaussians:
+def train_geometry(
+    scene: Scene, config: GeometryConfig, out_dir, *, device="cpu", restart: bool = False, progress: bool = True
+) -> Gaussians:
     """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`.
     Renders with the backend of the enclosing `rendering_with` block (torch outside one).
 
@@ -85,11 +90,18 @@ def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, device="cpu
     generator = torch.Generator().manual_seed(config.seed)
 
     resumed = load_checkpoint(checkpoint_path, config)
-    if resumed is not None and resumed[0] >= config.iterations and (out_dir / PLY_NAME).exists() and (out_dir / METRICS_NAME).exists():
+    if (
+        resumed is not None
+        and resumed[0] >= config.iterations
+        and (out_dir / PLY_NAME).exists()
+        and (out_dir / METRICS_NAME).exists()
+    ):
         return read_ply(out_dir / PLY_NAME)[0].to(device)
     if resumed is None:
         start, order = 0, []
-        initial = initial_gaussians(scene, train_views, config.init_points, config.sh_degree, config.init_opacity, generator, config.init_scale)
+        initial = initial_gaussians(
+            scene, train_views, config.init_points, config.sh_degree, config.init_opacity, generator, config.init_scale
+        )
         optimizer = GaussianOptimizer(initial, learning_rates(config, extent))
         density = DensityControl(config, extent, len(initial), device)
         elapsed = 0.0
@@ -97,20 +109,32 @@ def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, device="cpu
         start, state = resumed
         params = {name: t.to(device) for name, t in state["optimizer"]["params"].items()}
         optimizer = GaussianOptimizer(_empty_like(params), learning_rates(config, extent))
-        optimizer.load_state_dict(dict(state["optimizer"], params=params))  # Adam moves its moments to the parameters' device
+        optimizer.load_state_dict(
+            dict(state["optimizer"], params=params)
+        )  # Adam moves its moments to the parameters' device
         density = DensityControl(config, extent, 0, device)
         load_stats_state(density, {name: t.to(device) for name, t in state["density"].items()})
         generator.set_state(state["generator"])
         order, elapsed = state["order"], state["elapsed"]
 
     began = time.perf_counter() - elapsed
-    bar = tqdm(range(start, config.iterations), initial=start, total=config.iterations, desc="geometry", disable=not progress, dynamic_ncols=True)
+    bar = tqdm(
+        range(start, config.iterations),
+        initial=start,
+        total=config.iterations,
+        desc="geometry",
+        disable=not progress,
+        dynamic_ncols=True,
+    )
     running = RunningStats(device)
     for iteration in bar:
         if not order:
             order = torch.randperm(len(train_views), generator=generator, device="cpu").tolist()
         view = train_views[order.pop()]
-        optimizer.set_lr("means", exponential_lr(iteration, config.iterations, config.lr_means * extent, config.lr_means_final * extent))
+        optimizer.set_lr(
+            "means",
+            exponential_lr(iteration, config.iterations, config.lr_means * extent, config.lr_means_final * extent),
+        )
         losses, render, target = training_losses(optimizer.gaussians(), view, config, iteration, masked, generator)
         total = sum(losses.values())
         running.add(iteration, total.detach(), render.rgb.detach(), target)
@@ -118,7 +142,12 @@ def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, device="cpu
         checkpoint_now = done % config.checkpoint_every == 0 or done == config.iterations
         if done % SYNC_EVERY == 0 or checkpoint_now:  # never checkpoint a state that diverged
             running.check(losses)
-            bar.set_postfix(loss=f"{running.loss:.4f}", psnr=f"{running.psnr:.2f}", gaussians=len(optimizer.params["means"]), refresh=False)
+            bar.set_postfix(
+                loss=f"{running.loss:.4f}",
+                psnr=f"{running.psnr:.2f}",
+                gaussians=len(optimizer.params["means"]),
+                refresh=False,
+            )
         total.backward()
         density.observe(render.raster, view.width, view.height)
         optimizer.step()
@@ -126,10 +155,18 @@ def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, device="cpu
         if event and progress:
             bar.write(f"iteration {iteration + 1}: {event}")
         if checkpoint_now:
-            save_checkpoint(checkpoint_path, config, done, {
-                "optimizer": optimizer.state_dict(), "density": stats_state(density), "generator": generator.get_state(),
-                "order": order, "elapsed": time.perf_counter() - began,
-            })
+            save_checkpoint(
+                checkpoint_path,
+                config,
+                done,
+                {
+                    "optimizer": optimizer.state_dict(),
+                    "density": stats_state(density),
+                    "generator": generator.get_state(),
+                    "order": order,
+                    "elapsed": time.perf_counter() - began,
+                },
+            )
     bar.close()
     train_seconds = time.perf_counter() - began
 
@@ -137,7 +174,9 @@ def train_geometry(scene: Scene, config: GeometryConfig, out_dir, *, device="cpu
     normals = consensus_normals(gaussians, [v.camera for v in train_views])
     write_ply(out_dir / PLY_NAME, gaussians, normals)
     metrics = evaluate_views(gaussians, test_views, config.sh_degree, out_dir)
-    metrics.update(gaussians=len(gaussians), iterations=config.iterations, train_seconds=train_seconds, preset=config.preset)
+    metrics.update(
+        gaussians=len(gaussians), iterations=config.iterations, train_seconds=train_seconds, preset=config.preset
+    )
     write_json(out_dir / METRICS_NAME, metrics)
     return gaussians
 
@@ -154,7 +193,9 @@ class RunningStats:
 
     def add(self, iteration: int, loss: Tensor, rgb: Tensor, target: Tensor) -> None:
         bad = ~torch.isfinite(loss)
-        self.first_bad = torch.where(bad & (self.first_bad < 0), torch.full_like(self.first_bad, iteration), self.first_bad)
+        self.first_bad = torch.where(
+            bad & (self.first_bad < 0), torch.full_like(self.first_bad, iteration), self.first_bad
+        )
         self._loss = loss
         mse = (rgb.clamp(0, 1) - target.clamp(0, 1)).square().mean().clamp_min(1e-10)
         step_psnr = (-10.0 * torch.log10(mse)).clamp(max=99.0)
@@ -162,7 +203,9 @@ class RunningStats:
 
     def check(self, losses: dict[str, Tensor]) -> None:
         """Read the figures on the host; raises when a step since the start diverged."""
-        first_bad, self.loss, self.psnr = (float(x) for x in torch.stack([self.first_bad.float(), self._loss.float(), self._psnr.float()]).cpu())
+        first_bad, self.loss, self.psnr = (
+            float(x) for x in torch.stack([self.first_bad.float(), self._loss.float(), self._psnr.float()]).cpu()
+        )
         if first_bad >= 0:
             raise NumericalError(
                 f"geometry training diverged at iteration {int(first_bad)} (loss terms now: "
@@ -174,7 +217,11 @@ class RunningStats:
 def training_losses(gaussians: Gaussians, view: View, config: GeometryConfig, iteration: int, masked: bool, generator):
     """The weighted loss terms of one step {name: scalar}, the render and the sRGB target."""
     degree = min(config.sh_degree, iteration // config.sh_degree_every)
-    background = torch.rand(3, generator=generator, device="cpu") if masked and config.random_background else torch.zeros(3, device="cpu")
+    background = (
+        torch.rand(3, generator=generator, device="cpu")
+        if masked and config.random_background
+        else torch.zeros(3, device="cpu")
+    )
     background = background.to(gaussians.device)  # drawn on the CPU: the same colours on every device
     render = render_view(gaussians, view.camera, degree, background, absgrad=config.absgrad)
     render.raster.retain_screen_grads()
@@ -187,7 +234,9 @@ def training_losses(gaussians: Gaussians, view: View, config: GeometryConfig, it
     if config.flatten_weight > 0:
         losses["flatten"] = config.flatten_weight * flatten_loss(gaussians.log_scales)
     if config.normal_weight > 0 and iteration >= config.normal_from * config.iterations:
-        surface = -F.max_pool2d(-render.alpha.detach()[None, None], 3, stride=1, padding=1)[0, 0]  # alpha eroded by 1 px
+        surface = -F.max_pool2d(-render.alpha.detach()[None, None], 3, stride=1, padding=1)[
+            0, 0
+        ]  # alpha eroded by 1 px
         if masked:
             surface = surface * (view.alpha > 0.5)
         losses["normal"] = config.normal_weight * normal_consistency_loss(
@@ -197,5 +246,10 @@ def training_losses(gaussians: Gaussians, view: View, config: GeometryConfig, it
 
 
 def _empty_like(params: dict) -> Gaussians:
-    return Gaussians(params["means"], params["log_scales"], params["quats"], params["opacity_logits"],
-                     torch.cat([params["sh_dc"], params["sh_rest"]], dim=1))
+    return Gaussians(
+        params["means"],
+        params["log_scales"],
+        params["quats"],
+        params["opacity_logits"],
+        torch.cat([params["sh_dc"], params["sh_rest"]], dim=1),
+    )

@@ -15,4 +15,13 @@ from matspray.gltf.read import read_gltf
 from matspray.gltf.sample import sample_texture
 from matspray.gltf.write import write_glb
 
-__all__ = ["GltfAsset", "PbrMaterial", "Primitive", "TextureRef", "TextureTransform", "read_gltf", "sample_texture", "write_glb"]
+__all__ = [
+    "GltfAsset",
+    "PbrMaterial",
+    "Primitive",
+    "TextureRef",
+    "TextureTransform",
+    "read_gltf",
+    "sample_texture",
+    "write_glb",
+]

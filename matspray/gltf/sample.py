@@ -27,11 +27,13 @@ def apply_uv_transform(uv: Tensor, matrix: Tensor | None) -> Tensor:  # [N, 2], 
     return uv @ matrix[:2, :2].T + matrix[:2, 2]
 
 
-def sample_texture(image: Tensor,  # [H, W, C]; row 0 at v = 0
-                   uv: Tensor,  # [N, 2]
-                   wrap_s: str = "repeat", wrap_t: str = "repeat",
-                   uv_transform: Tensor | None = None,  # [3, 3] affine applied to uv first (KHR_texture_transform)
-                   ) -> Tensor:  # [N, C]
+def sample_texture(
+    image: Tensor,  # [H, W, C]; row 0 at v = 0
+    uv: Tensor,  # [N, 2]
+    wrap_s: str = "repeat",
+    wrap_t: str = "repeat",
+    uv_transform: Tensor | None = None,  # [3, 3] affine applied to uv first (KHR_texture_transform)
+) -> Tensor:  # [N, C]
     """Bilinear lookup with texel centres at (i + 0.5) / size."""
     height, width = image.shape[:2]
     uv = apply_uv_transform(uv.to(image.dtype if image.is_floating_point() else torch.float64), uv_transform)

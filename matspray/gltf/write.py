@@ -58,7 +58,9 @@ class _Blob:
 
     def view(self, payload: bytes, target: int | None = None) -> int:
         self.data.extend(b"\0" * (-len(self.data) % 4))
-        self.gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=len(self.data), byteLength=len(payload), target=target))
+        self.gltf.bufferViews.append(
+            pygltflib.BufferView(buffer=0, byteOffset=len(self.data), byteLength=len(payload), target=target)
+        )
         self.data.extend(payload)
         return len(self.gltf.bufferViews) - 1
 
@@ -68,7 +70,9 @@ class _Blob:
         target = pygltflib.ELEMENT_ARRAY_BUFFER if is_index else pygltflib.ARRAY_BUFFER
         view = self.view(array.tobytes(), target)
         flat = array.reshape(len(array), -1) if not is_index else array.reshape(-1, 1)
-        accessor = pygltflib.Accessor(bufferView=view, componentType=UINT32 if is_index else FLOAT, count=len(flat), type=kind)
+        accessor = pygltflib.Accessor(
+            bufferView=view, componentType=UINT32 if is_index else FLOAT, count=len(flat), type=kind
+        )
         if bounds:
             accessor.min, accessor.max = flat.min(0).tolist(), flat.max(0).tolist()
         self.gltf.accessors.append(accessor)
@@ -80,41 +84,62 @@ def _texture_info(gltf: pygltflib.GLTF2, blob: _Blob, texture: TextureRef) -> py
         if wrap not in WRAP_ENUMS:
             raise ConfigError(f"unknown texture wrap mode '{wrap}' (valid: {', '.join(WRAP_ENUMS)})")
     gltf.images.append(pygltflib.Image(bufferView=blob.view(png_bytes(texture.image)), mimeType="image/png"))
-    gltf.samplers.append(pygltflib.Sampler(magFilter=pygltflib.LINEAR, minFilter=pygltflib.LINEAR,
-                                           wrapS=WRAP_ENUMS[texture.wrap_s], wrapT=WRAP_ENUMS[texture.wrap_t]))
+    gltf.samplers.append(
+        pygltflib.Sampler(
+            magFilter=pygltflib.LINEAR,
+            minFilter=pygltflib.LINEAR,
+            wrapS=WRAP_ENUMS[texture.wrap_s],
+            wrapT=WRAP_ENUMS[texture.wrap_t],
+        )
+    )
     gltf.textures.append(pygltflib.Texture(source=len(gltf.images) - 1, sampler=len(gltf.samplers) - 1))
     info = pygltflib.TextureInfo(index=len(gltf.textures) - 1, texCoord=texture.tex_coord)
     if not texture.transform.is_identity():
         t = texture.transform
-        info.extensions = {TRANSFORM_EXTENSION: {"offset": list(t.offset), "rotation": t.rotation, "scale": list(t.scale)}}
+        info.extensions = {
+            TRANSFORM_EXTENSION: {"offset": list(t.offset), "rotation": t.rotation, "scale": list(t.scale)}
+        }
         if TRANSFORM_EXTENSION not in gltf.extensionsUsed:
             gltf.extensionsUsed.append(TRANSFORM_EXTENSION)
     return info
 
 
 def _material(gltf: pygltflib.GLTF2, blob: _Blob, material: PbrMaterial) -> pygltflib.Material:
-    pbr = pygltflib.PbrMetallicRoughness(baseColorFactor=[float(c) for c in material.base_color_factor],
-                                         metallicFactor=float(material.metallic_factor), roughnessFactor=float(material.roughness_factor))
+    pbr = pygltflib.PbrMetallicRoughness(
+        baseColorFactor=[float(c) for c in material.base_color_factor],
+        metallicFactor=float(material.metallic_factor),
+        roughnessFactor=float(material.roughness_factor),
+    )
     if material.base_color_texture is not None:
         pbr.baseColorTexture = _texture_info(gltf, blob, material.base_color_texture)
     if material.metallic_roughness_texture is not None:
         pbr.metallicRoughnessTexture = _texture_info(gltf, blob, material.metallic_roughness_texture)
-    return pygltflib.Material(name=material.name or None, pbrMetallicRoughness=pbr, doubleSided=bool(material.double_sided))
+    return pygltflib.Material(
+        name=material.name or None, pbrMetallicRoughness=pbr, doubleSided=bool(material.double_sided)
+    )
 
 
 def _check(primitive: Primitive, materials: int) -> None:
     count = len(primitive.positions)
     if primitive.positions.ndim != 2 or primitive.positions.shape[1] != 3 or count == 0:
-        raise ConfigError(f"primitive '{primitive.name}': positions must be [V, 3] with V > 0, got {primitive.positions.shape}")
+        raise ConfigError(
+            f"primitive '{primitive.name}': positions must be [V, 3] with V > 0, got {primitive.positions.shape}"
+        )
     if primitive.indices.ndim != 2 or primitive.indices.shape[1] != 3 or len(primitive.indices) == 0:
-        raise ConfigError(f"primitive '{primitive.name}': indices must be [F, 3] with F > 0, got {primitive.indices.shape}")
+        raise ConfigError(
+            f"primitive '{primitive.name}': indices must be [F, 3] with F > 0, got {primitive.indices.shape}"
+        )
     if primitive.indices.min() < 0 or primitive.indices.max() >= count:
         raise ConfigError(f"primitive '{primitive.name}': an index is outside its {count} vertices")
-    for what, values, width in [("normals", primitive.normals, 3)] + [(f"uvs[{i}]", uv, 2) for i, uv in enumerate(primitive.uvs)]:
+    for what, values, width in [("normals", primitive.normals, 3)] + [
+        (f"uvs[{i}]", uv, 2) for i, uv in enumerate(primitive.uvs)
+    ]:
         if values is not None and values.shape != (count, width):
             raise ConfigError(f"primitive '{primitive.name}': {what} must be [{count}, {width}], got {values.shape}")
     if primitive.material is not None and not 0 <= primitive.material < materials:
-        raise ConfigError(f"primitive '{primitive.name}': material {primitive.material} is not one of the {materials} given")
+        raise ConfigError(
+            f"primitive '{primitive.name}': material {primitive.material} is not one of the {materials} given"
+        )
 
 
 def write_glb(path, primitives: list[Primitive], materials: list[PbrMaterial], extras: dict | None = None) -> None:
@@ -138,8 +163,12 @@ def write_glb(path, primitives: list[Primitive], materials: list[PbrMaterial], e
             attributes.NORMAL = blob.accessor(primitive.normals, pygltflib.VEC3)
         for index, uv in enumerate(primitive.uvs):
             setattr(attributes, f"TEXCOORD_{index}", blob.accessor(uv, pygltflib.VEC2))
-        mesh = pygltflib.Primitive(attributes=attributes, indices=blob.accessor(primitive.indices.reshape(-1), pygltflib.SCALAR),
-                                   material=primitive.material, mode=pygltflib.TRIANGLES)
+        mesh = pygltflib.Primitive(
+            attributes=attributes,
+            indices=blob.accessor(primitive.indices.reshape(-1), pygltflib.SCALAR),
+            material=primitive.material,
+            mode=pygltflib.TRIANGLES,
+        )
         gltf.meshes.append(pygltflib.Mesh(name=primitive.name or None, primitives=[mesh]))
         gltf.nodes.append(pygltflib.Node(name=primitive.name or None, mesh=len(gltf.meshes) - 1))
     blob.data.extend(b"\0" * (-len(blob.data) % 4))

@@ -8,10 +8,32 @@
 from matspray.predictors.base import Predictor, predict_views
 from matspray.predictors.encodings import BASECOLOR_ENCODINGS, decode_basecolor, encode_basecolor
 from matspray.predictors.maps import MATERIALS2D, MaterialMaps, read_materials2d, read_predictor_info, write_materials2d
-from matspray.predictors.registry import (AUTO_PREDICTOR, NO_PREDICTOR, SPECS, PredictorOptions, make_predictor, options_for_dataset,
-                                         resolve_predictor)
+from matspray.predictors.registry import (
+    AUTO_PREDICTOR,
+    NO_PREDICTOR,
+    SPECS,
+    PredictorOptions,
+    make_predictor,
+    options_for_dataset,
+    resolve_predictor,
+)
 
 __all__ = [
-    "AUTO_PREDICTOR", "BASECOLOR_ENCODINGS", "MATERIALS2D", "MaterialMaps", "NO_PREDICTOR", "Predictor", "PredictorOptions", "SPECS", "decode_basecolor",
-    "encode_basecolor", "make_predictor", "options_for_dataset", "predict_views", "resolve_predictor", "read_materials2d", "read_predictor_info", "write_materials2d",
+    "AUTO_PREDICTOR",
+    "BASECOLOR_ENCODINGS",
+    "MATERIALS2D",
+    "MaterialMaps",
+    "NO_PREDICTOR",
+    "Predictor",
+    "PredictorOptions",
+    "SPECS",
+    "decode_basecolor",
+    "encode_basecolor",
+    "make_predictor",
+    "options_for_dataset",
+    "predict_views",
+    "resolve_predictor",
+    "read_materials2d",
+    "read_predictor_info",
+    "write_materials2d",
 ]

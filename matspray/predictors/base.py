@@ -27,7 +27,9 @@ class Predictor(ABC):
         return {"predictor": self.name, "simulated": self.simulated, "benchmark_only": self.benchmark_only}
 
 
-def predict_views(views: list[View], predictor: Predictor, notify: Callable[[str], None] = print) -> dict[str, MaterialMaps]:
+def predict_views(
+    views: list[View], predictor: Predictor, notify: Callable[[str], None] = print
+) -> dict[str, MaterialMaps]:
     """Material maps for every view in `views` (name -> maps at the view's resolution), in view order.
 
     Maps from a source with another resolution are resampled, with one notice line per size.
@@ -39,13 +41,17 @@ def predict_views(views: list[View], predictor: Predictor, notify: Callable[[str
     if not views:
         raise DataError("no views to predict materials for")
     if predictor.simulated:
-        notify(f"SIMULATED material maps ({predictor.name}): ground truth degraded for benchmarks, not a real prediction")
+        notify(
+            f"SIMULATED material maps ({predictor.name}): ground truth degraded for benchmarks, not a real prediction"
+        )
     elif predictor.benchmark_only:
         notify(f"GROUND-TRUTH material maps ({predictor.name}): the benchmark upper bound, not a prediction")
     raw = predictor.predict(views)
     missing = [n for n in names if n not in raw]
     if missing:
-        raise DataError(f"the {predictor.name} predictor gave no maps for {len(missing)} view(s): {', '.join(missing[:10])}")
+        raise DataError(
+            f"the {predictor.name} predictor gave no maps for {len(missing)} view(s): {', '.join(missing[:10])}"
+        )
     out, resampled = {}, Counter()
     for view in views:
         maps = raw[view.name].validate(f"{predictor.name} maps of view '{view.name}'")

@@ -32,7 +32,8 @@ def check_encoding(encoding: str) -> str:
         return name
     raise SettingError(
         "basecolor_encoding",
-        f"unknown encoding '{encoding}'; use one of {', '.join(BASECOLOR_ENCODINGS)} (or gammaG for another power law, e.g. gamma2.2)",
+        f"unknown encoding '{encoding}'; use one of {', '.join(BASECOLOR_ENCODINGS)} (or gammaG for another "
+        "power law, e.g. gamma2.2)",
     )
 
 

@@ -55,7 +55,9 @@ class SimulationConfig:
     highlight_amount: float = 0.0  # base colour moves this fraction of the way to white on a full highlight
     # roughness collapse and per-view metallic (off in every model but `dr`)
     roughness_compression: float = 0.0  # per view, roughness moves this fraction of the way to its mean over the object
-    metallic_view_fraction: float = 0.0  # fraction of the views with a spurious partial metallic of their own (metallic_amplitude)
+    metallic_view_fraction: float = (
+        0.0  # fraction of the views with a spurious partial metallic of their own (metallic_amplitude)
+    )
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.severity) and self.severity >= 0):
@@ -64,8 +66,14 @@ class SimulationConfig:
             raise SettingError("batch_size", f"must be >= 1, got {self.batch_size}")
         if not 0.0 <= self.shading_spread <= 1.0:
             raise SettingError("shading_spread", f"must be in [0, 1], got {self.shading_spread}")
-        for name in ("metallic_probability", "cast_fraction", "highlight_fraction", "highlight_amount", "roughness_compression",
-                     "metallic_view_fraction"):
+        for name in (
+            "metallic_probability",
+            "cast_fraction",
+            "highlight_fraction",
+            "highlight_amount",
+            "roughness_compression",
+            "metallic_view_fraction",
+        ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
 
@@ -80,9 +88,13 @@ def dr_model(colour_scale: float, roughness_compression: float, metallic_view_fr
     single views with spurious metallic. One knob per channel, and no knob acts on two channels, so the
     three can be calibrated independently against the three figures of the paper."""
     return replace(
-        PAPER, exposure_sigma=PAPER.exposure_sigma * colour_scale, white_balance_sigma=PAPER.white_balance_sigma * colour_scale,
-        color_shift_sigma=PAPER.color_shift_sigma * colour_scale, shading_strength=PAPER.shading_strength * colour_scale,
-        roughness_compression=roughness_compression, metallic_view_fraction=metallic_view_fraction,
+        PAPER,
+        exposure_sigma=PAPER.exposure_sigma * colour_scale,
+        white_balance_sigma=PAPER.white_balance_sigma * colour_scale,
+        color_shift_sigma=PAPER.color_shift_sigma * colour_scale,
+        shading_strength=PAPER.shading_strength * colour_scale,
+        roughness_compression=roughness_compression,
+        metallic_view_fraction=metallic_view_fraction,
     )
 
 
@@ -94,13 +106,31 @@ DR_METALLIC_VIEW_FRACTION = 0.15
 ERROR_MODELS: dict[str, SimulationConfig] = {
     "paper": PAPER,
     "harsh": replace(
-        PAPER, shading_strength=0.7, exposure_sigma=0.2, white_balance_sigma=0.12, color_shift_sigma=0.03, roughness_offset_sigma=0.16,
-        view_jitter_sigma=0.04, metallic_probability=0.6, metallic_amplitude=(0.2, 0.8), blur_fraction=1.0 / 100.0,
+        PAPER,
+        shading_strength=0.7,
+        exposure_sigma=0.2,
+        white_balance_sigma=0.12,
+        color_shift_sigma=0.03,
+        roughness_offset_sigma=0.16,
+        view_jitter_sigma=0.04,
+        metallic_probability=0.6,
+        metallic_amplitude=(0.2, 0.8),
+        blur_fraction=1.0 / 100.0,
     ),
     "outliers": replace(
-        PAPER, shading_strength=0.175, exposure_sigma=0.05, white_balance_sigma=0.03, color_shift_sigma=0.0075, roughness_offset_sigma=0.04,
-        view_jitter_sigma=0.01, metallic_probability=0.2, metallic_amplitude=(0.5, 0.9),
-        cast_fraction=0.15, cast_strength=0.3, highlight_fraction=0.15, highlight_amount=0.7,
+        PAPER,
+        shading_strength=0.175,
+        exposure_sigma=0.05,
+        white_balance_sigma=0.03,
+        color_shift_sigma=0.0075,
+        roughness_offset_sigma=0.04,
+        view_jitter_sigma=0.01,
+        metallic_probability=0.2,
+        metallic_amplitude=(0.5, 0.9),
+        cast_fraction=0.15,
+        cast_strength=0.3,
+        highlight_fraction=0.15,
+        highlight_amount=0.7,
     ),
     "dr": dr_model(DR_COLOUR_SCALE, DR_ROUGHNESS_COMPRESSION, DR_METALLIC_VIEW_FRACTION),
 }
@@ -111,10 +141,14 @@ SETTINGS = ("severity", "seed", "batch_size")  # what a user may set on top of a
 def error_model(name: str, **settings) -> SimulationConfig:
     """The named model's magnitudes with `severity`, `seed`, `batch_size` set where given (not None)."""
     if name not in ERROR_MODELS:
-        raise SettingError("predictor", f"'simulated:{name}': unknown error model; use one of {', '.join(ERROR_MODELS)}")
+        raise SettingError(
+            "predictor", f"'simulated:{name}': unknown error model; use one of {', '.join(ERROR_MODELS)}"
+        )
     unknown = sorted(set(settings) - set(SETTINGS))
     if unknown:
-        raise SettingError("predictor_options", f"error models take only {', '.join(SETTINGS)}; got {', '.join(unknown)}")
+        raise SettingError(
+            "predictor_options", f"error models take only {', '.join(SETTINGS)}; got {', '.join(unknown)}"
+        )
     return replace(ERROR_MODELS[name], **{k: v for k, v in settings.items() if v is not None})
 
 

@@ -28,7 +28,13 @@ from matspray.predictors.encodings import check_encoding, decode_basecolor
 from matspray.predictors.mapfile import MAP_SUFFIXES, read_color_map, read_packed_map, read_scalar_map
 from matspray.predictors.maps import MaterialMaps
 
-SUFFIX_PREFERENCE = (".npy", ".exr", ".png", ".jpg", ".jpeg")  # when one map exists in several files: most precise first
+SUFFIX_PREFERENCE = (
+    ".npy",
+    ".exr",
+    ".png",
+    ".jpg",
+    ".jpeg",
+)  # when one map exists in several files: most precise first
 FRAME_PASSES = ("basecolor", "roughness", "metallic")
 
 
@@ -71,7 +77,9 @@ def _scan_named(root: Path, pattern: re.Pattern, synonyms: dict[str, str]) -> di
     return groups
 
 
-_MATSPRAY = re.compile(r"^(?P<name>.+)_(?P<pass>basecolor|albedo|roughness|metallic|confidence)\.[A-Za-z]+$", re.IGNORECASE)
+_MATSPRAY = re.compile(
+    r"^(?P<name>.+)_(?P<pass>basecolor|albedo|roughness|metallic|confidence)\.[A-Za-z]+$", re.IGNORECASE
+)
 _MARIGOLD = re.compile(r"^(?P<name>.+)_(?P<pass>albedo|material)\.[A-Za-z]+$", re.IGNORECASE)
 _FRAME = re.compile(r"^(?P<chunk>\d+)\.(?P<frame>\d+)\.(?P<pass>[A-Za-z_]+)\.(?:png|jpe?g)$", re.IGNORECASE)
 
@@ -103,14 +111,35 @@ def _scan_frames(root: Path, cosmos: bool) -> list[Entry]:
         if cosmos != (under_gbuffer or "gbuffer_frames" in path.relative_to(root).parts):
             continue
         clip = path.parent.relative_to(root).as_posix()
-        key = (tuple(natural_key(clip)), int(match.group("chunk")), int(match.group("frame")), clip, match.group("chunk"), match.group("frame"))
+        key = (
+            tuple(natural_key(clip)),
+            int(match.group("chunk")),
+            int(match.group("frame")),
+            clip,
+            match.group("chunk"),
+            match.group("frame"),
+        )
         _keep_preferred(frames.setdefault(key, {}), match.group("pass").lower(), path)
-    return [Entry(f"{key[3]}/{key[4]}.{key[5]}", files) for key, files in sorted(frames.items(), key=lambda kv: kv[0][:3])]
+    return [
+        Entry(f"{key[3]}/{key[4]}.{key[5]}", files) for key, files in sorted(frames.items(), key=lambda kv: kv[0][:3])
+    ]
 
 
 LAYOUTS = (
-    Layout("marigold", "{name}_albedo.npy|png + {name}_material.npy|png (R roughness, G metallic)", "srgb", False, scan_marigold),
-    Layout("matspray", "{view}_basecolor.png (or _albedo) + {view}_roughness.png + {view}_metallic.png", "srgb", False, scan_matspray),
+    Layout(
+        "marigold",
+        "{name}_albedo.npy|png + {name}_material.npy|png (R roughness, G metallic)",
+        "srgb",
+        False,
+        scan_marigold,
+    ),
+    Layout(
+        "matspray",
+        "{view}_basecolor.png (or _albedo) + {view}_roughness.png + {view}_metallic.png",
+        "srgb",
+        False,
+        scan_matspray,
+    ),
     Layout(
         "diffusionrenderer-cosmos",
         "gbuffer_frames/{clip}/{chunk}.{i:04d}.{basecolor|roughness|metallic}.jpg",
@@ -132,14 +161,20 @@ def detect_layout(root) -> tuple[Layout, list[Entry]]:
     """The first layout (in LAYOUTS order) whose files are in `root`, with its entries."""
     root = Path(root)
     if not root.is_dir():
-        raise file_error(root, "is not a folder" if root.exists() else "does not exist", "files:DIR needs the folder holding the maps")
+        raise file_error(
+            root,
+            "is not a folder" if root.exists() else "does not exist",
+            "files:DIR needs the folder holding the maps",
+        )
     for layout in LAYOUTS:
         entries = layout.scan(root)
         if entries:
             return layout, entries
     seen = sorted(p.name for p in root.iterdir())[:5]
     tried = "; ".join(f"{layout.name}: {layout.pattern}" for layout in LAYOUTS)
-    raise file_error(root, f"no known map layout found (tried {tried})", f"found {', '.join(seen) or 'an empty folder'}")
+    raise file_error(
+        root, f"no known map layout found (tried {tried})", f"found {', '.join(seen) or 'an empty folder'}"
+    )
 
 
 def _list(items: list[str], limit: int = 10) -> str:
@@ -158,11 +193,18 @@ class FilesPredictor(Predictor):
         self.notify = notify
         self._check_complete()
         self.source_info = self._read_source_info()
-        self.simulated = bool(self.source_info.get("simulated", False))  # maps copied from a simulated run stay labelled
+        self.simulated = bool(
+            self.source_info.get("simulated", False)
+        )  # maps copied from a simulated run stay labelled
         self.benchmark_only = bool(self.source_info.get("benchmark_only", False))
 
     def describe(self) -> dict:
-        info = dict(super().describe(), source=str(self.root), layout=self.layout.name, basecolor_encoding=self.basecolor_encoding)
+        info = dict(
+            super().describe(),
+            source=str(self.root),
+            layout=self.layout.name,
+            basecolor_encoding=self.basecolor_encoding,
+        )
         if self.source_info:
             info["source_predictor"] = self.source_info
         return info
@@ -196,7 +238,8 @@ class FilesPredictor(Predictor):
                 raise file_error(
                     self.root,
                     f"holds {len(self.entries)} {self.layout.name} frames but there are {len(views)} views",
-                    "frames map to the views in order, so their numbers must match; run the model on exactly these views",
+                    "frames map to the views in order, so their numbers must match; "
+                    "run the model on exactly these views",
                 )
             clips = sorted({e.key.rsplit("/", 1)[0] for e in self.entries}, key=natural_key)
             if len(clips) > 1:
@@ -228,11 +271,15 @@ class FilesPredictor(Predictor):
             if values.shape != stored.shape[:2]:
                 raise file_error(
                     sources[channel],
-                    f"is {values.shape[1]}x{values.shape[0]} but its base color {files['basecolor'].name} is {stored.shape[1]}x{stored.shape[0]}",
+                    f"is {values.shape[1]}x{values.shape[0]} but its base color {files['basecolor'].name} is "
+                    f"{stored.shape[1]}x{stored.shape[0]}",
                 )
         basecolor: Tensor = decode_basecolor(stored, self.basecolor_encoding)
         return MaterialMaps(basecolor, scalars["roughness"], scalars["metallic"], scalars.get("confidence"))
 
     def predict(self, views: list[View]) -> dict[str, MaterialMaps]:
         assigned = self.assign(views)
-        return {name: self.read_entry(entry) for name, entry in tqdm(assigned.items(), desc=f"reading {self.layout.name} maps", unit="view")}
+        return {
+            name: self.read_entry(entry)
+            for name, entry in tqdm(assigned.items(), desc=f"reading {self.layout.name} maps", unit="view")
+        }

@@ -20,7 +20,9 @@ from matspray.predictors.base import Predictor
 from matspray.predictors.mapfile import read_color_map, read_scalar_map
 from matspray.predictors.maps import MaterialMaps
 
-SYNTH_HINT = "the simulated and ground-truth predictors need a `matspray synth` object, which stores true maps next to each view"
+SYNTH_HINT = (
+    "the simulated and ground-truth predictors need a `matspray synth` object, which stores true maps next to each view"
+)
 
 
 def ground_truth_path(view: View, what: str) -> Path:
@@ -38,7 +40,8 @@ def check_ground_truth(views: list[View], what: tuple[str, ...] = ("basecolor", 
         where = next((Path(v.path).parent.parent for v in views if v.path is not None), "the dataset")
         listed = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more" if len(missing) > 8 else "")
         raise DataError(
-            f"{where}: no ground-truth {'/'.join(what)} maps for {len(missing)} of {len(views)} views ({listed}); {SYNTH_HINT}"
+            f"{where}: no ground-truth {'/'.join(what)} maps for {len(missing)} of {len(views)} views "
+            f"({listed}); {SYNTH_HINT}"
         )
 
 

@@ -24,7 +24,9 @@ def read_values(path: Path) -> Tensor:  # [H, W, C] stored values, checked to li
         raise file_error(path, f"cannot read image: {exc}") from None
     low, high = float(values.min()), float(values.max())
     if low < -RANGE_TOLERANCE or high > 1.0 + RANGE_TOLERANCE:
-        raise file_error(path, f"values outside [0, 1] (min {low:.4g}, max {high:.4g})", "material maps must be normalised to [0, 1]")
+        raise file_error(
+            path, f"values outside [0, 1] (min {low:.4g}, max {high:.4g})", "material maps must be normalised to [0, 1]"
+        )
     return values.clamp(0.0, 1.0)
 
 
@@ -53,7 +55,8 @@ def read_scalar_map(path: Path, what: str) -> Tensor:  # [H, W]
     if spread > GREY_TOLERANCE:
         raise file_error(
             path,
-            f"is a colour image (channels differ by {spread:.3f} on average), but a {what} map holds one value per pixel",
+            f"is a colour image (channels differ by {spread:.3f} on average), "
+            f"but a {what} map holds one value per pixel",
             "save it as a grey image, or check that the file is the right pass",
         )
     return values.mean(-1)
@@ -63,5 +66,7 @@ def read_packed_map(path: Path, names: tuple[str, ...]) -> dict[str, Tensor]:  #
     """Several scalar maps packed into the channels of one file, e.g. ("roughness", "metallic") in R and G."""
     values = read_values(path)
     if values.shape[-1] < len(names):
-        raise file_error(path, f"has {values.shape[-1]} channel(s); expected {', '.join(names)} in the first {len(names)} channels")
+        raise file_error(
+            path, f"has {values.shape[-1]} channel(s); expected {', '.join(names)} in the first {len(names)} channels"
+        )
     return {name: values[..., i].contiguous() for i, name in enumerate(names)}

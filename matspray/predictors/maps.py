@@ -123,9 +123,15 @@ def read_predictor_info(run_dir) -> dict:
     try:
         info = json.loads(path.read_text())
     except (json.JSONDecodeError, OSError, UnicodeDecodeError) as exc:
-        raise file_error(path, f"cannot read: {' '.join(str(exc).split())}", "rerun `matspray predict` to write it again") from None
+        raise file_error(
+            path, f"cannot read: {' '.join(str(exc).split())}", "rerun `matspray predict` to write it again"
+        ) from None
     if not isinstance(info, dict):
-        raise file_error(path, f"holds a {type(info).__name__}, not the record `matspray predict` writes", "rerun `matspray predict` to write it again")
+        raise file_error(
+            path,
+            f"holds a {type(info).__name__}, not the record `matspray predict` writes",
+            "rerun `matspray predict` to write it again",
+        )
     return info
 
 
@@ -146,7 +152,9 @@ def read_materials2d(run_dir, views: list[View]) -> dict[str, MaterialMaps]:
             "rerun `matspray predict` with the split these views come from (train, test or all)",
         )
     out = {}
-    hint = stage_hint(map_path(folder, "any", "basecolor"))  # a damaged map of a finished predict stage: make the stage again
+    hint = stage_hint(
+        map_path(folder, "any", "basecolor")
+    )  # a damaged map of a finished predict stage: make the stage again
     for view in views:
         try:
             stored = read_color_map(map_path(folder, view.name, "basecolor"))
@@ -165,5 +173,7 @@ def read_materials2d(run_dir, views: list[View]) -> dict[str, MaterialMaps]:
                     f"is {values.shape[1]}x{values.shape[0]} but view '{view.name}' is {view.width}x{view.height}",
                     "rerun `matspray predict` with the same dataset and downscale as this stage",
                 )
-        out[view.name] = MaterialMaps(srgb_to_linear(stored), scalars["roughness"], scalars["metallic"], scalars.get("confidence"))
+        out[view.name] = MaterialMaps(
+            srgb_to_linear(stored), scalars["roughness"], scalars["metallic"], scalars.get("confidence")
+        )
     return out

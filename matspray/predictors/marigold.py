@@ -18,9 +18,9 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from matspray.device import resolve_device
 from matspray.data.images import linear_to_srgb, srgb_to_linear
 from matspray.data.scene import View
+from matspray.device import resolve_device
 from matspray.errors import ConfigError, DataError, SettingError, file_error
 from matspray.predictors.base import Predictor
 from matspray.predictors.encodings import check_encoding, decode_basecolor
@@ -60,7 +60,9 @@ def load_pipeline(weights: str):
     try:
         from diffusers import MarigoldIntrinsicsPipeline
     except ImportError:
-        raise ConfigError("the marigold predictor needs diffusers and transformers: pip install 'matspray[marigold]'") from None
+        raise ConfigError(
+            "the marigold predictor needs diffusers and transformers: pip install 'matspray[marigold]'"
+        ) from None
     path = Path(weights).expanduser()
     if path.exists():
         index = path / "model_index.json"
@@ -71,17 +73,25 @@ def load_pipeline(weights: str):
         except (json.JSONDecodeError, OSError, UnicodeDecodeError) as exc:
             raise file_error(index, f"cannot read: {exc}") from None
         if class_name != PIPELINE_CLASS:
-            raise file_error(index, f"holds a {class_name}, not a {PIPELINE_CLASS}", f"use the Marigold-IID appearance model: {DOWNLOAD_HINT}")
+            raise file_error(
+                index,
+                f"holds a {class_name}, not a {PIPELINE_CLASS}",
+                f"use the Marigold-IID appearance model: {DOWNLOAD_HINT}",
+            )
         try:
             return MarigoldIntrinsicsPipeline.from_pretrained(str(path), local_files_only=True)
         except (OSError, ValueError, KeyError, RuntimeError) as exc:
             raise file_error(path, f"cannot load the pipeline: {exc}") from None
     if weights.count("/") != 1 or weights.startswith((".", "/", "~")):
-        raise file_error(path, "does not exist", f"the weights setting takes a pipeline folder or a hub id; {DOWNLOAD_HINT}")
+        raise file_error(
+            path, "does not exist", f"the weights setting takes a pipeline folder or a hub id; {DOWNLOAD_HINT}"
+        )
     try:
         return MarigoldIntrinsicsPipeline.from_pretrained(weights)
     except Exception as exc:  # no network, unknown repo, interrupted download: all end the same way
-        raise ConfigError(f"cannot get Marigold weights '{weights}' from the Hugging Face hub ({type(exc).__name__}); {DOWNLOAD_HINT}") from None
+        raise ConfigError(
+            f"cannot get Marigold weights '{weights}' from the Hugging Face hub ({type(exc).__name__}); {DOWNLOAD_HINT}"
+        ) from None
 
 
 def target_layout(properties: dict | None) -> dict[str, tuple[int, int | None, str]]:
@@ -127,7 +137,12 @@ class MarigoldPredictor(Predictor):
         self.notify = notify
 
     def describe(self) -> dict:
-        return dict(super().describe(), settings=asdict(self.config), device=str(self.device), targets=list(self.pipe.target_properties["target_names"]))
+        return dict(
+            super().describe(),
+            settings=asdict(self.config),
+            device=str(self.device),
+            targets=list(self.pipe.target_properties["target_names"]),
+        )
 
     def _channel(self, prediction: Tensor, name: str) -> Tensor:  # [N, T, 3, H, W] -> [N, H, W(, 3)]
         index, channel, _ = self.targets[name]

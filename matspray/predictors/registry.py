@@ -38,7 +38,16 @@ class PredictorOptions:
 
 USES = {
     "files": {"basecolor_encoding"},
-    "marigold": {"basecolor_encoding", "weights", "device", "steps", "ensemble_size", "processing_resolution", "batch_size", "seed"},
+    "marigold": {
+        "basecolor_encoding",
+        "weights",
+        "device",
+        "steps",
+        "ensemble_size",
+        "processing_resolution",
+        "batch_size",
+        "seed",
+    },
     "simulated": {"batch_size", "seed", "severity"},
     "ground-truth": set(),
 }
@@ -74,8 +83,10 @@ def resolve_predictor(spec: str, views: list, notify: Callable[[str], None] = pr
         try:
             check_ground_truth(views)
         except DataError:
-            notify("predictor: this dataset has no ground-truth maps, so the run makes the no-prior asset without 2D maps "
-                   "(give --predictor files:DIR or marigold for the full method)")
+            notify(
+                "predictor: this dataset has no ground-truth maps, so the run makes the no-prior asset without 2D maps "
+                "(give --predictor files:DIR or marigold for the full method)"
+            )
             return NO_PREDICTOR
         return "simulated"
     if kind in NEEDS_GROUND_TRUTH:
@@ -83,16 +94,22 @@ def resolve_predictor(spec: str, views: list, notify: Callable[[str], None] = pr
     return spec
 
 
-def make_predictor(spec: str, options: PredictorOptions | None = None, notify: Callable[[str], None] = print) -> Predictor:
+def make_predictor(
+    spec: str, options: PredictorOptions | None = None, notify: Callable[[str], None] = print
+) -> Predictor:
     options = options or PredictorOptions()
     if spec == NO_PREDICTOR:
-        raise SettingError("predictor", "'none' predicts no maps; only a run refines without them (the no-prior variant)")
+        raise SettingError(
+            "predictor", "'none' predicts no maps; only a run refines without them (the no-prior variant)"
+        )
     kind, _, argument = str(spec).partition(":")
     kind = kind.strip().lower()
     if kind not in USES:
         raise SettingError("predictor", f"unknown predictor '{spec}'; use one of {', '.join(SPECS)}")
     if kind == "files" and not argument:
-        raise SettingError("predictor", "files:DIR needs the folder holding the maps, e.g. files:outputs/diffusion_renderer")
+        raise SettingError(
+            "predictor", "files:DIR needs the folder holding the maps, e.g. files:outputs/diffusion_renderer"
+        )
     if kind not in ("files", "simulated") and argument:
         raise SettingError("predictor", f"{kind} takes no ':' argument (got '{spec}')")
     unused = sorted(n for n in _given(options, {f.name for f in fields(options)}) if n not in USES[kind])

@@ -150,7 +150,11 @@ def draw_view_outlier(config: SimulationConfig, index: int) -> ViewOutlier:
         direction = direction - direction.mean()
         direction = direction / max(float(np.linalg.norm(direction)), 1e-9)
         cast = [float(v) for v in np.exp(config.cast_strength * s * direction)]
-    highlights = min(1.0, config.highlight_amount * s) if evenly_spread(config.highlight_fraction * s, config.seed, 6, index) else 0.0
+    highlights = (
+        min(1.0, config.highlight_amount * s)
+        if evenly_spread(config.highlight_fraction * s, config.seed, 6, index)
+        else 0.0
+    )
     metallic = 0.0
     if evenly_spread(config.metallic_view_fraction * s, config.seed, 7, index):
         low, high = config.metallic_amplitude
@@ -200,12 +204,26 @@ def draw_batch_drift(config: SimulationConfig, batch: int) -> BatchDrift:
         roughness_offset=float(config.roughness_offset_sigma * s * normal[7]),
         spurious_metallic=float(min(1.0, amplitude)) if has_metal else 0.0,
         # its own stream, so that adding it left every earlier draw as it was
-        shading=float(config.shading_strength * s * (1.0 + config.shading_spread * (2.0 * np.random.default_rng([int(config.seed), 3, batch]).uniform() - 1.0))),
+        shading=float(
+            config.shading_strength
+            * s
+            * (
+                1.0
+                + config.shading_spread * (2.0 * np.random.default_rng([int(config.seed), 3, batch]).uniform() - 1.0)
+            )
+        ),
     )
 
 
-def simulate_view(truth: MaterialMaps, photo: Tensor, alpha: Tensor | None, drift: BatchDrift, config: SimulationConfig, index: int,
-                  outlier: ViewOutlier | None = None) -> MaterialMaps:
+def simulate_view(
+    truth: MaterialMaps,
+    photo: Tensor,
+    alpha: Tensor | None,
+    drift: BatchDrift,
+    config: SimulationConfig,
+    index: int,
+    outlier: ViewOutlier | None = None,
+) -> MaterialMaps:
     """One view's simulated prediction. truth: true maps; photo [H, W, 3] linear; alpha [H, W] or None;
     index: the view's position in the predicted list (seeds its jitter); outlier: its own errors, if any."""
     s = config.severity
@@ -217,9 +235,15 @@ def simulate_view(truth: MaterialMaps, photo: Tensor, alpha: Tensor | None, drif
     ratio = shading_ratio(photo.to(truth.basecolor), truth.basecolor, mask)  # [H, W]
     basecolor = (truth.basecolor * ratio[..., None] ** drift.shading).clamp(0.0, 1.0)
     if outlier is not None and outlier.highlights > 0:
-        basecolor = torch.lerp(basecolor, torch.ones_like(basecolor), outlier.highlights * highlight_weight(ratio)[..., None])
+        basecolor = torch.lerp(
+            basecolor, torch.ones_like(basecolor), outlier.highlights * highlight_weight(ratio)[..., None]
+        )
     basecolor = torch.lerp(basecolor, filmic_tone(basecolor), tone)
-    gain = torch.tensor(drift.white_balance, dtype=basecolor.dtype, device=basecolor.device) * drift.exposure * float(np.exp(jitter[0]))
+    gain = (
+        torch.tensor(drift.white_balance, dtype=basecolor.dtype, device=basecolor.device)
+        * drift.exposure
+        * float(np.exp(jitter[0]))
+    )
     if outlier is not None:
         gain = gain * torch.tensor(outlier.cast, dtype=basecolor.dtype, device=basecolor.device)
     basecolor = basecolor * gain + torch.tensor(drift.color_shift, dtype=basecolor.dtype, device=basecolor.device)
@@ -250,18 +274,29 @@ class SimulatedPredictor(Predictor):
         self.outliers: list[dict] = []  # the views with outliers of their own, filled by predict
 
     def describe(self) -> dict:
-        note = f"SIMULATED from ground truth for benchmarks (error model '{model_name(self.config)}'); not a real prediction"
+        note = (
+            f"SIMULATED from ground truth for benchmarks (error model '{model_name(self.config)}'); "
+            "not a real prediction"
+        )
         config = asdict(self.config)
         config["metallic_amplitude"] = list(self.config.metallic_amplitude)
-        return dict(super().describe(), note=note, error_model=model_name(self.config), settings=config, batches=self.batches,
-                    outliers=self.outliers)
+        return dict(
+            super().describe(),
+            note=note,
+            error_model=model_name(self.config),
+            settings=config,
+            batches=self.batches,
+            outliers=self.outliers,
+        )
 
     def predict(self, views: list[View]) -> dict[str, MaterialMaps]:
         check_ground_truth(views)
         out, self.batches, self.outliers = {}, [], []
         draws = replace(self.config, seed=views_seed(self.config.seed, views))
         size = int(self.config.batch_size)
-        with tqdm(total=len(views), desc="simulated predictions", unit="view", disable=None) as bar:  # no bar where output is not a terminal
+        with tqdm(
+            total=len(views), desc="simulated predictions", unit="view", disable=None
+        ) as bar:  # no bar where output is not a terminal
             for batch, start in enumerate(range(0, len(views), size)):
                 drift = draw_batch_drift(draws, batch)
                 members = views[start : start + size]

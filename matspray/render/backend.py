@@ -35,8 +35,10 @@ from matspray.errors import SettingError
 
 BACKENDS = ("auto", "torch", "numba", "gsplat")
 INSTALL_HINT = "pip install 'matspray[cuda]' (needs nvcc and ninja; the first use compiles CUDA code)"
-BUILD_HINT = ("gsplat compiles its CUDA code with nvcc and ninja: install the CUDA toolkit of torch's CUDA version "
-              "and `pip install ninja`, or use backend torch")
+BUILD_HINT = (
+    "gsplat compiles its CUDA code with nvcc and ninja: install the CUDA toolkit of torch's CUDA version "
+    "and `pip install ninja`, or use backend torch"
+)
 
 Notify = Callable[[str], None]
 # per process (one CUDA extension per process, whichever GPU): why gsplat cannot render on CUDA (None: it can),
@@ -76,20 +78,30 @@ def gsplat_cuda_error(device, notify: Notify | None = None) -> str | None:
         return _one_line(exc)
     if not 0.45 < alpha <= 0.5:  # opacity 0.5, 4 px wide, centred on a pixel corner: 0.492 at the four centre pixels
         return f"gsplat's CUDA extension rendered a test Gaussian wrongly (alpha {alpha:.3f} where 0.5 was drawn)"
-    (notify or _to_stderr)(f"gsplat: CUDA extension ready in {perf_counter() - start:.1f} s "
-                           "(compiled at its first use, reused from the build cache after that)")
+    (notify or _to_stderr)(
+        f"gsplat: CUDA extension ready in {perf_counter() - start:.1f} s "
+        "(compiled at its first use, reused from the build cache after that)"
+    )
     return None
 
 
 def _render_one_gaussian(device: torch.device) -> float:
-    """The largest alpha of one Gaussian (opacity 0.5, 4 px sigma) rendered by gsplat at the centre of a 16 x 16 image."""
+    """The largest alpha of one Gaussian (opacity 0.5, 4 px sigma) rendered by gsplat at the centre of a
+    16 x 16 image."""
     gsplat = importlib.import_module("gsplat")
     with torch.no_grad():
         _, alphas, _ = gsplat.rasterization(
-            torch.tensor([[0.0, 0.0, 2.0]], device=device), torch.tensor([[1.0, 0.0, 0.0, 0.0]], device=device),
-            torch.full((1, 3), 0.5, device=device), torch.tensor([0.5], device=device), torch.ones(1, 3, device=device),
-            torch.eye(4, device=device)[None], torch.tensor([[[16.0, 0.0, 8.0], [0.0, 16.0, 8.0], [0.0, 0.0, 1.0]]], device=device),
-            16, 16, packed=False)
+            torch.tensor([[0.0, 0.0, 2.0]], device=device),
+            torch.tensor([[1.0, 0.0, 0.0, 0.0]], device=device),
+            torch.full((1, 3), 0.5, device=device),
+            torch.tensor([0.5], device=device),
+            torch.ones(1, 3, device=device),
+            torch.eye(4, device=device)[None],
+            torch.tensor([[[16.0, 0.0, 8.0], [0.0, 16.0, 8.0], [0.0, 0.0, 1.0]]], device=device),
+            16,
+            16,
+            packed=False,
+        )
     return float(alphas.max())  # a float: waits for the kernels, so that their errors surface here
 
 
@@ -106,7 +118,9 @@ def gsplat_device_error(device, notify: Notify | None = None) -> str | None:
             _CHECKED[key] = f"gsplat is not installed or does not import ({error}); {INSTALL_HINT}"
         else:
             error = gsplat_cuda_error(device, notify)
-            _CHECKED[key] = None if error is None else f"gsplat's CUDA extension does not build or run ({error}); {BUILD_HINT}"
+            _CHECKED[key] = (
+                None if error is None else f"gsplat's CUDA extension does not build or run ({error}); {BUILD_HINT}"
+            )
     return _CHECKED[key]
 
 
@@ -117,7 +131,9 @@ def numba_device_error(device) -> str | None:
     try:
         importlib.import_module("numba")
     except Exception as exc:  # numba is a core dependency: only a broken install gets here
-        return f"numba does not import ({_one_line(exc)}); reinstall matspray (pip install matspray) or use backend torch"
+        return (
+            f"numba does not import ({_one_line(exc)}); reinstall matspray (pip install matspray) or use backend torch"
+        )
     return None
 
 
@@ -150,7 +166,9 @@ def resolve_backend(name: str, device, notify: Notify | None = None) -> str:
 
 @dataclass
 class RenderUse:
-    """The backend a block of work renders with, and what it really ran: {"torch" | "numba" | "gsplat" | "rays": calls}."""
+    """The backend a block of work renders with, and what it really ran:
+    {"torch" | "numba" | "gsplat" | "rays": calls}."""
+
     backend: str
     calls: Counter = field(default_factory=Counter)
     outer: "RenderUse | None" = None  # the enclosing block, which counts this block's calls too
@@ -184,7 +202,8 @@ def active_backend() -> str:
 
 
 def note_render(kind: str) -> None:
-    """Count one call of a renderer ('torch', 'numba', 'gsplat', or 'rays' for the lifting ray tracer) in the active block."""
+    """Count one call of a renderer ('torch', 'numba', 'gsplat', or 'rays' for the lifting ray tracer)
+    in the active block."""
     use = _ACTIVE.get()
     while use is not None:
         use.calls[kind] += 1

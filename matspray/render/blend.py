@@ -36,7 +36,9 @@ def blend_hits(
     settings: RasterSettings,
     absgrad_of: Tensor | None = None,  # [N, 2]: receives .absgrad in backward (see the module docstring)
 ) -> tuple[Tensor, int]:  # [num_pixels, C] blended values, number of blended hits
-    out, blended = _BlendHits.apply(splats, values, gaussian_ids, pixel_ids, (width, row_start, num_pixels, settings, absgrad_of))
+    out, blended = _BlendHits.apply(
+        splats, values, gaussian_ids, pixel_ids, (width, row_start, num_pixels, settings, absgrad_of)
+    )
     return out, int(blended)
 
 
@@ -89,9 +91,18 @@ class _BlendHits(torch.autograd.Function):
         out = values.new_zeros(num_pixels, values.shape[0])
         out.index_add_(0, pixel_ids, (hit_values * weights).t())
         ctx.save_for_backward(
-            gaussian_ids, pixel_ids, alphas, transmittance, raw <= settings.max_alpha, response.index_select(0, keep),
-            a.index_select(0, keep), b.index_select(0, keep), c.index_select(0, keep),
-            dx.index_select(0, keep), dy.index_select(0, keep), hit_values,
+            gaussian_ids,
+            pixel_ids,
+            alphas,
+            transmittance,
+            raw <= settings.max_alpha,
+            response.index_select(0, keep),
+            a.index_select(0, keep),
+            b.index_select(0, keep),
+            c.index_select(0, keep),
+            dx.index_select(0, keep),
+            dy.index_select(0, keep),
+            hit_values,
         )
         ctx.sizes = (splats.shape[1], num_pixels)
         ctx.absgrad_of = absgrad_of
@@ -101,7 +112,9 @@ class _BlendHits(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_out, _grad_count):
-        gaussian_ids, pixel_ids, alphas, transmittance, unclamped, response, a, b, c, dx, dy, hit_values = ctx.saved_tensors
+        gaussian_ids, pixel_ids, alphas, transmittance, unclamped, response, a, b, c, dx, dy, hit_values = (
+            ctx.saved_tensors
+        )
         num_gaussians, num_pixels = ctx.sizes
         weights = alphas * transmittance
         grad_hit = grad_out.index_select(0, pixel_ids).t()  # [C, M]

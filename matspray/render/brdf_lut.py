@@ -85,7 +85,9 @@ def brdf_lut(size: int = DEFAULT_SIZE, samples: int = DEFAULT_SAMPLES, device=No
     if key not in _TABLES:
         base_key = (size, samples, "cpu", torch.float64)
         if base_key not in _TABLES:
-            centres = (torch.arange(size, dtype=torch.float64, device="cpu") + 0.5) / size  # integrated once, on the CPU
+            centres = (
+                torch.arange(size, dtype=torch.float64, device="cpu") + 0.5
+            ) / size  # integrated once, on the CPU
             nv, r = torch.meshgrid(centres, centres, indexing="ij")
             _TABLES[base_key] = integrate_split_sum(nv, r, samples)
         _TABLES[key] = _TABLES[base_key].to(device=device, dtype=dtype)
@@ -97,7 +99,8 @@ def lookup_brdf_lut(n_dot_v: Tensor, roughness: Tensor, size: int = DEFAULT_SIZE
     n_dot_v, roughness = torch.broadcast_tensors(n_dot_v, roughness)
     table = brdf_lut(size, device=n_dot_v.device, dtype=n_dot_v.dtype)  # [size, size, 2]
     image = table.permute(2, 0, 1)[None]  # [1, 2, size (n.v) = rows, size (r) = columns]
-    # grid_sample: x indexes columns (roughness), y rows (n.v); align_corners=False puts texel centres at (i + 0.5) / size
+    # grid_sample: x indexes columns (roughness), y rows (n.v); align_corners=False puts texel centres at
+    # (i + 0.5) / size
     grid = torch.stack([roughness * 2.0 - 1.0, n_dot_v * 2.0 - 1.0], dim=-1).reshape(1, 1, -1, 2)
     out = F.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=False)  # [1, 2, 1, P]
     return out[0, :, 0].T.reshape(*n_dot_v.shape, 2)

@@ -34,7 +34,9 @@ def ray_major_order_by_depth(ray_ids: Tensor, depths: Tensor) -> Tensor:  # [M] 
     return torch.argsort(key, stable=True)
 
 
-def segment_starts(ray_ids: Tensor, num_rays: int) -> Tensor:  # [M] sorted -> [M] index of the first hit of each hit's ray
+def segment_starts(
+    ray_ids: Tensor, num_rays: int
+) -> Tensor:  # [M] sorted -> [M] index of the first hit of each hit's ray
     counts = torch.bincount(ray_ids, minlength=num_rays)
     return (torch.cumsum(counts, 0) - counts).index_select(0, ray_ids)
 

@@ -66,8 +66,13 @@ class Contributions:
     def concatenate(parts: list["Contributions"]) -> "Contributions":
         first = parts[0]
         return Contributions(
-            *(torch.cat([getattr(p, name) for p in parts]) for name in ("gaussian_ids", "sample_ids", "weights", "alphas", "depths")),
-            samples_per_side=first.samples_per_side, width=first.width, height=first.height,
+            *(
+                torch.cat([getattr(p, name) for p in parts])
+                for name in ("gaussian_ids", "sample_ids", "weights", "alphas", "depths")
+            ),
+            samples_per_side=first.samples_per_side,
+            width=first.width,
+            height=first.height,
         )
 
 
@@ -136,8 +141,14 @@ def iter_contributions(
         weights = alphas * torch.exp(log_T.index_select(0, alive))
         dtype = gaussians.means.dtype
         yield Contributions(
-            gaussian_ids=gaussian_ids, sample_ids=local_ids + first_sample, weights=weights.to(dtype),
-            alphas=alphas.to(dtype), depths=depths.to(dtype), samples_per_side=s, width=width, height=height,
+            gaussian_ids=gaussian_ids,
+            sample_ids=local_ids + first_sample,
+            weights=weights.to(dtype),
+            alphas=alphas.to(dtype),
+            depths=depths.to(dtype),
+            samples_per_side=s,
+            width=width,
+            height=height,
         )
 
 
@@ -176,14 +187,18 @@ def _max_response(
     rows = torch.div(pixel_ids, width, rounding_mode="floor")
     corner_x = ((pixel_ids - rows * width).double() - K[0, 2]) / K[0, 0]
     corner_y = (rows.double() - K[1, 2]) / K[1, 1]
-    d0 = A[:, :, 0] * corner_x[:, None] + A[:, :, 1] * corner_y[:, None] + A[:, :, 2]  # [P, 3] through the top-left corner
+    d0 = (
+        A[:, :, 0] * corner_x[:, None] + A[:, :, 1] * corner_y[:, None] + A[:, :, 2]
+    )  # [P, 3] through the top-left corner
     ax, ay = A[:, :, 0], A[:, :, 1]  # d' per unit of u and of v
     dot = lambda p, q: (p * q).sum(-1)  # noqa: E731
     od = dot(origin, d0)[:, None] + dot(origin, ax)[:, None] * sub_x + dot(origin, ay)[:, None] * sub_y  # [P, S]
     dd = (
         dot(d0, d0)[:, None]
-        + (2 * dot(d0, ax))[:, None] * sub_x + (2 * dot(d0, ay))[:, None] * sub_y
-        + dot(ax, ax)[:, None] * (sub_x * sub_x) + (2 * dot(ax, ay))[:, None] * (sub_x * sub_y)
+        + (2 * dot(d0, ax))[:, None] * sub_x
+        + (2 * dot(d0, ay))[:, None] * sub_y
+        + dot(ax, ax)[:, None] * (sub_x * sub_x)
+        + (2 * dot(ax, ay))[:, None] * (sub_x * sub_y)
         + dot(ay, ay)[:, None] * (sub_y * sub_y)
     )
     tau = -od / dd
@@ -205,7 +220,9 @@ class _Silhouettes:
         """Owner [P] and pixel id [P] of every pixel whose area meets a silhouette within the rows."""
         boxes = clip_rows(self.boxes, row_start, row_end)
         bounded = torch.where(self.unbounded[:, None], torch.tensor(EMPTY_BOX, device=boxes.device), boxes)
-        owner, pixel_ids = ellipse_pixel_pairs(bounded, self.centres, self.conics, torch.ones_like(self.centres[:, 0]), width, touch="area")
+        owner, pixel_ids = ellipse_pixel_pairs(
+            bounded, self.centres, self.conics, torch.ones_like(self.centres[:, 0]), width, touch="area"
+        )
         whole = torch.where(self.unbounded[:, None], boxes, torch.tensor(EMPTY_BOX, device=boxes.device))
         owner_whole, pixel_ids_whole = box_pixel_pairs(whole, width)
         return torch.cat([owner, owner_whole]), torch.cat([pixel_ids, pixel_ids_whole])

@@ -27,8 +27,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from matspray.material import N_CHANNELS, stack, unstack
 from matspray.data.camera import Camera
+from matspray.material import N_CHANNELS, stack, unstack
 from matspray.render.brdf import (
     MIN_ROUGHNESS,
     cook_torrance,
@@ -52,11 +52,20 @@ class GBuffer:
     metallic: Tensor  # [H, W]
     normals: Tensor  # [H, W, 3] world space, any length
     alpha: Tensor  # [H, W] coverage in [0, 1]
-    shadow: Tensor | None = None  # [H, W, 6] diffuse and specular RGB light scales (`render.visibility`); None = unshadowed
+    shadow: Tensor | None = (
+        None  # [H, W, 6] diffuse and specular RGB light scales (`render.visibility`); None = unshadowed
+    )
 
     @classmethod
-    def from_accumulated(cls, base_color: Tensor, roughness: Tensor, metallic: Tensor, normals: Tensor, alpha: Tensor,
-                         shadow: Tensor | None = None):
+    def from_accumulated(
+        cls,
+        base_color: Tensor,
+        roughness: Tensor,
+        metallic: Tensor,
+        normals: Tensor,
+        alpha: Tensor,
+        shadow: Tensor | None = None,
+    ):
         """From alpha-blended sums over a black background (sum_i w_i value_i, with sum_i w_i = alpha):
         divides the materials (and shadow factors) by alpha. Normals keep their blend; shading normalises them."""
         cover = alpha.clamp_min(1e-6)
@@ -68,8 +77,8 @@ class GBuffer:
         """`from_accumulated` of blended per-Gaussian features [H, W, 8 | 14] laid out as the 5 material
         channels (`matspray.material`), normal 3 and optionally the 6 shadow factors (`render.visibility`)."""
         base_color, roughness, metallic = unstack(blended[..., :N_CHANNELS])
-        normals = blended[..., N_CHANNELS:N_CHANNELS + 3]
-        shadow = blended[..., N_CHANNELS + 3:N_CHANNELS + 9] if blended.shape[-1] > N_CHANNELS + 3 else None
+        normals = blended[..., N_CHANNELS : N_CHANNELS + 3]
+        shadow = blended[..., N_CHANNELS + 3 : N_CHANNELS + 9] if blended.shape[-1] > N_CHANNELS + 3 else None
         return cls.from_accumulated(base_color, roughness, metallic, normals, alpha, shadow)
 
     @property
@@ -130,7 +139,9 @@ def shade_gbuffer(
         raise ValueError(f"G-buffer is {tuple(gbuffer.alpha.shape)} but the camera is {height} x {width}")
     _, ray_dirs = camera.to(gbuffer.normals.device).rays()  # [H * W, 3], row-major
     view_dirs = -ray_dirs.reshape(height, width, 3).to(gbuffer.normals.dtype)
-    rgb = shade(gbuffer.base_color, gbuffer.roughness, gbuffer.metallic, gbuffer.normals, view_dirs, light, gbuffer.shadow)
+    rgb = shade(
+        gbuffer.base_color, gbuffer.roughness, gbuffer.metallic, gbuffer.normals, view_dirs, light, gbuffer.shadow
+    )
     alpha = gbuffer.alpha[..., None]
     if background is None:
         return rgb * alpha

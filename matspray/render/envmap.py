@@ -56,7 +56,9 @@ def check_latlong(map: Tensor, what: str = "environment map") -> None:
     if not torch.isfinite(map).all():
         raise DataError(f"{what} holds NaN or Inf values")
     if (map < 0).any():
-        raise DataError(f"{what} holds negative radiance (min {float(map.min()):.3g}); environment maps are linear and >= 0")
+        raise DataError(
+            f"{what} holds negative radiance (min {float(map.min()):.3g}); environment maps are linear and >= 0"
+        )
 
 
 # ------------------------------------------------------------------------------------------ resampling
@@ -138,10 +140,9 @@ def _kernel_spectrum(kind: str, alpha: float, in_height: int, out_height: int, d
         theta_out = (torch.arange(out_height, dtype=torch.float64, device=host) + 0.5) / out_height * math.pi
         # azimuth of input column m relative to output column 0 (output pixels are `stride` input pixels wide)
         dphi = (torch.arange(in_width, dtype=torch.float64, device=host) + 0.5 - stride / 2) * (2 * math.pi / in_width)
-        cos = (
-            torch.cos(theta_out)[:, None, None] * torch.cos(theta_in)[None, :, None]
-            + torch.sin(theta_out)[:, None, None] * torch.sin(theta_in)[None, :, None] * torch.cos(dphi)
-        )  # [H_out, H_in, W_in]
+        cos = torch.cos(theta_out)[:, None, None] * torch.cos(theta_in)[None, :, None] + torch.sin(theta_out)[
+            :, None, None
+        ] * torch.sin(theta_in)[None, :, None] * torch.cos(dphi)  # [H_out, H_in, W_in]
         solid_angle = pixel_solid_angles(in_height, in_width, device=host, dtype=torch.float64)[:, :1]  # [H_in, 1]
         weights = cos.clamp_min(0.0) * solid_angle
         if kind == "ggx":  # the specular lobe D V (n.l) of a surface seen head-on: n = v = r

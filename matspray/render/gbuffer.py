@@ -23,7 +23,8 @@ from matspray.gaussians import Gaussians
 from matspray.render.backend import active_backend
 from matspray.render.rasterize import rasterize, view_weights
 
-# a (Gaussian, pixel) weight is kept twice (the matrix and its transpose): an int64 column index and a float32 value each
+# a (Gaussian, pixel) weight is kept twice (the matrix and its transpose): an int64 column index and a float32
+# value each
 BYTES_PER_HIT = 2 * (8 + 4)
 DEVICE_RESERVE = 0.25  # share of a GPU's memory left free for the rest of refinement (storage "auto")
 
@@ -80,7 +81,10 @@ class FrozenViews:
                 continue
             gaussian_ids, pixel_ids, weights = view_weights(gaussians, camera)  # [M] each
             pixels = camera.height * camera.width
-            matrices = (blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n), blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels))  # [HW, N], [N, HW]
+            matrices = (
+                blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),
+                blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),
+            )  # [HW, N], [N, HW]
             on_host = storage == "host" or (storage == "auto" and not _room_on(device))
             if on_host:
                 matrices = tuple(_to_host(m) for m in matrices)
@@ -90,7 +94,9 @@ class FrozenViews:
             self.matrices.append(matrices[0])
             self.transposed.append(matrices[1])
             self.visible_ids.append(torch.unique(gaussian_ids).long())  # [K] Gaussians that contribute to the view
-            self.coverage.append(torch.zeros(n, device=device).index_add_(0, gaussian_ids.long(), weights.float()))  # [N] pixels' worth
+            self.coverage.append(
+                torch.zeros(n, device=device).index_add_(0, gaussian_ids.long(), weights.float())
+            )  # [N] pixels' worth
         self.alphas = [self._blend(index, torch.ones(n, 1, device=device))[..., 0] for index in range(len(cameras))]
 
     def __len__(self) -> int:
@@ -102,7 +108,10 @@ class FrozenViews:
             return rasterize(self.gaussians, camera, features, backend=self.backend).features
         matrix, transposed = self.matrices[index], self.transposed[index]
         if self.on_host[index]:
-            matrix, transposed = matrix.to(features.device, non_blocking=True), transposed.to(features.device, non_blocking=True)
+            matrix, transposed = (
+                matrix.to(features.device, non_blocking=True),
+                transposed.to(features.device, non_blocking=True),
+            )
         if features.dtype != matrix.dtype:  # e.g. float64 for gradcheck
             matrix, transposed = matrix.to(features.dtype), transposed.to(features.dtype)
         return SparseBlend.apply(features.contiguous(), matrix, transposed).reshape(camera.height, camera.width, -1)
@@ -112,9 +121,17 @@ class FrozenViews:
         return self._blend(index, features), self.alphas[index]
 
     def describe(self) -> dict:
-        """What the views keep, for a stage record: the backend, bytes, (Gaussian, pixel) weights, pixels, views on the host."""
-        return {"backend": self.backend, "bytes": self.kept_bytes, "hits": self.hits, "gaussians": len(self.means),
-                "pixels": sum(c.width * c.height for c in self.cameras), "views": len(self.cameras), "views_on_host": sum(self.on_host)}
+        """What the views keep, for a stage record: the backend, bytes, (Gaussian, pixel) weights, pixels,
+        views on the host."""
+        return {
+            "backend": self.backend,
+            "bytes": self.kept_bytes,
+            "hits": self.hits,
+            "gaussians": len(self.means),
+            "pixels": sum(c.width * c.height for c in self.cameras),
+            "views": len(self.cameras),
+            "views_on_host": sum(self.on_host),
+        }
 
     def visible(self, index: int) -> Tensor:  # [N] bool: Gaussians that contribute to the view
         visible = torch.zeros(len(self.means), dtype=torch.bool, device=self.means.device)
@@ -135,7 +152,9 @@ def rendered_weights(gaussians: Gaussians, camera: Camera, backend: str | None =
     rendered image's sum with respect to a constant per-Gaussian feature (one forward and backward pass)."""
     ones = torch.ones(len(gaussians), 1, device=gaussians.means.device, requires_grad=True)
     with torch.enable_grad():
-        out = rasterize(gaussians.detach(), camera, ones, background=torch.zeros(1, device=ones.device), backend=backend)
+        out = rasterize(
+            gaussians.detach(), camera, ones, background=torch.zeros(1, device=ones.device), backend=backend
+        )
         (grad,) = torch.autograd.grad(out.features.sum(), ones)
     return grad[:, 0]
 

@@ -28,7 +28,7 @@ What we return, so that both backends mean the same (RasterOutput):
     densification's statistics there; its screen-space gradient is 0 on both);
   - tile_hits = the (Gaussian, 16 x 16 tile) pairs gsplat evaluated (torch counts blended (Gaussian, pixel) pairs).
 
-tests/test_gsplat_backend.py runs this module through gsplat's own Python code on the CPU (tests/gsplat_cpu.py:
+tests/test_gsplat_parity.py runs this module through gsplat's own Python code on the CPU (tests/gsplat_cpu.py:
 its CUDA calls replaced by its torch references and a torch copy of the blending kernel) and checks it against
 backend torch: images, alpha, depths, means2d, radii, every gradient, absgrad, densification statistics.
 Left to a GPU (test_gsplat_matches_torch_on_cuda, skipped without one; not run yet): gsplat's CUDA build and the
@@ -93,21 +93,37 @@ def rasterize_gsplat(
         means2d = torch.where(drawn[:, None], screen[0], torch.zeros_like(screen[0]))  # [N, 2]
         major = max_eigen_radius(covariance_of_conics(meta["conics"][0]))  # [N], garbage where not drawn
         radii = torch.where(drawn, major, torch.zeros_like(major))
-    return RasterOutput(features=out, alpha=alpha, depth=image[..., -1], means2d=means2d, radii=radii, backend="gsplat",
-                        screen=screen, tile_hits=int(meta["flatten_ids"].numel()))
+    return RasterOutput(
+        features=out,
+        alpha=alpha,
+        depth=image[..., -1],
+        means2d=means2d,
+        radii=radii,
+        backend="gsplat",
+        screen=screen,
+        tile_hits=int(meta["flatten_ids"].numel()),
+    )
 
 
 def check_compiled_settings(settings: RasterSettings) -> None:
     """gsplat's kernels have min_alpha, max_alpha and min_transmittance compiled in (our defaults): refuse others
     rather than draw with values the caller did not ask for."""
     default = RasterSettings()
-    changed = [f"{name}={getattr(settings, name)}" for name in COMPILED_SETTINGS if getattr(settings, name) != getattr(default, name)]
+    changed = [
+        f"{name}={getattr(settings, name)}"
+        for name in COMPILED_SETTINGS
+        if getattr(settings, name) != getattr(default, name)
+    ]
     if changed:
-        raise ValueError(f"rasterize: backend gsplat has {', '.join(COMPILED_SETTINGS)} compiled in (the RasterSettings "
-                         f"defaults); got {', '.join(changed)}: use backend torch for other values")
+        raise ValueError(
+            f"rasterize: backend gsplat has {', '.join(COMPILED_SETTINGS)} compiled in (the RasterSettings "
+            f"defaults); got {', '.join(changed)}: use backend torch for other values"
+        )
 
 
-def covariance_of_conics(conics: Tensor) -> Tensor:  # [N, 3] (a, b, c) of [[a, b], [b, c]] -> [N, 3] (xx, xy, yy) of its inverse
+def covariance_of_conics(
+    conics: Tensor,
+) -> Tensor:  # [N, 3] (a, b, c) of [[a, b], [b, c]] -> [N, 3] (xx, xy, yy) of its inverse
     a, b, c = conics.unbind(-1)
     det = a * c - b * b
     return torch.stack([c / det, -b / det, a / det], dim=-1)

@@ -76,7 +76,9 @@ def irradiance_correlation(a: Tensor, b: Tensor) -> float:  # [H, 2H, 3], [h, 2h
     """Correlation of two lights' irradiance: Pearson's r of their order-2 spherical-harmonic irradiance
     over a 16 x 32 grid of normals (channels together); 1 means the same diffuse shading up to a scale."""
     normals = pixel_directions(16, 32, dtype=torch.float64).reshape(-1, 3)
-    band_scale = torch.tensor([COSINE_LOBE_BANDS[0]] + [COSINE_LOBE_BANDS[1]] * 3 + [COSINE_LOBE_BANDS[2]] * 5, dtype=torch.float64)
+    band_scale = torch.tensor(
+        [COSINE_LOBE_BANDS[0]] + [COSINE_LOBE_BANDS[1]] * 3 + [COSINE_LOBE_BANDS[2]] * 5, dtype=torch.float64
+    )
     basis = sh_basis(normals, 2) * band_scale  # [P, 9]
     fa, fb = ((basis @ sh_irradiance_coefficients(light.double().cpu())).flatten() for light in (a, b))  # [P * 3] each
     fa, fb = fa - fa.mean(), fb - fb.mean()

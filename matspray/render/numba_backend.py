@@ -61,7 +61,9 @@ def rasterize_gaussians(
     features: Tensor,  # [N, C]
     settings: RasterSettings,
     absgrad: bool = False,  # backward also gives means2d.absgrad [N, 2], as blend.blend_hits does
-) -> tuple[Tensor, int, Tensor, Tensor]:  # image [H, W, C + 2] (features, depth, alpha), hits, means2d [N, 2], radii [N]
+) -> tuple[
+    Tensor, int, Tensor, Tensor
+]:  # image [H, W, C + 2] (features, depth, alpha), hits, means2d [N, 2], radii [N]
     """Project and blend: two autograd Functions, the projection's output means2d between them, so that
     `RasterOutput.screen` is a tensor of the graph whose gradient densification reads (retain_grad)."""
     if gaussians.means.device.type != "cpu":
@@ -71,13 +73,18 @@ def rasterize_gaussians(
     ensure_compiled(np_dtype)
     layout = _Layout(camera, settings, np_dtype)
     # only a render that backward will run through records its hits
-    layout.record = torch.is_grad_enabled() and any(t.requires_grad for t in (gaussians.means, gaussians.log_scales, gaussians.quats,
-                                                                                 gaussians.opacity_logits, features))
+    layout.record = torch.is_grad_enabled() and any(
+        t.requires_grad
+        for t in (gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits, features)
+    )
     # torch's exp and sigmoid (the reference's own rounding; see numba_projection), everything else compiled
     opacities = gaussians.opacities.to(dtype)
-    means2d, conics, depths = _NumbaProjection.apply(gaussians.means.to(dtype), gaussians.scales.to(dtype),
-                                                     gaussians.quats.to(dtype), opacities, layout)
-    image, hits = _NumbaRaster.apply(means2d, conics, opacities, features, depths, (layout, means2d if absgrad else None))
+    means2d, conics, depths = _NumbaProjection.apply(
+        gaussians.means.to(dtype), gaussians.scales.to(dtype), gaussians.quats.to(dtype), opacities, layout
+    )
+    image, hits = _NumbaRaster.apply(
+        means2d, conics, opacities, features, depths, (layout, means2d if absgrad else None)
+    )
     return image, int(hits), means2d, layout.radii
 
 
@@ -102,12 +109,35 @@ class _Layout:
         self.radii = radii.masked_fill_(torch.from_numpy(flags & 4) == 0, 0.0)
         with threads() as pool:
             order = projection().depth_order(depths, boxes)
-            (self.offsets, self.ids, self.g_offsets, self.slot, self.record_offsets, self.tile_order,
-             self.worker_offsets) = kernels().bin_tiles(boxes, order, self.tiles_x, self.tiles_y, pool.count)
+            (
+                self.offsets,
+                self.ids,
+                self.g_offsets,
+                self.slot,
+                self.record_offsets,
+                self.tile_order,
+                self.worker_offsets,
+            ) = kernels().bin_tiles(boxes, order, self.tiles_x, self.tiles_y, pool.count)
 
     def common(self, means2d, conics, opacities, values) -> tuple:
-        return (means2d, conics, opacities, values, self.det, self.a_r2, self.boxes, self.offsets, self.ids,
-                self.tile_order, self.worker_offsets, self.height, self.width, self.tiles_x, self.grid, self.blend_consts)
+        return (
+            means2d,
+            conics,
+            opacities,
+            values,
+            self.det,
+            self.a_r2,
+            self.boxes,
+            self.offsets,
+            self.ids,
+            self.tile_order,
+            self.worker_offsets,
+            self.height,
+            self.width,
+            self.tiles_x,
+            self.grid,
+            self.blend_consts,
+        )
 
 
 RECORD_BUDGET = 1 << 25  # recorded hits at most (about 170 MB in float32)
@@ -128,7 +158,12 @@ def _camera_arrays(camera, settings: RasterSettings, np_dtype) -> tuple[np.ndarr
     training renders each view many times."""
     key = (id(camera.viewmat), id(camera.K), camera.width, camera.height, settings, np.dtype(np_dtype).name)
     hit = _CAMERAS.get(key)
-    if hit is not None and hit[0] is camera.viewmat and hit[1] is camera.K and hit[2] == (camera.viewmat._version, camera.K._version):
+    if (
+        hit is not None
+        and hit[0] is camera.viewmat
+        and hit[1] is camera.K
+        and hit[2] == (camera.viewmat._version, camera.K._version)
+    ):
         return hit[3], hit[4]
     from matspray.render import numba_projection as P
     from matspray.render.projection import JACOBIAN_FOV_MARGIN
@@ -138,13 +173,33 @@ def _camera_arrays(camera, settings: RasterSettings, np_dtype) -> tuple[np.ndarr
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     width, height = camera.width, camera.height
     consts = np.zeros(P.NUM_CONSTS, np_dtype)
-    limits = (JACOBIAN_FOV_MARGIN * cx / fx, JACOBIAN_FOV_MARGIN * (width - cx) / fx,
-              JACOBIAN_FOV_MARGIN * cy / fy, JACOBIAN_FOV_MARGIN * (height - cy) / fy)
-    for index, value in zip((P.LIM_X_LO, P.LIM_X_HI, P.LIM_Y_LO, P.LIM_Y_HI, P.FX, P.FY, P.CX, P.CY), (*limits, fx, fy, cx, cy)):
+    limits = (
+        JACOBIAN_FOV_MARGIN * cx / fx,
+        JACOBIAN_FOV_MARGIN * (width - cx) / fx,
+        JACOBIAN_FOV_MARGIN * cy / fy,
+        JACOBIAN_FOV_MARGIN * (height - cy) / fy,
+    )
+    for index, value in zip(
+        (P.LIM_X_LO, P.LIM_X_HI, P.LIM_Y_LO, P.LIM_Y_HI, P.FX, P.FY, P.CX, P.CY), (*limits, fx, fy, cx, cy)
+    ):
         consts[index] = value.item()
-    for index, value in ((P.NEAR, settings.near), (P.EPS2D, settings.eps2d), (P.DET_REL, 1e-12), (P.DET_FLOOR, 1e-30),
-                         (P.MIN_ALPHA, settings.min_alpha), (P.MARGIN, 1e-3), (P.HALF, 0.5), (P.THREE, 3.0), (P.ONE, 1.0),
-                         (P.TWO, 2.0), (P.ZERO, 0.0), (P.WIDTH, width), (P.HEIGHT, height), (P.NORM_EPS, 1e-12), (P.CONIC_FLOOR, 1e-30)):
+    for index, value in (
+        (P.NEAR, settings.near),
+        (P.EPS2D, settings.eps2d),
+        (P.DET_REL, 1e-12),
+        (P.DET_FLOOR, 1e-30),
+        (P.MIN_ALPHA, settings.min_alpha),
+        (P.MARGIN, 1e-3),
+        (P.HALF, 0.5),
+        (P.THREE, 3.0),
+        (P.ONE, 1.0),
+        (P.TWO, 2.0),
+        (P.ZERO, 0.0),
+        (P.WIDTH, width),
+        (P.HEIGHT, height),
+        (P.NORM_EPS, 1e-12),
+        (P.CONIC_FLOOR, 1e-30),
+    ):
         consts[index] = value
     view = np.ascontiguousarray(camera.viewmat[:3, :4].to(dtype).cpu().numpy())
     if len(_CAMERAS) > 256:
@@ -160,7 +215,9 @@ class _NumbaProjection(torch.autograd.Function):
     def forward(ctx, means, scales, quats, opacities, layout):
         arrays = [_numpy(t, layout.np_dtype) for t in (means, scales, quats, opacities)]
         with threads():
-            means2d, conics, depths, cov2d, boxes, det, a_r2, flags = projection().project(*arrays, layout.view, layout.consts)
+            means2d, conics, depths, cov2d, boxes, det, a_r2, flags = projection().project(
+                *arrays, layout.view, layout.consts
+            )
         layout.footprints(boxes, det, a_r2, depths, cov2d, flags)
         layout.opacities = arrays[3]
         ctx.layout, ctx.arrays, ctx.flags = layout, arrays[:3], flags
@@ -169,10 +226,18 @@ class _NumbaProjection(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_means2d, grad_conics, grad_depths):
         layout = ctx.layout
-        grads = [np.zeros(shape, layout.np_dtype) if grad is None else _numpy(grad, layout.np_dtype)
-                 for grad, shape in ((grad_means2d, (len(ctx.flags), 2)), (grad_conics, (len(ctx.flags), 3)), (grad_depths, len(ctx.flags)))]
+        grads = [
+            np.zeros(shape, layout.np_dtype) if grad is None else _numpy(grad, layout.np_dtype)
+            for grad, shape in (
+                (grad_means2d, (len(ctx.flags), 2)),
+                (grad_conics, (len(ctx.flags), 3)),
+                (grad_depths, len(ctx.flags)),
+            )
+        ]
         with threads():
-            grad_means, grad_scales, grad_quats = projection().project_backward(*ctx.arrays, layout.view, layout.consts, ctx.flags, *grads)
+            grad_means, grad_scales, grad_quats = projection().project_backward(
+                *ctx.arrays, layout.view, layout.consts, ctx.flags, *grads
+            )
         return torch.from_numpy(grad_means), torch.from_numpy(grad_scales), torch.from_numpy(grad_quats), None, None
 
 
@@ -190,11 +255,22 @@ class _NumbaRaster(torch.autograd.Function):
         room = int(layout.record_offsets[-1])
         # the blended hits written down for backward (pixel, response: 5 bytes in float32), unless that would take
         # more than RECORD_BUDGET entries: then backward finds and recomputes them
-        record = (np.empty(room, np.uint8), np.empty(room, layout.np_dtype), np.empty(len(layout.ids), np.int64)) \
-            if layout.record and room <= RECORD_BUDGET else (np.empty(0, np.uint8), np.empty(0, layout.np_dtype), np.empty(0, np.int64))
+        record = (
+            (np.empty(room, np.uint8), np.empty(room, layout.np_dtype), np.empty(len(layout.ids), np.int64))
+            if layout.record and room <= RECORD_BUDGET
+            else (np.empty(0, np.uint8), np.empty(0, layout.np_dtype), np.empty(0, np.int64))
+        )
         with threads():
-            image, final_t, last, tile_hits = kernels().forward(*layout.common(*arrays), layout.min_transmittance, layout.record_offsets, *record)
-        ctx.layout, ctx.absgrad_of, ctx.arrays, ctx.state, ctx.record = layout, absgrad_of, arrays, (final_t, last), record
+            image, final_t, last, tile_hits = kernels().forward(
+                *layout.common(*arrays), layout.min_transmittance, layout.record_offsets, *record
+            )
+        ctx.layout, ctx.absgrad_of, ctx.arrays, ctx.state, ctx.record = (
+            layout,
+            absgrad_of,
+            arrays,
+            (final_t, last),
+            record,
+        )
         ctx.tile_hits = tile_hits
         ctx.dtype = features.dtype
         return torch.from_numpy(image), int(tile_hits.sum())
@@ -209,16 +285,34 @@ class _NumbaRaster(torch.autograd.Function):
                 # the tiles split among the threads by the hits each blended (the forward's split is by box pixels)
                 tile_order, worker_offsets = kernels().partition(ctx.tile_hits, pool.count)
                 entry_grads = kernels().backward_recorded(
-                    means2d, conics, opacities, values, layout.offsets, layout.ids, tile_order, worker_offsets, layout.width,
-                    layout.height, layout.tiles_x, layout.grid, layout.blend_consts, layout.slot, ctx.state[0], layout.record_offsets,
-                    *ctx.record, grad)
+                    means2d,
+                    conics,
+                    opacities,
+                    values,
+                    layout.offsets,
+                    layout.ids,
+                    tile_order,
+                    worker_offsets,
+                    layout.width,
+                    layout.height,
+                    layout.tiles_x,
+                    layout.grid,
+                    layout.blend_consts,
+                    layout.slot,
+                    ctx.state[0],
+                    layout.record_offsets,
+                    *ctx.record,
+                    grad,
+                )
             else:
                 entry_grads = kernels().backward(*layout.common(*ctx.arrays), layout.slot, *ctx.state, grad)
             per_gaussian = kernels().reduce_entries(entry_grads, layout.g_offsets)
         sums = torch.from_numpy(per_gaussian).to(ctx.dtype)  # [N, 8 + C + 2]
         if ctx.absgrad_of is not None:
             target = ctx.absgrad_of
-            if getattr(target, "absgrad", None) is None:  # as blend.add_absgrad: created once, added to by each backward
+            if (
+                getattr(target, "absgrad", None) is None
+            ):  # as blend.add_absgrad: created once, added to by each backward
                 target.absgrad = torch.zeros_like(target, memory_format=torch.contiguous_format).detach()
             target.absgrad += sums[:, 6:8].to(target.dtype)
         return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 8:-2], sums[:, -2], None
@@ -260,8 +354,18 @@ def ensure_compiled(np_dtype) -> None:
     if key in _READY:
         return
     module, projections = kernels(), projection()
-    dispatchers = (module.bin_tiles, module.partition, module.forward, module.backward, module.backward_recorded, module.reduce_entries,
-                   projections.project, projections.project_backward, projections._radix_order, projections._merge_order)
+    dispatchers = (
+        module.bin_tiles,
+        module.partition,
+        module.forward,
+        module.backward,
+        module.backward_recorded,
+        module.reduce_entries,
+        projections.project,
+        projections.project_backward,
+        projections._radix_order,
+        projections._merge_order,
+    )
     misses = sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
     start = time.perf_counter()
     _READY.add(key)  # before the call below, which builds a _Layout and comes back here
@@ -280,8 +384,12 @@ def ensure_compiled(np_dtype) -> None:
     if compiled and not _TOLD:
         _TOLD = True
         where = module.bin_tiles.stats.cache_path
-        print(f"numba: compiled the rasterizer's kernels ({key}) in {time.perf_counter() - start:.1f} s, once: "
-              f"later runs load them from {where}", file=sys.stderr, flush=True)
+        print(
+            f"numba: compiled the rasterizer's kernels ({key}) in {time.perf_counter() - start:.1f} s, once: "
+            f"later runs load them from {where}",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 @torch.enable_grad()  # the first render may come under no_grad; the backward kernels are warmed up too
@@ -291,8 +399,13 @@ def _warm_up(np_dtype) -> None:
 
     dtype = torch.float64 if np_dtype == np.float64 else torch.float32
     camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], 0.7, 16, 16)
-    gaussians = Gaussians(torch.zeros(1, 3, dtype=dtype, requires_grad=True), torch.full((1, 3), -1.0, dtype=dtype),
-                          torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=dtype), torch.zeros(1, dtype=dtype), torch.zeros(1, 1, 3, dtype=dtype))
+    gaussians = Gaussians(
+        torch.zeros(1, 3, dtype=dtype, requires_grad=True),
+        torch.full((1, 3), -1.0, dtype=dtype),
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=dtype),
+        torch.zeros(1, dtype=dtype),
+        torch.zeros(1, 1, 3, dtype=dtype),
+    )
     global RECORD_BUDGET
     budget = RECORD_BUDGET
     try:

@@ -15,19 +15,23 @@ import numpy as np
 from numba import njit as _njit
 from numba import prange
 
+
 def njit(**options):
     """numba.njit with its on-disk cache (__pycache__ beside this file, or $NUMBA_CACHE_DIR), so that only the
     first run compiles; where numba finds no writable place for it (it raises at decoration), compile per process."""
+
     def wrap(function):
         try:
             return _njit(**options)(function)
         except RuntimeError:  # "cannot cache function ...: no locator available"
             return _njit(**{k: v for k, v in options.items() if k != "cache"})(function)
+
     return wrap
 
 
 TILE = 16  # pixels per tile side
-PER_ENTRY = 8  # gradients kept per (tile, Gaussian) entry besides the values': mean x, y; conic a, b, c; opacity; |mean x|, |mean y|
+# gradients kept per (tile, Gaussian) entry besides the values': mean x, y; conic a, b, c; opacity; |mean x|, |mean y|
+PER_ENTRY = 8
 
 
 @njit(cache=True)
@@ -65,15 +69,18 @@ def bin_tiles(boxes, order, tiles_x, tiles_y, num_workers):
         if x1 < x0 or y1 < y0:
             continue
         s = g_offsets[g]
-        for ty in range(y0 // TILE, y1 // TILE + 1):  # the Gaussian's tiles in increasing t: its entries in increasing order
+        for ty in range(
+            y0 // TILE, y1 // TILE + 1
+        ):  # the Gaussian's tiles in increasing t: its entries in increasing order
             for tx in range(x0 // TILE, x1 // TILE + 1):
                 t = ty * tiles_x + tx
                 ids[cursor[t]] = g
                 slot[cursor[t]] = s
                 s += 1
                 cursor[t] += 1
-                record_offsets[t + 1] += ((min(x1, tx * TILE + TILE - 1) - max(x0, tx * TILE) + 1)
-                                          * (min(y1, ty * TILE + TILE - 1) - max(y0, ty * TILE) + 1))
+                record_offsets[t + 1] += (min(x1, tx * TILE + TILE - 1) - max(x0, tx * TILE) + 1) * (
+                    min(y1, ty * TILE + TILE - 1) - max(y0, ty * TILE) + 1
+                )
     tile_order, worker_offsets = partition(record_offsets[1:], num_workers)
     for t in range(num_tiles):
         record_offsets[t + 1] += record_offsets[t]
@@ -139,13 +146,40 @@ def _row_walk(mx, my, a, b, hc, det, a_r2, row, x_start, x_end, y_start, box_x0,
     if not first <= last_col:
         return 1, 0, zero, zero, zero, 0
     dy = (row_f + half) - my
-    return (max(int(first), box_x0, x_start), min(int(last_col), box_x1, x_end), dy, b * dy, hc * dy * dy,
-            (row - y_start) * TILE - x_start)
+    return (
+        max(int(first), box_x0, x_start),
+        min(int(last_col), box_x1, x_end),
+        dy,
+        b * dy,
+        hc * dy * dy,
+        (row - y_start) * TILE - x_start,
+    )
 
 
 @njit(cache=True, parallel=True)
-def forward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, tile_order, worker_offsets, height, width, tiles_x,
-            grid, consts, min_transmittance, record_offsets, rec_pixel, rec_response, entry_end):
+def forward(
+    means2d,
+    conics,
+    opacities,
+    values,
+    det,
+    a_r2,
+    boxes,
+    offsets,
+    ids,
+    tile_order,
+    worker_offsets,
+    height,
+    width,
+    tiles_x,
+    grid,
+    consts,
+    min_transmittance,
+    record_offsets,
+    rec_pixel,
+    rec_response,
+    entry_end,
+):
     """Blend every tile front to back. Returns the image [H, W, K], each pixel's transmittance after its last
     blended hit (float64) and that hit's entry index (-1: none), and the number of blended hits per tile.
     The last value column is alpha's constant 1: its channel is written as 1 - T (the sum of the weights).
@@ -195,13 +229,37 @@ def forward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, 
                     entry_end[e] = cursor  # entries after an early end of the tile record nothing
             for e in range(offsets[t], offsets[t + 1]):
                 g = ids[e]
-                mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+                mx, my, a, b, c, opacity = (
+                    means2d[g, 0],
+                    means2d[g, 1],
+                    conics[g, 0],
+                    conics[g, 1],
+                    conics[g, 2],
+                    opacities[g],
+                )
                 ha, hc = half * a, half * c
                 for row in range(max(boxes[g, 1], y_start), min(boxes[g, 3], y_end) + 1):
                     if row_stopped[row - y_start] == row_width:
                         continue
-                    col_lo, col_hi, dy, bdy, cdy, base = _row_walk(mx, my, a, b, hc, det[g], a_r2[g], row, x_start, x_end, y_start,
-                                                                   boxes[g, 0], boxes[g, 2], grid, half, zero, width_f)
+                    col_lo, col_hi, dy, bdy, cdy, base = _row_walk(
+                        mx,
+                        my,
+                        a,
+                        b,
+                        hc,
+                        det[g],
+                        a_r2[g],
+                        row,
+                        x_start,
+                        x_end,
+                        y_start,
+                        boxes[g, 0],
+                        boxes[g, 2],
+                        grid,
+                        half,
+                        zero,
+                        width_f,
+                    )
                     for col in range(col_lo, col_hi + 1):
                         p = base + col
                         if stopped[p]:
@@ -287,8 +345,28 @@ def _store_entry(entry_grads, r, sums, grad_values):
 
 
 @njit(cache=True, parallel=True)
-def backward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids, tile_order, worker_offsets, height, width, tiles_x,
-             grid, consts, slot, final_t, last_entry, grad_image):
+def backward(
+    means2d,
+    conics,
+    opacities,
+    values,
+    det,
+    a_r2,
+    boxes,
+    offsets,
+    ids,
+    tile_order,
+    worker_offsets,
+    height,
+    width,
+    tiles_x,
+    grid,
+    consts,
+    slot,
+    final_t,
+    last_entry,
+    grad_image,
+):
     """The reverse pass, tile by tile: each tile's Gaussians back to front, each pixel's transmittance in front of
     a hit recovered from the one behind it, T_k = T_(k+1) / (1 - alpha_k) (float64: alpha <= max_alpha and
     T >= min_transmittance, so a few hundred divisions lose nothing near 1e-5), and S = sum of alpha_j T_j q_j
@@ -317,10 +395,19 @@ def backward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids,
                     trans[p] = final_t[row, col]
                     last[p] = last_entry[row, col]
                     row_last[row - y_start] = max(row_last[row - y_start], last[p])
-            tile_last = row_last.max()  # entries behind every pixel's last hit (the far side of an object) are not visited
+            tile_last = (
+                row_last.max()
+            )  # entries behind every pixel's last hit (the far side of an object) are not visited
             for e in range(min(offsets[t + 1] - 1, tile_last), offsets[t] - 1, -1):
                 g = ids[e]
-                mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+                mx, my, a, b, c, opacity = (
+                    means2d[g, 0],
+                    means2d[g, 1],
+                    conics[g, 0],
+                    conics[g, 1],
+                    conics[g, 2],
+                    opacities[g],
+                )
                 ha, hc = half * a, half * c
                 # this entry's sums in locals (registers), not an array: they are added to at every hit
                 sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -328,8 +415,25 @@ def backward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids,
                 for row in range(max(boxes[g, 1], y_start), min(boxes[g, 3], y_end) + 1):
                     if e > row_last[row - y_start]:
                         continue
-                    col_lo, col_hi, dy, bdy, cdy, base = _row_walk(mx, my, a, b, hc, det[g], a_r2[g], row, x_start, x_end, y_start,
-                                                                   boxes[g, 0], boxes[g, 2], grid, half, zero, width_f)
+                    col_lo, col_hi, dy, bdy, cdy, base = _row_walk(
+                        mx,
+                        my,
+                        a,
+                        b,
+                        hc,
+                        det[g],
+                        a_r2[g],
+                        row,
+                        x_start,
+                        x_end,
+                        y_start,
+                        boxes[g, 0],
+                        boxes[g, 2],
+                        grid,
+                        half,
+                        zero,
+                        width_f,
+                    )
                     for col in range(col_lo, col_hi + 1):
                         p = base + col
                         if e > last[p]:  # behind the pixel's last blended hit (or the pixel blended nothing)
@@ -339,8 +443,23 @@ def backward(means2d, conics, opacities, values, det, a_r2, boxes, offsets, ids,
                         raw = opacity * response
                         if not raw >= min_alpha:  # as torch's `raw >= min_alpha`: a NaN is skipped too
                             continue
-                        sums = _hit_gradients(trans, behind, p, raw, response, max_alpha, dx, dy, a, b, c, values[g], grad_image[row, col],
-                                              grad_values, sums)
+                        sums = _hit_gradients(
+                            trans,
+                            behind,
+                            p,
+                            raw,
+                            response,
+                            max_alpha,
+                            dx,
+                            dy,
+                            a,
+                            b,
+                            c,
+                            values[g],
+                            grad_image[row, col],
+                            grad_values,
+                            sums,
+                        )
                 _store_entry(entry_grads, slot[e], sums, grad_values)
     return entry_grads
 
@@ -366,8 +485,28 @@ GRADIENT_MATH = {"reassoc", "contract", "arcp", "nsz"}
 
 
 @njit(cache=True, parallel=True, fastmath=GRADIENT_MATH)
-def backward_recorded(means2d, conics, opacities, values, offsets, ids, tile_order, worker_offsets, width, height, tiles_x, grid,
-                      consts, slot, final_t, record_offsets, rec_pixel, rec_response, entry_end, grad_image):
+def backward_recorded(
+    means2d,
+    conics,
+    opacities,
+    values,
+    offsets,
+    ids,
+    tile_order,
+    worker_offsets,
+    width,
+    height,
+    tiles_x,
+    grid,
+    consts,
+    slot,
+    final_t,
+    record_offsets,
+    rec_pixel,
+    rec_response,
+    entry_end,
+    grad_image,
+):
     """`backward` from the forward's record of the blended hits: the same arithmetic per hit, without finding the
     pixels again (row spans, the alpha test) or recomputing exp, and only over hits that were blended. The tiles
     are split among the threads by the forward's hits per tile (`partition`)."""
@@ -396,13 +535,35 @@ def backward_recorded(means2d, conics, opacities, values, offsets, ids, tile_ord
                 sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 grad_values[:] = 0.0
                 if entry_end[e] > start:
-                    mx, my, a, b, c, opacity = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+                    mx, my, a, b, c, opacity = (
+                        means2d[g, 0],
+                        means2d[g, 1],
+                        conics[g, 0],
+                        conics[g, 1],
+                        conics[g, 2],
+                        opacities[g],
+                    )
                     for r in range(start, entry_end[e]):  # one hit per pixel: any order
                         p = np.int64(rec_pixel[r])
                         response = rec_response[r]
                         dx = (grid[x_start + p % TILE] + half) - mx
                         dy = (grid[y_start + p // TILE] + half) - my
-                        sums = _hit_gradients(trans, behind, p, opacity * response, response, max_alpha, dx, dy, a, b, c, values[g],
-                                              grad_tile[p], grad_values, sums)
+                        sums = _hit_gradients(
+                            trans,
+                            behind,
+                            p,
+                            opacity * response,
+                            response,
+                            max_alpha,
+                            dx,
+                            dy,
+                            a,
+                            b,
+                            c,
+                            values[g],
+                            grad_tile[p],
+                            grad_values,
+                            sums,
+                        )
                 _store_entry(entry_grads, slot[e], sums, grad_values)  # every row written (np.empty above)
     return entry_grads

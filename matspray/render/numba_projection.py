@@ -32,8 +32,9 @@ NUM_CONSTS = 23
 @njit(cache=True, parallel=True)
 def project(means, scales, quats, opacities, view, consts):
     """Per Gaussian (view: [3, 4] world to camera): means2d [N, 2], conics [N, 3], depths [N] (camera z),
-    cov2d [N, 3], pixel boxes [N, 4] int64 (x0, y0, x1, y1; empty: 0, 0, -1, -1), and the footprint terms of the tile loops, det [N] =
-    max(a c - b^2, floor) and a_r2 [N] = a * radius2, radius2 = 2 ln(opacity / min_alpha) + 1e-3; flags [N] for backward."""
+    cov2d [N, 3], pixel boxes [N, 4] int64 (x0, y0, x1, y1; empty: 0, 0, -1, -1), and the footprint terms of the tile
+    loops, det [N] = max(a c - b^2, floor) and a_r2 [N] = a * radius2, radius2 = 2 ln(opacity / min_alpha) + 1e-3;
+    flags [N] for backward."""
     n = means.shape[0]
     dtype = means.dtype
     means2d = np.empty((n, 2), dtype)
@@ -88,7 +89,10 @@ def project(means, scales, quats, opacities, view, consts):
         radius2 = two * np.log(ratio) + consts[MARGIN]
         hx, hy = np.sqrt(radius2 * cxx), np.sqrt(radius2 * cyy)
         x0, y0 = max(np.ceil((mx - hx) - half), zero), max(np.ceil((my - hy) - half), zero)
-        x1, y1 = min(np.floor((mx + hx) - half), consts[WIDTH] - one), min(np.floor((my + hy) - half), consts[HEIGHT] - one)
+        x1, y1 = (
+            min(np.floor((mx + hx) - half), consts[WIDTH] - one),
+            min(np.floor((my + hy) - half), consts[HEIGHT] - one),
+        )
         finite = np.isfinite(mx - hx) and np.isfinite(my - hy) and np.isfinite(mx + hx) and np.isfinite(my + hy)
         drawn = valid and opacities[g] >= consts[MIN_ALPHA] and finite and x0 <= x1 and y0 <= y1
         if drawn:
@@ -108,12 +112,22 @@ def _rotation(w, x, y, z, one, two, norm_eps):
     (no allocation per Gaussian)."""
     norm = max(np.sqrt(((w * w + x * x) + y * y) + z * z), norm_eps)
     w, x, y, z = w / norm, x / norm, y / norm, z / norm
-    return (one - two * (y * y + z * z), two * (x * y - w * z), two * (x * z + w * y),
-            two * (x * y + w * z), one - two * (x * x + z * z), two * (y * z - w * x),
-            two * (x * z - w * y), two * (y * z + w * x), one - two * (x * x + y * y))
+    return (
+        one - two * (y * y + z * z),
+        two * (x * y - w * z),
+        two * (x * z + w * y),
+        two * (x * y + w * z),
+        one - two * (x * x + z * z),
+        two * (y * z - w * x),
+        two * (x * z - w * y),
+        two * (y * z + w * x),
+        one - two * (x * x + y * y),
+    )
 
 
-@njit(cache=True, parallel=True, fastmath={"reassoc", "contract", "arcp", "nsz"})  # decides nothing: only last bits move
+@njit(
+    cache=True, parallel=True, fastmath={"reassoc", "contract", "arcp", "nsz"}
+)  # decides nothing: only last bits move
 def project_backward(means, scales, quats, view, consts, flags, grad_means2d, grad_conics, grad_depths):
     """d loss / d (means [N, 3], scales [N, 3], quats [N, 4]) from d loss / d (means2d, conics, depths), computed in
     float64; `flags` is the forward's (bit 0: in front of the near plane, bit 1: its determinant test too)."""
@@ -145,7 +159,12 @@ def project_backward(means, scales, quats, view, consts, flags, grad_means2d, gr
             inv_z = 1.0 / z  # reciprocals: float64 has digits to spare, and divisions dominate this loop
             x, y = cam0 * inv_z, cam1 * inv_z
             xc, yc = min(max(x, -lxl), lxh), min(max(y, -lyl), lyh)
-            qw, qx, qy, qz = np.float64(quats[g, 0]), np.float64(quats[g, 1]), np.float64(quats[g, 2]), np.float64(quats[g, 3])
+            qw, qx, qy, qz = (
+                np.float64(quats[g, 0]),
+                np.float64(quats[g, 1]),
+                np.float64(quats[g, 2]),
+                np.float64(quats[g, 3]),
+            )
             norm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
             inv_norm = 1.0 / max(norm, 1e-12)
             w, qa, qb, qc = qw * inv_norm, qx * inv_norm, qy * inv_norm, qz * inv_norm
@@ -163,7 +182,11 @@ def project_backward(means, scales, quats, view, consts, flags, grad_means2d, gr
             if det_ok:
                 inv_det = 1.0 / (cxx * cyy - cxy * cxy)
                 g_det = -(ga * cyy - gb * cxy + gc * cxx) * inv_det * inv_det
-                g_cxx, g_cyy, g_cxy = gc * inv_det + g_det * cyy, ga * inv_det + g_det * cxx, -gb * inv_det - 2.0 * g_det * cxy
+                g_cxx, g_cyy, g_cxy = (
+                    gc * inv_det + g_det * cyy,
+                    ga * inv_det + g_det * cxx,
+                    -gb * inv_det - 2.0 * g_det * cxy,
+                )
             else:  # the forward replaced det by 1
                 g_cxx, g_cyy, g_cxy = gc, ga, -gb
             g_z = 0.0
@@ -198,23 +221,40 @@ def project_backward(means, scales, quats, view, consts, flags, grad_means2d, gr
                     g02, g12, g22 = l0 * s[2], l1 * s[2], l2 * s[2]
             gw = 2.0 * (-qc * g01 + qb * g02 + qc * g10 - qa * g12 - qb * g20 + qa * g21)
             gx = 2.0 * (qb * g01 + qc * g02 + qb * g10 - 2.0 * qa * g11 - w * g12 + qc * g20 + w * g21 - 2.0 * qa * g22)
-            gy = 2.0 * (-2.0 * qb * g00 + qa * g01 + w * g02 + qa * g10 + qc * g12 - w * g20 + qc * g21 - 2.0 * qb * g22)
-            gz = 2.0 * (-2.0 * qc * g00 - w * g01 + qa * g02 + w * g10 - 2.0 * qc * g11 + qb * g12 + qa * g20 + qb * g21)
+            gy = 2.0 * (
+                -2.0 * qb * g00 + qa * g01 + w * g02 + qa * g10 + qc * g12 - w * g20 + qc * g21 - 2.0 * qb * g22
+            )
+            gz = 2.0 * (
+                -2.0 * qc * g00 - w * g01 + qa * g02 + w * g10 - 2.0 * qc * g11 + qb * g12 + qa * g20 + qb * g21
+            )
             if norm > 1e-12:  # through q / |q|: only the direction moves the rotation
                 dot = w * gw + qa * gx + qb * gy + qc * gz
                 grad_quats[g, 0], grad_quats[g, 1] = (gw - w * dot) * inv_norm, (gx - qa * dot) * inv_norm
                 grad_quats[g, 2], grad_quats[g, 3] = (gy - qb * dot) * inv_norm, (gz - qc * dot) * inv_norm
             else:  # q / 1e-12
-                grad_quats[g, 0], grad_quats[g, 1], grad_quats[g, 2], grad_quats[g, 3] = gw * 1e12, gx * 1e12, gy * 1e12, gz * 1e12
+                grad_quats[g, 0], grad_quats[g, 1], grad_quats[g, 2], grad_quats[g, 3] = (
+                    gw * 1e12,
+                    gx * 1e12,
+                    gy * 1e12,
+                    gz * 1e12,
+                )
     return grad_means, grad_scales, grad_quats
 
 
 @njit(cache=True, inline="always")
 def _unit_rotation(w, x, y, z):
     """quaternion_to_matrix of a unit quaternion, row-major, in float64 (backward's)."""
-    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
-            2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
-            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+    return (
+        1.0 - 2.0 * (y * y + z * z),
+        2.0 * (x * y - w * z),
+        2.0 * (x * z + w * y),
+        2.0 * (x * y + w * z),
+        1.0 - 2.0 * (x * x + z * z),
+        2.0 * (y * z - w * x),
+        2.0 * (x * z - w * y),
+        2.0 * (y * z + w * x),
+        1.0 - 2.0 * (x * x + y * y),
+    )
 
 
 @njit(cache=True, inline="always")

@@ -13,7 +13,8 @@ class RasterOutput:
     features: Tensor  # [H, W, C] blended features plus (1 - alpha) * background
     alpha: Tensor  # [H, W] accumulated opacity sum_k w_k = 1 - prod_k (1 - alpha_k)
     depth: Tensor  # [H, W] accumulated camera z, sum_k w_k z_k (NOT divided by alpha; see expected_depth)
-    means2d: Tensor  # [N, 2] projected centres in pixels, 0 where gsplat did not draw (gradients: retain_screen_grads / screen_grads)
+    means2d: Tensor  # [N, 2] projected centres in pixels, 0 where gsplat did not draw (gradients:
+    # retain_screen_grads / screen_grads)
     radii: Tensor  # [N] 3-sigma pixel radius of the major axis of each drawn Gaussian, 0 if not drawn (every backend)
     backend: str  # "torch", "numba" or "gsplat": the rasterizer that drew this
     # the tensor through which d loss / d means2d flows: [N, 2] (torch) or gsplat's [1, N, 2]; a view of it taken

@@ -128,7 +128,10 @@ def ellipse_pixel_pairs(
         reach = torch.sqrt(r2 * a / det)  # half height of the ellipse
         lo, hi = torch.maximum(top, -reach), torch.minimum(top + 1.0, reach)
         dy_right = -b * torch.sqrt(r2 / (c * det))  # height of the rightmost point
-        dy_left, dy_right = torch.minimum(torch.maximum(-dy_right, lo), hi), torch.minimum(torch.maximum(dy_right, lo), hi)
+        dy_left, dy_right = (
+            torch.minimum(torch.maximum(-dy_right, lo), hi),
+            torch.minimum(torch.maximum(dy_right, lo), hi),
+        )
     else:
         raise ValueError(f"ellipse_pixel_pairs: touch must be 'centre' or 'area', got {touch!r}")
 

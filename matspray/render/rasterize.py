@@ -27,14 +27,15 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
-from matspray.render.blend import blend_hits, hit_weights
 from matspray.render.backend import active_backend, note_render, resolve_backend
+from matspray.render.blend import blend_hits, hit_weights
 from matspray.render.compositing import ray_major_order
 from matspray.render.gsplat_backend import rasterize_gsplat
 from matspray.render.output import RasterOutput
 from matspray.render.pairs import EMPTY_BOX, box_areas, clip_rows, ellipse_pixel_pairs, pixel_boxes, row_bands
 from matspray.render.projection import log_opacity_ratio, max_eigen_radius, project_gaussians
 from matspray.render.settings import RasterSettings
+
 
 def rasterize(
     gaussians: Gaussians,
@@ -100,7 +101,9 @@ def _setup(gaussians: Gaussians, camera: Camera, settings: RasterSettings) -> _S
     """Project the Gaussians and find each one's footprint (what every rendering of a view starts with)."""
     height, width = camera.height, camera.width
     min_alpha = settings.min_alpha
-    proj = project_gaussians(gaussians.means, gaussians.scaled_axes(), camera.viewmat, camera.K, width, height, settings.near, settings.eps2d)
+    proj = project_gaussians(
+        gaussians.means, gaussians.scaled_axes(), camera.viewmat, camera.K, width, height, settings.near, settings.eps2d
+    )
     opacities = gaussians.opacities
     with torch.no_grad():
         # where opacity * exp(-q / 2) >= min_alpha: q <= radius2; the small margin keeps every true hit,
@@ -132,8 +135,12 @@ def view_weights(
     splats, width = setup.splats, camera.width
     parts = []
     for row_start, row_end in row_bands(setup.boxes, camera.height, max_pairs):
-        gaussian_ids, pixel_ids = _candidate_pairs(clip_rows(setup.boxes, row_start, row_end), setup.footprints, setup.ranks, row_start, width)
-        ids, pixels, weights = hit_weights(splats, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, settings)
+        gaussian_ids, pixel_ids = _candidate_pairs(
+            clip_rows(setup.boxes, row_start, row_end), setup.footprints, setup.ranks, row_start, width
+        )
+        ids, pixels, weights = hit_weights(
+            splats, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, settings
+        )
         parts.append((ids, pixels + row_start * width, weights))
     return tuple(torch.cat(column) for column in zip(*parts))
 
@@ -141,14 +148,32 @@ def view_weights(
 def _rasterize_torch(gaussians, camera, features, background, settings: RasterSettings, max_pairs: int, absgrad: bool):
     height, width = camera.height, camera.width
     setup = _setup(gaussians, camera, settings)
-    proj, opacities, boxes, radii, ranks, footprints = setup.proj, setup.opacities, setup.boxes, setup.radii, setup.ranks, setup.footprints
+    proj, opacities, boxes, radii, ranks, footprints = (
+        setup.proj,
+        setup.opacities,
+        setup.boxes,
+        setup.radii,
+        setup.ranks,
+        setup.footprints,
+    )
     splats = setup.splats  # [6, N]
     values = torch.cat([features.t(), proj.depths[None], torch.ones_like(opacities)[None]])  # [C + 2, N]
     bands, num_hits = [], 0
     for row_start, row_end in row_bands(boxes, height, max_pairs):
-        gaussian_ids, pixel_ids = _candidate_pairs(clip_rows(boxes, row_start, row_end), footprints, ranks, row_start, width)
-        band, blended = blend_hits(splats, values, gaussian_ids, pixel_ids, width, row_start, (row_end - row_start) * width, settings,
-                                   absgrad_of=proj.means2d if absgrad else None)
+        gaussian_ids, pixel_ids = _candidate_pairs(
+            clip_rows(boxes, row_start, row_end), footprints, ranks, row_start, width
+        )
+        band, blended = blend_hits(
+            splats,
+            values,
+            gaussian_ids,
+            pixel_ids,
+            width,
+            row_start,
+            (row_end - row_start) * width,
+            settings,
+            absgrad_of=proj.means2d if absgrad else None,
+        )
         bands.append(band.reshape(row_end - row_start, width, -1))
         num_hits += blended
     image = torch.cat(bands, dim=0) if len(bands) > 1 else bands[0]  # [H, W, C + 2]
@@ -170,8 +195,16 @@ def _output(image, background, means2d, radii, backend: str, num_hits: int) -> R
     colour = image[..., :-2]
     if background is not None:
         colour = colour + (1.0 - alpha)[..., None] * background.to(colour)
-    return RasterOutput(features=colour, alpha=alpha, depth=image[..., -2], means2d=means2d.detach(), radii=radii, backend=backend,
-                        screen=means2d, pixel_hits=num_hits)
+    return RasterOutput(
+        features=colour,
+        alpha=alpha,
+        depth=image[..., -2],
+        means2d=means2d.detach(),
+        radii=radii,
+        backend=backend,
+        screen=means2d,
+        pixel_hits=num_hits,
+    )
 
 
 def _candidate_pairs(boxes, footprints, ranks, row_start, width):

@@ -162,9 +162,13 @@ def splat_pixels(
     feats = features.detach().double().tolist()  # [N][C]
     background = [0.0] * num_channels if background is None else background.double().tolist()  # [C]
     H, W = camera.height, camera.width
-    rows, cols = torch.meshgrid(torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij")
+    rows, cols = torch.meshgrid(
+        torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij"
+    )
     centres = torch.stack([cols.reshape(-1), rows.reshape(-1)], dim=-1) + 0.5  # [H * W, 2] pixel centres
-    raw_alpha = torch.zeros(H * W, len(splats), dtype=torch.float64)  # [H * W, K] opacity_k exp(-delta^T conic_k delta / 2)
+    raw_alpha = torch.zeros(
+        H * W, len(splats), dtype=torch.float64
+    )  # [H * W, K] opacity_k exp(-delta^T conic_k delta / 2)
     for k, s in enumerate(splats):
         delta = centres - s.centre  # [H * W, 2]
         raw_alpha[:, k] = s.opacity * torch.exp(-0.5 * ((delta @ s.inv_cov2d) * delta).sum(-1))

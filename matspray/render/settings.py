@@ -3,7 +3,7 @@
 The defaults are gsplat 1.5's (its `rasterization` defaults and the constants compiled into its kernels), so the
 backends torch and gsplat draw the same image: near_plane 0.01 and eps2d 0.3 are passed to gsplat, and
 min_alpha, max_alpha and min_transmittance are its ALPHA_THRESHOLD (1/255), min(0.999f, ...) and the 1e-4 stop.
-tests/test_gsplat_backend.py checks each on scenes with opaque Gaussians (opacity up to exactly 1). gsplat
+tests/test_gsplat_parity.py checks each on scenes with opaque Gaussians (opacity up to exactly 1). gsplat
 cannot be given other values for the last three: with other settings, backend gsplat still uses its own.
 
 Differences left between the backends, each covered by a test there:

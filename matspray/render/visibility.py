@@ -95,7 +95,7 @@ def visibility_from(gaussians: Gaussians, camera: Camera, bias: Tensor) -> Tenso
     for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
         col, row = corner[:, 0].long() + dx, corner[:, 1].long() + dy
         inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
-        pixel = (row.clamp(0, camera.height - 1) * camera.width + col.clamp(0, camera.width - 1))
+        pixel = row.clamp(0, camera.height - 1) * camera.width + col.clamp(0, camera.width - 1)
         t = torch.where(inside, transmittance_at(keys, cumulative, pixel, query_depth), torch.ones_like(visibility))
         wx = frac[:, 0] if dx else 1.0 - frac[:, 0]
         wy = frac[:, 1] if dy else 1.0 - frac[:, 1]
@@ -104,7 +104,9 @@ def visibility_from(gaussians: Gaussians, camera: Camera, bias: Tensor) -> Tenso
 
 
 @torch.no_grad()
-def bake_visibility(gaussians: Gaussians, config: VisibilityConfig = VisibilityConfig(), progress: bool = False) -> Tensor:
+def bake_visibility(
+    gaussians: Gaussians, config: VisibilityConfig = VisibilityConfig(), progress: bool = False
+) -> Tensor:
     """V [N, D]: each Gaussian's visibility towards the D directions of `visibility_directions(config.rows)`."""
     gaussians = gaussians.detach()
     means = gaussians.means
@@ -136,7 +138,9 @@ def shadow_factors(
     cosine = (normals @ directions.t()).clamp_min(0.0) * solid_angles  # [N, D]
     lobe_dir = specular_direction(normals, view_dirs, roughness)
     alpha = roughness_to_alpha(roughness)
-    kappa = (0.5 / alpha.square().clamp_min(1e-6)).clamp(max=MAX_KAPPA)[:, None]  # reflected GGX lobe ~ vMF(1 / (2 alpha^2))
+    kappa = (0.5 / alpha.square().clamp_min(1e-6)).clamp(max=MAX_KAPPA)[
+        :, None
+    ]  # reflected GGX lobe ~ vMF(1 / (2 alpha^2))
     lobe = torch.exp(kappa * (lobe_dir @ directions.t() - 1.0)) * cosine  # [N, D]
     factors = []
     for kernel in (cosine, lobe):
@@ -150,7 +154,9 @@ def light_cells(light, rows: int) -> Tensor:  # EnvironmentMap | PrefilteredEnvi
     """The light averaged over the visibility grid's cells."""
     source = light.map if isinstance(light, EnvironmentMap) else light.source
     if source is None:
-        raise ValueError("this prefiltered environment does not keep its source map; prefilter with `prefilter_latlong`")
+        raise ValueError(
+            "this prefiltered environment does not keep its source map; prefilter with `prefilter_latlong`"
+        )
     return downsample_latlong(source, rows)
 
 
@@ -161,7 +167,9 @@ def visibility_rows(visibility: Tensor) -> int:  # [N, D] with D = 2 rows^2
     return rows
 
 
-def gaussian_shadows(visibility: Tensor, normals: Tensor, means: Tensor, materials: Tensor, camera: Camera, light) -> Tensor:
+def gaussian_shadows(
+    visibility: Tensor, normals: Tensor, means: Tensor, materials: Tensor, camera: Camera, light
+) -> Tensor:
     """`shadow_factors` [N, 6] of Gaussians seen from `camera` under `light`; normals [N, 3] facing the
     camera, materials [N, 5] (`matspray.material` layout: the specular kernel reads the roughness)."""
     roughness = materials[:, ROUGHNESS_INDEX]

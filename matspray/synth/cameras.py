@@ -36,7 +36,9 @@ def band_heights(min_elevation: float) -> tuple[float, float]:
     return math.sin(math.radians(min_elevation)), math.sin(math.radians(MAX_ELEVATION))
 
 
-def fibonacci_directions(count: int, phase: float, min_elevation: float = MIN_ELEVATION) -> np.ndarray:  # [count, 3] unit
+def fibonacci_directions(
+    count: int, phase: float, min_elevation: float = MIN_ELEVATION
+) -> np.ndarray:  # [count, 3] unit
     """An even spiral over the elevation band, equal area per point, turned by `phase` radians."""
     low, high = band_heights(min_elevation)
     k = np.arange(count)
@@ -44,7 +46,9 @@ def fibonacci_directions(count: int, phase: float, min_elevation: float = MIN_EL
     return band_point(phase + GOLDEN_ANGLE * k, height)
 
 
-def random_directions(count: int, rng: np.random.Generator, min_elevation: float = MIN_ELEVATION) -> np.ndarray:  # [count, 3] unit
+def random_directions(
+    count: int, rng: np.random.Generator, min_elevation: float = MIN_ELEVATION
+) -> np.ndarray:  # [count, 3] unit
     """Uniform (equal area) random points on the elevation band."""
     low, high = band_heights(min_elevation)
     return band_point(rng.uniform(0.0, 2.0 * math.pi, count), rng.uniform(low, high, count))
@@ -58,8 +62,14 @@ def sphere_cameras(directions: np.ndarray, distance: float, resolution: int, fov
     ]
 
 
-def make_cameras(train: int, test: int, bounding_radius: float, resolution: int,
-                 rng: np.random.Generator, min_elevation: float = MIN_ELEVATION) -> tuple[list[Camera], list[Camera], float]:
+def make_cameras(
+    train: int,
+    test: int,
+    bounding_radius: float,
+    resolution: int,
+    rng: np.random.Generator,
+    min_elevation: float = MIN_ELEVATION,
+) -> tuple[list[Camera], list[Camera], float]:
     """Train and test cameras (no lower than `min_elevation` degrees) and the distance they sit at."""
     distance = framing_distance(bounding_radius)
     phase = rng.uniform(0.0, 2.0 * math.pi)

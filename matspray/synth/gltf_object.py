@@ -18,7 +18,9 @@ import numpy as np
 from matspray.errors import ConfigError, file_error
 from matspray.gltf.model import GLTF_TO_WORLD, GltfAsset, PbrMaterial, Primitive, TextureRef, TextureTransform
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
-from matspray.synth.config import PLACEMENTS  # fit: centre the bounding box, farthest vertex at FIT_RADIUS; keep: as in the file
+from matspray.synth.config import (
+    PLACEMENTS,
+)  # fit: centre the bounding box, farthest vertex at FIT_RADIUS; keep: as in the file
 from matspray.synth.materials import Sampling, Textures, single_wrap, srgb_to_linear
 from matspray.synth.shapes import Part, drop_degenerate
 
@@ -55,7 +57,10 @@ def material_textures(material: PbrMaterial) -> Textures:
     if material.base_color_texture is not None:
         image = material.base_color_texture.image
         rgb = image[..., :3] if image.shape[2] >= 3 else np.repeat(image[..., :1], 3, axis=2)  # grey (+ alpha) images
-        base, base_sampling = srgb_to_linear(rgb.astype(np.float64)) * factor, texture_sampling(material.base_color_texture)
+        base, base_sampling = (
+            srgb_to_linear(rgb.astype(np.float64)) * factor,
+            texture_sampling(material.base_color_texture),
+        )
     rough = np.full((1, 1), material.roughness_factor, dtype=np.float64)
     metal = np.full((1, 1), material.metallic_factor, dtype=np.float64)
     mr_sampling = Sampling()
@@ -73,21 +78,33 @@ def primitive_uvs(asset: GltfAsset, primitive: Primitive, material: PbrMaterial)
     if not sets:
         return np.zeros((len(primitive.positions), 2))
     if len(sets) > 1:
-        raise file_error(asset.path, f"mesh '{primitive.name}': its base colour and metallic-roughness textures use two UV sets "
-                                     f"({sorted(sets)})", "re-export the asset with one UV set per material")
+        raise file_error(
+            asset.path,
+            f"mesh '{primitive.name}': its base colour and metallic-roughness textures use two UV sets "
+            f"({sorted(sets)})",
+            "re-export the asset with one UV set per material",
+        )
     index = sets.pop()
     if index >= len(primitive.uvs):
-        raise file_error(asset.path, f"mesh '{primitive.name}': its material reads TEXCOORD_{index}, which the mesh does not have")
+        raise file_error(
+            asset.path, f"mesh '{primitive.name}': its material reads TEXCOORD_{index}, which the mesh does not have"
+        )
     uvs = primitive.uvs[index]
     if not np.isfinite(uvs).all():
         raise file_error(asset.path, f"mesh '{primitive.name}': a texture coordinate is not finite")
     for texture in (material.base_color_texture, material.metallic_roughness_texture):
-        if texture is not None and len(uvs):  # texel indices must stay exact integers (KHR_texture_transform can scale by 1e300)
+        if texture is not None and len(
+            uvs
+        ):  # texel indices must stay exact integers (KHR_texture_transform can scale by 1e300)
             matrix = texture.transform.matrix()
             reach = float(np.abs(uvs @ matrix[:2, :2].T + matrix[:2, 2]).max()) * max(texture.image.shape[:2])
             if not reach < 2.0**52:
-                raise file_error(asset.path, f"mesh '{primitive.name}': its texture coordinates, with the texture's KHR_texture_transform, "
-                                             f"reach texel {reach:.3g}", "fix the texture transform or the UVs")
+                raise file_error(
+                    asset.path,
+                    f"mesh '{primitive.name}': its texture coordinates, with the texture's KHR_texture_transform, "
+                    f"reach texel {reach:.3g}",
+                    "fix the texture transform or the UVs",
+                )
     return uvs
 
 
@@ -116,17 +133,25 @@ def asset_parts(asset: GltfAsset, placement: str = "fit") -> tuple[list[Part], l
             vertices, faces, uvs, normals = flat_shaded(vertices, faces, uvs)
         else:
             normals = primitive.normals @ GLTF_TO_WORLD.T
-        params = {"primitive": primitive.name, "material": material.name or (f"material {primitive.material}" if primitive.material is not None else "default")}
+        params = {
+            "primitive": primitive.name,
+            "material": material.name
+            or (f"material {primitive.material}" if primitive.material is not None else "default"),
+        }
         parts.append(Part(f"asset/{index}", None, vertices, faces, uvs, normals, params))
         textures.append(material_textures(material))
-        for values, sampling in ((textures[-1].base_color, textures[-1].base_color_sampling),
-                                 (textures[-1].roughness, textures[-1].metallic_roughness_sampling)):
+        for values, sampling in (
+            (textures[-1].base_color, textures[-1].base_color_sampling),
+            (textures[-1].roughness, textures[-1].metallic_roughness_sampling),
+        ):
             try:  # what the renderer will do with two wrap modes, checked before anything is written
                 single_wrap(values, sampling, uvs)
             except ConfigError as error:
                 raise file_error(asset.path, f"mesh '{primitive.name}': {error}") from None
     if not parts:
-        raise file_error(asset.path, "every triangle of the default scene has zero area", "the asset has no surface to render")
+        raise file_error(
+            asset.path, "every triangle of the default scene has zero area", "the asset has no surface to render"
+        )
     return parts, textures, matrix
 
 
@@ -136,15 +161,31 @@ def write_object_glb(path: Path, parts: list[Part], textures: list[Textures], ex
     primitives, materials = [], []
     for index, (part, texture) in enumerate(zip(parts, textures)):
         to_file = GLTF_TO_WORLD.T  # the inverse rotation
-        primitives.append(Primitive(part.name, part.vertices @ to_file.T, part.faces, (part.uvs,), part.normals @ to_file.T, index))
-        materials.append(PbrMaterial(
-            name=part.name, base_color_factor=(1.0, 1.0, 1.0, 1.0), metallic_factor=1.0, roughness_factor=1.0,
-            base_color_texture=TextureRef(encode_base_color(texture.base_color), 0, file_transform(texture.base_color_sampling),
-                                          texture.base_color_sampling.wrap_s, texture.base_color_sampling.wrap_t),
-            metallic_roughness_texture=TextureRef(pack_metallic_roughness(texture.roughness, texture.metallic), 0,
-                                                  file_transform(texture.metallic_roughness_sampling),
-                                                  texture.metallic_roughness_sampling.wrap_s, texture.metallic_roughness_sampling.wrap_t),
-        ))
+        primitives.append(
+            Primitive(part.name, part.vertices @ to_file.T, part.faces, (part.uvs,), part.normals @ to_file.T, index)
+        )
+        materials.append(
+            PbrMaterial(
+                name=part.name,
+                base_color_factor=(1.0, 1.0, 1.0, 1.0),
+                metallic_factor=1.0,
+                roughness_factor=1.0,
+                base_color_texture=TextureRef(
+                    encode_base_color(texture.base_color),
+                    0,
+                    file_transform(texture.base_color_sampling),
+                    texture.base_color_sampling.wrap_s,
+                    texture.base_color_sampling.wrap_t,
+                ),
+                metallic_roughness_texture=TextureRef(
+                    pack_metallic_roughness(texture.roughness, texture.metallic),
+                    0,
+                    file_transform(texture.metallic_roughness_sampling),
+                    texture.metallic_roughness_sampling.wrap_s,
+                    texture.metallic_roughness_sampling.wrap_t,
+                ),
+            )
+        )
     write_glb(path, primitives, materials, extras)
 
 

@@ -42,7 +42,9 @@ def surface_values(hits, textures: list[Textures]) -> np.ndarray:  # -> [R, 5] b
     return values
 
 
-def cast_ground_truth(scene, textures: list[Textures], camera: Camera, samples_per_side: int = SAMPLES_PER_SIDE) -> GroundTruth:
+def cast_ground_truth(
+    scene, textures: list[Textures], camera: Camera, samples_per_side: int = SAMPLES_PER_SIDE
+) -> GroundTruth:
     """Ground-truth maps of `camera`'s view of `scene` (built from parts whose textures are `textures`)."""
     origins, directions = camera.rays(samples_per_side)  # [P * s * s, 3] each, grouped by pixel
     origins, directions = origins.double().cpu().numpy(), directions.double().cpu().numpy()

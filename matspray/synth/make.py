@@ -23,10 +23,24 @@ from matspray.synth.config import SynthConfig
 from matspray.synth.gltf_object import asset_parts, write_object_glb
 from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.materials import Textures, bake_textures, random_material
-from matspray.synth.mitsuba_scene import GROUND_BASE_COLOR, GROUND_ROUGHNESS, MAX_DEPTH, GroundPlane, build_scene, render_view, sampler_for, select_variant
+from matspray.synth.mitsuba_scene import (
+    GROUND_BASE_COLOR,
+    GROUND_ROUGHNESS,
+    MAX_DEPTH,
+    GroundPlane,
+    build_scene,
+    render_view,
+    sampler_for,
+    select_variant,
+)
 from matspray.synth.shapes import Part, make_shape, resolve_shape
 from matspray.synth.writer import (
-    OBJECT_GLB, prepare_output, write_envmap, write_ground_truth, write_render, write_scene_json,
+    OBJECT_GLB,
+    prepare_output,
+    write_envmap,
+    write_ground_truth,
+    write_render,
+    write_scene_json,
 )
 
 # independent random streams of one seed
@@ -57,7 +71,9 @@ def resolve_lights(config: SynthConfig) -> tuple[str, list[str], dict[str, torch
     for spec in specs:
         name, env = load_envmap(spec, config.env_height)
         if name in maps and not torch.equal(maps[name], env):
-            raise ConfigError(f"two different lights are both called '{name}' ({spec!r} and another); rename one of the files")
+            raise ConfigError(
+                f"two different lights are both called '{name}' ({spec!r} and another); rename one of the files"
+            )
         if name in relight_names:
             raise SettingError("relight_envs", f"names the light '{name}' twice")
         maps[name] = env
@@ -80,7 +96,11 @@ def procedural_content(config: SynthConfig) -> ObjectContent:
     parts = make_shape(shape, np.random.default_rng([config.seed, SHAPE_STREAM]))
     material = random_material(np.random.default_rng([config.seed, MATERIAL_STREAM]))
     textures = [bake_textures(material, part, config.texture_height) for part in parts]
-    description = {"shape": shape, "parts": [{"name": p.name, **p.params} for p in parts], "material": material.to_json()}
+    description = {
+        "shape": shape,
+        "parts": [{"name": p.name, **p.params} for p in parts],
+        "material": material.to_json(),
+    }
     return ObjectContent(shape, parts, textures, description)
 
 
@@ -93,9 +113,14 @@ def asset_content(config: SynthConfig, notify: Callable[[str], None]) -> ObjectC
     description = {
         "shape": "asset",
         "parts": [{"name": p.name, **p.params} for p in parts],
-        "asset": {"file": str(config.asset), "sha256": hashlib.sha256(Path(config.asset).read_bytes()).hexdigest(),
-                  "placement": config.placement, "asset_to_world": matrix.tolist(), "ignored": asset.notes,
-                  "up": "glTF +Y -> world +z"},
+        "asset": {
+            "file": str(config.asset),
+            "sha256": hashlib.sha256(Path(config.asset).read_bytes()).hexdigest(),
+            "placement": config.placement,
+            "asset_to_world": matrix.tolist(),
+            "ignored": asset.notes,
+            "up": "glTF +Y -> world +z",
+        },
     }
     return ObjectContent("asset", parts, textures, description)
 
@@ -118,8 +143,12 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
 
     bounding_radius = float(max(np.linalg.norm(p.vertices, axis=1).max() for p in parts))
     train_cameras, test_cameras, distance = make_cameras(
-        config.train_views, config.test_views, bounding_radius, config.resolution,
-        np.random.default_rng([config.seed, CAMERA_STREAM]), GROUND_MIN_ELEVATION if config.ground else MIN_ELEVATION,
+        config.train_views,
+        config.test_views,
+        bounding_radius,
+        config.resolution,
+        np.random.default_rng([config.seed, CAMERA_STREAM]),
+        GROUND_MIN_ELEVATION if config.ground else MIN_ELEVATION,
     )
     ground = None
     if config.ground:  # touching the object's lowest point, wide enough to fill the lower background
@@ -131,19 +160,48 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
         "variant": variant,
         **content.description,
         "lights": {"train": train_env, "relight": relight_envs},
-        "cameras": {"fov_x": FOV_X, "distance": distance, "bounding_radius": bounding_radius, "up": [0, 0, 1],
-                    "train": config.train_views, "test": config.test_views},
-        "render": {"renderer": "mitsuba", "integrator": "path", "max_depth": MAX_DEPTH, "spp": config.spp, "sampler": sampler_for(config.spp),
-                   "bsdf": "principled (specular 0.5, no sheen/clearcoat/transmission)", "film_filter": "box",
-                   "rgba": "straight (not premultiplied) sRGB-encoded colour, alpha from the render"},
-        "ground_truth": {"subpixel_samples": config.gt_samples**2, "alpha_channel": "coverage (PNG maps)", "background": 0,
-                         "basecolor": "sRGB-encoded 16-bit PNG", "roughness": "linear 16-bit PNG (GGX alpha = r^2)",
-                         "metallic": "linear 16-bit PNG", "normal": "EXR world-space unit xyz",
-                         "depth": "EXR camera z (OpenCV forward), 0 on background"},
-        "photos": {"background": config.background, "masks": "none (true masks: the ground truth's alpha)" if config.unmasked else "alpha channel",
-                   "ground": None if ground is None else {"z": ground.z, "half_size": ground.half_size, "base_color": GROUND_BASE_COLOR,
-                                                          "roughness": GROUND_ROUGHNESS, "metallic": 0.0},
-                   "relit": "the object alone (no ground, light hidden), alpha = coverage"},
+        "cameras": {
+            "fov_x": FOV_X,
+            "distance": distance,
+            "bounding_radius": bounding_radius,
+            "up": [0, 0, 1],
+            "train": config.train_views,
+            "test": config.test_views,
+        },
+        "render": {
+            "renderer": "mitsuba",
+            "integrator": "path",
+            "max_depth": MAX_DEPTH,
+            "spp": config.spp,
+            "sampler": sampler_for(config.spp),
+            "bsdf": "principled (specular 0.5, no sheen/clearcoat/transmission)",
+            "film_filter": "box",
+            "rgba": "straight (not premultiplied) sRGB-encoded colour, alpha from the render",
+        },
+        "ground_truth": {
+            "subpixel_samples": config.gt_samples**2,
+            "alpha_channel": "coverage (PNG maps)",
+            "background": 0,
+            "basecolor": "sRGB-encoded 16-bit PNG",
+            "roughness": "linear 16-bit PNG (GGX alpha = r^2)",
+            "metallic": "linear 16-bit PNG",
+            "normal": "EXR world-space unit xyz",
+            "depth": "EXR camera z (OpenCV forward), 0 on background",
+        },
+        "photos": {
+            "background": config.background,
+            "masks": "none (true masks: the ground truth's alpha)" if config.unmasked else "alpha channel",
+            "ground": None
+            if ground is None
+            else {
+                "z": ground.z,
+                "half_size": ground.half_size,
+                "base_color": GROUND_BASE_COLOR,
+                "roughness": GROUND_ROUGHNESS,
+                "metallic": 0.0,
+            },
+            "relit": "the object alone (no ground, light hidden), alpha = coverage",
+        },
         "status": "incomplete",
     }
     out.mkdir(parents=True, exist_ok=True)
@@ -151,14 +209,23 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
     for name, env in lights.items():
         write_envmap(out, name, env)
     if config.asset is None:
-        write_object_glb(out / OBJECT_GLB, parts, textures, {"matspray": {"kind": "matspray-synth object", "shape": shape, "seed": config.seed}})
+        write_object_glb(
+            out / OBJECT_GLB,
+            parts,
+            textures,
+            {"matspray": {"kind": "matspray-synth object", "shape": shape, "seed": config.seed}},
+        )
 
     splits = {"train": train_cameras, "test": test_cameras}
     total = len(train_cameras) + len(test_cameras) * (2 + len(relight_envs)) + len(train_cameras)
     bar = tqdm(total=total, desc="synth", unit="render", disable=not progress)
     views: dict[str, list[View]] = {"train": [], "test": []}
     scene = build_scene(parts, textures, lights[train_env].numpy())  # the object alone: its ground truth
-    photo_scene = build_scene(parts, textures, lights[train_env].numpy(), config.background == "env", ground) if config.unmasked else scene
+    photo_scene = (
+        build_scene(parts, textures, lights[train_env].numpy(), config.background == "env", ground)
+        if config.unmasked
+        else scene
+    )
     for split_index, (split, cameras) in enumerate(splits.items()):
         for index, camera in enumerate(cameras):
             name = f"r_{index:03d}"

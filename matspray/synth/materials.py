@@ -38,7 +38,11 @@ class Layer:
     metallic: float
 
     def to_json(self) -> dict:
-        return {"base_color": [round(float(c), 6) for c in self.base_color], "roughness": self.roughness, "metallic": self.metallic}
+        return {
+            "base_color": [round(float(c), 6) for c in self.base_color],
+            "roughness": self.roughness,
+            "metallic": self.metallic,
+        }
 
 
 @dataclass
@@ -53,8 +57,14 @@ class Region:
     threshold: float  # noise level above which B shows
 
     def to_json(self) -> dict:
-        return {"a": self.a.to_json(), "b": self.b.to_json(), "pattern": self.pattern,
-                "direction": self.direction.tolist(), "frequency": self.frequency, "threshold": self.threshold}
+        return {
+            "a": self.a.to_json(),
+            "b": self.b.to_json(),
+            "pattern": self.pattern,
+            "direction": self.direction.tolist(),
+            "frequency": self.frequency,
+            "threshold": self.threshold,
+        }
 
 
 @dataclass
@@ -118,14 +128,16 @@ def random_material(rng: np.random.Generator, regions: int | None = None) -> Mat
     region_list = []
     for k in range(count):
         direction = rng.normal(size=3)
-        region_list.append(Region(
-            a=random_layer(rng, roughness_a[k], metallic_a[k]),
-            b=random_layer(rng, rng.uniform(MIN_ROUGHNESS, MAX_ROUGHNESS), random_metallic(rng)),
-            pattern=PATTERNS[k] if k < len(PATTERNS) else str(rng.choice(PATTERNS)),
-            direction=direction / np.linalg.norm(direction),
-            frequency=float(rng.uniform(2.0, 6.0)),
-            threshold=float(rng.uniform(-0.1, 0.2)),
-        ))
+        region_list.append(
+            Region(
+                a=random_layer(rng, roughness_a[k], metallic_a[k]),
+                b=random_layer(rng, rng.uniform(MIN_ROUGHNESS, MAX_ROUGHNESS), random_metallic(rng)),
+                pattern=PATTERNS[k] if k < len(PATTERNS) else str(rng.choice(PATTERNS)),
+                direction=direction / np.linalg.norm(direction),
+                frequency=float(rng.uniform(2.0, 6.0)),
+                threshold=float(rng.uniform(-0.1, 0.2)),
+            )
+        )
     grout = random_layer(rng, rng.uniform(0.5, 0.9), 0.0) if rng.uniform() < 0.5 else None
     return Material(sites, region_list, grout, float(rng.uniform(0.03, 0.06)), ValueNoise(rng), ValueNoise(rng))
 
@@ -207,8 +219,11 @@ def bake_textures(material: Material, part: Part, height: int = TEXTURE_HEIGHT) 
     points = part.surface(u, v).reshape(-1, 3)
     base, rough, metal = evaluate_material(material, points)
     shape = (height, 2 * height)
-    return Textures(base.reshape(*shape, 3).astype(np.float32), rough.reshape(shape).astype(np.float32),
-                    metal.reshape(shape).astype(np.float32))
+    return Textures(
+        base.reshape(*shape, 3).astype(np.float32),
+        rough.reshape(shape).astype(np.float32),
+        metal.reshape(shape).astype(np.float32),
+    )
 
 
 def texture_lookup(texture: np.ndarray, uv: np.ndarray, sampling: Sampling = Sampling()) -> np.ndarray:
@@ -218,8 +233,13 @@ def texture_lookup(texture: np.ndarray, uv: np.ndarray, sampling: Sampling = Sam
     """
     values = torch.from_numpy(np.asarray(texture, dtype=np.float64))
     to_uv = None if sampling.to_uv is None else torch.from_numpy(np.asarray(sampling.to_uv, dtype=np.float64))
-    looked_up = sample_texture(values.reshape(*values.shape[:2], -1), torch.from_numpy(np.asarray(uv, dtype=np.float64)),
-                               sampling.wrap_s, sampling.wrap_t, to_uv)
+    looked_up = sample_texture(
+        values.reshape(*values.shape[:2], -1),
+        torch.from_numpy(np.asarray(uv, dtype=np.float64)),
+        sampling.wrap_s,
+        sampling.wrap_t,
+        to_uv,
+    )
     return looked_up.numpy().reshape(len(uv), *texture.shape[2:])
 
 
@@ -239,14 +259,19 @@ def single_wrap(texture: np.ndarray, sampling: Sampling, uvs: np.ndarray) -> tup
     low = np.floor(uv.min(0) * [width, height] - 0.5).astype(np.int64) - 1  # [2] first texel reached, x and y
     high = np.ceil(uv.max(0) * [width, height] - 0.5).astype(np.int64) + 1
     if (high - low + 1 > MAX_UNWRAPPED).any():
-        raise ConfigError(f"a texture with wraps {sampling.wrap_s}/{sampling.wrap_t} is tiled over {(high - low + 1).tolist()} texels; "
-                         f"at most {MAX_UNWRAPPED} per axis are supported")
+        raise ConfigError(
+            f"a texture with wraps {sampling.wrap_s}/{sampling.wrap_t} is tiled over "
+            f"{(high - low + 1).tolist()} texels; "
+            f"at most {MAX_UNWRAPPED} per axis are supported"
+        )
     xs = wrap_index(torch.arange(low[0], high[0] + 1), width, sampling.wrap_s).numpy()
     ys = wrap_index(torch.arange(low[1], high[1] + 1), height, sampling.wrap_t).numpy()
     unwrapped = np.ascontiguousarray(texture[ys][:, xs])
     # u' W' - 0.5 = u W - 0.5 - low_x: the texel that was x is now x - low_x
     size = np.array([len(xs), len(ys)], dtype=np.float64)
-    shift = np.array([[width / size[0], 0.0, -low[0] / size[0]], [0.0, height / size[1], -low[1] / size[1]], [0.0, 0.0, 1.0]])
+    shift = np.array(
+        [[width / size[0], 0.0, -low[0] / size[0]], [0.0, height / size[1], -low[1] / size[1]], [0.0, 0.0, 1.0]]
+    )
     return unwrapped, Sampling(shift @ to_uv, "clamp", "clamp")
 
 

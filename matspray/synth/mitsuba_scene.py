@@ -33,7 +33,8 @@ OPENCV_TO_MITSUBA_CAMERA = np.diag([-1.0, -1.0, 1.0, 1.0])
 _PROBE = """
 import mitsuba as mi
 mi.set_variant("{variant}")
-scene = mi.load_dict({{"type": "scene", "integrator": {{"type": "path"}}, "s": {{"type": "sphere"}}, "e": {{"type": "constant"}},
+scene = mi.load_dict({{"type": "scene", "integrator": {{"type": "path"}}, "s": {{"type": "sphere"}}, \
+"e": {{"type": "constant"}},
     "sensor": {{"type": "perspective", "to_world": mi.ScalarTransform4f().translate([0, 0, -4]),
                "film": {{"type": "hdrfilm", "width": 4, "height": 4}}}}}})
 mi.render(scene, spp=1)
@@ -49,7 +50,9 @@ def variant_renders(variant: str) -> bool:
         return True
     if variant not in _RENDERS:
         try:
-            result = subprocess.run([sys.executable, "-c", _PROBE.format(variant=variant)], capture_output=True, timeout=120)
+            result = subprocess.run(
+                [sys.executable, "-c", _PROBE.format(variant=variant)], capture_output=True, timeout=120
+            )
             _RENDERS[variant] = result.returncode == 0
         except (OSError, subprocess.TimeoutExpired):
             _RENDERS[variant] = False
@@ -61,7 +64,9 @@ def select_variant(preferred: tuple[str, ...] | None = None) -> str:
     try:
         import mitsuba as mi
     except ImportError:
-        raise ConfigError("Mitsuba 3 is not installed; `matspray synth` needs it: pip install 'matspray[synth]'") from None
+        raise ConfigError(
+            "Mitsuba 3 is not installed; `matspray synth` needs it: pip install 'matspray[synth]'"
+        ) from None
     current = mi.variant()
     preferred = VARIANTS if preferred is None else preferred
     for variant in preferred:
@@ -74,7 +79,9 @@ def select_variant(preferred: tuple[str, ...] | None = None) -> str:
             return variant
         except (ImportError, AttributeError, RuntimeError):
             continue
-    raise ConfigError(f"none of the Mitsuba variants {', '.join(preferred)} loads on this machine (available: {mi.variants()})")
+    raise ConfigError(
+        f"none of the Mitsuba variants {', '.join(preferred)} loads on this machine (available: {mi.variants()})"
+    )
 
 
 def is_vectorised() -> bool:
@@ -91,8 +98,9 @@ def mesh_of(part: Part, bsdf: dict):
 
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(bsdf)
-    mesh = mi.Mesh(part.name, len(part.vertices), len(part.faces), props=props, has_vertex_normals=True,
-                   has_vertex_texcoords=True)
+    mesh = mi.Mesh(
+        part.name, len(part.vertices), len(part.faces), props=props, has_vertex_normals=True, has_vertex_texcoords=True
+    )
     params = mi.traverse(mesh)
     params["vertex_positions"] = part.vertices.astype(np.float32).reshape(-1)
     params["faces"] = part.faces.astype(np.uint32).reshape(-1)
@@ -114,7 +122,13 @@ def bitmap_texture(values: np.ndarray, sampling: Sampling = Sampling(), uvs: np.
     array = np.ascontiguousarray(values, dtype=np.float32)
     if array.ndim == 2:
         array = array[..., None]
-    texture = {"type": "bitmap", "bitmap": mi.Bitmap(array), "raw": True, "filter_type": "bilinear", "wrap_mode": sampling.wrap_s}
+    texture = {
+        "type": "bitmap",
+        "bitmap": mi.Bitmap(array),
+        "raw": True,
+        "filter_type": "bilinear",
+        "wrap_mode": sampling.wrap_s,
+    }
     if sampling.to_uv is not None:
         to_uv = np.eye(4)
         to_uv[:2, :2], to_uv[:2, 3] = sampling.to_uv[:2, :2], sampling.to_uv[:2, 2]
@@ -180,8 +194,11 @@ def perspective_sensor(camera: Camera, spp: int) -> dict:
     import mitsuba as mi
 
     K = camera.K.double()
-    if abs(float(K[0, 0]) - float(K[1, 1])) > 1e-4 * float(K[0, 0]) or abs(float(K[0, 2]) - camera.width / 2) > 1e-6 \
-            or abs(float(K[1, 2]) - camera.height / 2) > 1e-6:
+    if (
+        abs(float(K[0, 0]) - float(K[1, 1])) > 1e-4 * float(K[0, 0])
+        or abs(float(K[0, 2]) - camera.width / 2) > 1e-6
+        or abs(float(K[1, 2]) - camera.height / 2) > 1e-6
+    ):
         raise ConfigError("Mitsuba sensors here need square pixels and a centred principal point")
     return {
         "type": "perspective",
@@ -211,13 +228,26 @@ class GroundPlane:
     def shape(self) -> dict:
         import mitsuba as mi
 
-        to_world = mi.ScalarTransform4f().translate([0.0, 0.0, self.z]) @ mi.ScalarTransform4f().scale([self.half_size, self.half_size, 1.0])
-        bsdf = {"type": "principled", "base_color": {"type": "rgb", "value": [GROUND_BASE_COLOR] * 3},
-                "roughness": GROUND_ROUGHNESS, "metallic": 0.0, "specular": 0.5}
+        to_world = mi.ScalarTransform4f().translate([0.0, 0.0, self.z]) @ mi.ScalarTransform4f().scale(
+            [self.half_size, self.half_size, 1.0]
+        )
+        bsdf = {
+            "type": "principled",
+            "base_color": {"type": "rgb", "value": [GROUND_BASE_COLOR] * 3},
+            "roughness": GROUND_ROUGHNESS,
+            "metallic": 0.0,
+            "specular": 0.5,
+        }
         return {"type": "rectangle", "to_world": to_world, "bsdf": bsdf}
 
 
-def build_scene(parts: list[Part], textures: list[Textures], env: np.ndarray, show_env: bool = False, ground: GroundPlane | None = None):
+def build_scene(
+    parts: list[Part],
+    textures: list[Textures],
+    env: np.ndarray,
+    show_env: bool = False,
+    ground: GroundPlane | None = None,
+):
     """The object (one mesh and principled BSDF per part) under environment `env` [H, 2H, 3], path traced.
     By default the emitter is hidden, so the film's alpha is the object's coverage; `show_env` puts the
     light behind the object and `ground` adds a ground plane, as in a real photo (alpha is then 1)."""

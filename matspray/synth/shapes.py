@@ -80,7 +80,9 @@ def capsule_surface(radius: float, half_length: float) -> Surface:
         s = v * total  # arc length from the top pole
         angle = np.clip(s / radius, 0.0, 0.5 * np.pi)  # top cap: 0 (pole) .. pi/2 (equator)
         low = np.clip((s - cap - 2.0 * half_length) / radius, 0.0, 0.5 * np.pi)  # bottom cap
-        rho = np.where(s < cap, radius * np.sin(angle), np.where(s > cap + 2 * half_length, radius * np.cos(low), radius))
+        rho = np.where(
+            s < cap, radius * np.sin(angle), np.where(s > cap + 2 * half_length, radius * np.cos(low), radius)
+        )
         z = np.where(
             s < cap,
             half_length + radius * np.cos(angle),
@@ -165,14 +167,20 @@ def tilt(rng: np.random.Generator, max_degrees: float) -> np.ndarray:  # [3, 3]
 
 def sphere(rng: np.random.Generator) -> list[Part]:
     rotation = tilt(rng, 30.0)  # turns the texture seam and poles away from the default cameras
-    return [make_part("sphere", placed(sphere_surface(0.9), rotation, [0, 0, 0]), {"radius": 0.9, "rotation": rotation.tolist()})]
+    return [
+        make_part(
+            "sphere", placed(sphere_surface(0.9), rotation, [0, 0, 0]), {"radius": 0.9, "rotation": rotation.tolist()}
+        )
+    ]
 
 
 def rounded_cube(rng: np.random.Generator) -> list[Part]:
     exponent = float(rng.uniform(6.0, 10.0))
     rotation = tilt(rng, 25.0)
     surface = placed(rounded_cube_surface(0.62, exponent), rotation, [0, 0, 0])
-    return [make_part("rounded-cube", surface, {"half_size": 0.62, "exponent": exponent, "rotation": rotation.tolist()})]
+    return [
+        make_part("rounded-cube", surface, {"half_size": 0.62, "exponent": exponent, "rotation": rotation.tolist()})
+    ]
 
 
 def torus(rng: np.random.Generator) -> list[Part]:
@@ -180,7 +188,11 @@ def torus(rng: np.random.Generator) -> list[Part]:
     major = 0.92 - minor
     rotation = tilt(rng, 50.0)
     surface = placed(torus_surface(major, minor), rotation, [0, 0, 0])
-    return [make_part("torus", surface, {"major": major, "minor": minor, "rotation": rotation.tolist()}, GRID_U, GRID_U // 2)]
+    return [
+        make_part(
+            "torus", surface, {"major": major, "minor": minor, "rotation": rotation.tolist()}, GRID_U, GRID_U // 2
+        )
+    ]
 
 
 def capsule(rng: np.random.Generator) -> list[Part]:
@@ -188,7 +200,9 @@ def capsule(rng: np.random.Generator) -> list[Part]:
     half_length = 0.9 - radius
     rotation = tilt(rng, 70.0)
     surface = placed(capsule_surface(radius, half_length), rotation, [0, 0, 0])
-    return [make_part("capsule", surface, {"radius": radius, "half_length": half_length, "rotation": rotation.tolist()})]
+    return [
+        make_part("capsule", surface, {"radius": radius, "half_length": half_length, "rotation": rotation.tolist()})
+    ]
 
 
 def blob(rng: np.random.Generator) -> list[Part]:

@@ -32,8 +32,16 @@ from matspray.synth.groundtruth import GroundTruth
 KIND = "matspray-synth"
 MAP_BITS = 16
 OBJECT_GLB = "object.glb"  # a procedural object's meshes and textures as glTF 2.0 (matspray.synth.gltf_object)
-ARTIFACT_PATTERNS = (OBJECT_GLB, "train/r_*", "test/r_*", "envmaps/*.exr", "transforms_train.json", "transforms_test.json",
-                     "transforms_val.json", "scene.json")
+ARTIFACT_PATTERNS = (
+    OBJECT_GLB,
+    "train/r_*",
+    "test/r_*",
+    "envmaps/*.exr",
+    "transforms_train.json",
+    "transforms_test.json",
+    "transforms_val.json",
+    "scene.json",
+)
 
 
 def tensor(values: np.ndarray) -> torch.Tensor:
@@ -72,7 +80,9 @@ def prepare_output(out: Path, identity: dict, overwrite: bool) -> None:
         return
     if not overwrite:
         what = "a different `matspray synth` scene" if previous and previous.get("kind") == KIND else "other files"
-        raise SettingError("out", f"{out} already holds {what}; choose another folder or allow overwriting it (overwrite)")
+        raise SettingError(
+            "out", f"{out} already holds {what}; choose another folder or allow overwriting it (overwrite)"
+        )
     for pattern in ARTIFACT_PATTERNS:
         for path in sorted(out.glob(pattern)):
             if path.is_file():

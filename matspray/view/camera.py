@@ -18,11 +18,13 @@ from matspray.data.camera import Camera
 
 def quaternion_to_matrix(wxyz) -> np.ndarray:  # [4] (w, x, y, z), any length > 0 -> [3, 3] rotation
     w, x, y, z = np.asarray(wxyz, dtype=np.float64) / np.linalg.norm(wxyz)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def matrix_to_quaternion(R) -> np.ndarray:  # [3, 3] rotation -> [4] (w, x, y, z), w >= 0
@@ -49,7 +51,8 @@ def matrix_to_quaternion(R) -> np.ndarray:  # [3, 3] rotation -> [4] (w, x, y, z
 
 
 def camera_from_viser(wxyz, position, fov_y: float, width: int, height: int) -> Camera:
-    """The Camera that sees what viser's camera (pose, vertical field of view in radians) sees in a width x height image."""
+    """The Camera that sees what viser's camera (pose, vertical field of view in radians) sees in a
+    width x height image."""
     if width < 1 or height < 1 or not 0.0 < fov_y < math.pi:
         raise ValueError(f"viser camera: need a positive size and 0 < fov < pi, got {width} x {height}, fov {fov_y}")
     R = quaternion_to_matrix(wxyz)
@@ -70,7 +73,8 @@ def viser_pose(camera: Camera) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def frame_size(aspect: float, long_side: int) -> tuple[int, int]:
-    """(width, height) of an image with `long_side` pixels along its longer side and the canvas's aspect (width / height)."""
+    """(width, height) of an image with `long_side` pixels along its longer side and the canvas's aspect
+    (width / height)."""
     if not aspect > 0 or long_side < 1:
         raise ValueError(f"frame_size: aspect {aspect} and long side {long_side} must be positive")
     if aspect >= 1.0:

@@ -58,9 +58,9 @@ def render_frame(asset: Asset, camera: Camera, light, settings: FrameSettings = 
             rgb, alpha = render_relit(asset, camera, light)  # premultiplied: over black
             if settings.mode == "relit over light":  # as `relight --background env` composites
                 rgb = rgb + background_radiance(light, camera) * (1 - alpha[..., None])
-                linear = rgb * 2.0 ** settings.exposure
+                linear = rgb * 2.0**settings.exposure
             else:
-                linear = rgb * 2.0 ** settings.exposure + BACKDROP * (1 - alpha[..., None])
+                linear = rgb * 2.0**settings.exposure + BACKDROP * (1 - alpha[..., None])
             display = linear_to_srgb(linear)
         else:
             gbuffer = render_gbuffer(asset, camera)
@@ -82,7 +82,9 @@ def render_frame(asset: Asset, camera: Camera, light, settings: FrameSettings = 
     return Frame(image, display, alpha.cpu(), time.perf_counter() - start)
 
 
-def progressive_size(aspect: float, long_side: int, moving: bool, moving_scale: float = 0.5, minimum: int = 32) -> tuple[int, int]:
+def progressive_size(
+    aspect: float, long_side: int, moving: bool, moving_scale: float = 0.5, minimum: int = 32
+) -> tuple[int, int]:
     """(width, height) to render at: the full `long_side` when the camera is still, `moving_scale` of it (at least
     `minimum` pixels) while it moves."""
     from matspray.view.camera import frame_size

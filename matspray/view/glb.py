@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 from matspray.view.camera import matrix_to_quaternion
 
 PLACES = ("hidden", "beside", "instead")  # of the Gaussians: not shown, next to them, or in their place

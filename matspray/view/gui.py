@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from matspray.view.frames import MODES
 from matspray.export.frames import dataset_from_glb
+from matspray.view.frames import MODES
 from matspray.view.glb import PLACES, glb_pose
 
 RESOLUTIONS = (64, 1024)  # the still frame's long side, pixels
@@ -19,24 +19,56 @@ class Controls:
         state = viewer.state
         self._reverting = False
         with gui.add_folder("Light"):
-            self.light = gui.add_dropdown("light", [c.label for c in viewer.choices], initial_value=state.light,
-                                          hint="the run's estimated light, the built-in lights and the HDRIs given with --env")
-            self.upload = gui.add_upload_button("open an HDRI (.exr, .hdr)", icon=None, mime_type="*/*",
-                                                hint="a lat-long HDR panorama from this computer")
-            self.turn = gui.add_slider("turn (degrees)", min=-180.0, max=180.0, step=1.0, initial_value=state.turn,
-                                       hint="turns the light about the up axis")
-            self.exposure = gui.add_slider("exposure (stops)", min=-6.0, max=6.0, step=0.1, initial_value=state.exposure)
+            self.light = gui.add_dropdown(
+                "light",
+                [c.label for c in viewer.choices],
+                initial_value=state.light,
+                hint="the run's estimated light, the built-in lights and the HDRIs given with --env",
+            )
+            self.upload = gui.add_upload_button(
+                "open an HDRI (.exr, .hdr)",
+                icon=None,
+                mime_type="*/*",
+                hint="a lat-long HDR panorama from this computer",
+            )
+            self.turn = gui.add_slider(
+                "turn (degrees)",
+                min=-180.0,
+                max=180.0,
+                step=1.0,
+                initial_value=state.turn,
+                hint="turns the light about the up axis",
+            )
+            self.exposure = gui.add_slider(
+                "exposure (stops)", min=-6.0, max=6.0, step=0.1, initial_value=state.exposure
+            )
         with gui.add_folder("Show"):
-            self.mode = gui.add_dropdown("display", MODES, initial_value=state.mode,
-                                         hint="relit, relit with the light drawn behind, or a material map")
+            self.mode = gui.add_dropdown(
+                "display",
+                MODES,
+                initial_value=state.mode,
+                hint="relit, relit with the light drawn behind, or a material map",
+            )
             self.variant = gui.add_dropdown("variant", viewer.run.variants, initial_value=state.variant)
-            self.resolution = gui.add_slider("resolution (px)", min=RESOLUTIONS[0], max=RESOLUTIONS[1], step=32,
-                                             initial_value=state.resolution, hint="long side of the still picture; half while moving")
+            self.resolution = gui.add_slider(
+                "resolution (px)",
+                min=RESOLUTIONS[0],
+                max=RESOLUTIONS[1],
+                step=32,
+                initial_value=state.resolution,
+                hint="long side of the still picture; half while moving",
+            )
             self.glb = self.glb_file = None
             if viewer.run.glbs:
-                self.glb_file = gui.add_dropdown("glb file", [p.name for p in viewer.run.glbs], initial_value=viewer.run.glbs[0].name)
-                self.glb = gui.add_dropdown("glb", PLACES, initial_value=state.glb,
-                                            hint="the exported mesh, drawn by the browser with viser's own lighting")
+                self.glb_file = gui.add_dropdown(
+                    "glb file", [p.name for p in viewer.run.glbs], initial_value=viewer.run.glbs[0].name
+                )
+                self.glb = gui.add_dropdown(
+                    "glb",
+                    PLACES,
+                    initial_value=state.glb,
+                    hint="the exported mesh, drawn by the browser with viser's own lighting",
+                )
         self.snapshot = gui.add_button("snapshot (PNG into RUN/view/)")
         self.mesh = None
 
@@ -106,7 +138,9 @@ class Controls:
                 self._set_quietly(self.glb, "hidden")
                 place = "hidden"
             else:
-                self.mesh = self.viewer.server.scene.add_glb("/glb", data, **dict(zip(("wxyz", "position"), glb_pose(matrix, self._offset(place)))))
+                self.mesh = self.viewer.server.scene.add_glb(
+                    "/glb", data, **dict(zip(("wxyz", "position"), glb_pose(matrix, self._offset(place))))
+                )
         self.viewer.update(glb=place)
 
     def _offset(self, place: str):

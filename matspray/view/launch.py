@@ -27,7 +27,10 @@ def run_variants(root) -> list[str]:
         raise RunError(f"{root}: no such run folder; make one with `matspray run --data DATA --out {root}`")
     variants = RunDir(root).require().asset_variants()
     if not variants:
-        raise RunError(f"{root}: the run has no asset yet (no asset*/asset.ply); make it with `matspray run --data DATA --out {root}`")
+        raise RunError(
+            f"{root}: the run has no asset yet (no asset*/asset.ply); "
+            f"make it with `matspray run --data DATA --out {root}`"
+        )
     return variants
 
 
@@ -55,9 +58,12 @@ def light_files(paths) -> list[Path]:
 
 def port_problem(host: str, port: int) -> str | None:
     """None when `port` can be listened on at `host`, else one line with the port and what to pass instead."""
+
     def free(number: int) -> bool:
         with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as probe:
-            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server binds: a port in TIME_WAIT is free
+            probe.setsockopt(
+                socket.SOL_SOCKET, socket.SO_REUSEADDR, 1
+            )  # as the server binds: a port in TIME_WAIT is free
             try:
                 probe.bind((host, number))
             except OSError:

@@ -6,7 +6,8 @@ Choices: the run's estimated light (the shown variant's `envmap.exr`), the built
 `--env-height`, so that the viewer's picture is the picture `relight` writes.
 
 Turning the light is not a new light: `RotatedLight` turns the directions the shading looks up by the opposite angle,
-so a turn costs nothing but a 3 x 3 rotation per lookup, and at 0 degrees the lookups are the unturned ones, bit for bit.
+so a turn costs nothing but a 3 x 3 rotation per lookup, and at 0 degrees the lookups are the unturned ones, bit for
+bit.
 """
 
 from __future__ import annotations
@@ -120,16 +121,23 @@ class LightLoader:
             return self._cache[key]
         path = Path(key)
         if key not in BUILTINS and path.suffix.lower() not in HDR_SUFFIXES:
-            raise file_error(path, f"is not an HDR light ('{path.suffix or 'no suffix'}'); a light is a lat-long .exr or .hdr file",
-                             "the viewer keeps the last light")
+            raise file_error(
+                path,
+                f"is not an HDR light ('{path.suffix or 'no suffix'}'); a light is a lat-long .exr or .hdr file",
+                "the viewer keeps the last light",
+            )
         try:
             _, env_map = load_envmap(key)
-            light = EnvironmentMap.from_tensor(env_map.to(self.device), height=self.height, learnable=False, what=f"{path.name}")
+            light = EnvironmentMap.from_tensor(
+                env_map.to(self.device), height=self.height, learnable=False, what=f"{path.name}"
+            )
         except MatsprayError as exc:
             message = str(exc)
             raise DataError(message if message.startswith(str(path)) else f"{path}: {message}") from None
         except (OSError, ValueError, RuntimeError) as exc:  # a reader's own failure on a corrupt file
-            raise file_error(path, f"cannot be read as an HDR image ({type(exc).__name__}: {' '.join(str(exc).split())[:160]})") from None
+            raise file_error(
+                path, f"cannot be read as an HDR image ({type(exc).__name__}: {' '.join(str(exc).split())[:160]})"
+            ) from None
         with torch.no_grad():
             loaded = RotatedLight(light, light.prefilter())
         self._cache[key] = loaded

@@ -14,8 +14,8 @@ import torch
 from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
 from matspray.errors import MatsprayError
-from matspray.rundir import RunDir
 from matspray.export.frames import find_glbs
+from matspray.rundir import RunDir
 from matspray.view.launch import run_variants
 from matspray.view.lights import estimated_light_path
 
@@ -87,6 +87,8 @@ class ViewerRun:
         center, radius = self.object_frame(variant)
         distance = 1.15 * radius / math.sin(0.5 * START_FOV)
         elevation, azimuth = math.radians(25.0), math.radians(-60.0)
-        direction = np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)])
+        direction = np.array(
+            [math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)]
+        )
         fov_x = 2 * math.atan(math.tan(0.5 * START_FOV) * width / height)
         return Camera.look_at(center + distance * direction, center, UP, fov_x, width, height)

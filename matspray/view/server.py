@@ -60,10 +60,18 @@ def load_numba_kernels() -> None:
 
 class Viewer:
     """`matspray view` as a library: `Viewer(run, config).start()` returns the URL; `stop()` ends it. `page`: a page
-    opened already (`launch.open_page`, before torch was imported), which the viewer takes over instead of opening one."""
+    opened already (`launch.open_page`, before torch was imported),
+    which the viewer takes over instead of opening one."""
 
-    def __init__(self, run_root, config: ViewerConfig = ViewerConfig(), device="cpu", backend: str = "torch", notify=None,
-                 page: Page | None = None):
+    def __init__(
+        self,
+        run_root,
+        config: ViewerConfig = ViewerConfig(),
+        device="cpu",
+        backend: str = "torch",
+        notify=None,
+        page: Page | None = None,
+    ):
         self.config, self.device, self.backend = config, torch.device(device), backend
         self.notify = notify or (lambda message: print(message, file=sys.stderr, flush=True))
         self.run = ViewerRun(run_root, device=self.device, notify=self.notify)
@@ -108,7 +116,9 @@ class Viewer:
         self.run.load_photos()
         # the first frame's one-off costs (the rasterizer's compiled kernels loaded from their cache, first allocations)
         # are paid here, while the browser opens the page; a tab connected already waits for it on the render lock
-        threading.Thread(target=self.render, args=(self.start_camera.scaled(0.25),), daemon=True, name="matspray-warmup").start()
+        threading.Thread(
+            target=self.render, args=(self.start_camera.scaled(0.25),), daemon=True, name="matspray-warmup"
+        ).start()
         self.server.on_client_connect(self._connect)  # also called now for the tabs that connected while the run loaded
         self.server.on_client_disconnect(self._disconnect)
         return self.url
@@ -132,7 +142,7 @@ class Viewer:
             if client.client_id in self.connected:
                 return
             self.connected.add(client.client_id)
-        print('TRACE connect', time.time(), flush=True)
+        print("TRACE connect", time.time(), flush=True)
         # a new tab starts at the start view: set here, before its first frame, because the page may report viser's
         # default camera before it has applied `initial_camera`
         wxyz, position, fov = viser_pose(self.start_camera)
@@ -169,7 +179,9 @@ class Viewer:
         if choice.spec is None:  # the run's estimated light: the variant's own envmap.exr
             path = self.run.estimated_light(variant)
             if path is None:
-                raise MatsprayError(f"{self.run.root}: variant '{variant}' learned no light (no envmap.exr); choose another light")
+                raise MatsprayError(
+                    f"{self.run.root}: variant '{variant}' learned no light (no envmap.exr); choose another light"
+                )
             return self.loader.load(path)
         return self.loader.load(choice.spec)
 
@@ -286,7 +298,9 @@ class ClientView:
             try:
                 self._show(kind)
             except Exception as exc:  # noqa: BLE001 - a failed frame is reported; the tab keeps working
-                self.viewer.tell(f"rendering failed ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})", title="render")
+                self.viewer.tell(
+                    f"rendering failed ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})", title="render"
+                )
                 time.sleep(1.0)
 
     def _show(self, kind: str) -> None:
@@ -300,12 +314,14 @@ class ClientView:
         if not self.running:  # the tab closed while this frame rendered
             return
         self.client.scene.set_background_image(frame.image, format="png")
-        print('TRACE frame', kind, frame.size, frame.seconds, time.time(), flush=True)
+        print("TRACE frame", kind, frame.size, frame.seconds, time.time(), flush=True)
         self.last_frame = frame
         width, height = frame.size
         what = "moving: low resolution" if kind == "low" else "still: full resolution"
-        self.status.content = (f"**frame** {1000 * frame.seconds:.0f} ms at {width}x{height} ({what}) · "
-                               f"{self.viewer.backend} on {self.viewer.device.type}")
+        self.status.content = (
+            f"**frame** {1000 * frame.seconds:.0f} ms at {width}x{height} ({what}) · "
+            f"{self.viewer.backend} on {self.viewer.device.type}"
+        )
         self._update_photo()
 
     def _update_photo(self) -> None:
@@ -315,13 +331,17 @@ class ClientView:
         if not views:
             return
         center, _ = self.viewer.run.object_frame(self.viewer.state.variant)
-        index = nearest_view(np.stack([v.camera.center.double().cpu().numpy() for v in views]), center, self.client.camera.position)
+        index = nearest_view(
+            np.stack([v.camera.center.double().cpu().numpy() for v in views]), center, self.client.camera.position
+        )
         if index == self.photo_index:
             return
         self.photo_index = index
         image = photo_image(views[index], BACKDROP)
         if self.photo is None:
-            self.photo = self.client.gui.add_image(image, label=f"nearest training photo: {views[index].name}", format="png", order=101.0)
+            self.photo = self.client.gui.add_image(
+                image, label=f"nearest training photo: {views[index].name}", format="png", order=101.0
+            )
         else:
             self.photo.image = image
             self.photo.label = f"nearest training photo: {views[index].name}"

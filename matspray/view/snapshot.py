@@ -22,8 +22,11 @@ def snapshot_name(variant: str, light: str, mode: str, stamp: float | None = Non
     return "_".join(parts + [when]) + ".png"
 
 
-def write_snapshot(run_root, image: np.ndarray, variant: str, light: str, mode: str, stamp: float | None = None) -> Path:
-    """Write `image` ([H, W, 3] uint8, as shown) to RUN/view/; a name already taken gets -2, -3, ... Returns the path."""
+def write_snapshot(
+    run_root, image: np.ndarray, variant: str, light: str, mode: str, stamp: float | None = None
+) -> Path:
+    """Write `image` ([H, W, 3] uint8, as shown) to RUN/view/; a name already taken gets
+    -2, -3, ... Returns the path."""
     folder = Path(run_root) / FOLDER
     folder.mkdir(parents=True, exist_ok=True)
     name = snapshot_name(variant, light, mode, stamp)
@@ -31,7 +34,9 @@ def write_snapshot(run_root, image: np.ndarray, variant: str, light: str, mode: 
     while path.exists():
         path, k = folder / name.replace(".png", f"-{k}.png"), k + 1
     try:
-        write_raw(path, torch.from_numpy(np.ascontiguousarray(image)).float() / 255.0)  # exact: k / 255 rounds back to k
+        write_raw(
+            path, torch.from_numpy(np.ascontiguousarray(image)).float() / 255.0
+        )  # exact: k / 255 rounds back to k
     finally:
         leftover = atomic_target(path)  # written into first and renamed; only a failed write leaves it behind
         if leftover.exists():
