@@ -154,6 +154,69 @@ def table_headline(results: Path) -> str:
     return "\n".join(lines)
 
 
+# ------------------------------------------------------------------------------------------ the `dr` error model
+EVAL_DR = "generalise-eval-dr.json"
+DEV_DR = "generalise-dev-dr.json"
+# the paper's relighting PSNR (dB): Table 2 (a subset of its objects) and the softmax ablation (all its objects)
+PAPER_ABLATION = {"full": 29.164, "supervised": 24.809, "proj-average": 25.555}
+PAPER_SOFTMAX = {"full": 27.282, "no-softmax": 24.600}
+
+
+def full_wins(objects: list[dict], other: str) -> int:
+    return sum(o["figures"]["relight"]["full"] > o["figures"]["relight"][other] for o in objects)
+
+
+def table_dr_eval(results: Path) -> str:
+    """Every variant per object under `dr` (benchmarks.generalise's format)."""
+    from benchmarks.generalise_tables import model_table
+
+    report = read(results, EVAL_DR)
+    result = report["models"]["dr"]
+    table = model_table("dr", result["objects"], result["summary"], report["settings"]["variants"])
+    return "\n".join(table[2:]).rstrip()
+
+
+def table_dr_orderings(results: Path) -> str:
+    """The paper's orderings: full minus each other variant in relighting, the paper's and ours."""
+    result = read(results, EVAL_DR)["models"]["dr"]
+    mean, objects = result["summary"]["relight"], result["objects"]
+    lines = [
+        "| full against | paper: full, it (dB) | paper: full - it | ours: full, it (dB) | ours: full - it "
+        "| full wins |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for other, paper in (
+        ("proj-average", PAPER_ABLATION),
+        ("supervised", PAPER_ABLATION),
+        ("no-softmax", PAPER_SOFTMAX),
+        ("no-prior", None),
+    ):
+        theirs = ["—", "—"] if paper is None else [f"{paper['full']:.2f}, {paper[other]:.2f}"]
+        theirs += [] if paper is None else [f"{paper['full'] - paper[other]:+.2f}"]
+        ours = [f"{mean['full']:.2f}, {mean[other]:.2f}", f"{mean['full'] - mean[other]:+.2f}"]
+        wins = f"{full_wins(objects, other)} of {len(objects)}"
+        lines.append("| " + " | ".join([f"`{other}`", *theirs, *ours, wins]) + " |")
+    return "\n".join(lines)
+
+
+def table_dr_dev(results: Path) -> str:
+    """The development set under `dr`: full against proj-average per object."""
+    result = read(results, DEV_DR)["models"]["dr"]
+    lines = ["| object | relight full | relight proj-average | full - proj-average |", "| --- | ---: | ---: | ---: |"]
+    for o in result["objects"]:
+        r = o["figures"]["relight"]
+        lines.append(
+            f"| {short(o['object']['name'])} | {fmt(r['full'])} | {fmt(r['proj-average'])} | "
+            f"{r['full'] - r['proj-average']:+.2f} |"
+        )
+    m = result["summary"]["relight"]
+    lines.append(
+        f"| mean of {len(result['objects'])} | {fmt(m['full'])} | {fmt(m['proj-average'])} | "
+        f"{m['full'] - m['proj-average']:+.2f} |"
+    )
+    return "\n".join(lines)
+
+
 # ------------------------------------------------------------------------------------------ real captures
 CAPTURES = ("skull", "stitch")
 
@@ -313,6 +376,9 @@ TABLES = {
     "no-prior-eval": (table_noprior_eval, [EVAL_NOPRIOR]),
     "generalise-eval": (table_generalise_eval, [EVAL_NOPRIOR]),
     "real-captures": (table_real_captures, [f"real-captures-{n}.json" for n in CAPTURES]),
+    "dr-eval": (table_dr_eval, [EVAL_DR]),
+    "dr-orderings": (table_dr_orderings, [EVAL_DR]),
+    "dr-dev": (table_dr_dev, [DEV_DR]),
     "cli": (table_cli, []),
 }
 
