@@ -217,6 +217,42 @@ def table_dr_dev(results: Path) -> str:
     return "\n".join(lines)
 
 
+CEILINGS_DR = "ceilings-dev-dr.json"
+
+
+def table_dr_ceilings(results: Path) -> str:
+    """benchmarks.ceilings' tables for `dr` on the development set (its own formatting)."""
+    from benchmarks.ceilings import markdown
+
+    lines = markdown("dev", "demo", {"dr": read(results, CEILINGS_DR)["dr"]})
+    start = next(i for i, line in enumerate(lines) if line.startswith("| row |"))
+    return "\n".join(lines[start:]).rstrip()
+
+
+# what was tried on the development set under `dr`: (label, result file, variant)
+DR_TRIED = (
+    ("default: proj-average", DEV_DR, "proj-average"),
+    ("default: full", DEV_DR, "full"),
+    ("full, L_Image weight 0.25 (`--refine material_weight=0.25`)", "generalise-dev-dr-material0.25.json", "full"),
+)
+
+
+def table_dr_tried(results: Path) -> str:
+    """Relighting of each configuration tried on the development set under `dr`, per object and mean."""
+    runs = [(label, read(results, name)["models"]["dr"], variant) for label, name, variant in DR_TRIED]
+    names = [short(o["object"]["name"]) for o in runs[0][1]["objects"]]
+    base = runs[0][1]["summary"]["relight"]["proj-average"]
+    lines = [
+        "| configuration | " + " | ".join(names) + " | mean | vs proj-average |",
+        "| --- |" + " ---: |" * (len(names) + 2),
+    ]
+    for label, result, variant in runs:
+        per_object = [fmt(o["figures"]["relight"][variant]) for o in result["objects"]]
+        mean = result["summary"]["relight"][variant]
+        lines.append(f"| {label} | " + " | ".join(per_object) + f" | {fmt(mean)} | {mean - base:+.2f} |")
+    return "\n".join(lines)
+
+
 # ------------------------------------------------------------------------------------------ real captures
 CAPTURES = ("skull", "stitch")
 
@@ -379,6 +415,8 @@ TABLES = {
     "dr-eval": (table_dr_eval, [EVAL_DR]),
     "dr-orderings": (table_dr_orderings, [EVAL_DR]),
     "dr-dev": (table_dr_dev, [DEV_DR]),
+    "dr-ceilings": (table_dr_ceilings, [CEILINGS_DR]),
+    "dr-tried": (table_dr_tried, [name for _, name, _ in DR_TRIED]),
     "cli": (table_cli, []),
 }
 
