@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from matspray.device import configure_threads
+
 ROOT = Path(__file__).resolve().parents[1]
 HOLDER = (
     "import sys, time\nfrom matspray.rundir import RunDir\nheld = RunDir(sys.argv[1]).hold()\n"
@@ -28,6 +30,7 @@ def pytest_addoption(parser):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "on_device: runs on the device given by pytest --device (the CPU by default)")
+    configure_threads()  # $MATSPRAY_THREADS holds for the tests as for a run (one thread beside another CPU job)
 
 
 @pytest.fixture
