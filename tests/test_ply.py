@@ -50,22 +50,7 @@ def test_standard_3dgs_layout(tmp_path):
 
 
 def test_reads_files_without_normals(tmp_path):
-    names = [
-        "x",
-        "y",
-        "z",
-        "f_dc_0",
-        "f_dc_1",
-        "f_dc_2",
-        "opacity",
-        "scale_0",
-        "scale_1",
-        "scale_2",
-        "rot_0",
-        "rot_1",
-        "rot_2",
-        "rot_3",
-    ]
+    names = "x y z f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3".split()
     data = np.zeros(3, dtype=[(n, "f4") for n in names])
     data["rot_0"] = 1
     PlyData([PlyElement.describe(data, "vertex")]).write(str(tmp_path / "plain.ply"))
