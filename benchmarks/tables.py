@@ -234,6 +234,11 @@ DR_TRIED = (
     ("default: proj-average", DEV_DR, "proj-average"),
     ("default: full", DEV_DR, "full"),
     ("full, L_Image weight 0.25 (`--refine material_weight=0.25`)", "generalise-dev-dr-material0.25.json", "full"),
+    (
+        "full, 1 800 refinement steps instead of 600 (`--refine iterations=1800`)",
+        "generalise-dev-dr-steps1800.json",
+        "full",
+    ),
     ("`--method paper`: proj-average", "generalise-dev-paper-dr-paper-method.json", "proj-average"),
     ("`--method paper`: full", "generalise-dev-paper-dr-paper-method.json", "full"),
 )

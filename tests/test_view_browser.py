@@ -205,11 +205,18 @@ def test_the_snapshot_button_writes_a_png_into_the_run(page):
 
     viewer, driver = page
     folder = viewer.run.root / "view"
-    button = next(el for el in driver.find_elements(By.TAG_NAME, "button") if el.text.strip().startswith("snapshot"))
-    button.click()
-    files = wait_for(
-        lambda: list(folder.glob("*.png")) if folder.exists() else None, timeout=30, what="the snapshot file"
-    )
+
+    def snapshot_button():  # the page may still be building its controls when this test runs first
+        return next(
+            (el for el in driver.find_elements(By.TAG_NAME, "button") if el.text.strip().startswith("snapshot")), None
+        )
+
+    wait_for(snapshot_button, timeout=30, what="the snapshot button").click()
+
+    def written():  # the snapshot itself, not the temporary file it is written to first
+        return [p for p in folder.glob("*.png") if not p.name.startswith(".")] if folder.exists() else None
+
+    files = wait_for(written, timeout=30, what="the snapshot file")
     assert len(files) == 1 and files[0].stat().st_size > 1000
     assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # no temporary file left
 
