@@ -41,7 +41,7 @@ import numpy as np
 
 from benchmarks.generalise_tables import choices_table, markdown, model_summary, object_figures
 from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
-from matspray.demo import make_demo_object, run_object
+from matspray.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
@@ -183,6 +183,8 @@ def protocol_config(args, predictor: str):
     """The run settings of one error model: the preset, --method, --without and setting flags (as
     `matspray run` reads them), then the --refine overrides."""
     config = build_config_from_args(args, predictor=predictor)
+    if args.resolution:  # the objects' size is the size geometry trains at
+        config = replace(config, geometry=replace(config.geometry, resolution=args.resolution))
     return replace(config, refine=with_overrides(config.refine, args.refine))
 
 
@@ -302,6 +304,7 @@ def run_protocol(args, log=print) -> dict:
     settings = {
         "set": args.set,
         "preset": args.preset,
+        "resolution": args.resolution or DEMO_SIZES[args.preset].res,
         "objects": len(objects),
         "start": args.start,
         "models": list(args.models),
@@ -343,6 +346,7 @@ def run_protocol(args, log=print) -> dict:
             progress=args.progress,
             env=spec.env,
             relight_envs=list(spec.relight_envs),
+            resolution=args.resolution,
         )
         seconds = {"synth": time.perf_counter() - start, "models": {}}
         first_run = object_geometry(
@@ -407,7 +411,8 @@ def run_protocol(args, log=print) -> dict:
     results_dir = getattr(args, "results_dir", None)
     if results_dir is not None and args.start == 0:  # a whole pass only: the docs' tables are made from it
         results_dir.mkdir(parents=True, exist_ok=True)
-        write_json(results_dir / f"generalise-{args.set}-{tag}.json", report)
+        size = f"-{args.resolution}px" if args.resolution else ""
+        write_json(results_dir / f"generalise-{args.set}{size}-{tag}.json", report)
     for model, summary in summaries.items():
         tables = dict(
             summary["tables"],
@@ -478,12 +483,22 @@ def parse_args(argv=None):
         help="run nothing: print one row per configuration already run in --out "
         "(its results-*.json), the table to choose settings from",
     )
+    parser.add_argument(
+        "--resolution",
+        type=int,
+        metavar="PX",
+        help="render the objects at PX and train at that size (default: the preset's, demo 128); "
+        "its own folder (default --out runs/generalise-SET-PRESET-PXpx)",
+    )
     add_method_arguments(parser, presets=("test", "demo"))
     args = parser.parse_args(argv)
     check_part_arguments(parser, args)
+    if args.resolution is not None and args.resolution < 8:
+        parser.error(f"--resolution must be >= 8 px (got {args.resolution})")
     if args.results_dir is None and args.out is None:
         args.results_dir = Path("docs") / "results"
-    args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
+    size = f"-{args.resolution}px" if args.resolution else ""
+    args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}{size}"
     return args
 
 

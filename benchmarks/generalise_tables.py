@@ -131,8 +131,9 @@ def model_table(model: str, per_object: list[dict], summary: dict, variants) -> 
 
 def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict]) -> list[str]:
     size = DEMO_SIZES[settings["preset"]]
+    res = settings.get("resolution", size.res)  # older result files do not say
     lines = [
-        f"## Generalisation protocol: {settings['set']} set, preset {settings['preset']} ({size.res} "
+        f"## Generalisation protocol: {settings['set']} set, preset {settings['preset']} ({res} "
         f"px, {size.views} views)",
         "",
         f"method: {settings['method']}; without: {', '.join(settings['without']) or 'nothing'}; settings: "

@@ -92,14 +92,16 @@ def make_demo_object(
     asset: str | None = None,
     env: str = "sky",
     relight_envs: list[str] | None = None,
+    resolution: int | None = None,
 ) -> Path:
     """A `matspray synth` object for `preset` in `out` (reused when it is already there): a procedural `shape`
-    or the glTF file `asset`, trained under `env` and relit under `relight_envs` (None: synth's default lights)."""
+    or the glTF file `asset`, trained under `env` and relit under `relight_envs` (None: synth's default lights),
+    rendered at `resolution` px (None: the preset's)."""
     size = DEMO_SIZES[preset]
     config = SynthConfig(
         shape=shape if asset is None else "random",
         seed=seed,
-        resolution=size.res,
+        resolution=resolution or size.res,
         train_views=size.views,
         test_views=size.test_views,
         spp=size.spp,

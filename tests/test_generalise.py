@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from pathlib import Path
 
 import pytest
 
@@ -15,11 +16,13 @@ from benchmarks.generalise import (
     geometry_run,
     main,
     object_set,
+    parse_args,
     predictor_spec,
     refine_overrides,
     with_overrides,
 )
 from benchmarks.generalise_tables import model_summary, model_table
+from matspray.data.images import read_image
 from matspray.errors import ConfigError
 from matspray.lights import BUILTINS
 from matspray.refine import RefineConfig
@@ -370,3 +373,18 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     assert not {"materials2d", "lift", "geometry"} & set(
         json.loads((other / "timings.json").read_text())
     )  # reused, not redone
+
+
+def test_resolution_renders_and_trains_the_objects_at_that_size(tmp_path):
+    pytest.importorskip("mitsuba")
+    out = tmp_path / "g"
+    argv = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--geometry-only"]
+    assert main([*argv, "--resolution", "24", "--out", str(out), "--no-progress"]) == 0
+    data = out / "objects" / "dev-00-seed1000" / "data"
+    assert read_image(data / "train" / "r_000.png")[0].shape[:2] == (24, 24)
+    record = json.loads(
+        (out / "objects" / "dev-00-seed1000" / "runs" / "paper" / "geometry" / "stage.json").read_text()
+    )
+    assert record["settings"]["resolution"] == 24
+    assert parse_args([*argv, "--resolution", "256"]).out == Path("runs") / "generalise-dev-test-256px"
+    assert parse_args(argv).out == Path("runs") / "generalise-dev-test"
