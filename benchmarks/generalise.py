@@ -179,6 +179,11 @@ def refine_overrides(base, items: list[str]) -> dict:
     return {f.name: getattr(changed, f.name) for f in fields(base) if getattr(changed, f.name) != getattr(base, f.name)}
 
 
+def size_suffix(args) -> str:
+    """What the folder and result file names of a pass at another --resolution carry ("" at the preset's)."""
+    return f"-{args.resolution}px" if args.resolution else ""
+
+
 def protocol_config(args, predictor: str):
     """The run settings of one error model: the preset, --method, --without and setting flags (as
     `matspray run` reads them), then the --refine overrides."""
@@ -411,8 +416,7 @@ def run_protocol(args, log=print) -> dict:
     results_dir = getattr(args, "results_dir", None)
     if results_dir is not None and args.start == 0:  # a whole pass only: the docs' tables are made from it
         results_dir.mkdir(parents=True, exist_ok=True)
-        size = f"-{args.resolution}px" if args.resolution else ""
-        write_json(results_dir / f"generalise-{args.set}{size}-{tag}.json", report)
+        write_json(results_dir / f"generalise-{args.set}{size_suffix(args)}-{tag}.json", report)
     for model, summary in summaries.items():
         tables = dict(
             summary["tables"],
@@ -497,8 +501,7 @@ def parse_args(argv=None):
         parser.error(f"--resolution must be >= 8 px (got {args.resolution})")
     if args.results_dir is None and args.out is None:
         args.results_dir = Path("docs") / "results"
-    size = f"-{args.resolution}px" if args.resolution else ""
-    args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}{size}"
+    args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}{size_suffix(args)}"
     return args
 
 

@@ -107,8 +107,9 @@ def main() -> None:
     preset, device = ("test", "cpu") if args.dry_run else (args.preset, args.device)
     out = args.out or Path("runs/paper-scale-dry" if args.dry_run else f"runs/{args.preset}-scale")
     config = build_config(preset, predictor="simulated", device=device, backend=args.backend, seed=args.seed)
-    backend = resolve_backend(config.backend, resolve_device(config.device))  # fail before the long work
-    cuda = resolve_device(config.device).type == "cuda"
+    run_device = resolve_device(config.device)
+    backend = resolve_backend(config.backend, run_device)  # fail before the long work
+    cuda = run_device.type == "cuda"
     start = time.perf_counter()
     data = args.data if args.data else make_demo_object(out / "data", preset, args.shape, args.seed)
     synth_s = time.perf_counter() - start
@@ -118,7 +119,7 @@ def main() -> None:
     summary = metrics["variants"][args.variants[0]]["summary"]
     gaussians = len(read_asset(RunDir(out / "run").path(asset_stage(args.variants[0])), device="cpu").gaussians)
     where = args.data or f"{args.shape} seed {args.seed}"
-    print(f"\npreset {preset}, backend {backend}, device {resolve_device(config.device)}, object {where}")
+    print(f"\npreset {preset}, backend {backend}, device {run_device}, object {where}")
     print(f"synth object: {synth_s:.1f} s (reused when already made)")
     run = RunDir(out / "run")
     print("stages (device, backend, what the render calls ran on):")

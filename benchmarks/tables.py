@@ -118,18 +118,22 @@ def table_noprior_eval(results: Path) -> str:
     )
 
 
+def object_table(report: dict, model: str) -> list[str]:
+    """One error model's per-object table in benchmarks.generalise's format, without its heading."""
+    from benchmarks.generalise_tables import model_table
+
+    result = report["models"][model]
+    return model_table(model, result["objects"], result["summary"], report["settings"]["variants"])[2:]
+
+
 def table_generalise_eval(results: Path) -> str:
     """The protocol's full per-model tables (benchmarks.generalise's format), relighting and materials of
     `full` and `no-prior` and the 2D predictions, per object, with the seconds."""
-    from benchmarks.generalise_tables import model_table
-
     report = read(results, EVAL_NOPRIOR)
-    variants = report["settings"]["variants"]
     lines = []
     for model in [m for m in MODELS if m in report["models"]]:
-        result = report["models"][model]
-        table = model_table(model, result["objects"], result["summary"], variants)
-        lines += [f"Error model `{model}` (SIMULATED predictor), {len(result['objects'])} objects:", ""] + table[2:]
+        count = len(report["models"][model]["objects"])
+        lines += [f"Error model `{model}` (SIMULATED predictor), {count} objects:", ""] + object_table(report, model)
     return "\n".join(lines).rstrip()
 
 
@@ -162,22 +166,15 @@ PAPER_ABLATION = {"full": 29.164, "supervised": 24.809, "proj-average": 25.555}
 PAPER_SOFTMAX = {"full": 27.282, "no-softmax": 24.600}
 
 
-def full_wins(objects: list[dict], other: str) -> int:
-    return sum(o["figures"]["relight"]["full"] > o["figures"]["relight"][other] for o in objects)
-
-
 def table_dr_eval(results: Path) -> str:
     """Every variant per object under `dr` (benchmarks.generalise's format)."""
-    from benchmarks.generalise_tables import model_table
-
-    report = read(results, EVAL_DR)
-    result = report["models"]["dr"]
-    table = model_table("dr", result["objects"], result["summary"], report["settings"]["variants"])
-    return "\n".join(table[2:]).rstrip()
+    return "\n".join(object_table(read(results, EVAL_DR), "dr")).rstrip()
 
 
 def table_dr_orderings(results: Path) -> str:
     """The paper's orderings: full minus each other variant in relighting, the paper's and ours."""
+    from benchmarks.generalise_tables import wins
+
     result = read(results, EVAL_DR)["models"]["dr"]
     mean, objects = result["summary"]["relight"], result["objects"]
     lines = [
@@ -194,8 +191,9 @@ def table_dr_orderings(results: Path) -> str:
         theirs = ["—", "—"] if paper is None else [f"{paper['full']:.2f}, {paper[other]:.2f}"]
         theirs += [] if paper is None else [f"{paper['full'] - paper[other]:+.2f}"]
         ours = [f"{mean['full']:.2f}, {mean[other]:.2f}", f"{mean['full'] - mean[other]:+.2f}"]
-        wins = f"{full_wins(objects, other)} of {len(objects)}"
-        lines.append("| " + " | ".join([f"`{other}`", *theirs, *ours, wins]) + " |")
+        won = wins([o["figures"]["relight"] for o in objects], [("", lambda r: r["full"], lambda r: r[other])])[""]
+        wins_cell = f"{won['wins']} of {won['of']}"
+        lines.append("| " + " | ".join([f"`{other}`", *theirs, *ours, wins_cell]) + " |")
     return "\n".join(lines)
 
 
