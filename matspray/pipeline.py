@@ -39,9 +39,10 @@ from matspray.predictors import (
     resolve_predictor,
     write_materials2d,
 )
-from matspray.refine import RefineConfig, RefineInputs, refine
+from matspray.refine import RefineConfig, RefineInputs, frozen_views, refine
 from matspray.render.backend import RenderUse, rendering_with, resolve_backend
 from matspray.render.envmap import EnvironmentMap
+from matspray.render.gbuffer import FrozenViews
 from matspray.render.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, read_json, stage_folder, stage_hint, timed, to_plain
 from matspray.variants import asset_stage, get_variant, variants_for_maps
@@ -127,6 +128,7 @@ class Pipeline:
         self.has_maps = config.predictor != NO_PREDICTOR  # without 2D maps only the variants that need none run
         self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
+        self._frozen_views: FrozenViews | None = None  # their blending weights, shared by the variants refined
 
     def close(self) -> None:
         """Lets the run folder go (see __init__); the pipeline must not write after this."""
@@ -392,7 +394,9 @@ class Pipeline:
             return read_asset(self.run.path(stage), device=self.device)
         inputs = self.refine_inputs()
         with self._working(f"refine [{variant}]") as (t, use):
-            result = refine(inputs, config, progress=self.progress, light=probe)
+            if self._frozen_views is None and get_variant(variant).trains and config.iterations > 0:
+                self._frozen_views = frozen_views(inputs)
+            result = refine(inputs, config, progress=self.progress, light=probe, frozen=self._frozen_views)
             write_asset(self.run.path(stage), inputs.gaussians, result)
         self.run.finish_stage(
             stage, fp, config, t.seconds, {"history": result.history, "frozen_views": result.frozen, **self._ran(use)}

@@ -233,11 +233,18 @@ def light_prior(envmap: EnvironmentMap) -> Tensor:  # -> []
 
 
 # ------------------------------------------------------------------------------------------ one view
+def frozen_views(inputs: RefineInputs) -> FrozenViews:
+    """The training views' frozen blending weights, rendered with the enclosing block's backend."""
+    return FrozenViews(inputs.gaussians.detach(), [v.camera for v in inputs.views])
+
+
 class TrainingViews:
     """The training views with their frozen blending weights, 2D maps and the Gaussians' shadowing."""
 
-    def __init__(self, inputs: RefineInputs):
-        self.frozen = FrozenViews(inputs.gaussians.detach(), [v.camera for v in inputs.views])
+    def __init__(self, inputs: RefineInputs, frozen: FrozenViews | None = None):
+        """`frozen`: the views' frozen blending weights when the caller keeps them (`frozen_views(inputs)`: the
+        variants of one run share them); made here otherwise."""
+        self.frozen = frozen_views(inputs) if frozen is None else frozen
         self.views = inputs.views
         self.targets = inputs.targets
         self.visibility = inputs.visibility
@@ -404,11 +411,13 @@ def refine(
     progress: bool = True,
     on_checkpoint=None,
     light: EnvironmentMap | None = None,
+    frozen: FrozenViews | None = None,
 ) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
     `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end. `light`: a known
     training light (a light probe, or the true light of a benchmark object) that variants with the PBR loss shade
-    with as given, instead of learning one: no warm-up, never optimised."""
+    with as given, instead of learning one: no warm-up, never optimised. `frozen`: `frozen_views(inputs)` when the
+    caller keeps them for several variants (building them takes seconds per refinement)."""
     torch.manual_seed(config.seed)
     variant = config.kind
     gaussians, normals = inputs.gaussians, inputs.normals
@@ -430,7 +439,7 @@ def refine(
     if not source.trainable or config.iterations == 0:
         return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility)
 
-    training = TrainingViews(inputs)
+    training = TrainingViews(inputs, frozen)
     source_lr = config.supervised_lr if variant.source == "free" else config.merger_lr
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
     if estimates_light:

@@ -381,3 +381,29 @@ def test_run_says_its_estimate_first_and_counts_only_what_is_left(tiny_object, f
         printed[0].startswith("estimate: ") and " with 2 free CPU cores " in printed[0] and "geometry ~" in printed[0]
     ), printed
     assert any(line.startswith("took ") for line in printed)
+
+
+def test_the_variants_of_a_run_share_one_build_of_the_frozen_views(tiny_object, finished_run, tmp_path, monkeypatch):
+    import shutil
+
+    from matspray import pipeline as pipeline_module
+    from matspray.asset import read_asset
+
+    run = tmp_path / "run"
+    shutil.copytree(finished_run, run)
+    trained = ("full", "no-softmax", "no-prior")
+    for variant in trained:
+        shutil.rmtree(run / asset_stage(variant))
+    builds = []
+
+    def counted(inputs):
+        builds.append(len(inputs.views))
+        return frozen_views(inputs)
+
+    frozen_views = pipeline_module.frozen_views
+    monkeypatch.setattr(pipeline_module, "frozen_views", counted)
+    Pipeline(tiny_object, run, tiny_config(), progress=False, log=lambda _: None).run_all(trained)
+    assert len(builds) == 1
+    for variant in trained:  # the same materials as the fixture's run, which built them once per variant
+        shared, own = read_asset(run / asset_stage(variant)), read_asset(finished_run / asset_stage(variant))
+        torch.testing.assert_close(shared.materials, own.materials, rtol=0, atol=0)
