@@ -118,6 +118,14 @@ def test_ssim_matches_an_independent_numpy_computation():
     assert 0.3 < expected < 0.95  # a meaningful, non-trivial pair
 
 
+def test_the_ssim_training_loss_has_the_gradient_of_its_values():
+    from matspray.eval.metrics import ssim_loss
+
+    x, y = rand(14, 13, 2, seed=5), rand(14, 13, 2, seed=6)
+    assert float(ssim_loss(x, y)) == pytest.approx(1.0 - ssim_reference(x.numpy(), y.numpy()), abs=1e-10)
+    assert torch.autograd.gradcheck(lambda image: ssim_loss(image, y), (x.requires_grad_(),))
+
+
 def test_ssim_rejects_images_smaller_than_the_window():
     with pytest.raises(DataError, match="at least 11x11"):
         ssim(torch.zeros(10, 30, 3), torch.zeros(10, 30, 3))
