@@ -7,10 +7,10 @@
 A `matspray synth` object of the preset's size (paper: 512 px, 100 training views) is made once, then the
 ordinary pipeline (predict, geometry, lift, visibility, refine, evaluate) runs on it with the chosen
 rasterizer backend. Printed: per stage, the device, the run's backend and what its render calls really ran
-on (each stage's record; "rays" is lifting's ray tracer), seconds per stage (the run's timings.json), peak host
-memory (getrusage max RSS), peak GPU memory (CUDA only), what refinement's frozen views keep and that size
-scaled to the paper's 100 views x 512 px, the number of Gaussians, relighting PSNR and the material PSNRs of
-the `full` variant.
+on (each stage's record; "rays" is lifting's torch ray tracer, "rays-numba" its compiled one), seconds per stage
+(the run's timings.json), peak host memory (getrusage max RSS), peak GPU memory (CUDA only), what refinement's
+frozen views keep and that size scaled to the paper's 100 views x 512 px, the number of Gaussians, relighting PSNR
+and the material PSNRs of the `full` variant.
 """
 
 from __future__ import annotations

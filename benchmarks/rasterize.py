@@ -5,7 +5,8 @@
     SH evaluation, projection and blending);
   - with --stage-iterations N, a short Gaussian Splatting training (`train_geometry`, the demo preset with N
     iterations, the schedule scaled to them) on the demo object, once per backend;
-  - with --samples, `contributions` (all ray hits of one view, lifting's ray tracer) at k x k rays per pixel.
+  - with --samples, what lifting traces of one view (`lift.traced_entries`, torch, against `compiled_entries`,
+    numba: every (Gaussian, pixel, core) entry its rays make) at k x k rays per pixel, 20 000 Gaussians, 128 px.
 
 The backends take turns repeat by repeat, so that load from other processes falls on both alike; the best
 (least disturbed) repeat of each is compared, the median printed beside it. Threads: --threads for torch and
@@ -34,9 +35,10 @@ import torch
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
+from matspray.lift import LiftConfig, compiled_entries, footprint_alpha, traced_entries
 from matspray.render.backend import rendering_with
-from matspray.render.contributions import iter_contributions
 from matspray.render.rasterize import rasterize
+from matspray.render.settings import RasterSettings
 from matspray.render.sh import sh_colors
 
 BACKENDS = ("torch", "numba")
@@ -157,6 +159,30 @@ def bench_stage(iterations: int) -> None:
     )
 
 
+def bench_lift(samples: list[int], repeats: int) -> None:
+    """Lifting's tracing of one view, torch against numba, the backends taking turns."""
+    gaussians = sphere_object(20000)
+    camera = Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(40), 128, 128)
+    settings = RasterSettings()
+    for s in samples:
+        config = LiftConfig(samples_per_side=s)
+        core = footprint_alpha(gaussians.opacities, config, settings.max_alpha)
+        compiled_entries(gaussians, camera, None, config, settings, core)  # compiled (or loaded) before the clock
+        seconds = {"torch": [], "numba": []}
+        for _ in range(repeats):
+            for backend, entries in (("torch", traced_entries), ("numba", compiled_entries)):
+                start = time.perf_counter()
+                keys, _ = entries(gaussians, camera, None, config, settings, core)
+                seconds[backend].append(time.perf_counter() - start)
+        best = {backend: min(times) for backend, times in seconds.items()}
+        print(
+            f"  lift tracing, 20000 Gaussians, 128 px, {s}x{s} rays per pixel ({len(keys)} entries): torch "
+            f"{best['torch'] * 1e3:.0f} ms, numba {best['numba'] * 1e3:.0f} ms (best of {repeats}; medians "
+            f"{statistics.median(seconds['torch']) * 1e3:.0f} / {statistics.median(seconds['numba']) * 1e3:.0f}): "
+            f"ratio {best['torch'] / best['numba']:.1f}x"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cases", nargs="*", default=["20000:128", "100000:256"], help="GAUSSIANS:RESOLUTION")
@@ -165,7 +191,7 @@ def main() -> None:
     parser.add_argument(
         "--stage-iterations", type=int, default=0, help="also time this many iterations of geometry training"
     )
-    parser.add_argument("--samples", type=int, nargs="*", default=[], help="rays per pixel side for contributions")
+    parser.add_argument("--samples", type=int, nargs="*", default=[], help="rays per pixel side for lifting")
     args = parser.parse_args()
     import numba
 
@@ -185,15 +211,7 @@ def main() -> None:
     if args.stage_iterations:
         bench_stage(args.stage_iterations)
     if args.samples:
-        gaussians = sphere_object(20000)
-        camera = Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], math.radians(40), 128, 128)
-        for s in args.samples:
-            start = time.perf_counter()
-            hits = sum(len(part) for part in iter_contributions(gaussians, camera, s))
-            print(
-                f"contributions, 20000 gaussians, 128 px, {s}x{s} rays per pixel: {hits} hits, "
-                f"{time.perf_counter() - start:.2f} s"
-            )
+        bench_lift(args.samples, args.repeats)
     print(
         f"load average at the end {os.getloadavg()[0]:.1f}; "
         f"peak resident memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0:.0f} MiB"

@@ -36,8 +36,8 @@ from matspray.data.camera import Camera
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.material import zeros as material_zeros
-from matspray.render.backend import note_render
-from matspray.render.contributions import iter_contributions
+from matspray.render.backend import active_backend, note_render
+from matspray.render.contributions import iter_contributions, ray_setup
 from matspray.render.settings import RasterSettings
 
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
@@ -113,22 +113,21 @@ def footprint_alpha(opacities: Tensor, config: LiftConfig, max_alpha: float) -> 
     return (opacities * math.exp(-0.5 * config.falloff * config.footprint_sigmas**2)).clamp(max=max_alpha)
 
 
-def lift_view(
-    gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Tensor | None, config: LiftConfig
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Lift one view's material maps [H, W, 5] (mask [H, W] or None) onto the Gaussians.
-
-    Returns medians [N, 5], seen [N] bool, and hits [N] (number of (pixel, sample) hits received).
-    """
-    n = len(gaussians)
-    s = config.samples_per_side
+def traced_entries(
+    gaussians: Gaussians,
+    camera: Camera,
+    mask: Tensor | None,
+    config: LiftConfig,
+    settings: RasterSettings,
+    core_alpha: Tensor | None,
+) -> tuple[Tensor, Tensor]:
+    """What a view gives the Gaussians, by the torch tracer: one key [M] per (Gaussian, pixel, inside the core or
+    not), (Gaussian * pixels + pixel) * 2 + inside, and how many of the pixel's rays hit it there [M], counting hits
+    that are still visible (`visibility_threshold`) on pixels of the object."""
     n_pixels = camera.width * camera.height
-    settings = RasterSettings()
-    core_alpha = footprint_alpha(gaussians.opacities.detach(), config, settings.max_alpha)  # [N] or None
     pair_keys, pair_counts = [], []
-    note_render("rays")  # lifting traces rays with our torch code on the Gaussians' device, whatever the rasterizer
     for band in iter_contributions(
-        gaussians, camera, s, falloff=config.falloff, settings=settings
+        gaussians, camera, config.samples_per_side, falloff=config.falloff, settings=settings
     ):  # whole rays, a band of rows at a time
         transmittance = band.weights / band.alphas.clamp_min(1e-12)  # in front of the hit
         visible = transmittance >= config.visibility_threshold
@@ -146,10 +145,68 @@ def lift_view(
         )
         pair_keys.append(keys)
         pair_counts.append(counts)
-    # one entry per (Gaussian, pixel, inside the core or not), weighted by how many of the pixel's samples
-    # hit it there; bands hold disjoint pixels, so no entry appears twice
-    keys = torch.cat(pair_keys) if pair_keys else torch.zeros(0, dtype=torch.long, device=materials.device)
-    counts = torch.cat(pair_counts) if pair_counts else torch.zeros(0, dtype=torch.long, device=materials.device)
+    # bands hold disjoint pixels, so no entry appears twice
+    device = gaussians.means.device
+    keys = torch.cat(pair_keys) if pair_keys else torch.zeros(0, dtype=torch.long, device=device)
+    counts = torch.cat(pair_counts) if pair_counts else torch.zeros(0, dtype=torch.long, device=device)
+    return keys, counts
+
+
+def compiled_entries(
+    gaussians: Gaussians,
+    camera: Camera,
+    mask: Tensor | None,
+    config: LiftConfig,
+    settings: RasterSettings,
+    core_alpha: Tensor | None,
+) -> tuple[Tensor, Tensor]:
+    """`traced_entries` by numba's tile loops (`matspray.render.numba_rays`; CPU): the same entries, in another
+    order."""
+    from matspray.render.numba_rays import lift_entries  # numba loads where it traces
+
+    frame, opacities, silhouettes = ray_setup(gaussians, camera, config.falloff, settings)
+    shapes = torch.cat(
+        [silhouettes.centres, silhouettes.conics, silhouettes.unbounded[:, None].to(silhouettes.centres)], dim=1
+    ).double()  # [N, 6]
+    on_object = (
+        torch.ones(camera.height * camera.width, dtype=torch.bool)
+        if mask is None
+        else mask.reshape(-1).cpu() >= config.mask_threshold
+    )
+    # without a footprint every hit is inside the core: an edge alpha of 0 says so
+    core = torch.zeros(len(gaussians)) if core_alpha is None else core_alpha
+    params = (
+        config.falloff,
+        settings.min_alpha,
+        settings.near,
+        settings.max_alpha,
+        settings.min_transmittance,
+        config.visibility_threshold,
+    )
+    return lift_entries(
+        *frame, opacities, core.float(), silhouettes.boxes, shapes, on_object, camera.width, camera.height,
+        config.samples_per_side, camera.K.double(), params,
+    )  # fmt: skip
+
+
+def lift_view(
+    gaussians: Gaussians, camera: Camera, materials: Tensor, mask: Tensor | None, config: LiftConfig
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Lift one view's material maps [H, W, 5] (mask [H, W] or None) onto the Gaussians.
+
+    Returns medians [N, 5], seen [N] bool, and hits [N] (number of (pixel, sample) hits received).
+    """
+    n = len(gaussians)
+    n_pixels = camera.width * camera.height
+    settings = RasterSettings()
+    core_alpha = footprint_alpha(gaussians.opacities.detach(), config, settings.max_alpha)  # [N] or None
+    # lifting traces rays with our own code whatever the rasterizer: compiled where the run renders with numba, else
+    # torch on the Gaussians' device
+    compiled = active_backend() == "numba"
+    note_render("rays-numba" if compiled else "rays")
+    entries = compiled_entries if compiled else traced_entries
+    keys, counts = entries(gaussians, camera, mask, config, settings, core_alpha)
+    keys, counts = keys.to(materials.device), counts.to(materials.device)
     in_core, pairs = (keys % 2).bool(), keys // 2
     pair_gaussians, pair_pixels = pairs // n_pixels, pairs % n_pixels
     received = torch.zeros(n, dtype=torch.long, device=materials.device).index_add_(0, pair_gaussians, counts)

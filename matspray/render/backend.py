@@ -167,7 +167,7 @@ def resolve_backend(name: str, device, notify: Notify | None = None) -> str:
 @dataclass
 class RenderUse:
     """The backend a block of work renders with, and what it really ran:
-    {"torch" | "numba" | "gsplat" | "rays": calls}."""
+    {"torch" | "numba" | "gsplat" | "rays" | "rays-numba": calls}."""
 
     backend: str
     calls: Counter = field(default_factory=Counter)
@@ -202,8 +202,8 @@ def active_backend() -> str:
 
 
 def note_render(kind: str) -> None:
-    """Count one call of a renderer ('torch', 'numba', 'gsplat', or 'rays' for the lifting ray tracer)
-    in the active block."""
+    """Count one call of a renderer ('torch', 'numba', 'gsplat', or 'rays' / 'rays-numba' for lifting's torch /
+    compiled ray tracer) in the active block."""
     use = _ACTIVE.get()
     while use is not None:
         use.calls[kind] += 1

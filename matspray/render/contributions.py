@@ -109,11 +109,7 @@ def iter_contributions(
         raise ValueError(f"contributions: falloff must be > 0, got {falloff}")
     width, height = camera.width, camera.height
     near, min_alpha = settings.near, settings.min_alpha
-    frame = _whitened_frames(gaussians, camera)
-    opacities = gaussians.opacities.detach().double()
-    radius2 = 2.0 * log_opacity_ratio(opacities, min_alpha) / falloff  # [N] k^2
-    silhouettes = _ellipsoid_silhouettes(gaussians, camera, radius2, near)
-    silhouettes.boxes[opacities < min_alpha] = torch.tensor(EMPTY_BOX, device=opacities.device)
+    frame, opacities, silhouettes = ray_setup(gaussians, camera, falloff, settings)
     K = camera.K.double().to(opacities.device)
     offsets = (torch.arange(s, dtype=torch.float64, device=opacities.device) + 0.5) / s
     sub_y, sub_x = torch.meshgrid(offsets, offsets, indexing="ij")
@@ -150,6 +146,19 @@ def iter_contributions(
             width=width,
             height=height,
         )
+
+
+def ray_setup(
+    gaussians: Gaussians, camera: Camera, falloff: float, settings: RasterSettings
+) -> tuple[tuple[Tensor, Tensor], Tensor, "_Silhouettes"]:
+    """What tracing `camera`'s rays reads of each Gaussian, float64: its whitened frame (A [N, 3, 3], origin [N, 3]),
+    its opacity [N] and the silhouette of the region where a ray reaches min_alpha (boxes empty where none can)."""
+    frame = _whitened_frames(gaussians, camera)
+    opacities = gaussians.opacities.detach().double()
+    radius2 = 2.0 * log_opacity_ratio(opacities, settings.min_alpha) / falloff  # [N] k^2
+    silhouettes = _ellipsoid_silhouettes(gaussians, camera, radius2, settings.near)
+    silhouettes.boxes[opacities < settings.min_alpha] = torch.tensor(EMPTY_BOX, device=opacities.device)
+    return frame, opacities, silhouettes
 
 
 def _whitened_frames(gaussians: Gaussians, camera: Camera) -> tuple[Tensor, Tensor]:
