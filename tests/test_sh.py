@@ -68,3 +68,41 @@ def test_rejects_bad_degrees():
         sh_basis(random_directions(2), 4)
     with pytest.raises(ValueError, match="needs 16 coefficients"):
         sh_to_rgb(torch.zeros(2, 4, 3), random_directions(2).float(), degree=3)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_compiled_sh_colour_matches_torch_and_has_its_gradients(degree):
+    from matspray.render.numba_sh import CompiledSH
+
+    g = torch.Generator().manual_seed(degree)
+    sh = (0.5 * torch.randn(40, 16, 3, generator=g, dtype=torch.float64)).requires_grad_()
+    sh.data[:5, 0] = -3.0  # some colours clamped at 0
+    means = torch.randn(40, 3, generator=g, dtype=torch.float64).requires_grad_()
+    centre = torch.tensor([0.3, -4.0, 0.8], dtype=torch.float64)
+    expected = sh_to_rgb(sh, torch.nn.functional.normalize(means - centre, dim=-1), degree)
+    assert (expected == 0).any()
+    torch.testing.assert_close(CompiledSH.apply(sh, means, centre, degree), expected, atol=1e-12, rtol=0)
+    assert torch.autograd.gradcheck(lambda s, m: CompiledSH.apply(s, m, centre, degree), (sh, means))
+
+
+def test_sh_colors_renders_with_the_compiled_loops_within_a_numba_block(monkeypatch):
+    from matspray.data.camera import Camera
+    from matspray.gaussians import Gaussians
+    from matspray.render import numba_sh
+    from matspray.render.backend import rendering_with
+    from matspray.render.sh import sh_colors
+
+    g = torch.Generator().manual_seed(4)
+    gaussians = Gaussians(
+        torch.randn(30, 3, generator=g), torch.zeros(30, 3), torch.randn(30, 4), torch.zeros(30),
+        torch.randn(30, 16, 3, generator=g),
+    )  # fmt: skip
+    camera = Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.7, 16, 16)
+    calls = []
+    original = numba_sh.CompiledSH.apply
+    monkeypatch.setattr(numba_sh.CompiledSH, "apply", lambda *a: calls.append(a[-1]) or original(*a))
+    expected = sh_colors(gaussians, camera, 2)
+    assert calls == []
+    with rendering_with("numba"):
+        torch.testing.assert_close(sh_colors(gaussians, camera, 2), expected, atol=1e-6, rtol=1e-6)
+    assert calls == [2]

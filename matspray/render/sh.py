@@ -9,6 +9,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from matspray.data.camera import Camera
+from matspray.render.backend import active_backend
 
 SH_C0 = 0.28209479177387814  # 1 / (2 sqrt(pi))
 SH_C1 = 0.4886025119029199  # sqrt(3 / (4 pi))
@@ -64,13 +65,21 @@ def sh_to_rgb(
     dirs: Tensor,  # [N, 3] unit viewing directions
     degree: int | None = None,  # default: the highest degree K holds
 ) -> Tensor:  # [N, 3] colour, >= 0
-    if degree is None:
-        degree = int(round(sh.shape[1] ** 0.5)) - 1
-    if num_sh_bases(degree) > sh.shape[1]:
-        raise ValueError(f"sh_to_rgb: degree {degree} needs {num_sh_bases(degree)} coefficients, got {sh.shape[1]}")
+    degree = checked_degree(sh, degree)
     basis = sh_basis(dirs, degree)  # [N, K']
     rgb = (basis[:, :, None] * sh[:, : basis.shape[1]]).sum(dim=1)
     return torch.clamp_min(rgb + 0.5, 0.0)
+
+
+def checked_degree(sh: Tensor, degree: int | None) -> int:  # sh [N, K, 3]
+    """`degree`, or the highest one `sh` holds when None; refused when `sh` has too few coefficients for it."""
+    if degree is None:
+        degree = int(round(sh.shape[1] ** 0.5)) - 1
+    if not 0 <= degree <= MAX_DEGREE:
+        raise ValueError(f"sh_to_rgb: degree must be 0..{MAX_DEGREE}, got {degree}")
+    if num_sh_bases(degree) > sh.shape[1]:
+        raise ValueError(f"sh_to_rgb: degree {degree} needs {num_sh_bases(degree)} coefficients, got {sh.shape[1]}")
+    return degree
 
 
 def rgb_to_sh_dc(rgb: Tensor) -> Tensor:  # [..., 3] -> [..., 3] DC coefficient that gives this colour
@@ -86,5 +95,10 @@ def view_directions(means: Tensor, camera: Camera) -> Tensor:  # [N, 3] -> [N, 3
 
 
 def sh_colors(gaussians, camera: Camera, degree: int | None = None) -> Tensor:  # -> [N, 3]
-    """Colour of every Gaussian as seen from `camera` (differentiable w.r.t. means and sh)."""
+    """Colour of every Gaussian as seen from `camera` (differentiable w.r.t. means and sh). Within a block that renders
+    with numba, on the CPU, by its compiled loops (matspray.render.numba_sh), which training calls every step."""
+    if active_backend() == "numba" and gaussians.means.device.type == "cpu":
+        from matspray.render.numba_sh import CompiledSH  # numba loads where it renders
+
+        return CompiledSH.apply(gaussians.sh, gaussians.means, camera.center, checked_degree(gaussians.sh, degree))
     return sh_to_rgb(gaussians.sh, view_directions(gaussians.means, camera), degree)
