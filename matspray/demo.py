@@ -15,9 +15,12 @@ from pathlib import Path
 
 from matspray.batch import BatchConfig, run_batch, run_one_object
 from matspray.config import PipelineConfig, build_config
+from matspray.device import resolve_device
 from matspray.errors import DataError, SettingError
 from matspray.eval.tables import write_tables
 from matspray.gltf.read import read_gltf
+from matspray.render.backend import resolve_backend
+from matspray.render.numba_backend import compile_in_background
 from matspray.rundir import write_json
 from matspray.synth import SynthConfig, make_object
 from matspray.variants import LABELS, VARIANT_NAMES
@@ -138,8 +141,11 @@ def run_demo(
     if preset not in DEMO_SIZES:
         raise SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(DEMO_SIZES)}")
     out = Path(out)
+    config = config or build_config(preset, predictor="simulated")
+    if resolve_backend(config.backend, resolve_device(config.device), notify=log) == "numba":
+        compile_in_background()  # while the object is rendered: a fresh install compiles for ~25 s
     data = make_demo_object(out / "data", preset, shape, seed, progress)
-    run_object(data, out / "run", config or build_config(preset, predictor="simulated"), progress=progress, log=log)
+    run_object(data, out / "run", config, progress=progress, log=log)
     return out / "run" / "report.html"
 
 

@@ -37,7 +37,7 @@ from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.material import zeros as material_zeros
 from matspray.render.backend import active_backend, note_render
-from matspray.render.contributions import iter_contributions, ray_setup
+from matspray.render.contributions import iter_contributions
 from matspray.render.settings import RasterSettings
 
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
@@ -162,12 +162,8 @@ def compiled_entries(
 ) -> tuple[Tensor, Tensor]:
     """`traced_entries` by numba's tile loops (`matspray.render.numba_rays`; CPU): the same entries, in another
     order."""
-    from matspray.render.numba_rays import lift_entries  # numba loads where it traces
+    from matspray.render.numba_rays import trace_view  # numba loads where it traces
 
-    frame, opacities, silhouettes = ray_setup(gaussians, camera, config.falloff, settings)
-    shapes = torch.cat(
-        [silhouettes.centres, silhouettes.conics, silhouettes.unbounded[:, None].to(silhouettes.centres)], dim=1
-    ).double()  # [N, 6]
     on_object = (
         torch.ones(camera.height * camera.width, dtype=torch.bool)
         if mask is None
@@ -175,17 +171,9 @@ def compiled_entries(
     )
     # without a footprint every hit is inside the core: an edge alpha of 0 says so
     core = torch.zeros(len(gaussians)) if core_alpha is None else core_alpha
-    params = (
-        config.falloff,
-        settings.min_alpha,
-        settings.near,
-        settings.max_alpha,
-        settings.min_transmittance,
+    return trace_view(
+        gaussians, camera, on_object, config.samples_per_side, core, config.falloff, settings,
         config.visibility_threshold,
-    )
-    return lift_entries(
-        *frame, opacities, core.float(), silhouettes.boxes, shapes, on_object, camera.width, camera.height,
-        config.samples_per_side, camera.K.double(), params,
     )  # fmt: skip
 
 

@@ -43,6 +43,7 @@ from matspray.refine import RefineConfig, RefineInputs, frozen_views, refine
 from matspray.render.backend import RenderUse, rendering_with, resolve_backend
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
+from matspray.render.numba_backend import compile_in_background
 from matspray.render.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, read_json, stage_folder, stage_hint, timed, to_plain
 from matspray.variants import asset_stage, get_variant, variants_for_maps
@@ -88,6 +89,8 @@ class Pipeline:
         configure_threads(self.device)
         # "torch" or "gsplat"; fails here, before any work. Every stage renders with it (see _working)
         self.backend = resolve_backend(config.backend, self.device, notify=log)
+        if self.backend == "numba":  # its kernels compile (a fresh install) or load while the data is read
+            compile_in_background()
         # photos larger than the preset's working size are brought to it, unless the config names a downscale
         self.scene = load_scene(data, downscale=config.downscale, max_size=WORKING_SIZE[config.preset])
         if config.downscale is None:

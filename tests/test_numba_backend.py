@@ -11,6 +11,7 @@ import math
 import os
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -328,7 +329,35 @@ def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
         said.append([line for line in done.stderr.splitlines() if line.startswith("numba:")])
     assert (
         len(said[0]) == 1
-        and "compiled the rasterizer's kernels" in said[0][0]
+        and "compiled the CPU kernels (float32: rasterizer, SH colour, lifting's rays)" in said[0][0]
         and str(tmp_path / "cache") in said[0][0]
     )
     assert said[1] == []
+
+
+def test_kernels_compiled_in_the_background_are_waited_for_once(monkeypatch):
+    """compile_in_background starts one thread per dtype; ensure_compiled from another thread waits for it and then
+    finds the kernels ready (they are loaded from the cache here: the test is about the waiting)."""
+    from matspray.render import numba_backend
+
+    monkeypatch.setattr(numba_backend, "_READY", set())
+    monkeypatch.setattr(numba_backend, "_WARMING", {})
+    started, release = threading.Event(), threading.Event()
+    warm_up = numba_backend._warm_up
+
+    def slow_warm_up(np_dtype):
+        started.set()
+        release.wait(30)
+        warm_up(np_dtype)
+
+    monkeypatch.setattr(numba_backend, "_warm_up", slow_warm_up)
+    numba_backend.compile_in_background(np.float32)
+    numba_backend.compile_in_background(np.float32)  # a second request starts no second thread
+    assert started.wait(30) and len(numba_backend._WARMING) == 1
+    waiter = threading.Thread(target=numba_backend.ensure_compiled, args=(np.float32,))
+    waiter.start()
+    waiter.join(0.5)
+    assert waiter.is_alive()  # waiting for the background compilation
+    release.set()
+    waiter.join(60)
+    assert not waiter.is_alive() and "float32" in numba_backend._READY

@@ -407,3 +407,14 @@ def test_the_variants_of_a_run_share_one_build_of_the_frozen_views(tiny_object, 
     for variant in trained:  # the same materials as the fixture's run, which built them once per variant
         shared, own = read_asset(run / asset_stage(variant)), read_asset(finished_run / asset_stage(variant))
         torch.testing.assert_close(shared.materials, own.materials, rtol=0, atol=0)
+
+
+def test_a_run_with_backend_numba_compiles_its_kernels_while_it_reads_its_data(tiny_object, tmp_path, monkeypatch):
+    from matspray import pipeline as pipeline_module
+
+    started = []
+    monkeypatch.setattr(pipeline_module, "compile_in_background", lambda: started.append(True))
+    Pipeline(tiny_object, tmp_path / "torch", replace(tiny_config(), backend="torch"), progress=False, log=print)
+    assert started == []
+    Pipeline(tiny_object, tmp_path / "numba", replace(tiny_config(), backend="numba"), progress=False, log=print)
+    assert started == [True]

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 
 import numpy as np
@@ -45,6 +46,8 @@ from matspray.render.projection import max_eigen_radius
 from matspray.render.settings import RasterSettings
 
 _READY: set = set()  # dtypes whose kernels this process has compiled or loaded
+_WARMING: dict = {}  # dtype -> the thread compile_in_background started for it
+_WARMING_LOCK = threading.Lock()
 _TOLD = False  # whether a compilation was already reported
 
 
@@ -347,12 +350,19 @@ class threads:
 
 
 def ensure_compiled(np_dtype) -> None:
-    """Run every kernel once on one Gaussian in a 16 x 16 image, so that compiling (or loading from the cache)
-    happens here, all at once; the first compilation in a process is said on stderr with its time."""
+    """Run every kernel of backend numba once on tiny inputs (the rasterizer's on one Gaussian in a 16 x 16 image,
+    SH colour, lifting's rays), so that compiling (or loading from the cache) happens here, all at once; the first
+    compilation in a process is said on stderr with its time. While `compile_in_background` is at it, waits for it."""
     global _TOLD
     key = np.dtype(np_dtype).name
+    warming = _WARMING.get(key)
+    if warming is not None and warming is not threading.current_thread():
+        warming.join()
+        return
     if key in _READY:
         return
+    from matspray.render import numba_rays, numba_sh
+
     module, projections = kernels(), projection()
     dispatchers = (
         module.bin_tiles,
@@ -365,6 +375,11 @@ def ensure_compiled(np_dtype) -> None:
         projections.project_backward,
         projections._radix_order,
         projections._merge_order,
+        numba_sh.forward,
+        numba_sh.backward,
+        numba_rays.count_candidates,
+        numba_rays.trace_entries,
+        numba_rays.compact,
     )
     misses = sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
     start = time.perf_counter()
@@ -385,14 +400,25 @@ def ensure_compiled(np_dtype) -> None:
         _TOLD = True
         where = module.bin_tiles.stats.cache_path
         print(
-            f"numba: compiled the rasterizer's kernels ({key}) in {time.perf_counter() - start:.1f} s, once: "
-            f"later runs load them from {where}",
+            f"numba: compiled the CPU kernels ({key}: rasterizer, SH colour, lifting's rays) in "
+            f"{time.perf_counter() - start:.1f} s, once: later runs load them from {where}",
             file=sys.stderr,
             flush=True,
         )
 
 
-@torch.enable_grad()  # the first render may come under no_grad; the backward kernels are warmed up too
+def compile_in_background(np_dtype=np.float32) -> None:
+    """Start `ensure_compiled` in a daemon thread, so that a run compiles (a fresh install: ~25 s) or loads the
+    kernels while it reads or makes its data; the first render waits for the rest. Once per process and dtype."""
+    key = np.dtype(np_dtype).name
+    with _WARMING_LOCK:
+        if key in _READY or key in _WARMING:
+            return
+        thread = threading.Thread(target=ensure_compiled, args=(np_dtype,), daemon=True, name="matspray-numba")
+        _WARMING[key] = thread
+    thread.start()
+
+
 def _warm_up(np_dtype) -> None:
     from matspray.data.camera import Camera
     from matspray.gaussians import Gaussians
@@ -414,3 +440,10 @@ def _warm_up(np_dtype) -> None:
             image.sum().backward()
     finally:
         RECORD_BUDGET = budget
+    from matspray.render.numba_rays import trace_view
+    from matspray.render.numba_sh import CompiledSH
+
+    sh = torch.zeros(1, 16, 3, dtype=dtype, requires_grad=True)
+    CompiledSH.apply(sh, gaussians.means, camera.center, 3).sum().backward()
+    on_object = torch.ones(camera.height * camera.width, dtype=torch.bool)
+    trace_view(gaussians.detach(), camera, on_object, 2, torch.zeros(1), 1.0, RasterSettings(), 0.0)

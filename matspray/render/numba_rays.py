@@ -24,8 +24,12 @@ import numpy as np
 import torch
 from numba import prange
 
+from matspray.data.camera import Camera
+from matspray.gaussians import Gaussians
+from matspray.render.contributions import ray_setup
 from matspray.render.numba_backend import threads
 from matspray.render.numba_kernels import TILE, bin_tiles, njit
+from matspray.render.settings import RasterSettings
 
 MAX_BAND_ENTRIES = 1 << 24  # bound of a band's entries (16 bytes each), so that large images trace in bands
 
@@ -296,3 +300,25 @@ def lift_entries(
             parts.append(compact(keys, counts, starts[pixels], filled[pixels]))
     keys, counts = (torch.from_numpy(np.concatenate([part[i] for part in parts])) for i in range(2))
     return keys, counts
+
+
+def trace_view(
+    gaussians: Gaussians,
+    camera: Camera,
+    on_object: torch.Tensor,  # [H * W] bool: pixels whose rays count
+    samples_per_side: int,
+    core_alphas: torch.Tensor,  # [N] float32: a hit at or above it is inside the Gaussian's core
+    falloff: float,
+    settings: RasterSettings,
+    visibility_threshold: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """`lift_entries` of `camera`'s view of the Gaussians (CPU): entry keys [M] and ray counts [M]."""
+    frame, opacities, silhouettes = ray_setup(gaussians, camera, falloff, settings)
+    shapes = torch.cat(
+        [silhouettes.centres, silhouettes.conics, silhouettes.unbounded[:, None].to(silhouettes.centres)], dim=1
+    ).double()  # [N, 6]
+    params = (falloff, settings.min_alpha, settings.near, settings.max_alpha, settings.min_transmittance)
+    return lift_entries(
+        *frame, opacities, core_alphas.float(), silhouettes.boxes, shapes, on_object, camera.width, camera.height,
+        samples_per_side, camera.K.double(), (*params, visibility_threshold),
+    )  # fmt: skip
