@@ -1,23 +1,29 @@
-# Two entry points: `make demo` and `make test`. Both create .venv and install everything first.
+# Two entry points: `make demo` and `make test`. Both create .venv and install what they need first: the demo the
+# method with what the demo and its next steps use (Mitsuba, the viewer, export), the tests everything.
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
+DEMO_STAMP := $(VENV)/.installed-demo
 STAMP := $(VENV)/.installed
 PRESET ?= demo
 
 .PHONY: setup demo test clean
 
-$(STAMP): pyproject.toml Makefile
+$(DEMO_STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	# the pinned CPU build of torch first: an unpinned torch would pull a multi-GB CUDA build
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e ".[all,test]"
+	$(PY) -m pip install --quiet -e ".[demo]"
 	# Mitsuba's fast llvm_ad_rgb variant needs LLVM >= 16 (Debian: libllvm19); best effort, as root only.
 	# Without it `matspray synth` falls back to the slower scalar_rgb variant.
 	-@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! ldconfig -p | grep -q 'libLLVM.so.19'; then \
 		(apt-get install -y -q libllvm19 >/dev/null 2>&1 || (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libllvm19 >/dev/null 2>&1)) \
 		|| echo "note: libllvm19 not installed; Mitsuba will use its scalar_rgb variant"; fi
+	touch $(DEMO_STAMP)
+
+$(STAMP): $(DEMO_STAMP)
+	$(PY) -m pip install --quiet -e ".[all,test]"
 	# The Khronos glTF Validator (npm) for the export tests; best effort: without node they skip.
 	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node gltf-validator >/dev/null 2>&1 \
 		|| echo "note: gltf-validator not installed; the export validation test will skip"; fi
@@ -33,7 +39,7 @@ $(STAMP): pyproject.toml Makefile
 
 setup: $(STAMP)
 
-demo: $(STAMP)
+demo: $(DEMO_STAMP)
 	$(VENV)/bin/matspray demo --preset $(PRESET)
 
 test: $(STAMP)
