@@ -29,6 +29,23 @@ from matspray.errors import RunError, SettingError, file_error
 from matspray.material import GROUPS
 
 UNSEEN_RULES = ("mask", "mean")
+PRECISIONS = ("auto", "float32", "bfloat16")
+
+
+def native_bfloat16_cpu() -> bool:
+    """Whether this CPU multiplies bfloat16 matrices in hardware (AVX512-BF16 or AMX tiles), where they run about
+    2.7x as fast as float32 (benchmarks in docs/defaults.md); emulated elsewhere, and slower than float32."""
+    try:
+        return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
+    except (AttributeError, RuntimeError):  # an older torch without the probes
+        return False
+
+
+def mlp_dtype(precision: str, device: torch.device) -> torch.dtype:
+    """The dtype the merger's MLPs multiply in, for `precision` (MergerConfig) on `device`."""
+    if precision == "bfloat16" or (precision == "auto" and device.type == "cpu" and native_bfloat16_cpu()):
+        return torch.bfloat16
+    return torch.float32
 
 
 @dataclass(frozen=True)
@@ -43,8 +60,16 @@ class MergerConfig:
     # did not pay in the benchmarks (docs/history.md)
     unseen: str = "mask"  # views that did not see a Gaussian: "mask" (weight 0) or "mean" (filled with the mean of the
     # views that did, weighted like any view; the paper's released code)
+    # the MLPs' arithmetic: "float32", "bfloat16" (autocast: matrix products in bfloat16, weights and the merge in
+    # float32) or "auto": bfloat16 on a CPU with native bfloat16 (AVX512-BF16 or AMX), where refinement is bound by
+    # these products, float32 elsewhere (docs/defaults.md)
+    precision: str = "auto"
 
     def __post_init__(self):
+        if self.precision not in PRECISIONS:
+            raise SettingError(
+                "precision", f"unknown precision '{self.precision}'; choose one of {', '.join(PRECISIONS)}"
+            )
         if self.unseen not in UNSEEN_RULES:
             raise SettingError("unseen", f"unknown rule '{self.unseen}'; choose one of {', '.join(UNSEEN_RULES)}")
         if self.hidden < 1 or self.layers < 1 or self.frequencies < 0:
@@ -126,8 +151,13 @@ class NeuralMerger(nn.Module):
         """Merged materials [N, 5] from `group_inputs` and the per-view values [N, V, 5] (0 where unseen) /
         seen [N, V]."""
         merged, weights = [], {}
+        device = masked_values.device
+        # float64 inputs (gradient checks) keep their precision
+        lower = masked_values.dtype == torch.float32 and mlp_dtype(self.config.precision, device) == torch.bfloat16
         for name, group in GROUPS.items():
-            w = merge_weights(self.mlps[name](inputs[name]), seen, self.config.softmax)  # [N, V]
+            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=lower):
+                logits = self.mlps[name](inputs[name]).float()  # [N, V]
+            w = merge_weights(logits, seen, self.config.softmax)  # [N, V]
             weights[name] = w
             merged.append((w[..., None] * masked_values[:, :, group]).sum(1))
         # unconstrained weights (no softmax) can leave [0, 1]; with softmax only rounding can: keep materials valid

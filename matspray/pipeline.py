@@ -28,6 +28,7 @@ from matspray.geometry.ply import read_ply, vertex_count
 from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
 from matspray.material import stack
+from matspray.merger import mlp_dtype
 from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, write_object_masks
 from matspray.predictors import (
     NO_PREDICTOR,
@@ -377,10 +378,12 @@ class Pipeline:
         learns_light = (
             self.probe is not None and get_variant(variant).learns_light
         )  # variants without a light ignore the probe
+        config = variant_refine_config(self.config, variant)
         return fingerprint(
             "refine",
             self.config.method,
-            variant_refine_config(self.config, variant),
+            config,
+            str(mlp_dtype(config.merger.precision, self.device)),  # what "auto" is on this machine
             self.lift_fingerprint(),
             self.visibility_fingerprint(),
             *(self.probe_identity if learns_light else ()),
@@ -402,7 +405,16 @@ class Pipeline:
             result = refine(inputs, config, progress=self.progress, light=probe, frozen=self._frozen_views)
             write_asset(self.run.path(stage), inputs.gaussians, result)
         self.run.finish_stage(
-            stage, fp, config, t.seconds, {"history": result.history, "frozen_views": result.frozen, **self._ran(use)}
+            stage,
+            fp,
+            config,
+            t.seconds,
+            {
+                "history": result.history,
+                "frozen_views": result.frozen,
+                "merger_precision": str(mlp_dtype(config.merger.precision, self.device)).removeprefix("torch."),
+                **self._ran(use),
+            },
         )
         return read_asset(self.run.path(stage), device=self.device)
 

@@ -160,3 +160,44 @@ def test_aligned_values_agree_between_views_and_keep_roughness_and_metallic():
     spread_before = (values[..., :3].amax(1) - values[..., :3].amin(1)).mean()
     assert (base.amax(1) - base.amin(1)).mean() < 0.02 * spread_before  # every view now says the same colour
     assert torch.equal(aligned[..., 3:], values[..., 3:])
+
+
+def test_an_unknown_precision_is_refused():
+    from matspray.errors import SettingError
+
+    with pytest.raises(SettingError, match="unknown precision 'half'"):
+        MergerConfig(precision="half")
+
+
+def test_auto_precision_is_bfloat16_only_on_a_cpu_that_multiplies_it_natively(monkeypatch):
+    from matspray import merger as merger_module
+    from matspray.merger import mlp_dtype
+
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    assert mlp_dtype("float32", cpu) == torch.float32 and mlp_dtype("bfloat16", cuda) == torch.bfloat16
+    monkeypatch.setattr(merger_module, "native_bfloat16_cpu", lambda: True)
+    assert mlp_dtype("auto", cpu) == torch.bfloat16 and mlp_dtype("auto", cuda) == torch.float32
+    monkeypatch.setattr(merger_module, "native_bfloat16_cpu", lambda: False)
+    assert mlp_dtype("auto", cpu) == torch.float32
+
+
+def test_a_bfloat16_merger_multiplies_in_bfloat16_and_merges_close_to_float32():
+    positions, values, seen = random_inputs(n=200, v=8)
+    merged, products = {}, {}
+    for precision in ("float32", "bfloat16"):
+        merger = NeuralMerger(8, BOUNDS, MergerConfig(precision=precision))
+        randomise(merger)
+        with torch.no_grad():
+            for p in merger.parameters():
+                p.mul_(0.1)  # logits of a few units, as a trained merger's
+        seen_dtypes = []
+        hook = merger.mlps["base_color"][0].register_forward_hook(lambda m, i, o: seen_dtypes.append(o.dtype))
+        merged[precision], weights = merger(positions, values, seen, return_weights=True)
+        hook.remove()
+        products[precision] = seen_dtypes[0]
+        assert all(w.dtype == torch.float32 for w in weights.values())  # the merge itself stays float32
+    assert products == {"float32": torch.float32, "bfloat16": torch.bfloat16}
+    difference = (merged["bfloat16"] - merged["float32"]).abs()
+    assert difference.max() < 0.02 and difference.mean() < 0.003
+    float64 = NeuralMerger(8, BOUNDS, MergerConfig(precision="bfloat16")).double()
+    assert float64(positions.double(), values.double(), seen).dtype == torch.float64  # gradient checks keep float64

@@ -418,3 +418,17 @@ def test_a_run_with_backend_numba_compiles_its_kernels_while_it_reads_its_data(t
     assert started == []
     Pipeline(tiny_object, tmp_path / "numba", replace(tiny_config(), backend="numba"), progress=False, log=print)
     assert started == [True]
+
+
+def test_the_mergers_precision_is_part_of_the_refinement_and_its_record(tiny_object, finished_run, tmp_path):
+    import json
+
+    fingerprints = {}
+    for precision in ("float32", "bfloat16"):
+        config = replace(tiny_config(), refine=replace(tiny_config().refine, merger=replace(
+            tiny_config().refine.merger, precision=precision)))  # fmt: skip
+        pipeline = Pipeline(tiny_object, tmp_path / precision, config, progress=False, log=lambda _: None)
+        fingerprints[precision] = pipeline.refine_fingerprint("full")
+    assert fingerprints["float32"] != fingerprints["bfloat16"]
+    record = json.loads((finished_run / "asset" / "stage.json").read_text())
+    assert record["merger_precision"] in ("float32", "bfloat16")

@@ -73,6 +73,12 @@ SETTING_FLAGS = {
         "on: the merger also reads which views saw each Gaussian; "
         "off (default, as the paper): position and values only",
     ),
+    "--merger-precision": (
+        "refine.merger.precision",
+        str,
+        "the merger's matrix products: auto (default: bfloat16 on a CPU with native bfloat16, where refinement "
+        "runs ~1.5x as fast; float32 elsewhere), float32 or bfloat16",
+    ),
     "--unseen": (
         "refine.merger.unseen",
         str,

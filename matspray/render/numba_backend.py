@@ -391,7 +391,8 @@ def ensure_compiled(np_dtype) -> None:
     told = os.environ.get("OMP_WAIT_POLICY")
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     try:
-        _warm_up(np_dtype)
+        with torch.enable_grad():  # the backward kernels too, whatever the caller's grad mode
+            _warm_up(np_dtype)
     finally:
         if told is None:
             os.environ.pop("OMP_WAIT_POLICY", None)
