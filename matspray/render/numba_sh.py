@@ -47,6 +47,15 @@ def _basis(x, y, z, k, out):
     out[15] = k[13] * x * (xx - 3 * yy)
 
 
+@njit(cache=True, inline="always")
+def _sum(basis, sh, n, c, bases):
+    """sum_b Y_b c_b of Gaussian n's colour channel c, before the offset and the clamp."""
+    total = 0.0
+    for b in range(bases):
+        total += basis[b] * sh[n, b, c]
+    return total
+
+
 @njit(cache=True, parallel=True)
 def forward(sh, means, centre, bases, k):  # [N, K, 3], [N, 3], [3], bases used, constants -> [N, 3]
     n_gaussians = sh.shape[0]
@@ -57,10 +66,7 @@ def forward(sh, means, centre, bases, k):  # [N, K, 3], [N, 3], [3], bases used,
             x, y, z, _ = _direction(means, centre, n)
             _basis(x, y, z, k, basis)
             for c in range(3):
-                total = 0.0
-                for b in range(bases):
-                    total += basis[b] * sh[n, b, c]
-                rgb[n, c] = max(total + 0.5, 0.0)
+                rgb[n, c] = max(_sum(basis, sh, n, c, bases) + 0.5, 0.0)
     return rgb
 
 
@@ -77,10 +83,7 @@ def backward(sh, means, centre, bases, k, grad_rgb):  # -> grad sh [N, K, 3], gr
             x, y, z, length = _direction(means, centre, n)
             _basis(x, y, z, k, basis)
             for c in range(3):
-                total = 0.0
-                for b in range(bases):
-                    total += basis[b] * sh[n, b, c]
-                if total + 0.5 >= 0.0:  # where the clamp passes
+                if _sum(basis, sh, n, c, bases) + 0.5 >= 0.0:  # where the clamp passes
                     for b in range(bases):
                         grad_sh[n, b, c] = basis[b] * grad_rgb[n, c]
                         g[b] += sh[n, b, c] * grad_rgb[n, c]
