@@ -1,6 +1,7 @@
 """How many Gaussians does lifting miss? For k x k rays per pixel (k = 1, 4, 16), the fraction of the
 Gaussians with non-zero rendered weight in a view that receive no material value from it, and the
-seconds lifting takes per view.
+seconds lifting takes per view with each tracer (torch's, and numba's compiled one: they must agree, and the
+benchmark stops if they do not).
 
     python -m benchmarks.lift --run runs/demo-demo/run [--views 4] [--samples 1 2 4 16] [--falloff 4]
 
@@ -13,11 +14,14 @@ import argparse
 import time
 from pathlib import Path
 
+import torch
+
 from matspray.data import load_scene
 from matspray.geometry.ply import read_ply
 from matspray.lift import LiftConfig, lift_view
 from matspray.pipeline import maps_to_tensor
 from matspray.predictors import read_materials2d
+from matspray.render.backend import rendering_with
 from matspray.render.gbuffer import rendered_weights
 from matspray.rundir import read_json
 
@@ -43,20 +47,32 @@ def main() -> None:
     rendered = [rendered_weights(gaussians, v.camera) > 0 for v in views]
     # "any hit": every Gaussian a ray reaches counts (the sampling question alone); "visible": the
     # default rule, hits behind an opaque front (transmittance < 0.5) do not receive the front's value
-    print(f"{'rays/pixel':>10} {'missed, any hit':>24} {'missed, visible rule':>24} {'s/view':>8}")
+    print(
+        f"{'rays/pixel':>10} {'missed, any hit':>24} {'missed, visible rule':>24} {'s/view torch':>13} "
+        f"{'s/view numba':>13}"
+    )
     for k in args.samples:
         missed = {0.0: 0, 0.5: 0}
         total = 0
-        start = time.perf_counter()
+        seconds = {"torch": 0.0, "numba": 0.0}
         for view, drawn in zip(views, rendered):
             total += int(drawn.sum())
             for threshold in missed:  # no mask: the question is whether rays find what the rasterizer draws
                 config = LiftConfig(samples_per_side=k, visibility_threshold=threshold, falloff=args.falloff)
-                _, seen, _ = lift_view(gaussians, view.camera, maps_to_tensor(maps[view.name]), None, config)
-                missed[threshold] += int((drawn & ~seen).sum())
-        seconds = (time.perf_counter() - start) / len(views) / len(missed)
+                lifted = {}
+                for backend in seconds:
+                    start = time.perf_counter()
+                    with rendering_with(backend):
+                        lifted[backend] = lift_view(
+                            gaussians, view.camera, maps_to_tensor(maps[view.name]), None, config
+                        )
+                    seconds[backend] += time.perf_counter() - start
+                if not all(torch.equal(a, b) for a, b in zip(lifted["torch"], lifted["numba"])):
+                    raise SystemExit(f"benchmarks.lift: the tracers disagree on view {view.name} at {k}x{k} rays")
+                missed[threshold] += int((drawn & ~lifted["torch"][1]).sum())
         cells = [f"{m / total:.3%} ({m})" for m in missed.values()]
-        print(f"{f'{k}x{k}':>10} {cells[0]:>24} {cells[1]:>24} {seconds:8.2f}")
+        per_view = {b: t / len(views) / len(missed) for b, t in seconds.items()}
+        print(f"{f'{k}x{k}':>10} {cells[0]:>24} {cells[1]:>24} {per_view['torch']:13.2f} {per_view['numba']:13.2f}")
     print(f"(of {total} Gaussian-view pairs with non-zero rendered weight)")
 
 
