@@ -166,16 +166,16 @@ PAPER_ABLATION = {"full": 29.164, "supervised": 24.809, "proj-average": 25.555}
 PAPER_SOFTMAX = {"full": 27.282, "no-softmax": 24.600}
 
 
-def table_dr_eval(results: Path) -> str:
+def table_dr_eval(results: Path, name: str = EVAL_DR) -> str:
     """Every variant per object under `dr` (benchmarks.generalise's format)."""
-    return "\n".join(object_table(read(results, EVAL_DR), "dr")).rstrip()
+    return "\n".join(object_table(read(results, name), "dr")).rstrip()
 
 
-def table_dr_orderings(results: Path) -> str:
+def table_dr_orderings(results: Path, name: str = EVAL_DR) -> str:
     """The paper's orderings: full minus each other variant in relighting, the paper's and ours."""
     from benchmarks.generalise_tables import wins
 
-    result = read(results, EVAL_DR)["models"]["dr"]
+    result = read(results, name)["models"]["dr"]
     mean, objects = result["summary"]["relight"], result["objects"]
     lines = [
         "| full against | paper: full, it (dB) | paper: full - it | ours: full, it (dB) | ours: full - it "

@@ -133,6 +133,7 @@ class Pipeline:
         self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
         self._frozen_views: FrozenViews | None = None  # their blending weights, shared by the variants refined
+        self._warmed_lights: dict = {}  # light warm-ups, shared by variants that start alike (refine.warm_up_key)
 
     def close(self) -> None:
         """Lets the run folder go (see __init__); the pipeline must not write after this."""
@@ -402,7 +403,14 @@ class Pipeline:
         with self._working(f"refine [{variant}]") as (t, use):
             if self._frozen_views is None and get_variant(variant).trains and config.iterations > 0:
                 self._frozen_views = frozen_views(inputs)
-            result = refine(inputs, config, progress=self.progress, light=probe, frozen=self._frozen_views)
+            result = refine(
+                inputs,
+                config,
+                progress=self.progress,
+                light=probe,
+                frozen=self._frozen_views,
+                warmed_lights=self._warmed_lights,
+            )
             write_asset(self.run.path(stage), inputs.gaussians, result)
         self.run.finish_stage(
             stage,

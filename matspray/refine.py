@@ -26,6 +26,7 @@ The variants (`matspray.variants`) choose what produces the per-Gaussian materia
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -387,6 +388,13 @@ def warm_up_light(
     optimize(optimizer, len(training), config.light_warmup, photo_losses, generator, "light warm-up", progress)
 
 
+def warm_up_key(materials: Tensor, config: RefineConfig) -> tuple:
+    """What the light warm-up's outcome depends on besides the training views: the materials it holds fixed (their
+    bytes' digest) and every setting but those of the material source (variant, merger)."""
+    digest = hashlib.sha256(materials.detach().cpu().contiguous().numpy().tobytes()).hexdigest()
+    return digest, repr(replace(config, variant="full", merger=MergerConfig()))
+
+
 @dataclass
 class RefineResult:
     materials: Tensor  # [N, 5]
@@ -412,12 +420,16 @@ def refine(
     on_checkpoint=None,
     light: EnvironmentMap | None = None,
     frozen: FrozenViews | None = None,
+    warmed_lights: dict | None = None,
 ) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
     `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end. `light`: a known
     training light (a light probe, or the true light of a benchmark object) that variants with the PBR loss shade
     with as given, instead of learning one: no warm-up, never optimised. `frozen`: `frozen_views(inputs)` when the
-    caller keeps them for several variants (building them takes seconds per refinement)."""
+    caller keeps them for several variants (building them takes seconds per refinement). `warmed_lights`: a dict the
+    caller keeps for the variants of one run, in which the light warm-up's outcome is kept and found again when
+    another variant starts from the same materials with the same settings (full and no-softmax both start from the
+    projection average): the same light and random state as warming up again, without the steps."""
     torch.manual_seed(config.seed)
     variant = config.kind
     gaussians, normals = inputs.gaussians, inputs.normals
@@ -448,7 +460,16 @@ def refine(
     with torch.no_grad():
         last_materials = source()  # [N, 5] each Gaussian's latest merged value
     if estimates_light and config.light_warmup > 0:
-        warm_up_light(training, last_materials, normals, envmap, config, generator, progress)
+        key = warm_up_key(last_materials, config)
+        if warmed_lights is not None and key in warmed_lights:
+            log_map, state = warmed_lights[key]
+            with torch.no_grad():
+                envmap.log_map.copy_(log_map)
+            generator.set_state(state)
+        else:
+            warm_up_light(training, last_materials, normals, envmap, config, generator, progress)
+            if warmed_lights is not None:
+                warmed_lights[key] = (envmap.log_map.detach().clone(), generator.get_state())
     optimizer = torch.optim.Adam(groups)
 
     def refine_losses(index: int):

@@ -383,7 +383,9 @@ def test_run_says_its_estimate_first_and_counts_only_what_is_left(tiny_object, f
     assert any(line.startswith("took ") for line in printed)
 
 
-def test_the_variants_of_a_run_share_one_build_of_the_frozen_views(tiny_object, finished_run, tmp_path, monkeypatch):
+def test_the_variants_of_a_run_share_the_frozen_views_and_a_light_warm_up_that_starts_alike(
+    tiny_object, finished_run, tmp_path, monkeypatch
+):
     import shutil
 
     from matspray import pipeline as pipeline_module
@@ -402,8 +404,14 @@ def test_the_variants_of_a_run_share_one_build_of_the_frozen_views(tiny_object, 
 
     frozen_views = pipeline_module.frozen_views
     monkeypatch.setattr(pipeline_module, "frozen_views", counted)
+    from matspray import refine as refine_module
+
+    warm_ups = []
+    warm_up_light = refine_module.warm_up_light
+    monkeypatch.setattr(refine_module, "warm_up_light", lambda *a: warm_ups.append(1) or warm_up_light(*a))
     Pipeline(tiny_object, run, tiny_config(), progress=False, log=lambda _: None).run_all(trained)
     assert len(builds) == 1
+    assert len(warm_ups) == 2  # full's, reused by no-softmax (which starts from the same average); no-prior's
     for variant in trained:  # the same materials as the fixture's run, which built them once per variant
         shared, own = read_asset(run / asset_stage(variant)), read_asset(finished_run / asset_stage(variant))
         torch.testing.assert_close(shared.materials, own.materials, rtol=0, atol=0)
