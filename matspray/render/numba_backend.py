@@ -42,6 +42,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from matspray.render.numba_threads import threads
 from matspray.render.projection import max_eigen_radius
 from matspray.render.settings import RasterSettings
 
@@ -330,23 +331,6 @@ def projection():
 
 def _numpy(tensor: Tensor, dtype) -> np.ndarray:
     return np.ascontiguousarray(tensor.detach().cpu().numpy(), dtype=dtype)
-
-
-class threads:
-    """Numba's threads for the block: as many as torch's (what $MATSPRAY_THREADS sets), at most numba's pool."""
-
-    def __enter__(self):
-        import numba
-
-        self.before = numba.get_num_threads()
-        self.count = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
-        numba.set_num_threads(self.count)
-        return self
-
-    def __exit__(self, *exc):
-        import numba
-
-        numba.set_num_threads(self.before)
 
 
 def ensure_compiled(np_dtype) -> None:

@@ -27,8 +27,8 @@ from numba import prange
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.render.contributions import ray_setup
-from matspray.render.numba_backend import threads
 from matspray.render.numba_kernels import TILE, bin_tiles, njit
+from matspray.render.numba_threads import threads
 from matspray.render.settings import RasterSettings
 
 MAX_BAND_ENTRIES = 1 << 24  # bound of a band's entries (16 bytes each), so that large images trace in bands

@@ -14,9 +14,9 @@ import torch
 from numba import prange
 from torch import Tensor
 
-from matspray.render.numba_backend import threads
 from matspray.render.numba_kernels import njit
-from matspray.render.sh import SH_C0, SH_C1, SH_C2, SH_C3, num_sh_bases
+from matspray.render.numba_threads import threads
+from matspray.render.sh_constants import SH_C0, SH_C1, SH_C2, SH_C3, num_sh_bases
 
 # the basis constants in the reference's order: C0, C1, C2[0..4], C3[0..6]
 CONSTANTS = np.array([SH_C0, SH_C1, *SH_C2, *SH_C3])
