@@ -409,6 +409,23 @@ def table_cli(results: Path) -> str:
             os.environ["COLUMNS"] = columns
 
 
+DEMO_BACKENDS = "demo-backends.json"
+
+
+def table_demo_backends(results: Path) -> str:
+    """The demo's figures with backend torch and numba (benchmarks.demo_backends)."""
+    result = read(results, DEMO_BACKENDS)
+    lines = ["| variant | figure | torch (dB) | numba (dB) | numba - torch |", "| --- | --- | ---: | ---: | ---: |"]
+    lines += [
+        f"| {r['variant']} | {r['row']} | {r['torch']:.2f} | {r['numba']:.2f} | {r['difference']:+.2f} |"
+        for r in result["rows"]
+    ]
+    within = sum(abs(r["difference"]) <= result["tolerance"] for r in result["rows"])
+    lines += ["", f"largest difference {result['largest']:.2f} dB; {within} of {len(result['rows'])} within "
+              f"{result['tolerance']} dB"]  # fmt: skip
+    return "\n".join(lines)
+
+
 # name -> (function of the results folder, the result files it reads)
 TABLES = {
     "headline": (table_headline, [EVAL_NOPRIOR]),
@@ -422,6 +439,7 @@ TABLES = {
     "dr-dev": (table_dr_dev, [DEV_DR]),
     "dr-ceilings": (table_dr_ceilings, [CEILINGS_DR]),
     "dr-tried": (table_dr_tried, [name for _, name, _ in DR_TRIED]),
+    "demo-backends": (table_demo_backends, [DEMO_BACKENDS]),
     "cli": (table_cli, []),
 }
 
