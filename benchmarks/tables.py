@@ -22,6 +22,7 @@ import json
 import os
 import re
 import sys
+from functools import partial
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -160,6 +161,7 @@ def table_headline(results: Path) -> str:
 
 # ------------------------------------------------------------------------------------------ the `dr` error model
 EVAL_DR = "generalise-eval-dr.json"
+EVAL_DR_256 = "generalise-eval-256px-dr.json"  # the same protocol with the objects at 256 px
 DEV_DR = "generalise-dev-dr.json"
 # the paper's relighting PSNR (dB): Table 2 (a subset of its objects) and the softmax ablation (all its objects)
 PAPER_ABLATION = {"full": 29.164, "supervised": 24.809, "proj-average": 25.555}
@@ -436,6 +438,8 @@ TABLES = {
     "real-captures": (table_real_captures, [f"real-captures-{n}.json" for n in CAPTURES]),
     "dr-eval": (table_dr_eval, [EVAL_DR]),
     "dr-orderings": (table_dr_orderings, [EVAL_DR]),
+    "dr-eval-256": (partial(table_dr_eval, name=EVAL_DR_256), [EVAL_DR_256]),
+    "dr-orderings-256": (partial(table_dr_orderings, name=EVAL_DR_256), [EVAL_DR_256]),
     "dr-dev": (table_dr_dev, [DEV_DR]),
     "dr-ceilings": (table_dr_ceilings, [CEILINGS_DR]),
     "dr-tried": (table_dr_tried, [name for _, name, _ in DR_TRIED]),
