@@ -143,7 +143,7 @@ def run_demo(
     out = Path(out)
     config = config or build_config(preset, predictor="simulated")
     if resolve_backend(config.backend, resolve_device(config.device), notify=log) == "numba":
-        compile_in_background()  # while the object is rendered: a fresh install compiles for ~25 s
+        compile_in_background()  # while the object is rendered (a fresh install compiles the kernels)
     data = make_demo_object(out / "data", preset, shape, seed, progress)
     run_object(data, out / "run", config, progress=progress, log=log)
     return out / "run" / "report.html"

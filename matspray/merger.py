@@ -33,8 +33,8 @@ PRECISIONS = ("auto", "float32", "bfloat16")
 
 
 def native_bfloat16_cpu() -> bool:
-    """Whether this CPU multiplies bfloat16 matrices in hardware (AVX512-BF16 or AMX tiles), where they run about
-    2.7x as fast as float32 (benchmarks in docs/defaults.md); emulated elsewhere, and slower than float32."""
+    """Whether this CPU multiplies bfloat16 matrices in hardware (AVX512-BF16 or AMX tiles), where they run faster
+    than float32; elsewhere they are emulated, and slower."""
     try:
         return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
     except (AttributeError, RuntimeError):  # an older torch without the probes

@@ -77,7 +77,7 @@ SETTING_FLAGS = {
         "refine.merger.precision",
         str,
         "the merger's matrix products: auto (default: bfloat16 on a CPU with native bfloat16, where refinement "
-        "runs ~1.5x as fast; float32 elsewhere), float32 or bfloat16",
+        "runs faster; float32 elsewhere; docs/defaults.md), float32 or bfloat16",
     ),
     "--unseen": (
         "refine.merger.unseen",

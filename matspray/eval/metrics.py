@@ -109,8 +109,7 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=to
 
 def _window_mean(x: Tensor, taps: Tensor) -> Tensor:  # [..., H, W], [K] -> [..., H-K+1, W-K+1]
     """The separable window's weighted mean at every valid position: K shifted slices summed per axis. Slices are views,
-    so this (and its backward) is a few passes over the image; an unfold-and-matmul makes K copies of it and took three
-    times as long in the training loss."""
+    so this (and its backward) is a few passes over the image, where an unfold-and-matmul makes K copies of it."""
     k = taps.shape[0]
     width, height = x.shape[-1] - k + 1, x.shape[-2] - k + 1
     rows = x[..., :width] * taps[0]

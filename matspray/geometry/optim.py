@@ -30,8 +30,8 @@ class GaussianOptimizer:
 
     def __init__(self, gaussians: Gaussians, lrs: dict[str, float]):
         self.params = {name: t.detach().clone().requires_grad_(True) for name, t in split_sh(gaussians).items()}
-        # fused: one kernel for all six tensors (torch's default on the CPU is a loop of small operations per tensor,
-        # 7x slower at 40 000 Gaussians); the same update to rounding
+        # fused: one kernel for all six tensors (torch's default on the CPU is a loop of small operations per tensor);
+        # the same update to rounding
         self.adam = torch.optim.Adam(
             [{"params": [self.params[name]], "lr": lrs[name], "name": name} for name in PARAMETERS],
             eps=1e-15,

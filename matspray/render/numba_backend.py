@@ -393,8 +393,8 @@ def ensure_compiled(np_dtype) -> None:
 
 
 def compile_in_background(np_dtype=np.float32) -> None:
-    """Start `ensure_compiled` in a daemon thread, so that a run compiles (a fresh install: ~25 s) or loads the
-    kernels while it reads or makes its data; the first render waits for the rest. Once per process and dtype."""
+    """Start `ensure_compiled` in a daemon thread, so that a run compiles (a fresh install) or loads the kernels
+    while it reads or makes its data; the first render waits for the rest. Once per process and dtype."""
     key = np.dtype(np_dtype).name
     with _WARMING_LOCK:
         if key in _READY or key in _WARMING:
