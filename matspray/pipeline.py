@@ -375,6 +375,10 @@ class Pipeline:
         stat = path.stat()
         return ({"light_probe": str(path.resolve()), "bytes": stat.st_size, "modified_ns": stat.st_mtime_ns},)
 
+    def merger_dtype(self, config: RefineConfig) -> torch.dtype:
+        """What the merger of a refinement with `config` multiplies in on this run's device (`precision` resolved)."""
+        return mlp_dtype(config.merger.precision, self.device)
+
     def refine_fingerprint(self, variant: str) -> str:
         learns_light = (
             self.probe is not None and get_variant(variant).learns_light
@@ -384,7 +388,7 @@ class Pipeline:
             "refine",
             self.config.method,
             config,
-            str(mlp_dtype(config.merger.precision, self.device)),  # what "auto" is on this machine
+            str(self.merger_dtype(config)),  # what "auto" is on this machine
             self.lift_fingerprint(),
             self.visibility_fingerprint(),
             *(self.probe_identity if learns_light else ()),
@@ -420,7 +424,7 @@ class Pipeline:
             {
                 "history": result.history,
                 "frozen_views": result.frozen,
-                "merger_precision": str(mlp_dtype(config.merger.precision, self.device)).removeprefix("torch."),
+                "merger_precision": str(self.merger_dtype(config)).removeprefix("torch."),
                 **self._ran(use),
             },
         )

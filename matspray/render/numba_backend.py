@@ -375,8 +375,7 @@ def ensure_compiled(np_dtype) -> None:
     told = os.environ.get("OMP_WAIT_POLICY")
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     try:
-        with torch.enable_grad():  # the backward kernels too, whatever the caller's grad mode
-            _warm_up(np_dtype)
+        _warm_up(np_dtype)
     finally:
         if told is None:
             os.environ.pop("OMP_WAIT_POLICY", None)
@@ -404,6 +403,7 @@ def compile_in_background(np_dtype=np.float32) -> None:
     thread.start()
 
 
+@torch.enable_grad()  # the first render may come under no_grad; the backward kernels are warmed up too
 def _warm_up(np_dtype) -> None:
     from matspray.data.camera import Camera
     from matspray.gaussians import Gaussians
