@@ -73,6 +73,24 @@ def test_matches_torch_on_random_scenes(seed, width, height):
     assert ref.alpha.max() > 0.9 and (ref.alpha < 0.5).any() and ref.pixel_hits > 1000
 
 
+def test_the_backward_without_the_forwards_record_matches_torch(monkeypatch, capfd):
+    """A render whose record of hits would pass RECORD_BUDGET runs the backward that finds its hits again: the same
+    gradients; its compilation (a fresh cache only) is said at most once."""
+    from matspray.render import numba_backend
+
+    monkeypatch.setattr(numba_backend, "RECORD_BUDGET", -1)
+    calls = []
+    unrecorded = numba_backend._unrecorded_backward
+    monkeypatch.setattr(numba_backend, "_unrecorded_backward", lambda *a: calls.append(1) or unrecorded(*a))
+    for seed, width, height in ((1, 53, 37), (5, 40, 33)):
+        gaussians, camera, features = random_scene(300, seed, width=width, height=height)
+        assert_backends_agree(gaussians, camera, features, torch.tensor([0.2, 0.5, 1.0]))
+    early = stacked_opaque_gaussians()
+    assert_backends_agree(*early)
+    assert len(calls) == 3
+    assert len([line for line in capfd.readouterr().err.splitlines() if "backward kernel for renders" in line]) <= 1
+
+
 def test_opaque_and_nearly_transparent_gaussians():
     gaussians, camera, features = random_scene(200, 4, width=40, height=33, max_opacity=1.0)
     logits = gaussians.opacity_logits.clone()

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from matspray.errors import DataError
@@ -108,17 +109,16 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=to
 
 
 def _window_mean(x: Tensor, taps: Tensor) -> Tensor:  # [..., H, W], [K] -> [..., H-K+1, W-K+1]
-    """The separable window's weighted mean at every valid position: K shifted slices summed per axis. Slices are views,
-    so this (and its backward) is a few passes over the image, where an unfold-and-matmul makes K copies of it."""
+    """The separable window's weighted mean at every valid position: two depthwise convolutions (rows, then columns),
+    one plane per leading index. The convolution's own backward is one pass each way, where shifted slices summed
+    in autograd cost a full-size zero tensor and an add per slice (docs/rasterizer.md has the timing)."""
     k = taps.shape[0]
-    width, height = x.shape[-1] - k + 1, x.shape[-2] - k + 1
-    rows = x[..., :width] * taps[0]
-    for i in range(1, k):
-        rows = rows + x[..., i : i + width] * taps[i]
-    out = rows[..., :height, :] * taps[0]
-    for i in range(1, k):
-        out = out + rows[..., i : i + height, :] * taps[i]
-    return out
+    planes = x.reshape(1, -1, *x.shape[-2:])  # [1, B, H, W]
+    count = planes.shape[1]
+    taps = taps.to(x)
+    rows = F.conv2d(planes, taps.view(1, 1, 1, k).expand(count, 1, 1, k), groups=count)
+    out = F.conv2d(rows, taps.view(1, 1, k, 1).expand(count, 1, k, 1), groups=count)
+    return out.reshape(*x.shape[:-2], *out.shape[-2:])
 
 
 def ssim_map(pred, target) -> Tensor:

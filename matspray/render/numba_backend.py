@@ -309,7 +309,7 @@ class _NumbaRaster(torch.autograd.Function):
                     grad,
                 )
             else:
-                entry_grads = kernels().backward(*layout.common(*ctx.arrays), layout.slot, *ctx.state, grad)
+                entry_grads = _unrecorded_backward(layout.common(*ctx.arrays), layout.slot, ctx.state, grad)
             per_gaussian = kernels().reduce_entries(entry_grads, layout.g_offsets)
         sums = torch.from_numpy(per_gaussian).to(ctx.dtype)  # [N, 8 + C + 2]
         if ctx.absgrad_of is not None:
@@ -320,6 +320,24 @@ class _NumbaRaster(torch.autograd.Function):
                 target.absgrad = torch.zeros_like(target, memory_format=torch.contiguous_format).detach()
             target.absgrad += sums[:, 6:8].to(target.dtype)
         return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 8:-2], sums[:, -2], None
+
+
+def _unrecorded_backward(common: tuple, slot, state: tuple, grad):
+    """numba_kernels.backward, for renders whose record would pass RECORD_BUDGET (large images with many Gaussians).
+    It is not part of `ensure_compiled`'s warm-up (most runs never need it): compiled at its first use instead, which
+    is said once on stderr with its time, and cached as the others."""
+    dispatcher = kernels().backward
+    misses = sum(dispatcher.stats.cache_misses.values())
+    start = time.perf_counter()
+    entry_grads = dispatcher(*common, slot, *state, grad)
+    if sum(dispatcher.stats.cache_misses.values()) > misses:
+        print(
+            f"numba: compiled the backward kernel for renders of more than {RECORD_BUDGET} hits in "
+            f"{time.perf_counter() - start:.1f} s, once: later runs load it from {dispatcher.stats.cache_path}",
+            file=sys.stderr,
+            flush=True,
+        )
+    return entry_grads
 
 
 def projection():
@@ -352,7 +370,6 @@ def ensure_compiled(np_dtype) -> None:
         module.bin_tiles,
         module.partition,
         module.forward,
-        module.backward,
         module.backward_recorded,
         module.reduce_entries,
         projections.project,
@@ -417,14 +434,8 @@ def _warm_up(np_dtype) -> None:
         torch.zeros(1, dtype=dtype),
         torch.zeros(1, 1, 3, dtype=dtype),
     )
-    global RECORD_BUDGET
-    budget = RECORD_BUDGET
-    try:
-        for RECORD_BUDGET in (budget, -1):  # both backward kernels: with the forward's record and without
-            image, _, _, _ = rasterize_gaussians(gaussians, camera, torch.ones(1, 1, dtype=dtype), RasterSettings())
-            image.sum().backward()
-    finally:
-        RECORD_BUDGET = budget
+    image, _, _, _ = rasterize_gaussians(gaussians, camera, torch.ones(1, 1, dtype=dtype), RasterSettings())
+    image.sum().backward()  # the recorded backward (the unrecorded one compiles when first needed)
     from matspray.render.numba_rays import trace_view
     from matspray.render.numba_sh import CompiledSH
 

@@ -73,8 +73,10 @@ def forward(sh, means, centre, bases, k):  # [N, K, 3], [N, 3], [3], bases used,
 @njit(cache=True, parallel=True)
 def backward(sh, means, centre, bases, k, grad_rgb):  # -> grad sh [N, K, 3], grad means [N, 3]
     n_gaussians = sh.shape[0]
-    grad_sh = np.zeros(sh.shape, sh.dtype)
-    grad_means = np.zeros((n_gaussians, 3), sh.dtype)
+    # every element is written in the loop (zeros included): a serial np.zeros of [N, K, 3] before the parallel loop
+    # would cost about as much as the loop itself
+    grad_sh = np.empty(sh.shape, sh.dtype)
+    grad_means = np.empty((n_gaussians, 3), sh.dtype)
     for chunk in prange((n_gaussians + CHUNK - 1) // CHUNK):
         basis = np.empty(16, sh.dtype)
         g = np.empty(16, sh.dtype)  # d loss / d Y_b
@@ -87,6 +89,11 @@ def backward(sh, means, centre, bases, k, grad_rgb):  # -> grad sh [N, K, 3], gr
                     for b in range(bases):
                         grad_sh[n, b, c] = basis[b] * grad_rgb[n, c]
                         g[b] += sh[n, b, c] * grad_rgb[n, c]
+                else:
+                    for b in range(bases):
+                        grad_sh[n, b, c] = 0.0
+                for b in range(bases, sh.shape[1]):  # bands above the degree in use
+                    grad_sh[n, b, c] = 0.0
             # d loss / d direction: sum_b g_b dY_b/d(x, y, z)
             xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
             gx = -k[1] * g[3]

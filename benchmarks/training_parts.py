@@ -1,0 +1,122 @@
+"""Timing of the CPU parts of a training step besides the rasterizer, and of compiling backend numba's kernels:
+
+  - the D-SSIM loss (`ssim_loss`, every photometric loss of geometry training and refinement), forward + backward,
+    on random images of each --sizes;
+  - SH colour with backend numba (`sh_colors`, degree 3), forward + backward, at each --gaussians;
+  - with --compile, `ensure_compiled` in a fresh process with an empty numba cache (what a fresh install pays
+    once), --compile-runs times.
+
+Best and median of --repeats, milliseconds (seconds for the compilation), with --threads torch threads (numba takes
+as many). Wall time of one process: run it on a quiet machine, and note OMP_WAIT_POLICY (printed): with PASSIVE,
+torch's idle threads sleep after every operation, which makes many small operations slower.
+
+    python -m benchmarks.training_parts [--sizes 128 256] [--gaussians 20000 100000] [--threads 2] [--repeats 20]
+                                        [--compile] [--compile-runs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import torch
+
+from matspray.eval.metrics import ssim_loss
+from matspray.render.backend import rendering_with
+from matspray.render.sh import sh_colors
+
+COMPILE = (
+    "import time, numpy as np\n"
+    "start = time.perf_counter()\n"
+    "from matspray.render.numba_backend import ensure_compiled\n"
+    "ensure_compiled(np.float32)\n"
+    "print(time.perf_counter() - start)\n"
+)
+
+
+def milliseconds(step, repeats: int) -> tuple[float, float]:
+    """Best and median wall milliseconds of `step()` over `repeats` calls, after one warm-up call."""
+    step()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        step()
+        times.append((time.perf_counter() - start) * 1000.0)
+    return min(times), statistics.median(times)
+
+
+def ssim_step(size: int):
+    g = torch.Generator().manual_seed(size)
+    pred = torch.rand(size, size, 3, generator=g).requires_grad_(True)
+    target = torch.rand(size, size, 3, generator=g)
+
+    def step():
+        pred.grad = None
+        ssim_loss(pred, target).backward()
+
+    return step
+
+
+def sh_step(n: int):
+    from benchmarks.rasterize import sphere_object
+    from matspray.data.camera import Camera
+
+    gaussians = sphere_object(n)
+    gaussians.sh.requires_grad_(True)
+    gaussians.means.requires_grad_(True)
+    camera = Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.7, 128, 128)
+    weights = torch.rand(n, 3, generator=torch.Generator().manual_seed(n))
+
+    def step():
+        gaussians.sh.grad = gaussians.means.grad = None
+        with rendering_with("numba"):
+            (sh_colors(gaussians, camera) * weights).sum().backward()
+
+    return step
+
+
+def compile_seconds() -> float:
+    with tempfile.TemporaryDirectory(prefix="matspray-numba-cache-") as cache:
+        done = subprocess.run(
+            [sys.executable, "-c", COMPILE],
+            env=dict(os.environ, NUMBA_CACHE_DIR=cache),
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    return float(done.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", type=int, nargs="*", default=[128, 256], help="image sides of the SSIM loss")
+    parser.add_argument("--gaussians", type=int, nargs="*", default=[20000, 100000], help="Gaussians of SH colour")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--compile", action="store_true", help="also time compiling the kernels from scratch")
+    parser.add_argument("--compile-runs", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    print(
+        f"threads {torch.get_num_threads()}; OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}; "
+        f"load average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    )
+    for size in args.sizes:
+        best, median = milliseconds(ssim_step(size), args.repeats)
+        print(f"  D-SSIM loss, {size}x{size} px, forward+backward: {best:.2f} ms (median {median:.2f})")
+    for n in args.gaussians:
+        best, median = milliseconds(sh_step(n), args.repeats)
+        print(f"  SH colour (numba, degree 3), {n} Gaussians, forward+backward: {best:.2f} ms (median {median:.2f})")
+    if args.compile:
+        seconds = [compile_seconds() for _ in range(args.compile_runs)]
+        print(f"  numba kernels compiled from an empty cache: {', '.join(f'{s:.1f}' for s in seconds)} s")
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()
