@@ -3,6 +3,8 @@
   - the D-SSIM loss (`ssim_loss`, every photometric loss of geometry training and refinement), forward + backward,
     on random images of each --sizes;
   - SH colour with backend numba (`sh_colors`, degree 3), forward + backward, at each --gaussians;
+  - the normals of a training render (`oriented_normals`) forward + backward, torch's and numba's, at each
+    --gaussians;
   - with --compile, `ensure_compiled` in a fresh process with an empty numba cache (what a fresh install pays
     once), --compile-runs times.
 
@@ -80,6 +82,24 @@ def sh_step(n: int):
     return step
 
 
+def normals_step(n: int, backend: str):
+    from benchmarks.rasterize import sphere_object
+    from matspray.data.camera import Camera
+    from matspray.geometry.normals import oriented_normals
+
+    gaussians = sphere_object(n)
+    gaussians.quats.requires_grad_(True)
+    camera = Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.7, 128, 128)
+    weights = torch.rand(n, 3, generator=torch.Generator().manual_seed(n))
+
+    def step():
+        gaussians.quats.grad = None
+        with rendering_with(backend):
+            (oriented_normals(gaussians, camera) * weights).sum().backward()
+
+    return step
+
+
 def compile_seconds() -> float:
     with tempfile.TemporaryDirectory(prefix="matspray-numba-cache-") as cache:
         done = subprocess.run(
@@ -112,6 +132,12 @@ def main() -> None:
     for n in args.gaussians:
         best, median = milliseconds(sh_step(n), args.repeats)
         print(f"  SH colour (numba, degree 3), {n} Gaussians, forward+backward: {best:.2f} ms (median {median:.2f})")
+    for n in args.gaussians:
+        for backend in ("torch", "numba"):
+            best, median = milliseconds(normals_step(n, backend), args.repeats)
+            print(
+                f"  oriented normals ({backend}), {n} Gaussians, forward+backward: {best:.2f} ms (median {median:.2f})"
+            )
     if args.compile:
         seconds = [compile_seconds() for _ in range(args.compile_runs)]
         print(f"  numba kernels compiled from an empty cache: {', '.join(f'{s:.1f}' for s in seconds)} s")

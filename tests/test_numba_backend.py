@@ -347,7 +347,7 @@ def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
         said.append([line for line in done.stderr.splitlines() if line.startswith("numba:")])
     assert (
         len(said[0]) == 1
-        and "compiled the CPU kernels (float32: rasterizer, SH colour, lifting's rays)" in said[0][0]
+        and "compiled the CPU kernels (float32: rasterizer, SH colour, normals, lifting's rays)" in said[0][0]
         and str(tmp_path / "cache") in said[0][0]
     )
     assert said[1] == []

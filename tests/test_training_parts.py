@@ -17,4 +17,5 @@ def test_it_times_each_part(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "D-SSIM loss, 24x24 px, forward+backward:" in out
     assert "SH colour (numba, degree 3), 300 Gaussians, forward+backward:" in out
+    assert "oriented normals (torch), 300 Gaussians" in out and "oriented normals (numba), 300 Gaussians" in out
     assert "compiled from an empty cache" not in out  # only with --compile

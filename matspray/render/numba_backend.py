@@ -353,8 +353,9 @@ def _numpy(tensor: Tensor, dtype) -> np.ndarray:
 
 def ensure_compiled(np_dtype) -> None:
     """Run every kernel of backend numba once on tiny inputs (the rasterizer's on one Gaussian in a 16 x 16 image,
-    SH colour, lifting's rays), so that compiling (or loading from the cache) happens here, all at once; the first
-    compilation in a process is said on stderr with its time. While `compile_in_background` is at it, waits for it."""
+    SH colour, normals, lifting's rays), so that compiling (or loading from the cache) happens here, all at once; the
+    first compilation in a process is said on stderr with its time. While `compile_in_background` is at it, waits
+    for it."""
     global _TOLD
     key = np.dtype(np_dtype).name
     warming = _WARMING.get(key)
@@ -363,7 +364,7 @@ def ensure_compiled(np_dtype) -> None:
         return
     if key in _READY:
         return
-    from matspray.render import numba_rays, numba_sh
+    from matspray.render import numba_normals, numba_rays, numba_sh
 
     module, projections = kernels(), projection()
     dispatchers = (
@@ -378,6 +379,8 @@ def ensure_compiled(np_dtype) -> None:
         projections._merge_order,
         numba_sh.forward,
         numba_sh.backward,
+        numba_normals.forward,
+        numba_normals.backward,
         numba_rays.count_candidates,
         numba_rays.trace_entries,
         numba_rays.compact,
@@ -401,7 +404,7 @@ def ensure_compiled(np_dtype) -> None:
         _TOLD = True
         where = module.bin_tiles.stats.cache_path
         print(
-            f"numba: compiled the CPU kernels ({key}: rasterizer, SH colour, lifting's rays) in "
+            f"numba: compiled the CPU kernels ({key}: rasterizer, SH colour, normals, lifting's rays) in "
             f"{time.perf_counter() - start:.1f} s, once: later runs load them from {where}",
             file=sys.stderr,
             flush=True,
@@ -436,10 +439,13 @@ def _warm_up(np_dtype) -> None:
     )
     image, _, _, _ = rasterize_gaussians(gaussians, camera, torch.ones(1, 1, dtype=dtype), RasterSettings())
     image.sum().backward()  # the recorded backward (the unrecorded one compiles when first needed)
+    from matspray.render.numba_normals import CompiledNormals
     from matspray.render.numba_rays import trace_view
     from matspray.render.numba_sh import CompiledSH
 
     sh = torch.zeros(1, 16, 3, dtype=dtype, requires_grad=True)
     CompiledSH.apply(sh, gaussians.means, camera.center, 3).sum().backward()
+    quats = gaussians.quats.detach().requires_grad_(True)
+    CompiledNormals.apply(quats, gaussians.log_scales, gaussians.means, camera.center).sum().backward()
     on_object = torch.ones(camera.height * camera.width, dtype=torch.bool)
     trace_view(gaussians.detach(), camera, on_object, 2, torch.zeros(1), 1.0, RasterSettings(), 0.0)
