@@ -66,7 +66,10 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=None)
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default, one per core)")
     parser.add_argument(
-        "--backend", default="auto", help="rasterizer, as `matspray run --backend` (default auto: numba on the CPU)"
+        "--backend",
+        default="auto",
+        choices=("auto", "torch", "numba"),
+        help="rasterizer, as `matspray run --backend` (default auto: numba on the CPU)",
     )
     args = parser.parse_args()
     if args.threads:
