@@ -28,7 +28,10 @@ import time
 
 import torch
 
+from benchmarks.rasterize import sphere_object
+from matspray.data.camera import Camera
 from matspray.eval.metrics import ssim_loss
+from matspray.geometry.normals import oriented_normals
 from matspray.render.backend import rendering_with
 from matspray.render.sh import sh_colors
 
@@ -64,38 +67,20 @@ def ssim_step(size: int):
     return step
 
 
-def sh_step(n: int):
-    from benchmarks.rasterize import sphere_object
-    from matspray.data.camera import Camera
-
+def per_gaussian_step(n: int, backend: str, colour_of, leaves: tuple[str, ...]):
+    """A step that backpropagates a weighted sum of `colour_of(gaussians, camera)` [N, 3] (SH colour, normals) through
+    the sphere object of benchmarks.rasterize, rendering with `backend`, into the Gaussians' tensors `leaves`."""
     gaussians = sphere_object(n)
-    gaussians.sh.requires_grad_(True)
-    gaussians.means.requires_grad_(True)
+    for name in leaves:
+        getattr(gaussians, name).requires_grad_(True)
     camera = Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.7, 128, 128)
     weights = torch.rand(n, 3, generator=torch.Generator().manual_seed(n))
 
     def step():
-        gaussians.sh.grad = gaussians.means.grad = None
-        with rendering_with("numba"):
-            (sh_colors(gaussians, camera) * weights).sum().backward()
-
-    return step
-
-
-def normals_step(n: int, backend: str):
-    from benchmarks.rasterize import sphere_object
-    from matspray.data.camera import Camera
-    from matspray.geometry.normals import oriented_normals
-
-    gaussians = sphere_object(n)
-    gaussians.quats.requires_grad_(True)
-    camera = Camera.look_at([0.0, -4.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.7, 128, 128)
-    weights = torch.rand(n, 3, generator=torch.Generator().manual_seed(n))
-
-    def step():
-        gaussians.quats.grad = None
+        for name in leaves:
+            getattr(gaussians, name).grad = None
         with rendering_with(backend):
-            (oriented_normals(gaussians, camera) * weights).sum().backward()
+            (colour_of(gaussians, camera) * weights).sum().backward()
 
     return step
 
@@ -130,11 +115,12 @@ def main() -> None:
         best, median = milliseconds(ssim_step(size), args.repeats)
         print(f"  D-SSIM loss, {size}x{size} px, forward+backward: {best:.2f} ms (median {median:.2f})")
     for n in args.gaussians:
-        best, median = milliseconds(sh_step(n), args.repeats)
+        best, median = milliseconds(per_gaussian_step(n, "numba", sh_colors, ("sh", "means")), args.repeats)
         print(f"  SH colour (numba, degree 3), {n} Gaussians, forward+backward: {best:.2f} ms (median {median:.2f})")
     for n in args.gaussians:
         for backend in ("torch", "numba"):
-            best, median = milliseconds(normals_step(n, backend), args.repeats)
+            step = per_gaussian_step(n, backend, oriented_normals, ("quats",))
+            best, median = milliseconds(step, args.repeats)
             print(
                 f"  oriented normals ({backend}), {n} Gaussians, forward+backward: {best:.2f} ms (median {median:.2f})"
             )

@@ -327,10 +327,10 @@ def _unrecorded_backward(common: tuple, slot, state: tuple, grad):
     It is not part of `ensure_compiled`'s warm-up (most runs never need it): compiled at its first use instead, which
     is said once on stderr with its time, and cached as the others."""
     dispatcher = kernels().backward
-    misses = sum(dispatcher.stats.cache_misses.values())
+    misses = _cache_misses([dispatcher])
     start = time.perf_counter()
     entry_grads = dispatcher(*common, slot, *state, grad)
-    if sum(dispatcher.stats.cache_misses.values()) > misses:
+    if _cache_misses([dispatcher]) > misses:
         print(
             f"numba: compiled the backward kernel for renders of more than {RECORD_BUDGET} hits in "
             f"{time.perf_counter() - start:.1f} s, once: later runs load it from {dispatcher.stats.cache_path}",
@@ -338,6 +338,11 @@ def _unrecorded_backward(common: tuple, slot, state: tuple, grad):
             flush=True,
         )
     return entry_grads
+
+
+def _cache_misses(dispatchers) -> int:
+    """How many compilations numba's on-disk cache could not spare these kernels so far in this process."""
+    return sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
 
 
 def projection():
@@ -385,7 +390,7 @@ def ensure_compiled(np_dtype) -> None:
         numba_rays.trace_entries,
         numba_rays.compact,
     )
-    misses = sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
+    misses = _cache_misses(dispatchers)
     start = time.perf_counter()
     _READY.add(key)  # before the call below, which builds a _Layout and comes back here
     # numba's OpenMP layer loads its own libgomp at the first parallel loop, and libgomp reads OMP_WAIT_POLICY
@@ -399,7 +404,7 @@ def ensure_compiled(np_dtype) -> None:
     finally:
         if told is None:
             os.environ.pop("OMP_WAIT_POLICY", None)
-    compiled = sum(sum(d.stats.cache_misses.values()) for d in dispatchers) > misses
+    compiled = _cache_misses(dispatchers) > misses
     if compiled and not _TOLD:
         _TOLD = True
         where = module.bin_tiles.stats.cache_path
