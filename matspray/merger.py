@@ -90,7 +90,9 @@ def mlp(n_in: int, n_out: int, hidden: int, layers: int) -> nn.Sequential:
     blocks: list[nn.Module] = []
     width = n_in
     for _ in range(layers):
-        blocks += [nn.Linear(width, hidden), nn.ReLU()]
+        # in place: a linear layer's backward does not read its output, so ReLU may overwrite it (no extra
+        # [N, hidden] tensor per layer and step)
+        blocks += [nn.Linear(width, hidden), nn.ReLU(inplace=True)]
         width = hidden
     head = nn.Linear(width, n_out)
     nn.init.zeros_(head.weight)
@@ -156,7 +158,7 @@ class NeuralMerger(nn.Module):
         lower = masked_values.dtype == torch.float32 and mlp_dtype(self.config.precision, device) == torch.bfloat16
         for name, group in GROUPS.items():
             with torch.autocast(device.type, dtype=torch.bfloat16, enabled=lower):
-                logits = self.mlps[name](inputs[name]).float()  # [N, V]
+                logits = self.mlps[name](inputs[name]).to(masked_values.dtype)  # [N, V]: bfloat16 back to float32
             w = merge_weights(logits, seen, self.config.softmax)  # [N, V]
             weights[name] = w
             merged.append((w[..., None] * masked_values[:, :, group]).sum(1))

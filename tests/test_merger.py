@@ -201,3 +201,21 @@ def test_a_bfloat16_merger_multiplies_in_bfloat16_and_merges_close_to_float32():
     assert difference.max() < 0.02 and difference.mean() < 0.003
     float64 = NeuralMerger(8, BOUNDS, MergerConfig(precision="bfloat16")).double()
     assert float64(positions.double(), values.double(), seen).dtype == torch.float64  # gradient checks keep float64
+
+
+def test_the_merged_materials_gradient_matches_finite_differences():
+    # the MLPs' ReLUs work in place on their linear layers' outputs: backward must still see the right masks
+    positions, values, seen = random_inputs(n=8, v=3)
+    merger = NeuralMerger(3, BOUNDS, MergerConfig(hidden=8, frequencies=1)).double()
+    randomise(merger)
+    with torch.no_grad():
+        for p in merger.parameters():
+            p.mul_(0.3)
+    names = [name for name, _ in merger.named_parameters()]
+
+    def merged(*params):
+        return torch.func.functional_call(
+            merger, dict(zip(names, params)), (positions.double(), values.double(), seen)
+        )
+
+    assert torch.autograd.gradcheck(merged, [p.detach().clone().requires_grad_(True) for p in merger.parameters()])
