@@ -199,39 +199,55 @@ def table_dr_orderings(results: Path, name: str = EVAL_DR) -> str:
     return "\n".join(lines)
 
 
-def table_dr_resolutions(results: Path) -> str:
-    """The evaluation set under `dr` at 128 and at 256 px, object by object (those done at both): what the lift's
-    resolution changes in full's gain over proj-average and in full's 3D materials against the 2D predictions."""
-    runs = [
-        {o["object"]["name"]: o["figures"] for o in read(results, name)["models"]["dr"]["objects"]}
-        for name in (EVAL_DR, EVAL_DR_256)
-    ]
-    names = [name for name in runs[1] if name in runs[0]]
+def object_figures(results: Path, names: list[str], model: str) -> dict:
+    """{object: figures} of `model` from one or more results files of the same objects (say, full and proj-average
+    run apart): their relighting PSNRs merged, the materials from the first file that has them."""
+    merged: dict = {}
+    for name in names:
+        for o in read(results, name)["models"][model]["objects"]:
+            figures = merged.setdefault(o["object"]["name"], {"relight": {}})
+            figures["relight"].update({k: v for k, v in o["figures"]["relight"].items() if v is not None})
+            for key in ("materials_3d", "materials_2d"):
+                if o["figures"].get(key) and all(v is not None for v in o["figures"][key].values()):
+                    figures.setdefault(key, o["figures"][key])
+    return merged
+
+
+def table_resolutions(results: Path, models=("dr",), low=(EVAL_DR,), high=(EVAL_DR_256,)) -> str:
+    """The evaluation set at 128 px (`low` results files) and at 256 px (`high`), object by object (those done at
+    both): what the lift's resolution changes in full's gain over proj-average and in full's 3D materials against
+    the 2D predictions."""
     channels = ("basecolor", "roughness", "metallic")
+    lead = ["error model"] if len(models) > 1 else []
     lines = [
-        "| object | full - proj-average, 128 / 256 px | "
+        "| "
+        + " | ".join(lead + ["object", "full - proj-average, 128 / 256 px"])
+        + " | "
         + " | ".join(f"3D - 2D {c}, 128 / 256 px" for c in channels)
         + " |",
-        "| --- | ---: | ---: | ---: | ---: |",
+        "| " + " | ".join(["---"] * len(lead) + ["---"] + ["---:"] * 4) + " |",
     ]
 
-    def row(label: str, figures: list) -> str:
-        gain = [f["relight"]["full"] - f["relight"]["proj-average"] for f in figures]
-        cells = [" / ".join(f"{g:+.2f}" for g in gain)]
+    def row(label: list, figures: list) -> str:
+        cells = [" / ".join(f"{f['relight']['full'] - f['relight']['proj-average']:+.2f}" for f in figures)]
         for c in channels:
             cells.append(" / ".join(f"{f['materials_3d'][c] - f['materials_2d'][c]:+.2f}" for f in figures))
-        return f"| {label} | " + " | ".join(cells) + " |"
+        return "| " + " | ".join(label + cells) + " |"
 
-    for name in names:
-        lines.append(row(short(name), [runs[0][name], runs[1][name]]))
-    means = [
-        {
-            key: {k: sum(run[n][key][k] for n in names) / len(names) for k in run[names[0]][key]}
-            for key in ("relight", "materials_3d", "materials_2d")
-        }
-        for run in runs
-    ]
-    lines.append(row(f"**mean of {len(names)}**", means))
+    for model in models:
+        runs = [object_figures(results, list(names), model) for names in (low, high)]
+        names = [name for name in runs[1] if name in runs[0]]
+        tag = [f"`{model}`"] if lead else []
+        for name in names:
+            lines.append(row(tag + [short(name)], [runs[0][name], runs[1][name]]))
+        means = [
+            {
+                key: {k: sum(run[n][key][k] for n in names) / len(names) for k in run[names[0]][key]}
+                for key in ("relight", "materials_3d", "materials_2d")
+            }
+            for run in runs
+        ]
+        lines.append(row(tag + [f"**mean of {len(names)}**"], means))
     return "\n".join(lines)
 
 
@@ -476,7 +492,7 @@ TABLES = {
     "dr-orderings": (table_dr_orderings, [EVAL_DR]),
     "dr-eval-256": (partial(table_dr_eval, name=EVAL_DR_256), [EVAL_DR_256]),
     "dr-orderings-256": (partial(table_dr_orderings, name=EVAL_DR_256), [EVAL_DR_256]),
-    "dr-resolutions": (table_dr_resolutions, [EVAL_DR, EVAL_DR_256]),
+    "dr-resolutions": (table_resolutions, [EVAL_DR, EVAL_DR_256]),
     "dr-dev": (table_dr_dev, [DEV_DR]),
     "dr-ceilings": (table_dr_ceilings, [CEILINGS_DR]),
     "dr-tried": (table_dr_tried, [name for _, name, _ in DR_TRIED]),
