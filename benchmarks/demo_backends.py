@@ -4,11 +4,15 @@ difference. The two Gaussian Splatting runs part ways after a few hundred steps 
 rounding), so the difference is that of two equally valid reconstructions, not rounding.
 
     python -m benchmarks.demo_backends [--out runs/demo-backends] [--preset demo] [--tolerance 0.1]
-    python -m benchmarks.demo_backends --runs TORCH_RUN NUMBA_RUN     # compare two finished demo runs only
+                                       [--refine-seed 1]
+    python -m benchmarks.demo_backends --runs TORCH_RUN NUMBA_RUN [--seed-runs TORCH_RUN NUMBA_RUN]
 
-Each demo is run into OUT/torch and OUT/numba (stages done before are reused). Prints the table and the largest
-absolute difference; writes docs/results/demo-backends.json (with --results-dir, elsewhere) for the docs' table.
-Exit status 1 when a difference exceeds --tolerance dB.
+Each demo is run into OUT/torch and OUT/numba (stages done before are reused). With --refine-seed S each backend's
+demo also runs with the refinement seeded S instead (OUT/torch-refine-seedS, OUT/numba-refine-seedS: the same
+geometry and lift, another equally valid refinement), and every figure's change from that seed alone is printed
+beside: the spread the backends' difference is measured against. --runs / --seed-runs compare finished runs only.
+Prints the table and the largest absolute difference; writes docs/results/demo-backends.json (with --results-dir,
+elsewhere) for the docs' table. Exit status 1 when a difference between the backends exceeds --tolerance dB.
 """
 
 from __future__ import annotations
@@ -32,29 +36,53 @@ def demo_figures(run: Path) -> dict[str, dict[str, float]]:
     }
 
 
-def compare(torch_run: Path, numba_run: Path) -> dict:
-    """Both runs' figures and their differences (numba - torch), with the largest absolute one."""
-    ours, reference = demo_figures(numba_run), demo_figures(torch_run)
-    rows = [
+def differences(first_run: Path, second_run: Path) -> list[dict]:
+    """[{variant, row, first, second, difference (second - first)}] for every figure both runs have."""
+    second, first = demo_figures(second_run), demo_figures(first_run)
+    return [
         {
             "variant": variant,
             "row": row,
-            "torch": reference[variant][row],
-            "numba": ours[variant][row],
-            "difference": ours[variant][row] - reference[variant][row],
+            "first": first[variant][row],
+            "second": second[variant][row],
+            "difference": second[variant][row] - first[variant][row],
         }
-        for variant in reference
-        if variant in ours
-        for row in reference[variant]
-        if row in ours[variant]
+        for variant in first
+        if variant in second
+        for row in first[variant]
+        if row in second[variant]
     ]
-    return {
+
+
+def compare(torch_run: Path, numba_run: Path, seed_runs: tuple[Path, Path] | None = None) -> dict:
+    """Both runs' figures and their differences (numba - torch), with the largest absolute one; with `seed_runs`
+    (the same demos refined with another seed) also each figure's change from that seed alone, per backend."""
+    rows = [
+        {
+            "variant": r["variant"],
+            "row": r["row"],
+            "torch": r["first"],
+            "numba": r["second"],
+            "difference": r["difference"],
+        }
+        for r in differences(torch_run, numba_run)
+    ]
+    result = {
         "torch_run": str(torch_run),
         "numba_run": str(numba_run),
         "rows": rows,
         "largest": max(abs(r["difference"]) for r in rows),
         "seconds": {name: _seconds(run) for name, run in (("torch", torch_run), ("numba", numba_run))},
     }
+    if seed_runs is not None:
+        spread = {
+            backend: {(r["variant"], r["row"]): r["difference"] for r in differences(run, other)}
+            for backend, run, other in zip(("torch", "numba"), (torch_run, numba_run), seed_runs)
+        }
+        for r in rows:
+            r["seed_spread"] = {backend: spread[backend].get((r["variant"], r["row"])) for backend in spread}
+        result["seed_runs"] = [str(run) for run in seed_runs]
+    return result
 
 
 def _seconds(run: Path) -> dict:
@@ -63,12 +91,27 @@ def _seconds(run: Path) -> dict:
 
 
 def print_comparison(result: dict, tolerance: float) -> None:
-    print("| variant | figure | torch (dB) | numba (dB) | numba - torch |")
-    print("| --- | --- | ---: | ---: | ---: |")
+    seeds = "seed_runs" in result
+    extra = " refinement seed alone: torch, numba |" if seeds else ""
+    print("| variant | figure | torch (dB) | numba (dB) | numba - torch |" + extra)
+    print("| --- | --- | ---: | ---: | ---: |" + (" ---: |" if seeds else ""))
     for r in result["rows"]:
-        print(f"| {r['variant']} | {r['row']} | {r['torch']:.2f} | {r['numba']:.2f} | {r['difference']:+.2f} |")
+        line = f"| {r['variant']} | {r['row']} | {r['torch']:.2f} | {r['numba']:.2f} | {r['difference']:+.2f} |"
+        if seeds:
+            line += " " + ", ".join(_signed(r["seed_spread"][b]) for b in ("torch", "numba")) + " |"
+        print(line)
     verdict = "within" if result["largest"] <= tolerance else "NOT within"
     print(f"largest difference {result['largest']:.2f} dB: {verdict} {tolerance} dB")
+    if seeds:
+        print(f"largest change from the refinement seed alone: {largest_seed_spread(result):.2f} dB")
+
+
+def _signed(value) -> str:
+    return "—" if value is None else f"{value:+.2f}"
+
+
+def largest_seed_spread(result: dict) -> float:
+    return max(abs(v) for r in result["rows"] for v in r["seed_spread"].values() if v is not None)
 
 
 def main(argv=None) -> int:
@@ -76,20 +119,34 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=Path("runs/demo-backends"))
     parser.add_argument("--preset", default="demo", choices=("test", "demo"))
     parser.add_argument("--runs", nargs=2, type=Path, metavar=("TORCH_RUN", "NUMBA_RUN"), help="compare only")
+    parser.add_argument(
+        "--seed-runs", nargs=2, type=Path, metavar=("TORCH_RUN", "NUMBA_RUN"), help="with --runs: the same demos "
+        "refined with another seed"
+    )  # fmt: skip
+    parser.add_argument("--refine-seed", type=int, help="also run each backend's demo refined with this seed")
     parser.add_argument("--tolerance", type=float, default=0.1, help="dB (default 0.1)")
     parser.add_argument("--results-dir", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
+    if args.seed_runs and not args.runs:
+        parser.error("--seed-runs compares against --runs: give both")
     if args.runs:
-        torch_run, numba_run = args.runs
+        (torch_run, numba_run), seed_runs = args.runs, args.seed_runs
     else:
         from matspray.config import build_config
         from matspray.demo import run_demo
 
-        for backend in ("torch", "numba"):
-            config = build_config(args.preset, predictor="simulated", backend=backend)
-            run_demo(args.out / backend, preset=args.preset, config=config)
+        seeds = [(None, "")] + (
+            [(args.refine_seed, f"-refine-seed{args.refine_seed}")] if args.refine_seed is not None else []
+        )
+        for seed, suffix in seeds:
+            for backend in ("torch", "numba"):
+                config = build_config(args.preset, predictor="simulated", backend=backend, refine_seed=seed)
+                run_demo(args.out / f"{backend}{suffix}", preset=args.preset, config=config)
         torch_run, numba_run = args.out / "torch" / "run", args.out / "numba" / "run"
-    result = compare(torch_run, numba_run)
+        seed_runs = (
+            tuple(args.out / f"{b}{seeds[1][1]}" / "run" for b in ("torch", "numba")) if len(seeds) > 1 else None
+        )
+    result = compare(torch_run, numba_run, seed_runs)
     print_comparison(result, args.tolerance)
     write_json(args.results_dir / "demo-backends.json", {**result, "tolerance": args.tolerance})
     return 0 if result["largest"] <= args.tolerance else 1

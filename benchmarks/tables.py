@@ -163,9 +163,18 @@ def table_headline(results: Path) -> str:
 EVAL_DR = "generalise-eval-dr.json"
 EVAL_DR_256 = "generalise-eval-256px-dr.json"  # the same protocol with the objects at 256 px
 DEV_DR = "generalise-dev-dr.json"
+EVAL_THREE_256 = "generalise-eval-256px-three.json"  # paper, harsh, outliers at 256 px: full and proj-average
+EVAL_PA_128 = "generalise-eval-proj-average.json"  # the same three at 128 px: proj-average beside EVAL_NOPRIOR's full
 # the paper's relighting PSNR (dB): Table 2 (a subset of its objects) and the softmax ablation (all its objects)
 PAPER_ABLATION = {"full": 29.164, "supervised": 24.809, "proj-average": 25.555}
 PAPER_SOFTMAX = {"full": 27.282, "no-softmax": 24.600}
+
+
+def table_models_eval(results: Path, name: str = EVAL_THREE_256) -> str:
+    """Each error model's per-object table (benchmarks.generalise's format), one after the other."""
+    report = read(results, name)
+    models = [model for model in MODELS if model in report["models"]]
+    return "\n\n".join(f"`{model}`:\n\n" + "\n".join(object_table(report, model)).strip() for model in models)
 
 
 def table_dr_eval(results: Path, name: str = EVAL_DR) -> str:
@@ -467,16 +476,26 @@ DEMO_BACKENDS = "demo-backends.json"
 
 
 def table_demo_backends(results: Path) -> str:
-    """The demo's figures with backend torch and numba (benchmarks.demo_backends)."""
+    """The demo's figures with backend torch and numba (benchmarks.demo_backends), and where measured each figure's
+    change from the refinement's seed alone."""
     result = read(results, DEMO_BACKENDS)
-    lines = ["| variant | figure | torch (dB) | numba (dB) | numba - torch |", "| --- | --- | ---: | ---: | ---: |"]
-    lines += [
-        f"| {r['variant']} | {r['row']} | {r['torch']:.2f} | {r['numba']:.2f} | {r['difference']:+.2f} |"
-        for r in result["rows"]
+    seeds = "seed_runs" in result
+    extra = [" refinement seed 0 -> 1 alone: torch, numba |", " ---: |"] if seeds else ["", ""]
+    lines = [
+        "| variant | figure | torch (dB) | numba (dB) | numba - torch |" + extra[0],
+        "| --- | --- | ---: | ---: | ---: |" + extra[1],
     ]
+    for r in result["rows"]:
+        line = f"| {r['variant']} | {r['row']} | {r['torch']:.2f} | {r['numba']:.2f} | {r['difference']:+.2f} |"
+        if seeds:
+            line += " " + ", ".join(f"{r['seed_spread'][b]:+.2f}" for b in ("torch", "numba")) + " |"
+        lines.append(line)
     within = sum(abs(r["difference"]) <= result["tolerance"] for r in result["rows"])
     lines += ["", f"largest difference {result['largest']:.2f} dB; {within} of {len(result['rows'])} within "
               f"{result['tolerance']} dB"]  # fmt: skip
+    if seeds:
+        spread = max(abs(v) for r in result["rows"] for v in r["seed_spread"].values())
+        lines[-1] += f"; the refinement seed alone moves a figure by up to {spread:.2f} dB"
     return "\n".join(lines)
 
 
@@ -493,6 +512,11 @@ TABLES = {
     "dr-eval-256": (partial(table_dr_eval, name=EVAL_DR_256), [EVAL_DR_256]),
     "dr-orderings-256": (partial(table_dr_orderings, name=EVAL_DR_256), [EVAL_DR_256]),
     "dr-resolutions": (table_resolutions, [EVAL_DR, EVAL_DR_256]),
+    "three-eval-256": (table_models_eval, [EVAL_THREE_256]),
+    "three-resolutions": (
+        partial(table_resolutions, models=MODELS, low=(EVAL_NOPRIOR, EVAL_PA_128), high=(EVAL_THREE_256,)),
+        [EVAL_NOPRIOR, EVAL_PA_128, EVAL_THREE_256],
+    ),
     "dr-dev": (table_dr_dev, [DEV_DR]),
     "dr-ceilings": (table_dr_ceilings, [CEILINGS_DR]),
     "dr-tried": (table_dr_tried, [name for _, name, _ in DR_TRIED]),

@@ -27,3 +27,25 @@ def test_two_runs_are_compared_figure_by_figure_and_the_tolerance_decides(tmp_pa
     assert main(args + ["--tolerance", "0.25"]) == 0
     written = json.loads((tmp_path / "results" / "demo-backends.json").read_text())
     assert written["tolerance"] == 0.25 and len(written["rows"]) == 4
+
+
+def test_the_refinement_seeds_spread_is_shown_beside_each_figure(tmp_path, capsys):
+    runs = [fake_run(tmp_path / name, relight, metal) for name, relight, metal in (
+        ("torch", 25.0, 24.0), ("numba", 25.05, 23.8), ("torch-seed1", 25.3, 24.1), ("numba-seed1", 24.95, 23.8)
+    )]  # fmt: skip
+    result = compare(runs[0], runs[1], (runs[2], runs[3]))
+    spread = {(r["variant"], r["row"]): r["seed_spread"] for r in result["rows"]}
+    assert abs(spread["full", "relighting"]["torch"] - 0.3) < 1e-9
+    assert abs(spread["full", "relighting"]["numba"] + 0.1) < 1e-9 and abs(spread["full", "metallic"]["numba"]) < 1e-9
+    args = ["--runs", *map(str, runs[:2]), "--seed-runs", *map(str, runs[2:]), "--results-dir", str(tmp_path)]
+    assert main(args + ["--tolerance", "0.25"]) == 0
+    assert "largest change from the refinement seed alone: 0.30 dB" in capsys.readouterr().out
+    assert json.loads((tmp_path / "demo-backends.json").read_text())["seed_runs"] == [str(runs[2]), str(runs[3])]
+
+
+def test_seed_runs_without_runs_are_refused(capsys):
+    import pytest
+
+    with pytest.raises(SystemExit):
+        main(["--seed-runs", "a", "b"])
+    assert "--seed-runs compares against --runs" in capsys.readouterr().err
