@@ -13,8 +13,14 @@ $(DEMO_STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	# the pinned CPU build of torch first: an unpinned torch would pull a multi-GB CUDA build
-	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e ".[demo]"
+	$(PY) -m pip install --quiet --no-compile torch==2.13.0
+	$(PY) -m pip install --quiet --no-compile -e ".[demo]"
+	# pip byte-compiles one file after another: instead, compileall on every core (best effort: a file that does not
+	# compile, such as torch's Python 3.12 snippets, is left to compile on import), beside the compilation of backend
+	# numba's kernels, which the first run would otherwise wait for (the make fails if those do not compile)
+	$(PY) -m matspray.render.compile_kernels & \
+		$(PY) -m compileall -q -j 0 "$$($(PY) -c 'import sysconfig; print(sysconfig.get_path("purelib"))')" >/dev/null 2>&1; \
+		wait $$!
 	# Mitsuba's fast llvm_ad_rgb variant needs LLVM >= 16 (Debian: libllvm19); best effort, as root only.
 	# Without it `matspray synth` falls back to the slower scalar_rgb variant.
 	-@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! ldconfig -p | grep -q 'libLLVM.so.19'; then \
