@@ -19,6 +19,7 @@ torch's idle threads sleep after every operation, which makes many small operati
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -36,11 +37,24 @@ from matspray.render.backend import rendering_with
 from matspray.render.sh import sh_colors
 
 COMPILE = (
-    "import time, numpy as np\n"
+    "import json, time, numpy as np\n"
+    "from numba.core import event\n"
     "start = time.perf_counter()\n"
     "from matspray.render.numba_backend import ensure_compiled\n"
-    "ensure_compiled(np.float32)\n"
-    "print(time.perf_counter() - start)\n"
+    "with event.install_recorder('numba:compile') as recorder:\n"
+    "    ensure_compiled(np.float32)\n"
+    "total = time.perf_counter() - start\n"
+    "begun, parts = {}, {}\n"
+    "for stamp, ev in recorder.buffer:\n"
+    "    function = ev.data['dispatcher'].py_func\n"
+    "    if not function.__module__.startswith('matspray'):\n"
+    "        continue\n"
+    "    name = function.__module__.rsplit('.', 1)[-1] + '.' + function.__name__\n"
+    "    if ev.is_start:\n"
+    "        begun[name] = stamp\n"
+    "    else:\n"
+    "        parts[name] = parts.get(name, 0.0) + stamp - begun[name]\n"
+    "print(json.dumps({'total': total, 'parts': parts}))\n"
 )
 
 
@@ -85,7 +99,9 @@ def per_gaussian_step(n: int, backend: str, colour_of, leaves: tuple[str, ...]):
     return step
 
 
-def compile_seconds() -> float:
+def compile_seconds() -> tuple[float, dict[str, float]]:
+    """Seconds to compile every kernel in a fresh process with an empty cache, and per kernel of matspray (a kernel's
+    time includes the matspray kernels it calls, compiled within it)."""
     with tempfile.TemporaryDirectory(prefix="matspray-numba-cache-") as cache:
         done = subprocess.run(
             [sys.executable, "-c", COMPILE],
@@ -94,7 +110,8 @@ def compile_seconds() -> float:
             text=True,
             check=True,
         )
-    return float(done.stdout.strip().splitlines()[-1])
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    return result["total"], result["parts"]
 
 
 def main() -> None:
@@ -125,8 +142,10 @@ def main() -> None:
                 f"  oriented normals ({backend}), {n} Gaussians, forward+backward: {best:.2f} ms (median {median:.2f})"
             )
     if args.compile:
-        seconds = [compile_seconds() for _ in range(args.compile_runs)]
-        print(f"  numba kernels compiled from an empty cache: {', '.join(f'{s:.1f}' for s in seconds)} s")
+        runs = [compile_seconds() for _ in range(args.compile_runs)]
+        print(f"  numba kernels compiled from an empty cache: {', '.join(f'{total:.1f}' for total, _ in runs)} s")
+        parts = sorted(runs[0][1].items(), key=lambda item: -item[1])
+        print("    by kernel (first run): " + ", ".join(f"{name} {seconds:.1f}" for name, seconds in parts) + " s")
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 
