@@ -90,23 +90,30 @@ def _seconds(run: Path) -> dict:
     return json.loads(path.read_text()) if path.exists() else {}
 
 
-def print_comparison(result: dict, tolerance: float) -> None:
+def comparison_lines(result: dict) -> list[str]:
+    """The comparison as a markdown table: each figure with either backend, their difference and, where measured,
+    its change from the refinement seed alone under each backend."""
     seeds = "seed_runs" in result
-    extra = " refinement seed alone: torch, numba |" if seeds else ""
-    print("| variant | figure | torch (dB) | numba (dB) | numba - torch |" + extra)
-    print("| --- | --- | ---: | ---: | ---: |" + (" ---: |" if seeds else ""))
+    extra = (" refinement seed alone: torch, numba |", " ---: |") if seeds else ("", "")
+    lines = ["| variant | figure | torch (dB) | numba (dB) | numba - torch |" + extra[0]]
+    lines.append("| --- | --- | ---: | ---: | ---: |" + extra[1])
     for r in result["rows"]:
         line = f"| {r['variant']} | {r['row']} | {r['torch']:.2f} | {r['numba']:.2f} | {r['difference']:+.2f} |"
         if seeds:
-            line += " " + ", ".join(_signed(r["seed_spread"][b]) for b in ("torch", "numba")) + " |"
-        print(line)
+            line += " " + ", ".join(signed(r["seed_spread"][b]) for b in ("torch", "numba")) + " |"
+        lines.append(line)
+    return lines
+
+
+def print_comparison(result: dict, tolerance: float) -> None:
+    print("\n".join(comparison_lines(result)))
     verdict = "within" if result["largest"] <= tolerance else "NOT within"
     print(f"largest difference {result['largest']:.2f} dB: {verdict} {tolerance} dB")
-    if seeds:
+    if "seed_runs" in result:
         print(f"largest change from the refinement seed alone: {largest_seed_spread(result):.2f} dB")
 
 
-def _signed(value) -> str:
+def signed(value) -> str:
     return "—" if value is None else f"{value:+.2f}"
 
 

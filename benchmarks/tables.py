@@ -478,25 +478,15 @@ DEMO_BACKENDS = "demo-backends.json"
 def table_demo_backends(results: Path) -> str:
     """The demo's figures with backend torch and numba (benchmarks.demo_backends), and where measured each figure's
     change from the refinement's seed alone."""
+    from benchmarks.demo_backends import comparison_lines, largest_seed_spread
+
     result = read(results, DEMO_BACKENDS)
-    seeds = "seed_runs" in result
-    extra = [" refinement seed 0 -> 1 alone: torch, numba |", " ---: |"] if seeds else ["", ""]
-    lines = [
-        "| variant | figure | torch (dB) | numba (dB) | numba - torch |" + extra[0],
-        "| --- | --- | ---: | ---: | ---: |" + extra[1],
-    ]
-    for r in result["rows"]:
-        line = f"| {r['variant']} | {r['row']} | {r['torch']:.2f} | {r['numba']:.2f} | {r['difference']:+.2f} |"
-        if seeds:
-            line += " " + ", ".join(f"{r['seed_spread'][b]:+.2f}" for b in ("torch", "numba")) + " |"
-        lines.append(line)
     within = sum(abs(r["difference"]) <= result["tolerance"] for r in result["rows"])
-    lines += ["", f"largest difference {result['largest']:.2f} dB; {within} of {len(result['rows'])} within "
-              f"{result['tolerance']} dB"]  # fmt: skip
-    if seeds:
-        spread = max(abs(v) for r in result["rows"] for v in r["seed_spread"].values())
-        lines[-1] += f"; the refinement seed alone moves a figure by up to {spread:.2f} dB"
-    return "\n".join(lines)
+    summary = f"largest difference {result['largest']:.2f} dB; {within} of {len(result['rows'])} within "
+    summary += f"{result['tolerance']} dB"
+    if "seed_runs" in result:
+        summary += f"; the refinement seed alone moves a figure by up to {largest_seed_spread(result):.2f} dB"
+    return "\n".join([*comparison_lines(result), "", summary])
 
 
 # name -> (function of the results folder, the result files it reads)
