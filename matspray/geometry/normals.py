@@ -8,7 +8,7 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
-from matspray.render.backend import active_backend
+from matspray.render.backend import compiled_on_cpu
 from matspray.render.gbuffer import orient_normals
 from matspray.render.rasterize import rasterize
 
@@ -20,7 +20,7 @@ def shortest_axes(gaussians: Gaussians) -> Tensor:  # [N, 3] unit, unoriented; d
 def oriented_normals(gaussians: Gaussians, camera: Camera) -> Tensor:  # [N, 3] unit
     """Each Gaussian's shortest axis, flipped to face `camera` (the side the camera sees). Within a block that renders
     with numba, on the CPU, by compiled loops (matspray.render.numba_normals), which training calls every step."""
-    if active_backend() == "numba" and gaussians.means.device.type == "cpu":
+    if compiled_on_cpu(gaussians.means.device):
         from matspray.render.numba_normals import CompiledNormals  # numba loads where it renders
 
         return CompiledNormals.apply(gaussians.quats, gaussians.log_scales, gaussians.means, camera.center)

@@ -201,6 +201,12 @@ def active_backend() -> str:
     return "torch" if use is None else use.backend
 
 
+def compiled_on_cpu(device) -> bool:
+    """Whether per-Gaussian work on `device` (SH colour, normals) runs in backend numba's compiled loops: inside a
+    block that renders with numba, on the CPU."""
+    return active_backend() == "numba" and torch.device(device).type == "cpu"
+
+
 def note_render(kind: str) -> None:
     """Count one call of a renderer ('torch', 'numba', 'gsplat', or 'rays' / 'rays-numba' for lifting's torch /
     compiled ray tracer) in the active block."""

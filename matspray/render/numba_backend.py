@@ -340,6 +340,14 @@ def _unrecorded_backward(common: tuple, slot, state: tuple, grad):
     return entry_grads
 
 
+def _dispatchers(*modules) -> list:
+    """Every compiled function of the kernel modules (those inlined into others never compile on their own, and a
+    kernel not warmed up, such as the unrecorded backward, compiles later: neither moves the count of misses)."""
+    from numba.core.dispatcher import Dispatcher
+
+    return [f for m in modules for f in vars(m).values() if isinstance(f, Dispatcher) and f.__module__ == m.__name__]
+
+
 def _cache_misses(dispatchers) -> int:
     """How many compilations numba's on-disk cache could not spare these kernels so far in this process."""
     return sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
@@ -371,25 +379,8 @@ def ensure_compiled(np_dtype) -> None:
         return
     from matspray.render import numba_normals, numba_rays, numba_sh
 
-    module, projections = kernels(), projection()
-    dispatchers = (
-        module.bin_tiles,
-        module.partition,
-        module.forward,
-        module.backward_recorded,
-        module.reduce_entries,
-        projections.project,
-        projections.project_backward,
-        projections._radix_order,
-        projections._merge_order,
-        numba_sh.forward,
-        numba_sh.backward,
-        numba_normals.forward,
-        numba_normals.backward,
-        numba_rays.count_candidates,
-        numba_rays.trace_entries,
-        numba_rays.compact,
-    )
+    module = kernels()
+    dispatchers = _dispatchers(module, projection(), numba_sh, numba_normals, numba_rays)
     misses = _cache_misses(dispatchers)
     start = time.perf_counter()
     _READY.add(key)  # before the call below, which builds a _Layout and comes back here

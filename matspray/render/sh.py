@@ -9,7 +9,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from matspray.data.camera import Camera
-from matspray.render.backend import active_backend
+from matspray.render.backend import compiled_on_cpu
 from matspray.render.sh_constants import MAX_DEGREE, SH_C0, SH_C1, SH_C2, SH_C3, num_sh_bases
 
 
@@ -80,7 +80,7 @@ def view_directions(means: Tensor, camera: Camera) -> Tensor:  # [N, 3] -> [N, 3
 def sh_colors(gaussians, camera: Camera, degree: int | None = None) -> Tensor:  # -> [N, 3]
     """Colour of every Gaussian as seen from `camera` (differentiable w.r.t. means and sh). Within a block that renders
     with numba, on the CPU, by its compiled loops (matspray.render.numba_sh), which training calls every step."""
-    if active_backend() == "numba" and gaussians.means.device.type == "cpu":
+    if compiled_on_cpu(gaussians.means.device):
         from matspray.render.numba_sh import CompiledSH  # numba loads where it renders
 
         return CompiledSH.apply(gaussians.sh, gaussians.means, camera.center, checked_degree(gaussians.sh, degree))
