@@ -26,47 +26,47 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
+import numpy as np
 import torch
 
-from benchmarks.rasterize import sphere_object
+from benchmarks.rasterize import interleaved_ms, sphere_object
 from matspray.data.camera import Camera
 from matspray.eval.metrics import ssim_loss
 from matspray.geometry.normals import oriented_normals
 from matspray.render.backend import rendering_with
 from matspray.render.sh import sh_colors
 
-COMPILE = (
-    "import json, time, numpy as np\n"
-    "from numba.core import event\n"
-    "start = time.perf_counter()\n"
-    "from matspray.render.numba_backend import ensure_compiled\n"
-    "with event.install_recorder('numba:compile') as recorder:\n"
-    "    ensure_compiled(np.float32)\n"
-    "total = time.perf_counter() - start\n"
-    "begun, parts = {}, {}\n"
-    "for stamp, ev in recorder.buffer:\n"
-    "    function = ev.data['dispatcher'].py_func\n"
-    "    if not function.__module__.startswith('matspray'):\n"
-    "        continue\n"
-    "    name = function.__module__.rsplit('.', 1)[-1] + '.' + function.__name__\n"
-    "    if ev.is_start:\n"
-    "        begun[name] = stamp\n"
-    "    else:\n"
-    "        parts[name] = parts.get(name, 0.0) + stamp - begun[name]\n"
-    "print(json.dumps({'total': total, 'parts': parts}))\n"
-)
-
 
 def milliseconds(step, repeats: int) -> tuple[float, float]:
     """Best and median wall milliseconds of `step()` over `repeats` calls, after one warm-up call."""
-    step()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        step()
-        times.append((time.perf_counter() - start) * 1000.0)
+    times = interleaved_ms({"step": step}, repeats)["step"]
     return min(times), statistics.median(times)
+
+
+def compile_report() -> None:
+    """Compile every kernel (in a process whose numba cache is empty) and print, as one JSON line, the total seconds
+    and the seconds per kernel of matspray (a kernel's time includes the matspray kernels compiled within it)."""
+    from numba.core import event
+
+    from matspray.render.numba_backend import ensure_compiled
+
+    start = time.perf_counter()
+    with event.install_recorder("numba:compile") as recorder:
+        ensure_compiled(np.float32)
+    total = time.perf_counter() - start
+    begun, parts = {}, {}
+    for stamp, ev in recorder.buffer:
+        function = ev.data["dispatcher"].py_func
+        if not function.__module__.startswith("matspray"):
+            continue
+        name = function.__module__.rsplit(".", 1)[-1] + "." + function.__name__
+        if ev.is_start:
+            begun[name] = stamp
+        else:
+            parts[name] = parts.get(name, 0.0) + stamp - begun[name]
+    print(json.dumps({"total": total, "parts": parts}))
 
 
 def ssim_step(size: int):
@@ -104,8 +104,9 @@ def compile_seconds() -> tuple[float, dict[str, float]]:
     time includes the matspray kernels it calls, compiled within it)."""
     with tempfile.TemporaryDirectory(prefix="matspray-numba-cache-") as cache:
         done = subprocess.run(
-            [sys.executable, "-c", COMPILE],
+            [sys.executable, "-c", "from benchmarks.training_parts import compile_report; compile_report()"],
             env=dict(os.environ, NUMBA_CACHE_DIR=cache),
+            cwd=Path(__file__).resolve().parents[1],
             capture_output=True,
             text=True,
             check=True,
