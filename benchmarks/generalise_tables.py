@@ -32,6 +32,11 @@ def object_figures(metrics: dict) -> dict:
         "materials_3d": {c: full[c]["psnr"] for c in CHANNELS if c in full},
         "materials_no_prior": {c: baseline[c]["psnr"] for c in CHANNELS if c in baseline},
         "materials_2d": {c: predictions[c]["psnr"] for c in CHANNELS if c in predictions},
+        "normal_error": {
+            v: variants[v]["summary"]["normals"]["error_deg"]
+            for v in VARIANTS
+            if "normals" in variants.get(v, {}).get("summary", {})
+        },
     }
 
 
@@ -108,7 +113,9 @@ def model_table(model: str, per_object: list[dict], summary: dict, variants) -> 
     head = ["object", "train light", "relit under"] + [f"relight {v}" for v in variants]
     baseline = BASELINE in variants  # the no-prior variant's materials, beside full's
     head += [f"3D {SHORT[c]}" for c in CHANNELS] + ([f"no-prior {SHORT[c]}" for c in CHANNELS] if baseline else [])
-    head += [f"2D {SHORT[c]}" for c in CHANNELS] + ["s"]
+    head += [f"2D {SHORT[c]}" for c in CHANNELS]
+    normals = [v for v in variants if any(v in o["figures"].get("normal_error", {}) for o in per_object)]
+    head += [f"normals {v} (deg)" for v in normals] + ["s"]  # results of older versions have no normal errors
     lines = [f"### error model `{model}` ({label})", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for o in per_object:
         f = o["figures"]
@@ -117,12 +124,16 @@ def model_table(model: str, per_object: list[dict], summary: dict, variants) -> 
         cells += [fmt(f["materials_3d"].get(c)) for c in CHANNELS]
         cells += [fmt(f.get("materials_no_prior", {}).get(c)) for c in CHANNELS] if baseline else []
         cells += [fmt(f["materials_2d"].get(c)) for c in CHANNELS]
+        cells += [fmt(f.get("normal_error", {}).get(v)) for v in normals]
         lines.append("| " + " | ".join(cells + [f"{o['seconds']:.0f}"]) + " |")
     s3, s2 = summary["materials_3d"], summary["materials_2d"]
     mean = [f"**mean of {len(per_object)}**", "", ""] + [fmt(summary["relight"].get(v)) for v in variants]
     for group in (s3, summary["materials_no_prior"]) if baseline else (s3,):
         mean += [fmt(group[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(group["metallic"])]
     mean += [fmt(s2[c].get("psnr")) for c in CHANNELS[:2]] + [metallic_mean(s2["metallic"])]
+    for v in normals:
+        errors = [o["figures"]["normal_error"][v] for o in per_object if v in o["figures"].get("normal_error", {})]
+        mean.append(fmt(sum(errors) / len(errors)))
     lines.append("| " + " | ".join(mean + [f"{sum(o['seconds'] for o in per_object) / len(per_object):.0f}"]) + " |")
     counted = {k: w for k, w in summary["wins"].items() if w["of"]}  # a pair with a variant not run has no count
     lines += ["", "wins: " + ", ".join(f"{k} {w['wins']}/{w['of']}" for k, w in counted.items()), ""]

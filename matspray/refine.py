@@ -12,8 +12,10 @@ into a G-buffer, and
   - keeps the environment map smooth: `light_tv_weight` times the total variation of its log radiance
     (`render.latlong.total_variation`; the released code regularises its map by total variation too).
 Before that, `light_warmup` steps fit the environment map alone, with the materials the variant starts
-from. Geometry is frozen, so each view's blending weights are computed once and reused every step (and
-the merger runs only for the Gaussians that cover at least `min_coverage` pixels of the step's view).
+from. Variants with the PBR loss also refine each Gaussian's shading normal by it (`matspray.shading_normals`;
+`normal_lr`, 0 keeps the geometry's), held near the geometry's normal, or a predicted one, by `normal_prior_weight`.
+Positions, shapes and opacities are frozen, so each view's blending weights are computed once and reused every
+step (and the merger runs only for the Gaussians that cover at least `min_coverage` pixels of the step's view).
 With a directional visibility per Gaussian (`RefineInputs.visibility`; only with `--shadows on`, off by
 default), the PBR render is shadowed (`render.visibility`), so the photo loss does not push shadows into
 the base color.
@@ -45,6 +47,7 @@ from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from matspray.render.latlong import total_variation
 from matspray.render.visibility import gaussian_shadows
+from matspray.shading_normals import ShadingNormals, normal_prior
 from matspray.variants import Variant, get_variant
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")
@@ -77,6 +80,10 @@ class RefineConfig:
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
     align_view_gains: bool = False  # divide each view's base colour (lifted values and 2D map) by its gain against the
     # multi-view average (`merger.view_gains`): per-view exposure and white balance removed before any variant fuses
+    normal_lr: float = 1e-3  # Adam's rate for the per-Gaussian shading normals (variants with the PBR loss; about the
+    # radians a normal turns per step); 0: shade with the geometry's normals, frozen
+    normal_prior_weight: float = 0.1  # weight of 1 - |cos| between each refined normal and its target (the geometry's
+    # normal, or the lifted predicted one): the photo loss alone also turns normals to fake shading it cannot explain
     basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
@@ -99,6 +106,8 @@ class RefineConfig:
             "min_coverage",
             "light_warmup",
             "basecolor_spread_weight",
+            "normal_lr",
+            "normal_prior_weight",
         ):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
@@ -110,6 +119,11 @@ class RefineConfig:
     @property
     def kind(self) -> Variant:
         return get_variant(self.variant)
+
+    @property
+    def refines_normals(self) -> bool:
+        """Whether this variant's normals are trained: only the PBR loss sees them."""
+        return self.kind.learns_light and self.normal_lr > 0
 
 
 @dataclass(frozen=True)
@@ -124,6 +138,7 @@ class RefineInputs:
     targets: list[Tensor]  # V 2D maps [H, W, 5] (base colour linear, roughness, metallic)
     bounds: Tensor  # [2, 3] object box (the merger's positional encoding)
     visibility: Tensor | None = None  # [N, D] directional visibility that shadows the PBR render; None: unshadowed
+    normal_targets: Tensor | None = None  # [N, 3] unit: what the refined normals are held near; None: `normals`
 
 
 class MaterialSource(nn.Module):
@@ -308,6 +323,7 @@ def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
         "photo": config.photo_weight,
         "light_tv": config.light_tv_weight,
         "spread": config.basecolor_spread_weight,
+        "normal_prior": config.normal_prior_weight,
     }
     return sum(weights[name] * value for name, value in terms.items())
 
@@ -470,6 +486,10 @@ def refine(
             warm_up_light(training, last_materials, normals, envmap, config, generator, progress)
             if warmed_lights is not None:
                 warmed_lights[key] = (envmap.log_map.detach().clone(), generator.get_state())
+    shading = ShadingNormals(normals).to(device) if config.refines_normals else None
+    if shading is not None:  # after the warm-up, which lights the geometry's normals
+        groups.append({"params": list(shading.parameters()), "lr": config.normal_lr, "name": "shading normals"})
+    targets = normals if inputs.normal_targets is None else inputs.normal_targets
     optimizer = torch.optim.Adam(groups)
 
     def refine_losses(index: int):
@@ -479,9 +499,15 @@ def refine(
         merged, weights = source(active, return_weights=True)
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
-        terms = view_losses(training, index, materials, normals, envmap, config, with_material=variant.uses_maps)
+        shading_normals = normals if shading is None else shading()
+        terms = view_losses(
+            training, index, materials, shading_normals, envmap, config, with_material=variant.uses_maps
+        )
         if config.basecolor_spread_weight > 0 and variant.softmax and "base_color" in weights:
             terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
+        if shading is not None and config.normal_prior_weight > 0:
+            seen = training.frozen.visible_ids[index]  # the normals this view's photo loss reaches
+            terms["normal_prior"] = normal_prior(shading_normals[seen], targets[seen])
         return terms, total_loss(terms, config)
 
     def log(step: int, terms: dict, bar) -> None:
@@ -496,6 +522,7 @@ def refine(
         optimizer, len(training), config.iterations, refine_losses, generator, f"refine [{variant.name}]", progress, log
     )
     with torch.no_grad():
+        final_normals = normals if shading is None else shading().detach()
         return RefineResult(
-            source().detach(), normals, source, envmap, history, inputs.visibility, training.frozen.describe()
+            source().detach(), final_normals, source, envmap, history, inputs.visibility, training.frozen.describe()
         )

@@ -1,6 +1,7 @@
 """The silhouette-counting (union) figure next to the object-mask (GT) one, against hand-computed values."""
 
 import math
+from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
@@ -219,3 +220,17 @@ def test_the_mesh_gap_line_states_both_gaps():
         "Relighting PSNR of the mesh is below the Gaussian asset's by -0.77 dB under "
         f"the object mask (GT) and 2.40 dB under the {UNION_LABEL} (negative: above)."
     )
+
+
+def test_score_renders_reports_the_normals_angle_on_the_object_unsigned():
+    """Rendered normals 30 degrees off on the object (and flipped: a shading normal has no sign), anything off it:
+    the mean error is 30 degrees; without true normals there is no figure."""
+    view, truth, render = fake_object(extra=False)
+    angle = math.radians(30.0)
+    true_normal, rendered = torch.tensor([0.0, 0.0, 1.0]), torch.tensor([math.sin(angle), 0.0, -math.cos(angle)])
+    normals = torch.where(square()[..., None] > 0, rendered, torch.tensor([1.0, 0.0, 0.0]))
+    truth = replace(truth, normals=true_normal.expand(SIZE, SIZE, 3))
+    render = replace(render, normals=3.0 * normals)  # blended normals are not unit
+    summary = score_renders([render], [view], [truth], ["sky"], None)["summary"]
+    assert summary["normals"]["error_deg"] == pytest.approx(30.0, abs=1e-3) and summary["normals"]["views"] == 1
+    assert "normals" not in score_renders([replace(render, normals=None)], [view], [truth], ["sky"], None)["summary"]

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
 from tqdm import tqdm
 
 from matspray.asset import read_asset
@@ -27,6 +28,7 @@ from matspray.eval.lpips import load_lpips
 from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
 from matspray.eval.tables import UNION, write_tables
+from matspray.geometry.evaluate import true_normals
 from matspray.objectmasks import ObjectMasks, read_object_masks
 from matspray.objectregion import mask_iou
 from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views
@@ -48,6 +50,7 @@ class GroundTruth:
     roughness: torch.Tensor  # [H, W]
     metallic: torch.Tensor  # [H, W]
     relit: dict[str, torch.Tensor]  # env name -> [H, W, 3] linear
+    normals: torch.Tensor | None = None  # [H, W, 3] world, unit (the synth object's `{view}_normal.exr`); None: none
 
 
 def relight_env_names(view: View) -> list[str]:
@@ -64,7 +67,7 @@ def read_view_truth(view: View) -> GroundTruth:
     for env in relight_env_names(view):
         rgb, _ = read_image(view.path.with_name(f"{view.name}_relight_{env}.png"))
         relit[env] = rgb
-    return GroundTruth(mask, maps.basecolor, maps.roughness, maps.metallic, relit)
+    return GroundTruth(mask, maps.basecolor, maps.roughness, maps.metallic, relit, true_normals(view))
 
 
 def load_relight_lights(data: Path, names: list[str], device="cpu"):
@@ -91,6 +94,7 @@ class ViewRenders:
     roughness: torch.Tensor  # [H, W]
     metallic: torch.Tensor  # [H, W]
     alpha: torch.Tensor  # [H, W] coverage
+    normals: torch.Tensor | None = None  # [H, W, 3] world, blended (any length); None: the renderer has none
 
 
 def asset_renders(asset, view: View, lights: dict) -> ViewRenders:
@@ -114,6 +118,7 @@ def asset_renders(asset, view: View, lights: dict) -> ViewRenders:
             gbuffer.roughness.cpu().clamp(0, 1),
             gbuffer.metallic.cpu().clamp(0, 1),
             gbuffer.alpha.cpu(),
+            gbuffer.normals.cpu(),
         )
 
 
@@ -189,8 +194,15 @@ def score_renders(
         alphas_metal.append(render.alpha)
         truths_metal.append(truth.metallic)
         masks_metal.append(truth.mask)
+        if truth.normals is not None and render.normals is not None and bool((truth.mask > 0.5).any()):
+            # unsigned: the shading normal is flipped to face the camera, a true normal seen from behind is not
+            cosine = (F.normalize(render.normals, dim=-1) * truth.normals).sum(-1).abs().clamp(max=1.0)
+            record["normal_error_deg"] = float(torch.rad2deg(torch.acos(cosine))[truth.mask > 0.5].mean())
         per_view.append(record)
     summary = {key: average_metrics(values) for key, values in records.items()}
+    normal_errors = [r["normal_error_deg"] for r in per_view if "normal_error_deg" in r]
+    if normal_errors:  # mean angle between the rendered and the true normals on the object, over the test views
+        summary["normals"] = {"error_deg": sum(normal_errors) / len(normal_errors), "views": len(normal_errors)}
     # metallic PSNR: pooled over the views with the paper's infinity rule, under both regions
     metallic = metallic_psnr_over_objects(
         [(torch.stack(preds_metal), torch.stack(truths_metal), torch.stack(masks_metal))]

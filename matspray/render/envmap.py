@@ -278,7 +278,18 @@ class EnvironmentMap(nn.Module):
         return sample_latlong(self.map, directions)
 
     def prefilter(self, levels=DEFAULT_LEVELS) -> PrefilteredEnvironment:
-        return prefilter_latlong(self.map, levels)
+        """The split-sum maps of the current radiance. A fixed light (not learnable, e.g. a light probe) is
+        prefiltered once and the result reused until its map changes (in place or by device or dtype): refinement
+        asks for it every step."""
+        if self.log_map.requires_grad:
+            return prefilter_latlong(self.map, levels)
+        key = (tuple(levels), self.log_map._version, self.log_map.data_ptr(), self.log_map.device, self.log_map.dtype)
+        cached = getattr(self, "_prefiltered", None)
+        if cached is None or cached[0] != key:
+            with torch.no_grad():
+                cached = (key, prefilter_latlong(self.map, levels))
+            self._prefiltered = cached
+        return cached[1]
 
     def lookup_specular(self, directions: Tensor, roughness: Tensor) -> Tensor:  # [..., 3], [...] -> [..., 3]
         """Convenience: prefilter and look up. Prefilter once and reuse the result when shading often."""

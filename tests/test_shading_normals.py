@@ -1,0 +1,144 @@
+"""Shading normals refined by the rendering loss (matspray.shading_normals, used by matspray.refine)."""
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from matspray.asset import Asset
+from matspray.errors import SettingError
+from matspray.geometry.normals import angular_error_degrees
+from matspray.lift import LiftConfig, lift
+from matspray.refine import RefineConfig, RefineInputs, refine
+from matspray.relight import render_gbuffer
+from matspray.render.envmap import EnvironmentMap
+from matspray.shading_normals import ShadingNormals, angle_change_degrees, normal_prior
+from tests.scenes import material_scene, sky_map
+
+BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])
+
+
+@pytest.fixture(scope="module")
+def scene_with_tilted_normals():
+    """The disk sphere's views (rendered with its true normals, materials and light), lifted, and the same normals
+    each tilted by ~25 degrees in a random direction: the geometry's normals a refinement starts from."""
+    gaussians, normals, materials, views, maps = material_scene(n_views=8)
+    lifted = lift(
+        gaussians,
+        [v.camera for v in views],
+        maps,
+        [v.alpha for v in views],
+        [v.name for v in views],
+        LiftConfig(samples_per_side=2),
+        progress=False,
+    )
+    kept, true_normals = gaussians.subset(lifted.kept), normals[lifted.kept]
+    generator = torch.Generator().manual_seed(3)
+    side = F.normalize(torch.linalg.cross(true_normals, torch.randn(true_normals.shape, generator=generator)), dim=-1)
+    tilted = F.normalize(true_normals + 0.47 * side, dim=-1)  # tan(25 deg) = 0.47
+    return kept, true_normals, tilted, views, maps, lifted, materials[lifted.kept]
+
+
+def known_light() -> EnvironmentMap:  # the light the views were rendered under, at the same size
+    return EnvironmentMap.from_tensor(sky_map(), learnable=False)
+
+
+def refine_tilted(scene, start=None, targets=None, true_materials=False, **settings):
+    """Refine `full` from the tilted normals (or `start`) under the true light; with `true_materials` every view's
+    lifted value is the Gaussian's true material and the merger is frozen, so only the normals can explain the
+    photos."""
+    gaussians, _, tilted, views, maps, lifted, materials = scene
+    values = materials[:, None].expand(-1, len(views), -1).contiguous() if true_materials else lifted.values
+    start = tilted if start is None else start
+    inputs = RefineInputs(gaussians, start, values, lifted.seen, views, maps, BOUNDS, normal_targets=targets)
+    frozen_materials = {"merger_lr": 0.0, "material_weight": 0.0} if true_materials else {}
+    config = RefineConfig(
+        **{"iterations": 150, "envmap_height": 8, "light_warmup": 0, "seed": 0, **frozen_materials, **settings}
+    )
+    return refine(inputs, config, progress=False, light=known_light())
+
+
+def mean_error(normals, truth) -> float:
+    return float(angle_change_degrees(normals, truth).mean())
+
+
+def rendered_error(scene, normals) -> float:
+    """Mean angle (degrees) between the blended normals of `normals` and of the true ones, over the views' object
+    pixels: what shading sees (one pixel blends several Gaussians, so single normals are not all determined)."""
+    gaussians, truth, _, views, *_ = scene
+    errors = []
+    for view in views:
+        zeros = torch.zeros(len(gaussians), 5)
+        got, want = (render_gbuffer(Asset(gaussians, zeros, n), view.camera) for n in (normals, truth))
+        errors.append(angular_error_degrees(got.normals, want.normals)[want.alpha > 0.5])
+    return float(torch.cat(errors).mean())
+
+
+def test_normal_prior_is_zero_when_aligned_either_way_and_one_at_right_angles():
+    n = F.normalize(torch.randn(50, 3, dtype=torch.float64), dim=-1)
+    assert float(normal_prior(n, n)) == pytest.approx(0.0, abs=1e-12)
+    assert float(normal_prior(n, -n)) == pytest.approx(0.0, abs=1e-12)
+    perpendicular = F.normalize(torch.linalg.cross(n, torch.randn(50, 3, dtype=torch.float64)), dim=-1)
+    assert float(normal_prior(n, perpendicular)) == pytest.approx(1.0, abs=1e-12)
+    empty = torch.zeros(0, 3, requires_grad=True)
+    assert normal_prior(empty, empty).item() == 0.0 and normal_prior(empty, empty).requires_grad
+
+
+def test_the_shading_normals_gradient_matches_finite_differences():
+    initial = F.normalize(torch.randn(6, 3, dtype=torch.float64), dim=-1)
+    targets = F.normalize(torch.randn(6, 3, dtype=torch.float64), dim=-1)
+    shading = ShadingNormals(initial).double()
+    weights = torch.randn(6, 3, dtype=torch.float64)
+
+    def loss(direction):
+        normals = F.normalize(direction, dim=-1, eps=1e-12)
+        return normal_prior(normals, targets) + (normals * weights).sum()
+
+    assert torch.allclose(shading(), initial)
+    assert torch.autograd.gradcheck(loss, (shading.direction.detach().clone().requires_grad_(),))
+
+
+def test_the_photo_loss_turns_tilted_normals_towards_the_true_ones_and_leaves_true_ones(scene_with_tilted_normals):
+    """With the true materials and light nothing but the normals is wrong: refinement halves their rendered error,
+    and started at the truth it stays there. (With the merger's imperfect materials the normals also absorb
+    material errors: hence the prior.)"""
+    truth, tilted = scene_with_tilted_normals[1:3]
+    before = rendered_error(scene_with_tilted_normals, tilted)
+    turned = refine_tilted(scene_with_tilted_normals, true_materials=True, normal_lr=1e-2, normal_prior_weight=0.0)
+    assert rendered_error(scene_with_tilted_normals, turned.normals) < 0.6 * before, before
+    assert torch.allclose(turned.normals.norm(dim=-1), torch.ones(len(truth)), atol=1e-5)
+    kept = refine_tilted(
+        scene_with_tilted_normals, start=truth, true_materials=True, normal_lr=1e-3, normal_prior_weight=0.0
+    )
+    assert rendered_error(scene_with_tilted_normals, kept.normals) < 0.5
+
+
+def test_normals_stay_frozen_at_rate_zero_and_in_variants_without_the_pbr_loss(scene_with_tilted_normals):
+    tilted = scene_with_tilted_normals[2]
+    assert torch.equal(refine_tilted(scene_with_tilted_normals, iterations=20, normal_lr=0.0).normals, tilted)
+    for variant in ("supervised", "proj-average"):
+        result = refine_tilted(scene_with_tilted_normals, iterations=20, normal_lr=1e-2, variant=variant)
+        assert torch.equal(result.normals, tilted)
+    assert not RefineConfig(variant="supervised").refines_normals
+    assert RefineConfig(variant="no-prior").refines_normals and RefineConfig(variant="no-softmax").refines_normals
+
+
+def test_the_prior_holds_normals_at_their_target(scene_with_tilted_normals):
+    """A strong prior keeps them near the geometry's normals; a prior towards the true normals (a perfect predicted
+    normal map, lifted) pulls them there, where the photo loss alone, with the merger's imperfect materials, does
+    not."""
+    truth, tilted = scene_with_tilted_normals[1:3]
+    held = refine_tilted(scene_with_tilted_normals, iterations=60, normal_lr=1e-2, normal_prior_weight=100.0)
+    assert mean_error(held.normals, tilted) < 1.5
+    free = refine_tilted(scene_with_tilted_normals, iterations=60, normal_lr=1e-2, normal_prior_weight=0.0)
+    pulled = refine_tilted(
+        scene_with_tilted_normals, iterations=60, targets=truth, normal_lr=1e-2, normal_prior_weight=1.0
+    )
+    assert mean_error(pulled.normals, truth) < 0.5 * mean_error(free.normals, truth)
+    assert "normal_prior" in pulled.history[-1] and "normal_prior" not in free.history[-1]
+
+
+def test_normal_settings_must_be_non_negative():
+    with pytest.raises(SettingError, match="normal_lr"):
+        RefineConfig(normal_lr=-1.0)
+    with pytest.raises(SettingError, match="normal_prior_weight"):
+        RefineConfig(normal_prior_weight=-0.1)
