@@ -47,7 +47,7 @@ from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from matspray.render.latlong import total_variation
 from matspray.render.visibility import gaussian_shadows
-from matspray.shading_normals import ShadingNormals, normal_prior
+from matspray.shading_normals import ShadingNormals, normal_map_loss, normal_prior
 from matspray.variants import Variant, get_variant
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")
@@ -82,8 +82,10 @@ class RefineConfig:
     # multi-view average (`merger.view_gains`): per-view exposure and white balance removed before any variant fuses
     normal_lr: float = 1e-3  # Adam's rate for the per-Gaussian shading normals (variants with the PBR loss; about the
     # radians a normal turns per step); 0: shade with the geometry's normals, frozen
-    normal_prior_weight: float = 0.1  # weight of 1 - |cos| between each refined normal and its target (the geometry's
-    # normal, or the lifted predicted one): the photo loss alone also turns normals to fake shading it cannot explain
+    normal_prior_weight: float = 0.1  # weight of 1 - |cos| between each refined normal and the geometry's: the photo
+    # loss alone also turns normals to fake shading that the materials get wrong
+    predicted_normal_weight: float = 0.0  # weight of 1 - |cos| between the rendered normals and the view's predicted
+    # normal map (when the predictor gives one), per object pixel: the 2D model's normals as a target
     basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
@@ -108,6 +110,7 @@ class RefineConfig:
             "basecolor_spread_weight",
             "normal_lr",
             "normal_prior_weight",
+            "predicted_normal_weight",
         ):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
@@ -138,7 +141,7 @@ class RefineInputs:
     targets: list[Tensor]  # V 2D maps [H, W, 5] (base colour linear, roughness, metallic)
     bounds: Tensor  # [2, 3] object box (the merger's positional encoding)
     visibility: Tensor | None = None  # [N, D] directional visibility that shadows the PBR render; None: unshadowed
-    normal_targets: Tensor | None = None  # [N, 3] unit: what the refined normals are held near; None: `normals`
+    normal_maps: list[Tensor] | None = None  # V predicted normal maps [H, W, 3], world space, unit (0: no prediction)
 
 
 class MaterialSource(nn.Module):
@@ -264,6 +267,7 @@ class TrainingViews:
         self.views = inputs.views
         self.targets = inputs.targets
         self.visibility = inputs.visibility
+        self.normal_maps = inputs.normal_maps
 
     def __len__(self) -> int:
         return len(self.views)
@@ -277,10 +281,13 @@ def view_losses(
     envmap: EnvironmentMap | None,
     config: RefineConfig,
     with_material: bool = True,
+    with_normals: bool = False,
 ) -> dict[str, Tensor]:
     """The losses of training view `index`: L1 of the rasterized material maps against the view's 2D maps
     ("material", when `with_material`), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo
-    ("photo", only with an environment map). materials [N, 5], normals [N, 3] any orientation."""
+    ("photo", only with an environment map), and with `with_normals` the angle of the rendered normals to the view's
+    predicted normal map ("predicted_normals", when there is one). materials [N, 5], normals [N, 3] any
+    orientation."""
     frozen, view = training.frozen, training.views[index]
     mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=materials.device)
     oriented = frozen.orient_normals(index, normals)
@@ -308,6 +315,9 @@ def view_losses(
             basecolor_loss,
             config.basecolor_huber_delta,
         )
+    if with_normals and training.normal_maps is not None:
+        target = training.normal_maps[index]  # [H, W, 3]
+        terms["predicted_normals"] = normal_map_loss(gbuffer.normals, target, mask * (gbuffer.alpha > 0.5))
     if light is not None:
         rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
         photo = linear_to_srgb(view.image * mask[..., None])
@@ -324,6 +334,7 @@ def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
         "light_tv": config.light_tv_weight,
         "spread": config.basecolor_spread_weight,
         "normal_prior": config.normal_prior_weight,
+        "predicted_normals": config.predicted_normal_weight,
     }
     return sum(weights[name] * value for name, value in terms.items())
 
@@ -489,7 +500,6 @@ def refine(
     shading = ShadingNormals(normals).to(device) if config.refines_normals else None
     if shading is not None:  # after the warm-up, which lights the geometry's normals
         groups.append({"params": list(shading.parameters()), "lr": config.normal_lr, "name": "shading normals"})
-    targets = normals if inputs.normal_targets is None else inputs.normal_targets
     optimizer = torch.optim.Adam(groups)
 
     def refine_losses(index: int):
@@ -501,13 +511,20 @@ def refine(
         last_materials.index_copy_(0, active, merged.detach())
         shading_normals = normals if shading is None else shading()
         terms = view_losses(
-            training, index, materials, shading_normals, envmap, config, with_material=variant.uses_maps
+            training,
+            index,
+            materials,
+            shading_normals,
+            envmap,
+            config,
+            with_material=variant.uses_maps,
+            with_normals=shading is not None and config.predicted_normal_weight > 0,
         )
         if config.basecolor_spread_weight > 0 and variant.softmax and "base_color" in weights:
             terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
         if shading is not None and config.normal_prior_weight > 0:
             seen = training.frozen.visible_ids[index]  # the normals this view's photo loss reaches
-            terms["normal_prior"] = normal_prior(shading_normals[seen], targets[seen])
+            terms["normal_prior"] = normal_prior(shading_normals[seen], normals[seen])
         return terms, total_loss(terms, config)
 
     def log(step: int, terms: dict, bar) -> None:

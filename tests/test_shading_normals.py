@@ -11,7 +11,7 @@ from matspray.lift import LiftConfig, lift
 from matspray.refine import RefineConfig, RefineInputs, refine
 from matspray.relight import render_gbuffer
 from matspray.render.envmap import EnvironmentMap
-from matspray.shading_normals import ShadingNormals, angle_change_degrees, normal_prior
+from matspray.shading_normals import ShadingNormals, angle_change_degrees, normal_map_loss, normal_prior
 from tests.scenes import material_scene, sky_map
 
 BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])
@@ -42,14 +42,14 @@ def known_light() -> EnvironmentMap:  # the light the views were rendered under,
     return EnvironmentMap.from_tensor(sky_map(), learnable=False)
 
 
-def refine_tilted(scene, start=None, targets=None, true_materials=False, **settings):
+def refine_tilted(scene, start=None, normal_maps=None, true_materials=False, **settings):
     """Refine `full` from the tilted normals (or `start`) under the true light; with `true_materials` every view's
     lifted value is the Gaussian's true material and the merger is frozen, so only the normals can explain the
     photos."""
     gaussians, _, tilted, views, maps, lifted, materials = scene
     values = materials[:, None].expand(-1, len(views), -1).contiguous() if true_materials else lifted.values
     start = tilted if start is None else start
-    inputs = RefineInputs(gaussians, start, values, lifted.seen, views, maps, BOUNDS, normal_targets=targets)
+    inputs = RefineInputs(gaussians, start, values, lifted.seen, views, maps, BOUNDS, normal_maps=normal_maps)
     frozen_materials = {"merger_lr": 0.0, "material_weight": 0.0} if true_materials else {}
     config = RefineConfig(
         **{"iterations": 150, "envmap_height": 8, "light_warmup": 0, "seed": 0, **frozen_materials, **settings}
@@ -122,19 +122,32 @@ def test_normals_stay_frozen_at_rate_zero_and_in_variants_without_the_pbr_loss(s
     assert RefineConfig(variant="no-prior").refines_normals and RefineConfig(variant="no-softmax").refines_normals
 
 
-def test_the_prior_holds_normals_at_their_target(scene_with_tilted_normals):
-    """A strong prior keeps them near the geometry's normals; a prior towards the true normals (a perfect predicted
-    normal map, lifted) pulls them there, where the photo loss alone, with the merger's imperfect materials, does
-    not."""
-    truth, tilted = scene_with_tilted_normals[1:3]
+def test_the_prior_holds_normals_at_the_geometrys_and_predicted_maps_pull_them_to_theirs(scene_with_tilted_normals):
+    """A strong prior keeps them near the geometry's normals; the true normal maps given as the predicted ones pull
+    the rendered normals there, where the photo loss alone, with the merger's imperfect materials, does not."""
+    gaussians, truth, tilted, views = scene_with_tilted_normals[:4]
     held = refine_tilted(scene_with_tilted_normals, iterations=60, normal_lr=1e-2, normal_prior_weight=100.0)
     assert mean_error(held.normals, tilted) < 1.5
     free = refine_tilted(scene_with_tilted_normals, iterations=60, normal_lr=1e-2, normal_prior_weight=0.0)
-    pulled = refine_tilted(
-        scene_with_tilted_normals, iterations=60, targets=truth, normal_lr=1e-2, normal_prior_weight=1.0
+    true_maps = []
+    for view in views:  # the true normals, rendered: unit on the object, zero off it (no prediction there)
+        gbuffer = render_gbuffer(Asset(gaussians, torch.zeros(len(gaussians), 5), truth), view.camera)
+        true_maps.append(F.normalize(gbuffer.normals, dim=-1) * (gbuffer.alpha > 0.5)[..., None])
+    settings = {"iterations": 60, "normal_lr": 1e-2, "normal_prior_weight": 0.0, "predicted_normal_weight": 1.0}
+    pulled = refine_tilted(scene_with_tilted_normals, normal_maps=true_maps, **settings)
+    assert rendered_error(scene_with_tilted_normals, pulled.normals) < 0.5 * rendered_error(
+        scene_with_tilted_normals, free.normals
     )
-    assert mean_error(pulled.normals, truth) < 0.5 * mean_error(free.normals, truth)
-    assert "normal_prior" in pulled.history[-1] and "normal_prior" not in free.history[-1]
+    assert "predicted_normals" in pulled.history[-1] and "predicted_normals" not in free.history[-1]
+    assert "normal_prior" in held.history[-1] and "normal_prior" not in free.history[-1]
+
+
+def test_the_normal_map_loss_counts_only_object_pixels_with_a_prediction():
+    rendered = torch.tensor([[[0.0, 0.0, 2.0], [0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]])
+    target = torch.tensor([[[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], [[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]])
+    mask = torch.tensor([[1.0, 1.0], [1.0, 0.0]])
+    # pixels: aligned (0), flipped (0: no sign), at right angles (1), no prediction and off the mask (skipped)
+    assert float(normal_map_loss(rendered, target, mask)) == pytest.approx(1.0 / 3.0)
 
 
 def test_normal_settings_must_be_non_negative():
