@@ -75,6 +75,19 @@ def test_the_huber_base_color_loss_and_its_delta_come_from_their_flags():
     assert flag_message(error.value) == "--basecolor-huber-delta: must be > 0, got 0.0"
 
 
+def test_both_methods_refine_normals_and_the_flags_set_the_rate_and_the_predicted_maps_weight():
+    from matspray.cli.options import flag_message
+    from matspray.errors import SettingError
+
+    for method in ("matspray", "paper"):
+        assert run_config("--method", method).refine.refines_normals  # the paper refines normals too
+    refine = run_config("--normal-lr", "0", "--predicted-normal-weight", "0.5").refine
+    assert not refine.refines_normals and refine.predicted_normal_weight == 0.5
+    with pytest.raises(SettingError) as error:
+        run_config("--normal-lr", "-1")
+    assert flag_message(error.value) == "--normal-lr: must be >= 0, got -1.0"
+
+
 def test_refine_seed_overrides_the_seed_for_refinement_only():
     from matspray.pipeline import variant_refine_config
 

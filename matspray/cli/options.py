@@ -120,6 +120,18 @@ SETTING_FLAGS = {
         "weight of the smoothness prior on the estimated light "
         "(total variation of its log radiance; both methods; 0 turns it off)",
     ),
+    "--normal-lr": (
+        "refine.normal_lr",
+        float,
+        "how fast refinement turns each Gaussian's shading normal by the rendering loss (both methods: the paper "
+        "refines normals; 0 shades with the geometry's normals as they are)",
+    ),
+    "--predicted-normal-weight": (
+        "refine.predicted_normal_weight",
+        float,
+        "with a predictor that gives normal maps: weight of their angle to the rendered normals during refinement "
+        "(default 0: not used)",
+    ),
     "--object-bounds": (
         "object_bounds",
         lambda v: tuple(float(x) for x in v.replace(",", " ").split()),
