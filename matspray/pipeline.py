@@ -38,6 +38,7 @@ from matspray.predictors import (
     predict_views,
     read_materials2d,
     resolve_predictor,
+    world_normals,
     write_materials2d,
 )
 from matspray.refine import RefineConfig, RefineInputs, frozen_views, refine
@@ -70,6 +71,19 @@ def dataset_identity(scene: Scene) -> dict:
 
 def maps_to_tensor(maps) -> torch.Tensor:  # MaterialMaps -> [H, W, 5]
     return stack(maps.basecolor, maps.roughness, maps.metallic)
+
+
+def predicted_normal_maps(maps: dict, views: list) -> list[torch.Tensor] | None:
+    """The views' predicted normal maps in world space [H, W, 3] (zero where a view has none), or None when the
+    predictor gave no normals at all."""
+    if not any(maps[v.name].normals is not None for v in views):
+        return None
+    return [
+        world_normals(maps[v.name], v.camera)
+        if maps[v.name].normals is not None
+        else torch.zeros(v.height, v.width, 3, device=v.camera.viewmat.device)
+        for v in views
+    ]
 
 
 class Pipeline:
@@ -353,6 +367,9 @@ class Pipeline:
             targets=[maps_to_tensor(maps[v.name]).to(self.device) for v in views] if maps is not None else [],
             bounds=self.scene.bounds.to(self.device),
             visibility=self.visibility(kept),
+            normal_maps=predicted_normal_maps({n: m.to(self.device) for n, m in maps.items()}, views)
+            if maps is not None
+            else None,
         )
 
     def light_probe(self) -> EnvironmentMap | None:

@@ -85,6 +85,25 @@ def test_the_asset_ply_carries_the_refined_normals_of_the_variants_with_the_pbr_
             assert float(turned.max()) < 0.05, variant  # the PLY's float32 round trip
 
 
+def test_the_simulated_predictors_normal_maps_reach_refinement_in_world_space(tiny_object, finished_run):
+    """The simulated predictor writes normal maps beside the materials; refinement reads them in world space (near
+    the true normals), and with a weight on them its history has their term."""
+    from matspray.geometry.evaluate import true_normals
+    from matspray.refine import refine
+    from matspray.shading_normals import angle_change_degrees
+
+    config = replace(tiny_config(), visibility=None)
+    config = replace(config, refine=replace(config.refine, predicted_normal_weight=1.0, iterations=3))
+    pipeline = Pipeline(tiny_object, finished_run, config, progress=False, log=lambda _: None)
+    inputs = pipeline.refine_inputs()
+    assert inputs.normal_maps is not None and len(inputs.normal_maps) == len(inputs.views)
+    view, predicted = inputs.views[0], inputs.normal_maps[0]
+    truth, on_object = true_normals(view), view.alpha > 0.5
+    assert float(angle_change_degrees(predicted[on_object], truth[on_object]).mean()) < 20.0
+    history = refine(inputs, replace(config.refine, log_every=1), progress=False).history
+    assert "predicted_normals" in history[-1]
+
+
 def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
     import shutil
 

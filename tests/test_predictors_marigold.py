@@ -34,12 +34,12 @@ LIGHTING = {
 }
 
 
-def build_tiny_pipeline(folder):
-    """A MarigoldIntrinsicsPipeline with the appearance model's targets and a few thousand random weights."""
-    from diffusers import AutoencoderKL, DDIMScheduler, MarigoldIntrinsicsPipeline, UNet2DConditionModel
+def tiny_parts(folder, unet_in: int, unet_out: int) -> dict:
+    """Tokenizer, text encoder, VAE, UNet and scheduler of a Marigold pipeline with a few thousand random weights."""
+    from diffusers import AutoencoderKL, DDIMScheduler, UNet2DConditionModel
     from transformers import CLIPTextConfig, CLIPTextModel, CLIPTokenizer
 
-    vocab = folder.parent / "vocab"
+    vocab = folder.parent / f"vocab-{folder.name}"
     vocab.mkdir()
     (vocab / "vocab.json").write_text(json.dumps({"<|startoftext|>": 0, "<|endoftext|>": 1, "a</w>": 2, "b</w>": 3}))
     (vocab / "merges.txt").write_text("#version: 0.2\n")
@@ -71,8 +71,8 @@ def build_tiny_pipeline(folder):
     )
     unet = UNet2DConditionModel(
         sample_size=8,
-        in_channels=12,
-        out_channels=8,
+        in_channels=unet_in,
+        out_channels=unet_out,
         down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
         up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"),
         block_out_channels=(8, 16),
@@ -82,14 +82,32 @@ def build_tiny_pipeline(folder):
         norm_num_groups=4,
     )
     scheduler = DDIMScheduler(num_train_timesteps=10, prediction_type="v_prediction", timestep_spacing="trailing")
+    return dict(unet=unet, vae=vae, scheduler=scheduler, text_encoder=text_encoder, tokenizer=tokenizer)
+
+
+def build_tiny_pipeline(folder):
+    """A MarigoldIntrinsicsPipeline with the appearance model's targets and a few thousand random weights."""
+    from diffusers import MarigoldIntrinsicsPipeline
+
     pipe = MarigoldIntrinsicsPipeline(
-        unet=unet,
-        vae=vae,
-        scheduler=scheduler,
-        text_encoder=text_encoder,
-        tokenizer=tokenizer,
+        **tiny_parts(folder, unet_in=12, unet_out=8),  # image latent + 2 target latents in, 2 target latents out
         prediction_type="intrinsics",
         target_properties=APPEARANCE,
+        default_denoising_steps=2,
+        default_processing_resolution=16,
+    )
+    pipe.save_pretrained(str(folder))
+    return folder
+
+
+def build_tiny_normals_pipeline(folder):
+    """A MarigoldNormalsPipeline with a few thousand random weights."""
+    from diffusers import MarigoldNormalsPipeline
+
+    pipe = MarigoldNormalsPipeline(
+        **tiny_parts(folder, unet_in=8, unet_out=4),  # image latent + normals latent in, normals latent out
+        prediction_type="normals",
+        use_full_z_range=True,
         default_denoising_steps=2,
         default_processing_resolution=16,
     )
@@ -100,6 +118,11 @@ def build_tiny_pipeline(folder):
 @pytest.fixture(scope="module")
 def weights(tmp_path_factory):
     return build_tiny_pipeline(tmp_path_factory.mktemp("marigold") / "pipe")
+
+
+@pytest.fixture(scope="module")
+def normals_weights(tmp_path_factory):
+    return build_tiny_normals_pipeline(tmp_path_factory.mktemp("marigold-normals") / "pipe")
 
 
 @pytest.fixture(scope="module")
@@ -250,3 +273,46 @@ def test_settings_errors(weights):
             make_predictor("marigold", PredictorOptions(weights=str(weights), device="cuda"))
     with pytest.raises(ConfigError, match="severity: does not apply to the marigold predictor"):
         make_predictor("marigold", PredictorOptions(weights=str(weights), severity=1.0))
+
+
+# ------------------------------------------------------------------------------------------ normals
+def test_marigold_normals_become_unit_camera_normals(weights, normals_weights, dataset, tmp_path):
+    """The normals model's output: unit vectors in our camera axes ([H, W, 3], space "camera"), none off the object;
+    through `matspray predict` they reach materials2d/ and come back the same."""
+    views = load_scene(dataset).train
+    config = MarigoldConfig(weights=str(weights), normals_weights=str(normals_weights), device="cpu", steps=1, seed=2)
+    predictor = MarigoldPredictor(config, notify=quiet)
+    out = predict_views(views, predictor, notify=quiet)
+    for view in views:
+        m = out[view.name]
+        assert m.normal_space == "camera" and m.normals.shape == (12, 20, 3)
+        lengths = m.normals.norm(dim=-1)
+        on = view.alpha > 0
+        assert torch.allclose(lengths[on], torch.ones_like(lengths[on]), atol=1e-5)
+        assert bool((lengths[~on] == 0).all())
+    assert predictor.describe()["settings"]["normals_weights"] == str(normals_weights)
+    # the conversion from Marigold's axes (x right, y up, z to the viewer): y and z negated
+    raw = torch.tensor([0.6, 0.0, 0.8])[:, None, None].expand(3, 12, 20)
+
+    def fake_normals(images, **kwargs):
+        return SimpleNamespace(prediction=raw[None].expand(len(images), -1, -1, -1))
+
+    predictor.normals_pipe = _Callable(fake_normals, None)
+    normals = predictor._normals(views[:1], 0)[0]
+    assert torch.allclose(normals[5, 10], torch.tensor([0.6, 0.0, -0.8]))
+    run = tmp_path / "run"
+    args = ["predict", "--data", str(dataset), "--out", str(run), "--predictor", "marigold"]
+    args += ["--weights", str(weights), "--normals-weights", str(normals_weights), "--device", "cpu", "--steps", "1"]
+    assert main(args) == 0
+    back = read_materials2d(run, views)
+    assert read_predictor_info(run)["normal_space"] == "camera"
+    assert all(back[v.name].normals.shape == (12, 20, 3) for v in views)
+
+
+def test_normals_weights_errors(weights, tmp_path):
+    from matspray.predictors.marigold import load_normals_pipeline
+
+    with pytest.raises(DataError, match="holds a MarigoldIntrinsicsPipeline, not a MarigoldNormalsPipeline"):
+        load_normals_pipeline(str(weights))
+    with pytest.raises(DataError, match="does not exist .*hf download prs-eth/marigold-normals-v1-1"):
+        MarigoldPredictor(MarigoldConfig(weights=str(weights), normals_weights=str(tmp_path / "nope"), device="cpu"))

@@ -191,6 +191,7 @@ FLAG_OF_SETTING.update(
         "cpus_per_object": "--cpus-per-object",
         "gpus_per_object": "--gpus-per-object",
         "weights": "--weights",
+        "normals_weights": "--normals-weights",
         "export.faces": "--faces",
         "export.texture_size": "--texture-size",
         "export.frame": "--frame",

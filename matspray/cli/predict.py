@@ -34,6 +34,11 @@ def add_parser(parser) -> None:
         help="MarigoldIntrinsicsPipeline folder, or a hub id when the network allows "
         "(default prs-eth/marigold-iid-appearance-v1-1)",
     )
+    group.add_argument(
+        "--normals-weights",
+        help="MarigoldNormalsPipeline folder (or hub id, e.g. prs-eth/marigold-normals-v1-1): also predict normal "
+        "maps (default: none)",
+    )
     group.add_argument("--device", help="auto (default: CUDA when available), cpu, cuda or cuda:N")
     group.add_argument("--steps", type=int, help="denoising steps (default: the model's)")
     group.add_argument(
@@ -85,6 +90,7 @@ def run(args) -> int:
     options = PredictorOptions(
         basecolor_encoding=args.basecolor_encoding,
         weights=args.weights,
+        normals_weights=args.normals_weights,
         device=args.device,
         steps=args.steps,
         ensemble_size=args.ensemble_size,

@@ -2,12 +2,20 @@
 
 `predict_views(views, predictor)` is the one entry point; `make_predictor("files:DIR" | "marigold" |
 "simulated" | "ground-truth")` builds a predictor; `write_materials2d` / `read_materials2d` are the
-`RUN/materials2d/` folder that later stages read.
+`RUN/materials2d/` folder that later stages read. Maps may carry a normal map (`MaterialMaps.normals`, in
+camera or world space; `world_normals` brings either to world space; conventions in `normalmaps`).
 """
 
 from matspray.predictors.base import Predictor, predict_views
 from matspray.predictors.encodings import BASECOLOR_ENCODINGS, decode_basecolor, encode_basecolor
-from matspray.predictors.maps import MATERIALS2D, MaterialMaps, read_materials2d, read_predictor_info, write_materials2d
+from matspray.predictors.maps import (
+    MATERIALS2D,
+    MaterialMaps,
+    read_materials2d,
+    read_predictor_info,
+    world_normals,
+    write_materials2d,
+)
 from matspray.predictors.registry import (
     AUTO_PREDICTOR,
     NO_PREDICTOR,
@@ -35,5 +43,6 @@ __all__ = [
     "resolve_predictor",
     "read_materials2d",
     "read_predictor_info",
+    "world_normals",
     "write_materials2d",
 ]

@@ -8,6 +8,13 @@
   `metallic` (scalar passes as 3-channel PNG); frames map to the views in order.
 - `diffusionrenderer-cosmos`: `gbuffer_frames/{clip}/{chunk}.{i:04d}.{pass}.jpg`; frames in order.
 Several videos/clips are taken in natural order of their names, then by chunk and frame.
+
+Normals, in the two named layouts: `{view}_normal.png` (8 or 16 bit, stored n * 0.5 + 0.5; black or alpha-0
+pixels hold none) or `{view}_normal.exr|.npy` (the vectors), beside the maps. Their space is the view's camera
+in MatSpray's convention (OpenCV: x right, y down, z forward) unless the folder's `predictor.json` says
+`"normal_space"`: `"world"`, `"camera"`, or `"camera-opengl"` (x right, y up, z towards the viewer, as
+Marigold's normals; turned into ours on reading). The frame layouts' normal passes are not read: their axis
+convention is not pinned down here.
 """
 
 from __future__ import annotations
@@ -25,8 +32,15 @@ from matspray.data.scene import View
 from matspray.errors import file_error
 from matspray.predictors.base import Predictor
 from matspray.predictors.encodings import check_encoding, decode_basecolor
-from matspray.predictors.mapfile import MAP_SUFFIXES, read_color_map, read_packed_map, read_scalar_map
-from matspray.predictors.maps import MaterialMaps
+from matspray.predictors.mapfile import (
+    MAP_SUFFIXES,
+    read_color_map,
+    read_normal_map,
+    read_packed_map,
+    read_scalar_map,
+)
+from matspray.predictors.maps import INFO_FILE, MaterialMaps
+from matspray.predictors.normalmaps import from_opengl_camera
 
 SUFFIX_PREFERENCE = (
     ".npy",
@@ -36,6 +50,8 @@ SUFFIX_PREFERENCE = (
     ".jpeg",
 )  # when one map exists in several files: most precise first
 FRAME_PASSES = ("basecolor", "roughness", "metallic")
+# what a folder's info file may say its normal files are in -> (MaterialMaps.normal_space, flip from OpenGL axes)
+SOURCE_NORMAL_SPACES = {"camera": ("camera", False), "camera-opengl": ("camera", True), "world": ("world", False)}
 
 
 @dataclass
@@ -43,7 +59,7 @@ class Entry:
     """The files of one view (named layouts) or one video frame (ordered layouts)."""
 
     key: str  # view name, or "{clip}/{chunk}.{frame}"
-    files: dict[str, Path]  # basecolor, roughness, metallic, confidence, or material (roughness + metallic packed)
+    files: dict[str, Path]  # basecolor, roughness, metallic, confidence, normal, or material (roughness + metallic)
 
 
 @dataclass
@@ -78,21 +94,22 @@ def _scan_named(root: Path, pattern: re.Pattern, synonyms: dict[str, str]) -> di
 
 
 _MATSPRAY = re.compile(
-    r"^(?P<name>.+)_(?P<pass>basecolor|albedo|roughness|metallic|confidence)\.[A-Za-z]+$", re.IGNORECASE
+    r"^(?P<name>.+)_(?P<pass>basecolor|albedo|roughness|metallic|confidence|normals?)\.[A-Za-z]+$", re.IGNORECASE
 )
-_MARIGOLD = re.compile(r"^(?P<name>.+)_(?P<pass>albedo|material)\.[A-Za-z]+$", re.IGNORECASE)
+_MARIGOLD = re.compile(r"^(?P<name>.+)_(?P<pass>albedo|material|normals?)\.[A-Za-z]+$", re.IGNORECASE)
+NAMED_SYNONYMS = {"albedo": "basecolor", "normals": "normal"}
 _FRAME = re.compile(r"^(?P<chunk>\d+)\.(?P<frame>\d+)\.(?P<pass>[A-Za-z_]+)\.(?:png|jpe?g)$", re.IGNORECASE)
 
 
 def scan_matspray(root: Path) -> list[Entry]:
-    groups = _scan_named(root, _MATSPRAY, {"albedo": "basecolor"})
+    groups = _scan_named(root, _MATSPRAY, NAMED_SYNONYMS)
     if not any("roughness" in files or "metallic" in files for files in groups.values()):
         return []
     return [Entry(name, files) for name, files in groups.items()]
 
 
 def scan_marigold(root: Path) -> list[Entry]:
-    groups = _scan_named(root, _MARIGOLD, {"albedo": "basecolor"})
+    groups = _scan_named(root, _MARIGOLD, NAMED_SYNONYMS)
     if not any("material" in files for files in groups.values()):
         return []
     return [Entry(name, files) for name, files in groups.items()]
@@ -197,6 +214,7 @@ class FilesPredictor(Predictor):
             self.source_info.get("simulated", False)
         )  # maps copied from a simulated run stay labelled
         self.benchmark_only = bool(self.source_info.get("benchmark_only", False))
+        self.normal_space = self._source_normal_space()
 
     def describe(self) -> dict:
         info = dict(
@@ -207,18 +225,32 @@ class FilesPredictor(Predictor):
         )
         if self.source_info:
             info["source_predictor"] = self.source_info
+        if any("normal" in entry.files for entry in self.entries):
+            info["source_normal_space"] = self.normal_space
         return info
 
     def _read_source_info(self) -> dict:
-        """The predictor.json of a MatSpray materials2d folder used as a source, else {}."""
-        path = self.root / "predictor.json"
-        if self.layout.name != "matspray" or not path.is_file():
+        """The folder's predictor.json (a MatSpray materials2d folder's, or one written beside another model's
+        maps to say what they are), else {}."""
+        path = self.root / INFO_FILE
+        if not path.is_file():
             return {}
         try:
             info = json.loads(path.read_text())
         except (json.JSONDecodeError, OSError, UnicodeDecodeError):
             return {}
         return info if isinstance(info, dict) else {}
+
+    def _source_normal_space(self) -> str:
+        """The space of the folder's normal files (a key of SOURCE_NORMAL_SPACES): its info file's
+        `normal_space`, else the view's camera in MatSpray's convention."""
+        space = self.source_info.get("normal_space", "camera")
+        if space not in SOURCE_NORMAL_SPACES:
+            raise file_error(
+                self.root / INFO_FILE,
+                f"says normal_space {space!r}; use one of {', '.join(SOURCE_NORMAL_SPACES)}",
+            )
+        return space
 
     def _check_complete(self) -> None:
         needed = ("basecolor", "material") if self.layout.name == "marigold" else ("basecolor", "roughness", "metallic")
@@ -267,15 +299,22 @@ class FilesPredictor(Predictor):
         if "confidence" in files:
             scalars["confidence"] = read_scalar_map(files["confidence"], "confidence")
             sources["confidence"] = files["confidence"]
-        for channel, values in scalars.items():
-            if values.shape != stored.shape[:2]:
+        normals = read_normal_map(files["normal"]) if "normal" in files else None  # [H, W, 3]
+        sizes = dict(scalars) if normals is None else dict(scalars, normal=normals)
+        for channel, values in sizes.items():
+            if values.shape[:2] != stored.shape[:2]:
                 raise file_error(
-                    sources[channel],
+                    sources.get(channel, files.get(channel)),
                     f"is {values.shape[1]}x{values.shape[0]} but its base color {files['basecolor'].name} is "
                     f"{stored.shape[1]}x{stored.shape[0]}",
                 )
+        space, flip = SOURCE_NORMAL_SPACES[self.normal_space]
+        if normals is not None and flip:
+            normals = from_opengl_camera(normals)
         basecolor: Tensor = decode_basecolor(stored, self.basecolor_encoding)
-        return MaterialMaps(basecolor, scalars["roughness"], scalars["metallic"], scalars.get("confidence"))
+        return MaterialMaps(
+            basecolor, scalars["roughness"], scalars["metallic"], scalars.get("confidence"), normals, space
+        )
 
     def predict(self, views: list[View]) -> dict[str, MaterialMaps]:
         assigned = self.assign(views)

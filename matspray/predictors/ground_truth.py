@@ -3,7 +3,8 @@
 
 Next to every view image `{split}/r_000.png` a synth object holds `r_000_basecolor.png` (sRGB-encoded),
 `r_000_roughness.png`, `r_000_metallic.png` (linear), `r_000_normal.exr` (world normals) and
-`r_000_depth.exr` (camera z along the OpenCV forward axis, 0 on background).
+`r_000_depth.exr` (camera z along the OpenCV forward axis, 0 on background). The true maps carry the
+true normals (world space) where the normal file is there, so that both benchmark predictors pass them on.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from matspray.errors import DataError, file_error
 from matspray.predictors.base import Predictor
 from matspray.predictors.mapfile import read_color_map, read_scalar_map
 from matspray.predictors.maps import MaterialMaps
+from matspray.predictors.normalmaps import normal_problem, renormalised
 
 SYNTH_HINT = (
     "the simulated and ground-truth predictors need a `matspray synth` object, which stores true maps next to each view"
@@ -46,18 +48,33 @@ def check_ground_truth(views: list[View], what: tuple[str, ...] = ("basecolor", 
 
 
 def read_ground_truth(view: View) -> MaterialMaps:
-    """The true maps of one view (base color linear), checked to match the view's size."""
+    """The true maps of one view (base color linear, normals in world space where the object has them),
+    checked to match the view's size."""
     stored = read_color_map(ground_truth_path(view, "basecolor"))
     roughness = read_scalar_map(ground_truth_path(view, "roughness"), "roughness")
     metallic = read_scalar_map(ground_truth_path(view, "metallic"), "metallic")
-    for what, values in (("basecolor", stored), ("roughness", roughness), ("metallic", metallic)):
+    normals = read_ground_truth_normals(view)
+    maps = {"basecolor": stored, "roughness": roughness, "metallic": metallic}
+    for what, values in (maps if normals is None else dict(maps, normal=normals)).items():
         if tuple(values.shape[:2]) != (view.height, view.width):
             raise file_error(
                 ground_truth_path(view, what),
                 f"is {values.shape[1]}x{values.shape[0]} but the view is {view.width}x{view.height}",
                 "load the dataset without downscaling for benchmarks",
             )
-    return MaterialMaps(srgb_to_linear(stored), roughness, metallic)
+    return MaterialMaps(srgb_to_linear(stored), roughness, metallic, normals=normals, normal_space="world")
+
+
+def read_ground_truth_normals(view: View) -> Tensor | None:  # [H, W, 3] world, unit or 0; None without the file
+    """The true world-space normals `{view}_normal.exr` (the layout `matspray synth` writes), checked."""
+    path = ground_truth_path(view, "normal")
+    if not path.exists():
+        return None
+    normals = read_raw(path)[..., :3]
+    problem = normal_problem(normals)
+    if problem:
+        raise file_error(path, problem)
+    return renormalised(normals)
 
 
 def read_ground_truth_coverage(view: View) -> Tensor:  # [H, W] the object's true coverage (its mask)

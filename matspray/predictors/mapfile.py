@@ -1,5 +1,6 @@
 """One material map file in, with the checks every source needs: readable, the right channels,
-values in [0, 1]. Stored values are returned as they are (no colour decoding)."""
+values in [0, 1]. Stored values are returned as they are (no colour decoding). Normal maps are vectors,
+not values in [0, 1]: `read_normal_map` decodes and checks them."""
 
 from __future__ import annotations
 
@@ -9,19 +10,26 @@ from torch import Tensor
 
 from matspray.data.images import read_raw
 from matspray.errors import MatsprayError, file_error
+from matspray.predictors.normalmaps import decode_png_normals, normal_problem, renormalised
 
 MAP_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".npy")
+NORMAL_SUFFIXES = (".png", ".exr", ".npy")  # PNG stores n * 0.5 + 0.5; EXR and NPY the vectors themselves
+NORMAL_HINT = "a PNG normal map stores n * 0.5 + 0.5 per channel (8 or 16 bit); EXR and NPY hold the unit vectors"
 RANGE_TOLERANCE = 1.0 / 512.0  # float files may overshoot [0, 1] by rounding; more than this is an error
 GREY_TOLERANCE = 0.04  # mean channel spread above which a "grey" 3-channel map is really a colour image
 
 
-def read_values(path: Path) -> Tensor:  # [H, W, C] stored values, checked to lie in [0, 1]
+def read_stored(path: Path) -> Tensor:  # [H, W, C] as stored (LDR scaled to [0, 1])
     try:
-        values = read_raw(path)
+        return read_raw(path)
     except MatsprayError:
         raise
     except Exception as exc:  # decoders raise their own types for truncated or corrupt files (e.g. png.FormatError)
         raise file_error(path, f"cannot read image: {exc}") from None
+
+
+def read_values(path: Path) -> Tensor:  # [H, W, C] stored values, checked to lie in [0, 1]
+    values = read_stored(path)
     low, high = float(values.min()), float(values.max())
     if low < -RANGE_TOLERANCE or high > 1.0 + RANGE_TOLERANCE:
         raise file_error(
@@ -70,3 +78,23 @@ def read_packed_map(path: Path, names: tuple[str, ...]) -> dict[str, Tensor]:  #
             path, f"has {values.shape[-1]} channel(s); expected {', '.join(names)} in the first {len(names)} channels"
         )
     return {name: values[..., i].contiguous() for i, name in enumerate(names)}
+
+
+def read_normal_map(path: Path) -> Tensor:  # [H, W, 3] unit vectors, 0 where there is none; in the file's space
+    """A normal map file: PNG decoded from n * 0.5 + 0.5 (black or alpha-0 pixels hold no normal), EXR/NPY
+    read as vectors (zero, or alpha 0, for none); checked to be [H, W, 3(+alpha)] of unit vectors."""
+    suffix = path.suffix.lower()
+    if suffix not in NORMAL_SUFFIXES:
+        raise file_error(path, f"is a {suffix} file, but a normal map must be PNG, EXR or NPY", NORMAL_HINT)
+    values = read_stored(path)
+    channels = values.shape[-1]
+    if values.ndim != 3 or channels not in (3, 4):
+        raise file_error(path, f"has {channels} channel(s); a normal map needs 3 (x, y, z), optionally with alpha")
+    if suffix == ".png":
+        vectors = decode_png_normals(values)
+    else:
+        vectors = values[..., :3] if channels == 3 else values[..., :3] * (values[..., 3:] > 0)
+    problem = normal_problem(vectors)
+    if problem:
+        raise file_error(path, problem, NORMAL_HINT)
+    return renormalised(vectors)

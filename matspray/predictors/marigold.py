@@ -5,6 +5,11 @@ of `roughness` (R) and `metallicity` (G), both linear; `target_properties` in th
 names them, and is checked here. Weights come from a local folder (`save_pretrained` layout), or from
 the Hugging Face hub by id when the network allows. With `ensemble_size` >= 3 the pipeline's
 uncertainty becomes the maps' confidence (1 - mean uncertainty).
+
+With `normals_weights`, Marigold's normals model (diffusers' `MarigoldNormalsPipeline`) runs beside it on the
+same photos and its output becomes the maps' normals, in camera space. Marigold's normals are unit vectors
+in a camera frame with x right, y up and z towards the viewer; they are turned into MatSpray's (OpenCV: x
+right, y down, z forward) by negating y and z, and set to (0, 0, 0) off the object where the view has a mask.
 """
 
 from __future__ import annotations
@@ -25,12 +30,19 @@ from matspray.errors import ConfigError, DataError, SettingError, file_error
 from matspray.predictors.base import Predictor
 from matspray.predictors.encodings import check_encoding, decode_basecolor
 from matspray.predictors.maps import MaterialMaps
+from matspray.predictors.normalmaps import from_opengl_camera, renormalised
 
 DEFAULT_WEIGHTS = "prs-eth/marigold-iid-appearance-v1-1"
 PIPELINE_CLASS = "MarigoldIntrinsicsPipeline"
 DOWNLOAD_HINT = (
     f"on a machine with network access run `hf download {DEFAULT_WEIGHTS} --local-dir marigold-iid-appearance` "
     "(pip install huggingface_hub), copy that folder here and pass --weights marigold-iid-appearance"
+)
+NORMALS_WEIGHTS = "prs-eth/marigold-normals-v1-1"  # the normals model to name in `normals_weights`
+NORMALS_CLASS = "MarigoldNormalsPipeline"
+NORMALS_HINT = (
+    f"on a machine with network access run `hf download {NORMALS_WEIGHTS} --local-dir marigold-normals` "
+    "(pip install huggingface_hub), copy that folder here and pass --normals-weights marigold-normals"
 )
 
 
@@ -44,6 +56,7 @@ class MarigoldConfig:
     processing_resolution: int | None = None  # None = the model's default; 0 = the image's own
     seed: int = 0
     basecolor_encoding: str | None = None  # None = as the model's config says (sRGB for the appearance model)
+    normals_weights: str | None = None  # MarigoldNormalsPipeline folder or hub id; None = no normals
 
     def __post_init__(self) -> None:
         for name in ("batch_size", "ensemble_size"):
@@ -57,9 +70,20 @@ class MarigoldConfig:
 
 def load_pipeline(weights: str):
     """diffusers' MarigoldIntrinsicsPipeline from a local folder or a hub id, with clear errors."""
+    return _load(weights, PIPELINE_CLASS, "the Marigold-IID appearance model", DOWNLOAD_HINT)
+
+
+def load_normals_pipeline(weights: str):
+    """diffusers' MarigoldNormalsPipeline from a local folder or a hub id, with clear errors."""
+    return _load(weights, NORMALS_CLASS, "Marigold's normals model", NORMALS_HINT)
+
+
+def _load(weights: str, class_name: str, model: str, hint: str):
     try:
-        from diffusers import MarigoldIntrinsicsPipeline
-    except ImportError:
+        import diffusers
+
+        pipeline_class = getattr(diffusers, class_name)
+    except (ImportError, AttributeError):  # no diffusers, or one too old for this pipeline
         raise ConfigError(
             "the marigold predictor needs diffusers and transformers: pip install 'matspray[marigold]'"
         ) from None
@@ -67,30 +91,24 @@ def load_pipeline(weights: str):
     if path.exists():
         index = path / "model_index.json"
         if not index.is_file():
-            raise file_error(path, "is not a diffusers pipeline folder (no model_index.json)", DOWNLOAD_HINT)
+            raise file_error(path, "is not a diffusers pipeline folder (no model_index.json)", hint)
         try:
-            class_name = json.loads(index.read_text()).get("_class_name")
+            found = json.loads(index.read_text()).get("_class_name")
         except (json.JSONDecodeError, OSError, UnicodeDecodeError) as exc:
             raise file_error(index, f"cannot read: {exc}") from None
-        if class_name != PIPELINE_CLASS:
-            raise file_error(
-                index,
-                f"holds a {class_name}, not a {PIPELINE_CLASS}",
-                f"use the Marigold-IID appearance model: {DOWNLOAD_HINT}",
-            )
+        if found != class_name:
+            raise file_error(index, f"holds a {found}, not a {class_name}", f"use {model}: {hint}")
         try:
-            return MarigoldIntrinsicsPipeline.from_pretrained(str(path), local_files_only=True)
+            return pipeline_class.from_pretrained(str(path), local_files_only=True)
         except (OSError, ValueError, KeyError, RuntimeError) as exc:
             raise file_error(path, f"cannot load the pipeline: {exc}") from None
     if weights.count("/") != 1 or weights.startswith((".", "/", "~")):
-        raise file_error(
-            path, "does not exist", f"the weights setting takes a pipeline folder or a hub id; {DOWNLOAD_HINT}"
-        )
+        raise file_error(path, "does not exist", f"the weights setting takes a pipeline folder or a hub id; {hint}")
     try:
-        return MarigoldIntrinsicsPipeline.from_pretrained(weights)
+        return pipeline_class.from_pretrained(weights)
     except Exception as exc:  # no network, unknown repo, interrupted download: all end the same way
         raise ConfigError(
-            f"cannot get Marigold weights '{weights}' from the Hugging Face hub ({type(exc).__name__}); {DOWNLOAD_HINT}"
+            f"cannot get Marigold weights '{weights}' from the Hugging Face hub ({type(exc).__name__}); {hint}"
         ) from None
 
 
@@ -134,15 +152,46 @@ class MarigoldPredictor(Predictor):
         self.pipe = load_pipeline(self.config.weights).to(self.device)
         self.pipe.set_progress_bar_config(disable=True)
         self.targets = target_layout(self.pipe.target_properties)
+        self.normals_pipe = None
+        if self.config.normals_weights is not None:
+            self.normals_pipe = load_normals_pipeline(self.config.normals_weights).to(self.device)
+            self.normals_pipe.set_progress_bar_config(disable=True)
         self.notify = notify
 
     def describe(self) -> dict:
-        return dict(
+        info = dict(
             super().describe(),
             settings=asdict(self.config),
             device=str(self.device),
             targets=list(self.pipe.target_properties["target_names"]),
         )
+        if self.normals_pipe is not None:
+            info["normals"] = "marigold normals, camera space (OpenCV axes)"
+        return info
+
+    def _normals(self, views: list[View], first: int) -> list[Tensor]:  # -> N x [H, W, 3] camera space, ours
+        """The normals model's prediction for `views`, turned into MatSpray's camera axes, 0 off the object."""
+        c = self.config
+        generator = torch.Generator().manual_seed(int(c.seed) + first)
+        try:
+            output = self.normals_pipe(
+                photo_batch(views).to(self.device, self.normals_pipe.dtype),
+                num_inference_steps=c.steps,
+                ensemble_size=c.ensemble_size,
+                processing_resolution=c.processing_resolution,
+                batch_size=len(views),
+                generator=generator,
+                output_type="pt",
+            )
+        except ValueError as exc:  # diffusers' input checks
+            raise ConfigError(f"Marigold's normals model rejected the settings: {exc}") from None
+        normals = renormalised(from_opengl_camera(output.prediction.float().cpu().permute(0, 2, 3, 1)))  # [N, H, W, 3]
+        out = []
+        for view, n in zip(views, normals):
+            if view.alpha is not None:  # the masked photo's black background is no surface: no normal there
+                n = torch.where(view.alpha.cpu()[..., None] > 0, n, torch.zeros_like(n))
+            out.append(n.contiguous())
+        return out
 
     def _channel(self, prediction: Tensor, name: str) -> Tensor:  # [N, T, 3, H, W] -> [N, H, W(, 3)]
         index, channel, _ = self.targets[name]
@@ -181,8 +230,16 @@ class MarigoldPredictor(Predictor):
         if with_confidence:
             uncertainty = output.uncertainty.float().cpu().reshape(n, t, 3, *output.uncertainty.shape[-2:])
             confidence = list((1.0 - uncertainty.mean(dim=(1, 2))).clamp(0.0, 1.0))
+        normals = self._normals(views, first) if self.normals_pipe is not None else [None] * n
         return [
-            MaterialMaps(basecolor[i].clamp(0, 1), roughness[i].clamp(0, 1), metallic[i].clamp(0, 1), confidence[i])
+            MaterialMaps(
+                basecolor[i].clamp(0, 1),
+                roughness[i].clamp(0, 1),
+                metallic[i].clamp(0, 1),
+                confidence[i],
+                normals=normals[i],
+                normal_space="camera",
+            )
             for i in range(n)
         ]
 

@@ -27,6 +27,7 @@ class PredictorOptions:
 
     basecolor_encoding: str | None = None  # files, marigold
     weights: str | None = None  # marigold
+    normals_weights: str | None = None  # marigold: its normals model, which adds normal maps
     device: str | None = None  # marigold
     steps: int | None = None  # marigold
     ensemble_size: int | None = None  # marigold
@@ -41,6 +42,7 @@ USES = {
     "marigold": {
         "basecolor_encoding",
         "weights",
+        "normals_weights",
         "device",
         "steps",
         "ensemble_size",

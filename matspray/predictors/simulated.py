@@ -34,6 +34,14 @@ the paper describes for DiffusionRenderer, so that later stages can be measured 
    the batch's while the spread shrinks. DiffusionRenderer "often predicts partial metallicity in
    certain views": a fraction `metallic_view_fraction` of the views (spread evenly, like the outliers)
    gets a spurious metallic of its own, in `metallic_amplitude`, on top of any its batch has.
+7. Normals (views with true normals, `{view}_normal.exr`; world space in and out). A latent diffusion
+   model's normals are smooth and a little off, so in the view's camera frame each normal is turned by a
+   smooth tilt field (independent Gaussian tilts about the camera's x and y axes at a `normal_tilt_cells`
+   square grid of control points, `normal_tilt_deg` each, interpolated bicubically over the image, so the
+   field is the same at any resolution), plus one tilt of the whole view (`normal_bias_deg`, and
+   `normal_outlier_deg` more in the `outliers` model's colour-cast views), after a blur of
+   `normal_blur_fraction` of the image size inside the object (lost detail). Pixels without a true normal
+   keep none.
 All effects apply to the object (alpha); background pixels keep their true values. The magnitudes of
 each named error model are in `matspray.predictors.error_models`.
 
@@ -56,12 +64,14 @@ import torch.nn.functional as F
 from torch import Tensor
 from tqdm import tqdm
 
+from matspray.data.camera import Camera
 from matspray.data.images import srgb_to_linear
 from matspray.data.scene import View
 from matspray.predictors.base import Predictor
 from matspray.predictors.error_models import SimulationConfig, model_name
 from matspray.predictors.ground_truth import check_ground_truth, read_ground_truth
 from matspray.predictors.maps import MaterialMaps
+from matspray.predictors.normalmaps import camera_to_world, defined, renormalised, world_to_camera
 
 LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights
 
@@ -131,6 +141,7 @@ class ViewOutlier:
     cast: list[float]  # [3] per-channel gain; [1, 1, 1] when the view has no colour cast
     highlights: float  # how far base colour moves to white on a full highlight; 0 when none
     metallic: float = 0.0  # this view's own spurious partial metallic; 0 when none
+    normal_deg: float = 0.0  # extra tilt (degrees) of this view's whole normal map; 0 when none
 
 
 def evenly_spread(fraction: float, seed: int, stream: int, index: int) -> bool:
@@ -144,12 +155,13 @@ def evenly_spread(fraction: float, seed: int, stream: int, index: int) -> bool:
 def draw_view_outlier(config: SimulationConfig, index: int) -> ViewOutlier:
     """The outliers of the view at position `index` of the predicted list."""
     s = config.severity
-    cast = [1.0, 1.0, 1.0]
+    cast, normal_deg = [1.0, 1.0, 1.0], 0.0
     if evenly_spread(config.cast_fraction * s, config.seed, 4, index):
         direction = np.random.default_rng([int(config.seed), 5, index]).standard_normal(3)
         direction = direction - direction.mean()
         direction = direction / max(float(np.linalg.norm(direction)), 1e-9)
         cast = [float(v) for v in np.exp(config.cast_strength * s * direction)]
+        normal_deg = config.normal_outlier_deg * s  # a view the model misread is misread in its normals too
     highlights = (
         min(1.0, config.highlight_amount * s)
         if evenly_spread(config.highlight_fraction * s, config.seed, 6, index)
@@ -159,7 +171,7 @@ def draw_view_outlier(config: SimulationConfig, index: int) -> ViewOutlier:
     if evenly_spread(config.metallic_view_fraction * s, config.seed, 7, index):
         low, high = config.metallic_amplitude
         metallic = min(1.0, float(np.random.default_rng([int(config.seed), 8, index]).uniform(low, high)) * s)
-    return ViewOutlier(cast=cast, highlights=highlights, metallic=metallic)
+    return ViewOutlier(cast=cast, highlights=highlights, metallic=metallic, normal_deg=normal_deg)
 
 
 def compress_towards_mean(x: Tensor, mask: Tensor, amount: float) -> Tensor:  # [H, W], [H, W] bool -> [H, W]
@@ -215,6 +227,61 @@ def draw_batch_drift(config: SimulationConfig, batch: int) -> BatchDrift:
     )
 
 
+# ------------------------------------------------------------------------------------------ normals
+def rotate_vectors(vectors: Tensor, rotvec: Tensor) -> Tensor:  # [..., 3], [..., 3] axis * angle (rad) -> [..., 3]
+    """Each vector turned about its axis-angle rotation (Rodrigues' formula); a zero rotation leaves it exactly."""
+    angle = rotvec.norm(dim=-1, keepdim=True)  # [..., 1]
+    axis = rotvec / angle.clamp_min(1e-12)
+    cos, sin = torch.cos(angle), torch.sin(angle)
+    along = (axis * vectors).sum(-1, keepdim=True)
+    return vectors * cos + torch.linalg.cross(axis, vectors, dim=-1) * sin + axis * along * (1.0 - cos)
+
+
+def tilt_field(seed: int, index: int, cells: int, height: int, width: int) -> Tensor:  # -> [H, W, 2]
+    """A smooth random field: independent standard normals at a cells x cells grid spanning the image,
+    interpolated bicubically, drawn from (seed, index) alone, so every resolution gets the same field."""
+    grid = np.random.default_rng([int(seed), 9, index]).standard_normal((2, cells, cells))
+    field = F.interpolate(
+        torch.from_numpy(grid).float()[None], size=(height, width), mode="bicubic", align_corners=True
+    )
+    return field[0].permute(1, 2, 0)  # [H, W, 2]
+
+
+def view_tilt(config: SimulationConfig, index: int, outlier: ViewOutlier | None) -> tuple[float, float]:
+    """The tilt (degrees about the camera's x and y axes) of the whole normal map of view `index`."""
+    draws = np.random.default_rng([int(config.seed), 10, index]).standard_normal(4)
+    bias = draws[:2] * config.normal_bias_deg * config.severity
+    extra = outlier.normal_deg if outlier is not None else 0.0
+    direction = draws[2:] / max(float(np.linalg.norm(draws[2:])), 1e-9)  # the outlier's own direction
+    return float(bias[0] + extra * direction[0]), float(bias[1] + extra * direction[1])
+
+
+def simulate_normals(
+    normals: Tensor,  # [H, W, 3] true world normals, unit or 0
+    weight: Tensor,  # [H, W] object coverage in [0, 1]
+    camera: Camera,
+    config: SimulationConfig,
+    index: int,
+    outlier: ViewOutlier | None = None,
+) -> Tensor:  # [H, W, 3] world normals, unit where the truth has a normal, 0 elsewhere
+    """One view's predicted normals: blurred inside the object, then turned in the camera frame by the smooth
+    tilt field and the view's own tilt. Severity 0 (or a model without normal errors) gives the truth."""
+    s = config.severity
+    tilt_x, tilt_y = view_tilt(config, index, outlier)
+    sigma = config.normal_blur_fraction * s * max(normals.shape[:2])
+    if config.normal_tilt_deg * s == 0 and tilt_x == 0 and tilt_y == 0 and sigma == 0:
+        return normals.clone()
+    has_normal = defined(normals)  # [H, W]
+    inside = weight * has_normal.to(weight)  # pixels without a normal lend nothing to the blur
+    blurred = renormalised(blur_inside(normals, inside, sigma))
+    field = tilt_field(config.seed, index, int(config.normal_tilt_cells), *normals.shape[:2]).to(normals)
+    angles = field * config.normal_tilt_deg * s + torch.tensor([tilt_x, tilt_y]).to(normals)  # [H, W, 2] degrees
+    rotvec = torch.cat([torch.deg2rad(angles), torch.zeros_like(angles[..., :1])], dim=-1)  # about camera x, y
+    turned = camera_to_world(rotate_vectors(world_to_camera(blurred, camera), rotvec), camera)
+    mixed = renormalised(weight[..., None] * turned + (1.0 - weight[..., None]) * normals)  # edges lean to truth
+    return torch.where(has_normal[..., None], mixed, torch.zeros_like(normals))
+
+
 def simulate_view(
     truth: MaterialMaps,
     photo: Tensor,
@@ -223,9 +290,11 @@ def simulate_view(
     config: SimulationConfig,
     index: int,
     outlier: ViewOutlier | None = None,
+    camera: Camera | None = None,
 ) -> MaterialMaps:
-    """One view's simulated prediction. truth: true maps; photo [H, W, 3] linear; alpha [H, W] or None;
-    index: the view's position in the predicted list (seeds its jitter); outlier: its own errors, if any."""
+    """One view's simulated prediction. truth: true maps (normals in world space, if any); photo [H, W, 3]
+    linear; alpha [H, W] or None; index: the view's position in the predicted list (seeds its jitter);
+    outlier: its own errors, if any; camera: the view's, needed when the truth has normals."""
     s = config.severity
     weight = torch.ones_like(truth.roughness) if alpha is None else alpha.to(truth.roughness).clamp(0.0, 1.0)
     mask = weight > 0.5
@@ -258,7 +327,20 @@ def simulate_view(
     maps = blur_inside(maps, weight, config.blur_fraction * s * max(maps.shape[:2])).clamp(0.0, 1.0)
     truth_stack = torch.cat([truth.basecolor, truth.roughness[..., None], truth.metallic[..., None]], dim=-1)
     maps = weight[..., None] * maps + (1.0 - weight[..., None]) * truth_stack  # the background keeps its true values
-    return MaterialMaps(maps[..., :3].contiguous(), maps[..., 3].contiguous(), maps[..., 4].contiguous())
+    normals = None
+    if truth.normals is not None:
+        if camera is None:
+            raise ValueError("simulate_view needs the view's camera to predict its normals")
+        if truth.normal_space != "world":
+            raise ValueError(f"simulate_view takes world-space true normals, got '{truth.normal_space}'")
+        normals = simulate_normals(truth.normals, weight, camera, config, index, outlier)
+    return MaterialMaps(
+        maps[..., :3].contiguous(),
+        maps[..., 3].contiguous(),
+        maps[..., 4].contiguous(),
+        normals=normals,
+        normal_space="world",
+    )
 
 
 class SimulatedPredictor(Predictor):
@@ -306,6 +388,8 @@ class SimulatedPredictor(Predictor):
                     outlier = draw_view_outlier(draws, start + offset)
                     if outlier != ViewOutlier([1.0, 1.0, 1.0], 0.0):
                         self.outliers.append(dict(asdict(outlier), view=view.name))
-                    out[view.name] = simulate_view(truth, view.image, view.alpha, drift, draws, start + offset, outlier)
+                    out[view.name] = simulate_view(
+                        truth, view.image, view.alpha, drift, draws, start + offset, outlier, view.camera
+                    )
                     bar.update(1)
         return out
