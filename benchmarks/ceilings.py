@@ -26,8 +26,22 @@ first) and scores, per object and error model, on the test views under the held-
   lifted truth            the true 2D maps lifted onto the same Gaussians with the same lift settings and averaged
                           (a perfect predictor; OBJECT/runs/ground-truth, the protocol's sanity-row run): lifted
                           truth - proj-average bounds what any fusion of better predictions could gain
+  lifted truth, full's normals  the lifted truth shaded with `full`'s normals (refined with its materials) instead
+                          of the geometry's: what the refinement's normals gain or cost
+  lifted truth, true alpha  the lifted truth's G-buffer at each test view with its coverage alpha replaced by the
+                          true mask: what the silhouette costs. The relighting figure composites every render with
+                          the true mask, so alpha shows only where the Gaussians leave the object uncovered; there
+                          the row has no materials or normals to shade (zeros), so it does not measure what filling
+                          those holes would gain
+  lifted truth, true normals  the lifted truth's rendered materials (and alpha) shaded with the true normals: what
+                          the Gaussians' normals cost given those materials; the rest to the true G-buffer is the
+                          lift's material blur (+ alpha)
+  true maps, Gaussian normals  the true material maps shaded with the lifted truth's rendered normals, under the
+                          true mask: what the Gaussians' normals alone cost (the true G-buffer minus this row)
   true G-buffer           the true maps and normals of each test view shaded by our renderer (the shading ceiling:
                           what the shading model alone costs against Mitsuba's path tracing)
+
+The markdown splits the gap from the lifted truth to the true G-buffer over the rows between them.
 
 Writes OUT/ceilings-PRESET.json and .md (the models of earlier passes kept, this pass's replaced); each (object,
 model)'s figures are kept in RUN/eval/ceilings.json and reused while no stage of the run changed, so an
@@ -60,6 +74,14 @@ from matspray.errors import ConfigError, MatsprayError, RunError
 from matspray.material import GROUPS
 
 CHANNEL_GROUPS = dict(zip(("base", "rough", "metal"), GROUPS.values()))  # row names of `matspray.material.GROUPS`
+# rows shading the lifted truth's G-buffer at each test view with parts of it taken from the truth: (materials,
+# normals, alpha) each from the asset's G-buffer ("asset") or the truth ("true"; `benchmarks.ceiling_gbuffers`).
+# Between the lifted truth (all "asset") and the true G-buffer (all "true"), each splits off the factor it swaps
+GBUFFER_ROWS = {
+    "lifted truth, true alpha": ("asset", "asset", "true"),
+    "lifted truth, true normals": ("asset", "true", "asset"),
+    "true maps, Gaussian normals": ("true", "asset", "true"),
+}
 ROWS = (
     "proj-average",
     "full",
@@ -70,6 +92,8 @@ ROWS = (
     "true base, PA brightness",
     "lifted truth, PA brightness",
     "lifted truth",
+    "lifted truth, full's normals",
+    *GBUFFER_ROWS,
     "true G-buffer",
 )
 FIGURES = ("relight", "basecolor", "roughness", "metallic")
@@ -179,6 +203,29 @@ def summary_figures(summary: dict) -> dict:
     return {"relight": summary["relighting"]["psnr"], **{c: summary[c]["psnr"] for c in FIGURES[1:] if c in summary}}
 
 
+def with_normals_of(asset, donor, donor_name: str):
+    """`asset` with the normals of `donor`, an asset on the same Gaussians (the same geometry and lift)."""
+    same = len(donor.gaussians) == len(asset.gaussians) and torch.allclose(
+        donor.gaussians.means.cpu(), asset.gaussians.means.cpu(), atol=1e-6
+    )
+    if not same:  # another Gaussian's normal would shade each splat
+        raise RunError(
+            f"{donor_name} holds other Gaussians than the lifted truth ({len(donor.gaussians)} vs "
+            f"{len(asset.gaussians)}): they must share the geometry and lift to swap normals"
+        )
+    return replace(asset, normals=donor.normals.to(asset.normals))
+
+
+def gbuffer_row_figures(asset, views: list, truths: list, lights: dict, sources: tuple) -> dict:
+    """Figures of `asset`'s G-buffer at every test view with the parts `sources` names "true" taken from the truth
+    (`GBUFFER_ROWS`; `benchmarks.ceiling_gbuffers`). A row with the true maps has only its relighting: its material
+    figures would score the truth against itself."""
+    from benchmarks.ceiling_gbuffers import gbuffer_row_summary
+
+    figures = summary_figures(gbuffer_row_summary(asset, views, truths, lights, sources))
+    return figures if sources[0] == "asset" else {"relight": figures["relight"]}
+
+
 @dataclass(frozen=True)
 class ObjectTruth:
     """What every error model of one object is scored against, computed once per object."""
@@ -261,13 +308,17 @@ def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
             averaged, materials=at_brightness(true_materials(), averaged.materials)
         ),
         "lifted truth": lambda: replace(averaged, materials=true_materials()),
+        "lifted truth, full's normals": lambda: with_normals_of(assets["lifted truth"](), full, str(run / "asset")),
     }
-    return {
-        row: {"relight": t.gbuffer_relight}
-        if row == "true G-buffer"
-        else summary_figures(evaluate_asset(assets[row](), t.views, t.truths, t.lights, None)["summary"])
-        for row in rows
-    }
+
+    def figures(row: str) -> dict:
+        if row == "true G-buffer":
+            return {"relight": t.gbuffer_relight}
+        if row in GBUFFER_ROWS:  # the lifted truth's G-buffer, partly swapped for the truth
+            return gbuffer_row_figures(assets["lifted truth"](), t.views, t.truths, t.lights, GBUFFER_ROWS[row])
+        return summary_figures(evaluate_asset(assets[row](), t.views, t.truths, t.lights, None)["summary"])
+
+    return {row: figures(row) for row in rows}
 
 
 # ------------------------------------------------------------------------------------------ the protocol's objects
@@ -286,9 +337,10 @@ def cached_ceilings(run: Path, truth_run: Path, truth, under_true_light) -> dict
 
 
 def mean_rows(per_object: list[dict]) -> dict:
-    """{row: {figure: mean over objects}} (a figure averaged only where every object has it, finite)."""
+    """{row: {figure: mean over objects}} of the rows every object has (a results file of an older version lacks the
+    newer rows), a figure averaged only where every object has it, finite."""
     means = {}
-    for row in ROWS:
+    for row in (r for r in ROWS if all(r in o for o in per_object)):
         values = {f: [o[row].get(f) for o in per_object] for f in FIGURES}
         means[row] = {
             f: sum(v) / len(v) for f, v in values.items() if all(x is not None and abs(x) != float("inf") for x in v)
@@ -312,8 +364,7 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
             "| row | relight | vs proj-average | base | rough | metal |",
             "|---|---|---|---|---|---|",
         ]
-        for row in ROWS:
-            m = means[row]
+        for row, m in means.items():
             gap = None if "relight" not in m else m["relight"] - means["proj-average"].get("relight", float("nan"))
             lines.append(
                 f"| {row} | {fmt(m.get('relight'))} | {'' if row == 'proj-average' else fmt(gap)} | "
@@ -345,6 +396,48 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
             gains = [o["rows"][row]["relight"] - o["rows"]["proj-average"]["relight"] for o in per_object]
             lines.append(f"- {row} - proj-average >= 1 dB on {sum(g >= 1.0 for g in gains)}/{len(gains)} objects")
         lines.append("")
+        lines += decomposition(means)
+    return lines
+
+
+# the rows from the lifted truth to the true G-buffer, and the factors each has wrong (the lifted truth's) or fixed
+DECOMPOSITION = {
+    "lifted truth": "wrong: normals, alpha, material blur",
+    "lifted truth, full's normals": "normals `full`'s (refined) instead of the geometry's",
+    "lifted truth, true alpha": "fixed: alpha (the silhouette)",
+    "lifted truth, true normals": "fixed: normals",
+    "true maps, Gaussian normals": "fixed: material blur, alpha",
+    "true G-buffer": "fixed: all (the shading model's error is left)",
+}
+
+
+def decomposition(means: dict) -> list[str]:
+    """Markdown of where the relighting PSNR between the lifted truth and the true G-buffer goes, from `mean_rows`;
+    none where a row of it is missing (a results file of an older version)."""
+    if not all("relight" in means.get(row, {}) for row in DECOMPOSITION):
+        return []
+    relight = {row: means[row]["relight"] for row in DECOMPOSITION}
+    start, end = relight["lifted truth"], relight["true G-buffer"]
+    lines = [
+        f"Where the {fmt(end - start)} dB from the lifted truth to the true G-buffer go: what fixing factors gains "
+        "over the lifted truth, and what the factors left wrong still cost against the true G-buffer.",
+        "",
+        "| row | relight | gain over lifted truth | left to true G-buffer | factors |",
+        "|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {row} | {fmt(r)} | {fmt(r - start)} | {fmt(end - r)} | {DECOMPOSITION[row]} |" for row, r in relight.items()
+    ]
+    normals = end - relight["true maps, Gaussian normals"]  # the normals alone wrong
+    materials = end - relight["lifted truth, true normals"]  # the material blur (+ alpha) alone wrong
+    lines += [
+        "",
+        f"- the Gaussians' normals alone cost {fmt(normals)} dB, the lift's material blur (+ alpha) alone "
+        f"{fmt(materials)} dB (each with the other fixed): {fmt(normals + materials)} dB against the gap's "
+        f"{fmt(end - start)}; the difference ({fmt(end - start - normals - materials)} dB) is their interaction "
+        "(negative: each costs less while the other is wrong too)",
+        "",
+    ]
     return lines
 
 

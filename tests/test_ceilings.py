@@ -8,17 +8,36 @@ import math
 import multiprocessing
 import threading
 import time
+from dataclasses import replace
 
 import pytest
 import torch
 
 import benchmarks.ceilings as ceilings
-from benchmarks.ceilings import CHANNEL_GROUPS, ROWS, at_brightness, main, mean_rows, merge_with_saved, with_groups
+from benchmarks.ceilings import (
+    CHANNEL_GROUPS,
+    GBUFFER_ROWS,
+    ROWS,
+    at_brightness,
+    gbuffer_row_figures,
+    main,
+    markdown,
+    mean_rows,
+    merge_with_saved,
+    shading_ceiling,
+    summary_figures,
+    with_groups,
+    with_normals_of,
+)
 from benchmarks.generalise import main as generalise
 from matspray.asset import Asset
 from matspray.config import build_config
+from matspray.errors import RunError
 from matspray.gaussians import Gaussians
 from matspray.rundir import RUN_LOCK, RunDir, held_exclusively
+from tests.scenes import ring_cameras, sky_map, sphere_of_disks
+
+OLD_ROWS = [r for r in ROWS if r != "lifted truth, full's normals" and r not in GBUFFER_ROWS]  # before issue 54
 
 
 def tiny_asset(materials: torch.Tensor) -> Asset:
@@ -61,6 +80,107 @@ def test_mean_rows_average_over_objects_and_drop_a_figure_some_object_lacks():
         "relight"
     ] == pytest.approx(21.0 + ROWS.index("lifted truth"))
     assert "metallic" not in means["full"] and means["full"]["basecolor"] == 20.0  # inf (an exact map) is not averaged
+
+
+@pytest.fixture(scope="module")
+def gbuffer_scene(tmp_path_factory):
+    """One 32 px test view of the disk sphere (one: the metrics take the time): its truth (the sphere's own maps, the
+    normals in `{view}_normal.exr` as `matspray synth` writes them, relit under two lights), the lights, and a
+    "lifted truth" with materials blurred towards grey, tilted normals and a smaller outline (holes in its coverage
+    of the true mask)."""
+    from matspray.data import View, write_image
+    from matspray.eval.run_eval import GroundTruth, unpremultiply
+    from matspray.geometry.evaluate import true_normals
+    from matspray.relight import render_gbuffer, render_relit
+    from matspray.render.envmap import EnvironmentMap
+
+    folder = tmp_path_factory.mktemp("gbuffer-scene")
+    gaussians, normals, materials = sphere_of_disks(n=300)
+    true_asset = Asset(gaussians, materials, normals)
+    gains = {"sky": 1.0, "dusk": 0.3}
+    lights = {name: EnvironmentMap.from_tensor(sky_map() * g, learnable=False).prefilter() for name, g in gains.items()}
+    camera = ring_cameras(1, 32)[0]
+    view = View("r_000", torch.zeros(32, 32, 3), None, camera, folder / "r_000.png")
+    with torch.no_grad():
+        true = render_gbuffer(true_asset, camera)
+    write_image(folder / "r_000_normal.exr", torch.nn.functional.normalize(true.normals, dim=-1))
+    relit = {  # under brighter lights than ours: our renderer does not match the truth exactly (nor Mitsuba's)
+        name: unpremultiply(*render_relit(true_asset, camera, EnvironmentMap.from_tensor(sky_map() * g * 1.2)))
+        for name, g in gains.items()
+    }
+    truth = GroundTruth(true.alpha, true.base_color, true.roughness, true.metallic, relit, true_normals(view))
+    shrunk = replace(gaussians, means=0.9 * gaussians.means)  # a smaller outline leaves the true one's rim uncovered
+    tilted = torch.nn.functional.normalize(
+        normals + 0.4 * torch.randn(len(normals), 3, generator=torch.Generator().manual_seed(1)), dim=-1
+    )
+    lifted = Asset(shrunk, 0.6 * materials + 0.2, tilted)
+    return [view], [truth], lights, lifted
+
+
+def asset_figures(asset, views, truths, lights) -> dict:  # how run_ceilings scores an asset's row
+    from matspray.eval.run_eval import evaluate_asset
+
+    return summary_figures(evaluate_asset(asset, views, truths, lights, None)["summary"])
+
+
+def test_every_gbuffer_row_is_finite_and_differs_from_the_lifted_truth_where_it_swaps_something(gbuffer_scene):
+    views, truths, lights, lifted = gbuffer_scene
+    lifted_truth = asset_figures(lifted, views, truths, lights)
+    rows = {row: gbuffer_row_figures(lifted, views, truths, lights, sources) for row, sources in GBUFFER_ROWS.items()}
+    for row, figures in rows.items():
+        assert all(math.isfinite(v) for v in figures.values()), row
+    # the true maps would score themselves: that row has only its relighting, the others the lifted truth's materials
+    assert set(rows["true maps, Gaussian normals"]) == {"relight"}
+    assert rows["lifted truth, true normals"] | {"relight": 0.0} == lifted_truth | {"relight": 0.0}
+    assert rows["lifted truth, true normals"]["relight"] > lifted_truth["relight"] + 1.0  # the tilted normals cost
+    assert rows["true maps, Gaussian normals"]["relight"] > lifted_truth["relight"] + 1.0  # so do the blurred maps
+    assert abs(rows["lifted truth, true alpha"]["relight"] - lifted_truth["relight"]) > 0.01  # and the holes
+
+
+def test_true_maps_with_the_true_normals_are_the_shading_ceiling(gbuffer_scene):
+    views, truths, lights, lifted = gbuffer_scene
+    sources = list(GBUFFER_ROWS["true maps, Gaussian normals"])
+    sources[1] = "true"  # the Gaussians' normals swapped for the true ones too: nothing of the asset is left
+    reference = shading_ceiling(views, truths, lights)["relighting"]["psnr"]
+    assert gbuffer_row_figures(lifted, views, truths, lights, tuple(sources))["relight"] == pytest.approx(
+        reference, abs=1e-5
+    )
+
+
+def test_the_true_alpha_of_an_asset_whose_alpha_is_the_mask_is_the_lifted_truth(gbuffer_scene):
+    from matspray.relight import render_gbuffer
+
+    views, truths, lights, lifted = gbuffer_scene
+    with torch.no_grad():  # the truth's mask made the asset's coverage: the row has nothing left to swap
+        truths = [replace(t, mask=render_gbuffer(lifted, v.camera).alpha) for v, t in zip(views, truths)]
+    swapped = gbuffer_row_figures(lifted, views, truths, lights, GBUFFER_ROWS["lifted truth, true alpha"])
+    assert swapped == pytest.approx(asset_figures(lifted, views, truths, lights), abs=1e-9)
+
+
+def test_normals_are_swapped_only_between_assets_on_the_same_gaussians(gbuffer_scene):
+    views, truths, lights, lifted = gbuffer_scene
+    donor = Asset(lifted.gaussians, torch.zeros_like(lifted.materials), -lifted.normals)
+    swapped = with_normals_of(lifted, donor, "RUN/asset")
+    assert torch.equal(swapped.normals, donor.normals) and torch.equal(swapped.materials, lifted.materials)
+    assert all(math.isfinite(v) for v in asset_figures(swapped, views, truths, lights).values())
+    with pytest.raises(RunError, match="RUN/asset holds other Gaussians than the lifted truth"):
+        with_normals_of(lifted, tiny_asset(torch.zeros(4, 5)), "RUN/asset")
+
+
+def test_the_markdown_splits_the_gap_from_the_lifted_truth_to_the_true_gbuffer():
+    relight = {row: 20.0 + i for i, row in enumerate(ROWS)}
+    relight |= {"lifted truth": 25.0, "true maps, Gaussian normals": 28.0, "lifted truth, true normals": 30.0}
+    relight["true G-buffer"] = 33.0
+    results = {"dr": [{"object": "dev-00", "rows": {row: {"relight": r} for row, r in relight.items()}}]}
+    text = "\n".join(markdown("dev", "demo", results))
+    assert "Where the 8.00 dB from the lifted truth to the true G-buffer go" in text
+    assert "| lifted truth, true normals | 30.00 | 5.00 | 3.00 |" in text  # fixing the normals gains 5 dB, 3 are left
+    assert "the Gaussians' normals alone cost 5.00 dB, the lift's material blur (+ alpha) alone 3.00 dB" in text
+    assert "the difference (0.00 dB) is their interaction" in text  # 5 + 3 of the 8 dB: they add up here
+    # a results file of an older version, without the rows: its tables as before, no decomposition
+    old = {"dr": [{"object": "dev-00", "rows": {r: v for r, v in results["dr"][0]["rows"].items() if r in OLD_ROWS}}]}
+    text = "\n".join(markdown("dev", "demo", old))
+    assert "Where the" not in text and "| true G-buffer | 33.00 |" in text and "true normals" not in text
 
 
 def merge_one_model(path, model):  # a ceilings job of another process finishing its pass
@@ -141,6 +261,9 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     assert "error model `paper` (SIMULATED predictor), mean of 1 objects" in printed
     rows = json.loads((out / "ceilings-test.json").read_text())["paper"][0]["rows"]
     assert list(rows) == list(ROWS)
+    split = ("lifted truth, full's normals", *GBUFFER_ROWS)  # the rows splitting lifted truth -> true G-buffer
+    assert all(math.isfinite(rows[row]["relight"]) for row in split) and "Where the" in printed
+    assert rows["lifted truth, full's normals"]["roughness"] == rows["lifted truth"]["roughness"]  # its materials
     protocol = json.loads((out / "results-default.json").read_text())["models"]["paper"]["objects"][0]["figures"]
     assert rows["proj-average"]["relight"] == pytest.approx(
         protocol["relight"]["proj-average"], abs=1e-6
