@@ -322,18 +322,19 @@ def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
 
 
 # ------------------------------------------------------------------------------------------ the protocol's objects
-def cached_ceilings(run: Path, truth_run: Path, truth, under_true_light) -> dict:
-    """`run_ceilings(run, truth, under_true_light)`; the rows already in RUN/eval/ceilings.json are reused while no
-    stage of either run folder is newer than it, so only missing rows (e.g. ones a newer version adds) are computed."""
+def cached_ceilings(run: Path, truth_run: Path, truth, under_true_light, rows=ROWS) -> dict:
+    """`run_ceilings(run, truth, under_true_light, rows)`; the rows already in RUN/eval/ceilings.json are reused while
+    no stage of either run folder is newer than it, so only missing rows (e.g. ones a newer version adds) are
+    computed; the file keeps every row computed so far."""
     from matspray.rundir import newer_than_stages, read_json, write_json
 
     path = run / "eval" / CEILINGS_FILE
     kept = read_json(path) if newer_than_stages(path, run, truth_run) else {}
-    missing = [row for row in ROWS if row not in kept]
+    missing = [row for row in rows if row not in kept]
     if missing:
         kept |= run_ceilings(run, truth, under_true_light, missing)
-        write_json(path, {row: kept[row] for row in ROWS})
-    return {row: kept[row] for row in ROWS}
+        write_json(path, {row: kept[row] for row in ROWS if row in kept})
+    return {row: kept[row] for row in ROWS if row in rows}
 
 
 def mean_rows(per_object: list[dict]) -> dict:
@@ -496,7 +497,7 @@ def run_set(args, log=print) -> list[str]:
             require_same_lift(run_dir, config)
             log(f"ceilings: object {number}/{len(objects)} {spec.name}, error model {model}")
             results[model].append(
-                {"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light)}
+                {"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light, args.rows)}
             )
     path = args.out / f"ceilings-{part_name(args.preset, args.start)}.json"
     with held_exclusively(
@@ -527,6 +528,14 @@ def parse_args(argv=None):
     )
     parser.add_argument("--preset", choices=("test", "demo"), default="demo")
     parser.add_argument("--out", type=Path, help="the protocol's folder (default runs/generalise-SET-PRESET)")
+    parser.add_argument(
+        "--rows",
+        nargs="+",
+        default=list(ROWS),
+        choices=ROWS,
+        metavar="ROW",
+        help="only these rows (default: all; the 'full, true light' rows refine once more per run)",
+    )
     args = parser.parse_args(argv)
     check_part_arguments(parser, args)
     args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"

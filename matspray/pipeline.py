@@ -22,7 +22,7 @@ from matspray.config import WORKING_SIZE, PipelineConfig
 from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
-from matspray.errors import MatsprayError, RunError, file_error
+from matspray.errors import ConfigError, MatsprayError, RunError, file_error
 from matspray.estimate import Work, run_work
 from matspray.geometry.ply import read_ply, vertex_count
 from matspray.geometry.train import train_geometry
@@ -358,6 +358,16 @@ class Pipeline:
         lifted = self.lift(gaussians, maps)
         kept = gaussians.subset(lifted.kept)
         views = [v.to(self.device) for v in self.scene.train]
+        normal_maps = (
+            predicted_normal_maps({n: m.to(self.device) for n, m in maps.items()}, views) if maps is not None else None
+        )
+        if normal_maps is None and self.config.refine.predicted_normal_weight > 0:
+            raise ConfigError(
+                f"refine.predicted_normal_weight is {self.config.refine.predicted_normal_weight}, but this run's 2D "
+                f"maps ({self.run.path('materials2d')}) have no normal maps: use a predictor that gives them "
+                "(simulated, ground-truth, files: with *_normal files, marigold with --normals-weights), or delete "
+                "that folder if it was predicted before normal maps were kept"
+            )
         return RefineInputs(
             gaussians=kept,
             normals=normals[lifted.kept],
@@ -367,9 +377,7 @@ class Pipeline:
             targets=[maps_to_tensor(maps[v.name]).to(self.device) for v in views] if maps is not None else [],
             bounds=self.scene.bounds.to(self.device),
             visibility=self.visibility(kept),
-            normal_maps=predicted_normal_maps({n: m.to(self.device) for n, m in maps.items()}, views)
-            if maps is not None
-            else None,
+            normal_maps=normal_maps,
         )
 
     def light_probe(self) -> EnvironmentMap | None:

@@ -314,6 +314,11 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
         rows["full, true light"]["relight"], abs=1e-6
     )  # the asset reused
 
+    # --rows computes and reports only the rows asked for (here none is missing: every one is read back)
+    assert main([*args, "--rows", "proj-average", "lifted truth"]) == 0
+    only = json.loads((out / "ceilings-test.json").read_text())["paper"][0]["rows"]
+    assert list(only) == ["proj-average", "lifted truth"] and only["lifted truth"]["relight"] == -1.0
+
     # a model kept from an earlier pass of a version with other rows is dropped, with a notice, not averaged half
     saved_file.write_text(
         json.dumps(

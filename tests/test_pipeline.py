@@ -104,6 +104,17 @@ def test_the_simulated_predictors_normal_maps_reach_refinement_in_world_space(ti
     assert "predicted_normals" in history[-1]
 
 
+def test_a_weight_on_predicted_normals_without_any_is_refused_naming_the_folder(tiny_object, finished_run):
+    from matspray.errors import ConfigError
+
+    config = replace(tiny_config(), refine=replace(tiny_config().refine, predicted_normal_weight=1.0))
+    pipeline = Pipeline(tiny_object, finished_run, config, progress=False, log=lambda _: None)
+    maps = pipeline.predict()
+    pipeline.predict = lambda: {name: replace(m, normals=None) for name, m in maps.items()}  # a predictor without
+    with pytest.raises(ConfigError, match=r"predicted_normal_weight is 1.0, but .*materials2d\) have no normal maps"):
+        pipeline.refine_inputs()
+
+
 def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
     import shutil
 
