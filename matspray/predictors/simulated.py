@@ -237,12 +237,15 @@ def rotate_vectors(vectors: Tensor, rotvec: Tensor) -> Tensor:  # [..., 3], [...
     return vectors * cos + torch.linalg.cross(axis, vectors, dim=-1) * sin + axis * along * (1.0 - cos)
 
 
-def tilt_field(seed: int, index: int, cells: int, height: int, width: int) -> Tensor:  # -> [H, W, 2]
+def tilt_field(seed: int, index: int, cells: int, height: int, width: int, device=None) -> Tensor:  # -> [H, W, 2]
     """A smooth random field: independent standard normals at a cells x cells grid spanning the image,
     interpolated bicubically, drawn from (seed, index) alone, so every resolution gets the same field."""
     grid = np.random.default_rng([int(seed), 9, index]).standard_normal((2, cells, cells))
     field = F.interpolate(
-        torch.from_numpy(grid).float()[None], size=(height, width), mode="bicubic", align_corners=True
+        torch.as_tensor(grid, dtype=torch.float32, device=device)[None],
+        size=(height, width),
+        mode="bicubic",
+        align_corners=True,
     )
     return field[0].permute(1, 2, 0)  # [H, W, 2]
 
@@ -274,8 +277,8 @@ def simulate_normals(
     has_normal = defined(normals)  # [H, W]
     inside = weight * has_normal.to(weight)  # pixels without a normal lend nothing to the blur
     blurred = renormalised(blur_inside(normals, inside, sigma))
-    field = tilt_field(config.seed, index, int(config.normal_tilt_cells), *normals.shape[:2]).to(normals)
-    angles = field * config.normal_tilt_deg * s + torch.tensor([tilt_x, tilt_y]).to(normals)  # [H, W, 2] degrees
+    field = tilt_field(config.seed, index, int(config.normal_tilt_cells), *normals.shape[:2], normals.device)
+    angles = field.to(normals) * config.normal_tilt_deg * s + normals.new_tensor([tilt_x, tilt_y])  # [H, W, 2] deg
     rotvec = torch.cat([torch.deg2rad(angles), torch.zeros_like(angles[..., :1])], dim=-1)  # about camera x, y
     turned = camera_to_world(rotate_vectors(world_to_camera(blurred, camera), rotvec), camera)
     mixed = renormalised(weight[..., None] * turned + (1.0 - weight[..., None]) * normals)  # edges lean to truth
