@@ -169,22 +169,26 @@ class MarigoldPredictor(Predictor):
             info["normals"] = "marigold normals, camera space (OpenCV axes)"
         return info
 
-    def _normals(self, views: list[View], first: int) -> list[Tensor]:  # -> N x [H, W, 3] camera space, ours
-        """The normals model's prediction for `views`, turned into MatSpray's camera axes, 0 off the object."""
+    def _call(self, pipe, name: str, views: list[View], first: int, **extra):
+        """One diffusers Marigold pipeline on `views` (the batch starting at view `first`, which seeds it)."""
         c = self.config
-        generator = torch.Generator().manual_seed(int(c.seed) + first)
         try:
-            output = self.normals_pipe(
-                photo_batch(views).to(self.device, self.normals_pipe.dtype),
+            return pipe(
+                photo_batch(views).to(self.device, pipe.dtype),
                 num_inference_steps=c.steps,
                 ensemble_size=c.ensemble_size,
                 processing_resolution=c.processing_resolution,
                 batch_size=len(views),
-                generator=generator,
+                generator=torch.Generator().manual_seed(int(c.seed) + first),
                 output_type="pt",
+                **extra,
             )
         except ValueError as exc:  # diffusers' input checks
-            raise ConfigError(f"Marigold's normals model rejected the settings: {exc}") from None
+            raise ConfigError(f"{name} rejected the settings: {exc}") from None
+
+    def _normals(self, views: list[View], first: int) -> list[Tensor]:  # -> N x [H, W, 3] camera space, ours
+        """The normals model's prediction for `views`, turned into MatSpray's camera axes, 0 off the object."""
+        output = self._call(self.normals_pipe, "Marigold's normals model", views, first)
         normals = renormalised(from_opengl_camera(output.prediction.float().cpu().permute(0, 2, 3, 1)))  # [N, H, W, 3]
         out = []
         for view, n in zip(views, normals):
@@ -201,20 +205,7 @@ class MarigoldPredictor(Predictor):
     def _run(self, views: list[View], first: int) -> list[MaterialMaps]:
         c = self.config
         with_confidence = c.ensemble_size >= 3
-        generator = torch.Generator().manual_seed(int(c.seed) + first)
-        try:
-            output = self.pipe(
-                photo_batch(views).to(self.device, self.pipe.dtype),
-                num_inference_steps=c.steps,
-                ensemble_size=c.ensemble_size,
-                processing_resolution=c.processing_resolution,
-                batch_size=len(views),
-                generator=generator,
-                output_type="pt",
-                output_uncertainty=with_confidence,
-            )
-        except ValueError as exc:  # diffusers' input checks
-            raise ConfigError(f"Marigold rejected the settings: {exc}") from None
+        output = self._call(self.pipe, "Marigold", views, first, output_uncertainty=with_confidence)
         n, t = len(views), len(self.pipe.target_properties["target_names"])
         prediction = output.prediction.float().cpu().reshape(n, t, 3, *output.prediction.shape[-2:])
         albedo = self._channel(prediction, "albedo")
