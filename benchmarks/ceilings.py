@@ -372,15 +372,19 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
                 + " | ".join(fmt(m.get(c)) for c in FIGURES[1:])
                 + " |"
             )
-        columns = (
-            "proj-average",
-            "full",
-            "full, true light",
-            "softmax oracle",
-            "lifted truth, PA brightness",
-            "lifted truth",
-            "true G-buffer",
-        )
+        columns = [  # of the main rows, those this pass computed (`--rows`)
+            row
+            for row in (
+                "proj-average",
+                "full",
+                "full, true light",
+                "softmax oracle",
+                "lifted truth, PA brightness",
+                "lifted truth",
+                "true G-buffer",
+            )
+            if row in means
+        ]
         lines += ["", "| object | " + " | ".join(columns) + " |", "|" + "---|" * (1 + len(columns))]
         lines += [
             f"| {o['object']} | " + " | ".join(fmt(o["rows"][k]["relight"]) for k in columns) + " |" for o in per_object
@@ -394,6 +398,8 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
             "lifted truth, PA brightness",
             "lifted truth",
         ):
+            if row not in means or "proj-average" not in means:
+                continue
             gains = [o["rows"][row]["relight"] - o["rows"]["proj-average"]["relight"] for o in per_object]
             lines.append(f"- {row} - proj-average >= 1 dB on {sum(g >= 1.0 for g in gains)}/{len(gains)} objects")
         lines.append("")
