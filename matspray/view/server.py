@@ -142,7 +142,6 @@ class Viewer:
             if client.client_id in self.connected:
                 return
             self.connected.add(client.client_id)
-        print("TRACE connect", time.time(), flush=True)
         # a new tab starts at the start view: set here, before its first frame, because the page may report viser's
         # default camera before it has applied `initial_camera`
         wxyz, position, fov = viser_pose(self.start_camera)
@@ -314,7 +313,6 @@ class ClientView:
         if not self.running:  # the tab closed while this frame rendered
             return
         self.client.scene.set_background_image(frame.image, format="png")
-        print("TRACE frame", kind, frame.size, frame.seconds, time.time(), flush=True)
         self.last_frame = frame
         width, height = frame.size
         what = "moving: low resolution" if kind == "low" else "still: full resolution"
