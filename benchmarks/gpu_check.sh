@@ -2,13 +2,14 @@
 # Every GPU check of MatSpray in one call, built to finish within 10 minutes on one H100-class GPU:
 #   1. install what the machine lacks (wheels carried in .whl/, made here by benchmarks/gpu_wheels.sh) and matspray itself;
 #   2. build gsplat's CUDA extension (timed) and check that backend `auto` picks it;
-#   3. the test suite's device tests on CUDA (pytest --device cuda: the on_device tests and the gsplat parity
-#      tests); then, with GPU_CHECK_DATA=DIR (a `matspray synth` object made elsewhere), the demo preset on it with
-#      gsplat (three variants, evaluated) and with backend torch;
-#   4. python -m benchmarks.paper_scale (the paper preset; what each stage ran on, seconds, memory, PSNR) within what is left,
-#      where Mitsuba is installed (it makes the object; see step 4);
-#   5. one summary.
-# Usage (on the GPU machine, in the repository root): bash benchmarks/gpu_check.sh [OUT_DIR]
+#   3. the test suite's device tests on CUDA (pytest --device cuda: the on_device tests, the gsplat parity tests, the
+#      graphed training step);
+#   4. python -m benchmarks.step_cost --device cuda: operations and synchronisations per unit of work, counted there;
+#   5. with GPU_CHECK_DATA=DIR (a `matspray synth` object made elsewhere, e.g. 12 views at 512 px): the per-unit rates
+#      of the paper preset on it and the whole preset projected from them (python -m benchmarks.unit_rates), with the
+#      GPU's utilisation sampled by nvidia-smi meanwhile; then, in the time left, the demo preset on it with gsplat;
+#   6. python -m benchmarks.paper_scale (the paper preset end to end) where Mitsuba is installed, in the time left;
+#   7. one summary.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-${OUT:-runs/gpu-check}}
@@ -47,13 +48,27 @@ summary+=("$(grep -h 'gsplat CUDA extension\|resolves to\|failed' "$OUT/gsplat_b
 # 3. the device tests on CUDA (pytest --device cuda: the on_device tests and the gsplat parity tests), after the build:
 # two processes building gsplat at once break each other's build. Their tiny object needs Mitsuba; without it, one
 # made elsewhere (MATSPRAY_TINY_OBJECT, see tests/conftest.py)
-timeout $(( $(left) / 3 )) python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_device.py tests/test_gsplat_backend.py \
-  tests/test_gsplat_parity.py 2>&1 | tee "$OUT/pytest_cuda.log"
+timeout $(( $(left) / 4 )) python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_device.py tests/test_gsplat_backend.py \
+  tests/test_gsplat_parity.py tests/test_geometry_step.py 2>&1 | tee "$OUT/pytest_cuda.log"
 summary+=("pytest --device cuda: $(tail -n 1 "$OUT/pytest_cuda.log")")
 
-# 3b. with a carried `matspray synth` object (GPU_CHECK_DATA=DIR): the demo preset on CUDA with gsplat (geometry, lift,
-# refinement of three variants, evaluation), then with backend torch (full only) in the time left
+# 4. what a unit of work dispatches, counted on the GPU (torch's sync debug mode counts every wait for the device)
+timeout 120 python3 -m benchmarks.step_cost --device cuda --json "$OUT/step_cost.json" 2>&1 | tee "$OUT/step_cost.log"
+summary+=("step_cost on CUDA:" "$(grep -E '^(unit|per )' "$OUT/step_cost.log")")
+
+# 5. with a carried `matspray synth` object (GPU_CHECK_DATA=DIR): the paper preset's per-unit rates on it, then the demo
+# preset (geometry, lift, refinement of three variants, evaluation) with gsplat in the time left
 RUNS=${GPU_CHECK_RUNS:-/tmp/gpu-check-runs}  # run folders stay out of OUT (too many files to bring back)
+if [ -n "${GPU_CHECK_DATA:-}" ] && [ "$(left)" -gt 120 ]; then
+  nvidia-smi dmon -s u -d 1 > "$OUT/dmon.log" 2>&1 &
+  dmon=$!
+  timeout $(( $(left) - 30 )) python3 -m benchmarks.unit_rates --data "$GPU_CHECK_DATA" --device cuda \
+    --geometry-steps "${GPU_CHECK_GEOMETRY_STEPS:-7000}" --compare-eager 1000 --out "$RUNS/unit-rates" \
+    --json "$OUT/unit_rates.json" 2>&1 | tr '\r' '\n' | grep -v '%|' | tee "$OUT/unit_rates.log"
+  kill $dmon 2>/dev/null
+  summary+=("unit rates (exit ${PIPESTATUS[0]}, 124 = out of time):" "$(grep -v '^$' "$OUT/unit_rates.log" | tail -n 8)")
+  summary+=("SM utilisation while it ran (nvidia-smi dmon, mean of 1 s samples): $(awk '$1 !~ /#/ && NF > 2 {s += $2; n++} END {if (n) printf "%.0f %% over %d s", s / n, n}' "$OUT/dmon.log")")
+fi
 demo_run() {  # backend, seconds, variants...
   local backend=$1 limit=$2; shift 2
   # progress bars: only their last state (100%) is kept
@@ -62,11 +77,8 @@ demo_run() {  # backend, seconds, variants...
   summary+=("demo preset on CUDA, backend $backend (exit ${PIPESTATUS[0]}, 124 = out of time):")
   summary+=("$(sed -n '/^preset /,$p' "$OUT/demo_$backend.log")")
 }
-if [ -n "${GPU_CHECK_DATA:-}" ] && [ "$(left)" -gt 30 ]; then
-  demo_run gsplat "$(( $(left) - 10 ))" full proj-average no-prior
-fi
-if [ -n "${GPU_CHECK_DATA:-}" ] && [ "$(left)" -gt 60 ]; then
-  demo_run torch "$(( $(left) - 10 ))" full
+if [ -n "${GPU_CHECK_DATA:-}" ] && [ "$(left)" -gt 90 ]; then
+  demo_run gsplat "$(( $(left) - 10 ))" full proj-average
 fi
 
 # 4. the paper preset, within what is left. It makes its object with Mitsuba, which the GPU image lacks and which

@@ -90,3 +90,13 @@ def configure_threads(device: torch.device | None = None) -> int:
         raise ConfigError(f"$MATSPRAY_THREADS must be >= 1, got {threads}")
     torch.set_num_threads(threads)
     return threads
+
+
+def host_to_device(values: torch.Tensor, device) -> torch.Tensor:
+    """A CPU tensor on `device` without stalling the host: a copy to a GPU from ordinary (pageable) memory waits
+    for the GPU's queue to drain; one from page-locked memory is queued like a kernel. The CPU tensor as is on the
+    CPU."""
+    device = torch.device(device)
+    if device.type != "cuda":
+        return values.to(device)
+    return values.pin_memory().to(device, non_blocking=True)

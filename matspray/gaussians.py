@@ -56,9 +56,16 @@ class Gaussians:
         return L @ L.transpose(1, 2)
 
     def normals(self) -> Tensor:  # [N, 3] unit axis of the smallest scale (unoriented)
-        R = self.rotation_matrices()
-        shortest = self.log_scales.argmin(dim=-1)
-        return R.gather(2, shortest[:, None, None].expand(-1, 3, 1))[..., 0]
+        # R e = (1 - 2 |v|^2) e + 2 (v . e) v + 2 w (v x e), the entries of `quaternion_to_matrix` (w, v): the one
+        # column of the rotation matrix that is wanted, in a third of the operations of the whole matrix (training
+        # takes it every step)
+        q = self.rotations
+        w, v = q[:, :1], q[:, 1:]
+        axes = torch.arange(3, device=q.device)  # (not one_hot, which reads its input's range on the host)
+        e = (self.log_scales.argmin(dim=-1, keepdim=True) == axes).to(q)  # [N, 3] the shortest local axis
+        return (1 - 2 * (v * v).sum(-1, keepdim=True)) * e + 2 * (v * e).sum(-1, keepdim=True) * v + 2 * w * (
+            torch.linalg.cross(v, e, dim=-1)
+        )
 
     def subset(self, keep: Tensor) -> "Gaussians":
         """The Gaussians selected by a boolean mask or index tensor."""

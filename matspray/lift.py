@@ -41,6 +41,8 @@ from matspray.render.contributions import iter_contributions
 from matspray.render.settings import RasterSettings
 
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
+DEFAULT_BAND_SAMPLES = 1 << 21  # iter_contributions' default
+BYTES_PER_CANDIDATE = 160  # the float64 temporaries of one (Gaussian, ray) candidate in the tracer, with margin
 
 
 @dataclass(frozen=True)
@@ -127,7 +129,12 @@ def traced_entries(
     n_pixels = camera.width * camera.height
     pair_keys, pair_counts = [], []
     for band in iter_contributions(
-        gaussians, camera, config.samples_per_side, falloff=config.falloff, settings=settings
+        gaussians,
+        camera,
+        config.samples_per_side,
+        falloff=config.falloff,
+        settings=settings,
+        max_samples=band_samples(gaussians.means.device),
     ):  # whole rays, a band of rows at a time
         transmittance = band.weights / band.alphas.clamp_min(1e-12)  # in front of the hit
         visible = transmittance >= config.visibility_threshold
@@ -150,6 +157,17 @@ def traced_entries(
     keys = torch.cat(pair_keys) if pair_keys else torch.zeros(0, dtype=torch.long, device=device)
     counts = torch.cat(pair_counts) if pair_counts else torch.zeros(0, dtype=torch.long, device=device)
     return keys, counts
+
+
+def band_samples(device: torch.device) -> int:
+    """How many (Gaussian, ray) candidates the torch tracer evaluates at once on `device`: on a GPU as many as an
+    eighth of its free memory holds, since each band is a few dozen kernel launches and host reads (bands split the
+    work only where it must, into whole rays, so the hits are the same whatever the size); on the CPU the tracer's
+    default, which keeps memory small."""
+    if device.type != "cuda":
+        return DEFAULT_BAND_SAMPLES
+    free, _ = torch.cuda.mem_get_info(device)
+    return int(min(max(free // 8 // BYTES_PER_CANDIDATE, DEFAULT_BAND_SAMPLES), 1 << 30))
 
 
 def compiled_entries(

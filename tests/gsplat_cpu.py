@@ -15,8 +15,9 @@ swaps them for
     transmittance would fall to 1e-4 or below), differentiated by autograd, with `means2d.absgrad` filled
     as RasterizeToPixels3DGSBwd.cu does when absgrad=True.
 So everything between our `rasterize_gsplat` and those kernels (argument layout, render modes, meta,
-channel chunks) is gsplat's real code. Not replaced: packed=True, other camera models, masks, and
-`spherical_harmonics` (sh_degree must be None). What only a GPU can check is gsplat's CUDA build and the
+channel chunks) is gsplat's real code. `gsplat.spherical_harmonics` (our SH colour under backend gsplat) is replaced
+by gsplat's torch reference `_spherical_harmonics`. Not replaced: packed=True, other camera models, masks, and
+rasterization's own SH (sh_degree must be None). What only a GPU can check is gsplat's CUDA build and the
 arithmetic of its kernels (`-use_fast_math`: __expf, __logf; float32 sums in another order).
 
 Entries of culled Gaussians (radii 0) that the CUDA kernel never writes (`at::empty`) are NaN here, so any
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import math
 
+import gsplat
 import gsplat.rendering
 import torch
 from gsplat.cuda._torch_impl import (
@@ -35,6 +37,7 @@ from gsplat.cuda._torch_impl import (
     _isect_tiles,
     _persp_proj,
     _quat_scale_to_covar_preci,
+    _spherical_harmonics,
     _world_to_cam,
 )
 from torch import Tensor
@@ -55,6 +58,7 @@ def gsplat_on_cpu(monkeypatch) -> None:
     monkeypatch.setattr(gsplat.rendering, "isect_tiles", isect_tiles)
     monkeypatch.setattr(gsplat.rendering, "isect_offset_encode", isect_offset_encode)
     monkeypatch.setattr(gsplat.rendering, "rasterize_to_pixels", rasterize_to_pixels)
+    monkeypatch.setattr(gsplat, "spherical_harmonics", _spherical_harmonics)
     monkeypatch.setattr(backend_module, "gsplat_device_error", lambda device, notify=None: None)
 
 

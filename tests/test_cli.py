@@ -97,3 +97,24 @@ def test_refine_seed_overrides_the_seed_for_refinement_only():
     assert variant_refine_config(config, "full").seed == 7
     assert variant_refine_config(config, "supervised").variant == "supervised"
     assert config.geometry.seed == 3
+
+
+def test_demo_offers_the_paper_preset_and_refuses_it_without_a_gpu(tmp_path, monkeypatch):
+    result = run_cli("demo", "--help")
+    assert "{test,demo,paper}" in result.stdout
+    result = run_cli("demo", "--preset", "paper", "--out", tmp_path / "demo")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "paper is sized for one CUDA GPU" in result.stderr and "--device cpu" in result.stderr
+    assert not (tmp_path / "demo").exists()
+    # asked for on the CPU, or on a machine with a GPU, it runs the paper-sized demo
+    import argparse
+
+    import matspray.demo
+    from matspray.cli import demo as demo_cli
+
+    ran = []
+    monkeypatch.setattr(matspray.demo, "run_demo", lambda out, **kw: ran.append(kw) or tmp_path / "report.html")
+    parser = argparse.ArgumentParser()
+    demo_cli.add_parser(parser)
+    assert demo_cli.run(parser.parse_args(["--preset", "paper", "--device", "cpu", "--out", str(tmp_path)])) == 0
+    assert ran[0]["preset"] == "paper" and ran[0]["config"].preset == "paper"

@@ -73,20 +73,20 @@ def test_interrupted_run_resumes_to_the_same_result(tiny_object, tmp_path, monke
     )
     straight = train_geometry(scene, config, tmp_path / "straight", progress=False)
 
-    import matspray.geometry.train as train_module
+    import matspray.geometry.step as step_module
 
-    original = train_module.training_losses
+    original = step_module.training_losses
 
     def interrupt_at_25(gaussians, view, cfg, iteration, *rest):
         if iteration == 25:
             raise KeyboardInterrupt
         return original(gaussians, view, cfg, iteration, *rest)
 
-    monkeypatch.setattr(train_module, "training_losses", interrupt_at_25)
+    monkeypatch.setattr(step_module, "training_losses", interrupt_at_25)
     with pytest.raises(KeyboardInterrupt):
         train_geometry(scene, config, tmp_path / "resumed", progress=False)
     assert not (tmp_path / "resumed" / "gaussians.ply").exists()
-    monkeypatch.setattr(train_module, "training_losses", original)
+    monkeypatch.setattr(step_module, "training_losses", original)
     resumed = train_geometry(scene, config, tmp_path / "resumed", progress=False)  # continues from iteration 20
     for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
         torch.testing.assert_close(getattr(resumed, name), getattr(straight, name), rtol=0, atol=0)

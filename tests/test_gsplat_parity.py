@@ -438,3 +438,46 @@ def test_gsplat_matches_torch_on_cuda(seed):
     torch.testing.assert_close(b.depth, a.depth, atol=1e-2, rtol=1e-3)
     for x, y in ((ga.means, gb.means), (ga.opacity_logits, gb.opacity_logits), (fa, fb)):
         torch.testing.assert_close(y.grad, x.grad, atol=2e-2, rtol=2e-2)
+
+
+def sh_scene(seed: int, device="cpu"):
+    g = torch.Generator().manual_seed(seed)
+    means = (torch.randn(200, 3, generator=g) * 0.5).to(device).requires_grad_(True)
+    sh = (torch.randn(200, 16, 3, generator=g) * 0.3).to(device).requires_grad_(True)
+    gaussians = Gaussians(means, torch.zeros(200, 3, device=device), torch.ones(200, 4, device=device),
+                          torch.zeros(200, device=device), sh)  # fmt: skip
+    return gaussians, Camera.look_at([0.5, -3.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.8, 16, 16).to(device)
+
+
+def sh_colours_and_gradients(gaussians: Gaussians, camera: Camera, backend: str, degree: int):
+    from matspray.render.backend import rendering_with
+    from matspray.render.sh import sh_colors
+
+    with rendering_with(backend):
+        colours = sh_colors(gaussians, camera, degree)
+    weights = torch.linspace(-1.0, 1.0, colours.numel(), device=colours.device).reshape(colours.shape)
+    inputs = [gaussians.means, gaussians.sh]
+    grads = torch.autograd.grad((colours * weights).sum(), inputs, allow_unused=True)  # degree 0: not on the means
+    return colours.detach(), *(torch.zeros_like(x) if g is None else g for g, x in zip(grads, inputs))
+
+
+@pytest.mark.parametrize("degree", [0, 1, 3])
+def test_sh_colour_by_gsplat_is_ours(monkeypatch, degree):
+    # backend gsplat takes the SH colour from gsplat's fused kernels (here its torch reference): the same colours
+    # and gradients, to the means through the view directions too
+    gsplat_on_cpu(monkeypatch)
+    gaussians, camera = sh_scene(degree)
+    ours = sh_colours_and_gradients(gaussians, camera, "torch", degree)
+    theirs = sh_colours_and_gradients(gaussians, camera, "gsplat", degree)
+    for a, b in zip(theirs, ours):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+
+
+@needs_gsplat
+@pytest.mark.on_device
+def test_sh_colour_by_gsplat_is_ours_on_cuda():
+    gaussians, camera = sh_scene(0, "cuda")
+    ours = sh_colours_and_gradients(gaussians, camera, "torch", 3)
+    theirs = sh_colours_and_gradients(gaussians, camera, "gsplat", 3)
+    for a, b in zip(theirs, ours):
+        torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-4)

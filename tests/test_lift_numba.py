@@ -109,3 +109,31 @@ def test_lifting_with_backend_numba_gives_the_torch_lift():
     assert torch_lift.kept.sum() > 100
     for name in ("values", "seen", "kept", "hits"):
         assert torch.equal(getattr(numba_lift, name), getattr(torch_lift, name)), name
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_torch_tracers_entries_do_not_depend_on_its_band_size(monkeypatch, seed):
+    # on a GPU the tracer takes bands as large as its memory allows (lift.band_samples): whole rays either way, so
+    # the same entries as in the CPU's small bands, here from one band for the whole view down to bands of a row
+    import matspray.lift as lift_module
+
+    assert lift_module.band_samples(torch.device("cpu")) == lift_module.DEFAULT_BAND_SAMPLES
+    gaussians, camera = dense_scene(seed)
+    config = LiftConfig(samples_per_side=3)
+    core = footprint_alpha(gaussians.opacities.detach(), config, SETTINGS.max_alpha)
+    traced = lift_module.iter_contributions
+    bands = []
+
+    def counted(*args, **kwargs):
+        for band in traced(*args, **kwargs):
+            bands[-1] += 1
+            yield band
+
+    monkeypatch.setattr(lift_module, "iter_contributions", counted)
+    results = []
+    for samples in (1 << 30, 1 << 16, 9):
+        monkeypatch.setattr(lift_module, "band_samples", lambda device, samples=samples: samples)
+        bands.append(0)
+        results.append(sorted_entries(*traced_entries(gaussians, camera, None, config, SETTINGS, core)))
+    assert results[0] == results[1] == results[2]
+    assert bands[0] == 1 < bands[1] < bands[2] == camera.height

@@ -70,9 +70,37 @@ class Camera:
         return Camera.from_fov_x(fov_x, width, height, torch.linalg.inv(c2w))
 
     # ---------------------------------------------------------------- properties
+    def _cached(self, name: str, compute):
+        """`compute()` once per pose and intrinsics: training reads the camera's derived matrices several times a
+        step, and on a GPU each recomputation is a handful of kernel launches. Keyed on the tensors and their
+        versions, so that a K or viewmat replaced or changed in place is computed again."""
+        key = (id(self.K), self.K._version, id(self.viewmat), self.viewmat._version, self.viewmat.device)
+        cached = self.__dict__.get(name)
+        if cached is None or cached[0] != key:
+            # the tensors are held with the value, so that their ids cannot be reused by others while it is kept
+            self.__dict__[name] = cached = (key, compute(), self.K, self.viewmat)
+        return cached[1]
+
     @property
     def camtoworld(self) -> Tensor:  # [4, 4] OpenCV axes
-        return torch.linalg.inv(self.viewmat.double()).to(self.viewmat.dtype)
+        return self._cached("_camtoworld", lambda: torch.linalg.inv(self.viewmat.double()).to(self.viewmat.dtype))
+
+    def pixel_directions(self) -> Tensor:  # [H, W, 3] world space, scaled to camera z = 1
+        """The world-space direction through each pixel centre, scaled so that a point at camera depth z along it
+        is `center + z * direction` (computed once per camera)."""
+
+        def directions() -> Tensor:
+            K = self.K
+            rows, cols = torch.meshgrid(
+                torch.arange(self.height, device=K.device, dtype=K.dtype),
+                torch.arange(self.width, device=K.device, dtype=K.dtype),
+                indexing="ij",
+            )
+            x, y = (cols + 0.5 - K[0, 2]) / K[0, 0], (rows + 0.5 - K[1, 2]) / K[1, 1]
+            camera = torch.stack([x, y, torch.ones_like(x)], dim=-1)  # [H, W, 3]
+            return camera @ self.camtoworld[:3, :3].to(camera).T
+
+        return self._cached("_pixel_directions", directions)
 
     @property
     def camtoworld_opengl(self) -> Tensor:  # [4, 4] Blender/NeRF axes, float64 so that writers lose nothing

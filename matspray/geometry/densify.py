@@ -37,7 +37,8 @@ class DensityControl:
                 + (" (and render with absgrad)" if self.config.absgrad else "")
             )
         visible = out.visible
-        ndc = grads.detach() * torch.tensor([0.5 * width, 0.5 * height], device=visible.device)
+        gx, gy = grads.detach().unbind(-1)  # scaled by Python numbers: a tensor of them would be a copy to the device
+        ndc = torch.stack([gx * (0.5 * width), gy * (0.5 * height)], dim=-1)
         # dense updates that add 0 where not visible: the same sums as indexing the visible ones, without the
         # three gathers and scatters of a boolean index every step
         self.grad_sum += torch.where(visible, ndc.norm(dim=-1).to(self.grad_sum), 0.0)

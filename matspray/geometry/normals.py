@@ -45,28 +45,26 @@ def consensus_normals(gaussians: Gaussians, cameras: list[Camera]) -> Tensor:  #
 
 def camera_points(depth: Tensor, camera: Camera) -> Tensor:  # [H, W] z-depth -> [H, W, 3] world points
     """Back-project pixel centres with their camera z."""
-    height, width = depth.shape
-    K = camera.K.to(depth)
-    rows, cols = torch.meshgrid(
-        torch.arange(height, device=depth.device, dtype=depth.dtype),
-        torch.arange(width, device=depth.device, dtype=depth.dtype),
-        indexing="ij",
-    )
-    x = (cols + 0.5 - K[0, 2]) / K[0, 0]
-    y = (rows + 0.5 - K[1, 2]) / K[1, 1]
-    cam = torch.stack([x, y, torch.ones_like(x)], dim=-1) * depth[..., None]
-    c2w = camera.camtoworld.to(depth)
-    return cam @ c2w[:3, :3].T + c2w[:3, 3]
+    return camera.center.to(depth) + camera.pixel_directions().to(depth) * depth[..., None]
 
 
 def depth_normals(depth: Tensor, camera: Camera) -> Tensor:  # [H, W] -> [H, W, 3] world, unit; zero on the border
     """Normals of the surface described by a z-depth map: cross product of central differences of the
     back-projected points, oriented towards the camera."""
-    points = camera_points(depth, camera)
+    return depth_normals_along(depth, camera.pixel_directions().to(depth), camera.center.to(depth))
+
+
+def depth_normals_along(
+    depth: Tensor,  # [H, W] camera z
+    directions: Tensor,  # [H, W, 3] Camera.pixel_directions()
+    center: Tensor,  # [3] the camera's position
+) -> Tensor:  # [H, W, 3] world, unit; zero on the border
+    """`depth_normals` from the camera's pixel rays: tensors only, as training's loss terms take it."""
+    points = center + directions * depth[..., None]
     dx = points[1:-1, 2:] - points[1:-1, :-2]
     dy = points[2:, 1:-1] - points[:-2, 1:-1]
     normals = F.normalize(torch.linalg.cross(dy, dx, dim=-1), dim=-1)
-    to_camera = camera.center.to(depth) - points[1:-1, 1:-1]
+    to_camera = center - points[1:-1, 1:-1]
     normals = torch.where((normals * to_camera).sum(-1, keepdim=True) < 0, -normals, normals)
     return F.pad(normals.permute(2, 0, 1), (1, 1, 1, 1)).permute(1, 2, 0)
 

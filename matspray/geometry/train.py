@@ -13,23 +13,21 @@ import time
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
-from torch import Tensor
 from tqdm import tqdm
 
 from matspray.data.scene import Scene, View
-from matspray.errors import DataError, NumericalError
+from matspray.errors import DataError
 from matspray.files import write_json
 from matspray.gaussians import Gaussians
 from matspray.geometry.checkpoint import load_checkpoint, save_checkpoint
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl, load_stats_state, stats_state
-from matspray.geometry.evaluate import evaluate_views, render_view, target_srgb
+from matspray.geometry.evaluate import evaluate_views
 from matspray.geometry.init import initial_gaussians
-from matspray.geometry.losses import flatten_loss, normal_consistency_loss, photometric_loss
-from matspray.geometry.normals import consensus_normals, depth_normals
+from matspray.geometry.normals import consensus_normals
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
 from matspray.geometry.ply import read_ply, write_ply
+from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
 
 PLY_NAME, METRICS_NAME, CHECKPOINT_NAME = "gaussians.ply", "metrics.json", "checkpoint.pt"
 # the loss and PSNR reach the host (a GPU synchronisation) only every this many steps, for the progress bar and
@@ -64,7 +62,14 @@ def learning_rates(config: GeometryConfig, extent: float) -> dict[str, float]:
 
 
 def train_geometry(
-    scene: Scene, config: GeometryConfig, out_dir, *, device="cpu", restart: bool = False, progress: bool = True
+    scene: Scene,
+    config: GeometryConfig,
+    out_dir,
+    *,
+    device="cpu",
+    restart: bool = False,
+    progress: bool = True,
+    cuda_graphs: bool = True,
 ) -> Gaussians:
     """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`.
     Renders with the backend of the enclosing `rendering_with` block (torch outside one).
@@ -72,7 +77,8 @@ def train_geometry(
     Resumes from out_dir/checkpoint.pt when it exists (settings must match; `restart` discards it; a
     checkpoint made on another device resumes too). A finished run (checkpoint at the last iteration and
     gaussians.ply present) is not redone. Random draws come from a CPU generator, so the same seed draws the
-    same numbers on every device.
+    same numbers on every device. `cuda_graphs`: on a CUDA device, the loss terms run as CUDA graphs
+    (matspray.geometry.step); False computes them op by op (the same values, for comparison).
     """
     device = torch.device(device)
     out_dir = Path(out_dir)
@@ -85,7 +91,8 @@ def train_geometry(
     test_views = [v.to(device) for v in prepare_views(scene.test, config.resolution)]
     if not train_views:
         raise DataError(f"{scene.source}: no training views to fit geometry to")
-    masked = all(v.alpha is not None for v in train_views)
+    masked = all(v.alpha is not None for v in train_views)  # masks are used when every view has one
+    targets = [TrainingView.of(v, masked) for v in train_views]
     extent = scene_extent(train_views)
     generator = torch.Generator().manual_seed(config.seed)
 
@@ -127,31 +134,27 @@ def train_geometry(
         dynamic_ncols=True,
     )
     running = RunningStats(device)
+    image_terms = ImageTerms(graphs=cuda_graphs)
     for iteration in bar:
         if not order:
             order = torch.randperm(len(train_views), generator=generator, device="cpu").tolist()
-        view = train_views[order.pop()]
+        target = targets[order.pop()]
         optimizer.set_lr(
             "means",
             exponential_lr(iteration, config.iterations, config.lr_means * extent, config.lr_means_final * extent),
         )
-        losses, render, target = training_losses(optimizer.gaussians(), view, config, iteration, masked, generator)
-        total = sum(losses.values())
-        running.add(iteration, total.detach(), render.rgb.detach(), target)
         done = iteration + 1
         checkpoint_now = done % config.checkpoint_every == 0 or done == config.iterations
-        if done % SYNC_EVERY == 0 or checkpoint_now:  # never checkpoint a state that diverged
-            running.check(losses)
+        # never checkpoint a state that diverged
+        report = done % SYNC_EVERY == 0 or checkpoint_now
+        event = training_step(optimizer, density, running, target, config, iteration, generator, image_terms, report)
+        if report:
             bar.set_postfix(
                 loss=f"{running.loss:.4f}",
                 psnr=f"{running.psnr:.2f}",
                 gaussians=len(optimizer.params["means"]),
                 refresh=False,
             )
-        total.backward()
-        density.observe(render.raster, view.width, view.height)
-        optimizer.step()
-        event = density.step(iteration, optimizer, generator)
         if event and progress:
             bar.write(f"iteration {iteration + 1}: {event}")
         if checkpoint_now:
@@ -179,70 +182,6 @@ def train_geometry(
     )
     write_json(out_dir / METRICS_NAME, metrics)
     return gaussians
-
-
-class RunningStats:
-    """The loss and a running PSNR of the training steps, kept on the device between host reads, and the first
-    step whose loss was not finite."""
-
-    def __init__(self, device: torch.device):
-        self.first_bad = torch.full((), -1, dtype=torch.long, device=device)
-        self._loss = torch.zeros((), device=device)
-        self._psnr = torch.full((), float("nan"), device=device)
-        self.loss, self.psnr = 0.0, 0.0
-
-    def add(self, iteration: int, loss: Tensor, rgb: Tensor, target: Tensor) -> None:
-        bad = ~torch.isfinite(loss)
-        self.first_bad = torch.where(
-            bad & (self.first_bad < 0), torch.full_like(self.first_bad, iteration), self.first_bad
-        )
-        self._loss = loss
-        mse = (rgb.clamp(0, 1) - target.clamp(0, 1)).square().mean().clamp_min(1e-10)
-        step_psnr = (-10.0 * torch.log10(mse)).clamp(max=99.0)
-        self._psnr = torch.where(torch.isnan(self._psnr), step_psnr, 0.9 * self._psnr + 0.1 * step_psnr)
-
-    def check(self, losses: dict[str, Tensor]) -> None:
-        """Read the figures on the host; raises when a step since the start diverged."""
-        first_bad, self.loss, self.psnr = (
-            float(x) for x in torch.stack([self.first_bad.float(), self._loss.float(), self._psnr.float()]).cpu()
-        )
-        if first_bad >= 0:
-            raise NumericalError(
-                f"geometry training diverged at iteration {int(first_bad)} (loss terms now: "
-                + ", ".join(f"{k}={float(v):.3g}" for k, v in losses.items())
-                + "); try lower learning rates or another seed"
-            )
-
-
-def training_losses(gaussians: Gaussians, view: View, config: GeometryConfig, iteration: int, masked: bool, generator):
-    """The weighted loss terms of one step {name: scalar}, the render and the sRGB target."""
-    degree = min(config.sh_degree, iteration // config.sh_degree_every)
-    background = (
-        torch.rand(3, generator=generator, device="cpu")
-        if masked and config.random_background
-        else torch.zeros(3, device="cpu")
-    )
-    background = background.to(gaussians.device)  # drawn on the CPU: the same colours on every device
-    render = render_view(gaussians, view.camera, degree, background, absgrad=config.absgrad)
-    render.raster.retain_screen_grads()
-    target = target_srgb(view, background)
-    # the prediction is not clamped here (DESIGN compares clamped values in metrics): a clamp would
-    # stop the gradient of pixels that overshoot 1
-    losses = {"photometric": photometric_loss(render.rgb, target, config.ssim_weight)}
-    if masked and config.alpha_weight > 0:
-        losses["alpha"] = config.alpha_weight * (render.alpha - view.alpha).abs().mean()
-    if config.flatten_weight > 0:
-        losses["flatten"] = config.flatten_weight * flatten_loss(gaussians.log_scales)
-    if config.normal_weight > 0 and iteration >= config.normal_from * config.iterations:
-        surface = -F.max_pool2d(-render.alpha.detach()[None, None], 3, stride=1, padding=1)[
-            0, 0
-        ]  # alpha eroded by 1 px
-        if masked:
-            surface = surface * (view.alpha > 0.5)
-        losses["normal"] = config.normal_weight * normal_consistency_loss(
-            render.raster.features[..., 3:], depth_normals(render.depth, view.camera), surface
-        )
-    return losses, render, target
 
 
 def _empty_like(params: dict) -> Gaussians:

@@ -105,6 +105,18 @@ def rasterize_gsplat(
     )
 
 
+def sh_colors_gsplat(
+    sh: Tensor,  # [N, K, 3] coefficients
+    means: Tensor,  # [N, 3]
+    center: Tensor,  # [3] camera centre
+    degree: int,
+) -> Tensor:  # [N, 3] colour, >= 0: `matspray.render.sh.sh_to_rgb` of the directions from the camera
+    """SH colour by gsplat's fused kernels (it normalises the directions itself; their gradient reaches `means`)."""
+    gsplat = importlib.import_module("gsplat")
+    coefficients = gsplat.spherical_harmonics(degree, means - center.to(means), sh)
+    return torch.clamp_min(coefficients + 0.5, 0.0)
+
+
 def check_compiled_settings(settings: RasterSettings) -> None:
     """gsplat's kernels have min_alpha, max_alpha and min_transmittance compiled in (our defaults): refuse others
     rather than draw with values the caller did not ask for."""

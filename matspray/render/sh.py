@@ -9,7 +9,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from matspray.data.camera import Camera
-from matspray.render.backend import compiled_on_cpu
+from matspray.render.backend import active_backend, compiled_on_cpu
 from matspray.render.sh_constants import MAX_DEGREE, SH_C0, SH_C1, SH_C2, SH_C3, num_sh_bases
 
 
@@ -84,4 +84,8 @@ def sh_colors(gaussians, camera: Camera, degree: int | None = None) -> Tensor:  
         from matspray.render.numba_sh import CompiledSH  # numba loads where it renders
 
         return CompiledSH.apply(gaussians.sh, gaussians.means, camera.center, checked_degree(gaussians.sh, degree))
+    if active_backend() == "gsplat":  # one fused kernel each way instead of a hundred small operations
+        from matspray.render.gsplat_backend import sh_colors_gsplat  # gsplat loads where it renders
+
+        return sh_colors_gsplat(gaussians.sh, gaussians.means, camera.center, checked_degree(gaussians.sh, degree))
     return sh_to_rgb(gaussians.sh, view_directions(gaussians.means, camera), degree)

@@ -19,6 +19,7 @@ from matspray.synth.materials import Sampling, Textures, single_wrap
 from matspray.synth.shapes import Part
 
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")  # preference order
+GPU_VARIANT = "cuda_ad_rgb"  # tried first where torch sees a CUDA GPU (a paper-sized object renders there in minutes)
 MAX_DEPTH = 8  # path length of the path tracer (bounces between parts of a composite need a few)
 GROUND_BASE_COLOR, GROUND_ROUGHNESS = 0.3, 0.8  # the ground plane of unmasked captures: grey, rough, dielectric
 
@@ -59,8 +60,15 @@ def variant_renders(variant: str) -> bool:
     return _RENDERS[variant]
 
 
+def _cuda_available() -> bool:
+    import torch
+
+    return torch.cuda.is_available()
+
+
 def select_variant(preferred: tuple[str, ...] | None = None) -> str:
-    """Set the first Mitsuba variant of `preferred` (default VARIANTS) that loads here and return its name."""
+    """Set the first Mitsuba variant of `preferred` that loads here and return its name (default: VARIANTS, after
+    GPU_VARIANT where a CUDA GPU is; a variant that cannot render here is passed over)."""
     try:
         import mitsuba as mi
     except ImportError:
@@ -68,7 +76,8 @@ def select_variant(preferred: tuple[str, ...] | None = None) -> str:
             "Mitsuba 3 is not installed; `matspray synth` needs it: pip install 'matspray[synth]'"
         ) from None
     current = mi.variant()
-    preferred = VARIANTS if preferred is None else preferred
+    if preferred is None:
+        preferred = ((GPU_VARIANT,) if _cuda_available() else ()) + VARIANTS
     for variant in preferred:
         if not variant_renders(variant):
             continue  # e.g. llvm_ad_rgb with an LLVM < 16: install libllvm19 for the fast variant

@@ -1,0 +1,348 @@
+"""What one unit of work dispatches: torch operations and host synchronisations per Gaussian Splatting step, per
+refinement step and per lifted view, at the paper preset's settings on a tiny analytic object.
+
+On a GPU each operation is (at least) one kernel launch and each host synchronisation empties the queue, so these
+counts stand in for launch overhead on any machine. Counted with a TorchDispatchMode, which sees every operation
+that reaches a kernel (autograd's backward ones too, composite operations as their parts):
+  - operations: every dispatched torch operation;
+  - kernels: the operations that compute (views, detach and other aliases excluded: they launch nothing);
+  - host syncs: what waits for the device: `aten._local_scalar_dense` (`item`, `float`, `bool`, `int` of a
+    tensor), operations whose output size depends on the data (`nonzero`, `unique`, `masked_select`, boolean
+    indexing), and `.cpu()` / `.numpy()` / `.tolist()` of a tensor outside backend numba's kernels (which run on
+    the CPU by design). On CUDA (`--device cuda`) torch's own sync debug mode counts the synchronisations too,
+    host-to-device copies included.
+
+Paths (`--path`):
+  - `cpu`: backend numba with its compiled per-Gaussian work (SH colour, normals), what a CPU run does;
+  - `gpu`: backend numba's rasterizer, but SH colour and normals by torch operations, as on a CUDA device where
+    gsplat rasterizes (gsplat's own launches, about ten per step, are not in the count);
+  - on `--device cuda`, the run's own backend (gsplat when it loads).
+
+    python -m benchmarks.step_cost [--path cpu gpu] [--units geometry refine lift] [--json FILE]
+
+Per unit: the Gaussian Splatting steps between two progress reports (after densification, SH degree 3, normal
+loss on); refinement steps of `full` between two log steps (the difference of two runs that differ only in their
+step count, warm-up and set-up cancelled); one view lifted with 16 x 16 rays per pixel.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import warnings
+from collections import Counter
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+
+import torch
+from torch.overrides import TorchFunctionMode
+from torch.utils._python_dispatch import TorchDispatchMode
+
+from matspray.config import build_config
+from matspray.data.scene import Scene
+from matspray.geometry import train as geometry_train
+from matspray.geometry.analytic import analytic_views
+from matspray.geometry.densify import DensityControl
+from matspray.geometry.init import initial_gaussians
+from matspray.geometry.optim import GaussianOptimizer
+from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
+from matspray.lift import lift_view
+from matspray.refine import RefineInputs, refine
+from matspray.render.backend import rendering_with, resolve_backend
+
+# outputs whose size depends on the data: the device must finish before the host can size them
+DATA_SIZED = ("aten.nonzero", "aten._unique2", "aten.unique_dim", "aten.unique_consecutive", "aten.masked_select")
+HOST_READS = ("cpu", "numpy", "tolist")
+VIEW_LIKE = ("aten.detach", "aten.lift_fresh", "aten.alias", "aten._unsafe_view")
+
+
+@dataclass
+class Count:
+    operations: int = 0
+    kernels: int = 0
+    syncs: int = 0
+    by_operation: Counter = field(default_factory=Counter)
+    sync_kinds: Counter = field(default_factory=Counter)
+    cuda_syncs: int | None = None  # torch's sync debug mode (CUDA only)
+
+    def per(self, units: int) -> dict:
+        return {
+            "operations": self.operations / units,
+            "kernels": self.kernels / units,
+            "host_syncs": self.syncs / units,
+            "cuda_syncs": None if self.cuda_syncs is None else self.cuda_syncs / units,
+            "sync_kinds": {k: v / units for k, v in self.sync_kinds.most_common()},
+            "top_operations": {k: v / units for k, v in self.by_operation.most_common(12)},
+        }
+
+    def minus(self, other: "Count") -> "Count":
+        return Count(
+            self.operations - other.operations,
+            self.kernels - other.kernels,
+            self.syncs - other.syncs,
+            self.by_operation - other.by_operation,
+            self.sync_kinds - other.sync_kinds,
+            None if self.cuda_syncs is None else self.cuda_syncs - (other.cuda_syncs or 0),
+        )
+
+
+def is_sync(name: str, args) -> bool:
+    if name == "aten._local_scalar_dense.default" or name.startswith(DATA_SIZED):
+        return True
+    if name.startswith("aten.index.Tensor"):  # boolean indexing runs nonzero inside the kernel
+        return any(isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in (args[1] if len(args) > 1 else ()))
+    return False
+
+
+_OPAQUE = [False]  # within a stand-in for a captured CUDA graph: its operations are one launch, counted as one
+
+
+class _Graphed(torch.autograd.Function):
+    """A function run as one operation each way, as a CUDA graph's replay is one launch (its operations not
+    counted)."""
+
+    @staticmethod
+    def forward(ctx, function, *inputs):
+        inputs = [x.detach().clone() for x in inputs]  # a graph's replay copies its inputs into its own buffers
+        _OPAQUE[0] = True
+        try:
+            with torch.enable_grad():
+                leaves = [x.requires_grad_(wanted) for x, wanted in zip(inputs, ctx.needs_input_grad[1:])]
+                out = function(*leaves)
+        finally:
+            _OPAQUE[0] = False
+        ctx.graph = (out, leaves)
+        return out.detach().clone()
+
+    @staticmethod
+    def backward(ctx, grad):
+        out, leaves = ctx.graph
+        wanted = [x for x in leaves if x.requires_grad]
+        _OPAQUE[0] = True
+        try:
+            grads = iter(torch.autograd.grad(out, wanted, grad, allow_unused=True))
+        finally:
+            _OPAQUE[0] = False
+        return (None, *(next(grads) if x.requires_grad else None for x in leaves))
+
+
+def graph_stand_in(function, samples):
+    """`ImageTerms`' capture on the CPU: the function as one counted operation each way."""
+    return lambda *inputs: _Graphed.apply(function, *inputs)
+
+
+class _Operations(TorchDispatchMode):
+    def __init__(self, count: Count, without_numba: bool):
+        super().__init__()
+        self.count, self.without_numba = count, without_numba
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        name = str(func)
+        count = self.count
+        if _OPAQUE[0] or (self.without_numba and _inside_numba()):  # stands in for gsplat's kernels: not counted
+            return func(*args, **(kwargs or {}))
+        count.operations += 1
+        count.by_operation[name] += 1
+        if not (func.is_view or name.startswith(VIEW_LIKE)):
+            count.kernels += 1
+        if is_sync(name, args) and not _inside_numba():
+            count.syncs += 1
+            count.sync_kinds[name] += 1
+        return func(*args, **(kwargs or {}))
+
+
+class _HostReads(TorchFunctionMode):
+    """`.cpu()`, `.numpy()` and `.tolist()` outside backend numba's kernels, which read CPU tensors by design."""
+
+    def __init__(self, count: Count):
+        super().__init__()
+        self.count = count
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        name = getattr(func, "__name__", "")
+        if name in HOST_READS and not _inside_numba():
+            self.count.syncs += 1
+            self.count.sync_kinds[f"Tensor.{name}"] += 1
+        return func(*args, **(kwargs or {}))
+
+
+def _inside_numba() -> bool:
+    import traceback
+
+    return any("numba_" in frame.filename for frame in traceback.extract_stack())
+
+
+@contextmanager
+def counting(device: torch.device, without_numba: bool = False):
+    """Count what the block dispatches (`without_numba`: not what backend numba's calls dispatch); yields the Count
+    (filled when the block ends)."""
+    count = Count()
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+        torch.cuda.set_sync_debug_mode("warn")
+    try:
+        with warnings.catch_warnings(record=True) as caught, _HostReads(count), _Operations(count, without_numba):
+            warnings.simplefilter("always")
+            yield count
+    finally:
+        if device.type == "cuda":
+            torch.cuda.set_sync_debug_mode(0)
+            count.cuda_syncs = sum("synchroniz" in str(w.message) for w in caught)
+
+
+@contextmanager
+def normals_by_torch():
+    """The Gaussians' normals by torch operations, as on a CUDA device, while backend numba rasterizes (its SH colour
+    stays one fused call each way, as gsplat's kernel is there)."""
+    import matspray.geometry.normals as normals_module
+
+    saved = normals_module.compiled_on_cpu
+    normals_module.compiled_on_cpu = lambda device: False
+    try:
+        yield
+    finally:
+        normals_module.compiled_on_cpu = saved
+
+
+# ------------------------------------------------------------------------------------------ the tiny object
+def tiny_scene(device: torch.device, views: int = 6, resolution: int = 48) -> Scene:
+    train, _ = analytic_views(views, resolution)
+    return Scene(train=[v.to(device) for v in train], test=[], bounds=torch.tensor([[-1.0] * 3, [1.0] * 3]))
+
+
+def trained_state(scene: Scene, device: torch.device, points: int):
+    """The paper preset's optimizer, density control and running figures on `scene`, before any step."""
+    config = build_config("paper", **{"geometry.resolution": 48, "geometry.init_points": points}).geometry
+    generator = torch.Generator().manual_seed(0)
+    extent = geometry_train.scene_extent(scene.train)
+    initial = initial_gaussians(
+        scene, scene.train, config.init_points, config.sh_degree, config.init_opacity, generator, config.init_scale
+    ).to(device)
+    optimizer = GaussianOptimizer(initial, geometry_train.learning_rates(config, extent))
+    density = DensityControl(config, extent, len(initial), device)
+    return config, optimizer, density, RunningStats(device), generator
+
+
+def geometry_steps(device: torch.device, counter, graphs: bool, points: int = 2000) -> tuple[Count, int]:
+    """The steps between two progress reports, after densification ended (SH degree 3, normal loss on)."""
+    scene = tiny_scene(device)
+    config, optimizer, density, running, generator = trained_state(scene, device, points)
+    first = (config.densify_until // geometry_train.SYNC_EVERY + 1) * geometry_train.SYNC_EVERY  # a report's step
+    warm = range(first, first + 3)
+    window = range(first + 3, first + geometry_train.SYNC_EVERY - 1)  # done % SYNC_EVERY != 0 throughout
+
+    targets = [TrainingView.of(view, masked=True) for view in scene.train]
+    image_terms = ImageTerms(graphs=graphs, capture=None if device.type == "cuda" else graph_stand_in)
+
+    def step(iteration: int) -> None:
+        target = targets[iteration % len(targets)]
+        training_step(optimizer, density, running, target, config, iteration, generator, image_terms)
+
+    for iteration in warm:
+        step(iteration)
+    with counter() as count:
+        for iteration in window:
+            step(iteration)
+    return count, len(window)
+
+
+def refine_inputs(device: torch.device, points: int = 2000) -> RefineInputs:
+    scene = tiny_scene(device)
+    _, optimizer, *_ = trained_state(scene, device, points)
+    gaussians = optimizer.gaussians().detach()
+    n, v = len(gaussians), len(scene.train)
+    generator = torch.Generator().manual_seed(1)
+    normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1).to(device)
+    values = torch.rand(n, v, 5, generator=generator).to(device)
+    targets = [torch.rand(view.height, view.width, 5, generator=generator).to(device) for view in scene.train]
+    return RefineInputs(
+        gaussians, normals, values, torch.ones(n, v, dtype=torch.bool, device=device), scene.train, targets,
+        scene.bounds.to(device),
+    )  # fmt: skip
+
+
+def refine_steps(device: torch.device, counter, short: int = 12, long: int = 36) -> tuple[Count, int]:
+    """Steps of `full` at the paper preset's settings, logging only at the last step: two runs that differ in their
+    step count, subtracted."""
+    inputs = refine_inputs(device)
+    base = build_config("paper").refine
+
+    def run(iterations: int) -> Count:
+        config = type(base)(**{**base.__dict__, "iterations": iterations, "light_warmup": 4, "log_every": 10_000})
+        with counter() as count:
+            refine(inputs, config, progress=False)
+        return count
+
+    refine(inputs, type(base)(**{**base.__dict__, "iterations": 2, "light_warmup": 2}), progress=False)  # warm up
+    return run(long).minus(run(short)), long - short
+
+
+def lift_one_view(device: torch.device, counter, samples_per_side: int = 16) -> tuple[Count, int]:
+    inputs = refine_inputs(device)
+    view = inputs.views[0]
+    config = build_config("paper").lift
+    lift_view(inputs.gaussians, view.camera, inputs.targets[0], view.alpha, config)  # warm up
+    with counter() as count:
+        lift_view(inputs.gaussians, view.camera, inputs.targets[0], view.alpha, config)
+    assert config.samples_per_side == samples_per_side
+    return count, 1
+
+
+UNITS = {"geometry": geometry_steps, "refine": refine_steps, "lift": lift_one_view}
+UNIT_NAMES = {"geometry": "per Gaussian Splatting step", "refine": "per refinement step", "lift": "per lifted view"}
+
+
+def measure(unit: str, path: str, device: torch.device) -> dict:
+    """{operations, kernels, host_syncs, ...} per unit of `unit` on `path` (cpu | gpu | the device's own)."""
+    torch.manual_seed(0)
+    counter = partial(counting, device, without_numba=path == "gpu")
+    options = {"graphs": path != "cpu"} if unit == "geometry" else {}
+    if device.type == "cuda":
+        with rendering_with(resolve_backend("auto", device)):
+            count, units = UNITS[unit](device, counter, **options)
+    else:
+        with rendering_with("torch" if path == "gpu" and unit == "lift" else "numba"):
+            if path == "gpu":
+                with normals_by_torch():
+                    count, units = UNITS[unit](device, counter, **options)
+            else:
+                count, units = UNITS[unit](device, counter, **options)
+    return count.per(units)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--units", nargs="+", choices=list(UNITS), default=list(UNITS))
+    parser.add_argument("--path", nargs="+", choices=("cpu", "gpu"), default=["cpu", "gpu"])
+    parser.add_argument("--device", default="cpu", help="cpu (default) or cuda: there the run's backend and torch's "
+                        "sync debug mode")  # fmt: skip
+    parser.add_argument("--json", type=Path, help="write every figure here")
+    parser.add_argument("--top", action="store_true", help="also print the most frequent operations")
+    args = parser.parse_args()
+    device = torch.device(args.device)
+    paths = ["cuda"] if device.type == "cuda" else args.path
+    results = {}
+    print(f"{'unit':<28} {'path':<5} {'operations':>10} {'kernels':>8} {'host syncs':>10} {'cuda syncs':>10}")
+    for unit in args.units:
+        for path in paths:
+            figures = measure(unit, path, device)
+            results[f"{unit}/{path}"] = figures
+            cuda = "" if figures["cuda_syncs"] is None else f"{figures['cuda_syncs']:.1f}"
+            print(
+                f"{UNIT_NAMES[unit]:<28} {path:<5} {figures['operations']:>10.1f} {figures['kernels']:>8.1f} "
+                f"{figures['host_syncs']:>10.2f} {cuda:>10}",
+                flush=True,
+            )
+            if args.top:
+                for name, value in figures["top_operations"].items():
+                    print(f"      {value:8.1f} {name}")
+                for name, value in figures["sync_kinds"].items():
+                    print(f"      sync {value:8.2f} {name}")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,170 @@
+"""Per-unit rates of the paper preset on one object, and the whole preset projected from them.
+
+    python -m benchmarks.unit_rates --data DIR [--device cuda] [--geometry-steps 7000] [--refine-steps 1000]
+                                    [--warmup-steps 200] [--compare-eager 1000] [--json FILE]
+
+On a `matspray synth` object (any number of views; the paper's is 100 views at 512 px), with the paper preset's
+settings and the device's backend (gsplat on CUDA when it loads):
+  - Gaussian Splatting: `--geometry-steps` steps with the paper schedule stretched to them (densification included),
+    steps per second; with `--compare-eager N`, N steps from the trained Gaussians with and without the loss terms'
+    CUDA graphs (the same steps timed both ways, densification over);
+  - lifting with 16 x 16 rays per pixel: seconds per view over every training view (random maps: the time does not
+    depend on their values);
+  - refinement of `full`: the light warm-up and the refinement steps, steps per second (each from two runs that
+    differ only in its step count, so that set-up and the frozen views cancel);
+  - the paper preset projected: 30 000 + 10 000 steps, 100 views, 1 000 + 10 000 refinement steps, from these rates
+    (a projection, not a measurement; evaluation not included).
+Each figure is one run; the device's name is printed with them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from matspray.config import build_config
+from matspray.data.loader import load_scene
+from matspray.device import resolve_device
+from matspray.geometry.config import GeometryConfig
+from matspray.geometry.densify import DensityControl
+from matspray.geometry.optim import GaussianOptimizer
+from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
+from matspray.geometry.train import SYNC_EVERY, learning_rates, prepare_views, scene_extent, train_geometry
+from matspray.lift import lift
+from matspray.refine import RefineConfig, RefineInputs, refine
+from matspray.render.backend import rendering_with, resolve_backend
+
+PAPER = {"geometry_steps": 30_000, "views": 100, "warmup_steps": 1_000, "refine_steps": 10_000}
+
+
+def synchronized_seconds(device: torch.device, work) -> float:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    start = time.perf_counter()
+    work()
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    return time.perf_counter() - start
+
+
+def geometry_rate(scene, config: GeometryConfig, device, out: Path) -> tuple[float, object]:
+    """Steps per second of a whole geometry run (its own clock, which leaves out the final evaluation)."""
+    gaussians = train_geometry(scene, config, out, device=device, restart=True, progress=False)
+    metrics = json.loads((out / "metrics.json").read_text())
+    return config.iterations / metrics["train_seconds"], gaussians
+
+
+def eager_against_graphs(gaussians, views, config: GeometryConfig, device, steps: int) -> dict[str, float]:
+    """Steps per second of the same `steps` steps from the trained Gaussians (densification over, progress read every
+    SYNC_EVERY steps as in training), with and without the loss terms' CUDA graphs."""
+    extent = scene_extent(views)
+    masked = all(v.alpha is not None for v in views)
+    targets = [TrainingView.of(v, masked) for v in views]
+    first = config.densify_until + 1
+    rates = {}
+    for graphs in (True, False):
+        optimizer = GaussianOptimizer(gaussians, learning_rates(config, extent))
+        density = DensityControl(config, extent, len(gaussians), device)
+        running, terms, generator = RunningStats(device), ImageTerms(graphs), torch.Generator().manual_seed(0)
+
+        def run(iterations):
+            for iteration in iterations:
+                report = (iteration + 1) % SYNC_EVERY == 0
+                target = targets[iteration % len(targets)]
+                training_step(optimizer, density, running, target, config, iteration, generator, terms, report)
+
+        run(range(first, first + 2 * len(targets)))  # every view's capture, and warm caches
+        start = first + 2 * len(targets)
+        seconds = synchronized_seconds(device, lambda: run(range(start, start + steps)))
+        rates["with graphs" if graphs else "without graphs"] = steps / seconds
+    return rates
+
+
+def lift_seconds_per_view(gaussians, views, device, samples_per_side: int) -> float:
+    generator = torch.Generator().manual_seed(0)
+    maps = [torch.rand(v.height, v.width, 5, generator=generator).to(device) for v in views]
+    config = replace(build_config("paper").lift, samples_per_side=samples_per_side)
+    cameras, masks = [v.camera for v in views], [v.alpha for v in views]
+    names = [v.name for v in views]
+    seconds = synchronized_seconds(device, lambda: lift(gaussians, cameras, maps, masks, names, config, progress=False))
+    return seconds / len(views)
+
+
+def refine_rates(gaussians, views, device, warmup: int, steps: int) -> dict[str, float]:
+    n, v = len(gaussians), len(views)
+    generator = torch.Generator().manual_seed(1)
+    normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1).to(device)
+    values = torch.rand(n, v, 5, generator=generator).to(device)
+    targets = [torch.rand(x.height, x.width, 5, generator=generator).to(device) for x in views]
+    bounds = torch.stack([gaussians.means.min(0).values, gaussians.means.max(0).values]).detach()
+    inputs = RefineInputs(gaussians, normals, values, torch.ones(n, v, dtype=torch.bool, device=device), views,
+                          targets, bounds)  # fmt: skip
+    base: RefineConfig = build_config("paper").refine
+
+    def seconds(warm: int, iterations: int) -> float:
+        config = replace(base, light_warmup=warm, iterations=iterations, log_every=10**9)
+        return synchronized_seconds(device, lambda: refine(inputs, config, progress=False))
+
+    seconds(2, 2)  # first calls: kernels, caches
+    short, long = max(1, warmup // 10), warmup
+    warm_rate = (long - short) / (seconds(long, 1) - seconds(short, 1))
+    short, long = max(1, steps // 10), steps
+    refine_rate = (long - short) / (seconds(1, long) - seconds(1, short))
+    return {"light warm-up": warm_rate, "refinement full": refine_rate}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=Path, required=True, help="a `matspray synth` object")
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--geometry-steps", type=int, default=7000)
+    parser.add_argument("--compare-eager", type=int, default=0, metavar="N")
+    parser.add_argument("--lift-samples", type=int, default=16, help="rays per pixel side (paper: 16)")
+    parser.add_argument("--warmup-steps", type=int, default=200)
+    parser.add_argument("--refine-steps", type=int, default=1000)
+    parser.add_argument("--out", type=Path, default=Path("runs/unit-rates"))
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    device = resolve_device(args.device)
+    backend = resolve_backend("auto", device)
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else "CPU"
+    scene = load_scene(args.data)
+    config = build_config("paper", **{"geometry.iterations": args.geometry_steps}).geometry
+    figures: dict = {"device": name, "backend": backend, "object": str(args.data), "views": len(scene.train)}
+    with rendering_with(backend):
+        rate, gaussians = geometry_rate(scene, config, device, args.out / "geometry")
+        figures.update(gaussians=len(gaussians), geometry_steps=args.geometry_steps, geometry_rate=rate)
+        print(f"{name}, backend {backend}: Gaussian Splatting {rate:.1f} steps/s over {args.geometry_steps} steps "
+              f"({len(gaussians)} Gaussians)", flush=True)  # fmt: skip
+        if args.compare_eager:
+            train = [v.to(device) for v in prepare_views(scene.train, config.resolution)]
+            compared = eager_against_graphs(gaussians, train, config, device, args.compare_eager)
+            figures["geometry_after_densification"] = compared
+            print("  after densification: " + ", ".join(f"{k} {v:.1f} steps/s" for k, v in compared.items()))
+        views = [v.to(device) for v in prepare_views(scene.train, config.resolution)]
+        lift_s = lift_seconds_per_view(gaussians, views, device, args.lift_samples)
+        figures["lift_seconds_per_view"] = lift_s
+        print(f"lifting, {args.lift_samples}x{args.lift_samples} rays per pixel: {lift_s:.3f} s per view", flush=True)
+        rates = refine_rates(gaussians, views, device, args.warmup_steps, args.refine_steps)
+        figures.update(rates)
+        print(", ".join(f"{k} {v:.1f} steps/s" for k, v in rates.items()), flush=True)
+    projected = (
+        PAPER["geometry_steps"] / rate
+        + PAPER["views"] * lift_s
+        + PAPER["warmup_steps"] / rates["light warm-up"]
+        + PAPER["refine_steps"] / rates["refinement full"]
+    )
+    figures["paper_preset_projected_seconds"] = projected
+    print(f"paper preset (30 000 steps, 100 views, 1 000 + 10 000 refinement steps) PROJECTED from these rates: "
+          f"{projected:.0f} s, evaluation not included")  # fmt: skip
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=1))
+
+
+if __name__ == "__main__":
+    main()
