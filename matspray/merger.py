@@ -2,7 +2,8 @@
 
 For each channel group (base color, roughness, metallic) a separate MLP (3 hidden layers of 128,
 ReLU) reads the NeRF positional encoding of the Gaussian's position and the group's per-view values
-(and, with `seen_input`, which views saw it), and outputs one logit per view. Views in which the
+(and, with `seen_input`, which views saw it), and outputs one logit per view; the three MLPs are kept
+and evaluated layer by layer as one batch. Views in which the
 Gaussian was not seen are either masked out before the softmax (`unseen="mask"`) or, as in the paper's
 released code, filled with the mean of the views that saw it (`unseen="mean"`, softmax over all views);
 either way the merged value is a convex combination of what the Gaussian received:
@@ -22,6 +23,7 @@ import pickle
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from matspray.data.images import save_torch_atomic
@@ -100,6 +102,10 @@ def mlp(n_in: int, n_out: int, hidden: int, layers: int) -> nn.Sequential:
     return nn.Sequential(*blocks, head)
 
 
+def _widened(weight: Tensor, width: int) -> Tensor:  # [out, in] -> [out, width], zero columns appended
+    return weight if weight.shape[1] == width else F.pad(weight, (0, width - weight.shape[1]))
+
+
 def merge_weights(logits: Tensor, seen: Tensor, softmax: bool) -> Tensor:
     """Per-view weights [N, V] from logits [N, V]; views not seen (seen [N, V] False) get weight 0."""
     if softmax:
@@ -117,17 +123,27 @@ class NeuralMerger(nn.Module):
         self.n_views = int(n_views)
         self.register_buffer("bounds", torch.as_tensor(bounds, dtype=torch.float32).clone())
         pe_dim = 3 * (1 + 2 * self.config.frequencies)
-        self.mlps = nn.ModuleDict(
-            {
-                name: mlp(
-                    pe_dim + self.n_views * (group.stop - group.start + int(self.config.seen_input)),
-                    self.n_views,
-                    self.config.hidden,
-                    self.config.layers,
-                )
-                for name, group in GROUPS.items()
-            }
-        )
+        # one MLP per group, made (and initialised) one after the other, then kept layer by layer as batches: a
+        # layer's weights [G, out, in] (the first layer's padded with zero columns to the widest group's input, which
+        # the padded inputs meet: their gradient is 0, so they stay 0) and biases [G, 1, out], so that one batched
+        # product runs every group's layer
+        mlps = [
+            mlp(
+                pe_dim + self.n_views * (group.stop - group.start + int(self.config.seen_input)),
+                self.n_views,
+                self.config.hidden,
+                self.config.layers,
+            )
+            for group in GROUPS.values()
+        ]
+        self.weights, self.biases = nn.ParameterList(), nn.ParameterList()
+        for linears in zip(*([m for m in sequence if isinstance(m, nn.Linear)] for sequence in mlps)):
+            width = max(linear.in_features for linear in linears)
+            self.weights.append(nn.Parameter(torch.stack([_widened(x.weight.detach(), width) for x in linears])))
+            self.biases.append(nn.Parameter(torch.stack([x.bias.detach() for x in linears])[:, None]))
+        groups = [g for g, group in enumerate(GROUPS.values()) for _ in range(group.stop - group.start)]
+        channel_groups = torch.tensor(groups, device=self.bounds.device)  # [5] each channel's group
+        self.register_buffer("channel_groups", channel_groups, persistent=False)
 
     def encode_positions(self, positions: Tensor) -> Tensor:  # [N, 3] -> [N, pe_dim]
         lo, hi = self.bounds[0], self.bounds[1]
@@ -136,35 +152,41 @@ class NeuralMerger(nn.Module):
 
     def group_inputs(
         self, positions: Tensor, masked_values: Tensor, seen: Tensor, encoded: Tensor | None = None
-    ) -> dict[str, Tensor]:
-        """Each channel group's MLP input {group: [N, pe_dim + V * c (+ V)]}: PE(position), the group's
-        per-view values (`masked_values`: 0 where unseen, or filled by `fill_unseen`) and, with
-        `seen_input`, the seen mask. Fixed for frozen Gaussians, so callers may keep it."""
+    ) -> Tensor:
+        """The channel groups' MLP inputs [G, N, D]: group g's is PE(position), the group's per-view values
+        (`masked_values`: 0 where unseen, or filled by `fill_unseen`) and, with `seen_input`, the seen mask, padded
+        with zeros to the widest group's D (the padded inputs meet zero weights). Fixed for frozen
+        Gaussians, so callers may keep it."""
         if masked_values.shape[1] != self.n_views or seen.shape != masked_values.shape[:2]:
             raise RunError(f"the merger was built for {self.n_views} views but got values for {masked_values.shape[1]}")
         encoded = self.encode_positions(positions) if encoded is None else encoded
         seen_part = [seen.to(masked_values.dtype)] if self.config.seen_input else []
-        return {
-            name: torch.cat([encoded, masked_values[:, :, group].flatten(1), *seen_part], dim=-1)
-            for name, group in GROUPS.items()
-        }
+        inputs = [
+            torch.cat([encoded, masked_values[:, :, group].flatten(1), *seen_part], dim=-1) for group in GROUPS.values()
+        ]
+        width = max(x.shape[-1] for x in inputs)
+        return torch.stack([F.pad(x, (0, width - x.shape[-1])) for x in inputs])
 
-    def merge(self, inputs: dict[str, Tensor], masked_values: Tensor, seen: Tensor, return_weights: bool = False):
-        """Merged materials [N, 5] from `group_inputs` and the per-view values [N, V, 5] (0 where unseen) /
-        seen [N, V]."""
-        merged, weights = [], {}
+    def merge(self, inputs: Tensor, masked_values: Tensor, seen: Tensor, return_weights: bool = False):
+        """Merged materials [N, 5] from `group_inputs` [G, N, D] and the per-view values [N, V, 5] (0 where unseen) /
+        seen [N, V]; with `return_weights` also the weights {group: [N, V]}."""
         device = masked_values.device
         # float64 inputs (gradient checks) keep their precision
         lower = masked_values.dtype == torch.float32 and mlp_dtype(self.config.precision, device) == torch.bfloat16
-        for name, group in GROUPS.items():
-            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=lower):
-                logits = self.mlps[name](inputs[name]).to(masked_values.dtype)  # [N, V]: bfloat16 back to float32
-            w = merge_weights(logits, seen, self.config.softmax)  # [N, V]
-            weights[name] = w
-            merged.append((w[..., None] * masked_values[:, :, group]).sum(1))
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=lower):
+            hidden = inputs
+            for i, (weights, biases) in enumerate(zip(self.weights, self.biases)):
+                hidden = torch.baddbmm(biases, hidden, weights.transpose(1, 2))  # [G, N, out]
+                if i < len(self.weights) - 1:
+                    # in place: the product's backward does not read its output, so ReLU may overwrite it (no extra
+                    # [G, N, hidden] tensor per layer and step)
+                    hidden = hidden.relu_()
+        logits = hidden.to(masked_values.dtype)  # [G, N, V]: bfloat16 back to float32
+        w = merge_weights(logits, seen, self.config.softmax)  # [G, N, V]
+        channel_weights = w.index_select(0, self.channel_groups).permute(1, 2, 0)  # [N, V, 5]
         # unconstrained weights (no softmax) can leave [0, 1]; with softmax only rounding can: keep materials valid
-        out = torch.cat(merged, dim=-1).clamp(0.0, 1.0)
-        return (out, weights) if return_weights else out
+        out = (channel_weights * masked_values).sum(1).clamp(0.0, 1.0)
+        return (out, dict(zip(GROUPS, w.unbind(0)))) if return_weights else out
 
     def forward(
         self,
@@ -258,12 +280,27 @@ def load_merger(path, n_views: int, bounds: Tensor, map_location="cpu") -> Neura
         )
     merger = NeuralMerger(n_views, bounds, MergerConfig(**state["config"]))
     try:
-        merger.load_state_dict(state["state_dict"])
-    except RuntimeError as exc:
+        merger.load_state_dict(batched_state(state["state_dict"]))
+    except (RuntimeError, KeyError) as exc:
         raise file_error(
             path, f"merger weights do not fit: {str(exc).splitlines()[0]}", "delete it to retrain"
         ) from None
     return merger
+
+
+def batched_state(state: dict) -> dict:
+    """A merger's state dict in the batched layout (`NeuralMerger`); one saved with one MLP per group
+    (`mlps.<group>.<index>.weight` and `.bias`, the layout before) is converted."""
+    if not any(key.startswith("mlps.") for key in state):
+        return state
+    out = {key: value for key, value in state.items() if not key.startswith("mlps.")}
+    positions = sorted({int(key.split(".")[2]) for key in state if key.startswith("mlps.")})  # the linear layers
+    for layer, position in enumerate(positions):
+        weights = [state[f"mlps.{group}.{position}.weight"] for group in GROUPS]
+        width = max(weight.shape[1] for weight in weights)
+        out[f"weights.{layer}"] = torch.stack([_widened(weight, width) for weight in weights])
+        out[f"biases.{layer}"] = torch.stack([state[f"mlps.{group}.{position}.bias"] for group in GROUPS])[:, None]
+    return out
 
 
 def save_merger(merger: NeuralMerger, path) -> None:

@@ -33,16 +33,17 @@ from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor, nn
-from tqdm import tqdm
 
 from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
-from matspray.errors import NumericalError, SettingError
+from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.geometry.losses import photometric_loss
-from matspray.material import BASE_COLOR, N_CHANNELS
+from matspray.material import BASE_COLOR, N_CHANNELS, unstack
 from matspray.merger import MergerConfig, NeuralMerger, align_view_gains, prepare_values, projection_average, view_gains
-from matspray.render.deferred import GBuffer, shade_gbuffer
+from matspray.refine_steps import adam as adam_optimizer
+from matspray.refine_steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
+from matspray.render.deferred import GBuffer, shade_gbuffer, view_directions
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from matspray.render.latlong import total_variation
@@ -90,7 +91,7 @@ class RefineConfig:
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
     seed: int = 0
-    log_every: int = 10
+    log_every: int = 10  # steps between history records, and between the reads of whether losses stayed finite
     merger: MergerConfig = field(default_factory=MergerConfig)
 
     def __post_init__(self):
@@ -169,7 +170,7 @@ class MaterialSource(nn.Module):
         self.register_buffer("seen", seen)
         if self.merger is not None:
             with torch.no_grad():  # geometry is frozen: the MLPs' inputs never change
-                self.inputs = self.merger.group_inputs(positions, values, seen)
+                self.inputs = self.merger.group_inputs(positions, values, seen)  # [G, N, D]
         elif variant.source == "free":  # free parameters, starting from an uninformed grey
             self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
 
@@ -178,9 +179,8 @@ class MaterialSource(nn.Module):
         weights {group: [K, V]} (empty for a source without a merger)."""
         pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
         if self.merger is not None:
-            return self.merger.merge(
-                {name: pick(x) for name, x in self.inputs.items()}, pick(self.values), pick(self.seen), return_weights
-            )
+            inputs = self.inputs if index is None else self.inputs.index_select(1, index)  # [G, K, D]
+            return self.merger.merge(inputs, pick(self.values), pick(self.seen), return_weights)
         materials = self.source_materials(pick)
         return (materials, {}) if return_weights else materials
 
@@ -197,7 +197,12 @@ class MaterialSource(nn.Module):
 # ------------------------------------------------------------------------------------------ losses
 def masked_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
     weight = mask[..., None].expand_as(pred)
-    return ((pred - target).abs() * weight).sum() / weight.sum().clamp_min(1.0)
+    return weighted_l1(pred, target, weight, weight.sum().clamp_min(1.0))
+
+
+def weighted_l1(pred: Tensor, target: Tensor, weight: Tensor, total: Tensor) -> Tensor:  # [H, W, C] x3, [] -> []
+    """Sum of the weighted absolute errors over `total` (the weights' sum, at least 1: `masked_l1`)."""
+    return ((pred - target).abs() * weight).sum() / total
 
 
 def scale_invariant_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
@@ -257,6 +262,34 @@ def frozen_views(inputs: RefineInputs) -> FrozenViews:
     return FrozenViews(inputs.gaussians.detach(), [v.camera for v in inputs.views])
 
 
+@dataclass(frozen=True)
+class ViewConstants:
+    """What the losses of one training view read that stays the same from step to step, made once per view."""
+
+    mask: Tensor  # [H, W] the object's mask (ones without one)
+    surface: Tensor  # [H, W] the mask where the frozen Gaussians cover over half of a pixel: where 2D maps count
+    surface_weight: Tensor  # [H, W, 5] `surface` per material channel
+    surface_count: Tensor  # [] its sum, at least 1
+    cover: Tensor  # [H, W, 1] the coverage, clamped: blended materials over it are the G-buffer's
+    view_dirs: Tensor  # [H, W, 3] unit, from the surface towards the camera (`deferred.view_directions`)
+    photo: Tensor  # [H, W, 3] the photo over black, sRGB
+
+    @classmethod
+    def of(cls, view: View, alpha: Tensor) -> ViewConstants:  # alpha [H, W]: the frozen Gaussians' coverage
+        mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=alpha.device)
+        surface = mask * (alpha > 0.5)
+        weight = surface[..., None].expand(*surface.shape, N_CHANNELS)
+        return cls(
+            mask,
+            surface,
+            weight,
+            weight.sum().clamp_min(1.0),
+            alpha.clamp_min(1e-6)[..., None],
+            view_directions(view.camera, alpha.device, alpha.dtype),
+            linear_to_srgb(view.image * mask[..., None]),
+        )
+
+
 class TrainingViews:
     """The training views with their frozen blending weights, 2D maps and the Gaussians' shadowing."""
 
@@ -268,9 +301,16 @@ class TrainingViews:
         self.targets = inputs.targets
         self.visibility = inputs.visibility
         self.normal_maps = inputs.normal_maps
+        self._constants: dict[int, ViewConstants] = {}
 
     def __len__(self) -> int:
         return len(self.views)
+
+    def constants(self, index: int) -> ViewConstants:
+        if index not in self._constants:
+            with torch.no_grad():
+                self._constants[index] = ViewConstants.of(self.views[index], self.frozen.alphas[index])
+        return self._constants[index]
 
 
 def view_losses(
@@ -288,8 +328,7 @@ def view_losses(
     ("photo", only with an environment map), and with `with_normals` the angle of the rendered normals to the view's
     predicted normal map ("predicted_normals", when there is one). materials [N, 5], normals [N, 3] any
     orientation."""
-    frozen, view = training.frozen, training.views[index]
-    mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=materials.device)
+    frozen, view, constants = training.frozen, training.views[index], training.constants(index)
     oriented = frozen.orient_normals(index, normals)
     features = [materials, oriented]
     light = envmap.prefilter() if envmap is not None else None
@@ -301,33 +340,38 @@ def view_losses(
             training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen], view.camera, light
         )
         features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
-    gbuffer = GBuffer.from_blended(*frozen.render(index, torch.cat(features, dim=-1)))  # [H, W, 8 or 14], [H, W]
+    blended, alpha = frozen.render(index, torch.cat(features, dim=-1))  # [H, W, 8 or 14], [H, W]
+    # the G-buffer (`GBuffer.from_blended`, with the view's coverage divided out once)
+    maps = blended[..., :N_CHANNELS] / constants.cover  # [H, W, 5]
+    shadow = blended[..., N_CHANNELS + 3 :] / constants.cover if blended.shape[-1] > N_CHANNELS + 3 else None
+    gbuffer = GBuffer(*unstack(maps), blended[..., N_CHANNELS : N_CHANNELS + 3], alpha, shadow)
     terms = {}
     if with_material:
         scale_free = config.basecolor_loss == "scale-invariant"
         basecolor_loss = (
             "l1" if scale_free and light is None else config.basecolor_loss
         )  # without the PBR loss nothing sets the scale
-        terms["material"] = material_loss(
-            gbuffer.materials,
-            training.targets[index],
-            mask * (gbuffer.alpha > 0.5),
-            basecolor_loss,
-            config.basecolor_huber_delta,
+        terms["material"] = (
+            weighted_l1(maps, training.targets[index], constants.surface_weight, constants.surface_count)
+            if basecolor_loss == "l1"
+            else material_loss(
+                maps, training.targets[index], constants.surface, basecolor_loss, config.basecolor_huber_delta
+            )
         )
     if with_normals and training.normal_maps is not None:
         target = training.normal_maps[index]  # [H, W, 3]
-        terms["predicted_normals"] = normal_map_loss(gbuffer.normals, target, mask * (gbuffer.alpha > 0.5))
+        terms["predicted_normals"] = normal_map_loss(gbuffer.normals, target, constants.surface)
     if light is not None:
-        rendered = linear_to_srgb(shade_gbuffer(gbuffer, view.camera, light))  # over black
-        photo = linear_to_srgb(view.image * mask[..., None])
-        terms["photo"] = photometric_loss(rendered, photo, ssim_weight=1.0 - config.photo_l1_weight)  # sRGB [H, W, 3]
+        rendered = shade_gbuffer(gbuffer, view.camera, light, view_dirs=constants.view_dirs)  # over black
+        ssim_weight = 1.0 - config.photo_l1_weight
+        terms["photo"] = photometric_loss(linear_to_srgb(rendered), constants.photo, ssim_weight)  # sRGB [H, W, 3]
         if config.light_tv_weight > 0:
             terms["light_tv"] = light_prior(envmap)
     return terms
 
 
 def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
+    """The weighted sum of the loss terms (a weight of 1 multiplies nothing)."""
     weights = {
         "material": config.material_weight,
         "photo": config.photo_weight,
@@ -336,60 +380,14 @@ def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
         "normal_prior": config.normal_prior_weight,
         "predicted_normals": config.predicted_normal_weight,
     }
-    return sum(weights[name] * value for name, value in terms.items())
+    weighted = [value if weights[name] == 1.0 else weights[name] * value for name, value in terms.items()]
+    total = weighted[0]
+    for value in weighted[1:]:
+        total = total + value
+    return total
 
 
 # ------------------------------------------------------------------------------------------ optimisation
-def check_finite(step: int, **terms: Tensor) -> None:
-    for name, value in terms.items():
-        if not torch.isfinite(value).all():
-            raise NumericalError(
-                f"refine step {step}: the {name} loss is {float(value)}; the last good checkpoint is kept"
-            )
-
-
-def all_finite(terms: dict[str, Tensor], param_groups) -> Tensor:  # -> [] bool, on the device
-    """Whether every loss term and every gradient is finite, as one tensor: one host read per step instead of one
-    per term and parameter (on a GPU each read waits for the step's kernels)."""
-    flags = [torch.isfinite(value).all() for value in terms.values()]
-    flags += [torch.isfinite(p.grad).all() for group in param_groups for p in group["params"] if p.grad is not None]
-    return torch.stack(flags).all()
-
-
-def check_finite_gradients(step: int, param_groups) -> None:
-    """A non-finite gradient would turn Adam's state (and every later step) into NaN without any loss showing it.
-    param_groups: the optimizer's groups, each with a "name"."""
-    bad = [
-        group["name"]
-        for group in param_groups
-        if any(p.grad is not None and not torch.isfinite(p.grad).all() for p in group["params"])
-    ]
-    if bad:
-        raise NumericalError(
-            f"refine step {step}: non-finite gradient for the {', '.join(bad)}; the last good checkpoint is kept"
-        )
-
-
-def optimize(
-    optimizer, n_views: int, steps: int, losses_of_view, generator, desc: str, progress: bool, on_step=None
-) -> None:
-    """The step driver shared by the warm-up and the refinement: `steps` times, draw a random training
-    view, take `losses_of_view(index)` -> (terms {name: []}, total []), stop on a non-finite loss or
-    gradient, and step the optimizer. `on_step(step, terms, bar)` runs after each step."""
-    bar = tqdm(range(1, steps + 1), desc=desc, disable=not progress)
-    for step in bar:
-        index = int(torch.randint(n_views, (1,), generator=generator))
-        terms, total = losses_of_view(index)
-        optimizer.zero_grad(set_to_none=True)
-        total.backward()
-        if not bool(all_finite(terms, optimizer.param_groups)):  # then find which, for the message
-            check_finite(step, **terms)
-            check_finite_gradients(step, optimizer.param_groups)
-        optimizer.step()
-        if on_step is not None:
-            on_step(step, terms, bar)
-
-
 def envmap_group(envmap: EnvironmentMap, config: RefineConfig) -> dict:
     """The environment map's optimizer parameter group."""
     return {"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"}
@@ -406,13 +404,22 @@ def warm_up_light(
 ) -> None:
     """Fit the environment map alone to the photos for `config.light_warmup` steps, with fixed materials
     [N, 5] (what the source starts from: the projection average for the merger variants)."""
-    optimizer = torch.optim.Adam([envmap_group(envmap, config)])
+    optimizer = adam_optimizer([envmap_group(envmap, config)])
 
     def photo_losses(index: int):
         terms = view_losses(training, index, materials, normals, envmap, config, with_material=False)
         return terms, total_loss(terms, config)
 
-    optimize(optimizer, len(training), config.light_warmup, photo_losses, generator, "light warm-up", progress)
+    optimize(
+        optimizer,
+        len(training),
+        config.light_warmup,
+        photo_losses,
+        generator,
+        "light warm-up",
+        progress,
+        check_at=lambda step: step % config.log_every == 0,
+    )
 
 
 def warm_up_key(materials: Tensor, config: RefineConfig) -> tuple:
@@ -500,13 +507,14 @@ def refine(
     shading = ShadingNormals(normals).to(device) if config.refines_normals else None
     if shading is not None:  # after the warm-up, which lights the geometry's normals
         groups.append({"params": list(shading.parameters()), "lr": config.normal_lr, "name": "shading normals"})
-    optimizer = torch.optim.Adam(groups)
+    optimizer = adam_optimizer(groups)
 
     def refine_losses(index: int):
         active = training.frozen.contributing_ids(
             index, config.min_coverage
         )  # the merger only runs for the Gaussians this view shows
-        merged, weights = source(active, return_weights=True)
+        spread = config.basecolor_spread_weight > 0 and variant.softmax
+        merged, weights = source(active, return_weights=True) if spread else (source(active), {})
         materials = last_materials.index_copy(0, active, merged)
         last_materials.index_copy_(0, active, merged.detach())
         shading_normals = normals if shading is None else shading()
@@ -520,7 +528,7 @@ def refine(
             with_material=variant.uses_maps,
             with_normals=shading is not None and config.predicted_normal_weight > 0,
         )
-        if config.basecolor_spread_weight > 0 and variant.softmax and "base_color" in weights:
+        if spread and "base_color" in weights:
             terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
         if shading is not None and config.normal_prior_weight > 0:
             seen = training.frozen.visible_ids[index]  # the normals this view's photo loss reaches
@@ -528,15 +536,31 @@ def refine(
         return terms, total_loss(terms, config)
 
     def log(step: int, terms: dict, bar) -> None:
-        if step % config.log_every == 0 or step == config.iterations:
-            record = {"step": step, **{k: float(v.detach()) for k, v in terms.items()}}
+        if logs(step):
+            with torch.no_grad():
+                values = torch.stack(list(terms.values())).tolist() if terms else []  # one host read
+            record = {"step": step, **dict(zip(terms, values))}
             history.append(record)
             bar.set_postfix({k: f"{v:.4f}" for k, v in record.items() if k != "step"})
-        if on_checkpoint is not None and (step % 100 == 0 or step == config.iterations):
+        if checkpoints(step):
             on_checkpoint(step, source, envmap, history)
 
+    def logs(step: int) -> bool:
+        return step % config.log_every == 0 or step == config.iterations
+
+    def checkpoints(step: int) -> bool:  # finiteness is read before each: none is written from a diverged state
+        return on_checkpoint is not None and (step % 100 == 0 or step == config.iterations)
+
     optimize(
-        optimizer, len(training), config.iterations, refine_losses, generator, f"refine [{variant.name}]", progress, log
+        optimizer,
+        len(training),
+        config.iterations,
+        refine_losses,
+        generator,
+        f"refine [{variant.name}]",
+        progress,
+        log,
+        check_at=lambda step: logs(step) or checkpoints(step),
     )
     with torch.no_grad():
         final_normals = normals if shading is None else shading().detach()

@@ -5,7 +5,7 @@ import torch
 
 from matspray.data.camera import Camera
 from matspray.render.brdf_lut import lookup_brdf_lut
-from matspray.render.deferred import GBuffer, shade, shade_by_quadrature, shade_gbuffer
+from matspray.render.deferred import GBuffer, shade, shade_by_quadrature, shade_gbuffer, view_directions
 from matspray.render.envmap import EnvironmentMap, prefilter_latlong
 from matspray.render.latlong import pixel_directions
 
@@ -135,6 +135,8 @@ def test_gbuffer_is_shaded_along_camera_rays_and_composited():
         a = gbuffer.alpha[row, col]
         torch.testing.assert_close(image[row, col], rgb * a + background * (1 - a))
     torch.testing.assert_close(shade_gbuffer(gbuffer, camera, env)[:, 0], torch.zeros(4, 3))  # alpha 0, no background
+    kept = view_directions(camera)  # a caller's, made once per camera
+    assert torch.equal(shade_gbuffer(gbuffer, camera, pre, background, view_dirs=kept), image)
 
 
 def test_gbuffer_from_accumulated_unpremultiplies():

@@ -8,6 +8,7 @@ import torch
 from matspray.errors import ConfigError, DataError
 from matspray.render.brdf import ggx_ndf, roughness_to_alpha, smith_visibility
 from matspray.render.envmap import (
+    DEFAULT_LEVELS,
     EnvironmentMap,
     downsample_latlong,
     irradiance_map,
@@ -178,6 +179,32 @@ def test_lookup_specular_interpolates_between_levels():
     torch.testing.assert_close(at(0.05), level(0))  # clamped to the range of levels
 
 
+def test_prefiltering_all_levels_at_once_equals_each_level_alone():
+    source = random_map(32)
+    pre = prefilter_latlong(source)
+    assert len(pre.specular) == len(DEFAULT_LEVELS)
+    for level, roughness in zip(pre.specular, DEFAULT_LEVELS):
+        torch.testing.assert_close(level, prefilter_specular(source, roughness))
+    torch.testing.assert_close(pre.irradiance, irradiance_map(source))
+
+
+def test_lookups_in_the_prefiltered_maps_sample_each_map_bilinearly_across_the_poles():
+    pre = prefilter_latlong(random_map(16), levels=(0.2, 0.6, 1.0))
+    g = torch.Generator().manual_seed(2)
+    d = torch.nn.functional.normalize(torch.randn(200, 3, generator=g, dtype=f64), dim=-1)
+    d[:4] = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1e-5, 0.0, 1.0], [0.3, 0.0, -1.0]], dtype=f64)
+    n = torch.nn.functional.normalize(torch.randn(200, 3, generator=g, dtype=f64), dim=-1)
+    for i, roughness in enumerate(pre.levels):
+        r = torch.full((200,), roughness, dtype=f64)
+        torch.testing.assert_close(pre.lookup_specular(d, r), sample_latlong(pre.specular[i], d))
+        torch.testing.assert_close(pre.lookup_specular(3.0 * d, r), pre.lookup_specular(d, r))  # any length
+    torch.testing.assert_close(pre.lookup_diffuse(n), sample_latlong(pre.irradiance, n))
+    r = torch.rand(200, generator=g, dtype=f64)
+    specular, diffuse = pre.lookup(d, r, n)
+    torch.testing.assert_close(specular, pre.lookup_specular(d, r))
+    torch.testing.assert_close(diffuse, pre.lookup_diffuse(n))
+
+
 def test_prefilter_and_lookup_gradcheck():
     log_map = (random_map(2) * 0.5).log().requires_grad_(True)  # a 2 x 4 map keeps the numerical Jacobian cheap
     d = torch.nn.functional.normalize(
@@ -188,7 +215,7 @@ def test_prefilter_and_lookup_gradcheck():
 
     def chain(log_map, d, r):
         pre = prefilter_latlong(log_map.exp(), levels=(0.3, 0.6, 1.0))
-        return pre.lookup_specular(d, r), pre.lookup_diffuse(d)
+        return pre.lookup_specular(d, r), pre.lookup_diffuse(d), *pre.lookup(d, r, d.flip(-1))
 
     assert torch.autograd.gradcheck(chain, (log_map, d, r), fast_mode=True)
 

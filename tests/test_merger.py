@@ -1,7 +1,9 @@
 import pytest
 import torch
+from torch.utils._python_dispatch import TorchDispatchMode
 
 from matspray.errors import DataError, RunError
+from matspray.material import GROUPS
 from matspray.merger import (
     MergerConfig,
     NeuralMerger,
@@ -162,6 +164,50 @@ def test_aligned_values_agree_between_views_and_keep_roughness_and_metallic():
     assert torch.equal(aligned[..., 3:], values[..., 3:])
 
 
+def per_group_merge(merger, positions, values, seen):
+    """The merge as one MLP per channel group, layer by layer (the layout before the batched one)."""
+    masked = values * seen[..., None]
+    encoded = merger.encode_positions(positions)
+    merged = []
+    for g, group in enumerate(GROUPS.values()):
+        hidden = torch.cat([encoded, masked[:, :, group].flatten(1)], dim=-1)
+        for layer, (weight, bias) in enumerate(zip(merger.weights, merger.biases)):
+            hidden = torch.nn.functional.linear(hidden, weight[g][:, : hidden.shape[1]], bias[g, 0])
+            hidden = hidden.relu() if layer < len(merger.weights) - 1 else hidden
+        weights = torch.softmax(hidden.masked_fill(~seen, float("-inf")), dim=-1).nan_to_num(0.0)
+        merged.append((weights[..., None] * masked[:, :, group]).sum(1))
+    return torch.cat(merged, dim=-1).clamp(0.0, 1.0)
+
+
+def test_the_batched_groups_merge_as_one_mlp_per_group():
+    merger = NeuralMerger(6, BOUNDS, MergerConfig(precision="float32"))
+    randomise(merger)
+    with torch.no_grad():
+        for p in merger.parameters():
+            p.mul_(0.1)
+    positions, values, seen = random_inputs()
+    torch.testing.assert_close(merger(positions, values, seen), per_group_merge(merger, positions, values, seen))
+
+
+def test_a_checkpoint_with_one_mlp_per_group_loads(tmp_path):
+    import dataclasses
+
+    merger = NeuralMerger(6, BOUNDS)
+    randomise(merger)
+    widths = {"base_color": 39 + 6 * 3, "roughness": 39 + 6, "metallic": 39 + 6}
+    state = {"bounds": merger.bounds}  # the layout before: mlps.<group>.<index in its Sequential>.weight / .bias
+    for layer, (weight, bias) in enumerate(zip(merger.weights, merger.biases)):
+        for g, name in enumerate(GROUPS):
+            columns = widths[name] if layer == 0 else weight.shape[2]
+            state[f"mlps.{name}.{2 * layer}.weight"] = weight[g, :, :columns].detach().clone()
+            state[f"mlps.{name}.{2 * layer}.bias"] = bias[g, 0].detach().clone()
+    config = dataclasses.asdict(merger.config)
+    torch.save({"n_views": 6, "config": config, "state_dict": state}, tmp_path / "merger.pt")
+    back = load_merger(tmp_path / "merger.pt", 6, BOUNDS)
+    positions, values, seen = random_inputs()
+    torch.testing.assert_close(back(positions, values, seen), merger(positions, values, seen))
+
+
 def test_an_unknown_precision_is_refused():
     from matspray.errors import SettingError
 
@@ -181,6 +227,20 @@ def test_auto_precision_is_bfloat16_only_on_a_cpu_that_multiplies_it_natively(mo
     assert mlp_dtype("auto", cpu) == torch.float32
 
 
+class ProductDtypes(TorchDispatchMode):
+    """The dtypes of the batched matrix products' outputs (the MLPs' layers)."""
+
+    def __init__(self):
+        super().__init__()
+        self.dtypes = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        out = func(*args, **(kwargs or {}))
+        if func is torch.ops.aten.baddbmm.default:
+            self.dtypes.append(out.dtype)
+        return out
+
+
 def test_a_bfloat16_merger_multiplies_in_bfloat16_and_merges_close_to_float32():
     positions, values, seen = random_inputs(n=200, v=8)
     merged, products = {}, {}
@@ -190,11 +250,9 @@ def test_a_bfloat16_merger_multiplies_in_bfloat16_and_merges_close_to_float32():
         with torch.no_grad():
             for p in merger.parameters():
                 p.mul_(0.1)  # logits of a few units, as a trained merger's
-        seen_dtypes = []
-        hook = merger.mlps["base_color"][0].register_forward_hook(lambda m, i, o: seen_dtypes.append(o.dtype))
-        merged[precision], weights = merger(positions, values, seen, return_weights=True)
-        hook.remove()
-        products[precision] = seen_dtypes[0]
+        with ProductDtypes() as seen_dtypes:
+            merged[precision], weights = merger(positions, values, seen, return_weights=True)
+        products[precision] = seen_dtypes.dtypes[0]
         assert all(w.dtype == torch.float32 for w in weights.values())  # the merge itself stays float32
     assert products == {"float32": torch.float32, "bfloat16": torch.bfloat16}
     difference = (merged["bfloat16"] - merged["float32"]).abs()
@@ -214,8 +272,6 @@ def test_the_merged_materials_gradient_matches_finite_differences():
     names = [name for name, _ in merger.named_parameters()]
 
     def merged(*params):
-        return torch.func.functional_call(
-            merger, dict(zip(names, params)), (positions.double(), values.double(), seen)
-        )
+        return torch.func.functional_call(merger, dict(zip(names, params)), (positions.double(), values.double(), seen))
 
     assert torch.autograd.gradcheck(merged, [p.detach().clone().requires_grad_(True) for p in merger.parameters()])

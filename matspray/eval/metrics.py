@@ -108,16 +108,35 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=to
     return taps / taps.sum()
 
 
-def _window_mean(x: Tensor, taps: Tensor) -> Tensor:  # [..., H, W], [K] -> [..., H-K+1, W-K+1]
-    """The separable window's weighted mean at every valid position: two depthwise convolutions (rows, then columns),
-    one plane per leading index. The convolution's own backward is one pass each way, where shifted slices summed
-    in autograd cost a full-size zero tensor and an add per slice (docs/rasterizer.md has the timing)."""
+_WINDOWS: dict[tuple, tuple[Tensor, Tensor]] = {}  # (planes, dtype, device) -> the SSIM window's two kernels
+
+
+def _window_kernels(taps: Tensor, count: int) -> tuple[Tensor, Tensor]:  # [K] -> [B, 1, 1, K], [B, 1, K, 1]
     k = taps.shape[0]
+    return taps.view(1, 1, 1, k).expand(count, 1, 1, k), taps.view(1, 1, k, 1).expand(count, 1, k, 1)
+
+
+def _ssim_kernels(count: int, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, Tensor]:
+    """The SSIM window's `_window_kernels` for `count` planes, made once (the training losses ask every step)."""
+    key = (count, dtype, str(device))
+    if key not in _WINDOWS:
+        taps = gaussian_window(dtype=dtype, device=device)
+        _WINDOWS[key] = tuple(kernel.contiguous() for kernel in _window_kernels(taps, count))
+    return _WINDOWS[key]
+
+
+def _window_mean(x: Tensor, taps: Tensor | None = None) -> Tensor:  # [..., H, W], [K] -> [..., H-K+1, W-K+1]
+    """The separable window's weighted mean at every valid position (`taps` None: the SSIM window): two depthwise
+    convolutions (rows, then columns), one plane per leading index. The convolution's own backward is one pass each
+    way, where shifted slices summed in autograd cost a full-size zero tensor and an add per slice
+    (docs/rasterizer.md has the timing)."""
     planes = x.reshape(1, -1, *x.shape[-2:])  # [1, B, H, W]
     count = planes.shape[1]
-    taps = taps.to(x)
-    rows = F.conv2d(planes, taps.view(1, 1, 1, k).expand(count, 1, 1, k), groups=count)
-    out = F.conv2d(rows, taps.view(1, 1, k, 1).expand(count, 1, k, 1), groups=count)
+    if taps is None:
+        row_kernel, column_kernel = _ssim_kernels(count, x.dtype, x.device)
+    else:
+        row_kernel, column_kernel = _window_kernels(taps.to(x), count)
+    out = F.conv2d(F.conv2d(planes, row_kernel, groups=count), column_kernel, groups=count)
     return out.reshape(*x.shape[:-2], *out.shape[-2:])
 
 
@@ -133,16 +152,16 @@ def ssim_map(pred, target) -> Tensor:
 def local_ssim(x: Tensor, y: Tensor) -> Tensor:  # [H, W, C], [H, W, C] -> [H-10, W-10, C]
     """SSIM statistics of two images at every valid window position; differentiable, any float dtype.
     No input checks: the training loss calls it on every step."""
-    taps = gaussian_window(dtype=x.dtype, device=x.device)  # [11]
     x, y = x.permute(2, 0, 1), y.permute(2, 0, 1)  # [C, H, W]
-    means = _window_mean(torch.cat([x, y, x * x, y * y, x * y]), taps)  # [5C, H-10, W-10] in one pass
+    means = _window_mean(torch.cat([x, y, x * x, y * y, x * y]))  # [5C, H-10, W-10] in one pass
     mean_x, mean_y, mean_xx, mean_yy, mean_xy = means.split(x.shape[0])
-    var_x = mean_xx - mean_x**2
-    var_y = mean_yy - mean_y**2
-    cov_xy = mean_xy - mean_x * mean_y
+    mean_x2, mean_y2, mean_x_y = mean_x**2, mean_y**2, mean_x * mean_y
+    var_x = mean_xx - mean_x2
+    var_y = mean_yy - mean_y2
+    cov_xy = mean_xy - mean_x_y
     c1, c2 = SSIM_K1**2, SSIM_K2**2  # data range 1
-    numerator = (2 * mean_x * mean_y + c1) * (2 * cov_xy + c2)
-    denominator = (mean_x**2 + mean_y**2 + c1) * (var_x + var_y + c2)
+    numerator = (2 * mean_x_y + c1) * (2 * cov_xy + c2)
+    denominator = (mean_x2 + mean_y2 + c1) * (var_x + var_y + c2)
     return (numerator / denominator).permute(1, 2, 0)
 
 

@@ -94,13 +94,23 @@ def brdf_lut(size: int = DEFAULT_SIZE, samples: int = DEFAULT_SAMPLES, device=No
     return _TABLES[key]
 
 
-def lookup_brdf_lut(n_dot_v: Tensor, roughness: Tensor, size: int = DEFAULT_SIZE) -> Tensor:  # [...], [...] -> [..., 2]
-    """Bilinear lookup of (A, B), clamped to the outermost texel centres; differentiable in both inputs."""
-    n_dot_v, roughness = torch.broadcast_tensors(n_dot_v, roughness)
-    table = brdf_lut(size, device=n_dot_v.device, dtype=n_dot_v.dtype)  # [size, size, 2]
-    image = table.permute(2, 0, 1)[None]  # [1, 2, size (n.v) = rows, size (r) = columns]
+def _lut_image(size: int, device, dtype) -> Tensor:  # -> [1, 2, size (n.v) = rows, size (r) = columns]
+    key = ("image", size, str(device), dtype)
+    if key not in _TABLES:
+        _TABLES[key] = brdf_lut(size, device=device, dtype=dtype).permute(2, 0, 1)[None].contiguous()
+    return _TABLES[key]
+
+
+def brdf_scale_bias(n_dot_v: Tensor, roughness: Tensor, size: int = DEFAULT_SIZE) -> tuple[Tensor, Tensor]:
+    """`lookup_brdf_lut` as the two tables' values (A, B), [...] each, n.wo and roughness [...] of one shape."""
+    image = _lut_image(size, n_dot_v.device, n_dot_v.dtype)
     # grid_sample: x indexes columns (roughness), y rows (n.v); align_corners=False puts texel centres at
     # (i + 0.5) / size
-    grid = torch.stack([roughness * 2.0 - 1.0, n_dot_v * 2.0 - 1.0], dim=-1).reshape(1, 1, -1, 2)
+    grid = (torch.stack([roughness, n_dot_v], dim=-1) * 2.0 - 1.0).view(1, 1, -1, 2)
     out = F.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=False)  # [1, 2, 1, P]
-    return out[0, :, 0].T.reshape(*n_dot_v.shape, 2)
+    return out.view(2, *n_dot_v.shape).unbind(0)
+
+
+def lookup_brdf_lut(n_dot_v: Tensor, roughness: Tensor, size: int = DEFAULT_SIZE) -> Tensor:  # [...], [...] -> [..., 2]
+    """Bilinear lookup of (A, B), clamped to the outermost texel centres; differentiable in both inputs."""
+    return torch.stack(brdf_scale_bias(*torch.broadcast_tensors(n_dot_v, roughness), size), dim=-1)

@@ -15,7 +15,7 @@ where it raises the r = 0.5 error from 5 % to 13 %.
 
 Normals need not be unit length (rasterized normals are blends); they are normalised here. Gaussian
 normals carry no reliable sign, so a normal facing away from the viewer (n.wo < 0) is flipped to face
-it; n.wo is then clamped to at least 1e-4 for the table lookup.
+it; the table lookup holds n.wo at its first texel centre (1 / 64) from below.
 """
 
 from __future__ import annotations
@@ -29,16 +29,8 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.material import N_CHANNELS, stack, unstack
-from matspray.render.brdf import (
-    MIN_ROUGHNESS,
-    cook_torrance,
-    diffuse_albedo,
-    dot,
-    reflect,
-    roughness_to_alpha,
-    specular_f0,
-)
-from matspray.render.brdf_lut import lookup_brdf_lut
+from matspray.render.brdf import DIELECTRIC_F0, MIN_ROUGHNESS, cook_torrance, dot, reflect, roughness_to_alpha
+from matspray.render.brdf_lut import brdf_scale_bias
 from matspray.render.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
 from matspray.render.latlong import pixel_directions, pixel_solid_angles
 
@@ -87,12 +79,13 @@ class GBuffer:
 
 
 def specular_direction(n: Tensor, wo: Tensor, roughness: Tensor) -> Tensor:  # [..., 3], [..., 3], [...] -> [..., 3]
-    """Dominant direction of the specular lobe: lerp(n, reflect(-wo, n), s (sqrt(s) + alpha)), s = 1 - alpha."""
+    """Dominant direction of the specular lobe: lerp(n, reflect(-wo, n), s (sqrt(s) + alpha)), s = 1 - alpha; not of
+    unit length (lookups read only the direction: normalise it for anything else)."""
     alpha = roughness_to_alpha(roughness)[..., None]
     smooth = 1.0 - alpha
     mirror = reflect(-wo, n)
     # s^1.5 + s alpha rather than s (sqrt(s) + alpha): the same value, but a finite gradient at s = 0 (roughness 1)
-    return F.normalize(torch.lerp(n, mirror, smooth.pow(1.5) + smooth * alpha), dim=-1, eps=1e-12)
+    return torch.lerp(n, mirror, smooth.pow(1.5) + smooth * alpha)
 
 
 def shade(
@@ -100,26 +93,52 @@ def shade(
     roughness: Tensor,  # [...] perceptual
     metallic: Tensor,  # [...]
     normals: Tensor,  # [..., 3] world space, any length
-    view_dirs: Tensor,  # [..., 3] unit, from the surface towards the camera (wo)
+    view_dirs: Tensor,  # [..., 3] from the surface towards the camera (wo), any length
     light: EnvironmentMap | PrefilteredEnvironment,
     shadow: Tensor | None = None,  # [..., 6] diffuse and specular RGB light scales; None = unshadowed
 ) -> Tensor:  # [..., 3] outgoing linear radiance
     """Split-sum image-based lighting. Pass a PrefilteredEnvironment to reuse one prefiltering."""
+    wo = F.normalize(view_dirs, dim=-1, eps=1e-12)
+    return shade_unit(base_color, roughness, metallic, normals, wo, light, shadow)
+
+
+def shade_unit(
+    base_color: Tensor,  # [..., 3] linear
+    roughness: Tensor,  # [...] perceptual
+    metallic: Tensor,  # [...]
+    normals: Tensor,  # [..., 3] world space, any length
+    wo: Tensor,  # [..., 3] unit, from the surface towards the camera
+    light: EnvironmentMap | PrefilteredEnvironment,
+    shadow: Tensor | None = None,  # [..., 6] diffuse and specular RGB light scales; None = unshadowed
+) -> Tensor:  # [..., 3] outgoing linear radiance
+    """`shade` with unit view directions, e.g. a camera's, normalised once (`view_directions`)."""
     if isinstance(light, EnvironmentMap):
         light = light.prefilter()
     n = F.normalize(normals, dim=-1, eps=1e-12)
-    wo = F.normalize(view_dirs, dim=-1, eps=1e-12)
     n_dot_v = dot(n, wo)
-    n = torch.where((n_dot_v < 0)[..., None], -n, n)  # face the viewer
-    n_dot_v = n_dot_v.abs().clamp_min(1e-4)
+    facing = torch.where(n_dot_v < 0, -1.0, 1.0)  # [...] turns a normal facing away towards the viewer
+    n = n * facing[..., None]
+    cos = n_dot_v * facing  # n.wo of the turned normal
     r = roughness.clamp(MIN_ROUGHNESS, 1.0)
-    scale_bias = lookup_brdf_lut(n_dot_v, r)  # [..., 2]
-    specular_weight = specular_f0(base_color, metallic) * scale_bias[..., :1] + scale_bias[..., 1:]
-    specular = light.lookup_specular(specular_direction(n, wo, r), r) * specular_weight
-    diffuse = light.lookup_diffuse(n) * diffuse_albedo(base_color, metallic) / math.pi
+    scale, bias = brdf_scale_bias(cos, r)  # [...] each (n.wo below the table's first texel reads that texel)
+    dielectric = 1.0 - metallic[..., None]
+    specular_weight = (DIELECTRIC_F0 * dielectric + base_color * metallic[..., None]) * scale[..., None]  # F0 A
+    lobe = specular_direction(n, wo, r)
+    if isinstance(light, PrefilteredEnvironment):
+        specular_light, irradiance = light.lookup(lobe, r, n)
+    else:
+        specular_light, irradiance = light.lookup_specular(lobe, r), light.lookup_diffuse(n)
+    specular = specular_light * (specular_weight + bias[..., None])
+    diffuse = irradiance * (base_color * dielectric) / math.pi
     if shadow is not None:
         diffuse, specular = diffuse * shadow[..., :3], specular * shadow[..., 3:]
     return diffuse + specular
+
+
+def view_directions(camera: Camera, device=None, dtype=torch.float32) -> Tensor:  # -> [H, W, 3] unit
+    """wo of every pixel: the reverse of the camera ray through its centre, normalised."""
+    _, ray_dirs = camera.to(device).rays()  # [H * W, 3], row-major
+    return F.normalize(-ray_dirs.reshape(camera.height, camera.width, 3).to(dtype), dim=-1, eps=1e-12)
 
 
 def shade_gbuffer(
@@ -127,6 +146,7 @@ def shade_gbuffer(
     camera: Camera,
     light: EnvironmentMap | PrefilteredEnvironment,
     background: Tensor | None = None,  # [3] or [H, W, 3] linear; None = black
+    view_dirs: Tensor | None = None,  # [H, W, 3] `view_directions(camera)` when the caller keeps them
 ) -> Tensor:  # [H, W, 3]
     """Shade every pixel and composite over the background with the G-buffer's alpha.
 
@@ -137,9 +157,9 @@ def shade_gbuffer(
     height, width = camera.height, camera.width
     if tuple(gbuffer.alpha.shape) != (height, width):
         raise ValueError(f"G-buffer is {tuple(gbuffer.alpha.shape)} but the camera is {height} x {width}")
-    _, ray_dirs = camera.to(gbuffer.normals.device).rays()  # [H * W, 3], row-major
-    view_dirs = -ray_dirs.reshape(height, width, 3).to(gbuffer.normals.dtype)
-    rgb = shade(
+    if view_dirs is None:
+        view_dirs = view_directions(camera, gbuffer.normals.device, gbuffer.normals.dtype)
+    rgb = shade_unit(
         gbuffer.base_color, gbuffer.roughness, gbuffer.metallic, gbuffer.normals, view_dirs, light, gbuffer.shadow
     )
     alpha = gbuffer.alpha[..., None]

@@ -16,15 +16,19 @@ rotation about the up axis, so the weight between an output pixel and an input p
 the two rows and the column offset; each sum is therefore a circular correlation along the rows,
 done with FFTs and one small complex matrix product per frequency against a precomputed kernel
 [W_in // 2 + 1, H_out, H_in] (cached per size). It is differentiable w.r.t. the map and costs
-O(H_out H_in W) per level: all 12 default levels of a 64 x 128 map take 15 ms (33 ms with the
-backward pass) on a 2-core CPU. Rough levels (and the irradiance) are evaluated on coarser output
+O(H_out H_in W) per level. Rough levels (and the irradiance) are evaluated on coarser output
 grids (H_in / 2^k rows), always from the full input.
+
+Refinement prefilters its learnable map every step, so `prefilter_latlong` makes every level and the irradiance
+at once: their kernels stacked into one (one FFT, one product per frequency, one inverse FFT for all), with rows
+that lay each map out ready for bilinear lookup (`_padded_rows`); `PrefilteredEnvironment` looks the levels of one
+resolution up together.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as F
@@ -33,7 +37,7 @@ from torch import Tensor, nn
 from matspray.data.images import read_image, write_image
 from matspray.errors import ConfigError, DataError, file_error
 from matspray.render.brdf import MIN_ROUGHNESS, ggx_ndf, roughness_to_alpha, smith_visibility
-from matspray.render.latlong import direction_to_uv, pixel_solid_angles
+from matspray.render.latlong import pixel_solid_angles
 
 DEFAULT_LEVELS = (MIN_ROUGHNESS, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 PIXELS_PER_LOBE = 2.0  # a level's pixel spans at most alpha / PIXELS_PER_LOBE radians (the GGX lobe ~ alpha wide)
@@ -41,7 +45,9 @@ MIN_LEVEL_HEIGHT = 16
 DIFFUSE_HEIGHT = 16  # irradiance is smooth: 16 x 32 with bilinear lookup is well under 1 % off
 MIN_RADIANCE = 1e-4  # floor applied to maps before taking the log
 
-_KERNELS: dict[tuple, Tensor] = {}
+_KERNELS: dict[tuple, Tensor] = {}  # prefiltering's kernels
+_RUNS: dict[tuple, list] = {}  # how the stacked kernel's rows make maps (`_prefilter_kernel`)
+_CONSTANTS: dict[tuple, Tensor] = {}  # small per-size constants of the lookups
 
 
 # ------------------------------------------------------------------------------------------ validation
@@ -73,23 +79,26 @@ def downsample_latlong(map: Tensor, height: int) -> Tensor:  # [H, 2H, C] -> [he
     return (num / den).permute(1, 2, 0)
 
 
-def _safe_uv(d: Tensor) -> Tensor:  # [..., 3] unit -> [..., 2], finite gradients at the poles
-    """`latlong.direction_to_uv` for the column; the row as v = atan2(|(x, y)|, z) / pi, which equals its
-    acos(z) / pi for unit d but stays accurate and differentiable next to the poles."""
+def latlong_angles(d: Tensor) -> Tensor:  # [..., 3] -> [..., 2] azimuth, polar angle
+    """The lat-long angles of directions (any length > 0: the angles do not depend on it): phi = atan2(y, -x) in
+    [-pi, pi] (u = phi / 2 pi + 0.5, see `latlong.direction_to_uv`) and theta = atan2(|(x, y)|, z) in [0, pi]
+    (v = theta / pi), which equals acos(z) for unit d but stays accurate and differentiable next to the poles."""
     x, y, z = d.unbind(-1)
-    rho2 = x * x + y * y
-    at_pole = rho2 < 1e-24  # azimuth undefined: use a fixed one, with no gradient
-    x = torch.where(at_pole, torch.full_like(x, -1.0), x)
-    y = torch.where(at_pole, torch.zeros_like(y), y)
-    z_inside = z.clamp(-0.5, 0.5)  # u ignores z; keeps acos inside direction_to_uv away from its infinite slope
-    u = direction_to_uv(torch.stack([x, y, z_inside], dim=-1))[..., 0]
-    safe_rho2 = torch.where(at_pole, torch.ones_like(rho2), rho2)  # sqrt has an infinite slope at 0
-    rho = torch.where(at_pole, torch.zeros_like(rho2), safe_rho2.sqrt())
-    return torch.stack([u, torch.atan2(rho, z) / math.pi], dim=-1)
+    rho = torch.linalg.vector_norm(d[..., :2], dim=-1)  # its gradient is 0 at rho = 0
+    at_pole = rho < 1e-12  # azimuth undefined: a fixed one (phi = 0), with no gradient
+    # both angles by one atan2: [..., 2] numerators over denominators
+    numerators = torch.stack([torch.where(at_pole, 0.0, y), rho], dim=-1)
+    return torch.atan2(numerators, torch.stack([torch.where(at_pole, 1.0, -x), z], dim=-1))
 
 
-def sample_latlong_uv(map: Tensor, uv: Tensor) -> Tensor:  # [H, W, C], [..., 2] -> [..., C]
-    """Bilinear lookup at lat-long coordinates (u, v) in [0, 1], wrapping around in azimuth.
+def sample_padded(image: Tensor, grid: Tensor) -> Tensor:  # [1, C, h, w], [P, 2] -> [C, P]
+    """Bilinear samples of a padded map at `grid_sample` coordinates (align_corners=True)."""
+    out = F.grid_sample(image, grid.view(1, 1, -1, 2), mode="bilinear", padding_mode="border", align_corners=True)
+    return out.view(image.shape[1], -1)
+
+
+def sample_latlong(map: Tensor, directions: Tensor) -> Tensor:  # [H, W, C], [..., 3] -> [..., C]
+    """Bilinear lookup in a lat-long map along directions (any length > 0), wrapping around in azimuth.
 
     Between the first (last) row of pixel centres and the pole, values blend towards the pole's
     radiance, estimated as the mean of that row; so the lookup is continuous across the poles.
@@ -98,19 +107,31 @@ def sample_latlong_uv(map: Tensor, uv: Tensor) -> Tensor:  # [H, W, C], [..., 2]
     wrapped = torch.cat([map[:, -1:], map, map[:, :1]], dim=1)  # [H, W + 2, C]
     poles = torch.stack([map[0].mean(0), map[-1].mean(0)])[:, None].expand(2, width + 2, channels)
     padded = torch.cat([poles[:1], wrapped, poles[1:]])  # [H + 2, W + 2, C]; pixel (i, j) sits at (i + 1, j + 1)
-    flat_uv = uv.reshape(-1, 2).to(map.dtype)
-    x = flat_uv[:, 0] * width + 0.5  # in [0.5, W + 0.5]
-    y = flat_uv[:, 1] * height - 0.5  # in [-0.5, H - 0.5]: the poles lie half a row beyond the outer centres
-    y = torch.where(y < 0, 2 * (y + 0.5), torch.where(y > height - 1, height + 2 * (y - height + 1), y + 1))
-    grid = torch.stack([x / (width + 1), y / (height + 1)], dim=-1) * 2 - 1  # align_corners=True coordinates
-    image = padded.permute(2, 0, 1)[None]  # [1, C, H + 2, W + 2]
-    out = F.grid_sample(image, grid[None, None], mode="bilinear", padding_mode="border", align_corners=True)
-    return out[0, :, 0].T.reshape(*uv.shape[:-1], channels)
+    phi, theta = latlong_angles(directions.to(map.dtype).reshape(-1, 3)).unbind(-1)
+    x = phi * (width / (math.pi * (width + 1)))  # column u W + 0.5 (u = phi / 2 pi + 0.5) / (W + 1) * 2 - 1
+    t = theta * (height / math.pi)  # v H: the map's row coordinate + 0.5
+    inside = (t - 0.5).clamp(0.0, height - 1)  # the row coordinate, held at the outer centres
+    # the poles lie half a row beyond the outer centres: padded row 2 t - inside (t + 0.5 between the outer
+    # centres, twice as steep beyond them), / (H + 1) * 2 - 1
+    y = torch.sub(t, inside, alpha=0.5) * (4.0 / (height + 1)) - 1.0
+    samples = sample_padded(padded.permute(2, 0, 1)[None], torch.stack([x, y], dim=-1))  # [C, P]
+    return samples.T.reshape(*directions.shape[:-1], channels)
 
 
-def sample_latlong(map: Tensor, directions: Tensor) -> Tensor:  # [H, W, C], [..., 3] unit -> [..., C]
-    """Bilinear lookup in a lat-long map along unit directions (see `sample_latlong_uv`)."""
-    return sample_latlong_uv(map, _safe_uv(directions.to(map.dtype)))
+def latlong_grids(angles: Tensor, widths) -> dict[int, Tensor]:  # [..., 2] (`latlong_angles`) -> {W: [..., 2]}
+    """`grid_sample` coordinates (align_corners=True) of the angles in prefiltered maps of each width W, padded as
+    `_padded_rows` lays them out: column u W + 0.5 of the W + 2 (u = phi / 2 pi + 0.5), row v 2H of the 2H + 1 (the
+    same for every map)."""
+    grids = {}
+    for width in widths:
+        key = ("grid", width, angles.dtype, str(angles.device))
+        if key not in _CONSTANTS:
+            # column (u W + 0.5) / (W + 1) * 2 - 1 = phi W / (pi (W + 1)); row v 2H / 2H * 2 - 1 = theta 2 / pi - 1
+            scale = [width / (math.pi * (width + 1)), 2.0 / math.pi]
+            _CONSTANTS[key] = torch.tensor([scale, [0.0, -1.0]], dtype=angles.dtype, device=angles.device)  # [2, 2]
+        scale, offset = _CONSTANTS[key]
+        grids[width] = angles * scale + offset
+    return grids
 
 
 # ------------------------------------------------------------------------------------------ prefiltering
@@ -128,33 +149,41 @@ def level_height(roughness: float, map_height: int, min_height: int = MIN_LEVEL_
     return _coarsest_height(map_height, max(PIXELS_PER_LOBE * math.pi / alpha, min_height))
 
 
+def _lobe_weights(kind: str, alpha: float, in_height: int, out_height: int) -> Tensor:  # -> [H_out, H_in, W_in]
+    """The weights (float64, on the CPU) between an output pixel of column 0 and every input pixel, 'ggx' (the lobe
+    D V (r.l)+, normalised to sum to 1) or 'cosine' ((n.l)+, summing to pi)."""
+    host = torch.device("cpu")
+    in_width, stride = 2 * in_height, in_height // out_height
+    theta_in = (torch.arange(in_height, dtype=torch.float64, device=host) + 0.5) / in_height * math.pi
+    theta_out = (torch.arange(out_height, dtype=torch.float64, device=host) + 0.5) / out_height * math.pi
+    # azimuth of input column m relative to output column 0 (output pixels are `stride` input pixels wide)
+    dphi = (torch.arange(in_width, dtype=torch.float64, device=host) + 0.5 - stride / 2) * (2 * math.pi / in_width)
+    cos = torch.cos(theta_out)[:, None, None] * torch.cos(theta_in)[None, :, None] + torch.sin(theta_out)[
+        :, None, None
+    ] * torch.sin(theta_in)[None, :, None] * torch.cos(dphi)  # [H_out, H_in, W_in]
+    solid_angle = pixel_solid_angles(in_height, in_width, device=host, dtype=torch.float64)[:, :1]  # [H_in, 1]
+    weights = cos.clamp_min(0.0) * solid_angle
+    if kind == "ggx":  # the specular lobe D V (n.l) of a surface seen head-on: n = v = r
+        a = torch.tensor(alpha, dtype=torch.float64, device=host)
+        n_dot_h = torch.sqrt(((1.0 + cos) / 2.0).clamp_min(0.0))
+        weights = weights * ggx_ndf(n_dot_h, a) * smith_visibility(cos, torch.ones_like(cos), a)
+        return weights / weights.sum(dim=(1, 2), keepdim=True)
+    # the exact integral of (n.l)+ is pi: remove the sum's small discretisation error
+    return weights * (math.pi / weights.sum(dim=(1, 2), keepdim=True))
+
+
+def _complex(dtype: torch.dtype) -> torch.dtype:
+    return torch.complex128 if dtype == torch.float64 else torch.complex64
+
+
 def _kernel_spectrum(kind: str, alpha: float, in_height: int, out_height: int, device, dtype) -> Tensor:
-    """The weights [out_height, in_height, 2 in_height] between an output pixel of column 0 and every input
-    pixel, 'ggx' (the lobe D V (r.l)+, normalised to sum to 1) or 'cosine' ((n.l)+, summing to pi),
-    as their conjugated rfft along azimuth, laid out [2 in_height // 2 + 1, out_height, in_height]."""
+    """`_lobe_weights` as their conjugated rfft along azimuth, laid out [2 in_height // 2 + 1, out_height,
+    in_height], on `device` (cached per size)."""
     key = (kind, alpha, in_height, out_height, str(device), dtype)
     if key not in _KERNELS:  # made once on the CPU in float64, then kept on `device`
-        host = torch.device("cpu")
-        in_width, stride = 2 * in_height, in_height // out_height
-        theta_in = (torch.arange(in_height, dtype=torch.float64, device=host) + 0.5) / in_height * math.pi
-        theta_out = (torch.arange(out_height, dtype=torch.float64, device=host) + 0.5) / out_height * math.pi
-        # azimuth of input column m relative to output column 0 (output pixels are `stride` input pixels wide)
-        dphi = (torch.arange(in_width, dtype=torch.float64, device=host) + 0.5 - stride / 2) * (2 * math.pi / in_width)
-        cos = torch.cos(theta_out)[:, None, None] * torch.cos(theta_in)[None, :, None] + torch.sin(theta_out)[
-            :, None, None
-        ] * torch.sin(theta_in)[None, :, None] * torch.cos(dphi)  # [H_out, H_in, W_in]
-        solid_angle = pixel_solid_angles(in_height, in_width, device=host, dtype=torch.float64)[:, :1]  # [H_in, 1]
-        weights = cos.clamp_min(0.0) * solid_angle
-        if kind == "ggx":  # the specular lobe D V (n.l) of a surface seen head-on: n = v = r
-            a = torch.tensor(alpha, dtype=torch.float64, device=host)
-            n_dot_h = torch.sqrt(((1.0 + cos) / 2.0).clamp_min(0.0))
-            weights = weights * ggx_ndf(n_dot_h, a) * smith_visibility(cos, torch.ones_like(cos), a)
-            weights = weights / weights.sum(dim=(1, 2), keepdim=True)
-        else:  # the exact integral of (n.l)+ is pi: remove the sum's small discretisation error
-            weights = weights * (math.pi / weights.sum(dim=(1, 2), keepdim=True))
-        complex_dtype = torch.complex128 if dtype == torch.float64 else torch.complex64
+        weights = _lobe_weights(kind, alpha, in_height, out_height)
         spectrum = torch.fft.rfft(weights, dim=-1).conj().permute(2, 0, 1)  # [F, H_out, H_in], ready to matmul
-        _KERNELS[key] = spectrum.to(device=device, dtype=complex_dtype).contiguous()
+        _KERNELS[key] = spectrum.to(device=device, dtype=_complex(dtype)).contiguous()
     return _KERNELS[key]
 
 
@@ -168,10 +197,14 @@ def _correlate(map: Tensor, spectrum: Tensor) -> Tensor:  # [H_in, W_in, C], [F,
     return out[:, :: in_width // (2 * out_height)]
 
 
+def level_alpha(roughness: float) -> float:
+    """The GGX alpha of a prefiltered level, as a host-side number (float32 rounding, as shading's)."""
+    return float(roughness_to_alpha(torch.tensor(roughness, device="cpu")))
+
+
 def prefilter_specular(map: Tensor, roughness: float) -> Tensor:  # [H, 2H, 3] -> [h, 2h, 3]
     height = level_height(roughness, map.shape[0])
-    alpha = float(roughness_to_alpha(torch.tensor(roughness, device="cpu")))  # a host-side number
-    return _correlate(map, _kernel_spectrum("ggx", alpha, map.shape[0], height, map.device, map.dtype))
+    return _correlate(map, _kernel_spectrum("ggx", level_alpha(roughness), map.shape[0], height, map.device, map.dtype))
 
 
 def irradiance_map(map: Tensor, height: int = DIFFUSE_HEIGHT) -> Tensor:  # [H, 2H, 3] -> [h, 2h, 3]
@@ -180,53 +213,157 @@ def irradiance_map(map: Tensor, height: int = DIFFUSE_HEIGHT) -> Tensor:  # [H, 
     return _correlate(map, _kernel_spectrum("cosine", 0.0, map.shape[0], out_height, map.device, map.dtype))
 
 
+@dataclass(frozen=True)
+class _Run:
+    """Prefiltered maps of one resolution, made together: rows [start, stop) of the stacked kernel's output."""
+
+    start: int
+    stop: int
+    count: int  # maps
+    height: int  # rows of each map (unpadded)
+    columns: Tensor  # [2 height + 2] input columns of the padded output columns (stride, wrapped round)
+
+
+def _padded_rows(weights: Tensor) -> Tensor:  # [h, H_in, W_in] -> [2h + 1, H_in, W_in]
+    """A level's weights as the rows of its map padded for lookup, rows at v = k / 2h, k = 0 .. 2h: pixel row i at
+    k = 2i + 1, the mean of two neighbouring pixel rows between them, and at k = 0 (2h) a row whose output, in every
+    column, is the mean of the first (last) pixel row over its 2h columns: the pole's radiance. Bilinear lookup in
+    these rows is bilinear between the pixel centres, blends towards the pole's radiance beyond the outer ones (as
+    `sample_latlong`), and its row coordinate v 2h is linear in v."""
+    height, in_height, in_width = weights.shape
+    stride = in_width // (2 * height)
+    # output column j' of a row with weights w' is sum w'[b, m] map[b, stride j' + m]; averaging the row's weights
+    # over all shifts by stride makes it the mean over the output columns, the same in every column
+    poles = [sum(row.roll(stride * j, dims=-1) for j in range(2 * height)) / (2 * height) for row in weights[[0, -1]]]
+    between = (weights[:-1] + weights[1:]) / 2
+    rows = torch.stack([weights[:-1], between], dim=1).reshape(2 * height - 2, in_height, in_width)
+    return torch.cat([poles[0][None], rows, weights[-1:], poles[1][None]])
+
+
+def _prefilter_kernel(levels: tuple[float, ...], in_height: int, device, dtype) -> tuple[Tensor, list[_Run]]:
+    """Every specular level's kernel and the irradiance's, stacked into one matrix [F, H_in, R] (conjugated rfft
+    along azimuth, transposed so that map^T @ kernel gives all R output rows at once), and the runs of maps of one
+    resolution in row order: consecutive specular levels of one height, then the irradiance. Each map has the 2h + 1
+    `_padded_rows`, and within a run map i's rows follow map i - 1's (cached per size)."""
+    key = ("stacked", levels, in_height, str(device), dtype)
+    if key not in _KERNELS or key not in _RUNS:
+        maps = [(level_height(r, in_height), "ggx", level_alpha(r)) for r in levels]
+        maps.append((_coarsest_height(in_height, DIFFUSE_HEIGHT), "cosine", 0.0))
+        blocks, runs, start = [], [], 0
+        for i, (height, kind, alpha) in enumerate(maps):
+            blocks.append(_padded_rows(_lobe_weights(kind, alpha, in_height, height)))
+            rows = 2 * height + 1
+            if 0 < i < len(levels) and runs[-1].height == height:  # a specular level joins the previous one's run
+                runs[-1] = replace(runs[-1], stop=runs[-1].stop + rows, count=runs[-1].count + 1)
+            else:
+                stride = in_height // height
+                columns = (torch.arange(-1, 2 * height + 1, device=device) * stride) % (2 * in_height)
+                runs.append(_Run(start, start + rows, 1, height, columns))
+            start += rows
+        spectrum = torch.fft.rfft(torch.cat(blocks), dim=-1).conj().permute(2, 1, 0)  # [F, H_in, R]
+        _KERNELS[key] = spectrum.to(device=device, dtype=_complex(dtype)).contiguous()
+        _RUNS[key] = runs
+    return _KERNELS[key], _RUNS[key]
+
+
+def _level_weights(roughness: Tensor, levels: tuple[float, ...]) -> Tensor:  # [P] -> [L, P]
+    """Linear interpolation weights between roughness levels (clamped to their range): for r between levels i and
+    i + 1, (l_{i+1} - r) / (l_{i+1} - l_i) on level i and (r - l_i) / (l_{i+1} - l_i) on level i + 1, 0 elsewhere.
+    Each level's weight is the smaller of its two ramps (the outer levels' outward ramps never bind), clamped at 0."""
+    key = ("level ramps", levels, str(roughness.device), roughness.dtype)
+    if key not in _CONSTANTS:
+        at = torch.tensor(levels, dtype=roughness.dtype, device=roughness.device)  # as shading's dtype rounds them
+        below = torch.cat([at[:1] - 1.0, at[:-1]])  # the previous level (one below the first: a ramp above 1)
+        above = torch.cat([at[1:], at[-1:] + 1.0])
+        _CONSTANTS[key] = torch.stack([below, at - below, above, above - at])[..., None]  # [4, L, 1]
+    below, rise, above, fall = _CONSTANTS[key]
+    r = roughness.clamp(levels[0], levels[-1])
+    return torch.minimum((r - below) / rise, (above - r) / fall).clamp_min(0.0)
+
+
 @dataclass
 class PrefilteredEnvironment:
-    """What split-sum shading reads from an environment: prefiltered specular levels and irradiance."""
+    """What split-sum shading reads from an environment: prefiltered specular levels and irradiance, kept as padded
+    images for bilinear lookup (rows as `_padded_rows`, columns wrapped round by one on each side): levels of one
+    resolution together, as channels."""
 
-    roughness_levels: Tensor  # [L] increasing
-    specular: list[Tensor]  # L maps [h_i, 2 h_i, 3]
-    irradiance: Tensor  # [h, 2h, 3]
+    levels: tuple[float, ...]  # L roughness levels, increasing
+    specular_images: list[Tensor]  # runs of levels of one resolution h: [1, 3 k, 2h + 1, 2h + 2], channel c k + i
+    # holding channel c of the run's level i
+    irradiance_image: Tensor  # [1, 3, 2h + 1, 2h + 2]
     source: Tensor | None = None  # [H, 2H, 3] the map it was prefiltered from (for `render.visibility`)
 
-    def lookup_specular(self, directions: Tensor, roughness: Tensor) -> Tensor:  # [..., 3], [...] -> [..., 3]
-        """Prefiltered radiance around unit reflection directions, linear between roughness levels."""
-        uv = _safe_uv(directions.to(self.irradiance.dtype))
-        by_height: dict[int, list[int]] = {}  # levels of one resolution are sampled together, as channels
-        for i, level in enumerate(self.specular):
-            by_height.setdefault(level.shape[0], []).append(i)
-        samples = [None] * len(self.specular)
-        for indices in by_height.values():
-            stacked = sample_latlong_uv(torch.cat([self.specular[i] for i in indices], dim=-1), uv)  # [..., 3 k]
-            for i, part in zip(indices, stacked.split(3, dim=-1)):
-                samples[i] = part
-        if len(samples) == 1:
-            return samples[0]
-        samples = torch.stack(samples, dim=-2)  # [..., L, 3]
-        levels = self.roughness_levels.to(roughness)
-        r = roughness.clamp(float(levels[0]), float(levels[-1]))
-        upper = torch.searchsorted(levels, r.detach().contiguous(), right=True).clamp(1, len(levels) - 1)
-        lower = upper - 1
-        t = (r - levels[lower]) / (levels[upper] - levels[lower])  # [...]
-        count = len(levels)
-        weights = F.one_hot(lower, count).to(t) * (1 - t)[..., None] + F.one_hot(upper, count).to(t) * t[..., None]
-        return (weights[..., None] * samples).sum(-2)
+    @property
+    def roughness_levels(self) -> Tensor:  # [L]
+        return torch.tensor(self.levels, dtype=self.irradiance_image.dtype, device=self.irradiance_image.device)
 
-    def lookup_diffuse(self, normals: Tensor) -> Tensor:  # [..., 3] unit -> [..., 3]
+    @property
+    def specular(self) -> list[Tensor]:  # L maps [h_i, 2 h_i, 3]
+        maps = []
+        for image in self.specular_images:
+            inner = image[0, :, 1:-1:2, 1:-1]  # [3 k, h, 2h] the pixel rows and columns
+            maps += inner.reshape(3, -1, *inner.shape[1:]).permute(1, 2, 3, 0).unbind(0)
+        return maps
+
+    @property
+    def irradiance(self) -> Tensor:  # [h, 2h, 3]
+        return self.irradiance_image[0, :, 1:-1:2, 1:-1].permute(1, 2, 0)
+
+    def lookup(self, directions: Tensor, roughness: Tensor, normals: Tensor) -> tuple[Tensor, Tensor]:
+        """`lookup_specular(directions, roughness)` and `lookup_diffuse(normals)` [..., 3] each, for directions,
+        roughness and normals of one shape [..., 3], [...], [..., 3], sharing their angles' arithmetic."""
+        count = roughness.numel()
+        both = torch.cat([directions.reshape(-1, 3), normals.reshape(-1, 3)]).to(self.irradiance_image.dtype)
+        grids = self._grids(latlong_angles(both))  # {W: [2P, 2]}
+        width = self.irradiance_image.shape[-1] - 2
+        diffuse = sample_padded(self.irradiance_image, grids[width][count:])  # [3, P]
+        specular = self._specular(roughness, {w: grid[:count] for w, grid in grids.items()})
+        return specular.T.reshape(*directions.shape), diffuse.T.reshape(*normals.shape)
+
+    def lookup_specular(self, directions: Tensor, roughness: Tensor) -> Tensor:  # [..., 3], [...] -> [..., 3]
+        """Prefiltered radiance around reflection directions (any length > 0), linear between roughness levels."""
+        grids = self._grids(latlong_angles(directions.to(self.irradiance_image.dtype).reshape(-1, 3)))
+        return self._specular(roughness, grids).T.reshape(*directions.shape[:-1], 3)
+
+    def lookup_diffuse(self, normals: Tensor) -> Tensor:  # [..., 3] -> [..., 3]
         """Irradiance E(n) = integral L(l) (n.l)+ dl; Lambert radiance is albedo / pi times this."""
-        return sample_latlong(self.irradiance, normals)
+        grids = self._grids(latlong_angles(normals.to(self.irradiance_image.dtype).reshape(-1, 3)))
+        samples = sample_padded(self.irradiance_image, grids[self.irradiance_image.shape[-1] - 2])
+        return samples.T.reshape(*normals.shape[:-1], 3)
+
+    def _grids(self, angles: Tensor) -> dict[int, Tensor]:  # [P, 2] -> {W: [P, 2]} for every image
+        widths = {image.shape[-1] - 2 for image in [*self.specular_images, self.irradiance_image]}
+        return latlong_grids(angles, sorted(widths))
+
+    def _specular(self, roughness: Tensor, grids: dict[int, Tensor]) -> Tensor:  # [...], {W: [P, 2]} -> [3, P]
+        samples = [
+            sample_padded(image, grids[image.shape[-1] - 2]).view(3, -1, roughness.numel())
+            for image in self.specular_images
+        ]  # [3, k, P] per run
+        samples = torch.cat(samples, dim=1) if len(samples) > 1 else samples[0]  # [3, L, P]
+        if len(self.levels) == 1:
+            return samples[:, 0]
+        weights = _level_weights(roughness.to(samples.dtype).reshape(-1), self.levels)  # [L, P]
+        return (samples * weights).sum(1)
 
 
 def prefilter_latlong(map: Tensor, levels=DEFAULT_LEVELS) -> PrefilteredEnvironment:  # map [H, 2H, 3]
-    levels = [float(r) for r in levels]
+    """Every level and the irradiance by one correlation (`_prefilter_kernel`): one FFT of the map, one matrix
+    product per frequency and one inverse FFT, then each run's columns (stride, wrapped round) in one gather."""
+    levels = tuple(float(r) for r in levels)
     if not levels or any(b <= a for a, b in zip(levels, levels[1:])) or levels[0] < 0 or levels[-1] > 1:
-        raise ConfigError(f"roughness levels must be strictly increasing values in [0, 1], got {levels}")
-    return PrefilteredEnvironment(
-        roughness_levels=torch.tensor(levels, dtype=map.dtype, device=map.device),
-        specular=[prefilter_specular(map, r) for r in levels],
-        irradiance=irradiance_map(map),
-        source=map,
-    )
+        raise ConfigError(f"roughness levels must be strictly increasing values in [0, 1], got {list(levels)}")
+    kernel, runs = _prefilter_kernel(levels, map.shape[0], map.device, map.dtype)
+    channels, in_width = map.shape[2], map.shape[1]
+    spectrum = torch.fft.rfft(map, dim=1).permute(1, 2, 0)  # [F, C, H_in]
+    rows = torch.fft.irfft(torch.matmul(spectrum, kernel).permute(1, 2, 0), n=in_width, dim=-1)  # [C, R, W_in]
+    images = [
+        rows[:, run.start : run.stop]
+        .index_select(2, run.columns)
+        .view(1, channels * run.count, 2 * run.height + 1, 2 * run.height + 2)
+        for run in runs
+    ]
+    return PrefilteredEnvironment(levels, images[:-1], images[-1], source=map)
 
 
 # ------------------------------------------------------------------------------------------ the module

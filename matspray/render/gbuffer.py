@@ -98,6 +98,8 @@ class FrozenViews:
                 torch.zeros(n, device=device).index_add_(0, gaussian_ids.long(), weights.float())
             )  # [N] pixels' worth
         self.alphas = [self._blend(index, torch.ones(n, 1, device=device))[..., 0] for index in range(len(cameras))]
+        self.centers = [camera.center.to(self.means) for camera in cameras]  # [3] each
+        self._contributing: dict[tuple[int, float], Tensor] = {}  # (view, min_coverage) -> ids, asked every step
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -139,12 +141,18 @@ class FrozenViews:
         return visible
 
     def contributing_ids(self, index: int, min_coverage: float) -> Tensor:  # [K'] subset of visible_ids
-        """The visible Gaussians whose blending weights in view `index` add up to >= `min_coverage` pixels."""
-        visible = self.visible_ids[index]
-        return visible[self.coverage[index][visible] >= min_coverage] if min_coverage > 0 else visible
+        """The visible Gaussians whose blending weights in view `index` add up to >= `min_coverage` pixels (made once
+        per view and threshold: selecting them waits for the device)."""
+        key = (index, min_coverage)
+        if key not in self._contributing:
+            visible = self.visible_ids[index]
+            self._contributing[key] = (
+                visible[self.coverage[index][visible] >= min_coverage] if min_coverage > 0 else visible
+            )
+        return self._contributing[key]
 
     def orient_normals(self, index: int, normals: Tensor) -> Tensor:  # [N, 3] -> [N, 3] facing view `index`
-        return orient_normals(normals, self.means, self.cameras[index])
+        return orient_towards(normals, self.means, self.centers[index])
 
 
 def rendered_weights(gaussians: Gaussians, camera: Camera, backend: str | None = None) -> Tensor:  # -> [N]
@@ -179,6 +187,11 @@ def _sparse_bytes(matrix: Tensor) -> int:
 
 def orient_normals(normals: Tensor, means: Tensor, camera: Camera) -> Tensor:  # [N, 3], [N, 3] -> [N, 3]
     """Flip each normal to face the camera (Gaussian normals have no reliable sign)."""
-    to_camera = camera.center.to(means) - means
-    facing = (normals * to_camera).sum(-1, keepdim=True) >= 0
-    return torch.where(facing, normals, -normals)
+    return orient_towards(normals, means, camera.center.to(means))
+
+
+def orient_towards(normals: Tensor, means: Tensor, center: Tensor) -> Tensor:  # [N, 3], [N, 3], [3] -> [N, 3]
+    """Flip each normal to face the point `center` (a camera's position)."""
+    to_camera = center - means
+    facing = torch.where((normals * to_camera).sum(-1, keepdim=True) >= 0, 1.0, -1.0)  # [N, 1]
+    return normals * facing  # a product by +-1: exact, and one operation in the backward pass

@@ -53,11 +53,22 @@ def total_variation(values: Tensor) -> Tensor:  # [H, 2H, C] -> [] mean gradient
     columns (wrapping round) weighs dtheta, so the value does not grow at the poles, where pixels shrink.
     Applied to log radiance it measures how noisy a light is, independent of its brightness."""
     height, width = values.shape[:2]
-    d_theta, d_phi = math.pi / height, 2 * math.pi / width
-    edges = torch.arange(1, height, device=values.device, dtype=values.dtype) * d_theta  # [H - 1] row boundaries
-    vertical = (values[1:] - values[:-1]).abs() * (torch.sin(edges) * d_phi)[:, None, None]
-    horizontal = (values.roll(-1, dims=1) - values).abs() * d_theta
+    vertical = (values[1:] - values[:-1]).abs() * _row_edge_weights(height, width, values.dtype, values.device)
+    horizontal = (values.roll(-1, dims=1) - values).abs() * (math.pi / height)  # d_theta
     return (vertical.sum() + horizontal.sum()) / (4 * math.pi)
+
+
+_EDGE_WEIGHTS: dict[tuple, Tensor] = {}
+
+
+def _row_edge_weights(height: int, width: int, dtype, device) -> Tensor:  # -> [H - 1, 1, 1]
+    """sin(theta) d_phi of each boundary between two rows (`total_variation`; made once per size: the refinement
+    asks every step)."""
+    key = (height, width, dtype, str(device))
+    if key not in _EDGE_WEIGHTS:
+        edges = torch.arange(1, height, device=device, dtype=dtype) * (math.pi / height)  # [H - 1] row boundaries
+        _EDGE_WEIGHTS[key] = (torch.sin(edges) * (2 * math.pi / width))[:, None, None]
+    return _EDGE_WEIGHTS[key]
 
 
 def sh_irradiance_coefficients(map: Tensor) -> Tensor:  # [H, 2H, 3] linear radiance -> [9, 3]

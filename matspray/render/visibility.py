@@ -136,7 +136,7 @@ def shadow_factors(
     directions, solid_angles = visibility_directions(rows, device=normals.device)
     light = light_cells.reshape(-1, 3).to(normals.dtype)  # [D, 3]
     cosine = (normals @ directions.t()).clamp_min(0.0) * solid_angles  # [N, D]
-    lobe_dir = specular_direction(normals, view_dirs, roughness)
+    lobe_dir = F.normalize(specular_direction(normals, view_dirs, roughness), dim=-1, eps=1e-12)
     alpha = roughness_to_alpha(roughness)
     kappa = (0.5 / alpha.square().clamp_min(1e-6)).clamp(max=MAX_KAPPA)[
         :, None
