@@ -7,7 +7,8 @@
 #   4. python -m benchmarks.step_cost --device cuda: operations and synchronisations per unit of work, counted there;
 #   5. with GPU_CHECK_DATA=DIR (a `matspray synth` object made elsewhere, e.g. 12 views at 512 px): the per-unit rates
 #      of the paper preset on it and the whole preset projected from them (python -m benchmarks.unit_rates), with the
-#      GPU's utilisation sampled by nvidia-smi meanwhile; then, in the time left, the demo preset on it with gsplat;
+#      GPU's utilisation sampled by nvidia-smi meanwhile; then, with GPU_CHECK_DEMO_DATA=DIR (a 128 px object), the
+#      demo preset on it with gsplat in the time left;
 #   6. python -m benchmarks.paper_scale (the paper preset end to end) where Mitsuba is installed, in the time left;
 #   7. one summary.
 set -uo pipefail
@@ -72,12 +73,12 @@ fi
 demo_run() {  # backend, seconds, variants...
   local backend=$1 limit=$2; shift 2
   # progress bars: only their last state (100%) is kept
-  timeout "$limit" python3 -m benchmarks.paper_scale --preset demo --data "$GPU_CHECK_DATA" --device cuda --backend "$backend" \
+  timeout "$limit" python3 -m benchmarks.paper_scale --preset demo --data "$GPU_CHECK_DEMO_DATA" --device cuda --backend "$backend" \
     --variants "$@" --out "$RUNS/demo-$backend" 2>&1 | tr '\r' '\n' | grep -E -v '(^|[^0-9])[0-9]{1,2}%\|' > "$OUT/demo_$backend.log"
   summary+=("demo preset on CUDA, backend $backend (exit ${PIPESTATUS[0]}, 124 = out of time):")
   summary+=("$(sed -n '/^preset /,$p' "$OUT/demo_$backend.log")")
 }
-if [ -n "${GPU_CHECK_DATA:-}" ] && [ "$(left)" -gt 90 ]; then
+if [ -n "${GPU_CHECK_DEMO_DATA:-}" ] && [ "$(left)" -gt 90 ]; then
   demo_run gsplat "$(( $(left) - 10 ))" full proj-average
 fi
 

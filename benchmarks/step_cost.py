@@ -9,8 +9,9 @@ that reaches a kernel (autograd's backward ones too, composite operations as the
   - host syncs: what waits for the device: `aten._local_scalar_dense` (`item`, `float`, `bool`, `int` of a
     tensor), operations whose output size depends on the data (`nonzero`, `unique`, `masked_select`, boolean
     indexing), and `.cpu()` / `.numpy()` / `.tolist()` of a tensor outside backend numba's kernels (which run on
-    the CPU by design). On CUDA (`--device cuda`) torch's own sync debug mode counts the synchronisations too,
-    host-to-device copies included.
+    the CPU by design). On CUDA (`--device cuda`) torch's profiler also counts the CUDA runtime's calls that wait
+    for the device (stream, device and event synchronisations, blocking copies: "cuda waits", gsplat's own included)
+    and the kernel and graph launches.
 
 Paths (`--path`):
   - `cpu`: backend numba with its compiled per-Gaussian work (SH colour, normals), what a CPU run does;
@@ -29,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import warnings
 from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -65,7 +65,8 @@ class Count:
     syncs: int = 0
     by_operation: Counter = field(default_factory=Counter)
     sync_kinds: Counter = field(default_factory=Counter)
-    cuda_syncs: int | None = None  # torch's sync debug mode (CUDA only)
+    cuda_syncs: int | None = None  # calls of the CUDA runtime that wait for the device (CUDA only)
+    cuda_launches: int | None = None  # kernel and graph launches (CUDA only)
 
     def per(self, units: int) -> dict:
         return {
@@ -73,6 +74,7 @@ class Count:
             "kernels": self.kernels / units,
             "host_syncs": self.syncs / units,
             "cuda_syncs": None if self.cuda_syncs is None else self.cuda_syncs / units,
+            "cuda_launches": None if self.cuda_launches is None else self.cuda_launches / units,
             "sync_kinds": {k: v / units for k, v in self.sync_kinds.most_common()},
             "top_operations": {k: v / units for k, v in self.by_operation.most_common(12)},
         }
@@ -85,6 +87,7 @@ class Count:
             self.by_operation - other.by_operation,
             self.sync_kinds - other.sync_kinds,
             None if self.cuda_syncs is None else self.cuda_syncs - (other.cuda_syncs or 0),
+            None if self.cuda_launches is None else self.cuda_launches - (other.cuda_launches or 0),
         )
 
 
@@ -174,22 +177,31 @@ def _inside_numba() -> bool:
     return any("numba_" in frame.filename for frame in traceback.extract_stack())
 
 
+CUDA_WAITS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize", "cudaMemcpy")
+CUDA_LAUNCHES = ("cudaLaunchKernel", "cuLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernelEx", "cudaGraphLaunch")
+
+
 @contextmanager
 def counting(device: torch.device, without_numba: bool = False):
     """Count what the block dispatches (`without_numba`: not what backend numba's calls dispatch); yields the Count
-    (filled when the block ends)."""
+    (filled when the block ends). On CUDA also the CUDA runtime's own record (torch's profiler): the calls that wait
+    for the device, and the kernel and graph launches."""
     count = Count()
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-        torch.cuda.set_sync_debug_mode("warn")
-    try:
-        with warnings.catch_warnings(record=True) as caught, _HostReads(count), _Operations(count, without_numba):
-            warnings.simplefilter("always")
+    if device.type != "cuda":
+        with _HostReads(count), _Operations(count, without_numba):
             yield count
-    finally:
-        if device.type == "cuda":
-            torch.cuda.set_sync_debug_mode(0)
-            count.cuda_syncs = sum("synchroniz" in str(w.message) for w in caught)
+        return
+    torch.cuda.synchronize(device)
+    activities = [torch.profiler.ProfilerActivity.CPU, torch.profiler.ProfilerActivity.CUDA]
+    with torch.profiler.profile(activities=activities) as profile:
+        with _HostReads(count), _Operations(count, without_numba):
+            yield count
+        torch.cuda.synchronize(device)
+    calls = Counter()
+    for event in profile.events():
+        calls[event.name] += 1
+    count.cuda_syncs = sum(n for name, n in calls.items() if name in CUDA_WAITS) - 1  # less the one closing it
+    count.cuda_launches = sum(n for name, n in calls.items() if name in CUDA_LAUNCHES)
 
 
 @contextmanager
@@ -317,22 +329,24 @@ def main() -> None:
     parser.add_argument("--units", nargs="+", choices=list(UNITS), default=list(UNITS))
     parser.add_argument("--path", nargs="+", choices=("cpu", "gpu"), default=["cpu", "gpu"])
     parser.add_argument("--device", default="cpu", help="cpu (default) or cuda: there the run's backend and torch's "
-                        "sync debug mode")  # fmt: skip
+                        "profiler's record of CUDA waits and launches")  # fmt: skip
     parser.add_argument("--json", type=Path, help="write every figure here")
     parser.add_argument("--top", action="store_true", help="also print the most frequent operations")
     args = parser.parse_args()
     device = torch.device(args.device)
     paths = ["cuda"] if device.type == "cuda" else args.path
     results = {}
-    print(f"{'unit':<28} {'path':<5} {'operations':>10} {'kernels':>8} {'host syncs':>10} {'cuda syncs':>10}")
+    print(f"{'unit':<28} {'path':<5} {'operations':>10} {'kernels':>8} {'host syncs':>10} {'cuda waits':>10} "
+          f"{'launches':>8}")  # fmt: skip
     for unit in args.units:
         for path in paths:
             figures = measure(unit, path, device)
             results[f"{unit}/{path}"] = figures
             cuda = "" if figures["cuda_syncs"] is None else f"{figures['cuda_syncs']:.1f}"
+            launches = "" if figures["cuda_launches"] is None else f"{figures['cuda_launches']:.1f}"
             print(
                 f"{UNIT_NAMES[unit]:<28} {path:<5} {figures['operations']:>10.1f} {figures['kernels']:>8.1f} "
-                f"{figures['host_syncs']:>10.2f} {cuda:>10}",
+                f"{figures['host_syncs']:>10.2f} {cuda:>10} {launches:>8}",
                 flush=True,
             )
             if args.top:

@@ -33,7 +33,6 @@ from matspray.device import resolve_device
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl
 from matspray.geometry.optim import GaussianOptimizer
-from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
 from matspray.geometry.train import SYNC_EVERY, learning_rates, prepare_views, scene_extent, train_geometry
 from matspray.lift import lift
 from matspray.refine import RefineConfig, RefineInputs, refine
@@ -62,6 +61,8 @@ def geometry_rate(scene, config: GeometryConfig, device, out: Path) -> tuple[flo
 def eager_against_graphs(gaussians, views, config: GeometryConfig, device, steps: int) -> dict[str, float]:
     """Steps per second of the same `steps` steps from the trained Gaussians (densification over, progress read every
     SYNC_EVERY steps as in training), with and without the loss terms' CUDA graphs."""
+    from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
+
     extent = scene_extent(views)
     masked = all(v.alpha is not None for v in views)
     targets = [TrainingView.of(v, masked) for v in views]
@@ -129,6 +130,9 @@ def main() -> None:
     parser.add_argument("--refine-steps", type=int, default=1000)
     parser.add_argument("--out", type=Path, default=Path("runs/unit-rates"))
     parser.add_argument("--json", type=Path)
+    units = ("geometry", "lift", "refine")
+    parser.add_argument("--units", nargs="+", choices=units, default=list(units),
+                        help="what to time (default all; without all three nothing is projected)")  # fmt: skip
     args = parser.parse_args()
     device = resolve_device(args.device)
     backend = resolve_backend("auto", device)
@@ -147,21 +151,25 @@ def main() -> None:
             figures["geometry_after_densification"] = compared
             print("  after densification: " + ", ".join(f"{k} {v:.1f} steps/s" for k, v in compared.items()))
         views = [v.to(device) for v in prepare_views(scene.train, config.resolution)]
-        lift_s = lift_seconds_per_view(gaussians, views, device, args.lift_samples)
-        figures["lift_seconds_per_view"] = lift_s
-        print(f"lifting, {args.lift_samples}x{args.lift_samples} rays per pixel: {lift_s:.3f} s per view", flush=True)
-        rates = refine_rates(gaussians, views, device, args.warmup_steps, args.refine_steps)
-        figures.update(rates)
-        print(", ".join(f"{k} {v:.1f} steps/s" for k, v in rates.items()), flush=True)
-    projected = (
-        PAPER["geometry_steps"] / rate
-        + PAPER["views"] * lift_s
-        + PAPER["warmup_steps"] / rates["light warm-up"]
-        + PAPER["refine_steps"] / rates["refinement full"]
-    )
-    figures["paper_preset_projected_seconds"] = projected
-    print(f"paper preset (30 000 steps, 100 views, 1 000 + 10 000 refinement steps) PROJECTED from these rates: "
-          f"{projected:.0f} s, evaluation not included")  # fmt: skip
+        if "lift" in args.units:
+            lift_s = lift_seconds_per_view(gaussians, views, device, args.lift_samples)
+            figures["lift_seconds_per_view"] = lift_s
+            side = args.lift_samples
+            print(f"lifting, {side}x{side} rays per pixel: {lift_s:.3f} s per view", flush=True)
+        if "refine" in args.units:
+            rates = refine_rates(gaussians, views, device, args.warmup_steps, args.refine_steps)
+            figures.update(rates)
+            print(", ".join(f"{k} {v:.1f} steps/s" for k, v in rates.items()), flush=True)
+    if len(args.units) == 3:
+        projected = (
+            PAPER["geometry_steps"] / rate
+            + PAPER["views"] * lift_s
+            + PAPER["warmup_steps"] / rates["light warm-up"]
+            + PAPER["refine_steps"] / rates["refinement full"]
+        )
+        figures["paper_preset_projected_seconds"] = projected
+        print(f"paper preset (30 000 steps, 100 views, 1 000 + 10 000 refinement steps) PROJECTED from these rates: "
+              f"{projected:.0f} s, evaluation not included")  # fmt: skip
     if args.json:
         args.json.write_text(json.dumps(figures, indent=1))
 
