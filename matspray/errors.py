@@ -41,3 +41,14 @@ class SettingError(ConfigError):
         super().__init__(f"{setting}: {problem}")
         self.setting = setting
         self.problem = problem
+
+
+def optional_module(name: str, extra: str, what: str):
+    """Import the optional package `name`, or raise a ConfigError of one line that says which extra installs it:
+    `what` (e.g. "reading a COLMAP model") needs it."""
+    import importlib
+
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        raise ConfigError(f"{what} needs {name}, which is not installed: pip install 'matspray[{extra}]'") from None

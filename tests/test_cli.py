@@ -118,3 +118,32 @@ def test_demo_offers_the_paper_preset_and_refuses_it_without_a_gpu(tmp_path, mon
     demo_cli.add_parser(parser)
     assert demo_cli.run(parser.parse_args(["--preset", "paper", "--device", "cpu", "--out", str(tmp_path)])) == 0
     assert ran[0]["preset"] == "paper" and ran[0]["config"].preset == "paper"
+
+
+def run_cli_without(module: str, *args):
+    """The CLI in a process where `module` does not import (as where its extra is not installed)."""
+    code = f"import sys; sys.modules[{module!r}] = None; from matspray.cli import main; sys.exit(main(sys.argv[1:]))"
+    return subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True, timeout=120)
+
+
+def test_colmap_commands_without_pycolmap_say_which_extra_in_one_line(tmp_path):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    import torch
+
+    from matspray.data.images import write_image
+
+    for i in range(3):
+        write_image(photos / f"p{i}.png", torch.rand(24, 32, 3))
+    colmap_folder = tmp_path / "scene"
+    (colmap_folder / "sparse" / "0").mkdir(parents=True)
+    for name in ("cameras.bin", "images.bin", "points3D.bin"):
+        (colmap_folder / "sparse" / "0" / name).write_bytes(b"\0" * 8)
+    for result in (
+        run_cli_without("pycolmap", "colmap", photos, "--out", tmp_path / "out"),
+        run_cli_without("pycolmap", "info", colmap_folder),
+    ):
+        assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and "pip install 'matspray[colmap]'" in lines[0], lines
+    assert not (tmp_path / "out").exists()

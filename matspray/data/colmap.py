@@ -19,7 +19,7 @@ import torch
 from matspray.data.images import read_image, srgb_to_linear
 from matspray.data.scene import View
 from matspray.data.undistort import Lens, Undistorter
-from matspray.errors import DataError, file_error
+from matspray.errors import DataError, file_error, optional_module
 
 # COLMAP camera models as a Lens: (focal x, focal y, cx, cy, distortion coefficients, fisheye), from the params
 LENSES = {
@@ -183,7 +183,7 @@ def read_colmap(
     root: Path, test_every: int = 8
 ) -> tuple[list[View], list[View], torch.Tensor, torch.Tensor, list[str]]:
     """Returns train views, test views, points [P, 3], their linear colours [P, 3] and notes on what loading did."""
-    import pycolmap
+    pycolmap = optional_module("pycolmap", "colmap", "reading a COLMAP model")
 
     model_path = find_model(root)
     if model_path is None:

@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from matspray.data.images import DECODER_ERRORS, atomic_target, read_raw, resize, split_alpha, write_raw
 from matspray.data.loader import describe_scene, load_scene
-from matspray.errors import ConfigError, DataError, file_error
+from matspray.errors import ConfigError, DataError, file_error, optional_module
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")
 MATCHERS = ("exhaustive", "sequential")
@@ -213,7 +213,7 @@ def run_sfm(
     images, out, config: SfmConfig = SfmConfig(), masks=None, progress: bool = True, log: Callable[[str], None] = print
 ) -> SfmResult:
     """Make the dataset folder `out` from the photos in `images` (optional masks in `masks`)."""
-    import pycolmap
+    pycolmap = optional_module("pycolmap", "colmap", "structure from motion (`matspray colmap`)")
 
     config.validate()
     out = Path(out)
