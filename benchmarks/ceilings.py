@@ -67,10 +67,11 @@ from benchmarks.generalise import (
     objects_part,
     part_name,
     predictor_spec,
+    print_lines,
     run_name,
 )
 from benchmarks.generalise_tables import fmt
-from matspray.errors import ConfigError, MatsprayError, RunError
+from matspray.errors import ConfigError, RunError
 from matspray.material import GROUPS
 
 CHANNEL_GROUPS = dict(zip(("base", "rough", "metal"), GROUPS.values()))  # row names of `matspray.material.GROUPS`
@@ -549,14 +550,7 @@ def parse_args(argv=None):
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
-    try:
-        lines = run_set(args)
-    except MatsprayError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print("\n" + "\n".join(lines))
-    return 0
+    return print_lines(run_set, parse_args(argv))
 
 
 if __name__ == "__main__":

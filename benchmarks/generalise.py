@@ -115,6 +115,18 @@ def add_part_arguments(parser) -> None:
     )
 
 
+def print_lines(lines_of, args) -> int:
+    """A protocol benchmark's `main` after parsing: print the lines `lines_of(args)` returns, or a MatsprayError in
+    one line (exit 2)."""
+    try:
+        lines = lines_of(args)
+    except MatsprayError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print("\n" + "\n".join(lines))
+    return 0
+
+
 def check_part_arguments(parser, args) -> None:
     if args.start < 0 or args.objects < 1:
         parser.error(f"--objects must be >= 1 and --start >= 0 (got {args.objects} and {args.start})")

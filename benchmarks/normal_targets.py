@@ -26,10 +26,11 @@ from benchmarks.generalise import (
     object_config,
     objects_part,
     predictor_spec,
+    print_lines,
     run_name,
 )
 from benchmarks.generalise_tables import fmt
-from matspray.errors import ConfigError, MatsprayError
+from matspray.errors import ConfigError
 
 
 def scored(asset, truth) -> dict:
@@ -130,14 +131,7 @@ def parse_args(argv=None):
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
-    try:
-        lines = run_objects(args)
-    except MatsprayError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print("\n" + "\n".join(lines))
-    return 0
+    return print_lines(run_objects, parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ import torch
 from torch.overrides import TorchFunctionMode
 from torch.utils._python_dispatch import TorchDispatchMode
 
+from benchmarks.unit_rates import random_refine_inputs
 from matspray.config import build_config
 from matspray.data.scene import Scene
 from matspray.geometry import train as geometry_train
@@ -263,16 +264,7 @@ def geometry_steps(device: torch.device, counter, graphs: bool, points: int = 20
 def refine_inputs(device: torch.device, points: int = 2000) -> RefineInputs:
     scene = tiny_scene(device)
     _, optimizer, *_ = trained_state(scene, device, points)
-    gaussians = optimizer.gaussians().detach()
-    n, v = len(gaussians), len(scene.train)
-    generator = torch.Generator().manual_seed(1)
-    normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1).to(device)
-    values = torch.rand(n, v, 5, generator=generator).to(device)
-    targets = [torch.rand(view.height, view.width, 5, generator=generator).to(device) for view in scene.train]
-    return RefineInputs(
-        gaussians, normals, values, torch.ones(n, v, dtype=torch.bool, device=device), scene.train, targets,
-        scene.bounds.to(device),
-    )  # fmt: skip
+    return random_refine_inputs(optimizer.gaussians().detach(), scene.train, device)
 
 
 def refine_steps(device: torch.device, counter, short: int = 12, long: int = 36) -> tuple[Count, int]:

@@ -96,15 +96,21 @@ def lift_seconds_per_view(gaussians, views, device, samples_per_side: int) -> fl
     return seconds / len(views)
 
 
-def refine_rates(gaussians, views, device, warmup: int, steps: int) -> dict[str, float]:
+def random_refine_inputs(gaussians, views, device) -> RefineInputs:
+    """Refinement's inputs for `gaussians` and `views` with random normals, lifted values and 2D maps (seen in every
+    view): what a step costs does not depend on their values."""
     n, v = len(gaussians), len(views)
     generator = torch.Generator().manual_seed(1)
     normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1).to(device)
     values = torch.rand(n, v, 5, generator=generator).to(device)
     targets = [torch.rand(x.height, x.width, 5, generator=generator).to(device) for x in views]
     bounds = torch.stack([gaussians.means.min(0).values, gaussians.means.max(0).values]).detach()
-    inputs = RefineInputs(gaussians, normals, values, torch.ones(n, v, dtype=torch.bool, device=device), views,
-                          targets, bounds)  # fmt: skip
+    seen = torch.ones(n, v, dtype=torch.bool, device=device)
+    return RefineInputs(gaussians, normals, values, seen, views, targets, bounds)
+
+
+def refine_rates(gaussians, views, device, warmup: int, steps: int) -> dict[str, float]:
+    inputs = random_refine_inputs(gaussians, views, device)
     base: RefineConfig = build_config("paper").refine
 
     def seconds(warm: int, iterations: int) -> float:

@@ -34,7 +34,7 @@ def add_parser(parser) -> None:
         "--lpips-weights",
         type=Path,
         default=os.environ.get("MATSPRAY_LPIPS_WEIGHTS"),
-        help="LPIPS v0.1 AlexNet weights (.npz); default: $MATSPRAY_LPIPS_WEIGHTS or ../shared/data/lpips",
+        help="LPIPS v0.1 AlexNet weights (.npz); default: $MATSPRAY_LPIPS_WEIGHTS (without either, LPIPS is n/a)",
     )
     parser.add_argument(
         "--aligned", action="store_true", help="also report base color and relighting after per-channel scale alignment"

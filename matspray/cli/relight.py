@@ -13,7 +13,8 @@ def add_parser(parser) -> None:
         "--env",
         required=True,
         metavar="NAME|PATH",
-        help="environment light: a built-in name, a lat-long .exr/.hdr file, or a name in ../shared/data/hdri",
+        help="environment light: a built-in name or a lat-long .exr/.hdr file (an unknown name is answered with the "
+        "built-ins)",
     )
     parser.add_argument(
         "--views",

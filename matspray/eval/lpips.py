@@ -127,7 +127,7 @@ def read_weights(path) -> tuple[list[Tensor], list[Tensor], list[Tensor]]:
     """Kernels (OIHW), biases and heads [1, C, 1, 1] from an LPIPS AlexNet .npz (HWIO kernels)."""
     path = Path(path)
     if not path.is_file():
-        hint = f"expected {WEIGHTS_NAME}, see ../shared/data/README.md"
+        hint = f"expected {WEIGHTS_NAME}: pass --lpips-weights PATH or set $MATSPRAY_LPIPS_WEIGHTS"
         raise file_error(path, "LPIPS weights file does not exist", hint)
     try:
         with np.load(path, allow_pickle=False) as archive:

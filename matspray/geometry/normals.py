@@ -43,11 +43,6 @@ def consensus_normals(gaussians: Gaussians, cameras: list[Camera]) -> Tensor:  #
     return axes * torch.where(vote < 0, -1.0, 1.0).to(axes)[:, None]
 
 
-def camera_points(depth: Tensor, camera: Camera) -> Tensor:  # [H, W] z-depth -> [H, W, 3] world points
-    """Back-project pixel centres with their camera z."""
-    return camera.center.to(depth) + camera.pixel_directions().to(depth) * depth[..., None]
-
-
 def depth_normals(depth: Tensor, camera: Camera) -> Tensor:  # [H, W] -> [H, W, 3] world, unit; zero on the border
     """Normals of the surface described by a z-depth map: cross product of central differences of the
     back-projected points, oriented towards the camera."""

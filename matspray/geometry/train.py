@@ -91,8 +91,6 @@ def train_geometry(
     test_views = [v.to(device) for v in prepare_views(scene.test, config.resolution)]
     if not train_views:
         raise DataError(f"{scene.source}: no training views to fit geometry to")
-    masked = all(v.alpha is not None for v in train_views)  # masks are used when every view has one
-    targets = [TrainingView.of(v, masked) for v in train_views]
     extent = scene_extent(train_views)
     generator = torch.Generator().manual_seed(config.seed)
 
@@ -124,6 +122,8 @@ def train_geometry(
         generator.set_state(state["generator"])
         order, elapsed = state["order"], state["elapsed"]
 
+    masked = all(v.alpha is not None for v in train_views)  # masks are used when every view has one
+    targets = [TrainingView.of(v, masked) for v in train_views]
     began = time.perf_counter() - elapsed
     bar = tqdm(
         range(start, config.iterations),
