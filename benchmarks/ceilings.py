@@ -43,6 +43,10 @@ first) and scores, per object and error model, on the test views under the held-
 
 The markdown splits the gap from the lifted truth to the true G-buffer over the rows between them.
 
+`--configuration KEY` scores the runs `MODEL-KEY` of another configuration of `benchmarks.generalise` (the key its
+log names), each with the truth lifted onto that run's own Gaussians (in `ground-truth-on-MODEL-KEY`): for
+configurations that change the geometry, e.g. `--geometry predicted_normal_weight=1`. Its files get the suffix -KEY.
+
 Writes OUT/ceilings-PRESET.json and .md (the models of earlier passes kept, this pass's replaced); each (object,
 model)'s figures are kept in RUN/eval/ceilings.json and reused while no stage of the run changed, so an
 interrupted pass resumes. `benchmarks.method --ceilings` uses
@@ -154,9 +158,19 @@ def lift_truth(data: Path, run: Path, truth_run: Path, config):
     from matspray.rundir import RunDir, share_stage
 
     require_same_lift(run, config)
+    geometry = RunDir(run).stage_fingerprint("geometry")
+
+    class OnTheRunsGeometry(Pipeline):
+        # the truth goes onto `run`'s Gaussians whatever trained them (a geometry trained on an error model's
+        # predicted normals has that model's predictions in its fingerprint, which the truth's pipeline lacks)
+        def geometry_fingerprint(self) -> str:
+            return geometry
+
     with RunDir(truth_run).hold(wait=True):  # another job lifting it goes first; this one then reuses its lift
+        if RunDir(truth_run).stage_fingerprint("geometry") not in (None, geometry):
+            raise RunError(f"{truth_run} holds another geometry than {run}; delete it to lift the truth again")
         share_stage(run, truth_run, "geometry")
-        with Pipeline(
+        with OnTheRunsGeometry(
             data,
             truth_run,
             replace(config, predictor="ground-truth", predictor_options={}),
@@ -478,14 +492,26 @@ def run_set(args, log=print) -> list[str]:
     objects = objects_part(args.set, args.start, args.objects, sorted(hdri_files()))
     config = build_config(args.preset)  # the protocol's default settings (lift included), whatever the predictor
     results = {model: [] for model in args.models}
+    key = args.configuration
     for number, spec in enumerate(objects, 1):
         folder = args.out / "objects" / spec.name
-        run_dirs = {model: folder / "runs" / run_name(model, None) for model in args.models}
-        truth_run = folder / "runs" / run_name("ground-truth", None)
-        truth = functools.cache(
-            functools.partial(object_truth, folder / "data", run_dirs[args.models[0]], truth_run, config)
+        run_dirs = {model: folder / "runs" / run_name(model, key) for model in args.models}
+        # the default runs share one geometry per object, so one lifted truth; another configuration's each its own
+        truth_runs = {
+            model: folder / "runs" / (run_name("ground-truth", None) if key is None else f"ground-truth-on-{run.name}")
+            for model, run in run_dirs.items()
+        }
+        first = run_dirs[args.models[0]]
+        shared_truth = functools.cache(
+            functools.partial(object_truth, folder / "data", first, truth_runs[args.models[0]], config)
         )
         for model, run_dir in run_dirs.items():
+            truth_run = truth_runs[model]
+            truth = (
+                shared_truth
+                if key is None
+                else functools.partial(object_truth, folder / "data", run_dir, truth_run, config)
+            )
             model_config = object_config(replace(config, predictor=predictor_spec(model)), spec)
             under_true_light = functools.partial(
                 refine_under_true_light,
@@ -506,7 +532,8 @@ def run_set(args, log=print) -> list[str]:
             results[model].append(
                 {"object": spec.name, "rows": cached_ceilings(run_dir, truth_run, truth, under_true_light, args.rows)}
             )
-    path = args.out / f"ceilings-{part_name(args.preset, args.start)}.json"
+    suffix = "" if key is None else f"-{key}"
+    path = args.out / f"ceilings-{part_name(args.preset, args.start)}{suffix}.json"
     with held_exclusively(
         path
     ):  # jobs for other error models may finish at the same time: each keeps the others' models
@@ -543,8 +570,15 @@ def parse_args(argv=None):
         metavar="ROW",
         help="only these rows (default: all; the 'full, true light' rows refine once more per run)",
     )
+    parser.add_argument(
+        "--configuration",
+        metavar="KEY",
+        help="score the runs MODEL-KEY of this benchmarks.generalise configuration instead of the default runs",
+    )
     args = parser.parse_args(argv)
     check_part_arguments(parser, args)
+    if args.configuration and any(row.startswith("full, true light") for row in args.rows):
+        parser.error("--configuration: the 'full, true light' rows refine the default runs only; leave them out")
     args.out = args.out or Path("runs") / f"generalise-{args.set}-{args.preset}"
     return args
 

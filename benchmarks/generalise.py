@@ -25,6 +25,8 @@ no-softmax, 3D vs 2D per channel) and the seconds per object. Writes OUT/results
 per model OUT/tables-TAG-MODEL.md (the paper's tables averaged over the objects).
 `--refine KEY=VALUE` overrides a refinement setting (RefineConfig field; `merger.KEY` for the merger)
 for development sweeps: earlier stages are reused, so a sweep costs only refinement and evaluation.
+`--geometry KEY=VALUE` overrides a geometry setting (GeometryConfig field); each run of such a configuration
+then trains its own geometry (one trained on an error model's predicted normals belongs to that model).
 Each configuration keeps its results file (its --tag), and `--compare` prints one row per configuration
 and error model from them: the development-set table of choices.
 """
@@ -139,7 +141,7 @@ def predictor_spec(model: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------ settings
-def parse_value(text: str, current, key: str):
+def parse_value(text: str, current, key: str, flag: str = "--refine"):
     """`text` as the type of the setting's current value."""
     kinds = ((bool, "true or false"), (int, "an integer"), (float, "a number"))
     try:
@@ -153,13 +155,13 @@ def parse_value(text: str, current, key: str):
             return float(text)
     except ValueError:
         expected = next(words for kind, words in kinds if isinstance(current, kind))
-        raise ConfigError(f"--refine {key}={text}: expected {expected}") from None
+        raise ConfigError(f"{flag} {key}={text}: expected {expected}") from None
     if isinstance(current, str) or current is None:
         return text
-    raise ConfigError(f"--refine {key}: a {type(current).__name__} setting cannot be set from the command line")
+    raise ConfigError(f"{flag} {key}: a {type(current).__name__} setting cannot be set from the command line")
 
 
-def with_overrides(config, items: list[str], prefix: str = ""):
+def with_overrides(config, items: list[str], prefix: str = "", flag: str = "--refine"):
     """`config` (a dataclass) with KEY=VALUE items applied; `a.b=...` sets field b of the dataclass field a."""
     changes, nested = {}, {}
     names = {f.name for f in fields(config)}
@@ -168,26 +170,24 @@ def with_overrides(config, items: list[str], prefix: str = ""):
         head, dot, rest = key.strip().partition(".")
         if not sep or head not in names:
             known = ", ".join(prefix + name for name in sorted(names))
-            raise ConfigError(f"--refine {prefix}{item}: expected KEY=VALUE with KEY one of {known}")
+            raise ConfigError(f"{flag} {prefix}{item}: expected KEY=VALUE with KEY one of {known}")
         current = getattr(config, head)
         if dot:
             if not is_dataclass(current):
-                raise ConfigError(f"--refine {prefix}{item}: '{prefix}{head}' has no settings of its own")
+                raise ConfigError(f"{flag} {prefix}{item}: '{prefix}{head}' has no settings of its own")
             nested.setdefault(head, []).append(f"{rest}={text}")
         elif is_dataclass(current):
-            raise ConfigError(
-                f"--refine {prefix}{item}: set the fields of '{prefix}{head}' as {prefix}{head}.KEY=VALUE"
-            )
+            raise ConfigError(f"{flag} {prefix}{item}: set the fields of '{prefix}{head}' as {prefix}{head}.KEY=VALUE")
         else:
-            changes[head] = parse_value(text, current, prefix + key)
+            changes[head] = parse_value(text, current, prefix + key, flag)
     for head, sub in nested.items():
-        changes[head] = with_overrides(getattr(config, head), sub, prefix=f"{prefix}{head}.")
+        changes[head] = with_overrides(getattr(config, head), sub, prefix=f"{prefix}{head}.", flag=flag)
     return replace(config, **changes)
 
 
-def refine_overrides(base, items: list[str]) -> dict:
-    """The fields of the refinement settings `base` (a RefineConfig) that `items` change."""
-    changed = with_overrides(base, items)
+def refine_overrides(base, items: list[str], flag: str = "--refine") -> dict:
+    """The fields of the settings `base` (a RefineConfig; a GeometryConfig with flag --geometry) that `items` change."""
+    changed = with_overrides(base, items, flag=flag)
     return {f.name: getattr(changed, f.name) for f in fields(base) if getattr(changed, f.name) != getattr(base, f.name)}
 
 
@@ -202,7 +202,8 @@ def protocol_config(args, predictor: str):
     config = build_config_from_args(args, predictor=predictor)
     if args.resolution:  # the objects' size is the size geometry trains at
         config = replace(config, geometry=replace(config.geometry, resolution=args.resolution))
-    return replace(config, refine=with_overrides(config.refine, args.refine))
+    geometry = with_overrides(config.geometry, args.geometry, flag="--geometry")
+    return replace(config, geometry=geometry, refine=with_overrides(config.refine, args.refine))
 
 
 def object_config(config, spec: ObjectSpec):
@@ -312,8 +313,11 @@ def run_protocol(args, log=print) -> dict:
     configs = {m: protocol_config(args, spec) for m, spec in specs.items()}
     first_model = args.models[0]
     refine = refine_overrides(build_config_from_args(args).refine, args.refine)
+    geometry = refine_overrides(build_config_from_args(args).geometry, args.geometry, flag="--geometry")
     flags = method_settings_from_args(args)
     choices = {"without": list(args.without), "settings": {k: str(v) for k, v in flags.items()}, "refine": refine}
+    if geometry:  # only then: the configurations run before the flag keep their names
+        choices["geometry"] = geometry
     key = configuration_key(args.method, choices)
     tag = args.tag or ("default" if not any(choices.values()) else fingerprint(choices)[:8])
     tag = tag if args.method == "matspray" else f"{args.method}-{tag}"
@@ -330,6 +334,7 @@ def run_protocol(args, log=print) -> dict:
         "without": list(args.without),
         "settings": choices["settings"],
         "refine_overrides": refine,
+        "geometry_overrides": geometry,
         "tag": tag,
     }
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
@@ -366,8 +371,13 @@ def run_protocol(args, log=print) -> dict:
             resolution=args.resolution,
         )
         seconds = {"synth": time.perf_counter() - start, "models": {}}
-        first_run = object_geometry(
-            data, folder / "runs", run_name(first_model, key), object_config(configs[first_model], spec), args, log
+        own_geometry = bool(geometry) and not args.geometry_only  # each run trains its own
+        first_run = (
+            folder / "runs" / run_name(first_model, key)
+            if own_geometry
+            else object_geometry(
+                data, folder / "runs", run_name(first_model, key), object_config(configs[first_model], spec), args, log
+            )
         )
         if args.geometry_only:
             log(
@@ -377,12 +387,12 @@ def run_protocol(args, log=print) -> dict:
             continue
         for model in specs:
             run_dir = folder / "runs" / run_name(model, key)
-            if run_dir != first_run and share_stage(first_run, run_dir, "geometry"):
+            if not own_geometry and run_dir != first_run and share_stage(first_run, run_dir, "geometry"):
                 log(f"generalise: {spec.name} / {run_dir.name}: geometry shared from {first_run.name}")
             default_run = folder / "runs" / run_name(model, None)
-            shared = (
-                [] if key is None else [stage for stage in SHARED_STAGES if share_stage(default_run, run_dir, stage)]
-            )
+            # a lift on other Gaussians is no use, and the default runs' predictions may predate normal maps
+            reusable = () if own_geometry else SHARED_STAGES
+            shared = [] if key is None else [stage for stage in reusable if share_stage(default_run, run_dir, stage)]
             if shared:
                 log(
                     f"generalise: {spec.name} / {run_dir.name}: starts from {model}'s {', '.join(shared)} (redone "
@@ -399,7 +409,7 @@ def run_protocol(args, log=print) -> dict:
                     "seconds": seconds["models"][model],
                 }
             )
-        seconds["geometry"] = RunDir(first_run).timings().get("geometry")
+        seconds["geometry"] = None if own_geometry else RunDir(first_run).timings().get("geometry")
         seconds["total"] = (
             seconds["synth"] + (seconds["geometry"] or 0.0) + sum(seconds["models"].values())
         )  # earlier passes' work included
@@ -472,6 +482,14 @@ def parse_args(argv=None):
         metavar="KEY=VALUE",
         help="override refinement settings (RefineConfig fields, "
         "merger.KEY for the merger), e.g. --refine iterations=300 merger.hidden=64",
+    )
+    parser.add_argument(
+        "--geometry",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override geometry settings (GeometryConfig fields), e.g. --geometry predicted_normal_weight=1; "
+        "each run then trains its own geometry",
     )
     parser.add_argument(
         "--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)"

@@ -206,13 +206,42 @@ class Pipeline:
 
     # ---------------------------------------------------------------- geometry
     def geometry_fingerprint(self) -> str:
-        return fingerprint("geometry", self.dataset_fp, self.config.geometry)
+        # trained on predicted normals, the geometry depends on the predictions too
+        trains_on_predictions = self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
+        upstream = [self.predict_fingerprint()] if trains_on_predictions else []
+        return fingerprint("geometry", self.dataset_fp, self.config.geometry.identity(), *upstream)
+
+    def geometry_normal_targets(self) -> list[torch.Tensor] | None:
+        """The predicted normal maps geometry trains on (world space, per training view), None when it trains on
+        none. Refused in one line where there can be none."""
+        weight = self.config.geometry.predicted_normal_weight
+        if weight <= 0:
+            return None
+        problem = (
+            "this capture has no masks, and its masks come from the geometry"
+            if self.unmasked
+            else "the run has no predictor (--predictor none)"
+            if not self.has_maps
+            else None
+        )
+        if problem is None:
+            maps = self.predict()
+            views = [v.to(self.device) for v in self.scene.train]
+            targets = predicted_normal_maps({n: m.to(self.device) for n, m in maps.items()}, views)
+            if targets is not None:
+                return targets
+            problem = (
+                f"the 2D maps ({self.run.path('materials2d')}) have no normal maps: use a predictor that gives them "
+                "(simulated, ground-truth, files: with *_normal files, marigold with --normals-weights)"
+            )
+        raise ConfigError(f"geometry.predicted_normal_weight is {weight}, but {problem}; or set it to 0")
 
     def geometry(self):
         """Trained Gaussians [N] and their oriented normals [N, 3]."""
         fp = self.geometry_fingerprint()
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
+            normal_targets = self.geometry_normal_targets()
             with self._working("geometry") as (t, use):
                 train_geometry(
                     self.scene,
@@ -220,6 +249,7 @@ class Pipeline:
                     self.run.path("geometry"),
                     device=self.device,
                     progress=self.progress,
+                    normal_targets=normal_targets,
                 )
             self.run.finish_stage("geometry", fp, self.config.geometry, t.seconds, self._ran(use))
         else:

@@ -38,7 +38,7 @@ from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
-from matspray.geometry.losses import photometric_loss
+from matspray.geometry.losses import normal_map_loss, photometric_loss
 from matspray.material import BASE_COLOR, N_CHANNELS, unstack
 from matspray.merger import MergerConfig, NeuralMerger, align_view_gains, prepare_values, projection_average, view_gains
 from matspray.refine_steps import adam as adam_optimizer
@@ -48,7 +48,7 @@ from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from matspray.render.latlong import total_variation
 from matspray.render.visibility import gaussian_shadows
-from matspray.shading_normals import ShadingNormals, normal_map_loss, normal_prior
+from matspray.shading_normals import ShadingNormals, normal_prior
 from matspray.variants import Variant, get_variant
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")

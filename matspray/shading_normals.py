@@ -3,9 +3,10 @@ are further refined based on a rendering loss").
 
 Each Gaussian's normal is a free 3-vector that starts at the geometry stage's normal and is normalised before
 shading, so the photometric loss can turn it where the geometry's shortest axis is off (lumpy surfaces, Gaussians
-straddling an edge), while `normal_prior` keeps it near the geometry's normal and `normal_map_loss` can pull the
-rendered normals towards a 2D model's predicted normal map. Geometry (positions, shapes, opacities) stays frozen:
-only the direction that shading reads changes, so each view's blending weights are still computed once.
+straddling an edge), while `normal_prior` keeps it near the geometry's normal and `geometry.losses.normal_map_loss`
+can pull the rendered normals towards a 2D model's predicted normal map. Geometry (positions, shapes, opacities)
+stays frozen: only the direction that shading reads changes, so each view's blending weights are still computed
+once.
 """
 
 from __future__ import annotations
@@ -34,14 +35,6 @@ def normal_prior(normals: Tensor, targets: Tensor) -> Tensor:  # [K, 3] unit, [K
     if len(normals) == 0:
         return normals.sum() * 0.0  # keeps the graph (and the device) for an empty view
     return (1.0 - (normals * targets).sum(-1).abs()).mean()
-
-
-def normal_map_loss(rendered: Tensor, target: Tensor, mask: Tensor) -> Tensor:
-    """Mean of 1 - |cos| between rendered normals [H, W, 3] (blends: any length) and a predicted normal map
-    [H, W, 3] (unit; zero where the predictor gave none), over the pixels of `mask` [H, W] that have a prediction."""
-    weight = mask * (target.norm(dim=-1) > 0.5)  # [H, W]
-    cosine = (F.normalize(rendered, dim=-1, eps=1e-12) * target).sum(-1).abs()
-    return ((1.0 - cosine) * weight).sum() / weight.sum().clamp_min(1.0)
 
 
 def angle_change_degrees(before: Tensor, after: Tensor) -> Tensor:  # [N, 3], [N, 3] -> [N] in [0, 90]

@@ -28,17 +28,28 @@ def image_inputs(height: int, width: int, seed: int, device="cpu"):
     srgb = torch.rand(height, width, 3, generator=g).to(device)
     mask = (torch.rand(height, width, generator=g) > 0.3).float().to(device)
     background = torch.rand(3, generator=g).to(device)
-    return (rgb, alpha, normals, depth, srgb, mask, background, camera.pixel_directions(), camera.center)
+    predicted = torch.nn.functional.normalize(torch.randn(height, width, 3, generator=g), dim=-1)
+    predicted = (predicted * (torch.rand(height, width, 1, generator=g) > 0.2)).to(device)  # zero: no prediction
+    return (rgb, alpha, normals, depth, srgb, mask, background, camera.pixel_directions(), camera.center, predicted)
 
 
 def terms_and_gradients(terms_of, tensors, weights):
     terms = terms_of(tensors, weights)
     wanted = [t for t in tensors if t.requires_grad]
-    grads = torch.autograd.grad(terms[:3].sum() + 0.5 * terms[0], wanted, allow_unused=True)
+    grads = torch.autograd.grad(terms[:4].sum() + 0.5 * terms[0], wanted, allow_unused=True)
     return terms.detach(), [torch.zeros_like(t) if g is None else g for g, t in zip(grads, wanted)]
 
 
-@pytest.mark.parametrize("weights", [(0.2, 0.5, 0.05), (0.2, 0.5, 0.0), (0.2, 0.0, 0.0)])
+@pytest.mark.parametrize(
+    "weights",
+    [
+        (0.2, 0.5, 0.05, 0.0, 0.0),
+        (0.2, 0.5, 0.0, 0.0, 0.0),
+        (0.2, 0.0, 0.0, 0.0, 0.0),
+        (0.2, 0.5, 0.05, 1.0, 1.0),
+        (0.2, 0.5, 0.0, 0.7, 0.0),
+    ],
+)
 def test_captured_terms_are_the_terms(weights):
     # the captured callable (here the stand-in) gives the eager terms and gradients; one capture per image size
     # and set of weights, reused after that
@@ -52,14 +63,17 @@ def test_captured_terms_are_the_terms(weights):
             torch.testing.assert_close(a, b, rtol=0, atol=0)
     assert len(captured.captured) == 2
     assert (eager[1] == 0) == (weights[1] == 0) and (eager[2] == 0) == (weights[2] == 0)
+    assert (eager[3] == 0) == (weights[3] == 0 and weights[4] == 0)
 
 
 def test_image_terms_follow_their_definitions():
-    rgb, alpha, normals, depth, srgb, mask, background, directions, center = image_inputs(12, 14, 3)
-    terms = image_terms(rgb, alpha, normals, depth, srgb, mask, background, directions, center, 0.2, 0.5, 0.05)
+    rgb, alpha, normals, depth, srgb, mask, background, directions, center, predicted = image_inputs(12, 14, 3)
+    terms = image_terms(
+        rgb, alpha, normals, depth, srgb, mask, background, directions, center, predicted, 0.2, 0.5, 0.05, 0.3, 0.7
+    )
     target = srgb * mask[..., None] + background * (1 - mask[..., None])
     torch.testing.assert_close(terms[1], 0.5 * (alpha - mask).abs().mean())
-    torch.testing.assert_close(terms[3], (rgb.clamp(0, 1) - target.clamp(0, 1)).square().mean())
+    torch.testing.assert_close(terms[4], (rgb.clamp(0, 1) - target.clamp(0, 1)).square().mean())
     # the depth's normals from the pixel rays are those of the camera's back-projected points
     from matspray.geometry.normals import depth_normals, depth_normals_along
 
@@ -73,8 +87,8 @@ def test_a_failed_capture_is_said_and_computed_without_it(capsys):
 
     terms_of = ImageTerms(capture=broken)
     tensors = image_inputs(12, 14, 0)
-    terms = terms_of(tensors, (0.2, 0.5, 0.05))
-    torch.testing.assert_close(terms, ImageTerms(graphs=False)(tensors, (0.2, 0.5, 0.05)))
+    terms = terms_of(tensors, (0.2, 0.5, 0.05, 0.0, 0.0))
+    torch.testing.assert_close(terms, ImageTerms(graphs=False)(tensors, (0.2, 0.5, 0.05, 0.0, 0.0)))
     assert "without CUDA graphs (RuntimeError: operation not permitted" in capsys.readouterr().err
     assert not terms_of.graphs
 
@@ -117,7 +131,7 @@ def test_a_step_reads_nothing_back_and_its_losses_are_named():
     training_step(optimizer, density, running, target, config, 20_001, generator, ImageTerms(), report=True)
     assert not torch.equal(optimizer.params["means"], before)
     assert running.loss > 0 and 0 < running.psnr < 99
-    assert TERMS == ("photometric", "alpha", "normal")
+    assert TERMS == ("photometric", "alpha", "normal", "predicted_normal")
 
 
 def test_step_counts_stay_low():

@@ -6,12 +6,13 @@ import torch.nn.functional as F
 
 from matspray.asset import Asset
 from matspray.errors import SettingError
+from matspray.geometry.losses import normal_map_loss
 from matspray.geometry.normals import angular_error_degrees
 from matspray.lift import LiftConfig, lift
 from matspray.refine import RefineConfig, RefineInputs, refine
 from matspray.relight import render_gbuffer
 from matspray.render.envmap import EnvironmentMap
-from matspray.shading_normals import ShadingNormals, angle_change_degrees, normal_map_loss, normal_prior
+from matspray.shading_normals import ShadingNormals, angle_change_degrees, normal_prior
 from tests.scenes import material_scene, sky_map
 
 BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])

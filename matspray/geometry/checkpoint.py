@@ -8,7 +8,7 @@ import torch
 
 from matspray.data.images import save_torch_atomic
 from matspray.errors import RunError, file_error
-from matspray.geometry.config import GeometryConfig
+from matspray.geometry.config import ADDED_LATER, GeometryConfig
 
 CHECKPOINT_VERSION = 1
 
@@ -16,7 +16,7 @@ CHECKPOINT_VERSION = 1
 def save_checkpoint(path, config: GeometryConfig, iteration: int, state: dict) -> None:
     """`state`: tensors and plain values (optimizer, density statistics, random generator...)."""
     save_torch_atomic(
-        {"version": CHECKPOINT_VERSION, "config": config.to_dict(), "iteration": iteration, "state": state}, path
+        {"version": CHECKPOINT_VERSION, "config": config.identity(), "iteration": iteration, "state": state}, path
     )
 
 
@@ -38,7 +38,7 @@ def load_checkpoint(path, config: GeometryConfig) -> tuple[int, dict] | None:
         raise file_error(
             path, "is not a matspray geometry checkpoint of this version", "delete it, or restart the geometry stage"
         )
-    saved = data["config"]
+    saved = {**ADDED_LATER, **data["config"]}
     differences = sorted(k for k, v in config.to_dict().items() if saved.get(k) != v)
     if differences:
         shown = ", ".join(f"{k}: {saved.get(k)!r} -> {getattr(config, k)!r}" for k in differences[:4])

@@ -54,6 +54,10 @@ class GeometryConfig:
     normal_weight: float = 0.05  # 1 - cos between rendered normals and normals of the rendered depth
     normal_from: float = 0.3  # fraction of the iterations after which the normal loss is on
     random_background: bool = True  # composite on a random colour each step (data with masks)
+    # 1 - |cos| between the 2D predictor's normal maps (world space) and the rendered normals (every step) and the
+    # normals of the rendered depth (after `normal_from`), over the object: the paper's treatment of specular
+    # objects ("we train Gaussian Splatting on DiffusionRenderer normals"); 0: off
+    predicted_normal_weight: float = 0.0
 
     checkpoint_every: int = 500
 
@@ -74,12 +78,23 @@ class GeometryConfig:
             raise SettingError("sh_degree", f"must be 0..3, got {self.sh_degree}")
         if self.resolution < 0:
             raise SettingError("resolution", f"must be >= 0 (0 keeps the images' size), got {self.resolution}")
+        if self.predicted_normal_weight < 0:
+            raise SettingError("predicted_normal_weight", f"must be >= 0, got {self.predicted_normal_weight}")
         for name in ("ssim_weight", "normal_from", "init_opacity"):
             if not 0 <= getattr(self, name) <= 1:
                 raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def identity(self) -> dict:
+        """The settings that name a trained geometry (fingerprints, checkpoints): `to_dict` without the settings added
+        after runs existed while they hold the value that keeps training as it was, so those runs stay valid."""
+        return {k: v for k, v in asdict(self).items() if ADDED_LATER.get(k, object()) != v}
+
+
+# settings added after geometry runs existed -> the value under which training is what it was before them
+ADDED_LATER = {"predicted_normal_weight": 0.0}
 
 
 PRESETS = {

@@ -28,3 +28,12 @@ def normal_consistency_loss(
 ) -> Tensor:  # scalar: weighted mean of 1 - cos(angle)
     cos = (F.normalize(rendered, dim=-1) * from_depth).sum(-1)
     return ((1 - cos) * weights).sum() / weights.sum().clamp_min(1e-6)
+
+
+def normal_map_loss(rendered: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+    """Mean of 1 - |cos| between rendered normals [H, W, 3] (blends: any length) and a predicted normal map
+    [H, W, 3] (unit; zero where the predictor gave none), over the pixels of `mask` [H, W] that have a prediction.
+    Unsigned: a Gaussian's axis has no sign, and a predicted normal's sign is the camera's side."""
+    weight = mask * (target.norm(dim=-1) > 0.5)  # [H, W]
+    cosine = (F.normalize(rendered, dim=-1, eps=1e-12) * target).sum(-1).abs()
+    return ((1.0 - cosine) * weight).sum() / weight.sum().clamp_min(1.0)

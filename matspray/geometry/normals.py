@@ -64,6 +64,19 @@ def depth_normals_along(
     return F.pad(normals.permute(2, 0, 1), (1, 1, 1, 1)).permute(1, 2, 0)
 
 
+def resize_normal_map(normals: Tensor, height: int, width: int) -> Tensor:  # [H, W, 3] -> [height, width, 3]
+    """A normal map (unit, zero where there is none) at another size: area-averaged (bilinear when enlarged) and
+    normalised again; a pixel that averages more "none" than normals is none."""
+    if normals.shape[:2] == (height, width):
+        return normals
+    channels = normals.permute(2, 0, 1)[None]
+    valid = (normals.norm(dim=-1) > 0.5).to(normals)[None, None]
+    mode = "area" if height <= normals.shape[0] and width <= normals.shape[1] else "bilinear"
+    resized = F.interpolate(channels, size=(height, width), mode=mode)[0].permute(1, 2, 0)
+    coverage = F.interpolate(valid, size=(height, width), mode=mode)[0, 0]
+    return torch.where((coverage > 0.5)[..., None], F.normalize(resized, dim=-1), torch.zeros_like(resized))
+
+
 def render_normals(gaussians: Gaussians, camera: Camera) -> tuple[Tensor, Tensor]:
     """Normal map [H, W, 3] (world, unit where covered, zero elsewhere) and alpha [H, W]."""
     out = rasterize(gaussians, camera, oriented_normals(gaussians, camera))

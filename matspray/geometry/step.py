@@ -25,11 +25,11 @@ from matspray.gaussians import Gaussians
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl
 from matspray.geometry.evaluate import render_view
-from matspray.geometry.losses import flatten_loss, normal_consistency_loss, photometric_loss
+from matspray.geometry.losses import flatten_loss, normal_consistency_loss, normal_map_loss, photometric_loss
 from matspray.geometry.normals import depth_normals_along
 from matspray.geometry.optim import GaussianOptimizer
 
-TERMS = ("photometric", "alpha", "normal")  # the image terms, in `image_terms`' order
+TERMS = ("photometric", "alpha", "normal", "predicted_normal")  # the image terms, in `image_terms`' order
 
 
 @dataclass
@@ -41,11 +41,17 @@ class TrainingView:
     srgb: Tensor  # [H, W, 3] the photo, sRGB-encoded
     mask: Tensor  # [H, W] its alpha, or ones where it is not used
     directions: Tensor  # [H, W, 3] world-space ray of each pixel centre, scaled to camera z = 1
+    predicted_normals: Tensor  # [H, W, 3] the 2D predictor's normals in world space; zero where it gave none
 
     @staticmethod
-    def of(view: View, masked: bool) -> "TrainingView":
+    def of(view: View, masked: bool, predicted_normals: Tensor | None = None) -> "TrainingView":
         mask = view.alpha if masked else torch.ones_like(view.image[..., 0])
-        return TrainingView(view, masked, linear_to_srgb(view.image), mask, view.camera.pixel_directions())
+        normals = torch.zeros_like(view.image) if predicted_normals is None else predicted_normals.to(view.image)
+        if normals.shape != view.image.shape:
+            raise ValueError(
+                f"view {view.name}: normal map {tuple(normals.shape)} for an image {tuple(view.image.shape)}"
+            )
+        return TrainingView(view, masked, linear_to_srgb(view.image), mask, view.camera.pixel_directions(), normals)
 
 
 def image_terms(
@@ -58,10 +64,13 @@ def image_terms(
     background: Tensor,  # [3] sRGB
     directions: Tensor,  # [H, W, 3] from TrainingView
     center: Tensor,  # [3] the camera's position
+    predicted_normals: Tensor,  # [H, W, 3] from TrainingView (zero where there is none)
     ssim_weight: float,
     alpha_weight: float,  # 0: no alpha term
     normal_weight: float,  # 0: no normal term
-) -> Tensor:  # [4] the weighted photometric, alpha and normal terms (0 where off), and the render's squared error
+    predicted_weight: float = 0.0,  # 0: the predicted normals pull nothing
+    predicted_depth_weight: float = 0.0,  # 0: ... not the depth's normals
+) -> Tensor:  # [5] the weighted photometric, alpha, normal and predicted-normal terms (0 where off), the squared error
     """The image-sized loss terms of a step (train.py's module docstring says what they are). Tensors in, one tensor
     out, no host reads: what a CUDA graph can capture."""
     target = srgb * mask[..., None] + background * (1 - mask[..., None])
@@ -70,13 +79,22 @@ def image_terms(
     photometric = photometric_loss(rgb, target, ssim_weight)
     zero = rgb.new_zeros(())
     alpha_term = alpha_weight * (alpha - mask).abs().mean() if alpha_weight > 0 else zero
-    normal_term = zero
-    if normal_weight > 0:
+    normal_term, predicted_term = zero, zero
+    if normal_weight > 0 or predicted_weight > 0 or predicted_depth_weight > 0:
         surface = -F.max_pool2d(-alpha.detach()[None, None], 3, stride=1, padding=1)[0, 0]  # alpha eroded by 1 px
+        on_object = surface * (mask > 0.5)
+    if normal_weight > 0 or predicted_depth_weight > 0:
         from_depth = depth_normals_along(depth, directions, center)
-        normal_term = normal_weight * normal_consistency_loss(normals, from_depth, surface * (mask > 0.5))
+    if normal_weight > 0:
+        normal_term = normal_weight * normal_consistency_loss(normals, from_depth, on_object)
+    if predicted_weight > 0:
+        predicted_term = predicted_weight * normal_map_loss(normals, predicted_normals, on_object)
+    if predicted_depth_weight > 0:
+        predicted_term = predicted_term + predicted_depth_weight * normal_map_loss(
+            from_depth, predicted_normals, on_object
+        )
     squared_error = (rgb.detach().clamp(0, 1) - target.clamp(0, 1)).square().mean()
-    return torch.stack([photometric, alpha_term, normal_term, squared_error])
+    return torch.stack([photometric, alpha_term, normal_term, predicted_term, squared_error])
 
 
 class ImageTerms:
@@ -89,8 +107,9 @@ class ImageTerms:
         self.graphs, self.capture = graphs, capture
         self.captured: dict[tuple, object] = {}
 
-    def __call__(self, tensors: tuple[Tensor, ...], weights: tuple[float, float, float]) -> Tensor:
-        terms = partial(image_terms, ssim_weight=weights[0], alpha_weight=weights[1], normal_weight=weights[2])
+    def __call__(self, tensors: tuple[Tensor, ...], weights: tuple[float, ...]) -> Tensor:
+        names = ("ssim_weight", "alpha_weight", "normal_weight", "predicted_weight", "predicted_depth_weight")
+        terms = partial(image_terms, **dict(zip(names, weights)))
         if not self.graphs or (self.capture is None and not tensors[0].is_cuda):
             return terms(*tensors)
         key = (tuple(t.shape for t in tensors), weights)
@@ -128,18 +147,33 @@ def training_losses(
     render = render_view(gaussians, view.camera, degree, background, absgrad=config.absgrad)
     render.raster.retain_screen_grads()
     normal_on = config.normal_weight > 0 and iteration >= config.normal_from * config.iterations
+    # the predicted normals turn the Gaussians' axes from the first step, and the depth's normals once those are
+    # smooth enough to compare (the consistency term's start)
+    predicted = config.predicted_normal_weight
     weights = (
         config.ssim_weight,
         config.alpha_weight if masked else 0.0,
         config.normal_weight if normal_on else 0.0,
+        predicted,
+        predicted if normal_on else 0.0,
     )
     rendered = (render.rgb, render.alpha, render.raster.features[..., 3:], render.depth)
-    terms = image_terms_of((*rendered, target.srgb, target.mask, background, target.directions, view.camera.center),
-                           weights)  # fmt: skip
+    terms = image_terms_of(
+        (
+            *rendered,
+            target.srgb,
+            target.mask,
+            background,
+            target.directions,
+            view.camera.center,
+            target.predicted_normals,
+        ),
+        weights,
+    )
     losses = {name: terms[i] for i, name in enumerate(TERMS) if i == 0 or weights[i] > 0}
     if config.flatten_weight > 0:
         losses["flatten"] = config.flatten_weight * flatten_loss(gaussians.log_scales)
-    return losses, render, terms[3]
+    return losses, render, terms[4]
 
 
 def training_step(

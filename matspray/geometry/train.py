@@ -3,8 +3,10 @@
 Per step: one random training view; loss = photometric (L1 + D-SSIM on sRGB values, the RGBA photo
 composited on a random background colour) + alpha L1 against the masks + a flattening regulariser +,
 after `normal_from` of the run, consistency between the rendered normals (oriented shortest axes)
-and the normals of the rendered depth. Adaptive density control as in 3DGS. Writes, under out_dir:
-gaussians.ply, renders/ and normals/ of the test views, metrics.json, and checkpoint.pt while it runs.
+and the normals of the rendered depth and, with `predicted_normal_weight`, agreement of the rendered
+normals (and, after `normal_from`, the depth's) with a 2D model's predicted normal maps. Adaptive density
+control as in 3DGS. Writes, under out_dir: gaussians.ply, renders/ and normals/ of the test views,
+metrics.json, and checkpoint.pt while it runs.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import torch
 from tqdm import tqdm
 
 from matspray.data.scene import Scene, View
-from matspray.errors import DataError
+from matspray.errors import DataError, SettingError
 from matspray.files import write_json
 from matspray.gaussians import Gaussians
 from matspray.geometry.checkpoint import load_checkpoint, save_checkpoint
@@ -24,7 +26,7 @@ from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl, load_stats_state, stats_state
 from matspray.geometry.evaluate import evaluate_views
 from matspray.geometry.init import initial_gaussians
-from matspray.geometry.normals import consensus_normals
+from matspray.geometry.normals import consensus_normals, resize_normal_map
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
 from matspray.geometry.ply import read_ply, write_ply
 from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
@@ -70,6 +72,7 @@ def train_geometry(
     restart: bool = False,
     progress: bool = True,
     cuda_graphs: bool = True,
+    normal_targets: list | None = None,
 ) -> Gaussians:
     """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`.
     Renders with the backend of the enclosing `rendering_with` block (torch outside one).
@@ -79,6 +82,8 @@ def train_geometry(
     gaussians.ply present) is not redone. Random draws come from a CPU generator, so the same seed draws the
     same numbers on every device. `cuda_graphs`: on a CUDA device, the loss terms run as CUDA graphs
     (matspray.geometry.step); False computes them op by op (the same values, for comparison).
+    `normal_targets`: per training view of `scene`, a predicted normal map [H, W, 3] in world space at the view's
+    size (zero where there is none); what `config.predicted_normal_weight` pulls the normals towards (needed then).
     """
     device = torch.device(device)
     out_dir = Path(out_dir)
@@ -91,6 +96,14 @@ def train_geometry(
     test_views = [v.to(device) for v in prepare_views(scene.test, config.resolution)]
     if not train_views:
         raise DataError(f"{scene.source}: no training views to fit geometry to")
+    if config.predicted_normal_weight > 0 and normal_targets is None:
+        raise SettingError(
+            "predicted_normal_weight",
+            f"is {config.predicted_normal_weight}, but no predicted normal maps were given: train with "
+            "`matspray run` and a predictor that gives normals, or set it to 0",
+        )
+    if normal_targets is not None and len(normal_targets) != len(train_views):
+        raise ValueError(f"{len(normal_targets)} normal maps for {len(train_views)} training views")
     extent = scene_extent(train_views)
     generator = torch.Generator().manual_seed(config.seed)
 
@@ -123,7 +136,10 @@ def train_geometry(
         order, elapsed = state["order"], state["elapsed"]
 
     masked = all(v.alpha is not None for v in train_views)  # masks are used when every view has one
-    targets = [TrainingView.of(v, masked) for v in train_views]
+    predicted = [None] * len(train_views)
+    if config.predicted_normal_weight > 0:
+        predicted = [resize_normal_map(n.to(device), v.height, v.width) for n, v in zip(normal_targets, train_views)]
+    targets = [TrainingView.of(v, masked, n) for v, n in zip(train_views, predicted)]
     began = time.perf_counter() - elapsed
     bar = tqdm(
         range(start, config.iterations),
