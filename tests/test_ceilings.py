@@ -328,3 +328,45 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     capsys.readouterr()
     assert main(args) == 0
     assert "error model harsh in" in capsys.readouterr().out and set(json.loads(saved_file.read_text())) == {"paper"}
+
+
+@pytest.mark.slow
+def test_a_configuration_that_trains_its_own_geometry_gets_its_own_lifted_truth(tmp_path, capsys):
+    # generalise --geometry: each run trains its geometry (here on the simulated predictor's normals); ceilings
+    # --configuration lifts the truth onto that run's Gaussians, not onto the default runs'
+    pytest.importorskip("mitsuba")
+    out = tmp_path / "g"
+    common = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--out", str(out)]
+    argv = common + [
+        "--variants",
+        "full",
+        "proj-average",
+        "--no-progress",
+        "--refine",
+        "iterations=4",
+        "light_warmup=2",
+    ]
+    argv += ["--geometry", "predicted_normal_weight=1"]
+    assert generalise(argv) == 0
+    printed = capsys.readouterr().out
+    runs = out / "objects" / "dev-00-seed1000" / "runs"
+    (run,) = runs.glob("paper-matspray-*")
+    assert "geometry shared" not in printed and "geometry" in json.loads((run / "timings.json").read_text())
+    assert '"predicted_normal_weight": 1.0' in (run / "geometry" / "stage.json").read_text()
+    report = json.loads(next(out.glob("results-*.json")).read_text())
+    assert report["settings"]["geometry_overrides"] == {"predicted_normal_weight": 1.0}
+    key = run.name[len("paper-") :]
+    rows = ["proj-average", "lifted truth"]
+    assert main(common + ["--configuration", key, "--rows", *rows]) == 0
+    truth_run = runs / f"ground-truth-on-{run.name}"
+    geometry = RunDir(run).stage_fingerprint("geometry")
+    assert RunDir(truth_run).stage_fingerprint("geometry") == geometry  # the run's Gaussians, not trained again
+    assert "geometry" not in json.loads((truth_run / "timings.json").read_text())
+    figures = json.loads((out / f"ceilings-test-{key}.json").read_text())["paper"][0]["rows"]
+    assert figures["proj-average"]["relight"] == pytest.approx(
+        report["models"]["paper"]["objects"][0]["figures"]["relight"]["proj-average"], abs=1e-6
+    )
+    assert figures["lifted truth"]["basecolor"] > figures["proj-average"]["basecolor"]
+    with pytest.raises(SystemExit) as refused:
+        main(common + ["--configuration", key, "--rows", "full, true light"])
+    assert refused.value.code == 2 and "refine the default runs only" in capsys.readouterr().err
