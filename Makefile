@@ -7,7 +7,7 @@ DEMO_STAMP := $(VENV)/.installed-demo
 STAMP := $(VENV)/.installed
 PRESET ?= demo
 
-.PHONY: setup demo test clean
+.PHONY: setup demo test lpips clean
 
 $(DEMO_STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
@@ -47,6 +47,10 @@ setup: $(STAMP)
 
 demo: $(DEMO_STAMP)
 	$(VENV)/bin/matspray demo --preset $(PRESET)
+
+# torchvision's AlexNet weights (244 MB) into torch's cache, for LPIPS in the tables (README, LPIPS)
+lpips: $(DEMO_STAMP)
+	$(PY) -m matspray.eval.lpips --download
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .

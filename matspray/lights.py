@@ -5,10 +5,13 @@ Every map is a lat-long tensor [H, 2H, 3] of linear RGB radiance in the conventi
 
 1. a built-in procedural map (`sky`, `studio`, `sunset`, `overcast`), made at any height;
 2. a path to a `.exr` / `.hdr` file;
-3. the name of a file in `../shared/data/hdri/` (looked for beside the current directory and beside
-   the repository root; absent on users' machines, where such names give a clear error).
+3. the name of an HDRI that ships in the package (`matspray/hdri/`: six CC0 Poly Haven maps, city, forest,
+   interior, studio, sunrise, sunset; THIRD_PARTY_NOTICES.md).
 
 A built-in name wins over a file of the same stem; such a file is still reachable as `studio.exr`.
+
+A file's radiance must be physical: NaN, Inf and negative values beyond a compression codec's ringing are
+refused in one line naming the file; that ringing (a few thousandths below zero) is clamped to 0.
 """
 
 from __future__ import annotations
@@ -28,6 +31,10 @@ from matspray.render.latlong import direction_to_uv, pixel_directions
 DEFAULT_HEIGHT = 128  # working size for rendering: 128 x 256
 BUILTIN_HEIGHT = 256  # when a caller asks for a built-in map at "native" size
 SUPERSAMPLES = 4  # built-ins are averaged over 4 x 4 directions per pixel (small suns stay exact)
+# Lossy EXR codecs (DWAA/DWAB) ring a little below zero next to dark pixels, by thousandths of the map's mean
+# radiance; a map with more negative radiance than this share of its mean is not a light, and is refused.
+NEGATIVE_SHARE = 0.01
+NEGATIVE_FLOOR = 1e-6  # the least tolerance, for maps that are black or nearly so
 
 
 # ------------------------------------------------------------------------------------------ helpers
@@ -134,20 +141,16 @@ def default_relight_names(train_name: str, count: int = 2) -> list[str]:
 
 
 # ------------------------------------------------------------------------------------------ files
+HDRI_FOLDER = Path(__file__).resolve().parent / "hdri"  # package data (pyproject's package-data)
+
+
 def hdri_folders() -> list[Path]:
-    """Existing `shared/data/hdri` folders, beside the current directory and beside the repository."""
-    repo_root = Path(__file__).resolve().parents[1]
-    candidates = [Path.cwd() / ".." / "shared" / "data" / "hdri", repo_root / ".." / "shared" / "data" / "hdri"]
-    found = []
-    for folder in candidates:
-        folder = folder.resolve()
-        if folder.is_dir() and folder not in found:
-            found.append(folder)
-    return found
+    """The folders whose .exr / .hdr files are named lights: the package's own."""
+    return [HDRI_FOLDER] if HDRI_FOLDER.is_dir() else []
 
 
 def hdri_files() -> dict[str, Path]:
-    """Name (file stem) -> path of every .exr / .hdr in the shared HDRI folders; {} without them."""
+    """Name (file stem) -> path of every .exr / .hdr in the packaged HDRI folder."""
     files: dict[str, Path] = {}
     for folder in hdri_folders():
         for path in sorted(folder.iterdir()):
@@ -157,7 +160,7 @@ def hdri_files() -> dict[str, Path]:
 
 
 def list_envmaps() -> list[str]:
-    """Every name `load_envmap` accepts besides paths: built-ins, then shared HDRI files."""
+    """Every name `load_envmap` accepts besides paths: built-ins, then the packaged HDRI files."""
     return list(BUILTINS) + [name for name in hdri_files() if name not in BUILTINS]
 
 
@@ -182,11 +185,30 @@ def read_envmap_file(path: Path, height: int | None = DEFAULT_HEIGHT) -> Tensor:
             f"is {cols}x{rows} pixels but a lat-long environment map is twice as wide as tall",
             "use an equirectangular (lat-long) panorama",
         )
+    check_physical(path, values[..., :3])
     env = values[..., :3].clamp_min(0.0).contiguous()
     if height is not None and height != rows:
         check_height(height)
         env = resize(env, height, 2 * height, mode="area").clamp_min(0.0)
     return env.float()
+
+
+def negative_tolerance(rgb: Tensor) -> float:  # [H, W, 3] finite -> how far below 0 a value may be
+    return max(NEGATIVE_SHARE * float(rgb.abs().mean()) if rgb.numel() else 0.0, NEGATIVE_FLOOR)
+
+
+def check_physical(path: Path, rgb: Tensor) -> None:
+    """Refuse, naming the file, radiance that is NaN, Inf or negative beyond a codec's ringing (`rgb` [H, W, 3])."""
+    if not torch.isfinite(rgb).all():  # read_raw refuses these already; a reader that does not must not pass them
+        raise file_error(path, "holds NaN or Inf radiance", "re-export the map with finite values")
+    lowest = float(rgb.min()) if rgb.numel() else 0.0
+    if lowest < -negative_tolerance(rgb):
+        count = int((rgb < -negative_tolerance(rgb)).sum())
+        raise file_error(
+            path,
+            f"holds negative radiance ({count} values, down to {lowest:.3g})",
+            "a light is >= 0 everywhere: re-export the map without negative values",
+        )
 
 
 def check_height(height: int) -> None:
@@ -195,7 +217,7 @@ def check_height(height: int) -> None:
 
 
 def load_envmap(spec: str | Path, height: int | None = DEFAULT_HEIGHT) -> tuple[str, Tensor]:
-    """Resolve a built-in name, a file path or a shared HDRI name -> (name, map [H, 2H, 3] linear RGB).
+    """Resolve a built-in name, a file path or a packaged HDRI name -> (name, map [H, 2H, 3] linear RGB).
 
     `height` is the working size in rows (None: a file's own size, 256 for built-ins).
     """
@@ -207,14 +229,14 @@ def load_envmap(spec: str | Path, height: int | None = DEFAULT_HEIGHT) -> tuple[
         return envmap_name(path), read_envmap_file(path, height)
     if path.suffix.lower() in HDR_SUFFIXES and len(path.parts) > 1:
         raise file_error(path, "file does not exist")
-    shared = hdri_files()
+    packaged = hdri_files()
     stem = path.stem if path.suffix.lower() in HDR_SUFFIXES else text
-    if stem in shared and (path.suffix == "" or shared[stem].suffix.lower() == path.suffix.lower()):
-        return envmap_name(shared[stem]), read_envmap_file(shared[stem], height)
-    shared_note = f"; shared HDRIs: {', '.join(shared)}" if shared else " (no shared/data/hdri folder here)"
+    if stem in packaged and (path.suffix == "" or packaged[stem].suffix.lower() == path.suffix.lower()):
+        return envmap_name(packaged[stem]), read_envmap_file(packaged[stem], height)
+    files_note = f"; HDRIs: {', '.join(packaged)}" if packaged else ""
     raise ConfigError(
         f"unknown environment map '{text}': not a built-in ({', '.join(BUILTINS)}), not an existing .exr/.hdr file"
-        f"{shared_note}"
+        f"{files_note}"
     )
 
 

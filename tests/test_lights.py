@@ -1,14 +1,16 @@
-"""matspray.lights: built-in environment maps, files, shared HDRI names, lookups and validation."""
+"""matspray.lights: built-in environment maps, files, the packaged HDRI names, lookups and validation."""
 
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import pytest
 import torch
 
 import matspray.lights as lights
-from matspray.data.images import write_raw
+from matspray.data.images import read_raw, write_raw
 from matspray.errors import ConfigError, DataError
 from matspray.lights import (
     BUILTINS,
@@ -102,24 +104,66 @@ def test_bad_files_and_names_are_clear_errors(tmp_path):
         load_envmap("sky", height=2)
 
 
-def test_shared_hdri_names_resolve_beside_the_working_directory(tmp_path, monkeypatch):
-    folder = tmp_path / "shared" / "data" / "hdri"
-    folder.mkdir(parents=True)
-    write_raw(folder / "lab.exr", torch.full((4, 8, 3), 2.0))
-    (tmp_path / "work").mkdir()
-    monkeypatch.chdir(tmp_path / "work")
-    name, env = load_envmap("lab", height=None)
-    assert name == "lab" and torch.equal(env, torch.full((4, 8, 3), 2.0))
-    assert "lab" in list_envmaps()
-    assert load_envmap("lab.exr", height=None)[0] == "lab"
-    assert load_envmap("sky", height=8)[0] == "sky"  # built-ins win over files of the same stem
+PACKAGED = ("city", "forest", "interior", "studio", "sunrise", "sunset")
 
 
-def test_without_a_shared_folder_names_give_a_clear_error(monkeypatch):
+def test_packaged_hdri_names_resolve_from_any_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # nothing beside the working directory: the lights come from the package
+    assert lights.HDRI_FOLDER.parent == Path(lights.__file__).resolve().parent
+    assert sorted(lights.hdri_files()) == list(PACKAGED)
+    assert list_envmaps() == list(BUILTINS) + [name for name in PACKAGED if name not in BUILTINS]
+    name, env = load_envmap("forest", height=16)
+    assert name == "forest" and env.shape == (16, 32, 3) and torch.isfinite(env).all() and env.min() >= 0
+    assert load_envmap("studio.exr", height=8)[0] == "studio"  # the file behind a built-in's name
+    assert torch.equal(load_envmap("sky", height=8)[1], builtin_envmap("sky", 8))  # built-ins win over files
+
+
+def test_packaged_hdris_are_the_shared_test_data(monkeypatch):
+    shared = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hdri"
+    if not shared.is_dir():
+        pytest.skip(f"no shared test data at {shared}")
+    for name in PACKAGED:
+        assert (lights.HDRI_FOLDER / f"{name}.exr").read_bytes() == (shared / f"{name}.exr").read_bytes()
+
+
+def test_without_packaged_files_names_give_a_clear_error(monkeypatch):
     monkeypatch.setattr(lights, "hdri_folders", lambda: [])
     assert list_envmaps() == list(BUILTINS)
-    with pytest.raises(ConfigError, match="unknown environment map 'forest'.*no shared/data/hdri folder"):
+    with pytest.raises(ConfigError, match="^unknown environment map 'forest': not a built-in .*file$"):
         load_envmap("forest")
+    with pytest.raises(ConfigError, match="HDRIs: city, forest, interior, studio, sunrise, sunset$"):
+        monkeypatch.undo()
+        load_envmap("moon")
+
+
+def test_codec_ringing_below_zero_is_clamped():
+    # the packaged forest.exr holds a few values a little below 0 (its lossy codec's ringing)
+    raw = read_raw(lights.HDRI_FOLDER / "forest.exr")[..., :3]
+    assert -0.01 < float(raw.min()) < 0
+    env = lights.read_envmap_file(lights.HDRI_FOLDER / "forest.exr", height=None)
+    assert float(env.min()) >= 0 and torch.equal(env, raw.clamp_min(0))
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (-1.0, r"holds negative radiance \(1 values, down to -1\) \(a light is >= 0 everywhere"),
+        (-0.5, r"holds negative radiance \(1 values, down to -0.5\)"),
+        (float("nan"), r"holds 1 NaN or Inf values"),
+        (float("inf"), r"holds 1 NaN or Inf values"),
+    ],
+)
+def test_non_physical_light_files_are_refused_in_one_line(tmp_path, value, message):
+    values = torch.full((4, 8, 3), 2.0)
+    values[1, 2, 0] = value
+    path = tmp_path / "bad light.exr"
+    write_raw(path, values)
+    with pytest.raises(DataError, match=f"^{re.escape(str(path))}: {message}") as caught:
+        load_envmap(str(path))
+    assert "\n" not in str(caught.value)
+    values[1, 2, 0] = -0.001  # within the codec tolerance (1 % of the mean): clamped
+    write_raw(path, values)
+    assert float(load_envmap(str(path), height=None)[1][1, 2, 0]) == 0.0
 
 
 def test_lookup_returns_pixel_values_at_centres_and_wraps_in_longitude():

@@ -172,14 +172,17 @@ def test_unreadable_or_missing_weights_are_rejected(tmp_path):
 @pytest.fixture
 def no_defaults(monkeypatch, tmp_path):
     monkeypatch.delenv(lpips_module.WEIGHTS_ENV, raising=False)
-    monkeypatch.setattr(lpips_module, "default_weight_paths", lambda: [tmp_path / "nowhere.npz"])
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty_torch_home"))
 
 
-def test_unavailable_lpips_is_none_with_a_reason(no_defaults, tmp_path):
-    model, reason = load_lpips(allow_official=False)
-    assert model is None
-    assert reason.startswith("LPIPS unavailable: no weights file")
-    assert "--lpips-weights" in reason and "MATSPRAY_LPIPS_WEIGHTS" in reason and "nowhere.npz" in reason
+def test_unavailable_lpips_is_none_with_one_line_saying_how_to_get_it(no_defaults, tmp_path):
+    model, note = load_lpips(allow_official=False)
+    checkpoint = tmp_path / "empty_torch_home" / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth"
+    assert model is None and "\n" not in note
+    assert note == (
+        f"LPIPS n/a: torchvision's AlexNet weights are not at {checkpoint}; get them once (244 MB) with "
+        "`python -m matspray.eval.lpips --download`, or pass --lpips-weights FILE.npz (or set $MATSPRAY_LPIPS_WEIGHTS)"
+    )
 
 
 def test_environment_variable_naming_a_missing_file_is_an_error(no_defaults, monkeypatch, tmp_path):
@@ -189,21 +192,84 @@ def test_environment_variable_naming_a_missing_file_is_an_error(no_defaults, mon
 
 
 @needs_weights
-def test_weights_are_found_through_the_environment_and_the_default_paths(no_defaults, monkeypatch):
+def test_weights_are_found_through_the_environment(no_defaults, monkeypatch):
     monkeypatch.setenv("MATSPRAY_LPIPS_WEIGHTS", str(WEIGHTS))
     model, source = load_lpips(allow_official=False)
     assert isinstance(model, LPIPS) and str(WEIGHTS.resolve()) in source
-    monkeypatch.delenv("MATSPRAY_LPIPS_WEIGHTS")
-    monkeypatch.setattr(lpips_module, "default_weight_paths", lambda: [WEIGHTS.parent / "x.npz", WEIGHTS])
+
+
+def test_no_lookup_reads_a_folder_beside_the_repository():
+    text = Path(lpips_module.__file__).read_text()
+    assert "shared" not in text and "parents[" not in text
+
+
+def torchvision_checkpoint(path: Path, npz: Path) -> None:
+    """A state dict in torchvision's AlexNet layout (features.{0,3,6,8,10}, OIHW) made from an LPIPS .npz."""
+    arrays = np.load(npz)
+    state = {}
+    for i, layer in enumerate(lpips_module.ALEXNET_LAYERS):
+        kernel = arrays[f"AlexNet_0/Conv_{i}/kernel"].transpose(3, 2, 0, 1).copy()
+        state[f"features.{layer}.weight"] = torch.from_numpy(kernel)
+        state[f"features.{layer}.bias"] = torch.from_numpy(arrays[f"AlexNet_0/Conv_{i}/bias"].copy())
+    state["classifier.1.weight"] = torch.zeros(2, 2)  # the rest of the network, unused
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(state, path)
+
+
+def test_packaged_heads_are_lpips_v0_1_alexnet_heads():
+    heads = lpips_module.read_heads(lpips_module.HEADS_FILE)
+    assert [tuple(h.shape) for h in heads] == [(1, c, 1, 1) for c in (64, 192, 384, 256, 256)]
+    assert all(float(h.min()) >= 0 for h in heads)
+    if WEIGHTS.is_file():  # the same arrays as the full weights file of the shared test data
+        full_model = LPIPS.from_npz(WEIGHTS)
+        for packaged, full in zip(heads, [getattr(full_model, f"head{i}") for i in range(5)]):
+            assert torch.equal(packaged, full)
+
+
+@needs_weights
+def test_torchvision_checkpoint_in_torchs_cache_with_the_packaged_heads(no_defaults, tmp_path):
+    checkpoint = tmp_path / "empty_torch_home" / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth"
+    torchvision_checkpoint(checkpoint, WEIGHTS)
     model, source = load_lpips(allow_official=False)
-    assert isinstance(model, LPIPS) and "matspray AlexNet LPIPS" in source
+    assert isinstance(model, LPIPS) and str(checkpoint) in source and "packaged heads" in source
+    a, b = pairs()["blurred"]
+    reference = LPIPS.from_npz(WEIGHTS).distance(torch.from_numpy(a), torch.from_numpy(b))
+    assert model.distance(torch.from_numpy(a), torch.from_numpy(b)) == pytest.approx(reference, rel=1e-6)
 
 
-def test_default_paths_are_relative_to_the_cwd_and_the_repository(monkeypatch, tmp_path):
-    monkeypatch.chdir(tmp_path)
-    paths = lpips_module.default_weight_paths()
-    repository = Path(__file__).resolve().parents[1]
-    assert paths == [tmp_path / lpips_module.SHARED_WEIGHTS, repository / lpips_module.SHARED_WEIGHTS]
+def test_a_damaged_checkpoint_is_refused_in_one_line(no_defaults, tmp_path):
+    checkpoint = lpips_module.alexnet_checkpoint()
+    checkpoint.parent.mkdir(parents=True)
+    checkpoint.write_bytes(b"half a download")
+    with pytest.raises(DataError, match=r"alexnet-owt-7be5be79.pth: cannot read AlexNet weights .*--download\)$"):
+        load_lpips(allow_official=False)
+    torch.save({"features.0.weight": torch.zeros(3)}, checkpoint)
+    with pytest.raises(DataError, match=r"array 'features.0.weight' has shape \(3,\), expected \(64, 3, 11, 11\)"):
+        load_lpips(allow_official=False)
+
+
+def test_download_fetches_once_into_torchs_cache_and_checks_the_hash(no_defaults, tmp_path, capsys):
+    import hashlib
+
+    source = tmp_path / "served.pth"
+    source.write_bytes(b"checkpoint bytes")
+    digest = hashlib.sha256(source.read_bytes()).hexdigest()
+    target = lpips_module.download_alexnet(source.as_uri(), hash_prefix=digest[:8])
+    assert target == lpips_module.alexnet_checkpoint() and target.read_bytes() == b"checkpoint bytes"
+    source.write_bytes(b"changed")  # a second call finds the cached file and fetches nothing
+    assert lpips_module.download_alexnet(source.as_uri(), hash_prefix="00000000").read_bytes() == b"checkpoint bytes"
+    target.unlink()
+    with pytest.raises(DataError, match=r"served.pth: download failed \(RuntimeError: .*LPIPS n/a: "):
+        lpips_module.download_alexnet(source.as_uri(), hash_prefix="00000000")
+    assert not target.exists()
+    with pytest.raises(DataError, match=r"download failed \(URLError"):
+        lpips_module.download_alexnet((tmp_path / "absent.pth").as_uri())
+
+
+def test_module_command_reports_the_source_or_the_note(no_defaults, monkeypatch, capsys):
+    monkeypatch.setattr(sys.modules["matspray.eval.lpips"], "official_lpips", lambda: (None, "absent"))
+    assert lpips_module.main([]) == 1
+    assert capsys.readouterr().out.startswith("LPIPS n/a: torchvision's AlexNet weights are not at ")
 
 
 # ------------------------------------------------------------------------------------------ the official package
@@ -219,10 +285,11 @@ def test_official_package_that_fails_to_import_falls_back(no_defaults, monkeypat
     fake_lpips_package(tmp_path, "raise RuntimeError('operator torchvision::nms does not exist')\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.delitem(sys.modules, "lpips", raising=False)
-    model, reason = load_lpips()
-    assert model is None
-    assert "official lpips package does not import (RuntimeError: operator torchvision::nms" in reason
-    assert "no weights file" in reason
+    assert lpips_module.official_lpips()[1].startswith(
+        "official lpips package does not import (RuntimeError: operator torchvision::nms"
+    )
+    model, note = load_lpips()
+    assert model is None and note.startswith("LPIPS n/a: ")
 
 
 def test_official_package_without_cached_backbone_is_not_used(no_defaults, monkeypatch, tmp_path):
@@ -231,8 +298,9 @@ def test_official_package_without_cached_backbone_is_not_used(no_defaults, monke
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.delitem(sys.modules, "lpips", raising=False)
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch_home"))
-    model, reason = load_lpips()
-    assert model is None and "AlexNet weights are not cached" in reason
+    assert "torchvision's AlexNet weights are not cached" in lpips_module.official_lpips()[1]
+    model, note = load_lpips()
+    assert model is None and note.startswith("LPIPS n/a: ")
 
 
 def test_official_package_is_preferred_and_called_with_inputs_in_minus_one_one(no_defaults, monkeypatch, tmp_path):

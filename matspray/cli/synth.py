@@ -35,7 +35,8 @@ def add_parser(parser) -> None:
     parser.add_argument(
         "--env",
         default="sky",
-        help="training light: built-in name, .exr/.hdr lat-long file, or shared HDRI name (default sky)",
+        help="training light: built-in name, .exr/.hdr lat-long file, or a packaged HDRI name "
+        "(city, forest, interior, sunrise; default sky)",
     )
     parser.add_argument(
         "--relight-env",

@@ -11,10 +11,19 @@ The network, as the reference `lpips` package defines it:
   per tap: unit-normalise along channels (f / (||f|| + 1e-10)), squared difference of the two
   images, 1x1 linear head with non-negative weights and no bias, mean over space; sum of the taps.
 
-Weights come from an .npz file (`AlexNet_0/Conv_{i}/{kernel,bias}`, `NetLinLayer_{i}/Conv_0/kernel`)
-whose kernels are HWIO (height, width, in, out); torch's conv2d wants OIHW, so they are transposed
-once on load. The official `lpips` package is used instead when it imports and its weights
-(its heads and torchvision's AlexNet checkpoint) are already on disk; it is never asked to download.
+Weights, in the order `load_lpips` tries them:
+1. an .npz file given by the caller or $MATSPRAY_LPIPS_WEIGHTS (`AlexNet_0/Conv_{i}/{kernel,bias}`,
+   `NetLinLayer_{i}/Conv_0/kernel`, kernels HWIO: height, width, in, out; torch's conv2d wants OIHW, so
+   they are transposed once on load);
+2. the official `lpips` package, when it imports and its weights are already on disk;
+3. torchvision's AlexNet checkpoint in torch's hub cache (where the `lpips` package and torchvision keep
+   it) with the five linear heads that ship beside this module (`lpips_heads_v0.1.npz`, from LPIPS,
+   BSD-2-Clause; THIRD_PARTY_NOTICES.md). `python -m matspray.eval.lpips --download` fetches that
+   checkpoint once. Nothing here downloads on its own: without the checkpoint, evaluation reports LPIPS
+   as unavailable and says in one line how to get it.
+
+AlexNet's convolutions do not ship: they would be three times the size of everything else in the package,
+and the standard place for them is torch's cache, which other tools on the machine share (README, LPIPS).
 """
 
 from __future__ import annotations
@@ -33,7 +42,14 @@ from matspray.eval.metrics import unit_image_pair
 
 WEIGHTS_ENV = "MATSPRAY_LPIPS_WEIGHTS"
 WEIGHTS_NAME = "lpips_alexnet_v0.1.npz"
-SHARED_WEIGHTS = Path("..") / "shared" / "data" / "lpips" / WEIGHTS_NAME  # relative to cwd or repository root
+HEADS_FILE = Path(__file__).with_name("lpips_heads_v0.1.npz")  # package data
+# torchvision's ImageNet AlexNet, the backbone LPIPS v0.1 was calibrated on; the name's suffix is its sha256 prefix
+ALEXNET_FILE = "alexnet-owt-7be5be79.pth"
+ALEXNET_HASH = "7be5be79"
+ALEXNET_URL = f"https://download.pytorch.org/models/{ALEXNET_FILE}"
+ALEXNET_MB = 244
+ALEXNET_LAYERS = (0, 3, 6, 8, 10)  # indices of the five convolutions in torchvision's `features`
+DOWNLOAD_HINT = "python -m matspray.eval.lpips --download"
 
 INPUT_SHIFT = (-0.030, -0.088, -0.188)
 INPUT_SCALE = (0.458, 0.448, 0.450)
@@ -83,6 +99,14 @@ class LPIPS(nn.Module):
         kernels, biases, heads = read_weights(path)
         return cls(kernels, biases, heads, source=f"matspray AlexNet LPIPS v0.1, weights {Path(path).resolve()}")
 
+    @classmethod
+    def from_torchvision(cls, checkpoint, heads=HEADS_FILE) -> LPIPS:
+        kernels, biases = read_torchvision_alexnet(checkpoint)
+        source = (
+            f"matspray AlexNet LPIPS v0.1, torchvision's AlexNet {Path(checkpoint).resolve()} and the packaged heads"
+        )
+        return cls(kernels, biases, read_heads(heads), source=source)
+
     def features(self, x: Tensor) -> list[Tensor]:  # [B, 3, H, W] scaled input -> 5 x [B, C_i, h_i, w_i]
         taps = []
         for i, (_, stride, padding, _, _, pool_first) in enumerate(ALEXNET_CONVS):
@@ -123,38 +147,73 @@ def _network_input(image: Tensor) -> Tensor:  # [H, W, 3] in [0, 1] -> [1, 3, H,
     return (image.permute(2, 0, 1)[None] * 2 - 1).float()
 
 
-def read_weights(path) -> tuple[list[Tensor], list[Tensor], list[Tensor]]:
-    """Kernels (OIHW), biases and heads [1, C, 1, 1] from an LPIPS AlexNet .npz (HWIO kernels)."""
+def read_arrays(path) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.is_file():
-        hint = f"expected {WEIGHTS_NAME}: pass --lpips-weights PATH or set $MATSPRAY_LPIPS_WEIGHTS"
+        hint = f"expected {WEIGHTS_NAME}: pass --lpips-weights PATH or set ${WEIGHTS_ENV}"
         raise file_error(path, "LPIPS weights file does not exist", hint)
     try:
         with np.load(path, allow_pickle=False) as archive:
-            arrays = {key: archive[key] for key in archive.files}
+            return {key: archive[key] for key in archive.files}
     except Exception as error:  # not a zip / not an npz
         raise file_error(path, f"cannot read LPIPS weights ({error})", "expected a numpy .npz archive") from error
 
-    def array(key: str, shape: tuple[int, ...]) -> np.ndarray:
-        if key not in arrays:
-            raise file_error(path, f"missing array '{key}'", "not LPIPS v0.1 AlexNet weights")
-        if arrays[key].shape != shape:
-            raise file_error(path, f"array '{key}' has shape {arrays[key].shape}, expected {shape}")
-        values = arrays[key].astype(np.float32)
-        if not np.isfinite(values).all():
-            raise file_error(path, f"array '{key}' contains NaN or Inf")
-        return values
 
-    kernels, biases, heads = [], [], []
-    for i, (k, _, _, c_in, c_out, _) in enumerate(ALEXNET_CONVS):
-        kernel = array(f"AlexNet_0/Conv_{i}/kernel", (k, k, c_in, c_out))  # HWIO
-        kernels.append(torch.from_numpy(kernel.transpose(3, 2, 0, 1).copy()))  # OIHW
-        biases.append(torch.from_numpy(array(f"AlexNet_0/Conv_{i}/bias", (c_out,))))
-        head = array(f"NetLinLayer_{i}/Conv_0/kernel", (1, 1, c_out, 1))
+def checked_array(path, arrays: dict, key: str, shape: tuple[int, ...], what: str = "LPIPS v0.1 AlexNet weights"):
+    if key not in arrays:
+        raise file_error(path, f"missing array '{key}'", f"not {what}")
+    value = arrays[key]
+    if tuple(value.shape) != shape:
+        raise file_error(path, f"array '{key}' has shape {tuple(value.shape)}, expected {shape}")
+    value = np.asarray(value, dtype=np.float32)
+    if not np.isfinite(value).all():
+        raise file_error(path, f"array '{key}' contains NaN or Inf")
+    return value
+
+
+def read_heads(path, arrays: dict | None = None) -> list[Tensor]:
+    """The five linear heads [1, C_i, 1, 1] from an .npz holding `NetLinLayer_{i}/Conv_0/kernel` (1x1xCx1)."""
+    arrays = read_arrays(path) if arrays is None else arrays
+    heads = []
+    for i, (_, _, _, _, c_out, _) in enumerate(ALEXNET_CONVS):
+        head = checked_array(path, arrays, f"NetLinLayer_{i}/Conv_0/kernel", (1, 1, c_out, 1))
         if (head < 0).any():
             raise file_error(path, f"linear head {i} has negative weights", "LPIPS heads are non-negative")
         heads.append(torch.from_numpy(head.transpose(3, 2, 0, 1).copy()))
-    return kernels, biases, heads
+    return heads
+
+
+def read_weights(path) -> tuple[list[Tensor], list[Tensor], list[Tensor]]:
+    """Kernels (OIHW), biases and heads [1, C, 1, 1] from an LPIPS AlexNet .npz (HWIO kernels)."""
+    arrays = read_arrays(path)
+    kernels, biases = [], []
+    for i, (k, _, _, c_in, c_out, _) in enumerate(ALEXNET_CONVS):
+        kernel = checked_array(path, arrays, f"AlexNet_0/Conv_{i}/kernel", (k, k, c_in, c_out))  # HWIO
+        kernels.append(torch.from_numpy(kernel.transpose(3, 2, 0, 1).copy()))  # OIHW
+        biases.append(torch.from_numpy(checked_array(path, arrays, f"AlexNet_0/Conv_{i}/bias", (c_out,))))
+    return kernels, biases, read_heads(path, arrays)
+
+
+def read_torchvision_alexnet(path) -> tuple[list[Tensor], list[Tensor]]:
+    """Kernels (OIHW) and biases of the five convolutions of torchvision's AlexNet checkpoint (a state dict)."""
+    path = Path(path)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # truncated download, not a torch file
+        raise file_error(
+            path, f"cannot read AlexNet weights ({type(error).__name__})", f"delete it and run {DOWNLOAD_HINT}"
+        ) from error
+    if not isinstance(state, dict):
+        raise file_error(path, "is not a state dict", f"delete it and run {DOWNLOAD_HINT}")
+    arrays = {key: value.numpy() for key, value in state.items() if isinstance(value, Tensor)}
+    kernels, biases = [], []
+    for layer, (k, _, _, c_in, c_out, _) in zip(ALEXNET_LAYERS, ALEXNET_CONVS):
+        what = "torchvision's AlexNet checkpoint"
+        kernels.append(
+            torch.from_numpy(checked_array(path, arrays, f"features.{layer}.weight", (c_out, c_in, k, k), what))
+        )
+        biases.append(torch.from_numpy(checked_array(path, arrays, f"features.{layer}.bias", (c_out,), what)))
+    return kernels, biases
 
 
 # ------------------------------------------------------------------------------------------ the official package
@@ -181,7 +240,7 @@ def official_lpips() -> tuple[OfficialLPIPS | None, str]:
     heads = Path(lpips.__file__).parent / "weights" / "v0.1" / "alex.pth"
     if not heads.is_file():
         return None, f"official lpips package has no {heads}"
-    backbone = Path(torch.hub.get_dir()) / "checkpoints" / "alexnet-owt-7be5be79.pth"
+    backbone = alexnet_checkpoint()
     if not backbone.is_file():
         return None, f"official lpips package: torchvision's AlexNet weights are not cached at {backbone}"
     try:
@@ -192,33 +251,33 @@ def official_lpips() -> tuple[OfficialLPIPS | None, str]:
 
 
 # ------------------------------------------------------------------------------------------ lookup
-def default_weight_paths() -> list[Path]:
-    """`../shared/data/lpips/lpips_alexnet_v0.1.npz` from the cwd, then from the repository root."""
-    repository_root = Path(__file__).resolve().parents[2]
-    candidates = [Path.cwd() / SHARED_WEIGHTS, repository_root / SHARED_WEIGHTS]
-    unique = []
-    for path in candidates:
-        if path.resolve() not in [p.resolve() for p in unique]:
-            unique.append(path)
-    return unique
+def alexnet_checkpoint() -> Path:
+    """Where torchvision and the `lpips` package keep AlexNet's weights: torch's hub cache ($TORCH_HOME)."""
+    return Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_FILE
+
+
+def unavailable_note() -> str:
+    """The one line evaluation prints where no LPIPS weights are on this machine."""
+    return (
+        f"LPIPS n/a: torchvision's AlexNet weights are not at {alexnet_checkpoint()}; get them once "
+        f"({ALEXNET_MB} MB) with `{DOWNLOAD_HINT}`, or pass --lpips-weights FILE.npz (or set ${WEIGHTS_ENV})"
+    )
 
 
 def load_lpips(weights=None, allow_official: bool = True) -> tuple[PerceptualMetric | None, str]:
-    """An LPIPS metric and where it comes from, or (None, why LPIPS is unavailable).
+    """An LPIPS metric and where it comes from, or (None, one line saying how to get it).
 
     Order: `weights` when given (an error if it is unusable); the official `lpips` package when
     usable and `allow_official`; the file named by $MATSPRAY_LPIPS_WEIGHTS (an error if unusable);
-    `../shared/data/lpips/lpips_alexnet_v0.1.npz` from the cwd or the repository root.
+    torchvision's AlexNet checkpoint in torch's hub cache with the packaged heads. Never downloads.
     """
     if weights is not None:
         model = LPIPS.from_npz(Path(weights))
         return model, model.source
-    reasons = []
     if allow_official:
-        official, reason = official_lpips()
+        official, _ = official_lpips()
         if official is not None:
             return official, official.source
-        reasons.append(reason)
     from_env = os.environ.get(WEIGHTS_ENV)
     if from_env:
         try:
@@ -226,10 +285,49 @@ def load_lpips(weights=None, allow_official: bool = True) -> tuple[PerceptualMet
         except DataError as error:
             raise DataError(f"${WEIGHTS_ENV}: {error}") from error
         return model, model.source
-    for candidate in default_weight_paths():
-        if candidate.is_file():
-            model = LPIPS.from_npz(candidate)
-            return model, model.source
-    searched = ", ".join(str(p) for p in default_weight_paths())
-    reasons.append(f"no weights file (pass --lpips-weights PATH or set ${WEIGHTS_ENV}; looked in {searched})")
-    return None, "LPIPS unavailable: " + "; ".join(reasons)
+    checkpoint = alexnet_checkpoint()
+    if checkpoint.is_file():
+        model = LPIPS.from_torchvision(checkpoint)
+        return model, model.source
+    return None, unavailable_note()
+
+
+def download_alexnet(url: str = ALEXNET_URL, destination=None, hash_prefix: str | None = ALEXNET_HASH) -> Path:
+    """Fetch torchvision's AlexNet checkpoint into torch's hub cache (or `destination`), its sha256 checked."""
+    destination = Path(destination) if destination is not None else alexnet_checkpoint()
+    if destination.is_file():
+        return destination
+    destination.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        torch.hub.download_url_to_file(url, str(destination), hash_prefix=hash_prefix, progress=True)
+    except Exception as error:  # no network (URLError), a wrong hash (RuntimeError), a full disk (OSError)
+        raise DataError(f"{url}: download failed ({type(error).__name__}: {error}); {unavailable_note()}") from error
+    return destination
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+    import sys
+
+    parser = argparse.ArgumentParser(
+        prog="python -m matspray.eval.lpips", description="Which LPIPS weights evaluation uses, and fetching them."
+    )
+    parser.add_argument(
+        "--download",
+        action="store_true",
+        help=f"fetch torchvision's AlexNet weights ({ALEXNET_MB} MB) into torch's cache",
+    )
+    args = parser.parse_args(argv)
+    try:
+        if args.download:
+            print(f"AlexNet weights: {download_alexnet()}")
+        metric, source = load_lpips()
+    except DataError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(source)
+    return 0 if metric is not None else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -22,7 +22,7 @@ class SynthConfig:
     train_views: int = 40
     test_views: int = 10
     spp: int = 64  # Mitsuba samples per pixel
-    env: str = "sky"  # training light: built-in name, .exr/.hdr path, or shared HDRI name
+    env: str = "sky"  # training light: built-in name, .exr/.hdr path, or packaged HDRI name (matspray/hdri)
     relight_envs: list[str] | None = None  # lights for the test views; None: two built-ins unlike `env`
     env_height: int = 128  # lights are resampled to env_height x 2 env_height for rendering
     gt_samples: int = 4  # ground-truth subpixel rays per side (s x s per pixel)
