@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from matspray.cli.options import add_compute_arguments
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments, default_variant
 from matspray.export.config import ExportConfig
 
 DEFAULTS = ExportConfig()
@@ -18,7 +18,7 @@ def add_parser(parser) -> None:
     )
     parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
     parser.add_argument("--out", type=Path, required=True, help="the .glb file to write")
-    parser.add_argument("--variant", default="full", help="which asset of the run (default: full)")
+    parser.add_argument("--variant", help=VARIANT_HELP)
     parser.add_argument(
         "--faces", type=int, default=DEFAULTS.faces, help=f"face budget, >= 100 (default {DEFAULTS.faces})"
     )
@@ -58,6 +58,7 @@ def add_parser(parser) -> None:
 def run(args) -> int:
     from matspray.device import compute_target, out_of_memory_as_error
     from matspray.export.export import export_run
+    from matspray.rundir import RunDir
 
     device, backend = compute_target(args.device, args.backend)
     config = ExportConfig(
@@ -65,7 +66,13 @@ def run(args) -> int:
     )
     with out_of_memory_as_error("export", device):
         report = export_run(
-            args.run, args.out, variant=args.variant, config=config, data=args.data, device=device, backend=backend
+            args.run,
+            args.out,
+            variant=args.variant or default_variant(RunDir(args.run).require()),
+            config=config,
+            data=args.data,
+            device=device,
+            backend=backend,
         )
     seconds = ", ".join(f"{name} {value:.1f} s" for name, value in report.seconds.items())
     print(

@@ -4,7 +4,7 @@ The run-folder glue lives here: which asset, which cameras, which files; `matspr
 
 from pathlib import Path
 
-from matspray.cli.options import add_compute_arguments
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments, default_variant
 
 
 def add_parser(parser) -> None:
@@ -23,7 +23,10 @@ def add_parser(parser) -> None:
         help="test: the dataset's test cameras (default); orbit: a circle around the object, also as MP4",
     )
     parser.add_argument("--out", type=Path, required=True, help="folder for the PNG frames (and orbit.mp4)")
-    parser.add_argument("--variant", default="full", help="which asset of the run (default: full)")
+    parser.add_argument(
+        "--variant",
+        help=VARIANT_HELP,
+    )
     parser.add_argument("--frames", type=int, default=60, help="orbit: number of frames (default 60)")
     parser.add_argument("--fps", type=int, default=24, help="orbit: frames per second of the video (default 24)")
     parser.add_argument(
@@ -41,7 +44,7 @@ def relight_run(
     env: str,
     views: str,
     out_dir,
-    variant: str = "full",
+    variant: str | None = None,
     frames: int = 60,
     fps: int = 24,
     background: str = "transparent",
@@ -67,7 +70,7 @@ def relight_run(
     from matspray.rundir import RunDir
 
     run = RunDir(run_dir).require()
-    asset_folder = run.asset_path(variant)
+    asset_folder = run.asset_path(variant if variant is not None else default_variant(run))
     if frames < 1 or fps < 1 or env_height < 4:
         raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
     out_dir = Path(out_dir)

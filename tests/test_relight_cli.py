@@ -1,0 +1,40 @@
+"""`matspray relight` and `export` without --variant take the asset the run has (full, else e.g. no-prior)."""
+
+import shutil
+
+import pytest
+
+from matspray.cli.options import default_variant
+from matspray.cli.relight import relight_run
+from matspray.errors import RunError
+from matspray.rundir import RunDir
+from matspray.variants import asset_stage
+from tests.scenes import ring_cameras, write_disk_sphere_run
+
+
+@pytest.fixture(scope="module")
+def no_prior_run(tmp_path_factory):
+    """A run whose only asset is no-prior's, as `matspray run --predictor none` leaves it."""
+    root = tmp_path_factory.mktemp("relight")
+    run = write_disk_sphere_run(root, 300, ring_cameras(3, size=32), slice(0, 2), slice(2, 3))
+    shutil.move(run / asset_stage("full"), run / asset_stage("no-prior"))
+    return run
+
+
+def test_relight_takes_the_runs_only_variant(no_prior_run, tmp_path):
+    assert default_variant(RunDir(no_prior_run)) == "no-prior"
+    written = relight_run(no_prior_run, "forest", "test", tmp_path / "out")
+    assert [p.name for p in written] == ["r_002_forest.png"]
+    with pytest.raises(RunError, match="no asset for variant 'full'"):  # asked for by name, it is still refused
+        relight_run(no_prior_run, "forest", "test", tmp_path / "out", variant="full")
+
+
+def test_full_is_preferred_and_a_run_without_assets_is_one_line(no_prior_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(no_prior_run, run)
+    shutil.copytree(run / asset_stage("no-prior"), run / asset_stage("full"))
+    assert default_variant(RunDir(run)) == "full"
+    for variant in ("full", "no-prior"):
+        shutil.rmtree(run / asset_stage(variant))
+    with pytest.raises(RunError, match=f"^{run}: the run has no asset yet .*`matspray run --data DATA --out {run}`$"):
+        default_variant(RunDir(run))
