@@ -180,7 +180,7 @@ def test_unavailable_lpips_is_none_with_one_line_saying_how_to_get_it(no_default
     checkpoint = tmp_path / "empty_torch_home" / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth"
     assert model is None and "\n" not in note
     assert note == (
-        f"LPIPS n/a: torchvision's AlexNet weights are not at {checkpoint}; get them once (244 MB) with "
+        f"n/a: torchvision's AlexNet weights are not at {checkpoint}; get them once (244 MB) with "
         "`python -m matspray.eval.lpips --download`, or pass --lpips-weights FILE.npz (or set $MATSPRAY_LPIPS_WEIGHTS)"
     )
 
@@ -259,7 +259,9 @@ def test_download_fetches_once_into_torchs_cache_and_checks_the_hash(no_defaults
     source.write_bytes(b"changed")  # a second call finds the cached file and fetches nothing
     assert lpips_module.download_alexnet(source.as_uri(), hash_prefix="00000000").read_bytes() == b"checkpoint bytes"
     target.unlink()
-    with pytest.raises(DataError, match=r"served.pth: download failed \(RuntimeError: .*LPIPS n/a: "):
+    with pytest.raises(
+        DataError, match=r"served.pth: download failed \(RuntimeError: .*; offline, pass --lpips-weights FILE.npz"
+    ):
         lpips_module.download_alexnet(source.as_uri(), hash_prefix="00000000")
     assert not target.exists()
     with pytest.raises(DataError, match=r"download failed \(URLError"):
@@ -269,7 +271,7 @@ def test_download_fetches_once_into_torchs_cache_and_checks_the_hash(no_defaults
 def test_module_command_reports_the_source_or_the_note(no_defaults, monkeypatch, capsys):
     monkeypatch.setattr(sys.modules["matspray.eval.lpips"], "official_lpips", lambda: (None, "absent"))
     assert lpips_module.main([]) == 1
-    assert capsys.readouterr().out.startswith("LPIPS n/a: torchvision's AlexNet weights are not at ")
+    assert capsys.readouterr().out.startswith("LPIPS: n/a: torchvision's AlexNet weights are not at ")
 
 
 # ------------------------------------------------------------------------------------------ the official package
@@ -289,7 +291,7 @@ def test_official_package_that_fails_to_import_falls_back(no_defaults, monkeypat
         "official lpips package does not import (RuntimeError: operator torchvision::nms"
     )
     model, note = load_lpips()
-    assert model is None and note.startswith("LPIPS n/a: ")
+    assert model is None and note.startswith("n/a: ")
 
 
 def test_official_package_without_cached_backbone_is_not_used(no_defaults, monkeypatch, tmp_path):
@@ -300,7 +302,7 @@ def test_official_package_without_cached_backbone_is_not_used(no_defaults, monke
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch_home"))
     assert "torchvision's AlexNet weights are not cached" in lpips_module.official_lpips()[1]
     model, note = load_lpips()
-    assert model is None and note.startswith("LPIPS n/a: ")
+    assert model is None and note.startswith("n/a: ")
 
 
 def test_official_package_is_preferred_and_called_with_inputs_in_minus_one_one(no_defaults, monkeypatch, tmp_path):

@@ -257,9 +257,9 @@ def alexnet_checkpoint() -> Path:
 
 
 def unavailable_note() -> str:
-    """The one line evaluation prints where no LPIPS weights are on this machine."""
+    """The one line evaluation prints where no LPIPS weights are on this machine (after 'LPIPS: ')."""
     return (
-        f"LPIPS n/a: torchvision's AlexNet weights are not at {alexnet_checkpoint()}; get them once "
+        f"n/a: torchvision's AlexNet weights are not at {alexnet_checkpoint()}; get them once "
         f"({ALEXNET_MB} MB) with `{DOWNLOAD_HINT}`, or pass --lpips-weights FILE.npz (or set ${WEIGHTS_ENV})"
     )
 
@@ -301,7 +301,10 @@ def download_alexnet(url: str = ALEXNET_URL, destination=None, hash_prefix: str 
     try:
         torch.hub.download_url_to_file(url, str(destination), hash_prefix=hash_prefix, progress=True)
     except Exception as error:  # no network (URLError), a wrong hash (RuntimeError), a full disk (OSError)
-        raise DataError(f"{url}: download failed ({type(error).__name__}: {error}); {unavailable_note()}") from error
+        raise DataError(
+            f"{url}: download failed ({type(error).__name__}: {error}); offline, pass --lpips-weights FILE.npz "
+            f"(or set ${WEIGHTS_ENV}) to eval instead"
+        ) from error
     return destination
 
 
@@ -325,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     except DataError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    print(source)
+    print(f"LPIPS: {source}")
     return 0 if metric is not None else 1
 
 
