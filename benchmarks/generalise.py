@@ -319,6 +319,9 @@ def run_protocol(args, log=print) -> dict:
     if geometry:  # only then: the configurations run before the flag keep their names
         choices["geometry"] = geometry
     key = configuration_key(args.method, choices)
+    geometry_key = configuration_key(  # the configuration with the geometry overrides alone (None: the default)
+        "matspray", {"without": [], "settings": {}, "refine": {}, **({"geometry": geometry} if geometry else {})}
+    )
     tag = args.tag or ("default" if not any(choices.values()) else fingerprint(choices)[:8])
     tag = tag if args.method == "matspray" else f"{args.method}-{tag}"
     tag = part_name(tag, args.start)  # the whole pass reuses the part's runs
@@ -389,10 +392,13 @@ def run_protocol(args, log=print) -> dict:
             run_dir = folder / "runs" / run_name(model, key)
             if not own_geometry and run_dir != first_run and share_stage(first_run, run_dir, "geometry"):
                 log(f"generalise: {spec.name} / {run_dir.name}: geometry shared from {first_run.name}")
-            default_run = folder / "runs" / run_name(model, None)
-            # a lift on other Gaussians is no use, and the default runs' predictions may predate normal maps
-            reusable = () if own_geometry else SHARED_STAGES
-            shared = [] if key is None else [stage for stage in reusable if share_stage(default_run, run_dir, stage)]
+            # the run to start from: the default one, or with geometry overrides the configuration that has only
+            # those (its Gaussians; a lift on other Gaussians is no use)
+            default_run = folder / "runs" / run_name(model, geometry_key)
+            reusable = ("materials2d", "geometry", *SHARED_STAGES[1:]) if own_geometry else SHARED_STAGES
+            shared = (
+                [] if key == geometry_key else [stage for stage in reusable if share_stage(default_run, run_dir, stage)]
+            )
             if shared:
                 log(
                     f"generalise: {spec.name} / {run_dir.name}: starts from {model}'s {', '.join(shared)} (redone "

@@ -337,16 +337,7 @@ def test_a_configuration_that_trains_its_own_geometry_gets_its_own_lifted_truth(
     pytest.importorskip("mitsuba")
     out = tmp_path / "g"
     common = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--out", str(out)]
-    argv = common + [
-        "--variants",
-        "full",
-        "proj-average",
-        "--no-progress",
-        "--refine",
-        "iterations=4",
-        "light_warmup=2",
-    ]
-    argv += ["--geometry", "predicted_normal_weight=1"]
+    argv = common + ["--variants", "full", "proj-average", "--no-progress", "--geometry", "predicted_normal_weight=1"]
     assert generalise(argv) == 0
     printed = capsys.readouterr().out
     runs = out / "objects" / "dev-00-seed1000" / "runs"
@@ -370,3 +361,8 @@ def test_a_configuration_that_trains_its_own_geometry_gets_its_own_lifted_truth(
     with pytest.raises(SystemExit) as refused:
         main(common + ["--configuration", key, "--rows", "full, true light"])
     assert refused.value.code == 2 and "refine the default runs only" in capsys.readouterr().err
+    # a configuration with more than those geometry overrides starts from that configuration's geometry and lift
+    assert generalise(argv + ["--refine", "iterations=4", "light_warmup=2"]) == 0
+    assert "starts from paper's materials2d, geometry, lift" in capsys.readouterr().out
+    (other,) = set(runs.glob("paper-matspray-*")) - {run}
+    assert not {"materials2d", "geometry", "lift"} & set(json.loads((other / "timings.json").read_text()))
