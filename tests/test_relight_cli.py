@@ -38,3 +38,8 @@ def test_full_is_preferred_and_a_run_without_assets_is_one_line(no_prior_run, tm
         shutil.rmtree(run / asset_stage(variant))
     with pytest.raises(RunError, match=f"^{run}: the run has no asset yet .*`matspray run --data DATA --out {run}`$"):
         default_variant(RunDir(run))
+
+
+def test_several_lights_in_one_call(no_prior_run, tmp_path):
+    written = relight_run(no_prior_run, ["sky", "city", "sunrise"], "test", tmp_path / "out")
+    assert [p.name for p in written] == ["r_002_sky.png", "r_002_city.png", "r_002_sunrise.png"]

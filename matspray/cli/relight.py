@@ -12,9 +12,10 @@ def add_parser(parser) -> None:
     parser.add_argument(
         "--env",
         required=True,
+        nargs="+",
         metavar="NAME|PATH",
-        help="environment light: a built-in name or a lat-long .exr/.hdr file (an unknown name is answered with the "
-        "built-ins)",
+        help="environment lights, each rendered in turn: a built-in (sky, studio, sunset, overcast), a packaged HDRI "
+        "(city, forest, interior, sunrise) or a lat-long .exr/.hdr file",
     )
     parser.add_argument(
         "--views",
@@ -41,7 +42,7 @@ def add_parser(parser) -> None:
 
 def relight_run(
     run_dir,
-    env: str,
+    env,
     views: str,
     out_dir,
     variant: str | None = None,
@@ -52,8 +53,8 @@ def relight_run(
     device="cpu",
     backend: str = "torch",
 ) -> list[Path]:
-    """Render a run's asset under `env` for the dataset's test cameras or an orbit, on `device` with the rasterizer
-    `backend` (both resolved); returns the files written."""
+    """Render a run's asset under `env` (a light, or a list of them: names or files) for the dataset's test cameras
+    or an orbit, on `device` with the rasterizer `backend` (both resolved); returns the files written."""
     import torch
     from tqdm import tqdm
 
@@ -74,9 +75,7 @@ def relight_run(
     if frames < 1 or fps < 1 or env_height < 4:
         raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
     out_dir = Path(out_dir)
-    name, env_map = load_envmap(env)
-    light = EnvironmentMap.from_tensor(env_map.to(device), height=env_height, learnable=False)
-    prefiltered = light.prefilter()
+    lights = [load_envmap(spec) for spec in ([env] if isinstance(env, (str, Path)) else env)]  # all read first
     asset = read_asset(asset_folder, device=device)
     source = run.dataset()["source"]
     scene = load_scene(source, downscale=run.downscale())
@@ -94,25 +93,29 @@ def relight_run(
             for i, c in enumerate(orbit_cameras(reference, center, frames, up=cameras_up(reference)))
         ]
     out_dir.mkdir(parents=True, exist_ok=True)
-    written, video_frames = [], []
-    for view_name, camera in tqdm(cameras, desc=f"relight [{name}]"):
-        camera = camera.to(device)
-        with rendering_with(backend):
-            rgb, alpha = render_relit(asset, camera, prefiltered)
-        if background == "env":
-            rgb = rgb + background_radiance(light, camera) * (1 - alpha[..., None])
-        rgb, alpha = rgb.cpu(), alpha.cpu()
-        path = out_dir / f"{view_name}_{name}.png"
-        if background == "env":
-            write_image(path, rgb)
-        else:
-            write_image(path, rgb / alpha[..., None].clamp_min(1e-4), alpha)
-        written.append(path)
-        video_frames.append(linear_to_srgb(rgb))
-    if views == "orbit":
-        video = out_dir / f"orbit_{name}.mp4"
-        write_video(video_frames, video, fps)
-        written.append(video)
+    written = []
+    for name, env_map in lights:
+        light = EnvironmentMap.from_tensor(env_map.to(device), height=env_height, learnable=False)
+        prefiltered = light.prefilter()
+        video_frames = []
+        for view_name, camera in tqdm(cameras, desc=f"relight [{name}]"):
+            camera = camera.to(device)
+            with rendering_with(backend):
+                rgb, alpha = render_relit(asset, camera, prefiltered)
+            if background == "env":
+                rgb = rgb + background_radiance(light, camera) * (1 - alpha[..., None])
+            rgb, alpha = rgb.cpu(), alpha.cpu()
+            path = out_dir / f"{view_name}_{name}.png"
+            if background == "env":
+                write_image(path, rgb)
+            else:
+                write_image(path, rgb / alpha[..., None].clamp_min(1e-4), alpha)
+            written.append(path)
+            video_frames.append(linear_to_srgb(rgb))
+        if views == "orbit":
+            video = out_dir / f"orbit_{name}.mp4"
+            write_video(video_frames, video, fps)
+            written.append(video)
     return written
 
 
