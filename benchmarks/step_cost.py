@@ -8,10 +8,10 @@ that reaches a kernel (autograd's backward ones too, composite operations as the
   - kernels: the operations that compute (views, detach and other aliases excluded: they launch nothing);
   - host syncs: what waits for the device: `aten._local_scalar_dense` (`item`, `float`, `bool`, `int` of a
     tensor), operations whose output size depends on the data (`nonzero`, `unique`, `masked_select`, boolean
-    indexing), and `.cpu()` / `.numpy()` / `.tolist()` of a tensor outside backend numba's kernels (which run on
-    the CPU by design). On CUDA (`--device cuda`) torch's profiler also counts the CUDA runtime's calls that wait
-    for the device (stream, device and event synchronisations, blocking copies: "cuda waits", gsplat's own included)
-    and the kernel and graph launches.
+    indexing, `repeat_interleave` not told its output's size), and `.cpu()` / `.numpy()` / `.tolist()` of a tensor
+    outside backend numba's kernels (which run on the CPU by design). On CUDA (`--device cuda`) torch's profiler
+    also counts the CUDA runtime's calls that wait for the device (stream, device and event synchronisations,
+    blocking copies: "cuda waits", gsplat's own included) and the kernel and graph launches.
 
 Paths (`--path`):
   - `cpu`: backend numba with its compiled per-Gaussian work (SH colour, normals), what a CPU run does;
@@ -23,7 +23,9 @@ Paths (`--path`):
 
 Per unit: the Gaussian Splatting steps between two progress reports (after densification, SH degree 3, normal
 loss on); refinement steps of `full` between two log steps (the difference of two runs that differ only in their
-step count, warm-up and set-up cancelled); one view lifted with 16 x 16 rays per pixel.
+step count, warm-up and set-up cancelled; path `gpu`: the loss terms and the light's prefiltering as CUDA graphs,
+through the stand-in that runs each as one operation each way; path `cpu`: op by op); one view lifted with 16 x 16
+rays per pixel.
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ from matspray.geometry.densify import DensityControl
 from matspray.geometry.init import initial_gaussians
 from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
+from matspray.graphs import capturing_with
 from matspray.lift import lift_view
 from matspray.refine import RefineInputs, refine
 from matspray.render.backend import rendering_with, resolve_backend
@@ -92,9 +95,11 @@ class Count:
         )
 
 
-def is_sync(name: str, args) -> bool:
+def is_sync(name: str, args, kwargs=None) -> bool:
     if name == "aten._local_scalar_dense.default" or name.startswith(DATA_SIZED):
         return True
+    if name.startswith("aten.repeat_interleave.Tensor"):  # its output's size is read first unless it is told
+        return (kwargs or {}).get("output_size") is None
     if name.startswith("aten.index.Tensor"):  # boolean indexing runs nonzero inside the kernel
         return any(isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in (args[1] if len(args) > 1 else ()))
     return False
@@ -105,7 +110,7 @@ _OPAQUE = [False]  # within a stand-in for a captured CUDA graph: its operations
 
 class _Graphed(torch.autograd.Function):
     """A function run as one operation each way, as a CUDA graph's replay is one launch (its operations not
-    counted)."""
+    counted). The function returns a tensor or a tuple of tensors."""
 
     @staticmethod
     def forward(ctx, function, *inputs):
@@ -117,19 +122,23 @@ class _Graphed(torch.autograd.Function):
                 out = function(*leaves)
         finally:
             _OPAQUE[0] = False
-        ctx.graph = (out, leaves)
-        return out.detach().clone()
+        outputs = out if isinstance(out, tuple) else (out,)
+        ctx.graph = (outputs, leaves)
+        copies = tuple(o.detach().clone() for o in outputs)
+        return copies if isinstance(out, tuple) else copies[0]
 
     @staticmethod
-    def backward(ctx, grad):
-        out, leaves = ctx.graph
+    def backward(ctx, *grads):
+        outputs, leaves = ctx.graph
         wanted = [x for x in leaves if x.requires_grad]
+        pairs = [(o, g) for o, g in zip(outputs, grads) if o.requires_grad and g is not None]
         _OPAQUE[0] = True
         try:
-            grads = iter(torch.autograd.grad(out, wanted, grad, allow_unused=True))
+            found = torch.autograd.grad([o for o, _ in pairs], wanted, [g for _, g in pairs], allow_unused=True)
+            found = iter(found)
         finally:
             _OPAQUE[0] = False
-        return (None, *(next(grads) if x.requires_grad else None for x in leaves))
+        return (None, *(next(found) if x.requires_grad else None for x in leaves))
 
 
 def graph_stand_in(function, samples):
@@ -151,7 +160,7 @@ class _Operations(TorchDispatchMode):
         count.by_operation[name] += 1
         if not (func.is_view or name.startswith(VIEW_LIKE)):
             count.kernels += 1
-        if is_sync(name, args) and not _inside_numba():
+        if is_sync(name, args, kwargs) and not _inside_numba():
             count.syncs += 1
             count.sync_kinds[name] += 1
         return func(*args, **(kwargs or {}))
@@ -267,19 +276,23 @@ def refine_inputs(device: torch.device, points: int = 2000) -> RefineInputs:
     return random_refine_inputs(optimizer.gaussians().detach(), scene.train, device)
 
 
-def refine_steps(device: torch.device, counter, short: int = 12, long: int = 36) -> tuple[Count, int]:
+def refine_steps(
+    device: torch.device, counter, graphs: bool = True, short: int = 12, long: int = 36
+) -> tuple[Count, int]:
     """Steps of `full` at the paper preset's settings, logging only at the last step: two runs that differ in their
-    step count, subtracted."""
+    step count, subtracted. `graphs`: the loss terms and the light's prefiltering as CUDA graphs on CUDA, through the
+    stand-in elsewhere (one operation each way); else op by op."""
     inputs = refine_inputs(device)
     base = build_config("paper").refine
+    capture = None if device.type == "cuda" or not graphs else graph_stand_in
 
-    def run(iterations: int) -> Count:
-        config = type(base)(**{**base.__dict__, "iterations": iterations, "light_warmup": 4, "log_every": 10_000})
-        with counter() as count:
-            refine(inputs, config, progress=False)
+    def run(iterations: int, warmup: int = 4) -> Count:
+        config = type(base)(**{**base.__dict__, "iterations": iterations, "light_warmup": warmup, "log_every": 10_000})
+        with counter() as count, capturing_with(capture):
+            refine(inputs, config, progress=False, graphs=graphs)
         return count
 
-    refine(inputs, type(base)(**{**base.__dict__, "iterations": 2, "light_warmup": 2}), progress=False)  # warm up
+    run(2, 2)  # warm up
     return run(long).minus(run(short)), long - short
 
 
@@ -302,7 +315,7 @@ def measure(unit: str, path: str, device: torch.device) -> dict:
     """{operations, kernels, host_syncs, ...} per unit of `unit` on `path` (cpu | gpu | the device's own)."""
     torch.manual_seed(0)
     counter = partial(counting, device, without_numba=path == "gpu")
-    options = {"graphs": path != "cpu"} if unit == "geometry" else {}
+    options = {"graphs": path != "cpu"} if unit in ("geometry", "refine") else {}
     if device.type == "cuda":
         with rendering_with(resolve_backend("auto", device)):
             count, units = UNITS[unit](device, counter, **options)

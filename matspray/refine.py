@@ -38,13 +38,25 @@ from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
-from matspray.geometry.losses import normal_map_loss, photometric_loss
-from matspray.material import BASE_COLOR, N_CHANNELS, unstack
+from matspray.graphs import Graphed
+from matspray.material import N_CHANNELS
 from matspray.merger import MergerConfig, NeuralMerger, align_view_gains, prepare_values, projection_average, view_gains
 from matspray.refine_steps import adam as adam_optimizer
 from matspray.refine_steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
-from matspray.render.deferred import GBuffer, shade_gbuffer, view_directions
-from matspray.render.envmap import EnvironmentMap
+from matspray.refine_terms import (  # noqa: F401 (the material losses: callers' API)
+    DEFAULT_HUBER_DELTA,
+    TermOptions,
+    light_images,
+    masked_huber,
+    masked_l1,
+    material_loss,
+    prefiltered_light,
+    scale_invariant_l1,
+    view_terms,
+    weighted_l1,
+)
+from matspray.render.deferred import view_directions
+from matspray.render.envmap import DEFAULT_LEVELS, EnvironmentMap, PrefilteredEnvironment
 from matspray.render.gbuffer import FrozenViews
 from matspray.render.latlong import total_variation
 from matspray.render.visibility import gaussian_shadows
@@ -77,7 +89,7 @@ class RefineConfig:
     # supervised compares by plain L1 then) or "huber" (quadratic below `basecolor_huber_delta`, so views that differ
     # by a little are averaged, as proj-average does; linear above, so a wrong view or batch is outvoted, as by L1's
     # median)
-    basecolor_huber_delta: float = 0.05  # linear base colour; the residual where "huber" turns from quadratic to linear
+    basecolor_huber_delta: float = DEFAULT_HUBER_DELTA  # linear base colour; where "huber" turns quadratic to linear
     photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
     align_view_gains: bool = False  # divide each view's base colour (lifted values and 2D map) by its gain against the
     # multi-view average (`merger.view_gains`): per-view exposure and white balance removed before any variant fuses
@@ -195,53 +207,6 @@ class MaterialSource(nn.Module):
 
 
 # ------------------------------------------------------------------------------------------ losses
-def masked_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
-    weight = mask[..., None].expand_as(pred)
-    return weighted_l1(pred, target, weight, weight.sum().clamp_min(1.0))
-
-
-def weighted_l1(pred: Tensor, target: Tensor, weight: Tensor, total: Tensor) -> Tensor:  # [H, W, C] x3, [] -> []
-    """Sum of the weighted absolute errors over `total` (the weights' sum, at least 1: `masked_l1`)."""
-    return ((pred - target).abs() * weight).sum() / total
-
-
-def scale_invariant_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
-    """masked L1 of s * pred against target, s the least-squares scale of pred onto target over the mask
-    (clamped to [0.1, 10]): blind to a global brightness error of either side."""
-    weight = mask[..., None].expand_as(pred)
-    scale = (pred * target * weight).sum() / (pred * pred * weight).sum().clamp_min(1e-8)
-    return masked_l1(scale.clamp(0.1, 10.0) * pred, target, mask)
-
-
-def masked_huber(
-    pred: Tensor, target: Tensor, mask: Tensor, delta: float
-) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
-    """Masked Huber loss: r^2 / (2 delta) for a residual |r| < delta, |r| - delta / 2 above (L1's slope, 1)."""
-    weight = mask[..., None].expand_as(pred)
-    return (
-        torch.nn.functional.smooth_l1_loss(pred, target, reduction="none", beta=delta) * weight
-    ).sum() / weight.sum().clamp_min(1.0)
-
-
-def material_loss(
-    maps: Tensor,
-    target: Tensor,
-    mask: Tensor,
-    basecolor_loss: str,
-    huber_delta: float = RefineConfig.basecolor_huber_delta,
-) -> Tensor:
-    """L1 of rendered material maps [H, W, 5] against the 2D maps [H, W, 5] over the mask [H, W], averaged over the 5
-    channels; the base color channels scale-invariant or Huber (`huber_delta`) when `basecolor_loss` says so."""
-    if basecolor_loss == "l1":
-        return masked_l1(maps, target, mask)
-    if basecolor_loss == "huber":
-        base = masked_huber(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask, huber_delta)
-    else:
-        base = scale_invariant_l1(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask)
-    rest = slice(BASE_COLOR.stop, N_CHANNELS)
-    return (3.0 * base + 2.0 * masked_l1(maps[..., rest], target[..., rest], mask)) / N_CHANNELS
-
-
 def spread_loss(weights: Tensor, seen: Tensor) -> Tensor:  # [K, V], [K, V] bool -> []
     """Mean KL divergence of each Gaussian's merger weights from equal weights over its seen views,
     log(n_seen) - H(w): 0 for the plain average, log(n_seen) for a single view."""
@@ -293,18 +258,34 @@ class ViewConstants:
 class TrainingViews:
     """The training views with their frozen blending weights, 2D maps and the Gaussians' shadowing."""
 
-    def __init__(self, inputs: RefineInputs, frozen: FrozenViews | None = None):
+    def __init__(self, inputs: RefineInputs, frozen: FrozenViews | None = None, graphs: bool = True):
         """`frozen`: the views' frozen blending weights when the caller keeps them (`frozen_views(inputs)`: the
-        variants of one run share them); made here otherwise."""
+        variants of one run share them); made here otherwise. `graphs=False`: the terms op by op everywhere."""
         self.frozen = frozen_views(inputs) if frozen is None else frozen
         self.views = inputs.views
         self.targets = inputs.targets
         self.visibility = inputs.visibility
         self.normal_maps = inputs.normal_maps
         self._constants: dict[int, ViewConstants] = {}
+        # past the render, a step's terms and the light's prefiltering: CUDA graphs on a CUDA device
+        self.terms = Graphed(view_terms, "refinement's loss terms", graphs)
+        self.light = Graphed(prefiltered_light, "refinement's prefiltered light", graphs)
 
     def __len__(self) -> int:
         return len(self.views)
+
+    def environment(
+        self, envmap: EnvironmentMap | None, with_prior: bool
+    ) -> tuple[PrefilteredEnvironment | None, Tensor | None]:
+        """The environment's split-sum maps and, `with_prior`, its light prior [] (None without an environment). A
+        learnable map is prefiltered at every step (one graph on a CUDA device), a fixed one once (`prefilter`)."""
+        if envmap is None:
+            return None, None
+        if not envmap.log_map.requires_grad:
+            return envmap.prefilter(), light_prior(envmap) if with_prior else None
+        *images, radiance, prior = self.light(DEFAULT_LEVELS, envmap.log_map)
+        light = PrefilteredEnvironment(DEFAULT_LEVELS, images[:-1], images[-1], source=radiance)
+        return light, prior if with_prior else None
 
     def constants(self, index: int) -> ViewConstants:
         if index not in self._constants:
@@ -327,11 +308,12 @@ def view_losses(
     ("material", when `with_material`), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo
     ("photo", only with an environment map), and with `with_normals` the angle of the rendered normals to the view's
     predicted normal map ("predicted_normals", when there is one). materials [N, 5], normals [N, 3] any
-    orientation."""
+    orientation. Past the render, the terms are one function of tensors (`refine_terms.view_terms`), and so is the
+    learnable light's prefiltering: CUDA graphs on a CUDA device (`TrainingViews`)."""
     frozen, view, constants = training.frozen, training.views[index], training.constants(index)
     oriented = frozen.orient_normals(index, normals)
     features = [materials, oriented]
-    light = envmap.prefilter() if envmap is not None else None
+    light, light_tv = training.environment(envmap, config.light_tv_weight > 0)
     if (
         light is not None and training.visibility is not None
     ):  # only for the Gaussians this view sees: the rest blend with weight 0
@@ -341,32 +323,36 @@ def view_losses(
         )
         features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
     blended, alpha = frozen.render(index, torch.cat(features, dim=-1))  # [H, W, 8 or 14], [H, W]
-    # the G-buffer (`GBuffer.from_blended`, with the view's coverage divided out once)
-    maps = blended[..., :N_CHANNELS] / constants.cover  # [H, W, 5]
-    shadow = blended[..., N_CHANNELS + 3 :] / constants.cover if blended.shape[-1] > N_CHANNELS + 3 else None
-    gbuffer = GBuffer(*unstack(maps), blended[..., N_CHANNELS : N_CHANNELS + 3], alpha, shadow)
-    terms = {}
-    if with_material:
+    material = None
+    if with_material:  # without the PBR loss nothing sets the scale
         scale_free = config.basecolor_loss == "scale-invariant"
-        basecolor_loss = (
-            "l1" if scale_free and light is None else config.basecolor_loss
-        )  # without the PBR loss nothing sets the scale
-        terms["material"] = (
-            weighted_l1(maps, training.targets[index], constants.surface_weight, constants.surface_count)
-            if basecolor_loss == "l1"
-            else material_loss(
-                maps, training.targets[index], constants.surface, basecolor_loss, config.basecolor_huber_delta
-            )
-        )
-    if with_normals and training.normal_maps is not None:
-        target = training.normal_maps[index]  # [H, W, 3]
-        terms["predicted_normals"] = normal_map_loss(gbuffer.normals, target, constants.surface)
-    if light is not None:
-        rendered = shade_gbuffer(gbuffer, view.camera, light, view_dirs=constants.view_dirs)  # over black
-        ssim_weight = 1.0 - config.photo_l1_weight
-        terms["photo"] = photometric_loss(linear_to_srgb(rendered), constants.photo, ssim_weight)  # sRGB [H, W, 3]
-        if config.light_tv_weight > 0:
-            terms["light_tv"] = light_prior(envmap)
+        material = "l1" if scale_free and light is None else config.basecolor_loss
+    options = TermOptions(
+        material,
+        config.basecolor_huber_delta,
+        with_normals and training.normal_maps is not None,
+        light is not None,
+        1.0 - config.photo_l1_weight,
+        blended.shape[-1] > N_CHANNELS + 3,
+        light.levels if light is not None else (),
+    )
+    tensors = (
+        blended,
+        alpha,
+        constants.cover,
+        constants.view_dirs,
+        constants.photo,
+        training.targets[index],
+        constants.surface,
+        constants.surface_weight,
+        constants.surface_count,
+        training.normal_maps[index] if options.predicted_normals else constants.view_dirs,  # read only if predicted
+        *(light_images(light) if light is not None else ()),
+    )
+    stacked = training.terms(options, *tensors)  # [T]
+    terms = dict(zip(options.names, stacked.unbind(0)))
+    if light_tv is not None:
+        terms["light_tv"] = light_tv
     return terms
 
 
@@ -455,6 +441,7 @@ def refine(
     light: EnvironmentMap | None = None,
     frozen: FrozenViews | None = None,
     warmed_lights: dict | None = None,
+    graphs: bool = True,
 ) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
     `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end. `light`: a known
@@ -463,7 +450,9 @@ def refine(
     caller keeps them for several variants (building them takes seconds per refinement). `warmed_lights`: a dict the
     caller keeps for the variants of one run, in which the light warm-up's outcome is kept and found again when
     another variant starts from the same materials with the same settings (full and no-softmax both start from the
-    projection average): the same light and random state as warming up again, without the steps."""
+    projection average): the same light and random state as warming up again, without the steps. `graphs`: each
+    step's loss terms and the light's prefiltering as CUDA graphs on a CUDA device (`TrainingViews`); False: op by op
+    everywhere (the same values)."""
     torch.manual_seed(config.seed)
     variant = config.kind
     gaussians, normals = inputs.gaussians, inputs.normals
@@ -485,7 +474,7 @@ def refine(
     if not source.trainable or config.iterations == 0:
         return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility)
 
-    training = TrainingViews(inputs, frozen)
+    training = TrainingViews(inputs, frozen, graphs)
     source_lr = config.supervised_lr if variant.source == "free" else config.merger_lr
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
     if estimates_light:

@@ -1,0 +1,140 @@
+"""The image-sized part of a refinement step as pure functions of tensors, which `matspray.graphs.Graphed` runs as
+CUDA graphs on a CUDA device (the deferred shading and every loss of a view in one launch each way; the
+environment map's prefiltering and its prior in another), and the material losses they use.
+
+A step on a GPU is otherwise a few hundred small kernels, each waiting on Python to launch it: the G-buffer's
+division by the coverage, the split-sum shading's lookups, the sRGB curve, SSIM and the L1 terms. The functions here
+compute exactly what `refine.view_losses` computed op by op before (tests/test_refine_terms.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from matspray.data.images import linear_to_srgb
+from matspray.geometry.losses import normal_map_loss, photometric_loss
+from matspray.material import BASE_COLOR, N_CHANNELS, unstack
+from matspray.render.deferred import shade_unit
+from matspray.render.envmap import PrefilteredEnvironment, prefilter_latlong
+from matspray.render.latlong import total_variation
+
+DEFAULT_HUBER_DELTA = 0.05  # linear base colour; the residual where "huber" turns from quadratic to linear
+
+
+# ------------------------------------------------------------------------------------------ material losses
+def masked_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
+    weight = mask[..., None].expand_as(pred)
+    return weighted_l1(pred, target, weight, weight.sum().clamp_min(1.0))
+
+
+def weighted_l1(pred: Tensor, target: Tensor, weight: Tensor, total: Tensor) -> Tensor:  # [H, W, C] x3, [] -> []
+    """Sum of the weighted absolute errors over `total` (the weights' sum, at least 1: `masked_l1`)."""
+    return ((pred - target).abs() * weight).sum() / total
+
+
+def scale_invariant_l1(pred: Tensor, target: Tensor, mask: Tensor) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
+    """masked L1 of s * pred against target, s the least-squares scale of pred onto target over the mask
+    (clamped to [0.1, 10]): blind to a global brightness error of either side."""
+    weight = mask[..., None].expand_as(pred)
+    scale = (pred * target * weight).sum() / (pred * pred * weight).sum().clamp_min(1e-8)
+    return masked_l1(scale.clamp(0.1, 10.0) * pred, target, mask)
+
+
+def masked_huber(
+    pred: Tensor, target: Tensor, mask: Tensor, delta: float
+) -> Tensor:  # [H, W, C], [H, W, C], [H, W] -> []
+    """Masked Huber loss: r^2 / (2 delta) for a residual |r| < delta, |r| - delta / 2 above (L1's slope, 1)."""
+    weight = mask[..., None].expand_as(pred)
+    return (
+        torch.nn.functional.smooth_l1_loss(pred, target, reduction="none", beta=delta) * weight
+    ).sum() / weight.sum().clamp_min(1.0)
+
+
+def material_loss(
+    maps: Tensor, target: Tensor, mask: Tensor, basecolor_loss: str, huber_delta: float = DEFAULT_HUBER_DELTA
+) -> Tensor:
+    """L1 of rendered material maps [H, W, 5] against the 2D maps [H, W, 5] over the mask [H, W], averaged over the 5
+    channels; the base color channels scale-invariant or Huber (`huber_delta`) when `basecolor_loss` says so."""
+    if basecolor_loss == "l1":
+        return masked_l1(maps, target, mask)
+    if basecolor_loss == "huber":
+        base = masked_huber(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask, huber_delta)
+    else:
+        base = scale_invariant_l1(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask)
+    rest = slice(BASE_COLOR.stop, N_CHANNELS)
+    return (3.0 * base + 2.0 * masked_l1(maps[..., rest], target[..., rest], mask)) / N_CHANNELS
+
+
+# ------------------------------------------------------------------------------------------ a view's terms
+@dataclass(frozen=True)
+class TermOptions:
+    """What a view's terms are made of besides tensors (the key of its captured graph)."""
+
+    material: str | None  # the material loss ("l1", "huber", "scale-invariant"), None: no material term
+    huber_delta: float
+    predicted_normals: bool  # the angle to the view's predicted normal map
+    photo: bool  # the PBR render against the photo (with an environment)
+    ssim_weight: float  # 1 - photo_l1_weight
+    shadowed: bool  # the blended features end with the 6 shadow factors
+    levels: tuple[float, ...] = ()  # the prefiltered environment's roughness levels (with `photo`)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The terms `view_terms` returns, in order."""
+        chosen = (self.material is not None, self.predicted_normals, self.photo)
+        return tuple(name for name, on in zip(("material", "predicted_normals", "photo"), chosen) if on)
+
+
+def view_terms(
+    options: TermOptions,
+    blended: Tensor,  # [H, W, 8 | 14] the Gaussians' materials (5), oriented normals (3) (and shadow factors (6))
+    # blended over black
+    alpha: Tensor,  # [H, W] the frozen coverage
+    cover: Tensor,  # [H, W, 1] the coverage, clamped (`refine.ViewConstants`)
+    view_dirs: Tensor,  # [H, W, 3] unit, towards the camera
+    photo: Tensor,  # [H, W, 3] sRGB over black
+    target: Tensor,  # [H, W, 5] the view's 2D material maps
+    surface: Tensor,  # [H, W] where the 2D maps count
+    surface_weight: Tensor,  # [H, W, 5] `surface` per channel
+    surface_count: Tensor,  # [] its sum, at least 1
+    normal_map: Tensor,  # [H, W, 3] the predicted normals (read with `predicted_normals`)
+    *light: Tensor,  # with `photo`: the prefiltered environment's images (`light_images`), specular runs then
+    # irradiance
+) -> Tensor:  # [T] the terms of `options.names`
+    """The loss terms of one view from its blended features: the G-buffer (coverage divided out once), L1 of its
+    material maps against the 2D maps, the angle of its normals to the predicted ones, and 0.8 L1 + 0.2 D-SSIM of its
+    split-sum shading (in sRGB) against the photo. No host reads: what a CUDA graph can capture."""
+    maps = blended[..., :N_CHANNELS] / cover  # [H, W, 5]
+    normals = blended[..., N_CHANNELS : N_CHANNELS + 3]
+    terms = []
+    if options.material == "l1":
+        terms.append(weighted_l1(maps, target, surface_weight, surface_count))
+    elif options.material is not None:
+        terms.append(material_loss(maps, target, surface, options.material, options.huber_delta))
+    if options.predicted_normals:
+        terms.append(normal_map_loss(normals, normal_map, surface))
+    if options.photo:
+        shadow = blended[..., N_CHANNELS + 3 :] / cover if options.shadowed else None
+        environment = PrefilteredEnvironment(options.levels, list(light[:-1]), light[-1])
+        base_color, roughness, metallic = unstack(maps)
+        # `deferred.shade_gbuffer` over black: the shaded G-buffer times its coverage
+        shaded = shade_unit(base_color, roughness, metallic, normals, view_dirs, environment, shadow)  # [H, W, 3]
+        rendered = shaded * alpha[..., None]
+        terms.append(photometric_loss(linear_to_srgb(rendered), photo, options.ssim_weight))
+    return torch.stack(terms)
+
+
+def light_images(environment: PrefilteredEnvironment) -> tuple[Tensor, ...]:
+    """The prefiltered environment as `view_terms` takes it: the specular runs' images, then the irradiance's."""
+    return (*environment.specular_images, environment.irradiance_image)
+
+
+def prefiltered_light(levels: tuple[float, ...], log_map: Tensor) -> tuple[Tensor, ...]:  # [h, 2h, 3] ->
+    """The learnable environment's split-sum images (`light_images` of `prefilter_latlong`), its linear map [h, 2h, 3]
+    (what shadowing reads) and the total variation of its log radiance [] (the light prior): one pure function of
+    the map, for a CUDA graph."""
+    radiance = log_map.exp()
+    return (*light_images(prefilter_latlong(radiance, levels)), radiance, total_variation(log_map))

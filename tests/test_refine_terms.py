@@ -1,0 +1,225 @@
+"""A refinement step's image-sized part as pure functions of tensors (`matspray.refine_terms`), run as CUDA graphs on
+a CUDA device (`matspray.graphs.Graphed`; here through the stand-in of benchmarks.step_cost, which runs each as one
+operation each way): the same terms and gradients as the deferred shading and losses op by op, and the same
+refinement."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+
+from benchmarks.step_cost import graph_stand_in, measure, refine_inputs
+from matspray.config import build_config
+from matspray.data.camera import Camera
+from matspray.data.images import linear_to_srgb
+from matspray.geometry.losses import normal_map_loss, photometric_loss
+from matspray.graphs import Graphed, capturing_with
+from matspray.refine import refine
+from matspray.refine_terms import (
+    TermOptions,
+    light_images,
+    material_loss,
+    prefiltered_light,
+    view_terms,
+    weighted_l1,
+)
+from matspray.render.backend import rendering_with, resolve_backend
+from matspray.render.deferred import GBuffer, shade_gbuffer, view_directions
+from matspray.render.envmap import DEFAULT_LEVELS, EnvironmentMap
+from matspray.render.latlong import total_variation
+
+# benchmarks.step_cost before the terms were graphed (commit 40c6e4b): operations per refinement step, either path;
+# and the graphed path's count when this test was written (241), with about 10 % room
+REFINE_OPERATIONS_BEFORE = 723
+MAX_GRAPHED_OPERATIONS = 265
+
+
+def view_inputs(height: int, width: int, seed: int, shadowed: bool, device="cpu"):
+    """Random blended features, coverage, a view's constants and an environment map's log radiance."""
+    g = torch.Generator().manual_seed(seed)
+    camera = Camera.look_at([0.3, -3.0, 0.6], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.7, width, height)
+    alpha = torch.rand(height, width, generator=g) * (torch.rand(height, width, generator=g) > 0.2)
+    channels = 14 if shadowed else 8
+    blended = (torch.rand(height, width, channels, generator=g) - 0.2) * alpha[..., None]
+    surface = (torch.rand(height, width, generator=g) > 0.4).float() * (alpha > 0.5)
+    weight = surface[..., None].expand(height, width, 5)
+    predicted = torch.nn.functional.normalize(torch.randn(height, width, 3, generator=g), dim=-1)
+    predicted = predicted * (torch.rand(height, width, 1, generator=g) > 0.3)  # zero: no prediction
+    tensors = {
+        "blended": blended.requires_grad_(True),
+        "alpha": alpha,
+        "cover": alpha.clamp_min(1e-6)[..., None],
+        "view_dirs": view_directions(camera),
+        "photo": torch.rand(height, width, 3, generator=g),
+        "target": torch.rand(height, width, 5, generator=g),
+        "surface": surface,
+        "surface_weight": weight,
+        "surface_count": weight.sum().clamp_min(1.0),
+        "normal_map": predicted,
+    }
+    log_map = (0.5 * torch.randn(8, 16, 3, generator=g)).requires_grad_(True)
+    return camera, {k: v.to(device) for k, v in tensors.items()}, log_map.detach().to(device).requires_grad_(True)
+
+
+def reference_terms(options: TermOptions, camera, t: dict, log_map) -> list[torch.Tensor]:
+    """The terms as `refine.view_losses` computed them op by op before (commit 40c6e4b): the G-buffer of the blend,
+    `shade_gbuffer` under `EnvironmentMap.prefilter`, the material and normal losses."""
+    blended, alpha = t["blended"], t["alpha"]
+    gbuffer = GBuffer.from_blended(blended, alpha)
+    maps = gbuffer.materials
+    terms = []
+    if options.material == "l1":
+        terms.append(weighted_l1(maps, t["target"], t["surface_weight"], t["surface_count"]))
+    elif options.material is not None:
+        terms.append(material_loss(maps, t["target"], t["surface"], options.material, options.huber_delta))
+    if options.predicted_normals:
+        terms.append(normal_map_loss(gbuffer.normals, t["normal_map"], t["surface"]))
+    if options.photo:
+        light = EnvironmentMap(log_map.detach()).prefilter()
+        rendered = shade_gbuffer(gbuffer, camera, light, view_dirs=t["view_dirs"])
+        terms.append(photometric_loss(linear_to_srgb(rendered), t["photo"], options.ssim_weight))
+    return terms
+
+
+OPTIONS = [
+    TermOptions("l1", 0.05, False, True, 0.2, False, DEFAULT_LEVELS),
+    TermOptions("huber", 0.05, True, True, 0.2, True, DEFAULT_LEVELS),
+    TermOptions("scale-invariant", 0.05, False, True, 0.3, False, DEFAULT_LEVELS),
+    TermOptions(None, 0.05, False, True, 0.2, False, DEFAULT_LEVELS),  # the light warm-up
+    TermOptions("l1", 0.05, True, False, 0.2, False),  # no light (supervised)
+]
+
+
+def graph_inputs(t: dict, light) -> tuple:
+    keys = ("blended", "alpha", "cover", "view_dirs", "photo", "target", "surface", "surface_weight", "surface_count")
+    return (*(t[k] for k in keys), t["normal_map"], *light)
+
+
+@pytest.mark.parametrize("options", OPTIONS)
+def test_the_terms_are_the_deferred_shading_and_losses_op_by_op(options):
+    camera, t, log_map = view_inputs(12, 14, 0, options.shadowed)
+    light = light_images(EnvironmentMap(log_map.detach()).prefilter()) if options.photo else ()
+    terms = view_terms(options, *graph_inputs(t, light))
+    expected = reference_terms(options, camera, t, log_map)
+    assert terms.shape == (len(options.names),) and len(expected) == len(options.names)
+    torch.testing.assert_close(terms, torch.stack(expected), rtol=0, atol=0)
+    (gradient,) = torch.autograd.grad(terms.sum(), t["blended"])
+    (expected_gradient,) = torch.autograd.grad(sum(expected), t["blended"])
+    torch.testing.assert_close(gradient, expected_gradient, rtol=0, atol=0)
+
+
+def test_the_prefiltered_light_is_the_environment_maps():
+    _, _, log_map = view_inputs(4, 4, 1, False)
+    *images, radiance, prior = prefiltered_light(DEFAULT_LEVELS, log_map)
+    expected = EnvironmentMap(log_map.detach()).prefilter()
+    for got, want in zip(images, light_images(expected)):
+        torch.testing.assert_close(got, want, rtol=0, atol=0)
+    torch.testing.assert_close(radiance, log_map.exp(), rtol=0, atol=0)
+    torch.testing.assert_close(prior, total_variation(log_map), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("options", OPTIONS[:2] + OPTIONS[3:])
+def test_graphed_terms_and_light_give_the_same_values_and_gradients(options):
+    # through the stand-in: one capture per options and layout, replayed with new values after that
+    with capturing_with(graph_stand_in):
+        terms_of, light_of = Graphed(view_terms, "terms"), Graphed(prefiltered_light, "light")
+    eager_terms, eager_light = Graphed(view_terms, "terms", graphs=False), Graphed(prefiltered_light, "light", False)
+
+    def run(terms_function, light_function, t, log_map):
+        light = ()
+        if options.photo:
+            *light, _, prior = light_function(DEFAULT_LEVELS, log_map)
+        terms = terms_function(options, *graph_inputs(t, light))
+        loss = terms.sum() + (0.3 * prior if options.photo else 0.0)
+        wanted = [t["blended"], log_map] if options.photo else [t["blended"]]
+        return terms.detach(), torch.autograd.grad(loss, wanted)
+
+    for seed in (0, 1):
+        _, t, log_map = view_inputs(12, 13, seed, options.shadowed)  # SSIM's window is 11 px
+        expected, expected_gradients = run(eager_terms, eager_light, t, log_map)
+        terms, gradients = run(terms_of, light_of, t, log_map)
+        torch.testing.assert_close(terms, expected, rtol=0, atol=0)
+        for got, want in zip(gradients, expected_gradients):
+            torch.testing.assert_close(got, want, rtol=0, atol=0)
+    assert len(terms_of.captured) == 1 and len(light_of.captured) == (1 if options.photo else 0)
+
+
+def test_a_failed_capture_is_said_once_and_computed_op_by_op(capsys):
+    def failing(function, samples):
+        raise RuntimeError("operation not permitted when stream is capturing\nmore")
+
+    with capturing_with(failing):
+        terms_of = Graphed(view_terms, "refinement's loss terms")
+    options = OPTIONS[4]
+    for seed in (0, 1):
+        _, t, _ = view_inputs(6, 8, seed, False)
+        torch.testing.assert_close(terms_of(options, *graph_inputs(t, ())), view_terms(options, *graph_inputs(t, ())))
+    assert terms_of.graphs is False
+    said = capsys.readouterr().err.splitlines()
+    assert said == [
+        "refinement's loss terms runs without CUDA graphs (RuntimeError: operation not permitted when stream is "
+        "capturing)"
+    ]
+
+
+def refined(inputs, config, graphs: bool, capture=None, **options):
+    with capturing_with(capture):
+        result = refine(inputs, config, progress=False, graphs=graphs, **options)
+    log_map = None if result.envmap is None else result.envmap.log_map.detach()
+    return result.materials, result.normals, log_map, result.history
+
+
+@pytest.mark.parametrize("variant", ["full", "supervised"])
+def test_refinement_with_graphed_terms_is_refinement_op_by_op(variant):
+    base = build_config("paper").refine
+    config = replace(base, iterations=8, light_warmup=3, log_every=4, variant=variant)
+    with rendering_with("numba"):
+        inputs = refine_inputs(torch.device("cpu"), points=300)
+        eager = refined(inputs, config, graphs=False)
+        graphed = refined(inputs, config, graphs=True, capture=graph_stand_in)
+    for a, b in zip(graphed[:3], eager[:3]):
+        assert (a is None) == (b is None)
+        if a is not None:
+            torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert graphed[3] == eager[3]
+
+
+def test_refinement_with_a_known_light_and_graphed_terms_is_refinement_op_by_op():
+    base = build_config("paper").refine
+    config = replace(base, iterations=6, log_every=3)
+    light = EnvironmentMap.constant([0.8, 0.6, 0.5], height=8, learnable=False)
+    with rendering_with("numba"):
+        inputs = refine_inputs(torch.device("cpu"), points=300)
+        eager = refined(inputs, config, graphs=False, light=light)
+        graphed = refined(inputs, config, graphs=True, capture=graph_stand_in, light=light)
+    torch.testing.assert_close(graphed[0], eager[0], rtol=0, atol=0)
+    assert graphed[3] == eager[3] and math.isfinite(eager[3][-1]["photo"])
+
+
+def test_a_graphed_refinement_step_stays_about_three_times_smaller():
+    # benchmarks.step_cost, path gpu (the graphs through the stand-in): no host read, and about a third of the
+    # operations op by op took
+    figures = measure("refine", "gpu", torch.device("cpu"))
+    assert figures["host_syncs"] == 0, figures["sync_kinds"]
+    assert figures["operations"] <= MAX_GRAPHED_OPERATIONS < REFINE_OPERATIONS_BEFORE / 2.7, figures["top_operations"]
+
+
+@pytest.mark.on_device
+def test_graphed_refinement_matches_op_by_op_on_the_device(device):
+    # on CUDA the terms and the light run as CUDA graphs: the same refinement as op by op, up to float32 rounding in
+    # another order; elsewhere both run op by op
+    base = build_config("paper").refine
+    config = replace(base, iterations=6, light_warmup=2, log_every=3)
+    with rendering_with(resolve_backend("auto", device)):
+        inputs = refine_inputs(device, points=300)
+        eager = refined(inputs, config, graphs=False)
+        graphed = refined(inputs, config, graphs=True)
+    for a, b in zip(graphed[:3], eager[:3]):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+    for a, b in zip(graphed[3], eager[3]):
+        assert a.keys() == b.keys()
+        for name in a:
+            assert a[name] == pytest.approx(b[name], rel=1e-4, abs=1e-6)
