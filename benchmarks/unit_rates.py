@@ -2,6 +2,7 @@
 
     python -m benchmarks.unit_rates --data DIR [--device cuda] [--geometry-steps 7000] [--refine-steps 1000]
                                     [--warmup-steps 200] [--compare-eager 1000] [--json FILE]
+                                    [--save-gaussians FILE | --gaussians FILE] [--lift-unfused]
 
 On a `matspray synth` object (any number of views; the paper's is 100 views at 512 px), with the paper preset's
 settings and the device's backend (gsplat on CUDA when it loads):
@@ -9,7 +10,7 @@ settings and the device's backend (gsplat on CUDA when it loads):
     steps per second; with `--compare-eager N`, N steps from the trained Gaussians with and without the loss terms'
     CUDA graphs (the same steps timed both ways, densification over);
   - lifting with 16 x 16 rays per pixel: seconds per view over every training view (random maps: the time does not
-    depend on their values);
+    depend on their values); with `--lift-unfused` also with the rays' response by torch operations;
   - refinement of `full`: the light warm-up and the refinement steps, steps per second (each from two runs that
     differ only in its step count, so that set-up and the frozen views cancel);
   - the paper preset projected: 30 000 + 10 000 steps, 100 views, 1 000 + 10 000 refinement steps, from these rates
@@ -30,6 +31,7 @@ import torch
 from matspray.config import build_config
 from matspray.data.loader import load_scene
 from matspray.device import resolve_device
+from matspray.gaussians import Gaussians
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl
 from matspray.geometry.optim import GaussianOptimizer
@@ -38,6 +40,7 @@ from matspray.lift import lift
 from matspray.refine import RefineConfig, RefineInputs, refine
 from matspray.render.backend import rendering_with, resolve_backend
 
+GAUSSIAN_FIELDS = ("means", "log_scales", "quats", "opacity_logits", "sh")
 PAPER = {"geometry_steps": 30_000, "views": 100, "warmup_steps": 1_000, "refine_steps": 10_000}
 
 
@@ -92,8 +95,20 @@ def lift_seconds_per_view(gaussians, views, device, samples_per_side: int) -> fl
     config = replace(build_config("paper").lift, samples_per_side=samples_per_side)
     cameras, masks = [v.camera for v in views], [v.alpha for v in views]
     names = [v.name for v in views]
+    lift(gaussians, cameras[:1], maps[:1], masks[:1], names[:1], config, progress=False)  # compiles, warms caches
     seconds = synchronized_seconds(device, lambda: lift(gaussians, cameras, maps, masks, names, config, progress=False))
     return seconds / len(views)
+
+
+def save_gaussians(gaussians: Gaussians, path: Path) -> None:
+    """The Gaussians' tensors (not the class: another version of the package reads them too)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({name: getattr(gaussians, name).detach().cpu() for name in GAUSSIAN_FIELDS}, path)
+
+
+def load_gaussians(path: Path, device) -> Gaussians:
+    tensors = torch.load(path, map_location="cpu")
+    return Gaussians(*(tensors[name] for name in GAUSSIAN_FIELDS)).to(device)
 
 
 def random_refine_inputs(gaussians, views, device) -> RefineInputs:
@@ -135,6 +150,11 @@ def main() -> None:
     parser.add_argument("--warmup-steps", type=int, default=200)
     parser.add_argument("--refine-steps", type=int, default=1000)
     parser.add_argument("--out", type=Path, default=Path("runs/unit-rates"))
+    parser.add_argument("--save-gaussians", type=Path, help="write the trained Gaussians' tensors here (torch.save)")
+    parser.add_argument("--gaussians", type=Path, help="time lifting and refinement on these saved Gaussians "
+                        "(--save-gaussians) instead of training them (then nothing is projected)")  # fmt: skip
+    parser.add_argument("--lift-unfused", action="store_true",
+                        help="also time lifting with the rays' response by torch operations")  # fmt: skip
     parser.add_argument("--json", type=Path)
     units = ("geometry", "lift", "refine")
     parser.add_argument("--units", nargs="+", choices=units, default=list(units),
@@ -147,11 +167,18 @@ def main() -> None:
     config = build_config("paper", **{"geometry.iterations": args.geometry_steps}).geometry
     figures: dict = {"device": name, "backend": backend, "object": str(args.data), "views": len(scene.train)}
     with rendering_with(backend):
-        rate, gaussians = geometry_rate(scene, config, device, args.out / "geometry")
-        figures.update(gaussians=len(gaussians), geometry_steps=args.geometry_steps, geometry_rate=rate)
-        print(f"{name}, backend {backend}: Gaussian Splatting {rate:.1f} steps/s over {args.geometry_steps} steps "
-              f"({len(gaussians)} Gaussians)", flush=True)  # fmt: skip
-        if args.compare_eager:
+        if args.gaussians:
+            rate, gaussians = None, load_gaussians(args.gaussians, device)
+            figures.update(gaussians=len(gaussians), gaussians_from=str(args.gaussians))
+            print(f"{name}, backend {backend}: {len(gaussians)} Gaussians from {args.gaussians}", flush=True)
+        else:
+            rate, gaussians = geometry_rate(scene, config, device, args.out / "geometry")
+            figures.update(gaussians=len(gaussians), geometry_steps=args.geometry_steps, geometry_rate=rate)
+            print(f"{name}, backend {backend}: Gaussian Splatting {rate:.1f} steps/s over {args.geometry_steps} "
+                  f"steps ({len(gaussians)} Gaussians)", flush=True)  # fmt: skip
+        if args.save_gaussians:
+            save_gaussians(gaussians, args.save_gaussians)
+        if args.compare_eager and rate is not None:
             train = [v.to(device) for v in prepare_views(scene.train, config.resolution)]
             compared = eager_against_graphs(gaussians, train, config, device, args.compare_eager)
             figures["geometry_after_densification"] = compared
@@ -162,11 +189,19 @@ def main() -> None:
             figures["lift_seconds_per_view"] = lift_s
             side = args.lift_samples
             print(f"lifting, {side}x{side} rays per pixel: {lift_s:.3f} s per view", flush=True)
+            if args.lift_unfused:
+                from matspray.render import contributions
+
+                contributions.FUSED[0] = False
+                unfused = lift_seconds_per_view(gaussians, views, device, args.lift_samples)
+                contributions.FUSED[0] = True
+                figures["lift_seconds_per_view_unfused"] = unfused
+                print(f"  the same with the rays' response by torch operations: {unfused:.3f} s per view", flush=True)
         if "refine" in args.units:
             rates = refine_rates(gaussians, views, device, args.warmup_steps, args.refine_steps)
             figures.update(rates)
             print(", ".join(f"{k} {v:.1f} steps/s" for k, v in rates.items()), flush=True)
-    if len(args.units) == 3:
+    if len(args.units) == 3 and rate is not None:
         projected = (
             PAPER["geometry_steps"] / rate
             + PAPER["views"] * lift_s

@@ -89,21 +89,32 @@ def supported_views(hits: Tensor, min_support: float) -> Tensor:  # [N, V] count
 def weighted_median(group_ids: Tensor, values: Tensor, weights: Tensor, n_groups: int) -> tuple[Tensor, Tensor]:
     """Lower weighted median of `values` [M] within each group.
 
-    group_ids [M] in [0, n_groups), values [M] in [0, 1], weights [M] > 0 (integer counts or reals).
-    Returns medians [n_groups] (0 for empty groups) and has_value [n_groups] bool. The median is the
-    first value (in sorted order) at which the cumulative weight reaches half the group's total.
+    group_ids [M] in [0, n_groups), values [M] in [0, 1], weights [M] >= 0 (integer counts or reals; an entry of
+    weight 0 is never the median). Returns medians [n_groups] (0 for empty groups) and has_value [n_groups] bool. The
+    median is the first value (in sorted order) at which the cumulative weight reaches half the group's total.
     """
-    quantised = torch.round(values.clamp(0, 1) * QUANTISATION).long()
-    order = torch.argsort(group_ids.long() * (QUANTISATION + 1) + quantised)
-    groups, weights_sorted = group_ids[order].long(), weights[order].double()
-    totals = torch.zeros(n_groups, dtype=torch.float64, device=values.device).index_add_(0, groups, weights_sorted)
+    medians, has_value = weighted_medians(group_ids, values[:, None], weights, n_groups)
+    return medians[:, 0], has_value
+
+
+def weighted_medians(group_ids: Tensor, values: Tensor, weights: Tensor, n_groups: int) -> tuple[Tensor, Tensor]:
+    """`weighted_median` of every channel of `values` [M, C] at once: medians [n_groups, C], has_value [n_groups].
+
+    One sort for all channels and no host read: each channel's entries are sorted by (group, quantised value), and
+    the one entry per group and channel where the cumulative weight crosses half the group's total is summed into its
+    group (every other entry adds 0), so the result needs no selection whose size the host must learn."""
+    groups = group_ids.long()
+    quantised = torch.round(values.clamp(0, 1) * QUANTISATION).long()  # [M, C]
+    order = torch.argsort(groups[:, None] * (QUANTISATION + 1) + quantised, dim=0)  # [M, C] per channel
+    groups_sorted, weights_sorted = groups[order], weights.double()[order]  # [M, C] each
+    totals = torch.zeros(n_groups, dtype=torch.float64, device=values.device).index_add_(0, groups, weights.double())
     before_group = torch.cumsum(totals, 0) - totals  # [n_groups] weight of all earlier groups
-    cumulative = torch.cumsum(weights_sorted, 0) - before_group[groups]  # within-group running total
-    half = totals[groups] / 2
-    crossing = (cumulative >= half) & (cumulative - weights_sorted < half)
-    medians = torch.zeros(n_groups, dtype=values.dtype, device=values.device)
-    medians[groups[crossing]] = values[order][crossing]
-    return medians, totals > 0
+    cumulative = torch.cumsum(weights_sorted, 0) - before_group[groups_sorted]  # within-group running total
+    half = totals[groups_sorted] / 2
+    crossing = (cumulative >= half) & (cumulative - weights_sorted < half)  # [M, C] one entry per group and channel
+    picked = torch.where(crossing, values.gather(0, order), torch.zeros((), dtype=values.dtype, device=values.device))
+    medians = torch.zeros(n_groups, values.shape[1], dtype=values.dtype, device=values.device)
+    return medians.scatter_add_(0, groups_sorted, picked), totals > 0
 
 
 def footprint_alpha(opacities: Tensor, config: LiftConfig, max_alpha: float) -> Tensor | None:  # [N] -> [N]
@@ -127,6 +138,8 @@ def traced_entries(
     not), (Gaussian * pixels + pixel) * 2 + inside, and how many of the pixel's rays hit it there [M], counting hits
     that are still visible (`visibility_threshold`) on pixels of the object."""
     n_pixels = camera.width * camera.height
+    dropped = len(gaussians) * n_pixels * 2  # a key above every entry's: hits that give nothing
+    flat_mask = None if mask is None else mask.reshape(-1)
     pair_keys, pair_counts = [], []
     for band in iter_contributions(
         gaussians,
@@ -136,27 +149,26 @@ def traced_entries(
         settings=settings,
         max_samples=band_samples(gaussians.means.device),
     ):  # whole rays, a band of rows at a time
+        # every hit keeps its place and the ones that give nothing get the key `dropped`: no selection whose size the
+        # host must learn before the one count of distinct keys (on a GPU each such read waits for the queue)
         transmittance = band.weights / band.alphas.clamp_min(1e-12)  # in front of the hit
-        visible = transmittance >= config.visibility_threshold
-        gaussian_ids, pixel_ids = band.gaussian_ids[visible], band.pixel_ids[visible]
-        in_core = (
-            torch.ones_like(gaussian_ids, dtype=torch.bool)
-            if core_alpha is None
-            else band.alphas[visible] >= core_alpha[gaussian_ids]
-        )
-        if mask is not None:
-            on_object = mask.reshape(-1)[pixel_ids] >= config.mask_threshold
-            gaussian_ids, pixel_ids, in_core = gaussian_ids[on_object], pixel_ids[on_object], in_core[on_object]
-        keys, counts = torch.unique(
-            (gaussian_ids.long() * n_pixels + pixel_ids.long()) * 2 + in_core.long(), return_counts=True
-        )
+        gives = transmittance >= config.visibility_threshold
+        if flat_mask is not None:
+            gives = gives & (flat_mask[band.pixel_ids] >= config.mask_threshold)
+        key = band.gaussian_ids.long() * n_pixels + band.pixel_ids.long()
+        if core_alpha is not None:  # inside the core, or not
+            key = key * 2 + (band.alphas >= core_alpha[band.gaussian_ids]).long()
+        else:
+            key = key * 2 + 1
+        keys, counts = torch.unique(torch.where(gives, key, dropped), return_counts=True)
         pair_keys.append(keys)
         pair_counts.append(counts)
     # bands hold disjoint pixels, so no entry appears twice
     device = gaussians.means.device
     keys = torch.cat(pair_keys) if pair_keys else torch.zeros(0, dtype=torch.long, device=device)
     counts = torch.cat(pair_counts) if pair_counts else torch.zeros(0, dtype=torch.long, device=device)
-    return keys, counts
+    real = keys < dropped
+    return keys[real], counts[real]
 
 
 def band_samples(device: torch.device) -> int:
@@ -217,14 +229,11 @@ def lift_view(
     pair_gaussians, pair_pixels = pairs // n_pixels, pairs % n_pixels
     received = torch.zeros(n, dtype=torch.long, device=materials.device).index_add_(0, pair_gaussians, counts)
     # the median runs over the core's pixels; a Gaussian whose core no ray met (tiny, or its core hidden) uses all
-    # its hits
-    has_core = torch.zeros(n, dtype=torch.bool, device=materials.device).index_fill_(0, pair_gaussians[in_core], True)
-    use = in_core | ~has_core[pair_gaussians]
-    pair_gaussians, pair_pixels, counts = pair_gaussians[use], pair_pixels[use], counts[use]
+    # its hits. The entries it does not use weigh 0 rather than being removed: no host read of how many are left
+    core_hits = torch.zeros(n, dtype=torch.long, device=materials.device).index_add_(0, pair_gaussians, in_core.long())
+    use = in_core | (core_hits == 0)[pair_gaussians]
     flat = materials.reshape(-1, materials.shape[-1])[pair_pixels]  # [P, 5]
-    medians = torch.zeros(n, materials.shape[-1], dtype=materials.dtype, device=materials.device)
-    for channel in range(materials.shape[-1]):
-        medians[:, channel], _ = weighted_median(pair_gaussians, flat[:, channel], counts, n)
+    medians, _ = weighted_medians(pair_gaussians, flat, counts * use, n)  # [N, 5]
     return medians, received > 0, received  # every Gaussian with a hit keeps at least one entry
 
 

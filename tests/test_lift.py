@@ -4,7 +4,7 @@ import torch
 from matspray.data import Camera
 from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
-from matspray.lift import LiftConfig, lift, supported_views, weighted_median
+from matspray.lift import LiftConfig, lift, supported_views, weighted_median, weighted_medians
 
 
 def test_weighted_median_matches_brute_force():
@@ -20,6 +20,19 @@ def test_weighted_median_matches_brute_force():
         expanded = values[members].repeat_interleave(counts[members])  # each sample as often as it hit
         assert has[group]
         assert medians[group] == torch.sort(expanded).values[(len(expanded) - 1) // 2]  # torch.median's lower median
+
+
+def test_weighted_medians_of_all_channels_at_once_skip_entries_of_weight_zero():
+    # the channels' medians in one sort are each channel's own; an entry of weight 0 is as if it were not there
+    g = torch.Generator().manual_seed(1)
+    group_ids = torch.randint(0, 15, (400,), generator=g)
+    values = torch.randint(0, 256, (400, 5), generator=g).float() / 255
+    counts = torch.randint(1, 6, (400,), generator=g) * (torch.rand(400, generator=g) > 0.3)
+    medians, has = weighted_medians(group_ids, values, counts, 17)
+    kept = counts > 0
+    for channel in range(5):
+        alone, has_alone = weighted_median(group_ids[kept], values[kept, channel], counts[kept], 17)
+        assert torch.equal(medians[:, channel], alone) and torch.equal(has, has_alone)
 
 
 def test_weighted_median_single_and_tied_values():

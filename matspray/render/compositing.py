@@ -37,7 +37,10 @@ def ray_major_order_by_depth(ray_ids: Tensor, depths: Tensor) -> Tensor:  # [M] 
 def segment_starts(
     ray_ids: Tensor, num_rays: int
 ) -> Tensor:  # [M] sorted -> [M] index of the first hit of each hit's ray
-    counts = torch.bincount(ray_ids, minlength=num_rays)
+    # a sum into num_rays counters rather than bincount, which reads the largest id on the host first (on a GPU a wait)
+    counts = torch.zeros(num_rays, dtype=torch.long, device=ray_ids.device).index_add_(
+        0, ray_ids, torch.ones_like(ray_ids)
+    )
     return (torch.cumsum(counts, 0) - counts).index_select(0, ray_ids)
 
 

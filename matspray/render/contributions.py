@@ -25,9 +25,20 @@ from torch import Tensor
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.render.compositing import log_transmittance, ray_major_order_by_depth, surviving_hits
-from matspray.render.pairs import EMPTY_BOX, box_pixel_pairs, clip_rows, ellipse_pixel_pairs, pixel_boxes, row_bands
+from matspray.render.cuda_rays import max_response, simulated
+from matspray.render.pairs import (
+    EMPTY_BOX,
+    box_pixel_pairs,
+    clip_rows,
+    constant,
+    ellipse_pixel_pairs,
+    pixel_boxes,
+    row_bands,
+)
 from matspray.render.projection import log_opacity_ratio
 from matspray.render.settings import RasterSettings
+
+FUSED = [True]  # on a CUDA device, the rays' response by `cuda_rays`' kernel (False: by torch operations)
 
 
 @dataclass
@@ -157,7 +168,8 @@ def ray_setup(
     opacities = gaussians.opacities.detach().double()
     radius2 = 2.0 * log_opacity_ratio(opacities, settings.min_alpha) / falloff  # [N] k^2
     silhouettes = _ellipsoid_silhouettes(gaussians, camera, radius2, settings.near)
-    silhouettes.boxes[opacities < settings.min_alpha] = torch.tensor(EMPTY_BOX, device=opacities.device)
+    faint = (opacities < settings.min_alpha)[:, None]  # no ray reaches min_alpha
+    silhouettes.boxes = torch.where(faint, constant(EMPTY_BOX, opacities.device), silhouettes.boxes)
     return frame, opacities, silhouettes
 
 
@@ -192,6 +204,10 @@ def _max_response(
     Across a pixel's samples d' = d0 + u ax + v ay is affine in the sub-pixel offsets (u, v), so o'.d'
     and d'.d' are a linear and a quadratic polynomial in (u, v) whose coefficients are per pixel.
     """
+    if FUSED[0] and (owner.is_cuda or simulated()):  # one kernel, not a few dozen passes over the band (`cuda_rays`)
+        fused = max_response(frame, opacities, owner, pixel_ids, width, K, sub_x, sub_y, falloff)
+        if fused is not None:
+            return fused
     A, origin = frame[0].index_select(0, owner), frame[1].index_select(0, owner)  # [P, 3, 3], [P, 3]
     rows = torch.div(pixel_ids, width, rounding_mode="floor")
     corner_x = ((pixel_ids - rows * width).double() - K[0, 2]) / K[0, 0]
@@ -224,15 +240,19 @@ class _Silhouettes:
     centres: Tensor  # [N, 2] c
     conics: Tensor  # [N, 3] (a, b, c) of E^-1
     unbounded: Tensor  # [N] bool: the ellipsoid reaches behind the camera plane; its box is the whole image
+    any_unbounded: bool = True  # whether any is (read once per view: the bands skip the whole-image boxes, and their
+    # host reads, when none is)
 
     def candidate_pixels(self, row_start: int, row_end: int, width: int) -> tuple[Tensor, Tensor]:
         """Owner [P] and pixel id [P] of every pixel whose area meets a silhouette within the rows."""
         boxes = clip_rows(self.boxes, row_start, row_end)
-        bounded = torch.where(self.unbounded[:, None], torch.tensor(EMPTY_BOX, device=boxes.device), boxes)
+        bounded = torch.where(self.unbounded[:, None], constant(EMPTY_BOX, boxes.device), boxes)
         owner, pixel_ids = ellipse_pixel_pairs(
             bounded, self.centres, self.conics, torch.ones_like(self.centres[:, 0]), width, touch="area"
         )
-        whole = torch.where(self.unbounded[:, None], boxes, torch.tensor(EMPTY_BOX, device=boxes.device))
+        if not self.any_unbounded:
+            return owner, pixel_ids
+        whole = torch.where(self.unbounded[:, None], boxes, constant(EMPTY_BOX, boxes.device))
         owner_whole, pixel_ids_whole = box_pixel_pairs(whole, width)
         return torch.cat([owner, owner_whole]), torch.cat([pixel_ids, pixel_ids_whole])
 
@@ -259,8 +279,9 @@ def _ellipsoid_silhouettes(gaussians: Gaussians, camera: Camera, radius2: Tensor
     conics = torch.stack([E[:, 1, 1], -E[:, 0, 1], E[:, 0, 0]], dim=-1) / det[:, None]
     half = torch.sqrt(torch.stack([E[:, 0, 0], E[:, 1, 1]], dim=-1).clamp_min(0.0))
     boxes = pixel_boxes(centres - half, centres + half, camera.width, camera.height, centres=False)
-    full = torch.tensor([0, 0, camera.width - 1, camera.height - 1], device=boxes.device)
+    full = constant((0, 0, camera.width - 1, camera.height - 1), boxes.device)
     boxes = torch.where(unbounded[:, None], full, boxes)
     behind = z + z_extent <= near
-    boxes = torch.where(behind[:, None], torch.tensor(EMPTY_BOX, device=boxes.device), boxes)
-    return _Silhouettes(boxes, centres, conics, unbounded & ~behind)
+    boxes = torch.where(behind[:, None], constant(EMPTY_BOX, boxes.device), boxes)
+    unbounded = unbounded & ~behind
+    return _Silhouettes(boxes, centres, conics, unbounded, bool(unbounded.any()))

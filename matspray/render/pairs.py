@@ -10,6 +10,16 @@ import torch
 from torch import Tensor
 
 EMPTY_BOX = (0, 0, -1, -1)
+_CONSTANTS: dict[tuple, Tensor] = {}
+
+
+def constant(values: tuple, device, dtype=torch.long) -> Tensor:  # -> [len(values)]
+    """`torch.tensor(values)` on `device`, made once per device and dtype: on a GPU, a tensor made from Python numbers
+    is a copy that waits for every queued kernel, each time."""
+    key = (tuple(values), str(device), dtype)
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = torch.tensor(values, device=device, dtype=dtype)
+    return _CONSTANTS[key]
 
 
 def pixel_boxes(
@@ -24,13 +34,13 @@ def pixel_boxes(
         first, last = torch.ceil(lo - 0.5), torch.floor(hi - 0.5)
     else:  # area [i, i + 1) meets [lo, hi]
         first, last = torch.floor(lo), torch.floor(hi)
-    size = torch.tensor([width, height], device=lo.device, dtype=lo.dtype)
+    size = constant((width, height), lo.device, lo.dtype)
     first = torch.maximum(first, torch.zeros_like(first))
     last = torch.minimum(last, size - 1)
     finite = torch.isfinite(lo).all(dim=-1) & torch.isfinite(hi).all(dim=-1)
     empty = ~((first <= last).all(dim=-1) & finite)
     boxes = torch.cat([first, last], dim=-1).nan_to_num(0.0)
-    boxes = torch.where(empty[:, None], torch.tensor(EMPTY_BOX, device=lo.device, dtype=lo.dtype), boxes)
+    boxes = torch.where(empty[:, None], constant(EMPTY_BOX, lo.device, lo.dtype), boxes)
     return boxes.long()
 
 
@@ -72,9 +82,13 @@ def box_rows(boxes: Tensor) -> tuple[Tensor, Tensor]:
     """One entry per (box, row): owner [R] and row index [R]."""
     heights = (boxes[:, 3] - boxes[:, 1] + 1).clamp_min(0)
     heights = torch.where(boxes[:, 2] >= boxes[:, 0], heights, torch.zeros_like(heights))
-    owner = torch.repeat_interleave(torch.arange(len(boxes), device=boxes.device), heights)
     first = torch.cumsum(heights, 0) - heights
-    rows = torch.arange(owner.numel(), device=boxes.device) + torch.repeat_interleave(boxes[:, 1] - first, heights)
+    # one host read of the total, which both expansions are told (each would read it again on a GPU, a wait each)
+    total = int(first[-1] + heights[-1]) if len(boxes) else 0
+    owner = torch.repeat_interleave(torch.arange(len(boxes), device=boxes.device), heights, output_size=total)
+    rows = torch.arange(total, device=boxes.device) + torch.repeat_interleave(
+        boxes[:, 1] - first, heights, output_size=total
+    )
     return owner, rows
 
 
