@@ -406,6 +406,28 @@ def cell(text: str) -> str:
     return " ".join(str(text).split()).replace("|", "\\|")
 
 
+def settings_reference() -> list[str]:
+    """The research settings `--set KEY=VALUE` takes (`matspray run --list-settings`), defaults of the demo preset."""
+    from matspray.cli.settings import settings_listing
+
+    lines = [
+        "## Research settings: `--set KEY=VALUE`",
+        "",
+        "What `matspray run --list-settings` prints (defaults of `--preset demo --method matspray`; "
+        "`--preset` and `--method` before `--list-settings` show theirs). `run`, `demo`, `bench` and `batch` take "
+        "every key, `geometry` the `geometry.*` keys and `seed`.",
+        "",
+        "| key | default | value | what it does |",
+        "| --- | --- | --- | --- |",
+    ]
+    for line in settings_listing().splitlines()[2:]:
+        key_default, _, rest = line.partition("  [")
+        kind, _, meaning = rest.partition("]  ")
+        key, _, default = key_default.partition(" = ")
+        lines.append(f"| `{key}` | `{default}` | {cell(kind)} | {cell(meaning)} |")
+    return lines + [""]
+
+
 def table_cli(results: Path) -> str:
     """docs/cli.md's reference: per command its usage, what it does and every option, from the parsers."""
     import argparse as ap
@@ -435,7 +457,9 @@ def table_cli(results: Path) -> str:
                 "",
             ]
             for group in command._action_groups:
-                actions = [a for a in group._group_actions if not isinstance(a, ap._HelpAction)]
+                actions = [  # the hidden old names and research flags are in no help, and not here either
+                    a for a in group._group_actions if not isinstance(a, ap._HelpAction) and a.help != ap.SUPPRESS
+                ]
                 if not actions:
                     continue
                 lines += [
@@ -464,6 +488,7 @@ def table_cli(results: Path) -> str:
                         f"{required}{cell(formatter._expand_help(a) if a.help else '')} |"
                     )
                 lines.append("")
+        lines += settings_reference()
         return "\n".join(lines).rstrip()
     finally:
         if columns is None:

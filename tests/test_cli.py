@@ -72,7 +72,7 @@ def test_the_huber_base_color_loss_and_its_delta_come_from_their_flags():
     assert run_config().refine.basecolor_huber_delta == 0.05
     with pytest.raises(SettingError) as error:
         run_config("--basecolor-loss", "huber", "--basecolor-huber-delta", "0")
-    assert flag_message(error.value) == "--basecolor-huber-delta: must be > 0, got 0.0"
+    assert flag_message(error.value) == "--set refine.basecolor_huber_delta: must be > 0, got 0.0"
 
 
 def test_both_methods_refine_normals_and_the_flags_set_the_rate_and_the_predicted_maps_weight():
@@ -85,7 +85,7 @@ def test_both_methods_refine_normals_and_the_flags_set_the_rate_and_the_predicte
     assert not refine.refines_normals and refine.predicted_normal_weight == 0.5
     with pytest.raises(SettingError) as error:
         run_config("--normal-lr", "-1")
-    assert flag_message(error.value) == "--normal-lr: must be >= 0, got -1.0"
+    assert flag_message(error.value) == "--set refine.normal_lr: must be >= 0, got -1.0"
 
 
 def test_refine_seed_overrides_the_seed_for_refinement_only():

@@ -100,7 +100,7 @@ def test_cli_names_the_flag_and_lists_methods(tmp_path):
     )
     result = run_cli("run", "--data", tmp_path, "--out", tmp_path / "run", "--min-support", "2")
     assert result.returncode == 2 and "Traceback" not in result.stderr
-    assert result.stderr.strip() == "matspray run: error: --min-support: must be in [0, 1], got 2.0"
+    assert result.stderr.strip() == "matspray run: error: --set lift.min_support: must be in [0, 1], got 2.0"
 
 
 def test_unseen_views_are_filled_with_the_mean_of_the_seen_views():

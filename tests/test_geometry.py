@@ -107,8 +107,8 @@ def test_cli_writes_the_stage_outputs(tiny_object, tmp_path, capsys):
             str(tmp_path / "run"),
             "--preset",
             "test",
-            "--iterations",
-            "12",
+            "--set",
+            "geometry.iterations=12",
             "--quiet",
         ]
     )
@@ -123,7 +123,7 @@ def test_cli_reports_bad_input(tmp_path, capsys):
     assert cli_main(["geometry", "--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "run")]) == 2
     assert "nowhere" in capsys.readouterr().err
     assert cli_main(["geometry", "--data", str(tmp_path), "--out", str(tmp_path / "run"), "--iterations", "0"]) == 2
-    assert "--iterations must be >= 1" in capsys.readouterr().err
+    assert "--set geometry.iterations: must be >= 1, got 0" in capsys.readouterr().err
 
 
 def test_presets_and_overrides():

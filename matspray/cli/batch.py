@@ -1,5 +1,6 @@
 """`matspray batch DATA... --out DIR`: the method once per object, as Ray tasks (local or a cluster)."""
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -9,6 +10,7 @@ from matspray.cli.options import (
     build_config_from_args,
     predictor_options_from_args,
 )
+from matspray.cli.settings import add_set_argument
 
 
 def add_parser(parser) -> None:
@@ -17,11 +19,18 @@ def add_parser(parser) -> None:
         "as Ray tasks: a local Ray by default, an existing cluster with --address. A rerun skips finished objects and "
         "resumes interrupted ones; an object that fails is reported and the others finish (exit status 1). "
         "DIR/summary.md and DIR/summary.json hold per-object metrics (where ground truth exists), seconds per stage "
-        "and the averages. Without Ray (pip install 'matspray[cluster]') the objects run one after another here."
+        "and the averages. Without Ray (pip install 'matspray[cluster]'), or with --no-ray, the objects run one after "
+        "another in this process."
     )
     parser.add_argument(
-        "data", nargs="+", type=Path, metavar="DATA", help="dataset folders, one per object (named after the folder)"
+        "--data",
+        nargs="+",
+        action="extend",
+        type=Path,
+        metavar="DATA",
+        help="dataset folders, one per object (named after the folder)",
     )
+    parser.add_argument("data_positional", nargs="*", type=Path, help=argparse.SUPPRESS)  # the old `batch DATA...`
     parser.add_argument(
         "--out", type=Path, required=True, help="batch folder: DIR/<object>/ per object, DIR/summary.md"
     )
@@ -51,13 +60,10 @@ def add_parser(parser) -> None:
         metavar="G",
         help="GPUs Ray reserves for each object (default 0: objects run on the CPU; 0.5 puts two on one GPU)",
     )
-    parser.add_argument(
-        "--no-ray",
-        action="store_true",
-        help="run the objects one after another in this process, even with Ray installed",
-    )
+    parser.add_argument("--no-ray", action="store_true", help=argparse.SUPPRESS)  # in the description
     add_run_arguments(parser)
     add_method_arguments(parser)
+    add_set_argument(parser)
 
 
 def batch_config(args):
@@ -81,8 +87,12 @@ def batch_config(args):
 
 def run(args) -> int:
     from matspray.batch import run_batch
+    from matspray.errors import ConfigError
 
-    summary = run_batch(args.data, args.out, batch_config(args))
+    datasets = [*(args.data or []), *args.data_positional]
+    if not datasets:
+        raise ConfigError("give the dataset folders: --data DATA [DATA ...]")
+    summary = run_batch(datasets, args.out, batch_config(args))
     rows = summary["objects"]
     print(
         f"batch: {len(rows) - len(summary['failed'])} of {len(rows)} objects finished in "

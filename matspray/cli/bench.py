@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from matspray.cli.options import add_method_arguments, build_config_from_args
+from matspray.cli.settings import add_set_argument
 
 
 def add_parser(parser) -> None:
@@ -34,6 +35,7 @@ def add_parser(parser) -> None:
         help="objects at once, as Ray tasks (default: one per CPU core; without Ray installed, one after another)",
     )
     add_method_arguments(parser)
+    add_set_argument(parser)
 
 
 def run(args) -> int:

@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+from matspray.cli.options import hidden_alias
+
 MATCHERS = ("exhaustive", "sequential")  # matspray.data.sfm's (a test checks); kept here so `--help` loads no torch
 CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "SIMPLE_PINHOLE", "PINHOLE")
 
@@ -24,8 +26,12 @@ def add_parser(parser) -> None:
         "sequential: neighbours in file-name order (frames of a video)",
     )
     parser.add_argument(
-        "--max-size", type=int, default=1600, help="shrink photos to this longest side first (default 1600)"
+        "--resolution",
+        type=int,
+        default=1600,
+        help="shrink photos to this longest side first (default 1600)",
     )
+    hidden_alias(parser, "--max-size", "resolution", type=int)  # the old name of --resolution
     parser.add_argument(
         "--masks",
         type=Path,
@@ -54,7 +60,7 @@ def run(args) -> int:
 
     config = SfmConfig(
         matcher=args.matcher,
-        max_size=args.max_size,
+        max_size=args.resolution,
         single_camera=args.single_camera,
         camera_model=args.camera_model,
         threads=args.threads,

@@ -4,7 +4,7 @@
 import os
 from pathlib import Path
 
-from matspray.cli.options import add_compute_arguments
+from matspray.cli.options import add_compute_arguments, hidden_alias
 from matspray.errors import ConfigError
 
 
@@ -34,7 +34,8 @@ def add_parser(parser) -> None:
         "--lpips-weights",
         type=Path,
         default=os.environ.get("MATSPRAY_LPIPS_WEIGHTS"),
-        help="LPIPS v0.1 AlexNet weights (.npz); default: $MATSPRAY_LPIPS_WEIGHTS (without either, LPIPS is n/a)",
+        help="LPIPS v0.1 AlexNet weights, one .npz (the offline path); default: $MATSPRAY_LPIPS_WEIGHTS, else "
+        "torchvision's AlexNet in torch's cache (python -m matspray.eval.lpips --download), else LPIPS is n/a",
     )
     parser.add_argument(
         "--aligned", action="store_true", help="also report base color and relighting after per-channel scale alignment"
@@ -44,15 +45,16 @@ def add_parser(parser) -> None:
         "--credit", help="a run on a capture without ground truth: a line crediting the photos, shown in its report"
     )
     parser.add_argument(
-        "--relight",
+        "--env",
         nargs="+",
         default=["studio", "sunset", "forest"],
         metavar="NAME|PATH",
         help=(
-            "a run on a capture without ground truth: lights its report shows the asset under "
-            "(default: studio sunset forest)"
+            "a run on a capture without ground truth: lights its report shows the asset under, names "
+            "(`matspray relight --help`) or .exr/.hdr files (default: studio sunset forest)"
         ),
     )
+    hidden_alias(parser, "--relight", "env", nargs="+")  # the old name of --env
     add_compute_arguments(parser)
 
 
@@ -101,7 +103,7 @@ def run(args) -> int:
             print(heldout_table(metrics))
             if not args.no_report:
                 page = write_capture_report(
-                    args.run, metrics, args.relight, args.credit, device=device, backend=backend
+                    args.run, metrics, args.env, args.credit, device=device, backend=backend
                 )
                 print(f"report: {page}")
         return 0

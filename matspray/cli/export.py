@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from matspray.cli.options import VARIANT_HELP, add_compute_arguments, default_variant
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments, default_variant, hidden_alias
 from matspray.export.config import ExportConfig
 
 DEFAULTS = ExportConfig()
@@ -23,7 +23,8 @@ def add_parser(parser) -> None:
         "--faces", type=int, default=DEFAULTS.faces, help=f"face budget, >= 100 (default {DEFAULTS.faces})"
     )
     parser.add_argument(
-        "--texture-size",
+        "--texture-resolution",
+        dest="texture_size",
         type=int,
         default=DEFAULTS.texture_size,
         help=f"side of the square textures, a power of two in [64, 8192] (default {DEFAULTS.texture_size})",
@@ -53,6 +54,7 @@ def add_parser(parser) -> None:
         help="the run's dataset, for the training cameras (default: the folder the run was made from)",
     )
     add_compute_arguments(parser)
+    hidden_alias(parser, "--texture-size", "texture_size", type=int)  # the old name of --texture-resolution
 
 
 def run(args) -> int:

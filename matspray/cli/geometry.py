@@ -2,17 +2,22 @@
 
 from pathlib import Path
 
-from matspray.cli.options import add_compute_arguments
+from matspray.cli.options import PRESET_CHOICES, add_compute_arguments, hidden_alias
+from matspray.cli.settings import add_set_argument
 
 
 def add_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
     parser.add_argument("--out", type=Path, required=True, help="run folder; the stage writes RUN/geometry/")
-    parser.add_argument("--preset", default="demo", help="test | demo | paper (default: demo, 128 px on a CPU)")
     parser.add_argument(
-        "--iterations", type=int, default=None, help="training steps (default: the preset's); the schedule follows"
+        "--preset",
+        choices=PRESET_CHOICES,
+        default="demo",
+        help="sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), paper (512 px, one GPU); default demo",
     )
-    parser.add_argument("--seed", type=int, default=None, help="random seed (default: the preset's)")
+    add_set_argument(parser, "geometry.iterations=1000 seed=1")  # the geometry.* settings and the seed, as in `run`
+    hidden_alias(parser, "--iterations", "geometry_iterations", type=int)  # --set geometry.iterations=N
+    hidden_alias(parser, "--seed", "seed", type=int)  # --set seed=N
     parser.add_argument(
         "--restart", action="store_true", help="discard an earlier checkpoint in RUN/geometry/ instead of resuming it"
     )
@@ -22,10 +27,16 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
+    from matspray.cli.settings import settings_from_overrides
     from matspray.errors import ConfigError
 
-    if args.iterations is not None and args.iterations < 1:
-        raise ConfigError(f"--iterations must be >= 1, got {args.iterations}")
+    named = settings_from_overrides(
+        args.overrides, args.preset, allowed=lambda k: k.startswith("geometry.") or k == "seed"
+    )
+    overrides = {key.split(".", 1)[-1]: value for key, value in named.items()}
+    for old, key in (("geometry_iterations", "iterations"), ("seed", "seed")):
+        if getattr(args, old, None) is not None:
+            overrides.setdefault(key, getattr(args, old))
     if args.threads < 0:
         raise ConfigError(f"--threads must be >= 0, got {args.threads}")
 
@@ -33,17 +44,16 @@ def run(args) -> int:
 
     from matspray.data import load_scene
     from matspray.device import compute_target, out_of_memory_as_error
+    from matspray.errors import SettingError
     from matspray.geometry.config import preset
     from matspray.geometry.train import train_geometry
     from matspray.render.backend import rendering_with
     from matspray.rundir import RunDir
 
-    overrides = {}
-    if args.iterations is not None:
-        overrides["iterations"] = args.iterations
-    if args.seed is not None:
-        overrides["seed"] = args.seed
-    config = preset(args.preset, **overrides)
+    try:
+        config = preset(args.preset, **overrides)
+    except SettingError as exc:  # named as `run` names it, by the dotted setting `--set` takes
+        raise SettingError(exc.setting if exc.setting == "seed" else f"geometry.{exc.setting}", exc.problem) from None
     device, backend = compute_target(args.device, args.backend)
     if args.threads:
         torch.set_num_threads(args.threads)

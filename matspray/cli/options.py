@@ -1,9 +1,14 @@
-"""The method's command-line options, shared by `run`, `demo` and `bench`: each flag sets one named
+"""The method's command-line options, shared by `run`, `demo`, `bench` and `batch`: each flag sets one named
 setting of `matspray.config` (the library validates; a bad value comes back as a SettingError, and
-`matspray.cli.main` names the flag that set it). Nothing here imports torch, so `--help` stays fast."""
+`matspray.cli.main` names the flag that set it). Nothing here imports torch, so `--help` stays fast.
+
+The research settings are reached by name, `--set KEY=VALUE` (`matspray.cli.settings`); the flags that set them one
+by one (`--min-support`, `--geometry-iterations`, ...) still parse, hidden from the help, for the scripts and
+benchmarks that use them (benchmarks add them all through `add_method_arguments`)."""
 
 from __future__ import annotations
 
+import argparse
 import os
 
 PRESET_CHOICES = ("test", "demo", "paper")
@@ -162,13 +167,18 @@ SETTING_FLAGS = {
     "--device": ("device", str, DEVICE_HELP),
     "--backend": ("backend", str, BACKEND_HELP),
 }
-FLAG_OF_SETTING = {setting: flag for flag, (setting, _, _) in SETTING_FLAGS.items()}
+# the setting flags a user command shows in its help (the others are research settings: `--set`)
+USER_SETTING_FLAGS = ("--downscale", "--object-bounds", "--device", "--backend")
+FLAG_OF_SETTING = {
+    setting: flag if flag in USER_SETTING_FLAGS else f"--set {setting}"
+    for flag, (setting, _, _) in SETTING_FLAGS.items()
+}
 FLAG_OF_SETTING.update(
     {
         "preset": "--preset",
         "method": "--method",
         "without": "--without",
-        "visibility": "--shadows",
+        "visibility": "--set shadows",
         "objects": "--objects",
         "severity": "--severity",
         "batch_size": "--batch-size",
@@ -178,7 +188,7 @@ FLAG_OF_SETTING.update(
         "basecolor_encoding": "--basecolor-encoding",
         "relight_envs": "--relight-env",
         "out": "--out",
-        "resolution": "--res",
+        "resolution": "--resolution",
         "train_views": "--views",
         "test_views": "--test-views",
         "spp": "--spp",
@@ -193,7 +203,7 @@ FLAG_OF_SETTING.update(
         "weights": "--weights",
         "normals_weights": "--normals-weights",
         "export.faces": "--faces",
-        "export.texture_size": "--texture-size",
+        "export.texture_size": "--texture-resolution",
         "export.frame": "--frame",
         "export.normals": "--normals",
     }
@@ -242,7 +252,8 @@ def add_run_arguments(parser) -> None:
         "default: full, or no-prior with --predictor none",
     )
     parser.add_argument("--weights", help="marigold: pipeline folder")
-    parser.add_argument("--severity", type=float, help="simulated: strength of the simulated failure modes (default 1)")
+    # simulated: strength of the simulated failure modes (default 1); benchmarks only
+    parser.add_argument("--severity", type=float, help=argparse.SUPPRESS)
 
 
 def predictor_options_from_args(args) -> dict:
@@ -252,8 +263,16 @@ def predictor_options_from_args(args) -> dict:
     }
 
 
-def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "demo") -> None:
-    """--preset, --method, --without, --shadows and every setting flag."""
+def hidden_alias(parser, flag: str, dest: str, **kwargs) -> None:
+    """An old name of a flag: it still parses (into `dest`), shown in no help."""
+    parser.add_argument(flag, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)
+
+
+def add_method_arguments(
+    parser, presets=PRESET_CHOICES, default_preset: str = "demo", visible=("--device", "--backend")
+) -> None:
+    """--preset, --method, --without, and every setting flag: those in `visible` in the help, the research
+    settings hidden (reached by `--set`, `add_set_argument`), as is --shadows (`--set shadows=on`)."""
     parser.add_argument(
         "--preset",
         choices=presets,
@@ -280,15 +299,10 @@ def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "
         metavar="ADDITION",
         help=f"switch single additions of matspray off: {', '.join(ADDITION_CHOICES)}",
     )
-    group.add_argument(
-        "--shadows",
-        choices=("on", "off"),
-        help="off (default, and the paper): unshadowed split-sum shading; on: bake "
-        "each Gaussian's visibility and shadow the PBR shading with it (relit worse in the benchmarks: "
-        "docs/history.md)",
-    )
+    group.add_argument("--shadows", choices=("on", "off"), help=argparse.SUPPRESS)
     for flag, (_, _, text) in SETTING_FLAGS.items():
-        group.add_argument(flag, metavar=flag.lstrip("-").split("-")[-1].upper(), help=text)
+        shown = text if flag in visible else argparse.SUPPRESS
+        group.add_argument(flag, metavar=flag.lstrip("-").split("-")[-1].upper(), help=shown)
 
 
 def method_settings_from_args(args) -> dict:
@@ -311,13 +325,20 @@ def method_settings_from_args(args) -> dict:
 
 
 def build_config_from_args(args, **fixed):
-    """The run's PipelineConfig from the parsed flags (`fixed`: settings the command sets itself)."""
+    """The run's PipelineConfig from the parsed flags and `--set` (`fixed`: settings the command sets itself)."""
+    from matspray.cli.settings import settings_from_overrides
     from matspray.config import build_config
 
-    return build_config(args.preset, args.method, tuple(args.without), **{**method_settings_from_args(args), **fixed})
+    named = settings_from_overrides(getattr(args, "overrides", None), args.preset)
+    return build_config(
+        args.preset, args.method, tuple(args.without), **{**method_settings_from_args(args), **named, **fixed}
+    )
 
 
 def flag_message(error, flags: dict = FLAG_OF_SETTING) -> str:
-    """An error's one-line message; a SettingError names the flag that set the setting, when one did."""
-    flag = flags.get(getattr(error, "setting", None))
-    return f"{flag}: {error.problem}" if flag else str(error)
+    """An error's one-line message; a SettingError names the flag that set the setting (`--set KEY` for a research
+    setting)."""
+    setting = getattr(error, "setting", None)
+    if setting is None:
+        return str(error)
+    return f"{flags.get(setting, f'--set {setting}')}: {error.problem}"

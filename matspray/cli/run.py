@@ -3,11 +3,13 @@
 from pathlib import Path
 
 from matspray.cli.options import (
+    USER_SETTING_FLAGS,
     add_method_arguments,
     add_run_arguments,
     build_config_from_args,
     predictor_options_from_args,
 )
+from matspray.cli.settings import ListSettings, add_set_argument
 
 
 def add_parser(parser) -> None:
@@ -15,7 +17,14 @@ def add_parser(parser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run folder; finished stages in it are reused")
     add_run_arguments(parser)
     parser.add_argument("--overwrite", action="store_true", help="reuse an --out folder made from another dataset")
-    add_method_arguments(parser)
+    add_method_arguments(parser, visible=USER_SETTING_FLAGS)
+    add_set_argument(parser)
+    parser.add_argument(
+        "--list-settings",
+        action=ListSettings,
+        help="print every research setting --set takes, with its default (under the --preset and --method given "
+        "before it) and its meaning, and exit",
+    )
 
 
 def run(args) -> int:

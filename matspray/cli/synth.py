@@ -1,7 +1,10 @@
 """`matspray synth --out DIR`: a synthetic benchmark object rendered by Mitsuba 3, with ground truth
 (a procedural shape, or a glTF 2.0 asset with `--asset FILE.glb|FILE.gltf`)."""
 
+import argparse
 from pathlib import Path
+
+from matspray.cli.options import hidden_alias
 
 
 def add_parser(parser) -> None:
@@ -27,8 +30,18 @@ def add_parser(parser) -> None:
         help="of --asset: fit (centred, scaled into the unit sphere; default) or keep (the file's units and origin, "
         "glTF +Y up as our +z; reproduces a synth object from its object.glb)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of shape, materials, cameras and renders (default 0)")
-    parser.add_argument("--res", type=int, default=128, help="image width and height in pixels (default 128)")
+    parser.add_argument(
+        "--object-seed",
+        dest="object_seed",
+        type=int,
+        default=0,
+        help="seed of shape, materials, cameras and renders (default 0)",
+    )
+    hidden_alias(parser, "--seed", "object_seed", type=int)  # the old name of --object-seed
+    parser.add_argument(
+        "--resolution", type=int, default=128, help="image width and height in pixels (default 128)"
+    )
+    hidden_alias(parser, "--res", "resolution", type=int)  # the old name of --resolution
     parser.add_argument("--views", type=int, default=40, help="training views (default 40)")
     parser.add_argument("--test-views", type=int, default=10, help="test views, each also relit (default 10)")
     parser.add_argument("--spp", type=int, default=64, help="Mitsuba samples per pixel (default 64)")
@@ -45,7 +58,9 @@ def add_parser(parser) -> None:
         metavar="ENV",
         help="lights of the relit test views (default: two built-ins other than --env)",
     )
-    parser.add_argument("--env-height", type=int, default=128, help="lights are rendered at H x 2H (default 128)")
+    # the rows the lights are resampled to for Mitsuba (default 128): a benchmark setting, not the relighting
+    # commands' --env-height (the rows of the prefiltered light they shade with)
+    parser.add_argument("--env-height", type=int, default=128, help=argparse.SUPPRESS)
     parser.add_argument(
         "--background",
         choices=("transparent", "env"),
@@ -72,8 +87,8 @@ def run(args) -> int:
         shape=args.shape or "random",
         asset=args.asset,
         placement=args.placement,
-        seed=args.seed,
-        resolution=args.res,
+        seed=args.object_seed,
+        resolution=args.resolution,
         train_views=args.views,
         test_views=args.test_views,
         spp=args.spp,

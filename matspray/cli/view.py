@@ -1,12 +1,14 @@
-"""`matspray view RUN`: a browser viewer that relights the run's asset live (viser; `matspray.view`)."""
+"""`matspray view --run RUN`: a browser viewer that relights the run's asset live (viser; `matspray.view`)."""
 
+import argparse
 from pathlib import Path
 
 from matspray.cli.options import add_compute_arguments
 
 
 def add_parser(parser) -> None:
-    parser.add_argument("run", type=Path, metavar="RUN", help="run folder made by `matspray run`")
+    parser.add_argument("--run", type=Path, help="run folder made by `matspray run`")
+    parser.add_argument("run_positional", nargs="?", type=Path, help=argparse.SUPPRESS)  # the old `view RUN`
     parser.add_argument(
         "--env",
         nargs="+",
@@ -39,6 +41,9 @@ def run(args) -> int:
     from matspray.errors import ConfigError
     from matspray.view.launch import light_files, open_page, run_variants
 
+    args.run = args.run or args.run_positional
+    if args.run is None:
+        raise ConfigError("give the run folder: --run RUN")
     if not 32 <= args.resolution <= 4096:
         raise ConfigError(f"--resolution {args.resolution}: choose 32 to 4096 pixels")
     run_variants(args.run)  # bad input is one line before anything starts

@@ -1,0 +1,197 @@
+"""One name per concept on the command line: every parser walked, the options each shows, the old names that
+still parse, and the research settings reached by `--set KEY=VALUE` and listed by `run --list-settings`."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import pytest
+
+from matspray.cli import build_parser, main
+from matspray.cli.options import SETTING_FLAGS, build_config_from_args
+from matspray.cli.settings import settings_table
+
+MAX_OPTIONS = 15
+# concept -> the flag every command uses for it
+CANONICAL = {
+    "run folder": "--run",
+    "dataset folder": "--data",
+    "lights to render under": "--env",
+    "image size in pixels": "--resolution",
+    "texture size in pixels": "--texture-resolution",
+    "seed of a benchmark object": "--object-seed",
+}
+# names a concept had before, which must appear in no help (they still parse: test below)
+OLD_NAMES = {"--res", "--max-size", "--texture-size", "--relight", "--iterations", "--relight-envs", "--no-ray"}
+# a command's positional that names a concept with a flag elsewhere
+OLD_POSITIONALS = {"run", "run_positional", "data_positional"}
+
+
+def subparsers() -> dict[str, argparse.ArgumentParser]:
+    parser = build_parser()
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+
+
+def shown(parser) -> list[argparse.Action]:
+    return [a for a in parser._actions if not isinstance(a, argparse._HelpAction) and a.help != argparse.SUPPRESS]
+
+
+def test_every_command_shows_at_most_15_options():
+    counts = {name: len(shown(parser)) for name, parser in subparsers().items()}
+    assert max(counts.values()) <= MAX_OPTIONS, counts
+    assert counts["run"] == 15  # the largest: the method's research settings are behind --set
+
+
+def test_no_research_flag_or_old_name_is_in_any_help():
+    research = {
+        flag for flag in SETTING_FLAGS if flag not in ("--downscale", "--object-bounds", "--device", "--backend")
+    }
+    for name, parser in subparsers().items():
+        flags = {s for a in shown(parser) for s in a.option_strings}
+        if name == "predict":  # its --seed is the predictor's own (marigold's noise, simulated's draws), not a run's
+            flags.discard("--seed")
+        assert not flags & (research | OLD_NAMES | {"--shadows"}), (name, sorted(flags & (research | OLD_NAMES)))
+        assert not {a.dest for a in shown(parser) if not a.option_strings} & OLD_POSITIONALS, name
+        text = parser.format_help()
+        for flag in ("--min-support", "--geometry-iterations", "--light-warmup", "--shadows"):
+            assert flag not in text, (name, flag)
+
+
+def test_the_same_flag_means_the_same_setting_in_every_command():
+    dests: dict[str, set] = {}
+    for parser in subparsers().values():
+        for action in shown(parser):
+            for flag in action.option_strings:
+                dests.setdefault(flag, set()).add(action.dest)
+    assert {flag: d for flag, d in dests.items() if len(d) > 1} == {}
+    for concept, flag in CANONICAL.items():
+        assert flag in dests, concept
+    # the commands that take a run or a dataset all take it by the same flag
+    for name, parser in subparsers().items():
+        for action in shown(parser):
+            if action.dest in ("run", "data"):
+                assert action.option_strings == [f"--{action.dest}"], (name, action.option_strings)
+
+
+@pytest.mark.parametrize(
+    "argv, dest, value",
+    [
+        (["synth", "--out", "o", "--res", "64"], "resolution", 64),
+        (["synth", "--out", "o", "--resolution", "64"], "resolution", 64),
+        (["synth", "--out", "o", "--seed", "3"], "object_seed", 3),
+        (["colmap", "photos", "--out", "o", "--max-size", "800"], "resolution", 800),
+        (["colmap", "photos", "--out", "o", "--resolution", "800"], "resolution", 800),
+        (["export", "--run", "r", "--out", "f.glb", "--texture-size", "256"], "texture_size", 256),
+        (["export", "--run", "r", "--out", "f.glb", "--texture-resolution", "256"], "texture_size", 256),
+        (["eval", "--run", "r", "--relight", "sky", "city"], "env", ["sky", "city"]),
+        (["eval", "--run", "r", "--env", "sky", "city"], "env", ["sky", "city"]),
+        (["view", "runs/x"], "run_positional", "runs/x"),
+        (["info", "data"], "data_positional", "data"),
+        (["batch", "a", "b", "--out", "o"], "data_positional", ["a", "b"]),
+        (["batch", "--data", "a", "b", "--out", "o", "--no-ray"], "no_ray", True),
+        (["geometry", "--data", "d", "--out", "o", "--iterations", "7"], "geometry_iterations", 7),
+    ],
+)
+def test_old_names_still_parse_into_the_same_setting(argv, dest, value):
+    args = build_parser().parse_args(argv)
+    got = getattr(args, dest)
+    got = [str(v) for v in got] if isinstance(got, list) else str(got) if hasattr(got, "parts") else got
+    assert got == value
+
+
+def run_args(*argv):
+    return build_parser().parse_args(["run", "--data", "d", "--out", "o", *argv])
+
+
+def test_set_reaches_any_setting_and_the_hidden_flags_still_work():
+    config = build_config_from_args(
+        run_args("--set", "lift.min_support=0.25", "geometry.normal_weight=0.1", "refine.normal_lr=0", "seed=4"),
+        predictor="none",
+    )
+    assert config.lift.min_support == 0.25 and config.geometry.normal_weight == 0.1
+    assert config.refine.normal_lr == 0.0 and config.seed == 4 and config.geometry.seed == 4
+    # what the benchmarks pass: the research flags, one by one
+    config = build_config_from_args(run_args("--min-support", "0.3", "--geometry-iterations", "50", "--shadows", "on"))
+    assert config.lift.min_support == 0.3 and config.geometry.iterations == 50 and config.visibility is not None
+    config = build_config_from_args(
+        run_args("--set", "shadows=on", "visibility.rows=4", "lift.footprint_sigmas=none", "refine.merger.softmax=off")
+    )
+    assert config.visibility.rows == 4 and config.lift.footprint_sigmas is None and not config.refine.merger.softmax
+
+
+def test_every_geometry_field_is_a_key_and_reaches_the_config():
+    from matspray.geometry.config import GeometryConfig
+
+    keys = settings_table()
+    for field in dataclasses.fields(GeometryConfig):
+        if field.name in ("preset", "seed"):  # follow --preset and seed
+            continue
+        assert f"geometry.{field.name}" in keys, field.name
+    if "geometry.predicted_normal_weight" in keys:
+        config = build_config_from_args(run_args("--set", "geometry.predicted_normal_weight=0.2"))
+        assert config.geometry.predicted_normal_weight == 0.2
+
+
+@pytest.mark.parametrize(
+    "words, message",
+    [
+        (["lift.min_support=abc"], "matspray run: error: --set lift.min_support: cannot read 'abc' as float"),
+        (["lift.min_support=-1"], "matspray run: error: --set lift.min_support: must be in [0, 1], got -1.0"),
+        (
+            ["lift.bogus=1"],
+            "matspray run: error: --set lift.bogus: no such setting here (matspray run --list-settings ",
+        ),
+        (["lift.min_support"], "matspray run: error: --set takes KEY=VALUE, got 'lift.min_support' (matspray run "),
+        (["device=cpu"], "matspray run: error: --set device: has its own flag, --device"),
+        (
+            ["refine.merger.softmax=maybe"],
+            "matspray run: error: --set refine.merger.softmax: cannot read 'maybe' as on|off",
+        ),
+    ],
+)
+def test_bad_set_words_are_one_line(tmp_path, capsys, words, message):
+    assert main(["run", "--data", str(tmp_path), "--out", str(tmp_path / "run"), "--set", *words]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(message) and err.count("\n") == 1, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_list_settings_prints_every_key_with_its_default_and_meaning(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["run", "--preset", "test", "--list-settings"])
+    assert done.value.code == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "settings of `matspray run --set KEY=VALUE` (defaults: --preset test --method matspray)"
+    listed = {line.split(" = ")[0]: line for line in lines[2:]}
+    assert set(listed) == set(settings_table())
+    assert listed["refine.iterations"].startswith("refine.iterations = 30  [int]  ")  # the test preset's
+    assert listed["lift.min_support"].startswith("lift.min_support = 0.5  [float]  a view sees a Gaussian")
+    assert all(line.split("]  ", 1)[1].strip() for line in lines[2:])  # each has a meaning
+    with pytest.raises(SystemExit):
+        main(["run", "--method", "paper", "--list-settings"])
+    assert "lift.min_support = 0.0  [float]" in capsys.readouterr().out
+
+
+@dataclasses.dataclass
+class Commented:
+    plain: int = 1  # beside it
+    wrapped: float = 0.5  # a comment that stops mid-phrase (an open parenthesis
+    # closed on the next line)
+    # the block above a field without a comment of its own
+    above: str = "x"
+    parenthesised: str | None = None  # inside its default: the
+    # rest, after the parenthesis
+    bare: int = 0
+
+
+def test_meanings_are_the_comments_beside_inside_or_above_each_field():
+    from matspray.cli.settings import field_comments
+
+    assert field_comments(Commented) == {
+        "plain": "beside it",
+        "wrapped": "a comment that stops mid-phrase (an open parenthesis closed on the next line)",
+        "above": "the block above a field without a comment of its own",
+        "parenthesised": "inside its default: the rest, after the parenthesis",
+        "bare": "",
+    }
