@@ -9,7 +9,9 @@ import torch
 from matspray.errors import ConfigError, ResourceError, SettingError
 from matspray.render.backend import resolve_backend
 
-LOWER_HINT = "lower the image size (--downscale 2), use fewer views, or cap the Gaussians (--max-gaussians)"
+LOWER_HINT = (
+    "lower the image size (--downscale 2), use fewer views, or cap the Gaussians (--set geometry.max_gaussians=N)"
+)
 
 
 def resolve_device(name: str) -> torch.device:

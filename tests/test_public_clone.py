@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FEWER_STEPS = ["--geometry-iterations", "30", "--refine-iterations", "4", "--light-warmup", "2"]
+FEWER_STEPS = ["--set", "geometry.iterations=30", "refine.iterations=4", "refine.light_warmup=2"]
 
 # Run as `python -c GUARD ARGS...`: the CLI, with every socket connection off this machine refused.
 GUARD = """
@@ -135,7 +135,7 @@ def test_a_public_clone_runs_the_first_commands_without_shared_data_or_network(c
     assert "python -m matspray.eval.lpips --download" in tables
 
     data = capture_like(clone.root / "runs" / "demo" / "data", clone.root / "capture")
-    assert "format: blender" in clone.run("info", data).stdout
+    assert "format: blender" in clone.run("info", "--data", data).stdout
     clone.run("run", "--data", data, "--out", "runs/capture", "--preset", "test", *FEWER_STEPS)
     assert (clone.root / "runs" / "capture" / "asset-no-prior" / "asset.ply").is_file()
 
@@ -166,7 +166,7 @@ def free_port() -> int:
 def start_and_stop_the_viewer(clone: Clone) -> None:
     port = free_port()
     viewer = subprocess.Popen(
-        clone.command("view", "runs/capture", "--port", port),
+        clone.command("view", "--run", "runs/capture", "--port", port),
         cwd=clone.root,
         env=clone.env,
         stdout=subprocess.PIPE,

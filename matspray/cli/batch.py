@@ -1,4 +1,4 @@
-"""`matspray batch DATA... --out DIR`: the method once per object, as Ray tasks (local or a cluster)."""
+"""`matspray batch --data DATA... --out DIR`: the method once per object, as Ray tasks (local or a cluster)."""
 
 import argparse
 import sys

@@ -78,7 +78,7 @@ def run(args) -> int:
     for note in result.notes:
         print(f"note: {note}")
     print(
-        f"dataset: {result.dataset}  (next: matspray info {result.dataset}; "
+        f"dataset: {result.dataset}  (next: matspray info --data {result.dataset}; "
         f"matspray run --data {result.dataset} --out RUN)"
     )
     return 0
