@@ -39,7 +39,7 @@ print(f'gsplat built in {time.perf_counter() - start:.0f} s; auto on cuda: {reso
 " 2>&1 | quiet | tail -n 2 | tee "$OUT/gsplat.txt"
 summary+=("$(cat "$OUT/device.txt") | $(tail -n 1 "$OUT/gsplat.txt")")
 
-timeout "$(cap 120)" python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_refine_terms.py \
+timeout "$(cap 150)" python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_refine_terms.py \
   tests/test_cuda_rays.py tests/test_device.py 2>&1 | tee "$OUT/pytest_cuda.log" | tail -n 25
 summary+=("pytest --device cuda (refine terms, rays kernel, device): $(tail -n 1 "$OUT/pytest_cuda.log")")
 

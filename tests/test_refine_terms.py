@@ -209,8 +209,9 @@ def test_a_graphed_refinement_step_stays_about_three_times_smaller():
 
 @pytest.mark.on_device
 def test_graphed_refinement_matches_op_by_op_on_the_device(device):
-    # on CUDA the terms and the light run as CUDA graphs: the same refinement as op by op, up to float32 rounding in
-    # another order; elsewhere both run op by op
+    # on CUDA the terms and the light run as CUDA graphs: the same refinement as op by op, up to the rounding of
+    # gsplat's atomic sums (another order on every run), which Adam turns into steps of up to its rate where a
+    # gradient is near 0; elsewhere both run op by op
     base = build_config("paper").refine
     config = replace(base, iterations=6, light_warmup=2, log_every=3)
     with rendering_with(resolve_backend("auto", device)):
@@ -218,8 +219,8 @@ def test_graphed_refinement_matches_op_by_op_on_the_device(device):
         eager = refined(inputs, config, graphs=False)
         graphed = refined(inputs, config, graphs=True)
     for a, b in zip(graphed[:3], eager[:3]):
-        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(a, b, rtol=1e-3, atol=2e-3)
     for a, b in zip(graphed[3], eager[3]):
         assert a.keys() == b.keys()
         for name in a:
-            assert a[name] == pytest.approx(b[name], rel=1e-4, abs=1e-6)
+            assert a[name] == pytest.approx(b[name], rel=1e-3, abs=1e-5)
