@@ -48,7 +48,7 @@ setup: $(STAMP)
 demo: $(DEMO_STAMP)
 	$(VENV)/bin/matspray demo --preset $(PRESET)
 
-# torchvision's AlexNet weights (244 MB) into torch's cache, for LPIPS in the tables (README, LPIPS)
+# torchvision's AlexNet weights (244 MB) into torch's cache, for LPIPS in the tables (docs/lpips.md)
 lpips: $(DEMO_STAMP)
 	$(PY) -m matspray.eval.lpips --download
 

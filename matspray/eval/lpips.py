@@ -23,7 +23,7 @@ Weights, in the order `load_lpips` tries them:
    as unavailable and says in one line how to get it.
 
 AlexNet's convolutions do not ship: they would be three times the size of everything else in the package,
-and the standard place for them is torch's cache, which other tools on the machine share (README, LPIPS).
+and the standard place for them is torch's cache, which other tools on the machine share (docs/lpips.md).
 """
 
 from __future__ import annotations
