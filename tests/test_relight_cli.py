@@ -43,3 +43,21 @@ def test_full_is_preferred_and_a_run_without_assets_is_one_line(no_prior_run, tm
 def test_several_lights_in_one_call(no_prior_run, tmp_path):
     written = relight_run(no_prior_run, ["sky", "city", "sunrise"], "test", tmp_path / "out")
     assert [p.name for p in written] == ["r_002_sky.png", "r_002_city.png", "r_002_sunrise.png"]
+
+
+def test_a_light_of_negative_radiance_is_refused_in_one_line_naming_the_file(no_prior_run, tmp_path, capsys):
+    import torch
+
+    from matspray.cli import main
+    from matspray.data.images import write_raw
+
+    light = tmp_path / "negative.exr"
+    write_raw(light, torch.full((8, 16, 3), -0.5))
+    out = tmp_path / "out"
+    assert main(["relight", "--run", str(no_prior_run), "--env", "sky", str(light), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"matspray relight: error: {light}: holds negative radiance (384 values, down to -0.5) "
+        "(a light is >= 0 everywhere: re-export the map without negative values)\n"
+    )
+    assert not out.exists()  # every light is read before anything is written
