@@ -100,21 +100,27 @@ def weighted_median(group_ids: Tensor, values: Tensor, weights: Tensor, n_groups
 def weighted_medians(group_ids: Tensor, values: Tensor, weights: Tensor, n_groups: int) -> tuple[Tensor, Tensor]:
     """`weighted_median` of every channel of `values` [M, C] at once: medians [n_groups, C], has_value [n_groups].
 
-    One sort for all channels and no host read: each channel's entries are sorted by (group, quantised value), and
-    the one entry per group and channel where the cumulative weight crosses half the group's total is summed into its
-    group (every other entry adds 0), so the result needs no selection whose size the host must learn."""
+    One sort of all channels' entries, by (channel, group, quantised value), and no host read: the one entry per
+    channel and group where the cumulative weight crosses half the group's total is summed into its place (every
+    other entry adds 0), so the result needs no selection whose size the host must learn."""
     groups = group_ids.long()
+    count, channels = values.shape
     quantised = torch.round(values.clamp(0, 1) * QUANTISATION).long()  # [M, C]
-    order = torch.argsort(groups[:, None] * (QUANTISATION + 1) + quantised, dim=0)  # [M, C] per channel
-    groups_sorted, weights_sorted = groups[order], weights.double()[order]  # [M, C] each
+    slots = torch.arange(channels, device=values.device) * n_groups + groups[:, None]  # [M, C] (channel, group)
+    order = torch.argsort((slots * (QUANTISATION + 1) + quantised).reshape(-1))  # [M C] one flat sort
+    slots_sorted = slots.reshape(-1)[order]
+    weights_sorted = weights.double()[:, None].expand(count, channels).reshape(-1)[order]
     totals = torch.zeros(n_groups, dtype=torch.float64, device=values.device).index_add_(0, groups, weights.double())
-    before_group = torch.cumsum(totals, 0) - totals  # [n_groups] weight of all earlier groups
-    cumulative = torch.cumsum(weights_sorted, 0) - before_group[groups_sorted]  # within-group running total
-    half = totals[groups_sorted] / 2
-    crossing = (cumulative >= half) & (cumulative - weights_sorted < half)  # [M, C] one entry per group and channel
-    picked = torch.where(crossing, values.gather(0, order), torch.zeros((), dtype=values.dtype, device=values.device))
-    medians = torch.zeros(n_groups, values.shape[1], dtype=values.dtype, device=values.device)
-    return medians.scatter_add_(0, groups_sorted, picked), totals > 0
+    slot_totals = totals.repeat(channels)  # [C n_groups]
+    before_slot = torch.cumsum(slot_totals, 0) - slot_totals  # weight of all earlier (channel, group) slots
+    cumulative = torch.cumsum(weights_sorted, 0) - before_slot[slots_sorted]  # running total within the slot
+    half = slot_totals[slots_sorted] / 2
+    crossing = (cumulative >= half) & (cumulative - weights_sorted < half)  # one entry per slot
+    zero = torch.zeros((), dtype=values.dtype, device=values.device)
+    picked = torch.where(crossing, values.reshape(-1)[order], zero)
+    medians = torch.zeros(channels * n_groups, dtype=values.dtype, device=values.device)
+    medians = medians.scatter_add_(0, slots_sorted, picked).view(channels, n_groups).T  # [n_groups, C]
+    return medians, totals > 0
 
 
 def footprint_alpha(opacities: Tensor, config: LiftConfig, max_alpha: float) -> Tensor | None:  # [N] -> [N]
@@ -229,11 +235,13 @@ def lift_view(
     pair_gaussians, pair_pixels = pairs // n_pixels, pairs % n_pixels
     received = torch.zeros(n, dtype=torch.long, device=materials.device).index_add_(0, pair_gaussians, counts)
     # the median runs over the core's pixels; a Gaussian whose core no ray met (tiny, or its core hidden) uses all
-    # its hits. The entries it does not use weigh 0 rather than being removed: no host read of how many are left
+    # its hits
     core_hits = torch.zeros(n, dtype=torch.long, device=materials.device).index_add_(0, pair_gaussians, in_core.long())
-    use = in_core | (core_hits == 0)[pair_gaussians]
+    # one host read: the median sorts only the entries it uses (the core's are a small share of a Gaussian's hits)
+    chosen = torch.nonzero(in_core | (core_hits == 0)[pair_gaussians]).squeeze(1)
+    pair_gaussians, pair_pixels = pair_gaussians.index_select(0, chosen), pair_pixels.index_select(0, chosen)
     flat = materials.reshape(-1, materials.shape[-1])[pair_pixels]  # [P, 5]
-    medians, _ = weighted_medians(pair_gaussians, flat, counts * use, n)  # [N, 5]
+    medians, _ = weighted_medians(pair_gaussians, flat, counts.index_select(0, chosen), n)  # [N, 5]
     return medians, received > 0, received  # every Gaussian with a hit keeps at least one entry
 
 

@@ -3,7 +3,12 @@
 
 import math
 
-from numba import cuda
+import numpy
+
+if not hasattr(numpy, "row_stack"):  # removed in NumPy 2.4; numba-cuda 0.2x still names it when it loads
+    numpy.row_stack = numpy.vstack
+
+from numba import cuda  # noqa: E402 (after the alias above)
 
 
 @cuda.jit(fastmath=False)
