@@ -19,12 +19,13 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.request
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FEWER_STEPS = ["--set", "geometry.iterations=30", "refine.iterations=4", "refine.light_warmup=2"]
+FEWER_STEPS = ["--set", "geometry.iterations=20", "refine.iterations=2", "refine.light_warmup=1"]
 
 # Run as `python -c GUARD ARGS...`: the CLI, with every socket connection off this machine refused.
 GUARD = """
@@ -184,8 +185,8 @@ def start_and_stop_the_viewer(clone: Clone) -> None:
             if "matspray view: ready" in line:
                 break
         assert lines and "matspray view: ready" in lines[-1], "".join(lines) + viewer.stderr.read()
-        with socket.create_connection(("127.0.0.1", port), timeout=10):
-            pass  # the page is served
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as page:  # the page is served
+            assert page.status == 200 and b"<html" in page.read().lower()
         viewer.send_signal(signal.SIGINT)
         out, err = viewer.communicate(timeout=60)
     finally:

@@ -132,6 +132,11 @@ class Viewer:
             view.stop()
         for view in list(self.views.values()):
             view.thread.join(timeout=10.0)  # a frame being rendered is not sent to a closed page
+        # the warm-up render, the photos' and the kernels' loading: a daemon thread still inside torch or numba when
+        # the interpreter exits aborts the process ("terminate called without an active exception")
+        for thread in threading.enumerate():
+            if thread.name.startswith("matspray-") and thread is not threading.current_thread():
+                thread.join(timeout=60.0)
         if self.page is not None:
             self.page.stop()
             self.page = self.server = None
