@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from matspray.cli.options import (
+    COMPUTE_FLAGS,
     add_method_arguments,
     add_run_arguments,
     build_config_from_args,
@@ -62,7 +63,7 @@ def add_parser(parser) -> None:
     )
     parser.add_argument("--no-ray", action="store_true", help=argparse.SUPPRESS)  # in the description
     add_run_arguments(parser)
-    add_method_arguments(parser)
+    add_method_arguments(parser, visible=COMPUTE_FLAGS)
     add_set_argument(parser)
 
 

@@ -4,7 +4,7 @@
 import sys
 from pathlib import Path
 
-from matspray.cli.options import add_method_arguments, build_config_from_args
+from matspray.cli.options import COMPUTE_FLAGS, add_method_arguments, build_config_from_args
 from matspray.cli.settings import add_set_argument
 
 
@@ -34,7 +34,7 @@ def add_parser(parser) -> None:
         type=int,
         help="objects at once, as Ray tasks (default: one per CPU core; without Ray installed, one after another)",
     )
-    add_method_arguments(parser)
+    add_method_arguments(parser, visible=COMPUTE_FLAGS)
     add_set_argument(parser)
 
 

@@ -268,11 +268,13 @@ def hidden_alias(parser, flag: str, dest: str, **kwargs) -> None:
     parser.add_argument(flag, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)
 
 
-def add_method_arguments(
-    parser, presets=PRESET_CHOICES, default_preset: str = "demo", visible=("--device", "--backend")
-) -> None:
-    """--preset, --method, --without, and every setting flag: those in `visible` in the help, the research
-    settings hidden (reached by `--set`, `add_set_argument`), as is --shadows (`--set shadows=on`)."""
+COMPUTE_FLAGS = ("--device", "--backend")
+
+
+def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "demo", visible=None) -> None:
+    """--preset, --method, --without, and every setting flag. A user command names the flags its help shows
+    (`visible`); the others parse, hidden (their settings are reached by `--set`, `add_set_argument`), as does
+    --shadows (`--set shadows=on`). `visible=None` shows every setting flag: the benchmarks' parsers."""
     parser.add_argument(
         "--preset",
         choices=presets,
@@ -301,7 +303,7 @@ def add_method_arguments(
     )
     group.add_argument("--shadows", choices=("on", "off"), help=argparse.SUPPRESS)
     for flag, (_, _, text) in SETTING_FLAGS.items():
-        shown = text if flag in visible else argparse.SUPPRESS
+        shown = text if visible is None or flag in visible else argparse.SUPPRESS
         group.add_argument(flag, metavar=flag.lstrip("-").split("-")[-1].upper(), help=shown)
 
 
