@@ -102,9 +102,7 @@ def run(args) -> int:
             )
             print(heldout_table(metrics))
             if not args.no_report:
-                page = write_capture_report(
-                    args.run, metrics, args.env, args.credit, device=device, backend=backend
-                )
+                page = write_capture_report(args.run, metrics, args.env, args.credit, device=device, backend=backend)
                 print(f"report: {page}")
         return 0
     with out_of_memory_as_error("eval", device):

@@ -38,9 +38,7 @@ def add_parser(parser) -> None:
         help="seed of shape, materials, cameras and renders (default 0)",
     )
     hidden_alias(parser, "--seed", "object_seed", type=int)  # the old name of --object-seed
-    parser.add_argument(
-        "--resolution", type=int, default=128, help="image width and height in pixels (default 128)"
-    )
+    parser.add_argument("--resolution", type=int, default=128, help="image width and height in pixels (default 128)")
     hidden_alias(parser, "--res", "resolution", type=int)  # the old name of --resolution
     parser.add_argument("--views", type=int, default=40, help="training views (default 40)")
     parser.add_argument("--test-views", type=int, default=10, help="test views, each also relit (default 10)")
