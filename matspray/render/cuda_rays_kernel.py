@@ -5,7 +5,7 @@ import math
 
 import numpy
 
-if not hasattr(numpy, "row_stack"):  # removed in NumPy 2.4; numba-cuda 0.2x still names it when it loads
+if not hasattr(numpy, "row_stack"):  # removed in NumPy 2.5; the GPU image's numba-cuda still names it when it loads
     numpy.row_stack = numpy.vstack
 
 from numba import cuda  # noqa: E402 (after the alias above)
