@@ -342,7 +342,7 @@ def view_losses(
         constants.cover,
         constants.view_dirs,
         constants.photo,
-        training.targets[index],
+        training.targets[index] if material is not None else constants.photo,  # read only with the material term
         constants.surface,
         constants.surface_weight,
         constants.surface_count,
