@@ -149,7 +149,8 @@ def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict])
         "",
         f"method: {settings['method']}; without: {', '.join(settings['without']) or 'nothing'}; settings: "
         f"{settings['settings'] or 'as the method sets them'}; refine overrides: "
-        f"{settings['refine_overrides'] or 'none'}; tag {settings['tag']}",
+        f"{settings['refine_overrides'] or 'none'}; geometry overrides: "
+        f"{settings.get('geometry_overrides') or 'none'}; tag {settings['tag']}",
         "PSNR in dB on the test views (object mask); relighting under the two held-out lights; "
         "3D = the full method's materials, "
         "2D = the predictor's maps of the same test views. Simulated predictors are SIMULATED from the ground truth.",
