@@ -9,9 +9,7 @@ kernels, each of which would otherwise wait on Python.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
-from functools import partial
 
 import torch
 import torch.nn.functional as F
@@ -28,6 +26,7 @@ from matspray.geometry.evaluate import render_view
 from matspray.geometry.losses import flatten_loss, normal_consistency_loss, normal_map_loss, photometric_loss
 from matspray.geometry.normals import depth_normals_along
 from matspray.geometry.optim import GaussianOptimizer
+from matspray.graphs import Graphed
 
 TERMS = ("photometric", "alpha", "normal", "predicted_normal")  # the image terms, in `image_terms`' order
 
@@ -97,33 +96,26 @@ def image_terms(
     return torch.stack([photometric, alpha_term, normal_term, predicted_term, squared_error])
 
 
-class ImageTerms:
+WEIGHTS = ("ssim_weight", "alpha_weight", "normal_weight", "predicted_weight", "predicted_depth_weight")
+
+
+def weighted_image_terms(weights: tuple[float, ...], *tensors: Tensor) -> Tensor:
+    """`image_terms(*tensors)` with the weights in `WEIGHTS`' order: the form `Graphed` captures."""
+    return image_terms(*tensors, **dict(zip(WEIGHTS, weights)))
+
+
+class ImageTerms(Graphed):
     """`image_terms`, captured in CUDA graphs on a CUDA device when `graphs` (one per image size and set of weights,
-    made at its first use), called as it is elsewhere. A capture that fails is said once and the terms are computed
-    without graphs from then on: the same values, more launches. `capture(function, sample_tensors)` replaces
-    `torch.cuda.make_graphed_callables` (and then applies on every device): for tests and counts on the CPU."""
+    made at its first use; matspray.graphs), called as `terms_of(tensors, weights)`. `capture(function,
+    sample_tensors)` replaces `torch.cuda.make_graphed_callables` (and then applies on every device): for tests and
+    counts on the CPU."""
 
     def __init__(self, graphs: bool = True, capture=None):
-        self.graphs, self.capture = graphs, capture
-        self.captured: dict[tuple, object] = {}
+        super().__init__(weighted_image_terms, "the geometry stage's loss", graphs)
+        self.capture = capture or self.capture
 
     def __call__(self, tensors: tuple[Tensor, ...], weights: tuple[float, ...]) -> Tensor:
-        names = ("ssim_weight", "alpha_weight", "normal_weight", "predicted_weight", "predicted_depth_weight")
-        terms = partial(image_terms, **dict(zip(names, weights)))
-        if not self.graphs or (self.capture is None and not tensors[0].is_cuda):
-            return terms(*tensors)
-        key = (tuple(t.shape for t in tensors), weights)
-        if key not in self.captured:
-            samples = tuple(t.detach().clone().requires_grad_(t.requires_grad) for t in tensors)
-            capture = self.capture or partial(torch.cuda.make_graphed_callables, allow_unused_input=True)
-            try:
-                self.captured[key] = capture(terms, samples)
-            except Exception as exc:  # a torch without graph support for some operation: slower, not wrong
-                why = f"{type(exc).__name__}: {(str(exc).strip().splitlines() or [''])[0]}"
-                print(f"geometry: the loss terms run without CUDA graphs ({why})", file=sys.stderr)
-                self.graphs = False
-                return terms(*tensors)
-        return self.captured[key](*tensors)
+        return super().__call__(tuple(weights), *tensors)
 
 
 def training_losses(
