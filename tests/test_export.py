@@ -281,7 +281,7 @@ def test_a_run_without_an_asset_and_unwritable_outputs_are_one_clear_line(disk_r
     bare.mkdir()
     shutil.copy(disk_run / "dataset.json", bare / "dataset.json")
     code, err = run_cli(["export", "--run", str(bare), "--out", str(tmp_path / "x.glb")], capsys)
-    assert code == 2 and "no asset for variant 'full'" in err and "matspray run" in err
+    assert code == 2 and "the run has no asset yet (no asset*/asset.ply)" in err and "matspray run --data" in err
     code, err = run_cli(["export", "--run", str(tmp_path), "--out", str(tmp_path / "x.glb")], capsys)
     assert code == 2 and "not a MatSpray run folder" in err
     blocker = tmp_path / "file"
