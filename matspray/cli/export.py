@@ -57,8 +57,15 @@ def add_parser(parser) -> None:
     hidden_alias(parser, "--texture-size", "texture_size", type=int)  # the old name of --texture-resolution
 
 
+EXPORT_PACKAGES = ("trimesh", "xatlas", "skimage", "fast_simplification", "scipy", "pygltflib")  # the `export` extra
+
+
 def run(args) -> int:
     from matspray.device import compute_target, out_of_memory_as_error
+    from matspray.errors import optional_module
+
+    for name in EXPORT_PACKAGES:  # before any work: one line naming the extra, not an ImportError deep inside
+        optional_module(name, "export", "matspray export")
     from matspray.export.export import export_run
     from matspray.rundir import RunDir
 

@@ -62,7 +62,7 @@ def relight_run(
     from matspray.data import load_scene, write_image
     from matspray.data.images import linear_to_srgb
     from matspray.data.video import write_video
-    from matspray.errors import ConfigError, RunError
+    from matspray.errors import ConfigError, RunError, optional_module
     from matspray.lights import load_envmap
     from matspray.objectmasks import read_region
     from matspray.relight import background_radiance, cameras_up, orbit_cameras, render_relit
@@ -74,6 +74,8 @@ def relight_run(
     asset_folder = run.asset_path(variant if variant is not None else default_variant(run))
     if frames < 1 or fps < 1 or env_height < 4:
         raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
+    if views == "orbit":  # said before any frame is rendered, not after
+        optional_module("imageio_ffmpeg", "video", "the orbit's video (relight --views orbit)")
     out_dir = Path(out_dir)
     lights = [load_envmap(spec) for spec in ([env] if isinstance(env, (str, Path)) else env)]  # all read first
     asset = read_asset(asset_folder, device=device)

@@ -27,7 +27,7 @@ from torch import Tensor
 from matspray.data.camera import Camera
 from matspray.data.images import LDR_SUFFIXES, read_image, write_image
 from matspray.data.scene import View
-from matspray.errors import DataError, file_error
+from matspray.errors import file_error, optional_module
 
 MIN_KEPT = 0.5  # refuse undistortion that keeps less than this fraction of the photo
 CACHE_FOLDER = "matspray-undistorted"
@@ -125,13 +125,7 @@ class Undistortion:
 
 
 def opencv():
-    try:
-        import cv2
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise DataError(
-            f"undistorting images needs OpenCV, which cannot be imported ({exc}); pip install opencv-python-headless"
-        ) from None
-    return cv2
+    return optional_module("cv2", "captures", "undistorting images")
 
 
 def output_grid(width: int, height: int) -> np.ndarray:  # [H, W, 2] pixel centres (+0.5 convention)

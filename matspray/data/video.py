@@ -10,12 +10,12 @@ import torch
 from torch import Tensor
 
 from matspray.data.images import atomic_target
-from matspray.errors import file_error
+from matspray.errors import file_error, optional_module
 
 
 def write_video(frames: list[Tensor], path, fps: int) -> None:
     """Frames [H, W, 3] in [0, 1] (sRGB) -> an H.264 MP4, written atomically."""
-    import imageio_ffmpeg  # optional dependency (extra `video`)
+    imageio_ffmpeg = optional_module("imageio_ffmpeg", "video", "writing a video")
 
     height, width = frames[0].shape[:2]
     # H.264 in yuv420p halves the chroma resolution: odd sizes are refused, so an odd last row or column is repeated
