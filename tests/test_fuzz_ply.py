@@ -78,9 +78,12 @@ def test_gaussian_ply(folder, count, sh_bases, seed, data):
     head_end = blob.index(b"end_header\n") + len(b"end_header\n")
     edit = data.draw(st.one_of(st.none(), header_edits(blob[:head_end].decode().split("\n"))))
     if edit is not None:
-        lines = blob[:head_end].decode().split("\n")
-        lines[edit[0]] = edit[1]
-        blob = "\n".join(line for line in lines if line or edit[1]).encode() + blob[head_end:]
+        lines = blob[:head_end].decode().split("\n")  # the last one is the "" after end_header's newline
+        if edit[1]:
+            lines[edit[0]] = edit[1]
+        else:  # the property's line dropped, the rest of the header as it was
+            del lines[edit[0]]
+        blob = "\n".join(lines).encode() + blob[head_end:]
     cut, flips = data.draw(st.one_of(st.just((None, [])), damage(len(blob))))
     path.write_bytes(damaged(blob, cut, flips))
 
