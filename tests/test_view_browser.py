@@ -222,7 +222,7 @@ def test_the_snapshot_button_writes_a_png_into_the_run(page):
 
 
 def test_the_exported_glb_is_shown_beside_or_instead_of_the_gaussians(page):
-    trimesh = pytest.importorskip("trimesh")
+    pytest.importorskip("trimesh")  # the fixture writes the glb with it
     from selenium.webdriver.common.by import By
 
     viewer, driver = page
@@ -240,7 +240,6 @@ def test_the_exported_glb_is_shown_beside_or_instead_of_the_gaussians(page):
     assert viewer.gui.mesh is not None
     choose(driver, "glb", "hidden")
     wait_for(lambda: viewer.state.glb == "hidden" and viewer.gui.mesh is None, timeout=20, what="the glb hidden")
-    assert trimesh  # (the fixture wrote the file with it)
 
 
 def test_a_tab_that_opened_the_page_before_the_run_loaded_gets_one_view_and_its_picture(tmp_path):
