@@ -219,7 +219,7 @@ def test_cli_backend_gsplat_on_cpu_is_one_line(tmp_path):
         text=True,
         timeout=120,
     )
-    assert result.returncode != 0
+    assert result.returncode == 2
     assert "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "--backend" in lines[0] and "gsplat" in lines[0], result.stderr

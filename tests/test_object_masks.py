@@ -179,7 +179,7 @@ def test_cli_refuses_malformed_object_bounds(tmp_path):
         capture_output=True,
         text=True,
     )
-    assert result.returncode != 0 and "Traceback" not in result.stderr
+    assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "--object-bounds: give 4 numbers" in result.stderr
 
 
