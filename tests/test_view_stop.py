@@ -29,7 +29,8 @@ def test_ctrl_c_right_after_ready_exits_cleanly(tmp_path):
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as page:
             assert page.status == 200
         viewer.send_signal(signal.SIGINT)
-        out, err = viewer.communicate(timeout=120)
+        # stopping waits for the warm-up's threads (up to a minute each where numba is still compiling a kernel)
+        out, err = viewer.communicate(timeout=300)
     finally:
         if viewer.poll() is None:
             viewer.kill()
