@@ -425,7 +425,9 @@ class Pipeline:
         path = Path(self.config.light_probe)
         if not path.is_file():
             raise file_error(
-                path, "the light probe (--set light_probe=PATH) does not exist", "give an HDR lat-long map (.exr or .hdr)"
+                path,
+                "the light probe (--set light_probe=PATH) does not exist",
+                "give an HDR lat-long map (.exr or .hdr)",
             )
         stat = path.stat()
         return ({"light_probe": str(path.resolve()), "bytes": stat.st_size, "modified_ns": stat.st_mtime_ns},)
