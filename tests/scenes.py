@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import shutil
+from pathlib import Path
 
 import torch
 
@@ -121,3 +123,15 @@ def stacked_opaque_gaussians(n: int = 8) -> tuple[Gaussians, Camera, torch.Tenso
     )
     camera = Camera.look_at([0.0, 0.0, -4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], math.radians(30), 8, 8)
     return gaussians, camera, torch.eye(n)
+
+
+def capture_like(dataset: Path, out: Path) -> Path:
+    """A synthetic object's photos and cameras alone: what structure from motion leaves, no ground truth."""
+    out.mkdir()
+    for name in ("transforms_train.json", "transforms_test.json"):
+        shutil.copy2(dataset / name, out / name)
+    for split in ("train", "test"):
+        (out / split).mkdir()
+        for photo in (dataset / split).glob("r_[0-9][0-9][0-9].png"):
+            shutil.copy2(photo, out / split / photo.name)
+    return out

@@ -3,13 +3,13 @@ made for it (issue 39)."""
 
 import json
 import math
-import shutil
 
 import pytest
 import torch
 
 from matspray.cli import main
 from matspray.errors import DataError
+from tests.scenes import capture_like
 
 
 @pytest.fixture(scope="module")
@@ -39,14 +39,7 @@ def capture_run(tmp_path_factory):
         progress=False,
         notify=lambda _: None,
     )
-    data = root / "data"
-    data.mkdir()
-    for name in ("transforms_train.json", "transforms_test.json"):
-        shutil.copy(made / name, data / name)
-    for split in ("train", "test"):
-        (data / split).mkdir()
-        for photo in (made / split).glob("r_???.png"):
-            shutil.copy(photo, data / split / photo.name)
+    data = capture_like(made, root / "data")
     run = root / "run"
     config = build_config("test", predictor="auto", **{"refine.iterations": 4})
     Pipeline(data, run, config, progress=False, log=lambda _: None).run_all(("no-prior",))

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.scenes import capture_like
+
 ROOT = Path(__file__).resolve().parents[1]
 FEWER_STEPS = ["--set", "geometry.iterations=20", "refine.iterations=2", "refine.light_warmup=1"]
 
@@ -102,18 +104,6 @@ def clone(tmp_path_factory) -> Clone:
         shutil.copy2(cached, clone.root / "matspray" / "render" / "__pycache__" / cached.name)
     assert not (base / "shared").exists() and sorted(p.name for p in base.iterdir()) == ["home", "matspray-clone"]
     return clone
-
-
-def capture_like(dataset: Path, out: Path) -> Path:
-    """The demo object's photos and cameras alone: what structure from motion leaves, no ground truth."""
-    out.mkdir()
-    for name in ("transforms_train.json", "transforms_test.json"):
-        shutil.copy2(dataset / name, out / name)
-    for split in ("train", "test"):
-        (out / split).mkdir()
-        for photo in (dataset / split).glob("r_[0-9][0-9][0-9].png"):
-            shutil.copy2(photo, out / split / photo.name)
-    return out
 
 
 @pytest.mark.slow
