@@ -312,8 +312,9 @@ def run_protocol(args, log=print) -> dict:
     specs = {m: predictor_spec(m) for m in args.models}
     configs = {m: protocol_config(args, spec) for m, spec in specs.items()}
     first_model = args.models[0]
-    refine = refine_overrides(build_config_from_args(args).refine, args.refine)
-    geometry = refine_overrides(build_config_from_args(args).geometry, args.geometry, flag="--geometry")
+    base = build_config_from_args(args)
+    refine = refine_overrides(base.refine, args.refine)
+    geometry = refine_overrides(base.geometry, args.geometry, flag="--geometry")
     flags = method_settings_from_args(args)
     choices = {"without": list(args.without), "settings": {k: str(v) for k, v in flags.items()}, "refine": refine}
     if geometry:  # only then: the configurations run before the flag keep their names
