@@ -82,3 +82,13 @@ def test_readme_is_short_and_cites_no_path_outside_the_repository():
     assert len(text.splitlines()) <= 250
     assert "../shared" not in text
     assert not re.search(r"\bissues? \d+", text, re.I)
+
+
+def test_the_cli_reference_does_not_depend_on_this_machine(monkeypatch, tmp_path):
+    # CI checks the tables in another folder and environment: no path or variable of this one may reach them
+    before = tables.table_cli(ROOT / tables.RESULTS)
+    monkeypatch.setenv("MATSPRAY_LPIPS_WEIGHTS", str(tmp_path / "elsewhere.npz"))
+    monkeypatch.setenv("HOME", str(tmp_path))
+    after = tables.table_cli(ROOT / tables.RESULTS)
+    assert after == before
+    assert str(ROOT.parent) not in before and str(tmp_path) not in after

@@ -1,7 +1,6 @@
 """`matspray eval --run RUN [--data DATA]`: metrics, the paper's tables and the HTML report.
 `matspray eval --glb FILE.glb [--data DATA]`: the same for a mesh made by `matspray export`."""
 
-import os
 from pathlib import Path
 
 from matspray.cli.options import add_compute_arguments, hidden_alias
@@ -33,7 +32,6 @@ def add_parser(parser) -> None:
     parser.add_argument(
         "--lpips-weights",
         type=Path,
-        default=os.environ.get("MATSPRAY_LPIPS_WEIGHTS"),
         help="LPIPS v0.1 AlexNet weights, one .npz (the offline path); default: $MATSPRAY_LPIPS_WEIGHTS, else "
         "torchvision's AlexNet in torch's cache (python -m matspray.eval.lpips --download), else LPIPS is n/a",
     )
