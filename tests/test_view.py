@@ -495,23 +495,47 @@ def test_the_page_opens_before_torch_is_imported(view_run):
 
 @pytest.mark.on_device
 def test_the_viewer_renders_on_the_device_it_is_given(view_run, device):
-    """`matspray view --device cuda` renders there (asset and light on the device), and the picture is the CPU's.
-    On the GPU machine `pytest --device cuda` runs this on CUDA (benchmarks/gpu_check.sh)."""
+    """`matspray view --device cuda` renders there (asset and light on the device), and the picture is that of an
+    independent reference: the asset and the light read from the run folder by the readers, not the viewer, and
+    rendered in float64 on the CPU. On the GPU machine `pytest --device cuda` runs this on CUDA
+    (benchmarks/gpu_check.sh lists tests/test_view.py)."""
+    from matspray.asset import Asset, read_asset
+    from matspray.data.camera import Camera
+    from matspray.lights import load_envmap
+    from matspray.render.envmap import EnvironmentMap
+    from matspray.rundir import RunDir
+    from matspray.view.frames import render_frame
+    from matspray.view.lights import ENV_HEIGHT, RotatedLight, estimated_light_path
     from matspray.view.server import Viewer, ViewerConfig
 
     on_device = Viewer(
         view_run, ViewerConfig(resolution=48), device=str(device), backend="torch", notify=lambda _: None
     )
-    on_cpu = Viewer(view_run, ViewerConfig(resolution=48), device="cpu", backend="torch", notify=lambda _: None)
     try:
-        _, asset, light = on_device.frame_inputs()
-        assert asset.gaussians.means.device.type == device.type
-        camera = on_cpu.start_camera.scaled(0.25)
-        there, here = on_device.render(camera), on_cpu.render(camera)
-        assert there.image.shape == here.image.shape
-        assert (
-            np.abs(there.image.astype(int) - here.image.astype(int)).max() <= 2
-        )  # 8-bit pictures, float rounding apart
+        state, asset, light = on_device.frame_inputs()
+        assert asset.gaussians.means.device.type == device.type and asset.materials.device.type == device.type
+        assert light.map.device.type == device.type and state.light.startswith("estimated")
+        camera = on_device.start_camera.scaled(0.25)
+        there = on_device.render(camera)
     finally:
         on_device.stop()
-        on_cpu.stop()
+    folder = RunDir(view_run).asset_path(state.variant)
+    read = read_asset(folder)
+    exact = Asset(
+        read.gaussians.to(dtype=torch.float64),
+        read.materials.double(),
+        read.normals.double(),
+        None if read.visibility is None else read.visibility.double(),
+    )
+    _, radiance = load_envmap(str(estimated_light_path(folder)))
+    env = EnvironmentMap.from_tensor(radiance.double(), height=ENV_HEIGHT, learnable=False)
+    with torch.no_grad():
+        reference_light = RotatedLight(env, env.prefilter())
+    on_cpu = camera.to("cpu")
+    here = render_frame(
+        exact, Camera(on_cpu.K.double(), on_cpu.viewmat.double(), on_cpu.width, on_cpu.height), reference_light
+    )
+    assert there.image.shape == here.image.shape == (camera.height, camera.width, 3)
+    assert here.alpha.sum() > 0.2 * camera.width * camera.height  # the object is in the picture
+    assert np.abs(there.image.astype(int) - here.image.astype(int)).max() <= 2  # 8-bit pictures, float rounding apart
+    assert (there.display.double() - here.display.double()).abs().mean() < 1e-3
