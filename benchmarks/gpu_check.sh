@@ -46,8 +46,8 @@ print(f"backend auto on cuda resolves to: {resolve_backend('auto', 'cuda')}")
 EOF
 summary+=("$(grep -h 'gsplat CUDA extension\|resolves to\|failed' "$OUT/gsplat_build.log" | paste -sd ';' -)")
 
-# 3. the device tests on CUDA (pytest --device cuda: the on_device tests, among them the viewer's,
-# and the gsplat parity tests), after the build:
+# 3. the device tests on CUDA (pytest --device cuda: the on_device tests, among them the viewer's and
+# the frozen views' pinned host copy, and the gsplat parity tests), after the build:
 # two processes building gsplat at once break each other's build. Their tiny object needs Mitsuba; without it, one
 # made elsewhere (MATSPRAY_TINY_OBJECT, see tests/conftest.py)
 timeout $(( $(left) / 4 )) python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_device.py tests/test_gsplat_backend.py \

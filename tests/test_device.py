@@ -20,6 +20,7 @@ from matspray.render.backend import gsplat_device_error, rendering_with
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews, frozen_views_bytes
 from matspray.render.latlong import pixel_solid_angles
+from matspray.render.reference import splat_pixels
 from matspray.variants import VARIANT_NAMES
 from tests.stray_tensors import stray_tensor_check
 from tests.test_rasterize import random_scene
@@ -164,26 +165,47 @@ def test_every_computing_command_refuses_cuda_without_it_in_one_line(tmp_path, c
     )
 
 
-def frozen_render(storage: str, features: torch.Tensor):
+def frozen_render(storage: str, features: torch.Tensor, device: torch.device):
     gaussians, camera, _ = random_scene(30, 4, width=20, height=16)
-    frozen = FrozenViews(gaussians, [camera, camera], backend="torch", storage=storage)
-    features = features.clone().requires_grad_(True)
+    frozen = FrozenViews(gaussians.to(device), [camera.to(device)] * 2, backend="torch", storage=storage)
+    features = features.to(device).clone().requires_grad_(True)
     image, alpha = frozen.render(1, features)
-    (image * torch.linspace(0.5, 1.5, image.shape[-1])).sum().backward()
+    (image * torch.linspace(0.5, 1.5, image.shape[-1], device=device)).sum().backward()
     return frozen, image.detach(), alpha, features.grad
 
 
-def test_frozen_views_kept_on_the_host_render_and_differentiate_the_same():
+def test_frozen_views_kept_on_the_host_render_and_differentiate_as_the_reference(device):
+    """The frozen views on `device` (pytest --device; gpu_check.sh runs this on CUDA) with their blend matrices kept
+    beside the Gaussians ("device") or in host memory ("host", pinned wherever CUDA is there to pin for), against
+    the per-pixel reference: each pixel's blending weights from `splat_pixels` in float64 (one feature channel per
+    Gaussian), the image their product with the features and the features' gradient the transposed product."""
     features = torch.rand(30, 4, generator=torch.Generator().manual_seed(1))
-    on_device, image, alpha, grad = frozen_render("device", features)
-    on_host, host_image, host_alpha, host_grad = frozen_render("host", features)
-    assert on_host.on_host == [True, True] and on_device.on_host == [False, False]
-    torch.testing.assert_close(host_image, image, rtol=0, atol=0)
+    gaussians, camera, _ = random_scene(30, 4, width=20, height=16)
+    weights = splat_pixels(gaussians, camera, torch.eye(30, dtype=torch.float64))[0].reshape(16 * 20, 30)
+    upstream = torch.linspace(0.5, 1.5, 4, dtype=torch.float64).expand(16 * 20, 4)
+    expected_image = (weights @ features.double()).reshape(16, 20, 4)
+    expected_alpha, expected_grad = weights.sum(-1).reshape(16, 20), weights.T @ upstream
+    assert expected_alpha.max() > 0.9 and (expected_alpha < 0.1).any()  # covered and open pixels both
+    results = {}
+    for storage in ("device", "host"):
+        frozen, image, alpha, grad = results[storage] = frozen_render(storage, features, device)
+        on_host = storage == "host"
+        assert frozen.on_host == [on_host, on_host]
+        for matrix in frozen.matrices + frozen.transposed:
+            assert matrix.device.type == ("cpu" if on_host else device.type)
+            assert matrix.is_pinned() == (on_host and torch.cuda.is_available())
+        assert image.device.type == alpha.device.type == grad.device.type == device.type
+        torch.testing.assert_close(image.cpu().double(), expected_image, rtol=0, atol=1e-5)
+        torch.testing.assert_close(alpha.cpu().double(), expected_alpha, rtol=0, atol=1e-5)
+        torch.testing.assert_close(grad.cpu().double(), expected_grad, rtol=0, atol=1e-4)
+    (on_device, image, alpha, grad), (_, host_image, host_alpha, host_grad) = results["device"], results["host"]
+    torch.testing.assert_close(host_image, image, rtol=0, atol=0)  # the same matrices, wherever they are kept
     torch.testing.assert_close(host_alpha, alpha, rtol=0, atol=0)
     torch.testing.assert_close(host_grad, grad, rtol=0, atol=0)
     described = on_device.describe()
     assert described["bytes"] == on_device.kept_bytes == frozen_views_bytes(described["hits"], 20 * 16, 30, 2)
     assert described["hits"] > 0 and described["pixels"] == 2 * 20 * 16
+    assert described["views_on_host"] == 0 and results["host"][0].describe()["views_on_host"] == 2
 
 
 def test_auto_storage_moves_views_to_the_host_when_the_gpu_runs_short(monkeypatch):
