@@ -20,7 +20,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from matspray.data import load_scene
-from matspray.data.camera import rigid_problem
 from matspray.data.scene import Scene
 from tests.fuzzing import read_or_refuse
 from tests.test_captures import one_frame
@@ -135,6 +134,17 @@ def write_document(path: Path, meta: dict) -> None:
     path.write_text(json.dumps(meta))  # NaN and Infinity as Python's json writes them, which readers meet
 
 
+RIGID = 1.01e-3  # the readers' documented tolerance on a pose (1e-3), and float32 rounding
+
+
+def assert_rigid(c2w: torch.Tensor) -> None:
+    """A rotation plus a translation, checked here: R^T R = I, det R = +1, last row (0, 0, 0, 1)."""
+    R = c2w[:3, :3]
+    assert (R.T @ R - torch.eye(3, dtype=R.dtype)).abs().max() <= RIGID, c2w
+    assert abs(float(torch.linalg.det(R)) - 1.0) <= 3 * RIGID, c2w  # det R = +1: no mirror
+    assert (c2w[3] - torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=c2w.dtype)).abs().max() <= RIGID, c2w
+
+
 def check_scene(scene: Scene) -> None:
     """What a loaded scene promises training: finite rigid cameras with positive focal lengths, finite images in
     [0, 1] of one size per split, masks in [0, 1], finite bounds."""
@@ -144,7 +154,7 @@ def check_scene(scene: Scene) -> None:
             camera, image = view.camera, view.image
             assert torch.isfinite(camera.K).all() and camera.K[0, 0] > 0 and camera.K[1, 1] > 0, camera.K
             assert torch.isfinite(camera.viewmat).all()
-            assert rigid_problem(camera.camtoworld.double()) is None, camera.viewmat
+            assert_rigid(camera.camtoworld.double())
             assert image.ndim == 3 and image.shape[-1] == 3 and (camera.height, camera.width) == tuple(image.shape[:2])
             assert torch.isfinite(image).all() and image.min() >= 0 and image.max() <= 1
             if view.alpha is not None:
@@ -191,3 +201,19 @@ def test_corrupted_blender_transforms(blender_root, edits):
 @given(edits=corruptions(frame_count=1))
 def test_corrupted_nerfstudio_transforms(nerfstudio_root, edits):
     corrupt_and_load(nerfstudio_root / "transforms.json", edits)
+
+
+@pytest.mark.parametrize("kind", ["blender", "nerfstudio"])
+def test_the_unchanged_documents_load(kind, blender_root, nerfstudio_root):
+    """The property's other side: with no edit, each document loads into a scene with every frame it lists, whose
+    camera centres are the documents' own translations."""
+    json_path = blender_root / "transforms_train.json" if kind == "blender" else nerfstudio_root / "transforms.json"
+    original = ORIGINALS.setdefault(json_path, json.loads(json_path.read_text()))
+    write_document(json_path, corrupt(original, []))
+    scene = load_scene(json_path.parent, test_every=0)  # a refusal (MatsprayError) fails the test
+    check_scene(scene)
+    views = [*scene.train, *scene.test]
+    assert len(views) == len(original["frames"]) > 0
+    centres = sorted(tuple(np.round(view.camera.center.double().numpy(), 4)) for view in views)
+    listed = sorted(tuple(np.round(np.array(frame["transform_matrix"])[:3, 3], 4)) for frame in original["frames"])
+    assert centres == listed
