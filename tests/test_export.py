@@ -501,12 +501,6 @@ def test_padding_keeps_charts_apart_at_the_first_mip_level():
     assert not mixed.any(), f"{int(mixed.sum())} level-1 mip texels mix two charts"
 
 
-def test_export_default_face_budget_is_fifty_thousand():
-    from matspray.export.config import ExportConfig
-
-    assert ExportConfig().faces == 50_000
-
-
 # -------------------------------------------------------------------------------- surface against wrong depths, normals
 def sphere_depths(cameras: list[Camera], radius: float = 1.0) -> list[tuple[torch.Tensor, torch.Tensor]]:
     """What `render_depths` gives for an opaque sphere at the origin: camera z of the first hit (weighted
@@ -557,14 +551,6 @@ def noisy_sphere(subdivisions: int = 5, noise: float = 0.01, seed: int = 0):
     return trimesh.Trimesh(vertices, sphere.faces, process=False)
 
 
-def trimesh_copy_smoothed(mesh, iterations: int) -> np.ndarray:
-    import trimesh
-
-    copy = mesh.copy()
-    trimesh.smoothing.filter_taubin(copy, iterations=iterations)
-    return np.asarray(copy.vertices)
-
-
 def test_smoothed_normals_of_a_noisy_sphere_are_closer_to_the_analytic_ones_and_positions_stay():
     from matspray.export.normals import angle_degrees, smoothed_vertex_normals
 
@@ -577,9 +563,11 @@ def test_smoothed_normals_of_a_noisy_sphere_are_closer_to_the_analytic_ones_and_
     assert np.allclose(smoothed_vertex_normals(mesh, 0), mesh.vertex_normals)  # 0 passes: the surface's own normals
     assert smooth.mean() < 0.6 * raw.mean() and np.percentile(smooth, 90) < 0.6 * np.percentile(raw, 90)
     assert smoother.mean() < 0.35 * raw.mean()
-    shrink = np.linalg.norm(trimesh_copy_smoothed(mesh, 40), axis=-1).mean() / np.linalg.norm(before, axis=-1).mean()
-    assert abs(shrink - 1.0) < 0.01  # Taubin, not Laplacian: the copy keeps its size, so its normals are the surface's
     assert np.array_equal(np.asarray(mesh.vertices), before)  # only a copy is smoothed
+    # a surface without noise keeps its normals: smoothing moves them by less than half a degree
+    exact = noisy_sphere(noise=0.0)
+    directions = np.asarray(exact.vertices) / np.linalg.norm(exact.vertices, axis=-1, keepdims=True)
+    assert angle_degrees(smoothed_vertex_normals(exact, 40), directions).max() < 0.5
 
 
 def test_depth_trust_is_low_on_smooth_metal_only():
