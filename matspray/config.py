@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 
+from matspray.data.triangulate import PointsConfig
 from matspray.errors import ConfigError, SettingError
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.config import preset as geometry_preset
@@ -46,6 +47,7 @@ class PipelineConfig:
     backend: str = (
         "auto"  # rasterizer: auto (gsplat when CUDA and gsplat are present, numba on the CPU), torch, numba or gsplat
     )
+    points: PointsConfig = field(default_factory=PointsConfig)  # the initial points of a capture that brings none
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
     lift: LiftConfig = field(default_factory=LiftConfig)
     visibility: VisibilityConfig | None = (

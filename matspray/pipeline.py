@@ -21,6 +21,7 @@ from matspray.asset import Asset, read_asset, write_asset
 from matspray.config import WORKING_SIZE, PipelineConfig
 from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
+from matspray.data.triangulate import needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
 from matspray.errors import ConfigError, MatsprayError, RunError, file_error
 from matspray.estimate import Work, run_work
@@ -143,6 +144,10 @@ class Pipeline:
         self.log = log
         self.dataset_fp = fingerprint(dataset_identity(self.scene), config.downscale)
         self.unmasked = not self.scene.has_masks  # masks then come from the geometry (stage `masks`)
+        # such a capture without points of its own gets them triangulated at its cameras (stage `points`)
+        self.points_fp = (
+            fingerprint("points", self.dataset_fp, config.points) if needs_points(self.scene, config.points) else None
+        )
         self.has_maps = config.predictor != NO_PREDICTOR  # without 2D maps only the variants that need none run
         self._object_masks: ObjectMasks | None = None
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
@@ -209,6 +214,7 @@ class Pipeline:
         # trained on predicted normals, the geometry depends on the predictions too
         trains_on_predictions = self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
         upstream = [self.predict_fingerprint()] if trains_on_predictions else []
+        upstream += [self.points_fp] if self.points_fp else []  # none for masked scenes: their fingerprint is kept
         return fingerprint("geometry", self.dataset_fp, self.config.geometry.identity(), *upstream)
 
     def geometry_normal_targets(self) -> list[torch.Tensor] | None:
@@ -242,6 +248,8 @@ class Pipeline:
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             normal_targets = self.geometry_normal_targets()
+            if self.points_fp:
+                points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
             with self._working("geometry") as (t, use):
                 train_geometry(
                     self.scene,
