@@ -46,9 +46,11 @@ from matspray.render.numba_threads import threads
 from matspray.render.projection import max_eigen_radius
 from matspray.render.settings import RasterSettings
 
-_READY: set = set()  # dtypes whose kernels this process has compiled or loaded
+_READY: set = set()  # dtypes whose kernels this process has compiled or loaded (added once the warm-up is done)
 _WARMING: dict = {}  # dtype -> the thread compile_in_background started for it
 _WARMING_LOCK = threading.Lock()
+_COMPILE_LOCK = threading.RLock()  # held through a warm-up: other threads wait; the warm-up's own calls come back in
+_COMPILING: set = set()  # dtypes whose warm-up the holder of _COMPILE_LOCK is running
 _TOLD = False  # whether a compilation was already reported
 
 
@@ -369,7 +371,6 @@ def ensure_compiled(np_dtype) -> None:
     SH colour, normals, lifting's rays), so that compiling (or loading from the cache) happens here, all at once; the
     first compilation in a process is said on stderr with its time. While `compile_in_background` is at it, waits
     for it."""
-    global _TOLD
     key = np.dtype(np_dtype).name
     warming = _WARMING.get(key)
     if warming is not None and warming is not threading.current_thread():
@@ -377,13 +378,26 @@ def ensure_compiled(np_dtype) -> None:
         return
     if key in _READY:
         return
+    with _COMPILE_LOCK:  # another thread's ensure_compiled waits here until the kernels are ready
+        if key in _READY or key in _COMPILING:  # ready meanwhile, or the warm-up's own call (it builds a _Layout)
+            return
+        _COMPILING.add(key)
+        try:
+            _compile(key, np_dtype)
+        finally:
+            _COMPILING.discard(key)
+        _READY.add(key)  # only once every kernel has run: a failed warm-up leaves the dtype not ready
+
+
+def _compile(key: str, np_dtype) -> None:
+    """ensure_compiled's warm-up, timed, and said on stderr where it compiled (the first time in the process)."""
+    global _TOLD
     from matspray.render import numba_normals, numba_rays, numba_sh
 
     module = kernels()
     dispatchers = _dispatchers(module, projection(), numba_sh, numba_normals, numba_rays)
     misses = _cache_misses(dispatchers)
     start = time.perf_counter()
-    _READY.add(key)  # before the call below, which builds a _Layout and comes back here
     # numba's OpenMP layer loads its own libgomp at the first parallel loop, and libgomp reads OMP_WAIT_POLICY
     # then: passive, its idle threads sleep rather than spin after each kernel while torch's threads need the
     # cores (measured on a shared 2-core machine: spinning made fwd+bwd with 2 threads 20-30x slower).
