@@ -69,7 +69,7 @@ def test_bench_refuses_a_bad_asset_before_any_object_is_made(tmp_path, capsys):
     (tmp_path / "set" / "broken.glb").write_bytes(b"glTF\x02\x00\x00\x00\xff\x00\x00\x00")
     code = main(["bench", "--assets", str(tmp_path / "set"), "--preset", "test", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
-    assert code != 0 and "broken.glb" in err and "truncated" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and "broken.glb" in err and "truncated" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
 
 

@@ -221,11 +221,11 @@ def test_cli_rejects_bad_assets_in_one_line_and_writes_nothing(tmp_path, capsys)
     out = tmp_path / "out"
     code = main(["synth", "--out", str(out), "--asset", str(cut), "--res", "16", "--views", "1", "--test-views", "0"])
     err = capsys.readouterr().err
-    assert code != 0 and "cut.glb" in err and "truncated" in err and "Traceback" not in err
+    assert code == 2 and "cut.glb" in err and "truncated" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
     assert not out.exists() or not any(out.iterdir())
     code = main(["synth", "--out", str(out), "--asset", str(path), "--shape", "sphere"])
-    assert code != 0 and "--shape and --asset" in capsys.readouterr().err
+    assert code == 2 and "--shape and --asset" in capsys.readouterr().err
     with pytest.raises(DataError, match="two UV sets"):
         two = tmp_path / "two.glb"
         image = np.zeros((2, 2, 3))
