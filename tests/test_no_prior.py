@@ -17,8 +17,7 @@ from matspray.eval.run_eval import evaluate_run
 from matspray.pipeline import Pipeline, variant_refine_config
 from matspray.refine import refine
 from matspray.variants import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
-
-pytest.importorskip("mitsuba")
+from tests.reference_metrics import relighting_psnr
 
 
 def test_no_prior_is_the_only_variant_that_needs_no_maps():
@@ -70,7 +69,8 @@ def test_a_run_without_a_predictor_makes_the_no_prior_asset_and_its_table_row(ti
     assert set(metrics["variants"]) == {"no-prior"}
     assert "no 2D predictions: the run had none (--predictor none)" in metrics["notes"]
     assert set(metrics["table1"]) == {LABELS["no-prior"]}
-    assert metrics["table1"][LABELS["no-prior"]]["relighting"]["psnr"] > 10
+    reference = relighting_psnr(run, tiny_object, "no-prior")
+    assert metrics["table1"][LABELS["no-prior"]]["relighting"]["psnr"] == pytest.approx(reference, abs=1e-6)
     assert "| Relighting |" in (run / "eval" / "tables.md").read_text()
 
 
