@@ -193,7 +193,7 @@ def test_frozen_views_kept_on_the_host_render_and_differentiate_as_the_reference
         assert frozen.on_host == [on_host, on_host]
         for matrix in frozen.matrices + frozen.transposed:
             assert matrix.device.type == ("cpu" if on_host else device.type)
-            assert matrix.is_pinned() == (on_host and torch.cuda.is_available())
+            assert matrix.values().is_pinned() == (on_host and torch.cuda.is_available())  # pinned where CUDA is
         assert image.device.type == alpha.device.type == grad.device.type == device.type
         torch.testing.assert_close(image.cpu().double(), expected_image, rtol=0, atol=1e-5)
         torch.testing.assert_close(alpha.cpu().double(), expected_alpha, rtol=0, atol=1e-5)
