@@ -18,6 +18,7 @@ from matspray.cli import build_parser, main
 from matspray.cli.batch import batch_config
 from matspray.errors import ConfigError, RunError, SettingError
 from matspray.eval.average import average_tables
+from tests.reference_metrics import relighting_psnr
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = ["--preset", "test", "--refine-iterations", "8", "--geometry-iterations", "150"]
@@ -66,7 +67,7 @@ def first_batch(objects, ray_local, tmp_path_factory):
     return out, datas, code, time.perf_counter() - start
 
 
-def test_two_workers_run_the_objects_side_by_side_and_a_broken_dataset_fails_alone(first_batch):
+def test_two_workers_run_the_objects_side_by_side_and_a_broken_dataset_fails_alone(first_batch, objects):
     out, _, code, _ = first_batch
     assert code == 1  # one object failed
     summary = json.loads((out / "summary.json").read_text())
@@ -80,7 +81,9 @@ def test_two_workers_run_the_objects_side_by_side_and_a_broken_dataset_fails_alo
     for name in ("ball", "ring"):
         assert (out / name / "asset" / "asset.ply").exists() and (out / name / "eval" / "metrics.json").exists()
         assert set(rows[name]["stage_seconds"]) >= {"geometry", "lift", "asset"}
-        assert 5 < rows[name]["metrics"]["relighting"]["psnr"] < 60
+        backend = json.loads((out / name / "asset" / "stage.json").read_text())["backend"]  # the run's, eval's too
+        reference = relighting_psnr(Path(rows[name]["run"]), objects / name, "full", backend)
+        assert rows[name]["metrics"]["relighting"]["psnr"] == pytest.approx(reference, abs=1e-6)
     (a0, a1), (b0, b1) = rows["ball"]["span"], rows["ring"]["span"]
     assert a0 < b1 and b0 < a1, "the two objects did not run at the same time"
     md = (out / "summary.md").read_text()

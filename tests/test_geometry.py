@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
 
@@ -115,7 +116,25 @@ def test_cli_writes_the_stage_outputs(tiny_object, tmp_path, capsys):
     assert code == 0
     assert (tmp_path / "run" / "geometry" / "gaussians.ply").exists()
     metrics = json.loads((tmp_path / "run" / "geometry" / "metrics.json").read_text())
-    assert metrics["iterations"] == 12 and metrics["psnr"] > 0
+    assert metrics["iterations"] == 12
+    # the PSNR it reports, computed here from what it wrote: each test view's render (PNG, sRGB on white) against
+    # the photo in sRGB composited on white by its alpha, -10 log10 of the mean squared error, averaged over views
+    from PIL import Image
+
+    from matspray.data import load_scene
+    from matspray.rundir import RunDir
+    from tests.reference_metrics import srgb
+
+    views = load_scene(tiny_object, downscale=RunDir(tmp_path / "run").downscale()).test
+    assert sorted(metrics["views"]) == sorted(view.name for view in views) and views
+    values = []
+    for view in views:
+        render = np.asarray(Image.open(tmp_path / "run" / "geometry" / "renders" / f"{view.name}.png"))[..., :3] / 255.0
+        alpha = view.alpha.double().numpy()[..., None]
+        target = srgb(view.image.double().numpy()) * alpha + (1.0 - alpha)
+        values.append(-10.0 * np.log10(np.mean((render - target) ** 2)))
+        assert metrics["views"][view.name]["psnr"] == pytest.approx(values[-1], abs=0.01)  # the PNG's 8-bit rounding
+    assert metrics["psnr"] == pytest.approx(np.mean(values), abs=0.01)
     assert "PSNR" in capsys.readouterr().out
 
 
