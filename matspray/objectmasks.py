@@ -64,12 +64,16 @@ def object_alpha(gaussians: Gaussians, camera) -> Tensor:  # -> [H, W]
         return rasterize(gaussians, camera.to(gaussians.means.device), features).alpha.clamp(0.0, 1.0).cpu()
 
 
-def compute_object_masks(gaussians: Gaussians, scene: Scene, object_bounds=None, progress: bool = True) -> ObjectMasks:
-    """The region (`object_bounds`, else the automatic rule over the training cameras), the Gaussians inside
-    it and the masks of every train and test view."""
+def compute_object_masks(
+    gaussians: Gaussians, scene: Scene, object_bounds=None, progress: bool = True, region: ObjectRegion | None = None
+) -> ObjectMasks:
+    """The region (`object_bounds`, else `region`: the one the geometry focused on, else the automatic rule over the
+    training cameras), the Gaussians inside it and the masks of every train and test view. A geometry that focused
+    on its object drew the room coarsely, and the automatic rule, which finds the table among the room's Gaussians,
+    would then miss it: the region found then is the object's."""
     if object_bounds is not None:
         region = given_region(object_bounds)
-    else:
+    elif region is None:
         region = auto_region(gaussians.means, gaussians.opacities, [v.camera for v in scene.train])
     inside = region.contains(gaussians.means.detach()).cpu()
     if not inside.any():

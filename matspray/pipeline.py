@@ -25,12 +25,19 @@ from matspray.data.triangulate import needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
 from matspray.errors import ConfigError, MatsprayError, RunError, file_error
 from matspray.estimate import Work, run_work
+from matspray.geometry.config import GeometryConfig
 from matspray.geometry.ply import read_ply, vertex_count
 from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift
 from matspray.material import stack
 from matspray.merger import mlp_dtype
-from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, write_object_masks
+from matspray.objectmasks import (
+    ObjectMasks,
+    compute_object_masks,
+    read_object_masks,
+    read_region,
+    write_object_masks,
+)
 from matspray.predictors import (
     NO_PREDICTOR,
     PredictorOptions,
@@ -215,7 +222,11 @@ class Pipeline:
         trains_on_predictions = self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
         upstream = [self.predict_fingerprint()] if trains_on_predictions else []
         upstream += [self.points_fp] if self.points_fp else []  # none for masked scenes: their fingerprint is kept
-        return fingerprint("geometry", self.dataset_fp, self.config.geometry.identity(), *upstream)
+        return fingerprint("geometry", self.dataset_fp, self.geometry_config().identity(), *upstream)
+
+    def geometry_config(self) -> GeometryConfig:
+        """The geometry settings as they apply to this dataset (the object focus only to a capture without masks)."""
+        return self.config.geometry.for_scene(masked=not self.unmasked)
 
     def geometry_normal_targets(self) -> list[torch.Tensor] | None:
         """The predicted normal maps geometry trains on (world space, per training view), None when it trains on
@@ -253,13 +264,14 @@ class Pipeline:
             with self._working("geometry") as (t, use):
                 train_geometry(
                     self.scene,
-                    self.config.geometry,
+                    self.geometry_config(),
                     self.run.path("geometry"),
                     device=self.device,
                     progress=self.progress,
                     normal_targets=normal_targets,
+                    object_bounds=self.config.object_bounds,
                 )
-            self.run.finish_stage("geometry", fp, self.config.geometry, t.seconds, self._ran(use))
+            self.run.finish_stage("geometry", fp, self.geometry_config(), t.seconds, self._ran(use))
         else:
             self.log("geometry: done before, reusing geometry/gaussians.ply")
         gaussians, normals = read_ply(self.run.path("geometry", "gaussians.ply"))
@@ -279,8 +291,9 @@ class Pipeline:
             if not self.run.stage_done("masks", fp, ["masks.pt", "region.json"]):
                 gaussians, _ = self.geometry()
                 with self._working("masks") as (t, use):
+                    focused = read_region(self.run.path("geometry"))  # None: the geometry did not focus
                     masks = compute_object_masks(
-                        gaussians, self.scene, self.config.object_bounds, progress=self.progress
+                        gaussians, self.scene, self.config.object_bounds, progress=self.progress, region=focused
                     )
                     write_object_masks(self.run.path("masks"), masks)
                 self.run.finish_stage(

@@ -14,7 +14,13 @@ from matspray.data import Camera, View
 from matspray.data.scene import Scene
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
-from matspray.objectmasks import compute_object_masks, object_alpha, read_object_masks, write_object_masks
+from matspray.objectmasks import (
+    compute_object_masks,
+    object_alpha,
+    read_object_masks,
+    read_region,
+    write_object_masks,
+)
 from matspray.objectregion import (
     ObjectRegion,
     auto_region,
@@ -244,6 +250,8 @@ def test_pipeline_masks_stage_on_an_unmasked_capture(unmasked_object, tmp_path):
     pipeline.run_all(("full",))
     masks = read_object_masks(run / "masks")
     assert (run / "masks" / "stage.json").exists() and masks.inside.any()
+    focused = read_region(run / "geometry")  # the geometry focused on its object; the masks keep that region
+    assert focused is not None and focused.rule == "auto" and masks.region == focused
     assert all(v.alpha is not None for v in pipeline.scene.views)  # the masks became the views' alpha
     lift = torch.load(run / "lift" / "projected.pt", weights_only=False)
     assert len(lift["kept"]) == int(masks.inside.sum())  # only the object's Gaussians were lifted

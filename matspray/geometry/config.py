@@ -59,6 +59,16 @@ class GeometryConfig:
     # objects ("we train Gaussian Splatting on DiffusionRenderer normals"); 0: off
     predicted_normal_weight: float = 0.0
 
+    # object focus, for captures without masks (a scene with masks trains on its object alone): after this fraction
+    # of the iterations (at that densification step; 0: never) the object region is found on the Gaussians so far
+    # (matspray.objectregion's rule, or the run's object_bounds), and from then on only its Gaussians grow
+    focus_from: float = 0.15
+    # after the focus, the object's Gaussians are densified at this times grad_threshold
+    focus_grad_scale: float = 0.5
+    # at the focus the background keeps at most this times max_gaussians of its Gaussians (those covering most); it
+    # is no longer opacity-reset or pruned for its size and draws the room coarsely: the budget goes to the object
+    background_budget: float = 0.2
+
     checkpoint_every: int = 500
 
     def __post_init__(self) -> None:
@@ -80,7 +90,9 @@ class GeometryConfig:
             raise SettingError("resolution", f"must be >= 0 (0 keeps the images' size), got {self.resolution}")
         if self.predicted_normal_weight < 0:
             raise SettingError("predicted_normal_weight", f"must be >= 0, got {self.predicted_normal_weight}")
-        for name in ("ssim_weight", "normal_from", "init_opacity"):
+        if self.focus_grad_scale <= 0:
+            raise SettingError("focus_grad_scale", f"must be > 0, got {self.focus_grad_scale}")
+        for name in ("ssim_weight", "normal_from", "init_opacity", "focus_from", "background_budget"):
             if not 0 <= getattr(self, name) <= 1:
                 raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
 
@@ -92,9 +104,15 @@ class GeometryConfig:
         after runs existed while they hold the value that keeps training as it was, so those runs stay valid."""
         return {k: v for k, v in asdict(self).items() if ADDED_LATER.get(k, object()) != v}
 
+    def for_scene(self, masked: bool) -> "GeometryConfig":
+        """The settings as they apply to a scene with (`masked`) or without masks: a masked scene trains on its object
+        alone, so the object focus settings do not apply and take the values that leave them out of `identity`."""
+        return replace(self, **{k: ADDED_LATER[k] for k in FOCUS}) if masked else self
+
 
 # settings added after geometry runs existed -> the value under which training is what it was before them
-ADDED_LATER = {"predicted_normal_weight": 0.0}
+ADDED_LATER = {"predicted_normal_weight": 0.0, "focus_from": 0.0, "focus_grad_scale": 1.0, "background_budget": 1.0}
+FOCUS = ("focus_from", "focus_grad_scale", "background_budget")  # the object focus settings (captures without masks)
 
 
 PRESETS = {
@@ -128,6 +146,7 @@ PRESETS = {
         max_gaussians=1_000_000,
         checkpoint_every=2000,
         normal_from=0.25,
+        focus_from=0.1,
     ),
 }
 

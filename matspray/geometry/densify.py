@@ -1,7 +1,10 @@
 """Adaptive density control of 3DGS: clone small and split large Gaussians whose projected centres
-receive large gradients, prune transparent or oversized ones, reset opacities now and then."""
+receive large gradients, prune transparent or oversized ones, reset opacities now and then. In a capture
+without masks, once the object region is known (`DensityControl.focus`), only the object's Gaussians grow."""
 
 from __future__ import annotations
+
+import math
 
 import torch
 from torch import Tensor
@@ -9,6 +12,7 @@ from torch import Tensor
 from matspray.gaussians import Gaussians
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.optim import GaussianOptimizer
+from matspray.objectregion import ObjectRegion
 from matspray.render.output import RasterOutput
 
 RESET_OPACITY = 0.01
@@ -21,6 +25,7 @@ class DensityControl:
 
     def __init__(self, config: GeometryConfig, extent: float, num_gaussians: int, device=None):
         self.config, self.extent = config, float(extent)
+        self.region: ObjectRegion | None = None  # the object region once focused: only its Gaussians grow
         self.reset_stats(num_gaussians, device)
 
     def reset_stats(self, num_gaussians: int, device=None) -> None:
@@ -56,9 +61,10 @@ class DensityControl:
             events.append(self.densify_and_prune(optimizer, generator, prune_large=done > c.opacity_reset_every))
         if done % c.opacity_reset_every == 0:
             opacities = optimizer.params["opacity_logits"].detach()
-            optimizer.replace_values(
-                "opacity_logits", opacities.clamp(max=float(torch.logit(torch.tensor(RESET_OPACITY, device="cpu"))))
-            )
+            reset = opacities.clamp(max=float(torch.logit(torch.tensor(RESET_OPACITY, device="cpu"))))
+            if self.region is not None:  # the background keeps its opacities: it no longer grows back
+                reset = torch.where(self.inside(optimizer.params["means"].detach()), reset, opacities)
+            optimizer.replace_values("opacity_logits", reset)
             events.append("opacity reset")
         return ", ".join(events)
 
@@ -67,7 +73,9 @@ class DensityControl:
         g = optimizer.gaussians().detach()
         n = len(g)
         grads = torch.where(self.count > 0, self.grad_sum / self.count.clamp_min(1), torch.zeros_like(self.grad_sum))
-        candidates = grads >= c.grad_threshold
+        inside = self.inside(g.means)
+        threshold = c.grad_threshold if self.region is None else c.grad_threshold * c.focus_grad_scale
+        candidates = inside & (grads >= threshold)
         budget = max(0, c.max_gaussians - n)
         if int(candidates.sum()) > budget:  # over the cap: only the strongest gradients grow
             order = torch.argsort(torch.where(candidates, grads, torch.full_like(grads, -1.0)), descending=True)
@@ -82,13 +90,43 @@ class DensityControl:
         opacities = g.opacities
         prune = opacities < c.prune_opacity
         if prune_large:
-            prune |= (self.max_radius > c.max_screen_fraction) | (largest > c.max_world_fraction * self.extent)
+            # the background, which no longer grows, keeps its large Gaussians: they draw the room coarsely, and
+            # without them the object's Gaussians would stretch to cover it
+            large = (self.max_radius > c.max_screen_fraction) | (largest > c.max_world_fraction * self.extent)
+            prune |= large & inside
         keep = ~(prune | split)
         optimizer.edit(keep, appended)
         self.reset_stats(len(optimizer.params["means"]), grads.device)
         return (
             f"+{int(clone.sum())} cloned, +{len(children)} split from {int(split.sum())}, "
             f"-{int((prune & ~split).sum())} pruned"
+        )
+
+    def inside(self, means: Tensor) -> Tensor:  # [N, 3] -> [N] bool: in the object region (all before the focus)
+        if self.region is None:
+            return torch.ones(len(means), dtype=torch.bool, device=means.device)
+        return self.region.contains(means).to(means.device)
+
+    def focus(self, optimizer: GaussianOptimizer, region: ObjectRegion) -> str:
+        """From now on only the Gaussians inside `region` grow; the background keeps its `background_budget` share of
+        max_gaussians, those covering the most (opacity times the area of the two larger axes): a room in the
+        photos is then drawn coarsely, and the budget goes to the object."""
+        self.region = region
+        g = optimizer.gaussians().detach()
+        inside = self.inside(g.means)
+        background = int((~inside).sum())
+        budget = int(self.config.background_budget * self.config.max_gaussians)
+        keep = torch.ones_like(inside)
+        if background > budget:
+            largest_two = g.scales.sort(dim=-1).values[:, 1:]
+            cover = g.opacities * largest_two.prod(dim=-1)
+            cover = torch.where(inside, math.inf, cover)  # the object's Gaussians are all kept
+            keep[torch.argsort(cover)[: background - budget]] = False
+            optimizer.edit(keep)
+            self.reset_stats(len(optimizer.params["means"]), self.grad_sum.device)
+        return (
+            f"object focus: {int(inside.sum())} Gaussians in the {region.describe()}, "
+            f"{background} outside, {int((~keep).sum())} of those pruned"
         )
 
 
@@ -119,9 +157,14 @@ def concat(parts: list[Gaussians]) -> Gaussians:
     )
 
 
-def stats_state(control: DensityControl) -> dict[str, Tensor]:
-    return {"grad_sum": control.grad_sum, "count": control.count, "max_radius": control.max_radius}
+def stats_state(control: DensityControl) -> dict:
+    region = None if control.region is None else control.region.to_json()
+    return {"grad_sum": control.grad_sum, "count": control.count, "max_radius": control.max_radius, "region": region}
 
 
-def load_stats_state(control: DensityControl, state: dict[str, Tensor]) -> None:
-    control.grad_sum, control.count, control.max_radius = state["grad_sum"], state["count"], state["max_radius"]
+def load_stats_state(control: DensityControl, state: dict, device=None) -> None:
+    control.grad_sum, control.count, control.max_radius = (
+        state[name].to(device) for name in ("grad_sum", "count", "max_radius")
+    )
+    region = state.get("region")  # checkpoints from before the object focus have none
+    control.region = None if region is None else ObjectRegion.from_json(region)

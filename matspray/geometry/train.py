@@ -5,12 +5,15 @@ composited on a random background colour) + alpha L1 against the masks + a flatt
 after `normal_from` of the run, consistency between the rendered normals (oriented shortest axes)
 and the normals of the rendered depth and, with `predicted_normal_weight`, agreement of the rendered
 normals (and, after `normal_from`, the depth's) with a 2D model's predicted normal maps. Adaptive density
-control as in 3DGS. Writes, under out_dir: gaussians.ply, renders/ and normals/ of the test views,
-metrics.json, and checkpoint.pt while it runs.
+control as in 3DGS; in a capture without masks, after `focus_from` of the run, only the Gaussians in the
+object region grow (GeometryConfig's "object focus"). Writes, under out_dir: gaussians.ply, renders/ and
+normals/ of the test views, metrics.json, region.json (the region focused on, if any), and checkpoint.pt
+while it runs.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -30,8 +33,10 @@ from matspray.geometry.normals import consensus_normals, resize_normal_map
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
 from matspray.geometry.ply import read_ply, write_ply
 from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
+from matspray.objectregion import ObjectRegion, auto_region, given_region
 
 PLY_NAME, METRICS_NAME, CHECKPOINT_NAME = "gaussians.ply", "metrics.json", "checkpoint.pt"
+REGION_NAME = "region.json"  # the object region a capture without masks focused on
 # the loss and PSNR reach the host (a GPU synchronisation) only every this many steps, for the progress bar and
 # the divergence check; on the CPU that costs nothing either way
 SYNC_EVERY = 25
@@ -73,6 +78,7 @@ def train_geometry(
     progress: bool = True,
     cuda_graphs: bool = True,
     normal_targets: list | None = None,
+    object_bounds=None,
 ) -> Gaussians:
     """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`.
     Renders with the backend of the enclosing `rendering_with` block (torch outside one).
@@ -84,18 +90,22 @@ def train_geometry(
     (matspray.geometry.step); False computes them op by op (the same values, for comparison).
     `normal_targets`: per training view of `scene`, a predicted normal map [H, W, 3] in world space at the view's
     size (zero where there is none); what `config.predicted_normal_weight` pulls the normals towards (needed then).
+    `object_bounds`: a capture without masks focuses on this region (matspray.objectregion.given_region's numbers)
+    instead of the automatic one, from `config.focus_from` on.
     """
     device = torch.device(device)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out_dir / CHECKPOINT_NAME
     if restart:
-        for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME):
+        for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME, REGION_NAME):
             (out_dir / name).unlink(missing_ok=True)
     train_views = [v.to(device) for v in prepare_views(scene.train, config.resolution)]  # moved once
     test_views = [v.to(device) for v in prepare_views(scene.test, config.resolution)]
     if not train_views:
         raise DataError(f"{scene.source}: no training views to fit geometry to")
+    masked = all(v.alpha is not None for v in train_views)  # masks are used when every view has one
+    config = config.for_scene(masked)
     if config.predicted_normal_weight > 0 and normal_targets is None:
         raise SettingError(
             "predicted_normal_weight",
@@ -131,11 +141,11 @@ def train_geometry(
             dict(state["optimizer"], params=params)
         )  # Adam moves its moments to the parameters' device
         density = DensityControl(config, extent, 0, device)
-        load_stats_state(density, {name: t.to(device) for name, t in state["density"].items()})
+        load_stats_state(density, state["density"], device)
         generator.set_state(state["generator"])
         order, elapsed = state["order"], state["elapsed"]
 
-    masked = all(v.alpha is not None for v in train_views)  # masks are used when every view has one
+    focus_at = focus_step(config)
     predicted = [None] * len(train_views)
     if config.predicted_normal_weight > 0:
         predicted = [resize_normal_map(n.to(device), v.height, v.width) for n, v in zip(normal_targets, train_views)]
@@ -171,6 +181,9 @@ def train_geometry(
                 gaussians=len(optimizer.params["means"]),
                 refresh=False,
             )
+        if done == focus_at and density.region is None:
+            region = find_region(optimizer.gaussians().detach(), train_views, object_bounds)
+            event = ", ".join(e for e in (event, density.focus(optimizer, region)) if e)
         if event and progress:
             bar.write(f"iteration {iteration + 1}: {event}")
         if checkpoint_now:
@@ -191,6 +204,8 @@ def train_geometry(
 
     gaussians = optimizer.gaussians().detach()
     normals = consensus_normals(gaussians, [v.camera for v in train_views])
+    if density.region is not None:
+        write_json(out_dir / REGION_NAME, density.region.to_json())
     write_ply(out_dir / PLY_NAME, gaussians, normals)
     metrics = evaluate_views(gaussians, test_views, config.sh_degree, out_dir)
     metrics.update(
@@ -198,6 +213,24 @@ def train_geometry(
     )
     write_json(out_dir / METRICS_NAME, metrics)
     return gaussians
+
+
+def focus_step(config: GeometryConfig) -> int | None:
+    """The step after which a capture without masks focuses on its object: the first densification at or after
+    `focus_from` of the iterations; None when off or when no densification follows it."""
+    if config.focus_from <= 0:
+        return None
+    every = config.densify_every
+    first = max(math.ceil(config.focus_from * config.iterations), config.densify_from + 1)
+    step = math.ceil(first / every) * every
+    return step if step < config.densify_until else None
+
+
+def find_region(gaussians: Gaussians, views: list[View], object_bounds=None) -> ObjectRegion:
+    """The object region to focus on: the given bounds, else the automatic rule on the Gaussians so far."""
+    if object_bounds is not None:
+        return given_region(object_bounds)
+    return auto_region(gaussians.means, gaussians.opacities, [v.camera for v in views])
 
 
 def _empty_like(params: dict) -> Gaussians:
