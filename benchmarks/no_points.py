@@ -41,22 +41,30 @@ def write_transforms(dataset: Path, out: Path) -> Path:
 def run_form(name: str, data: Path, settings: list[str], args, log: Path) -> dict:
     run = args.out / name
     steps = []
-    if not (run / "eval" / "heldout.json").exists():
+    made = json.loads((run / "no-points.json").read_text()) if (run / "no-points.json").is_file() else {}
+    same = made.get("settings") == settings and made.get("object_bounds") == args.object_bounds
+    if not (same and (run / "eval" / "heldout.json").exists()):  # `run` reuses the stages the change leaves alone
         set_args = ["--set", *settings] if settings else []
+        bounds = ["--object-bounds", args.object_bounds] if args.object_bounds else []
         steps.append(
             command(
                 ["run", "--data", str(data), "--out", str(run), "--preset", args.preset, "--predictor", "none"]
+                + bounds
                 + set_args,
                 log,
             )
         )
         steps.append(command(["eval", "--run", str(run), "--no-report"], log))
+    from matspray.objectmasks import read_object_masks
+
     metrics = json.loads((run / "eval" / "heldout.json").read_text())
     stage = json.loads((run / "points" / "stage.json").read_text()) if (run / "points").is_dir() else None
     record = {
         "form": name,
         "data": str(data),
         "settings": settings,
+        "object_bounds": args.object_bounds,
+        "region": read_object_masks(run / "masks").region.describe(),
         "heldout": metrics["heldout"]["summary"],
         "train": metrics["train"]["summary"],
         "mask_coverage": [round(r["mask_coverage"], 3) for r in metrics["heldout"]["per_view"]],
@@ -82,6 +90,11 @@ def main() -> None:
     parser.add_argument("--preset", default="demo", choices=("test", "demo", "paper"))
     parser.add_argument("--geometry-iterations", type=int, help="for every run alike (default: the preset's)")
     parser.add_argument("--refine-iterations", type=int, help="for every run alike (default: the preset's)")
+    parser.add_argument(
+        "--object-bounds",
+        help="one object region 'x,y,z,r' (or a box) for every run, so that each is scored inside the same region "
+        "(default: each run's automatic one); a rerun with another region reuses the geometry",
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     log = args.out / "commands.log"
@@ -103,16 +116,21 @@ def main() -> None:
         forms += [("stitch", stitch, common + ["points.triangulate=off"]), ("stitch+points", stitch, common)]
     if not forms:
         raise SystemExit("benchmarks.no_points: give --colmap DATASET and/or --stitch")
-    print("| form | held-out PSNR / SSIM, geometry | asset | training PSNR, geometry | triangulated points |")
-    print("| --- | ---: | ---: | ---: | ---: |")
+    print(
+        "| form | held-out PSNR / SSIM, geometry | asset | training PSNR, geometry | triangulated points "
+        "| mask coverage | object region |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: | --- |")
     for name, data, settings in forms:
         r = run_form(name, data, settings, args, log)
         geometry, train = r["heldout"]["radiance"], r["train"]["radiance"]
         asset = next((v for k, v in r["heldout"].items() if k != "radiance"), None)
         shown = "" if asset is None else f"{asset['psnr']:.2f} / {asset['ssim']:.3f}"
         points = "" if r["triangulated_points"] is None else str(r["triangulated_points"])
+        coverage = f"{100 * min(r['mask_coverage']):.1f}-{100 * max(r['mask_coverage']):.1f} %"
         print(
-            f"| {name} | {geometry['psnr']:.2f} / {geometry['ssim']:.3f} | {shown} | {train['psnr']:.2f} | {points} |",
+            f"| {name} | {geometry['psnr']:.2f} / {geometry['ssim']:.3f} | {shown} | {train['psnr']:.2f} | {points} "
+            f"| {coverage} | {r['region']} |",
             flush=True,
         )
 

@@ -115,3 +115,20 @@ def test_exif_rotated_photo_is_written_upright(tmp_path):
     assert prepare_photo(tmp_path / "a.jpg", tmp_path / "out", 1600, None, None) == (40, 30)
     with Image.open(tmp_path / "out" / "a.jpg") as written:
         assert written.size == (40, 30) and written.getexif().get(0x0112, 1) == 1
+
+
+@pytest.mark.parametrize("max_size", [1600, 40])
+def test_a_resized_photo_gets_the_focal_plane_resolution_of_its_pixels(tmp_path, max_size):
+    """pycolmap's focal prior comes from the focal plane resolution; a photo shrunk (before, or here) must say so."""
+    from PIL import Image
+
+    exif = Image.Exif()
+    inner = exif.get_ifd(0x8769)
+    inner.update({0xA002: 4000, 0xA003: 3000, 0xA20E: 1000.0, 0xA20F: 1000.0, 0xA210: 2, 0x920A: 50.0})
+    Image.fromarray(np.zeros((60, 80, 3), np.uint8)).save(tmp_path / "a.jpg", exif=exif.tobytes(), quality=95)
+    (tmp_path / "out").mkdir()
+    width, height = prepare_photo(tmp_path / "a.jpg", tmp_path / "out", max_size, None, None)
+    with Image.open(tmp_path / "out" / "a.jpg") as written:
+        kept = written.getexif().get_ifd(0x8769)
+    assert (kept[0xA002], kept[0xA003]) == (width, height) == ((80, 60) if max_size > 80 else (40, 30))
+    assert kept[0xA20E] == pytest.approx(1000.0 * width / 4000) and kept[0x920A] == 50.0

@@ -128,6 +128,26 @@ def find_photo_mask(mask_dir: Path, photo: Path) -> Path:
     raise file_error(mask_dir, f"has no mask for photo '{photo.name}'", f"expected {mask_dir / (photo.stem + '.png')}")
 
 
+def sensor_resolution_for(exif, size: tuple[int, int]) -> bool:
+    """Make `exif`'s focal plane resolution and pixel dimensions those of the photo written at `size` (width, height);
+    True when they changed. pycolmap 4 takes the focal length prior from the focal plane resolution (pixels per unit of
+    sensor), which a photo resized before (by its publisher, or here) keeps from the full-size sensor: the prior then
+    comes out as many times too long as the photo was shrunk, and the mapper finds no initial pair (the skull's photos).
+    """
+    inner = exif.get_ifd(0x8769)
+    full = (inner.get(0xA002), inner.get(0xA003))  # PixelXDimension, PixelYDimension of the photo as it was shot
+    if not all(isinstance(v, int) and v > 0 for v in full) or not inner.get(0xA20E):
+        return False
+    factor = max(size) / max(full)
+    if abs(factor - 1.0) < 1e-3:
+        return False
+    for tag in (0xA20E, 0xA20F):  # FocalPlaneXResolution, FocalPlaneYResolution
+        if inner.get(tag):
+            inner[tag] = float(inner[tag]) * factor
+    inner[0xA002], inner[0xA003] = (size[0], size[1]) if full[0] >= full[1] else (size[1], size[0])
+    return True
+
+
 def prepare_photo(
     photo: Path, out_dir: Path, max_size: int, mask_dir: Path | None, mask_out: Path | None
 ) -> tuple[int, int]:
@@ -155,12 +175,19 @@ def prepare_photo(
                     np.clip(np.round(np.asarray(upright, dtype=np.float64) / 257.0), 0, 255).astype(np.uint8)
                 )
             scale = min(1.0, max_size / max(width, height))
-            if scale == 1.0 and not turned and img.mode in ("RGB", "L") and img.format in ("JPEG", "MPO", "PNG"):
+            size = (max(1, round(width * scale)), max(1, round(height * scale)))
+            exif = img.getexif()
+            stale = sensor_resolution_for(exif, size)
+            if (
+                scale == 1.0
+                and not turned
+                and not stale
+                and img.mode in ("RGB", "L")
+                and img.format in ("JPEG", "MPO", "PNG")
+            ):
                 shutil.copy2(photo, out_dir / photo.name)  # untouched: keep the file and its EXIF focal length
             else:
-                exif = img.getexif()
                 exif[0x0112] = 1  # the pixels are upright now
-                size = (max(1, round(width * scale)), max(1, round(height * scale)))
                 picture = upright.convert("RGB").resize(size, Image.Resampling.LANCZOS)
                 tmp = atomic_target(out_dir / photo.name)
                 picture.save(tmp, quality=95, exif=exif.tobytes()) if photo.suffix.lower() != ".png" else picture.save(
