@@ -86,6 +86,7 @@ class _Scene:
 
     def __init__(self, views):
         self.train, self.points, self.point_colors = views, None, None
+        self.source, self.downscale = None, 1.0
 
 
 def test_stage_falls_back_in_one_line_and_caches(tmp_path):
@@ -152,3 +153,16 @@ def test_pipeline_starts_the_gaussians_from_the_points_and_reuses_them(tmp_path,
         run.geometry()
     assert torch.equal(seen[-1], saved["points"])
     assert any("(reused points/points.pt)" in line for line in lines)
+
+
+def test_features_come_from_photos_larger_than_the_run_holds(tmp_path):
+    from matspray.data import load_scene
+    from matspray.data.triangulate import feature_views
+
+    views = plane_views(count=9, size=96)
+    write_blender(tmp_path / "capture", {"train": views[:8], "test": views[8:]})
+    scene = load_scene(tmp_path / "capture", downscale=None, max_size=48)  # a run's working size
+    larger = feature_views(scene, 1024)
+    assert [v.name for v in larger] == [v.name for v in scene.train] and larger[0].width == 96
+    assert torch.allclose(larger[0].camera.viewmat, scene.train[0].camera.viewmat)
+    assert feature_views(load_scene(tmp_path / "capture"), 1024)[0].width == 96  # held at full size: as they are

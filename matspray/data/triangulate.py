@@ -3,11 +3,12 @@ photos, matched between views that are near in pose, triangulated at the capture
 
 Structure from motion gives a COLMAP dataset its points for free; a capture with known poses has none, and Gaussians
 scattered at random in its bounds spend themselves on empty space. Here pycolmap does the same work with the poses
-held fixed: the photos the scene holds (already undistorted, so pinhole) are written at a modest size, features are
-extracted and matched between each view and its `neighbours` nearest views in pose (not every pair: a video's
-frames are many, and far-apart views share little), and `pycolmap.triangulate_points` triangulates the verified
-matches without moving the cameras. The points are in the scene's world frame: COLMAP's cam_from_world is our
-world-to-camera `viewmat` (both OpenCV axes, pixel centres at +0.5).
+held fixed: the training photos (undistorted on load, so pinhole) are written at a modest size (loaded again when
+the run holds them smaller), features are extracted and matched between each view and its `neighbours` nearest
+views in pose (not every pair: a video's frames are many, and far-apart views share little), and
+`pycolmap.triangulate_points` triangulates the verified matches without moving the cameras. The points are in the
+scene's world frame: COLMAP's cam_from_world is our world-to-camera `viewmat` (both OpenCV axes, pixel centres at
++0.5).
 
 In a run (`matspray.pipeline`) the result is a stage of its own, `points/points.pt`, so a rerun does not redo it.
 """
@@ -27,6 +28,7 @@ from tqdm import tqdm
 
 from matspray.data.images import linear_to_srgb, save_torch_atomic, srgb_to_linear
 from matspray.data.scene import Scene, View
+from matspray.data.sfm import SfmConfig
 from matspray.errors import ConfigError
 from matspray.geometry.init import MIN_COLMAP_POINTS
 from matspray.rundir import RunDir, timed
@@ -39,8 +41,8 @@ class PointsConfig:
     # a capture without masks and without points gets points triangulated from its training photos at its known
     # cameras (off: random points in the bounds)
     triangulate: bool = True
-    max_size: int = 640  # longest side of the photos given to feature extraction (smaller views stay as they are)
-    neighbours: int = 8  # each training view is matched with this many views nearest in pose
+    max_size: int = 1024  # longest side of the photos given to feature extraction (loaded again up to this size)
+    neighbours: int = 12  # each training view is matched with this many views nearest in pose
     threads: int = -1  # pycolmap threads (-1: all cores)
 
     def __post_init__(self):
@@ -62,6 +64,21 @@ def needs_points(scene: Scene, config: PointsConfig) -> bool:
     Masked scenes (every synthetic one) start from their visual hull and are left alone."""
     own = 0 if scene.points is None else len(scene.points)
     return config.triangulate and not scene.has_masks and own < MIN_COLMAP_POINTS
+
+
+def feature_views(scene: Scene, max_size: int) -> list[View]:
+    """The training views at up to `max_size` pixels on their longest side: loaded again from the dataset when the run
+    holds them smaller (its working size), since SIFT finds few features on a weakly textured object at that size;
+    else the views as the scene holds them."""
+    from matspray.data.loader import load_scene  # the loader's readers import far more than this module needs
+
+    largest = max(max(v.width, v.height) for v in scene.train)
+    if scene.source is None or scene.downscale <= 1.0 or largest >= max_size:
+        return scene.train
+    larger = {v.name: v for v in load_scene(scene.source, downscale=None, max_size=max_size).train}
+    if set(larger) != {v.name for v in scene.train}:
+        return scene.train
+    return [larger[v.name] for v in scene.train]
 
 
 def neighbour_pairs(views: list[View], neighbours: int) -> list[tuple[int, int]]:
@@ -119,6 +136,7 @@ def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, 
     reader.camera_model = "PINHOLE"
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = config.threads
+    extraction.sift.peak_threshold = SfmConfig.peak_threshold  # as structure from motion: smooth objects need it
     bar = tqdm(total=len(names), desc="points: SIFT features", unit="view", disable=not progress)
     for batch in range(0, len(names), 8):  # in small batches, for the progress bar
         pycolmap.extract_features(
@@ -211,7 +229,7 @@ def points_stage(
     else:
         log(f"points: the capture has no masks and no points; triangulating features of {len(scene.train)} views")
         with timed() as timer:
-            result = triangulate_views(scene.train, config, progress, log)
+            result = triangulate_views(feature_views(scene, config.max_size), config, progress, log)
             save_torch_atomic({"points": result.points, "colours": result.colours, "message": result.message}, path)
         run.finish_stage(STAGE, fingerprint, config, timer.seconds, {"points": len(result.points)})
     where = f" (reused {STAGE}/{POINTS_FILE})" if reused else ""
