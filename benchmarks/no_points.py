@@ -45,7 +45,7 @@ def run_form(name: str, data: Path, settings: list[str], args, log: Path) -> dic
     same = made.get("settings") == settings and made.get("object_bounds") == args.object_bounds
     if not (same and (run / "eval" / "heldout.json").exists()):  # `run` reuses the stages the change leaves alone
         set_args = ["--set", *settings] if settings else []
-        bounds = ["--object-bounds", args.object_bounds] if args.object_bounds else []
+        bounds = [f"--object-bounds={args.object_bounds}"] if args.object_bounds else []  # it may start with a minus
         steps.append(
             command(
                 ["run", "--data", str(data), "--out", str(run), "--preset", args.preset, "--predictor", "none"]
