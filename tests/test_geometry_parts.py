@@ -179,3 +179,21 @@ def test_initial_points_lie_on_the_visual_hull():
     assert g.sh.shape[1:] == (9, 3) and (g.sh[:, 1:] == 0).all()
     torch.testing.assert_close(g.opacities, torch.full((len(g),), 0.3))
     torch.testing.assert_close(g.scales[:, 0], 0.5 * neighbour_spacing(g.means))
+
+
+def test_a_few_points_of_a_capture_without_masks_are_topped_up_with_scattered_ones():
+    cameras = [Camera.look_at([3 * math.cos(a), 3 * math.sin(a), 1], [0, 0, 0], [0, 0, 1], 0.8, 24, 24) for a in (0, 2)]
+    views = [View(f"v{i}", torch.full((24, 24, 3), 0.5), None, c) for i, c in enumerate(cameras)]
+    bounds = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    sparse = torch.rand(150, 3, generator=torch.Generator().manual_seed(1)) * 0.5  # 15 % of the count
+    scene = Scene(train=views, test=[], bounds=bounds, points=sparse)
+    g = initial_gaussians(scene, views, 1000, 0, 0.3, torch.Generator().manual_seed(0))
+    assert len(g) == 1000
+    torch.testing.assert_close(g.means[:150], sparse)  # the points first, then the scattered rest
+    in_bounds = (g.means[150:].abs() <= 1.0).all(-1)
+    assert int(in_bounds.sum()) == 850 - int(0.25 * 850)  # the rest in the bounds, a quarter on the far shell
+    enough = Scene(train=views, test=[], bounds=bounds, points=torch.rand(300, 3) * 0.5)  # 30 %: used alone
+    assert len(initial_gaussians(enough, views, 1000, 0, 0.3, torch.Generator().manual_seed(0))) == 300
+    masked = [View(v.name, v.image, torch.ones(24, 24), v.camera) for v in views]
+    hull_scene = Scene(train=masked, test=[], bounds=bounds, points=sparse)  # with masks: the points alone
+    assert len(initial_gaussians(hull_scene, masked, 1000, 0, 0.3, torch.Generator().manual_seed(0))) == 150

@@ -1,4 +1,5 @@
-"""Initial Gaussians: COLMAP points when the scene has them; with masks, points on the visual hull's
+"""Initial Gaussians: COLMAP (or triangulated) points when the scene has them (topped up with scattered points
+when a capture without masks has only a few); with masks, points on the visual hull's
 surface (the first point along a ray through an object pixel that every mask calls object), coloured
 by that pixel; otherwise random points in the object bounds plus, for the background of a capture
 without masks, a shell of points far beyond the cameras (BACKGROUND_SHARE of them)."""
@@ -18,6 +19,7 @@ from matspray.render.sh import num_sh_bases, rgb_to_sh_dc
 
 MIN_COLMAP_POINTS = 100
 BACKGROUND_SHARE = 0.25  # of the initial points of a capture without masks or points: on the background shell
+SPARSE_SHARE = 0.25  # an unmasked capture with fewer points than this share of the count gets the rest scattered
 BACKGROUND_RADIUS = 3.0  # the shell's radius, in farthest-camera distances from the focus
 
 
@@ -34,19 +36,21 @@ def initial_gaussians(
     distance to their 3 nearest neighbours, coloured by the sRGB colour they project to. They are made on
     the views' device; random draws come from the CPU `generator` (the same points on every device)."""
     device = views[0].image.device
+    masked = any(v.alpha is not None for v in views)
     if scene.points is not None and len(scene.points) >= MIN_COLMAP_POINTS:
         points = scene.points.float()
         if len(points) > count:
             points = points[torch.randperm(len(points), generator=generator, device="cpu")[:count]]
         points = points.to(device)
+        if not masked and len(points) < SPARSE_SHARE * count:
+            # a few points (a weakly textured object's triangulation) leave most of the object without a Gaussian
+            # to start from: the rest are scattered as without points
+            points = torch.cat([points, scattered_points(scene, views, count - len(points), generator)])
         colours = projected_colours(points, views)
-    elif any(v.alpha is not None for v in views):
+    elif masked:
         points, colours = hull_surface_points(scene.bounds.float().to(device), views, count, generator)
     else:
-        bounds = scene.bounds.float().to(device)
-        shell = int(BACKGROUND_SHARE * count)
-        inner = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count - shell, 3, generator=generator).to(device)
-        points = torch.cat([inner, background_shell(views, shell).to(device)])
+        points = scattered_points(scene, views, count, generator)
         colours = projected_colours(points, views)
     sh = torch.zeros(len(points), num_sh_bases(sh_degree), 3, device=device)
     sh[:, 0] = rgb_to_sh_dc(colours)
@@ -61,6 +65,16 @@ def initial_gaussians(
         ),
         sh=sh,
     )
+
+
+def scattered_points(scene: Scene, views: list[View], count: int, generator: torch.Generator) -> Tensor:  # [count, 3]
+    """Random points in the scene's bounds and, for the background of a capture without masks, BACKGROUND_SHARE of
+    them on a far shell."""
+    device = views[0].image.device
+    bounds = scene.bounds.float().to(device)
+    shell = int(BACKGROUND_SHARE * count)
+    inner = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count - shell, 3, generator=generator).to(device)
+    return torch.cat([inner, background_shell(views, shell).to(device)])
 
 
 def hull_surface_points(
