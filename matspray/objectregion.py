@@ -13,7 +13,8 @@ or a box, given (`--object-bounds`) or chosen automatically by this rule:
   4. Radius: at most the framing radius, the largest sphere around the centre that every camera sees
      whole (an object-centred capture frames its object); within it, the candidates left are binned by
      distance from the centre, and outward from the densest shell the region ends at the first shell
-     whose density (Gaussians per volume) falls below 10% of that shell's, plus 5%.
+     whose density (Gaussians per volume) falls below 10% of that shell's, plus 5% (the densest shell among those
+     holding at least 1% of the candidates).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ PLANE_REACH, PLANE_REACH_SHARE = (
     0.25,
 )  # a ground's points reach this far (fraction of that distance), this many of them
 SHELLS, DENSITY_FLOOR, RADIUS_MARGIN = 48, 0.1, 1.05
+PEAK_SHARE = 0.01  # the densest shell is chosen among those holding at least this share of the candidates
 
 
 @dataclass(frozen=True)
@@ -161,7 +163,10 @@ def dense_radius(distances: Tensor, reach: float) -> float:
     counts = torch.histogram(distances.double().clamp(max=reach), bins=edges).hist
     counts[-1] -= int((distances >= reach).sum())  # points beyond reach are not in the last shell
     density = counts / (edges[1:] ** 3 - edges[:-1] ** 3)
-    peak = int(density.argmax())
+    # the peak is a shell that holds a share of the points: the innermost shells are so small that one stray point
+    # there would outweigh the object's surface and end the region at a fraction of the object
+    populated = counts >= max(1.0, PEAK_SHARE * float(counts.sum()))
+    peak = int(torch.where(populated, density, torch.zeros_like(density)).argmax())
     for shell in range(peak + 1, SHELLS):
         if density[shell] < DENSITY_FLOOR * density[peak]:
             return float(edges[shell]) * RADIUS_MARGIN

@@ -12,6 +12,7 @@ import torch
 from matspray.data.scene import Scene, View
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
+from matspray.geometry import densify
 from matspray.geometry.checkpoint import load_checkpoint, save_checkpoint
 from matspray.geometry.config import FOCUS, GeometryConfig, preset
 from matspray.geometry.densify import DensityControl, load_stats_state, stats_state
@@ -48,7 +49,8 @@ def test_a_scene_with_masks_keeps_the_fingerprint_it_had_before_the_focus():
     assert focus_step(masked) is None
 
 
-def test_focus_prunes_the_background_to_its_budget_keeping_what_covers_most():
+def test_focus_prunes_the_background_to_its_budget_keeping_what_covers_most(monkeypatch):
+    monkeypatch.setattr(densify, "MIN_FOCUS_GAUSSIANS", 1)  # six Gaussians in all here
     config = replace(preset("test"), max_gaussians=10, background_budget=0.2)  # the background keeps 2
     means = [[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]] + [[3.0 + i, 0.0, 0.0] for i in range(4)]
     scales = [[0.01] * 3, [0.01] * 3, [0.1] * 3, [0.3] * 3, [0.3, 0.3, 0.001], [0.2] * 3]
@@ -60,6 +62,15 @@ def test_focus_prunes_the_background_to_its_budget_keeping_what_covers_most():
     assert kept == [0.0, 0.5, 4.0, 5.0]  # both of the object (even the faint one); the two largest covers outside
     assert "2 Gaussians in the sphere" in message and "4 outside, 2 of those pruned" in message
     assert control.region == BALL and len(control.grad_sum) == 4
+
+
+def test_a_region_with_almost_no_gaussians_is_not_focused_on():
+    g = gaussians_from([[0.0, 0.0, 0.0]] + [[3.0 + i, 0.0, 0.0] for i in range(99)], [[0.01] * 3] * 100, [0.5] * 100)
+    optimizer = GaussianOptimizer(g, LRS)
+    control = DensityControl(preset("test"), extent=1.0, num_gaussians=100)
+    message = control.focus(optimizer, BALL)  # 1 of 100 inside: under the 10 an object needs
+    assert message.startswith("object focus skipped: the sphere") and "holds 1 of 100 Gaussians" in message
+    assert control.region is None and len(optimizer.params["means"]) == 100
 
 
 def test_after_the_focus_only_the_object_grows_at_its_own_threshold():

@@ -96,6 +96,13 @@ def test_dense_radius_ends_where_the_density_drops(hollow):
     assert 0.7 <= radius <= (0.7 + 3.0 / 48) * 1.05 + 1e-6
 
 
+def test_a_stray_point_near_the_centre_does_not_end_the_region():
+    g = torch.Generator().manual_seed(0)
+    surface = 0.5 + 0.02 * torch.randn(2000, generator=g)  # an object's surface at 0.5 from the centre
+    distances = torch.cat([surface, torch.tensor([0.03])])  # and one Gaussian near the centre, alone in its shell
+    assert 0.5 <= dense_radius(distances, 1.2) <= 0.7
+
+
 def test_framing_radius_is_the_sphere_every_camera_sees_whole():
     cameras = orbit(6, distance=4.0)
     half = math.atan(0.5 * 24 / float(cameras[0].K[0, 0]))

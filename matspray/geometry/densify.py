@@ -16,6 +16,7 @@ from matspray.objectregion import ObjectRegion
 from matspray.render.output import RasterOutput
 
 RESET_OPACITY = 0.01
+MIN_FOCUS_GAUSSIANS, MIN_FOCUS_SHARE = 10, 0.005  # an object region holding fewer is not focused on
 SPLIT_INTO = 2
 SPLIT_SHRINK = 0.8 * SPLIT_INTO  # children are 1.6 times smaller than their parent (3DGS)
 
@@ -111,9 +112,12 @@ class DensityControl:
         """From now on only the Gaussians inside `region` grow; the background keeps its `background_budget` share of
         max_gaussians, those covering the most (opacity times the area of the two larger axes): a room in the
         photos is then drawn coarsely, and the budget goes to the object."""
-        self.region = region
         g = optimizer.gaussians().detach()
-        inside = self.inside(g.means)
+        inside = region.contains(g.means).to(g.means.device)
+        held = int(inside.sum())
+        if held < max(MIN_FOCUS_GAUSSIANS, MIN_FOCUS_SHARE * len(inside)):  # no object found: better no focus at all
+            return f"object focus skipped: the {region.describe()} holds {held} of {len(inside)} Gaussians"
+        self.region = region
         background = int((~inside).sum())
         budget = int(self.config.background_budget * self.config.max_gaussians)
         keep = torch.ones_like(inside)
@@ -125,7 +129,7 @@ class DensityControl:
             optimizer.edit(keep)
             self.reset_stats(len(optimizer.params["means"]), self.grad_sum.device)
         return (
-            f"object focus: {int(inside.sum())} Gaussians in the {region.describe()}, "
+            f"object focus: {held} Gaussians in the {region.describe()}, "
             f"{background} outside, {int((~keep).sum())} of those pruned"
         )
 
