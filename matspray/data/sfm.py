@@ -236,6 +236,44 @@ def prepare_photos(
     return sizes
 
 
+def extract_sift(
+    database: Path,
+    image_dir: Path,
+    names: list[str],
+    camera_model: str,
+    camera_mode,
+    threads: int,
+    peak_threshold: float,
+    progress: bool,
+    desc: str = "SIFT features",
+    batch: int = 4,
+) -> None:
+    """SIFT features of the images `names` of `image_dir` into the COLMAP `database`, on the CPU, in small batches
+    for the progress bar; with a single camera (CameraMode.SINGLE) every batch shares the first one's."""
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = threads
+    extraction.sift.peak_threshold = peak_threshold
+    bar = tqdm(total=len(names), desc=desc, unit="photo", disable=not progress)
+    for start in range(0, len(names), batch):
+        pycolmap.extract_features(
+            database,
+            image_dir,
+            image_names=names[start : start + batch],
+            camera_mode=camera_mode,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
+        if camera_mode == pycolmap.CameraMode.SINGLE:
+            reader.existing_camera_id = 1  # later batches share the first batch's camera
+        bar.update(len(names[start : start + batch]))
+    bar.close()
+
+
 def run_sfm(
     images, out, config: SfmConfig = SfmConfig(), masks=None, progress: bool = True, log: Callable[[str], None] = print
 ) -> SfmResult:
@@ -282,27 +320,8 @@ def reconstruct(
     prepare_photos(photos, image_dir, config, mask_dir, mask_out, progress)
     pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
     names = [p.name for p in photos]
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = config.camera_model
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = config.threads
-    extraction.sift.peak_threshold = config.peak_threshold
     mode = pycolmap.CameraMode.SINGLE if config.single_camera else pycolmap.CameraMode.AUTO
-    bar = tqdm(total=len(names), desc="SIFT features", unit="photo", disable=not progress)
-    for batch in range(0, len(names), 4):  # in small batches, for the progress bar
-        pycolmap.extract_features(
-            database,
-            image_dir,
-            image_names=names[batch : batch + 4],
-            camera_mode=mode,
-            reader_options=reader,
-            extraction_options=extraction,
-            device=pycolmap.Device.cpu,
-        )
-        if config.single_camera:
-            reader.existing_camera_id = 1  # later batches share the first batch's camera
-        bar.update(len(names[batch : batch + 4]))
-    bar.close()
+    extract_sift(database, image_dir, names, config.camera_model, mode, config.threads, config.peak_threshold, progress)
     log(f"matching features ({config.matcher}) ...")
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = config.threads

@@ -24,11 +24,10 @@ import numpy as np
 import torch
 from PIL import Image
 from torch import Tensor
-from tqdm import tqdm
 
 from matspray.data.images import linear_to_srgb, save_torch_atomic, srgb_to_linear
 from matspray.data.scene import Scene, View
-from matspray.data.sfm import SfmConfig
+from matspray.data.sfm import SfmConfig, extract_sift
 from matspray.errors import ConfigError
 from matspray.geometry.init import MIN_COLMAP_POINTS
 from matspray.rundir import RunDir, timed
@@ -132,24 +131,19 @@ def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, 
         pixels = (linear_to_srgb(small.image).clamp(0, 1) * 255).round().to(torch.uint8).numpy()
         Image.fromarray(pixels).save(image_dir / names[-1])
     pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = config.threads
-    extraction.sift.peak_threshold = SfmConfig.peak_threshold  # as structure from motion: smooth objects need it
-    bar = tqdm(total=len(names), desc="points: SIFT features", unit="view", disable=not progress)
-    for batch in range(0, len(names), 8):  # in small batches, for the progress bar
-        pycolmap.extract_features(
-            database,
-            image_dir,
-            image_names=names[batch : batch + 8],
-            camera_mode=pycolmap.CameraMode.PER_IMAGE,
-            reader_options=reader,
-            extraction_options=extraction,
-            device=pycolmap.Device.cpu,
-        )
-        bar.update(len(names[batch : batch + 8]))
-    bar.close()
+    # SIFT's threshold as structure from motion's: smooth objects need it
+    extract_sift(
+        database,
+        image_dir,
+        names,
+        "PINHOLE",
+        pycolmap.CameraMode.PER_IMAGE,
+        config.threads,
+        SfmConfig.peak_threshold,
+        progress,
+        desc="points: SIFT features",
+        batch=8,
+    )
     with pycolmap.Database.open(database) as db:  # the known intrinsics replace the ones guessed from the files
         ids = {image.name: (image.image_id, image.camera_id) for image in db.read_all_images()}
         for image in db.read_all_images():
