@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from matspray.data.loader import load_scene
-from matspray.estimate import CPU_RATES, estimate_error, run_work
+from matspray.estimate import CPU_RATES, estimate_error, feature_sizes, run_work
 from matspray.rundir import STAGE_RECORD, RunDir, read_json
 from matspray.variants import get_variant
 
@@ -27,8 +27,16 @@ def stage_work(run: Path) -> dict[str, tuple[float, float]]:
     scene = load_scene(folder.dataset()["source"], downscale=folder.downscale())
     views = [(v.width, v.height) for v in scene.train]
     rays = 1 if config.get("predictor") == "none" else config["lift"]["samples_per_side"] ** 2
+    longest = config.get("points", {}).get("max_size", 0)  # runs made before the points stage have none
+    features = feature_sizes(views, scene.downscale, longest) if longest else []
     work = run_work(
-        views, config["geometry"]["iterations"], config["geometry"]["resolution"], rays, [], not scene.has_masks
+        views,
+        config["geometry"]["iterations"],
+        config["geometry"]["resolution"],
+        rays,
+        [],
+        not scene.has_masks,
+        feature_views=features,
     )
     pixels = sum(w * h for w, h in views) / len(views)
     found = {}
@@ -38,7 +46,7 @@ def stage_work(run: Path) -> dict[str, tuple[float, float]]:
             continue
         if stage.startswith("asset"):
             found[stage] = (read_json(record)["settings"]["iterations"] * pixels, seconds)
-        elif stage in ("geometry", "masks", "lift"):
+        elif stage in ("points", "geometry", "masks", "lift"):
             found[stage] = (getattr(work, stage), seconds)
     return found
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 # seconds per unit of work with 2 free cores: the demo of `make demo` alone on the reference machine
 # (docs/benchmarks.md, "Time estimates"; runs that shared the cores with other jobs took 2 to 5 times longer)
 CPU_RATES = {
+    "points": 2.0e-6,  # per (training view x pixel of the photos given to feature extraction)
     "geometry": 3.0e-6,  # per (iteration x pixel of a geometry view)
     "masks": 1.0e-6,  # per (training view x pixel)
     "lift": 4.3e-6,  # per ray
@@ -25,6 +26,7 @@ SPREAD = 2.0  # the range said: estimate / SPREAD to estimate * SPREAD
 class Work:
     """What a run's stages will do, in units their time grows with. Stages already finished are left out (0)."""
 
+    points: float = 0.0  # training views x pixels of their photos for features (captures triangulating points only)
     geometry: float = 0.0  # iterations x pixels of one geometry view
     masks: float = 0.0  # training views x pixels (runs without masks only)
     lift: float = 0.0  # rays: training views x pixels x rays per pixel
@@ -33,6 +35,7 @@ class Work:
 
     def stages(self) -> dict[str, float]:
         return {
+            "points": self.points,
             "geometry": self.geometry,
             "masks": self.masks,
             "lift": self.lift,
@@ -47,6 +50,17 @@ def view_pixels(width: int, height: int, long_side: int = 0) -> float:
     return round(width * factor) * round(height * factor)
 
 
+def feature_sizes(views: list[tuple[int, int]], downscale: float, max_size: int) -> list[tuple[int, int]]:
+    """The sizes of the photos the `points` stage extracts features from: the working-size `views` [(width, height)]
+    as loaded (times `downscale`), brought to at most `max_size` on their long side."""
+    sizes = []
+    for width, height in views:
+        w, h = width * downscale, height * downscale
+        factor = min(1.0, max_size / max(w, h))
+        sizes.append((round(w * factor), round(h * factor)))
+    return sizes
+
+
 def run_work(
     views: list[tuple[int, int]],
     geometry_iterations: int,
@@ -55,14 +69,17 @@ def run_work(
     refine_iterations: list[tuple[int, bool]],
     unmasked: bool,
     done: frozenset[str] = frozenset(),
+    feature_views: list[tuple[int, int]] = (),
 ) -> Work:
     """The work of a run on training views of sizes `views` [(width, height)], refining variants of
-    `refine_iterations` [(iterations, merges 2D maps)], with the stages in `done` skipped."""
+    `refine_iterations` [(iterations, merges 2D maps)], with the stages in `done` skipped. `feature_views`: the sizes
+    of the photos a capture without points extracts features from (none: no `points` stage)."""
     if not views:
         return Work()
     pixels = sum(w * h for w, h in views) / len(views)
     geometry_pixels = sum(view_pixels(w, h, geometry_resolution) for w, h in views) / len(views)
     return Work(
+        points=0.0 if "points" in done else float(sum(w * h for w, h in feature_views)),
         geometry=0.0 if "geometry" in done else geometry_iterations * geometry_pixels,
         masks=len(views) * pixels if unmasked and "masks" not in done else 0.0,
         lift=0.0 if "lift" in done else len(views) * pixels * rays_per_pixel,

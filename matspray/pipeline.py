@@ -21,10 +21,10 @@ from matspray.asset import Asset, read_asset, write_asset
 from matspray.config import WORKING_SIZE, PipelineConfig
 from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
-from matspray.data.triangulate import needs_points, points_stage
+from matspray.data.triangulate import POINTS_FILE, needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
 from matspray.errors import ConfigError, MatsprayError, RunError, file_error
-from matspray.estimate import Work, run_work
+from matspray.estimate import Work, feature_sizes, run_work
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.ply import read_ply, vertex_count
 from matspray.geometry.train import train_geometry
@@ -516,6 +516,8 @@ class Pipeline:
             "masks": (self.masks_fingerprint(), ["masks.pt"]),
             "lift": (self.lift_fingerprint(), ["projected.pt"]),
         }
+        if self.points_fp:
+            finished["points"] = (self.points_fp, [POINTS_FILE])
         done = frozenset(stage for stage, (fp, files) in finished.items() if self.run.stage_done(stage, fp, files))
         to_refine = [
             v for v in names if not self.run.stage_done(asset_stage(v), self.refine_fingerprint(v), ["asset.ply"])
@@ -528,7 +530,16 @@ class Pipeline:
             [(variant_refine_config(self.config, v).iterations, get_variant(v).uses_maps) for v in to_refine],
             self.unmasked,
             done,
+            self.feature_views(),
         )
+
+    def feature_views(self) -> list[tuple[int, int]]:
+        """The sizes of the photos the `points` stage extracts features from (none when the run has no such stage):
+        the photos as loaded, before the working size, at most `points.max_size` on their long side."""
+        if not self.points_fp:
+            return []
+        views = [(v.width, v.height) for v in self.scene.train]
+        return feature_sizes(views, self.scene.downscale, self.config.points.max_size)
 
     def run_all(self, variants=None) -> dict:
         """Refine `variants` (default: full, or in a run without 2D maps the variants that need none)."""

@@ -58,3 +58,18 @@ def test_a_device_without_a_measured_rate_says_so():
 
 def test_estimate_error_is_a_symmetric_factor():
     assert estimate_error(200, 100) == estimate_error(50, 100) == 2.0
+
+
+def test_a_capture_that_triangulates_points_counts_its_feature_photos():
+    work = run_work([(64, 64)], 10, 0, 1, [], unmasked=True, feature_views=[(800, 600), (1024, 768)])
+    assert work.points == 800 * 600 + 1024 * 768
+    assert estimate_seconds(work, "cpu")["points"] == work.points * CPU_RATES["points"]
+    done = run_work([(64, 64)], 10, 0, 1, [], True, frozenset({"points"}), feature_views=[(800, 600)])
+    assert done.points == 0.0
+
+
+def test_feature_photos_are_the_loaded_photos_brought_to_the_points_size():
+    from matspray.estimate import feature_sizes
+
+    assert feature_sizes([(256, 171), (256, 256)], 4.0, 1024) == [(1024, 684), (1024, 1024)]  # 1024 x 684 as loaded
+    assert feature_sizes([(256, 256)], 3.125, 1024) == [(800, 800)]  # smaller than max_size: as loaded

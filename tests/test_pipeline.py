@@ -402,6 +402,7 @@ def test_run_says_its_estimate_first_and_counts_only_what_is_left(tiny_object, f
     assert Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None).work(
         VARIANTS
     ).stages() == {
+        "points": 0.0,
         "geometry": 0.0,
         "masks": 0.0,
         "lift": 0.0,
