@@ -21,24 +21,30 @@ Views with fewer hits are glimpses (nearly occluded, grazing, or the edge of a f
 on another surface); on the demo object their medians disagree with the other views more than
 twice as often as the best-seen views' (`python -m benchmarks.lift_support`). Every hit view keeps
 its median in `values` and its sample count in `hits`.
+
+`save_lift` / `load_lift`: the stage's file (RUN/lift/projected.pt), checked against the run when read.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import torch
 from torch import Tensor
 from tqdm import tqdm
 
 from matspray.data.camera import Camera
-from matspray.errors import SettingError
+from matspray.data.images import save_torch_atomic
+from matspray.errors import MatsprayError, SettingError, file_error
 from matspray.gaussians import Gaussians
+from matspray.geometry.ply import vertex_count
 from matspray.material import zeros as material_zeros
 from matspray.render.backend import active_backend, note_render
 from matspray.render.contributions import iter_contributions
 from matspray.render.settings import RasterSettings
+from matspray.rundir import RunDir, read_json, stage_folder, stage_hint, to_plain
 
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
 DEFAULT_BAND_SAMPLES = 1 << 21  # iter_contributions' default
@@ -285,4 +291,87 @@ def lift(
     }
     return LiftResult(
         values=values[kept], seen=seen[kept], kept=kept, view_names=list(view_names), stats=stats, hits=hits[kept]
+    )
+
+
+def save_lift(result: LiftResult, path: Path) -> None:
+    save_torch_atomic(
+        {
+            "values": result.values.cpu(),
+            "seen": result.seen.cpu(),
+            "kept": result.kept.cpu(),
+            "view_names": result.view_names,
+            "stats": to_plain(result.stats),
+            "hits": None if result.hits is None else result.hits.cpu(),
+        },
+        path,
+    )
+
+
+def load_lift(path: Path, device) -> LiftResult:
+    """The lift stage's result, checked: a damaged file is named (with what to do), never trusted. In a run folder its
+    Gaussians are checked against the geometry (or the masks stage's object) and its views against dataset.json."""
+    path = Path(path)
+    hint = stage_hint(path) or "delete it and rerun `matspray run` to lift again"
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises (unpickling, zip, EOF): the same clear message
+        raise file_error(path, f"is not a readable lift result ({type(exc).__name__})", hint) from None
+
+    def refuse(problem: str):
+        return file_error(path, problem, hint)
+
+    if not isinstance(data, dict) or not {"values", "seen", "kept", "view_names", "stats"} <= set(data):
+        raise refuse("lacks the lift's values, seen, kept, view_names or stats")
+    values, seen, kept, names, stats, hits = (
+        data.get(k) for k in ("values", "seen", "kept", "view_names", "stats", "hits")
+    )
+    if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names) and isinstance(stats, dict)):
+        raise refuse("its view_names are not a list of view names, or its stats no mapping")
+    if not (isinstance(kept, torch.Tensor) and kept.dtype == torch.bool and kept.dim() == 1):
+        raise refuse("its 'kept' flags are not a [N] bool tensor")
+    count, views = int(kept.sum()), len(names)
+    if not (
+        isinstance(values, torch.Tensor) and values.is_floating_point() and tuple(values.shape) == (count, views, 5)
+    ):
+        raise refuse(f"its values are not [{count}, {views}, 5] (the kept Gaussians, the views, 5 channels)")
+    if not bool(torch.isfinite(values).all()) or (
+        count and not 0.0 <= float(values.min()) <= float(values.max()) <= 1.0
+    ):
+        raise refuse("its values are not finite numbers in [0, 1]")
+    if not (isinstance(seen, torch.Tensor) and seen.dtype == torch.bool and tuple(seen.shape) == (count, views)):
+        raise refuse(f"its 'seen' flags are not a [{count}, {views}] bool tensor")
+    if hits is not None and not (
+        isinstance(hits, torch.Tensor) and not hits.is_floating_point() and tuple(hits.shape) == (count, views)
+    ):
+        raise refuse(f"its hits are not a [{count}, {views}] integer tensor")
+    run = path.parent.parent
+    if stage_folder(path) is not None:
+        try:
+            masks = read_json(run / "masks" / "stage.json") if (run / "masks" / "stage.json").exists() else None
+            lifted = (
+                masks.get("inside") if isinstance(masks, dict) else vertex_count(run / "geometry" / "gaussians.ply")
+            )
+        except (OSError, ValueError):  # a damaged masks record: that stage is made again, and the lift with it
+            lifted = None
+        if isinstance(lifted, int) and lifted != len(kept):
+            raise refuse(
+                f"lifted {len(kept)} Gaussians, but the run's {'object' if masks else 'geometry'} has {lifted}"
+            )
+        try:
+            train_views = RunDir(run).dataset().get("train_views")
+        except MatsprayError:
+            train_views = None  # a damaged dataset record is named by whatever reads it
+        if train_views is not None and names != train_views:
+            raise refuse(
+                f"was lifted from {views} views ({', '.join(names[:3])}...), "
+                f"not the run's {len(train_views)} training views"
+            )
+    return LiftResult(
+        values=values.to(device),
+        seen=seen.to(device),
+        kept=kept.to(device),
+        view_names=names,
+        stats=stats,
+        hits=None if hits is None else hits.to(device),
     )

@@ -23,12 +23,12 @@ from matspray.data import Scene, load_scene
 from matspray.data.images import save_torch_atomic
 from matspray.data.triangulate import POINTS_FILE, needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
-from matspray.errors import ConfigError, MatsprayError, RunError, file_error
+from matspray.errors import ConfigError, RunError, file_error
 from matspray.estimate import Work, feature_sizes, run_work
 from matspray.geometry.config import GeometryConfig
-from matspray.geometry.ply import read_ply, vertex_count
+from matspray.geometry.ply import read_ply
 from matspray.geometry.train import train_geometry
-from matspray.lift import LiftResult, lift
+from matspray.lift import LiftResult, lift, load_lift, save_lift
 from matspray.material import stack
 from matspray.merger import mlp_dtype
 from matspray.objectmasks import (
@@ -55,7 +55,7 @@ from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews
 from matspray.render.numba_backend import compile_in_background
 from matspray.render.visibility import bake_visibility
-from matspray.rundir import RunDir, fingerprint, read_json, stage_folder, stage_hint, timed, to_plain
+from matspray.rundir import RunDir, fingerprint, timed
 from matspray.variants import asset_stage, get_variant, variants_for_maps
 
 
@@ -544,86 +544,3 @@ class Pipeline:
     def run_all(self, variants=None) -> dict:
         """Refine `variants` (default: full, or in a run without 2D maps the variants that need none)."""
         return {variant: self.refine(variant) for variant in variants_for_maps(variants, self.has_maps)}
-
-
-def save_lift(result: LiftResult, path: Path) -> None:
-    save_torch_atomic(
-        {
-            "values": result.values.cpu(),
-            "seen": result.seen.cpu(),
-            "kept": result.kept.cpu(),
-            "view_names": result.view_names,
-            "stats": to_plain(result.stats),
-            "hits": None if result.hits is None else result.hits.cpu(),
-        },
-        path,
-    )
-
-
-def load_lift(path: Path, device) -> LiftResult:
-    """The lift stage's result, checked: a damaged file is named (with what to do), never trusted. In a run folder its
-    Gaussians are checked against the geometry (or the masks stage's object) and its views against dataset.json."""
-    path = Path(path)
-    hint = stage_hint(path) or "delete it and rerun `matspray run` to lift again"
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises (unpickling, zip, EOF): the same clear message
-        raise file_error(path, f"is not a readable lift result ({type(exc).__name__})", hint) from None
-
-    def refuse(problem: str):
-        return file_error(path, problem, hint)
-
-    if not isinstance(data, dict) or not {"values", "seen", "kept", "view_names", "stats"} <= set(data):
-        raise refuse("lacks the lift's values, seen, kept, view_names or stats")
-    values, seen, kept, names, stats, hits = (
-        data.get(k) for k in ("values", "seen", "kept", "view_names", "stats", "hits")
-    )
-    if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names) and isinstance(stats, dict)):
-        raise refuse("its view_names are not a list of view names, or its stats no mapping")
-    if not (isinstance(kept, torch.Tensor) and kept.dtype == torch.bool and kept.dim() == 1):
-        raise refuse("its 'kept' flags are not a [N] bool tensor")
-    count, views = int(kept.sum()), len(names)
-    if not (
-        isinstance(values, torch.Tensor) and values.is_floating_point() and tuple(values.shape) == (count, views, 5)
-    ):
-        raise refuse(f"its values are not [{count}, {views}, 5] (the kept Gaussians, the views, 5 channels)")
-    if not bool(torch.isfinite(values).all()) or (
-        count and not 0.0 <= float(values.min()) <= float(values.max()) <= 1.0
-    ):
-        raise refuse("its values are not finite numbers in [0, 1]")
-    if not (isinstance(seen, torch.Tensor) and seen.dtype == torch.bool and tuple(seen.shape) == (count, views)):
-        raise refuse(f"its 'seen' flags are not a [{count}, {views}] bool tensor")
-    if hits is not None and not (
-        isinstance(hits, torch.Tensor) and not hits.is_floating_point() and tuple(hits.shape) == (count, views)
-    ):
-        raise refuse(f"its hits are not a [{count}, {views}] integer tensor")
-    run = path.parent.parent
-    if stage_folder(path) is not None:
-        try:
-            masks = read_json(run / "masks" / "stage.json") if (run / "masks" / "stage.json").exists() else None
-            lifted = (
-                masks.get("inside") if isinstance(masks, dict) else vertex_count(run / "geometry" / "gaussians.ply")
-            )
-        except (OSError, ValueError):  # a damaged masks record: that stage is made again, and the lift with it
-            lifted = None
-        if isinstance(lifted, int) and lifted != len(kept):
-            raise refuse(
-                f"lifted {len(kept)} Gaussians, but the run's {'object' if masks else 'geometry'} has {lifted}"
-            )
-        try:
-            train_views = RunDir(run).dataset().get("train_views")
-        except MatsprayError:
-            train_views = None  # a damaged dataset record is named by whatever reads it
-        if train_views is not None and names != train_views:
-            raise refuse(
-                f"was lifted from {views} views ({', '.join(names[:3])}...), "
-                f"not the run's {len(train_views)} training views"
-            )
-    return LiftResult(
-        values=values.to(device),
-        seen=seen.to(device),
-        kept=kept.to(device),
-        view_names=names,
-        stats=stats,
-        hits=None if hits is None else hits.to(device),
-    )

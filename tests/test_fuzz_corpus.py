@@ -346,8 +346,7 @@ def test_damaged_dataset_record(tmp_path):
 
 def test_damaged_lift_result(tmp_path):
     """A cut projected.pt was a RuntimeError from torch.load; values of fewer Gaussians than it keeps were trusted."""
-    from matspray.lift import LiftResult
-    from matspray.pipeline import load_lift, save_lift
+    from matspray.lift import LiftResult, load_lift, save_lift
 
     path = tmp_path / "projected.pt"
     save_lift(

@@ -33,9 +33,10 @@ from matspray.config import build_config
 from matspray.data.images import write_raw
 from matspray.errors import MatsprayError
 from matspray.geometry.ply import read_ply, write_ply
+from matspray.lift import load_lift
 from matspray.objectmasks import ObjectMasks, read_object_masks, read_region, write_object_masks
 from matspray.objectregion import ObjectRegion
-from matspray.pipeline import Pipeline, load_lift
+from matspray.pipeline import Pipeline
 from matspray.predictors import read_materials2d, read_predictor_info
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir, fingerprint

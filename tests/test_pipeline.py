@@ -72,7 +72,7 @@ def test_the_asset_ply_carries_the_refined_normals_of_the_variants_with_the_pbr_
     """The PBR variants' normals were trained (they left the geometry's); the others shade with the geometry's."""
     from matspray.asset import read_asset
     from matspray.geometry.ply import read_ply
-    from matspray.pipeline import load_lift
+    from matspray.lift import load_lift
     from matspray.shading_normals import angle_change_degrees
 
     _, geometry_normals = read_ply(finished_run / "geometry" / "gaussians.ply")
