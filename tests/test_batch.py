@@ -19,6 +19,7 @@ from matspray.cli.batch import batch_config
 from matspray.errors import ConfigError, RunError, SettingError
 from matspray.eval.average import average_tables
 from tests.reference_metrics import relighting_psnr
+from tests.viewer_process import free_port
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = ["--preset", "test", "--refine-iterations", "8", "--geometry-iterations", "150"]
@@ -244,12 +245,6 @@ def test_two_inputs_with_one_name_are_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(tmp_path / "a" / "chair") in err and str(tmp_path / "b" / "chair") in err
     assert not (tmp_path / "out").exists()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_an_address_that_does_not_answer_is_reported_within_seconds(tmp_path):

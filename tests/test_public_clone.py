@@ -14,17 +14,14 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
-import socket
 import subprocess
 import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
 
 from tests.scenes import capture_like
+from tests.viewer_process import free_port, serve_then_interrupt
 
 ROOT = Path(__file__).resolve().parents[1]
 FEWER_STEPS = ["--set", "geometry.iterations=20", "refine.iterations=2", "refine.light_warmup=1"]
@@ -148,40 +145,11 @@ def test_a_public_clone_runs_the_first_commands_without_shared_data_or_network(c
     start_and_stop_the_viewer(clone)
 
 
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
-
-
 def start_and_stop_the_viewer(clone: Clone) -> None:
     port = free_port()
-    viewer = subprocess.Popen(
-        clone.command("view", "--run", "runs/capture", "--port", port),
-        cwd=clone.root,
-        env=clone.env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    lines = []
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            line = viewer.stdout.readline()
-            if not line:
-                break
-            lines.append(line)
-            if "matspray view: ready" in line:
-                break
-        assert lines and "matspray view: ready" in lines[-1], "".join(lines) + viewer.stderr.read()
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as page:  # the page is served
-            assert page.status == 200 and b"<html" in page.read().lower()
-        viewer.send_signal(signal.SIGINT)
-        out, err = viewer.communicate(timeout=60)
-    finally:
-        if viewer.poll() is None:
-            viewer.kill()
-            viewer.communicate()
-    assert viewer.returncode == 0, "".join(lines) + out + err
+    command = clone.command("view", "--run", "runs/capture", "--port", port)
+    stopped = serve_then_interrupt(command, port, stop_timeout=60, cwd=clone.root, env=clone.env)
+    assert stopped.page_status == 200 and b"<html" in stopped.page.lower()  # the page is served
+    out, err = stopped.out, stopped.err
+    assert stopped.returncode == 0, "".join(stopped.lines) + out + err
     assert "matspray view: stopped" in out and "Traceback" not in err, out + err

@@ -30,6 +30,7 @@ from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, RotatedLig
 from matspray.view.photos import nearest_view
 from matspray.view.snapshot import write_snapshot
 from tests.scenes import ring_cameras, sky_map, write_disk_sphere_run
+from tests.viewer_process import free_port
 
 
 def make_view_run(root: Path, gaussians: int = 800) -> Path:
@@ -41,12 +42,6 @@ def make_view_run(root: Path, gaussians: int = 800) -> Path:
 @pytest.fixture(scope="module")
 def view_run(tmp_path_factory):
     return make_view_run(tmp_path_factory.mktemp("view"))
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 # ------------------------------------------------------------------------------------------ cameras

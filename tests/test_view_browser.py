@@ -16,7 +16,8 @@ import pytest
 import torch
 
 from benchmarks.viewer import chromium_missing, open_chromium, page_image, save_screenshot, shows_picture
-from tests.test_view import free_port, make_view_run
+from tests.test_view import make_view_run
+from tests.viewer_process import free_port
 
 pytest.importorskip("viser")
 MISSING = chromium_missing()

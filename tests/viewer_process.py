@@ -1,0 +1,50 @@
+"""`matspray view` as a user runs it, in its own process: a free port, and one serve-then-Ctrl+C cycle for the tests
+that check it starts, serves its page and stops cleanly."""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+from dataclasses import dataclass
+
+READY = "matspray view: ready"
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@dataclass
+class ViewerExit:
+    returncode: int
+    lines: list[str]  # stdout up to and including the ready line
+    page_status: int
+    page: bytes  # the page served at /
+    out: str  # stdout after the ready line
+    err: str
+
+
+def serve_then_interrupt(command: list[str], port: int, stop_timeout: float, cwd=None, env=None) -> ViewerExit:
+    """Start the viewer `command` (listening on `port`), wait for its ready line, fetch its page, send Ctrl+C and wait
+    up to `stop_timeout` s for it to exit; a viewer that is still running then is killed (and the test fails)."""
+    import urllib.request
+
+    viewer = subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: list[str] = []
+    try:
+        while not lines or READY not in lines[-1]:
+            line = viewer.stdout.readline()
+            assert line, "".join(lines) + viewer.stderr.read()  # it ended before it was ready
+            lines.append(line)
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as page:
+            status, body = page.status, page.read()
+        viewer.send_signal(signal.SIGINT)
+        out, err = viewer.communicate(timeout=stop_timeout)
+    finally:
+        if viewer.poll() is None:
+            viewer.kill()
+            viewer.communicate()
+    return ViewerExit(viewer.returncode, lines, status, body, out, err)
