@@ -21,7 +21,7 @@ from matspray.data.scene import Scene
 from matspray.errors import DataError, MatsprayError, file_error
 from matspray.gaussians import Gaussians
 from matspray.geometry.ply import vertex_count
-from matspray.objectregion import ObjectRegion, auto_region, given_region
+from matspray.objectregion import ObjectRegion, object_region
 from matspray.render.rasterize import rasterize
 from matspray.rundir import RunDir, read_record, stage_hint, write_json
 
@@ -71,10 +71,8 @@ def compute_object_masks(
     training cameras), the Gaussians inside it and the masks of every train and test view. A geometry that focused
     on its object drew the room coarsely, and the automatic rule, which finds the table among the room's Gaussians,
     would then miss it: the region found then is the object's."""
-    if object_bounds is not None:
-        region = given_region(object_bounds)
-    elif region is None:
-        region = auto_region(gaussians.means, gaussians.opacities, [v.camera for v in scene.train])
+    if region is None or object_bounds is not None:
+        region = object_region(gaussians.means, gaussians.opacities, [v.camera for v in scene.train], object_bounds)
     inside = region.contains(gaussians.means.detach()).cpu()
     if not inside.any():
         raise DataError(

@@ -208,6 +208,13 @@ def auto_region(means: Tensor, opacities: Tensor, cameras: list[Camera], seed: i
     )
 
 
+def object_region(means: Tensor, opacities: Tensor, cameras: list[Camera], object_bounds=None) -> ObjectRegion:
+    """The region `object_bounds` gives (`given_region`'s numbers), else the automatic rule's on these Gaussians."""
+    if object_bounds is not None:
+        return given_region(object_bounds)
+    return auto_region(means, opacities, cameras)
+
+
 def mask_iou(
     mask: Tensor, truth: Tensor, threshold: float = 0.5
 ) -> float:  # [H, W], [H, W] -> IoU of the thresholded masks

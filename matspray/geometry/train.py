@@ -33,7 +33,7 @@ from matspray.geometry.normals import consensus_normals, resize_normal_map
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
 from matspray.geometry.ply import read_ply, write_ply
 from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
-from matspray.objectregion import ObjectRegion, auto_region, given_region
+from matspray.objectregion import object_region
 
 PLY_NAME, METRICS_NAME, CHECKPOINT_NAME = "gaussians.ply", "metrics.json", "checkpoint.pt"
 REGION_NAME = "region.json"  # the object region a capture without masks focused on
@@ -182,7 +182,8 @@ def train_geometry(
                 refresh=False,
             )
         if done == focus_at and density.region is None:
-            region = find_region(optimizer.gaussians().detach(), train_views, object_bounds)
+            g = optimizer.gaussians().detach()
+            region = object_region(g.means, g.opacities, [v.camera for v in train_views], object_bounds)
             event = ", ".join(e for e in (event, density.focus(optimizer, region)) if e)
         if event and progress:
             bar.write(f"iteration {iteration + 1}: {event}")
@@ -224,13 +225,6 @@ def focus_step(config: GeometryConfig) -> int | None:
     first = max(math.ceil(config.focus_from * config.iterations), config.densify_from + 1)
     step = math.ceil(first / every) * every
     return step if step < config.densify_until else None
-
-
-def find_region(gaussians: Gaussians, views: list[View], object_bounds=None) -> ObjectRegion:
-    """The object region to focus on: the given bounds, else the automatic rule on the Gaussians so far."""
-    if object_bounds is not None:
-        return given_region(object_bounds)
-    return auto_region(gaussians.means, gaussians.opacities, [v.camera for v in views])
 
 
 def _empty_like(params: dict) -> Gaussians:
