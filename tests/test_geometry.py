@@ -159,3 +159,26 @@ def test_presets_and_overrides():
         preset("test", sh_degree=4)
     with pytest.raises(ConfigError, match="unknown settings colour"):
         preset("test", colour=1)
+
+
+def test_unmasked_views_are_scored_over_the_training_background(tmp_path):
+    """A photo without a mask is compared whole: where no Gaussian covers it (backdrop no training view saw), the
+    render shows what training composited on (black), so a dark backdrop does not turn white."""
+    from matspray.data import View
+    from matspray.data.images import read_image, srgb_to_linear
+    from matspray.geometry.evaluate import render_view
+    from tests.scenes import ring_cameras, sphere_of_disks
+
+    gaussians, _, _ = sphere_of_disks(200)
+    camera = ring_cameras(1, size=24)[0]
+    over_black = render_view(gaussians, camera, 0, torch.zeros(3))
+    assert 0.05 < float(over_black.alpha.mean()) < 0.95  # the sphere leaves backdrop in the frame
+    photo = srgb_to_linear(over_black.rgb.clamp(0, 1))  # the object before a black backdrop
+    unmasked = evaluate_views(gaussians, [View("dark", photo, None, camera)], 0, tmp_path)
+    assert unmasked["psnr"] > 50, unmasked
+    written, _ = read_image(tmp_path / "renders" / "dark.png")
+    assert float(written[over_black.alpha < 1e-3].max()) < 1e-3  # the backdrop written black, not white
+    alpha = over_black.alpha
+    straight = srgb_to_linear((over_black.rgb / alpha[..., None].clamp_min(1e-4)).clamp(0, 1))  # not premultiplied
+    masked = evaluate_views(gaussians, [View("dark", straight * (alpha[..., None] > 0), alpha, camera)], 0)
+    assert masked["psnr"] > 50, masked  # with a mask, both sides on white

@@ -62,6 +62,14 @@ def target_srgb(view: View, background: Tensor) -> Tensor:  # -> [H, W, 3] the p
     return rgb * alpha + background.to(rgb) * (1 - alpha)
 
 
+def evaluation_background(view: View) -> Tensor:  # -> [3] sRGB
+    """What a render of `view` is composited on to be compared with its photo. With a mask, white: the photo is
+    composited on white too, so only the object counts. Without one, the whole photo is the target, and a part of
+    the backdrop that no training view saw (alpha 0) shows this colour: it must be the one training composited on
+    (`step.training_losses`: black), or a dark backdrop turns white in views that did not see it."""
+    return torch.ones(3) if view.alpha is not None else torch.zeros(3)
+
+
 def psnr(pred: Tensor, target: Tensor, weights: Tensor | None = None) -> float:
     """PSNR (dB) of [H, W, C] values clamped to [0, 1]; `weights` [H, W] restrict the pixels."""
     return metrics.psnr(pred.detach().clamp(0, 1), target.clamp(0, 1), weights)
@@ -81,26 +89,35 @@ def true_normals(view: View) -> Tensor | None:
     return F.normalize(normals, dim=-1)
 
 
-def evaluate_views(gaussians: Gaussians, views: list[View], sh_degree: int | None = None, out_dir=None) -> dict:
-    """Novel-view metrics of `views`; with `out_dir`, writes renders/{view}.png (colour on white) and
-    normals/{view}.png ((n + 1) / 2, world space) there.
+def evaluate_views(
+    gaussians: Gaussians,
+    views: list[View],
+    sh_degree: int | None = None,
+    out_dir=None,
+    background: Tensor | None = None,
+) -> dict:
+    """Novel-view metrics of `views`; with `out_dir`, writes renders/{view}.png (colour over the view's
+    background, `evaluation_background`) and normals/{view}.png ((n + 1) / 2, world space) there.
 
-    psnr: whole image, both composited on white. psnr_masked: only the object's pixels (weighted by the
-    true alpha). normal_error_deg: mean angle between rendered and true normals on the object (where
-    `{view}_normal.exr` exists; uncovered pixels count as 90 degrees)."""
-    white = torch.ones(3, device=gaussians.means.device)
+    psnr: whole image, the render over the view's background against the photo (composited on white where it has
+    a mask). psnr_masked: only the object's pixels (weighted by the true alpha). normal_error_deg: mean angle between
+    rendered and true normals on the object (where `{view}_normal.exr` exists; uncovered pixels count as 90
+    degrees). `background` [3] sRGB: one colour for every view instead (what `benchmarks.heldout_background`
+    compares)."""
+    device = gaussians.means.device
     per_view = {}
     for view in views:
-        view = view.to(white.device)  # the photo, its mask and the true normals are compared where the render is
+        view = view.to(device)  # the photo, its mask and the true normals are compared where the render is
+        over = (evaluation_background(view) if background is None else background).to(device)
         with torch.no_grad():
-            render = render_view(gaussians, view.camera, sh_degree, white)
-        target = target_srgb(view, white)
+            render = render_view(gaussians, view.camera, sh_degree, over)
+        target = target_srgb(view, over)
         entry = {"psnr": psnr(render.rgb, target)}
         if view.alpha is not None and float(view.alpha.sum()) > 0:
             entry["psnr_masked"] = psnr(render.rgb, target, view.alpha)
         normals = true_normals(view)
         if normals is not None:
-            normals = normals.to(white.device)
+            normals = normals.to(device)
             on_object = (view.alpha > 0.5) if view.alpha is not None else (normals.norm(dim=-1) > 0.5)
             if bool(on_object.any()):
                 entry["normal_error_deg"] = float(angular_error_degrees(render.normals, normals)[on_object].mean())
