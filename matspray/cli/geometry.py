@@ -71,7 +71,7 @@ def run(args) -> int:
     metrics = json.loads((out / "metrics.json").read_text())
     print(f"{len(gaussians)} Gaussians -> {out / 'gaussians.ply'} (on {device}, rasterizer {backend})")
     for key, label, unit in (
-        ("psnr", "test PSNR (on white)", "dB"),
+        ("psnr", "test PSNR (whole image)", "dB"),
         ("psnr_masked", "test PSNR (object)", "dB"),
         ("normal_error_deg", "normal error", "deg"),
     ):
