@@ -2,6 +2,7 @@
 
     python -m benchmarks.real_captures [--captures skull stitch] [--preset demo] [--out runs/real-captures]
         [--lights studio sunset forest] [--geometry-iterations N] [--refine-iterations N] [--backend auto]
+        [--compare-with ROOT]
 
 Per capture, the `matspray` commands a user types, each in its own process:
   skull   `matspray colmap` on its 66 photos (no poses), then `run` on the dataset it made
@@ -89,6 +90,8 @@ def run_capture(name: str, args, out_root: Path) -> dict:
         data = CAPTURES_DIR / name
     run = out / "run"
     compute = ["--backend", args.backend]
+    before = args.compare_with / name / "run" if args.compare_with else None
+    compare = [str(before)] if before is not None and before.is_dir() else []
     if not (run / "eval" / "heldout.json").exists():
         extra = []
         if args.geometry_iterations:
@@ -154,10 +157,25 @@ def run_capture(name: str, args, out_root: Path) -> dict:
                 log,
             )
         )
-        steps.append(
-            command(["eval", "--run", str(run), "--credit", CREDITS[name], "--relight", *args.lights, *compute], log)
-        )
+        steps.append(eval_command(run, name, args, compare, compute, log))
+    elif compare and not (run / "report" / f"compare_{compare_view(run)}_{args.lights[0]}.png").exists():
+        steps.append(eval_command(run, name, args, compare, compute, log))  # the report again, with the comparison
     return summarise(name, out, run, sfm, steps)
+
+
+def eval_command(run: Path, name: str, args, compare: list[str], compute: list[str], log: Path) -> dict:
+    """`matspray eval` of the run: held-out photos scored, report.html with the credit (and `--compare` runs)."""
+    flags = ["--compare", *compare] if compare else []
+    return command(["eval", "--run", str(run), "--credit", CREDITS[name], "--env", *args.lights, *flags, *compute], log)
+
+
+def compare_view(run: Path) -> str:
+    """The first held-out view's name: the first row of the report's comparison."""
+    from matspray.data import load_scene
+    from matspray.rundir import RunDir
+
+    folder = RunDir(run).require()
+    return load_scene(folder.dataset()["source"], downscale=folder.downscale()).test[0].name
 
 
 def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dict]) -> dict:
@@ -237,6 +255,13 @@ def main() -> None:
     parser.add_argument("--geometry-iterations", type=int)
     parser.add_argument("--refine-iterations", type=int)
     parser.add_argument("--backend", default="auto")
+    parser.add_argument(
+        "--compare-with",
+        type=Path,
+        metavar="ROOT",
+        help="an earlier --out of this benchmark (before a change, say): each capture's report shows ROOT/NAME/run's "
+        "asset beside this run's, relit and cut to the same square around the object (`matspray eval --compare`)",
+    )
     args = parser.parse_args()
     if args.results_dir is None and args.out is None:
         args.results_dir = Path("docs/results")

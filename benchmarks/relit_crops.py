@@ -4,54 +4,24 @@ each cropped to the object and brought to the same size, beside the photo (issue
     python -m benchmarks.relit_crops --runs BEFORE AFTER [--labels before after] --view 0009 [--env studio]
         --out docs/images/stitch_focus.png [--size 256]
 
-Each run's asset is relit with `matspray relight --run RUN --env ENV` (its test cameras, transparent PNGs, into
-RUN/relit-crops/ ; reused when there). The crop is the square around the union of the runs' object pixels in that
-view (alpha >= 0.5) with a margin, the same for every column; columns: the photo, then each run, over grey.
+`matspray.eval.relit_crops` makes the row (the capture report's `matspray eval --compare` shows the same): each run's
+default asset relit under ENV with the first run's camera of that test view, over grey, the square around the union of
+the runs' object pixels (alpha >= 0.5) with a margin, the same for every column.
 """
 
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
 from pathlib import Path
 
-import numpy as np
-import torch
-
 from matspray.data import load_scene
-from matspray.data.images import read_image, resize, write_image
+from matspray.data.images import write_image
+from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
+from matspray.lights import load_envmap
+from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir
 
-GREY = 0.5  # linear background of the crops
-MARGIN = 0.08  # of the crop's side, around the object
-
-
-def relit_view(run: Path, view: str, env: str) -> tuple[np.ndarray, np.ndarray]:
-    """The run's asset relit under `env` in test view `view`: linear RGB [H, W, 3] and alpha [H, W]."""
-    folder = run / "relit-crops"
-    path = folder / f"{view}_{env}.png"
-    if not path.exists():
-        command = [sys.executable, "-m", "matspray", "relight", "--run", str(run), "--env", env, "--out", str(folder)]
-        done = subprocess.run(command, capture_output=True, text=True)
-        if done.returncode != 0:
-            raise SystemExit(f"{' '.join(command[1:])} failed:\n{done.stderr[-2000:]}")
-    image, alpha = read_image(path)
-    return image.numpy(), alpha.numpy()
-
-
-def square_box(alphas: list[np.ndarray]) -> tuple[int, int, int]:
-    """(row, column, side) of the square around every alpha's object pixels, with a margin, inside the image."""
-    covered = np.any([a >= 0.5 for a in alphas], axis=0)
-    rows, cols = np.nonzero(covered)
-    if len(rows) == 0:
-        raise SystemExit("no run covers any pixel of that view with its object")
-    height, width = covered.shape
-    side = int(max(rows.max() - rows.min(), cols.max() - cols.min()) * (1 + 2 * MARGIN)) + 1
-    side = min(side, height, width)
-    top = int(np.clip((rows.min() + rows.max() - side) // 2, 0, height - side))
-    left = int(np.clip((cols.min() + cols.max() - side) // 2, 0, width - side))
-    return top, left, side
+LIGHT_HEIGHT = 64  # the light's lat-long height: what the capture report relights with
 
 
 def main(argv=None) -> None:
@@ -66,31 +36,21 @@ def main(argv=None) -> None:
     if args.labels and len(args.labels) != len(args.runs):
         parser.error(f"{len(args.labels)} labels for {len(args.runs)} runs")
 
-    relit = [relit_view(run, args.view, args.env) for run in args.runs]
-    top, left, side = square_box([alpha for _, alpha in relit])
-    photo = next((v for v in test_photos(args.runs[0]) if v.name == args.view), None)
-    columns = []
-    if photo is not None and photo.image.shape[:2] == relit[0][0].shape[:2]:
-        columns.append(photo.image.numpy())
-    for image, alpha in relit:
-        columns.append(image * alpha[..., None] + GREY * (1 - alpha[..., None]))
-    crops = [
-        resize(torch.from_numpy(np.ascontiguousarray(c[top : top + side, left : left + side])), args.size, args.size)
-        for c in columns
-    ]
+    runs = [RunDir(path).require() for path in args.runs]
+    same_capture(runs)
+    test = load_scene(runs[0].dataset()["source"], downscale=runs[0].downscale()).test
+    view = next((v for v in test if v.name == args.view), None)
+    if view is None:
+        parser.error(f"no test view {args.view} in {runs[0].dataset()['source']}: {', '.join(v.name for v in test)}")
+    name, env = load_envmap(args.env, height=LIGHT_HEIGHT)
+    light = EnvironmentMap.from_tensor(env, learnable=False).prefilter()
+    row = relit_crops([default_asset(run) for run in runs], view.camera, light, view.image, args.size)
+    if row is None:
+        raise SystemExit(f"no run covers any pixel of view {args.view} with its object")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_image(args.out, torch.cat(crops, dim=1))
-    names = (["photo"] if len(columns) > len(relit) else []) + (args.labels or [str(r) for r in args.runs])
-    print(
-        f"wrote {args.out}: view {args.view} under {args.env}, crop {side} px at ({top}, {left}); columns: "
-        + ", ".join(names)
-    )
-
-
-def test_photos(run: Path):
-    """The test views of the dataset `run` was made from, at the run's working size."""
-    folder = RunDir(run).require()
-    return load_scene(folder.dataset()["source"], downscale=folder.downscale()).test
+    write_image(args.out, row)
+    labels = args.labels or [str(path) for path in args.runs]
+    print(f"wrote {args.out}: view {args.view} under {name}; columns: photo, " + ", ".join(labels))
 
 
 if __name__ == "__main__":

@@ -317,6 +317,17 @@ class RunDir:
         """The variants that have a finished asset in this run, in the registry's order."""
         return [v for v in VARIANT_NAMES if self.path(asset_stage(v), "asset.ply").exists()]
 
+    def default_variant(self) -> str:
+        """The asset a command takes when none is named: full when the run has it, else the first the run has (a run
+        made with `--predictor none` has only no-prior); RunError when it has none."""
+        variants = self.asset_variants()
+        if not variants:
+            raise RunError(
+                f"{self.root}: the run has no asset yet (no asset*/asset.ply); "
+                f"make it with `matspray run --data DATA --out {self.root}`"
+            )
+        return "full" if "full" in variants else variants[0]
+
 
 def _link_or_copy(source: str, target: str) -> None:
     try:

@@ -4,6 +4,7 @@ made for it (issue 39)."""
 import json
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -102,3 +103,42 @@ def test_an_empty_object_mask_is_refused_not_scored(capture_run):
     rendered[0].mask = torch.zeros_like(rendered[0].mask)
     with pytest.raises(DataError, match="r_000: its object mask is empty"):
         score_photos(rendered, lpips=None)
+
+
+def test_report_shows_other_runs_of_the_capture_cropped_beside_it(capture_run, tmp_path, capsys):
+    import shutil
+
+    from PIL import Image
+
+    data, run = capture_run
+    before = tmp_path / "before"
+    shutil.copytree(run, before)
+    code = main(["eval", "--run", str(run), "--no-report"])  # scores only
+    assert code == 0 and not (run / "report" / "compare_r_000_studio.png").exists()
+    code = main(["eval", "--run", str(run), "--env", "studio", "--compare", str(before)])
+    assert code == 0, capsys.readouterr().err
+    page = (run / "report.html").read_text()
+    assert "Beside other runs of this capture" in page and str(before) in page
+    for name in ("r_000", "r_001"):
+        with Image.open(run / "report" / f"compare_{name}_studio.png") as picture:
+            assert picture.size == (3 * 256, 256)  # photo, this run, the other run
+            pixels = torch.from_numpy(np.array(picture.convert("RGB"))).reshape(256, 3, 256, 3)
+        # the same asset in both runs: the same crop
+        assert torch.equal(pixels[:, 1], pixels[:, 2])
+
+
+def test_compare_with_a_run_of_another_capture_is_refused_before_any_work(capture_run, tmp_path, capsys):
+    import shutil
+
+    data, run = capture_run
+    other = tmp_path / "other"
+    shutil.copytree(run, other)
+    record = json.loads((other / "dataset.json").read_text())
+    record["source"] = str(tmp_path / "elsewhere")
+    (other / "dataset.json").write_text(json.dumps(record))
+    held = run / "eval" / "heldout.json"
+    stamp = held.stat().st_mtime_ns if held.exists() else None
+    assert main(["eval", "--run", str(run), "--compare", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert f"{other} was made from {tmp_path / 'elsewhere'}" in err and "compare runs of the same capture" in err
+    assert (held.stat().st_mtime_ns if held.exists() else None) == stamp  # nothing scored or written

@@ -4,7 +4,6 @@ import shutil
 
 import pytest
 
-from matspray.cli.options import default_variant
 from matspray.cli.relight import relight_run
 from matspray.errors import RunError
 from matspray.rundir import RunDir
@@ -22,7 +21,7 @@ def no_prior_run(tmp_path_factory):
 
 
 def test_relight_takes_the_runs_only_variant(no_prior_run, tmp_path):
-    assert default_variant(RunDir(no_prior_run)) == "no-prior"
+    assert RunDir(no_prior_run).default_variant() == "no-prior"
     written = relight_run(no_prior_run, "forest", "test", tmp_path / "out")
     assert [p.name for p in written] == ["r_002_forest.png"]
     with pytest.raises(RunError, match="no asset for variant 'full'"):  # asked for by name, it is still refused
@@ -33,11 +32,11 @@ def test_full_is_preferred_and_a_run_without_assets_is_one_line(no_prior_run, tm
     run = tmp_path / "run"
     shutil.copytree(no_prior_run, run)
     shutil.copytree(run / asset_stage("no-prior"), run / asset_stage("full"))
-    assert default_variant(RunDir(run)) == "full"
+    assert RunDir(run).default_variant() == "full"
     for variant in ("full", "no-prior"):
         shutil.rmtree(run / asset_stage(variant))
     with pytest.raises(RunError, match=f"^{run}: the run has no asset yet .*`matspray run --data DATA --out {run}`$"):
-        default_variant(RunDir(run))
+        RunDir(run).default_variant()
 
 
 def test_several_lights_in_one_call(no_prior_run, tmp_path):

@@ -52,6 +52,18 @@ def add_parser(parser) -> None:
             "(`matspray relight --help`) or .exr/.hdr files (default: studio sunset forest)"
         ),
     )
+    parser.add_argument(
+        "--compare",
+        nargs="+",
+        type=Path,
+        default=[],
+        metavar="RUN",
+        help=(
+            "a run on a capture without ground truth: other runs of the same capture (say, before a change of "
+            "settings) whose assets its report shows beside this one's, relit under the first --env light and cut "
+            "to the same square around the object"
+        ),
+    )
     hidden_alias(parser, "--relight", "env", nargs="+")  # the old name of --env
     add_compute_arguments(parser)
 
@@ -90,9 +102,12 @@ def run(args) -> int:
     scene = load_scene(
         args.data if args.data is not None else run_folder.dataset()["source"], downscale=run_folder.downscale()
     )
+    if args.compare and has_ground_truth(scene):
+        raise ConfigError("--compare is for runs on a capture without ground truth; this dataset has it")
     if not has_ground_truth(scene):  # a real capture: its held-out photos are the only truth
-        from matspray.eval.capture_report import write_capture_report
+        from matspray.eval.capture_report import comparable_runs, write_capture_report
 
+        comparable_runs(run_folder, args.compare)  # a wrong --compare is refused before the work
         print("eval: the dataset has no ground-truth materials (a real capture): scoring the held-out photos instead")
         with out_of_memory_as_error("eval", device):
             metrics = evaluate_capture(
@@ -100,7 +115,9 @@ def run(args) -> int:
             )
             print(heldout_table(metrics))
             if not args.no_report:
-                page = write_capture_report(args.run, metrics, args.env, args.credit, device=device, backend=backend)
+                page = write_capture_report(
+                    args.run, metrics, args.env, args.credit, device=device, backend=backend, compare=args.compare
+                )
                 print(f"report: {page}")
         return 0
     with out_of_memory_as_error("eval", device):

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from matspray.cli.options import VARIANT_HELP, add_compute_arguments, default_variant, hidden_alias
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments, hidden_alias
 from matspray.export.config import ExportConfig
 
 DEFAULTS = ExportConfig()
@@ -77,7 +77,7 @@ def run(args) -> int:
         report = export_run(
             args.run,
             args.out,
-            variant=args.variant or default_variant(RunDir(args.run).require()),
+            variant=args.variant or RunDir(args.run).require().default_variant(),
             config=config,
             data=args.data,
             device=device,

@@ -213,20 +213,6 @@ FLAG_OF_SETTING.update(
 VARIANT_HELP = "which asset of the run (default: full when the run has it, else the one it has, e.g. no-prior)"
 
 
-def default_variant(run) -> str:
-    """The asset a command takes when none is named (`run` a RunDir): full when the run has it, else the first
-    the run has (a run made with `--predictor none` has only no-prior); RunError when it has none."""
-    from matspray.errors import RunError
-
-    variants = run.asset_variants()
-    if not variants:
-        raise RunError(
-            f"{run.root}: the run has no asset yet (no asset*/asset.ply); "
-            f"make it with `matspray run --data DATA --out {run.root}`"
-        )
-    return "full" if "full" in variants else variants[0]
-
-
 def add_compute_arguments(parser) -> None:
     """--device and --backend, for the commands that compute outside a pipeline (geometry, relight, eval, export)."""
     parser.add_argument("--device", default="auto", help=DEVICE_HELP)

@@ -4,7 +4,7 @@ The run-folder glue lives here: which asset, which cameras, which files; `matspr
 
 from pathlib import Path
 
-from matspray.cli.options import VARIANT_HELP, add_compute_arguments, default_variant
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments
 
 
 def add_parser(parser) -> None:
@@ -71,7 +71,7 @@ def relight_run(
     from matspray.rundir import RunDir
 
     run = RunDir(run_dir).require()
-    asset_folder = run.asset_path(variant if variant is not None else default_variant(run))
+    asset_folder = run.asset_path(variant if variant is not None else run.default_variant())
     if frames < 1 or fps < 1 or env_height < 4:
         raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
     if views == "orbit":  # said before any frame is rendered, not after

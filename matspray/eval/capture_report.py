@@ -15,6 +15,7 @@ import torch
 from matspray.asset import ENVMAP_FILE, envmap_preview
 from matspray.data import load_scene
 from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
+from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
 from matspray.eval.report import STYLE, Figures, _srgb_inverse, markdown_to_html, object_masks_section
 from matspray.export.frames import find_glbs, glb_box
 from matspray.lights import load_envmap
@@ -27,6 +28,7 @@ from matspray.variants import LABELS, asset_stage
 
 MAX_VIEWS = 3
 RELIGHT_ENV_HEIGHT = 64
+CROP_SIZE = 256  # pixels per column of the side-by-side crops
 
 
 def _label(key: str) -> str:
@@ -60,6 +62,37 @@ def asset_box_note(run: RunDir, assets: dict) -> str:
     return "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in lines) + "</ul>"
 
 
+def comparison_section(run: RunDir, others: list[RunDir], views, light_spec: str, figures: Figures, device) -> str:
+    """Each of `views`: the photo, then `run`'s asset and each of `others`' relit under `light_spec`, cut to the same
+    square around the object at the same size (`relit_crops`)."""
+    name, env = load_envmap(light_spec, height=RELIGHT_ENV_HEIGHT)
+    light = EnvironmentMap.from_tensor(env.to(device), learnable=False).prefilter()
+    runs = [run, *others]
+    assets = [default_asset(r, device) for r in runs]
+    labels = ["photo"] + [f"{r.root.name} ({r.default_variant()})" for r in runs]
+    cells = []
+    for view in views:
+        row = relit_crops(assets, view.camera.to(device), light, view.image, CROP_SIZE)
+        if row is not None:
+            cells.append(figures.image(f"compare_{view.name}_{name}", row, f"{view.name}, {name}: {', '.join(labels)}"))
+    return (
+        "<h2>Beside other runs of this capture</h2><p>The object relit under "
+        f"{html.escape(name)} over grey, every run cut to the same square around it, at the same size: "
+        f"{html.escape(', '.join(str(r.root) for r in others))}.</p><div>" + "".join(cells) + "</div>"
+    )
+
+
+def comparable_runs(run: RunDir, compare) -> list[RunDir]:
+    """The run folders `compare` as RunDirs; DataError or RunError (before any work) unless each is a run of `run`'s
+    capture with an asset."""
+    others = [RunDir(path).require() for path in compare]
+    if others:
+        same_capture([run, *others])
+        for other in others:
+            other.default_variant()
+    return others
+
+
 def write_capture_report(
     run_dir,
     metrics: dict,
@@ -67,10 +100,13 @@ def write_capture_report(
     credit: str | None = None,
     device="cpu",
     backend: str = "torch",
+    compare=(),
 ) -> Path:
     """Write RUN/report.html (and RUN/report/*.png) for a run without ground truth, from `evaluate_capture`'s metrics.
-    `lights`: names or files the asset is relit under; `credit`: a line crediting the photos (shown at the top)."""
+    `lights`: names or files the asset is relit under; `credit`: a line crediting the photos (shown at the top);
+    `compare`: run folders of the same capture (before a change of settings, say) shown beside this one."""
     run = RunDir(run_dir).require()
+    others = comparable_runs(run, compare)
     source = run.dataset()["source"]
     scene = load_scene(source, downscale=run.downscale())
     figures = Figures(run.path("report"))
@@ -129,6 +165,8 @@ def write_capture_report(
             "<h2>Relit under other lights</h2><p>The asset shaded under lights it never saw, over the light itself.</p>"
             "<div>" + "".join(cells) + "</div>"
         )
+        if others:
+            sections.append(comparison_section(run, others, views, lights[0], figures, device))
 
         rows = ["<h2>Material maps</h2>"]
         for variant, asset in assets.items():
