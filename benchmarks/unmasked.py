@@ -2,6 +2,7 @@
 
     python -m benchmarks.unmasked [--preset demo|test] [--shape composite] [--seed 3] [--out runs/unmasked]
                                   [--object-bounds X,Y,Z,R] [--captures unmasked masked] [--set KEY=VALUE ...]
+                                  [--backdrop env|dark] [--cameras sphere|turntable]
 
 Makes a `matspray synth` object whose photos show the training light behind it and a ground plane under
 it (`--background env --ground`: RGB photos, no masks), at the preset's size, and a copy of it whose
@@ -12,7 +13,8 @@ unmasked capture, object for the masked one), the masks' IoU against the true ma
 (unmasked only), the relighting PSNR under the held-out lights against Mitsuba's truth, and seconds.
 Targets (issue 23): IoU >= 0.9, relighting within 1.5 dB of the masked run. `--captures unmasked` runs the
 unmasked capture alone; `--set` passes settings to its run (`matspray run --set`), e.g.
-`geometry.focus_from=0` for the geometry without object focus.
+`geometry.focus_from=0` for the geometry without object focus. `--backdrop dark` shows nothing behind the object
+and its ground (a table-top capture before black cloth, DTU-style); `--cameras turntable` puts every view on one ring.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ from matspray.eval.run_eval import evaluate_run
 from matspray.pipeline import Pipeline
 from matspray.predictors.ground_truth import read_ground_truth_coverage
 from matspray.synth import SynthConfig, make_object
+
+BACKDROPS = {"env": "env", "dark": "transparent"}  # --backdrop -> SynthConfig.background (with the ground: no mask)
 
 
 def masked_copy(data: Path, out: Path) -> Path:
@@ -75,25 +79,38 @@ def main() -> None:
     )
     parser.add_argument("--captures", nargs="+", choices=("unmasked", "masked"), default=["unmasked", "masked"])
     parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", help="settings of the unmasked run")
+    parser.add_argument(
+        "--backdrop",
+        choices=tuple(BACKDROPS),
+        default="env",
+        help="behind the object on its ground: env (the training light, as outdoors or in a lit room; default) or "
+        "dark (nothing: a black backdrop, as a table-top capture before black cloth, DTU-style)",
+    )
+    parser.add_argument(
+        "--cameras",
+        choices=("sphere", "turntable"),
+        default="sphere",
+        help="sphere (views from 10 to 70 degrees up; default) or turntable (one ring at 20 degrees)",
+    )
     args = parser.parse_args()
     settings = settings_from_overrides(args.set, args.preset)
     size = DEMO_SIZES[args.preset]
     unmasked = args.out / "data-unmasked"
+    config = SynthConfig(
+        shape=args.shape,
+        seed=args.seed,
+        resolution=size.res,
+        train_views=size.views,
+        test_views=size.test_views,
+        spp=size.spp,
+        background=BACKDROPS[args.backdrop],
+        ground=True,
+        cameras=args.cameras,
+    )
     if not (unmasked / "scene.json").exists():
-        make_object(
-            SynthConfig(
-                shape=args.shape,
-                seed=args.seed,
-                resolution=size.res,
-                train_views=size.views,
-                test_views=size.test_views,
-                spp=size.spp,
-                background="env",
-                ground=True,
-            ),
-            unmasked,
-            progress=False,
-        )
+        make_object(config, unmasked, progress=False)
+    elif json.loads((unmasked / "scene.json").read_text()).get("settings") != config.identity():
+        raise SystemExit(f"{unmasked} holds another object than these options make: give another --out")
     bounds = None if args.object_bounds is None else tuple(float(v) for v in args.object_bounds.split(","))
     rows = {}
     if "unmasked" in args.captures:
@@ -104,7 +121,7 @@ def main() -> None:
         rows["true masks"] = run_capture(masked, args.out / "run-masked", args.preset, None)
     print(
         f"\n{args.shape} seed {args.seed}, preset {args.preset} ({size.res} px, {size.views} views), "
-        "background env + ground"
+        f"backdrop {args.backdrop} + ground, cameras {args.cameras}"
     )
     print("| capture | geometry test PSNR | mask IoU (mean / min) | relight PSNR | s |")
     print("| --- | ---: | ---: | ---: | ---: |")

@@ -152,3 +152,34 @@ def test_cameras_frame_the_object_and_train_and_test_differ():
         # the unit bounding sphere fills most of the frame but stays inside it
         half_angle = math.asin(1.0 / distance)
         assert 0.85 * FOV_X / 2 < half_angle < FOV_X / 2
+
+
+def test_turntable_cameras_circle_one_ring_looking_at_the_object():
+    from matspray.synth.cameras import TURNTABLE_ELEVATION
+
+    train, test, distance = make_cameras(12, 4, 1.0, 64, np.random.default_rng(0), layout="turntable")
+    centres = torch.stack([c.center for c in train + test]).double()
+    elevation = torch.rad2deg(torch.asin(centres[:, 2] / centres.norm(dim=-1)))
+    torch.testing.assert_close(
+        elevation, torch.full((16,), TURNTABLE_ELEVATION, dtype=torch.float64), atol=1e-4, rtol=0
+    )
+    torch.testing.assert_close(
+        centres.norm(dim=-1), torch.full((16,), distance, dtype=torch.float64), atol=1e-4, rtol=0
+    )
+    azimuths = torch.atan2(centres[:12, 1], centres[:12, 0])
+    steps = torch.remainder(azimuths.roll(-1) - azimuths, 2 * math.pi)
+    torch.testing.assert_close(steps, torch.full((12,), 2 * math.pi / 12, dtype=torch.float64), atol=1e-5, rtol=0)
+    assert torch.cdist(centres[12:], centres[:12]).min() > 1e-3  # test cameras between the training ones
+    for camera in train + test:
+        pixels, _ = camera.project(torch.zeros(1, 3))
+        torch.testing.assert_close(pixels[0], torch.tensor([32.0, 32.0]), atol=1e-3, rtol=0)
+
+
+def test_camera_layout_is_checked_and_kept_out_of_older_objects_identity():
+    from matspray.errors import SettingError
+    from matspray.synth import SynthConfig
+
+    assert "cameras" not in SynthConfig().identity()  # objects made before the setting keep their identity
+    assert SynthConfig(cameras="turntable").identity()["cameras"] == "turntable"
+    with pytest.raises(SettingError, match="cameras.*must be one of sphere, turntable, got 'ring'"):
+        SynthConfig(cameras="ring").validate()

@@ -72,6 +72,13 @@ def add_parser(parser) -> None:
         help="a grey ground plane under the object in the photos (cameras stay above it; photos carry no mask); "
         "the relit ground truth shows the object alone",
     )
+    parser.add_argument(
+        "--cameras",
+        choices=("sphere", "turntable"),
+        default="sphere",
+        help="where the cameras are: sphere (an even spiral over elevations -20 to 70 degrees, or 10 to 70 with "
+        "--ground; default) or turntable (one ring at 20 degrees, as a turntable capture)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace a different scene already in --out")
 
 
@@ -95,6 +102,7 @@ def run(args) -> int:
         env_height=args.env_height,
         background=args.background,
         ground=args.ground,
+        cameras=args.cameras,
         overwrite=args.overwrite,
     )
     result = make_object(config, args.out)

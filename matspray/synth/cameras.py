@@ -17,6 +17,7 @@ FOV_X = 0.6911112070083618  # radians, NeRF-synthetic's camera_angle_x
 FILL = 0.92  # the bounding sphere's angular radius as a fraction of half the field of view
 MIN_ELEVATION, MAX_ELEVATION = -20.0, 70.0  # degrees; the poles are avoided (image up is world +z)
 GROUND_MIN_ELEVATION = 10.0  # degrees; with a ground plane every camera stays above it
+TURNTABLE_ELEVATION = 20.0  # degrees; the one ring of a turntable capture (a camera on a tripod beside the table)
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 
@@ -54,6 +55,11 @@ def random_directions(
     return band_point(rng.uniform(0.0, 2.0 * math.pi, count), rng.uniform(low, high, count))
 
 
+def ring_directions(azimuths: np.ndarray, elevation: float = TURNTABLE_ELEVATION) -> np.ndarray:  # [N] -> [N, 3]
+    """Points on the ring at `elevation` degrees: the views of a turntable capture."""
+    return band_point(azimuths, np.full_like(azimuths, math.sin(math.radians(elevation))))
+
+
 def sphere_cameras(directions: np.ndarray, distance: float, resolution: int, fov_x: float = FOV_X) -> list[Camera]:
     """Square cameras at `distance` along each direction [N, 3], looking at the origin, world +z up."""
     return [
@@ -69,10 +75,21 @@ def make_cameras(
     resolution: int,
     rng: np.random.Generator,
     min_elevation: float = MIN_ELEVATION,
+    layout: str = "sphere",
 ) -> tuple[list[Camera], list[Camera], float]:
-    """Train and test cameras (no lower than `min_elevation` degrees) and the distance they sit at."""
+    """Train and test cameras and the distance they sit at. `layout` 'sphere': a spiral over the band from
+    `min_elevation` degrees (test cameras random on it); 'turntable': evenly around the TURNTABLE_ELEVATION ring
+    (test cameras at random azimuths on it)."""
     distance = framing_distance(bounding_radius)
     phase = rng.uniform(0.0, 2.0 * math.pi)
-    train_cameras = sphere_cameras(fibonacci_directions(train, phase, min_elevation), distance, resolution)
-    test_cameras = sphere_cameras(random_directions(test, rng, min_elevation), distance, resolution)
-    return train_cameras, test_cameras, distance
+    if layout == "turntable":
+        train_directions = ring_directions(phase + 2.0 * math.pi * np.arange(train) / train)
+        test_directions = ring_directions(rng.uniform(0.0, 2.0 * math.pi, test))
+    else:
+        train_directions = fibonacci_directions(train, phase, min_elevation)
+        test_directions = random_directions(test, rng, min_elevation)
+    return (
+        sphere_cameras(train_directions, distance, resolution),
+        sphere_cameras(test_directions, distance, resolution),
+        distance,
+    )

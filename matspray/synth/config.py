@@ -8,6 +8,7 @@ from matspray.errors import SettingError
 
 PLACEMENTS = ("fit", "keep")  # how a glTF asset is placed in the world (matspray.synth.gltf_object)
 BACKGROUNDS = ("transparent", "env")  # behind the object in the photos: nothing (alpha = mask) or the light itself
+CAMERA_LAYOUTS = ("sphere", "turntable")  # an even spiral over an elevation band, or one ring (matspray.synth.cameras)
 
 MAX_RESOLUTION = 2048
 MAX_VIEWS = 1000
@@ -31,6 +32,7 @@ class SynthConfig:
     placement: str = "fit"  # of the asset: 'fit' (centred, scaled into the unit sphere) or 'keep' (the file's units)
     background: str = "transparent"  # 'env': the photos show the light behind the object and carry no mask
     ground: bool = False  # a grey ground plane under the object in the photos (cameras stay above it)
+    cameras: str = "sphere"  # 'turntable': every camera on one ring at one elevation, as a turntable capture
     overwrite: bool = False  # replace a different scene already in the output folder
 
     @property
@@ -55,6 +57,8 @@ class SynthConfig:
         self.env = str(self.env)
         if self.background not in BACKGROUNDS:
             raise SettingError("background", f"must be one of {', '.join(BACKGROUNDS)}, got {self.background!r}")
+        if self.cameras not in CAMERA_LAYOUTS:
+            raise SettingError("cameras", f"must be one of {', '.join(CAMERA_LAYOUTS)}, got {self.cameras!r}")
         if self.placement not in PLACEMENTS:
             raise SettingError("placement", f"must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
         if self.asset is not None:
@@ -70,7 +74,8 @@ class SynthConfig:
         """Everything that determines the files (all settings but `overwrite`)."""
         values = asdict(self)
         values.pop("overwrite")
-        for name, default in (("background", "transparent"), ("ground", False)):  # objects made before these existed
+        for name, default in (("background", "transparent"), ("ground", False), ("cameras", "sphere")):
+            # objects made before these existed keep their identity
             if values[name] == default:
                 values.pop(name)
         return values

@@ -149,6 +149,7 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
         config.resolution,
         np.random.default_rng([config.seed, CAMERA_STREAM]),
         GROUND_MIN_ELEVATION if config.ground else MIN_ELEVATION,
+        config.cameras,
     )
     ground = None
     if config.ground:  # touching the object's lowest point, wide enough to fill the lower background
@@ -162,6 +163,7 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
         "lights": {"train": train_env, "relight": relight_envs},
         "cameras": {
             "fov_x": FOV_X,
+            "layout": config.cameras,
             "distance": distance,
             "bounding_radius": bounding_radius,
             "up": [0, 0, 1],
