@@ -39,8 +39,9 @@ from matspray.data.scene import View
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.graphs import Graphed
-from matspray.material import N_CHANNELS
+from matspray.material import METALLIC_INDEX, N_CHANNELS
 from matspray.merger import MergerConfig, NeuralMerger, align_view_gains, prepare_values, projection_average, view_gains
+from matspray.metallic_fit import MetallicFitConfig, fit_metallic
 from matspray.refine_steps import adam as adam_optimizer
 from matspray.refine_steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
 from matspray.refine_terms import (  # noqa: F401 (the material losses: callers' API)
@@ -105,6 +106,9 @@ class RefineConfig:
     seed: int = 0
     log_every: int = 10  # steps between history records, and between the reads of whether losses stayed finite
     merger: MergerConfig = field(default_factory=MergerConfig)
+    # variants with the material loss: after the merger, each Gaussian's metallic fitted to the 2D maps through the
+    # renderer (`matspray.metallic_fit`; steps 0: off), which sharpens the metal edges the lift blurs
+    metallic_fit: MetallicFitConfig = field(default_factory=MetallicFitConfig)
 
     def __post_init__(self):
         get_variant(self.variant)
@@ -553,6 +557,25 @@ def refine(
     )
     with torch.no_grad():
         final_normals = normals if shading is None else shading().detach()
-        return RefineResult(
-            source().detach(), final_normals, source, envmap, history, inputs.visibility, training.frozen.describe()
-        )
+        materials = source().detach()
+    if variant.uses_maps and config.metallic_fit.steps > 0:
+        materials = with_fitted_metallic(materials, training, inputs.targets, config.metallic_fit)
+    return RefineResult(
+        materials, final_normals, source, envmap, history, inputs.visibility, training.frozen.describe()
+    )
+
+
+def with_fitted_metallic(
+    materials: Tensor, training: TrainingViews, targets: list[Tensor], config: MetallicFitConfig
+) -> Tensor:  # [N, 5] -> [N, 5]
+    """`materials` with the metallic fitted to the views' 2D maps ([H, W, 5] each) through the frozen views."""
+    fitted = fit_metallic(
+        materials[:, METALLIC_INDEX].float(),
+        training.frozen.render,
+        [target[..., METALLIC_INDEX] for target in targets],
+        [training.constants(index).surface for index in range(len(training))],
+        config,
+    )
+    materials = materials.clone()
+    materials[:, METALLIC_INDEX] = fitted.to(materials)
+    return materials
