@@ -11,22 +11,31 @@ What: starting from the merged metallic m0, Adam fits free per-Gaussian values m
 one training view per step in a fixed cycle, minimising
 
     mean over the view's surface pixels of |render(m) / alpha - target|  +  pull * mean over Gaussians of |m - m0|
+        +  photo_weight * the view's photometric loss (refinement's, with everything but the metallic as refined)
 
-L1 on both sides: the image term is a per-pixel median, so a view with spurious metallic is outvoted; the pull is
+L1 on the first two: the image term is a per-pixel median, so a view with spurious metallic is outvoted; the pull is
 an exact penalty, so a Gaussian moves only where the maps gain more than `pull` per unit of change (the edges),
-and keeps the merger's value elsewhere (the interiors, where the merger, helped by the photos, beat the maps).
-Base colour, roughness, normals and light are untouched.
+and keeps the merger's value elsewhere (the interiors, where the merger, helped by the photos, beat the maps). The
+photo term keeps the fit from trading relighting for metallic: the merger's base colour was refined together with
+its metallic, and without the photos the fit cost 0.00 to 0.04 dB of relighting on the development objects; at
+weight 5 relighting moved by -0.03 to +0.03 dB (docs/error-models.md, "Metallic"; at 50 the photos take the metallic
+over to fake shading, as they do normals). Base colour, roughness, normals and light are untouched.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import torch
 from torch import Tensor
 
 from matspray.errors import SettingError
+from matspray.material import METALLIC_INDEX
+
+if TYPE_CHECKING:
+    from matspray.refine import RefineConfig, TrainingViews
+    from matspray.render.envmap import EnvironmentMap
 
 # render(view index, features [N, C]) -> (blended over black [H, W, C], coverage alpha [H, W]): FrozenViews.render
 Render = Callable[[int, Tensor], tuple[Tensor, Tensor]]
@@ -37,11 +46,12 @@ class MetallicFitConfig:
     steps: int = 0  # Adam steps of the fit, one training view each (0: off, the merger's metallic as it is)
     pull: float = 0.5  # weight of the mean |m - m0| that holds each Gaussian at the merger's value
     lr: float = 0.01  # Adam's rate: about the metallic a value moves per step
+    photo_weight: float = 5.0  # weight of the view's photometric loss (variants with the PBR loss; 0: maps alone)
 
     def __post_init__(self):
         if self.steps < 0:
             raise SettingError("steps", f"must be >= 0, got {self.steps}")
-        for name in ("pull", "lr"):
+        for name in ("pull", "lr", "photo_weight"):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
 
@@ -67,9 +77,11 @@ def fit_metallic(
     targets: list[Tensor],  # V maps [H, W]
     surfaces: list[Tensor],  # V weights [H, W]
     config: MetallicFitConfig,
+    photo: Callable[[int, Tensor], Tensor] | None = None,
 ) -> Tensor:  # [N] fitted metallic in [0, 1]
     """Per-Gaussian metallic fitted to the 2D maps through the frozen views (`MetallicFitConfig`); `start` itself when
-    the fit is off or there are no views."""
+    the fit is off or there are no views. `photo(view index, metallic [N]) -> []`: the view's photometric loss with
+    that metallic (None: the variant has none; the maps alone then)."""
     if config.steps == 0 or not targets:
         return start.detach().clone()
     start = start.detach()
@@ -79,9 +91,44 @@ def fit_metallic(
         index = step % len(targets)  # a fixed cycle: the same result on every run
         blended, alpha = render(index, values[:, None])
         loss = fit_loss(values, start, blended, alpha, targets[index], surfaces[index], config.pull)
+        if photo is not None and config.photo_weight > 0:
+            loss = loss + config.photo_weight * photo(index, values)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         with torch.no_grad():
             values.clamp_(0.0, 1.0)  # projected: metallic is a fraction
     return values.detach()
+
+
+def fitted_materials(
+    materials: Tensor,  # [N, 5]
+    normals: Tensor,  # [N, 3]
+    envmap: EnvironmentMap | None,
+    training: TrainingViews,
+    targets: list[Tensor],  # V 2D maps [H, W, 5]
+    config: RefineConfig,
+) -> Tensor:  # [N, 5]
+    """`materials` with the metallic fitted through refinement's frozen views to the 2D maps and, with a light, the
+    photos; the rest of the materials, the normals and the light stay as refined."""
+    from matspray.refine import view_losses  # refinement calls this module at its end
+    from matspray.render.envmap import EnvironmentMap
+
+    light = None if envmap is None else EnvironmentMap(envmap.log_map.detach(), learnable=False)
+    others = materials[:, :METALLIC_INDEX]  # the metallic is the last channel
+
+    def photo(index: int, metallic: Tensor) -> Tensor:
+        candidate = torch.cat([others, metallic[:, None].to(others)], dim=1)
+        return view_losses(training, index, candidate, normals, light, config, with_material=False)["photo"]
+
+    fitted = fit_metallic(
+        materials[:, METALLIC_INDEX].float(),
+        training.frozen.render,
+        [target[..., METALLIC_INDEX] for target in targets],
+        [training.constants(index).surface for index in range(len(training))],
+        config.metallic_fit,
+        photo if light is not None else None,
+    )
+    materials = materials.clone()
+    materials[:, METALLIC_INDEX] = fitted.to(materials)
+    return materials

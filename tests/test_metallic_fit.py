@@ -1,6 +1,8 @@
 """The metallic fit (`matspray.metallic_fit`): against a brute-force linear program, on a blurred edge, and in
 refinement (metallic only)."""
 
+from dataclasses import replace
+
 import pytest
 import torch
 
@@ -22,46 +24,40 @@ def dense_render(matrices: list[torch.Tensor], shape: tuple[int, int]):
     return render
 
 
-def objective(values, start, matrices, targets, pull) -> float:
-    """The fit's objective averaged over the views: what its fixed cycle of one view per step minimises."""
-    render = dense_render(matrices, tuple(targets[0].shape))
-    ones = torch.ones_like(targets[0])
-    terms = [fit_loss(values, start, *render(v, values[:, None]), targets[v], ones, pull) for v in range(len(targets))]
-    return float(sum(terms)) / len(terms)
+def blocks_of(start, matrices, targets, pull, photo_target=None, photo_weight=0.0):
+    """The fit's objective averaged over the views (what its fixed cycle of one view per step minimises) as blocks
+    (A [R, N], t [R], weight) of sum_b weight_b * mean_r |A_b m - t_b|: each view's normalised blend, the pull, and
+    the L1 stand-in for the photo term (`photo_target`, every view the same)."""
+    n, views = len(start), len(matrices)
+    blocks = [(m / m.sum(1, keepdim=True), t.reshape(-1), 1.0 / views) for m, t in zip(matrices, targets)]
+    blocks.append((torch.eye(n), start, pull))
+    if photo_target is not None:
+        blocks.append((torch.eye(n), photo_target, photo_weight))
+    return blocks
 
 
-def linear_program_optimum(start, matrices, targets, pull):
-    """The exact minimiser of `objective` over m in [0, 1]^N by scipy's LP solver (variables m, then per pixel and
-    per Gaussian the positive and negative parts of the residuals)."""
+def objective(values, blocks) -> float:
+    return sum(weight * float((a @ values - t).abs().mean()) for a, t, weight in blocks)
+
+
+def linear_program_optimum(blocks, n: int):
+    """The exact minimiser over m in [0, 1]^n of `objective` by scipy's LP solver (variables m, then each block
+    row's positive and negative residual parts)."""
     scipy_optimize = pytest.importorskip("scipy.optimize")
     import numpy as np
 
-    n = len(start)
-    views = len(matrices)
-    pixels = targets[0].numel()
-    rhs = []
-    cost = [0.0] * n
-    blocks = []
-    for matrix, target in zip(matrices, targets):
-        coverage = matrix.sum(1, keepdim=True)
-        blocks.append(((matrix / coverage).double().numpy(), target.reshape(-1).double().numpy()))
-    count = n + 2 * views * pixels + 2 * n
-    equality = np.zeros((views * pixels + n, count))
-    for v, (normalised, target) in enumerate(blocks):
-        for p in range(pixels):
-            row = v * pixels + p
-            equality[row, :n] = normalised[p]
-            equality[row, n + 2 * row] = -1.0  # r+ : residual = r+ - r-
+    rows = sum(len(t) for _, t, _ in blocks)
+    equality, rhs, cost = np.zeros((rows, n + 2 * rows)), [], [0.0] * n
+    row = 0
+    for a, t, weight in blocks:
+        for r in range(len(t)):
+            equality[row, :n] = a[r].double().numpy()
+            equality[row, n + 2 * row] = -1.0  # A m - t = positive part - negative part
             equality[row, n + 2 * row + 1] = 1.0
-            rhs.append(target[p])
-    for i in range(n):
-        row = views * pixels + i
-        equality[row, i] = 1.0
-        equality[row, n + 2 * views * pixels + 2 * i] = -1.0
-        equality[row, n + 2 * views * pixels + 2 * i + 1] = 1.0
-        rhs.append(float(start[i]))
-    cost += [1.0 / (views * pixels)] * (2 * views * pixels) + [pull / n] * (2 * n)
-    bounds = [(0.0, 1.0)] * n + [(0.0, None)] * (count - n)
+            rhs.append(float(t[r]))
+            cost += [weight / len(t)] * 2
+            row += 1
+    bounds = [(0.0, 1.0)] * n + [(0.0, None)] * (2 * rows)
     solution = scipy_optimize.linprog(cost, A_eq=equality, b_eq=rhs, bounds=bounds, method="highs")
     assert solution.status == 0, solution.message
     return torch.tensor(solution.x[:n], dtype=torch.float32), float(solution.fun)
@@ -79,14 +75,37 @@ def random_problem(seed: int, n: int = 5, side: int = 3, views: int = 2):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_fit_reaches_the_linear_programs_optimum(seed):
     start, matrices, targets = random_problem(seed)
-    pull = 0.3
-    config = MetallicFitConfig(steps=6000, pull=pull, lr=0.002)
+    config = MetallicFitConfig(steps=6000, pull=0.3, lr=0.002)
     fitted = fit_metallic(start, dense_render(matrices, (3, 3)), targets, [torch.ones(3, 3)] * len(targets), config)
-    exact, best = linear_program_optimum(start, matrices, targets, pull)
-    reached = objective(fitted, start, matrices, targets, pull)
-    assert abs(best - objective(exact, start, matrices, targets, pull)) < 1e-6  # the LP models the objective
-    assert reached <= best + 5e-3, (reached, best)
+    blocks = blocks_of(start, matrices, targets, config.pull)
+    exact, best = linear_program_optimum(blocks, len(start))
+    assert abs(best - objective(exact, blocks)) < 1e-6  # the LP models the objective
+    # and so does fit_loss: the objective of one view's image and the pull, at any values
+    ones = torch.ones(3, 3)
+    one_view = fit_loss(exact, start, *dense_render(matrices, (3, 3))(0, exact[:, None]), targets[0], ones, 0.3)
+    assert abs(float(one_view) - objective(exact, [blocks[0][:2] + (1.0,), blocks[-1]])) < 1e-5
+    assert objective(fitted, blocks) <= best + 5e-3, (objective(fitted, blocks), best)
     assert float((fitted - exact).abs().max()) < 0.05, (fitted, exact)
+
+
+def test_the_photo_term_is_weighed_in_as_the_linear_program_says():
+    start, matrices, targets = random_problem(3)
+    wanted = torch.linspace(0.9, 0.1, len(start))  # what a stand-in photo term, L1 so the LP stays exact, asks for
+    config = MetallicFitConfig(steps=6000, pull=0.1, lr=0.002, photo_weight=0.7)
+    fitted = fit_metallic(
+        start,
+        dense_render(matrices, (3, 3)),
+        targets,
+        [torch.ones(3, 3)] * len(targets),
+        config,
+        photo=lambda index, values: (values - wanted).abs().mean(),
+    )
+    blocks = blocks_of(start, matrices, targets, config.pull, wanted, config.photo_weight)
+    exact, best = linear_program_optimum(blocks, len(start))
+    assert objective(fitted, blocks) <= best + 5e-3, (objective(fitted, blocks), best)
+    assert float((fitted - exact).abs().max()) < 0.05, (fitted, exact)
+    maps_alone, _ = linear_program_optimum(blocks[:-1], len(start))
+    assert float((maps_alone - exact).abs().max()) > 0.1  # the photo term changed the answer
 
 
 def blurred_edge(count: int = 12):
@@ -122,7 +141,7 @@ def test_the_fit_sharpens_a_blurred_edge_and_the_pull_holds_it():
 
 
 def test_settings_are_checked():
-    for bad in ({"steps": -1}, {"pull": -0.1}, {"lr": -1.0}):
+    for bad in ({"steps": -1}, {"pull": -0.1}, {"lr": -1.0}, {"photo_weight": -1.0}):
         with pytest.raises(SettingError):
             MetallicFitConfig(**bad)
 
@@ -131,10 +150,10 @@ def test_refinement_fits_only_the_metallic(lifted_scene):  # noqa: F811 (the fix
     gaussians, normals, _, views, maps, lifted = lifted_scene
     inputs = refine_inputs(gaussians, normals, lifted, views, maps)
     plain = RefineConfig(iterations=4, envmap_height=8, light_warmup=0)
-    fitted = RefineConfig(
-        iterations=4, envmap_height=8, light_warmup=0, metallic_fit=MetallicFitConfig(steps=40, pull=0.0, lr=0.05)
-    )
-    before, after = (refine(inputs, c, progress=False) for c in (plain, fitted))
+    fit = MetallicFitConfig(steps=40, pull=0.0, lr=0.05, photo_weight=5.0)
+    fitted = replace(plain, metallic_fit=fit)
+    maps_alone = replace(plain, metallic_fit=replace(fit, photo_weight=0.0))
+    before, after, without_photos = (refine(inputs, c, progress=False) for c in (plain, fitted, maps_alone))
     others = [i for i in range(5) if i != METALLIC_INDEX]
     assert torch.equal(before.materials[:, others], after.materials[:, others])
     assert torch.equal(before.normals, after.normals)
@@ -156,3 +175,6 @@ def test_refinement_fits_only_the_metallic(lifted_scene):  # noqa: F811 (the fix
         return total
 
     assert image_error(after.materials) < image_error(before.materials)
+    # `full` has a light, so the photos have their say: the maps alone fit closer to the maps
+    assert not torch.equal(after.materials, without_photos.materials)
+    assert image_error(without_photos.materials) < image_error(after.materials)
