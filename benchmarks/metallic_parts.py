@@ -2,7 +2,8 @@
 
     python -m benchmarks.metallic_parts [--set dev] [--objects 3] [--model dr] [--radius 2]
         [--rows 2D=dr-matspray-0f581f72 "lifted truth=ground-truth-on-dr-matspray-0f581f72/asset-proj-average"
-                lift=dr-matspray-0f581f72/asset-proj-average full=dr-matspray-37fb3a8b/asset] [--out DIR]
+                lift=dr-matspray-0f581f72/asset-proj-average full=dr-matspray-37fb3a8b/asset]
+        [--fit-to-truth "lifted truth" [--fit-steps 1200]] [--out DIR]
 
 Reads the runs `python -m benchmarks.generalise` left in OUT (default runs/generalise-SET-demo); each row is
 LABEL=RUN/ASSET (a run folder under OBJECT/runs and the asset in it, `MODEL` in RUN replaced by --model), or
@@ -17,6 +18,9 @@ the true mask on black, over the whole image. Each pixel's error is put into one
   edge         further inside, within RADIUS px of a change of the true metallic (its range over the
                (2 RADIUS + 1)^2 window > EDGE_STEP)
   interior     the rest of the object: `metal` where the true metallic is >= 0.5, `dielectric` below
+`--fit-to-truth LABEL ...` adds, for those rows, the asset with its metallic fitted to the TRUE training maps through
+the renderer (`matspray.metallic_fit` without pull or photos): on the lifted truth, what per-Gaussian values could
+show on these Gaussians, so the part of its error the lift causes and the part the Gaussians' footprint does.
 For every part: its share of the pixels, its share of the error, its own PSNR (its mean error) and what the whole
 figure would gain were that part exact (dB). These figures are one object's pooled views, averaged over objects.
 The metallic PSNR is shown twice: pooled over the views (how `matspray eval` scores the 3D metallic) and the mean of
@@ -129,20 +133,45 @@ def row_metallic(row: str, runs: Path, model: str, views) -> torch.Tensor:
     return rendered_metallic(read_asset(where), views)
 
 
-def object_rows(data: Path, runs: Path, model: str, rows: list[str], radius: int) -> dict:
-    """{label: part_figures} of one object."""
+def fitted_to_truth(asset, train_views, steps: int) -> torch.Tensor:  # -> [N] metallic
+    """The asset's metallic fitted through its frozen training views to the TRUE metallic maps (`fit_metallic` with
+    no pull and no photos): what per-Gaussian values could show on these Gaussians, whatever the lift."""
+    from matspray.metallic_fit import MetallicFitConfig, fit_metallic
+    from matspray.predictors.ground_truth import read_ground_truth
+    from matspray.render.gbuffer import FrozenViews
+
+    frozen = FrozenViews(asset.gaussians, [v.camera for v in train_views])
+    targets = [read_ground_truth(v).metallic for v in train_views]
+    surfaces = [v.alpha * (alpha > 0.5) for v, alpha in zip(train_views, frozen.alphas)]
+    config = MetallicFitConfig(steps=steps, pull=0.0, lr=0.02, photo_weight=0.0)
+    return fit_metallic(asset.materials[:, 4], frozen.render, targets, surfaces, config)
+
+
+def object_rows(data: Path, runs: Path, model: str, rows: list[str], radius: int, fit: list[str], steps: int) -> dict:
+    """{label: part_figures} of one object; each row labelled in `fit` also fitted to the true maps (`steps`)."""
+    from dataclasses import replace
+
+    from matspray.asset import read_asset
     from matspray.data import load_scene
     from matspray.eval.run_eval import read_view_truth
 
-    views = load_scene(data).test
+    scene = load_scene(data)
+    views = scene.test
     truths = [read_view_truth(v) for v in views]
     truth = torch.stack([t.metallic for t in truths]).double()
     mask = torch.stack([t.mask for t in truths]).double()
     parts = metallic_parts(truth, mask, radius)
-    return {
-        row.partition("=")[0]: part_figures(squared_errors(row_metallic(row, runs, model, views), truth, mask), parts)
-        for row in rows
-    }
+    figures = {}
+    for row in rows:
+        label, _, where = row.partition("=")
+        figures[label] = part_figures(squared_errors(row_metallic(row, runs, model, views), truth, mask), parts)
+        if label in fit:
+            asset = read_asset(runs / where.replace("MODEL", model))
+            metallic = fitted_to_truth(asset, scene.train, steps)
+            materials = torch.cat([asset.materials[:, :4], metallic[:, None]], dim=1)
+            fitted = rendered_metallic(replace(asset, materials=materials), views)
+            figures[f"{label}, fitted to the true maps"] = part_figures(squared_errors(fitted, truth, mask), parts)
+    return figures
 
 
 def mean_figures(per_object: list[dict]) -> dict:
@@ -178,6 +207,14 @@ def main(argv=None) -> int:
     parser.add_argument("--model", default="dr")
     parser.add_argument("--radius", type=int, default=2, help="width of the silhouette and edge bands (px)")
     parser.add_argument("--rows", nargs="+", default=list(DEFAULT_ROWS), help="2D=RUN or LABEL=RUN/ASSET")
+    parser.add_argument(
+        "--fit-to-truth",
+        nargs="*",
+        default=[],
+        metavar="LABEL",
+        help="rows whose asset is also shown with its metallic fitted to the true training maps",
+    )
+    parser.add_argument("--fit-steps", type=int, default=1200, help="steps of that fit (default 1200)")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     from benchmarks.generalise import object_set
@@ -187,7 +224,9 @@ def main(argv=None) -> int:
     per_object = {}
     for spec in object_set(args.set, args.objects, hdri_files()):
         folder = out / "objects" / spec.name
-        per_object[spec.name] = object_rows(folder / "data", folder / "runs", args.model, args.rows, args.radius)
+        per_object[spec.name] = object_rows(
+            folder / "data", folder / "runs", args.model, args.rows, args.radius, args.fit_to_truth, args.fit_steps
+        )
         print("\n".join(table(spec.name, per_object[spec.name])), flush=True)
     print("\n".join(table(f"mean of {len(per_object)}", mean_figures(list(per_object.values())))))
     return 0

@@ -2,10 +2,10 @@
 
 Why: the Neural Merger's metallic is a softmax mixture of each Gaussian's lifted per-view medians, so a Gaussian
 whose core straddles a metal edge keeps the side that holds most of its core, and the render blends it with its
-neighbours: the metal edges come out blurred. On the development objects the edges (within 2 px of a change of the
-true metallic, 29 % of the object's pixels) hold about two thirds of the 3D metallic's error; the truth itself
-lifted onto the same Gaussians loses 6 dB there, and fitting per-Gaussian values to the true training maps through
-the renderer gains 2.7 dB of it (docs/error-models.md, "Metallic").
+neighbours: the metal edges come out blurred. On the development objects the pixels near a change of the true
+metallic hold most of the 3D metallic's error, even for the truth lifted onto the same Gaussians, and fitting
+per-Gaussian values to the true maps through the renderer wins a good part of it back (docs/normals.md, "Metallic",
+measured with `benchmarks.metallic_parts`).
 
 What: starting from the merged metallic m0, Adam fits free per-Gaussian values m in [0, 1] to the 2D metallic maps,
 one training view per step in a fixed cycle, minimising
@@ -16,10 +16,9 @@ one training view per step in a fixed cycle, minimising
 L1 on the first two: the image term is a per-pixel median, so a view with spurious metallic is outvoted; the pull is
 an exact penalty, so a Gaussian moves only where the maps gain more than `pull` per unit of change (the edges),
 and keeps the merger's value elsewhere (the interiors, where the merger, helped by the photos, beat the maps). The
-photo term keeps the fit from trading relighting for metallic: the merger's base colour was refined together with
-its metallic, and without the photos the fit cost 0.00 to 0.04 dB of relighting on the development objects; at
-weight 5 relighting moved by -0.03 to +0.03 dB (docs/error-models.md, "Metallic"; at 50 the photos take the metallic
-over to fake shading, as they do normals). Base colour, roughness, normals and light are untouched.
+photo term keeps the fit from trading relighting for metallic (the merger's base colour was refined together with
+its metallic; without the photos the fit relit a little worse); a large weight hands the metallic to the photos,
+which then use it to fake shading, as they do normals. Base colour, roughness, normals and light are untouched.
 """
 
 from __future__ import annotations
