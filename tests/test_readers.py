@@ -198,3 +198,22 @@ def test_images_of_different_sizes_in_a_split(tmp_path):
     blender_folder(tmp_path)
     with pytest.raises(DataError, match=r"r_001\.png: is 42x30 but 'r_000' in the train split is 40x30"):
         load_scene(tmp_path)
+
+
+def test_views_are_brought_to_the_working_size_as_they_are_read(tmp_path, monkeypatch):
+    """A dataset is never held whole at its photos' size: each view is shrunk before the next photo is read."""
+    import matspray.data.blender as blender
+    from matspray.data import loader
+
+    events = []
+    read_image = blender.read_image
+    monkeypatch.setattr(blender, "read_image", lambda *a, **k: events.append("read") or read_image(*a, **k))
+    shrink = loader.WorkingSize.__call__
+    monkeypatch.setattr(loader.WorkingSize, "__call__", lambda self, view: events.append("fit") or shrink(self, view))
+    frames = [{"file_path": f"train/r_{i:03d}", "transform_matrix": C2W_GL} for i in range(3)]
+    scene = load_scene(blender_folder(tmp_path, frames), downscale=None, max_size=W // 2)
+    assert events == ["read", "fit"] * 3
+    assert scene.downscale == 2.0
+    assert all((v.width, v.height) == (W // 2, H // 2) for v in scene.train)
+    assert float(scene.train[0].camera.K[0, 0]) == pytest.approx(FOCAL / 2, rel=1e-6)
+    assert load_scene(tmp_path, downscale=None, max_size=4 * W).downscale == 1.0  # never enlarged

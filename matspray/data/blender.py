@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -182,8 +183,9 @@ def read_pose(frame: dict, index: int, json_path: Path) -> torch.Tensor:  # [4, 
     return pose
 
 
-def read_split(root: Path, split: str) -> list[View]:
-    """Views of `transforms_{split}.json` under `root` ([] when the file is absent)."""
+def read_split(root: Path, split: str, fit: Callable[[View], View] = lambda view: view) -> list[View]:
+    """Views of `transforms_{split}.json` under `root` ([] when the file is absent), each passed through `fit` as it
+    is read (`loader.WorkingSize`)."""
     json_path = root / f"transforms_{split}.json"
     if not json_path.exists():
         return []
@@ -213,7 +215,7 @@ def read_split(root: Path, split: str) -> list[View]:
         K = frame_intrinsics(meta, frame, width, height, json_path, label)
         camera = Camera.from_camtoworld_opengl(pose, K, width, height)
         name = view_name(frame["file_path"])
-        views.append(View(name=name, image=rgb, alpha=alpha, camera=camera, path=image_path))
+        views.append(fit(View(name=name, image=rgb, alpha=alpha, camera=camera, path=image_path)))
     return views
 
 

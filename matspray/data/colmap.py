@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -180,9 +181,10 @@ def find_mask(mask_dir: Path, image_name: str) -> Path | None:
 
 
 def read_colmap(
-    root: Path, test_every: int = 8
+    root: Path, test_every: int = 8, fit: Callable[[View], View] = lambda view: view
 ) -> tuple[list[View], list[View], torch.Tensor, torch.Tensor, list[str]]:
-    """Returns train views, test views, points [P, 3], their linear colours [P, 3] and notes on what loading did."""
+    """Returns train views, test views, points [P, 3], their linear colours [P, 3] and notes on what loading did;
+    each view is passed through `fit` as it is read (`loader.WorkingSize`)."""
     pycolmap = optional_module("pycolmap", "colmap", "reading a COLMAP model")
 
     model_path = find_model(root)
@@ -217,7 +219,7 @@ def read_colmap(
                 )
         load = partial(read_photo, image_path, mask_path, (camera.height, camera.width))
         sources = () if mask_path is None else (mask_path,)
-        views.append(undistorter.view(Path(image.name).stem, image_path, lens, viewmat, load, sources))
+        views.append(fit(undistorter.view(Path(image.name).stem, image_path, lens, viewmat, load, sources)))
     if test_every > 0 and len(views) > 1:
         test = [v for i, v in enumerate(views) if i % test_every == 0]
         train = [v for i, v in enumerate(views) if i % test_every != 0]

@@ -11,6 +11,7 @@ undistorted on load (`matspray.data.undistort`). Photos are turned upright by th
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
@@ -160,7 +161,8 @@ def key_notes(meta: dict, frames: list[dict]) -> list[str]:
     return notes
 
 
-def read_nerfstudio(root, test_every: int = 8) -> Capture:
+def read_nerfstudio(root, test_every: int = 8, fit: Callable[[View], View] = lambda view: view) -> Capture:
+    """The capture's views (each passed through `fit` as it is read: `loader.WorkingSize`) and notes."""
     root = Path(root)
     json_path = root / TRANSFORMS
     meta = read_json(json_path)
@@ -177,7 +179,7 @@ def read_nerfstudio(root, test_every: int = 8) -> Capture:
     views = {}
     for position in sorted(set(train_ids) | set(test_ids)):
         index = order[position]
-        views[position] = read_frame(root, meta, frames[index], index, json_path, undistorter)
+        views[position] = fit(read_frame(root, meta, frames[index], index, json_path, undistorter))
     notes = key_notes(meta, frames) + notes + undistorter.notes()
     return Capture([views[i] for i in train_ids], [views[i] for i in test_ids], notes)
 

@@ -7,6 +7,7 @@ row-major order, as a comma-separated string or a list), `cam_angle_x`, `imw` an
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -35,8 +36,9 @@ def is_tensoir(root: Path) -> bool:
     )
 
 
-def read_split(root: Path, split: str) -> list[View]:
-    return [read_view(folder) for folder in view_folders(root, split)]
+def read_split(root: Path, split: str, fit: Callable[[View], View] = lambda view: view) -> list[View]:
+    """The split's views, each passed through `fit` as it is read (`loader.WorkingSize`)."""
+    return [fit(read_view(folder)) for folder in view_folders(root, split)]
 
 
 def read_view(folder: Path) -> View:
