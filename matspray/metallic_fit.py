@@ -24,17 +24,12 @@ which then use it to fake shading, as they do normals. Base colour, roughness, n
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import torch
 from torch import Tensor
 
 from matspray.errors import SettingError
-from matspray.material import METALLIC_INDEX
-
-if TYPE_CHECKING:
-    from matspray.refine import RefineConfig, TrainingViews
-    from matspray.render.envmap import EnvironmentMap
 
 # render(view index, features [N, C]) -> (blended over black [H, W, C], coverage alpha [H, W]): FrozenViews.render
 Render = Callable[[int, Tensor], tuple[Tensor, Tensor]]
@@ -98,36 +93,3 @@ def fit_metallic(
         with torch.no_grad():
             values.clamp_(0.0, 1.0)  # projected: metallic is a fraction
     return values.detach()
-
-
-def fitted_materials(
-    materials: Tensor,  # [N, 5]
-    normals: Tensor,  # [N, 3]
-    envmap: EnvironmentMap | None,
-    training: TrainingViews,
-    targets: list[Tensor],  # V 2D maps [H, W, 5]
-    config: RefineConfig,
-) -> Tensor:  # [N, 5]
-    """`materials` with the metallic fitted through refinement's frozen views to the 2D maps and, with a light, the
-    photos; the rest of the materials, the normals and the light stay as refined."""
-    from matspray.refine import view_losses  # refinement calls this module at its end
-    from matspray.render.envmap import EnvironmentMap
-
-    light = None if envmap is None else EnvironmentMap(envmap.log_map.detach(), learnable=False)
-    others = materials[:, :METALLIC_INDEX]  # the metallic is the last channel
-
-    def photo(index: int, metallic: Tensor) -> Tensor:
-        candidate = torch.cat([others, metallic[:, None].to(others)], dim=1)
-        return view_losses(training, index, candidate, normals, light, config, with_material=False)["photo"]
-
-    fitted = fit_metallic(
-        materials[:, METALLIC_INDEX].float(),
-        training.frozen.render,
-        [target[..., METALLIC_INDEX] for target in targets],
-        [training.constants(index).surface for index in range(len(training))],
-        config.metallic_fit,
-        photo if light is not None else None,
-    )
-    materials = materials.clone()
-    materials[:, METALLIC_INDEX] = fitted.to(materials)
-    return materials

@@ -39,9 +39,9 @@ from matspray.data.scene import View
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.graphs import Graphed
-from matspray.material import N_CHANNELS
+from matspray.material import METALLIC_INDEX, N_CHANNELS
 from matspray.merger import MergerConfig, NeuralMerger, align_view_gains, prepare_values, projection_average, view_gains
-from matspray.metallic_fit import MetallicFitConfig, fitted_materials
+from matspray.metallic_fit import MetallicFitConfig, fit_metallic
 from matspray.refine_steps import adam as adam_optimizer
 from matspray.refine_steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
 from matspray.refine_terms import (  # noqa: F401 (the material losses: callers' API)
@@ -559,7 +559,37 @@ def refine(
         final_normals = normals if shading is None else shading().detach()
         materials = source().detach()
     if variant.uses_maps and config.metallic_fit.steps > 0:
-        materials = fitted_materials(materials, final_normals, envmap, training, inputs.targets, config)
+        materials = with_fitted_metallic(materials, final_normals, envmap, training, inputs.targets, config)
     return RefineResult(
         materials, final_normals, source, envmap, history, inputs.visibility, training.frozen.describe()
     )
+
+
+def with_fitted_metallic(
+    materials: Tensor,  # [N, 5]
+    normals: Tensor,  # [N, 3]
+    envmap: EnvironmentMap | None,
+    training: TrainingViews,
+    targets: list[Tensor],  # V 2D maps [H, W, 5]
+    config: RefineConfig,
+) -> Tensor:  # [N, 5]
+    """`materials` with the metallic fitted through refinement's frozen views to the 2D maps and, with a light, the
+    photos; the rest of the materials, the normals and the light stay as refined."""
+    light = None if envmap is None else EnvironmentMap(envmap.log_map.detach(), learnable=False)
+    others = materials[:, :METALLIC_INDEX]  # the metallic is the last channel
+
+    def photo(index: int, metallic: Tensor) -> Tensor:
+        candidate = torch.cat([others, metallic[:, None].to(others)], dim=1)
+        return view_losses(training, index, candidate, normals, light, config, with_material=False)["photo"]
+
+    fitted = fit_metallic(
+        materials[:, METALLIC_INDEX].float(),
+        training.frozen.render,
+        [target[..., METALLIC_INDEX] for target in targets],
+        [training.constants(index).surface for index in range(len(training))],
+        config.metallic_fit,
+        photo if light is not None else None,
+    )
+    materials = materials.clone()
+    materials[:, METALLIC_INDEX] = fitted.to(materials)
+    return materials

@@ -67,7 +67,8 @@ def evaluation_background(view: View) -> Tensor:  # -> [3] sRGB
     composited on white too, so only the object counts. Without one, the whole photo is the target, and a part of
     the backdrop that no training view saw (alpha 0) shows this colour: it must be the one training composited on
     (`step.training_losses`: black), or a dark backdrop turns white in views that did not see it."""
-    return torch.ones(3) if view.alpha is not None else torch.zeros(3)
+    device = view.image.device
+    return torch.ones(3, device=device) if view.alpha is not None else torch.zeros(3, device=device)
 
 
 def psnr(pred: Tensor, target: Tensor, weights: Tensor | None = None) -> float:
