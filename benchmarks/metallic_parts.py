@@ -30,12 +30,13 @@ the views' own PSNRs (how it scores the 2D predictions' metallic; never below th
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+
+from matspray.eval.metrics import psnr_from_mse as psnr
 
 EDGE_STEP = 0.1  # a change of the true metallic larger than this is an edge (its levels differ by >= 0.25 here)
 PARTS = ("silhouette", "edge", "interior metal", "interior dielectric")
@@ -104,10 +105,6 @@ def part_figures(errors: torch.Tensor, parts: dict[str, torch.Tensor]) -> dict:
             "gain": psnr((total - part) / pixels) - figures["psnr"],
         }
     return figures
-
-
-def psnr(mse: float) -> float:
-    return math.inf if mse <= 0 else -10.0 * math.log10(mse)
 
 
 def rendered_metallic(asset, views) -> torch.Tensor:  # -> [V, H, W]

@@ -170,12 +170,11 @@ def eval_command(run: Path, name: str, args, compare: list[str], compute: list[s
 
 
 def compare_view(run: Path) -> str:
-    """The first held-out view's name: the first row of the report's comparison."""
-    from matspray.data import load_scene
+    """The first held-out view's name (the first row of the report's comparison), from the run's dataset record."""
     from matspray.rundir import RunDir
 
-    folder = RunDir(run).require()
-    return load_scene(folder.dataset()["source"], downscale=folder.downscale()).test[0].name
+    dataset = RunDir(run).require().dataset()
+    return (dataset.get("test_views") or dataset["train_views"])[0]
 
 
 def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dict]) -> dict:

@@ -62,14 +62,16 @@ def asset_box_note(run: RunDir, assets: dict) -> str:
     return "<ul>" + "".join(f"<li>{html.escape(line)}</li>" for line in lines) + "</ul>"
 
 
-def comparison_section(run: RunDir, others: list[RunDir], views, light_spec: str, figures: Figures, device) -> str:
-    """Each of `views`: the photo, then `run`'s asset and each of `others`' relit under `light_spec`, cut to the same
-    square around the object at the same size (`relit_crops`)."""
+def comparison_section(
+    run: RunDir, own: dict, others: list[RunDir], views, light_spec: str, figures: Figures, device
+) -> str:
+    """Each of `views`: the photo, then `run`'s default asset (from `own`, the assets it has read) and each of
+    `others`' relit under `light_spec`, cut to the same square around the object at the same size (`relit_crops`)."""
     name, env = load_envmap(light_spec, height=RELIGHT_ENV_HEIGHT)
     light = EnvironmentMap.from_tensor(env.to(device), learnable=False).prefilter()
-    runs = [run, *others]
-    assets = [default_asset(r, device) for r in runs]
-    labels = ["photo"] + [f"{r.root.name} ({r.default_variant()})" for r in runs]
+    variant = run.default_variant()
+    assets = [own[variant]] + [default_asset(r, device) for r in others]
+    labels = ["photo", f"{run.root.name} ({variant})"] + [f"{r.root.name} ({r.default_variant()})" for r in others]
     cells = []
     for view in views:
         row = relit_crops(assets, view.camera.to(device), light, view.image, CROP_SIZE)
@@ -166,7 +168,7 @@ def write_capture_report(
             "<div>" + "".join(cells) + "</div>"
         )
         if others:
-            sections.append(comparison_section(run, others, views, lights[0], figures, device))
+            sections.append(comparison_section(run, assets, others, views, lights[0], figures, device))
 
         rows = ["<h2>Material maps</h2>"]
         for variant, asset in assets.items():
