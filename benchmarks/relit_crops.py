@@ -16,12 +16,11 @@ from pathlib import Path
 
 from matspray.data import load_scene
 from matspray.data.images import write_image
+from matspray.eval.capture_report import RELIGHT_ENV_HEIGHT
 from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
 from matspray.lights import load_envmap
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir
-
-LIGHT_HEIGHT = 64  # the light's lat-long height: what the capture report relights with
 
 
 def main(argv=None) -> None:
@@ -42,7 +41,7 @@ def main(argv=None) -> None:
     view = next((v for v in test if v.name == args.view), None)
     if view is None:
         parser.error(f"no test view {args.view} in {runs[0].dataset()['source']}: {', '.join(v.name for v in test)}")
-    name, env = load_envmap(args.env, height=LIGHT_HEIGHT)
+    name, env = load_envmap(args.env, height=RELIGHT_ENV_HEIGHT)  # as the capture report relights
     light = EnvironmentMap.from_tensor(env, learnable=False).prefilter()
     row = relit_crops([default_asset(run) for run in runs], view.camera, light, view.image, args.size)
     if row is None:
