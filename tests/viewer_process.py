@@ -3,6 +3,7 @@ that check it starts, serves its page and stops cleanly."""
 
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import subprocess
@@ -29,9 +30,11 @@ class ViewerExit:
 
 def serve_then_interrupt(command: list[str], port: int, stop_timeout: float, cwd=None, env=None) -> ViewerExit:
     """Start the viewer `command` (listening on `port`), wait for its ready line, fetch its page, send Ctrl+C and wait
-    up to `stop_timeout` s for it to exit; a viewer that is still running then is killed (and the test fails)."""
+    up to `stop_timeout` s for it to exit; a viewer that is still running then is aborted and the test fails with
+    its threads' stacks."""
     import urllib.request
 
+    env = {**(os.environ if env is None else env), "PYTHONFAULTHANDLER": "1"}
     viewer = subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: list[str] = []
     try:
@@ -42,7 +45,16 @@ def serve_then_interrupt(command: list[str], port: int, stop_timeout: float, cwd
         with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as page:
             status, body = page.status, page.read()
         viewer.send_signal(signal.SIGINT)
-        out, err = viewer.communicate(timeout=stop_timeout)
+        try:
+            out, err = viewer.communicate(timeout=stop_timeout)
+        except subprocess.TimeoutExpired:
+            # a viewer that does not stop: SIGABRT makes faulthandler (PYTHONFAULTHANDLER) print where every
+            # thread is, so that the failure says what it was waiting for
+            viewer.send_signal(signal.SIGABRT)
+            out, err = viewer.communicate(timeout=60)
+            raise AssertionError(
+                f"the viewer did not stop within {stop_timeout} s of Ctrl+C; its threads:\n{err[-6000:]}"
+            )
     finally:
         if viewer.poll() is None:
             viewer.kill()
