@@ -14,7 +14,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from matspray.data.loader import load_scene
+from matspray.data.loader import load_run_scene
 from matspray.estimate import CPU_RATES, estimate_error, feature_sizes, run_work
 from matspray.rundir import STAGE_RECORD, RunDir, read_json
 from matspray.variants import get_variant
@@ -24,7 +24,7 @@ def stage_work(run: Path) -> dict[str, tuple[float, float]]:
     """{stage: (units of work, seconds)} for the stages `run` ran itself (asset stages under the name `refine`)."""
     folder = RunDir(run)
     config, timings = folder.config(), folder.timings()
-    scene = load_scene(folder.dataset()["source"], downscale=folder.downscale())
+    scene = load_run_scene(folder)
     views = [(v.width, v.height) for v in scene.train]
     rays = 1 if config.get("predictor") == "none" else config["lift"]["samples_per_side"] ** 2
     longest = config.get("points", {}).get("max_size", 0)  # runs made before the points stage have none

@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from matspray.asset import read_asset
-from matspray.data import load_scene
+from matspray.data import load_run_scene
 from matspray.errors import MatsprayError
 from matspray.eval.run_eval import GroundTruth, asset_renders, predict_test_views, read_view_truth
 from matspray.rundir import RunDir
@@ -50,7 +50,7 @@ def error_stats(predictions: list[torch.Tensor], truths: list[GroundTruth], chan
 def run_bias(run: Path, channels) -> dict[str, dict[str, dict]]:
     """row name ('full', ..., '2D') -> channel -> error statistics, for one run."""
     run_dir = RunDir(run)
-    views = load_scene(Path(run_dir.dataset()["source"]), downscale=run_dir.downscale()).test
+    views = load_run_scene(run_dir).test
     truths = [read_view_truth(view) for view in views]
     rows = {}
     for variant in VARIANTS:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from matspray.data import load_scene
+from matspray.data import load_run_scene
 from matspray.data.images import write_image
 from matspray.eval.capture_report import RELIGHT_ENV_HEIGHT
 from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
@@ -37,7 +37,7 @@ def main(argv=None) -> None:
 
     runs = [RunDir(path).require() for path in args.runs]
     same_capture(runs)
-    test = load_scene(runs[0].dataset()["source"], downscale=runs[0].downscale()).test
+    test = load_run_scene(runs[0]).test
     view = next((v for v in test if v.name == args.view), None)
     if view is None:
         parser.error(f"no test view {args.view} in {runs[0].dataset()['source']}: {', '.join(v.name for v in test)}")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 
+from matspray.data.crop import CropConfig
 from matspray.data.triangulate import PointsConfig
 from matspray.errors import ConfigError, SettingError
 from matspray.geometry.config import GeometryConfig
@@ -48,6 +49,7 @@ class PipelineConfig:
         "auto"  # rasterizer: auto (gsplat when CUDA and gsplat are present, numba on the CPU), torch, numba or gsplat
     )
     points: PointsConfig = field(default_factory=PointsConfig)  # the initial points of a capture that brings none
+    crop: CropConfig = field(default_factory=CropConfig)  # a capture without masks: each photo cut to its object
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
     lift: LiftConfig = field(default_factory=LiftConfig)
     visibility: VisibilityConfig | None = (

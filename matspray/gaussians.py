@@ -63,8 +63,10 @@ class Gaussians:
         w, v = q[:, :1], q[:, 1:]
         axes = torch.arange(3, device=q.device)  # (not one_hot, which reads its input's range on the host)
         e = (self.log_scales.argmin(dim=-1, keepdim=True) == axes).to(q)  # [N, 3] the shortest local axis
-        return (1 - 2 * (v * v).sum(-1, keepdim=True)) * e + 2 * (v * e).sum(-1, keepdim=True) * v + 2 * w * (
-            torch.linalg.cross(v, e, dim=-1)
+        return (
+            (1 - 2 * (v * v).sum(-1, keepdim=True)) * e
+            + 2 * (v * e).sum(-1, keepdim=True) * v
+            + 2 * w * (torch.linalg.cross(v, e, dim=-1))
         )
 
     def subset(self, keep: Tensor) -> "Gaussians":

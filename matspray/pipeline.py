@@ -20,6 +20,7 @@ import torch
 from matspray.asset import Asset, read_asset, write_asset
 from matspray.config import WORKING_SIZE, PipelineConfig
 from matspray.data import Scene, load_scene
+from matspray.data.crop import CROP_FILE, read_crop_plan
 from matspray.data.images import save_torch_atomic
 from matspray.data.triangulate import POINTS_FILE, needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
@@ -31,6 +32,7 @@ from matspray.geometry.train import train_geometry
 from matspray.lift import LiftResult, lift, load_lift, save_lift
 from matspray.material import stack
 from matspray.merger import mlp_dtype
+from matspray.objectcrop import plan_crop, read_crop_region, write_crop
 from matspray.objectmasks import (
     ObjectMasks,
     compute_object_masks,
@@ -38,6 +40,7 @@ from matspray.objectmasks import (
     read_region,
     write_object_masks,
 )
+from matspray.objectregion import ObjectRegion
 from matspray.predictors import (
     NO_PREDICTOR,
     PredictorOptions,
@@ -160,6 +163,7 @@ class Pipeline:
         self._refine_inputs: RefineInputs | None = None  # the upstream stages' artifacts, once read
         self._frozen_views: FrozenViews | None = None  # their blending weights, shared by the variants refined
         self._warmed_lights: dict = {}  # light warm-ups, shared by variants that start alike (refine.warm_up_key)
+        self._cropped, self._crop_region = False, None  # whether crop() has run, and the region it cut around
 
     def close(self) -> None:
         """Lets the run folder go (see __init__); the pipeline must not write after this."""
@@ -222,7 +226,46 @@ class Pipeline:
         trains_on_predictions = self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
         upstream = [self.predict_fingerprint()] if trains_on_predictions else []
         upstream += [self.points_fp] if self.points_fp else []  # none for masked scenes: their fingerprint is kept
+        upstream += [self.crop_fingerprint()] if self.crop_fingerprint() else []
         return fingerprint("geometry", self.dataset_fp, self.geometry_config().identity(), *upstream)
+
+    # ---------------------------------------------------------------- crop (captures without masks)
+    def crop_fingerprint(self) -> str | None:
+        """None where the photos are never cut: scenes with masks, and the crop switched off (their fingerprints are
+        kept)."""
+        if not self.unmasked or not self.config.crop.enabled:
+            return None
+        return fingerprint("crop", self.config.crop, self.config.object_bounds, self.points_fp or self.dataset_fp)
+
+    def crop(self) -> ObjectRegion | None:
+        """Cut every photo to its object (matspray.data.crop) before the stages that read them: the windows are found
+        once (stage `crop`, from the sparse points) and the scene is read again through them. Returns the region the
+        windows were found in (the geometry focuses on it), None when the photos are used whole."""
+        fp = self.crop_fingerprint()
+        if fp is None:
+            return None
+        if self._crop_region is not None or self._cropped:
+            return self._crop_region
+        if not self.run.stage_done("crop", fp, [CROP_FILE]):
+            if self.points_fp:
+                points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
+            with self._working("crop") as (t, _):
+                scene = self.scene
+                plan, region, message = plan_crop(
+                    scene.train, scene.test, scene.points, scene.downscale, self.config.crop, self.config.object_bounds
+                )
+                write_crop(self.run.path("crop"), plan, region, message)
+            self.run.finish_stage("crop", fp, self.config.crop, t.seconds, {"message": message})
+            self.log(message)
+        plan, region = read_crop_plan(self.run.path("crop")), read_crop_region(self.run.path("crop"))
+        self._cropped = True
+        if plan is None:
+            return None
+        whole = self.scene
+        self.scene = load_scene(whole.source, downscale=whole.downscale, crop=plan)
+        self.scene.points, self.scene.point_colors, self.scene.bounds = whole.points, whole.point_colors, whole.bounds
+        self._crop_region = region
+        return region
 
     def geometry_config(self) -> GeometryConfig:
         """The geometry settings as they apply to this dataset (the object focus only to a capture without masks)."""
@@ -255,11 +298,12 @@ class Pipeline:
 
     def geometry(self):
         """Trained Gaussians [N] and their oriented normals [N, 3]."""
+        focus_region = self.crop()  # the photos are cut to the object first (a capture without masks)
         fp = self.geometry_fingerprint()
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             normal_targets = self.geometry_normal_targets()
-            if self.points_fp:
+            if self.points_fp and self.scene.points is None:  # (the crop may have read them already)
                 points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
             with self._working("geometry") as (t, use):
                 train_geometry(
@@ -270,6 +314,7 @@ class Pipeline:
                     progress=self.progress,
                     normal_targets=normal_targets,
                     object_bounds=self.config.object_bounds,
+                    focus_region=focus_region,
                 )
             self.run.finish_stage("geometry", fp, self.geometry_config(), t.seconds, self._ran(use))
         else:

@@ -40,8 +40,8 @@ def render_relit(asset: Asset, camera: Camera, light, background: Tensor | None 
 
 def orbit_cameras(reference: list[Camera], target: Tensor, frames: int = 60, up=(0.0, 0.0, 1.0)) -> list[Camera]:
     """Cameras circling `target` [3] about the `up` axis, at the mean distance and elevation of the
-    reference cameras and with their intrinsics and image size. The first frame looks from the side of
-    the first reference camera."""
+    reference cameras and with their focal lengths and image size (principal point at the centre). The first frame
+    looks from the side of the first reference camera."""
     target = torch.as_tensor(target, dtype=torch.float64)
     up_axis = F.normalize(torch.as_tensor(up, dtype=torch.float64), dim=0)
     offsets = torch.stack([c.center.double() - target for c in reference])
@@ -63,6 +63,9 @@ def orbit_cameras(reference: list[Camera], target: Tensor, frames: int = 60, up=
         )
         camera = Camera.look_at(target + distance * direction, target, up_axis, first.fov_x, first.width, first.height)
         camera.K = first.K.clone()
+        # the principal point at the centre, so that the target is: a photo cut to its object (matspray.data.crop)
+        # has it far off
+        camera.K[0, 2], camera.K[1, 2] = first.width / 2, first.height / 2
         cameras.append(camera)
     return cameras
 

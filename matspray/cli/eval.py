@@ -92,16 +92,14 @@ def run(args) -> int:
         return 0
     if args.run is None:
         raise ConfigError("give --run RUN (a run to evaluate) or --glb FILE.glb (an exported mesh)")
-    from matspray.data import load_scene
+    from matspray.data import load_run_scene
     from matspray.eval.heldout import evaluate_capture, has_ground_truth, heldout_table
     from matspray.eval.report import write_report
     from matspray.eval.run_eval import evaluate_run
     from matspray.rundir import RunDir
 
     run_folder = RunDir(args.run).require()
-    scene = load_scene(
-        args.data if args.data is not None else run_folder.dataset()["source"], downscale=run_folder.downscale()
-    )
+    scene = load_run_scene(run_folder, args.data)
     if args.compare and has_ground_truth(scene):
         raise ConfigError("--compare is for runs on a capture without ground truth; this dataset has it")
     if not has_ground_truth(scene):  # a real capture: its held-out photos are the only truth

@@ -59,7 +59,7 @@ def relight_run(
     from tqdm import tqdm
 
     from matspray.asset import read_asset
-    from matspray.data import load_scene, write_image
+    from matspray.data import load_run_scene, write_image
     from matspray.data.images import linear_to_srgb
     from matspray.data.video import write_video
     from matspray.errors import ConfigError, RunError, optional_module
@@ -80,7 +80,7 @@ def relight_run(
     lights = [load_envmap(spec) for spec in ([env] if isinstance(env, (str, Path)) else env)]  # all read first
     asset = read_asset(asset_folder, device=device)
     source = run.dataset()["source"]
-    scene = load_scene(source, downscale=run.downscale())
+    scene = load_run_scene(run)
     if views == "test":
         if not scene.test:
             raise RunError(f"{source}: the dataset has no test views; use --views orbit")

@@ -3,7 +3,7 @@
 from matspray.data.blender import write_blender
 from matspray.data.camera import Camera, intrinsics_from_fov, pixel_sample_grid
 from matspray.data.images import linear_to_srgb, read_image, read_raw, resize, srgb_to_linear, write_image, write_raw
-from matspray.data.loader import FORMATS, SceneSummary, describe_scene, detect_format, load_scene
+from matspray.data.loader import FORMATS, SceneSummary, describe_scene, detect_format, load_run_scene, load_scene
 from matspray.data.scene import Scene, View
 
 __all__ = [
@@ -16,6 +16,7 @@ __all__ = [
     "detect_format",
     "intrinsics_from_fov",
     "linear_to_srgb",
+    "load_run_scene",
     "load_scene",
     "pixel_sample_grid",
     "read_image",

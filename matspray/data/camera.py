@@ -123,11 +123,21 @@ class Camera:
 
     def scaled(self, factor: float) -> "Camera":
         """The same camera for an image resized by `factor` (e.g. 0.5 halves width and height)."""
-        width, height = max(1, round(self.width * factor)), max(1, round(self.height * factor))
-        sx, sy = width / self.width, height / self.height
+        return self.resized(max(1, round(self.width * factor)), max(1, round(self.height * factor)))
+
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same camera for its image resampled to `width` x `height` pixels (each axis by its own factor)."""
         K = self.K.clone()
-        K[0] *= sx
-        K[1] *= sy
+        K[0] *= width / self.width
+        K[1] *= height / self.height
+        return Camera(K, self.viewmat.clone(), width, height)
+
+    def cropped(self, left: int, top: int, width: int, height: int) -> "Camera":
+        """The same camera for the `width` x `height` window of its image whose top-left pixel is (`left`, `top`):
+        only the principal point moves."""
+        K = self.K.clone()
+        K[0, 2] -= left
+        K[1, 2] -= top
         return Camera(K, self.viewmat.clone(), width, height)
 
     # ---------------------------------------------------------------- geometry

@@ -8,8 +8,10 @@ from pathlib import Path
 import torch
 
 from matspray.data import blender, colmap, nerfstudio, tensoir
+from matspray.data.crop import CropPlan, read_crop_plan
 from matspray.data.scene import Scene, View, bounds_from_cameras, bounds_from_points, bounds_from_visual_hull
 from matspray.errors import DataError, SettingError, file_error
+from matspray.rundir import RunDir
 
 FORMATS = ("blender", "nerfstudio", "tensoir", "colmap")
 
@@ -70,24 +72,38 @@ def check_alpha(views: list[View], where: Path, split: str) -> None:
 class WorkingSize:
     """Brings each view to the working size as the reader makes it, so that a dataset is never held whole at its
     photos' resolution (200 photos of 12 megapixels are 29 GB as float32 RGB). The factor is `downscale`, or with
-    `downscale` None the one that brings the first view read to `max_size` on its longest side (1: never enlarged)."""
+    `downscale` None the one that brings the first view read to `max_size` on its longest side (1: never enlarged).
+    With a `crop` plan each photo is first cut to its window, which then becomes a frame of the plan's size."""
 
-    def __init__(self, downscale: float | None, max_size: int | None):
+    def __init__(self, downscale: float | None, max_size: int | None, crop: CropPlan | None = None):
         self.factor = downscale
         self.max_size = max_size
+        self.crop = crop
 
     def __call__(self, view: View) -> View:
         if self.factor is None:
             self.factor = max(1.0, max(view.width, view.height) / self.max_size) if self.max_size else 1.0
+        if self.crop is not None:
+            return self.crop.fit(view)
         return view.scaled(1.0 / self.factor) if self.factor != 1.0 else view
 
 
-def load_scene(root, downscale: float = 1.0, test_every: int = 8, max_size: int | None = None) -> Scene:
+def load_run_scene(run: RunDir, data=None) -> Scene:
+    """The dataset of run folder `run` as its stages saw it: from `data` (default: the folder the run was made from),
+    at the run's downscale, each photo cut to the run's crop window when it has them (matspray.data.crop)."""
+    source = data if data is not None else run.dataset()["source"]
+    return load_scene(source, downscale=run.downscale(), crop=read_crop_plan(run.path("crop")))
+
+
+def load_scene(
+    root, downscale: float = 1.0, test_every: int = 8, max_size: int | None = None, crop: CropPlan | None = None
+) -> Scene:
     """Load a dataset folder (Blender, nerfstudio, TensoIR or COLMAP layout) into a Scene.
 
     `downscale` > 1 shrinks every image and camera by that factor (2 halves the resolution). With `max_size`,
     `downscale` None brings images whose longest side is larger to that size (Scene.downscale says by how much; the
-    first view read sets it). Each view is shrunk as it is read (`WorkingSize`).
+    first view read sets it). Each view is shrunk as it is read (`WorkingSize`); with a `crop` plan it is first cut
+    to its window (matspray.data.crop), and every view then has the plan's size.
     """
     if downscale is not None and downscale < 1.0:
         raise SettingError("downscale", f"must be >= 1, got {downscale}")
@@ -95,7 +111,7 @@ def load_scene(root, downscale: float = 1.0, test_every: int = 8, max_size: int 
     fmt = detect_format(root)
     points = colors = None
     log = []
-    fit = WorkingSize(downscale, max_size)
+    fit = WorkingSize(downscale, max_size, crop)
     if fmt == "blender":
         train, test = blender.read_split(root, "train", fit), blender.read_split(root, "test", fit)
         if not train:

@@ -30,9 +30,22 @@ class View:
 
     def scaled(self, factor: float) -> "View":
         camera = self.camera.scaled(factor)
-        image = resize(self.image, camera.height, camera.width)
-        alpha = None if self.alpha is None else resize(self.alpha, camera.height, camera.width)
-        return View(self.name, image, alpha, camera, self.path)
+        return self.resized(camera.width, camera.height)
+
+    def resized(self, width: int, height: int) -> "View":
+        """The view resampled to `width` x `height` pixels (image, alpha and camera)."""
+        image = resize(self.image, height, width)
+        alpha = None if self.alpha is None else resize(self.alpha, height, width)
+        return View(self.name, image, alpha, self.camera.resized(width, height), self.path)
+
+    def cropped(self, left: int, top: int, width: int, height: int) -> "View":
+        """The `width` x `height` window of the view whose top-left pixel is (`left`, `top`)."""
+        if not (0 <= left and 0 <= top and left + width <= self.width and top + height <= self.height):
+            size = f"{self.width}x{self.height}"
+            raise ValueError(f"window {width}x{height} at ({left}, {top}) is not inside the {size} view '{self.name}'")
+        rows, cols = slice(top, top + height), slice(left, left + width)
+        alpha = None if self.alpha is None else self.alpha[rows, cols]
+        return View(self.name, self.image[rows, cols], alpha, self.camera.cropped(left, top, width, height), self.path)
 
     def to(self, device) -> "View":
         alpha = None if self.alpha is None else self.alpha.to(device)

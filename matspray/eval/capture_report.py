@@ -13,7 +13,7 @@ from pathlib import Path
 import torch
 
 from matspray.asset import ENVMAP_FILE, envmap_preview
-from matspray.data import load_scene
+from matspray.data import load_run_scene
 from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
 from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
 from matspray.eval.report import STYLE, Figures, _srgb_inverse, markdown_to_html, object_masks_section
@@ -110,7 +110,7 @@ def write_capture_report(
     run = RunDir(run_dir).require()
     others = comparable_runs(run, compare)
     source = run.dataset()["source"]
-    scene = load_scene(source, downscale=run.downscale())
+    scene = load_run_scene(run)
     figures = Figures(run.path("report"))
     sections = [f"<h1>MatSpray result: {html.escape(Path(source).name)}</h1>"]
     if credit:

@@ -21,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from matspray.asset import read_asset
-from matspray.data import View, load_scene, read_image
+from matspray.data import View, load_run_scene, load_scene, read_image
 from matspray.data.blender import read_scene_json
 from matspray.errors import ConfigError, file_error
 from matspray.eval.lpips import load_lpips
@@ -156,7 +156,7 @@ def evaluate_glb(
             raise ConfigError(f"{glb}: which dataset? pass --data (the file does not name a run to take it from)")
         data = RunDir(run).dataset()["source"]
     data = Path(data)
-    scene = load_scene(data, downscale=RunDir(run).downscale() if run is not None else 1.0)
+    scene = load_run_scene(RunDir(run), data) if run is not None else load_scene(data)
     check_synthetic(scene)
     views = scene.test
     truths = [read_view_truth(v) for v in views]

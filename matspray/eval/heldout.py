@@ -23,7 +23,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from matspray.asset import ENVMAP_FILE, read_asset
-from matspray.data import View, load_scene
+from matspray.data import View, load_run_scene
 from matspray.data.images import srgb_to_linear
 from matspray.errors import DataError, RunError
 from matspray.eval.evaluate import average_metrics, evaluate_images
@@ -106,11 +106,13 @@ def photo_renders(
     backend: str = "torch",
     progress: bool = True,
     renderables: RunRenderables | None = None,
+    masks: dict[str, Tensor] | None = None,
 ) -> list[PhotoRenders]:
     """Render every view's camera with the geometry and with each asset under its own estimated light
-    (`renderables`: the run's, read here when not given)."""
+    (`renderables`: the run's, read here when not given; `masks`: each view's object mask [H, W], the run's when not
+    given)."""
     loaded = renderables or read_renderables(run, device)
-    masks = view_masks(run, views, split)
+    masks = view_masks(run, views, split) if masks is None else masks
     result = []
     with rendering_with(backend), torch.no_grad():
         for view in tqdm(
@@ -175,7 +177,7 @@ def evaluate_capture(
     run = RunDir(run_dir).require()
     identity = run.dataset()
     if scene is None:
-        scene = load_scene(data if data is not None else identity["source"], downscale=run.downscale())
+        scene = load_run_scene(run, data)
     if [v.name for v in scene.train] != identity["train_views"]:
         raise DataError(f"{run.root}: this run was made from {identity['source']}, not from {scene.source}")
     if not scene.test:

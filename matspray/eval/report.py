@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 
 from matspray.asset import ENVMAP_FILE, envmap_preview, read_asset, read_history
-from matspray.data import View, load_scene, read_image, write_image
+from matspray.data import View, load_run_scene, read_image, write_image
 from matspray.data.images import srgb_to_linear
 from matspray.eval.light import light_figures, training_light
 from matspray.eval.run_eval import predict_test_views, read_view_truth, unpremultiply
@@ -141,7 +141,7 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
     run = RunDir(run_dir).require()
     run_dir = run.root
     data = Path(data) if data is not None else Path(run.dataset()["source"])
-    scene = load_scene(data, downscale=run.downscale())
+    scene = load_run_scene(run, data)
     figures = Figures(run_dir / "report")
     sections = [f"<h1>MatSpray result: {html.escape(data.name)}</h1>"]
     info = read_predictor_info(run_dir) if (run_dir / "materials2d" / "predictor.json").exists() else {}

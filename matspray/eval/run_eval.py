@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from matspray.asset import read_asset
-from matspray.data import Scene, View, load_scene, read_image
+from matspray.data import Scene, View, load_run_scene, read_image
 from matspray.errors import DataError, file_error
 from matspray.eval.evaluate import average_metrics, evaluate_images, pooled_union_psnr
 from matspray.eval.lpips import load_lpips
@@ -292,7 +292,7 @@ def evaluate_run(
     identity = run.dataset()
     data = Path(data) if data is not None else Path(identity["source"])
     if scene is None:
-        scene = load_scene(data, downscale=run.downscale())
+        scene = load_run_scene(run, data)
     if [v.name for v in scene.train] != identity["train_views"]:
         raise DataError(f"{run.root}: this run was made from {identity['source']}, not from {data}")
     check_synthetic(scene)

@@ -14,7 +14,7 @@ from tqdm import tqdm
 from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
 from matspray.data.images import atomic_target, read_image, write_image
-from matspray.data.loader import load_scene
+from matspray.data.loader import load_run_scene
 from matspray.errors import ConfigError, RunError
 from matspray.export.atlas import uv_atlas
 from matspray.export.bake import bake_textures, blend_normals, gaussian_weights
@@ -222,8 +222,7 @@ def export_run(
     renders on `device` with the rasterizer `backend` (both resolved); meshing and baking run on the CPU."""
     run_dir, out = Path(run_dir), check_output(out)
     folder = run_asset(run_dir, variant)
-    source = data if data is not None else RunDir(run_dir).dataset()["source"]
-    scene = load_scene(source, downscale=RunDir(run_dir).downscale())
+    scene = load_run_scene(RunDir(run_dir), data)
     asset = read_asset(folder, device=device)
     region = read_region(run_dir / "masks")  # a capture without masks: the mesh stays inside its object region
     with rendering_with(backend):

@@ -33,7 +33,7 @@ from matspray.geometry.normals import consensus_normals, resize_normal_map
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
 from matspray.geometry.ply import read_ply, write_ply
 from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
-from matspray.objectregion import object_region
+from matspray.objectregion import ObjectRegion, object_region
 
 PLY_NAME, METRICS_NAME, CHECKPOINT_NAME = "gaussians.ply", "metrics.json", "checkpoint.pt"
 REGION_NAME = "region.json"  # the object region a capture without masks focused on
@@ -79,6 +79,7 @@ def train_geometry(
     cuda_graphs: bool = True,
     normal_targets: list | None = None,
     object_bounds=None,
+    focus_region: ObjectRegion | None = None,
 ) -> Gaussians:
     """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`.
     Renders with the backend of the enclosing `rendering_with` block (torch outside one).
@@ -91,7 +92,8 @@ def train_geometry(
     `normal_targets`: per training view of `scene`, a predicted normal map [H, W, 3] in world space at the view's
     size (zero where there is none); what `config.predicted_normal_weight` pulls the normals towards (needed then).
     `object_bounds`: a capture without masks focuses on this region (matspray.objectregion.given_region's numbers)
-    instead of the automatic one, from `config.focus_from` on.
+    instead of the automatic one, from `config.focus_from` on; `focus_region`: a region found before training (the
+    photos' crop, matspray.data.crop) that it focuses on instead of either.
     """
     device = torch.device(device)
     out_dir = Path(out_dir)
@@ -183,7 +185,7 @@ def train_geometry(
             )
         if done == focus_at and density.region is None:
             g = optimizer.gaussians().detach()
-            region = object_region(g.means, g.opacities, [v.camera for v in train_views], object_bounds)
+            region = focus_region or object_region(g.means, g.opacities, [v.camera for v in train_views], object_bounds)
             event = ", ".join(e for e in (event, density.focus(optimizer, region)) if e)
         if event and progress:
             bar.write(f"iteration {iteration + 1}: {event}")

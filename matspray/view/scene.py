@@ -55,11 +55,10 @@ class ViewerRun:
         threading.Thread(target=self._load_photos, name="matspray-view-photos", daemon=True).start()
 
     def _load_photos(self) -> None:
-        from matspray.data import load_scene
+        from matspray.data import load_run_scene
 
         try:
-            source = self.run.dataset()["source"]
-            scene = load_scene(source, downscale=self.run.downscale())
+            scene = load_run_scene(self.run)
             self._views = list(scene.train)
         except (MatsprayError, OSError, KeyError) as exc:
             self._views = []
