@@ -1,7 +1,9 @@
+import pytest
 import torch
 
+from matspray.render.backend import rendering_with
 from matspray.render.gbuffer import FrozenViews
-from matspray.render.rasterize import rasterize
+from matspray.render.rasterize import rasterize, view_weights
 from tests.test_rasterize import random_scene
 
 
@@ -43,3 +45,39 @@ def test_coverage_is_each_gaussians_share_of_the_rendered_alpha():
     _, alpha = frozen.render(0, torch.ones(len(gaussians), 1))
     assert torch.allclose(frozen.coverage[0].sum(), alpha.sum(), rtol=1e-5)
     assert (frozen.coverage[0][frozen.visible(0)] > 0).all() and (frozen.coverage[0][~frozen.visible(0)] == 0).all()
+
+
+def weight_matrix(hits, pixels: int, count: int) -> torch.Tensor:  # (gaussian ids, pixel ids, weights) -> [P, N]
+    matrix = torch.zeros(pixels, count, dtype=torch.float64)
+    matrix.index_put_((hits[1].long(), hits[0].long()), hits[2].double(), accumulate=True)
+    return matrix
+
+
+@pytest.mark.parametrize("seed, count, width, height", [(0, 60, 40, 30), (3, 400, 70, 50), (5, 1, 16, 16)])
+def test_numba_weights_are_torchs_hits(seed, count, width, height):
+    pytest.importorskip("numba")
+    from matspray.render.numba_weights import numba_view_weights
+
+    gaussians, camera = random_scene(count, seed, width=width, height=height)[:2]
+    torch_hits, numba_hits = view_weights(gaussians, camera), numba_view_weights(gaussians, camera)
+    assert len(numba_hits[0]) == len(torch_hits[0])  # the same hits, none twice
+    pixels = width * height
+    reference = weight_matrix(torch_hits, pixels, len(gaussians))
+    assert torch.allclose(weight_matrix(numba_hits, pixels, len(gaussians)), reference, atol=1e-6)
+    assert reference.sum() > 0  # the view sees some of the Gaussians
+
+
+def test_frozen_views_use_the_compiled_weights_on_backend_numba(monkeypatch):
+    pytest.importorskip("numba")
+    from matspray.render import numba_backend
+
+    gaussians, camera = random_scene(40, 0, width=24, height=20)[:2]
+    features = torch.rand(len(gaussians), 3)
+    with rendering_with("numba") as use:
+        image, _ = FrozenViews(gaussians, [camera]).render(0, features)
+    assert use.used().get("numba", 0) >= 1 and "torch" not in use.used()
+    assert torch.allclose(image, rasterize(gaussians, camera, features).features, atol=1e-5)
+    monkeypatch.setattr(numba_backend, "RECORD_BUDGET", 10)  # a record too large: torch's weights instead
+    with rendering_with("numba") as use:
+        again, _ = FrozenViews(gaussians, [camera]).render(0, features)
+    assert "torch" in use.used() and torch.allclose(again, image, atol=1e-5)

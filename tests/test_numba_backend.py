@@ -383,7 +383,7 @@ def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
     }, compiled[1]
     assert (
         len(said[0]) == 2
-        and "compiled the CPU kernels (float32: rasterizer, SH colour, normals, lifting's rays)" in said[0][0]
+        and "(float32: rasterizer, SH colour, normals, lifting's rays, frozen views)" in said[0][0]
         and str(tmp_path / "cache") in said[0][0]
         and said[0][1].startswith("numba: the CPU kernels are ready")
     )

@@ -5,7 +5,8 @@ This is what makes material refinement cheap: the Gaussians do not move, only th
 
 With backend gsplat nothing is kept per view: rendering the features again with the frozen Gaussians is one
 kernel call, cheaper on a GPU than the sparse product and free of the matrices' memory. With backend torch
-(and numba, whose frozen views are these same matrices: `view_weights` is torch's for every backend) the
+(and numba, whose frozen views are these same matrices, their weights computed by its compiled forward:
+matspray.render.numba_weights) the
 matrices stay where `storage` says: on the Gaussians' device, on the host (copied to the device view by view),
 or "auto": on a CUDA device while it keeps DEVICE_RESERVE of its memory free, on the host after that
 (`frozen_views_bytes` says how large they are).
@@ -58,6 +59,18 @@ class SparseBlend(torch.autograd.Function):
         return ctx.transposed @ grad, None, None
 
 
+def hits_of_view(gaussians: Gaussians, camera: Camera, backend: str) -> tuple[Tensor, Tensor, Tensor]:
+    """`view_weights`: compiled on backend numba (a view whose record of hits would be too large falls back to
+    torch's), torch's otherwise."""
+    if backend == "numba" and gaussians.means.device.type == "cpu":
+        from matspray.render.numba_weights import numba_view_weights
+
+        found = numba_view_weights(gaussians, camera)
+        if found is not None:
+            return found
+    return view_weights(gaussians, camera)
+
+
 class FrozenViews:
     """Views of frozen Gaussians, rendered with the backend of the enclosing `rendering_with` block (or `backend`).
     `storage` (torch backend): "device" keeps the blend matrices beside the Gaussians, "host" in (pinned) host
@@ -79,7 +92,7 @@ class FrozenViews:
                 self.visible_ids.append(torch.nonzero(coverage > 0).squeeze(1))
                 self.coverage.append(coverage)
                 continue
-            gaussian_ids, pixel_ids, weights = view_weights(gaussians, camera)  # [M] each
+            gaussian_ids, pixel_ids, weights = hits_of_view(gaussians, camera, self.backend)  # [M] each
             pixels = camera.height * camera.width
             matrices = (
                 blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),

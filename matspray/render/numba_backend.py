@@ -392,10 +392,10 @@ def ensure_compiled(np_dtype) -> None:
 def _compile(key: str, np_dtype) -> None:
     """ensure_compiled's warm-up, timed, and said on stderr where it compiled (the first time in the process)."""
     global _TOLD
-    from matspray.render import numba_normals, numba_rays, numba_sh
+    from matspray.render import numba_normals, numba_rays, numba_sh, numba_weights
 
     module = kernels()
-    dispatchers = _dispatchers(module, projection(), numba_sh, numba_normals, numba_rays)
+    dispatchers = _dispatchers(module, projection(), numba_sh, numba_normals, numba_rays, numba_weights)
     misses = _cache_misses(dispatchers)
     start = time.perf_counter()
     # numba's OpenMP layer loads its own libgomp at the first parallel loop, and libgomp reads OMP_WAIT_POLICY
@@ -414,7 +414,7 @@ def _compile(key: str, np_dtype) -> None:
         _TOLD = True
         where = module.bin_tiles.stats.cache_path
         print(
-            f"numba: compiled the CPU kernels ({key}: rasterizer, SH colour, normals, lifting's rays) in "
+            f"numba: compiled the CPU kernels ({key}: rasterizer, SH colour, normals, lifting's rays, frozen views) in "
             f"{time.perf_counter() - start:.1f} s, once: later runs load them from {where}",
             file=sys.stderr,
             flush=True,
@@ -459,3 +459,19 @@ def _warm_up(np_dtype) -> None:
     CompiledNormals.apply(quats, gaussians.log_scales, gaussians.means, camera.center).sum().backward()
     on_object = torch.ones(camera.height * camera.width, dtype=torch.bool)
     trace_view(gaussians.detach(), camera, on_object, 2, torch.zeros(1), 1.0, RasterSettings(), 0.0)
+    if np_dtype == np.float32:  # frozen views' weights (float32 only)
+        from matspray.render.numba_weights import recorded_weights
+
+        empty = np.zeros(0, np.int64)
+        recorded_weights(
+            empty,
+            np.zeros(2, np.int64),
+            np.zeros(1, np.float32),
+            np.zeros(2, np.int64),
+            np.zeros(0, np.uint8),
+            np.zeros(0, np.float32),
+            empty,
+            1,
+            16,
+            np.zeros(4, np.float32),
+        )
