@@ -56,7 +56,7 @@ def weight_matrix(hits, pixels: int, count: int) -> torch.Tensor:  # (gaussian i
 @pytest.mark.parametrize("seed, count, width, height", [(0, 60, 40, 30), (3, 400, 70, 50), (5, 1, 16, 16)])
 def test_numba_weights_are_torchs_hits(seed, count, width, height):
     pytest.importorskip("numba")
-    from matspray.render.numba_weights import numba_view_weights
+    from matspray.render.numba_backend import numba_view_weights
 
     gaussians, camera = random_scene(count, seed, width=width, height=height)[:2]
     torch_hits, numba_hits = view_weights(gaussians, camera), numba_view_weights(gaussians, camera)

@@ -24,26 +24,34 @@ from matspray.gaussians import Gaussians
 from matspray.render.backend import active_backend
 from matspray.render.rasterize import rasterize, view_weights
 
-# a (Gaussian, pixel) weight is kept twice (the matrix and its transpose): an int64 column index and a float32
-# value each
-BYTES_PER_HIT = 2 * (8 + 4)
+# a (Gaussian, pixel) weight is kept twice (the matrix and its transpose): an int32 column index and a float32
+# value each (int64 indices for a matrix of 2^31 entries or more: `blend_matrix`)
+BYTES_PER_HIT = 2 * (4 + 4)
 DEVICE_RESERVE = 0.25  # share of a GPU's memory left free for the rest of refinement (storage "auto")
 
 
 def frozen_views_bytes(hits: int, pixels: int, gaussians: int, views: int) -> int:
     """Bytes the torch backend's frozen views keep: `hits` (Gaussian, pixel) weights over all views, plus each
-    view's row pointers of both matrices (pixels + 1 and gaussians + 1 int64)."""
-    return BYTES_PER_HIT * hits + 8 * views * (pixels + gaussians + 2)
+    view's row pointers of both matrices (pixels + 1 and gaussians + 1 int32)."""
+    return BYTES_PER_HIT * hits + 4 * views * (pixels + gaussians + 2)
 
 
 def blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: int, n_columns: int) -> Tensor:
     """Sparse CSR matrix [n_rows, n_columns] with `weights` [M] at (row_ids, column_ids) [M]: a view's
-    blending weights as [pixels, Gaussians] (or, swapped, its transpose)."""
-    indices = torch.stack([row_ids.long(), column_ids.long()])
-    coo = torch.sparse_coo_tensor(indices, weights, (n_rows, n_columns), check_invariants=False).coalesce()
+    blending weights as [pixels, Gaussians] (or, swapped, its transpose). A pair given twice is summed by the product.
+
+    Made by one sort of the pairs, not by COO's coalesce (three times faster and without its intermediates). The
+    indices are 32-bit where they fit: a third less memory (a dense view of many Gaussians holds tens of hits per
+    pixel) and a faster product on the CPU."""
+    index = torch.int32 if max(n_rows, n_columns, len(weights)) < 2**31 else torch.int64
+    order = torch.argsort(row_ids.long() * n_columns + column_ids.long())
+    rows = row_ids.long().index_select(0, order)
+    crow = torch.zeros(n_rows + 1, dtype=torch.int64, device=weights.device)
+    crow[1:] = torch.bincount(rows, minlength=n_rows).cumsum(0)
+    columns, values = column_ids.index_select(0, order).to(index), weights.index_select(0, order)
     with warnings.catch_warnings():  # torch calls sparse CSR "beta"; only its matrix product is used here
         warnings.simplefilter("ignore", UserWarning)
-        return coo.to_sparse_csr()
+        return torch.sparse_csr_tensor(crow.to(index), columns, values, (n_rows, n_columns), check_invariants=False)
 
 
 class SparseBlend(torch.autograd.Function):
@@ -63,7 +71,7 @@ def hits_of_view(gaussians: Gaussians, camera: Camera, backend: str) -> tuple[Te
     """`view_weights`: compiled on backend numba (a view whose record of hits would be too large falls back to
     torch's), torch's otherwise."""
     if backend == "numba" and gaussians.means.device.type == "cpu":
-        from matspray.render.numba_weights import numba_view_weights
+        from matspray.render.numba_backend import numba_view_weights
 
         found = numba_view_weights(gaussians, camera)
         if found is not None:

@@ -324,6 +324,44 @@ class _NumbaRaster(torch.autograd.Function):
         return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 8:-2], sums[:, -2], None
 
 
+def numba_view_weights(gaussians, camera, settings: RasterSettings = RasterSettings()) -> tuple[Tensor, Tensor, Tensor]:
+    """`rasterize.view_weights` on backend numba: Gaussian ids [M], row-major pixel ids [M], weights [M]; None when
+    the forward's record would pass numba_RECORD_BUDGET (the torch version does those)."""
+    from matspray.render.backend import note_render
+    from matspray.render.numba_weights import recorded_weights
+
+    note_render("numba")
+    ensure_compiled(np.float32)  # (its warm-up compiles `recorded_weights` too)
+    layout = _Layout(camera, settings, np.float32)
+    opacities = _numpy(gaussians.opacities.detach().float(), np.float32)
+    arrays = [_numpy(t.detach().float(), np.float32) for t in (gaussians.means, gaussians.scales, gaussians.quats)]
+    with threads():
+        means2d, conics, depths, cov2d, boxes, det, a_r2, flags = projection().project(
+            *arrays, opacities, layout.view, layout.consts
+        )
+    layout.footprints(boxes, det, a_r2, depths, cov2d, flags)
+    room = int(layout.record_offsets[-1])
+    if room > RECORD_BUDGET:
+        return None
+    record = (np.empty(room, np.uint8), np.empty(room, np.float32), np.empty(len(layout.ids), np.int64))
+    values = np.ones((len(opacities), 1), np.float32)  # alpha's channel only
+    with threads():
+        kernels().forward(
+            *layout.common(means2d, conics, opacities, values), layout.min_transmittance, layout.record_offsets, *record
+        )
+        gaussian, pixel, weight, valid = recorded_weights(
+            layout.ids,
+            layout.offsets,
+            opacities,
+            layout.record_offsets,
+            *record,
+            layout.tiles_x,
+            layout.width,
+            layout.blend_consts,
+        )
+    return tuple(torch.from_numpy(column[valid]) for column in (gaussian, pixel, weight))
+
+
 def _unrecorded_backward(common: tuple, slot, state: tuple, grad):
     """numba_kernels.backward, for renders whose record would pass RECORD_BUDGET (large images with many Gaussians).
     It is not part of `ensure_compiled`'s warm-up (most runs never need it): compiled at its first use instead, which
