@@ -179,6 +179,7 @@ def compare_view(run: Path) -> str:
 
 def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dict]) -> dict:
     from matspray.asset import read_asset
+    from matspray.data.crop import read_crop_plan
     from matspray.export.frames import glb_box
     from matspray.geometry.ply import read_ply
     from matspray.objectmasks import read_object_masks
@@ -187,6 +188,7 @@ def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dic
     metrics = json.loads((run / "eval" / "heldout.json").read_text())
     timings = json.loads((run / "timings.json").read_text())
     region = read_object_masks(run / "masks").region
+    plan = read_crop_plan(run / "crop")  # None: the photos were used whole
     glb = run / "export" / f"{name}.glb"
     record = {
         "capture": name,
@@ -200,6 +202,7 @@ def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dic
         "mask_coverage": [(r["view"], round(r["mask_coverage"], 3)) for r in metrics["heldout"]["per_view"]],
         "region": region.describe(),
         "glb_box": [[round(v, 3) for v in corner] for corner in glb_box(glb)] if glb.exists() else None,
+        "crop_gain": None if plan is None else round(1.0 / plan.mean_side(), 2),  # pixels across the object, x
     }
     (out / "summary.json").write_text(json.dumps(record, indent=1))
     return record
@@ -227,6 +230,8 @@ def print_record(record: dict) -> None:
     )
     print(f"Gaussians: {record['gaussians_geometry']} in the geometry, {record['gaussians_asset']} in the asset")
     print(f"object region: {record['region']}")
+    gain = record.get("crop_gain")
+    print("photos: " + (f"cut to the object, {gain:.2f}x the pixels across" if gain else "used whole"))
     if record["glb_box"]:
         print(f"exported glb box (dataset frame): {record['glb_box'][0]} .. {record['glb_box'][1]}")
     print("seconds per stage: " + ", ".join(f"{k} {v:.0f}" for k, v in record["stage_seconds"].items()))

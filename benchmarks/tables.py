@@ -389,14 +389,17 @@ def table_captures_headline(results: Path) -> str:
     """README: held-out photos of the two real captures, inside the object mask."""
     c = captures(results)
     lines = [
-        "| capture | held-out views | PSNR / SSIM / LPIPS, asset under its estimated light | Gaussians in the asset |",
-        "| --- | ---: | ---: | ---: |",
+        "| capture | photos | held-out views | PSNR / SSIM / LPIPS, asset under its estimated light | "
+        "Gaussians in the asset |",
+        "| --- | --- | ---: | ---: | ---: |",
     ]
     for name in CAPTURES:
         r = c[name]
+        gain = r.get("crop_gain")
+        photos = f"cut to the object ({gain:.2f}x across)" if gain else "whole"
         lines.append(
-            f"| {name} | {len(r['mask_coverage'])} | {metric_triple(r['heldout']['no-prior'])} | "
-            f"{r['gaussians_asset']:,} |".replace(",", " ")
+            f"| {name} | {photos} | {len(r['mask_coverage'])} | {metric_triple(r['heldout']['no-prior'])} | "
+            + f"{r['gaussians_asset']:,} |".replace(",", " ")
         )
     return "\n".join(lines)
 

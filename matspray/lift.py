@@ -282,6 +282,7 @@ def lift(
         "gaussians_kept": int(kept.sum()),
         "gaussians_removed": int((~kept).sum()),
         "samples_per_side": config.samples_per_side,
+        "view_size": [cameras[0].width, cameras[0].height] if cameras else None,
         "hits_per_gaussian_mean": float(received[kept].float().mean()) if kept.any() else 0.0,
         "hits_per_gaussian_median": float(received[kept].float().median()) if kept.any() else 0.0,
         "views_per_gaussian_mean": float(views_per_gaussian.mean()) if kept.any() else 0.0,

@@ -8,15 +8,18 @@ and the windows each photo is cut to around it (matspray.data.crop), kept as RUN
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import torch
 from torch import Tensor
 
-from matspray.data.crop import CROP_FILE, MIN_POINTS, CropConfig, CropPlan, crop_window, object_box
-from matspray.data.scene import View
+from matspray.data.crop import CROP_FILE, MIN_POINTS, CropConfig, CropPlan, crop_window, object_box, read_crop_plan
+from matspray.data.loader import load_scene
+from matspray.data.scene import Scene, View
 from matspray.errors import file_error
 from matspray.files import read_json, write_json
 from matspray.objectregion import ObjectRegion, object_region
+from matspray.rundir import RunDir, timed
 
 
 def plan_crop(
@@ -70,3 +73,25 @@ def read_crop_region(folder: Path) -> ObjectRegion | None:
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         problem = f"is not a crop record ({type(exc).__name__}: {exc})"
         raise file_error(path, problem, "delete it to cut the photos again") from None
+
+
+def crop_stage(
+    run: RunDir, fingerprint: str, scene: Scene, config: CropConfig, object_bounds, log: Callable[[str], None]
+) -> tuple[Scene, ObjectRegion | None]:
+    """The run's stage `crop`: the windows of `scene`'s views around its sparse points (`plan_crop`), kept in
+    RUN/crop/crop.json and reused while its record holds `fingerprint`. Returns the scene read again through them
+    (its points and bounds kept) and the region they were cut around; `scene` itself and None when nothing is cut."""
+    folder = run.path("crop")
+    if not run.stage_done("crop", fingerprint, [CROP_FILE]):
+        with timed() as timer:
+            views, points = (scene.train, scene.test), scene.points
+            plan, region, message = plan_crop(*views, points, scene.downscale, config, object_bounds)
+            write_crop(folder, plan, region, message)
+        run.finish_stage("crop", fingerprint, config, timer.seconds, {"message": message})
+        log(message)
+    plan = read_crop_plan(folder)
+    if plan is None:
+        return scene, None
+    cut = load_scene(scene.source, downscale=scene.downscale, crop=plan)
+    cut.points, cut.point_colors, cut.bounds = scene.points, scene.point_colors, scene.bounds
+    return cut, read_crop_region(folder)

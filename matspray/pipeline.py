@@ -20,19 +20,19 @@ import torch
 from matspray.asset import Asset, read_asset, write_asset
 from matspray.config import WORKING_SIZE, PipelineConfig
 from matspray.data import Scene, load_scene
-from matspray.data.crop import CROP_FILE, read_crop_plan
+from matspray.data.crop import CROP_FILE
 from matspray.data.images import save_torch_atomic
 from matspray.data.triangulate import POINTS_FILE, needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
 from matspray.errors import ConfigError, RunError, file_error
-from matspray.estimate import Work, feature_sizes, run_work
+from matspray.estimate import Work, feature_sizes, run_work, view_pixels
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.ply import read_ply
-from matspray.geometry.train import train_geometry
+from matspray.geometry.train import prepare_views, train_geometry
 from matspray.lift import LiftResult, lift, load_lift, save_lift
 from matspray.material import stack
 from matspray.merger import mlp_dtype
-from matspray.objectcrop import plan_crop, read_crop_region, write_crop
+from matspray.objectcrop import crop_stage
 from matspray.objectmasks import (
     ObjectMasks,
     compute_object_masks,
@@ -246,26 +246,13 @@ class Pipeline:
             return None
         if self._crop_region is not None or self._cropped:
             return self._crop_region
-        if not self.run.stage_done("crop", fp, [CROP_FILE]):
-            if self.points_fp:
-                points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
-            with self._working("crop") as (t, _):
-                scene = self.scene
-                plan, region, message = plan_crop(
-                    scene.train, scene.test, scene.points, scene.downscale, self.config.crop, self.config.object_bounds
-                )
-                write_crop(self.run.path("crop"), plan, region, message)
-            self.run.finish_stage("crop", fp, self.config.crop, t.seconds, {"message": message})
-            self.log(message)
-        plan, region = read_crop_plan(self.run.path("crop")), read_crop_region(self.run.path("crop"))
+        if self.points_fp and not self.run.stage_done("crop", fp, [CROP_FILE]):
+            points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
+        self.scene, self._crop_region = crop_stage(
+            self.run, fp, self.scene, self.config.crop, self.config.object_bounds, self.log
+        )
         self._cropped = True
-        if plan is None:
-            return None
-        whole = self.scene
-        self.scene = load_scene(whole.source, downscale=whole.downscale, crop=plan)
-        self.scene.points, self.scene.point_colors, self.scene.bounds = whole.points, whole.point_colors, whole.bounds
-        self._crop_region = region
-        return region
+        return self._crop_region
 
     def geometry_config(self) -> GeometryConfig:
         """The geometry settings as they apply to this dataset (the object focus only to a capture without masks)."""
@@ -375,9 +362,23 @@ class Pipeline:
         (the skull capture: about 9 min less)."""
         return self.config.lift if self.has_maps else replace(self.config.lift, samples_per_side=1)
 
+    def lift_views(self) -> list:
+        """The views lifted from: the training views; without 2D maps, at the size Gaussian Splatting trained at
+        (`geometry.resolution`), which is where it decided what each view shows (a quarter of the rays at the demo
+        preset)."""
+        return self.scene.train if self.has_maps else prepare_views(self.scene.train, self.config.geometry.resolution)
+
+    def lift_pixel_share(self) -> float:
+        """The lifted views' pixels over the training views' (1 with 2D maps; see `lift_views`)."""
+        if self.has_maps:
+            return 1.0
+        sizes = [(v.width, v.height) for v in self.scene.train]
+        return sum(view_pixels(w, h, self.config.geometry.resolution) for w, h in sizes) / sum(w * h for w, h in sizes)
+
     def lift_fingerprint(self) -> str:
+        at = () if self.has_maps else ({"views_at": self.config.geometry.resolution},)
         return fingerprint(
-            "lift", self.config.method, self.lift_config(), self.predict_fingerprint(), self.geometry_fingerprint()
+            "lift", self.config.method, self.lift_config(), self.predict_fingerprint(), self.geometry_fingerprint(), *at
         )
 
     def lift(self, gaussians, maps) -> LiftResult:
@@ -386,7 +387,7 @@ class Pipeline:
         fp = self.lift_fingerprint()
         path = self.run.path("lift", "projected.pt")
         if not self.run.stage_done("lift", fp, ["projected.pt"]):
-            views = self.scene.train
+            views = self.lift_views()
             materials = [
                 maps_to_tensor(maps[v.name]).to(self.device)
                 if maps is not None
@@ -571,7 +572,7 @@ class Pipeline:
             [(v.width, v.height) for v in self.scene.train],
             self.config.geometry.iterations,
             self.config.geometry.resolution,
-            self.lift_config().samples_per_side ** 2,
+            self.lift_config().samples_per_side ** 2 * self.lift_pixel_share(),
             [(variant_refine_config(self.config, v).iterations, get_variant(v).uses_maps) for v in to_refine],
             self.unmasked,
             done,

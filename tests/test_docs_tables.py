@@ -60,7 +60,9 @@ def test_an_edited_table_fails_the_check(tmp_path, capsys):
     root = copy_docs(tmp_path)
     readme = root / "README.md"
     text = readme.read_text()
-    edited = re.sub(r"\| skull \| (\d+) \|", lambda m: f"| skull | {int(m.group(1)) + 1} |", text, count=1)
+    edited = re.sub(
+        r"\| skull \| whole \| (\d+) \|", lambda m: f"| skull | whole | {int(m.group(1)) + 1} |", text, count=1
+    )
     assert edited != text  # the skull's held-out views, one more
     readme.write_text(edited)
     assert tables.main(["--check", "--root", str(root)]) == 1

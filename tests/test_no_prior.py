@@ -74,6 +74,18 @@ def test_a_run_without_a_predictor_makes_the_no_prior_asset_and_its_table_row(ti
     assert "| Relighting |" in (run / "eval" / "tables.md").read_text()
 
 
+def test_without_maps_the_lift_reads_the_views_at_the_size_geometry_trained_at(tiny_object, tmp_path):
+    from matspray.data import load_scene
+
+    width = load_scene(tiny_object).train[0].width
+    for predictor, size in (("none", width // 2), ("simulated", width)):
+        run = tmp_path / predictor
+        config = build_config("test", predictor=predictor, **{"geometry.resolution": width // 2})
+        with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
+            pipeline.refine_inputs()
+        assert json.loads((run / "lift" / "stage.json").read_text())["stats"]["view_size"][0] == size
+
+
 def test_cli_refuses_a_variant_that_needs_maps_without_a_predictor(tiny_object, tmp_path):
     result = subprocess.run(
         [
