@@ -13,11 +13,19 @@ from typing import Callable
 import torch
 from torch import Tensor
 
-from matspray.data.crop import CROP_FILE, MIN_POINTS, CropConfig, CropPlan, crop_window, object_box, read_crop_plan
+from matspray.data.crop import (
+    CROP_FILE,
+    MIN_POINTS,
+    CropConfig,
+    CropPlan,
+    crop_window,
+    object_box,
+    read_crop_plan,
+    read_crop_record,
+)
 from matspray.data.loader import load_scene
 from matspray.data.scene import Scene, View
-from matspray.errors import file_error
-from matspray.files import read_json, write_json
+from matspray.files import write_json
 from matspray.objectregion import ObjectRegion, object_region
 from matspray.rundir import RunDir, timed
 
@@ -64,15 +72,7 @@ def write_crop(folder: Path, plan: CropPlan | None, region: ObjectRegion | None,
 
 def read_crop_region(folder: Path) -> ObjectRegion | None:
     """The region a run's crop stage cut around (None when it has none)."""
-    path = Path(folder) / CROP_FILE
-    if not path.exists():
-        return None
-    try:
-        record = read_json(path)
-        return None if record["region"] is None else ObjectRegion.from_json(record["region"])
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        problem = f"is not a crop record ({type(exc).__name__}: {exc})"
-        raise file_error(path, problem, "delete it to cut the photos again") from None
+    return read_crop_record(folder, "region", ObjectRegion.from_json)
 
 
 def crop_stage(

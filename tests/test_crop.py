@@ -184,3 +184,13 @@ def test_the_pipeline_cuts_the_photos_and_every_reader_of_the_run_does_too(ball_
     assert off.crop() is None and off.crop_fingerprint() is None and not (tmp_path / "off" / "crop").exists()
     uncut = load_scene(ball_capture, downscale=pipeline.scene.downscale)
     assert torch.equal(uncut.train[0].camera.K, whole[uncut.train[0].name].camera.K)
+
+
+def test_an_unreadable_crop_record_is_one_line_naming_it(tmp_path):
+    from matspray.errors import MatsprayError
+
+    (tmp_path / "crop.json").write_text('{"plan": {"size": [4]}, "region": null}')
+    with pytest.raises(MatsprayError, match=r"crop\.json: is not a crop record .*delete it to cut the photos again"):
+        read_crop_plan(tmp_path)
+    assert read_crop_region(tmp_path) is None  # the region's entry is null: nothing was cut around one
+    assert read_crop_plan(tmp_path / "none") is None  # a run without the stage

@@ -115,14 +115,20 @@ def crop_window(box: Tensor | None, width: int, height: int, margin: float, min_
     return (x0, y0, x0 + side, y0 + side)
 
 
-def read_crop_plan(folder: Path) -> CropPlan | None:
-    """The plan a run's crop stage wrote in `folder` (RUN/crop); None when it has none or cut nothing."""
+def read_crop_record(folder: Path, key: str, parse):
+    """`parse` of entry `key` of the crop record a run's crop stage wrote in `folder` (RUN/crop); None when there is
+    no record or the entry is null. A record that cannot be read is a one-line error naming it."""
     path = Path(folder) / CROP_FILE
     if not path.exists():
         return None
     try:
-        record = read_json(path)
-        return None if record["plan"] is None else CropPlan.from_json(record["plan"])
+        value = read_json(path)[key]
+        return None if value is None else parse(value)
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         problem = f"is not a crop record ({type(exc).__name__}: {exc})"
         raise file_error(path, problem, "delete it to cut the photos again") from None
+
+
+def read_crop_plan(folder: Path) -> CropPlan | None:
+    """The plan a run's crop stage wrote in `folder` (RUN/crop); None when it has none or cut nothing."""
+    return read_crop_record(folder, "plan", CropPlan.from_json)
