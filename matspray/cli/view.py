@@ -68,8 +68,11 @@ def run(args) -> int:
         raise
     print(f"matspray view: ready ({backend} on {device})", flush=True)
     try:
+        # short sleeps, not one long one: Ctrl+C's signal may land in another of the process's threads (torch's,
+        # numba's, viser's); Python then only marks it for the main thread, which acts on it when it next wakes.
+        # A main thread asleep for an hour did not stop (tests/test_view_stop.py: faulthandler showed it in sleep)
         while True:
-            time.sleep(3600)
+            time.sleep(0.2)
     except KeyboardInterrupt:
         print("matspray view: stopped", flush=True)
     finally:
