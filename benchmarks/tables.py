@@ -395,8 +395,7 @@ def table_captures_headline(results: Path) -> str:
     ]
     for name in CAPTURES:
         r = c[name]
-        gain = r.get("crop_gain")
-        photos = f"cut to the object ({gain:.2f}x across)" if gain else "whole"
+        photos = f"cut to the object ({r['crop_gain']:.2f}x across)" if r.get("crop_gain") else "whole"
         lines.append(
             f"| {name} | {photos} | {len(r['mask_coverage'])} | {metric_triple(r['heldout']['no-prior'])} | "
             + f"{r['gaussians_asset']:,} |".replace(",", " ")
