@@ -82,16 +82,17 @@ def crop_stage(
     RUN/crop/crop.json and reused while its record holds `fingerprint`. Returns the scene read again through them
     (its points and bounds kept) and the region they were cut around; `scene` itself and None when nothing is cut."""
     folder = run.path("crop")
-    if not run.stage_done("crop", fingerprint, [CROP_FILE]):
+    if run.stage_done("crop", fingerprint, [CROP_FILE]):
+        plan, region = read_crop_plan(folder), read_crop_region(folder)
+    else:
         with timed() as timer:
             views, points = (scene.train, scene.test), scene.points
             plan, region, message = plan_crop(*views, points, scene.downscale, config, object_bounds)
             write_crop(folder, plan, region, message)
         run.finish_stage("crop", fingerprint, config, timer.seconds, {"message": message})
         log(message)
-    plan = read_crop_plan(folder)
     if plan is None:
         return scene, None
     cut = load_scene(scene.source, downscale=scene.downscale, crop=plan)
     cut.points, cut.point_colors, cut.bounds = scene.points, scene.point_colors, scene.bounds
-    return cut, read_crop_region(folder)
+    return cut, region

@@ -226,7 +226,8 @@ class Pipeline:
         trains_on_predictions = self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
         upstream = [self.predict_fingerprint()] if trains_on_predictions else []
         upstream += [self.points_fp] if self.points_fp else []  # none for masked scenes: their fingerprint is kept
-        upstream += [self.crop_fingerprint()] if self.crop_fingerprint() else []
+        crop = self.crop_fingerprint()
+        upstream += [crop] if crop else []
         return fingerprint("geometry", self.dataset_fp, self.geometry_config().identity(), *upstream)
 
     # ---------------------------------------------------------------- crop (captures without masks)
@@ -244,7 +245,7 @@ class Pipeline:
         fp = self.crop_fingerprint()
         if fp is None:
             return None
-        if self._crop_region is not None or self._cropped:
+        if self._cropped:
             return self._crop_region
         if self.points_fp and not self.run.stage_done("crop", fp, [CROP_FILE]):
             points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)

@@ -326,20 +326,17 @@ class _NumbaRaster(torch.autograd.Function):
 
 def numba_view_weights(gaussians, camera, settings: RasterSettings = RasterSettings()) -> tuple[Tensor, Tensor, Tensor]:
     """`rasterize.view_weights` on backend numba: Gaussian ids [M], row-major pixel ids [M], weights [M]; None when
-    the forward's record would pass numba_RECORD_BUDGET (the torch version does those)."""
+    the forward's record would pass RECORD_BUDGET (the torch version does those)."""
     from matspray.render.backend import note_render
     from matspray.render.numba_weights import recorded_weights
 
     note_render("numba")
     ensure_compiled(np.float32)  # (its warm-up compiles `recorded_weights` too)
     layout = _Layout(camera, settings, np.float32)
-    opacities = _numpy(gaussians.opacities.detach().float(), np.float32)
-    arrays = [_numpy(t.detach().float(), np.float32) for t in (gaussians.means, gaussians.scales, gaussians.quats)]
-    with threads():
-        means2d, conics, depths, cov2d, boxes, det, a_r2, flags = projection().project(
-            *arrays, opacities, layout.view, layout.consts
-        )
-    layout.footprints(boxes, det, a_r2, depths, cov2d, flags)
+    with torch.no_grad():  # the projection as a render makes it (footprints and tile lists into `layout`)
+        g = gaussians.detach()
+        means2d, conics, _ = _NumbaProjection.apply(g.means, g.scales, g.quats, g.opacities, layout)
+    means2d, conics, opacities = _numpy(means2d, np.float32), _numpy(conics, np.float32), layout.opacities
     room = int(layout.record_offsets[-1])
     if room > RECORD_BUDGET:
         return None
