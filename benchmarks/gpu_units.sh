@@ -1,12 +1,16 @@
 #!/usr/bin/env bash
 # The GPU checks of refinement and lifting in one call (a shorter gpu_check.sh, made to finish within 9 minutes on one
 # H100-class GPU), the code before the change timed on the same machine:
-#   1. install the carried wheels (.whl/, benchmarks/gpu_wheels.sh) and build gsplat's CUDA extension;
+#   1. install the carried wheels (.whl/, benchmarks/gpu_wheels.sh) and build gsplat's CUDA extension (with
+#      GSPLAT_PREBUILT=FILE, an earlier call's build of it on the same image, xz-compressed, is loaded instead:
+#      benchmarks/gsplat_prebuilt/sitecustomize.py);
 #   2. the device tests of refinement's graphs and lifting's kernel, and the whole method on CUDA (pytest --device
 #      cuda; the tiny object from MATSPRAY_TINY_OBJECT);
-#   3. python -m benchmarks.step_cost --device cuda --units refine lift: operations, launches and waits per unit;
+#   3. python -m benchmarks.step_cost --device cuda --units refine lift: operations, launches and waits per unit
+#      (GPU_UNITS_STEP_COST=0: not run);
 #   4. python -m benchmarks.unit_rates on GPU_CHECK_DATA (a carried `matspray synth` object): Gaussian Splatting
-#      trained once (its Gaussians saved), lifting (with and without the rays' kernel) and refinement rates;
+#      trained once (its Gaussians saved), lifting (with and without the rays' kernel; GPU_UNITS_LIFT_UNFUSED=0:
+#      with it only) and refinement rates;
 #   5. with GPU_UNITS_BEFORE=DIR (the earlier package's matspray/ and benchmarks/, e.g. `git archive`): its lifting and
 #      refinement rates on the same Gaussians, in another process;
 #   6. one summary.
@@ -26,6 +30,11 @@ if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
     || { echo "installing the carried wheels failed"; exit 1; }
   SITE=/tmp/site:$REPO
 fi
+if [ -n "${GSPLAT_PREBUILT:-}" ] && [ -f "$GSPLAT_PREBUILT" ]; then  # an earlier call's build (xz), skips compiling
+  mkdir -p /tmp/gsplat-prebuilt && xz -dc "$GSPLAT_PREBUILT" >/tmp/gsplat-prebuilt/gsplat_cuda.so \
+    && cp benchmarks/gsplat_prebuilt/sitecustomize.py /tmp/gsplat-prebuilt/ \
+    && export GSPLAT_PREBUILT_SO=/tmp/gsplat-prebuilt/gsplat_cuda.so && SITE=/tmp/gsplat-prebuilt:$SITE
+fi
 export PYTHONPATH=$SITE
 summary=()
 quiet() { grep -v -E "Warning|warn\(|return Variable|^\s*$"; }
@@ -40,18 +49,20 @@ print(f'gsplat built in {time.perf_counter() - start:.0f} s; auto on cuda: {reso
 summary+=("$(cat "$OUT/device.txt") | $(tail -n 1 "$OUT/gsplat.txt")")
 
 timeout "$(cap 150)" python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_refine_terms.py \
-  tests/test_cuda_rays.py tests/test_device.py 2>&1 | tee "$OUT/pytest_cuda.log" | tail -n 25
+  tests/test_cuda_rays.py tests/test_device.py tests/test_bilinear.py tests/test_merger.py 2>&1 | tee "$OUT/pytest_cuda.log" | tail -n 25
 summary+=("pytest --device cuda (refine terms, rays kernel, device): $(tail -n 1 "$OUT/pytest_cuda.log")")
 
-timeout "$(cap 90)" python3 -m benchmarks.step_cost --device cuda --units refine lift --json "$OUT/step_cost.json" 2>&1 \
-  | quiet | tee "$OUT/step_cost.log"
-summary+=("step_cost on CUDA:" "$(grep -E '^(unit|per )' "$OUT/step_cost.log")")
+if [ "${GPU_UNITS_STEP_COST:-1}" = 1 ]; then
+  timeout "$(cap 90)" python3 -m benchmarks.step_cost --device cuda --units refine lift --json "$OUT/step_cost.json" 2>&1 \
+    | quiet | tee "$OUT/step_cost.log"
+  summary+=("step_cost on CUDA:" "$(grep -E '^(unit|per )' "$OUT/step_cost.log")")
+fi
 
 if [ -n "${GPU_CHECK_DATA:-}" ]; then
   nvidia-smi dmon -s u -d 1 >"$OUT/dmon.log" 2>&1 &
   dmon=$!
   timeout "$(cap 200)" python3 -m benchmarks.unit_rates --data "$GPU_CHECK_DATA" --device cuda --geometry-steps 7000 \
-    --refine-steps "${GPU_UNITS_REFINE_STEPS:-600}" --warmup-steps 100 --lift-unfused --out /tmp/gpu-units \
+    --refine-steps "${GPU_UNITS_REFINE_STEPS:-600}" --warmup-steps 100 $([ "${GPU_UNITS_LIFT_UNFUSED:-1}" = 1 ] && echo --lift-unfused) --out /tmp/gpu-units \
     --save-gaussians /tmp/gpu-units/gaussians.pt --json "$OUT/unit_rates.json" 2>&1 | tr '\r' '\n' | quiet \
     | tee "$OUT/unit_rates.log"
   kill $dmon 2>/dev/null

@@ -45,7 +45,7 @@ def native_bfloat16_cpu() -> bool:
 
 def mlp_dtype(precision: str, device: torch.device) -> torch.dtype:
     """The dtype the merger's MLPs multiply in, for `precision` (MergerConfig) on `device`."""
-    if precision == "bfloat16" or (precision == "auto" and device.type == "cpu" and native_bfloat16_cpu()):
+    if precision == "bfloat16" or (precision == "auto" and (device.type == "cuda" or native_bfloat16_cpu())):
         return torch.bfloat16
     return torch.float32
 
@@ -63,8 +63,8 @@ class MergerConfig:
     unseen: str = "mask"  # views that did not see a Gaussian: "mask" (weight 0) or "mean" (filled with the mean of the
     # views that did, weighted like any view; the paper's released code)
     # the MLPs' arithmetic: "float32", "bfloat16" (autocast: matrix products in bfloat16, weights and the merge in
-    # float32) or "auto": bfloat16 on a CPU with native bfloat16 (AVX512-BF16 or AMX), where refinement is bound by
-    # these products, float32 elsewhere (docs/defaults.md)
+    # float32) or "auto": bfloat16 on a CUDA device (tensor cores) and on a CPU with native bfloat16 (AVX512-BF16 or
+    # AMX), where refinement is bound by these products, float32 elsewhere (docs/defaults.md)
     precision: str = "auto"
 
     def __post_init__(self):

@@ -199,9 +199,12 @@ def test_frozen_views_kept_on_the_host_render_and_differentiate_as_the_reference
         torch.testing.assert_close(alpha.cpu().double(), expected_alpha, rtol=0, atol=1e-5)
         torch.testing.assert_close(grad.cpu().double(), expected_grad, rtol=0, atol=1e-4)
     (on_device, image, alpha, grad), (_, host_image, host_alpha, host_grad) = results["device"], results["host"]
-    torch.testing.assert_close(host_image, image, rtol=0, atol=0)  # the same matrices, wherever they are kept
-    torch.testing.assert_close(host_alpha, alpha, rtol=0, atol=0)
-    torch.testing.assert_close(host_grad, grad, rtol=0, atol=0)
+    # the same matrices, wherever they are kept: the same values, but for the order of the sums, which CUDA's sparse
+    # products may change from one call to the next (one float32 rounding seen on an H200)
+    exact = dict(rtol=0, atol=0) if device.type == "cpu" else dict(rtol=1e-6, atol=1e-7)
+    torch.testing.assert_close(host_image, image, **exact)
+    torch.testing.assert_close(host_alpha, alpha, **exact)
+    torch.testing.assert_close(host_grad, grad, **exact)
     described = on_device.describe()
     assert described["bytes"] == on_device.kept_bytes == frozen_views_bytes(described["hits"], 20 * 16, 30, 2)
     assert described["hits"] > 0 and described["pixels"] == 2 * 20 * 16

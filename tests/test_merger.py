@@ -215,16 +215,17 @@ def test_an_unknown_precision_is_refused():
         MergerConfig(precision="half")
 
 
-def test_auto_precision_is_bfloat16_only_on_a_cpu_that_multiplies_it_natively(monkeypatch):
+def test_auto_precision_is_bfloat16_on_cuda_and_on_a_cpu_that_multiplies_it_natively(monkeypatch):
     from matspray import merger as merger_module
     from matspray.merger import mlp_dtype
 
     cpu, cuda = torch.device("cpu"), torch.device("cuda")
     assert mlp_dtype("float32", cpu) == torch.float32 and mlp_dtype("bfloat16", cuda) == torch.bfloat16
+    assert mlp_dtype("float32", cuda) == torch.float32
     monkeypatch.setattr(merger_module, "native_bfloat16_cpu", lambda: True)
-    assert mlp_dtype("auto", cpu) == torch.bfloat16 and mlp_dtype("auto", cuda) == torch.float32
+    assert mlp_dtype("auto", cpu) == torch.bfloat16 and mlp_dtype("auto", cuda) == torch.bfloat16
     monkeypatch.setattr(merger_module, "native_bfloat16_cpu", lambda: False)
-    assert mlp_dtype("auto", cpu) == torch.float32
+    assert mlp_dtype("auto", cpu) == torch.float32 and mlp_dtype("auto", cuda) == torch.bfloat16
 
 
 class ProductDtypes(TorchDispatchMode):

@@ -81,8 +81,8 @@ SETTING_FLAGS = {
     "--merger-precision": (
         "refine.merger.precision",
         str,
-        "the merger's matrix products: auto (default: bfloat16 on a CPU with native bfloat16, where refinement "
-        "runs faster; float32 elsewhere; docs/defaults.md), float32 or bfloat16",
+        "the merger's matrix products: auto (default: bfloat16 on a CUDA GPU and on a CPU with native bfloat16, "
+        "where refinement runs faster; float32 elsewhere; docs/defaults.md), float32 or bfloat16",
     ),
     "--unseen": (
         "refine.merger.unseen",

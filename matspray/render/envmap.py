@@ -36,6 +36,7 @@ from torch import Tensor, nn
 
 from matspray.data.images import read_image, write_image
 from matspray.errors import ConfigError, DataError, file_error
+from matspray.render.bilinear import bilinear_sample, grid_sample_border
 from matspray.render.brdf import MIN_ROUGHNESS, ggx_ndf, roughness_to_alpha, smith_visibility
 from matspray.render.latlong import pixel_solid_angles
 
@@ -92,9 +93,11 @@ def latlong_angles(d: Tensor) -> Tensor:  # [..., 3] -> [..., 2] azimuth, polar 
 
 
 def sample_padded(image: Tensor, grid: Tensor) -> Tensor:  # [1, C, h, w], [P, 2] -> [C, P]
-    """Bilinear samples of a padded map at `grid_sample` coordinates (align_corners=True)."""
-    out = F.grid_sample(image, grid.view(1, 1, -1, 2), mode="bilinear", padding_mode="border", align_corners=True)
-    return out.view(image.shape[1], -1)
+    """Bilinear samples of a padded map at `grid_sample` coordinates (align_corners=True). On a GPU by
+    `bilinear_sample`, whose backward does not queue a view's pixels on the map's few texels."""
+    if image.is_cuda and torch.is_grad_enabled():
+        return bilinear_sample(image, grid)
+    return grid_sample_border(image, grid)
 
 
 def sample_latlong(map: Tensor, directions: Tensor) -> Tensor:  # [H, W, C], [..., 3] -> [..., C]
