@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Every GPU check of MatSpray in one call, built to finish within 10 minutes on one H100-class GPU:
 #   1. install what the machine lacks (wheels carried in .whl/, made here by benchmarks/gpu_wheels.sh) and matspray itself;
-#   2. build gsplat's CUDA extension (timed) and check that backend `auto` picks it;
+#   2. build gsplat's CUDA extension (timed; with GSPLAT_PREBUILT=FILE an earlier call's build is loaded instead, and a
+#      new build is kept in OUT/gsplat_cuda.so.xz for the next call: benchmarks/gsplat_prebuilt/use.sh) and check that
+#      backend `auto` picks it;
 #   3. the test suite's device tests on CUDA (pytest --device cuda: the on_device tests, the gsplat parity tests, the
 #      graphed training step);
 #   4. python -m benchmarks.step_cost --device cuda: operations and synchronisations per unit of work, counted there;
@@ -21,12 +23,13 @@ left() { echo $((BUDGET - ($(date +%s) - START))); }
 export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16} TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0}
 summary=()
 
+SITE=$PWD
 if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
   python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
-    && export PYTHONPATH=/tmp/site:$PWD || { echo "installing the carried wheels failed"; exit 1; }
-else
-  export PYTHONPATH=$PWD
+    && SITE=/tmp/site:$PWD || { echo "installing the carried wheels failed"; exit 1; }
 fi
+source benchmarks/gsplat_prebuilt/use.sh  # GSPLAT_PREBUILT: an earlier call's build of gsplat, loaded, not compiled
+export PYTHONPATH=$SITE
 python3 -c "import torch; assert torch.cuda.is_available(), 'no CUDA GPU'; print('torch', torch.__version__, 'on', torch.cuda.get_device_name())" \
   || { echo "gpu_check: no CUDA GPU that torch sees; nothing to check"; exit 1; }
 
@@ -45,6 +48,7 @@ print(f"gsplat CUDA extension: {'built' if built else 'NOT built'} in {time.perf
 print(f"backend auto on cuda resolves to: {resolve_backend('auto', 'cuda')}")
 EOF
 summary+=("$(grep -h 'gsplat CUDA extension\|resolves to\|failed' "$OUT/gsplat_build.log" | paste -sd ';' -)")
+gsplat_keep_build "$OUT"
 
 # 3. the device tests on CUDA (pytest --device cuda: the on_device tests, among them the viewer's and
 # the frozen views' pinned host copy, and the gsplat parity tests), after the build:

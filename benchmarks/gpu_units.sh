@@ -2,8 +2,8 @@
 # The GPU checks of refinement and lifting in one call (a shorter gpu_check.sh, made to finish within 9 minutes on one
 # H100-class GPU), the code before the change timed on the same machine:
 #   1. install the carried wheels (.whl/, benchmarks/gpu_wheels.sh) and build gsplat's CUDA extension (with
-#      GSPLAT_PREBUILT=FILE, an earlier call's build of it on the same image, xz-compressed, is loaded instead:
-#      benchmarks/gsplat_prebuilt/sitecustomize.py);
+#      GSPLAT_PREBUILT=FILE, an earlier call's build of it on the same image, is loaded instead; a new build is kept
+#      in OUT/gsplat_cuda.so.xz for the next call: benchmarks/gsplat_prebuilt/use.sh);
 #   2. the device tests of refinement's graphs and lifting's kernel, and the whole method on CUDA (pytest --device
 #      cuda; the tiny object from MATSPRAY_TINY_OBJECT);
 #   3. python -m benchmarks.step_cost --device cuda --units refine lift: operations, launches and waits per unit
@@ -30,11 +30,7 @@ if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
     || { echo "installing the carried wheels failed"; exit 1; }
   SITE=/tmp/site:$REPO
 fi
-if [ -n "${GSPLAT_PREBUILT:-}" ] && [ -f "$GSPLAT_PREBUILT" ]; then  # an earlier call's build (xz), skips compiling
-  mkdir -p /tmp/gsplat-prebuilt && xz -dc "$GSPLAT_PREBUILT" >/tmp/gsplat-prebuilt/gsplat_cuda.so \
-    && cp benchmarks/gsplat_prebuilt/sitecustomize.py /tmp/gsplat-prebuilt/ \
-    && export GSPLAT_PREBUILT_SO=/tmp/gsplat-prebuilt/gsplat_cuda.so && SITE=/tmp/gsplat-prebuilt:$SITE
-fi
+source benchmarks/gsplat_prebuilt/use.sh  # GSPLAT_PREBUILT: an earlier call's build of gsplat, loaded, not compiled
 export PYTHONPATH=$SITE
 summary=()
 quiet() { grep -v -E "Warning|warn\(|return Variable|^\s*$"; }
@@ -47,6 +43,7 @@ from matspray.render.backend import resolve_backend
 print(f'gsplat built in {time.perf_counter() - start:.0f} s; auto on cuda: {resolve_backend(\"auto\", \"cuda\")}')
 " 2>&1 | quiet | tail -n 2 | tee "$OUT/gsplat.txt"
 summary+=("$(cat "$OUT/device.txt") | $(tail -n 1 "$OUT/gsplat.txt")")
+gsplat_keep_build "$OUT"
 
 timeout "$(cap 150)" python3 -m pytest -q -p no:cacheprovider --device cuda -m on_device tests/test_refine_terms.py \
   tests/test_cuda_rays.py tests/test_device.py tests/test_bilinear.py tests/test_merger.py 2>&1 | tee "$OUT/pytest_cuda.log" | tail -n 25

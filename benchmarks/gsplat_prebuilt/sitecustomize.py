@@ -1,7 +1,8 @@
-"""Start-up hook for the GPU scripts (benchmarks/gpu_units.sh puts this folder on PYTHONPATH when GSPLAT_PREBUILT
-names an earlier call's build): with GSPLAT_PREBUILT_SO set, gsplat's CUDA extension built by an earlier call on
-the same machine image is imported as `gsplat.csrc`, which gsplat tries before compiling its sources (about 80 s of
-a GPU lease each time)."""
+"""Start-up hook for the GPU scripts (benchmarks/gsplat_prebuilt/use.sh puts this folder on PYTHONPATH when
+GSPLAT_PREBUILT names an earlier call's build): with GSPLAT_PREBUILT_SO set, gsplat's CUDA extension built by an
+earlier call on the same machine image is imported as `gsplat.csrc`, which gsplat tries before compiling its sources
+(about 80 s of a GPU lease each time). A build that does not load here (another torch or CUDA) is skipped with one
+line, and gsplat compiles as usual."""
 
 import os
 
@@ -9,9 +10,13 @@ if os.environ.get("GSPLAT_PREBUILT_SO"):
     import importlib.util
     import sys
 
-    import torch  # noqa: F401 (the extension links against torch's libraries, loaded by this import)
+    try:
+        import torch  # noqa: F401 (the extension links against torch's libraries, loaded by this import)
 
-    spec = importlib.util.spec_from_file_location("gsplat_cuda", os.environ["GSPLAT_PREBUILT_SO"])
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    sys.modules["gsplat.csrc"] = module
+        spec = importlib.util.spec_from_file_location("gsplat_cuda", os.environ["GSPLAT_PREBUILT_SO"])
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules["gsplat.csrc"] = module
+    except Exception as exc:  # noqa: BLE001 (any failure means: compile instead)
+        print(f"gsplat prebuilt extension not used ({type(exc).__name__}: {exc}); gsplat compiles it", file=sys.stderr)
+        os.environ.pop("GSPLAT_PREBUILT_SO")
