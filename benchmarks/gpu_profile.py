@@ -29,42 +29,18 @@ from torch.profiler import ProfilerActivity, profile
 
 from benchmarks.unit_rates import (
     geometry_rate,
-    lift_seconds_per_view,
     load_gaussians,
     random_refine_inputs,
+    steps_after_densification,
     synchronized_seconds,
 )
 from matspray.config import build_config
 from matspray.data.loader import load_scene
 from matspray.device import resolve_device
-from matspray.geometry.densify import DensityControl
-from matspray.geometry.optim import GaussianOptimizer
-from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
-from matspray.geometry.train import SYNC_EVERY, learning_rates, prepare_views, scene_extent
+from matspray.geometry.train import prepare_views
 from matspray.lift import lift
 from matspray.refine import refine
 from matspray.render.backend import rendering_with, resolve_backend
-
-
-def geometry_steps(gaussians, views, config, device):
-    """A function running `n` training steps after densification (as unit_rates' comparison does)."""
-    extent = scene_extent(views)
-    masked = all(v.alpha is not None for v in views)
-    targets = [TrainingView.of(v, masked) for v in views]
-    optimizer = GaussianOptimizer(gaussians, learning_rates(config, extent))
-    density = DensityControl(config, extent, len(gaussians), device)
-    running, terms, generator = RunningStats(device), ImageTerms(True), torch.Generator().manual_seed(0)
-    state = {"iteration": config.densify_until + 1}
-
-    def run(n: int) -> None:
-        for _ in range(n):
-            iteration = state["iteration"]
-            report = (iteration + 1) % SYNC_EVERY == 0
-            training_step(optimizer, density, running, targets[iteration % len(targets)], config, iteration,
-                          generator, terms, report)  # fmt: skip
-            state["iteration"] += 1
-
-    return run
 
 
 def refine_steps(gaussians, views, device):
@@ -166,7 +142,7 @@ def main() -> None:
         texts.append(head)
         views = [v.to(device) for v in prepare_views(scene.train, config.resolution)]
         if "geometry" in args.units:
-            run = geometry_steps(gaussians, views, config, device)
+            run = steps_after_densification(gaussians, views, config, device)
             texts.append(report("Gaussian Splatting step", device, run, args.steps, 20, args.out))
         if "refine" in args.units:
             run = refine_steps(gaussians, views, device)
@@ -178,8 +154,6 @@ def main() -> None:
             print(texts[-1], flush=True)
         if "lift" in args.units:
             texts.append(report("lifted view", device, lift_views(gaussians, views), args.views, 2, args.out))
-            seconds = lift_seconds_per_view(gaussians, views, device, 16)
-            texts.append(f"lifting per view (unit_rates' timing): {seconds:.3f} s")
     (args.out / "profile.txt").write_text("\n".join(texts) + "\n")
 
 

@@ -61,30 +61,38 @@ def geometry_rate(scene, config: GeometryConfig, device, out: Path) -> tuple[flo
     return config.iterations / metrics["train_seconds"], gaussians
 
 
-def eager_against_graphs(gaussians, views, config: GeometryConfig, device, steps: int) -> dict[str, float]:
-    """Steps per second of the same `steps` steps from the trained Gaussians (densification over, progress read every
-    SYNC_EVERY steps as in training), with and without the loss terms' CUDA graphs."""
+def steps_after_densification(gaussians, views, config: GeometryConfig, device, graphs: bool = True):
+    """A function `run(n)` that trains `n` more steps from `gaussians` on `views`, from the step after densification
+    on (progress read every SYNC_EVERY steps, as in training), the loss terms as CUDA graphs when `graphs`."""
     from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
 
     extent = scene_extent(views)
     masked = all(v.alpha is not None for v in views)
     targets = [TrainingView.of(v, masked) for v in views]
-    first = config.densify_until + 1
+    optimizer = GaussianOptimizer(gaussians, learning_rates(config, extent))
+    density = DensityControl(config, extent, len(gaussians), device)
+    running, terms, generator = RunningStats(device), ImageTerms(graphs), torch.Generator().manual_seed(0)
+    state = {"iteration": config.densify_until + 1}
+
+    def run(n: int) -> None:
+        for _ in range(n):
+            iteration = state["iteration"]
+            report = (iteration + 1) % SYNC_EVERY == 0
+            target = targets[iteration % len(targets)]
+            training_step(optimizer, density, running, target, config, iteration, generator, terms, report)
+            state["iteration"] += 1
+
+    return run
+
+
+def eager_against_graphs(gaussians, views, config: GeometryConfig, device, steps: int) -> dict[str, float]:
+    """Steps per second of the same `steps` steps from the trained Gaussians (densification over), with and without
+    the loss terms' CUDA graphs."""
     rates = {}
     for graphs in (True, False):
-        optimizer = GaussianOptimizer(gaussians, learning_rates(config, extent))
-        density = DensityControl(config, extent, len(gaussians), device)
-        running, terms, generator = RunningStats(device), ImageTerms(graphs), torch.Generator().manual_seed(0)
-
-        def run(iterations):
-            for iteration in iterations:
-                report = (iteration + 1) % SYNC_EVERY == 0
-                target = targets[iteration % len(targets)]
-                training_step(optimizer, density, running, target, config, iteration, generator, terms, report)
-
-        run(range(first, first + 2 * len(targets)))  # every view's capture, and warm caches
-        start = first + 2 * len(targets)
-        seconds = synchronized_seconds(device, lambda: run(range(start, start + steps)))
+        run = steps_after_densification(gaussians, views, config, device, graphs)
+        run(2 * len(views))  # every view's capture, and warm caches
+        seconds = synchronized_seconds(device, lambda: run(steps))
         rates["with graphs" if graphs else "without graphs"] = steps / seconds
     return rates
 

@@ -16,6 +16,7 @@ from torch import Tensor
 from matspray.data.crop import (
     CROP_FILE,
     MIN_POINTS,
+    WHOLE_FRAME,
     CropConfig,
     CropPlan,
     crop_window,
@@ -55,7 +56,7 @@ def plan_crop(
     gain = 1.0 / plan.mean_side()
     if gain < config.min_gain:
         return None, region, f"crop: the object fills most of the photos ({gain:.2f}x by cutting); photos used whole"
-    whole = sum(w == (0.0, 0.0, 1.0, 1.0) for w in windows.values())
+    whole = sum(w == WHOLE_FRAME for w in windows.values())
     kept = f"; {whole} view(s) keep the whole photo" if whole else ""
     return plan, region, f"crop: each photo cut to its object, {gain:.2f}x the pixels across on average{kept}"
 

@@ -29,6 +29,7 @@ from matspray.errors import DataError, SettingError, file_error
 from matspray.files import read_json
 
 CROP_FILE = "crop.json"
+WHOLE_FRAME = (0.0, 0.0, 1.0, 1.0)  # a window that keeps the whole photo
 MIN_POINTS = 16  # a view sees fewer of the object's points than this: it keeps the whole photo
 
 
@@ -101,15 +102,14 @@ def crop_window(box: Tensor | None, width: int, height: int, margin: float, min_
     """The window (fractions of the frame: left, top, right, bottom) of a `width` x `height` frame around the pixel
     box `box` [4] grown by `margin` on each side, with the frame's aspect ratio and at least `min_side` (a fraction
     of the frame's side) wide, moved inside the frame; the whole frame when the box is None or does not fit."""
-    whole = (0.0, 0.0, 1.0, 1.0)
     if box is None:
-        return whole
+        return WHOLE_FRAME
     left, top, right, bottom = box.tolist()
     centre_x, centre_y = (left + right) / 2 / width, (top + bottom) / 2 / height
     grow = 1.0 + 2.0 * margin
     side = max(grow * (right - left) / width, grow * (bottom - top) / height, min_side)  # same fraction on both axes
     if side >= 1.0:
-        return whole
+        return WHOLE_FRAME
     x0 = min(max(centre_x - side / 2, 0.0), 1.0 - side)
     y0 = min(max(centre_y - side / 2, 0.0), 1.0 - side)
     return (x0, y0, x0 + side, y0 + side)

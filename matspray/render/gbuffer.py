@@ -68,8 +68,10 @@ class SparseBlend(torch.autograd.Function):
 
 
 def hits_of_view(gaussians: Gaussians, camera: Camera, backend: str) -> tuple[Tensor, Tensor, Tensor]:
-    """`view_weights`: compiled on backend numba (a view whose record of hits would be too large falls back to
-    torch's), torch's otherwise."""
+    """`view_weights`' hits and weights: compiled on backend numba (a view whose record of hits would be too large
+    falls back to torch's), torch's otherwise. In no particular order on numba (a tile's hits in blending order), which
+    the blend matrices do not need; a caller that needs `view_weights`' order (pixel, then front to back: the shadow
+    maps of `render.visibility`) calls it."""
     if backend == "numba" and gaussians.means.device.type == "cpu":
         from matspray.render.numba_backend import numba_view_weights
 
