@@ -44,8 +44,9 @@ def blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: i
     indices are 32-bit where they fit: a third less memory (a dense view of many Gaussians holds tens of hits per
     pixel) and a faster product on the CPU."""
     index = torch.int32 if max(n_rows, n_columns, len(weights)) < 2**31 else torch.int64
-    order = torch.argsort(row_ids.long() * n_columns + column_ids.long())
-    rows = row_ids.long().index_select(0, order)
+    row_ids = row_ids.long()
+    order = torch.argsort(row_ids * n_columns + column_ids.long())
+    rows = row_ids.index_select(0, order)
     crow = torch.zeros(n_rows + 1, dtype=torch.int64, device=weights.device)
     crow[1:] = torch.bincount(rows, minlength=n_rows).cumsum(0)
     columns, values = column_ids.index_select(0, order).to(index), weights.index_select(0, order)
