@@ -320,6 +320,7 @@ class Pipeline:
         if not self.unmasked:
             return None
         if self._object_masks is None:
+            self.crop()  # the masks belong to the cut photos: cut them first, also when the masks are reused
             fp = self.masks_fingerprint()
             if not self.run.stage_done("masks", fp, ["masks.pt", "region.json"]):
                 gaussians, _ = self.geometry()

@@ -179,6 +179,15 @@ def test_the_pipeline_cuts_the_photos_and_every_reader_of_the_run_does_too(ball_
         assert torch.equal(view.camera.K, cut.camera.K) and torch.allclose(view.image, cut.image)
     pipeline.geometry()  # trains on the cut photos and focuses on the crop's region
     assert read_region(run / "geometry") == region
+    pipeline.object_masks()
+    pipeline.close()
+    resumed = Pipeline(ball_capture, run, config, progress=False, log=logged.append)
+    resumed.object_masks()  # every stage done: the masks reused go onto the cut photos, which stay cut
+    resumed.geometry()
+    for view in resumed.scene.views:
+        cut = next(v for v in pipeline.scene.views if v.name == view.name)
+        assert torch.equal(view.camera.K, cut.camera.K) and torch.equal(view.alpha, cut.alpha)
+    resumed.close()
     off = Pipeline(ball_capture, tmp_path / "off", build_config("test", predictor="none", **{"crop.enabled": False}))
     off.scene.points = object_points(400)
     assert off.crop() is None and off.crop_fingerprint() is None and not (tmp_path / "off" / "crop").exists()
