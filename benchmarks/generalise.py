@@ -11,10 +11,11 @@ Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every s
 under one HDRI of ../shared/data/hdri and relit under two other lights (HDRIs and built-ins), all drawn
 from its seed. Each object is run with every predictor error model (`simulated:paper`, `:harsh`,
 `:outliers`, `:dr`, and the ground truth as a sanity row; a simulated predictor draws its errors from the
-object's seed): one run folder per (object, model, configuration), the Gaussian Splatting geometry
-trained once per object and shared by hard links (the pipeline's stage fingerprint checks it is the
-same); a configuration other than the default also starts from the default run's predictions, lift and
-shadows, which its pipeline keeps when its settings leave them unchanged and redoes otherwise. Every
+object's seed): one run folder per (object, model, configuration). Each run trains its Gaussian Splatting on its
+model's predicted normals (`geometry.predicted_normal_weight`, on by default); with that weight at 0 the geometry is
+trained once per object and shared by hard links (the pipeline's stage fingerprint checks it is the same). A
+configuration other than the default also starts from the default run's predictions, geometry, lift and shadows,
+which its pipeline keeps when its settings leave them unchanged and redoes otherwise. Every
 variant is refined, evaluated against the ground truth, and the raw 2D predictions of the test views are
 scored as the baseline 3D must beat.
 
@@ -25,8 +26,8 @@ no-softmax, 3D vs 2D per channel) and the seconds per object. Writes OUT/results
 per model OUT/tables-TAG-MODEL.md (the paper's tables averaged over the objects).
 `--refine KEY=VALUE` overrides a refinement setting (RefineConfig field; `merger.KEY` for the merger)
 for development sweeps: earlier stages are reused, so a sweep costs only refinement and evaluation.
-`--geometry KEY=VALUE` overrides a geometry setting (GeometryConfig field); each run of such a configuration
-then trains its own geometry (one trained on an error model's predicted normals belongs to that model).
+`--geometry KEY=VALUE` overrides a geometry setting (GeometryConfig field), e.g. `predicted_normal_weight=0` for
+one geometry per object, shared by its models.
 Each configuration keeps its results file (its --tag), and `--compare` prints one row per configuration
 and error model from them: the development-set table of choices.
 """
@@ -320,6 +321,7 @@ def run_protocol(args, log=print) -> dict:
     if geometry:  # only then: the configurations run before the flag keep their names
         choices["geometry"] = geometry
     key = configuration_key(args.method, choices)
+    on_normals = geometry.get("predicted_normal_weight", base.geometry.predicted_normal_weight) > 0
     geometry_key = configuration_key(  # the configuration with the geometry overrides alone (None: the default)
         "matspray", {"without": [], "settings": {}, "refine": {}, **({"geometry": geometry} if geometry else {})}
     )
@@ -375,7 +377,8 @@ def run_protocol(args, log=print) -> dict:
             resolution=args.resolution,
         )
         seconds = {"synth": time.perf_counter() - start, "models": {}}
-        own_geometry = bool(geometry) and not args.geometry_only  # each run trains its own
+        # each run trains its own where it follows its model's predicted normals (by default)
+        own_geometry = on_normals and not args.geometry_only
         first_run = (
             folder / "runs" / run_name(first_model, key)
             if own_geometry
@@ -495,8 +498,8 @@ def parse_args(argv=None):
         nargs="+",
         default=[],
         metavar="KEY=VALUE",
-        help="override geometry settings (GeometryConfig fields), e.g. --geometry predicted_normal_weight=1; "
-        "each run then trains its own geometry",
+        help="override geometry settings (GeometryConfig fields), e.g. --geometry predicted_normal_weight=0: one "
+        "geometry per object, shared by its models (by default each run trains its own on its model's normals)",
     )
     parser.add_argument(
         "--tag", help="name of this configuration's results files (default: 'default', or a hash of the overrides)"

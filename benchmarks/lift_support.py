@@ -23,7 +23,7 @@ from matspray.eval.run_eval import evaluate_asset, read_view_truth
 from matspray.geometry.ply import read_ply
 from matspray.lift import LiftConfig, lift, supported_views
 from matspray.merger import projection_average
-from matspray.pipeline import maps_to_tensor
+from matspray.predictors import maps_to_tensor
 from matspray.predictors.ground_truth import read_ground_truth
 
 

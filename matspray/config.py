@@ -33,6 +33,14 @@ def unknown_preset(preset: str) -> SettingError:
     return SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
 
 
+# The 2D model's normals, in every preset and both methods (the paper trains Gaussian Splatting on DiffusionRenderer's
+# normals and refines normals by the rendering loss): Gaussian Splatting trains on them and refinement keeps its
+# normals near them, at this weight. A run applies them where its 2D maps have normal maps and turns them off
+# elsewhere (`Pipeline.geometry_config`, `Pipeline.refine_config`); the stages' own settings default to 0 (off), for
+# the stages called alone.
+NORMAL_PRIOR_WEIGHT = 1.0
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     preset: str = "demo"
@@ -50,12 +58,14 @@ class PipelineConfig:
     )
     points: PointsConfig = field(default_factory=PointsConfig)  # the initial points of a capture that brings none
     crop: CropConfig = field(default_factory=CropConfig)  # a capture without masks: each photo cut to its object
-    geometry: GeometryConfig = field(default_factory=GeometryConfig)
+    geometry: GeometryConfig = field(
+        default_factory=lambda: GeometryConfig(predicted_normal_weight=NORMAL_PRIOR_WEIGHT)
+    )
     lift: LiftConfig = field(default_factory=LiftConfig)
     visibility: VisibilityConfig | None = (
         None  # None: no shadowing (the paper's, and our default); `shadow_maps(preset)` turns it on
     )
-    refine: RefineConfig = field(default_factory=RefineConfig)
+    refine: RefineConfig = field(default_factory=lambda: RefineConfig(predicted_normal_weight=NORMAL_PRIOR_WEIGHT))
     object_bounds: tuple[float, ...] | None = (
         None  # captures without masks: the object region (4: sphere, 6: box); None: automatic
     )
@@ -195,6 +205,7 @@ def build_config(
     if preset not in PRESETS:
         raise unknown_preset(preset)
     seed = settings.get("seed", 0)
+    settings = {"geometry.predicted_normal_weight": NORMAL_PRIOR_WEIGHT, **settings}
     geometry_settings = {k.split(".", 1)[1]: settings.pop(k) for k in list(settings) if k.startswith("geometry.")}
     try:
         geometry = geometry_preset(preset, seed=seed, **geometry_settings)

@@ -24,13 +24,12 @@ from matspray.data.crop import CROP_FILE
 from matspray.data.images import save_torch_atomic
 from matspray.data.triangulate import POINTS_FILE, needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
-from matspray.errors import ConfigError, RunError, file_error
+from matspray.errors import RunError, file_error
 from matspray.estimate import Work, feature_sizes, run_work, view_pixels
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.ply import read_ply
 from matspray.geometry.train import prepare_views, train_geometry
 from matspray.lift import LiftResult, lift, load_lift, save_lift
-from matspray.material import stack
 from matspray.merger import mlp_dtype
 from matspray.objectcrop import crop_stage
 from matspray.objectmasks import (
@@ -45,11 +44,13 @@ from matspray.predictors import (
     NO_PREDICTOR,
     PredictorOptions,
     make_predictor,
+    maps_to_tensor,
     options_for_dataset,
     predict_views,
+    predicted_normal_maps,
     read_materials2d,
+    read_predictor_info,
     resolve_predictor,
-    world_normals,
     write_materials2d,
 )
 from matspray.refine import RefineConfig, RefineInputs, frozen_views, refine
@@ -78,23 +79,6 @@ def dataset_identity(scene: Scene) -> dict:
         "test_views": [v.name for v in scene.test],
         "resolution": [scene.train[0].width, scene.train[0].height],
     }
-
-
-def maps_to_tensor(maps) -> torch.Tensor:  # MaterialMaps -> [H, W, 5]
-    return stack(maps.basecolor, maps.roughness, maps.metallic)
-
-
-def predicted_normal_maps(maps: dict, views: list) -> list[torch.Tensor] | None:
-    """The views' predicted normal maps in world space [H, W, 3] (zero where a view has none), or None when the
-    predictor gave no normals at all."""
-    if not any(maps[v.name].normals is not None for v in views):
-        return None
-    return [
-        world_normals(maps[v.name], v.camera)
-        if maps[v.name].normals is not None
-        else torch.zeros(v.height, v.width, 3, device=v.camera.viewmat.device)
-        for v in views
-    ]
 
 
 class Pipeline:
@@ -223,8 +207,7 @@ class Pipeline:
     # ---------------------------------------------------------------- geometry
     def geometry_fingerprint(self) -> str:
         # trained on predicted normals, the geometry depends on the predictions too
-        trains_on_predictions = self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
-        upstream = [self.predict_fingerprint()] if trains_on_predictions else []
+        upstream = [self.predict_fingerprint()] if self.geometry_config().predicted_normal_weight > 0 else []
         upstream += [self.points_fp] if self.points_fp else []  # none for masked scenes: their fingerprint is kept
         crop = self.crop_fingerprint()
         upstream += [crop] if crop else []
@@ -255,34 +238,42 @@ class Pipeline:
         self._cropped = True
         return self._crop_region
 
+    def predicted_normals(self) -> bool | None:
+        """Whether this run's 2D maps carry normal maps; None while they are not predicted yet."""
+        if not self.has_maps:
+            return False
+        if not self.run.stage_done("materials2d", self.predict_fingerprint(), ["predictor.json"]):
+            return None
+        return "normal_space" in read_predictor_info(self.run.root)  # recorded exactly when normal files are
+
     def geometry_config(self) -> GeometryConfig:
-        """The geometry settings as they apply to this dataset (the object focus only to a capture without masks)."""
-        return self.config.geometry.for_scene(masked=not self.unmasked)
+        """The geometry settings as they apply to this dataset: the object focus only to a capture without masks, and
+        the predicted normals only where the 2D maps have them (predicted first, since the geometry then follows
+        them). A capture without masks trains without them: its masks, which the predictor sees, come from the
+        geometry."""
+        config = self.config.geometry.for_scene(masked=not self.unmasked)
+        if config.predicted_normal_weight > 0 and not self.unmasked and self.predicted_normals() is None:
+            self.predict()
+        if config.predicted_normal_weight > 0 and (self.unmasked or not self.predicted_normals()):
+            config = replace(config, predicted_normal_weight=0.0)
+        return config
+
+    def without_normals_note(self, stage: str) -> None:
+        """Says that `stage` runs without the predicted normals its weight asks for, where the predictor gave none."""
+        self.log(
+            f"{stage}: the 2D maps ({self.run.path('materials2d')}) have no normal maps, so it runs without predicted "
+            "normals (they come with simulated, ground-truth, files: with *_normal files, marigold --normals-weights)"
+        )
 
     def geometry_normal_targets(self) -> list[torch.Tensor] | None:
         """The predicted normal maps geometry trains on (world space, per training view), None when it trains on
-        none. Refused in one line where there can be none."""
-        weight = self.config.geometry.predicted_normal_weight
-        if weight <= 0:
+        none (said in one line where its weight asks for them)."""
+        if self.geometry_config().predicted_normal_weight <= 0:
+            if self.config.geometry.predicted_normal_weight > 0 and self.has_maps and not self.unmasked:
+                self.without_normals_note("geometry")
             return None
-        problem = (
-            "this capture has no masks, and its masks come from the geometry"
-            if self.unmasked
-            else "the run has no predictor (--predictor none)"
-            if not self.has_maps
-            else None
-        )
-        if problem is None:
-            maps = self.predict()
-            views = [v.to(self.device) for v in self.scene.train]
-            targets = predicted_normal_maps({n: m.to(self.device) for n, m in maps.items()}, views)
-            if targets is not None:
-                return targets
-            problem = (
-                f"the 2D maps ({self.run.path('materials2d')}) have no normal maps: use a predictor that gives them "
-                "(simulated, ground-truth, files: with *_normal files, marigold with --normals-weights)"
-            )
-        raise ConfigError(f"geometry.predicted_normal_weight is {weight}, but {problem}; or set it to 0")
+        views = [v.to(self.device) for v in self.scene.train]
+        return predicted_normal_maps({n: m.to(self.device) for n, m in self.predict().items()}, views)
 
     def geometry(self):
         """Trained Gaussians [N] and their oriented normals [N, 3]."""
@@ -460,13 +451,8 @@ class Pipeline:
         normal_maps = (
             predicted_normal_maps({n: m.to(self.device) for n, m in maps.items()}, views) if maps is not None else None
         )
-        if normal_maps is None and self.config.refine.predicted_normal_weight > 0:
-            raise ConfigError(
-                f"refine.predicted_normal_weight is {self.config.refine.predicted_normal_weight}, but this run's 2D "
-                f"maps ({self.run.path('materials2d')}) have no normal maps: use a predictor that gives them "
-                "(simulated, ground-truth, files: with *_normal files, marigold with --normals-weights), or delete "
-                "that folder if it was predicted before normal maps were kept"
-            )
+        if normal_maps is None and self.config.refine.predicted_normal_weight > 0 and maps is not None:
+            self.without_normals_note("refinement")
         return RefineInputs(
             gaussians=kept,
             normals=normals[lifted.kept],
@@ -509,7 +495,7 @@ class Pipeline:
         learns_light = (
             self.probe is not None and get_variant(variant).learns_light
         )  # variants without a light ignore the probe
-        config = variant_refine_config(self.config, variant)
+        config = self.refine_config(variant)
         return fingerprint(
             "refine",
             self.config.method,
@@ -520,9 +506,19 @@ class Pipeline:
             *(self.probe_identity if learns_light else ()),
         )
 
+    def refine_config(self, variant: str) -> RefineConfig:
+        """The refinement settings of `variant` in this run: the predicted normals only in a variant that reads the 2D
+        maps, and only where they have normal maps."""
+        config = variant_refine_config(self.config, variant)
+        if config.predicted_normal_weight <= 0 or not get_variant(variant).uses_maps:
+            return replace(config, predicted_normal_weight=0.0)
+        if self.predicted_normals() is None:
+            self.predict()
+        return config if self.predicted_normals() else replace(config, predicted_normal_weight=0.0)
+
     def refine(self, variant: str = "full") -> Asset:
         variants_for_maps([variant], self.has_maps)  # a variant that reads 2D maps is refused in a run without them
-        config = variant_refine_config(self.config, variant)
+        config = self.refine_config(variant)
         stage = asset_stage(variant)
         probe = self.probe if get_variant(variant).learns_light else None  # variants without a light ignore it
         fp = self.refine_fingerprint(variant)
@@ -559,16 +555,26 @@ class Pipeline:
     def work(self, variants=None) -> Work:
         """What `run_all(variants)` has left to do, for `estimate.estimate_line`."""
         names = variants_for_maps(variants, self.has_maps)
-        finished = {
-            "geometry": (self.geometry_fingerprint(), ["gaussians.ply"]),
-            "masks": (self.masks_fingerprint(), ["masks.pt"]),
-            "lift": (self.lift_fingerprint(), ["projected.pt"]),
-        }
+        # predictions not made yet (the estimate must not make them): no refinement is done, nor a geometry that
+        # follows their normals
+        pending = self.predicted_normals() is None
+        geometry_waits = pending and self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
+        finished = (
+            {}
+            if geometry_waits
+            else {
+                "geometry": (self.geometry_fingerprint(), ["gaussians.ply"]),
+                "masks": (self.masks_fingerprint(), ["masks.pt"]),
+                "lift": (self.lift_fingerprint(), ["projected.pt"]),
+            }
+        )
         if self.points_fp:
             finished["points"] = (self.points_fp, [POINTS_FILE])
         done = frozenset(stage for stage, (fp, files) in finished.items() if self.run.stage_done(stage, fp, files))
         to_refine = [
-            v for v in names if not self.run.stage_done(asset_stage(v), self.refine_fingerprint(v), ["asset.ply"])
+            v
+            for v in names
+            if pending or not self.run.stage_done(asset_stage(v), self.refine_fingerprint(v), ["asset.ply"])
         ]
         return run_work(
             [(v.width, v.height) for v in self.scene.train],

@@ -99,7 +99,8 @@ class RefineConfig:
     normal_prior_weight: float = 0.1  # weight of 1 - |cos| between each refined normal and the geometry's: the photo
     # loss alone also turns normals to fake shading that the materials get wrong
     predicted_normal_weight: float = 0.0  # weight of 1 - |cos| between the rendered normals and the view's predicted
-    # normal map (when the predictor gives one), per object pixel: the 2D model's normals as a target
+    # normal map (when the predictor gives one), per object pixel: the 2D model's normals as a target (a run's
+    # default is `config.NORMAL_PRIOR_WEIGHT`, in the variants that read the 2D maps, where they have normal maps)
     basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"

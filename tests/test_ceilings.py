@@ -337,15 +337,15 @@ def test_a_configuration_that_trains_its_own_geometry_gets_its_own_lifted_truth(
     pytest.importorskip("mitsuba")
     out = tmp_path / "g"
     common = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--out", str(out)]
-    argv = common + ["--variants", "full", "proj-average", "--no-progress", "--geometry", "predicted_normal_weight=1"]
+    argv = common + ["--variants", "full", "proj-average", "--no-progress", "--geometry", "predicted_normal_weight=0.5"]
     assert generalise(argv) == 0
     printed = capsys.readouterr().out
     runs = out / "objects" / "dev-00-seed1000" / "runs"
     (run,) = runs.glob("paper-matspray-*")
     assert "geometry shared" not in printed and "geometry" in json.loads((run / "timings.json").read_text())
-    assert '"predicted_normal_weight": 1.0' in (run / "geometry" / "stage.json").read_text()
+    assert '"predicted_normal_weight": 0.5' in (run / "geometry" / "stage.json").read_text()
     report = json.loads(next(out.glob("results-*.json")).read_text())
-    assert report["settings"]["geometry_overrides"] == {"predicted_normal_weight": 1.0}
+    assert report["settings"]["geometry_overrides"] == {"predicted_normal_weight": 0.5}
     key = run.name[len("paper-") :]
     rows = ["proj-average", "lifted truth"]
     assert main(common + ["--configuration", key, "--rows", *rows]) == 0

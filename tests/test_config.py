@@ -9,7 +9,14 @@ import torch
 import yaml
 
 from matspray.cli.options import ADDITION_CHOICES, VARIANT_CHOICES
-from matspray.config import ADDITION_NAMES, ADDITIONS, PipelineConfig, build_config, with_setting
+from matspray.config import (
+    ADDITION_NAMES,
+    ADDITIONS,
+    NORMAL_PRIOR_WEIGHT,
+    PipelineConfig,
+    build_config,
+    with_setting,
+)
 from matspray.errors import SettingError
 from matspray.lift import LiftConfig
 from matspray.merger import MergerConfig, fill_unseen, prepare_values
@@ -23,8 +30,13 @@ from matspray.variants import VARIANT_NAMES
 def test_defaults_are_the_demo_preset_of_the_default_method():
     assert PipelineConfig() == build_config("demo")
     assert PipelineConfig().method == "matspray"
-    assert build_config("demo").refine == RefineConfig() and build_config("demo").lift == LiftConfig()
-    assert RefineConfig().merger == MergerConfig()
+    prior = NORMAL_PRIOR_WEIGHT  # a run's default, where its 2D maps have normal maps; the stages alone default to 0
+    assert build_config("demo").refine == RefineConfig(predicted_normal_weight=prior)
+    assert build_config("demo").lift == LiftConfig() and RefineConfig().merger == MergerConfig()
+    for preset in ("test", "demo", "paper"):
+        for method in ("matspray", "paper"):  # the paper trains on its 2D model's normals too
+            config = build_config(preset, method)
+            assert config.geometry.predicted_normal_weight == config.refine.predicted_normal_weight == prior > 0
 
 
 def test_paper_method_sets_every_switch_as_the_paper_and_config_yaml_records_it(tmp_path):

@@ -289,6 +289,8 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
         "--refine",
         "iterations=4",
         "light_warmup=2",
+        "--geometry",
+        "predicted_normal_weight=0",  # a geometry that follows no model's normals is shared by the models
         "--out",
         str(out),
         "--no-progress",
@@ -347,8 +349,9 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     )
     fewer = json.loads((out / "results-paper-fewer.json").read_text())
     assert set(fewer["models"]["paper"]["objects"][0]["figures"]["relight"]) == {"full"}
-    # the default configuration runs in `runs/paper`; another configuration of the default method starts
-    # from its predictions and lift and keeps them where its settings leave them unchanged
+    # the default configuration runs in `runs/paper`, its geometry trained on the model's normals; another
+    # configuration of the default method starts from its predictions, geometry and lift and keeps them where its
+    # settings leave them unchanged
     base = [
         "--set",
         "dev",
@@ -365,9 +368,10 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
         "--no-progress",
     ]
     assert main(base) == 0
-    assert "geometry shared from" in capsys.readouterr().out and (runs / "paper" / "lift" / "stage.json").exists()
+    assert "geometry shared from" not in capsys.readouterr().out and (runs / "paper" / "lift" / "stage.json").exists()
+    assert '"predicted_normal_weight": 1.0' in (runs / "paper" / "geometry" / "stage.json").read_text()
     assert main(base + ["--without", "light-warmup"]) == 0
-    assert "starts from paper's materials2d, lift (redone where" in capsys.readouterr().out
+    assert "starts from paper's materials2d, geometry, lift (redone where" in capsys.readouterr().out
     other = next(p for p in runs.glob("paper-matspray-*"))
     assert (other / "lift" / "stage.json").read_text() == (runs / "paper" / "lift" / "stage.json").read_text()
     assert not {"materials2d", "lift", "geometry"} & set(

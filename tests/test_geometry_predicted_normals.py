@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 
 from matspray.data.scene import Scene
-from matspray.errors import ConfigError, SettingError
+from matspray.errors import SettingError
 from matspray.geometry.analytic import analytic_views
 from matspray.geometry.checkpoint import load_checkpoint
 from matspray.geometry.config import preset
@@ -113,7 +113,7 @@ def test_a_weight_without_normal_maps_is_refused(tmp_path):
 
 
 def test_runs_made_before_the_setting_keep_their_fingerprint_and_checkpoint(tmp_path):
-    config = preset("test")
+    config = replace(preset("test"), predicted_normal_weight=0.0)  # off, as a run without normal maps trains
     before = {k: v for k, v in asdict(config).items() if k != "predicted_normal_weight"}  # the settings then
     assert fingerprint("geometry", "data", config.identity()) == fingerprint("geometry", "data", before)
     on = replace(config, predicted_normal_weight=0.5)
@@ -130,8 +130,10 @@ def test_the_pipeline_trains_geometry_on_the_predictors_normals(tiny_object, tmp
     from matspray.config import build_config
     from matspray.pipeline import Pipeline
 
-    config = build_config("test", predictor="simulated:dr", **{"geometry.predicted_normal_weight": 1.0})
+    config = build_config("test", predictor="simulated:dr")  # on by default
     with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lambda _: None) as pipeline:
+        work = pipeline.work()  # the estimate before anything ran: the geometry waits on predictions it must not make
+        assert work.geometry > 0 and not (tmp_path / "run" / "materials2d").exists()
         targets = pipeline.geometry_normal_targets()
         assert targets is not None and len(targets) == len(pipeline.scene.train)
         # they are the predictor's maps, in world space, on the object
@@ -148,12 +150,18 @@ def test_the_pipeline_trains_geometry_on_the_predictors_normals(tiny_object, tmp
         assert pipeline.geometry_fingerprint() != fp_dr
 
 
-def test_the_pipeline_refuses_a_weight_it_cannot_use(tiny_object, tmp_path):
+def test_a_run_without_a_predictor_trains_its_geometry_without_normals(tiny_object, tmp_path):
     from matspray.config import build_config
     from matspray.pipeline import Pipeline
 
-    config = build_config("test", predictor="none", **{"geometry.predicted_normal_weight": 1.0})
-    with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lambda _: None) as pipeline:
-        with pytest.raises(ConfigError, match=r"is 1.0, but the run has no predictor \(--predictor none\); or set"):
-            pipeline.geometry()
-    assert not (tmp_path / "run" / "geometry" / "gaussians.ply").exists()
+    lines = []
+    config = build_config("test", predictor="none")
+    off = replace(config, geometry=replace(config.geometry, predicted_normal_weight=0.0))
+    with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lines.append) as pipeline:
+        assert config.geometry.predicted_normal_weight > 0
+        assert pipeline.geometry_config().predicted_normal_weight == 0.0
+        assert pipeline.geometry_normal_targets() is None
+        fp = pipeline.geometry_fingerprint()
+    with Pipeline(tiny_object, tmp_path / "off", off, progress=False, log=lambda _: None) as pipeline:
+        assert pipeline.geometry_fingerprint() == fp  # the geometry of a run made before the default
+    assert lines == [] and not (tmp_path / "run" / "materials2d").exists()  # nothing predicted, nothing to say

@@ -105,15 +105,42 @@ def test_the_simulated_predictors_normal_maps_reach_refinement_in_world_space(ti
     assert "predicted_normals" in history[-1]
 
 
-def test_a_weight_on_predicted_normals_without_any_is_refused_naming_the_folder(tiny_object, finished_run):
-    from matspray.errors import ConfigError
+def test_maps_without_normals_refine_without_them_and_say_so(tiny_object, tmp_path):
+    """The predicted-normal weights are on by default; a run whose 2D maps have no normal maps (here: a dataset without
+    true normals, from which the simulated predictor makes none) trains and refines without them, with one line each
+    naming the folder, and its fingerprints are those of the weights at 0."""
+    import shutil
 
-    config = replace(tiny_config(), refine=replace(tiny_config().refine, predicted_normal_weight=1.0))
-    pipeline = Pipeline(tiny_object, finished_run, config, progress=False, log=lambda _: None)
-    maps = pipeline.predict()
-    pipeline.predict = lambda: {name: replace(m, normals=None) for name, m in maps.items()}  # a predictor without
-    with pytest.raises(ConfigError, match=r"predicted_normal_weight is 1.0, but .*materials2d\) have no normal maps"):
-        pipeline.refine_inputs()
+    data = tmp_path / "data"
+    shutil.copytree(tiny_object, data)
+    for normal in data.rglob("*_normal.exr"):
+        normal.unlink()
+    config = replace(tiny_config(), visibility=None)
+    assert config.geometry.predicted_normal_weight > 0 and config.refine.predicted_normal_weight > 0  # the defaults
+    lines = []
+    pipeline = Pipeline(data, tmp_path / "run", config, progress=False, log=lines.append)
+    inputs = pipeline.refine_inputs()
+    assert inputs.normal_maps is None
+    folder = str(tmp_path / "run" / "materials2d")
+    for stage in ("geometry", "refinement"):
+        assert [line for line in lines if line.startswith(f"{stage}: the 2D maps ({folder}) have no normal maps")]
+    off = replace(
+        config,
+        geometry=replace(config.geometry, predicted_normal_weight=0.0),
+        refine=replace(config.refine, predicted_normal_weight=0.0),
+    )
+    with Pipeline(data, tmp_path / "run", off, progress=False, log=lambda _: None) as without:
+        assert without.geometry_fingerprint() == pipeline.geometry_fingerprint()
+        assert without.refine_fingerprint("full") == pipeline.refine_fingerprint("full")
+    pipeline.close()
+
+
+def test_only_variants_that_read_the_maps_refine_towards_their_normals(tiny_object, finished_run):
+    pipeline = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
+    assert pipeline.predicted_normals() is True
+    assert pipeline.refine_config("full").predicted_normal_weight == 1.0
+    assert pipeline.refine_config("no-prior").predicted_normal_weight == 0.0  # the variant without a 2D prior
+    pipeline.close()
 
 
 def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):

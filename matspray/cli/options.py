@@ -135,7 +135,7 @@ SETTING_FLAGS = {
         "refine.predicted_normal_weight",
         float,
         "with a predictor that gives normal maps: weight of their angle to the rendered normals during refinement "
-        "(default 0: not used)",
+        "(default 1; 0: not used; a run whose 2D maps have no normals refines without them)",
     ),
     "--object-bounds": (
         "object_bounds",

@@ -56,7 +56,8 @@ class GeometryConfig:
     random_background: bool = True  # composite on a random colour each step (data with masks)
     # 1 - |cos| between the 2D predictor's normal maps (world space) and the rendered normals (every step) and the
     # normals of the rendered depth (after `normal_from`), over the object: the paper's treatment of specular
-    # objects ("we train Gaussian Splatting on DiffusionRenderer normals"); 0: off
+    # objects ("we train Gaussian Splatting on DiffusionRenderer normals"); 0: off (a run's default is
+    # `config.NORMAL_PRIOR_WEIGHT`, where its 2D maps have normal maps)
     predicted_normal_weight: float = 0.0
 
     # object focus, for captures without masks (a scene with masks trains on its object alone): after this fraction

@@ -24,6 +24,7 @@ from matspray.data.camera import Camera
 from matspray.data.images import linear_to_srgb, read_raw, resize, srgb_to_linear, write_raw
 from matspray.data.scene import View
 from matspray.errors import DataError, MatsprayError, file_error
+from matspray.material import stack
 from matspray.predictors.mapfile import read_color_map, read_scalar_map
 from matspray.predictors.normalmaps import NORMAL_SPACES, camera_to_world, normal_problem, renormalised
 from matspray.rundir import stage_hint
@@ -125,6 +126,23 @@ def world_normals(
     if space not in NORMAL_SPACES:
         raise DataError(f"normal space '{space}' is not one of {', '.join(NORMAL_SPACES)}")
     return normals if space == "world" else camera_to_world(normals, camera)
+
+
+def maps_to_tensor(maps: MaterialMaps) -> Tensor:  # -> [H, W, 5]
+    return stack(maps.basecolor, maps.roughness, maps.metallic)
+
+
+def predicted_normal_maps(maps: dict, views: list) -> list[torch.Tensor] | None:
+    """The views' predicted normal maps in world space [H, W, 3] (zero where a view has none), or None when the
+    predictor gave no normals at all."""
+    if not any(maps[v.name].normals is not None for v in views):
+        return None
+    return [
+        world_normals(maps[v.name], v.camera)
+        if maps[v.name].normals is not None
+        else torch.zeros(v.height, v.width, 3, device=v.camera.viewmat.device)
+        for v in views
+    ]
 
 
 def map_path(folder: Path, view_name: str, channel: str) -> Path:
