@@ -28,6 +28,13 @@ class ViewerExit:
     err: str
 
 
+def interruptible() -> None:
+    """In the viewer's process before it starts: Ctrl+C as a terminal gives it. A test run started in the background
+    of a non-interactive shell (`bash .ci/run &`) has SIGINT ignored, which the viewer would inherit; Python then
+    installs no KeyboardInterrupt handler, and Ctrl+C never stops it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def serve_then_interrupt(command: list[str], port: int, stop_timeout: float, cwd=None, env=None) -> ViewerExit:
     """Start the viewer `command` (listening on `port`), wait for its ready line, fetch its page, send Ctrl+C and wait
     up to `stop_timeout` s for it to exit; a viewer that is still running then is aborted and the test fails with
@@ -35,7 +42,15 @@ def serve_then_interrupt(command: list[str], port: int, stop_timeout: float, cwd
     import urllib.request
 
     env = {**(os.environ if env is None else env), "PYTHONFAULTHANDLER": "1"}
-    viewer = subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    viewer = subprocess.Popen(
+        command,
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=interruptible,
+    )
     lines: list[str] = []
     try:
         while not lines or READY not in lines[-1]:
