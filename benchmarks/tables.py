@@ -49,6 +49,7 @@ def short(name: str) -> str:
 
 # ------------------------------------------------------------------------------------------ generalisation
 EVAL_NOPRIOR = "generalise-eval-noprior.json"
+EVAL_NORMALS = "generalise-eval-normals.json"  # the same three models with predicted normals on (the default since)
 DEV_NOPRIOR = "generalise-dev-noprior-s38.json"
 
 
@@ -138,13 +139,12 @@ def table_generalise_eval(results: Path) -> str:
     return "\n".join(lines).rstrip()
 
 
-def table_headline(results: Path) -> str:
+def table_headline(results: Path, name: str = EVAL_NORMALS) -> str:
     """README: means over the evaluation set per error model, full method against no-prior and the 2D maps."""
-    report = read(results, EVAL_NOPRIOR)
+    report = read(results, name)
     lines = [
-        "| error model | relight full | relight no-prior | base colour full / no-prior / 2D | roughness "
-        "full / no-prior / 2D "
-        "| metallic full / no-prior / 2D | full > no-prior |",
+        "| error model | relight full | relight no-prior | base colour full / no-prior / 2D | roughness full / "
+        "no-prior / 2D | metallic full / no-prior / 2D | full > no-prior |",
         "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for model in [m for m in MODELS if m in report["models"]]:
@@ -224,8 +224,7 @@ def object_figures(results: Path, names: list[str], model: str) -> dict:
 
 def table_resolutions(results: Path, models=("dr",), low=(EVAL_DR,), high=(EVAL_DR_256,)) -> str:
     """The evaluation set at 128 px (`low` results files) and at 256 px (`high`), object by object (those done at
-    both): what the lift's resolution changes in full's gain over proj-average and in full's 3D materials against
-    the 2D predictions."""
+    both): what the resolution changes in full's gain over proj-average and in its 3D materials against the 2D maps."""
     channels = ("basecolor", "roughness", "metallic")
     lead = ["error model"] if len(models) > 1 else []
     lines = [
@@ -518,7 +517,8 @@ def table_demo_backends(results: Path) -> str:
 
 # name -> (function of the results folder, the result files it reads)
 TABLES = {
-    "headline": (table_headline, [EVAL_NOPRIOR]),
+    "headline": (table_headline, [EVAL_NORMALS]),
+    "normals-eval": (partial(table_models_eval, name=EVAL_NORMALS), [EVAL_NORMALS]),
     "captures-headline": (table_captures_headline, [f"real-captures-{n}.json" for n in CAPTURES]),
     "no-prior-dev": (table_noprior_dev, [DEV_NOPRIOR]),
     "no-prior-eval": (table_noprior_eval, [EVAL_NOPRIOR]),
