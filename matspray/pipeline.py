@@ -148,6 +148,7 @@ class Pipeline:
         self._frozen_views: FrozenViews | None = None  # their blending weights, shared by the variants refined
         self._warmed_lights: dict = {}  # light warm-ups, shared by variants that start alike (refine.warm_up_key)
         self._cropped, self._crop_region = False, None  # whether crop() has run, and the region it cut around
+        self._normals_given: bool | None = None  # whether the 2D maps have normal maps, once they are predicted
 
     def close(self) -> None:
         """Lets the run folder go (see __init__); the pipeline must not write after this."""
@@ -239,22 +240,27 @@ class Pipeline:
         return self._crop_region
 
     def predicted_normals(self) -> bool | None:
-        """Whether this run's 2D maps carry normal maps; None while they are not predicted yet."""
+        """Whether the 2D maps carry normal maps; None until predicted (then kept: their fingerprint is fixed)."""
+        if self._normals_given is not None:
+            return self._normals_given
         if not self.has_maps:
-            return False
-        if not self.run.stage_done("materials2d", self.predict_fingerprint(), ["predictor.json"]):
-            return None
-        return "normal_space" in read_predictor_info(self.run.root)  # recorded exactly when normal files are
+            self._normals_given = False
+        elif self.run.stage_done("materials2d", self.predict_fingerprint(), ["predictor.json"]):
+            self._normals_given = "normal_space" in read_predictor_info(self.run.root)  # recorded when normal files are
+        return self._normals_given
+
+    def maps_have_normals(self) -> bool:
+        """`predicted_normals`, predicting the maps first where they are not yet."""
+        if self.predicted_normals() is None:
+            self.predict()
+        return bool(self.predicted_normals())
 
     def geometry_config(self) -> GeometryConfig:
-        """The geometry settings as they apply to this dataset: the object focus only to a capture without masks, and
-        the predicted normals only where the 2D maps have them (predicted first, since the geometry then follows
-        them). A capture without masks trains without them: its masks, which the predictor sees, come from the
-        geometry."""
+        """The geometry settings as they apply to this dataset: the object focus only to a capture without masks, the
+        predicted normals only where the 2D maps have them (predicted first), and not to a capture without masks,
+        whose masks, which the predictor sees, come from the geometry."""
         config = self.config.geometry.for_scene(masked=not self.unmasked)
-        if config.predicted_normal_weight > 0 and not self.unmasked and self.predicted_normals() is None:
-            self.predict()
-        if config.predicted_normal_weight > 0 and (self.unmasked or not self.predicted_normals()):
+        if config.predicted_normal_weight > 0 and (self.unmasked or not self.maps_have_normals()):
             config = replace(config, predicted_normal_weight=0.0)
         return config
 
@@ -510,11 +516,9 @@ class Pipeline:
         """The refinement settings of `variant` in this run: the predicted normals only in a variant that reads the 2D
         maps, and only where they have normal maps."""
         config = variant_refine_config(self.config, variant)
-        if config.predicted_normal_weight <= 0 or not get_variant(variant).uses_maps:
-            return replace(config, predicted_normal_weight=0.0)
-        if self.predicted_normals() is None:
-            self.predict()
-        return config if self.predicted_normals() else replace(config, predicted_normal_weight=0.0)
+        if not (get_variant(variant).uses_maps and config.predicted_normal_weight > 0 and self.maps_have_normals()):
+            config = replace(config, predicted_normal_weight=0.0)
+        return config
 
     def refine(self, variant: str = "full") -> Asset:
         variants_for_maps([variant], self.has_maps)  # a variant that reads 2D maps is refused in a run without them
@@ -559,15 +563,11 @@ class Pipeline:
         # follows their normals
         pending = self.predicted_normals() is None
         geometry_waits = pending and self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
-        finished = (
-            {}
-            if geometry_waits
-            else {
-                "geometry": (self.geometry_fingerprint(), ["gaussians.ply"]),
-                "masks": (self.masks_fingerprint(), ["masks.pt"]),
-                "lift": (self.lift_fingerprint(), ["projected.pt"]),
-            }
-        )
+        finished = {}
+        if not geometry_waits:
+            finished["geometry"] = (self.geometry_fingerprint(), ["gaussians.ply"])
+            finished["masks"] = (self.masks_fingerprint(), ["masks.pt"])
+            finished["lift"] = (self.lift_fingerprint(), ["projected.pt"])
         if self.points_fp:
             finished["points"] = (self.points_fp, [POINTS_FILE])
         done = frozenset(stage for stage, (fp, files) in finished.items() if self.run.stage_done(stage, fp, files))
