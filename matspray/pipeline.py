@@ -32,13 +32,7 @@ from matspray.geometry.train import prepare_views, train_geometry
 from matspray.lift import LiftResult, lift, load_lift, save_lift
 from matspray.merger import mlp_dtype
 from matspray.objectcrop import crop_stage
-from matspray.objectmasks import (
-    ObjectMasks,
-    compute_object_masks,
-    read_object_masks,
-    read_region,
-    write_object_masks,
-)
+from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, read_region, write_object_masks
 from matspray.objectregion import ObjectRegion
 from matspray.predictors import (
     NO_PREDICTOR,
@@ -207,12 +201,14 @@ class Pipeline:
 
     # ---------------------------------------------------------------- geometry
     def geometry_fingerprint(self) -> str:
-        # trained on predicted normals, the geometry depends on the predictions too
-        upstream = [self.predict_fingerprint()] if self.geometry_config().predicted_normal_weight > 0 else []
+        # trained on predicted normals or split on the maps' edges, the geometry depends on the predictions too
+        config = self.geometry_config()
+        on_maps = config.predicted_normal_weight > 0 or config.material_edge_threshold > 0
+        upstream = [self.predict_fingerprint()] if on_maps else []
         upstream += [self.points_fp] if self.points_fp else []  # none for masked scenes: their fingerprint is kept
         crop = self.crop_fingerprint()
         upstream += [crop] if crop else []
-        return fingerprint("geometry", self.dataset_fp, self.geometry_config().identity(), *upstream)
+        return fingerprint("geometry", self.dataset_fp, config.identity(), *upstream)
 
     # ---------------------------------------------------------------- crop (captures without masks)
     def crop_fingerprint(self) -> str | None:
@@ -257,11 +253,13 @@ class Pipeline:
 
     def geometry_config(self) -> GeometryConfig:
         """The geometry settings as they apply to this dataset: the object focus only to a capture without masks, the
-        predicted normals only where the 2D maps have them (predicted first), and not to a capture without masks,
-        whose masks, which the predictor sees, come from the geometry."""
+        predicted normals only where the 2D maps have them (predicted first), the material edges where there are maps,
+        and neither to a capture without masks, whose masks, which the predictor sees, come from the geometry."""
         config = self.config.geometry.for_scene(masked=not self.unmasked)
         if config.predicted_normal_weight > 0 and (self.unmasked or not self.maps_have_normals()):
             config = replace(config, predicted_normal_weight=0.0)
+        if config.material_edge_threshold > 0 and (self.unmasked or not self.has_maps):
+            config = replace(config, material_edge_threshold=0.0)
         return config
 
     def without_normals_note(self, stage: str) -> None:
@@ -288,6 +286,7 @@ class Pipeline:
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             normal_targets = self.geometry_normal_targets()
+            maps = self.predict() if self.geometry_config().material_edge_threshold > 0 else None
             if self.points_fp and self.scene.points is None:  # (the crop may have read them already)
                 points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
             with self._working("geometry") as (t, use):
@@ -298,6 +297,7 @@ class Pipeline:
                     device=self.device,
                     progress=self.progress,
                     normal_targets=normal_targets,
+                    material_maps=maps and [maps_to_tensor(maps[v.name]) for v in self.scene.train],
                     object_bounds=self.config.object_bounds,
                     focus_region=focus_region,
                 )

@@ -46,6 +46,10 @@ class GeometryConfig:
     max_screen_fraction: float = 0.15  # prune Gaussians wider than this fraction of the image (after a reset)
     max_world_fraction: float = 0.1  # ... or larger than this fraction of the scene extent
     max_gaussians: int = 40000
+    # split Gaussians whose footprint straddles an edge of the 2D material maps (a change of base colour, roughness or
+    # metallic of at least this much in it, averaged over the views that see it; matspray.geometry.material_edges), so
+    # that one Gaussian does not carry two materials into the lift; 0: off. Needs the run's 2D maps
+    material_edge_threshold: float = 0.0
 
     # losses
     ssim_weight: float = 0.2  # L = (1 - w) L1 + w (1 - SSIM) on sRGB values
@@ -93,7 +97,14 @@ class GeometryConfig:
             raise SettingError("predicted_normal_weight", f"must be >= 0, got {self.predicted_normal_weight}")
         if self.focus_grad_scale <= 0:
             raise SettingError("focus_grad_scale", f"must be > 0, got {self.focus_grad_scale}")
-        for name in ("ssim_weight", "normal_from", "init_opacity", "focus_from", "background_budget"):
+        for name in (
+            "ssim_weight",
+            "normal_from",
+            "init_opacity",
+            "focus_from",
+            "background_budget",
+            "material_edge_threshold",
+        ):
             if not 0 <= getattr(self, name) <= 1:
                 raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
 
@@ -112,7 +123,13 @@ class GeometryConfig:
 
 
 # settings added after geometry runs existed -> the value under which training is what it was before them
-ADDED_LATER = {"predicted_normal_weight": 0.0, "focus_from": 0.0, "focus_grad_scale": 1.0, "background_budget": 1.0}
+ADDED_LATER = {
+    "predicted_normal_weight": 0.0,
+    "focus_from": 0.0,
+    "focus_grad_scale": 1.0,
+    "background_budget": 1.0,
+    "material_edge_threshold": 0.0,
+}
 FOCUS = ("focus_from", "focus_grad_scale", "background_budget")  # the object focus settings (captures without masks)
 
 

@@ -1,6 +1,7 @@
 """Adaptive density control of 3DGS: clone small and split large Gaussians whose projected centres
-receive large gradients, prune transparent or oversized ones, reset opacities now and then. In a capture
-without masks, once the object region is known (`DensityControl.focus`), only the object's Gaussians grow."""
+receive large gradients, prune transparent or oversized ones, reset opacities now and then. With the run's 2D
+material maps, Gaussians that straddle a material edge are split too (`matspray.geometry.material_edges`). In a
+capture without masks, once the object region is known (`DensityControl.focus`), only the object's Gaussians grow."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from torch import Tensor
 
 from matspray.gaussians import Gaussians
 from matspray.geometry.config import GeometryConfig
+from matspray.geometry.material_edges import footprint_edges
 from matspray.geometry.optim import GaussianOptimizer
 from matspray.objectregion import ObjectRegion
 from matspray.render.output import RasterOutput
@@ -33,9 +35,11 @@ class DensityControl:
         self.grad_sum = torch.zeros(num_gaussians, device=device)  # summed |d loss / d mean2d| (NDC units)
         self.count = torch.zeros(num_gaussians, device=device)  # views in which the Gaussian was visible
         self.max_radius = torch.zeros(num_gaussians, device=device)  # largest 3-sigma radius, fraction of the image
+        self.edge_sum = torch.zeros(num_gaussians, device=device)  # summed material edge strength in its footprint
 
-    def observe(self, out: RasterOutput, width: int, height: int) -> None:
-        """Record one view's statistics; call after backward, with out.retain_screen_grads() done before."""
+    def observe(self, out: RasterOutput, width: int, height: int, edges: Tensor | None = None) -> None:
+        """Record one view's statistics; call after backward, with out.retain_screen_grads() done before.
+        edges: the view's material edge levels [L, H, W] (`TrainingView.material_edges`), or None."""
         grads = out.screen_absgrads if self.config.absgrad else out.screen_grads
         if grads is None:
             raise RuntimeError(
@@ -51,6 +55,9 @@ class DensityControl:
         self.count += visible
         radius = out.radii.detach().to(self.max_radius) / max(width, height)
         self.max_radius = torch.where(visible, torch.maximum(self.max_radius, radius), self.max_radius)
+        if edges is not None and self.config.material_edge_threshold > 0:
+            strength = footprint_edges(edges, out.means2d, out.radii).to(self.edge_sum)
+            self.edge_sum += torch.where(visible, strength, 0.0)
 
     def step(self, iteration: int, optimizer: GaussianOptimizer, generator: torch.Generator) -> str:
         """Apply the schedule after optimisation step `iteration` (0-based); returns what it did ('' if nothing)."""
@@ -73,17 +80,25 @@ class DensityControl:
         c = self.config
         g = optimizer.gaussians().detach()
         n = len(g)
-        grads = torch.where(self.count > 0, self.grad_sum / self.count.clamp_min(1), torch.zeros_like(self.grad_sum))
+        seen = self.count.clamp_min(1)
+        grads = torch.where(self.count > 0, self.grad_sum / seen, torch.zeros_like(self.grad_sum))
         inside = self.inside(g.means)
         threshold = c.grad_threshold if self.region is None else c.grad_threshold * c.focus_grad_scale
-        candidates = inside & (grads >= threshold)
+        # each Gaussian's score: its gradient, or its material edge strength brought to the gradient's threshold
+        score, on_edge = grads, torch.zeros_like(inside)
+        if c.material_edge_threshold > 0:
+            edges = self.edge_sum / seen * (threshold / c.material_edge_threshold)  # [N]
+            on_edge = inside & (edges >= threshold) & (edges > grads)
+            score = torch.maximum(grads, edges)
+        candidates = inside & (score >= threshold)
         budget = max(0, c.max_gaussians - n)
-        if int(candidates.sum()) > budget:  # over the cap: only the strongest gradients grow
-            order = torch.argsort(torch.where(candidates, grads, torch.full_like(grads, -1.0)), descending=True)
+        if int(candidates.sum()) > budget:  # over the cap: only the strongest grow
+            order = torch.argsort(torch.where(candidates, score, torch.full_like(score, -1.0)), descending=True)
             candidates = torch.zeros_like(candidates)
             candidates[order[:budget]] = True
         largest = g.scales.max(dim=-1).values
-        clone = candidates & (largest <= c.percent_dense * self.extent)
+        # a copy in place would straddle the same edge: Gaussians on an edge are split into smaller ones
+        clone = candidates & (largest <= c.percent_dense * self.extent) & ~on_edge
         split = candidates & ~clone
         children = split_gaussians(g.subset(split), generator)
         appended = concat([g.subset(clone), children])
@@ -98,8 +113,9 @@ class DensityControl:
         keep = ~(prune | split)
         optimizer.edit(keep, appended)
         self.reset_stats(len(optimizer.params["means"]), grads.device)
+        edge_note = f" ({int((split & on_edge).sum())} on material edges)" if c.material_edge_threshold > 0 else ""
         return (
-            f"+{int(clone.sum())} cloned, +{len(children)} split from {int(split.sum())}, "
+            f"+{int(clone.sum())} cloned, +{len(children)} split from {int(split.sum())}{edge_note}, "
             f"-{int((prune & ~split).sum())} pruned"
         )
 
@@ -163,12 +179,20 @@ def concat(parts: list[Gaussians]) -> Gaussians:
 
 def stats_state(control: DensityControl) -> dict:
     region = None if control.region is None else control.region.to_json()
-    return {"grad_sum": control.grad_sum, "count": control.count, "max_radius": control.max_radius, "region": region}
+    return {
+        "grad_sum": control.grad_sum,
+        "count": control.count,
+        "max_radius": control.max_radius,
+        "edge_sum": control.edge_sum,
+        "region": region,
+    }
 
 
 def load_stats_state(control: DensityControl, state: dict, device=None) -> None:
     control.grad_sum, control.count, control.max_radius = (
         state[name].to(device) for name in ("grad_sum", "count", "max_radius")
     )
+    # checkpoints from before the material edges have none
+    control.edge_sum = state.get("edge_sum", torch.zeros_like(control.grad_sum)).to(device)
     region = state.get("region")  # checkpoints from before the object focus have none
     control.region = None if region is None else ObjectRegion.from_json(region)

@@ -24,6 +24,7 @@ from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl
 from matspray.geometry.evaluate import render_view
 from matspray.geometry.losses import flatten_loss, normal_consistency_loss, normal_map_loss, photometric_loss
+from matspray.geometry.material_edges import view_edge_levels
 from matspray.geometry.normals import depth_normals_along
 from matspray.geometry.optim import GaussianOptimizer
 from matspray.graphs import Graphed
@@ -41,16 +42,23 @@ class TrainingView:
     mask: Tensor  # [H, W] its alpha, or ones where it is not used
     directions: Tensor  # [H, W, 3] world-space ray of each pixel centre, scaled to camera z = 1
     predicted_normals: Tensor  # [H, W, 3] the 2D predictor's normals in world space; zero where it gave none
+    material_edges: Tensor | None = None  # [L, H, W] the 2D maps' edge levels (geometry.material_edges), or None
 
     @staticmethod
-    def of(view: View, masked: bool, predicted_normals: Tensor | None = None) -> "TrainingView":
+    def of(
+        view: View, masked: bool, predicted_normals: Tensor | None = None, material_maps: Tensor | None = None
+    ) -> "TrainingView":
+        """material_maps: the view's 2D maps [h, w, 5] (any size), whose edges densification splits on."""
         mask = view.alpha if masked else torch.ones_like(view.image[..., 0])
         normals = torch.zeros_like(view.image) if predicted_normals is None else predicted_normals.to(view.image)
         if normals.shape != view.image.shape:
             raise ValueError(
                 f"view {view.name}: normal map {tuple(normals.shape)} for an image {tuple(view.image.shape)}"
             )
-        return TrainingView(view, masked, linear_to_srgb(view.image), mask, view.camera.pixel_directions(), normals)
+        edges = None if material_maps is None else view_edge_levels(material_maps.to(view.image), mask)
+        return TrainingView(
+            view, masked, linear_to_srgb(view.image), mask, view.camera.pixel_directions(), normals, edges
+        )
 
 
 def image_terms(
@@ -190,7 +198,7 @@ def training_step(
     if report:
         running.check(losses)
     total.backward()
-    density.observe(render.raster, target.view.width, target.view.height)
+    density.observe(render.raster, target.view.width, target.view.height, target.material_edges)
     optimizer.step()
     return density.step(iteration, optimizer, generator)
 

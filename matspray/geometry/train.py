@@ -78,6 +78,7 @@ def train_geometry(
     progress: bool = True,
     cuda_graphs: bool = True,
     normal_targets: list | None = None,
+    material_maps: list | None = None,
     object_bounds=None,
     focus_region: ObjectRegion | None = None,
 ) -> Gaussians:
@@ -91,6 +92,8 @@ def train_geometry(
     (matspray.geometry.step); False computes them op by op (the same values, for comparison).
     `normal_targets`: per training view of `scene`, a predicted normal map [H, W, 3] in world space at the view's
     size (zero where there is none); what `config.predicted_normal_weight` pulls the normals towards (needed then).
+    `material_maps`: per training view of `scene`, its 2D material maps [H, W, 5] (linear base colour, roughness,
+    metallic; any size), whose edges `config.material_edge_threshold` splits Gaussians on (needed then).
     `object_bounds`: a capture without masks focuses on this region (matspray.objectregion.given_region's numbers)
     instead of the automatic one, from `config.focus_from` on; `focus_region`: a region found before training (the
     photos' crop, matspray.data.crop) that it focuses on instead of either.
@@ -114,8 +117,15 @@ def train_geometry(
             f"is {config.predicted_normal_weight}, but no predicted normal maps were given: train with "
             "`matspray run` and a predictor that gives normals, or set it to 0",
         )
-    if normal_targets is not None and len(normal_targets) != len(train_views):
-        raise ValueError(f"{len(normal_targets)} normal maps for {len(train_views)} training views")
+    if config.material_edge_threshold > 0 and material_maps is None:
+        raise SettingError(
+            "material_edge_threshold",
+            f"is {config.material_edge_threshold}, but no 2D material maps were given: train with `matspray run` and "
+            "a predictor, or set it to 0",
+        )
+    for given, what in ((normal_targets, "normal maps"), (material_maps, "material maps")):
+        if given is not None and len(given) != len(train_views):
+            raise ValueError(f"{len(given)} {what} for {len(train_views)} training views")
     extent = scene_extent(train_views)
     generator = torch.Generator().manual_seed(config.seed)
 
@@ -151,7 +161,10 @@ def train_geometry(
     predicted = [None] * len(train_views)
     if config.predicted_normal_weight > 0:
         predicted = [resize_normal_map(n.to(device), v.height, v.width) for n, v in zip(normal_targets, train_views)]
-    targets = [TrainingView.of(v, masked, n) for v, n in zip(train_views, predicted)]
+    maps = [None] * len(train_views)
+    if config.material_edge_threshold > 0:
+        maps = [m.to(device) for m in material_maps]
+    targets = [TrainingView.of(v, masked, n, m) for v, n, m in zip(train_views, predicted, maps)]
     began = time.perf_counter() - elapsed
     bar = tqdm(
         range(start, config.iterations),
