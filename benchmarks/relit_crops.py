@@ -1,5 +1,7 @@
 """Relit crops of the object, before and after: the same held-out camera and light for several runs of one capture,
-each cropped to the object and brought to the same size, beside the photo (issue 55's "report before/after").
+each cropped to the object and brought to the same size, beside the photo (issue 55's "report before/after"); for a
+`matspray synth` object with relit truth under ENV (one of its held-out lights), beside that truth, lit by the
+object's own map of ENV.
 
     python -m benchmarks.relit_crops --runs BEFORE AFTER [--labels before after] --view 0009 [--env studio]
         --out docs/images/stitch_focus.png [--size 256]
@@ -17,7 +19,7 @@ from pathlib import Path
 from matspray.data import load_run_scene
 from matspray.data.images import write_image
 from matspray.eval.capture_report import RELIGHT_ENV_HEIGHT
-from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
+from matspray.eval.relit_crops import default_asset, relit_crops, relit_truth, same_capture
 from matspray.lights import load_envmap
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir
@@ -41,15 +43,21 @@ def main(argv=None) -> None:
     view = next((v for v in test if v.name == args.view), None)
     if view is None:
         parser.error(f"no test view {args.view} in {runs[0].dataset()['source']}: {', '.join(v.name for v in test)}")
-    name, env = load_envmap(args.env, height=RELIGHT_ENV_HEIGHT)  # as the capture report relights
-    light = EnvironmentMap.from_tensor(env, learnable=False).prefilter()
-    row = relit_crops([default_asset(run) for run in runs], view.camera, light, view.image, args.size)
+    truth = relit_truth(view, args.env)
+    if truth is not None:  # a synthetic object: its truth under that held-out light, and the light it was made with
+        reference, environment = truth
+        name, first = args.env, "the truth relit"
+    else:
+        name, env = load_envmap(args.env, height=RELIGHT_ENV_HEIGHT)  # as the capture report relights
+        reference, environment, first = view.image, EnvironmentMap.from_tensor(env, learnable=False), "photo"
+    light = environment.prefilter()
+    row = relit_crops([default_asset(run) for run in runs], view.camera, light, reference, args.size)
     if row is None:
         raise SystemExit(f"no run covers any pixel of view {args.view} with its object")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_image(args.out, row)
     labels = args.labels or [str(path) for path in args.runs]
-    print(f"wrote {args.out}: view {args.view} under {name}; columns: photo, " + ", ".join(labels))
+    print(f"wrote {args.out}: view {args.view} under {name}; columns: {first}, " + ", ".join(labels))
 
 
 if __name__ == "__main__":

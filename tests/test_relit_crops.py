@@ -52,3 +52,21 @@ def test_relit_crops_put_each_asset_at_the_same_size_over_grey():
     assert float((row[28:, 64 + 12 : 64 + 20] - GREY).abs().max()) < 1e-3
     assert float((whole_bottom - GREY).abs().max()) > 0.05
     assert relit_crops([Asset(gaussians.subset(keep & False), materials[:0], normals[:0])], camera, light) is None
+
+
+def test_a_synthetic_objects_reference_is_its_relit_truth_and_light(tiny_object):
+    from matspray.data import load_scene
+    from matspray.data.images import read_image
+    from matspray.eval.relit_crops import relit_truth
+
+    view = load_scene(tiny_object).test[0]
+    env = sorted(p.stem.removeprefix(f"{view.name}_relight_") for p in view.path.parent.glob(f"{view.name}_relight_*"))[
+        0
+    ]
+    image, light = relit_truth(view, env)
+    rgb, alpha = read_image(view.path.with_name(f"{view.name}_relight_{env}.png"))
+    assert alpha is not None and bool((alpha < 0.5).any())
+    torch.testing.assert_close(image, rgb * alpha[..., None] + GREY * (1 - alpha[..., None]))  # over grey
+    expected = EnvironmentMap.from_file(tiny_object / "envmaps" / f"{env}.exr", height=64)  # as `matspray eval` lights
+    torch.testing.assert_close(light.log_map, expected.log_map)
+    assert relit_truth(view, "no-such-light") is None  # a capture's view, or a light it was not relit under

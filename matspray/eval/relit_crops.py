@@ -14,9 +14,12 @@ from torch import Tensor
 
 from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
-from matspray.data.images import resize
+from matspray.data.images import read_image, resize
+from matspray.data.scene import View
 from matspray.errors import DataError
+from matspray.eval.run_eval import EVAL_ENV_HEIGHT
 from matspray.relight import render_relit
+from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir
 
 GREY = 0.5  # linear background of the crops: neither the photo's backdrop nor a light
@@ -53,6 +56,20 @@ def square_box(alphas: list[Tensor]) -> tuple[int, int, int] | None:  # alphas: 
     top = min(max((int(rows.min()) + int(rows.max()) - side) // 2, 0), height - side)
     left = min(max((int(cols.min()) + int(cols.max()) - side) // 2, 0), width - side)
     return top, left, side
+
+
+def relit_truth(view: View, env: str) -> tuple[Tensor, EnvironmentMap] | None:
+    """A synthetic object's truth for `view` relit under its held-out light `env` (`test/VIEW_relight_ENV.png`, over
+    GREY by its alpha, linear) and that light (`envmaps/ENV.exr` beside the views, as `matspray eval` relights);
+    None where the dataset has neither (a capture: its photo is the reference)."""
+    image = view.path.with_name(f"{view.name}_relight_{env}.png")
+    light = view.path.parent.parent / "envmaps" / f"{env}.exr"
+    if not (image.is_file() and light.is_file()):
+        return None
+    rgb, alpha = read_image(image)
+    if alpha is not None:
+        rgb = rgb * alpha[..., None] + GREY * (1 - alpha[..., None])
+    return rgb, EnvironmentMap.from_file(light, height=EVAL_ENV_HEIGHT)
 
 
 def crop(image: Tensor, box: tuple[int, int, int], size: int) -> Tensor:  # [H, W, C] -> [size, size, C]
