@@ -48,6 +48,7 @@ from matspray.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
+from matspray.geometry.config import GeometryConfig
 from matspray.lights import BUILTINS, hdri_files
 from matspray.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
@@ -216,10 +217,25 @@ def object_config(config, spec: ObjectSpec):
 
 
 # ------------------------------------------------------------------------------------------ geometry once
-def geometry_run(runs: Path, first_model: str) -> Path:
+def recorded_geometry(stage_record: Path) -> dict | None:
+    """The identity (`GeometryConfig.identity`) of the settings a finished geometry stage recorded; None when the
+    record holds none that read as geometry settings."""
+    try:
+        settings = read_json(stage_record).get("settings")
+        return GeometryConfig(**settings).identity() if isinstance(settings, dict) else None
+    except (MatsprayError, TypeError, ValueError):
+        return None
+
+
+def geometry_run(runs: Path, first_model: str, geometry: GeometryConfig | None = None) -> Path:
     """The run folder whose geometry the object's other runs share: one that already has a finished
-    geometry stage (from any error model, e.g. a --geometry-only pass), else the first model's."""
-    done = sorted(p.parent.parent for p in runs.glob("*/geometry/stage.json"))
+    geometry stage (from any error model, e.g. a --geometry-only pass) trained with `geometry`'s settings (as they
+    apply to the protocol's objects, which have masks; any settings when None), else the first model's. A geometry
+    trained with other settings (another run's predicted normals) is not one to share."""
+    wanted = None if geometry is None else geometry.for_scene(masked=True).identity()
+    done = sorted(
+        p.parent.parent for p in runs.glob("*/geometry/stage.json") if wanted is None or recorded_geometry(p) == wanted
+    )
     trained = [
         run for run in done if "geometry" in RunDir(run).timings()
     ]  # the one that trained it records its seconds
@@ -231,7 +247,7 @@ def object_geometry(data: Path, runs: Path, first_run_name: str, config, args, l
     Jobs for other models of the object that start meanwhile wait for it (the object's `geometry.lock`),
     then share it."""
     with held_exclusively(runs / "geometry"):
-        first_run = geometry_run(runs, first_run_name)
+        first_run = geometry_run(runs, first_run_name, config.geometry)
         if not (first_run / "geometry" / STAGE_RECORD).exists():
             with Pipeline(data, first_run, config, progress=args.progress, log=log, wait=True) as pipeline:
                 pipeline.geometry()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,7 @@ from benchmarks.generalise import (
 from benchmarks.generalise_tables import model_summary, model_table
 from matspray.data.images import read_image
 from matspray.errors import ConfigError
+from matspray.geometry.config import GeometryConfig
 from matspray.lights import BUILTINS
 from matspray.refine import RefineConfig
 from matspray.rundir import newer_than_stages, share_stage
@@ -116,6 +118,25 @@ def test_geometry_run_is_one_with_finished_geometry(tmp_path):
     assert geometry_run(tmp_path, "harsh") == tmp_path / "harsh"  # unfinished geometry does not count
     (tmp_path / "paper" / "geometry" / "stage.json").write_text("{}")
     assert geometry_run(tmp_path, "harsh") == tmp_path / "paper"
+
+
+def test_a_geometry_trained_with_other_settings_is_not_shared(tmp_path):
+    """Each model's run trains on its own predicted normals by default; a pass with them off must not take one of
+    those geometries (it would share it, then find its settings differ and stop on its checkpoint)."""
+    off = GeometryConfig(predicted_normal_weight=0.0)
+    on = replace(off, predicted_normal_weight=1.0)
+    for name, settings in (("paper", on), ("harsh", off)):
+        (tmp_path / name / "geometry").mkdir(parents=True)
+        record = {"fingerprint": name, "settings": asdict(settings.for_scene(masked=True))}
+        (tmp_path / name / "geometry" / "stage.json").write_text(json.dumps(record))
+    assert geometry_run(tmp_path, "outliers", off) == tmp_path / "harsh"
+    assert geometry_run(tmp_path, "outliers", on) == tmp_path / "paper"
+    assert geometry_run(tmp_path, "outliers", replace(off, iterations=10)) == tmp_path / "outliers"  # none has those
+    # a record from before a setting existed holds the value that leaves it out of the identity
+    old = asdict(off.for_scene(masked=True))
+    del old["material_edge_threshold"]
+    (tmp_path / "harsh" / "geometry" / "stage.json").write_text(json.dumps({"fingerprint": "h", "settings": old}))
+    assert geometry_run(tmp_path, "outliers", off) == tmp_path / "harsh"
 
 
 def fake_run(full, average, no_softmax, base3, base2, metal3, metal2, no_prior=None, base_no_prior=None):
