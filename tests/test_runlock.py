@@ -4,18 +4,22 @@ geometry once when jobs for several models start together."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import threading
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
 
 import benchmarks.generalise as generalise
+from matspray.config import build_config
 from matspray.errors import RunError
+from matspray.geometry.config import GeometryConfig
 from matspray.rundir import RUN_LOCK, RunDir, held_exclusively, share_stage
 from tests.conftest import busy_message
 
@@ -128,15 +132,19 @@ def test_jobs_for_two_models_of_one_object_train_its_geometry_once(tmp_path, mon
         def geometry(self):
             time.sleep(0.3)  # the other job starts meanwhile
             (self.out / "geometry").mkdir(parents=True)
-            (self.out / "geometry" / "stage.json").write_text("{}")
+            record = {"fingerprint": "g", "settings": asdict(geometry.for_scene(masked=True))}
+            (self.out / "geometry" / "stage.json").write_text(json.dumps(record))
             RunDir(self.out).record_timing("geometry", 1.0)
             trained.append(self.out.name)
 
     monkeypatch.setattr(generalise, "Pipeline", GeometryPipeline)
     runs, args, found = tmp_path / "runs", type("Args", (), {"progress": False})(), {}
+    geometry = GeometryConfig(predicted_normal_weight=0.0)  # one geometry per object, shared by its models
+    config = build_config("demo", **{"geometry.predicted_normal_weight": 0.0})
+    assert config.geometry == geometry
 
     def job(model):
-        found[model] = generalise.object_geometry(tmp_path / "data", runs, model, None, args, lambda _: None)
+        found[model] = generalise.object_geometry(tmp_path / "data", runs, model, config, args, lambda _: None)
 
     jobs = [threading.Thread(target=job, args=(model,)) for model in ("paper", "harsh")]
     for thread in jobs:
