@@ -43,7 +43,7 @@ def main(argv=None) -> None:
     view = next((v for v in test if v.name == args.view), None)
     if view is None:
         parser.error(f"no test view {args.view} in {runs[0].dataset()['source']}: {', '.join(v.name for v in test)}")
-    truth = relit_truth(view, args.env)
+    truth = relit_truth(view, args.env, Path(runs[0].dataset()["source"]))
     if truth is not None:  # a synthetic object: its truth under that held-out light, and the light it was made with
         reference, environment = truth
         name, first = args.env, "the truth relit"

@@ -45,6 +45,7 @@ from matspray.predictors import (
     read_materials2d,
     read_predictor_info,
     resolve_predictor,
+    without_normals,
     write_materials2d,
 )
 from matspray.refine import RefineConfig, RefineInputs, frozen_views, refine
@@ -262,22 +263,15 @@ class Pipeline:
             config = replace(config, material_edge_threshold=0.0)
         return config
 
-    def without_normals_note(self, stage: str) -> None:
-        """Says that `stage` runs without the predicted normals its weight asks for, where the predictor gave none."""
-        self.log(
-            f"{stage}: the 2D maps ({self.run.path('materials2d')}) have no normal maps, so it runs without predicted "
-            "normals (they come with simulated, ground-truth, files: with *_normal files, marigold --normals-weights)"
-        )
-
-    def geometry_normal_targets(self) -> list[torch.Tensor] | None:
+    def geometry_normal_targets(self, maps: dict | None = None) -> list[torch.Tensor] | None:
         """The predicted normal maps geometry trains on (world space, per training view), None when it trains on
-        none (said in one line where its weight asks for them)."""
+        none (said in one line where its weight asks for them). `maps`: the 2D maps when the caller has them."""
         if self.geometry_config().predicted_normal_weight <= 0:
             if self.config.geometry.predicted_normal_weight > 0 and self.has_maps and not self.unmasked:
-                self.without_normals_note("geometry")
+                self.log(without_normals(self.run.path("materials2d"), "geometry"))
             return None
         views = [v.to(self.device) for v in self.scene.train]
-        return predicted_normal_maps({n: m.to(self.device) for n, m in self.predict().items()}, views)
+        return predicted_normal_maps({n: m.to(self.device) for n, m in (maps or self.predict()).items()}, views)
 
     def geometry(self):
         """Trained Gaussians [N] and their oriented normals [N, 3]."""
@@ -285,23 +279,25 @@ class Pipeline:
         fp = self.geometry_fingerprint()
         if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
-            normal_targets = self.geometry_normal_targets()
-            maps = self.predict() if self.geometry_config().material_edge_threshold > 0 else None
+            config = self.geometry_config()
+            edges = config.material_edge_threshold > 0
+            maps = self.predict() if edges or config.predicted_normal_weight > 0 else None  # read once for both
+            normal_targets = self.geometry_normal_targets(maps)
             if self.points_fp and self.scene.points is None:  # (the crop may have read them already)
                 points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
             with self._working("geometry") as (t, use):
                 train_geometry(
                     self.scene,
-                    self.geometry_config(),
+                    config,
                     self.run.path("geometry"),
                     device=self.device,
                     progress=self.progress,
                     normal_targets=normal_targets,
-                    material_maps=maps and [maps_to_tensor(maps[v.name]) for v in self.scene.train],
+                    material_maps=[maps_to_tensor(maps[v.name]) for v in self.scene.train] if edges else None,
                     object_bounds=self.config.object_bounds,
                     focus_region=focus_region,
                 )
-            self.run.finish_stage("geometry", fp, self.geometry_config(), t.seconds, self._ran(use))
+            self.run.finish_stage("geometry", fp, config, t.seconds, self._ran(use))
         else:
             self.log("geometry: done before, reusing geometry/gaussians.ply")
         gaussians, normals = read_ply(self.run.path("geometry", "gaussians.ply"))
@@ -458,7 +454,7 @@ class Pipeline:
             predicted_normal_maps({n: m.to(self.device) for n, m in maps.items()}, views) if maps is not None else None
         )
         if normal_maps is None and self.config.refine.predicted_normal_weight > 0 and maps is not None:
-            self.without_normals_note("refinement")
+            self.log(without_normals(self.run.path("materials2d"), "refinement"))
         return RefineInputs(
             gaussians=kept,
             normals=normals[lifted.kept],

@@ -63,10 +63,12 @@ def test_a_synthetic_objects_reference_is_its_relit_truth_and_light(tiny_object)
     env = sorted(p.stem.removeprefix(f"{view.name}_relight_") for p in view.path.parent.glob(f"{view.name}_relight_*"))[
         0
     ]
-    image, light = relit_truth(view, env)
+    image, light = relit_truth(view, env, tiny_object)
     rgb, alpha = read_image(view.path.with_name(f"{view.name}_relight_{env}.png"))
     assert alpha is not None and bool((alpha < 0.5).any())
     torch.testing.assert_close(image, rgb * alpha[..., None] + GREY * (1 - alpha[..., None]))  # over grey
     expected = EnvironmentMap.from_file(tiny_object / "envmaps" / f"{env}.exr", height=64)  # as `matspray eval` lights
     torch.testing.assert_close(light.log_map, expected.log_map)
-    assert relit_truth(view, "no-such-light") is None  # a capture's view, or a light it was not relit under
+    assert (
+        relit_truth(view, "no-such-light", tiny_object) is None
+    )  # a capture's view, or a light it was not relit under

@@ -308,7 +308,9 @@ def _write_hdr(path: Path, array: np.ndarray) -> None:
 def resize(image: Tensor, height: int, width: int, mode: str = "area") -> Tensor:
     """Resample an image [H, W, C] or [H, W] to [height, width(, C)].
 
-    `mode`: 'area' (antialiased bilinear, for photos and continuous maps) or 'nearest' (masks, ids).
+    `mode`: 'area' (antialiased bilinear, for photos and continuous maps), 'box' (each output pixel the mean of the
+    pixels it covers when shrinking, bilinear when enlarging: a step between whole pixels stays a step) or 'nearest'
+    (masks, ids).
     """
     squeeze = image.ndim == 2
     x = image[..., None] if squeeze else image
@@ -319,6 +321,9 @@ def resize(image: Tensor, height: int, width: int, mode: str = "area") -> Tensor
         out = F.interpolate(x, size=(height, width), mode="nearest")
     elif mode == "area":
         out = F.interpolate(x, size=(height, width), mode="bilinear", align_corners=False, antialias=True)
+    elif mode == "box":
+        shrinks = height <= x.shape[2] and width <= x.shape[3]
+        out = F.interpolate(x, size=(height, width), mode="area" if shrinks else "bilinear")
     else:
         raise ValueError(f"unknown resize mode '{mode}'")
     out = out[0].permute(1, 2, 0)

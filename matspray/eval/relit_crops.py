@@ -17,7 +17,7 @@ from matspray.data.camera import Camera
 from matspray.data.images import read_image, resize
 from matspray.data.scene import View
 from matspray.errors import DataError
-from matspray.eval.run_eval import EVAL_ENV_HEIGHT
+from matspray.eval.run_eval import relight_env_names, relight_light
 from matspray.relight import render_relit
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir
@@ -58,18 +58,16 @@ def square_box(alphas: list[Tensor]) -> tuple[int, int, int] | None:  # alphas: 
     return top, left, side
 
 
-def relit_truth(view: View, env: str) -> tuple[Tensor, EnvironmentMap] | None:
+def relit_truth(view: View, env: str, data: Path) -> tuple[Tensor, EnvironmentMap] | None:
     """A synthetic object's truth for `view` relit under its held-out light `env` (`test/VIEW_relight_ENV.png`, over
-    GREY by its alpha, linear) and that light (`envmaps/ENV.exr` beside the views, as `matspray eval` relights);
-    None where the dataset has neither (a capture: its photo is the reference)."""
-    image = view.path.with_name(f"{view.name}_relight_{env}.png")
-    light = view.path.parent.parent / "envmaps" / f"{env}.exr"
-    if not (image.is_file() and light.is_file()):
+    GREY by its alpha, linear) and that light as `matspray eval` relights with it (`run_eval.relight_light`); None
+    where the view has no such truth (a capture: its photo is the reference). data: the dataset folder."""
+    if env not in relight_env_names(view):
         return None
-    rgb, alpha = read_image(image)
+    rgb, alpha = read_image(view.path.with_name(f"{view.name}_relight_{env}.png"))
     if alpha is not None:
         rgb = rgb * alpha[..., None] + GREY * (1 - alpha[..., None])
-    return rgb, EnvironmentMap.from_file(light, height=EVAL_ENV_HEIGHT)
+    return rgb, relight_light(data, env)
 
 
 def crop(image: Tensor, box: tuple[int, int, int], size: int) -> Tensor:  # [H, W, C] -> [size, size, C]

@@ -70,15 +70,17 @@ def read_view_truth(view: View) -> GroundTruth:
     return GroundTruth(mask, maps.basecolor, maps.roughness, maps.metallic, relit, true_normals(view))
 
 
+def relight_light(data: Path, name: str) -> EnvironmentMap:
+    """The held-out light `name` of a synthetic object (`envmaps/NAME.exr`) at the size evaluation relights with."""
+    path = Path(data) / "envmaps" / f"{name}.exr"
+    if not path.exists():
+        raise file_error(path, f"the held-out light '{name}' has relit ground truth but no environment map")
+    return EnvironmentMap.from_file(path, height=EVAL_ENV_HEIGHT)
+
+
 def load_relight_lights(data: Path, names: list[str], device="cpu"):
     """The held-out lights {name: PrefilteredEnvironment}, prefiltered on `device`."""
-    lights = {}
-    for name in names:
-        path = Path(data) / "envmaps" / f"{name}.exr"
-        if not path.exists():
-            raise file_error(path, f"the held-out light '{name}' has relit ground truth but no environment map")
-        lights[name] = EnvironmentMap.from_file(path, height=EVAL_ENV_HEIGHT).to(device).prefilter()
-    return lights
+    return {name: relight_light(data, name).to(device).prefilter() for name in names}
 
 
 def unpremultiply(rgb: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:  # [H, W, 3], [H, W] -> [H, W, 3]

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from matspray.data.images import linear_to_srgb
+from matspray.data.images import linear_to_srgb, resize
 
 # max-pool windows (px) read by Gaussians whose 1-sigma radius is below 1.5 px, below 3 px, and larger
 EDGE_WINDOWS = (3, 5, 9)
@@ -52,10 +52,7 @@ def footprint_edges(levels: Tensor, means2d: Tensor, radii: Tensor) -> Tensor:  
 
 
 def view_edge_levels(maps: Tensor, mask: Tensor) -> Tensor:  # [h, w, 5] any size, [H, W] -> [L, H, W]
-    """A view's edge levels at its training size: the maps brought to the mask's size (area-averaged when shrunk,
-    bilinear when enlarged), then `material_edge_map` and `edge_levels`."""
-    height, width = mask.shape
-    if maps.shape[:2] != (height, width):
-        mode = "area" if height <= maps.shape[0] and width <= maps.shape[1] else "bilinear"
-        maps = F.interpolate(maps.permute(2, 0, 1)[None], size=(height, width), mode=mode)[0].permute(1, 2, 0)
+    """A view's edge levels at its training size: the maps brought to the mask's size (`resize`'s box mode, as the
+    normal maps are), then `material_edge_map` and `edge_levels`."""
+    maps = resize(maps, *mask.shape, mode="box")
     return edge_levels(material_edge_map(maps.to(mask), mask))

@@ -7,6 +7,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from matspray.data.camera import Camera
+from matspray.data.images import resize
 from matspray.gaussians import Gaussians
 from matspray.render.backend import compiled_on_cpu
 from matspray.render.gbuffer import orient_normals
@@ -69,11 +70,8 @@ def resize_normal_map(normals: Tensor, height: int, width: int) -> Tensor:  # [H
     normalised again; a pixel that averages more "none" than normals is none."""
     if normals.shape[:2] == (height, width):
         return normals
-    channels = normals.permute(2, 0, 1)[None]
-    valid = (normals.norm(dim=-1) > 0.5).to(normals)[None, None]
-    mode = "area" if height <= normals.shape[0] and width <= normals.shape[1] else "bilinear"
-    resized = F.interpolate(channels, size=(height, width), mode=mode)[0].permute(1, 2, 0)
-    coverage = F.interpolate(valid, size=(height, width), mode=mode)[0, 0]
+    resized = resize(normals, height, width, mode="box")
+    coverage = resize((normals.norm(dim=-1) > 0.5).to(normals), height, width, mode="box")
     return torch.where((coverage > 0.5)[..., None], F.normalize(resized, dim=-1), torch.zeros_like(resized))
 
 

@@ -15,6 +15,7 @@ from matspray.predictors.maps import (
     predicted_normal_maps,
     read_materials2d,
     read_predictor_info,
+    without_normals,
     world_normals,
     write_materials2d,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "predict_views",
     "predicted_normal_maps",
     "resolve_predictor",
+    "without_normals",
     "read_materials2d",
     "read_predictor_info",
     "world_normals",

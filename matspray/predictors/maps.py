@@ -145,6 +145,15 @@ def predicted_normal_maps(maps: dict, views: list) -> list[torch.Tensor] | None:
     ]
 
 
+def without_normals(folder: Path, stage: str) -> str:
+    """The line that says `stage` runs without the predicted normals its weight asks for: the maps in `folder` have
+    none."""
+    return (
+        f"{stage}: the 2D maps ({folder}) have no normal maps, so it runs without predicted normals (they come with "
+        "simulated, ground-truth, files: with *_normal files, marigold --normals-weights)"
+    )
+
+
 def map_path(folder: Path, view_name: str, channel: str) -> Path:
     return Path(folder) / f"{view_name}_{channel}.png"
 
