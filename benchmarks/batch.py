@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 from matspray.batch import BatchConfig, run_batch
+from matspray.batch.demo import SHAPES, make_demo_object
 from matspray.batch.runner import local_cpus
-from matspray.config import build_config
-from matspray.demo import SHAPES, make_demo_object
+from matspray.method.config import build_config
 
 
 def timed_batch(datas, out: Path, workers: int, use_ray: bool, preset: str) -> tuple[float, dict]:

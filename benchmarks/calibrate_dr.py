@@ -31,8 +31,8 @@ from pathlib import Path
 
 from benchmarks.generalise import object_set
 from benchmarks.generalise_tables import CHANNELS, SHORT
+from matspray.batch.demo import make_demo_object
 from matspray.data import View, load_scene
-from matspray.demo import make_demo_object
 from matspray.errors import MatsprayError
 from matspray.eval.average import average_tables
 from matspray.eval.run_eval import GroundTruth, evaluate_predictions, paper_tables, read_view_truth

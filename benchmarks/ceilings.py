@@ -122,7 +122,7 @@ def shading_ceiling(views: list, truths: list, lights: dict, shadows_from=None) 
     from matspray.data.images import read_raw
     from matspray.eval.evaluate import average_metrics, evaluate_images
     from matspray.eval.run_eval import unpremultiply
-    from matspray.relight import render_gbuffer
+    from matspray.method.relight import render_gbuffer
     from matspray.render.deferred import GBuffer, shade_gbuffer
 
     records = {name: [] for name in lights}
@@ -154,7 +154,7 @@ def lift_truth(data: Path, run: Path, truth_run: Path, config):
     """The ground-truth 2D maps lifted onto `run`'s Gaussians (its geometry shared into `truth_run`) and averaged:
     the proj-average asset of the ground-truth predictor. `run` must have lifted with `config` (checked first).
     Jobs for other error models of the same object share `truth_run`: they take turns, and the later ones reuse it."""
-    from matspray.pipeline import Pipeline
+    from matspray.method.pipeline import Pipeline
     from matspray.rundir import RunDir, share_stage
 
     require_same_lift(run, config)
@@ -182,8 +182,8 @@ def lift_truth(data: Path, run: Path, truth_run: Path, config):
 
 def softmax_reach(truth_materials: torch.Tensor, truth_run: Path, run: Path) -> torch.Tensor:  # [N, 5] -> [N, 5]
     """`truth_materials` clamped to the range of the per-view values `run`'s predictor gave each Gaussian."""
-    from matspray.merger import clamp_to_seen_range
-    from matspray.pipeline import load_lift
+    from matspray.method.merger import clamp_to_seen_range
+    from matspray.method.pipeline import load_lift
 
     truth, predicted = (
         load_lift(truth_run / "lift" / "projected.pt", "cpu"),
@@ -267,7 +267,7 @@ def refine_under_true_light(data: Path, run: Path, folder: Path, config):
     pipeline's `light_probe`, at the size of the light `config` learns); its predictions, geometry and lift are shared
     from `run`, which must have made them with `config`. Reused while the refinement's fingerprint holds."""
     from matspray.eval.light import training_light_path
-    from matspray.pipeline import Pipeline
+    from matspray.method.pipeline import Pipeline
     from matspray.rundir import RunDir, share_stage
 
     probe = training_light_path(data)
@@ -289,8 +289,8 @@ def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
     """{row: figures} of `rows` for one run folder with `proj-average` and `full` assets (see the module's docstring).
     `truth()`: its ObjectTruth (the test views and what they are scored against); `under_true_light()`: its `full`
     refined under the true light (called only when a row needs it)."""
-    from matspray.asset import read_asset
     from matspray.eval.run_eval import evaluate_asset
+    from matspray.method.asset import read_asset
     from matspray.variants import asset_stage
 
     averaged, full = (read_asset(run / asset_stage(v)) for v in ("proj-average", "full"))
@@ -485,8 +485,8 @@ def merge_with_saved(path: Path, results: dict, log=print) -> dict:
 
 
 def run_set(args, log=print) -> list[str]:
-    from matspray.config import build_config
     from matspray.lights import hdri_files
+    from matspray.method.config import build_config
     from matspray.rundir import held_exclusively, write_text_atomic
 
     objects = objects_part(args.set, args.start, args.objects, sorted(hdri_files()))

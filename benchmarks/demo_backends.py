@@ -139,8 +139,8 @@ def main(argv=None) -> int:
     if args.runs:
         (torch_run, numba_run), seed_runs = args.runs, args.seed_runs
     else:
-        from matspray.config import build_config
-        from matspray.demo import run_demo
+        from matspray.batch.demo import run_demo
+        from matspray.method.config import build_config
 
         seeds = [(None, "")] + (
             [(args.refine_seed, f"-refine-seed{args.refine_seed}")] if args.refine_seed is not None else []

@@ -1,4 +1,4 @@
-"""The rates behind `matspray run`'s time estimate (matspray/estimate.py), measured on finished runs.
+"""The rates behind `matspray run`'s time estimate (matspray/method/estimate.py), measured on finished runs.
 
     python -m benchmarks.estimate RUN [RUN ...]
 
@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from matspray.data.loader import load_run_scene
-from matspray.estimate import CPU_RATES, estimate_error, feature_sizes, run_work
+from matspray.method.estimate import CPU_RATES, estimate_error, feature_sizes, run_work
 from matspray.rundir import STAGE_RECORD, RunDir, read_json
 from matspray.variants import get_variant
 

@@ -43,14 +43,14 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.generalise_tables import choices_table, markdown, model_summary, object_figures
+from matspray.batch.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
-from matspray.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
 from matspray.geometry.config import GeometryConfig
 from matspray.lights import BUILTINS, hdri_files
-from matspray.pipeline import Pipeline
+from matspray.method.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.rundir import (
     STAGE_RECORD,

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from matspray.demo import DEMO_SIZES
+from matspray.batch.demo import DEMO_SIZES
 from matspray.errors import ConfigError
 from matspray.eval.average import average_tables
 from matspray.predictors.error_models import ERROR_MODELS

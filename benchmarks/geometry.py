@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from benchmarks.rasterize import DEMO_OBJECT, sphere_object, time_ms
 from matspray.data import load_scene
 from matspray.data.camera import Camera
 from matspray.geometry.analytic import write_analytic_dataset
@@ -38,11 +39,9 @@ from matspray.render.backend import rendering_with, resolve_backend
 from matspray.render.numba_backend import ensure_compiled
 
 CACHE = Path(tempfile.gettempdir()) / "matspray-analytic128"
-DEMO_OBJECT = Path(tempfile.gettempdir()) / "matspray-demo-object"
 
 
 def step_milliseconds(n: int = 20000, resolution: int = 128, repeats: int = 5) -> float:
-    from benchmarks.rasterize import sphere_object, time_ms
 
     gaussians = sphere_object(n)
     for t in (gaussians.means, gaussians.log_scales, gaussians.quats, gaussians.opacity_logits, gaussians.sh):
@@ -76,7 +75,7 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     data = args.data
     if data == Path("demo"):
-        from matspray.demo import make_demo_object
+        from matspray.batch.demo import make_demo_object
 
         data = make_demo_object(DEMO_OBJECT, "demo", "composite", 0)
     if data is None:

@@ -34,12 +34,12 @@ from benchmarks.unit_rates import (
     steps_after_densification,
     synchronized_seconds,
 )
-from matspray.config import build_config
 from matspray.data.loader import load_scene
 from matspray.device import resolve_device
 from matspray.geometry.train import prepare_views
-from matspray.lift import lift
-from matspray.refine import refine
+from matspray.method.config import build_config
+from matspray.method.lift import lift
+from matspray.method.refine.loop import refine
 from matspray.render.backend import rendering_with, resolve_backend
 
 

@@ -73,7 +73,7 @@ import sys
 import torch
 
 from benchmarks.unit_rates import lift_seconds_per_view, refine_rates
-from matspray.config import build_config
+from matspray.method.config import build_config
 from matspray.data.loader import load_scene
 from matspray.gaussians import Gaussians
 from matspray.geometry.train import prepare_views

@@ -18,7 +18,7 @@ import torch
 
 from matspray.data import load_scene
 from matspray.geometry.ply import read_ply
-from matspray.lift import LiftConfig, lift_view
+from matspray.method.lift import LiftConfig, lift_view
 from matspray.predictors import maps_to_tensor, read_materials2d
 from matspray.render.backend import rendering_with
 from matspray.render.gbuffer import rendered_weights

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import Asset
 from matspray.data import load_scene
 from matspray.eval.run_eval import evaluate_asset, read_view_truth
 from matspray.geometry.ply import read_ply
-from matspray.lift import LiftConfig, lift, supported_views
-from matspray.merger import projection_average
+from matspray.method.asset import Asset
+from matspray.method.lift import LiftConfig, lift, supported_views
+from matspray.method.merger import projection_average
 from matspray.predictors import maps_to_tensor
 from matspray.predictors.ground_truth import read_ground_truth
 

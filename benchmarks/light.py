@@ -17,11 +17,11 @@ import time
 from pathlib import Path
 
 from benchmarks.ceilings import read_test_truth
-from matspray.asset import ENVMAP_FILE, read_asset
-from matspray.config import METHODS, build_config
 from matspray.eval.light import light_figures, training_light
 from matspray.eval.run_eval import evaluate_asset
-from matspray.pipeline import Pipeline
+from matspray.method.asset import ENVMAP_FILE, read_asset
+from matspray.method.config import METHODS, build_config
+from matspray.method.pipeline import Pipeline
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import share_stage
 from matspray.variants import asset_stage

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import read_asset
 from matspray.data import load_run_scene
 from matspray.errors import MatsprayError
 from matspray.eval.run_eval import GroundTruth, asset_renders, predict_test_views, read_view_truth
+from matspray.method.asset import read_asset
 from matspray.rundir import RunDir
 from matspray.variants import VARIANTS, asset_stage
 

@@ -19,8 +19,8 @@ the true mask on black, over the whole image. Each pixel's error is put into one
                (2 RADIUS + 1)^2 window > EDGE_STEP)
   interior     the rest of the object: `metal` where the true metallic is >= 0.5, `dielectric` below
 `--fit-to-truth LABEL ...` adds, for those rows, the asset with its metallic fitted to the TRUE training maps through
-the renderer (`matspray.metallic_fit` without pull or photos): on the lifted truth, what per-Gaussian values could
-show on these Gaussians, so the part of its error the lift causes and the part the Gaussians' footprint does.
+the renderer (`matspray.method.refine.metallic` without pull or photos): on the lifted truth, what per-Gaussian values
+could show on these Gaussians, so the part of its error the lift causes and the part the Gaussians' footprint does.
 For every part: its share of the pixels, its share of the error, its own PSNR (its mean error) and what the whole
 figure would gain were that part exact (dB). These figures are one object's pooled views, averaged over objects.
 The metallic PSNR is shown twice: pooled over the views (how `matspray eval` scores the 3D metallic) and the mean of
@@ -36,7 +36,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from matspray.eval.metrics import psnr_from_mse as psnr
+from matspray.metrics import psnr_from_mse as psnr
 
 EDGE_STEP = 0.1  # a change of the true metallic larger than this is an edge (its levels differ by >= 0.25 here)
 PARTS = ("silhouette", "edge", "interior metal", "interior dielectric")
@@ -125,7 +125,7 @@ def row_metallic(row: str, runs: Path, model: str, views) -> torch.Tensor:
         if maps is None:
             raise SystemExit(f"error: {note}")
         return torch.stack([maps[v.name].metallic for v in views])
-    from matspray.asset import read_asset
+    from matspray.method.asset import read_asset
 
     return rendered_metallic(read_asset(where), views)
 
@@ -133,7 +133,7 @@ def row_metallic(row: str, runs: Path, model: str, views) -> torch.Tensor:
 def fitted_to_truth(asset, train_views, steps: int) -> torch.Tensor:  # -> [N] metallic
     """The asset's metallic fitted through its frozen training views to the TRUE metallic maps (`fit_metallic` with
     no pull and no photos): what per-Gaussian values could show on these Gaussians, whatever the lift."""
-    from matspray.metallic_fit import MetallicFitConfig, fit_metallic
+    from matspray.method.refine.metallic import MetallicFitConfig, fit_metallic
     from matspray.predictors.ground_truth import read_ground_truth
     from matspray.render.gbuffer import FrozenViews
 
@@ -148,9 +148,9 @@ def object_rows(data: Path, runs: Path, model: str, rows: list[str], radius: int
     """{label: part_figures} of one object; each row labelled in `fit` also fitted to the true maps (`steps`)."""
     from dataclasses import replace
 
-    from matspray.asset import read_asset
     from matspray.data import load_scene
     from matspray.eval.run_eval import read_view_truth
+    from matspray.method.asset import read_asset
 
     scene = load_scene(data)
     views = scene.test

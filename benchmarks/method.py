@@ -36,8 +36,8 @@ from pathlib import Path
 import torch
 
 from benchmarks.ceilings import lift_truth, read_test_truth, shading_ceiling, softmax_reach
-from matspray.config import ADDITION_NAMES, METHODS, build_config
-from matspray.demo import make_demo_object, run_object
+from matspray.batch.demo import make_demo_object, run_object
+from matspray.method.config import ADDITION_NAMES, METHODS, build_config
 from matspray.rundir import RunDir, share_stage
 from matspray.variants import LABELS as VARIANT_LABELS
 
@@ -159,7 +159,7 @@ def lifted_truth(
 
 
 def print_ceilings(data: Path, out: Path, preset: str) -> None:
-    from matspray.asset import read_asset
+    from matspray.method.asset import read_asset
 
     print("\nceilings (what no material estimate can beat here):")
     full = read_asset(out / "run" / "asset")

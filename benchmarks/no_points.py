@@ -55,7 +55,7 @@ def run_form(name: str, data: Path, settings: list[str], args, log: Path) -> dic
             )
         )
         steps.append(command(["eval", "--run", str(run), "--no-report"], log))
-    from matspray.objectmasks import read_object_masks
+    from matspray.method.masks import read_object_masks
 
     metrics = json.loads((run / "eval" / "heldout.json").read_text())
     stage = json.loads((run / "points" / "stage.json").read_text()) if (run / "points").is_dir() else None

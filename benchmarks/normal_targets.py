@@ -44,7 +44,7 @@ def scored(asset, truth) -> dict:
 def refined_with_normals(data: Path, default_run: Path, folder: Path, config):
     """`full` refined in `folder` with the default run's geometry and lift, predicted normals weighted as `config`
     says."""
-    from matspray.pipeline import Pipeline
+    from matspray.method.pipeline import Pipeline
     from matspray.rundir import share_stage
 
     for stage in ("geometry", "lift"):
@@ -63,9 +63,9 @@ def _stage_fingerprint(run: Path, stage: str) -> str:
 
 def run_objects(args, log=print) -> list[str]:
     from benchmarks.ceilings import read_test_truth
-    from matspray.asset import read_asset
-    from matspray.config import build_config
     from matspray.lights import hdri_files
+    from matspray.method.asset import read_asset
+    from matspray.method.config import build_config
 
     objects = objects_part(args.set, args.start, args.objects, sorted(hdri_files()))
     config = build_config(args.preset)

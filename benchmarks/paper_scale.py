@@ -23,10 +23,10 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import read_asset
-from matspray.config import build_config
-from matspray.demo import make_demo_object, run_object
+from matspray.batch.demo import make_demo_object, run_object
 from matspray.device import resolve_device
+from matspray.method.asset import read_asset
+from matspray.method.config import build_config
 from matspray.render.backend import BACKENDS, resolve_backend
 from matspray.render.gbuffer import frozen_views_bytes
 from matspray.rundir import RunDir, read_json

@@ -35,11 +35,14 @@ import torch
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
-from matspray.lift import LiftConfig, compiled_entries, footprint_alpha, traced_entries
+from matspray.method.lift import LiftConfig, compiled_entries, footprint_alpha, traced_entries
 from matspray.render.backend import rendering_with
 from matspray.render.rasterize import rasterize
 from matspray.render.settings import RasterSettings
 from matspray.render.sh import sh_colors
+
+# the demo's object, made once (benchmarks.geometry reads it too)
+DEMO_OBJECT = Path(tempfile.gettempdir()) / "matspray-demo-object"
 
 BACKENDS = ("torch", "numba")
 
@@ -124,9 +127,8 @@ def bench_case(n: int, res: int, repeats: int) -> None:
 
 def bench_stage(iterations: int) -> None:
     """The demo's Gaussian Splatting stage, shortened to `iterations`, once per backend (torch first)."""
-    from benchmarks.geometry import DEMO_OBJECT
+    from matspray.batch.demo import make_demo_object
     from matspray.data import load_scene
-    from matspray.demo import make_demo_object
     from matspray.geometry.config import preset
     from matspray.geometry.train import train_geometry
 

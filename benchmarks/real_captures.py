@@ -178,11 +178,11 @@ def compare_view(run: Path) -> str:
 
 
 def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dict]) -> dict:
-    from matspray.asset import read_asset
     from matspray.data.crop import read_crop_plan
     from matspray.export.frames import glb_box
     from matspray.geometry.ply import read_ply
-    from matspray.objectmasks import read_object_masks
+    from matspray.method.asset import read_asset
+    from matspray.method.masks import read_object_masks
     from matspray.rundir import RunDir
 
     metrics = json.loads((run / "eval" / "heldout.json").read_text())

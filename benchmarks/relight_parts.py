@@ -16,12 +16,12 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import read_asset
 from matspray.data import load_scene
 from matspray.data.images import read_raw
 from matspray.eval.evaluate import evaluate_images
 from matspray.eval.run_eval import load_relight_lights, read_view_truth, unpremultiply
-from matspray.relight import render_gbuffer
+from matspray.method.asset import read_asset
+from matspray.method.relight import render_gbuffer
 from matspray.render.deferred import GBuffer, shade_gbuffer
 from matspray.variants import asset_stage
 

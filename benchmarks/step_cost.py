@@ -43,7 +43,6 @@ from torch.overrides import TorchFunctionMode
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from benchmarks.unit_rates import random_refine_inputs
-from matspray.config import build_config
 from matspray.data.scene import Scene
 from matspray.geometry import train as geometry_train
 from matspray.geometry.analytic import analytic_views
@@ -52,8 +51,9 @@ from matspray.geometry.init import initial_gaussians
 from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
 from matspray.graphs import capturing_with
-from matspray.lift import lift_view
-from matspray.refine import RefineInputs, refine
+from matspray.method.config import build_config
+from matspray.method.lift import lift_view
+from matspray.method.refine.loop import RefineInputs, refine
 from matspray.render.backend import rendering_with, resolve_backend
 
 # outputs whose size depends on the data: the device must finish before the host can size them

@@ -33,8 +33,8 @@ import torch
 
 from benchmarks.rasterize import interleaved_ms, sphere_object
 from matspray.data.camera import Camera
-from matspray.eval.metrics import ssim_loss
 from matspray.geometry.normals import oriented_normals
+from matspray.metrics import ssim_loss
 from matspray.render.backend import rendering_with
 from matspray.render.sh import sh_colors
 

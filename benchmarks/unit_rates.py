@@ -28,7 +28,6 @@ from pathlib import Path
 
 import torch
 
-from matspray.config import build_config
 from matspray.data.loader import load_scene
 from matspray.device import resolve_device
 from matspray.gaussians import Gaussians
@@ -36,8 +35,9 @@ from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl
 from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.train import SYNC_EVERY, learning_rates, prepare_views, scene_extent, train_geometry
-from matspray.lift import lift
-from matspray.refine import RefineConfig, RefineInputs, refine
+from matspray.method.config import build_config
+from matspray.method.lift import lift
+from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
 from matspray.render.backend import rendering_with, resolve_backend
 
 GAUSSIAN_FIELDS = ("means", "log_scales", "quats", "opacity_logits", "sh")

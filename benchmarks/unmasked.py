@@ -25,13 +25,13 @@ import shutil
 import time
 from pathlib import Path
 
+from matspray.batch.demo import DEMO_SIZES
 from matspray.cli.settings import settings_from_overrides
-from matspray.config import build_config
 from matspray.data import load_scene
 from matspray.data.images import write_image
-from matspray.demo import DEMO_SIZES
 from matspray.eval.run_eval import evaluate_run
-from matspray.pipeline import Pipeline
+from matspray.method.config import build_config
+from matspray.method.pipeline import Pipeline
 from matspray.predictors.ground_truth import read_ground_truth_coverage
 from matspray.synth import SynthConfig, make_object
 

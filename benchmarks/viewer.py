@@ -148,10 +148,9 @@ def frame_times(run: Path, env: str | None, repeats: int, size: int, backend: st
     import torch
 
     from matspray.data.camera import Camera
-    from matspray.device import compute_target
     from matspray.lights import hdri_files
-    from matspray.relight import render_gbuffer
-    from matspray.render.backend import rendering_with
+    from matspray.method.relight import render_gbuffer
+    from matspray.render.backend import compute_target, rendering_with
     from matspray.view.frames import progressive_size
     from matspray.view.server import Viewer, ViewerConfig
 

@@ -7,7 +7,6 @@ from contextlib import contextmanager
 import torch
 
 from matspray.errors import ConfigError, ResourceError, SettingError
-from matspray.render.backend import resolve_backend
 
 LOWER_HINT = (
     "lower the image size (--downscale 2), use fewer views, or cap the Gaussians (--set geometry.max_gaussians=N)"
@@ -38,14 +37,6 @@ def resolve_device(name: str) -> torch.device:
     if device.type not in ("cpu", "cuda"):
         raise SettingError("device", f"unsupported device '{name}'; use auto, cpu, cuda or cuda:N")
     return device
-
-
-def compute_target(device: str = "auto", backend: str = "auto", notify=None) -> tuple[torch.device, str]:
-    """The device and rasterizer a command computes with (--device, --backend), checked before any work, and the
-    CPU threads set for it. `notify` hears gsplat's build time and why `auto` falls back (default: stderr)."""
-    resolved = resolve_device(device)
-    configure_threads(resolved)
-    return resolved, resolve_backend(backend, resolved, notify=notify)
 
 
 @contextmanager

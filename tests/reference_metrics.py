@@ -18,9 +18,9 @@ def relighting_psnr(run: Path, data: Path, variant: str = "full", backend: str =
     """The object-mask relighting PSNR of `variant`'s asset: its renders under each held-out light of `data`
     (MatSpray's renderer, `backend`) and the relit truth, both composited over white with the true mask and
     sRGB-encoded, -10 log10 of their mean squared error, averaged over the test views and the lights."""
-    from matspray.asset import read_asset
     from matspray.data import load_scene
     from matspray.eval.run_eval import asset_renders, load_relight_lights, read_view_truth
+    from matspray.method.asset import read_asset
     from matspray.render.backend import rendering_with
     from matspray.rundir import RunDir
 

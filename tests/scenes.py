@@ -60,8 +60,8 @@ def ring_cameras(count: int, size: int = 32, distance: float = 4.0) -> list[Came
 def material_scene(n_views: int = 6, size: int = 32, seed: int = 0):
     """Views of the disk sphere lit by `sky_map`, true per-Gaussian materials, and per-view 2D maps
     [H, W, 5] that are the true maps with a different base-color gain per view (like a diffusion model)."""
-    from matspray.asset import Asset
-    from matspray.relight import render_gbuffer, render_relit
+    from matspray.method.asset import Asset
+    from matspray.method.relight import render_gbuffer, render_relit
     from matspray.render.envmap import EnvironmentMap
 
     gaussians, normals, materials = sphere_of_disks(seed=seed)
@@ -86,10 +86,10 @@ def write_disk_sphere_run(root, gaussians: int, cameras: list[Camera], train: sl
     """A run folder `root/run` holding the disk sphere's asset (true materials, the sky light as its estimated
     light) and a Blender dataset `root/data` of its renders at `cameras` (the `train` and `test` slices of them);
     returns the run folder."""
-    from matspray.asset import Asset, write_asset
     from matspray.data.blender import write_blender
-    from matspray.refine import RefineResult
-    from matspray.relight import render_relit
+    from matspray.method.asset import Asset, write_asset
+    from matspray.method.refine.loop import RefineResult
+    from matspray.method.relight import render_relit
     from matspray.render.envmap import EnvironmentMap
     from matspray.rundir import write_json
 

@@ -8,11 +8,11 @@ import pytest
 
 pytest.importorskip("pygltflib")
 
+from matspray.batch.demo import BenchObject, asset_objects, procedural_objects, run_bench  # noqa: E402
 from matspray.cli import main  # noqa: E402
-from matspray.config import build_config  # noqa: E402
-from matspray.demo import BenchObject, asset_objects, procedural_objects, run_bench  # noqa: E402
 from matspray.errors import ConfigError  # noqa: E402
 from matspray.eval.tables import objects_table, tables_markdown  # noqa: E402
+from matspray.method.config import build_config  # noqa: E402
 
 
 def test_asset_objects_from_files_and_folders(tmp_path):

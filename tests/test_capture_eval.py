@@ -18,8 +18,8 @@ def capture_run(tmp_path_factory):
     """An unmasked synthetic capture stripped of everything but its photos and cameras (as a real capture is),
     run end to end with the default predictor (none: no-prior) at the test preset."""
     pytest.importorskip("mitsuba")
-    from matspray.config import build_config
-    from matspray.pipeline import Pipeline
+    from matspray.method.config import build_config
+    from matspray.method.pipeline import Pipeline
     from matspray.synth import SynthConfig, make_object
 
     root = tmp_path_factory.mktemp("capture")

@@ -30,10 +30,10 @@ from benchmarks.ceilings import (
     with_normals_of,
 )
 from benchmarks.generalise import main as generalise
-from matspray.asset import Asset
-from matspray.config import build_config
 from matspray.errors import RunError
 from matspray.gaussians import Gaussians
+from matspray.method.asset import Asset
+from matspray.method.config import build_config
 from matspray.rundir import RUN_LOCK, RunDir, held_exclusively
 from tests.scenes import ring_cameras, sky_map, sphere_of_disks
 
@@ -91,7 +91,7 @@ def gbuffer_scene(tmp_path_factory):
     from matspray.data import View, write_image
     from matspray.eval.run_eval import GroundTruth, unpremultiply
     from matspray.geometry.evaluate import true_normals
-    from matspray.relight import render_gbuffer, render_relit
+    from matspray.method.relight import render_gbuffer, render_relit
     from matspray.render.envmap import EnvironmentMap
 
     folder = tmp_path_factory.mktemp("gbuffer-scene")
@@ -148,7 +148,7 @@ def test_true_maps_with_the_true_normals_are_the_shading_ceiling(gbuffer_scene):
 
 
 def test_the_true_alpha_of_an_asset_whose_alpha_is_the_mask_is_the_lifted_truth(gbuffer_scene):
-    from matspray.relight import render_gbuffer
+    from matspray.method.relight import render_gbuffer
 
     views, truths, lights, lifted = gbuffer_scene
     with torch.no_grad():  # the truth's mask made the asset's coverage: the row has nothing left to swap
@@ -230,7 +230,7 @@ def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(
 
     monkeypatch.setattr(ceilings, "require_same_lift", lambda run, config: None)
     monkeypatch.setattr("matspray.rundir.share_stage", lambda source, target, stage: made.append((target, stage)))
-    monkeypatch.setattr("matspray.pipeline.Pipeline", RecordingPipeline)
+    monkeypatch.setattr("matspray.method.pipeline.Pipeline", RecordingPipeline)
     truth_run = tmp_path / "runs" / "ground-truth"
     config = build_config("test")
     job = threading.Thread(

@@ -89,7 +89,7 @@ def test_both_methods_refine_normals_and_the_flags_set_the_rate_and_the_predicte
 
 
 def test_refine_seed_overrides_the_seed_for_refinement_only():
-    from matspray.pipeline import variant_refine_config
+    from matspray.method.pipeline import variant_refine_config
 
     config = run_config("--seed", "3")
     assert variant_refine_config(config, "full").seed == 3
@@ -109,11 +109,11 @@ def test_demo_offers_the_paper_preset_and_refuses_it_without_a_gpu(tmp_path, mon
     # asked for on the CPU, or on a machine with a GPU, it runs the paper-sized demo
     import argparse
 
-    import matspray.demo
+    import matspray.batch.demo
     from matspray.cli import demo as demo_cli
 
     ran = []
-    monkeypatch.setattr(matspray.demo, "run_demo", lambda out, **kw: ran.append(kw) or tmp_path / "report.html")
+    monkeypatch.setattr(matspray.batch.demo, "run_demo", lambda out, **kw: ran.append(kw) or tmp_path / "report.html")
     parser = argparse.ArgumentParser()
     demo_cli.add_parser(parser)
     assert demo_cli.run(parser.parse_args(["--preset", "paper", "--device", "cpu", "--out", str(tmp_path)])) == 0

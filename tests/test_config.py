@@ -9,7 +9,8 @@ import torch
 import yaml
 
 from matspray.cli.options import ADDITION_CHOICES, VARIANT_CHOICES
-from matspray.config import (
+from matspray.errors import SettingError
+from matspray.method.config import (
     ADDITION_NAMES,
     ADDITIONS,
     NORMAL_PRIOR_WEIGHT,
@@ -17,10 +18,9 @@ from matspray.config import (
     build_config,
     with_setting,
 )
-from matspray.errors import SettingError
-from matspray.lift import LiftConfig
-from matspray.merger import MergerConfig, fill_unseen, prepare_values
-from matspray.refine import RefineConfig
+from matspray.method.lift import LiftConfig
+from matspray.method.merger import MergerConfig, fill_unseen, prepare_values
+from matspray.method.refine.loop import RefineConfig
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.latlong import irradiance_correlation, total_variation
 from matspray.rundir import RunDir
@@ -145,7 +145,7 @@ def test_total_variation_of_a_smooth_field_does_not_depend_on_resolution():
 def test_the_light_prior_lowers_the_total_variation_of_a_noisy_map():
     generator = torch.Generator().manual_seed(0)
     envmap = EnvironmentMap.from_tensor(torch.rand(8, 16, 3, generator=generator) * 2 + 0.1)
-    from matspray.refine import light_prior
+    from matspray.method.refine.loop import light_prior
 
     before = float(light_prior(envmap))
     optimizer = torch.optim.Adam(envmap.parameters(), lr=0.05)
@@ -175,7 +175,7 @@ def test_shadows_are_off_by_default_and_on_with_the_presets_shadow_maps():
     import argparse
 
     from matspray.cli.options import add_method_arguments, build_config_from_args
-    from matspray.config import SHADOW_MAPS, shadow_maps
+    from matspray.method.config import SHADOW_MAPS, shadow_maps
 
     assert all(build_config(preset).visibility is None for preset in ("test", "demo", "paper"))
     assert (shadow_maps("test").rows, shadow_maps("paper").rows, shadow_maps("paper").resolution) == (4, 16, 512)

@@ -1,4 +1,4 @@
-"""Photos cut to their object before the working size (matspray.data.crop, matspray.objectcrop): the windows
+"""Photos cut to their object before the working size (matspray.data.crop, matspray.method.crop): the windows
 against hand-worked values, the cut views' cameras against the photo's (a world point lands on the same content), the
 loader and the run's readers cutting alike, and the pipeline's stage on a capture without masks whose photos are
 larger than its working size."""
@@ -11,9 +11,9 @@ import torch
 from matspray.data import Camera, View, load_run_scene, load_scene, write_blender
 from matspray.data.crop import CropConfig, CropPlan, crop_window, object_box, read_crop_plan
 from matspray.errors import DataError, SettingError
-from matspray.objectcrop import plan_crop, read_crop_region
-from matspray.objectmasks import read_region
-from matspray.objectregion import ObjectRegion
+from matspray.geometry.region import ObjectRegion
+from matspray.method.crop import plan_crop, read_crop_region
+from matspray.method.masks import read_region
 from matspray.rundir import RunDir
 
 
@@ -157,8 +157,8 @@ def ball_capture(tmp_path):
 
 
 def test_the_pipeline_cuts_the_photos_and_every_reader_of_the_run_does_too(ball_capture, tmp_path):
-    from matspray.config import build_config
-    from matspray.pipeline import Pipeline
+    from matspray.method.config import build_config
+    from matspray.method.pipeline import Pipeline
 
     config = build_config("test", predictor="none", **{"points.triangulate": False, "geometry.iterations": 40})
     run = tmp_path / "run"

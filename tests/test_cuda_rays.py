@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from matspray.lift import LiftConfig, footprint_alpha, traced_entries
+from matspray.method.lift import LiftConfig, footprint_alpha, traced_entries
 from matspray.render import contributions
 from matspray.render.contributions import _max_response, _whitened_frames
 from matspray.render.cuda_rays import max_response
@@ -40,7 +40,7 @@ def response_inputs(seed: int, n: int, width: int, height: int, pairs: int, side
 
 SIMULATED = """
 import torch
-from matspray.lift import LiftConfig, footprint_alpha, traced_entries
+from matspray.method.lift import LiftConfig, footprint_alpha, traced_entries
 from matspray.render import contributions, cuda_rays
 from matspray.render.settings import RasterSettings
 from tests.test_cuda_rays import response_inputs

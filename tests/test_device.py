@@ -10,12 +10,12 @@ import sys
 import pytest
 import torch
 
-from matspray.config import build_config, shadow_maps
 from matspray.device import out_of_memory_as_error, resolve_device
 from matspray.errors import ResourceError, SettingError
 from matspray.eval.run_eval import evaluate_run
-from matspray.pipeline import Pipeline
-from matspray.relight import render_relit
+from matspray.method.config import build_config, shadow_maps
+from matspray.method.pipeline import Pipeline
+from matspray.method.relight import render_relit
 from matspray.render.backend import gsplat_device_error, rendering_with
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews, frozen_views_bytes
@@ -103,7 +103,7 @@ def test_out_of_memory_is_one_line_and_the_run_resumes(tiny_object, tmp_path, mo
             "CUDA out of memory. Tried to allocate 2.00 GiB. GPU 0 has a total capacity of 23.6 GiB"
         )
 
-    monkeypatch.setattr("matspray.pipeline.lift", out_of_memory)
+    monkeypatch.setattr("matspray.method.pipeline.lift", out_of_memory)
     with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
         with pytest.raises(ResourceError) as raised:
             pipeline.refine("full")
@@ -223,7 +223,7 @@ def test_a_run_forced_to_gsplat_renders_every_stage_with_it(tiny_object, tmp_pat
     """gsplat's own rasterization() through the CPU harness: every rasterizing stage calls it, none falls back."""
     pytest.importorskip("gsplat")
     from matspray.export.surface import render_depths
-    from matspray.objectmasks import compute_object_masks
+    from matspray.method.masks import compute_object_masks
     from tests.gsplat_cpu import gsplat_on_cpu
 
     gsplat_on_cpu(monkeypatch)

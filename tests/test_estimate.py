@@ -2,7 +2,7 @@
 
 import pytest
 
-from matspray.estimate import (
+from matspray.method.estimate import (
     CPU_RATES,
     SPREAD,
     Work,
@@ -69,7 +69,7 @@ def test_a_capture_that_triangulates_points_counts_its_feature_photos():
 
 
 def test_feature_photos_are_the_loaded_photos_brought_to_the_points_size():
-    from matspray.estimate import feature_sizes
+    from matspray.method.estimate import feature_sizes
 
     assert feature_sizes([(256, 171), (256, 256)], 4.0, 1024) == [(1024, 684), (1024, 1024)]  # 1024 x 684 as loaded
     assert feature_sizes([(256, 256)], 3.125, 1024) == [(800, 800)]  # smaller than max_size: as loaded

@@ -131,7 +131,7 @@ def file_mesh(path: Path):
 
 
 def test_bounding_box_matches_the_gaussians_in_either_frame_and_the_frames_round_trip(exported, disk_run):
-    from matspray.asset import read_asset
+    from matspray.method.asset import read_asset
 
     means = read_asset(disk_run / "asset").gaussians.means.double().numpy()
     gltf, _, gltf_extras = file_mesh(exported["gltf"])
@@ -226,7 +226,7 @@ def test_fill_empty_takes_the_nearest_filled_texel():
 def test_a_capture_region_bounds_the_surface():
     """A capture's object region (here cut by a plane at z = 0.3, as a table cuts it) bounds the mesh: it closes at
     the cut, with nothing below it, and keeps the part above."""
-    from matspray.objectregion import ObjectRegion
+    from matspray.geometry.region import ObjectRegion
 
     gaussians, _, _ = sphere_of_disks(1500)
     region = ObjectRegion(center=(0.0, 0.0, 0.0), radius=2.0, plane=(0.0, 0.0, 1.0, -0.3))
@@ -313,8 +313,8 @@ def test_a_failed_export_leaves_no_partial_file(disk_run, tmp_path, capsys):
 def synth_run(tmp_path_factory):
     """A tiny Mitsuba object (with its true mesh as object.glb) and a short run of the method on it."""
     pytest.importorskip("mitsuba")
-    from matspray.config import build_config
-    from matspray.pipeline import Pipeline
+    from matspray.method.config import build_config
+    from matspray.method.pipeline import Pipeline
     from matspray.synth import SynthConfig, make_object
 
     root = tmp_path_factory.mktemp("synth")

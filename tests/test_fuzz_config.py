@@ -17,7 +17,7 @@ import yaml
 from hypothesis import given
 from hypothesis import strategies as st
 
-from matspray.config import PipelineConfig
+from matspray.method.config import PipelineConfig
 from matspray.rundir import RunDir
 from tests.fuzzing import damaged, read_or_refuse
 from tests.test_fuzz_images import damage

@@ -346,7 +346,7 @@ def test_damaged_dataset_record(tmp_path):
 
 def test_damaged_lift_result(tmp_path):
     """A cut projected.pt was a RuntimeError from torch.load; values of fewer Gaussians than it keeps were trusted."""
-    from matspray.lift import LiftResult, load_lift, save_lift
+    from matspray.method.lift import LiftResult, load_lift, save_lift
 
     path = tmp_path / "projected.pt"
     save_lift(
@@ -373,8 +373,8 @@ def test_damaged_lift_result(tmp_path):
 
 def test_damaged_masks_stage(tmp_path):
     """region.json with a word for the radius broke describe() (ValueError); cut files were JSON or torch tracebacks."""
-    from matspray.objectmasks import ObjectMasks, read_object_masks, read_region, write_object_masks
-    from matspray.objectregion import ObjectRegion
+    from matspray.geometry.region import ObjectRegion
+    from matspray.method.masks import ObjectMasks, read_object_masks, read_region, write_object_masks
 
     folder = tmp_path / "masks"
     write_object_masks(
@@ -401,7 +401,7 @@ def test_damaged_masks_stage(tmp_path):
 def test_damaged_asset_side_files(tmp_path):
     """visibility.pt holding no tensor (AttributeError), a cut history.json (JSONDecodeError in eval's report), a
     predictor.json holding a list (AttributeError in `matspray predict`)."""
-    from matspray.asset import read_history, read_visibility
+    from matspray.method.asset import read_history, read_visibility
     from matspray.predictors import read_predictor_info
 
     torch.save({"format": "matspray-visibility-1", "values": {"a": 1}}, tmp_path / "visibility.pt")

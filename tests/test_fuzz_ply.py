@@ -18,8 +18,8 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from matspray.asset import CHANNELS, read_asset
 from matspray.geometry.ply import read_ply, write_ply
+from matspray.method.asset import CHANNELS, read_asset
 from tests.fuzzing import damaged, read_or_refuse
 from tests.test_fuzz_images import damage
 from tests.test_fuzz_transforms import FUZZ

@@ -28,15 +28,15 @@ import yaml
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
-from matspray.asset import CHANNELS, read_asset, read_history, write_visibility
-from matspray.config import build_config
 from matspray.data.images import write_raw
 from matspray.errors import MatsprayError
 from matspray.geometry.ply import read_ply, write_ply
-from matspray.lift import load_lift
-from matspray.objectmasks import ObjectMasks, read_object_masks, read_region, write_object_masks
-from matspray.objectregion import ObjectRegion
-from matspray.pipeline import Pipeline
+from matspray.geometry.region import ObjectRegion
+from matspray.method.asset import CHANNELS, read_asset, read_history, write_visibility
+from matspray.method.config import build_config
+from matspray.method.lift import load_lift
+from matspray.method.masks import ObjectMasks, read_object_masks, read_region, write_object_masks
+from matspray.method.pipeline import Pipeline
 from matspray.predictors import read_materials2d, read_predictor_info
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir, fingerprint

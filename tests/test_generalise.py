@@ -27,7 +27,7 @@ from matspray.data.images import read_image
 from matspray.errors import ConfigError
 from matspray.geometry.config import GeometryConfig
 from matspray.lights import BUILTINS
-from matspray.refine import RefineConfig
+from matspray.method.refine.loop import RefineConfig
 from matspray.rundir import newer_than_stages, share_stage
 
 HDRIS = ["city", "forest", "interior", "studio", "sunrise", "sunset"]

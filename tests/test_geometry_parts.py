@@ -9,7 +9,6 @@ import torch
 
 from matspray.data.camera import Camera
 from matspray.data.scene import Scene, View
-from matspray.eval.metrics import ssim_loss
 from matspray.gaussians import Gaussians
 from matspray.geometry.config import preset
 from matspray.geometry.densify import DensityControl, split_gaussians
@@ -17,6 +16,7 @@ from matspray.geometry.init import hull_surface_points, initial_gaussians, neigh
 from matspray.geometry.losses import flatten_loss, normal_consistency_loss
 from matspray.geometry.normals import consensus_normals, depth_normals, oriented_normals, render_normals
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
+from matspray.metrics import ssim_loss
 from tests.test_geometry import one_thread  # noqa: F401  (fixture: one torch thread)
 
 LRS = {"means": 0.01, "log_scales": 0.01, "quats": 0.01, "opacity_logits": 0.01, "sh_dc": 0.01, "sh_rest": 0.01}

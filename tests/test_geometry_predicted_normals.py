@@ -128,8 +128,8 @@ def test_runs_made_before_the_setting_keep_their_fingerprint_and_checkpoint(tmp_
 
 
 def test_the_pipeline_trains_geometry_on_the_predictors_normals(tiny_object, tmp_path):
-    from matspray.config import build_config
-    from matspray.pipeline import Pipeline
+    from matspray.method.config import build_config
+    from matspray.method.pipeline import Pipeline
 
     config = build_config("test", predictor="simulated:dr")  # on by default
     with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lambda _: None) as pipeline:
@@ -152,8 +152,8 @@ def test_the_pipeline_trains_geometry_on_the_predictors_normals(tiny_object, tmp
 
 
 def test_a_run_without_a_predictor_trains_its_geometry_without_normals(tiny_object, tmp_path):
-    from matspray.config import build_config
-    from matspray.pipeline import Pipeline
+    from matspray.method.config import build_config
+    from matspray.method.pipeline import Pipeline
 
     lines = []
     config = build_config("test", predictor="none")

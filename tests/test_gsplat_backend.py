@@ -11,8 +11,8 @@ import pytest
 import torch
 import yaml
 
-from matspray.config import PipelineConfig
 from matspray.errors import SettingError
+from matspray.method.config import PipelineConfig
 from matspray.render import backend as backend_module
 from matspray.render.backend import gsplat_cuda_error, gsplat_import_error, resolve_backend
 from matspray.rundir import RunDir

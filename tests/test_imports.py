@@ -1,4 +1,5 @@
-"""The package's import graph has no cycle, and `matspray --help` starts fast (imports no torch).
+"""The package's import graph has no cycle and no import up its layers, and `matspray --help` starts fast (imports no
+torch).
 
 The graph is read from the source with `ast`: every `import` / `from ... import` of the package's own
 modules, at module level or inside functions (relative imports resolved). Importing a.b.c also runs
@@ -148,6 +149,94 @@ def test_the_package_has_no_import_cycle():
     )
     print(report or "no import cycle")
     assert not cycles, f"{len(cycles)} import cycle(s) in matspray:\n{report}"
+
+
+# The layers of the package, bottom up: a module imports only from its own layer or those below. The tree reads as the
+# paper: the data and the renderer, the 2D prior and the Gaussians, the method, then what uses the asset.
+PLUMBING = ("matspray", "errors", "files", "device", "graphs", "gaussians", "material", "variants", "metrics", "rundir")
+LAYERS = (
+    PLUMBING,
+    ("data",),
+    ("render",),
+    ("gltf",),
+    ("lights", "hdri"),
+    ("synth",),
+    ("predictors",),
+    ("geometry",),
+    ("method",),
+    ("export",),
+    ("view",),
+    ("eval",),
+    ("batch",),
+    ("cli",),
+    ("__main__",),
+)
+BENCHMARKS_ROOT = PACKAGE_ROOT.parent / "benchmarks"
+
+
+def component(module: str) -> str:  # "matspray.method.refine.loop" -> "method"; "matspray" -> "matspray"
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def upward_imports(graph: dict[str, dict[str, str]], layers=LAYERS) -> list[str]:
+    """Every edge from a module to one of a higher layer, as "a -> b (file:line)"."""
+    rank = {name: k for k, names in enumerate(layers) for name in names}
+    return [
+        f"{a} -> {b} ({where})"
+        for a, edges in sorted(graph.items())
+        for b, where in sorted(edges.items())
+        if rank[component(b)] > rank[component(a)]
+    ]
+
+
+def test_every_top_level_module_and_package_has_a_layer():
+    placed = {name for names in LAYERS for name in names}
+    found = {component(name) for name in import_graph(PACKAGE_ROOT)}
+    assert found - placed == set(), f"place these in LAYERS: {sorted(found - placed)}"
+    assert placed - found - {"hdri"} == set(), f"LAYERS names what is gone: {sorted(placed - found)}"
+
+
+def test_no_module_imports_up_the_layers():
+    upward = upward_imports(import_graph(PACKAGE_ROOT))
+    assert not upward, "imports up the layers (move the shared part down):\n" + "\n".join(upward)
+
+
+def test_the_benchmarks_have_no_import_cycle_and_the_library_never_imports_them():
+    graph = import_graph(BENCHMARKS_ROOT)
+    assert len(graph) > 20
+    cycles = find_cycles(graph)
+    assert not cycles, "\n".join(describe(graph, cycle) for _, cycle in cycles)
+    library = [
+        f"{path.relative_to(PACKAGE_ROOT.parent)}:{node.lineno}"
+        for path in sorted(PACKAGE_ROOT.rglob("*.py"))
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if (isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "benchmarks")
+        or (isinstance(node, ast.Import) and any(alias.name.split(".")[0] == "benchmarks" for alias in node.names))
+    ]
+    assert not library, f"the library imports the benchmarks: {library}"
+
+
+def test_the_layer_check_finds_an_import_up(tmp_path):
+    """The checker itself: a function-local import from a low layer into a high one is found, with its line; imports
+    down and within a layer are not."""
+    root = write_package(
+        tmp_path,
+        {
+            "pkg/__init__.py": "",
+            "pkg/errors.py": "",
+            "pkg/data/__init__.py": "",
+            "pkg/data/read.py": "from pkg.errors import x\ndef f():\n    from pkg.method.run import g\n",
+            "pkg/method/__init__.py": "",
+            "pkg/method/run.py": "from pkg.data.read import f\nfrom pkg.method import other\n",
+            "pkg/method/other.py": "",
+        },
+    )
+    layers = (("pkg", "errors"), ("data",), ("method",))
+    assert upward_imports(import_graph(root), layers) == [
+        "pkg.data.read -> pkg.method (pkg/data/read.py:3)",
+        "pkg.data.read -> pkg.method.run (pkg/data/read.py:3)",
+    ]
 
 
 def write_package(root: Path, files: dict[str, str]) -> Path:

@@ -4,7 +4,7 @@ import torch
 from matspray.data import Camera
 from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
-from matspray.lift import LiftConfig, lift, supported_views, weighted_median, weighted_medians
+from matspray.method.lift import LiftConfig, lift, supported_views, weighted_median, weighted_medians
 
 
 def test_weighted_median_matches_brute_force():

@@ -10,7 +10,7 @@ import torch
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
-from matspray.lift import LiftConfig, compiled_entries, footprint_alpha, lift, traced_entries
+from matspray.method.lift import LiftConfig, compiled_entries, footprint_alpha, lift, traced_entries
 from matspray.render.backend import rendering_with
 from matspray.render.numba_rays import tile_row_bands
 from matspray.render.settings import RasterSettings
@@ -115,7 +115,7 @@ def test_lifting_with_backend_numba_gives_the_torch_lift():
 def test_the_torch_tracers_entries_do_not_depend_on_its_band_size(monkeypatch, seed):
     # on a GPU the tracer takes bands as large as its memory allows (lift.band_samples): whole rays either way, so
     # the same entries as in the CPU's small bands, here from one band for the whole view down to bands of a row
-    import matspray.lift as lift_module
+    import matspray.method.lift as lift_module
 
     assert lift_module.band_samples(torch.device("cpu")) == lift_module.DEFAULT_BAND_SAMPLES
     gaussians, camera = dense_scene(seed)

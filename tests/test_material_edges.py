@@ -118,8 +118,8 @@ def test_a_threshold_without_material_maps_is_refused(tmp_path):
 
 
 def test_the_pipeline_splits_on_its_predictors_maps_and_only_where_it_has_them(tiny_object, tmp_path, capsys):
-    from matspray.config import build_config
-    from matspray.pipeline import Pipeline
+    from matspray.method.config import build_config
+    from matspray.method.pipeline import Pipeline
 
     config = build_config("test", predictor="simulated:dr", **{"geometry.material_edge_threshold": 0.05})
     with Pipeline(tiny_object, tmp_path / "run", config, progress=True, log=lambda _: None) as pipeline:

@@ -4,7 +4,7 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 from matspray.errors import DataError, RunError
 from matspray.material import GROUPS
-from matspray.merger import (
+from matspray.method.merger import (
     MergerConfig,
     NeuralMerger,
     align_view_gains,
@@ -216,8 +216,8 @@ def test_an_unknown_precision_is_refused():
 
 
 def test_auto_precision_is_bfloat16_on_cuda_and_on_a_cpu_that_multiplies_it_natively(monkeypatch):
-    from matspray import merger as merger_module
-    from matspray.merger import mlp_dtype
+    from matspray.method import merger as merger_module
+    from matspray.method.merger import mlp_dtype
 
     cpu, cuda = torch.device("cpu"), torch.device("cuda")
     assert mlp_dtype("float32", cpu) == torch.float32 and mlp_dtype("bfloat16", cuda) == torch.bfloat16

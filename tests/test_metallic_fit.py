@@ -1,4 +1,4 @@
-"""The metallic fit (`matspray.metallic_fit`): against a brute-force linear program, on a blurred edge, and in
+"""The metallic fit (`matspray.method.refine.metallic`): against a brute-force linear program, on a blurred edge, and in
 refinement (metallic only)."""
 
 from dataclasses import replace
@@ -8,8 +8,8 @@ import torch
 
 from matspray.errors import SettingError
 from matspray.material import METALLIC_INDEX
-from matspray.metallic_fit import MetallicFitConfig, fit_loss, fit_metallic
-from matspray.refine import RefineConfig, refine
+from matspray.method.refine.loop import RefineConfig, refine
+from matspray.method.refine.metallic import MetallicFitConfig, fit_loss, fit_metallic
 from tests.test_refine import lifted_scene, refine_inputs  # noqa: F401 (the fixture)
 
 
@@ -164,7 +164,7 @@ def test_refinement_fits_only_the_metallic(lifted_scene):  # noqa: F811 (the fix
 
     # the fit lowers its own image term, summed over the views, against the merger's metallic
     def image_error(materials):
-        from matspray.refine import TrainingViews
+        from matspray.method.refine.loop import TrainingViews
 
         training = TrainingViews(inputs)
         total = 0.0

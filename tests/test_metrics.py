@@ -119,7 +119,7 @@ def test_ssim_matches_an_independent_numpy_computation():
 
 
 def test_the_ssim_training_loss_has_the_gradient_of_its_values():
-    from matspray.eval.metrics import ssim_loss
+    from matspray.metrics import ssim_loss
 
     x, y = rand(14, 13, 2, seed=5), rand(14, 13, 2, seed=6)
     assert float(ssim_loss(x, y)) == pytest.approx(1.0 - ssim_reference(x.numpy(), y.numpy()), abs=1e-10)

@@ -11,11 +11,11 @@ from dataclasses import replace
 import pytest
 import torch
 
-from matspray.config import build_config
 from matspray.errors import ConfigError
 from matspray.eval.run_eval import evaluate_run
-from matspray.pipeline import Pipeline, variant_refine_config
-from matspray.refine import refine
+from matspray.method.config import build_config
+from matspray.method.pipeline import Pipeline, variant_refine_config
+from matspray.method.refine.loop import refine
 from matspray.variants import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
 from tests.reference_metrics import relighting_psnr
 

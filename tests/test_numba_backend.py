@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 import torch
 
-from matspray.config import build_config
 from matspray.data.camera import Camera
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
-from matspray.pipeline import Pipeline
+from matspray.method.config import build_config
+from matspray.method.pipeline import Pipeline
 from matspray.render.backend import BACKENDS, rendering_with, resolve_backend
 from matspray.render.rasterize import _setup, rasterize
 from matspray.render.settings import RasterSettings

@@ -14,14 +14,7 @@ from matspray.data import Camera, View
 from matspray.data.scene import Scene
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
-from matspray.objectmasks import (
-    compute_object_masks,
-    object_alpha,
-    read_object_masks,
-    read_region,
-    write_object_masks,
-)
-from matspray.objectregion import (
+from matspray.geometry.region import (
     ObjectRegion,
     auto_region,
     dense_radius,
@@ -29,6 +22,13 @@ from matspray.objectregion import (
     given_region,
     mask_iou,
     support_plane,
+)
+from matspray.method.masks import (
+    compute_object_masks,
+    object_alpha,
+    read_object_masks,
+    read_region,
+    write_object_masks,
 )
 from matspray.render.rasterize import rasterize
 
@@ -247,9 +247,9 @@ def test_synth_photos_show_the_background_and_ground_and_carry_no_mask(unmasked_
 
 
 def test_pipeline_masks_stage_on_an_unmasked_capture(unmasked_object, tmp_path):
-    from matspray.config import build_config
     from matspray.eval.run_eval import evaluate_run
-    from matspray.pipeline import Pipeline
+    from matspray.method.config import build_config
+    from matspray.method.pipeline import Pipeline
 
     config = build_config("test", predictor="simulated", **{"refine.iterations": 4})
     run = tmp_path / "run"

@@ -10,10 +10,10 @@ from dataclasses import replace
 import pytest
 import torch
 
-from matspray.config import WORKING_SIZE, build_config, shadow_maps
 from matspray.errors import NumericalError, RunError
-from matspray.pipeline import Pipeline
-from matspray.refine import check_finite
+from matspray.method.config import WORKING_SIZE, build_config, shadow_maps
+from matspray.method.pipeline import Pipeline
+from matspray.method.refine.loop import check_finite
 from matspray.variants import VARIANT_NAMES as VARIANTS
 from matspray.variants import asset_stage
 from tests.conftest import busy_message
@@ -56,7 +56,7 @@ def test_every_stage_writes_its_artifact(finished_run):
 
 
 def test_asset_round_trip(finished_run):
-    from matspray.asset import read_asset
+    from matspray.method.asset import read_asset
 
     asset = read_asset(finished_run / "asset")
     assert asset.materials.shape[1] == 5 and len(asset.gaussians) == len(asset.materials)
@@ -70,10 +70,10 @@ def test_asset_round_trip(finished_run):
 
 def test_the_asset_ply_carries_the_refined_normals_of_the_variants_with_the_pbr_loss(finished_run):
     """The PBR variants' normals were trained (they left the geometry's); the others shade with the geometry's."""
-    from matspray.asset import read_asset
     from matspray.geometry.ply import read_ply
-    from matspray.lift import load_lift
-    from matspray.shading_normals import angle_change_degrees
+    from matspray.method.asset import read_asset
+    from matspray.method.lift import load_lift
+    from matspray.method.refine.normals import angle_change_degrees
 
     _, geometry_normals = read_ply(finished_run / "geometry" / "gaussians.ply")
     lifted = load_lift(finished_run / "lift" / "projected.pt", "cpu")
@@ -90,8 +90,8 @@ def test_the_simulated_predictors_normal_maps_reach_refinement_in_world_space(ti
     """The simulated predictor writes normal maps beside the materials; refinement reads them in world space (near
     the true normals), and with a weight on them its history has their term."""
     from matspray.geometry.evaluate import true_normals
-    from matspray.refine import refine
-    from matspray.shading_normals import angle_change_degrees
+    from matspray.method.refine.loop import refine
+    from matspray.method.refine.normals import angle_change_degrees
 
     config = replace(tiny_config(), visibility=None)
     config = replace(config, refine=replace(config.refine, predicted_normal_weight=1.0, iterations=3))
@@ -146,8 +146,8 @@ def test_only_variants_that_read_the_maps_refine_towards_their_normals(tiny_obje
 def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
     import shutil
 
-    from matspray.asset import read_asset
     from matspray.cli import main
+    from matspray.method.asset import read_asset
 
     run = tmp_path / "run"
     for stage in ("materials2d", "geometry"):  # reuse the slow stages
@@ -268,7 +268,7 @@ def test_nan_loss_names_step_and_term():
 
 
 def test_a_pipeline_from_default_configs_runs(tiny_object, tmp_path):
-    from matspray.config import PipelineConfig
+    from matspray.method.config import PipelineConfig
 
     pipeline = Pipeline(
         tiny_object, tmp_path / "run", PipelineConfig(predictor="ground-truth"), progress=False, log=lambda _: None
@@ -467,8 +467,8 @@ def test_the_variants_of_a_run_share_the_frozen_views_and_a_light_warm_up_that_s
 ):
     import shutil
 
-    from matspray import pipeline as pipeline_module
-    from matspray.asset import read_asset
+    from matspray.method import pipeline as pipeline_module
+    from matspray.method.asset import read_asset
 
     run = tmp_path / "run"
     shutil.copytree(finished_run, run)
@@ -483,7 +483,7 @@ def test_the_variants_of_a_run_share_the_frozen_views_and_a_light_warm_up_that_s
 
     frozen_views = pipeline_module.frozen_views
     monkeypatch.setattr(pipeline_module, "frozen_views", counted)
-    from matspray import refine as refine_module
+    from matspray.method.refine import loop as refine_module
 
     warm_ups = []
     warm_up_light = refine_module.warm_up_light
@@ -497,7 +497,7 @@ def test_the_variants_of_a_run_share_the_frozen_views_and_a_light_warm_up_that_s
 
 
 def test_a_run_with_backend_numba_compiles_its_kernels_while_it_reads_its_data(tiny_object, tmp_path, monkeypatch):
-    from matspray import pipeline as pipeline_module
+    from matspray.method import pipeline as pipeline_module
 
     started = []
     monkeypatch.setattr(pipeline_module, "compile_in_background", lambda: started.append(True))

@@ -4,9 +4,9 @@ import pytest
 import torch
 
 from matspray.errors import ConfigError
-from matspray.lift import LiftConfig, lift
-from matspray.merger import projection_average, view_gains
-from matspray.refine import (
+from matspray.method.lift import LiftConfig, lift
+from matspray.method.merger import projection_average, view_gains
+from matspray.method.refine.loop import (
     RefineConfig,
     RefineInputs,
     TrainingViews,
@@ -198,7 +198,7 @@ def test_supervised_materials_converge_to_the_2d_maps_in_a_short_run(lifted_scen
 
 def test_a_non_finite_gradient_stops_refinement_naming_the_step_and_parameter():
     from matspray.errors import NumericalError
-    from matspray.refine import check_finite_gradients
+    from matspray.method.refine.loop import check_finite_gradients
 
     good, bad = torch.nn.Parameter(torch.zeros(2)), torch.nn.Parameter(torch.zeros(3))
     good.grad, bad.grad = torch.ones(2), torch.tensor([0.0, float("nan"), 1.0])

@@ -5,7 +5,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from matspray.errors import NumericalError
-from matspray.refine_steps import FiniteRecord, adam, optimize
+from matspray.method.refine.steps import FiniteRecord, adam, optimize
 
 
 def toy(bad_loss_at=None, bad_gradient_at=None):
@@ -86,7 +86,7 @@ def test_recording_a_step_does_not_read_the_device():
 
 def test_refinement_never_checkpoints_after_a_non_finite_step(monkeypatch):
     from benchmarks.step_cost import refine_inputs
-    from matspray import refine as refine_module
+    from matspray.method.refine import loop as refine_module
     from matspray.render.backend import rendering_with
 
     view_losses, calls = refine_module.view_losses, []

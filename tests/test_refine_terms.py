@@ -1,6 +1,6 @@
-"""A refinement step's image-sized part as pure functions of tensors (`matspray.refine_terms`), run as CUDA graphs on
-a CUDA device (`matspray.graphs.Graphed`; here through the stand-in of benchmarks.step_cost, which runs each as one
-operation each way): the same terms and gradients as the deferred shading and losses op by op, and the same
+"""A refinement step's image-sized part as pure functions of tensors (`matspray.method.refine.terms`), run as CUDA
+graphs on a CUDA device (`matspray.graphs.Graphed`; here through the stand-in of benchmarks.step_cost, which runs each
+as one operation each way): the same terms and gradients as the deferred shading and losses op by op, and the same
 refinement."""
 
 from __future__ import annotations
@@ -12,13 +12,13 @@ import pytest
 import torch
 
 from benchmarks.step_cost import graph_stand_in, measure, refine_inputs
-from matspray.config import build_config
 from matspray.data.camera import Camera
 from matspray.data.images import linear_to_srgb
 from matspray.geometry.losses import normal_map_loss, photometric_loss
 from matspray.graphs import Graphed, capturing_with
-from matspray.refine import TrainingViews, refine, view_losses
-from matspray.refine_terms import (
+from matspray.method.config import build_config
+from matspray.method.refine.loop import TrainingViews, refine, view_losses
+from matspray.method.refine.terms import (
     TermOptions,
     light_images,
     material_loss,

@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 
 import benchmarks.generalise as generalise
-from matspray.config import build_config
 from matspray.errors import RunError
 from matspray.geometry.config import GeometryConfig
+from matspray.method.config import build_config
 from matspray.rundir import RUN_LOCK, RunDir, held_exclusively, share_stage
 from tests.conftest import busy_message
 

@@ -1,18 +1,19 @@
-"""Shading normals refined by the rendering loss (matspray.shading_normals, used by matspray.refine)."""
+"""Shading normals refined by the rendering loss (matspray.method.refine.normals, used by
+matspray.method.refine.loop)."""
 
 import pytest
 import torch
 import torch.nn.functional as F
 
-from matspray.asset import Asset
 from matspray.errors import SettingError
 from matspray.geometry.losses import normal_map_loss
 from matspray.geometry.normals import angular_error_degrees
-from matspray.lift import LiftConfig, lift
-from matspray.refine import RefineConfig, RefineInputs, refine
-from matspray.relight import render_gbuffer
+from matspray.method.asset import Asset
+from matspray.method.lift import LiftConfig, lift
+from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
+from matspray.method.refine.normals import ShadingNormals, angle_change_degrees, normal_prior
+from matspray.method.relight import render_gbuffer
 from matspray.render.envmap import EnvironmentMap
-from matspray.shading_normals import ShadingNormals, angle_change_degrees, normal_prior
 from tests.scenes import material_scene, sky_map
 
 BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])

@@ -12,8 +12,8 @@ import torch
 from matspray.data import Camera, View
 from matspray.data.blender import write_blender
 from matspray.data.images import srgb_to_linear
+from matspray.data.scene import MIN_COLMAP_POINTS
 from matspray.data.triangulate import PointsConfig, needs_points, neighbour_pairs, points_stage, triangulate_views
-from matspray.geometry.init import MIN_COLMAP_POINTS
 from matspray.rundir import RunDir
 
 pytest.importorskip("pycolmap")
@@ -114,9 +114,9 @@ def test_needs_points_only_for_unmasked_captures_without_points():
 
 
 def test_pipeline_starts_the_gaussians_from_the_points_and_reuses_them(tmp_path, monkeypatch):
-    from matspray import pipeline as pipeline_module
-    from matspray.config import build_config
     from matspray.geometry import train as train_module
+    from matspray.method import pipeline as pipeline_module
+    from matspray.method.config import build_config
 
     views = plane_views(count=8, size=96)
     data = tmp_path / "capture"

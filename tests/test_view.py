@@ -494,9 +494,9 @@ def test_the_viewer_renders_on_the_device_it_is_given(view_run, device):
     independent reference: the asset and the light read from the run folder by the readers, not the viewer, and
     rendered in float64 on the CPU. On the GPU machine `pytest --device cuda` runs this on CUDA
     (benchmarks/gpu_check.sh lists tests/test_view.py)."""
-    from matspray.asset import Asset, read_asset
     from matspray.data.camera import Camera
     from matspray.lights import load_envmap
+    from matspray.method.asset import Asset, read_asset
     from matspray.render.envmap import EnvironmentMap
     from matspray.rundir import RunDir
     from matspray.view.frames import render_frame

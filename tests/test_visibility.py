@@ -3,9 +3,9 @@ import math
 import pytest
 import torch
 
-from matspray.asset import Asset, read_asset, write_asset
 from matspray.gaussians import Gaussians
-from matspray.relight import render_gbuffer
+from matspray.method.asset import Asset, read_asset, write_asset
+from matspray.method.relight import render_gbuffer
 from matspray.render.deferred import shade
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import orient_normals

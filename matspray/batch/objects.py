@@ -13,11 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from matspray.config import PipelineConfig
 from matspray.errors import ConfigError, DataError, MatsprayError
 from matspray.eval.report import write_report
 from matspray.eval.run_eval import check_synthetic, evaluate_run
-from matspray.pipeline import Pipeline
+from matspray.method.config import PipelineConfig
+from matspray.method.pipeline import Pipeline
 from matspray.rundir import read_json, write_json
 from matspray.variants import variants_for_maps
 

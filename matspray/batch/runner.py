@@ -18,8 +18,8 @@ from tqdm import tqdm
 from matspray.batch.cluster import INSTALL_HINT, check_reachable, load_ray, ray_session
 from matspray.batch.objects import BatchObject, batch_objects, finished_record, object_result, one_line, process_object
 from matspray.batch.summary import batch_summary, write_summary
-from matspray.config import PipelineConfig
 from matspray.errors import ConfigError, RunError, SettingError
+from matspray.method.config import PipelineConfig
 from matspray.rundir import fingerprint, read_json, to_plain, write_json
 from matspray.variants import VARIANT_NAMES
 

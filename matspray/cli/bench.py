@@ -39,7 +39,7 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
-    from matspray.demo import asset_objects, check_assets, run_bench
+    from matspray.batch.demo import asset_objects, check_assets, run_bench
     from matspray.errors import ConfigError
 
     if args.assets is not None and args.objects is not None:

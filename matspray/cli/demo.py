@@ -24,7 +24,7 @@ def add_parser(parser) -> None:
 def run(args) -> int:
     import time
 
-    from matspray.demo import run_demo
+    from matspray.batch.demo import run_demo
 
     config = build_config_from_args(args, predictor="simulated")
     refuse_paper_on_a_cpu(args.preset, config.device)

@@ -69,7 +69,8 @@ def add_parser(parser) -> None:
 
 
 def run(args) -> int:
-    from matspray.device import compute_target, out_of_memory_as_error
+    from matspray.device import out_of_memory_as_error
+    from matspray.render.backend import compute_target
 
     device, backend = compute_target(args.device, args.backend)
     if args.glb is not None:

@@ -61,8 +61,9 @@ EXPORT_PACKAGES = ("trimesh", "xatlas", "skimage", "fast_simplification", "scipy
 
 
 def run(args) -> int:
-    from matspray.device import compute_target, out_of_memory_as_error
+    from matspray.device import out_of_memory_as_error
     from matspray.errors import optional_module
+    from matspray.render.backend import compute_target
 
     for name in EXPORT_PACKAGES:  # before any work: one line naming the extra, not an ImportError deep inside
         optional_module(name, "export", "matspray export")

@@ -43,11 +43,11 @@ def run(args) -> int:
     import torch
 
     from matspray.data import load_scene
-    from matspray.device import compute_target, out_of_memory_as_error
+    from matspray.device import out_of_memory_as_error
     from matspray.errors import SettingError
     from matspray.geometry.config import preset
     from matspray.geometry.train import train_geometry
-    from matspray.render.backend import rendering_with
+    from matspray.render.backend import compute_target, rendering_with
     from matspray.rundir import RunDir
 
     try:

@@ -1,5 +1,5 @@
 """The method's command-line options, shared by `run`, `demo`, `bench` and `batch`: each flag sets one named
-setting of `matspray.config` (the library validates; a bad value comes back as a SettingError, and
+setting of `matspray.method.config` (the library validates; a bad value comes back as a SettingError, and
 `matspray.cli.main` names the flag that set it). Nothing here imports torch, so `--help` stays fast.
 
 The research settings are reached by name, `--set KEY=VALUE` (`matspray.cli.settings`); the flags that set them one
@@ -26,7 +26,7 @@ ADDITION_CHOICES = (
     "unseen-mask",
     "light-warmup",
     "min-coverage",
-)  # matspray.config.ADDITION_NAMES (a test checks)
+)  # matspray.method.config.ADDITION_NAMES (a test checks)
 
 
 def on_off(value: str) -> bool:
@@ -295,8 +295,8 @@ def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "
 
 def method_settings_from_args(args) -> dict:
     """{dotted setting: value} for the flags the user gave (parsed to the setting's type)."""
-    from matspray.config import shadow_maps
     from matspray.errors import SettingError
+    from matspray.method.config import shadow_maps
 
     settings = {}
     for flag, (setting, parse, _) in SETTING_FLAGS.items():
@@ -315,7 +315,7 @@ def method_settings_from_args(args) -> dict:
 def build_config_from_args(args, **fixed):
     """The run's PipelineConfig from the parsed flags and `--set` (`fixed`: settings the command sets itself)."""
     from matspray.cli.settings import settings_from_overrides
-    from matspray.config import build_config
+    from matspray.method.config import build_config
 
     named = settings_from_overrides(getattr(args, "overrides", None), args.preset)
     return build_config(

@@ -1,6 +1,6 @@
 """`matspray relight --run RUN --env NAME|PATH`: render the asset under a new light.
 
-The run-folder glue lives here: which asset, which cameras, which files; `matspray.relight` only renders."""
+The run-folder glue lives here: which asset, which cameras, which files; `matspray.method.relight` only renders."""
 
 from pathlib import Path
 
@@ -58,14 +58,14 @@ def relight_run(
     import torch
     from tqdm import tqdm
 
-    from matspray.asset import read_asset
     from matspray.data import load_run_scene, write_image
     from matspray.data.images import linear_to_srgb
     from matspray.data.video import write_video
     from matspray.errors import ConfigError, RunError, optional_module
     from matspray.lights import load_envmap
-    from matspray.objectmasks import read_region
-    from matspray.relight import background_radiance, cameras_up, orbit_cameras, render_relit
+    from matspray.method.asset import read_asset
+    from matspray.method.masks import read_region
+    from matspray.method.relight import background_radiance, cameras_up, orbit_cameras, render_relit
     from matspray.render.backend import rendering_with
     from matspray.render.envmap import EnvironmentMap
     from matspray.rundir import RunDir
@@ -122,7 +122,8 @@ def relight_run(
 
 
 def run(args) -> int:
-    from matspray.device import compute_target, out_of_memory_as_error
+    from matspray.device import out_of_memory_as_error
+    from matspray.render.backend import compute_target
 
     device, backend = compute_target(args.device, args.backend)
     with out_of_memory_as_error("relight", device):

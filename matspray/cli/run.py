@@ -30,8 +30,8 @@ def add_parser(parser) -> None:
 def run(args) -> int:
     import time
 
-    from matspray.estimate import estimate_line, minutes
-    from matspray.pipeline import Pipeline
+    from matspray.method.estimate import estimate_line, minutes
+    from matspray.method.pipeline import Pipeline
     from matspray.predictors import NO_PREDICTOR
     from matspray.variants import asset_stage, variants_for_maps
 

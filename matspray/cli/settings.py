@@ -1,7 +1,7 @@
 """Research settings by their dotted names: `--set lift.min_support=0.5 refine.normal_lr=0`, and
 `matspray run --list-settings`, which prints every key with its default and meaning.
 
-The keys are the fields of `matspray.config.PipelineConfig` and of its sections' dataclasses (geometry, lift,
+The keys are the fields of `matspray.method.config.PipelineConfig` and of its sections' dataclasses (geometry, lift,
 refine, refine.merger, visibility), found by walking them, so a field added to a section is settable without a
 change here; its meaning is the comment beside (or just above) the field in the source. A value is read by the
 field's type (int, float, on/off, text, none where the field may be None, comma-separated numbers for tuples);
@@ -29,7 +29,7 @@ OWN_FLAGS = {
     "backend": "--backend",
     "downscale": "--downscale",
 }
-# follow --preset and seed, or are set per variant by the pipeline (matspray.pipeline.refine_config)
+# follow --preset and seed, or are set per variant by the pipeline (matspray.method.pipeline.refine_config)
 DERIVED = ("geometry.preset", "geometry.seed", "refine.variant", "refine.seed")
 # a field's comment goes on in the comment lines below it while it is unfinished: a parenthesis left open, or a last
 # word that cannot end a phrase (otherwise those lines are the next field's)
@@ -153,7 +153,7 @@ def field_comments(cls) -> dict[str, str]:
 
 def settings_table() -> dict[str, Setting]:
     """Every settable key, in the dataclasses' field order."""
-    from matspray.config import PipelineConfig
+    from matspray.method.config import PipelineConfig
 
     table: dict[str, Setting] = {}
 
@@ -266,7 +266,7 @@ def settings_from_overrides(items, preset: str, allowed=None) -> dict:
         except ValueError:
             raise SettingError(key, f"cannot read {text!r} as {type_name(table[key].hint)}") from None
         if key == SHADOWS:
-            from matspray.config import shadow_maps
+            from matspray.method.config import shadow_maps
 
             settings["visibility"] = shadow_maps(preset) if value else None
             continue
@@ -303,7 +303,7 @@ class ListSettings(argparse.Action):
 
 def settings_listing(preset: str = "demo", method: str = "matspray") -> str:
     """Every settable key with its default under `preset` and `method`, its type and its meaning."""
-    from matspray.config import build_config, shadow_maps
+    from matspray.method.config import build_config, shadow_maps
 
     config = build_config(preset, method)
     lines = [f"settings of `matspray run --set KEY=VALUE` (defaults: --preset {preset} --method {method})", ""]

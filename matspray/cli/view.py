@@ -56,7 +56,7 @@ def run(args) -> int:
             flush=True,
         )
     try:
-        from matspray.device import compute_target
+        from matspray.render.backend import compute_target
         from matspray.view.server import Viewer, ViewerConfig
 
         device, backend = compute_target(args.device, args.backend)

@@ -2,7 +2,7 @@
 margin, before it is brought to the working size, so that the object gets the pixels and not the room.
 
 The box comes before any training, from the capture's sparse points (its own, or the `points` stage's) inside the
-object region (matspray.objectregion: `--object-bounds`, else the automatic rule on the points), projected into each
+object region (matspray.geometry.region: `--object-bounds`, else the automatic rule on the points), projected into each
 view: the box between the `quantile` and 1 - `quantile` of their pixels, grown by `margin` of its size on each side.
 Each window then takes the frame's aspect ratio and is brought to the size the whole photo would have had, so every
 view keeps its size and only its intrinsics change (focal length and principal point). Nothing is enlarged: a window
@@ -11,7 +11,7 @@ whole photo, and a capture whose windows would gain little (on average more than
 side) is not cut at all.
 
 The windows are fractions of the photo (resolution free), kept in the run (`RUN/crop/crop.json`, written by
-matspray.objectcrop): every command that reads the run's photos cuts them the same way
+matspray.method.crop): every command that reads the run's photos cuts them the same way
 (`matspray.data.loader.load_run_scene`).
 """
 

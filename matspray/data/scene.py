@@ -11,6 +11,10 @@ from torch import Tensor
 from matspray.data.camera import Camera
 from matspray.data.images import resize
 
+# a capture's own point cloud (structure from motion) with fewer points than this does not start the Gaussians: they
+# start from triangulated points (data.triangulate) or at random (geometry.init)
+MIN_COLMAP_POINTS = 100
+
 
 @dataclass
 class View:

@@ -10,7 +10,7 @@ views in pose (not every pair: a video's frames are many, and far-apart views sh
 scene's world frame: COLMAP's cam_from_world is our world-to-camera `viewmat` (both OpenCV axes, pixel centres at
 +0.5).
 
-In a run (`matspray.pipeline`) the result is a stage of its own, `points/points.pt`, so a rerun does not redo it.
+In a run (`matspray.method.pipeline`) the result is a stage of its own, `points/points.pt`, so a rerun does not redo it.
 """
 
 from __future__ import annotations
@@ -26,10 +26,9 @@ from PIL import Image
 from torch import Tensor
 
 from matspray.data.images import linear_to_srgb, save_torch_atomic, srgb_to_linear
-from matspray.data.scene import Scene, View
+from matspray.data.scene import MIN_COLMAP_POINTS, Scene, View
 from matspray.data.sfm import SfmConfig, extract_sift
 from matspray.errors import ConfigError
-from matspray.geometry.init import MIN_COLMAP_POINTS
 from matspray.rundir import RunDir, timed
 
 STAGE, POINTS_FILE = "points", "points.pt"

@@ -4,7 +4,6 @@ from matspray.eval.evaluate import average_metrics, evaluate_images
 from matspray.eval.lpips import LPIPS, load_lpips
 from matspray.eval.masked import align_scale, channel_scale, composite_on_background
 from matspray.eval.metallic import MetallicPsnr, metallic_psnr_over_objects, object_metallic_psnr
-from matspray.eval.metrics import psnr, ssim
 from matspray.eval.tables import (
     ablation_table,
     material_table,
@@ -13,6 +12,7 @@ from matspray.eval.tables import (
     timings_table,
     write_tables,
 )
+from matspray.metrics import psnr, ssim
 
 __all__ = [
     "LPIPS",

@@ -12,15 +12,15 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import ENVMAP_FILE, envmap_preview
 from matspray.data import load_run_scene
 from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
 from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
 from matspray.eval.report import STYLE, Figures, _srgb_inverse, markdown_to_html, object_masks_section
 from matspray.export.frames import find_glbs, glb_box
 from matspray.lights import load_envmap
-from matspray.objectmasks import read_object_masks, read_region
-from matspray.relight import background_radiance, render_gbuffer, render_relit
+from matspray.method.asset import ENVMAP_FILE, envmap_preview
+from matspray.method.masks import read_object_masks, read_region
+from matspray.method.relight import background_radiance, render_gbuffer, render_relit
 from matspray.render.backend import rendering_with
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir, write_text_atomic

@@ -15,7 +15,7 @@ from matspray.errors import DataError
 from matspray.eval.lpips import MIN_SIZE as LPIPS_MIN_SIZE
 from matspray.eval.lpips import PerceptualMetric
 from matspray.eval.masked import composite_on_background, covered_box, union_weights
-from matspray.eval.metrics import as_image, mse, psnr, psnr_from_mse, ssim
+from matspray.metrics import as_image, mse, psnr, psnr_from_mse, ssim
 
 METRICS = ("psnr", "ssim", "lpips")
 

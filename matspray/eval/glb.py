@@ -20,7 +20,6 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from matspray.asset import read_asset
 from matspray.data import View, load_run_scene, load_scene, read_image
 from matspray.data.blender import read_scene_json
 from matspray.errors import ConfigError, file_error
@@ -39,6 +38,7 @@ from matspray.eval.run_eval import (
 from matspray.eval.tables import UNION, UNION_LABEL, material_table
 from matspray.export.frames import GLTF_FROM_DATASET, transform_directions, transform_points
 from matspray.gltf.read import read_gltf
+from matspray.method.asset import read_asset
 from matspray.render.backend import rendering_with
 from matspray.rundir import RunDir, write_json, write_text_atomic
 from matspray.synth.gltf_object import asset_parts

@@ -22,7 +22,6 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from matspray.asset import ENVMAP_FILE, read_asset
 from matspray.data import View, load_run_scene
 from matspray.data.images import srgb_to_linear
 from matspray.errors import DataError, RunError
@@ -30,8 +29,9 @@ from matspray.eval.evaluate import average_metrics, evaluate_images
 from matspray.eval.lpips import load_lpips
 from matspray.geometry.evaluate import render_view
 from matspray.geometry.ply import read_ply
-from matspray.objectmasks import read_object_masks
-from matspray.relight import render_relit
+from matspray.method.asset import ENVMAP_FILE, read_asset
+from matspray.method.masks import read_object_masks
+from matspray.method.relight import render_relit
 from matspray.render.backend import rendering_with
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir, write_json, write_text_atomic

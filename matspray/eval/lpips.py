@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from matspray.errors import DataError, file_error
-from matspray.eval.metrics import unit_image_pair
+from matspray.metrics import unit_image_pair
 
 WEIGHTS_ENV = "MATSPRAY_LPIPS_WEIGHTS"
 WEIGHTS_NAME = "lpips_alexnet_v0.1.npz"

@@ -22,7 +22,7 @@ from torch import Tensor
 
 from matspray.errors import DataError
 from matspray.eval.masked import composite_on_background
-from matspray.eval.metrics import psnr_from_mse
+from matspray.metrics import psnr_from_mse
 
 
 class MetallicPsnr(NamedTuple):

@@ -12,13 +12,13 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
 from matspray.data.images import read_image, resize
 from matspray.data.scene import View
 from matspray.errors import DataError
 from matspray.eval.run_eval import relight_env_names, relight_light
-from matspray.relight import render_relit
+from matspray.method.asset import Asset, read_asset
+from matspray.method.relight import render_relit
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir
 

@@ -11,15 +11,15 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import ENVMAP_FILE, envmap_preview, read_asset, read_history
 from matspray.data import View, load_run_scene, read_image, write_image
 from matspray.data.images import srgb_to_linear
 from matspray.eval.light import light_figures, training_light
 from matspray.eval.run_eval import predict_test_views, read_view_truth, unpremultiply
 from matspray.eval.tables import tables_markdown
-from matspray.objectmasks import ObjectMasks, read_object_masks
+from matspray.method.asset import ENVMAP_FILE, envmap_preview, read_asset, read_history
+from matspray.method.masks import ObjectMasks, read_object_masks
+from matspray.method.relight import render_gbuffer
 from matspray.predictors import read_materials2d, read_predictor_info
-from matspray.relight import render_gbuffer
 from matspray.render.deferred import shade_gbuffer
 from matspray.render.envmap import EnvironmentMap
 from matspray.rundir import RunDir, write_text_atomic

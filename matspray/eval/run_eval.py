@@ -20,7 +20,6 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from matspray.asset import read_asset
 from matspray.data import Scene, View, load_run_scene, read_image
 from matspray.errors import DataError, file_error
 from matspray.eval.evaluate import average_metrics, evaluate_images, pooled_union_psnr
@@ -29,11 +28,12 @@ from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
 from matspray.eval.tables import UNION, write_tables
 from matspray.geometry.evaluate import true_normals
-from matspray.objectmasks import ObjectMasks, read_object_masks
-from matspray.objectregion import mask_iou
+from matspray.geometry.region import mask_iou
+from matspray.method.asset import read_asset
+from matspray.method.masks import ObjectMasks, read_object_masks
+from matspray.method.relight import render_gbuffer
 from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
-from matspray.relight import render_gbuffer
 from matspray.render.backend import rendering_with
 from matspray.render.deferred import shade_gbuffer
 from matspray.render.envmap import EnvironmentMap

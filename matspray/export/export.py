@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
 from matspray.data.images import atomic_target, read_image, write_image
 from matspray.data.loader import load_run_scene
@@ -25,7 +24,8 @@ from matspray.export.normals import smoothed_vertex_normals
 from matspray.export.surface import fuse_surface
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
-from matspray.objectmasks import read_region
+from matspray.method.asset import Asset, read_asset
+from matspray.method.masks import read_region
 from matspray.render.backend import rendering_with
 from matspray.rundir import RunDir
 from matspray.variants import asset_stage, get_variant

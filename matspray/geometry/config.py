@@ -66,7 +66,7 @@ class GeometryConfig:
 
     # object focus, for captures without masks (a scene with masks trains on its object alone): after this fraction
     # of the iterations (at that densification step; 0: never) the object region is found on the Gaussians so far
-    # (matspray.objectregion's rule, or the run's object_bounds), and from then on only its Gaussians grow
+    # (matspray.geometry.region's rule, or the run's object_bounds), and from then on only its Gaussians grow
     focus_from: float = 0.15
     # after the focus, the object's Gaussians are densified at this times grad_threshold
     focus_grad_scale: float = 0.5

@@ -14,7 +14,7 @@ from matspray.gaussians import Gaussians
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.material_edges import footprint_edges
 from matspray.geometry.optim import GaussianOptimizer
-from matspray.objectregion import ObjectRegion
+from matspray.geometry.region import ObjectRegion
 from matspray.render.output import RasterOutput
 
 RESET_OPACITY = 0.01

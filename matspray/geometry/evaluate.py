@@ -9,10 +9,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from matspray import metrics
 from matspray.data.camera import Camera
 from matspray.data.images import linear_to_srgb, read_raw, resize, srgb_to_linear, write_image, write_raw
 from matspray.data.scene import View
-from matspray.eval import metrics
 from matspray.gaussians import Gaussians
 from matspray.geometry.normals import angular_error_degrees, normal_map_to_rgb, oriented_normals
 from matspray.render.output import RasterOutput

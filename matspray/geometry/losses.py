@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from matspray.eval.metrics import ssim_loss
+from matspray.metrics import ssim_loss
 
 
 def photometric_loss(pred: Tensor, target: Tensor, ssim_weight: float) -> Tensor:  # [H, W, 3] x2 -> scalar

@@ -32,8 +32,8 @@ from matspray.geometry.init import initial_gaussians
 from matspray.geometry.normals import consensus_normals, resize_normal_map
 from matspray.geometry.optim import GaussianOptimizer, exponential_lr
 from matspray.geometry.ply import read_ply, write_ply
+from matspray.geometry.region import ObjectRegion, object_region
 from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
-from matspray.objectregion import ObjectRegion, object_region
 
 PLY_NAME, METRICS_NAME, CHECKPOINT_NAME = "gaussians.ply", "metrics.json", "checkpoint.pt"
 REGION_NAME = "region.json"  # the object region a capture without masks focused on
@@ -94,7 +94,7 @@ def train_geometry(
     size (zero where there is none); what `config.predicted_normal_weight` pulls the normals towards (needed then).
     `material_maps`: per training view of `scene`, its 2D material maps [H, W, 5] (linear base colour, roughness,
     metallic; any size), whose edges `config.material_edge_threshold` splits Gaussians on (needed then).
-    `object_bounds`: a capture without masks focuses on this region (matspray.objectregion.given_region's numbers)
+    `object_bounds`: a capture without masks focuses on this region (matspray.geometry.region.given_region's numbers)
     instead of the automatic one, from `config.focus_from` on; `focus_region`: a region found before training (the
     photos' crop, matspray.data.crop) that it focuses on instead of either.
     """

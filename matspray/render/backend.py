@@ -31,6 +31,7 @@ from typing import Callable
 
 import torch
 
+from matspray.device import configure_threads, resolve_device
 from matspray.errors import SettingError
 
 BACKENDS = ("auto", "torch", "numba", "gsplat")
@@ -214,3 +215,11 @@ def note_render(kind: str) -> None:
     while use is not None:
         use.calls[kind] += 1
         use = use.outer
+
+
+def compute_target(device: str = "auto", backend: str = "auto", notify=None) -> tuple[torch.device, str]:
+    """The device and rasterizer a command computes with (--device, --backend), checked before any work, and the
+    CPU threads set for it. `notify` hears gsplat's build time and why `auto` falls back (default: stderr)."""
+    resolved = resolve_device(device)
+    configure_threads(resolved)
+    return resolved, resolve_backend(backend, resolved, notify=notify)

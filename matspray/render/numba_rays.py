@@ -1,5 +1,5 @@
-"""Lifting's ray tracing in compiled loops, for backend numba: what `matspray.lift.lift_view` reads of a view, the
-(Gaussian, pixel, inside the core) entries and how many of the pixel's sub-pixel rays made each, without listing
+"""Lifting's ray tracing in compiled loops, for backend numba: what `matspray.method.lift.lift_view` reads of a view,
+the (Gaussian, pixel, inside the core) entries and how many of the pixel's sub-pixel rays made each, without listing
 the hits.
 
 The torch tracer (`matspray.render.contributions`, the readable reference, whose docstring has the equations)

@@ -1,7 +1,7 @@
 """One picture of the asset per display mode, and which size to render it at.
 
-Every mode goes through `matspray.relight` (`render_relit`, `render_gbuffer`, `background_radiance`): the relit modes
-are `relight`'s own computation, so with exposure 0 and the light unturned the viewer shows what `relight` writes
+Every mode goes through `matspray.method.relight` (`render_relit`, `render_gbuffer`, `background_radiance`): the relit
+modes are `relight`'s own computation, so with exposure 0 and the light unturned the viewer shows what `relight` writes
 (`relit over light` is `relight --background env`). The display is sRGB like the PNGs MatSpray writes: base colour
 sRGB-encoded, roughness, metallic and alpha as their linear values in grey, normals as 0.5 + 0.5 n (world space).
 
@@ -18,10 +18,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from matspray.asset import Asset
 from matspray.data.camera import Camera
 from matspray.data.images import linear_to_srgb
-from matspray.relight import background_radiance, render_gbuffer, render_relit
+from matspray.method.asset import Asset
+from matspray.method.relight import background_radiance, render_gbuffer, render_relit
 
 MODES = ("relit", "relit over light", "base colour", "roughness", "metallic", "normals", "alpha")
 BACKDROP = 0.05  # linear grey behind the object where the light is not drawn (sRGB ~0.25: dark, not black)

@@ -20,10 +20,10 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from matspray.asset import ENVMAP_FILE
 from matspray.data.images import HDR_SUFFIXES
 from matspray.errors import DataError, MatsprayError, file_error
 from matspray.lights import BUILTINS, load_envmap
+from matspray.method.asset import ENVMAP_FILE
 from matspray.render.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
 from matspray.render.latlong import pixel_directions
 

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from matspray.asset import Asset, read_asset
 from matspray.data.camera import Camera
 from matspray.errors import MatsprayError
 from matspray.export.frames import find_glbs
+from matspray.method.asset import Asset, read_asset
 from matspray.rundir import RunDir
 from matspray.view.launch import run_variants
 from matspray.view.lights import estimated_light_path

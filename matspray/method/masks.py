@@ -1,4 +1,4 @@
-"""The `masks` stage of a capture without masks: the object region (matspray.objectregion), the
+"""The `masks` stage of a capture without masks: the object region (matspray.geometry.region), the
 Gaussians inside it, and every view's mask, their rendered alpha.
 
     masks/masks.pt         {"inside": [N] bool, "masks": {split: {view name: [H, W] uint8}}}
@@ -21,7 +21,7 @@ from matspray.data.scene import Scene
 from matspray.errors import DataError, MatsprayError, file_error
 from matspray.gaussians import Gaussians
 from matspray.geometry.ply import vertex_count
-from matspray.objectregion import ObjectRegion, object_region
+from matspray.geometry.region import ObjectRegion, object_region
 from matspray.render.rasterize import rasterize
 from matspray.rundir import RunDir, read_record, stage_hint, write_json
 

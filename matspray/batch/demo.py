@@ -14,11 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from matspray.batch import BatchConfig, run_batch, run_one_object
-from matspray.config import PipelineConfig, build_config
 from matspray.device import resolve_device
 from matspray.errors import DataError, SettingError
 from matspray.eval.tables import write_tables
 from matspray.gltf.read import read_gltf
+from matspray.method.config import PipelineConfig, build_config
 from matspray.render.backend import resolve_backend
 from matspray.render.numba_backend import compile_in_background
 from matspray.rundir import write_json

@@ -19,9 +19,9 @@ from matspray.data.triangulate import PointsConfig
 from matspray.errors import ConfigError, SettingError
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.config import preset as geometry_preset
-from matspray.lift import LiftConfig
-from matspray.objectregion import given_region
-from matspray.refine import RefineConfig
+from matspray.geometry.region import given_region
+from matspray.method.lift import LiftConfig
+from matspray.method.refine.loop import RefineConfig
 from matspray.render.backend import BACKENDS
 from matspray.render.visibility import VisibilityConfig
 

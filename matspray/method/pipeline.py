@@ -1,6 +1,6 @@
 """The whole method as stages over one run directory: predict -> geometry -> lift -> refine.
 A capture without masks runs geometry first, then `masks` (the object region and every view's mask,
-matspray.objectregion), then predict on the masked views; only the Gaussians in the region are lifted.
+matspray.geometry.region), then predict on the masked views; only the Gaussians in the region are lifted.
 
 Each stage is skipped when its artifact exists and was made with the same settings (and from the
 same upstream artifacts); `timings.json` records the seconds each stage took (the paper's Table 3).
@@ -17,23 +17,24 @@ from pathlib import Path
 
 import torch
 
-from matspray.asset import Asset, read_asset, write_asset
-from matspray.config import WORKING_SIZE, PipelineConfig
 from matspray.data import Scene, load_scene
 from matspray.data.crop import CROP_FILE
 from matspray.data.images import save_torch_atomic
 from matspray.data.triangulate import POINTS_FILE, needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
 from matspray.errors import RunError, file_error
-from matspray.estimate import Work, feature_sizes, run_work, view_pixels
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.ply import read_ply
+from matspray.geometry.region import ObjectRegion
 from matspray.geometry.train import prepare_views, train_geometry
-from matspray.lift import LiftResult, lift, load_lift, save_lift
-from matspray.merger import mlp_dtype
-from matspray.objectcrop import crop_stage
-from matspray.objectmasks import ObjectMasks, compute_object_masks, read_object_masks, read_region, write_object_masks
-from matspray.objectregion import ObjectRegion
+from matspray.method.asset import Asset, read_asset, write_asset
+from matspray.method.config import WORKING_SIZE, PipelineConfig
+from matspray.method.crop import crop_stage
+from matspray.method.estimate import Work, feature_sizes, run_work, view_pixels
+from matspray.method.lift import LiftResult, lift, load_lift, save_lift
+from matspray.method.masks import ObjectMasks, compute_object_masks, read_object_masks, read_region, write_object_masks
+from matspray.method.merger import mlp_dtype
+from matspray.method.refine.loop import RefineConfig, RefineInputs, frozen_views, refine
 from matspray.predictors import (
     NO_PREDICTOR,
     PredictorOptions,
@@ -48,7 +49,6 @@ from matspray.predictors import (
     without_normals,
     write_materials2d,
 )
-from matspray.refine import RefineConfig, RefineInputs, frozen_views, refine
 from matspray.render.backend import RenderUse, rendering_with, resolve_backend
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews

@@ -12,7 +12,7 @@ into a G-buffer, and
   - keeps the environment map smooth: `light_tv_weight` times the total variation of its log radiance
     (`render.latlong.total_variation`; the released code regularises its map by total variation too).
 Before that, `light_warmup` steps fit the environment map alone, with the materials the variant starts
-from. Variants with the PBR loss also refine each Gaussian's shading normal by it (`matspray.shading_normals`;
+from. Variants with the PBR loss also refine each Gaussian's shading normal by it (`matspray.method.refine.normals`;
 `normal_lr`, 0 keeps the geometry's), held near the geometry's normal, or a predicted one, by `normal_prior_weight`.
 Positions, shapes and opacities are frozen, so each view's blending weights are computed once and reused every
 step (and the merger runs only for the Gaussians that cover at least `min_coverage` pixels of the step's view).
@@ -40,11 +40,19 @@ from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.graphs import Graphed
 from matspray.material import METALLIC_INDEX, N_CHANNELS
-from matspray.merger import MergerConfig, NeuralMerger, align_view_gains, prepare_values, projection_average, view_gains
-from matspray.metallic_fit import MetallicFitConfig, fit_metallic
-from matspray.refine_steps import adam as adam_optimizer
-from matspray.refine_steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
-from matspray.refine_terms import (  # noqa: F401 (the material losses: callers' API)
+from matspray.method.merger import (
+    MergerConfig,
+    NeuralMerger,
+    align_view_gains,
+    prepare_values,
+    projection_average,
+    view_gains,
+)
+from matspray.method.refine.metallic import MetallicFitConfig, fit_metallic
+from matspray.method.refine.normals import ShadingNormals, normal_prior
+from matspray.method.refine.steps import adam as adam_optimizer
+from matspray.method.refine.steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
+from matspray.method.refine.terms import (  # noqa: F401 (the material losses: callers' API)
     DEFAULT_HUBER_DELTA,
     TermOptions,
     light_images,
@@ -61,7 +69,6 @@ from matspray.render.envmap import DEFAULT_LEVELS, EnvironmentMap, PrefilteredEn
 from matspray.render.gbuffer import FrozenViews
 from matspray.render.latlong import total_variation
 from matspray.render.visibility import gaussian_shadows
-from matspray.shading_normals import ShadingNormals, normal_prior
 from matspray.variants import Variant, get_variant
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")
@@ -108,7 +115,7 @@ class RefineConfig:
     log_every: int = 10  # steps between history records, and between the reads of whether losses stayed finite
     merger: MergerConfig = field(default_factory=MergerConfig)
     # variants with the material loss: after the merger, each Gaussian's metallic fitted to the 2D maps through the
-    # renderer (`matspray.metallic_fit`; steps 0: off), which sharpens the metal edges the lift blurs
+    # renderer (`matspray.method.refine.metallic`; steps 0: off), which sharpens the metal edges the lift blurs
     metallic_fit: MetallicFitConfig = field(default_factory=MetallicFitConfig)
 
     def __post_init__(self):

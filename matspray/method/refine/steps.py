@@ -1,5 +1,5 @@
-"""The step driver of refinement (`matspray.refine`): a random training view per step, one optimizer step each, and
-the check that losses and gradients stay finite.
+"""The step driver of refinement (`matspray.method.refine.loop`): a random training view per step, one optimizer
+step each, and the check that losses and gradients stay finite.
 
 On a GPU each host read of a device value waits for every queued kernel, so a check that reads a flag every step
 would stall the queue every step. Instead each step records on the device whether its loss terms and gradients are

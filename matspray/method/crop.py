@@ -2,7 +2,7 @@
 and the windows each photo is cut to around it (matspray.data.crop), kept as RUN/crop/crop.json:
 
     {"plan": {"size": [W, H], "windows": {view name: [left, top, right, bottom]}} or null (photos used whole),
-     "region": the object region (matspray.objectregion) or null, "message": what was decided, in one line}
+     "region": the object region (matspray.geometry.region) or null, "message": what was decided, in one line}
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from matspray.data.crop import (
 from matspray.data.loader import load_scene
 from matspray.data.scene import Scene, View
 from matspray.files import write_json
-from matspray.objectregion import ObjectRegion, object_region
+from matspray.geometry.region import ObjectRegion, object_region
 from matspray.rundir import RunDir, timed
 
 

@@ -16,7 +16,7 @@ from matspray.errors import file_error
 from matspray.gaussians import Gaussians
 from matspray.geometry.ply import read_ply, write_ply
 from matspray.material import CHANNELS, N_CHANNELS
-from matspray.merger import save_merger
+from matspray.method.merger import save_merger
 from matspray.rundir import read_record, stage_hint, write_json
 
 VISIBILITY_FILE = "visibility.pt"  # optional: directional visibility [N, D] as uint8 (1/255 steps)

@@ -9,8 +9,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from matspray.asset import Asset
 from matspray.data.camera import Camera
+from matspray.method.asset import Asset
 from matspray.render.deferred import GBuffer, shade_gbuffer
 from matspray.render.gbuffer import orient_normals
 from matspray.render.rasterize import rasterize
