@@ -18,11 +18,12 @@ from matspray.data import Camera
 from matspray.data.images import read_raw, write_image
 from matspray.errors import ConfigError, DataError
 from matspray.export.frames import dataset_from_glb
+from matspray.gaussians import quaternion_to_matrix
 from matspray.render.backend import rendering_with
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.latlong import pixel_directions
 from matspray.rundir import write_json
-from matspray.view.camera import camera_from_viser, frame_size, matrix_to_quaternion, quaternion_to_matrix, viser_pose
+from matspray.view.camera import camera_from_viser, frame_size, matrix_to_quaternion, viser_pose
 from matspray.view.frames import MODES, Progressive, progressive_size
 from matspray.view.glb import glb_pose
 from matspray.view.launch import light_files
@@ -51,16 +52,21 @@ def random_rotation(rng) -> np.ndarray:
     return q if np.linalg.det(q) > 0 else -q
 
 
+def rotation(wxyz) -> np.ndarray:  # [4] (w, x, y, z), any length > 0 -> [3, 3], by the package's one conversion
+    q = torch.as_tensor(np.asarray(wxyz, dtype=np.float64))
+    return quaternion_to_matrix(q / q.norm()).numpy()
+
+
 def test_quaternions_round_trip_and_agree_with_viser():
     rng = np.random.default_rng(0)
     for _ in range(50):
         R = random_rotation(rng)
         q = matrix_to_quaternion(R)
-        assert np.allclose(quaternion_to_matrix(q), R, atol=1e-12)
+        assert np.allclose(rotation(q), R, atol=1e-12)
     tf = pytest.importorskip("viser.transforms")
     for _ in range(20):
         wxyz = rng.normal(size=4)
-        assert np.allclose(quaternion_to_matrix(wxyz), tf.SO3(wxyz / np.linalg.norm(wxyz)).as_matrix(), atol=1e-12)
+        assert np.allclose(rotation(wxyz), tf.SO3(wxyz / np.linalg.norm(wxyz)).as_matrix(), atol=1e-12)
 
 
 def test_viser_camera_projects_points_as_a_brute_force_pinhole_does():
@@ -365,7 +371,7 @@ def test_a_glb_is_placed_in_the_datasets_world_by_its_frame(tmp_path):
     )
     assert np.allclose(marked, moved)
     wxyz, position = glb_pose(plain, (0.5, 0.0, 0.0))
-    assert np.allclose(quaternion_to_matrix(wxyz), plain[:3, :3]) and np.allclose(position, (0.5, 0.0, 0.0))
+    assert np.allclose(rotation(wxyz), plain[:3, :3]) and np.allclose(position, (0.5, 0.0, 0.0))
     with pytest.raises(DataError, match="a.glb"):
         dataset_from_glb(path, b"not a glb file at all, certainly")
 

@@ -64,8 +64,7 @@ SETTING_FLAGS = {
         "lift.visibility_threshold",
         float,
         "lifting writes only into hits whose transmittance in "
-        "front is at least this (default 0, every hit, as the paper; 0.5 relit worse in the "
-        "benchmarks: docs/history.md)",
+        "front is at least this (default 0, every hit, as the paper)",
     ),
     "--footprint": (
         "lift.footprint_sigmas",
@@ -94,7 +93,7 @@ SETTING_FLAGS = {
         "refine.basecolor_loss",
         str,
         "l1 (default, as the paper), scale-invariant (forgives each view's "
-        "exposure error; it did not pay in the benchmarks: docs/history.md) or huber (averages views "
+        "exposure error) or huber (averages views "
         "that differ by less "
         "than --basecolor-huber-delta, outvotes those that differ by more)",
     ),

@@ -254,8 +254,8 @@ def fuse_surface(
     level = 0.0
     for _ in range(CALIBRATION_STEPS if calibrate else 0):
         # the field is about a distance over the truncation near the surface (the average of projective distances
-        # is steeper, so one step moves the rim only half way: measured, hence a second): move its level by the
-        # measured offset, at most a voxel each step (a larger miss is not a depth bias but a wrong surface)
+        # is steeper, so one step moves the rim only half way, hence a second): move its level by the offset the
+        # silhouettes show, at most a voxel each step (a larger miss is not a depth bias but a wrong surface)
         offset = silhouette_offset(keep_object(mesh, keep_fraction), cameras, [alpha for _, alpha in depths], min_alpha)
         level += float(np.clip(offset, -voxel, voxel)) / (truncation_voxels * voxel)
         mesh = extract_surface(field, shape, centres[0], voxel, level)

@@ -17,6 +17,7 @@ from pathlib import Path
 from urllib.parse import unquote
 
 import numpy as np
+import torch
 from PIL import Image, UnidentifiedImageError
 
 try:
@@ -25,6 +26,7 @@ except ImportError:  # optional: pip install 'matspray[gltf]'
     pygltflib = None
 
 from matspray.errors import file_error
+from matspray.gaussians import quaternion_to_matrix
 from matspray.gltf.document import DAMAGED, load_document
 from matspray.gltf.model import (
     WRAP_MODES,
@@ -213,22 +215,14 @@ def decode_image(path: Path, source: str, data: bytes) -> np.ndarray:  # -> [H, 
 
 
 # ------------------------------------------------------------------------------------------ transforms
-def quaternion_matrix(q) -> np.ndarray:  # [x, y, z, w] -> [3, 3]
-    x, y, z, w = np.asarray(q, dtype=np.float64) / max(np.linalg.norm(q), 1e-12)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def node_matrix(node: pygltflib.Node) -> np.ndarray:  # -> [4, 4] local transform
     if node.matrix is not None:
         return np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T  # glTF stores it column-major
     matrix = np.eye(4)
-    matrix[:3, :3] = quaternion_matrix(node.rotation or [0, 0, 0, 1]) @ np.diag(node.scale or [1, 1, 1])
+    x, y, z, w = node.rotation or [0, 0, 0, 1]  # glTF's order
+    q = torch.tensor([w, x, y, z], dtype=torch.float64)
+    rotation = quaternion_to_matrix(q / q.norm().clamp_min(1e-12)).numpy()
+    matrix[:3, :3] = rotation @ np.diag(node.scale or [1, 1, 1])
     matrix[:3, 3] = node.translation or [0, 0, 0]
     return matrix
 

@@ -47,32 +47,27 @@ class PipelineConfig:
     method: str = "matspray"
     predictor: str = "simulated"
     predictor_options: dict = field(default_factory=dict)  # PredictorOptions fields
-    downscale: float | None = (
-        None  # shrink images by this on load; None: bring photos larger than the preset's working size to it
-    )
+    # shrink images by this on load; None: bring photos larger than the preset's working size to it
+    downscale: float | None = None
     seed: int = 0
     refine_seed: int | None = None  # the refinement's own seed (view order, merger init); None: `seed`
     device: str = "auto"
-    backend: str = (
-        "auto"  # rasterizer: auto (gsplat when CUDA and gsplat are present, numba on the CPU), torch, numba or gsplat
-    )
+    # rasterizer: auto (gsplat when CUDA and gsplat are present, numba on the CPU), torch, numba or gsplat
+    backend: str = "auto"
     points: PointsConfig = field(default_factory=PointsConfig)  # the initial points of a capture that brings none
     crop: CropConfig = field(default_factory=CropConfig)  # a capture without masks: each photo cut to its object
     geometry: GeometryConfig = field(
         default_factory=lambda: GeometryConfig(predicted_normal_weight=NORMAL_PRIOR_WEIGHT)
     )
     lift: LiftConfig = field(default_factory=LiftConfig)
-    visibility: VisibilityConfig | None = (
-        None  # None: no shadowing (the paper's, and our default); `shadow_maps(preset)` turns it on
-    )
+    # None: no shadowing (the paper's, and our default); `shadow_maps(preset)` turns it on
+    visibility: VisibilityConfig | None = None
     refine: RefineConfig = field(default_factory=lambda: RefineConfig(predicted_normal_weight=NORMAL_PRIOR_WEIGHT))
-    object_bounds: tuple[float, ...] | None = (
-        None  # captures without masks: the object region (4: sphere, 6: box); None: automatic
-    )
-    light_probe: str | None = (
-        None  # a known training light (an HDR lat-long map of the capture's light, world frame): the
-    )
-    # PBR variants shade with it instead of estimating one; None: estimate it (the paper)
+    # captures without masks: the object region (4: sphere, 6: box); None: automatic
+    object_bounds: tuple[float, ...] | None = None
+    # a known training light (an HDR lat-long map of the capture's light, world frame): the PBR variants shade with it
+    # instead of estimating one; None: estimate it (the paper)
+    light_probe: str | None = None
 
     def __post_init__(self):
         if self.preset not in PRESETS:
@@ -109,8 +104,8 @@ PRESET_SETTINGS: dict[str, dict] = {
         "refine.light_warmup": 1000,
     },
 }
-# Baked shadows are off by default: they relit worse in the benchmarks (docs/history.md). Where they are
-# switched on (`visibility=shadow_maps(preset)`, `--shadows on`), their shadow maps have the preset's size.
+# Baked shadows are off by default (docs/defaults.md says why). Where they are switched on
+# (`visibility=shadow_maps(preset)`, `--shadows on`), their shadow maps have the preset's size.
 SHADOW_MAPS: dict[str, VisibilityConfig] = {
     "test": VisibilityConfig(rows=4, resolution=48),
     "demo": VisibilityConfig(),

@@ -54,8 +54,7 @@ BYTES_PER_CANDIDATE = 160  # the float64 temporaries of one (Gaussian, ray) cand
 @dataclass(frozen=True)
 class LiftConfig:
     samples_per_side: int = 4  # k: k x k rays per pixel (the paper uses 16)
-    # a hit counts while transmittance before it is >= this (0, every hit: the paper, and our default since 0.5 relit
-    # worse in the benchmarks; docs/history.md)
+    # a hit counts while transmittance before it is >= this (0, every hit: the paper, and our default)
     visibility_threshold: float = 0.0
     falloff: float = 1.0  # lambda of eq. (2)
     mask_threshold: float = 0.5  # pixels whose object mask is below this give nothing

@@ -56,10 +56,8 @@ class MergerConfig:
     layers: int = 3
     frequencies: int = 6  # NeRF positional-encoding octaves
     softmax: bool = True
-    seen_input: bool = (
-        False  # the MLPs also read the seen mask [V]; off as the paper (position and values only): on, it
-    )
-    # did not pay in the benchmarks (docs/history.md)
+    # the MLPs also read the seen mask [V]; off as in the paper (position and values only)
+    seen_input: bool = False
     unseen: str = "mask"  # views that did not see a Gaussian: "mask" (weight 0) or "mean" (filled with the mean of the
     # views that did, weighted like any view; the paper's released code)
     # the MLPs' arithmetic: "float32", "bfloat16" (autocast: matrix products in bfloat16, weights and the merge in

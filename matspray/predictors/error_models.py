@@ -58,9 +58,8 @@ class SimulationConfig:
     highlight_amount: float = 0.0  # base colour moves this fraction of the way to white on a full highlight
     # roughness collapse and per-view metallic (off in every model but `dr`)
     roughness_compression: float = 0.0  # per view, roughness moves this fraction of the way to its mean over the object
-    metallic_view_fraction: float = (
-        0.0  # fraction of the views with a spurious partial metallic of their own (metallic_amplitude)
-    )
+    # fraction of the views with a spurious partial metallic of their own (metallic_amplitude)
+    metallic_view_fraction: float = 0.0
     # predicted normals, where the view has true ones (docs/error-models.md, "Predicted normals")
     normal_tilt_deg: float = 3.0  # smooth tilt field: std (degrees, per camera axis) at its control points
     normal_tilt_cells: int = 4  # control points per image side of the tilt field: its lowest wavelength

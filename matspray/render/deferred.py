@@ -44,9 +44,8 @@ class GBuffer:
     metallic: Tensor  # [H, W]
     normals: Tensor  # [H, W, 3] world space, any length
     alpha: Tensor  # [H, W] coverage in [0, 1]
-    shadow: Tensor | None = (
-        None  # [H, W, 6] diffuse and specular RGB light scales (`render.visibility`); None = unshadowed
-    )
+    # [H, W, 6] diffuse and specular RGB light scales (`render.visibility`); None = unshadowed
+    shadow: Tensor | None = None
 
     @classmethod
     def from_accumulated(

@@ -43,7 +43,7 @@ from matspray.render.latlong import pixel_solid_angles
 DEFAULT_LEVELS = (MIN_ROUGHNESS, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 PIXELS_PER_LOBE = 2.0  # a level's pixel spans at most alpha / PIXELS_PER_LOBE radians (the GGX lobe ~ alpha wide)
 MIN_LEVEL_HEIGHT = 16
-DIFFUSE_HEIGHT = 16  # irradiance is smooth: 16 x 32 with bilinear lookup is well under 1 % off
+DIFFUSE_HEIGHT = 16  # irradiance is a cosine-weighted integral of the light, smooth: a coarse map holds it
 MIN_RADIANCE = 1e-4  # floor applied to maps before taking the log
 
 _KERNELS: dict[tuple, Tensor] = {}  # prefiltering's kernels

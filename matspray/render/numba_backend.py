@@ -435,7 +435,7 @@ def _compile(key: str, np_dtype) -> None:
     start = time.perf_counter()
     # numba's OpenMP layer loads its own libgomp at the first parallel loop, and libgomp reads OMP_WAIT_POLICY
     # then: passive, its idle threads sleep rather than spin after each kernel while torch's threads need the
-    # cores (measured on a shared 2-core machine: spinning made fwd+bwd with 2 threads 20-30x slower).
+    # cores (spinning threads take the cores from those with work: docs/defaults.md).
     # Torch's own libgomp read the variable when torch was imported and keeps its policy; set by the user, it stays.
     told = os.environ.get("OMP_WAIT_POLICY")
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

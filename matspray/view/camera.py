@@ -14,17 +14,7 @@ import numpy as np
 import torch
 
 from matspray.data.camera import Camera
-
-
-def quaternion_to_matrix(wxyz) -> np.ndarray:  # [4] (w, x, y, z), any length > 0 -> [3, 3] rotation
-    w, x, y, z = np.asarray(wxyz, dtype=np.float64) / np.linalg.norm(wxyz)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+from matspray.gaussians import quaternion_to_matrix
 
 
 def matrix_to_quaternion(R) -> np.ndarray:  # [3, 3] rotation -> [4] (w, x, y, z), w >= 0
@@ -55,7 +45,8 @@ def camera_from_viser(wxyz, position, fov_y: float, width: int, height: int) -> 
     width x height image."""
     if width < 1 or height < 1 or not 0.0 < fov_y < math.pi:
         raise ValueError(f"viser camera: need a positive size and 0 < fov < pi, got {width} x {height}, fov {fov_y}")
-    R = quaternion_to_matrix(wxyz)
+    q = torch.as_tensor(np.asarray(wxyz, dtype=np.float64))  # any length > 0
+    R = quaternion_to_matrix(q / q.norm()).numpy()
     t = np.asarray(position, dtype=np.float64)
     viewmat = np.eye(4)
     viewmat[:3, :3] = R.T  # world -> camera is the inverse of P_world = R p_camera + t

@@ -19,7 +19,7 @@ step (and the merger runs only for the Gaussians that cover at least `min_covera
 With a directional visibility per Gaussian (`RefineInputs.visibility`; only with `--shadows on`, off by
 default), the PBR render is shadowed (`render.visibility`), so the photo loss does not push shadows into
 the base color.
-Two optional settings, off by default because they did not pay in the benchmarks (docs/history.md):
+Two optional settings, off by default (docs/defaults.md):
 `basecolor_spread_weight` adds the KL divergence of the base-colour merger's weights from equal weights,
 and `align_view_gains` divides each view's base colour by its estimated gain before any variant fuses.
 
@@ -83,17 +83,15 @@ class RefineConfig:
     # at the merger's 1e-3 a Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey
     envmap_height: int = 16  # learnable lat-long map is H x 2H
     envmap_init: float = 0.5  # initial constant radiance
-    light_tv_weight: float = (
-        3e-4  # weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)
-    )
+    # weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)
+    light_tv_weight: float = 3e-4
     light_warmup: int = 200  # steps that fit only the environment map to the photos, materials fixed at their start
     min_coverage: float = 0.02  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
     material_weight: float = 1.0  # L_Image
-    photo_weight: float = 1.0  # L_3DGS, as the paper (its released code adds the photometric term twice; 2 did not
-    # pay in the benchmarks, docs/history.md, so it is no longer an addition)
-    basecolor_loss: str = "l1"  # "l1" (the paper; our default since scale-invariant did not pay in the benchmarks,
-    # docs/history.md), "scale-invariant" (only for variants with the PBR loss, which then sets the brightness;
+    photo_weight: float = 1.0  # L_3DGS, as the paper (its released code adds the photometric term twice)
+    basecolor_loss: str = "l1"  # "l1" (the paper, and our default), "scale-invariant" (only for variants with the
+    # PBR loss, which then sets the brightness;
     # supervised compares by plain L1 then) or "huber" (quadratic below `basecolor_huber_delta`, so views that differ
     # by a little are averaged, as proj-average does; linear above, so a wrong view or batch is outvoted, as by L1's
     # median)
