@@ -3,19 +3,22 @@ errors that name the setting (library) or the flag (CLI), and the light prior.""
 
 import subprocess
 import sys
+from dataclasses import replace
 
 import pytest
 import torch
 import yaml
 
+from matspray import presets
 from matspray.cli.options import ADDITION_CHOICES, VARIANT_CHOICES
 from matspray.errors import SettingError
+from matspray.geometry.config import GeometryConfig
 from matspray.method.config import (
-    ADDITION_NAMES,
     ADDITIONS,
     NORMAL_PRIOR_WEIGHT,
     PipelineConfig,
     build_config,
+    shadow_maps,
     with_setting,
 )
 from matspray.method.lift import LiftConfig
@@ -23,6 +26,7 @@ from matspray.method.merger import MergerConfig, fill_unseen, prepare_values
 from matspray.method.refine.loop import RefineConfig
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.latlong import irradiance_correlation, total_variation
+from matspray.render.visibility import VisibilityConfig
 from matspray.rundir import RunDir
 from matspray.variants import VARIANT_NAMES
 
@@ -91,9 +95,27 @@ def test_bad_settings_name_the_setting():
         build_config("demo", **{"lift.colour": 1})
 
 
-def test_cli_registries_match_the_library():
-    assert VARIANT_CHOICES == VARIANT_NAMES
-    assert ADDITION_CHOICES == ADDITION_NAMES
+def test_the_presets_are_one_torch_free_table_that_every_stage_reads():
+    """The command line, the stages' configs and the demo take their presets from `matspray.presets`, which
+    imports no torch (so `--help` stays fast)."""
+    probe = "import sys\nimport matspray.presets, matspray.cli.options\nprint('torch' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "False", done.stderr
+    tables = (presets.GEOMETRY, presets.STAGE_SETTINGS, presets.SHADOW_MAPS, presets.DEMO_SIZES, presets.WORKING_SIZE)
+    assert all(tuple(table) == presets.PRESETS for table in tables)
+    for name in presets.PRESETS:
+        config = build_config(name)
+        assert config.geometry == replace(
+            GeometryConfig(preset=name, **presets.GEOMETRY[name]),
+            predicted_normal_weight=config.geometry.predicted_normal_weight,
+        )
+        for path, value in presets.STAGE_SETTINGS[name].items():
+            stage, setting = path.split(".")
+            assert getattr(getattr(config, stage), setting) == value, path
+        assert shadow_maps(name) == VisibilityConfig(**presets.SHADOW_MAPS[name])
+    assert build_config("demo").geometry.iterations == GeometryConfig().iterations == 3000  # demo: the defaults
+    assert build_config("paper").geometry.iterations == 30000 and build_config("paper").refine.iterations == 10000
+    assert ADDITION_CHOICES == tuple(a.name for a in presets.ADDITIONS) and VARIANT_CHOICES == VARIANT_NAMES
 
 
 def run_cli(*args):

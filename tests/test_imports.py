@@ -153,7 +153,19 @@ def test_the_package_has_no_import_cycle():
 
 # The layers of the package, bottom up: a module imports only from its own layer or those below. The tree reads as the
 # paper: the data and the renderer, the 2D prior and the Gaussians, the method, then what uses the asset.
-PLUMBING = ("matspray", "errors", "files", "device", "graphs", "gaussians", "material", "variants", "metrics", "rundir")
+PLUMBING = (
+    "matspray",
+    "errors",
+    "files",
+    "presets",
+    "device",
+    "graphs",
+    "gaussians",
+    "material",
+    "variants",
+    "metrics",
+    "rundir",
+)
 LAYERS = (
     PLUMBING,
     ("data",),

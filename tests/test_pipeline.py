@@ -11,9 +11,10 @@ import pytest
 import torch
 
 from matspray.errors import NumericalError, RunError
-from matspray.method.config import WORKING_SIZE, build_config, shadow_maps
+from matspray.method.config import build_config, shadow_maps
 from matspray.method.pipeline import Pipeline
 from matspray.method.refine.loop import check_finite
+from matspray.presets import WORKING_SIZE
 from matspray.variants import VARIANT_NAMES as VARIANTS
 from matspray.variants import asset_stage
 from tests.conftest import busy_message

@@ -19,6 +19,7 @@ from matspray.errors import DataError, SettingError
 from matspray.eval.tables import write_tables
 from matspray.gltf.read import read_gltf
 from matspray.method.config import PipelineConfig, build_config
+from matspray.presets import DEMO_SIZES
 from matspray.render.backend import resolve_backend
 from matspray.render.numba_backend import compile_in_background
 from matspray.rundir import write_json
@@ -26,21 +27,6 @@ from matspray.synth import SynthConfig, make_object
 from matspray.variants import LABELS, VARIANT_NAMES
 
 SHAPES = ("composite", "blob", "rounded-cube", "torus", "capsule", "sphere")
-
-
-@dataclass(frozen=True)
-class DemoSize:
-    res: int
-    views: int
-    test_views: int
-    spp: int
-
-
-DEMO_SIZES = {
-    "test": DemoSize(res=40, views=8, test_views=2, spp=8),
-    "demo": DemoSize(res=128, views=40, test_views=10, spp=64),
-    "paper": DemoSize(res=512, views=100, test_views=200, spp=256),
-}
 
 
 ASSET_SUFFIXES = (".glb", ".gltf")

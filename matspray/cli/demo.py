@@ -17,7 +17,7 @@ def add_parser(parser) -> None:
     parser.add_argument(
         "--object-seed", type=int, default=0, help="seed of the object's shape and materials (default 0)"
     )
-    add_method_arguments(parser, presets=("test", "demo", "paper"), visible=COMPUTE_FLAGS)
+    add_method_arguments(parser, visible=COMPUTE_FLAGS)
     add_set_argument(parser, "geometry.iterations=1000 refine.iterations=200")
 
 

@@ -11,22 +11,11 @@ from __future__ import annotations
 import argparse
 import os
 
-PRESET_CHOICES = ("test", "demo", "paper")
-METHOD_CHOICES = ("matspray", "paper")
-VARIANT_CHOICES = (
-    "full",
-    "proj-average",
-    "supervised",
-    "no-softmax",
-    "no-prior",
-)  # matspray.variants.VARIANT_NAMES (a test checks)
-ADDITION_CHOICES = (
-    "core-median",
-    "min-support",
-    "unseen-mask",
-    "light-warmup",
-    "min-coverage",
-)  # matspray.method.config.ADDITION_NAMES (a test checks)
+from matspray.presets import ADDITION_NAMES, METHODS, PRESETS
+from matspray.variants import VARIANT_NAMES
+
+PRESET_CHOICES, METHOD_CHOICES, ADDITION_CHOICES = PRESETS, METHODS, ADDITION_NAMES
+VARIANT_CHOICES = VARIANT_NAMES
 
 
 def on_off(value: str) -> bool:

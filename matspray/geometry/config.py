@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 
 from matspray.errors import ConfigError, SettingError
+from matspray.presets import GEOMETRY
 
 
 @dataclass(frozen=True)
@@ -133,40 +134,7 @@ ADDED_LATER = {
 FOCUS = ("focus_from", "focus_grad_scale", "background_budget")  # the object focus settings (captures without masks)
 
 
-PRESETS = {
-    "test": GeometryConfig(
-        preset="test",
-        resolution=40,
-        iterations=60,
-        init_points=1000,
-        sh_degree=1,
-        sh_degree_every=30,
-        densify_from=20,
-        densify_until=50,
-        densify_every=10,
-        opacity_reset_every=1000,
-        max_gaussians=3000,
-        checkpoint_every=20,
-        normal_from=0.5,
-    ),
-    "demo": GeometryConfig(preset="demo"),
-    "paper": GeometryConfig(
-        preset="paper",
-        resolution=512,
-        iterations=30000,
-        init_points=100000,
-        sh_degree_every=1000,
-        densify_from=500,
-        densify_until=15000,
-        densify_every=100,
-        opacity_reset_every=3000,
-        max_screen_fraction=20 / 512,
-        max_gaussians=1_000_000,
-        checkpoint_every=2000,
-        normal_from=0.25,
-        focus_from=0.1,
-    ),
-}
+PRESETS = {name: GeometryConfig(preset=name, **changes) for name, changes in GEOMETRY.items()}
 
 
 # iteration counts that follow `iterations` when only that is overridden

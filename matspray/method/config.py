@@ -22,11 +22,10 @@ from matspray.geometry.config import preset as geometry_preset
 from matspray.geometry.region import given_region
 from matspray.method.lift import LiftConfig
 from matspray.method.refine.loop import RefineConfig
+from matspray.presets import ADDITION_NAMES, ADDITIONS, METHODS, PRESETS, STAGE_SETTINGS
+from matspray.presets import SHADOW_MAPS as SHADOW_MAP_SIZES
 from matspray.render.backend import BACKENDS
 from matspray.render.visibility import VisibilityConfig
-
-PRESETS = ("test", "demo", "paper")
-METHODS = ("matspray", "paper")
 
 
 def unknown_preset(preset: str) -> SettingError:
@@ -83,34 +82,10 @@ class PipelineConfig:
             given_region(self.object_bounds)  # raises SettingError("object_bounds", ...) when malformed
 
 
-# ------------------------------------------------------------------------------------------ presets
-# the longest image side each preset works at: larger photos are shrunk to it on load unless --downscale is given
-# (test: CI-sized; demo: a real capture on a 2-core CPU; paper: 512 px data, and real captures up to 800 px)
-WORKING_SIZE = {"test": 128, "demo": 256, "paper": 800}
-
-
-PRESET_SETTINGS: dict[str, dict] = {
-    "test": {"lift.samples_per_side": 2, "refine.iterations": 30, "refine.envmap_height": 8, "refine.light_warmup": 10},
-    "demo": {
-        "lift.samples_per_side": 4,
-        "refine.iterations": 600,
-        "refine.envmap_height": 16,
-        "refine.light_warmup": 200,
-    },
-    "paper": {
-        "lift.samples_per_side": 16,
-        "refine.iterations": 10000,
-        "refine.envmap_height": 32,
-        "refine.light_warmup": 1000,
-    },
-}
+# ------------------------------------------------------------------------------------------ presets (matspray.presets)
 # Baked shadows are off by default (docs/defaults.md says why). Where they are switched on
 # (`visibility=shadow_maps(preset)`, `--shadows on`), their shadow maps have the preset's size.
-SHADOW_MAPS: dict[str, VisibilityConfig] = {
-    "test": VisibilityConfig(rows=4, resolution=48),
-    "demo": VisibilityConfig(),
-    "paper": VisibilityConfig(rows=16, resolution=512),
-}
+SHADOW_MAPS: dict[str, VisibilityConfig] = {name: VisibilityConfig(**sizes) for name, sizes in SHADOW_MAP_SIZES.items()}
 
 
 def shadow_maps(preset: str) -> VisibilityConfig:
@@ -121,38 +96,6 @@ def shadow_maps(preset: str) -> VisibilityConfig:
 
 
 # ------------------------------------------------------------------------------------------ methods
-@dataclass(frozen=True)
-class Addition:
-    """One thing the default method does beyond the paper: the setting, and the paper's value of it."""
-
-    name: str
-    setting: str
-    paper: object
-    what: str
-
-
-ADDITIONS = (
-    Addition(
-        "core-median",
-        "lift.footprint_sigmas",
-        None,
-        "a Gaussian's per-view median reads the rays through its 1-sigma core",
-    ),
-    Addition(
-        "min-support", "lift.min_support", 0.0, "a view counts for a Gaussian only with >= 0.5 of its best view's hits"
-    ),
-    Addition(
-        "unseen-mask",
-        "refine.merger.unseen",
-        "mean",
-        "unseen views get weight 0 (the paper's code fills them with the mean)",
-    ),
-    Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
-    Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering < 0.02 px of a view"),
-)
-ADDITION_NAMES = tuple(a.name for a in ADDITIONS)
-
-
 def method_settings(method: str, without: tuple[str, ...] = ()) -> dict:
     """The settings a method changes: none for `matspray` (less the additions named in `without`), every
     addition's paper value for `paper`."""
@@ -209,6 +152,6 @@ def build_config(
     except ConfigError as exc:
         raise SettingError("geometry", str(exc)) from None
     config = PipelineConfig(preset=preset, method=method, geometry=geometry)
-    for path, value in {**PRESET_SETTINGS[preset], **method_settings(method, tuple(without)), **settings}.items():
+    for path, value in {**STAGE_SETTINGS[preset], **method_settings(method, tuple(without)), **settings}.items():
         config = with_setting(config, path, value)
     return config

@@ -28,7 +28,7 @@ from matspray.geometry.ply import read_ply
 from matspray.geometry.region import ObjectRegion
 from matspray.geometry.train import prepare_views, train_geometry
 from matspray.method.asset import Asset, read_asset, write_asset
-from matspray.method.config import WORKING_SIZE, PipelineConfig
+from matspray.method.config import PipelineConfig
 from matspray.method.crop import crop_stage
 from matspray.method.estimate import Work, feature_sizes, run_work, view_pixels
 from matspray.method.lift import LiftResult, lift, load_lift, save_lift
@@ -49,6 +49,7 @@ from matspray.predictors import (
     without_normals,
     write_materials2d,
 )
+from matspray.presets import WORKING_SIZE
 from matspray.render.backend import RenderUse, rendering_with, resolve_backend
 from matspray.render.envmap import EnvironmentMap
 from matspray.render.gbuffer import FrozenViews

@@ -1,0 +1,120 @@
+"""The presets (test, demo, paper) and the two methods in one place, as plain values and without torch: the stages'
+configs (`matspray.method.config`, `matspray.geometry.config`), the demo (`matspray.batch.demo`) and the command
+line (`matspray.cli.options`, whose `--help` must not import torch) all read them from here.
+
+Sizes: test is CI-sized (a few seconds a stage), demo a 128 px object or a real capture on a 2-core CPU in minutes,
+paper the paper's settings (512 px objects, 30 000 Gaussian Splatting steps) for one GPU."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+PRESETS = ("test", "demo", "paper")
+METHODS = ("matspray", "paper")  # matspray: the paper plus the additions below; paper: exactly the paper's method
+
+# the longest image side each preset works at: larger photos are shrunk to it on load unless --downscale is given
+# (test: CI-sized; demo: a real capture on a 2-core CPU; paper: 512 px data, and real captures up to 800 px)
+WORKING_SIZE = {"test": 128, "demo": 256, "paper": 800}
+
+# Gaussian Splatting: each preset's changes to `GeometryConfig`'s defaults (which are the demo preset)
+GEOMETRY = {
+    "test": {
+        "resolution": 40,
+        "iterations": 60,
+        "init_points": 1000,
+        "sh_degree": 1,
+        "sh_degree_every": 30,
+        "densify_from": 20,
+        "densify_until": 50,
+        "densify_every": 10,
+        "opacity_reset_every": 1000,
+        "max_gaussians": 3000,
+        "checkpoint_every": 20,
+        "normal_from": 0.5,
+    },
+    "demo": {},
+    "paper": {
+        "resolution": 512,
+        "iterations": 30000,
+        "init_points": 100000,
+        "sh_degree_every": 1000,
+        "densify_from": 500,
+        "densify_until": 15000,
+        "densify_every": 100,
+        "opacity_reset_every": 3000,
+        "max_screen_fraction": 20 / 512,
+        "max_gaussians": 1_000_000,
+        "checkpoint_every": 2000,
+        "normal_from": 0.25,
+        "focus_from": 0.1,
+    },
+}
+
+# the later stages' settings each preset sets, by dotted name
+STAGE_SETTINGS: dict[str, dict] = {
+    "test": {"lift.samples_per_side": 2, "refine.iterations": 30, "refine.envmap_height": 8, "refine.light_warmup": 10},
+    "demo": {
+        "lift.samples_per_side": 4,
+        "refine.iterations": 600,
+        "refine.envmap_height": 16,
+        "refine.light_warmup": 200,
+    },
+    "paper": {
+        "lift.samples_per_side": 16,
+        "refine.iterations": 10000,
+        "refine.envmap_height": 32,
+        "refine.light_warmup": 1000,
+    },
+}
+
+# baked shadows (off by default): each preset's changes to `VisibilityConfig`'s shadow maps where they are on
+SHADOW_MAPS = {"test": {"rows": 4, "resolution": 48}, "demo": {}, "paper": {"rows": 16, "resolution": 512}}
+
+
+@dataclass(frozen=True)
+class DemoSize:
+    """The benchmark object `matspray demo` makes for a preset."""
+
+    res: int
+    views: int
+    test_views: int
+    spp: int
+
+
+DEMO_SIZES = {
+    "test": DemoSize(res=40, views=8, test_views=2, spp=8),
+    "demo": DemoSize(res=128, views=40, test_views=10, spp=64),
+    "paper": DemoSize(res=512, views=100, test_views=200, spp=256),
+}
+
+
+@dataclass(frozen=True)
+class Addition:
+    """One thing the default method does beyond the paper: the setting, and the paper's value of it."""
+
+    name: str
+    setting: str
+    paper: object
+    what: str
+
+
+ADDITIONS = (
+    Addition(
+        "core-median",
+        "lift.footprint_sigmas",
+        None,
+        "a Gaussian's per-view median reads the rays through its 1-sigma core",
+    ),
+    Addition(
+        "min-support", "lift.min_support", 0.0, "a view counts for a Gaussian only with >= 0.5 of its best view's hits"
+    ),
+    Addition(
+        "unseen-mask",
+        "refine.merger.unseen",
+        "mean",
+        "unseen views get weight 0 (the paper's code fills them with the mean)",
+    ),
+    Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
+    Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering < 0.02 px of a view"),
+)
+ADDITION_NAMES = tuple(a.name for a in ADDITIONS)
