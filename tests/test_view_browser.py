@@ -227,8 +227,9 @@ def test_the_exported_glb_is_shown_beside_or_instead_of_the_gaussians(page):
     from selenium.webdriver.common.by import By
 
     viewer, driver = page
-    if not viewer.run.glbs:
-        pytest.skip("the run fixture has no glb (trimesh missing when it was made)")
+    # trimesh is here, so the fixture wrote RUN/export/sphere.glb: the viewer must have found it (no skip: a viewer
+    # that missed it would pass unseen)
+    assert [p.name for p in viewer.run.glbs] == ["sphere.glb"]
     choose(driver, "glb", "beside")
     wait_for(lambda: viewer.state.glb == "beside" and viewer.gui.mesh is not None, timeout=20, what="the glb beside")
     assert full_frame(viewer) is not None  # the Gaussians are still drawn by MatSpray
