@@ -18,6 +18,7 @@ from matspray.method.pipeline import Pipeline, variant_refine_config
 from matspray.method.refine.loop import refine
 from matspray.variants import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
 from tests.reference_metrics import relighting_psnr
+from tests.test_readers import blender_folder
 
 
 def test_no_prior_is_the_only_variant_that_needs_no_maps():
@@ -86,7 +87,9 @@ def test_without_maps_the_lift_reads_the_views_at_the_size_geometry_trained_at(t
         assert json.loads((run / "lift" / "stage.json").read_text())["stats"]["view_size"][0] == size
 
 
-def test_cli_refuses_a_variant_that_needs_maps_without_a_predictor(tiny_object, tmp_path):
+def test_cli_refuses_a_variant_that_needs_maps_without_a_predictor(tmp_path):
+    # the refusal comes before any training, so a two-view dataset written here does (no Mitsuba object needed)
+    data = blender_folder(tmp_path / "data")
     result = subprocess.run(
         [
             sys.executable,
@@ -94,7 +97,7 @@ def test_cli_refuses_a_variant_that_needs_maps_without_a_predictor(tiny_object, 
             "matspray",
             "run",
             "--data",
-            tiny_object,
+            data,
             "--out",
             tmp_path / "run",
             "--preset",

@@ -256,11 +256,26 @@ def test_relight_refuses_a_map_that_is_not_latlong(finished_run, tmp_path):
     assert "lat-long" in result.stderr
 
 
-def test_eval_needs_ground_truth(tmp_path, finished_run):
-    with pytest.raises(RunError, match="not a MatSpray run folder"):
-        from matspray.eval.run_eval import evaluate_run
+def test_eval_refuses_a_folder_that_is_not_a_run(tmp_path):  # needs no run, so none is made (nor Mitsuba)
+    from matspray.eval.run_eval import evaluate_run
 
+    with pytest.raises(RunError, match="not a MatSpray run folder"):
         evaluate_run(tmp_path, None)
+
+
+def test_eval_needs_ground_truth(tiny_object, finished_run, tmp_path):
+    """The run's own dataset with its test views' material maps taken away: evaluation refuses, naming the views."""
+    import shutil
+
+    from matspray.errors import DataError
+    from matspray.eval.run_eval import evaluate_run
+
+    data = tmp_path / "data"
+    shutil.copytree(tiny_object, data)
+    for path in (data / "test").glob("*_basecolor.png"):
+        path.unlink()
+    with pytest.raises(DataError, match=r"test views without ground-truth material maps: r_000, r_001 \("):
+        evaluate_run(finished_run, data, progress=False)
 
 
 def test_nan_loss_names_step_and_term():
