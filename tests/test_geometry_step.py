@@ -123,6 +123,21 @@ def test_running_stats_name_the_first_step_that_diverged():
         running.check({"photometric": torch.tensor(float("nan"))})
 
 
+def test_running_stats_report_the_last_loss_and_a_running_psnr_of_the_steps():
+    """Squared errors of 1e-2 then 1e-3 are 20 and 30 dB; the running PSNR keeps 0.9 of the old and takes 0.1 of the
+    new: 0.9 * 20 + 0.1 * 30 = 21 dB. A perfect step counts as 99 dB (its PSNR is infinite)."""
+    running = RunningStats(torch.device("cpu"))
+    running.add(1, torch.tensor(0.5), torch.tensor(1e-2))
+    running.check({})
+    assert running.loss == pytest.approx(0.5) and running.psnr == pytest.approx(20.0, abs=1e-4)
+    running.add(2, torch.tensor(0.25), torch.tensor(1e-3))
+    running.check({})
+    assert running.loss == pytest.approx(0.25) and running.psnr == pytest.approx(21.0, abs=1e-4)
+    running.add(3, torch.tensor(0.0), torch.tensor(0.0))
+    running.check({})
+    assert running.psnr == pytest.approx(0.9 * 21.0 + 0.1 * 99.0, abs=1e-4)
+
+
 def test_a_step_reads_nothing_back_and_its_losses_are_named():
     scene = tiny_scene(torch.device("cpu"))
     config, optimizer, density, running, generator = trained_state(scene, torch.device("cpu"), 500)
