@@ -7,7 +7,7 @@ makes them and reused from its folder, default runs/generalise-dev-demo), every 
 the object's TEST views (with the object's seed, as a run's evaluation does) and the raw predictions
 are scored exactly as the 2D columns of the tables are: matspray.eval.run_eval.evaluate_predictions per
 object (PSNR of each view on the object mask, averaged over the views) and
-matspray.eval.average.average_tables over the objects (metallic with the paper's infinity rule: objects
+matspray.eval.tables.average_tables over the objects (metallic with the paper's infinity rule: objects
 with an infinite PSNR are counted and left out of the mean). Prints one row per object and model and the
 mean beside the paper's Table 1 figures.
 
@@ -34,8 +34,8 @@ from benchmarks.generalise_tables import CHANNELS, SHORT
 from matspray.batch.demo import make_demo_object
 from matspray.data import View, load_scene
 from matspray.errors import MatsprayError
-from matspray.eval.average import average_tables
 from matspray.eval.run_eval import GroundTruth, evaluate_predictions, paper_tables, read_view_truth
+from matspray.eval.tables import average_tables
 from matspray.lights import hdri_files
 from matspray.predictors import predict_views
 from matspray.predictors.error_models import (

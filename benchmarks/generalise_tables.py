@@ -10,7 +10,7 @@ from pathlib import Path
 
 from matspray.batch.demo import DEMO_SIZES
 from matspray.errors import ConfigError
-from matspray.eval.average import average_tables
+from matspray.eval.tables import average_tables
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.rundir import read_json
 from matspray.variants import BASELINE, LABELS
@@ -50,7 +50,7 @@ def wins(figures: list[dict], pairs) -> dict:
 
 
 def model_summary(per_object: list[dict]) -> dict:
-    """Means over objects (the paper's averaging, via matspray.eval.average.average_tables) and wins out of N."""
+    """Means over objects (the paper's averaging, via matspray.eval.tables.average_tables) and wins out of N."""
     averaged = average_tables([o["metrics"] for o in per_object])
     table1 = averaged["table1"]
     relight = {

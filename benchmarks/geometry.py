@@ -6,7 +6,7 @@
 DATASET is a Blender-layout folder with `{split}/{name}_normal.exr` ground-truth normals (what
 `matspray synth` writes); `--data demo` makes (once) the default demo object of `matspray demo` (composite
 shape, seed 0, 128 px, 40 train / 10 test views) in $TMPDIR/matspray-demo-object. Without --data, the analytic test
-object of `matspray.geometry.analytic` (a sphere fused with a rounded box, baked diffuse lighting) is rendered at 128
+object of `matspray.synth.analytic` (a sphere fused with a rounded box, baked diffuse lighting) is rendered at 128
 px, 40 train and 8 test views, into $TMPDIR/matspray-analytic128 (once).
 
 Prints: PSNR on the test views (sRGB; masked = object pixels only, full = composited on white), mean
@@ -31,12 +31,12 @@ import torch
 from benchmarks.rasterize import DEMO_OBJECT, sphere_object, time_ms
 from matspray.data import load_scene
 from matspray.data.camera import Camera
-from matspray.geometry.analytic import write_analytic_dataset
 from matspray.geometry.config import preset
 from matspray.geometry.evaluate import render_view
 from matspray.geometry.train import train_geometry
 from matspray.render.backend import rendering_with, resolve_backend
 from matspray.render.numba_backend import ensure_compiled
+from matspray.synth.analytic import write_analytic_dataset
 
 CACHE = Path(tempfile.gettempdir()) / "matspray-analytic128"
 

@@ -3,7 +3,7 @@
     python -m benchmarks.geometry_memory [--iterations 300] [--views 100] [--resolution 256]
                                          [--gaussians 100000] [--backend auto]
 
-Renders the analytic test object (matspray.geometry.analytic) once into $TMPDIR, then trains its geometry from
+Renders the analytic test object (matspray.synth.analytic) once into $TMPDIR, then trains its geometry from
 `--gaussians` initial points with densification capped at that count, and prints the process's peak resident memory
 (everything: the views, the Gaussians and their Adam moments, the rasterizer's buffers), seconds per iteration and the
 Gaussians at the end. Memory does not grow after the first densification steps at a fixed cap, so a few hundred
@@ -20,10 +20,10 @@ from pathlib import Path
 
 from matspray.data import load_scene
 from matspray.device import configure_threads
-from matspray.geometry.analytic import write_analytic_dataset
 from matspray.geometry.config import preset
 from matspray.geometry.train import train_geometry
 from matspray.render.backend import rendering_with, resolve_backend
+from matspray.synth.analytic import write_analytic_dataset
 
 
 def main(argv=None) -> int:

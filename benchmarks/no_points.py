@@ -27,7 +27,7 @@ def write_transforms(dataset: Path, out: Path) -> Path:
     """The COLMAP dataset's views as a nerfstudio capture without points: the undistorted photos at full size, their
     pinhole cameras, and its train / test split as split lists."""
     from matspray.data import load_scene
-    from matspray.data.nerfstudio import write_nerfstudio
+    from matspray.data.formats.nerfstudio import write_nerfstudio
 
     if (out / "transforms.json").is_file():
         return out

@@ -19,7 +19,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from matspray.data import blender
+from matspray.data.formats import blender
 from matspray.data.scene import View
 from matspray.errors import MatsprayError
 from matspray.predictors.error_models import (

@@ -45,7 +45,6 @@ from torch.utils._python_dispatch import TorchDispatchMode
 from benchmarks.unit_rates import random_refine_inputs
 from matspray.data.scene import Scene
 from matspray.geometry import train as geometry_train
-from matspray.geometry.analytic import analytic_views
 from matspray.geometry.densify import DensityControl
 from matspray.geometry.init import initial_gaussians
 from matspray.geometry.optim import GaussianOptimizer
@@ -55,6 +54,7 @@ from matspray.method.config import build_config
 from matspray.method.lift import lift_view
 from matspray.method.refine.loop import RefineInputs, refine
 from matspray.render.backend import rendering_with, resolve_backend
+from matspray.synth.analytic import analytic_views
 
 # outputs whose size depends on the data: the device must finish before the host can size them
 DATA_SIZED = ("aten.nonzero", "aten._unique2", "aten.unique_dim", "aten.unique_consecutive", "aten.masked_select")

@@ -25,7 +25,7 @@ from pathlib import Path
 import torch
 
 from matspray.data import load_scene, write_blender
-from matspray.data.nerfstudio import write_nerfstudio
+from matspray.data.formats.nerfstudio import write_nerfstudio
 from matspray.data.undistort import Lens, distort_view
 from matspray.geometry.config import preset
 from matspray.geometry.evaluate import evaluate_views

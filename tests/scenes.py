@@ -86,7 +86,7 @@ def write_disk_sphere_run(root, gaussians: int, cameras: list[Camera], train: sl
     """A run folder `root/run` holding the disk sphere's asset (true materials, the sky light as its estimated
     light) and a Blender dataset `root/data` of its renders at `cameras` (the `train` and `test` slices of them);
     returns the run folder."""
-    from matspray.data.blender import write_blender
+    from matspray.data.formats.blender import write_blender
     from matspray.method.asset import Asset, write_asset
     from matspray.method.refine.loop import RefineResult
     from matspray.method.relight import render_relit

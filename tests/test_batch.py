@@ -17,7 +17,7 @@ from matspray.batch.runner import claim_batch_folder
 from matspray.cli import build_parser, main
 from matspray.cli.batch import batch_config
 from matspray.errors import ConfigError, RunError, SettingError
-from matspray.eval.average import average_tables
+from matspray.eval.tables import average_tables
 from tests.reference_metrics import relighting_psnr
 from tests.viewer_process import free_port
 

@@ -12,8 +12,8 @@ import torch.nn.functional as F
 
 from matspray.cli import main
 from matspray.data import Camera, View, load_scene, write_image
+from matspray.data.formats.nerfstudio import write_nerfstudio
 from matspray.data.images import linear_to_srgb, read_image
-from matspray.data.nerfstudio import write_nerfstudio
 from matspray.data.undistort import Lens, cache_folder, distort_view, plan_undistortion
 from matspray.errors import DataError
 from tests.test_readers import write_colmap

@@ -16,8 +16,8 @@ from benchmarks.calibrate_dr import TARGETS
 from benchmarks.generalise import parse_args as generalise_args
 from benchmarks.generalise import predictor_spec
 from matspray.data import Camera, View, write_image, write_raw
-from matspray.eval.average import average_tables
 from matspray.eval.run_eval import evaluate_predictions, paper_tables, read_view_truth
+from matspray.eval.tables import average_tables
 from matspray.predictors import make_predictor, predict_views
 from matspray.predictors.error_models import (
     DR_COLOUR_SCALE,

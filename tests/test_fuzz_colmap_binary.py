@@ -3,7 +3,7 @@ rigs.bin and frames.bin of COLMAP 3.12 and later, as pycolmap writes them): a fi
 (a count, a camera model id, an id, a size, NaN or Inf), then the file truncated at any byte or bytes flipped.
 
 pycolmap hangs or crashes on a truncated file or a count larger than the file, so read_colmap checks the
-structure first (matspray.data.colmap.check_binary_model). Either load_scene refuses with a one-line
+structure first (matspray.data.formats.colmap.check_binary_model). Either load_scene refuses with a one-line
 MatsprayError naming a file of the dataset, or it returns a usable scene (tests/test_fuzz_transforms.py).
 """
 

@@ -13,12 +13,12 @@ import torch
 from matspray.cli import main as cli_main
 from matspray.data import load_scene
 from matspray.errors import ConfigError, RunError
-from matspray.geometry.analytic import write_analytic_dataset
 from matspray.geometry.config import preset
 from matspray.geometry.evaluate import evaluate_views
 from matspray.geometry.init import initial_gaussians
 from matspray.geometry.ply import read_ply
 from matspray.geometry.train import prepare_views, train_geometry
+from matspray.synth.analytic import write_analytic_dataset
 
 
 @pytest.fixture(autouse=True, scope="module")

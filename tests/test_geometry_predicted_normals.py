@@ -13,14 +13,13 @@ import torch.nn.functional as F
 
 from matspray.data.scene import Scene
 from matspray.errors import SettingError
-from matspray.geometry.analytic import analytic_views
-from matspray.geometry.checkpoint import load_checkpoint
 from matspray.geometry.config import preset
 from matspray.geometry.losses import normal_map_loss
 from matspray.geometry.normals import depth_normals_along, render_normals, resize_normal_map
 from matspray.geometry.step import image_terms
-from matspray.geometry.train import train_geometry
+from matspray.geometry.train import load_checkpoint, train_geometry
 from matspray.rundir import fingerprint
+from matspray.synth.analytic import analytic_views
 from tests.test_geometry_step import image_inputs
 
 

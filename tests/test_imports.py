@@ -229,6 +229,25 @@ def test_the_benchmarks_have_no_import_cycle_and_the_library_never_imports_them(
     assert not library, f"the library imports the benchmarks: {library}"
 
 
+MAX_MODULES = 12
+# package folders that still hold more modules than MAX_MODULES, with their count now: they may shrink, not grow
+OVER_MAX = {
+    "render": 32,  # to split by concern: raster/ (dispatch, torch reference, numba, gsplat), rays/, shade/
+    "cli": 15,  # one module per command (13 commands) beside the flags and settings
+}
+
+
+def test_no_package_folder_holds_more_than_12_modules():
+    counts = {
+        str(folder.relative_to(PACKAGE_ROOT)): sum(1 for p in folder.glob("*.py") if p.name != "__init__.py")
+        for folder in [PACKAGE_ROOT, *(p.parent for p in PACKAGE_ROOT.rglob("*/__init__.py"))]
+    }
+    counts.pop(".")  # the top level: plumbing and the data model (the layers' first row)
+    over = {name: n for name, n in counts.items() if n > MAX_MODULES and n > OVER_MAX.get(name, 0)}
+    assert not over, f"package folders over {MAX_MODULES} modules: {over}"
+    assert all(counts[name] <= n for name, n in OVER_MAX.items())
+
+
 def test_the_layer_check_finds_an_import_up(tmp_path):
     """The checker itself: a function-local import from a low layer into a high one is found, with its line; imports
     down and within a layer are not."""

@@ -13,12 +13,12 @@ import torch
 from matspray.data.images import linear_to_srgb
 from matspray.data.scene import Scene
 from matspray.errors import SettingError
-from matspray.geometry.analytic import analytic_views
 from matspray.geometry.config import preset
 from matspray.geometry.densify import DensityControl
 from matspray.geometry.material_edges import edge_levels, footprint_edges, material_edge_map, view_edge_levels
 from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.train import train_geometry
+from matspray.synth.analytic import analytic_views
 from tests.test_geometry_parts import LRS, gaussians_from
 
 

@@ -13,12 +13,11 @@ from matspray.data.scene import Scene, View
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.geometry import densify
-from matspray.geometry.checkpoint import load_checkpoint, save_checkpoint
 from matspray.geometry.config import FOCUS, GeometryConfig, preset
 from matspray.geometry.densify import DensityControl, load_stats_state, stats_state
 from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.region import ObjectRegion, given_region
-from matspray.geometry.train import focus_step, train_geometry
+from matspray.geometry.train import focus_step, load_checkpoint, save_checkpoint, train_geometry
 from matspray.method.masks import read_region
 from matspray.render.rasterize import rasterize
 from tests.test_geometry import one_thread  # noqa: F401  (fixture: one torch thread)

@@ -16,7 +16,8 @@ LIBRARY_USES = [
     (
         "imageio_ffmpeg",
         "video",
-        "import torch; from matspray.data.video import write_video; write_video([torch.zeros(4, 4, 3)], 'x.mp4', 24)",
+        "import torch; from matspray.data.formats.video import write_video; "
+        "write_video([torch.zeros(4, 4, 3)], 'x.mp4', 24)",
     ),
     ("mitsuba", "synth", "from matspray.synth.mitsuba_scene import select_variant; select_variant()"),
     ("viser", "view", "from matspray.view.launch import open_page; open_page('127.0.0.1', 0)"),
@@ -25,7 +26,7 @@ LIBRARY_USES = [
         "marigold",
         "from matspray.predictors.marigold import _load; _load('none', 'MarigoldIntrinsicsPipeline', 'model', '')",
     ),
-    ("pycolmap", "colmap", "from matspray.data.colmap import read_colmap; read_colmap('none')"),
+    ("pycolmap", "colmap", "from matspray.data.formats.colmap import read_colmap; read_colmap('none')"),
 ]
 
 

@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from matspray.data.camera import Camera
-from matspray.geometry.analytic import spiral_cameras
 from matspray.method.relight import cameras_up, orbit_cameras
+from matspray.synth.analytic import spiral_cameras
 from matspray.synth.cameras import FOV_X, sphere_cameras
 
 

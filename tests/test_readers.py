@@ -202,7 +202,7 @@ def test_images_of_different_sizes_in_a_split(tmp_path):
 
 def test_views_are_brought_to_the_working_size_as_they_are_read(tmp_path, monkeypatch):
     """A dataset is never held whole at its photos' size: each view is shrunk before the next photo is read."""
-    import matspray.data.blender as blender
+    import matspray.data.formats.blender as blender
     from matspray.data import loader
 
     events = []

@@ -9,12 +9,11 @@ import torch
 
 from matspray.data.images import linear_to_srgb
 from matspray.errors import DataError
-from matspray.eval.average import average_tables
 from matspray.eval.evaluate import evaluate_images, pooled_union_psnr
 from matspray.eval.glb import relighting_gap_line
 from matspray.eval.masked import covered_box, union_weights
 from matspray.eval.run_eval import GroundTruth, ViewRenders, paper_tables, score_renders
-from matspray.eval.tables import UNION_LABEL, material_table, tables_markdown
+from matspray.eval.tables import UNION_LABEL, average_tables, material_table, tables_markdown
 from matspray.metrics import ssim
 
 SIZE = 16

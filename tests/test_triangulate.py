@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from matspray.data import Camera, View
-from matspray.data.blender import write_blender
+from matspray.data.formats.blender import write_blender
 from matspray.data.images import srgb_to_linear
 from matspray.data.scene import MIN_COLMAP_POINTS
 from matspray.data.triangulate import PointsConfig, needs_points, neighbour_pairs, points_stage, triangulate_views

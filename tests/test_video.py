@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from matspray.data.video import write_video
+from matspray.data.formats.video import write_video
 
 
 @pytest.mark.parametrize("height, width", [(17, 24), (24, 17), (171, 256)])

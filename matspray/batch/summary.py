@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from matspray.eval.average import average_tables
-from matspray.eval.tables import format_metric, markdown_table, tables_markdown
+from matspray.eval.tables import average_tables, format_metric, markdown_table, tables_markdown
 from matspray.rundir import write_json, write_text_atomic
 
 MATERIAL_ROWS = ("relighting", "basecolor", "roughness", "metallic")

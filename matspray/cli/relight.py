@@ -59,8 +59,8 @@ def relight_run(
     from tqdm import tqdm
 
     from matspray.data import load_run_scene, write_image
+    from matspray.data.formats.video import write_video
     from matspray.data.images import linear_to_srgb
-    from matspray.data.video import write_video
     from matspray.errors import ConfigError, RunError, optional_module
     from matspray.lights import load_envmap
     from matspray.method.asset import read_asset

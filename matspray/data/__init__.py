@@ -1,7 +1,7 @@
 """Data model (cameras, views, scenes), dataset readers and writers, image I/O."""
 
-from matspray.data.blender import write_blender
 from matspray.data.camera import Camera, intrinsics_from_fov, pixel_sample_grid
+from matspray.data.formats.blender import write_blender
 from matspray.data.images import linear_to_srgb, read_image, read_raw, resize, srgb_to_linear, write_image, write_raw
 from matspray.data.loader import FORMATS, SceneSummary, describe_scene, detect_format, load_run_scene, load_scene
 from matspray.data.scene import Scene, View

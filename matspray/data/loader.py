@@ -7,8 +7,8 @@ from pathlib import Path
 
 import torch
 
-from matspray.data import blender, colmap, nerfstudio, tensoir
 from matspray.data.crop import CropPlan, read_crop_plan
+from matspray.data.formats import blender, colmap, nerfstudio, tensoir
 from matspray.data.scene import Scene, View, bounds_from_cameras, bounds_from_points, bounds_from_visual_hull
 from matspray.errors import DataError, SettingError, file_error
 from matspray.rundir import RunDir

@@ -21,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from matspray.data import View, load_run_scene, load_scene, read_image
-from matspray.data.blender import read_scene_json
+from matspray.data.formats.blender import read_scene_json
 from matspray.errors import ConfigError, file_error
 from matspray.eval.lpips import load_lpips
 from matspray.eval.report import STYLE, Figures, markdown_to_html

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from torch import Tensor
 
-from matspray.data.blender import read_scene_json
+from matspray.data.formats.blender import read_scene_json
 from matspray.errors import file_error
 from matspray.render.envmap import MIN_RADIANCE, EnvironmentMap, downsample_latlong
 from matspray.render.latlong import irradiance_correlation, total_variation

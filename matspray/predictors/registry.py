@@ -6,7 +6,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
 
-from matspray.data.blender import read_scene_json
+from matspray.data.formats.blender import read_scene_json
 from matspray.errors import DataError, SettingError
 from matspray.predictors.base import Predictor
 from matspray.predictors.error_models import DEFAULT_MODEL, error_model

@@ -13,7 +13,7 @@ import torch
 from tqdm import tqdm
 
 from matspray import __version__
-from matspray.data.blender import write_blender
+from matspray.data.formats.blender import write_blender
 from matspray.data.scene import View
 from matspray.errors import ConfigError, SettingError
 from matspray.gltf.read import read_gltf

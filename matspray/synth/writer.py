@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from matspray.data.blender import read_scene_json
+from matspray.data.formats.blender import read_scene_json
 from matspray.data.images import write_image, write_raw
 from matspray.errors import SettingError
 from matspray.files import write_json

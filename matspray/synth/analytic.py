@@ -12,8 +12,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from matspray.data.blender import write_blender
 from matspray.data.camera import Camera
+from matspray.data.formats.blender import write_blender
 from matspray.data.images import write_raw
 from matspray.data.scene import View
 

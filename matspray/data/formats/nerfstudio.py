@@ -15,7 +15,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from matspray.data.blender import (
+from matspray.data.camera import Camera
+from matspray.data.formats.blender import (
     CAMERA_KEYS,
     camera_number,
     frame_intrinsics,
@@ -28,7 +29,6 @@ from matspray.data.blender import (
     shown,
     view_name,
 )
-from matspray.data.camera import Camera
 from matspray.data.images import image_size, read_image, read_raw, split_alpha, write_image, write_raw
 from matspray.data.scene import View
 from matspray.data.undistort import Lens, Undistorter

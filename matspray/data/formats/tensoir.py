@@ -12,8 +12,8 @@ from pathlib import Path
 
 import torch
 
-from matspray.data.blender import check_number, read_json, shown
 from matspray.data.camera import Camera, intrinsics_from_fov, rigid_problem
+from matspray.data.formats.blender import check_number, read_json, shown
 from matspray.data.images import read_image, resize
 from matspray.data.scene import View
 from matspray.errors import file_error
