@@ -123,35 +123,96 @@ def train_geometry(
     object_bounds=None,
     focus_region: ObjectRegion | None = None,
 ) -> Gaussians:
-    """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`.
-    Renders with the backend of the enclosing `rendering_with` block (torch outside one).
-
-    Resumes from out_dir/checkpoint.pt when it exists (settings must match; `restart` discards it; a
-    checkpoint made on another device resumes too). A finished run (checkpoint at the last iteration and
-    gaussians.ply present) is not redone. Random draws come from a CPU generator, so the same seed draws the
-    same numbers on every device. `cuda_graphs`: on a CUDA device, the loss terms run as CUDA graphs
-    (matspray.geometry.step); False computes them op by op (the same values, for comparison).
-    `normal_targets`: per training view of `scene`, a predicted normal map [H, W, 3] in world space at the view's
-    size (zero where there is none); what `config.predicted_normal_weight` pulls the normals towards (needed then).
-    `material_maps`: per training view of `scene`, its 2D material maps [H, W, 5] (linear base colour, roughness,
-    metallic; any size), whose edges `config.material_edge_threshold` splits Gaussians on (needed then).
-    `object_bounds`: a capture without masks focuses on this region (matspray.geometry.region.given_region's numbers)
-    instead of the automatic one, from `config.focus_from` on; `focus_region`: a region found before training (the
-    photos' crop, matspray.data.crop) that it focuses on instead of either.
-    """
+    """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`, with
+    the backend of the enclosing `rendering_with` block (torch outside one). Resumes from out_dir/checkpoint.pt
+    (settings must match; `restart` discards it; one made on another device resumes too); a finished run is not
+    redone. Random draws come from a CPU generator: the same seed draws the same numbers on every device.
+    `cuda_graphs`: on CUDA, the loss terms run as CUDA graphs (False: op by op, the same values).
+    `normal_targets`: per training view, a predicted normal map [H, W, 3] in world space at the view's size (zero
+    where there is none), which `config.predicted_normal_weight` pulls the normals towards (needed then).
+    `material_maps`: per training view, its 2D maps [H, W, 5] (any size), whose edges
+    `config.material_edge_threshold` splits Gaussians on (needed then). `object_bounds`: a capture without masks
+    focuses on this region (`geometry.region.given_region`'s numbers) from `config.focus_from` on; `focus_region`:
+    a region found before training (the photos' crop, `data.crop`) that it focuses on instead."""
     device = torch.device(device)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    checkpoint_path = out_dir / CHECKPOINT_NAME
-    if restart:
-        for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME, REGION_NAME):
-            (out_dir / name).unlink(missing_ok=True)
+    for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME, REGION_NAME) if restart else ():
+        (out_dir / name).unlink(missing_ok=True)
     train_views = [v.to(device) for v in prepare_views(scene.train, config.resolution)]  # moved once
     test_views = [v.to(device) for v in prepare_views(scene.test, config.resolution)]
     if not train_views:
         raise DataError(f"{scene.source}: no training views to fit geometry to")
     masked = all(v.alpha is not None for v in train_views)  # masks are used when every view has one
     config = config.for_scene(masked)
+    check_inputs(config, normal_targets, material_maps, len(train_views))
+    extent = scene_extent(train_views)
+    generator = torch.Generator().manual_seed(config.seed)
+
+    resumed = load_checkpoint(out_dir / CHECKPOINT_NAME, config)
+    finished = resumed is not None and resumed[0] >= config.iterations
+    if finished and (out_dir / PLY_NAME).exists() and (out_dir / METRICS_NAME).exists():
+        return read_ply(out_dir / PLY_NAME)[0].to(device)
+    start, order, optimizer, density, elapsed = training_state(
+        scene, train_views, config, extent, generator, resumed, device
+    )
+    focus_at = focus_step(config)
+    targets = training_targets(train_views, masked, config, normal_targets, material_maps, device)
+    began = time.perf_counter() - elapsed
+    steps = range(start, config.iterations)
+    bar = tqdm(steps, initial=start, total=config.iterations, desc="geometry", disable=not progress, dynamic_ncols=True)
+    running = RunningStats(device)
+    image_terms = ImageTerms(graphs=cuda_graphs)
+    for iteration in bar:
+        if not order:
+            order = torch.randperm(len(train_views), generator=generator, device="cpu").tolist()
+        target = targets[order.pop()]
+        means_lr = exponential_lr(
+            iteration, config.iterations, config.lr_means * extent, config.lr_means_final * extent
+        )
+        optimizer.set_lr("means", means_lr)
+        done = iteration + 1
+        checkpoint_now = done % config.checkpoint_every == 0 or done == config.iterations
+        # never checkpoint a state that diverged
+        report = done % SYNC_EVERY == 0 or checkpoint_now
+        event = training_step(optimizer, density, running, target, config, iteration, generator, image_terms, report)
+        if report:
+            count = len(optimizer.params["means"])
+            bar.set_postfix(loss=f"{running.loss:.4f}", psnr=f"{running.psnr:.2f}", gaussians=count, refresh=False)
+        if done == focus_at and density.region is None:
+            focused = focus(optimizer, density, train_views, object_bounds, focus_region)
+            event = ", ".join(e for e in (event, focused) if e)
+        if event and progress:
+            bar.write(f"iteration {iteration + 1}: {event}")
+        if checkpoint_now:
+            state = training_checkpoint(optimizer, density, generator, order, time.perf_counter() - began)
+            save_checkpoint(out_dir / CHECKPOINT_NAME, config, done, state)
+    bar.close()
+    return write_result(out_dir, optimizer, density, train_views, test_views, config, time.perf_counter() - began)
+
+
+def focus(optimizer, density, train_views, object_bounds, focus_region) -> str:
+    """A capture without masks focuses its density control on the object region (`focus_region`, else the
+    automatic rule or `object_bounds` on the Gaussians so far); returns what densification said."""
+    g = optimizer.gaussians().detach()
+    region = focus_region or object_region(g.means, g.opacities, [v.camera for v in train_views], object_bounds)
+    return density.focus(optimizer, region)
+
+
+def training_checkpoint(optimizer, density, generator, order: list, seconds: float) -> dict:
+    """What a checkpoint keeps to resume training exactly: the optimizer, densification's statistics, the random
+    generator, the views left in this epoch's order and the seconds trained."""
+    return {
+        "optimizer": optimizer.state_dict(),
+        "density": stats_state(density),
+        "generator": generator.get_state(),
+        "order": order,
+        "elapsed": seconds,
+    }
+
+
+def check_inputs(config: GeometryConfig, normal_targets: list | None, material_maps: list | None, views: int) -> None:
+    """Refuses settings that need inputs not given, and inputs of the wrong length (`train_geometry`'s)."""
     if config.predicted_normal_weight > 0 and normal_targets is None:
         raise SettingError(
             "predicted_normal_weight",
@@ -165,100 +226,43 @@ def train_geometry(
             "a predictor, or set it to 0",
         )
     for given, what in ((normal_targets, "normal maps"), (material_maps, "material maps")):
-        if given is not None and len(given) != len(train_views):
-            raise ValueError(f"{len(given)} {what} for {len(train_views)} training views")
-    extent = scene_extent(train_views)
-    generator = torch.Generator().manual_seed(config.seed)
+        if given is not None and len(given) != views:
+            raise ValueError(f"{len(given)} {what} for {views} training views")
 
-    resumed = load_checkpoint(checkpoint_path, config)
-    if (
-        resumed is not None
-        and resumed[0] >= config.iterations
-        and (out_dir / PLY_NAME).exists()
-        and (out_dir / METRICS_NAME).exists()
-    ):
-        return read_ply(out_dir / PLY_NAME)[0].to(device)
+
+def training_state(scene: Scene, train_views: list[View], config, extent: float, generator, resumed, device):
+    """(first iteration, the views left in this epoch's order, optimizer, density control, seconds trained so far):
+    fresh Gaussians (drawn from `generator`), or the checkpoint `resumed` (iteration, state) restored."""
     if resumed is None:
-        start, order = 0, []
         initial = initial_gaussians(
             scene, train_views, config.init_points, config.sh_degree, config.init_opacity, generator, config.init_scale
         )
         optimizer = GaussianOptimizer(initial, learning_rates(config, extent))
-        density = DensityControl(config, extent, len(initial), device)
-        elapsed = 0.0
-    else:
-        start, state = resumed
-        params = {name: t.to(device) for name, t in state["optimizer"]["params"].items()}
-        optimizer = GaussianOptimizer(_empty_like(params), learning_rates(config, extent))
-        optimizer.load_state_dict(
-            dict(state["optimizer"], params=params)
-        )  # Adam moves its moments to the parameters' device
-        density = DensityControl(config, extent, 0, device)
-        load_stats_state(density, state["density"], device)
-        generator.set_state(state["generator"])
-        order, elapsed = state["order"], state["elapsed"]
+        return 0, [], optimizer, DensityControl(config, extent, len(initial), device), 0.0
+    start, state = resumed
+    params = {name: t.to(device) for name, t in state["optimizer"]["params"].items()}
+    optimizer = GaussianOptimizer(_empty_like(params), learning_rates(config, extent))
+    optimizer.load_state_dict(dict(state["optimizer"], params=params))  # Adam moves its moments to the device
+    density = DensityControl(config, extent, 0, device)
+    load_stats_state(density, state["density"], device)
+    generator.set_state(state["generator"])
+    return start, state["order"], optimizer, density, state["elapsed"]
 
-    focus_at = focus_step(config)
+
+def training_targets(train_views, masked: bool, config, normal_targets, material_maps, device) -> list[TrainingView]:
+    """What every step reads of each training view, with the predicted normals and material maps the settings use."""
     predicted = [None] * len(train_views)
     if config.predicted_normal_weight > 0:
         predicted = [resize_normal_map(n.to(device), v.height, v.width) for n, v in zip(normal_targets, train_views)]
     maps = [None] * len(train_views)
     if config.material_edge_threshold > 0:
         maps = [m.to(device) for m in material_maps]
-    targets = [TrainingView.of(v, masked, n, m) for v, n, m in zip(train_views, predicted, maps)]
-    began = time.perf_counter() - elapsed
-    bar = tqdm(
-        range(start, config.iterations),
-        initial=start,
-        total=config.iterations,
-        desc="geometry",
-        disable=not progress,
-        dynamic_ncols=True,
-    )
-    running = RunningStats(device)
-    image_terms = ImageTerms(graphs=cuda_graphs)
-    for iteration in bar:
-        if not order:
-            order = torch.randperm(len(train_views), generator=generator, device="cpu").tolist()
-        target = targets[order.pop()]
-        optimizer.set_lr(
-            "means",
-            exponential_lr(iteration, config.iterations, config.lr_means * extent, config.lr_means_final * extent),
-        )
-        done = iteration + 1
-        checkpoint_now = done % config.checkpoint_every == 0 or done == config.iterations
-        # never checkpoint a state that diverged
-        report = done % SYNC_EVERY == 0 or checkpoint_now
-        event = training_step(optimizer, density, running, target, config, iteration, generator, image_terms, report)
-        if report:
-            bar.set_postfix(
-                loss=f"{running.loss:.4f}",
-                psnr=f"{running.psnr:.2f}",
-                gaussians=len(optimizer.params["means"]),
-                refresh=False,
-            )
-        if done == focus_at and density.region is None:
-            g = optimizer.gaussians().detach()
-            region = focus_region or object_region(g.means, g.opacities, [v.camera for v in train_views], object_bounds)
-            event = ", ".join(e for e in (event, density.focus(optimizer, region)) if e)
-        if event and progress:
-            bar.write(f"iteration {iteration + 1}: {event}")
-        if checkpoint_now:
-            save_checkpoint(
-                checkpoint_path,
-                config,
-                done,
-                {
-                    "optimizer": optimizer.state_dict(),
-                    "density": stats_state(density),
-                    "generator": generator.get_state(),
-                    "order": order,
-                    "elapsed": time.perf_counter() - began,
-                },
-            )
-    bar.close()
-    train_seconds = time.perf_counter() - began
+    return [TrainingView.of(v, masked, n, m) for v, n, m in zip(train_views, predicted, maps)]
 
+
+def write_result(out_dir: Path, optimizer, density, train_views, test_views, config, train_seconds: float) -> Gaussians:
+    """The stage's artifacts: the Gaussians with their consensus normals (PLY), the focus region where there is one,
+    and the held-out views' metrics."""
     gaussians = optimizer.gaussians().detach()
     normals = consensus_normals(gaussians, [v.camera for v in train_views])
     if density.region is not None:
