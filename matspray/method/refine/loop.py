@@ -61,6 +61,8 @@ from matspray.method.refine.terms import (  # noqa: F401 (the material losses: c
     material_loss,
     prefiltered_light,
     scale_invariant_l1,
+    total_loss,
+    view_losses,
     view_terms,
     weighted_l1,
 )
@@ -68,7 +70,6 @@ from matspray.render.deferred import view_directions
 from matspray.render.envmap import DEFAULT_LEVELS, EnvironmentMap, PrefilteredEnvironment
 from matspray.render.gbuffer import FrozenViews
 from matspray.render.latlong import total_variation
-from matspray.render.visibility import gaussian_shadows
 from matspray.variants import Variant, get_variant
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")
@@ -304,85 +305,6 @@ class TrainingViews:
         return self._constants[index]
 
 
-def view_losses(
-    training: TrainingViews,
-    index: int,
-    materials: Tensor,
-    normals: Tensor,
-    envmap: EnvironmentMap | None,
-    config: RefineConfig,
-    with_material: bool = True,
-    with_normals: bool = False,
-) -> dict[str, Tensor]:
-    """The losses of training view `index`: L1 of the rasterized material maps against the view's 2D maps
-    ("material", when `with_material`), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo
-    ("photo", only with an environment map), and with `with_normals` the angle of the rendered normals to the view's
-    predicted normal map ("predicted_normals", when there is one). materials [N, 5], normals [N, 3] any
-    orientation. Past the render, the terms are one function of tensors (`refine_terms.view_terms`), and so is the
-    learnable light's prefiltering: CUDA graphs on a CUDA device (`TrainingViews`)."""
-    frozen, view, constants = training.frozen, training.views[index], training.constants(index)
-    oriented = frozen.orient_normals(index, normals)
-    features = [materials, oriented]
-    light, light_tv = training.environment(envmap, config.light_tv_weight > 0)
-    if (
-        light is not None and training.visibility is not None
-    ):  # only for the Gaussians this view sees: the rest blend with weight 0
-        seen = frozen.visible_ids[index]
-        shadows = gaussian_shadows(
-            training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen], view.camera, light
-        )
-        features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
-    blended, alpha = frozen.render(index, torch.cat(features, dim=-1))  # [H, W, 8 or 14], [H, W]
-    material = None
-    if with_material:  # without the PBR loss nothing sets the scale
-        scale_free = config.basecolor_loss == "scale-invariant"
-        material = "l1" if scale_free and light is None else config.basecolor_loss
-    options = TermOptions(
-        material,
-        config.basecolor_huber_delta,
-        with_normals and training.normal_maps is not None,
-        light is not None,
-        1.0 - config.photo_l1_weight,
-        blended.shape[-1] > N_CHANNELS + 3,
-        light.levels if light is not None else (),
-    )
-    tensors = (
-        blended,
-        alpha,
-        constants.cover,
-        constants.view_dirs,
-        constants.photo,
-        training.targets[index] if material is not None else constants.photo,  # read only with the material term
-        constants.surface,
-        constants.surface_weight,
-        constants.surface_count,
-        training.normal_maps[index] if options.predicted_normals else constants.view_dirs,  # read only if predicted
-        *(light_images(light) if light is not None else ()),
-    )
-    stacked = training.terms(options, *tensors)  # [T]
-    terms = dict(zip(options.names, stacked.unbind(0)))
-    if light_tv is not None:
-        terms["light_tv"] = light_tv
-    return terms
-
-
-def total_loss(terms: dict[str, Tensor], config: RefineConfig) -> Tensor:
-    """The weighted sum of the loss terms (a weight of 1 multiplies nothing)."""
-    weights = {
-        "material": config.material_weight,
-        "photo": config.photo_weight,
-        "light_tv": config.light_tv_weight,
-        "spread": config.basecolor_spread_weight,
-        "normal_prior": config.normal_prior_weight,
-        "predicted_normals": config.predicted_normal_weight,
-    }
-    weighted = [value if weights[name] == 1.0 else weights[name] * value for name, value in terms.items()]
-    total = weighted[0]
-    for value in weighted[1:]:
-        total = total + value
-    return total
-
-
 # ------------------------------------------------------------------------------------------ optimisation
 def envmap_group(envmap: EnvironmentMap, config: RefineConfig) -> dict:
     """The environment map's optimizer parameter group."""
@@ -472,13 +394,7 @@ def refine(
     source = MaterialSource(
         variant, gaussians.means.detach(), inputs.values, inputs.seen, inputs.bounds, config.merger
     ).to(device)
-    envmap = None
-    if variant.learns_light:
-        envmap = (
-            EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device)
-            if light is None
-            else EnvironmentMap(light.log_map.detach().to(device), learnable=False)
-        )
+    envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
     history: list[dict] = []
     if not source.trainable or config.iterations == 0:
@@ -493,46 +409,14 @@ def refine(
     with torch.no_grad():
         last_materials = source()  # [N, 5] each Gaussian's latest merged value
     if estimates_light and config.light_warmup > 0:
-        key = warm_up_key(last_materials, config)
-        if warmed_lights is not None and key in warmed_lights:
-            log_map, state = warmed_lights[key]
-            with torch.no_grad():
-                envmap.log_map.copy_(log_map)
-            generator.set_state(state)
-        else:
-            warm_up_light(training, last_materials, normals, envmap, config, generator, progress)
-            if warmed_lights is not None:
-                warmed_lights[key] = (envmap.log_map.detach().clone(), generator.get_state())
+        warm_up_or_reuse(training, last_materials, normals, envmap, config, generator, progress, warmed_lights)
     shading = ShadingNormals(normals).to(device) if config.refines_normals else None
     if shading is not None:  # after the warm-up, which lights the geometry's normals
         groups.append({"params": list(shading.parameters()), "lr": config.normal_lr, "name": "shading normals"})
     optimizer = adam_optimizer(groups)
 
     def refine_losses(index: int):
-        active = training.frozen.contributing_ids(
-            index, config.min_coverage
-        )  # the merger only runs for the Gaussians this view shows
-        spread = config.basecolor_spread_weight > 0 and variant.softmax
-        merged, weights = source(active, return_weights=True) if spread else (source(active), {})
-        materials = last_materials.index_copy(0, active, merged)
-        last_materials.index_copy_(0, active, merged.detach())
-        shading_normals = normals if shading is None else shading()
-        terms = view_losses(
-            training,
-            index,
-            materials,
-            shading_normals,
-            envmap,
-            config,
-            with_material=variant.uses_maps,
-            with_normals=shading is not None and config.predicted_normal_weight > 0,
-        )
-        if spread and "base_color" in weights:
-            terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
-        if shading is not None and config.normal_prior_weight > 0:
-            seen = training.frozen.visible_ids[index]  # the normals this view's photo loss reaches
-            terms["normal_prior"] = normal_prior(shading_normals[seen], normals[seen])
-        return terms, total_loss(terms, config)
+        return step_losses(index, training, source, last_materials, normals, shading, envmap, config)
 
     def log(step: int, terms: dict, bar) -> None:
         if logs(step):
@@ -569,6 +453,65 @@ def refine(
     return RefineResult(
         materials, final_normals, source, envmap, history, inputs.visibility, training.frozen.describe()
     )
+
+
+def step_losses(
+    index: int,
+    training: "TrainingViews",
+    source: MaterialSource,
+    last_materials: Tensor,  # [N, 5] each Gaussian's latest merged value (updated in place for the view's Gaussians)
+    normals: Tensor,  # [N, 3] the geometry's
+    shading: ShadingNormals | None,
+    envmap: EnvironmentMap | None,
+    config: RefineConfig,
+) -> tuple[dict, Tensor]:
+    """One refinement step's loss terms on training view `index` and their weighted total: the material source runs
+    only for the Gaussians the view shows."""
+    variant = config.kind
+    active = training.frozen.contributing_ids(index, config.min_coverage)
+    spread = config.basecolor_spread_weight > 0 and variant.softmax
+    merged, weights = source(active, return_weights=True) if spread else (source(active), {})
+    materials = last_materials.index_copy(0, active, merged)
+    last_materials.index_copy_(0, active, merged.detach())
+    shading_normals = normals if shading is None else shading()
+    terms = view_losses(
+        training,
+        index,
+        materials,
+        shading_normals,
+        envmap,
+        config,
+        with_material=variant.uses_maps,
+        with_normals=shading is not None and config.predicted_normal_weight > 0,
+    )
+    if spread and "base_color" in weights:
+        terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
+    if shading is not None and config.normal_prior_weight > 0:
+        seen = training.frozen.visible_ids[index]  # the normals this view's photo loss reaches
+        terms["normal_prior"] = normal_prior(shading_normals[seen], normals[seen])
+    return terms, total_loss(terms, config)
+
+
+def starting_light(config: RefineConfig, light: EnvironmentMap | None, device) -> EnvironmentMap:
+    """The environment map refinement starts from: a constant one to learn, or the known `light`, never optimised."""
+    if light is None:
+        return EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device)
+    return EnvironmentMap(light.log_map.detach().to(device), learnable=False)
+
+
+def warm_up_or_reuse(training, materials, normals, envmap, config, generator, progress, warmed_lights) -> None:
+    """The light's warm-up (`warm_up_light`), or its outcome (light and random state) found in `warmed_lights` for
+    the same starting materials and settings; a warm-up run here is kept there for the next variant."""
+    key = warm_up_key(materials, config)
+    if warmed_lights is not None and key in warmed_lights:
+        log_map, state = warmed_lights[key]
+        with torch.no_grad():
+            envmap.log_map.copy_(log_map)
+        generator.set_state(state)
+        return
+    warm_up_light(training, materials, normals, envmap, config, generator, progress)
+    if warmed_lights is not None:
+        warmed_lights[key] = (envmap.log_map.detach().clone(), generator.get_state())
 
 
 def with_fitted_metallic(

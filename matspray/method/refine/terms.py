@@ -1,10 +1,11 @@
 """The image-sized part of a refinement step as pure functions of tensors, which `matspray.graphs.Graphed` runs as
 CUDA graphs on a CUDA device (the deferred shading and every loss of a view in one launch each way; the
-environment map's prefiltering and its prior in another), and the material losses they use.
+environment map's prefiltering and its prior in another), the material losses they use, and `view_losses`, which
+gathers a training view's inputs for them, with `total_loss`, their weighted sum.
 
 A step on a GPU is otherwise a few hundred small kernels, each waiting on Python to launch it: the G-buffer's
 division by the coverage, the split-sum shading's lookups, the sRGB curve, SSIM and the L1 terms. The functions here
-compute exactly what `refine.view_losses` computed op by op before (tests/test_refine_terms.py).
+compute exactly what `view_losses` computed op by op before (tests/test_refine_terms.py).
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from matspray.data.images import linear_to_srgb
 from matspray.geometry.losses import normal_map_loss, photometric_loss
 from matspray.material import BASE_COLOR, N_CHANNELS, unstack
 from matspray.render.deferred import shade_unit
-from matspray.render.envmap import PrefilteredEnvironment, prefilter_latlong
+from matspray.render.envmap import EnvironmentMap, PrefilteredEnvironment, prefilter_latlong
 from matspray.render.latlong import total_variation
+from matspray.render.visibility import gaussian_shadows
 
 DEFAULT_HUBER_DELTA = 0.05  # linear base colour; the residual where "huber" turns from quadratic to linear
 
@@ -138,3 +140,83 @@ def prefiltered_light(levels: tuple[float, ...], log_map: Tensor) -> tuple[Tenso
     the map, for a CUDA graph."""
     radiance = log_map.exp()
     return (*light_images(prefilter_latlong(radiance, levels)), radiance, total_variation(log_map))
+
+
+# ------------------------------------------------------------------------------------------ a view's losses
+def view_losses(
+    training,  # refine.loop.TrainingViews
+    index: int,
+    materials: Tensor,
+    normals: Tensor,
+    envmap: EnvironmentMap | None,
+    config,  # refine.loop.RefineConfig
+    with_material: bool = True,
+    with_normals: bool = False,
+) -> dict[str, Tensor]:
+    """The losses of training view `index`: L1 of the rasterized material maps against the view's 2D maps
+    ("material", when `with_material`), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo
+    ("photo", only with an environment map), and with `with_normals` the angle of the rendered normals to the view's
+    predicted normal map ("predicted_normals", when there is one). materials [N, 5], normals [N, 3] any
+    orientation. Past the render, the terms are one function of tensors (`view_terms`), and so is the
+    learnable light's prefiltering: CUDA graphs on a CUDA device (`TrainingViews`)."""
+    frozen, view, constants = training.frozen, training.views[index], training.constants(index)
+    oriented = frozen.orient_normals(index, normals)
+    features = [materials, oriented]
+    light, light_tv = training.environment(envmap, config.light_tv_weight > 0)
+    if (
+        light is not None and training.visibility is not None
+    ):  # only for the Gaussians this view sees: the rest blend with weight 0
+        seen = frozen.visible_ids[index]
+        shadows = gaussian_shadows(
+            training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen], view.camera, light
+        )
+        features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
+    blended, alpha = frozen.render(index, torch.cat(features, dim=-1))  # [H, W, 8 or 14], [H, W]
+    material = None
+    if with_material:  # without the PBR loss nothing sets the scale
+        scale_free = config.basecolor_loss == "scale-invariant"
+        material = "l1" if scale_free and light is None else config.basecolor_loss
+    options = TermOptions(
+        material,
+        config.basecolor_huber_delta,
+        with_normals and training.normal_maps is not None,
+        light is not None,
+        1.0 - config.photo_l1_weight,
+        blended.shape[-1] > N_CHANNELS + 3,
+        light.levels if light is not None else (),
+    )
+    tensors = (
+        blended,
+        alpha,
+        constants.cover,
+        constants.view_dirs,
+        constants.photo,
+        training.targets[index] if material is not None else constants.photo,  # read only with the material term
+        constants.surface,
+        constants.surface_weight,
+        constants.surface_count,
+        training.normal_maps[index] if options.predicted_normals else constants.view_dirs,  # read only if predicted
+        *(light_images(light) if light is not None else ()),
+    )
+    stacked = training.terms(options, *tensors)  # [T]
+    terms = dict(zip(options.names, stacked.unbind(0)))
+    if light_tv is not None:
+        terms["light_tv"] = light_tv
+    return terms
+
+
+def total_loss(terms: dict[str, Tensor], config) -> Tensor:  # config: refine.loop.RefineConfig
+    """The weighted sum of the loss terms (a weight of 1 multiplies nothing)."""
+    weights = {
+        "material": config.material_weight,
+        "photo": config.photo_weight,
+        "light_tv": config.light_tv_weight,
+        "spread": config.basecolor_spread_weight,
+        "normal_prior": config.normal_prior_weight,
+        "predicted_normals": config.predicted_normal_weight,
+    }
+    weighted = [value if weights[name] == 1.0 else weights[name] * value for name, value in terms.items()]
+    total = weighted[0]
+    for value in weighted[1:]:
+        total = total + value
+    return total
