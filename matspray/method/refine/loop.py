@@ -376,24 +376,20 @@ def refine(
     graphs: bool = True,
 ) -> RefineResult:
     """Train the variant's material source (and the environment map) on the training views.
-    `on_checkpoint(step, source, envmap, history)` is called every 100 steps and at the end. `light`: a known
-    training light (a light probe, or the true light of a benchmark object) that variants with the PBR loss shade
-    with as given, instead of learning one: no warm-up, never optimised. `frozen`: `frozen_views(inputs)` when the
-    caller keeps them for several variants (building them takes seconds per refinement). `warmed_lights`: a dict the
-    caller keeps for the variants of one run, in which the light warm-up's outcome is kept and found again when
-    another variant starts from the same materials with the same settings (full and no-softmax both start from the
-    projection average): the same light and random state as warming up again, without the steps. `graphs`: each
-    step's loss terms and the light's prefiltering as CUDA graphs on a CUDA device (`TrainingViews`); False: op by op
-    everywhere (the same values)."""
+    `on_checkpoint(step, source, envmap, history)`: called every 100 steps and at the end. `light`: a known training
+    light (a light probe, a benchmark object's true light) the PBR variants shade with as given: no warm-up, never
+    optimised. `frozen`: `frozen_views(inputs)` kept by the caller for several variants. `warmed_lights`: a dict kept
+    for the variants of one run, where a light warm-up's outcome is found again by a variant that starts from the
+    same materials and settings (`warm_up_or_reuse`). `graphs`: the loss terms and the light's prefiltering as CUDA
+    graphs on a CUDA device (`TrainingViews`); False: op by op (the same values)."""
     torch.manual_seed(config.seed)
     variant = config.kind
     gaussians, normals = inputs.gaussians, inputs.normals
     device = gaussians.device
     if config.align_view_gains:
         inputs = aligned_inputs(inputs)
-    source = MaterialSource(
-        variant, gaussians.means.detach(), inputs.values, inputs.seen, inputs.bounds, config.merger
-    ).to(device)
+    means = gaussians.means.detach()
+    source = MaterialSource(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
     envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
     history: list[dict] = []
@@ -434,25 +430,15 @@ def refine(
     def checkpoints(step: int) -> bool:  # finiteness is read before each: none is written from a diverged state
         return on_checkpoint is not None and (step % 100 == 0 or step == config.iterations)
 
-    optimize(
-        optimizer,
-        len(training),
-        config.iterations,
-        refine_losses,
-        generator,
-        f"refine [{variant.name}]",
-        progress,
-        log,
-        check_at=lambda step: logs(step) or checkpoints(step),
-    )
+    name, check_at = f"refine [{variant.name}]", lambda step: logs(step) or checkpoints(step)
+    optimize(optimizer, len(training), config.iterations, refine_losses, generator, name, progress, log, check_at)
     with torch.no_grad():
         final_normals = normals if shading is None else shading().detach()
         materials = source().detach()
     if variant.uses_maps and config.metallic_fit.steps > 0:
         materials = with_fitted_metallic(materials, final_normals, envmap, training, inputs.targets, config)
-    return RefineResult(
-        materials, final_normals, source, envmap, history, inputs.visibility, training.frozen.describe()
-    )
+    frozen_used = training.frozen.describe()
+    return RefineResult(materials, final_normals, source, envmap, history, inputs.visibility, frozen_used)
 
 
 def step_losses(
