@@ -15,7 +15,7 @@ import torch
 from matspray.data import load_run_scene
 from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
 from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
-from matspray.eval.report import STYLE, Figures, _srgb_inverse, markdown_to_html, object_masks_section
+from matspray.eval.report import Figures, _srgb_inverse, html_page, markdown_to_html, object_masks_section
 from matspray.export.frames import find_glbs, glb_box
 from matspray.lights import load_envmap
 from matspray.method.asset import ENVMAP_FILE, envmap_preview
@@ -124,120 +124,94 @@ def write_capture_report(
     loaded = read_renderables(run, device)
     held = photo_renders(run, scene.test[:MAX_VIEWS], "test", device, backend, progress=False, renderables=loaded)
     trained = photo_renders(run, scene.train[:1], "train", device, backend, progress=False, renderables=loaded)
-    for title, items in (
-        ("Held-out photos (never trained on) and the run's renders", held),
-        ("A training photo and the run's renders", trained),
-    ):
-        rows = [f"<h2>{title}</h2>"]
-        for item in items:
-            name = item.view.name
-            cells = [
-                figures.image(f"photo_{name}", item.view.image, f"photo {name}"),
-                figures.image(
-                    f"mask_overlay_{name}", item.view.image * (0.25 + 0.75 * item.mask[..., None]), "object mask"
-                ),
-            ]
-            cells += [
-                figures.image(f"render_{name}_{key}", rgb, _label(key), item.mask) for key, rgb in item.renders.items()
-            ]
-            rows.append("<div>" + "".join(cells) + "</div>")
-        sections += rows
+    sections += photo_rows("Held-out photos (never trained on) and the run's renders", held, figures)
+    sections += photo_rows("A training photo and the run's renders", trained, figures)
 
     variants, assets = list(loaded.assets), loaded.assets
     views = scene.test[:2] or scene.train[:2]
-    cells = []
     with rendering_with(backend), torch.no_grad():
-        for spec in lights:
-            name, env = load_envmap(spec, height=RELIGHT_ENV_HEIGHT)
-            light = EnvironmentMap.from_tensor(env.to(device), learnable=False)
-            prefiltered = light.prefilter()
-            for variant, asset in assets.items():
-                for view in views:
-                    camera = view.camera.to(device)
-                    rgb, alpha = render_relit(asset, camera, prefiltered)
-                    rgb = rgb + background_radiance(light, camera) * (1 - alpha[..., None])
-                    cells.append(
-                        figures.image(
-                            f"relit_{view.name}_{variant}_{name}",
-                            rgb,
-                            f"{LABELS.get(variant, variant)}, {name}, {view.name}",
-                        )
-                    )
-        sections.append(
-            "<h2>Relit under other lights</h2><p>The asset shaded under lights it never saw, over the light itself.</p>"
-            "<div>" + "".join(cells) + "</div>"
-        )
+        sections.append(relit_section(assets, views, lights, figures, device))
         if others:
             sections.append(comparison_section(run, assets, others, views, lights[0], figures, device))
+        sections += material_rows(assets, views[0].camera.to(device), figures)
 
-        rows = ["<h2>Material maps</h2>"]
-        for variant, asset in assets.items():
-            camera = views[0].camera.to(device)
-            gbuffer = render_gbuffer(asset, camera)
-            normals = torch.nn.functional.normalize(gbuffer.normals, dim=-1) * 0.5 + 0.5
-            label = LABELS.get(variant, variant)
-            rows.append(
-                "<div>"
-                + "".join(
-                    [
-                        figures.image(
-                            f"maps_{variant}_basecolor",
-                            gbuffer.base_color.cpu(),
-                            f"base colour, {label}",
-                            gbuffer.alpha.cpu(),
-                        ),
-                        figures.scalar(
-                            f"maps_{variant}_roughness",
-                            gbuffer.roughness.cpu(),
-                            f"roughness, {label}",
-                            gbuffer.alpha.cpu(),
-                        ),
-                        figures.scalar(
-                            f"maps_{variant}_metallic",
-                            gbuffer.metallic.cpu(),
-                            f"metallic, {label}",
-                            gbuffer.alpha.cpu(),
-                        ),
-                        figures.image(
-                            f"maps_{variant}_normal",
-                            _srgb_inverse(normals.cpu()),
-                            f"normals, {label}",
-                            gbuffer.alpha.cpu(),
-                        ),
-                    ]
-                )
-                + "</div>"
-            )
-        sections += rows
-
-    cells = []
-    for variant in variants:
-        path = run.path(asset_stage(variant), ENVMAP_FILE)
-        if path.exists():
-            estimate = EnvironmentMap.from_file(path).map.detach()
-            cells.append(
-                figures.image(
-                    f"envmap_{variant}",
-                    envmap_preview(estimate),
-                    f"estimated light ({LABELS.get(variant, variant)})",
-                    css="env",
-                )
-            )
-    if cells:
-        sections.append(
-            "<h2>Estimated light</h2><p>Tone-mapped lat-long maps (up is the top row), determined only as far as the "
-            "photos reveal it.</p><div>" + "".join(cells) + "</div>"
-        )
-
+    sections.append(estimated_light_section(run, variants, figures))
     sections.append("<h2>Object region</h2>" + asset_box_note(run, assets))
     if run.path("masks", "masks.pt").exists():
         sections.append(
             object_masks_section(read_object_masks(run.path("masks")), scene.train[:MAX_VIEWS], figures, None)
         )
-    page = (
-        "<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title>"
-        f"<style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
-    )
     path = run.path("report.html")
-    write_text_atomic(path, page)
+    write_text_atomic(path, html_page(sections))
     return path
+
+
+def photo_rows(title: str, items, figures: Figures) -> list[str]:
+    """A section of photos, each with its object mask and the run's renders of its view."""
+    rows = [f"<h2>{title}</h2>"]
+    for item in items:
+        name = item.view.name
+        overlay = item.view.image * (0.25 + 0.75 * item.mask[..., None])
+        cells = [
+            figures.image(f"photo_{name}", item.view.image, f"photo {name}"),
+            figures.image(f"mask_overlay_{name}", overlay, "object mask"),
+        ]
+        cells += [
+            figures.image(f"render_{name}_{key}", rgb, _label(key), item.mask) for key, rgb in item.renders.items()
+        ]
+        rows.append("<div>" + "".join(cells) + "</div>")
+    return rows
+
+
+def relit_section(assets: dict, views, lights, figures: Figures, device) -> str:
+    """Every asset relit under each of `lights` (names or files) in `views`, over the light itself."""
+    cells = []
+    for spec in lights:
+        name, env = load_envmap(spec, height=RELIGHT_ENV_HEIGHT)
+        light = EnvironmentMap.from_tensor(env.to(device), learnable=False)
+        prefiltered = light.prefilter()
+        for variant, asset in assets.items():
+            for view in views:
+                camera = view.camera.to(device)
+                rgb, alpha = render_relit(asset, camera, prefiltered)
+                rgb = rgb + background_radiance(light, camera) * (1 - alpha[..., None])
+                label = f"{LABELS.get(variant, variant)}, {name}, {view.name}"
+                cells.append(figures.image(f"relit_{view.name}_{variant}_{name}", rgb, label))
+    return (
+        "<h2>Relit under other lights</h2><p>The asset shaded under lights it never saw, over the light itself.</p>"
+        "<div>" + "".join(cells) + "</div>"
+    )
+
+
+def material_rows(assets: dict, camera, figures: Figures) -> list[str]:
+    """Every asset's base colour, roughness, metallic and normals seen from `camera`."""
+    rows = ["<h2>Material maps</h2>"]
+    for variant, asset in assets.items():
+        gbuffer = render_gbuffer(asset, camera)
+        normals = torch.nn.functional.normalize(gbuffer.normals, dim=-1) * 0.5 + 0.5
+        label, alpha = LABELS.get(variant, variant), gbuffer.alpha.cpu()
+        cells = [
+            figures.image(f"maps_{variant}_basecolor", gbuffer.base_color.cpu(), f"base colour, {label}", alpha),
+            figures.scalar(f"maps_{variant}_roughness", gbuffer.roughness.cpu(), f"roughness, {label}", alpha),
+            figures.scalar(f"maps_{variant}_metallic", gbuffer.metallic.cpu(), f"metallic, {label}", alpha),
+            figures.image(f"maps_{variant}_normal", _srgb_inverse(normals.cpu()), f"normals, {label}", alpha),
+        ]
+        rows.append("<div>" + "".join(cells) + "</div>")
+    return rows
+
+
+def estimated_light_section(run: RunDir, variants, figures: Figures) -> str:
+    """Each variant's estimated light; empty when none estimated one."""
+    cells = []
+    for variant in variants:
+        path = run.path(asset_stage(variant), ENVMAP_FILE)
+        if path.exists():
+            estimate = EnvironmentMap.from_file(path).map.detach()
+            label = f"estimated light ({LABELS.get(variant, variant)})"
+            cells.append(figures.image(f"envmap_{variant}", envmap_preview(estimate), label, css="env"))
+    if not cells:
+        return ""
+    return (
+        "<h2>Estimated light</h2><p>Tone-mapped lat-long maps (up is the top row), determined only as far as the "
+        "photos reveal it.</p><div>" + "".join(cells) + "</div>"
+    )

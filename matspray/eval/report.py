@@ -164,80 +164,98 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
     test_predictions, _ = predict_test_views(run_dir, views)  # the baseline of Table 1, None when it cannot run here
     for view in views:
         truth = read_view_truth(view)
-        rows = [f"<h2>Test view {html.escape(view.name)}</h2>"]
-        for env in env_names:
-            cells = [figures.image(f"{view.name}_{env}_gt", truth.relit[env], f"ground truth, {env}", truth.mask)]
-            for variant, asset in assets.items():
-                gbuffer = render_gbuffer(asset, view.camera, lights[env])
-                rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, lights[env]), gbuffer.alpha)
-                cells.append(
-                    figures.image(f"{view.name}_{env}_{variant}", rgb, f"{LABELS[variant]}, {env}", gbuffer.alpha)
-                )
-            rows.append("<div>" + "".join(cells) + "</div>")
+        sections.append(f"<h2>Test view {html.escape(view.name)}</h2>")
+        sections += [relit_row(view, truth, env, assets, lights[env], figures) for env in env_names]
         if "full" in assets:
-            gbuffer = render_gbuffer(assets["full"], view.camera)
-            normals = torch.nn.functional.normalize(gbuffer.normals, dim=-1) * 0.5 + 0.5
-            gt_normal_path = view.path.with_name(f"{view.name}_normal.exr")
-            cells = [
-                figures.image(f"{view.name}_basecolor_ours", gbuffer.base_color, "base color, ours", gbuffer.alpha),
-                figures.image(f"{view.name}_basecolor_gt", truth.basecolor, "base color, truth", truth.mask),
-                figures.scalar(f"{view.name}_roughness_ours", gbuffer.roughness, "roughness, ours", gbuffer.alpha),
-                figures.scalar(f"{view.name}_roughness_gt", truth.roughness, "roughness, truth", truth.mask),
-                figures.scalar(f"{view.name}_metallic_ours", gbuffer.metallic, "metallic, ours", gbuffer.alpha),
-                figures.scalar(f"{view.name}_metallic_gt", truth.metallic, "metallic, truth", truth.mask),
-                figures.image(f"{view.name}_normal_ours", _srgb_inverse(normals), "normals, ours", gbuffer.alpha),
-            ]
-            if test_predictions is not None:
-                m = test_predictions[view.name]
-                cells[2:2] = [
-                    figures.image(
-                        f"pred2d_test_{view.name}_basecolor", m.basecolor, "base color, 2D prediction", truth.mask
-                    )
-                ]
-                cells[5:5] = [
-                    figures.scalar(
-                        f"pred2d_test_{view.name}_roughness", m.roughness, "roughness, 2D prediction", truth.mask
-                    )
-                ]
-                cells[8:8] = [
-                    figures.scalar(
-                        f"pred2d_test_{view.name}_metallic", m.metallic, "metallic, 2D prediction", truth.mask
-                    )
-                ]
-            if gt_normal_path.exists():
-                gt_normals, _ = read_image(gt_normal_path)
-                cells.append(
-                    figures.image(
-                        f"{view.name}_normal_gt", _srgb_inverse(gt_normals * 0.5 + 0.5), "normals, truth", truth.mask
-                    )
-                )
-            rows.append("<div>" + "".join(cells) + "</div>")
-        sections += rows
+            sections.append(materials_row(view, truth, assets["full"], test_predictions, figures))
     if (run_dir / "masks" / "masks.pt").exists():
         sections.append(
             object_masks_section(
                 read_object_masks(run_dir / "masks"), scene.train[:MAX_VIEWS], figures, metrics.get("masks")
             )
         )
-    # the 2D predictions the method started from (training views: those are the ones it saw)
-    if (run_dir / "materials2d").is_dir():
-        train_maps = read_materials2d(run_dir, scene.train[:MAX_VIEWS])
-        cells = []
-        for view in scene.train[:MAX_VIEWS]:
-            m = train_maps[view.name]
-            cells.append(
-                figures.image(f"pred2d_{view.name}_basecolor", m.basecolor, f"2D base color, {view.name}", view.alpha)
-            )
-            cells.append(
-                figures.scalar(f"pred2d_{view.name}_roughness", m.roughness, f"2D roughness, {view.name}", view.alpha)
-            )
-            cells.append(
-                figures.scalar(f"pred2d_{view.name}_metallic", m.metallic, f"2D metallic, {view.name}", view.alpha)
-            )
-        sections.append(
-            "<h2>2D material predictions (input of the method, training views)</h2><div>" + "".join(cells) + "</div>"
+    if (run_dir / "materials2d").is_dir():  # the 2D predictions the method started from (the training views)
+        sections.append(predictions_section(run_dir, scene.train[:MAX_VIEWS], figures))
+    sections.append(light_section(run_dir, data, env_names, figures))
+    histories = {v: read_history(run_dir / asset_stage(v)) for v in assets}
+    sections.append("<h2>Loss curves (refinement)</h2>" + loss_curves_svg({k: v for k, v in histories.items() if v}))
+    sections.append(markdown_to_html(tables_markdown(metrics)))
+    sections.append(
+        "<details><summary>metrics.json</summary><pre>"
+        f"{html.escape(json.dumps(metrics.get('table1', {}), indent=1))}</pre></details>"
+    )
+    path = run_dir / "report.html"
+    write_text_atomic(path, html_page(sections))
+    return path
+
+
+def html_page(sections: list[str]) -> str:
+    """The report's HTML page around its sections."""
+    return (
+        "<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title>"
+        f"<style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
+    )
+
+
+def relit_row(view: View, truth, env: str, assets: dict, light, figures: "Figures") -> str:
+    """One test view under light `env`: the ground truth, then every variant's asset."""
+    cells = [figures.image(f"{view.name}_{env}_gt", truth.relit[env], f"ground truth, {env}", truth.mask)]
+    for variant, asset in assets.items():
+        gbuffer = render_gbuffer(asset, view.camera, light)
+        rgb = unpremultiply(shade_gbuffer(gbuffer, view.camera, light), gbuffer.alpha)
+        cells.append(figures.image(f"{view.name}_{env}_{variant}", rgb, f"{LABELS[variant]}, {env}", gbuffer.alpha))
+    return "<div>" + "".join(cells) + "</div>"
+
+
+def materials_row(view: View, truth, asset, test_predictions: dict | None, figures: "Figures") -> str:
+    """One test view's material maps and normals: the full asset's, the truth's and (where it can run here) the 2D
+    prediction's, side by side."""
+    gbuffer = render_gbuffer(asset, view.camera)
+    normals = torch.nn.functional.normalize(gbuffer.normals, dim=-1) * 0.5 + 0.5
+    gt_normal_path = view.path.with_name(f"{view.name}_normal.exr")
+    cells = [
+        figures.image(f"{view.name}_basecolor_ours", gbuffer.base_color, "base color, ours", gbuffer.alpha),
+        figures.image(f"{view.name}_basecolor_gt", truth.basecolor, "base color, truth", truth.mask),
+        figures.scalar(f"{view.name}_roughness_ours", gbuffer.roughness, "roughness, ours", gbuffer.alpha),
+        figures.scalar(f"{view.name}_roughness_gt", truth.roughness, "roughness, truth", truth.mask),
+        figures.scalar(f"{view.name}_metallic_ours", gbuffer.metallic, "metallic, ours", gbuffer.alpha),
+        figures.scalar(f"{view.name}_metallic_gt", truth.metallic, "metallic, truth", truth.mask),
+        figures.image(f"{view.name}_normal_ours", _srgb_inverse(normals), "normals, ours", gbuffer.alpha),
+    ]
+    if test_predictions is not None:
+        m = test_predictions[view.name]
+        name = f"pred2d_test_{view.name}"
+        cells[2:2] = [figures.image(f"{name}_basecolor", m.basecolor, "base color, 2D prediction", truth.mask)]
+        cells[5:5] = [figures.scalar(f"{name}_roughness", m.roughness, "roughness, 2D prediction", truth.mask)]
+        cells[8:8] = [figures.scalar(f"{name}_metallic", m.metallic, "metallic, 2D prediction", truth.mask)]
+    if gt_normal_path.exists():
+        gt_normals, _ = read_image(gt_normal_path)
+        picture = _srgb_inverse(gt_normals * 0.5 + 0.5)
+        cells.append(figures.image(f"{view.name}_normal_gt", picture, "normals, truth", truth.mask))
+    return "<div>" + "".join(cells) + "</div>"
+
+
+def predictions_section(run_dir: Path, views: list[View], figures: "Figures") -> str:
+    """The 2D maps of the training views the method started from."""
+    train_maps = read_materials2d(run_dir, views)
+    cells = []
+    for view in views:
+        m = train_maps[view.name]
+        cells.append(
+            figures.image(f"pred2d_{view.name}_basecolor", m.basecolor, f"2D base color, {view.name}", view.alpha)
         )
-    # the light
+        cells.append(
+            figures.scalar(f"pred2d_{view.name}_roughness", m.roughness, f"2D roughness, {view.name}", view.alpha)
+        )
+        cells.append(
+            figures.scalar(f"pred2d_{view.name}_metallic", m.metallic, f"2D metallic, {view.name}", view.alpha)
+        )
+    return "<h2>2D material predictions (input of the method, training views)</h2><div>" + "".join(cells) + "</div>"
+
+
+def light_section(run_dir: Path, data: Path, env_names: list, figures: "Figures") -> str:
+    """The estimated light beside the dataset's lights, with the estimate's figures against the training light;
+    empty when there is no light to show."""
     cells = []
     estimated = run_dir / asset_stage("full") / ENVMAP_FILE
     light_note = ""
@@ -254,37 +272,18 @@ def write_report(run_dir, metrics: dict, data=None) -> Path:
             )
     for path in sorted((data / "envmaps").glob("*.exr")) if (data / "envmaps").is_dir() else []:
         role = "held-out light" if path.stem in env_names else "training light"
-        cells.append(
-            figures.image(
-                f"envmap_{path.stem}",
-                envmap_preview(EnvironmentMap.from_file(path, height=64).map),
-                f"{role}: {path.stem}",
-                css="env",
-            )
-        )
-    if cells:
-        sections.append(
-            "<h2>Environment light</h2><p>Tone-mapped lat-long maps (up is the top row). The estimated light "
-            "is only determined up to what the training views reveal."
-            + light_note
-            + "</p><div>"
-            + "".join(cells)
-            + "</div>"
-        )
-    histories = {v: read_history(run_dir / asset_stage(v)) for v in assets}
-    sections.append("<h2>Loss curves (refinement)</h2>" + loss_curves_svg({k: v for k, v in histories.items() if v}))
-    sections.append(markdown_to_html(tables_markdown(metrics)))
-    sections.append(
-        "<details><summary>metrics.json</summary><pre>"
-        f"{html.escape(json.dumps(metrics.get('table1', {}), indent=1))}</pre></details>"
+        preview = envmap_preview(EnvironmentMap.from_file(path, height=64).map)
+        cells.append(figures.image(f"envmap_{path.stem}", preview, f"{role}: {path.stem}", css="env"))
+    if not cells:
+        return ""
+    return (
+        "<h2>Environment light</h2><p>Tone-mapped lat-long maps (up is the top row). The estimated light "
+        "is only determined up to what the training views reveal."
+        + light_note
+        + "</p><div>"
+        + "".join(cells)
+        + "</div>"
     )
-    page = (
-        "<!doctype html><html><head><meta charset='utf-8'><title>MatSpray report</title>"
-        f"<style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
-    )
-    path = run_dir / "report.html"
-    write_text_atomic(path, page)
-    return path
 
 
 def object_masks_section(masks: ObjectMasks, views: list[View], figures: Figures, agreement: dict | None) -> str:
