@@ -248,6 +248,31 @@ def test_no_package_folder_holds_more_than_12_modules():
     assert all(counts[name] <= n for name, n in OVER_MAX.items())
 
 
+MAX_FUNCTION_LINES = 80
+
+
+def compiled(function: ast.FunctionDef) -> bool:
+    """A compiled kernel: decorated with numba's `njit` (or the package's wrapper of it) or `cuda.jit`."""
+    for decorator in function.decorator_list:
+        target = decorator.func if isinstance(decorator, ast.Call) else decorator
+        name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")
+        if name in ("njit", "jit"):
+            return True
+    return False
+
+
+def test_no_function_outside_the_compiled_kernels_is_over_80_lines():
+    long = [
+        f"{path.relative_to(PACKAGE_ROOT.parent)}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1} lines)"
+        for path in sorted(PACKAGE_ROOT.rglob("*.py"))
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
+        and not compiled(node)
+    ]
+    assert not long, "functions over 80 lines (split them):\n" + "\n".join(long)
+
+
 def test_the_layer_check_finds_an_import_up(tmp_path):
     """The checker itself: a function-local import from a low layer into a high one is found, with its line; imports
     down and within a layer are not."""

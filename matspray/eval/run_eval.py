@@ -196,28 +196,38 @@ def score_renders(
         alphas_metal.append(render.alpha)
         truths_metal.append(truth.metallic)
         masks_metal.append(truth.mask)
-        if truth.normals is not None and render.normals is not None and bool((truth.mask > 0.5).any()):
-            # unsigned: the shading normal is flipped to face the camera, a true normal seen from behind is not
-            cosine = (F.normalize(render.normals, dim=-1) * truth.normals).sum(-1).abs().clamp(max=1.0)
-            record["normal_error_deg"] = float(torch.rad2deg(torch.acos(cosine))[truth.mask > 0.5].mean())
+        error = normal_error_deg(render, truth)
+        if error is not None:
+            record["normal_error_deg"] = error
         per_view.append(record)
     summary = {key: average_metrics(values) for key, values in records.items()}
     normal_errors = [r["normal_error_deg"] for r in per_view if "normal_error_deg" in r]
     if normal_errors:  # mean angle between the rendered and the true normals on the object, over the test views
         summary["normals"] = {"error_deg": sum(normal_errors) / len(normal_errors), "views": len(normal_errors)}
-    # metallic PSNR: pooled over the views with the paper's infinity rule, under both regions
-    metallic = metallic_psnr_over_objects(
-        [(torch.stack(preds_metal), torch.stack(truths_metal), torch.stack(masks_metal))]
-    )
-    metallic_union = pooled_union_psnr(preds_metal, alphas_metal, truths_metal, masks_metal)
-    summary["metallic"].update(
-        psnr=metallic.mean if metallic.mean is not None else math.inf, psnr_infinite=metallic.infinite, objects=1
-    )
-    summary["metallic" + UNION].update(psnr=metallic_union, psnr_infinite=int(math.isinf(metallic_union)), objects=1)
+    add_pooled_metallic(summary, preds_metal, alphas_metal, truths_metal, masks_metal)
     for env in env_names:
         summary[f"relighting_{env}"] = average_metrics([r["relighting"][env] for r in per_view])
         summary[f"relighting_{env}{UNION}"] = average_metrics([r["relighting" + UNION][env] for r in per_view])
     return {"summary": summary, "per_view": per_view}
+
+
+def normal_error_deg(render, truth: GroundTruth) -> float | None:
+    """Mean angle (degrees) between the rendered and the true normals on the object; None without both or a mask."""
+    if truth.normals is None or render.normals is None or not bool((truth.mask > 0.5).any()):
+        return None
+    # unsigned: the shading normal is flipped to face the camera, a true normal seen from behind is not
+    cosine = (F.normalize(render.normals, dim=-1) * truth.normals).sum(-1).abs().clamp(max=1.0)
+    return float(torch.rad2deg(torch.acos(cosine))[truth.mask > 0.5].mean())
+
+
+def add_pooled_metallic(summary: dict, preds: list, alphas: list, truths: list, masks: list) -> None:
+    """The metallic PSNR pooled over the views with the paper's infinity rule, under both regions, into `summary`."""
+    metallic = metallic_psnr_over_objects([(torch.stack(preds), torch.stack(truths), torch.stack(masks))])
+    union = pooled_union_psnr(preds, alphas, truths, masks)
+    summary["metallic"].update(
+        psnr=metallic.mean if metallic.mean is not None else math.inf, psnr_infinite=metallic.infinite, objects=1
+    )
+    summary["metallic" + UNION].update(psnr=union, psnr_infinite=int(math.isinf(union)), objects=1)
 
 
 def evaluate_predictions(maps: dict, views: list[View], truths: list[GroundTruth], lpips) -> dict:

@@ -154,12 +154,72 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
     ground = None
     if config.ground:  # touching the object's lowest point, wide enough to fill the lower background
         ground = GroundPlane(z=float(min(p.vertices[:, 2].min() for p in parts)), half_size=4.0 * distance)
-    record = {
+    record = scene_record(
+        config, identity, variant, content.description, train_env, relight_envs, distance, bounding_radius, ground
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    write_scene_json(out, record)
+    for name, env in lights.items():
+        write_envmap(out, name, env)
+    if config.asset is None:
+        write_object_glb(
+            out / OBJECT_GLB,
+            parts,
+            textures,
+            {"matspray": {"kind": "matspray-synth object", "shape": shape, "seed": config.seed}},
+        )
+
+    splits = {"train": train_cameras, "test": test_cameras}
+    total = len(train_cameras) + len(test_cameras) * (2 + len(relight_envs)) + len(train_cameras)
+    bar = tqdm(total=total, desc="synth", unit="render", disable=not progress)
+    views: dict[str, list[View]] = {"train": [], "test": []}
+    scene = build_scene(parts, textures, lights[train_env].numpy())  # the object alone: its ground truth
+    photo_scene = (
+        build_scene(parts, textures, lights[train_env].numpy(), config.background == "env", ground)
+        if config.unmasked
+        else scene
+    )
+    for split_index, (split, cameras) in enumerate(splits.items()):
+        for index, camera in enumerate(cameras):
+            name = f"r_{index:03d}"
+            rgb, alpha = render_view(photo_scene, camera, config.spp, render_seed(config.seed, 0, split_index, index))
+            mask = None if config.unmasked else torch.from_numpy(alpha)  # an unmasked photo is RGB only
+            views[split].append(View(name, torch.from_numpy(rgb), mask, camera))
+            bar.update()
+            write_ground_truth(out / split, name, cast_ground_truth(scene, textures, camera, config.gt_samples))
+            bar.update()
+    write_blender(out, views)
+    for light_index, env_name in enumerate(relight_envs, start=1):
+        scene = build_scene(parts, textures, lights[env_name].numpy())
+        for index, camera in enumerate(test_cameras):
+            rgb, alpha = render_view(scene, camera, config.spp, render_seed(config.seed, light_index, 1, index))
+            write_render(out / "test" / f"r_{index:03d}_relight_{env_name}.png", rgb, alpha)
+            bar.update()
+    bar.close()
+    record["status"] = "complete"
+    write_scene_json(out, record)
+    return SynthResult(out, variant, shape, train_env, relight_envs, time.perf_counter() - start)
+
+
+def scene_record(
+    config: SynthConfig,
+    identity: dict,
+    variant: str,
+    description: dict,
+    train_env: str,
+    relight_envs: list,
+    distance: float,
+    bounding_radius: float,
+    ground,
+) -> dict:
+    """scene.json's record of an object being made: its settings, content, lights, cameras, how it was rendered and
+    what its ground truth holds ("incomplete" until every file is written)."""
+    return {
         "matspray_version": __version__,
         "settings": identity,
         "seed": config.seed,
         "variant": variant,
-        **content.description,
+        **description,
         "lights": {"train": train_env, "relight": relight_envs},
         "cameras": {
             "fov_x": FOV_X,
@@ -206,45 +266,3 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
         },
         "status": "incomplete",
     }
-    out.mkdir(parents=True, exist_ok=True)
-    write_scene_json(out, record)
-    for name, env in lights.items():
-        write_envmap(out, name, env)
-    if config.asset is None:
-        write_object_glb(
-            out / OBJECT_GLB,
-            parts,
-            textures,
-            {"matspray": {"kind": "matspray-synth object", "shape": shape, "seed": config.seed}},
-        )
-
-    splits = {"train": train_cameras, "test": test_cameras}
-    total = len(train_cameras) + len(test_cameras) * (2 + len(relight_envs)) + len(train_cameras)
-    bar = tqdm(total=total, desc="synth", unit="render", disable=not progress)
-    views: dict[str, list[View]] = {"train": [], "test": []}
-    scene = build_scene(parts, textures, lights[train_env].numpy())  # the object alone: its ground truth
-    photo_scene = (
-        build_scene(parts, textures, lights[train_env].numpy(), config.background == "env", ground)
-        if config.unmasked
-        else scene
-    )
-    for split_index, (split, cameras) in enumerate(splits.items()):
-        for index, camera in enumerate(cameras):
-            name = f"r_{index:03d}"
-            rgb, alpha = render_view(photo_scene, camera, config.spp, render_seed(config.seed, 0, split_index, index))
-            mask = None if config.unmasked else torch.from_numpy(alpha)  # an unmasked photo is RGB only
-            views[split].append(View(name, torch.from_numpy(rgb), mask, camera))
-            bar.update()
-            write_ground_truth(out / split, name, cast_ground_truth(scene, textures, camera, config.gt_samples))
-            bar.update()
-    write_blender(out, views)
-    for light_index, env_name in enumerate(relight_envs, start=1):
-        scene = build_scene(parts, textures, lights[env_name].numpy())
-        for index, camera in enumerate(test_cameras):
-            rgb, alpha = render_view(scene, camera, config.spp, render_seed(config.seed, light_index, 1, index))
-            write_render(out / "test" / f"r_{index:03d}_relight_{env_name}.png", rgb, alpha)
-            bar.update()
-    bar.close()
-    record["status"] = "complete"
-    write_scene_json(out, record)
-    return SynthResult(out, variant, shape, train_env, relight_envs, time.perf_counter() - start)
