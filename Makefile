@@ -18,7 +18,7 @@ $(DEMO_STAMP): pyproject.toml Makefile
 	# pip byte-compiles one file after another: instead, compileall on every core (best effort: a file that does not
 	# compile, such as torch's Python 3.12 snippets, is left to compile on import), beside the compilation of backend
 	# numba's kernels, which the first run would otherwise wait for (the make fails if those do not compile)
-	$(PY) -m matspray.render.compile_kernels & \
+	$(PY) -m matspray.render.numba.compile & \
 		$(PY) -m compileall -q -j 0 "$$($(PY) -c 'import sysconfig; print(sysconfig.get_path("purelib"))')" >/dev/null 2>&1; \
 		wait $$!
 	# Mitsuba's fast llvm_ad_rgb variant needs LLVM >= 16 (Debian: libllvm19); best effort, as root only.

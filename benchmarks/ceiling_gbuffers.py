@@ -14,7 +14,7 @@ from matspray.errors import RunError
 from matspray.eval.run_eval import ViewRenders, score_renders, unpremultiply
 from matspray.material import stack, unstack
 from matspray.method.relight import render_gbuffer
-from matspray.render.deferred import GBuffer, shade_gbuffer
+from matspray.render.shade.deferred import GBuffer, shade_gbuffer
 
 SOURCES = ("asset", "true")  # where a part of a row's G-buffer comes from
 

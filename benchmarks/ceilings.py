@@ -123,7 +123,7 @@ def shading_ceiling(views: list, truths: list, lights: dict, shadows_from=None) 
     from matspray.eval.evaluate import average_metrics, evaluate_images
     from matspray.eval.run_eval import unpremultiply
     from matspray.method.relight import render_gbuffer
-    from matspray.render.deferred import GBuffer, shade_gbuffer
+    from matspray.render.shade.deferred import GBuffer, shade_gbuffer
 
     records = {name: [] for name in lights}
     for view, truth in zip(views, truths):

@@ -35,7 +35,7 @@ from matspray.geometry.config import preset
 from matspray.geometry.evaluate import render_view
 from matspray.geometry.train import train_geometry
 from matspray.render.backend import rendering_with, resolve_backend
-from matspray.render.numba_backend import ensure_compiled
+from matspray.render.numba.backend import ensure_compiled
 from matspray.synth.analytic import write_analytic_dataset
 
 CACHE = Path(tempfile.gettempdir()) / "matspray-analytic128"

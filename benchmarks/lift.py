@@ -21,7 +21,7 @@ from matspray.geometry.ply import read_ply
 from matspray.method.lift import LiftConfig, lift_view
 from matspray.predictors import maps_to_tensor, read_materials2d
 from matspray.render.backend import rendering_with
-from matspray.render.gbuffer import rendered_weights
+from matspray.render.raster.gbuffer import rendered_weights
 from matspray.rundir import read_json
 
 

@@ -22,7 +22,7 @@ from matspray.eval.run_eval import evaluate_asset
 from matspray.method.asset import ENVMAP_FILE, read_asset
 from matspray.method.config import METHODS, build_config
 from matspray.method.pipeline import Pipeline
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import share_stage
 from matspray.variants import asset_stage
 

@@ -135,7 +135,7 @@ def fitted_to_truth(asset, train_views, steps: int) -> torch.Tensor:  # -> [N] m
     no pull and no photos): what per-Gaussian values could show on these Gaussians, whatever the lift."""
     from matspray.method.refine.metallic import MetallicFitConfig, fit_metallic
     from matspray.predictors.ground_truth import read_ground_truth
-    from matspray.render.gbuffer import FrozenViews
+    from matspray.render.raster.gbuffer import FrozenViews
 
     frozen = FrozenViews(asset.gaussians, [v.camera for v in train_views])
     targets = [read_ground_truth(v).metallic for v in train_views]

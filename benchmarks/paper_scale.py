@@ -28,7 +28,7 @@ from matspray.device import resolve_device
 from matspray.method.asset import read_asset
 from matspray.method.config import build_config
 from matspray.render.backend import BACKENDS, resolve_backend
-from matspray.render.gbuffer import frozen_views_bytes
+from matspray.render.raster.gbuffer import frozen_views_bytes
 from matspray.rundir import RunDir, read_json
 from matspray.variants import asset_stage
 

@@ -37,9 +37,9 @@ from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.method.lift import LiftConfig, compiled_entries, footprint_alpha, traced_entries
 from matspray.render.backend import rendering_with
-from matspray.render.rasterize import rasterize
+from matspray.render.raster.rasterize import rasterize
 from matspray.render.settings import RasterSettings
-from matspray.render.sh import sh_colors
+from matspray.render.shade.sh import sh_colors
 
 # the demo's object, made once (benchmarks.geometry reads it too)
 DEMO_OBJECT = Path(tempfile.gettempdir()) / "matspray-demo-object"

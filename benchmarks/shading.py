@@ -11,11 +11,11 @@ import time
 import torch
 
 from matspray.data.camera import Camera
-from matspray.render import brdf_lut, deferred
-from matspray.render.brdf import reflect
-from matspray.render.deferred import GBuffer, shade, shade_by_quadrature, shade_gbuffer
-from matspray.render.envmap import _KERNELS, EnvironmentMap, prefilter_latlong
-from matspray.render.latlong import pixel_directions
+from matspray.render.shade import brdf_lut, deferred
+from matspray.render.shade.brdf import reflect
+from matspray.render.shade.deferred import GBuffer, shade, shade_by_quadrature, shade_gbuffer
+from matspray.render.shade.envmap import _KERNELS, EnvironmentMap, prefilter_latlong
+from matspray.render.shade.latlong import pixel_directions
 
 f64 = torch.float64
 

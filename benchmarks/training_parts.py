@@ -36,7 +36,7 @@ from matspray.data.camera import Camera
 from matspray.geometry.normals import oriented_normals
 from matspray.metrics import ssim_loss
 from matspray.render.backend import rendering_with
-from matspray.render.sh import sh_colors
+from matspray.render.shade.sh import sh_colors
 
 
 def milliseconds(step, repeats: int) -> tuple[float, float]:
@@ -50,7 +50,7 @@ def compile_report() -> None:
     and the seconds per kernel of matspray (a kernel's time includes the matspray kernels compiled within it)."""
     from numba.core import event
 
-    from matspray.render.numba_backend import ensure_compiled
+    from matspray.render.numba.backend import ensure_compiled
 
     start = time.perf_counter()
     with event.install_recorder("numba:compile") as recorder:

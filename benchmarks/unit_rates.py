@@ -198,7 +198,7 @@ def main() -> None:
             side = args.lift_samples
             print(f"lifting, {side}x{side} rays per pixel: {lift_s:.3f} s per view", flush=True)
             if args.lift_unfused:
-                from matspray.render import contributions
+                from matspray.render.rays import contributions
 
                 contributions.FUSED[0] = False
                 unfused = lift_seconds_per_view(gaussians, views, device, args.lift_samples)

@@ -1,7 +1,7 @@
 """Environment maps for the whole project: built-in procedural lights, HDRI files, lookups.
 
 Every map is a lat-long tensor [H, 2H, 3] of linear RGB radiance in the convention of
-`matspray.render.latlong` (world up +z, row 0 straight up). `load_envmap` resolves a name or a path:
+`matspray.render.shade.latlong` (world up +z, row 0 straight up). `load_envmap` resolves a name or a path:
 
 1. a built-in procedural map (`sky`, `studio`, `sunset`, `overcast`), made at any height;
 2. a path to a `.exr` / `.hdr` file;
@@ -26,7 +26,7 @@ from torch import Tensor
 
 from matspray.data.images import HDR_SUFFIXES, read_raw, resize
 from matspray.errors import ConfigError, DataError, file_error
-from matspray.render.latlong import direction_to_uv, pixel_directions
+from matspray.render.shade.latlong import direction_to_uv, pixel_directions
 
 DEFAULT_HEIGHT = 128  # working size for rendering: 128 x 256
 BUILTIN_HEIGHT = 256  # when a caller asks for a built-in map at "native" size

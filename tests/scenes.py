@@ -13,7 +13,7 @@ from matspray.gaussians import Gaussians
 
 
 def sky_map(height: int = 16) -> torch.Tensor:  # [H, 2H, 3] a bright warm top, a dim cool bottom, one sun
-    from matspray.render.latlong import pixel_directions
+    from matspray.render.shade.latlong import pixel_directions
 
     d = pixel_directions(height, 2 * height)
     up = d[..., 2:3].clamp_min(0)
@@ -62,7 +62,7 @@ def material_scene(n_views: int = 6, size: int = 32, seed: int = 0):
     [H, W, 5] that are the true maps with a different base-color gain per view (like a diffusion model)."""
     from matspray.method.asset import Asset
     from matspray.method.relight import render_gbuffer, render_relit
-    from matspray.render.envmap import EnvironmentMap
+    from matspray.render.shade.envmap import EnvironmentMap
 
     gaussians, normals, materials = sphere_of_disks(seed=seed)
     asset = Asset(gaussians, materials, normals)
@@ -90,7 +90,7 @@ def write_disk_sphere_run(root, gaussians: int, cameras: list[Camera], train: sl
     from matspray.method.asset import Asset, write_asset
     from matspray.method.refine.loop import RefineResult
     from matspray.method.relight import render_relit
-    from matspray.render.envmap import EnvironmentMap
+    from matspray.render.shade.envmap import EnvironmentMap
     from matspray.rundir import write_json
 
     g, normals, materials = sphere_of_disks(gaussians)

@@ -7,8 +7,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from matspray.render.bilinear import bilinear_sample, grid_sample_border
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.bilinear import bilinear_sample, grid_sample_border
+from matspray.render.shade.envmap import EnvironmentMap
 
 
 def _points(generator, count: int, dtype=torch.float64) -> torch.Tensor:  # [P, 2]
@@ -67,7 +67,7 @@ def test_float32_sums_close_to_grid_sample():
 def test_environment_lookups_use_it_on_a_gpu(device, monkeypatch):
     """On CUDA the environment maps' lookups take `bilinear_sample` (and give grid_sample's gradients); on the CPU,
     grid_sample's own backward."""
-    from matspray.render import envmap
+    from matspray.render.shade import envmap
 
     calls = []
     monkeypatch.setattr(envmap, "bilinear_sample", lambda *a: calls.append(1) or bilinear_sample(*a))

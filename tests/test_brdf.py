@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from matspray.render.brdf import (
+from matspray.render.shade.brdf import (
     cook_torrance,
     fresnel_schlick,
     ggx_ndf,
@@ -13,8 +13,8 @@ from matspray.render.brdf import (
     smith_visibility,
     specular_f0,
 )
-from matspray.render.brdf_lut import brdf_lut, hammersley, integrate_split_sum, lookup_brdf_lut
-from matspray.render.latlong import pixel_directions, pixel_solid_angles
+from matspray.render.shade.brdf_lut import brdf_lut, hammersley, integrate_split_sum, lookup_brdf_lut
+from matspray.render.shade.latlong import pixel_directions, pixel_solid_angles
 
 f64 = torch.float64
 

@@ -92,7 +92,7 @@ def gbuffer_scene(tmp_path_factory):
     from matspray.eval.run_eval import GroundTruth, unpremultiply
     from matspray.geometry.evaluate import true_normals
     from matspray.method.relight import render_gbuffer, render_relit
-    from matspray.render.envmap import EnvironmentMap
+    from matspray.render.shade.envmap import EnvironmentMap
 
     folder = tmp_path_factory.mktemp("gbuffer-scene")
     gaussians, normals, materials = sphere_of_disks(n=300)

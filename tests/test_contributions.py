@@ -1,5 +1,5 @@
 """Ray contributions (3DGRT response, paper eq. 1-2) against the every-ray-every-Gaussian reference
-(matspray.render.reference.trace_rays)."""
+(matspray.render.raster.reference.trace_rays)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from matspray.gaussians import Gaussians
-from matspray.render.contributions import contributions, iter_contributions
-from matspray.render.rasterize import rasterize
-from matspray.render.reference import Hit, trace_rays
+from matspray.render.raster.rasterize import rasterize
+from matspray.render.raster.reference import Hit, trace_rays
+from matspray.render.rays.contributions import contributions, iter_contributions
 from matspray.render.settings import RasterSettings
 from tests.test_rasterize import random_scene
 

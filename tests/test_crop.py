@@ -138,7 +138,7 @@ def test_plan_frames_the_object_and_says_when_it_does_not_cut():
 def ball_capture(tmp_path):
     """A capture without masks on disk (Blender layout, 160 px photos): a ball of many colours before grey."""
     from matspray.gaussians import Gaussians
-    from matspray.render.rasterize import rasterize
+    from matspray.render.raster.rasterize import rasterize
 
     points = object_points(600)
     colours = torch.rand(len(points), 3, generator=torch.Generator().manual_seed(2))

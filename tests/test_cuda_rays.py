@@ -1,4 +1,4 @@
-"""Lifting's ray response by its numba.cuda kernel (`matspray.render.cuda_rays`) against the torch version: on the
+"""Lifting's ray response by its numba.cuda kernel (`matspray.render.rays.cuda`) against the torch version: on the
 CPU in numba's CUDA simulator (a subprocess with NUMBA_ENABLE_CUDASIM=1, tiny sizes: the simulator runs each thread
 in Python), on the GPU with `pytest --device cuda`. The values, and the entries lifting traces with either."""
 
@@ -13,9 +13,9 @@ import pytest
 import torch
 
 from matspray.method.lift import LiftConfig, footprint_alpha, traced_entries
-from matspray.render import contributions
-from matspray.render.contributions import _max_response, _whitened_frames
-from matspray.render.cuda_rays import max_response
+from matspray.render.rays import contributions
+from matspray.render.rays.contributions import _max_response, _whitened_frames
+from matspray.render.rays.cuda import max_response
 from matspray.render.settings import RasterSettings
 from tests.test_lift_numba import dense_scene, sorted_entries
 
@@ -41,7 +41,8 @@ def response_inputs(seed: int, n: int, width: int, height: int, pairs: int, side
 SIMULATED = """
 import torch
 from matspray.method.lift import LiftConfig, footprint_alpha, traced_entries
-from matspray.render import contributions, cuda_rays
+from matspray.render.rays import contributions
+from matspray.render.rays import cuda as cuda_rays
 from matspray.render.settings import RasterSettings
 from tests.test_cuda_rays import response_inputs
 from tests.test_lift_numba import dense_scene, sorted_entries

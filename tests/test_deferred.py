@@ -4,10 +4,10 @@ import pytest
 import torch
 
 from matspray.data.camera import Camera
-from matspray.render.brdf_lut import lookup_brdf_lut
-from matspray.render.deferred import GBuffer, shade, shade_by_quadrature, shade_gbuffer, view_directions
-from matspray.render.envmap import EnvironmentMap, prefilter_latlong
-from matspray.render.latlong import pixel_directions
+from matspray.render.shade.brdf_lut import lookup_brdf_lut
+from matspray.render.shade.deferred import GBuffer, shade, shade_by_quadrature, shade_gbuffer, view_directions
+from matspray.render.shade.envmap import EnvironmentMap, prefilter_latlong
+from matspray.render.shade.latlong import pixel_directions
 
 f64 = torch.float64
 
@@ -193,7 +193,7 @@ def test_shade_gradcheck():
 def test_gradients_are_finite_at_the_ends_of_the_roughness_range(roughness):
     """Roughness 1 makes the lobe's lerp weight s = 1 - alpha zero; s * sqrt(s) has a finite slope there,
     but written as s * sqrt(s) autograd multiplied 0 by an infinite 1 / (2 sqrt(s)) and returned NaN."""
-    from matspray.render.deferred import specular_direction
+    from matspray.render.shade.deferred import specular_direction
 
     rough = torch.full((4,), roughness, requires_grad=True)
     normals = torch.nn.functional.normalize(

@@ -17,10 +17,10 @@ from matspray.method.config import build_config, shadow_maps
 from matspray.method.pipeline import Pipeline
 from matspray.method.relight import render_relit
 from matspray.render.backend import gsplat_device_error, rendering_with
-from matspray.render.envmap import EnvironmentMap
-from matspray.render.gbuffer import FrozenViews, frozen_views_bytes
-from matspray.render.latlong import pixel_solid_angles
-from matspray.render.reference import splat_pixels
+from matspray.render.raster.gbuffer import FrozenViews, frozen_views_bytes
+from matspray.render.raster.reference import splat_pixels
+from matspray.render.shade.envmap import EnvironmentMap
+from matspray.render.shade.latlong import pixel_solid_angles
 from matspray.variants import VARIANT_NAMES
 from tests.stray_tensors import stray_tensor_check
 from tests.test_rasterize import random_scene
@@ -91,7 +91,7 @@ def test_the_stray_check_catches_a_tensor_made_without_a_device():
         drawn = torch.rand(3, generator=generator)  # an explicit CPU generator: on the CPU on purpose
         kept = torch.as_tensor(torch.ones(2, device="cpu"))
     assert made.device.type == "meta" and drawn.device.type == "cpu" and kept.device.type == "cpu"
-    assert len(strays) == 1 and strays[0].startswith("render/latlong.py:"), strays
+    assert len(strays) == 1 and strays[0].startswith("render/shade/latlong.py:"), strays
 
 
 def test_out_of_memory_is_one_line_and_the_run_resumes(tiny_object, tmp_path, monkeypatch):
@@ -213,7 +213,7 @@ def test_frozen_views_kept_on_the_host_render_and_differentiate_as_the_reference
 
 def test_auto_storage_moves_views_to_the_host_when_the_gpu_runs_short(monkeypatch):
     free = iter([10, 9, 1])  # bytes free of 10: the third view finds less than a quarter left
-    monkeypatch.setattr("matspray.render.gbuffer._room_on", lambda device: next(free) >= 0.25 * 10)
+    monkeypatch.setattr("matspray.render.raster.gbuffer._room_on", lambda device: next(free) >= 0.25 * 10)
     gaussians, camera, _ = random_scene(30, 4, width=20, height=16)
     frozen = FrozenViews(gaussians, [camera] * 3, backend="torch", storage="auto")
     assert frozen.on_host == [False, False, True]

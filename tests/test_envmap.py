@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from matspray.errors import ConfigError, DataError
-from matspray.render.brdf import ggx_ndf, roughness_to_alpha, smith_visibility
-from matspray.render.envmap import (
+from matspray.render.shade.brdf import ggx_ndf, roughness_to_alpha, smith_visibility
+from matspray.render.shade.envmap import (
     DEFAULT_LEVELS,
     EnvironmentMap,
     downsample_latlong,
@@ -17,7 +17,7 @@ from matspray.render.envmap import (
     prefilter_specular,
     sample_latlong,
 )
-from matspray.render.latlong import direction_to_uv, pixel_directions, pixel_solid_angles, uv_to_direction
+from matspray.render.shade.latlong import direction_to_uv, pixel_directions, pixel_solid_angles, uv_to_direction
 
 f64 = torch.float64
 

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from matspray.data.images import write_raw
 from matspray.lights import load_envmap
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.envmap import EnvironmentMap
 from tests.fuzzing import damaged, read_or_refuse
 from tests.test_fuzz_images import damage
 from tests.test_fuzz_transforms import FUZZ

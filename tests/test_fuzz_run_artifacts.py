@@ -38,7 +38,7 @@ from matspray.method.lift import load_lift
 from matspray.method.masks import ObjectMasks, read_object_masks, read_region, write_object_masks
 from matspray.method.pipeline import Pipeline
 from matspray.predictors import read_materials2d, read_predictor_info
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import RunDir, fingerprint
 from tests.fuzzing import damaged
 from tests.test_fuzz_images import damage
@@ -386,7 +386,7 @@ def test_damaged_history_and_envmap(finished_run, data):
             path.write_bytes(data.draw(json_damage(json.loads(blob))))
             history = refused(lambda: read_history(run / "asset"), path, "history")
             assert history is None or all(isinstance(r, dict) and math.isfinite(r["step"]) for r in history)
-        else:  # read by matspray.render.envmap (fuzzed on its own in tests/test_fuzz_envmaps.py): one line naming it
+        else:  # read by matspray.render.shade.envmap (fuzzed alone in tests/test_fuzz_envmaps.py): one line naming it
             path.write_bytes(data.draw(st.one_of(GARBAGE, damage(len(blob)).map(lambda d: damaged(blob, *d)))))
             env = refused(lambda: EnvironmentMap.from_file(path), path, "envmap", hint=())
             assert env is None or (torch.isfinite(env.map).all() and env.map.shape[1] == 2 * env.map.shape[0])

@@ -2,8 +2,8 @@ import pytest
 import torch
 
 from matspray.render.backend import rendering_with
-from matspray.render.gbuffer import FrozenViews
-from matspray.render.rasterize import rasterize, view_weights
+from matspray.render.raster.gbuffer import FrozenViews
+from matspray.render.raster.rasterize import rasterize, view_weights
 from tests.test_rasterize import random_scene
 
 
@@ -56,7 +56,7 @@ def weight_matrix(hits, pixels: int, count: int) -> torch.Tensor:  # (gaussian i
 @pytest.mark.parametrize("seed, count, width, height", [(0, 60, 40, 30), (3, 400, 70, 50), (5, 1, 16, 16)])
 def test_numba_weights_are_torchs_hits(seed, count, width, height):
     pytest.importorskip("numba")
-    from matspray.render.numba_backend import numba_view_weights
+    from matspray.render.numba.backend import numba_view_weights
 
     gaussians, camera = random_scene(count, seed, width=width, height=height)[:2]
     torch_hits, numba_hits = view_weights(gaussians, camera), numba_view_weights(gaussians, camera)
@@ -69,7 +69,7 @@ def test_numba_weights_are_torchs_hits(seed, count, width, height):
 
 def test_frozen_views_use_the_compiled_weights_on_backend_numba(monkeypatch):
     pytest.importorskip("numba")
-    from matspray.render import numba_backend
+    from matspray.render.numba import backend as numba_backend
 
     gaussians, camera = random_scene(40, 0, width=24, height=20)[:2]
     features = torch.rand(len(gaussians), 3)

@@ -26,7 +26,7 @@ from matspray.cli import main  # noqa: E402
 from matspray.data import Camera  # noqa: E402
 from matspray.export.frames import GLTF_FROM_DATASET  # noqa: E402
 from matspray.method.asset import read_asset  # noqa: E402
-from matspray.render.rasterize import rasterize  # noqa: E402
+from matspray.render.raster.rasterize import rasterize  # noqa: E402
 from tests.test_export import SMALL, make_disk_run  # noqa: E402
 
 CHROMIUM = Path("/usr/bin/chromium")

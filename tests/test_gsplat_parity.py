@@ -19,7 +19,7 @@ from matspray.geometry.config import GeometryConfig
 from matspray.geometry.densify import DensityControl
 from matspray.render import backend as backend_module
 from matspray.render.backend import gsplat_import_error
-from matspray.render.rasterize import rasterize
+from matspray.render.raster.rasterize import rasterize
 from matspray.render.settings import RasterSettings
 from tests import gsplat_cpu
 from tests.gsplat_cpu import gsplat_on_cpu
@@ -451,7 +451,7 @@ def sh_scene(seed: int, device="cpu"):
 
 def sh_colours_and_gradients(gaussians: Gaussians, camera: Camera, backend: str, degree: int):
     from matspray.render.backend import rendering_with
-    from matspray.render.sh import sh_colors
+    from matspray.render.shade.sh import sh_colors
 
     with rendering_with(backend):
         colours = sh_colors(gaussians, camera, degree)

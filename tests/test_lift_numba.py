@@ -1,4 +1,4 @@
-"""Lifting's compiled ray tracing (matspray.render.numba_rays) against the torch tracer's entries, and the lift it
+"""Lifting's compiled ray tracing (matspray.render.numba.rays) against the torch tracer's entries, and the lift it
 gives against the torch lift."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.method.lift import LiftConfig, compiled_entries, footprint_alpha, lift, traced_entries
 from matspray.render.backend import rendering_with
-from matspray.render.numba_rays import tile_row_bands
+from matspray.render.numba.rays import tile_row_bands
 from matspray.render.settings import RasterSettings
 from tests.test_contributions import scene_with_awkward_gaussians
 
@@ -70,7 +70,7 @@ def test_gaussians_around_and_behind_the_camera_are_traced_as_by_torch():
 
 
 def test_a_band_budget_smaller_than_the_image_gives_the_same_entries(monkeypatch):
-    from matspray.render import numba_rays
+    from matspray.render.numba import rays as numba_rays
 
     gaussians, camera = dense_scene(5, width=40, height=70)
     config = LiftConfig(samples_per_side=2)

@@ -22,7 +22,7 @@ from matspray.lights import (
     load_envmap,
     lookup_envmap,
 )
-from matspray.render.latlong import direction_to_uv, pixel_directions, pixel_solid_angles
+from matspray.render.shade.latlong import direction_to_uv, pixel_directions, pixel_solid_angles
 
 
 def irradiance(env: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:  # [H, 2H, 3], [3] -> [3]

@@ -23,7 +23,7 @@ from matspray.gaussians import Gaussians
 from matspray.method.config import build_config
 from matspray.method.pipeline import Pipeline
 from matspray.render.backend import BACKENDS, rendering_with, resolve_backend
-from matspray.render.rasterize import _setup, rasterize
+from matspray.render.raster.rasterize import _setup, rasterize
 from matspray.render.settings import RasterSettings
 from tests.scenes import stacked_opaque_gaussians
 from tests.test_rasterize import random_scene
@@ -77,7 +77,7 @@ def test_the_backward_without_the_forwards_record_matches_torch(monkeypatch):
     """A render whose record of hits would pass RECORD_BUDGET runs the backward that finds its hits again: the same
     gradients (that its compilation is said once: test_compiling_is_said_once_and_the_cache_is_reused, on a fresh
     cache)."""
-    from matspray.render import numba_backend
+    from matspray.render.numba import backend as numba_backend
 
     numba_backend.ensure_compiled(np.float32)  # the warm-up's own render keeps its record (the test alone in a process)
     monkeypatch.setattr(numba_backend, "RECORD_BUDGET", -1)
@@ -202,7 +202,7 @@ def test_gradcheck_float64():
 
 def compiled_projection(gaussians, camera, settings=RasterSettings()):
     """means2d, conics, depths (differentiable), radii, boxes from backend numba's projection Function."""
-    from matspray.render import numba_backend
+    from matspray.render.numba import backend as numba_backend
 
     dtype = gaussians.means.dtype
     np_dtype = np.float64 if dtype == torch.float64 else np.float32
@@ -328,8 +328,8 @@ MISSES = (  # after the work: numba's cache misses (compilations) of every kerne
     # whether the kernel is inlined into its callers (inline="always": never compiled on its own)
     "import atexit, importlib, json\nfrom numba.core.dispatcher import Dispatcher\n"
     "def misses():\n"
-    "    modules = [importlib.import_module('matspray.render.' + name) for name in "
-    "('numba_kernels', 'numba_projection', 'numba_sh', 'numba_normals', 'numba_rays')]\n"
+    "    modules = [importlib.import_module('matspray.render.numba.' + name) for name in "
+    "('kernels', 'projection', 'sh', 'normals', 'rays')]\n"
     "    print(json.dumps({f'{m.__name__.split(\".\")[-1]}.{n}': [sum(f.stats.cache_misses.values()), "
     "f.targetoptions.get('inline') == 'always'] for m in modules for n, f in vars(m).items() "
     "if isinstance(f, Dispatcher) and f.__module__ == m.__name__}))\n"
@@ -339,14 +339,15 @@ MISSES = (  # after the work: numba's cache misses (compilations) of every kerne
 
 @pytest.mark.slow  # compiles the kernels from scratch (about 20 s), then loads them
 def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
-    """A fresh cache folder: `python -m matspray.render.compile_kernels` (what `make demo` runs while it installs)
+    """A fresh cache folder: `python -m matspray.render.numba.compile` (what `make demo` runs while it installs)
     compiles every kernel of the warm-up once and says so in one line; a render in a later process loads them from
     the cache and says nothing, and its renders past RECORD_BUDGET compile the unrecorded backward once (said once).
     The compilations are numba's own count of cache misses per kernel."""
-    compile_kernels = "import runpy\nrunpy.run_module('matspray.render.compile_kernels', run_name='__main__')\n"
+    compile_kernels = "import runpy\nrunpy.run_module('matspray.render.numba.compile', run_name='__main__')\n"
     script = (
-        "import torch; from tests.test_rasterize import random_scene; from matspray.render.rasterize import rasterize\n"
-        "from matspray.render import numba_backend\n"
+        "import torch; from tests.test_rasterize import random_scene\n"
+        "from matspray.render.raster.rasterize import rasterize\n"
+        "from matspray.render.numba import backend as numba_backend\n"
         "g, c, f = random_scene(20, 0)\n"
         "for _ in range(2): rasterize(g, c, f, backend='numba')\n"
         "numba_backend.RECORD_BUDGET = -1  # from here the backward finds the hits again\n"
@@ -368,12 +369,12 @@ def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
         assert done.returncode == 0, done.stderr
         said.append([line for line in done.stderr.splitlines() if line.startswith("numba:")])
         compiled.append(json.loads(done.stdout.splitlines()[-1]))
-    unrecorded = "numba_kernels.backward"
+    unrecorded = "kernels.backward"
     # the float32 warm-up compiles each kernel once (those inlined into their callers never on their own), all but
     # the unrecorded backward and float64's depth sort; the later process loads every one of them from the cache and
     # compiles the unrecorded backward, once
     kernels = {name: inlined for name, (_, inlined) in compiled[0].items()}
-    later = {unrecorded, "numba_projection._merge_order"}
+    later = {unrecorded, "projection._merge_order"}
     assert len(kernels) > 10 and later <= set(kernels) and any(kernels.values())
     assert {name: count for name, (count, _) in compiled[0].items()} == {
         name: int(not inlined and name not in later) for name, inlined in kernels.items()
@@ -394,7 +395,7 @@ def test_kernels_compiled_in_the_background_are_waited_for_once(monkeypatch):
     """compile_in_background starts one thread per dtype; ensure_compiled from another thread waits for it and then
     finds the kernels ready, marked ready only once the warm-up has run (they are loaded from the cache here: the
     test is about the waiting)."""
-    from matspray.render import numba_backend
+    from matspray.render.numba import backend as numba_backend
 
     monkeypatch.setattr(numba_backend, "_READY", set())
     monkeypatch.setattr(numba_backend, "_WARMING", {})
@@ -424,7 +425,7 @@ def test_kernels_compiled_in_the_background_are_waited_for_once(monkeypatch):
 def test_a_second_thread_waits_for_a_warm_up_in_progress_and_a_failed_one_is_not_ready(monkeypatch):
     """Two threads call ensure_compiled at once (no background thread): the second waits for the first's warm-up;
     a warm-up that raises leaves the dtype not ready, so the next call warms up again."""
-    from matspray.render import numba_backend
+    from matspray.render.numba import backend as numba_backend
 
     monkeypatch.setattr(numba_backend, "_READY", set())
     monkeypatch.setattr(numba_backend, "_WARMING", {})

@@ -27,7 +27,7 @@ def gaussians(n: int, seed: int, dtype=torch.float64) -> Gaussians:
 
 
 def compiled(quats, g: Gaussians):
-    from matspray.render.numba_normals import CompiledNormals
+    from matspray.render.numba.normals import CompiledNormals
 
     return CompiledNormals.apply(quats, g.log_scales, g.means, CAMERA.center)
 
@@ -65,8 +65,8 @@ def test_training_renders_use_them_within_a_numba_block(monkeypatch):
     import numpy as np
 
     from matspray.geometry.evaluate import render_view
-    from matspray.render import numba_normals
-    from matspray.render.numba_backend import ensure_compiled
+    from matspray.render.numba import normals as numba_normals
+    from matspray.render.numba.backend import ensure_compiled
 
     ensure_compiled(np.float32)  # its warm-up calls them too
     calls = []

@@ -19,7 +19,7 @@ from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.region import ObjectRegion, given_region
 from matspray.geometry.train import focus_step, load_checkpoint, save_checkpoint, train_geometry
 from matspray.method.masks import read_region
-from matspray.render.rasterize import rasterize
+from matspray.render.raster.rasterize import rasterize
 from tests.test_geometry import one_thread  # noqa: F401  (fixture: one torch thread)
 from tests.test_geometry_parts import LRS, gaussians_from
 from tests.test_object_masks import orbit

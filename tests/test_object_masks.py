@@ -30,7 +30,7 @@ from matspray.method.masks import (
     read_region,
     write_object_masks,
 )
-from matspray.render.rasterize import rasterize
+from matspray.render.raster.rasterize import rasterize
 
 
 def orbit(count: int, distance: float = 4.0, elevation_deg: float = 25.0, size: int = 24) -> list[Camera]:

@@ -3,7 +3,7 @@
 import json
 
 from benchmarks.paper_scale import PAPER_PIXELS, PAPER_VIEWS, frozen_lines, stage_lines
-from matspray.render.gbuffer import frozen_views_bytes
+from matspray.render.raster.gbuffer import frozen_views_bytes
 from matspray.rundir import RunDir
 
 

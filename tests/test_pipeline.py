@@ -354,7 +354,7 @@ def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_firs
     import shutil
 
     from matspray.cli import main
-    from matspray.render.envmap import EnvironmentMap
+    from matspray.render.shade.envmap import EnvironmentMap
 
     run = tmp_path / "run"
     for stage in ("materials2d", "geometry"):  # reuse the slow stages

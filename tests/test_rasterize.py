@@ -1,4 +1,5 @@
-"""The torch rasterizer against the per-pixel reference (matspray.render.reference.splat_pixels), and its gradients."""
+"""The torch rasterizer against the per-pixel reference (matspray.render.raster.reference.splat_pixels), and its
+gradients."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ import torch
 from matspray.data.camera import Camera
 from matspray.errors import ConfigError
 from matspray.gaussians import Gaussians
-from matspray.render.rasterize import rasterize
-from matspray.render.reference import splat_pixels
+from matspray.render.raster.rasterize import rasterize
+from matspray.render.raster.reference import splat_pixels
 from matspray.render.settings import RasterSettings
 from tests.scenes import stacked_opaque_gaussians
 

@@ -19,8 +19,8 @@ from matspray.method.refine.loop import (
     view_losses,
     warm_up_light,
 )
-from matspray.render.envmap import EnvironmentMap
-from matspray.render.gbuffer import FrozenViews
+from matspray.render.raster.gbuffer import FrozenViews
+from matspray.render.shade.envmap import EnvironmentMap
 from matspray.variants import VARIANT_NAMES
 from tests.scenes import material_scene
 

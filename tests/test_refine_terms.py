@@ -27,9 +27,9 @@ from matspray.method.refine.terms import (
     weighted_l1,
 )
 from matspray.render.backend import rendering_with, resolve_backend
-from matspray.render.deferred import GBuffer, shade_gbuffer, view_directions
-from matspray.render.envmap import DEFAULT_LEVELS, EnvironmentMap
-from matspray.render.latlong import total_variation
+from matspray.render.shade.deferred import GBuffer, shade_gbuffer, view_directions
+from matspray.render.shade.envmap import DEFAULT_LEVELS, EnvironmentMap
+from matspray.render.shade.latlong import total_variation
 
 # benchmarks.step_cost before the terms were graphed (commit 40c6e4b): operations per refinement step, either path;
 # and the graphed path's count when this test was written (241), with about 10 % room

@@ -4,7 +4,7 @@ import torch
 
 from matspray.eval.relit_crops import GREY, MARGIN, relit_crops, square_box
 from matspray.method.asset import Asset
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.envmap import EnvironmentMap
 from tests.scenes import ring_cameras, sky_map, sphere_of_disks
 
 

@@ -9,8 +9,8 @@ import pytest
 import torch
 from scipy.special import sph_harm_y
 
-from matspray.render.latlong import pixel_directions, pixel_solid_angles
-from matspray.render.sh import rgb_to_sh_dc, sh_basis, sh_dc_to_rgb, sh_to_rgb
+from matspray.render.shade.latlong import pixel_directions, pixel_solid_angles
+from matspray.render.shade.sh import rgb_to_sh_dc, sh_basis, sh_dc_to_rgb, sh_to_rgb
 
 
 def random_directions(n, seed=0):
@@ -72,7 +72,7 @@ def test_rejects_bad_degrees():
 
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
 def test_compiled_sh_colour_matches_torch_and_has_its_gradients(degree):
-    from matspray.render.numba_sh import CompiledSH
+    from matspray.render.numba.sh import CompiledSH
 
     g = torch.Generator().manual_seed(degree)
     sh = (0.5 * torch.randn(40, 16, 3, generator=g, dtype=torch.float64)).requires_grad_()
@@ -88,9 +88,9 @@ def test_compiled_sh_colour_matches_torch_and_has_its_gradients(degree):
 def test_sh_colors_renders_with_the_compiled_loops_within_a_numba_block(monkeypatch):
     from matspray.data.camera import Camera
     from matspray.gaussians import Gaussians
-    from matspray.render import numba_sh
     from matspray.render.backend import rendering_with
-    from matspray.render.sh import sh_colors
+    from matspray.render.numba import sh as numba_sh
+    from matspray.render.shade.sh import sh_colors
 
     g = torch.Generator().manual_seed(4)
     gaussians = Gaussians(

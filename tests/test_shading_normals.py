@@ -13,7 +13,7 @@ from matspray.method.lift import LiftConfig, lift
 from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
 from matspray.method.refine.normals import ShadingNormals, angle_change_degrees, normal_prior
 from matspray.method.relight import render_gbuffer
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.envmap import EnvironmentMap
 from tests.scenes import material_scene, sky_map
 
 BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])

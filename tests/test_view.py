@@ -20,8 +20,8 @@ from matspray.errors import ConfigError, DataError
 from matspray.export.frames import dataset_from_glb
 from matspray.gaussians import quaternion_to_matrix
 from matspray.render.backend import rendering_with
-from matspray.render.envmap import EnvironmentMap
-from matspray.render.latlong import pixel_directions
+from matspray.render.shade.envmap import EnvironmentMap
+from matspray.render.shade.latlong import pixel_directions
 from matspray.rundir import write_json
 from matspray.view.camera import camera_from_viser, frame_size, matrix_to_quaternion, viser_pose
 from matspray.view.frames import MODES, Progressive, progressive_size
@@ -503,7 +503,7 @@ def test_the_viewer_renders_on_the_device_it_is_given(view_run, device):
     from matspray.data.camera import Camera
     from matspray.lights import load_envmap
     from matspray.method.asset import Asset, read_asset
-    from matspray.render.envmap import EnvironmentMap
+    from matspray.render.shade.envmap import EnvironmentMap
     from matspray.rundir import RunDir
     from matspray.view.frames import render_frame
     from matspray.view.lights import ENV_HEIGHT, RotatedLight, estimated_light_path

@@ -6,11 +6,11 @@ import torch
 from matspray.gaussians import Gaussians
 from matspray.method.asset import Asset, read_asset, write_asset
 from matspray.method.relight import render_gbuffer
-from matspray.render.deferred import shade
-from matspray.render.envmap import EnvironmentMap
-from matspray.render.gbuffer import orient_normals
-from matspray.render.rasterize import rasterize
-from matspray.render.visibility import (
+from matspray.render.raster.gbuffer import orient_normals
+from matspray.render.raster.rasterize import rasterize
+from matspray.render.shade.deferred import shade
+from matspray.render.shade.envmap import EnvironmentMap
+from matspray.render.shade.visibility import (
     VisibilityConfig,
     bake_visibility,
     gaussian_shadows,
@@ -190,7 +190,7 @@ def test_shadow_factor_gradients_are_finite_for_fully_rough_gaussians():
     normals = torch.nn.functional.normalize(torch.tensor([[0.0, 0.0, 1.0], [0.5, 0.0, 0.8], [0.0, 0.3, 0.9]]), dim=-1)
     view_dirs = torch.nn.functional.normalize(torch.tensor([[0.3, 0.0, 0.9], [0.0, 0.4, 0.9], [0.2, 0.2, 0.9]]), dim=-1)
     visibility = torch.rand(3, 2 * rows * rows, generator=torch.Generator().manual_seed(0))
-    from matspray.render.visibility import light_cells
+    from matspray.render.shade.visibility import light_cells
 
     shadow_factors(visibility, normals, view_dirs, rough, light_cells(light, rows)).sum().backward()
     assert torch.isfinite(rough.grad).all()

@@ -67,7 +67,7 @@ def relight_run(
     from matspray.method.masks import read_region
     from matspray.method.relight import background_radiance, cameras_up, orbit_cameras, render_relit
     from matspray.render.backend import rendering_with
-    from matspray.render.envmap import EnvironmentMap
+    from matspray.render.shade.envmap import EnvironmentMap
     from matspray.rundir import RunDir
 
     run = RunDir(run_dir).require()

@@ -22,7 +22,7 @@ from matspray.method.asset import ENVMAP_FILE, envmap_preview
 from matspray.method.masks import read_object_masks, read_region
 from matspray.method.relight import background_radiance, render_gbuffer, render_relit
 from matspray.render.backend import rendering_with
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import RunDir, write_text_atomic
 from matspray.variants import LABELS, asset_stage
 

@@ -33,7 +33,7 @@ from matspray.method.asset import ENVMAP_FILE, read_asset
 from matspray.method.masks import read_object_masks
 from matspray.method.relight import render_relit
 from matspray.render.backend import rendering_with
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import RunDir, write_json, write_text_atomic
 from matspray.variants import asset_stage
 

@@ -15,8 +15,8 @@ from torch import Tensor
 
 from matspray.data.formats.blender import read_scene_json
 from matspray.errors import file_error
-from matspray.render.envmap import MIN_RADIANCE, EnvironmentMap, downsample_latlong
-from matspray.render.latlong import irradiance_correlation, total_variation
+from matspray.render.shade.envmap import MIN_RADIANCE, EnvironmentMap, downsample_latlong
+from matspray.render.shade.latlong import irradiance_correlation, total_variation
 
 
 def light_figures(estimate: Tensor, truth: Tensor) -> dict:  # [h, 2h, 3], [H, 2H, 3] linear radiance, H >= h

@@ -19,7 +19,7 @@ from matspray.errors import DataError
 from matspray.eval.run_eval import relight_env_names, relight_light
 from matspray.method.asset import Asset, read_asset
 from matspray.method.relight import render_relit
-from matspray.render.envmap import EnvironmentMap
+from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import RunDir
 
 GREY = 0.5  # linear background of the crops: neither the photo's backdrop nor a light

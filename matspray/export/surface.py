@@ -21,7 +21,7 @@ from matspray.data.camera import Camera
 from matspray.errors import DataError
 from matspray.export.silhouette import silhouette_offset
 from matspray.gaussians import Gaussians
-from matspray.render.rasterize import rasterize
+from matspray.render.raster.rasterize import rasterize
 
 CALIBRATION_STEPS = 2  # rounds of moving the surface's level to match the asset's silhouettes
 # A smooth metal shows a mirror image, and the Gaussians that reproduce it sit where the reflected scene

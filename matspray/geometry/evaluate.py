@@ -16,8 +16,8 @@ from matspray.data.scene import View
 from matspray.gaussians import Gaussians
 from matspray.geometry.normals import angular_error_degrees, normal_map_to_rgb, oriented_normals
 from matspray.render.output import RasterOutput
-from matspray.render.rasterize import rasterize
-from matspray.render.sh import sh_colors
+from matspray.render.raster.rasterize import rasterize
+from matspray.render.shade.sh import sh_colors
 
 
 @dataclass

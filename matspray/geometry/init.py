@@ -15,7 +15,7 @@ from matspray.data.images import linear_to_srgb
 from matspray.data.scene import MIN_COLMAP_POINTS, Scene, View, focus_point
 from matspray.errors import DataError
 from matspray.gaussians import Gaussians
-from matspray.render.sh import num_sh_bases, rgb_to_sh_dc
+from matspray.render.shade.sh import num_sh_bases, rgb_to_sh_dc
 
 BACKGROUND_SHARE = 0.25  # of the initial points of a capture without masks or points: on the background shell
 SPARSE_SHARE = 0.25  # an unmasked capture with fewer points than this share of the count gets the rest scattered

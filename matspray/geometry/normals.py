@@ -10,8 +10,8 @@ from matspray.data.camera import Camera
 from matspray.data.images import resize
 from matspray.gaussians import Gaussians
 from matspray.render.backend import compiled_on_cpu
-from matspray.render.gbuffer import orient_normals
-from matspray.render.rasterize import rasterize
+from matspray.render.raster.gbuffer import orient_normals
+from matspray.render.raster.rasterize import rasterize
 
 
 def shortest_axes(gaussians: Gaussians) -> Tensor:  # [N, 3] unit, unoriented; differentiable w.r.t. quats
@@ -20,9 +20,9 @@ def shortest_axes(gaussians: Gaussians) -> Tensor:  # [N, 3] unit, unoriented; d
 
 def oriented_normals(gaussians: Gaussians, camera: Camera) -> Tensor:  # [N, 3] unit
     """Each Gaussian's shortest axis, flipped to face `camera` (the side the camera sees). Within a block that renders
-    with numba, on the CPU, by compiled loops (matspray.render.numba_normals), which training calls every step."""
+    with numba, on the CPU, by compiled loops (matspray.render.numba.normals), which training calls every step."""
     if compiled_on_cpu(gaussians.means.device):
-        from matspray.render.numba_normals import CompiledNormals  # numba loads where it renders
+        from matspray.render.numba.normals import CompiledNormals  # numba loads where it renders
 
         return CompiledNormals.apply(gaussians.quats, gaussians.log_scales, gaussians.means, camera.center)
     return orient_normals(shortest_axes(gaussians), gaussians.means, camera)

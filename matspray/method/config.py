@@ -25,7 +25,7 @@ from matspray.method.refine.loop import RefineConfig
 from matspray.presets import ADDITION_NAMES, ADDITIONS, METHODS, PRESETS, STAGE_SETTINGS
 from matspray.presets import SHADOW_MAPS as SHADOW_MAP_SIZES
 from matspray.render.backend import BACKENDS
-from matspray.render.visibility import VisibilityConfig
+from matspray.render.shade.visibility import VisibilityConfig
 
 
 def unknown_preset(preset: str) -> SettingError:

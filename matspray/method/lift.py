@@ -1,7 +1,7 @@
 """2D-to-3D material lifting (paper section 3.2, eq. 1-3).
 
 For every training view, rays on a k x k sub-pixel grid are traced through the Gaussians with the
-3DGRT response (`matspray.render.contributions`). Every Gaussian a ray hits while it is still visible
+3DGRT response (`matspray.render.rays.contributions`). Every Gaussian a ray hits while it is still visible
 (the ray's transmittance before the hit is at least `visibility_threshold`) receives the material of
 the pixel the ray belongs to. Per Gaussian and view the median of what it received is kept (eq. 3);
 samples from one pixel carry one value, so the median is taken over pixels weighted by how many of
@@ -42,7 +42,7 @@ from matspray.gaussians import Gaussians
 from matspray.geometry.ply import vertex_count
 from matspray.material import zeros as material_zeros
 from matspray.render.backend import active_backend, note_render
-from matspray.render.contributions import iter_contributions
+from matspray.render.rays.contributions import iter_contributions
 from matspray.render.settings import RasterSettings
 from matspray.rundir import RunDir, read_json, stage_folder, stage_hint, to_plain
 
@@ -201,9 +201,9 @@ def compiled_entries(
     settings: RasterSettings,
     core_alpha: Tensor | None,
 ) -> tuple[Tensor, Tensor]:
-    """`traced_entries` by numba's tile loops (`matspray.render.numba_rays`; CPU): the same entries, in another
+    """`traced_entries` by numba's tile loops (`matspray.render.numba.rays`; CPU): the same entries, in another
     order."""
-    from matspray.render.numba_rays import trace_view  # numba loads where it traces
+    from matspray.render.numba.rays import trace_view  # numba loads where it traces
 
     on_object = (
         torch.ones(camera.height * camera.width, dtype=torch.bool)

@@ -22,7 +22,7 @@ from matspray.errors import DataError, MatsprayError, file_error
 from matspray.gaussians import Gaussians
 from matspray.geometry.ply import vertex_count
 from matspray.geometry.region import ObjectRegion, object_region
-from matspray.render.rasterize import rasterize
+from matspray.render.raster.rasterize import rasterize
 from matspray.rundir import RunDir, read_record, stage_hint, write_json
 
 SPLITS = ("train", "test")

@@ -51,10 +51,10 @@ from matspray.predictors import (
 )
 from matspray.presets import WORKING_SIZE
 from matspray.render.backend import RenderUse, rendering_with, resolve_backend
-from matspray.render.envmap import EnvironmentMap
-from matspray.render.gbuffer import FrozenViews
-from matspray.render.numba_backend import compile_in_background
-from matspray.render.visibility import bake_visibility
+from matspray.render.numba.backend import compile_in_background
+from matspray.render.raster.gbuffer import FrozenViews
+from matspray.render.shade.envmap import EnvironmentMap
+from matspray.render.shade.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, timed
 from matspray.variants import asset_stage, get_variant, variants_for_maps
 

@@ -11,10 +11,10 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.method.asset import Asset
-from matspray.render.deferred import GBuffer, shade_gbuffer
-from matspray.render.gbuffer import orient_normals
-from matspray.render.rasterize import rasterize
-from matspray.render.visibility import gaussian_shadows
+from matspray.render.raster.gbuffer import orient_normals
+from matspray.render.raster.rasterize import rasterize
+from matspray.render.shade.deferred import GBuffer, shade_gbuffer
+from matspray.render.shade.visibility import gaussian_shadows
 
 
 def render_gbuffer(asset: Asset, camera: Camera, light=None):

@@ -1,5 +1,5 @@
 """Which rasterizer renders: `torch` (ours, CPU and CUDA: the readable reference), `numba` (ours, compiled tile
-loops, CPU only; matspray.render.numba_backend) or `gsplat` (CUDA only, an optional extra).
+loops, CPU only; matspray.render.numba.backend) or `gsplat` (CUDA only, an optional extra).
 
 `resolve_backend` turns the setting `backend` (auto | torch | numba | gsplat) into the one that runs; a request
 that cannot be met is a SettingError of one line that says what is missing and how to get it. `auto` is gsplat

@@ -1,4 +1,4 @@
-"""What `rasterize` returns, whichever backend drew it (matspray.render.rasterize)."""
+"""What `rasterize` returns, whichever backend drew it (matspray.render.raster.rasterize)."""
 
 from __future__ import annotations
 

@@ -17,7 +17,7 @@ Differences left between the backends, each covered by a test there:
     centred principal point, as Camera.from_fov_x makes; otherwise Gaussians whose centre lies beyond the
     clamp, well outside the image, get other footprints;
   - which Gaussians count as drawn (`RasterOutput.visible`), only for Gaussians that blend into no pixel: see
-    matspray.render.gsplat_backend.
+    matspray.render.raster.gsplat.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""The real spherical-harmonics basis constants of 3DGS (degree 0-3), shared by the torch reference (matspray.render.sh)
-and the compiled loops (matspray.render.numba_sh)."""
+"""The real spherical-harmonics basis constants of 3DGS (degree 0-3), shared by the torch reference
+(matspray.render.shade.sh) and the compiled loops (matspray.render.numba.sh)."""
 
 from __future__ import annotations
 

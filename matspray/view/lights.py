@@ -24,8 +24,8 @@ from matspray.data.images import HDR_SUFFIXES
 from matspray.errors import DataError, MatsprayError, file_error
 from matspray.lights import BUILTINS, load_envmap
 from matspray.method.asset import ENVMAP_FILE
-from matspray.render.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
-from matspray.render.latlong import pixel_directions
+from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
+from matspray.render.shade.latlong import pixel_directions
 
 ENV_HEIGHT = 64  # `matspray relight --env-height` default
 ESTIMATED = "estimated (run)"  # the label of the run's own light

@@ -53,7 +53,7 @@ class ViewState:
 
 
 def load_numba_kernels() -> None:
-    from matspray.render.numba_backend import ensure_compiled
+    from matspray.render.numba.backend import ensure_compiled
 
     ensure_compiled(np.float32)  # the assets' dtype
 

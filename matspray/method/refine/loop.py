@@ -66,10 +66,10 @@ from matspray.method.refine.terms import (  # noqa: F401 (the material losses: c
     view_terms,
     weighted_l1,
 )
-from matspray.render.deferred import view_directions
-from matspray.render.envmap import DEFAULT_LEVELS, EnvironmentMap, PrefilteredEnvironment
-from matspray.render.gbuffer import FrozenViews
-from matspray.render.latlong import total_variation
+from matspray.render.raster.gbuffer import FrozenViews
+from matspray.render.shade.deferred import view_directions
+from matspray.render.shade.envmap import DEFAULT_LEVELS, EnvironmentMap, PrefilteredEnvironment
+from matspray.render.shade.latlong import total_variation
 from matspray.variants import Variant, get_variant
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")

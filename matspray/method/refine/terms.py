@@ -18,10 +18,10 @@ from torch import Tensor
 from matspray.data.images import linear_to_srgb
 from matspray.geometry.losses import normal_map_loss, photometric_loss
 from matspray.material import BASE_COLOR, N_CHANNELS, unstack
-from matspray.render.deferred import shade_unit
-from matspray.render.envmap import EnvironmentMap, PrefilteredEnvironment, prefilter_latlong
-from matspray.render.latlong import total_variation
-from matspray.render.visibility import gaussian_shadows
+from matspray.render.shade.deferred import shade_unit
+from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, prefilter_latlong
+from matspray.render.shade.latlong import total_variation
+from matspray.render.shade.visibility import gaussian_shadows
 
 DEFAULT_HUBER_DELTA = 0.05  # linear base colour; the residual where "huber" turns from quadratic to linear
 

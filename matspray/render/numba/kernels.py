@@ -1,4 +1,4 @@
-"""The compiled loops of backend `numba` (matspray.render.numba_backend): tile binning, forward blending, the
+"""The compiled loops of backend `numba` (matspray.render.numba.backend): tile binning, forward blending, the
 reverse pass and the per-Gaussian reduction of its gradients.
 
 Every kernel is generic in the float type of its inputs (float32 for rendering, float64 for gradcheck): constants

@@ -1,6 +1,6 @@
-"""`python -m matspray.render.compile_kernels`: compile backend numba's CPU kernels now (or find them in numba's
+"""`python -m matspray.render.numba.compile`: compile backend numba's CPU kernels now (or find them in numba's
 on-disk cache), so that the first run does not wait for them. `make demo` runs it beside the byte-compilation of the
-installed packages; a run compiles them itself otherwise (matspray.render.numba_backend.compile_in_background)."""
+installed packages; a run compiles them itself otherwise (matspray.render.numba.backend.compile_in_background)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import time
 def main() -> int:
     import numpy as np
 
-    from matspray.render.numba_backend import ensure_compiled
+    from matspray.render.numba.backend import ensure_compiled
 
     start = time.perf_counter()
     ensure_compiled(np.float32)  # says on stderr what it compiled, and in how long

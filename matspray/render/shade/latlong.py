@@ -14,7 +14,7 @@ import math
 import torch
 from torch import Tensor
 
-from matspray.render.sh import sh_basis
+from matspray.render.shade.sh import sh_basis
 
 
 def direction_to_uv(d: Tensor) -> Tensor:  # [..., 3] unit -> [..., 2] (u, v) in [0, 1]

@@ -25,7 +25,6 @@ from torch import Tensor
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.render.compositing import log_transmittance, ray_major_order_by_depth, surviving_hits
-from matspray.render.cuda_rays import max_response, simulated
 from matspray.render.pairs import (
     EMPTY_BOX,
     box_pixel_pairs,
@@ -36,6 +35,7 @@ from matspray.render.pairs import (
     row_bands,
 )
 from matspray.render.projection import log_opacity_ratio
+from matspray.render.rays.cuda import max_response, simulated
 from matspray.render.settings import RasterSettings
 
 FUSED = [True]  # on a CUDA device, the rays' response by `cuda_rays`' kernel (False: by torch operations)

@@ -1,6 +1,6 @@
 """A learnable lat-long HDR environment map and its split-sum prefiltering.
 
-Maps follow `matspray.render.latlong`: [H, 2H, 3] linear RGB, world up +z, row 0 straight up.
+Maps follow `matspray.render.shade.latlong`: [H, 2H, 3] linear RGB, world up +z, row 0 straight up.
 
 `EnvironmentMap` holds the map as the log of the radiance (`log_map`), so it stays positive and an
 optimiser step changes it multiplicatively, which suits HDR values spanning orders of magnitude.
@@ -36,9 +36,9 @@ from torch import Tensor, nn
 
 from matspray.data.images import read_image, write_image
 from matspray.errors import ConfigError, DataError, file_error
-from matspray.render.bilinear import bilinear_sample, grid_sample_border
-from matspray.render.brdf import MIN_ROUGHNESS, ggx_ndf, roughness_to_alpha, smith_visibility
-from matspray.render.latlong import pixel_solid_angles
+from matspray.render.shade.bilinear import bilinear_sample, grid_sample_border
+from matspray.render.shade.brdf import MIN_ROUGHNESS, ggx_ndf, roughness_to_alpha, smith_visibility
+from matspray.render.shade.latlong import pixel_solid_angles
 
 DEFAULT_LEVELS = (MIN_ROUGHNESS, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 PIXELS_PER_LOBE = 2.0  # a level's pixel spans at most alpha / PIXELS_PER_LOBE radians (the GGX lobe ~ alpha wide)

@@ -29,7 +29,7 @@ _STATE: dict = {}  # "kernel": the compiled kernel, or "off": why it cannot run
 def _kernel():
     """The compiled kernel (`cuda_rays_kernel`, whose import brings numba.cuda: only where a GPU traces a band)."""
     if "kernel" not in _STATE:
-        from matspray.render.cuda_rays_kernel import response
+        from matspray.render.rays.cuda_kernel import response
 
         _STATE["kernel"] = response
     return _STATE["kernel"]

@@ -42,7 +42,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from matspray.render.numba_threads import threads
+from matspray.render.numba.threads import threads
 from matspray.render.projection import max_eigen_radius
 from matspray.render.settings import RasterSettings
 
@@ -56,7 +56,7 @@ _TOLD = False  # whether a compilation was already reported
 
 def kernels():
     """The kernel module (imported on first use: importing numba takes a moment, and only this backend needs it)."""
-    from matspray.render import numba_kernels
+    from matspray.render.numba import kernels as numba_kernels
 
     return numba_kernels
 
@@ -171,7 +171,7 @@ def _camera_arrays(camera, settings: RasterSettings, np_dtype) -> tuple[np.ndarr
         and hit[2] == (camera.viewmat._version, camera.K._version)
     ):
         return hit[3], hit[4]
-    from matspray.render import numba_projection as P
+    from matspray.render.numba import projection as P
     from matspray.render.projection import JACOBIAN_FOV_MARGIN
 
     dtype = torch.float64 if np_dtype == np.float64 else torch.float32
@@ -328,7 +328,7 @@ def numba_view_weights(gaussians, camera, settings: RasterSettings = RasterSetti
     """`rasterize.view_weights` on backend numba: Gaussian ids [M], row-major pixel ids [M], weights [M]; None when
     the forward's record would pass RECORD_BUDGET (the torch version does those)."""
     from matspray.render.backend import note_render
-    from matspray.render.numba_weights import recorded_weights
+    from matspray.render.numba.weights import recorded_weights
 
     note_render("numba")
     ensure_compiled(np.float32)  # (its warm-up compiles `recorded_weights` too)
@@ -392,7 +392,7 @@ def _cache_misses(dispatchers) -> int:
 
 def projection():
     """The projection kernels' module (imported on first use, as `kernels`)."""
-    from matspray.render import numba_projection
+    from matspray.render.numba import projection as numba_projection
 
     return numba_projection
 
@@ -427,7 +427,10 @@ def ensure_compiled(np_dtype) -> None:
 def _compile(key: str, np_dtype) -> None:
     """ensure_compiled's warm-up, timed, and said on stderr where it compiled (the first time in the process)."""
     global _TOLD
-    from matspray.render import numba_normals, numba_rays, numba_sh, numba_weights
+    from matspray.render.numba import normals as numba_normals
+    from matspray.render.numba import rays as numba_rays
+    from matspray.render.numba import sh as numba_sh
+    from matspray.render.numba import weights as numba_weights
 
     module = kernels()
     dispatchers = _dispatchers(module, projection(), numba_sh, numba_normals, numba_rays, numba_weights)
@@ -484,9 +487,9 @@ def _warm_up(np_dtype) -> None:
     )
     image, _, _, _ = rasterize_gaussians(gaussians, camera, torch.ones(1, 1, dtype=dtype), RasterSettings())
     image.sum().backward()  # the recorded backward (the unrecorded one compiles when first needed)
-    from matspray.render.numba_normals import CompiledNormals
-    from matspray.render.numba_rays import trace_view
-    from matspray.render.numba_sh import CompiledSH
+    from matspray.render.numba.normals import CompiledNormals
+    from matspray.render.numba.rays import trace_view
+    from matspray.render.numba.sh import CompiledSH
 
     sh = torch.zeros(1, 16, 3, dtype=dtype, requires_grad=True)
     CompiledSH.apply(sh, gaussians.means, camera.center, 3).sum().backward()
@@ -495,7 +498,7 @@ def _warm_up(np_dtype) -> None:
     on_object = torch.ones(camera.height * camera.width, dtype=torch.bool)
     trace_view(gaussians.detach(), camera, on_object, 2, torch.zeros(1), 1.0, RasterSettings(), 0.0)
     if np_dtype == np.float32:  # frozen views' weights (float32 only)
-        from matspray.render.numba_weights import recorded_weights
+        from matspray.render.numba.weights import recorded_weights
 
         empty = np.zeros(0, np.int64)
         recorded_weights(

@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from matspray.render.brdf import roughness_to_alpha, smith_g1, smith_visibility
+from matspray.render.shade.brdf import roughness_to_alpha, smith_g1, smith_visibility
 
 DEFAULT_SIZE = 32
 DEFAULT_SAMPLES = 512

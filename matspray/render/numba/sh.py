@@ -1,4 +1,4 @@
-"""Spherical-harmonics colour (matspray.render.sh, the readable reference) in compiled loops with a hand-written
+"""Spherical-harmonics colour (matspray.render.shade.sh, the readable reference) in compiled loops with a hand-written
 backward, for backend numba. In geometry training the torch version is some forty small tensor operations forward
 and as many in autograd's backward on every step; here it is one loop over the Gaussians each way.
 
@@ -14,8 +14,8 @@ import torch
 from numba import prange
 from torch import Tensor
 
-from matspray.render.numba_kernels import njit
-from matspray.render.numba_threads import threads
+from matspray.render.numba.kernels import njit
+from matspray.render.numba.threads import threads
 from matspray.render.sh_constants import SH_C0, SH_C1, SH_C2, SH_C3, num_sh_bases
 
 # the basis constants in the reference's order: C0, C1, C2[0..4], C3[0..6]

@@ -2,11 +2,11 @@
 the (Gaussian, pixel, inside the core) entries and how many of the pixel's sub-pixel rays made each, without listing
 the hits.
 
-The torch tracer (`matspray.render.contributions`, the readable reference, whose docstring has the equations)
+The torch tracer (`matspray.render.rays.contributions`, the readable reference, whose docstring has the equations)
 enumerates (Gaussian, pixel) candidates, evaluates every sub-pixel ray of each, sorts all hits of a band of rows
 by ray and depth, composites them with segmented sums, and `lift_view` then collapses the hits into entries with
 a sort of its own. Here the image is cut into 16 x 16 pixel tiles; each tile's Gaussians (those whose silhouette
-box meets it, `numba_kernels.bin_tiles`) are tested against each pixel's rays, each ray's hits are sorted and
+box meets it, `kernels.bin_tiles`) are tested against each pixel's rays, each ray's hits are sorted and
 composited on the spot, and each pixel's entries are counted as its rays are. A first, cheap pass counts each
 pixel's candidates (the silhouettes' row spans only), which bounds its entries (two per candidate), so the
 tracing pass writes every pixel's entries at a known place, once.
@@ -26,9 +26,9 @@ from numba import prange
 
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
-from matspray.render.contributions import ray_setup
-from matspray.render.numba_kernels import TILE, bin_tiles, njit
-from matspray.render.numba_threads import threads
+from matspray.render.numba.kernels import TILE, bin_tiles, njit
+from matspray.render.numba.threads import threads
+from matspray.render.rays.contributions import ray_setup
 from matspray.render.settings import RasterSettings
 
 MAX_BAND_ENTRIES = 1 << 24  # bound of a band's entries (16 bytes each), so that large images trace in bands

@@ -110,7 +110,7 @@ def sh_colors_gsplat(
     means: Tensor,  # [N, 3]
     center: Tensor,  # [3] camera centre
     degree: int,
-) -> Tensor:  # [N, 3] colour, >= 0: `matspray.render.sh.sh_to_rgb` of the directions from the camera
+) -> Tensor:  # [N, 3] colour, >= 0: `matspray.render.shade.sh.sh_to_rgb` of the directions from the camera
     """SH colour by gsplat's fused kernels (it normalises the directions itself; their gradient reaches `means`)."""
     gsplat = importlib.import_module("gsplat")
     coefficients = gsplat.spherical_harmonics(degree, means - center.to(means), sh)

@@ -34,11 +34,11 @@ from tqdm import tqdm
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.material import ROUGHNESS_INDEX
-from matspray.render.brdf import roughness_to_alpha
-from matspray.render.deferred import specular_direction
-from matspray.render.envmap import EnvironmentMap, downsample_latlong
-from matspray.render.latlong import pixel_directions, pixel_solid_angles
-from matspray.render.rasterize import view_weights
+from matspray.render.raster.rasterize import view_weights
+from matspray.render.shade.brdf import roughness_to_alpha
+from matspray.render.shade.deferred import specular_direction
+from matspray.render.shade.envmap import EnvironmentMap, downsample_latlong
+from matspray.render.shade.latlong import pixel_directions, pixel_solid_angles
 
 MAX_KAPPA = 1.5  # the specular kernel stays broad: on the coarse grid (rows = 8: 22.5 degree cells) sharper
 # kernels shadowed the true G-buffer of the demo object worse (docs/defaults.md)

@@ -19,8 +19,8 @@ import torch
 from numba import prange
 from torch import Tensor
 
-from matspray.render.numba_kernels import njit
-from matspray.render.numba_threads import threads
+from matspray.render.numba.kernels import njit
+from matspray.render.numba.threads import threads
 
 CHUNK = 1024  # Gaussians per parallel iteration
 NORM_EPS = 1e-12  # F.normalize's

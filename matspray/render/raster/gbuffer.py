@@ -6,7 +6,7 @@ This is what makes material refinement cheap: the Gaussians do not move, only th
 With backend gsplat nothing is kept per view: rendering the features again with the frozen Gaussians is one
 kernel call, cheaper on a GPU than the sparse product and free of the matrices' memory. With backend torch
 (and numba, whose frozen views are these same matrices, their weights computed by its compiled forward:
-matspray.render.numba_weights) the
+matspray.render.numba.weights) the
 matrices stay where `storage` says: on the Gaussians' device, on the host (copied to the device view by view),
 or "auto": on a CUDA device while it keeps DEVICE_RESERVE of its memory free, on the host after that
 (`frozen_views_bytes` says how large they are).
@@ -22,7 +22,7 @@ from torch import Tensor
 from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
 from matspray.render.backend import active_backend
-from matspray.render.rasterize import rasterize, view_weights
+from matspray.render.raster.rasterize import rasterize, view_weights
 
 # a (Gaussian, pixel) weight is kept twice (the matrix and its transpose): an int32 column index and a float32
 # value each (int64 indices for a matrix of 2^31 entries or more: `blend_matrix`)
@@ -74,7 +74,7 @@ def hits_of_view(gaussians: Gaussians, camera: Camera, backend: str) -> tuple[Te
     the blend matrices do not need; a caller that needs `view_weights`' order (pixel, then front to back: the shadow
     maps of `render.visibility`) calls it."""
     if backend == "numba" and gaussians.means.device.type == "cpu":
-        from matspray.render.numba_backend import numba_view_weights
+        from matspray.render.numba.backend import numba_view_weights
 
         found = numba_view_weights(gaussians, camera)
         if found is not None:

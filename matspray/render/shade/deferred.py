@@ -29,10 +29,10 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.material import N_CHANNELS, stack, unstack
-from matspray.render.brdf import DIELECTRIC_F0, MIN_ROUGHNESS, cook_torrance, dot, reflect, roughness_to_alpha
-from matspray.render.brdf_lut import brdf_scale_bias
-from matspray.render.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
-from matspray.render.latlong import pixel_directions, pixel_solid_angles
+from matspray.render.shade.brdf import DIELECTRIC_F0, MIN_ROUGHNESS, cook_torrance, dot, reflect, roughness_to_alpha
+from matspray.render.shade.brdf_lut import brdf_scale_bias
+from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
+from matspray.render.shade.latlong import pixel_directions, pixel_solid_angles
 
 
 @dataclass

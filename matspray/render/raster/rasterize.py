@@ -12,7 +12,7 @@ Gaussian's footprint ellipse (enumerated row span by row span), one integer sort
 then `blend_hits`: transmittance by a segmented cumulative sum of log(1 - alpha) in float64, weights
 scattered with `index_add`, and a hand-written backward pass. It is the readable reference.
 
-Backend `numba` (CPU; matspray.render.numba_backend, docs/rasterizer.md) computes the projection, footprints and
+Backend `numba` (CPU; matspray.render.numba.backend, docs/rasterizer.md) computes the projection, footprints and
 depth order of `_setup` below with the same float32 arithmetic in compiled code, with a hand-written backward,
 and blends the same hits in compiled 16 x 16 tile loops; tests/test_numba_backend.py holds it to this one within
 1e-5 (images) and 1e-4 (gradients).
@@ -30,10 +30,10 @@ from matspray.gaussians import Gaussians
 from matspray.render.backend import active_backend, note_render, resolve_backend
 from matspray.render.blend import blend_hits, hit_weights
 from matspray.render.compositing import ray_major_order
-from matspray.render.gsplat_backend import rasterize_gsplat
 from matspray.render.output import RasterOutput
 from matspray.render.pairs import EMPTY_BOX, box_areas, clip_rows, ellipse_pixel_pairs, pixel_boxes, row_bands
 from matspray.render.projection import log_opacity_ratio, max_eigen_radius, project_gaussians
+from matspray.render.raster.gsplat import rasterize_gsplat
 from matspray.render.settings import RasterSettings
 
 
@@ -181,9 +181,9 @@ def _rasterize_torch(gaussians, camera, features, background, settings: RasterSe
 
 
 def _rasterize_numba(gaussians, camera, features, background, settings: RasterSettings, absgrad: bool):
-    """Projection, footprints, depth order and blending all compiled (matspray.render.numba_backend): the same
+    """Projection, footprints, depth order and blending all compiled (matspray.render.numba.backend): the same
     float32 projection as `_setup`, the same hits as the pair list."""
-    from matspray.render.numba_backend import rasterize_gaussians  # imports numba: only when this backend runs
+    from matspray.render.numba.backend import rasterize_gaussians  # imports numba: only when this backend runs
 
     image, num_hits, means2d, radii = rasterize_gaussians(gaussians, camera, features, settings, absgrad)
     return _output(image, background, means2d, radii, "numba", num_hits)

@@ -1,10 +1,10 @@
 """A view's blending weights (every blended (Gaussian, pixel) hit and its weight alpha * T) on backend `numba`: what
-`rasterize.view_weights` computes with torch, which frozen views (matspray.render.gbuffer) need once per training
+`rasterize.view_weights` computes with torch, which frozen views (matspray.render.raster.gbuffer) need once per training
 view. The torch version builds every candidate pair as a tensor; here the compiled forward blends once with its
-record of hits (pixel and response, in blending order: numba_kernels.forward; numba_backend.numba_view_weights),
+record of hits (pixel and response, in blending order: kernels.forward; backend.numba_view_weights),
 and `recorded_weights` replays the record tile by tile to turn each hit into its weight, with the forward's
 arithmetic (float32 alpha, float64 transmittance). The hits are the forward's, which are the torch backend's
-(numba_kernels._row_span).
+(kernels._row_span).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from matspray.render.numba_kernels import TILE, njit
+from matspray.render.numba.kernels import TILE, njit
 
 
 @njit(cache=True, parallel=True)
@@ -21,7 +21,7 @@ def recorded_weights(
 ):
     """Per recorded hit h (record_offsets[t] <= h < entry_end of the tile's last entry): its Gaussian, its pixel
     (row-major over the image) and its weight; `valid[h]` is False where the tile's room held no hit.
-    consts: [2] max_alpha (numba_kernels' layout)."""
+    consts: [2] max_alpha (kernels' layout)."""
     room = rec_pixel.shape[0]
     gaussian = np.empty(room, np.int64)
     pixel = np.empty(room, np.int64)

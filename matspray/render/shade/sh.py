@@ -79,13 +79,13 @@ def view_directions(means: Tensor, camera: Camera) -> Tensor:  # [N, 3] -> [N, 3
 
 def sh_colors(gaussians, camera: Camera, degree: int | None = None) -> Tensor:  # -> [N, 3]
     """Colour of every Gaussian as seen from `camera` (differentiable w.r.t. means and sh). Within a block that renders
-    with numba, on the CPU, by its compiled loops (matspray.render.numba_sh), which training calls every step."""
+    with numba, on the CPU, by its compiled loops (matspray.render.numba.sh), which training calls every step."""
     if compiled_on_cpu(gaussians.means.device):
-        from matspray.render.numba_sh import CompiledSH  # numba loads where it renders
+        from matspray.render.numba.sh import CompiledSH  # numba loads where it renders
 
         return CompiledSH.apply(gaussians.sh, gaussians.means, camera.center, checked_degree(gaussians.sh, degree))
     if active_backend() == "gsplat":  # one fused kernel each way instead of a hundred small operations
-        from matspray.render.gsplat_backend import sh_colors_gsplat  # gsplat loads where it renders
+        from matspray.render.raster.gsplat import sh_colors_gsplat  # gsplat loads where it renders
 
         return sh_colors_gsplat(gaussians.sh, gaussians.means, camera.center, checked_degree(gaussians.sh, degree))
     return sh_to_rgb(gaussians.sh, view_directions(gaussians.means, camera), degree)

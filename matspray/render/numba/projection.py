@@ -1,4 +1,4 @@
-"""The compiled projection of backend `numba` (matspray.render.numba_backend): what `project_gaussians` and
+"""The compiled projection of backend `numba` (matspray.render.numba.backend): what `project_gaussians` and
 `rasterize._setup` compute for backend torch (centres, conics, depths, footprint boxes, radii), per Gaussian in
 one loop, and its hand-written backward.
 
@@ -6,7 +6,7 @@ The forward repeats the torch code's float32 operations in the same order (matri
 as torch's CPU matmul and einsum do for these sizes, no fused multiply-adds), so both backends project to the
 same bits and draw the same pixels: tests/test_numba_backend.py checks it. Constants come in `consts`, an array of
 the inputs' float type, because numba promotes float32 arithmetic with a Python number to float64 (as in
-numba_kernels). The scales come in already exponentiated and the opacities already squashed (torch's exp and
+kernels). The scales come in already exponentiated and the opacities already squashed (torch's exp and
 sigmoid, whose results numba's libm would differ from in the last bit for about 1 % of inputs), and the radii
 are left to torch (its float32 sqrt differs from a correctly rounded one in the last bit for ~15 % of them).
 Only the footprint margin's log and the boxes' sqrt are numba's: a last-bit difference there can only move a box
@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from matspray.render.numba_kernels import njit
+from matspray.render.numba.kernels import njit
 
 # indices into `consts`
 NEAR, EPS2D, LIM_X_LO, LIM_X_HI, LIM_Y_LO, LIM_Y_HI, FX, FY, CX, CY = range(10)

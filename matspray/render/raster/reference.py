@@ -19,7 +19,7 @@ the ray stops before its transmittance would fall below min_transmittance. The w
 is alpha_k * prod_{j<k} (1 - alpha_j).
 
 Everything is float64, without gradients, written to be checked line by line against the equations:
-the tests compare `matspray.render.contributions` and `matspray.render.rasterize` with these. They
+the tests compare `matspray.render.rays.contributions` and `matspray.render.raster.rasterize` with these. They
 cost O(rays x Gaussians) time and memory; use them on small scenes only.
 """
 
