@@ -8,7 +8,7 @@
 Reads the runs `python -m benchmarks.generalise` left in OUT (default runs/generalise-SET-demo); each row is
 LABEL=RUN/ASSET (a run folder under OBJECT/runs and the asset in it, `MODEL` in RUN replaced by --model), or
 2D=RUN: that run's predictor's own maps of the test views (predicted again, as the evaluation does). The defaults are
-the `gn1r1` pass of docs/normals.md: `lift` is the mean of the lifted predictions (proj-average) and `full` the
+the `gn1r1` pass of docs/dev/normals.md: `lift` is the mean of the lifted predictions (proj-average) and `full` the
 Neural Merger's after refinement, both on the Gaussians of Gaussian Splatting on predicted normals; `lifted truth`
 the true maps lifted onto the same Gaussians.
 

@@ -1,4 +1,4 @@
-"""The generated tables of README.md and docs/*.md, from the result files committed under docs/results/.
+"""The generated tables of README.md and docs/**/*.md, from the result files committed under docs/results/.
 
     python -m benchmarks.tables            # rewrite every generated table in place
     python -m benchmarks.tables --check    # change nothing; exit 1 naming each table that differs
@@ -543,7 +543,7 @@ TABLES = {
 
 
 def documents(root: Path) -> list[Path]:
-    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    return [root / "README.md", *sorted((root / "docs").rglob("*.md"))]  # docs/, docs/guide/, docs/dev/
 
 
 def render(text: str, results: Path, cache: dict, where: str) -> str:

@@ -129,7 +129,7 @@ def _window_mean(x: Tensor, taps: Tensor | None = None) -> Tensor:  # [..., H, W
     """The separable window's weighted mean at every valid position (`taps` None: the SSIM window): two depthwise
     convolutions (rows, then columns), one plane per leading index. The convolution's own backward is one pass each
     way, where shifted slices summed in autograd cost a full-size zero tensor and an add per slice
-    (docs/rasterizer.md has the timing)."""
+    (docs/dev/rasterizer.md has the timing)."""
     planes = x.reshape(1, -1, *x.shape[-2:])  # [1, B, H, W]
     count = planes.shape[1]
     if taps is None:

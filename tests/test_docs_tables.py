@@ -14,10 +14,11 @@ LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 
 
 def copy_docs(tmp_path: Path) -> Path:
-    (tmp_path / "docs").mkdir()
     shutil.copy(ROOT / "README.md", tmp_path / "README.md")
-    for path in (ROOT / "docs").glob("*.md"):
-        shutil.copy(path, tmp_path / "docs" / path.name)
+    for path in (ROOT / "docs").rglob("*.md"):  # docs/, docs/guide/, docs/dev/
+        target = tmp_path / path.relative_to(ROOT)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(path, target)
     shutil.copytree(ROOT / "docs" / "results", tmp_path / "docs" / "results")
     return tmp_path
 

@@ -55,7 +55,7 @@ class SfmConfig:
     # SIFT's contrast threshold, below COLMAP's 0.0067: smooth, weakly textured objects (the back of the skull
     # capture) get enough features to be matched. With guided matching (matches re-searched along the verified
     # epipolar geometry) the skull registered 66 of 66 photos, against 44 of 66 with COLMAP's defaults
-    # (docs/real-captures.md).
+    # (docs/dev/real-captures.md).
     peak_threshold: float = 0.004
     guided_matching: bool = True
 

@@ -1,6 +1,6 @@
 """A UV atlas with xatlas: charts packed into a square texture with a gutter between them.
 
-Three choices (measured in docs/export.md, "Atlas choices"):
+Three choices (measured in docs/dev/export.md, "Atlas choices"):
 - xatlas drops faces whose area is below float32's epsilon and leaves their UVs at (0, 0); at an object's own
   scale marching cubes makes many of those. The mesh goes in scaled so that an average face has unit area:
   none are dropped (UVs are scale-free).

@@ -4,7 +4,7 @@ Why: the Neural Merger's metallic is a softmax mixture of each Gaussian's lifted
 whose core straddles a metal edge keeps the side that holds most of its core, and the render blends it with its
 neighbours: the metal edges come out blurred. On the development objects the pixels near a change of the true
 metallic hold most of the 3D metallic's error, even for the truth lifted onto the same Gaussians, and fitting
-per-Gaussian values to the true maps through the renderer wins a good part of it back (docs/normals.md, "Metallic",
+per-Gaussian values to the true maps through the renderer wins a good part of it back (docs/dev/normals.md, "Metallic",
 measured with `benchmarks.metallic_parts`).
 
 What: starting from the merged metallic m0, Adam fits free per-Gaussian values m in [0, 1] to the 2D metallic maps,

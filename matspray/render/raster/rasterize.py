@@ -12,7 +12,7 @@ Gaussian's footprint ellipse (enumerated row span by row span), one integer sort
 then `blend_hits`: transmittance by a segmented cumulative sum of log(1 - alpha) in float64, weights
 scattered with `index_add`, and a hand-written backward pass. It is the readable reference.
 
-Backend `numba` (CPU; matspray.render.numba.backend, docs/rasterizer.md) computes the projection, footprints and
+Backend `numba` (CPU; matspray.render.numba.backend, docs/dev/rasterizer.md) computes the projection, footprints and
 depth order of `_setup` below with the same float32 arithmetic in compiled code, with a hand-written backward,
 and blends the same hits in compiled 16 x 16 tile loops; tests/test_numba_backend.py holds it to this one within
 1e-5 (images) and 1e-4 (gradients).

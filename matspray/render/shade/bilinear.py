@@ -2,7 +2,7 @@
 
 `F.grid_sample`'s backward adds each point's gradient into the four texels around it by atomic adds. Refinement
 looks up environment maps of a few hundred texels at every pixel of a view (a quarter of a million points), so on
-a GPU those adds queue on the same few addresses (docs/gpu.md measures what that cost). `bilinear_sample` gives the
+a GPU those adds queue on the same few addresses (docs/dev/gpu.md measures what that cost). `bilinear_sample` gives the
 same values and gradients as `grid_sample` (bilinear, border padding, align_corners=True), but its backward adds
 into `replicas` copies of the image, point p into copy p % replicas, and sums the copies after: the same sums in
 another order, each address shared by a few points instead of thousands.
