@@ -38,6 +38,10 @@ $(STAMP): $(DEMO_STAMP)
 	-@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! command -v chromedriver >/dev/null; then \
 		(apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 || (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q chromium chromium-driver >/dev/null 2>&1)) \
 		|| echo "note: chromium not installed; the browser tests will skip"; fi
+	# Blender for the test of the light's orientation on import (docs/guide/export.md); best effort, as root only.
+	-@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && ! command -v blender >/dev/null; then \
+		(apt-get install -y -q blender >/dev/null 2>&1 || (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q blender >/dev/null 2>&1)) \
+		|| echo "note: blender not installed; the Blender light test will skip"; fi
 	# model-viewer (npm, on three.js) for the test that opens the exported glb in a standard glTF viewer; best effort.
 	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node @google/model-viewer >/dev/null 2>&1 \
 		|| echo "note: model-viewer not installed; the glb browser test will skip"; fi

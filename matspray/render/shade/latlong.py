@@ -4,7 +4,9 @@ World up is +z (Blender / NeRF-synthetic). An environment map is [H, 2H, 3] line
 straight up. A direction d = (x, y, z) maps to
     u = atan2(y, -x) / (2 pi) + 0.5        (column, in [0, 1), left to right)
     v = acos(z) / pi                       (row, in [0, 1], top to bottom)
-which is Blender's world equirectangular mapping, so maps made for Blender light our scenes the same.
+(Mitsuba's and ours agree: tests/test_synth_mitsuba.py). Blender's world mapping is this one turned half a turn about
++z: a map made here lights a Blender scene from the opposite side unless its vector is turned by 180 degrees
+(`python -m benchmarks.blender_light` renders it; tests/test_blender_light.py).
 """
 
 from __future__ import annotations
