@@ -14,7 +14,8 @@ def add_parser(parser) -> None:
         "from the asset's depth at the training cameras (TSDF + marching cubes), decimated to --faces, UV-unwrapped "
         "(xatlas), with baked base colour (sRGB) and metallic-roughness textures (G = roughness, B = metallic) and "
         "per-vertex normals, in one binary glTF 2.0 file. The estimated environment map is written beside it as "
-        "FILE_envmap.exr and FILE_envmap.hdr (lat-long, Blender's Z-up convention)."
+        "FILE_envmap.exr and FILE_envmap.hdr (lat-long, Z-up; in Blender turn its vector 180 degrees about Z: "
+        "docs/guide/export.md)."
     )
     parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
     parser.add_argument("--out", type=Path, required=True, help="the .glb file to write")
