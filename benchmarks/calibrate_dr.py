@@ -36,7 +36,6 @@ from matspray.data import View, load_scene
 from matspray.errors import MatsprayError
 from matspray.eval.run_eval import GroundTruth, evaluate_predictions, paper_tables, read_view_truth
 from matspray.eval.tables import average_tables
-from matspray.lights import hdri_files
 from matspray.predictors import predict_views
 from matspray.predictors.error_models import (
     DR_COLOUR_SCALE,
@@ -48,6 +47,7 @@ from matspray.predictors.error_models import (
 )
 from matspray.predictors.registry import object_seed
 from matspray.predictors.simulated import SimulatedPredictor
+from matspray.render.shade.lights import hdri_files
 
 TARGETS = {
     "basecolor": 21.341,

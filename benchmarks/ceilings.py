@@ -485,8 +485,8 @@ def merge_with_saved(path: Path, results: dict, log=print) -> dict:
 
 
 def run_set(args, log=print) -> list[str]:
-    from matspray.lights import hdri_files
     from matspray.method.config import build_config
+    from matspray.render.shade.lights import hdri_files
     from matspray.rundir import held_exclusively, write_text_atomic
 
     objects = objects_part(args.set, args.start, args.objects, sorted(hdri_files()))

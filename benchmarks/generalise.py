@@ -49,9 +49,9 @@ from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
 from matspray.geometry.config import GeometryConfig
-from matspray.lights import BUILTINS, hdri_files
 from matspray.method.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
+from matspray.render.shade.lights import BUILTINS, hdri_files
 from matspray.rundir import (
     STAGE_RECORD,
     RunDir,

@@ -215,7 +215,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     from benchmarks.generalise import object_set
-    from matspray.lights import hdri_files
+    from matspray.render.shade.lights import hdri_files
 
     out = args.out or Path(f"runs/generalise-{args.set}-demo")
     per_object = {}

@@ -63,9 +63,9 @@ def _stage_fingerprint(run: Path, stage: str) -> str:
 
 def run_objects(args, log=print) -> list[str]:
     from benchmarks.ceilings import read_test_truth
-    from matspray.lights import hdri_files
     from matspray.method.asset import read_asset
     from matspray.method.config import build_config
+    from matspray.render.shade.lights import hdri_files
 
     objects = objects_part(args.set, args.start, args.objects, sorted(hdri_files()))
     config = build_config(args.preset)

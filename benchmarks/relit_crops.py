@@ -20,8 +20,8 @@ from matspray.data import load_run_scene
 from matspray.data.images import write_image
 from matspray.eval.capture_report import RELIGHT_ENV_HEIGHT
 from matspray.eval.relit_crops import default_asset, relit_crops, relit_truth, same_capture
-from matspray.lights import load_envmap
 from matspray.render.shade.envmap import EnvironmentMap
+from matspray.render.shade.lights import load_envmap
 from matspray.rundir import RunDir
 
 

@@ -148,9 +148,9 @@ def frame_times(run: Path, env: str | None, repeats: int, size: int, backend: st
     import torch
 
     from matspray.data.camera import Camera
-    from matspray.lights import hdri_files
     from matspray.method.relight import render_gbuffer
     from matspray.render.backend import compute_target, rendering_with
+    from matspray.render.shade.lights import hdri_files
     from matspray.view.frames import progressive_size
     from matspray.view.server import Viewer, ViewerConfig
 

@@ -179,7 +179,7 @@ def test_the_light_prior_lowers_the_total_variation_of_a_noisy_map():
 
 
 def test_irradiance_correlation_is_one_for_a_scaled_copy_and_lower_for_a_rotated_light():
-    from matspray.lights import builtin_envmap
+    from matspray.render.shade.lights import builtin_envmap
 
     sky = builtin_envmap("sky", 32)
     assert irradiance_correlation(sky, 3.0 * sky) == pytest.approx(1.0, abs=1e-9)

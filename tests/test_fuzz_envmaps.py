@@ -22,8 +22,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from matspray.data.images import write_raw
-from matspray.lights import load_envmap
 from matspray.render.shade.envmap import EnvironmentMap
+from matspray.render.shade.lights import load_envmap
 from tests.fuzzing import damaged, read_or_refuse
 from tests.test_fuzz_images import damage
 from tests.test_fuzz_transforms import FUZZ

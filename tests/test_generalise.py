@@ -26,8 +26,8 @@ from benchmarks.generalise_tables import model_summary, model_table
 from matspray.data.images import read_image
 from matspray.errors import ConfigError
 from matspray.geometry.config import GeometryConfig
-from matspray.lights import BUILTINS
 from matspray.method.refine.loop import RefineConfig
+from matspray.render.shade.lights import BUILTINS
 from matspray.rundir import newer_than_stages, share_stage
 
 HDRIS = ["city", "forest", "interior", "studio", "sunrise", "sunset"]

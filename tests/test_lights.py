@@ -1,4 +1,4 @@
-"""matspray.lights: built-in environment maps, files, the packaged HDRI names, lookups and validation."""
+"""matspray.render.shade.lights: built-in environment maps, files, the packaged HDRI names, lookups and validation."""
 
 from __future__ import annotations
 
@@ -9,10 +9,12 @@ from pathlib import Path
 import pytest
 import torch
 
-import matspray.lights as lights
+import matspray
+import matspray.render.shade.lights as lights
 from matspray.data.images import read_raw, write_raw
 from matspray.errors import ConfigError, DataError
-from matspray.lights import (
+from matspray.render.shade.latlong import direction_to_uv, pixel_directions, pixel_solid_angles
+from matspray.render.shade.lights import (
     BUILTINS,
     builtin_envmap,
     check_envmap,
@@ -22,7 +24,6 @@ from matspray.lights import (
     load_envmap,
     lookup_envmap,
 )
-from matspray.render.shade.latlong import direction_to_uv, pixel_directions, pixel_solid_angles
 
 
 def irradiance(env: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:  # [H, 2H, 3], [3] -> [3]
@@ -109,7 +110,7 @@ PACKAGED = ("city", "forest", "interior", "studio", "sunrise", "sunset")
 
 def test_packaged_hdri_names_resolve_from_any_directory(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # nothing beside the working directory: the lights come from the package
-    assert lights.HDRI_FOLDER.parent == Path(lights.__file__).resolve().parent
+    assert lights.HDRI_FOLDER == Path(matspray.__file__).resolve().parent / "hdri"  # the package's own data
     assert sorted(lights.hdri_files()) == list(PACKAGED)
     assert list_envmaps() == list(BUILTINS) + [name for name in PACKAGED if name not in BUILTINS]
     name, env = load_envmap("forest", height=16)

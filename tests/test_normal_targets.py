@@ -13,7 +13,7 @@ def test_weights_must_be_positive(capsys):
 
 def test_without_the_protocols_runs_it_says_which_command_to_run_first(tmp_path, capsys):
     pytest.importorskip("mitsuba")  # the object set draws its lights from the HDRIs the protocol uses
-    from matspray.lights import hdri_files
+    from matspray.render.shade.lights import hdri_files
 
     if not hdri_files():
         pytest.skip("no HDR maps (../shared/data/hdri) to draw the protocol's objects from")

@@ -133,7 +133,7 @@ def test_a_public_clone_runs_the_first_commands_without_shared_data_or_network(c
     for light in ("studio", "sunset", "forest"):
         assert any(f"_{light}" in name for name in figures), (light, sorted(figures))
 
-    from matspray.lights import list_envmaps
+    from matspray.render.shade.lights import list_envmaps
 
     names = list_envmaps()
     assert {"sky", "studio", "sunset", "overcast", "city", "forest", "interior", "sunrise"} <= set(names)

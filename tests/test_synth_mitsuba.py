@@ -13,7 +13,7 @@ mi = pytest.importorskip("mitsuba")
 
 from matspray.data.camera import Camera  # noqa: E402
 from matspray.data.images import read_image  # noqa: E402
-from matspray.lights import lookup_envmap  # noqa: E402
+from matspray.render.shade.lights import lookup_envmap  # noqa: E402
 from matspray.synth.groundtruth import cast_ground_truth  # noqa: E402
 from matspray.synth.materials import Textures, bake_textures, bilinear_lookup, random_material  # noqa: E402
 from matspray.synth.mitsuba_scene import (  # noqa: E402
@@ -202,7 +202,7 @@ def test_stratified_renders_are_less_noisy_than_independent_ones():
     """Same sample count, a diffuse sphere under a sky with a sun: the stratified render's error
     against a 1024-spp reference is clearly below the independent sampler's."""
     import matspray.synth.mitsuba_scene as ms
-    from matspray.lights import load_envmap
+    from matspray.render.shade.lights import load_envmap
 
     _, env = load_envmap("sky", 16)
     scene = build_scene(sphere(np.random.default_rng(0)), [uniform_textures([0.7, 0.6, 0.5], 0.8, 0.0)], env.numpy())

@@ -501,9 +501,9 @@ def test_the_viewer_renders_on_the_device_it_is_given(view_run, device):
     rendered in float64 on the CPU. On the GPU machine `pytest --device cuda` runs this on CUDA
     (benchmarks/gpu_check.sh lists tests/test_view.py)."""
     from matspray.data.camera import Camera
-    from matspray.lights import load_envmap
     from matspray.method.asset import Asset, read_asset
     from matspray.render.shade.envmap import EnvironmentMap
+    from matspray.render.shade.lights import load_envmap
     from matspray.rundir import RunDir
     from matspray.view.frames import render_frame
     from matspray.view.lights import ENV_HEIGHT, RotatedLight, estimated_light_path

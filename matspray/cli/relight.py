@@ -62,12 +62,12 @@ def relight_run(
     from matspray.data.formats.video import write_video
     from matspray.data.images import linear_to_srgb
     from matspray.errors import ConfigError, RunError, optional_module
-    from matspray.lights import load_envmap
     from matspray.method.asset import read_asset
     from matspray.method.masks import read_region
     from matspray.method.relight import background_radiance, cameras_up, orbit_cameras, render_relit
     from matspray.render.backend import rendering_with
     from matspray.render.shade.envmap import EnvironmentMap
+    from matspray.render.shade.lights import load_envmap
     from matspray.rundir import RunDir
 
     run = RunDir(run_dir).require()

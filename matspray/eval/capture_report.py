@@ -17,12 +17,12 @@ from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_r
 from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
 from matspray.eval.report import Figures, _srgb_inverse, html_page, markdown_to_html, object_masks_section
 from matspray.export.frames import find_glbs, glb_box
-from matspray.lights import load_envmap
 from matspray.method.asset import ENVMAP_FILE, envmap_preview
 from matspray.method.masks import read_object_masks, read_region
 from matspray.method.relight import background_radiance, render_gbuffer, render_relit
 from matspray.render.backend import rendering_with
 from matspray.render.shade.envmap import EnvironmentMap
+from matspray.render.shade.lights import load_envmap
 from matspray.rundir import RunDir, write_text_atomic
 from matspray.variants import LABELS, asset_stage
 

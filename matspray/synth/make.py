@@ -17,7 +17,7 @@ from matspray.data.formats.blender import write_blender
 from matspray.data.scene import View
 from matspray.errors import ConfigError, SettingError
 from matspray.gltf.read import read_gltf
-from matspray.lights import default_relight_names, load_envmap
+from matspray.render.shade.lights import default_relight_names, load_envmap
 from matspray.synth.cameras import FOV_X, GROUND_MIN_ELEVATION, MIN_ELEVATION, make_cameras
 from matspray.synth.config import SynthConfig
 from matspray.synth.gltf_object import asset_parts, write_object_glb

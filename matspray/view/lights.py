@@ -22,10 +22,10 @@ from torch import Tensor
 
 from matspray.data.images import HDR_SUFFIXES
 from matspray.errors import DataError, MatsprayError, file_error
-from matspray.lights import BUILTINS, load_envmap
 from matspray.method.asset import ENVMAP_FILE
 from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
 from matspray.render.shade.latlong import pixel_directions
+from matspray.render.shade.lights import BUILTINS, load_envmap
 
 ENV_HEIGHT = 64  # `matspray relight --env-height` default
 ESTIMATED = "estimated (run)"  # the label of the run's own light

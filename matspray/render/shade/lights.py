@@ -141,7 +141,7 @@ def default_relight_names(train_name: str, count: int = 2) -> list[str]:
 
 
 # ------------------------------------------------------------------------------------------ files
-HDRI_FOLDER = Path(__file__).resolve().parent / "hdri"  # package data (pyproject's package-data)
+HDRI_FOLDER = Path(__file__).resolve().parents[2] / "hdri"  # matspray/hdri: package data (pyproject's package-data)
 
 
 def hdri_folders() -> list[Path]:
