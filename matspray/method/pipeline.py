@@ -167,6 +167,23 @@ class Pipeline:
         """What a stage's record says it ran on: the device, the run's backend and what each render call really used."""
         return {"device": str(self.device), "backend": self.backend, "renders": use.used()}
 
+    def _stage(self, name: str, fp: str, files: list[str], work, label: str = "", before=None, shown: str = "") -> bool:
+        """How every stage runs, written once. Done before (its folder `name` holds `files` and a record with the
+        fingerprint `fp`): said in one line, and nothing runs. Otherwise `before()` (what it needs from other stages,
+        outside its timer) and then `work(prepared)` -> (settings, record), timed, with the run's backend and out of
+        memory said in one line; its record (settings, seconds, what it ran on) is written last, so an interrupted
+        stage is never taken for a finished one. `label` names the stage in lines (default `name`), `shown` what a
+        reused stage's line names (default its one file, or its folder). Returns whether it ran."""
+        label = label or name
+        if self.run.stage_done(name, fp, files):
+            self.log(f"{label}: done before, reusing {shown or name + '/' + (files[0] if len(files) == 1 else '')}")
+            return False
+        prepared = before() if before is not None else None
+        with self._working(label) as (timer, use):
+            settings, record = work(prepared)
+        self.run.finish_stage(name, fp, settings, timer.seconds, {**record, **self._ran(use)})
+        return True
+
     # ---------------------------------------------------------------- predict
     def predictor_options(self) -> PredictorOptions:
         """The configured options; a simulated predictor given no seed takes the synth object's."""
@@ -186,20 +203,18 @@ class Pipeline:
         if not self.has_maps:
             return None
         fp = self.predict_fingerprint()
-        if not self.run.stage_done("materials2d", fp, ["predictor.json"]):
-            self.log(f"predict: {self.config.predictor} on {len(self.scene.train)} training views")
-            with self._working("predict") as (t, _):
-                options = self.predictor_options()
-                predictor = make_predictor(self.config.predictor, options, notify=self.log)
-                maps = predict_views(self.scene.train, predictor, notify=self.log)
-                write_materials2d(self.run.root, maps, predictor.describe())
-            used = {
-                k: v for k, v in vars(options).items() if v is not None
-            }  # the configured options and a derived seed
-            self.run.finish_stage("materials2d", fp, {"predictor": self.config.predictor, **used}, t.seconds)
-        else:
-            self.log("predict: done before, reusing materials2d/")
+        self._stage("materials2d", fp, ["predictor.json"], self._predict, "predict", shown="materials2d/")
         return read_materials2d(self.run.root, self.scene.train)
+
+    def _predict(self, _) -> tuple[dict, dict]:
+        self.log(f"predict: {self.config.predictor} on {len(self.scene.train)} training views")
+        options = self.predictor_options()
+        predictor = make_predictor(self.config.predictor, options, notify=self.log)
+        write_materials2d(
+            self.run.root, predict_views(self.scene.train, predictor, notify=self.log), predictor.describe()
+        )
+        used = {k: v for k, v in vars(options).items() if v is not None}  # the configured options and a derived seed
+        return {"predictor": self.config.predictor, **used}, {}
 
     # ---------------------------------------------------------------- geometry
     def geometry_fingerprint(self) -> str:
@@ -277,30 +292,33 @@ class Pipeline:
     def geometry(self):
         """Trained Gaussians [N] and their oriented normals [N, 3]."""
         focus_region = self.crop()  # the photos are cut to the object first (a capture without masks)
-        fp = self.geometry_fingerprint()
-        if not self.run.stage_done("geometry", fp, ["gaussians.ply"]):
+        config = self.geometry_config()
+        edges = config.material_edge_threshold > 0
+
+        def inputs():  # the predictions (read once for both uses) and the points, outside the geometry's timer
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
-            config = self.geometry_config()
-            edges = config.material_edge_threshold > 0
-            maps = self.predict() if edges or config.predicted_normal_weight > 0 else None  # read once for both
+            maps = self.predict() if edges or config.predicted_normal_weight > 0 else None
             normal_targets = self.geometry_normal_targets(maps)
             if self.points_fp and self.scene.points is None:  # (the crop may have read them already)
                 points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
-            with self._working("geometry") as (t, use):
-                train_geometry(
-                    self.scene,
-                    config,
-                    self.run.path("geometry"),
-                    device=self.device,
-                    progress=self.progress,
-                    normal_targets=normal_targets,
-                    material_maps=[maps_to_tensor(maps[v.name]) for v in self.scene.train] if edges else None,
-                    object_bounds=self.config.object_bounds,
-                    focus_region=focus_region,
-                )
-            self.run.finish_stage("geometry", fp, config, t.seconds, self._ran(use))
-        else:
-            self.log("geometry: done before, reusing geometry/gaussians.ply")
+            return maps, normal_targets
+
+        def train(prepared) -> tuple:
+            maps, normal_targets = prepared
+            train_geometry(
+                self.scene,
+                config,
+                self.run.path("geometry"),
+                device=self.device,
+                progress=self.progress,
+                normal_targets=normal_targets,
+                material_maps=[maps_to_tensor(maps[v.name]) for v in self.scene.train] if edges else None,
+                object_bounds=self.config.object_bounds,
+                focus_region=focus_region,
+            )
+            return config, {}
+
+        self._stage("geometry", self.geometry_fingerprint(), ["gaussians.ply"], train, before=inputs)
         gaussians, normals = read_ply(self.run.path("geometry", "gaussians.ply"))
         return gaussians.to(self.device), torch.nn.functional.normalize(normals, dim=-1).to(self.device)
 
@@ -315,24 +333,18 @@ class Pipeline:
             return None
         if self._object_masks is None:
             self.crop()  # the masks belong to the cut photos: cut them first, also when the masks are reused
-            fp = self.masks_fingerprint()
-            if not self.run.stage_done("masks", fp, ["masks.pt", "region.json"]):
-                gaussians, _ = self.geometry()
-                with self._working("masks") as (t, use):
-                    focused = read_region(self.run.path("geometry"))  # None: the geometry did not focus
-                    masks = compute_object_masks(
-                        gaussians, self.scene, self.config.object_bounds, progress=self.progress, region=focused
-                    )
-                    write_object_masks(self.run.path("masks"), masks)
-                self.run.finish_stage(
-                    "masks",
-                    fp,
-                    {"object_bounds": self.config.object_bounds},
-                    t.seconds,
-                    {"region": masks.region.to_json(), "inside": int(masks.inside.sum()), **self._ran(use)},
+
+            def masks_of(gaussians) -> tuple[dict, dict]:
+                focused = read_region(self.run.path("geometry"))  # None: the geometry did not focus
+                masks = compute_object_masks(
+                    gaussians, self.scene, self.config.object_bounds, progress=self.progress, region=focused
                 )
-            else:
-                self.log("masks: done before, reusing masks/")
+                write_object_masks(self.run.path("masks"), masks)
+                record = {"region": masks.region.to_json(), "inside": int(masks.inside.sum())}
+                return {"object_bounds": self.config.object_bounds}, record
+
+            fp, files = self.masks_fingerprint(), ["masks.pt", "region.json"]
+            self._stage("masks", fp, files, masks_of, before=lambda: self.geometry()[0])
             self._object_masks = read_object_masks(self.run.path("masks"))
             self.log(
                 f"masks: the object is {int(self._object_masks.inside.sum())} of "
@@ -380,31 +392,25 @@ class Pipeline:
     def lift(self, gaussians, maps) -> LiftResult:
         """Lift the 2D maps onto the Gaussians. Without maps (None) lifting still decides, from the same rays and
         masks, which Gaussians the views see (the kept ones); its values are zeros that no variant reads."""
-        fp = self.lift_fingerprint()
         path = self.run.path("lift", "projected.pt")
-        if not self.run.stage_done("lift", fp, ["projected.pt"]):
+
+        def views_and_maps() -> tuple[list, list]:  # the lifted views and their 2D maps [H, W, 5] (zeros without)
             views = self.lift_views()
-            materials = [
-                maps_to_tensor(maps[v.name]).to(self.device)
-                if maps is not None
-                else torch.zeros(v.height, v.width, 5, device=self.device)
-                for v in views
-            ]
-            with self._working("lift") as (t, use):
-                result = lift(
-                    gaussians,
-                    [v.camera.to(self.device) for v in views],
-                    materials,
-                    [None if v.alpha is None else v.alpha.to(self.device) for v in views],
-                    [v.name for v in views],
-                    self.lift_config(),
-                    progress=self.progress,
-                )
-                save_lift(result, path)
-            self.run.finish_stage("lift", fp, self.lift_config(), t.seconds, {"stats": result.stats, **self._ran(use)})
+            if maps is None:
+                return views, [torch.zeros(v.height, v.width, 5, device=self.device) for v in views]
+            return views, [maps_to_tensor(maps[v.name]).to(self.device) for v in views]
+
+        def lifted(prepared) -> tuple:
+            views, values = prepared
+            cameras = [v.camera.to(self.device) for v in views]
+            alphas = [None if v.alpha is None else v.alpha.to(self.device) for v in views]
+            config = self.lift_config()
+            result = lift(gaussians, cameras, values, alphas, [v.name for v in views], config, progress=self.progress)
+            save_lift(result, path)
             self.log(f"lift: kept {result.stats['gaussians_kept']} of {result.stats['gaussians_in']} Gaussians")
-        else:
-            self.log("lift: done before, reusing lift/projected.pt")
+            return config, {"stats": result.stats}
+
+        self._stage("lift", self.lift_fingerprint(), ["projected.pt"], lifted, before=views_and_maps)
         return load_lift(path, self.device)
 
     # ---------------------------------------------------------------- visibility
@@ -417,18 +423,15 @@ class Pipeline:
         """Directional visibility [N, D] of the lifted Gaussians `kept`, or None when shadowing is off."""
         if self.config.visibility is None:
             return None
-        fp = self.visibility_fingerprint()
         path = self.run.path("visibility", "visibility.pt")
-        if not self.run.stage_done("visibility", fp, ["visibility.pt"]):
-            self.log(
-                f"visibility: shadow maps of {len(kept)} Gaussians towards "
-                f"{2 * self.config.visibility.rows**2} directions"
-            )
-            with self._working("visibility") as (t, use):
-                save_torch_atomic(bake_visibility(kept, self.config.visibility, progress=self.progress).cpu(), path)
-            self.run.finish_stage("visibility", fp, self.config.visibility, t.seconds, self._ran(use))
-        else:
-            self.log("visibility: done before, reusing visibility/visibility.pt")
+
+        def bake(_) -> tuple:
+            directions = 2 * self.config.visibility.rows**2
+            self.log(f"visibility: shadow maps of {len(kept)} Gaussians towards {directions} directions")
+            save_torch_atomic(bake_visibility(kept, self.config.visibility, progress=self.progress).cpu(), path)
+            return self.config.visibility, {}
+
+        self._stage("visibility", self.visibility_fingerprint(), ["visibility.pt"], bake)
         values = torch.load(path, map_location=self.device)
         if values.shape[0] != len(kept):
             raise RunError(
@@ -522,35 +525,18 @@ class Pipeline:
         config = self.refine_config(variant)
         stage = asset_stage(variant)
         probe = self.probe if get_variant(variant).learns_light else None  # variants without a light ignore it
-        fp = self.refine_fingerprint(variant)
-        if self.run.stage_done(stage, fp, ["asset.ply"]):
-            self.log(f"refine [{variant}]: done before, reusing {stage}/")
-            return read_asset(self.run.path(stage), device=self.device)
-        inputs = self.refine_inputs()
-        with self._working(f"refine [{variant}]") as (t, use):
+
+        def refined(inputs) -> tuple:
             if self._frozen_views is None and get_variant(variant).trains and config.iterations > 0:
                 self._frozen_views = frozen_views(inputs)
-            result = refine(
-                inputs,
-                config,
-                progress=self.progress,
-                light=probe,
-                frozen=self._frozen_views,
-                warmed_lights=self._warmed_lights,
-            )
+            frozen, warmed = self._frozen_views, self._warmed_lights
+            result = refine(inputs, config, self.progress, light=probe, frozen=frozen, warmed_lights=warmed)
             write_asset(self.run.path(stage), inputs.gaussians, result)
-        self.run.finish_stage(
-            stage,
-            fp,
-            config,
-            t.seconds,
-            {
-                "history": result.history,
-                "frozen_views": result.frozen,
-                "merger_precision": str(self.merger_dtype(config)).removeprefix("torch."),
-                **self._ran(use),
-            },
-        )
+            precision = str(self.merger_dtype(config)).removeprefix("torch.")
+            return config, {"history": result.history, "frozen_views": result.frozen, "merger_precision": precision}
+
+        fp = self.refine_fingerprint(variant)
+        self._stage(stage, fp, ["asset.ply"], refined, f"refine [{variant}]", self.refine_inputs, f"{stage}/")
         return read_asset(self.run.path(stage), device=self.device)
 
     def work(self, variants=None) -> Work:
