@@ -1,4 +1,4 @@
-"""Settings of geometry training, with the presets of DESIGN.md (test, demo, paper)."""
+"""Settings of geometry training; the presets (test, demo, paper) change them (matspray.presets)."""
 
 from __future__ import annotations
 

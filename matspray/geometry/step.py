@@ -81,8 +81,8 @@ def image_terms(
     """The image-sized loss terms of a step (train.py's module docstring says what they are). Tensors in, one tensor
     out, no host reads: what a CUDA graph can capture."""
     target = srgb * mask[..., None] + background * (1 - mask[..., None])
-    # the prediction is not clamped (DESIGN compares clamped values in metrics): a clamp would stop the gradient of
-    # pixels that overshoot 1
+    # the prediction is not clamped (the metrics compare clamped values: docs/dev/architecture.md, "Conventions"): a
+    # clamp would stop the gradient of pixels that overshoot 1
     photometric = photometric_loss(rgb, target, ssim_weight)
     zero = rgb.new_zeros(())
     alpha_term = alpha_weight * (alpha - mask).abs().mean() if alpha_weight > 0 else zero

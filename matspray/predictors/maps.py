@@ -1,6 +1,6 @@
 """Per-view material maps, and the `materials2d/` folder every later stage reads.
 
-On disk (DESIGN.md): `{view}_basecolor.png` sRGB-encoded, `{view}_roughness.png` and
+On disk (docs/data.md): `{view}_basecolor.png` sRGB-encoded, `{view}_roughness.png` and
 `{view}_metallic.png` linear, all 16-bit PNG in [0, 1]; `{view}_confidence.png` (linear) where the
 source gives one; `{view}_normal.exr` (float, the raw vectors) where the source gives normals, in the
 space `predictor.json` names as `normal_space` (conventions: `matspray.predictors.normalmaps`);

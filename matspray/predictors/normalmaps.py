@@ -5,8 +5,8 @@ The one internal convention (every `MaterialMaps.normals`, every `{view}_normal.
   (0, 0, 0) where it gives none (background). Zero is the only "no normal" value, so resampling and masking
   need no extra channel; `matspray synth` stores its true normals the same way.
 - space "world": the scene's world frame (what `matspray synth` stores and the Gaussians carry).
-- space "camera": the axes of the view's own camera in the OpenCV convention of DESIGN.md: x right, y down,
-  z forward (from the camera into the scene). A surface the camera sees faces it, so its normal has z < 0.
+- space "camera": the axes of the view's own camera in the OpenCV convention (docs/dev/architecture.md): x right,
+  y down, z forward (from the camera into the scene). A surface the camera sees faces it, so its normal has z < 0.
   With R = viewmat[:3, :3] (the world-to-camera rotation), n_camera = R n_world and n_world = R^T n_camera.
 Normal-estimation models such as Marigold use an OpenGL-style camera frame instead (x right, y up, z towards
 the viewer); `from_opengl_camera` turns such normals into ours by negating y and z.

@@ -19,7 +19,7 @@ from matspray.rundir import RunDir
 from matspray.view.launch import run_variants
 from matspray.view.lights import estimated_light_path
 
-UP = (0.0, 0.0, 1.0)  # the dataset's world up (DESIGN: Blender / NeRF-synthetic, Z up)
+UP = (0.0, 0.0, 1.0)  # the dataset's world up (Blender / NeRF-synthetic, Z up)
 START_FOV = math.radians(40.0)  # vertical field of view of the first camera when the photos are not loaded yet
 
 
