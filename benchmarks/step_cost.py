@@ -181,10 +181,13 @@ class _HostReads(TorchFunctionMode):
         return func(*args, **(kwargs or {}))
 
 
-def _inside_numba() -> bool:
+def _inside_numba() -> bool:  # called from backend numba's package (matspray/render/numba/)
     import traceback
 
-    return any("numba_" in frame.filename for frame in traceback.extract_stack())
+    from matspray.render import numba as numba_package
+
+    folder = str(Path(numba_package.__file__).parent)
+    return any(frame.filename.startswith(folder) for frame in traceback.extract_stack())
 
 
 CUDA_WAITS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize", "cudaMemcpy")
