@@ -89,7 +89,7 @@ def test_both_methods_refine_normals_and_the_flags_set_the_rate_and_the_predicte
 
 
 def test_refine_seed_overrides_the_seed_for_refinement_only():
-    from matspray.method.pipeline import variant_refine_config
+    from matspray.method.config import variant_refine_config
 
     config = run_config("--seed", "3")
     assert variant_refine_config(config, "full").seed == 3

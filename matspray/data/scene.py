@@ -151,3 +151,14 @@ def bounds_from_points(points: Tensor, quantile: float = 0.02) -> Tensor:
     hi = torch.quantile(points.double(), 1.0 - quantile, dim=0)
     pad = 0.1 * (hi - lo)
     return torch.stack([lo - pad, hi + pad]).float()
+
+
+def dataset_identity(scene: Scene) -> dict:
+    """What a run folder records of the dataset it was made from, and its stages' fingerprints start from."""
+    return {
+        "source": str(Path(scene.source).resolve()) if scene.source else None,
+        "format": scene.format,
+        "train_views": [v.name for v in scene.train],
+        "test_views": [v.name for v in scene.test],
+        "resolution": [scene.train[0].width, scene.train[0].height],
+    }

@@ -26,6 +26,7 @@ from matspray.presets import ADDITION_NAMES, ADDITIONS, METHODS, PRESETS, STAGE_
 from matspray.presets import SHADOW_MAPS as SHADOW_MAP_SIZES
 from matspray.render.backend import BACKENDS
 from matspray.render.shade.visibility import VisibilityConfig
+from matspray.variants import get_variant
 
 
 def unknown_preset(preset: str) -> SettingError:
@@ -155,3 +156,11 @@ def build_config(
     for path, value in {**STAGE_SETTINGS[preset], **method_settings(method, tuple(without)), **settings}.items():
         config = with_setting(config, path, value)
     return config
+
+
+def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
+    """The refinement settings of one variant: the run's, with the variant and the refinement seed
+    (`refine_seed`, else the run's `seed`)."""
+    get_variant(variant)
+    seed = config.seed if config.refine_seed is None else config.refine_seed
+    return replace(config.refine, variant=variant, seed=seed)

@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import weakref
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
 
-from matspray.data import Scene, load_scene
+from matspray.data import load_scene
 from matspray.data.crop import CROP_FILE
 from matspray.data.images import save_torch_atomic
+from matspray.data.scene import dataset_identity
 from matspray.data.triangulate import POINTS_FILE, needs_points, points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
 from matspray.errors import RunError, file_error
@@ -28,7 +29,7 @@ from matspray.geometry.ply import read_ply
 from matspray.geometry.region import ObjectRegion
 from matspray.geometry.train import prepare_views, train_geometry
 from matspray.method.asset import Asset, read_asset, write_asset
-from matspray.method.config import PipelineConfig
+from matspray.method.config import PipelineConfig, variant_refine_config
 from matspray.method.crop import crop_stage
 from matspray.method.estimate import Work, feature_sizes, run_work, view_pixels
 from matspray.method.lift import LiftResult, lift, load_lift, save_lift
@@ -59,22 +60,29 @@ from matspray.rundir import RunDir, fingerprint, timed
 from matspray.variants import asset_stage, get_variant, variants_for_maps
 
 
-def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
-    """The refinement settings of one variant: the run's, with the variant and the refinement seed
-    (`refine_seed`, else the run's `seed`)."""
-    get_variant(variant)
-    seed = config.seed if config.refine_seed is None else config.refine_seed
-    return replace(config.refine, variant=variant, seed=seed)
+@dataclass(frozen=True)
+class StageFiles:
+    """A stage's folder, the files that must be there (beside its record) for it to count, what "done before" names."""
+
+    folder: str
+    files: tuple[str, ...]
+    shown: str
 
 
-def dataset_identity(scene: Scene) -> dict:
-    return {
-        "source": str(Path(scene.source).resolve()) if scene.source else None,
-        "format": scene.format,
-        "train_views": [v.name for v in scene.train],
-        "test_views": [v.name for v in scene.test],
-        "resolution": [scene.train[0].width, scene.train[0].height],
-    }
+STAGES = {  # points and crop run in data.triangulate and method.crop, which say what they reuse themselves
+    "points": StageFiles("points", (POINTS_FILE,), "points/"),
+    "crop": StageFiles("crop", (CROP_FILE,), "crop/"),
+    "predict": StageFiles("materials2d", ("predictor.json",), "materials2d/"),
+    "geometry": StageFiles("geometry", ("gaussians.ply",), "geometry/gaussians.ply"),
+    "masks": StageFiles("masks", ("masks.pt", "region.json"), "masks/"),
+    "lift": StageFiles("lift", ("projected.pt",), "lift/projected.pt"),
+    "visibility": StageFiles("visibility", ("visibility.pt",), "visibility/visibility.pt"),
+}
+
+
+def stage_files(stage: str) -> StageFiles:
+    """`STAGES[stage]`, or a variant's asset stage (`asset_stage`: asset, asset-no-prior, ...)."""
+    return STAGES[stage] if stage in STAGES else StageFiles(stage, ("asset.ply",), f"{stage}/")
 
 
 class Pipeline:
@@ -167,21 +175,25 @@ class Pipeline:
         """What a stage's record says it ran on: the device, the run's backend and what each render call really used."""
         return {"device": str(self.device), "backend": self.backend, "renders": use.used()}
 
-    def _stage(self, name: str, fp: str, files: list[str], work, label: str = "", before=None, shown: str = "") -> bool:
-        """How every stage runs, written once. Done before (its folder `name` holds `files` and a record with the
-        fingerprint `fp`): said in one line, and nothing runs. Otherwise `before()` (what it needs from other stages,
-        outside its timer) and then `work(prepared)` -> (settings, record), timed, with the run's backend and out of
-        memory said in one line; its record (settings, seconds, what it ran on) is written last, so an interrupted
-        stage is never taken for a finished one. `label` names the stage in lines (default `name`), `shown` what a
-        reused stage's line names (default its one file, or its folder). Returns whether it ran."""
-        label = label or name
-        if self.run.stage_done(name, fp, files):
-            self.log(f"{label}: done before, reusing {shown or name + '/' + (files[0] if len(files) == 1 else '')}")
+    def done(self, stage: str, fp: str) -> bool:
+        """Whether `stage` (a key of STAGES, or an asset stage) finished with the fingerprint `fp`."""
+        where = stage_files(stage)
+        return self.run.stage_done(where.folder, fp, list(where.files))
+
+    def _stage(self, stage: str, fp: str, work, before=None, label: str = "") -> bool:
+        """How every stage runs, written once. Done before (`done`): said in one line, and nothing runs. Otherwise
+        `before()` (what it needs from other stages, outside its timer) and then `work(prepared)` -> (settings,
+        record), timed, with the run's backend and out of memory said in one line; its record (settings, seconds, what
+        it ran on) is written last, so an interrupted stage is never taken for a finished one. `label` names the stage
+        in lines (default `stage`). Returns whether it ran."""
+        label, where = label or stage, stage_files(stage)
+        if self.done(stage, fp):
+            self.log(f"{label}: done before, reusing {where.shown}")
             return False
         prepared = before() if before is not None else None
         with self._working(label) as (timer, use):
             settings, record = work(prepared)
-        self.run.finish_stage(name, fp, settings, timer.seconds, {**record, **self._ran(use)})
+        self.run.finish_stage(where.folder, fp, settings, timer.seconds, {**record, **self._ran(use)})
         return True
 
     # ---------------------------------------------------------------- predict
@@ -203,7 +215,7 @@ class Pipeline:
         if not self.has_maps:
             return None
         fp = self.predict_fingerprint()
-        self._stage("materials2d", fp, ["predictor.json"], self._predict, "predict", shown="materials2d/")
+        self._stage("predict", fp, self._predict)
         return read_materials2d(self.run.root, self.scene.train)
 
     def _predict(self, _) -> tuple[dict, dict]:
@@ -244,7 +256,7 @@ class Pipeline:
             return None
         if self._cropped:
             return self._crop_region
-        if self.points_fp and not self.run.stage_done("crop", fp, [CROP_FILE]):
+        if self.points_fp and not self.done("crop", fp):
             points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
         self.scene, self._crop_region = crop_stage(
             self.run, fp, self.scene, self.config.crop, self.config.object_bounds, self.log
@@ -258,7 +270,7 @@ class Pipeline:
             return self._normals_given
         if not self.has_maps:
             self._normals_given = False
-        elif self.run.stage_done("materials2d", self.predict_fingerprint(), ["predictor.json"]):
+        elif self.done("predict", self.predict_fingerprint()):
             self._normals_given = "normal_space" in read_predictor_info(self.run.root)  # recorded when normal files are
         return self._normals_given
 
@@ -318,7 +330,7 @@ class Pipeline:
             )
             return config, {}
 
-        self._stage("geometry", self.geometry_fingerprint(), ["gaussians.ply"], train, before=inputs)
+        self._stage("geometry", self.geometry_fingerprint(), train, before=inputs)
         gaussians, normals = read_ply(self.run.path("geometry", "gaussians.ply"))
         return gaussians.to(self.device), torch.nn.functional.normalize(normals, dim=-1).to(self.device)
 
@@ -343,8 +355,7 @@ class Pipeline:
                 record = {"region": masks.region.to_json(), "inside": int(masks.inside.sum())}
                 return {"object_bounds": self.config.object_bounds}, record
 
-            fp, files = self.masks_fingerprint(), ["masks.pt", "region.json"]
-            self._stage("masks", fp, files, masks_of, before=lambda: self.geometry()[0])
+            self._stage("masks", self.masks_fingerprint(), masks_of, before=lambda: self.geometry()[0])
             self._object_masks = read_object_masks(self.run.path("masks"))
             self.log(
                 f"masks: the object is {int(self._object_masks.inside.sum())} of "
@@ -410,7 +421,7 @@ class Pipeline:
             self.log(f"lift: kept {result.stats['gaussians_kept']} of {result.stats['gaussians_in']} Gaussians")
             return config, {"stats": result.stats}
 
-        self._stage("lift", self.lift_fingerprint(), ["projected.pt"], lifted, before=views_and_maps)
+        self._stage("lift", self.lift_fingerprint(), lifted, before=views_and_maps)
         return load_lift(path, self.device)
 
     # ---------------------------------------------------------------- visibility
@@ -431,7 +442,7 @@ class Pipeline:
             save_torch_atomic(bake_visibility(kept, self.config.visibility, progress=self.progress).cpu(), path)
             return self.config.visibility, {}
 
-        self._stage("visibility", self.visibility_fingerprint(), ["visibility.pt"], bake)
+        self._stage("visibility", self.visibility_fingerprint(), bake)
         values = torch.load(path, map_location=self.device)
         if values.shape[0] != len(kept):
             raise RunError(
@@ -536,7 +547,7 @@ class Pipeline:
             return config, {"history": result.history, "frozen_views": result.frozen, "merger_precision": precision}
 
         fp = self.refine_fingerprint(variant)
-        self._stage(stage, fp, ["asset.ply"], refined, f"refine [{variant}]", self.refine_inputs, f"{stage}/")
+        self._stage(stage, fp, refined, before=self.refine_inputs, label=f"refine [{variant}]")
         return read_asset(self.run.path(stage), device=self.device)
 
     def work(self, variants=None) -> Work:
@@ -546,19 +557,12 @@ class Pipeline:
         # follows their normals
         pending = self.predicted_normals() is None
         geometry_waits = pending and self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
-        finished = {}
+        stages = {"points": self.points_fp} if self.points_fp else {}
         if not geometry_waits:
-            finished["geometry"] = (self.geometry_fingerprint(), ["gaussians.ply"])
-            finished["masks"] = (self.masks_fingerprint(), ["masks.pt"])
-            finished["lift"] = (self.lift_fingerprint(), ["projected.pt"])
-        if self.points_fp:
-            finished["points"] = (self.points_fp, [POINTS_FILE])
-        done = frozenset(stage for stage, (fp, files) in finished.items() if self.run.stage_done(stage, fp, files))
-        to_refine = [
-            v
-            for v in names
-            if pending or not self.run.stage_done(asset_stage(v), self.refine_fingerprint(v), ["asset.ply"])
-        ]
+            stages |= {"geometry": self.geometry_fingerprint(), "masks": self.masks_fingerprint()}
+            stages["lift"] = self.lift_fingerprint()
+        done = frozenset(stage for stage, fp in stages.items() if self.done(stage, fp))
+        to_refine = [v for v in names if pending or not self.done(asset_stage(v), self.refine_fingerprint(v))]
         return run_work(
             [(v.width, v.height) for v in self.scene.train],
             self.config.geometry.iterations,
