@@ -1,6 +1,7 @@
 """Run settings: presets and methods as data, `--method paper` switching every addition off, settings
 errors that name the setting (library) or the flag (CLI), and the light prior."""
 
+import argparse
 import subprocess
 import sys
 from dataclasses import replace
@@ -10,7 +11,7 @@ import torch
 import yaml
 
 from matspray import presets
-from matspray.cli.options import ADDITION_CHOICES, VARIANT_CHOICES
+from matspray.cli import build_parser
 from matspray.errors import SettingError
 from matspray.geometry.config import GeometryConfig
 from matspray.method.config import (
@@ -115,7 +116,11 @@ def test_the_presets_are_one_torch_free_table_that_every_stage_reads():
         assert shadow_maps(name) == VisibilityConfig(**presets.SHADOW_MAPS[name])
     assert build_config("demo").geometry.iterations == GeometryConfig().iterations == 3000  # demo: the defaults
     assert build_config("paper").geometry.iterations == 30000 and build_config("paper").refine.iterations == 10000
-    assert ADDITION_CHOICES == tuple(a.name for a in presets.ADDITIONS) and VARIANT_CHOICES == VARIANT_NAMES
+    run = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices["run"]
+    choices = {action.dest: action.choices for action in run._actions}
+    assert tuple(choices["without"]) == tuple(a.name for a in presets.ADDITIONS)  # the CLI offers the library's names
+    assert tuple(choices["preset"]) == presets.PRESETS and tuple(choices["method"]) == presets.METHODS
+    assert tuple(choices["variant"]) == VARIANT_NAMES
 
 
 def run_cli(*args):

@@ -2,8 +2,9 @@
 
 from pathlib import Path
 
-from matspray.cli.options import PRESET_CHOICES, add_compute_arguments, hidden_alias
+from matspray.cli.options import add_compute_arguments, hidden_alias
 from matspray.cli.settings import add_set_argument
+from matspray.presets import PRESETS
 
 
 def add_parser(parser) -> None:
@@ -11,7 +12,7 @@ def add_parser(parser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run folder; the stage writes RUN/geometry/")
     parser.add_argument(
         "--preset",
-        choices=PRESET_CHOICES,
+        choices=PRESETS,
         default="demo",
         help="sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), paper (512 px, one GPU); default demo",
     )

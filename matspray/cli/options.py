@@ -14,9 +14,6 @@ import os
 from matspray.presets import ADDITION_NAMES, METHODS, PRESETS
 from matspray.variants import VARIANT_NAMES
 
-PRESET_CHOICES, METHOD_CHOICES, ADDITION_CHOICES = PRESETS, METHODS, ADDITION_NAMES
-VARIANT_CHOICES = VARIANT_NAMES
-
 
 def on_off(value: str) -> bool:
     if value not in ("on", "off"):
@@ -219,7 +216,7 @@ def add_run_arguments(parser) -> None:
     )
     parser.add_argument(
         "--variant",
-        choices=VARIANT_CHOICES,
+        choices=VARIANT_NAMES,
         nargs="+",
         default=None,
         help="method variants to refine (the paper's ablations, and no-prior: the baseline without a 2D prior); "
@@ -245,7 +242,7 @@ def hidden_alias(parser, flag: str, dest: str, **kwargs) -> None:
 COMPUTE_FLAGS = ("--device", "--backend")
 
 
-def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "demo", visible=None) -> None:
+def add_method_arguments(parser, presets=PRESETS, default_preset: str = "demo", visible=None) -> None:
     """--preset, --method, --without, and every setting flag. A user command names the flags its help shows
     (`visible`); the others parse, hidden (their settings are reached by `--set`, `add_set_argument`), as does
     --shadows (`--set shadows=on`). `visible=None` shows every setting flag: the benchmarks' parsers."""
@@ -259,7 +256,7 @@ def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "
     )
     parser.add_argument(
         "--method",
-        choices=METHOD_CHOICES,
+        choices=METHODS,
         default="matspray",
         help="matspray (default): the paper plus our measured additions; paper: exactly the paper's method "
         "(and its released code where the text is silent)",
@@ -270,10 +267,10 @@ def add_method_arguments(parser, presets=PRESET_CHOICES, default_preset: str = "
     group.add_argument(
         "--without",
         nargs="+",
-        choices=ADDITION_CHOICES,
+        choices=ADDITION_NAMES,
         default=(),
         metavar="ADDITION",
-        help=f"switch single additions of matspray off: {', '.join(ADDITION_CHOICES)}",
+        help=f"switch single additions of matspray off: {', '.join(ADDITION_NAMES)}",
     )
     group.add_argument("--shadows", choices=("on", "off"), help=argparse.SUPPRESS)
     for flag, (_, _, text) in SETTING_FLAGS.items():

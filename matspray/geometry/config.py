@@ -134,7 +134,7 @@ ADDED_LATER = {
 FOCUS = ("focus_from", "focus_grad_scale", "background_budget")  # the object focus settings (captures without masks)
 
 
-PRESETS = {name: GeometryConfig(preset=name, **changes) for name, changes in GEOMETRY.items()}
+GEOMETRY_PRESETS = {name: GeometryConfig(preset=name, **changes) for name, changes in GEOMETRY.items()}
 
 
 # iteration counts that follow `iterations` when only that is overridden
@@ -151,13 +151,13 @@ SCHEDULE = (
 def preset(name: str, **overrides) -> GeometryConfig:
     """The named preset with some settings replaced. Overriding `iterations` alone stretches the
     schedule (densification window, opacity resets, SH degree steps, checkpoints) to match."""
-    if name not in PRESETS:
-        raise ConfigError(f"unknown geometry preset {name!r}; choose one of {', '.join(PRESETS)}")
+    if name not in GEOMETRY_PRESETS:
+        raise ConfigError(f"unknown geometry preset {name!r}; choose one of {', '.join(GEOMETRY_PRESETS)}")
     known = {f.name for f in fields(GeometryConfig)}
     unknown = sorted(set(overrides) - known)
     if unknown:
         raise ConfigError(f"geometry config: unknown settings {', '.join(unknown)}")
-    base = PRESETS[name]
+    base = GEOMETRY_PRESETS[name]
     if "iterations" in overrides and overrides["iterations"] >= 1:
         ratio = overrides["iterations"] / base.iterations
         for key in SCHEDULE:
