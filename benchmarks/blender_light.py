@@ -10,7 +10,6 @@ green. Where the patches land says how Blender's world mapping relates to MatSpr
 
 from __future__ import annotations
 
-import json
 import shutil
 import subprocess
 import sys
@@ -22,12 +21,11 @@ from PIL import Image
 
 from matspray.render.shade.latlong import pixel_directions
 
-VIEWS = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0)}
-# camera rotations (Euler XYZ): a Blender camera looks along its local -z; x = 90 degrees turns that to +y
+# the views' camera rotations (Euler XYZ, degrees): a Blender camera looks along its local -z; x = 90 turns that to +y
 ROTATIONS = {"+x": (90, 0, -90), "-x": (90, 0, 90), "+y": (90, 0, 0), "-y": (90, 0, 180)}
 
 BLENDER_SCRIPT = """
-import bpy, json, math, sys
+import bpy, math, sys
 light, out, turn = sys.argv[sys.argv.index("--") + 1:]
 scene = bpy.context.scene
 scene.render.engine = "CYCLES"
@@ -53,7 +51,7 @@ camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
 camera.data.angle = math.radians(40)
 scene.collection.objects.link(camera)
 scene.camera = camera
-for name, degrees in json.loads(ROTATIONS).items():
+for name, degrees in ROTATIONS.items():
     camera.rotation_euler = [math.radians(a) for a in degrees]
     scene.render.filepath = f"{out}/view_{name}.png"
     bpy.ops.render.render(write_still=True)
@@ -75,13 +73,13 @@ def blender_views(blender: str = "blender", turn: float = 0.0) -> dict[str, tupl
         light = Path(folder) / "light.png"
         Image.fromarray(patch_light()).save(light)
         script = Path(folder) / "render.py"
-        script.write_text(f"ROTATIONS = {json.dumps(json.dumps(ROTATIONS))}\n" + BLENDER_SCRIPT)
+        script.write_text(f"ROTATIONS = {ROTATIONS!r}\n" + BLENDER_SCRIPT)
         command = [blender, "-b", "--factory-startup", "-P", str(script), "--", str(light), folder, str(turn)]
         done = subprocess.run(command, capture_output=True, text=True, timeout=600)
         if done.returncode != 0:
             raise RuntimeError(f"blender failed:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
         views = {}
-        for name in VIEWS:
+        for name in ROTATIONS:
             image = np.asarray(Image.open(Path(folder) / f"view_{name}.png").convert("RGB"), dtype=np.float64)
             views[name] = (float(image[..., 0].mean()), float(image[..., 1].mean()))
         return views

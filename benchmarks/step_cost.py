@@ -53,6 +53,7 @@ from matspray.graphs import capturing_with
 from matspray.method.config import build_config
 from matspray.method.lift import lift_view
 from matspray.method.refine.loop import RefineInputs, refine
+from matspray.render import numba as numba_package
 from matspray.render.backend import rendering_with, resolve_backend
 from matspray.synth.analytic import analytic_views
 
@@ -181,13 +182,13 @@ class _HostReads(TorchFunctionMode):
         return func(*args, **(kwargs or {}))
 
 
-def _inside_numba() -> bool:  # called from backend numba's package (matspray/render/numba/)
+NUMBA_FOLDER = str(Path(numba_package.__file__).parent)  # backend numba's package: its frames are compiled code's
+
+
+def _inside_numba() -> bool:
     import traceback
 
-    from matspray.render import numba as numba_package
-
-    folder = str(Path(numba_package.__file__).parent)
-    return any(frame.filename.startswith(folder) for frame in traceback.extract_stack())
+    return any(frame.filename.startswith(NUMBA_FOLDER) for frame in traceback.extract_stack())
 
 
 CUDA_WAITS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize", "cudaMemcpy")
