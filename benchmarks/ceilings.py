@@ -291,7 +291,7 @@ def run_ceilings(run: Path, truth, under_true_light, rows=ROWS) -> dict:
     refined under the true light (called only when a row needs it)."""
     from matspray.eval.run_eval import evaluate_asset
     from matspray.method.asset import read_asset
-    from matspray.variants import asset_stage
+    from matspray.presets import asset_stage
 
     averaged, full = (read_asset(run / asset_stage(v)) for v in ("proj-average", "full"))
     t = truth()

@@ -16,8 +16,8 @@ from pathlib import Path
 
 from matspray.data.loader import load_run_scene
 from matspray.method.estimate import CPU_RATES, estimate_error, feature_sizes, run_work
+from matspray.presets import get_variant
 from matspray.rundir import STAGE_RECORD, RunDir, read_json
-from matspray.variants import get_variant
 
 
 def stage_work(run: Path) -> dict[str, tuple[float, float]]:

@@ -51,6 +51,7 @@ from matspray.eval.tables import write_tables
 from matspray.geometry.config import GeometryConfig
 from matspray.method.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
+from matspray.presets import VARIANT_NAMES as VARIANTS
 from matspray.render.shade.lights import BUILTINS, hdri_files
 from matspray.rundir import (
     STAGE_RECORD,
@@ -63,7 +64,6 @@ from matspray.rundir import (
     write_json,
     write_text_atomic,
 )
-from matspray.variants import VARIANT_NAMES as VARIANTS
 
 SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint

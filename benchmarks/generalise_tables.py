@@ -12,9 +12,9 @@ from matspray.batch.demo import DEMO_SIZES
 from matspray.errors import ConfigError
 from matspray.eval.tables import average_tables
 from matspray.predictors.error_models import ERROR_MODELS
+from matspray.presets import BASELINE, LABELS
+from matspray.presets import VARIANT_NAMES as VARIANTS
 from matspray.rundir import read_json
-from matspray.variants import BASELINE, LABELS
-from matspray.variants import VARIANT_NAMES as VARIANTS
 
 CHANNELS = ("basecolor", "roughness", "metallic")
 SHORT = {"basecolor": "base", "roughness": "rough", "metallic": "metal"}

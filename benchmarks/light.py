@@ -22,9 +22,9 @@ from matspray.eval.run_eval import evaluate_asset
 from matspray.method.asset import ENVMAP_FILE, read_asset
 from matspray.method.config import METHODS, build_config
 from matspray.method.pipeline import Pipeline
+from matspray.presets import asset_stage
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import share_stage
-from matspray.variants import asset_stage
 
 SHARED_STAGES = ("materials2d", "geometry", "lift", "visibility")
 

@@ -24,8 +24,8 @@ from matspray.data import load_run_scene
 from matspray.errors import MatsprayError
 from matspray.eval.run_eval import GroundTruth, asset_renders, predict_test_views, read_view_truth
 from matspray.method.asset import read_asset
+from matspray.presets import VARIANTS, asset_stage
 from matspray.rundir import RunDir
-from matspray.variants import VARIANTS, asset_stage
 
 CHANNELS = ("roughness", "metallic", "basecolor")
 

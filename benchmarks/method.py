@@ -38,8 +38,8 @@ import torch
 from benchmarks.ceilings import lift_truth, read_test_truth, shading_ceiling, softmax_reach
 from matspray.batch.demo import make_demo_object, run_object
 from matspray.method.config import ADDITION_NAMES, METHODS, build_config
+from matspray.presets import LABELS as VARIANT_LABELS
 from matspray.rundir import RunDir, share_stage
-from matspray.variants import LABELS as VARIANT_LABELS
 
 
 def fmt(value, digits=2):

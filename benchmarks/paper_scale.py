@@ -27,10 +27,10 @@ from matspray.batch.demo import make_demo_object, run_object
 from matspray.device import resolve_device
 from matspray.method.asset import read_asset
 from matspray.method.config import build_config
+from matspray.presets import asset_stage
 from matspray.render.backend import BACKENDS, resolve_backend
 from matspray.render.raster.gbuffer import frozen_views_bytes
 from matspray.rundir import RunDir, read_json
-from matspray.variants import asset_stage
 
 
 def peak_host_mib() -> float:

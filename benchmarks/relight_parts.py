@@ -22,8 +22,8 @@ from matspray.eval.evaluate import evaluate_images
 from matspray.eval.run_eval import load_relight_lights, read_view_truth, unpremultiply
 from matspray.method.asset import read_asset
 from matspray.method.relight import render_gbuffer
+from matspray.presets import asset_stage
 from matspray.render.shade.deferred import GBuffer, shade_gbuffer
-from matspray.variants import asset_stage
 
 MATERIALS = {"base_color", "roughness", "metallic"}
 SWAPS = {

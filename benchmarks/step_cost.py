@@ -44,12 +44,12 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 from benchmarks.unit_rates import random_refine_inputs
 from matspray.data.scene import Scene
+from matspray.device import capturing_with
 from matspray.geometry import train as geometry_train
 from matspray.geometry.densify import DensityControl
 from matspray.geometry.init import initial_gaussians
 from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.step import ImageTerms, RunningStats, TrainingView, training_step
-from matspray.graphs import capturing_with
 from matspray.method.config import build_config
 from matspray.method.lift import lift_view
 from matspray.method.refine.loop import RefineInputs, refine

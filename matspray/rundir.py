@@ -23,7 +23,7 @@ from matspray.errors import MatsprayError, RunError, file_error
 
 # callers import these from here too
 from matspray.files import read_json, to_plain, write_json, write_text_atomic  # noqa: F401
-from matspray.variants import VARIANT_NAMES, asset_stage
+from matspray.presets import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
 

@@ -25,11 +25,11 @@ from matspray.method.config import (
 from matspray.method.lift import LiftConfig
 from matspray.method.merger import MergerConfig, fill_unseen, prepare_values
 from matspray.method.refine.loop import RefineConfig
+from matspray.presets import VARIANT_NAMES
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.latlong import irradiance_correlation, total_variation
 from matspray.render.shade.visibility import VisibilityConfig
 from matspray.rundir import RunDir
-from matspray.variants import VARIANT_NAMES
 
 
 def test_defaults_are_the_demo_preset_of_the_default_method():

@@ -16,12 +16,12 @@ from matspray.eval.run_eval import evaluate_run
 from matspray.method.config import build_config, shadow_maps
 from matspray.method.pipeline import Pipeline
 from matspray.method.relight import render_relit
+from matspray.presets import VARIANT_NAMES
 from matspray.render.backend import gsplat_device_error, rendering_with
 from matspray.render.raster.gbuffer import FrozenViews, frozen_views_bytes
 from matspray.render.raster.reference import splat_pixels
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.latlong import pixel_solid_angles
-from matspray.variants import VARIANT_NAMES
 from tests.stray_tensors import stray_tensor_check
 from tests.test_rasterize import random_scene
 

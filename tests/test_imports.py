@@ -159,10 +159,8 @@ PLUMBING = (
     "files",
     "presets",
     "device",
-    "graphs",
     "gaussians",
     "material",
-    "variants",
     "metrics",
     "rundir",
 )

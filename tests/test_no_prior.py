@@ -16,7 +16,7 @@ from matspray.eval.run_eval import evaluate_run
 from matspray.method.config import build_config, variant_refine_config
 from matspray.method.pipeline import Pipeline
 from matspray.method.refine.loop import refine
-from matspray.variants import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
+from matspray.presets import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
 from tests.reference_metrics import relighting_psnr
 from tests.test_readers import blender_folder
 

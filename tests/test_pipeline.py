@@ -15,9 +15,8 @@ from matspray.errors import NumericalError, RunError
 from matspray.method.config import build_config, shadow_maps
 from matspray.method.pipeline import Pipeline
 from matspray.method.refine.loop import check_finite
-from matspray.presets import WORKING_SIZE
-from matspray.variants import VARIANT_NAMES as VARIANTS
-from matspray.variants import asset_stage
+from matspray.presets import VARIANT_NAMES as VARIANTS
+from matspray.presets import WORKING_SIZE, asset_stage
 from tests.conftest import busy_message
 from tests.reference_metrics import relighting_psnr
 

@@ -19,9 +19,9 @@ from matspray.method.refine.loop import (
     view_losses,
     warm_up_light,
 )
+from matspray.presets import VARIANT_NAMES
 from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.envmap import EnvironmentMap
-from matspray.variants import VARIANT_NAMES
 from tests.scenes import material_scene
 
 BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])

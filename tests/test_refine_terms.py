@@ -1,5 +1,5 @@
 """A refinement step's image-sized part as pure functions of tensors (`matspray.method.refine.terms`), run as CUDA
-graphs on a CUDA device (`matspray.graphs.Graphed`; here through the stand-in of benchmarks.step_cost, which runs each
+graphs on a CUDA device (`matspray.device.Graphed`; here through the stand-in of benchmarks.step_cost, which runs each
 as one operation each way): the same terms and gradients as the deferred shading and losses op by op, and the same
 refinement."""
 
@@ -14,8 +14,8 @@ import torch
 from benchmarks.step_cost import graph_stand_in, measure, refine_inputs
 from matspray.data.camera import Camera
 from matspray.data.images import linear_to_srgb
+from matspray.device import Graphed, capturing_with
 from matspray.geometry.losses import normal_map_loss, photometric_loss
-from matspray.graphs import Graphed, capturing_with
 from matspray.method.config import build_config
 from matspray.method.refine.loop import TrainingViews, refine, view_losses
 from matspray.method.refine.terms import (

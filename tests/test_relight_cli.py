@@ -6,8 +6,8 @@ import pytest
 
 from matspray.cli.relight import relight_run
 from matspray.errors import RunError
+from matspray.presets import asset_stage
 from matspray.rundir import RunDir
-from matspray.variants import asset_stage
 from tests.scenes import ring_cameras, write_disk_sphere_run
 
 

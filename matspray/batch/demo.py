@@ -19,12 +19,11 @@ from matspray.errors import DataError, SettingError
 from matspray.eval.tables import write_tables
 from matspray.gltf.read import read_gltf
 from matspray.method.config import PipelineConfig, build_config
-from matspray.presets import DEMO_SIZES
+from matspray.presets import DEMO_SIZES, LABELS, VARIANT_NAMES
 from matspray.render.backend import resolve_backend
 from matspray.render.numba.backend import compile_in_background
 from matspray.rundir import write_json
 from matspray.synth import SynthConfig, make_object
-from matspray.variants import LABELS, VARIANT_NAMES
 
 SHAPES = ("composite", "blob", "rounded-cube", "torus", "capsule", "sphere")
 

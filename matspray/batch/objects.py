@@ -18,8 +18,8 @@ from matspray.eval.report import write_report
 from matspray.eval.run_eval import check_synthetic, evaluate_run
 from matspray.method.config import PipelineConfig
 from matspray.method.pipeline import Pipeline
+from matspray.presets import variants_for_maps
 from matspray.rundir import read_json, write_json
-from matspray.variants import variants_for_maps
 
 OBJECT_RECORD = "batch-object.json"
 OBJECT_LOG = "batch.log"

@@ -20,8 +20,8 @@ from matspray.batch.objects import BatchObject, batch_objects, finished_record, 
 from matspray.batch.summary import batch_summary, write_summary
 from matspray.errors import ConfigError, RunError, SettingError
 from matspray.method.config import PipelineConfig
+from matspray.presets import VARIANT_NAMES
 from matspray.rundir import fingerprint, read_json, to_plain, write_json
-from matspray.variants import VARIANT_NAMES
 
 SETTINGS_RECORD = "batch.json"
 POLL_S = 0.5

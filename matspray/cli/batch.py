@@ -70,7 +70,7 @@ def add_parser(parser) -> None:
 def batch_config(args):
     from matspray.batch import BatchConfig
     from matspray.predictors import NO_PREDICTOR
-    from matspray.variants import variants_for_maps
+    from matspray.presets import variants_for_maps
 
     pipeline = build_config_from_args(
         args, predictor=args.predictor, predictor_options=predictor_options_from_args(args)

@@ -11,8 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from matspray.presets import ADDITION_NAMES, METHODS, PRESETS
-from matspray.variants import VARIANT_NAMES
+from matspray.presets import ADDITION_NAMES, METHODS, PRESETS, VARIANT_NAMES
 
 
 def on_off(value: str) -> bool:

@@ -33,7 +33,7 @@ def run(args) -> int:
     from matspray.method.estimate import estimate_line, minutes
     from matspray.method.pipeline import Pipeline
     from matspray.predictors import NO_PREDICTOR
-    from matspray.variants import asset_stage, variants_for_maps
+    from matspray.presets import asset_stage, variants_for_maps
 
     config = build_config_from_args(args, predictor=args.predictor, predictor_options=predictor_options_from_args(args))
     # refused before the run folder is touched; without --variant the run picks its default once its predictor is known

@@ -20,11 +20,11 @@ from matspray.export.frames import find_glbs, glb_box
 from matspray.method.asset import ENVMAP_FILE, envmap_preview
 from matspray.method.masks import read_object_masks, read_region
 from matspray.method.relight import background_radiance, render_gbuffer, render_relit
+from matspray.presets import LABELS, asset_stage
 from matspray.render.backend import rendering_with
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.lights import load_envmap
 from matspray.rundir import RunDir, write_text_atomic
-from matspray.variants import LABELS, asset_stage
 
 MAX_VIEWS = 3
 RELIGHT_ENV_HEIGHT = 64

@@ -39,12 +39,12 @@ from matspray.eval.tables import UNION, UNION_LABEL, material_table
 from matspray.export.frames import GLTF_FROM_DATASET, transform_directions, transform_points
 from matspray.gltf.read import read_gltf
 from matspray.method.asset import read_asset
+from matspray.presets import VARIANT_NAMES, asset_stage
 from matspray.render.backend import rendering_with
 from matspray.rundir import RunDir, write_json, write_text_atomic
 from matspray.synth.gltf_object import asset_parts
 from matspray.synth.groundtruth import cast_ground_truth
 from matspray.synth.mitsuba_scene import build_scene, render_view, select_variant
-from matspray.variants import VARIANT_NAMES, asset_stage
 
 DEFAULT_SPP = 64
 FRAMES = ("gltf", "dataset")

@@ -32,10 +32,10 @@ from matspray.geometry.ply import read_ply
 from matspray.method.asset import ENVMAP_FILE, read_asset
 from matspray.method.masks import read_object_masks
 from matspray.method.relight import render_relit
+from matspray.presets import asset_stage
 from matspray.render.backend import rendering_with
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import RunDir, write_json, write_text_atomic
-from matspray.variants import asset_stage
 
 RADIANCE = "radiance"  # the key of the geometry's own (view-dependent) colours
 ENV_HEIGHT = 64  # rows of the prefiltered estimated light

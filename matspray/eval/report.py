@@ -20,10 +20,10 @@ from matspray.method.asset import ENVMAP_FILE, envmap_preview, read_asset, read_
 from matspray.method.masks import ObjectMasks, read_object_masks
 from matspray.method.relight import render_gbuffer
 from matspray.predictors import read_materials2d, read_predictor_info
+from matspray.presets import LABELS, asset_stage
 from matspray.render.shade.deferred import shade_gbuffer
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import RunDir, write_text_atomic
-from matspray.variants import LABELS, asset_stage
 
 MAX_VIEWS = 3
 STYLE = """

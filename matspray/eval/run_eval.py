@@ -34,11 +34,11 @@ from matspray.method.masks import ObjectMasks, read_object_masks
 from matspray.method.relight import render_gbuffer
 from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
+from matspray.presets import ABLATION, BASELINE, LABELS, SOFTMAX_ABLATION, asset_stage
 from matspray.render.backend import rendering_with
 from matspray.render.shade.deferred import shade_gbuffer
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import RunDir, write_json
-from matspray.variants import ABLATION, BASELINE, LABELS, SOFTMAX_ABLATION, asset_stage
 
 EVAL_ENV_HEIGHT = 64  # relighting maps are prefiltered from this many rows (x 2 columns)
 

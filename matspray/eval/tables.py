@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from matspray.data.images import atomic_target
-from matspray.variants import ABLATION, LABELS, SOFTMAX_ABLATION
+from matspray.presets import ABLATION, LABELS, SOFTMAX_ABLATION
 
 MISSING = "—"
 UNAVAILABLE = "n/a"

@@ -26,9 +26,9 @@ from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
 from matspray.method.asset import Asset, read_asset
 from matspray.method.masks import read_region
+from matspray.presets import asset_stage, get_variant
 from matspray.render.backend import rendering_with
 from matspray.rundir import RunDir
-from matspray.variants import asset_stage, get_variant
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
 

@@ -17,7 +17,7 @@ from torch import Tensor
 
 from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
-from matspray.device import host_to_device
+from matspray.device import Graphed, host_to_device
 from matspray.errors import NumericalError
 from matspray.gaussians import Gaussians
 from matspray.geometry.config import GeometryConfig
@@ -27,7 +27,6 @@ from matspray.geometry.losses import flatten_loss, normal_consistency_loss, norm
 from matspray.geometry.material_edges import view_edge_levels
 from matspray.geometry.normals import depth_normals_along
 from matspray.geometry.optim import GaussianOptimizer
-from matspray.graphs import Graphed
 
 TERMS = ("photometric", "alpha", "normal", "predicted_normal")  # the image terms, in `image_terms`' order
 
@@ -114,7 +113,7 @@ def weighted_image_terms(weights: tuple[float, ...], *tensors: Tensor) -> Tensor
 
 class ImageTerms(Graphed):
     """`image_terms`, captured in CUDA graphs on a CUDA device when `graphs` (one per image size and set of weights,
-    made at its first use; matspray.graphs), called as `terms_of(tensors, weights)`. `capture(function,
+    made at its first use; matspray.device), called as `terms_of(tensors, weights)`. `capture(function,
     sample_tensors)` replaces `torch.cuda.make_graphed_callables` (and then applies on every device): for tests and
     counts on the CPU."""
 

@@ -22,11 +22,10 @@ from matspray.geometry.config import preset as geometry_preset
 from matspray.geometry.region import given_region
 from matspray.method.lift import LiftConfig
 from matspray.method.refine.loop import RefineConfig
-from matspray.presets import ADDITION_NAMES, ADDITIONS, METHODS, PRESETS, STAGE_SETTINGS
+from matspray.presets import ADDITION_NAMES, ADDITIONS, METHODS, PRESETS, STAGE_SETTINGS, get_variant
 from matspray.presets import SHADOW_MAPS as SHADOW_MAP_SIZES
 from matspray.render.backend import BACKENDS
 from matspray.render.shade.visibility import VisibilityConfig
-from matspray.variants import get_variant
 
 
 def unknown_preset(preset: str) -> SettingError:

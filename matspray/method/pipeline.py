@@ -50,14 +50,13 @@ from matspray.predictors import (
     without_normals,
     write_materials2d,
 )
-from matspray.presets import WORKING_SIZE
+from matspray.presets import WORKING_SIZE, asset_stage, get_variant, variants_for_maps
 from matspray.render.backend import RenderUse, rendering_with, resolve_backend
 from matspray.render.numba.backend import compile_in_background
 from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.visibility import bake_visibility
 from matspray.rundir import RunDir, fingerprint, timed
-from matspray.variants import asset_stage, get_variant, variants_for_maps
 
 
 @dataclass(frozen=True)

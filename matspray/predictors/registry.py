@@ -16,7 +16,7 @@ from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
 from matspray.predictors.simulated import SimulatedPredictor
 
 SPECS = ("files:DIR", "marigold", "simulated[:paper|harsh|outliers|dr]", "ground-truth", "none")
-NO_PREDICTOR = "none"  # a run without 2D maps: only the variants that need none (matspray.variants.MAPLESS)
+NO_PREDICTOR = "none"  # a run without 2D maps: only the variants that need none (matspray.presets.MAPLESS)
 AUTO_PREDICTOR = "auto"  # `run`'s default: simulated where the dataset has ground-truth maps (benchmarks), else none
 NEEDS_GROUND_TRUTH = ("simulated", "ground-truth")
 

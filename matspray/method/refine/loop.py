@@ -23,7 +23,7 @@ Two optional settings, off by default (docs/defaults.md):
 `basecolor_spread_weight` adds the KL divergence of the base-colour merger's weights from equal weights,
 and `align_view_gains` divides each view's base colour by its estimated gain before any variant fuses.
 
-The variants (`matspray.variants`) choose what produces the per-Gaussian materials.
+The variants (`matspray.presets`) choose what produces the per-Gaussian materials.
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ from torch import Tensor, nn
 
 from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
+from matspray.device import Graphed
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
-from matspray.graphs import Graphed
 from matspray.material import METALLIC_INDEX, N_CHANNELS
 from matspray.method.merger import (
     MergerConfig,
@@ -66,11 +66,11 @@ from matspray.method.refine.terms import (  # noqa: F401 (the material losses: c
     view_terms,
     weighted_l1,
 )
+from matspray.presets import Variant, get_variant
 from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.deferred import view_directions
 from matspray.render.shade.envmap import DEFAULT_LEVELS, EnvironmentMap, PrefilteredEnvironment
 from matspray.render.shade.latlong import total_variation
-from matspray.variants import Variant, get_variant
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")
 

@@ -1,4 +1,4 @@
-"""The image-sized part of a refinement step as pure functions of tensors, which `matspray.graphs.Graphed` runs as
+"""The image-sized part of a refinement step as pure functions of tensors, which `matspray.device.Graphed` runs as
 CUDA graphs on a CUDA device (the deferred shading and every loss of a view in one launch each way; the
 environment map's prefiltering and its prior in another), the material losses they use, and `view_losses`, which
 gathers a training view's inputs for them, with `total_loss`, their weighted sum.
