@@ -441,7 +441,7 @@ def table_cli(results: Path) -> str:
         parser = build_parser()
         sub = next(a for a in parser._actions if isinstance(a, ap._SubParsersAction))
         lines = []
-        for name, summary in COMMANDS:
+        for name, _, summary in COMMANDS:
             command = sub.choices[name]
             formatter = command._get_formatter()
             lines += [

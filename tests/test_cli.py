@@ -47,10 +47,10 @@ def run_config(*argv):
     import argparse
 
     from matspray.cli.options import build_config_from_args
-    from matspray.cli.run import add_parser
+    from matspray.cli.run import add_run_parser
 
     parser = argparse.ArgumentParser()
-    add_parser(parser)
+    add_run_parser(parser)
     return build_config_from_args(parser.parse_args(["--data", "d", "--out", "o", *argv]))
 
 
@@ -110,13 +110,13 @@ def test_demo_offers_the_paper_preset_and_refuses_it_without_a_gpu(tmp_path, mon
     import argparse
 
     import matspray.batch.demo
-    from matspray.cli import demo as demo_cli
+    from matspray.cli.batch import add_demo_parser, demo_main
 
     ran = []
     monkeypatch.setattr(matspray.batch.demo, "run_demo", lambda out, **kw: ran.append(kw) or tmp_path / "report.html")
     parser = argparse.ArgumentParser()
-    demo_cli.add_parser(parser)
-    assert demo_cli.run(parser.parse_args(["--preset", "paper", "--device", "cpu", "--out", str(tmp_path)])) == 0
+    add_demo_parser(parser)
+    assert demo_main(parser.parse_args(["--preset", "paper", "--device", "cpu", "--out", str(tmp_path)])) == 0
     assert ran[0]["preset"] == "paper" and ran[0]["config"].preset == "paper"
 
 

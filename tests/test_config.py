@@ -192,10 +192,10 @@ def test_irradiance_correlation_is_one_for_a_scaled_copy_and_lower_for_a_rotated
 
 
 def test_cli_colmap_choices_match_the_library():
-    from matspray.cli import colmap
+    from matspray.cli import datasets
     from matspray.data import sfm
 
-    assert (colmap.MATCHERS, colmap.CAMERA_MODELS) == (sfm.MATCHERS, sfm.CAMERA_MODELS)
+    assert (datasets.MATCHERS, datasets.CAMERA_MODELS) == (sfm.MATCHERS, sfm.CAMERA_MODELS)
 
 
 def test_shadows_are_off_by_default_and_on_with_the_presets_shadow_maps():

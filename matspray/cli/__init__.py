@@ -1,5 +1,6 @@
-"""The `matspray` command: a thin layer over the library. Each subcommand lives in its own module
-with `add_parser(subparsers)` and `run(args) -> int`; heavy imports happen inside `run`."""
+"""The `matspray` command: a thin layer over the library. Each subcommand NAME lives in a module of this package, alone
+or beside the commands of its concern (`datasets`: info, colmap, synth; `batch`: demo, bench, batch), as
+`add_NAME_parser(parser)` and `NAME_main(args) -> int`; heavy imports happen inside `NAME_main`."""
 
 from __future__ import annotations
 
@@ -11,21 +12,21 @@ from matspray import __version__
 from matspray.cli.options import flag_message
 from matspray.errors import MatsprayError
 
-# (module under matspray.cli, one-line help); order is the order of `matspray --help`
+# (command, its module under matspray.cli, one-line help); order is the order of `matspray --help`
 COMMANDS = [
-    ("info", "describe a dataset folder and list every problem found"),
-    ("colmap", "structure from motion on a folder of photos (pycolmap): a dataset folder for info and run"),
-    ("synth", "a synthetic benchmark object with ground truth, rendered by Mitsuba 3"),
-    ("geometry", "fit 3D Gaussians (3DGS with normals) to the photos: RUN/geometry/gaussians.ply"),
-    ("predict", "per-view 2D material maps (base color, roughness, metallic) into RUN/materials2d/"),
-    ("run", "the whole method: predict, geometry, lift, refine (finished stages are reused)"),
-    ("relight", "render a run's asset under a new environment light (PNG frames, orbit MP4)"),
-    ("view", "a browser viewer that relights the asset live under any light (viser)"),
-    ("export", "the asset as a textured glTF 2.0 mesh (.glb) plus its environment map (.exr, .hdr)"),
-    ("eval", "metrics against ground truth, the paper's tables and report.html"),
-    ("demo", "make a benchmark object, run the method and its ablations, evaluate, write the report"),
-    ("bench", "the demo over several objects, tables averaged"),
-    ("batch", "the method once per object, as Ray tasks on this machine or a cluster; a summary over objects"),
+    ("info", "datasets", "describe a dataset folder and list every problem found"),
+    ("colmap", "datasets", "structure from motion on a folder of photos (pycolmap): a dataset folder for info and run"),
+    ("synth", "datasets", "a synthetic benchmark object with ground truth, rendered by Mitsuba 3"),
+    ("geometry", "geometry", "fit 3D Gaussians (3DGS with normals) to the photos: RUN/geometry/gaussians.ply"),
+    ("predict", "predict", "per-view 2D material maps (base color, roughness, metallic) into RUN/materials2d/"),
+    ("run", "run", "the whole method: predict, geometry, lift, refine (finished stages are reused)"),
+    ("relight", "relight", "render a run's asset under a new environment light (PNG frames, orbit MP4)"),
+    ("view", "view", "a browser viewer that relights the asset live under any light (viser)"),
+    ("export", "export", "the asset as a textured glTF 2.0 mesh (.glb) plus its environment map (.exr, .hdr)"),
+    ("eval", "eval", "metrics against ground truth, the paper's tables and report.html"),
+    ("demo", "batch", "make a benchmark object, run the method and its ablations, evaluate, write the report"),
+    ("bench", "batch", "the demo over several objects, tables averaged"),
+    ("batch", "batch", "the method once per object, as Ray tasks on this machine or a cluster; a summary over objects"),
 ]
 
 
@@ -37,11 +38,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"matspray {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, summary in COMMANDS:
-        module = importlib.import_module(f"matspray.cli.{name.replace('-', '_')}")
+    for name, module_name, summary in COMMANDS:
+        module = importlib.import_module(f"matspray.cli.{module_name}")
         sub = subparsers.add_parser(name, help=summary, description=summary)
-        module.add_parser(sub)
-        sub.set_defaults(_run=module.run)
+        getattr(module, f"add_{name}_parser")(sub)
+        sub.set_defaults(_run=getattr(module, f"{name}_main"))
     return parser
 
 

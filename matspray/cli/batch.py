@@ -1,4 +1,6 @@
-"""`matspray batch --data DATA... --out DIR`: the method once per object, as Ray tasks (local or a cluster)."""
+"""The commands of many runs, over `matspray.batch`: `demo` (a benchmark object, the method and its ablations,
+evaluation and the report), `bench` (the demo over several objects, through `batch`, tables averaged) and `batch` (the
+method once per object, as Ray tasks on this machine or a cluster)."""
 
 import argparse
 import sys
@@ -14,7 +16,115 @@ from matspray.cli.options import (
 from matspray.cli.settings import add_set_argument
 
 
-def add_parser(parser) -> None:
+# `matspray demo`: a benchmark object, the method and its ablations, evaluation and the report
+def add_demo_parser(parser) -> None:
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="folder for the object, the run and the report (default: runs/demo-PRESET, "
+        "runs/demo-PRESET-paper for --method paper)",
+    )
+    parser.add_argument("--shape", default="composite", help="shape of the benchmark object (default: composite)")
+    parser.add_argument(
+        "--object-seed", type=int, default=0, help="seed of the object's shape and materials (default 0)"
+    )
+    add_method_arguments(parser, visible=COMPUTE_FLAGS)
+    add_set_argument(parser, "geometry.iterations=1000 refine.iterations=200")
+
+
+def demo_main(args) -> int:
+    import time
+
+    from matspray.batch.demo import run_demo
+
+    config = build_config_from_args(args, predictor="simulated")
+    refuse_paper_on_a_cpu(args.preset, config.device)
+    start = time.perf_counter()
+    default_out = Path("runs") / (f"demo-{args.preset}" + ("" if args.method == "matspray" else f"-{args.method}"))
+    report = run_demo(
+        args.out or default_out, preset=args.preset, shape=args.shape, seed=args.object_seed, config=config
+    )
+    print(f"demo ({config.method}) finished in {time.perf_counter() - start:.0f} s")
+    print(f"tables: {report.parent / 'eval' / 'tables.md'}")
+    print(f"report: {report}")
+    return 0
+
+
+def refuse_paper_on_a_cpu(preset: str, device: str) -> None:
+    """The paper preset (a 512 px object of 100 + 200 views, 30 000 Gaussian Splatting steps) is sized for one CUDA GPU;
+    on a machine without one it would run for many hours, so it runs there only when --device cpu asks for it."""
+    from matspray.device import resolve_device
+    from matspray.errors import SettingError
+
+    if preset == "paper" and device == "auto" and resolve_device(device).type == "cpu":
+        raise SettingError(
+            "preset",
+            "paper is sized for one CUDA GPU (512 px, 100 training and 200 test views, 30 000 steps) and this "
+            "machine has none: many hours here. Use --preset demo, or add --device cpu to run it here anyway",
+        )
+
+
+# `matspray bench --objects N` or `--assets PATH...`: the method on several benchmark objects (through
+# `matspray batch`), tables averaged
+def add_bench_parser(parser) -> None:
+    parser.add_argument(
+        "--objects",
+        type=int,
+        default=None,
+        help="number of procedural objects (shapes in turn, seeds 0..N-1; default 3)",
+    )
+    parser.add_argument(
+        "--assets",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="glTF 2.0 files (.glb/.gltf) or folders of them: one benchmark object each (`synth --asset`), "
+        "instead of procedural ones",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="folder for everything (default: runs/bench-PRESET, with --assets runs/bench-assets-PRESET)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help="objects at once, as Ray tasks (default: one per CPU core; without Ray installed, one after another)",
+    )
+    add_method_arguments(parser, visible=COMPUTE_FLAGS)
+    add_set_argument(parser)
+
+
+def bench_main(args) -> int:
+    from matspray.batch.demo import asset_objects, check_assets, run_bench
+    from matspray.errors import ConfigError
+
+    if args.assets is not None and args.objects is not None:
+        raise ConfigError("--objects and --assets exclude each other; give one")
+    objects = asset_objects(args.assets) if args.assets is not None else (3 if args.objects is None else args.objects)
+    if args.assets is not None:
+        check_assets(objects)
+    out = args.out or Path("runs") / (
+        f"bench-assets-{args.preset}" if args.assets is not None else f"bench-{args.preset}"
+    )
+    summary = run_bench(
+        out,
+        objects,
+        preset=args.preset,
+        config=build_config_from_args(args, predictor="simulated"),
+        workers=args.workers,
+    )
+    for failure in summary["failed"]:
+        print(f"failed: {failure['name']}: {failure['error']}", file=sys.stderr)
+    if summary["averages"] is not None:
+        print(f"averaged tables: {out / 'tables.md'}")
+    print(f"per object: {out / 'summary.md'}")
+    return 1 if summary["failed"] else 0
+
+
+# `matspray batch --data DATA... --out DIR`: the method once per object, as Ray tasks (local or a cluster)
+def add_batch_parser(parser) -> None:
     parser.description = (
         "Run the whole method once per dataset folder, each object into DIR/<folder name>/ (the usual run folder), "
         "as Ray tasks: a local Ray by default, an existing cluster with --address. A rerun skips finished objects and "
@@ -86,7 +196,7 @@ def batch_config(args):
     )
 
 
-def run(args) -> int:
+def batch_main(args) -> int:
     from matspray.batch import run_batch
     from matspray.errors import ConfigError
 

@@ -7,7 +7,7 @@ from matspray.cli.options import add_compute_arguments, hidden_alias
 from matspray.errors import ConfigError
 
 
-def add_parser(parser) -> None:
+def add_eval_parser(parser) -> None:
     parser.add_argument(
         "--run",
         type=Path,
@@ -68,7 +68,7 @@ def add_parser(parser) -> None:
     add_compute_arguments(parser)
 
 
-def run(args) -> int:
+def eval_main(args) -> int:
     from matspray.device import out_of_memory_as_error
     from matspray.render.backend import compute_target
 

@@ -8,7 +8,7 @@ from matspray.export.config import ExportConfig
 DEFAULTS = ExportConfig()
 
 
-def add_parser(parser) -> None:
+def add_export_parser(parser) -> None:
     parser.description = (
         "Turn a run's Gaussian asset into a textured triangle mesh for engines and DCC tools: a closed surface "
         "from the asset's depth at the training cameras (TSDF + marching cubes), decimated to --faces, UV-unwrapped "
@@ -61,7 +61,7 @@ def add_parser(parser) -> None:
 EXPORT_PACKAGES = ("trimesh", "xatlas", "skimage", "fast_simplification", "scipy", "pygltflib")  # the `export` extra
 
 
-def run(args) -> int:
+def export_main(args) -> int:
     from matspray.device import out_of_memory_as_error
     from matspray.errors import optional_module
     from matspray.render.backend import compute_target

@@ -7,7 +7,7 @@ from matspray.cli.settings import add_set_argument
 from matspray.presets import PRESETS
 
 
-def add_parser(parser) -> None:
+def add_geometry_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
     parser.add_argument("--out", type=Path, required=True, help="run folder; the stage writes RUN/geometry/")
     parser.add_argument(
@@ -27,7 +27,7 @@ def add_parser(parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def run(args) -> int:
+def geometry_main(args) -> int:
     from matspray.cli.settings import settings_from_overrides
     from matspray.errors import ConfigError
 

@@ -5,7 +5,7 @@ from pathlib import Path
 SPLITS = ("train", "test", "all")
 
 
-def add_parser(parser) -> None:
+def add_predict_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
     parser.add_argument("--out", type=Path, required=True, help="run folder; maps go to OUT/materials2d/")
     parser.add_argument(
@@ -62,7 +62,7 @@ def add_parser(parser) -> None:
     )
 
 
-def run(args) -> int:
+def predict_main(args) -> int:
     from matspray import __version__
     from matspray.data import load_scene
     from matspray.errors import DataError

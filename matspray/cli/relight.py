@@ -7,7 +7,7 @@ from pathlib import Path
 from matspray.cli.options import VARIANT_HELP, add_compute_arguments
 
 
-def add_parser(parser) -> None:
+def add_relight_parser(parser) -> None:
     parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
     parser.add_argument(
         "--env",
@@ -121,7 +121,7 @@ def relight_run(
     return written
 
 
-def run(args) -> int:
+def relight_main(args) -> int:
     from matspray.device import out_of_memory_as_error
     from matspray.render.backend import compute_target
 

@@ -12,7 +12,7 @@ from matspray.cli.options import (
 from matspray.cli.settings import ListSettings, add_set_argument
 
 
-def add_parser(parser) -> None:
+def add_run_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
     parser.add_argument("--out", type=Path, required=True, help="run folder; finished stages in it are reused")
     add_run_arguments(parser)
@@ -27,7 +27,7 @@ def add_parser(parser) -> None:
     )
 
 
-def run(args) -> int:
+def run_main(args) -> int:
     import time
 
     from matspray.method.estimate import estimate_line, minutes

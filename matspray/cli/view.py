@@ -6,7 +6,7 @@ from pathlib import Path
 from matspray.cli.options import add_compute_arguments
 
 
-def add_parser(parser) -> None:
+def add_view_parser(parser) -> None:
     parser.add_argument("--run", type=Path, help="run folder made by `matspray run`")
     parser.add_argument("run_positional", nargs="?", type=Path, help=argparse.SUPPRESS)  # the old `view RUN`
     parser.add_argument(
@@ -35,7 +35,7 @@ def add_parser(parser) -> None:
     add_compute_arguments(parser)
 
 
-def run(args) -> int:
+def view_main(args) -> int:
     import time
 
     from matspray.errors import ConfigError
