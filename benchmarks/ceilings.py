@@ -182,8 +182,8 @@ def lift_truth(data: Path, run: Path, truth_run: Path, config):
 
 def softmax_reach(truth_materials: torch.Tensor, truth_run: Path, run: Path) -> torch.Tensor:  # [N, 5] -> [N, 5]
     """`truth_materials` clamped to the range of the per-view values `run`'s predictor gave each Gaussian."""
+    from matspray.method.lift import load_lift
     from matspray.method.merger import clamp_to_seen_range
-    from matspray.method.pipeline import load_lift
 
     truth, predicted = (
         load_lift(truth_run / "lift" / "projected.pt", "cpu"),

@@ -32,8 +32,8 @@ GROUP_NAMES = tuple(GROUPS)
 def merger_weights(run: Path) -> tuple[dict[str, torch.Tensor], torch.Tensor, list[str]]:
     """The full asset's merger weights {group: [N, V]}, the seen mask [N, V] and the lifted views' names."""
     from matspray.method.asset import read_asset
+    from matspray.method.lift import load_lift
     from matspray.method.merger import load_merger
-    from matspray.method.pipeline import load_lift
 
     for needed in (run / "asset" / "merger.pt", run / "lift" / "projected.pt"):
         if not needed.exists():

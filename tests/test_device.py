@@ -103,7 +103,7 @@ def test_out_of_memory_is_one_line_and_the_run_resumes(tiny_object, tmp_path, mo
             "CUDA out of memory. Tried to allocate 2.00 GiB. GPU 0 has a total capacity of 23.6 GiB"
         )
 
-    monkeypatch.setattr("matspray.method.pipeline.lift", out_of_memory)
+    monkeypatch.setattr("matspray.method.stages.lift", out_of_memory)
     with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
         with pytest.raises(ResourceError) as raised:
             pipeline.refine("full")

@@ -322,7 +322,7 @@ def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_ob
     record = json.loads((finished_run / "materials2d" / "stage.json").read_text())
     assert record["settings"]["seed"] == 1  # tiny_object is synth seed 1; the config gives no seed
     pipeline = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
-    assert pipeline.predictor_options().seed == 1
+    assert pipeline.predictor_options.seed == 1
     given_zero = Pipeline(
         tiny_object,
         finished_run,
@@ -330,7 +330,7 @@ def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_ob
         progress=False,
         log=lambda _: None,
     )
-    assert given_zero.predictor_options().seed == 0
+    assert given_zero.predictor_options.seed == 0
     assert given_zero.predict_fingerprint() != pipeline.predict_fingerprint()  # other draws: predict runs again
     given_one = Pipeline(
         tiny_object,
@@ -339,7 +339,7 @@ def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_ob
         progress=False,
         log=lambda _: None,
     )
-    assert given_one.predictor_options() == pipeline.predictor_options()
+    assert given_one.predictor_options == pipeline.predictor_options
     Pipeline(
         tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None
     )  # leave config.yaml as the fixture's
