@@ -10,6 +10,7 @@ Table 3). What each stage does is in `matspray.method.stages`.
 from __future__ import annotations
 
 import weakref
+from functools import partial
 
 import torch
 
@@ -19,6 +20,7 @@ from matspray.device import configure_threads, out_of_memory_as_error, resolve_d
 from matspray.geometry.ply import read_ply
 from matspray.geometry.region import ObjectRegion
 from matspray.geometry.train import train_geometry
+from matspray.method import stages
 from matspray.method.asset import Asset, read_asset, write_asset
 from matspray.method.config import PipelineConfig
 from matspray.method.crop import crop_stage
@@ -26,16 +28,6 @@ from matspray.method.lift import LiftResult, load_lift
 from matspray.method.masks import ObjectMasks, read_object_masks
 from matspray.method.plan import RunPlan, open_scene, stage_files
 from matspray.method.refine.loop import RefineInputs, frozen_views, refine
-from matspray.method.stages import (
-    bake_to,
-    describe_masks,
-    lift_maps,
-    lift_values,
-    object_masks_of,
-    predict_maps,
-    read_visibility,
-    refine_inputs_of,
-)
 from matspray.predictors import maps_to_tensor, predicted_normal_maps, read_materials2d, without_normals
 from matspray.presets import asset_stage, get_variant, variants_for_maps
 from matspray.render.backend import rendering_with, resolve_backend
@@ -85,17 +77,17 @@ class Pipeline(RunPlan):
 
     def _stage(self, stage: str, fp: str, work, before=None, label: str = "") -> bool:
         """How every stage runs, written once. Done before (`done`): said in one line, and nothing runs. Otherwise
-        `before()` (what it needs from other stages, outside its timer), then `work(prepared)` -> (settings, record),
-        timed, rendered with the run's backend, out of memory said in one line; the record (settings, seconds, what it
-        ran on) is written last, so an interrupted stage never counts as finished. `label` names the stage in lines
-        (default `stage`). Returns whether it ran."""
+        `before()` (what it needs from other stages, outside its timer), then `work(prepared)` (or `work()`) ->
+        (settings, record), timed, rendered with the run's backend, out of memory said in one line; the record
+        (settings, seconds, what it ran on) is written last, so an interrupted stage never counts as finished. `label`
+        names the stage in lines (default `stage`). Returns whether it ran."""
         label, where = label or stage, stage_files(stage)
         if self.done(stage, fp):
             self.log(f"{label}: done before, reusing {where.shown}")
             return False
-        prepared = before() if before is not None else None
+        prepared = (before(),) if before is not None else ()
         with timed() as timer, rendering_with(self.backend) as use, out_of_memory_as_error(label, self.device):
-            settings, record = work(prepared)
+            settings, record = work(*prepared)
         ran = {"device": str(self.device), "backend": self.backend, "renders": use.used()}  # what each call really used
         self.run.finish_stage(where.folder, fp, settings, timer.seconds, {**record, **ran})
         return True
@@ -105,10 +97,9 @@ class Pipeline(RunPlan):
         self.object_masks()
         if not self.has_maps:
             return None
-        views, predictor, options = self.scene.train, self.config.predictor, self.predictor_options
-        self._stage(
-            "predict", self.predict_fingerprint(), lambda _: predict_maps(self.run, views, predictor, options, self.log)
-        )
+        options = self.predictor_options
+        work = partial(stages.predict_maps, self.run, self.scene.train, self.config.predictor, options, self.log)
+        self._stage("predict", self.predict_fingerprint(), work)
         return read_materials2d(self.run.root, self.scene.train)
 
     def crop(self) -> ObjectRegion | None:
@@ -177,11 +168,11 @@ class Pipeline(RunPlan):
         self.crop()  # the masks belong to the cut photos: cut them first, also when the masks are reused
 
         def masks_of(gaussians) -> tuple[dict, dict]:
-            return object_masks_of(self.run, gaussians, self.scene, self.config.object_bounds, self.progress)
+            return stages.object_masks_of(self.run, gaussians, self.scene, self.config.object_bounds, self.progress)
 
         self._stage("masks", self.masks_fingerprint(), masks_of, before=lambda: self.geometry()[0])
         masks = self._object_masks = read_object_masks(self.run.path("masks"))
-        self.log(describe_masks(masks.inside, masks.region))
+        self.log(stages.describe_masks(masks.inside, masks.region))
         masks.apply(self.scene)
         return masks
 
@@ -201,10 +192,10 @@ class Pipeline(RunPlan):
 
         def views_and_values() -> tuple[list, list]:
             views = self.lift_views()
-            return views, lift_values(views, maps, self.device)
+            return views, stages.lift_values(views, maps, self.device)
 
         def lifted(prepared) -> tuple:
-            return lift_maps(path, gaussians, *prepared, config, self.progress, self.log)
+            return stages.lift_maps(path, gaussians, *prepared, config, self.progress, self.log)
 
         self._stage("lift", self.lift_fingerprint(), lifted, before=views_and_values)
         return load_lift(path, self.device)
@@ -214,10 +205,9 @@ class Pipeline(RunPlan):
         if self.config.visibility is None:
             return None
         path, config = self.run.path("visibility", "visibility.pt"), self.config.visibility
-        self._stage(
-            "visibility", self.visibility_fingerprint(), lambda _: bake_to(path, kept, config, self.progress, self.log)
-        )
-        return read_visibility(path, len(kept), self.device)
+        baked = partial(stages.bake_to, path, kept, config, self.progress, self.log)
+        self._stage("visibility", self.visibility_fingerprint(), baked)
+        return stages.read_visibility(path, len(kept), self.device)
 
     def refine_inputs(self) -> RefineInputs:
         """Predict, geometry, lift and visibility (each reused when done): what refinement reads. Read
@@ -226,9 +216,9 @@ class Pipeline(RunPlan):
             maps = self.predict() if self.has_maps else None
             gaussians, normals = self.object_geometry()
             lifted = self.lift(gaussians, maps)
-            kept = gaussians.subset(lifted.kept)
+            kept, normals = gaussians.subset(lifted.kept), normals[lifted.kept]
             visibility = self.visibility(kept)
-            inputs = refine_inputs_of(self.scene, maps, kept, normals[lifted.kept], lifted, visibility, self.device)
+            inputs = stages.refine_inputs_of(self.scene, maps, kept, normals, lifted, visibility, self.device)
             if inputs.normal_maps is None and self.config.refine.predicted_normal_weight > 0 and maps is not None:
                 self.log(without_normals(self.run.path("materials2d"), "refinement"))
             self._refine_inputs = inputs
