@@ -136,24 +136,47 @@ def _row_span(cx, cy, b, a, det, a_r2, row_f, half, zero, width_f):
 
 
 @njit(cache=True, inline="always")
-def _row_walk(mx, my, a, b, hc, det, a_r2, row, x_start, x_end, y_start, box_x0, box_x1, grid, half, zero, width_f):
-    """One row of a Gaussian's footprint within a tile, as both tile loops walk it: the columns [col_lo, col_hi]
+def _tile_bounds(t, tiles_x, width, height):
+    """Tile t's first pixel column and row and its last ones (inclusive; tiles at the image's edge are cut)."""
+    x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
+    return x_start, y_start, min(x_start + TILE, width) - 1, min(y_start + TILE, height) - 1
+
+
+@njit(cache=True, inline="always")
+def _footprint(means2d, conics, opacities, g):
+    """Gaussian g's centre, conic and opacity as scalars (mx, my, a, b, c, opacity), so that the tile loops keep
+    them in registers over all its pixels."""
+    return means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+
+
+@njit(cache=True, inline="always")
+def _row_walk(mx, my, a, b, hc, det, a_r2, boxes, g, row, x_start, x_end, y_start, grid, half, zero, width_f):
+    """One row of Gaussian g's footprint within a tile, as both tile loops walk it: the columns [col_lo, col_hi]
     whose pixel centres lie in the footprint ellipse (`_row_span`), clipped to the box and the tile (empty:
     col_lo > col_hi), the row's offset dy from the centre with the exponent's terms b dy and c dy^2 / 2 (hc = c / 2),
     and `base`, the tile-buffer index of the row's column 0 (pixel col is base + col)."""
     row_f = grid[row]
-    first, last_col = _row_span(mx, my, b, a, det, a_r2, row_f, half, zero, width_f)
+    first, last_col = _row_span(mx, my, b, a, det[g], a_r2[g], row_f, half, zero, width_f)
     if not first <= last_col:
         return 1, 0, zero, zero, zero, 0
     dy = (row_f + half) - my
     return (
-        max(int(first), box_x0, x_start),
-        min(int(last_col), box_x1, x_end),
+        max(int(first), boxes[g, 0], x_start),
+        min(int(last_col), boxes[g, 2], x_end),
         dy,
         b * dy,
         hc * dy * dy,
         (row - y_start) * TILE - x_start,
     )
+
+
+@njit(cache=True, inline="always")
+def _pixel_response(grid, col, half, mx, ha, bdy, cdy):
+    """On the row `_row_walk` set up (bdy = b dy, cdy = c dy^2 / 2; ha = a / 2): the offset dx of pixel col's centre
+    from the Gaussian's and the response exp(-d^T conic d / 2) there, one arrangement of the exponent for both tile
+    loops, so that the reverse pass meets the forward's hits to the bit."""
+    dx = (grid[col] + half) - mx
+    return dx, np.exp(-(dx * (ha * dx + bdy) + cdy))
 
 
 @njit(cache=True, parallel=True)
@@ -212,8 +235,7 @@ def forward(
         row_stopped = np.empty(TILE, np.int64)  # stopped pixels per row: a row whose pixels all stopped is skipped
         for i in range(worker_offsets[w], worker_offsets[w + 1]):
             t = tile_order[i]
-            x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
-            x_end, y_end = min(x_start + TILE, width) - 1, min(y_start + TILE, height) - 1
+            x_start, y_start, x_end, y_end = _tile_bounds(t, tiles_x, width, height)
             pixels = (x_end - x_start + 1) * (y_end - y_start + 1)
             acc[:] = 0.0
             trans[:] = 1.0
@@ -229,43 +251,19 @@ def forward(
                     entry_end[e] = cursor  # entries after an early end of the tile record nothing
             for e in range(offsets[t], offsets[t + 1]):
                 g = ids[e]
-                mx, my, a, b, c, opacity = (
-                    means2d[g, 0],
-                    means2d[g, 1],
-                    conics[g, 0],
-                    conics[g, 1],
-                    conics[g, 2],
-                    opacities[g],
-                )
+                mx, my, a, b, c, opacity = _footprint(means2d, conics, opacities, g)
                 ha, hc = half * a, half * c
                 for row in range(max(boxes[g, 1], y_start), min(boxes[g, 3], y_end) + 1):
                     if row_stopped[row - y_start] == row_width:
                         continue
                     col_lo, col_hi, dy, bdy, cdy, base = _row_walk(
-                        mx,
-                        my,
-                        a,
-                        b,
-                        hc,
-                        det[g],
-                        a_r2[g],
-                        row,
-                        x_start,
-                        x_end,
-                        y_start,
-                        boxes[g, 0],
-                        boxes[g, 2],
-                        grid,
-                        half,
-                        zero,
-                        width_f,
+                        mx, my, a, b, hc, det, a_r2, boxes, g, row, x_start, x_end, y_start, grid, half, zero, width_f
                     )
                     for col in range(col_lo, col_hi + 1):
                         p = base + col
                         if stopped[p]:
                             continue
-                        dx = (grid[col] + half) - mx
-                        response = np.exp(-(dx * (ha * dx + bdy) + cdy))
+                        dx, response = _pixel_response(grid, col, half, mx, ha, bdy, cdy)
                         raw = opacity * response
                         if not raw >= min_alpha:  # as torch's `raw >= min_alpha`: a NaN is skipped too
                             continue
@@ -385,8 +383,7 @@ def backward(
         grad_values = np.empty(k_values, np.float64)
         for i in range(worker_offsets[w], worker_offsets[w + 1]):
             t = tile_order[i]
-            x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
-            x_end, y_end = min(x_start + TILE, width) - 1, min(y_start + TILE, height) - 1
+            x_start, y_start, x_end, y_end = _tile_bounds(t, tiles_x, width, height)
             behind[:] = 0.0
             row_last[:] = -1
             for row in range(y_start, y_end + 1):
@@ -400,14 +397,7 @@ def backward(
             )  # entries behind every pixel's last hit (the far side of an object) are not visited
             for e in range(min(offsets[t + 1] - 1, tile_last), offsets[t] - 1, -1):
                 g = ids[e]
-                mx, my, a, b, c, opacity = (
-                    means2d[g, 0],
-                    means2d[g, 1],
-                    conics[g, 0],
-                    conics[g, 1],
-                    conics[g, 2],
-                    opacities[g],
-                )
+                mx, my, a, b, c, opacity = _footprint(means2d, conics, opacities, g)
                 ha, hc = half * a, half * c
                 # this entry's sums in locals (registers), not an array: they are added to at every hit
                 sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -416,30 +406,13 @@ def backward(
                     if e > row_last[row - y_start]:
                         continue
                     col_lo, col_hi, dy, bdy, cdy, base = _row_walk(
-                        mx,
-                        my,
-                        a,
-                        b,
-                        hc,
-                        det[g],
-                        a_r2[g],
-                        row,
-                        x_start,
-                        x_end,
-                        y_start,
-                        boxes[g, 0],
-                        boxes[g, 2],
-                        grid,
-                        half,
-                        zero,
-                        width_f,
+                        mx, my, a, b, hc, det, a_r2, boxes, g, row, x_start, x_end, y_start, grid, half, zero, width_f
                     )
                     for col in range(col_lo, col_hi + 1):
                         p = base + col
                         if e > last[p]:  # behind the pixel's last blended hit (or the pixel blended nothing)
                             continue
-                        dx = (grid[col] + half) - mx
-                        response = np.exp(-(dx * (ha * dx + bdy) + cdy))
+                        dx, response = _pixel_response(grid, col, half, mx, ha, bdy, cdy)
                         raw = opacity * response
                         if not raw >= min_alpha:  # as torch's `raw >= min_alpha`: a NaN is skipped too
                             continue
@@ -520,8 +493,7 @@ def backward_recorded(
         grad_values = np.empty(k_values, np.float64)
         for i in range(worker_offsets[w], worker_offsets[w + 1]):
             t = tile_order[i]
-            x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
-            x_end, y_end = min(x_start + TILE, width) - 1, min(y_start + TILE, height) - 1
+            x_start, y_start, x_end, y_end = _tile_bounds(t, tiles_x, width, height)
             behind[:] = 0.0
             for row in range(y_start, y_end + 1):
                 for col in range(x_start, x_end + 1):
@@ -535,14 +507,7 @@ def backward_recorded(
                 sums = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 grad_values[:] = 0.0
                 if entry_end[e] > start:
-                    mx, my, a, b, c, opacity = (
-                        means2d[g, 0],
-                        means2d[g, 1],
-                        conics[g, 0],
-                        conics[g, 1],
-                        conics[g, 2],
-                        opacities[g],
-                    )
+                    mx, my, a, b, c, opacity = _footprint(means2d, conics, opacities, g)
                     for r in range(start, entry_end[e]):  # one hit per pixel: any order
                         p = np.int64(rec_pixel[r])
                         response = rec_response[r]
