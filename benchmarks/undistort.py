@@ -90,16 +90,7 @@ def main() -> None:
         )
     source = load_scene(source_dir)
     first = source.train[0].camera
-    fine = Lens(
-        float(first.K[0, 0]),
-        float(first.K[1, 1]),
-        float(first.K[0, 2]),
-        float(first.K[1, 2]),
-        first.width,
-        first.height,
-        (args.k1, args.k2, args.p1, args.p2, 0.0),
-        model="OPENCV",
-    )
+    fine = Lens.from_K(first.K, first.width, first.height, (args.k1, args.k2, args.p1, args.p2, 0.0), model="OPENCV")
     factor = 1.0 / args.supersample
     lens = scaled_lens(fine, factor)
     original_dir = Path(tempfile.mkdtemp(prefix="matspray-original-"))

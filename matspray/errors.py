@@ -43,6 +43,14 @@ class SettingError(ConfigError):
         self.problem = problem
 
 
+def check_unit_interval(settings, *names: str) -> None:
+    """A SettingError for the first of the attributes `names` of `settings` that is not in [0, 1] (NaN is not)."""
+    for name in names:
+        value = getattr(settings, name)
+        if not 0.0 <= value <= 1.0:
+            raise SettingError(name, f"must be in [0, 1], got {value}")
+
+
 def optional_module(name: str, extra: str, what: str):
     """Import the optional package `name`, or raise a ConfigError of one line that says which extra installs it:
     `what` (e.g. "reading a COLMAP model") needs it."""

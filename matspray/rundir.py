@@ -26,6 +26,7 @@ from matspray.files import read_json, to_plain, write_json, write_text_atomic  #
 from matspray.presets import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
+DATASET_RECORD = "the dataset record `matspray run` writes"  # what dataset.json holds, for messages
 
 
 def fingerprint(*parts) -> str:
@@ -40,6 +41,15 @@ def read_record(path: Path, hint: str):
         return read_json(path)
     except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
         raise file_error(path, f"is not readable JSON ({' '.join(str(exc).split())[:80]})", hint) from None
+
+
+def read_mapping(path: Path, hint: str, what: str) -> dict:
+    """A JSON record of a run folder that holds a mapping (`read_record`); a DataError naming it when it holds
+    something else: `what` is the record it should be, e.g. "the seconds of each stage"."""
+    record = read_record(path, hint)
+    if not isinstance(record, dict):
+        raise file_error(path, f"holds a {type(record).__name__}, not {what}", hint)
+    return record
 
 
 def stage_folder(path: Path) -> Path | None:
@@ -184,11 +194,7 @@ class RunDir:
         record = self.path("dataset.json")
         if record.exists() and not overwrite:
             hint = "delete it, or allow overwriting the run folder to claim it for this dataset"
-            previous = read_record(record, hint)
-            if not isinstance(previous, dict):
-                raise file_error(
-                    record, f"holds a {type(previous).__name__}, not the dataset record `matspray run` writes", hint
-                )
+            previous = read_mapping(record, hint, DATASET_RECORD)
             if previous != to_plain(dataset_id):
                 raise RunError(
                     f"{self.root}: this run folder was made from another dataset ({previous.get('source')}, "
@@ -242,9 +248,7 @@ class RunDir:
         if not path.exists():
             return {}
         hint = "delete it: it only records how long each stage took, and stages made again record their time anew"
-        timings = read_record(path, hint)
-        if not isinstance(timings, dict):
-            raise file_error(path, f"holds a {type(timings).__name__}, not the seconds of each stage", hint)
+        timings = read_mapping(path, hint, "the seconds of each stage")
         for stage, seconds in timings.items():
             if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 <= seconds < float("inf"):
                 raise file_error(path, f"{stage}: {json.dumps(seconds)[:40]} is not a number of seconds", hint)
@@ -281,11 +285,7 @@ class RunDir:
         """The dataset identity recorded by `claim` (source folder, views, resolution)."""
         path = self.require().path("dataset.json")
         hint = "rerun `matspray run --data DATA --out RUN --overwrite` to write it again (finished stages are kept)"
-        record = read_record(path, hint)
-        if not isinstance(record, dict):
-            raise file_error(
-                path, f"holds a {type(record).__name__}, not the dataset record `matspray run` writes", hint
-            )
+        record = read_mapping(path, hint, DATASET_RECORD)
         if not isinstance(record.get("source"), str) or not record["source"] or "\0" in record["source"]:
             raise file_error(path, f"'source' is {json.dumps(record.get('source'))[:60]}, not the dataset folder", hint)
         for key in ("train_views", "test_views"):  # absent from records older than these keys

@@ -87,16 +87,7 @@ def synth_object(tmp_path_factory):
 def test_distorted_nerfstudio_capture_undistorts_to_the_ground_truth(synth_object, tmp_path, capsys):
     original = synth_object
     first = original.train[0].camera
-    lens = Lens(
-        float(first.K[0, 0]),
-        float(first.K[1, 1]),
-        float(first.K[0, 2]),
-        float(first.K[1, 2]),
-        first.width,
-        first.height,
-        (-0.12, 0.03, 0.002, -0.001, 0.0),
-        model="OPENCV",
-    )
+    lens = Lens.from_K(first.K, first.width, first.height, (-0.12, 0.03, 0.002, -0.001, 0.0), model="OPENCV")
     distorted = {split: [distort_view(v, lens) for v in original.split(split)] for split in ("train", "test")}
     write_nerfstudio(tmp_path, distorted, lens=lens, separate_masks=True)
     written = sorted(p for p in tmp_path.rglob("*"))

@@ -49,6 +49,13 @@ class Lens:
     fisheye: bool = False
     model: str = "PINHOLE"  # the model's name in the file, for messages
 
+    @classmethod
+    def from_K(cls, K, width: int, height: int, coeffs=(), fisheye: bool = False, model: str = "PINHOLE") -> "Lens":
+        """The lens of the pinhole intrinsics K ([3, 3]) of a width x height image, with distortion `coeffs`."""
+        return cls(
+            float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), width, height, coeffs, fisheye, model
+        )
+
     @property
     def K(self) -> Tensor:  # [3, 3]
         return torch.tensor([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=torch.float32)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
-from matspray.errors import ConfigError, SettingError
+from matspray.errors import ConfigError, SettingError, check_unit_interval
 from matspray.presets import GEOMETRY
 
 
@@ -98,16 +98,15 @@ class GeometryConfig:
             raise SettingError("predicted_normal_weight", f"must be >= 0, got {self.predicted_normal_weight}")
         if self.focus_grad_scale <= 0:
             raise SettingError("focus_grad_scale", f"must be > 0, got {self.focus_grad_scale}")
-        for name in (
+        check_unit_interval(
+            self,
             "ssim_weight",
             "normal_from",
             "init_opacity",
             "focus_from",
             "background_budget",
             "material_edge_threshold",
-        ):
-            if not 0 <= getattr(self, name) <= 1:
-                raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
+        )
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -37,7 +37,7 @@ from tqdm import tqdm
 
 from matspray.data.camera import Camera
 from matspray.data.images import save_torch_atomic
-from matspray.errors import MatsprayError, SettingError, file_error
+from matspray.errors import MatsprayError, SettingError, check_unit_interval, file_error
 from matspray.gaussians import Gaussians
 from matspray.geometry.ply import vertex_count
 from matspray.material import zeros as material_zeros
@@ -64,9 +64,7 @@ class LiftConfig:
     footprint_sigmas: float | None = 1.0
 
     def __post_init__(self):
-        for name in ("min_support", "visibility_threshold", "mask_threshold"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
+        check_unit_interval(self, "min_support", "visibility_threshold", "mask_threshold")
         if not 1 <= self.samples_per_side <= 32:
             raise SettingError("samples_per_side", f"must be in 1..32, got {self.samples_per_side}")
         if self.footprint_sigmas is not None and not self.footprint_sigmas > 0:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
-from matspray.errors import SettingError
+from matspray.errors import SettingError, check_unit_interval
 
 
 @dataclass(frozen=True)
@@ -77,18 +77,16 @@ class SimulationConfig:
         for name in ("normal_tilt_deg", "normal_bias_deg", "normal_blur_fraction", "normal_outlier_deg"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise SettingError(name, f"must be a number >= 0, got {getattr(self, name)}")
-        if not 0.0 <= self.shading_spread <= 1.0:
-            raise SettingError("shading_spread", f"must be in [0, 1], got {self.shading_spread}")
-        for name in (
+        check_unit_interval(
+            self,
+            "shading_spread",
             "metallic_probability",
             "cast_fraction",
             "highlight_fraction",
             "highlight_amount",
             "roughness_compression",
             "metallic_view_fraction",
-        ):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise SettingError(name, f"must be in [0, 1], got {getattr(self, name)}")
+        )
 
 
 PAPER = SimulationConfig()

@@ -27,7 +27,7 @@ from matspray.errors import DataError, MatsprayError, file_error
 from matspray.material import stack
 from matspray.predictors.mapfile import read_color_map, read_scalar_map
 from matspray.predictors.normalmaps import NORMAL_SPACES, camera_to_world, normal_problem, renormalised
-from matspray.rundir import stage_hint
+from matspray.rundir import read_mapping, stage_hint
 
 MATERIALS2D = "materials2d"
 INFO_FILE = "predictor.json"
@@ -215,19 +215,7 @@ def read_predictor_info(run_dir) -> dict:
     path = Path(run_dir) / MATERIALS2D / INFO_FILE
     if not path.exists():
         raise file_error(path, "does not exist", "run `matspray predict` first")
-    try:
-        info = json.loads(path.read_text())
-    except (json.JSONDecodeError, OSError, UnicodeDecodeError) as exc:
-        raise file_error(
-            path, f"cannot read: {' '.join(str(exc).split())}", "rerun `matspray predict` to write it again"
-        ) from None
-    if not isinstance(info, dict):
-        raise file_error(
-            path,
-            f"holds a {type(info).__name__}, not the record `matspray predict` writes",
-            "rerun `matspray predict` to write it again",
-        )
-    return info
+    return read_mapping(path, "rerun `matspray predict` to write it again", "the record `matspray predict` writes")
 
 
 def read_materials2d(run_dir, views: list[View]) -> dict[str, MaterialMaps]:

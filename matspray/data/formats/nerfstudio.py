@@ -93,7 +93,7 @@ def frame_lens(meta: dict, frame: dict, label: str, json_path: Path, width: int,
         values, fisheye = tuple(coeffs[k] for k in ("k1", "k2", "k3", "k4")), True
     else:
         values, fisheye = tuple(coeffs[k] for k in ("k1", "k2", "p1", "p2", "k3")), False
-    return Lens(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), width, height, values, fisheye, model)
+    return Lens.from_K(K, width, height, values, fisheye, model)
 
 
 def normalised(name: str) -> str:
