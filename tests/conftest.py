@@ -64,16 +64,25 @@ def tiny_object(tmp_path_factory):
     return make_tiny_object(tmp_path_factory.mktemp("object") / "data")
 
 
-def make_tiny_object(out: Path) -> Path:
+def make_tiny_object(out: Path, **settings) -> Path:
+    """The tiny object made into `out`; `settings` change its SynthConfig (another seed, shape or background)."""
     from matspray.synth import SynthConfig, make_object
 
-    make_object(
-        SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32),
-        out,
-        progress=False,
-        notify=lambda _: None,
-    )
+    tiny = dict(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32)
+    make_object(SynthConfig(**{**tiny, **settings}), out, progress=False, notify=lambda _: None)
     return out
+
+
+def run_cli(*args, timeout: float = 120, **options) -> subprocess.CompletedProcess:
+    """`matspray ARGS` in a process of its own (as a user starts it), its output as text; `options` go to
+    subprocess.run (cwd, env)."""
+    command = [sys.executable, "-m", "matspray", *map(str, args)]
+    return subprocess.run(command, capture_output=True, text=True, timeout=timeout, **options)
+
+
+def predict_argv(data, out, *options) -> list[str]:
+    """The arguments of `matspray predict` from the dataset `data` into the run folder `out`."""
+    return ["predict", "--data", str(data), "--out", str(out), *map(str, options)]
 
 
 def busy_message(run, pid) -> str:

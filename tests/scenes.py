@@ -82,6 +82,14 @@ def material_scene(n_views: int = 6, size: int = 32, seed: int = 0):
     return gaussians, normals, materials, views, maps
 
 
+def lift_material_scene(gaussians: Gaussians, views: list[View], maps: list[torch.Tensor]):
+    """`material_scene`'s 2D maps lifted onto its Gaussians, 2 x 2 rays per pixel (a LiftResult)."""
+    from matspray.method.lift import LiftConfig, lift
+
+    cameras, masks, names = [v.camera for v in views], [v.alpha for v in views], [v.name for v in views]
+    return lift(gaussians, cameras, maps, masks, names, LiftConfig(samples_per_side=2), progress=False)
+
+
 def write_disk_sphere_run(root, gaussians: int, cameras: list[Camera], train: slice, test: slice):
     """A run folder `root/run` holding the disk sphere's asset (true materials, the sky light as its estimated
     light) and a Blender dataset `root/data` of its renders at `cameras` (the `train` and `test` slices of them);

@@ -18,6 +18,7 @@ from matspray.cli import build_parser, main
 from matspray.cli.batch import batch_config
 from matspray.errors import ConfigError, RunError, SettingError
 from matspray.eval.tables import average_tables
+from tests.conftest import make_tiny_object, run_cli
 from tests.reference_metrics import relighting_psnr
 from tests.viewer_process import free_port
 
@@ -28,16 +29,9 @@ TINY = ["--preset", "test", "--refine-iterations", "8", "--geometry-iterations",
 @pytest.fixture(scope="module")
 def objects(tmp_path_factory):
     pytest.importorskip("mitsuba")
-    from matspray.synth import SynthConfig, make_object
-
     root = tmp_path_factory.mktemp("objects")
     for name, shape, seed in (("ball", "sphere", 1), ("ring", "torus", 2)):
-        make_object(
-            SynthConfig(shape=shape, seed=seed, resolution=32, train_views=6, test_views=2, spp=4, env_height=32),
-            root / name,
-            progress=False,
-            notify=lambda _: None,
-        )
+        make_tiny_object(root / name, shape=shape, seed=seed)
     (root / "broken").mkdir()
     (root / "broken" / "transforms_train.json").write_text("{not json")
     return root
@@ -263,26 +257,9 @@ def test_an_address_that_does_not_answer_is_reported_within_seconds(tmp_path):
 
 def test_the_cli_refuses_an_address_that_does_not_answer(tmp_path):
     pytest.importorskip("ray")
-    import subprocess
-
     start = time.perf_counter()
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "matspray",
-            "batch",
-            str(tmp_path),
-            "--out",
-            str(tmp_path / "out"),
-            "--address",
-            f"127.0.0.1:{free_port()}",
-        ],
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=60,
-    )
+    address = f"127.0.0.1:{free_port()}"
+    proc = run_cli("batch", tmp_path, "--out", tmp_path / "out", "--address", address, cwd=REPO, timeout=60)
     assert (
         proc.returncode == 2
         and "error: --address: nothing answers at 127.0.0.1" in proc.stderr

@@ -10,6 +10,7 @@ import torch
 
 from matspray.cli import main
 from matspray.errors import DataError
+from tests.conftest import make_tiny_object
 from tests.scenes import capture_like
 
 
@@ -20,26 +21,9 @@ def capture_run(tmp_path_factory):
     pytest.importorskip("mitsuba")
     from matspray.method.config import build_config
     from matspray.method.pipeline import Pipeline
-    from matspray.synth import SynthConfig, make_object
 
     root = tmp_path_factory.mktemp("capture")
-    made = root / "made"
-    make_object(
-        SynthConfig(
-            shape="sphere",
-            seed=3,
-            resolution=32,
-            train_views=7,
-            test_views=2,
-            spp=4,
-            env_height=32,
-            background="env",
-            ground=True,
-        ),
-        made,
-        progress=False,
-        notify=lambda _: None,
-    )
+    made = make_tiny_object(root / "made", seed=3, train_views=7, background="env", ground=True)
     data = capture_like(made, root / "data")
     run = root / "run"
     config = build_config("test", predictor="auto", **{"refine.iterations": 4})

@@ -5,13 +5,8 @@ import sys
 
 import pytest
 
+from tests.conftest import run_cli
 from tests.test_readers import blender_folder
-
-
-def run_cli(*args):
-    return subprocess.run(
-        [sys.executable, "-m", "matspray", *map(str, args)], capture_output=True, text=True, timeout=120
-    )
 
 
 def test_help_lists_commands():

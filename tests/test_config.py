@@ -30,6 +30,7 @@ from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.latlong import irradiance_correlation, total_variation
 from matspray.render.shade.visibility import VisibilityConfig
 from matspray.rundir import RunDir
+from tests.conftest import run_cli
 
 
 def test_defaults_are_the_demo_preset_of_the_default_method():
@@ -121,12 +122,6 @@ def test_the_presets_are_one_torch_free_table_that_every_stage_reads():
     assert tuple(choices["without"]) == tuple(a.name for a in presets.ADDITIONS)  # the CLI offers the library's names
     assert tuple(choices["preset"]) == presets.PRESETS and tuple(choices["method"]) == presets.METHODS
     assert tuple(choices["variant"]) == VARIANT_NAMES
-
-
-def run_cli(*args):
-    return subprocess.run(
-        [sys.executable, "-m", "matspray", *map(str, args)], capture_output=True, text=True, timeout=120
-    )
 
 
 def test_cli_names_the_flag_and_lists_methods(tmp_path):

@@ -4,8 +4,6 @@ out of memory, the frozen views' storage. Tests taking the `device` fixture run 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
 import torch
@@ -22,6 +20,7 @@ from matspray.render.raster.gbuffer import FrozenViews, frozen_views_bytes
 from matspray.render.raster.reference import splat_pixels
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.latlong import pixel_solid_angles
+from tests.conftest import run_cli
 from tests.stray_tensors import stray_tensor_check
 from tests.test_rasterize import random_scene
 
@@ -152,12 +151,7 @@ def test_every_computing_command_refuses_cuda_without_it_in_one_line(tmp_path, c
         "eval": ["--run", tmp_path],
         "export": ["--run", tmp_path, "--out", tmp_path / "a.glb"],
     }[command]
-    result = subprocess.run(
-        [sys.executable, "-m", "matspray", command, *arguments, "--device", "cuda"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    result = run_cli(command, *arguments, "--device", "cuda")
     assert result.returncode == 2 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "--device: cuda: this" in lines[0] and "no CUDA" in lines[0] and "use cpu" in lines[0], (

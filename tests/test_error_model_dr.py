@@ -32,7 +32,6 @@ from matspray.predictors.error_models import (
 )
 from matspray.predictors.ground_truth import read_ground_truth
 from matspray.predictors.simulated import (
-    BatchDrift,
     SimulatedPredictor,
     compress_towards_mean,
     draw_view_outlier,
@@ -40,6 +39,7 @@ from matspray.predictors.simulated import (
     simulate_view,
 )
 from matspray.synth.materials import evaluate_material, random_material
+from tests.test_error_models import neutral_drift
 
 VIEWS, SIZE, BATCH = 24, 32, 4  # the structure tests' object
 BAND = 2.5  # dB: the calibration holds `dr` within 1 dB on the development objects; these spheres are only like them
@@ -188,14 +188,7 @@ def test_base_colour_darkened_and_roughness_compressed_towards_its_mean(views):
         assert spread < (1 - c) * float(on_object(filmic_tone(truth.roughness), view).std()) + 0.02
         assert spread < 0.7 * float(on_object(truth.roughness, view).std())
     # exactly: after the tone curve, each view's roughness moves c of the way to its mean over the object
-    neutral = BatchDrift(
-        exposure=1.0,
-        white_balance=[1.0] * 3,
-        color_shift=[0.0] * 3,
-        roughness_offset=0.0,
-        spurious_metallic=0.0,
-        shading=0.0,
-    )
+    neutral = neutral_drift()
     quiet_config = replace(ERROR_MODELS["dr"], view_jitter_sigma=0.0, blur_fraction=0.0)
     truth = truths[0]
     result = simulate_view(truth, views[0].image, views[0].alpha, neutral, quiet_config, 0).roughness

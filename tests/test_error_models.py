@@ -38,6 +38,18 @@ def quiet(_message):
     pass
 
 
+def neutral_drift() -> BatchDrift:
+    """A batch with every drift off, for tests of one effect alone."""
+    return BatchDrift(
+        exposure=1.0,
+        white_balance=[1.0] * 3,
+        color_shift=[0.0] * 3,
+        roughness_offset=0.0,
+        spurious_metallic=0.0,
+        shading=0.0,
+    )
+
+
 def flat_object(root, views: int = VIEWS, highlight: bool = False):
     """A `matspray synth`-style folder of `views` flat views;
     with `highlight` the photo is 3x brighter on a 3x3 patch."""
@@ -171,14 +183,7 @@ def test_baked_highlights_in_the_stated_fraction_of_views_and_amount(tmp_path):
         else:
             assert not changed.any()
     # the amount, with every other effect off: base colour moves highlight_amount of the way to white
-    neutral = BatchDrift(
-        exposure=1.0,
-        white_balance=[1.0] * 3,
-        color_shift=[0.0] * 3,
-        roughness_offset=0.0,
-        spurious_metallic=0.0,
-        shading=0.0,
-    )
+    neutral = neutral_drift()
     quiet_config = replace(config, tone_strength=0.0, view_jitter_sigma=0.0, blur_fraction=0.0)
     truth = MaterialMaps(torch.full((4, 4, 3), GREY), torch.full((4, 4), 0.5), torch.zeros(4, 4))
     photo = torch.full((4, 4, 3), GREY)

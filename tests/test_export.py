@@ -29,6 +29,7 @@ from matspray.export.decimate import decimate  # noqa: E402
 from matspray.export.frames import GLTF_FROM_DATASET, dataset_from_file, transform_points  # noqa: E402
 from matspray.export.surface import fuse_surface  # noqa: E402
 from matspray.gltf.read import read_gltf  # noqa: E402
+from tests.conftest import make_tiny_object  # noqa: E402
 from tests.scenes import sphere_of_disks, write_disk_sphere_run  # noqa: E402
 
 SMALL = ["--faces", "3000", "--texture-size", "128", "--grid", "48"]
@@ -315,15 +316,9 @@ def synth_run(tmp_path_factory):
     pytest.importorskip("mitsuba")
     from matspray.method.config import build_config
     from matspray.method.pipeline import Pipeline
-    from matspray.synth import SynthConfig, make_object
 
     root = tmp_path_factory.mktemp("synth")
-    make_object(
-        SynthConfig(shape="sphere", seed=1, resolution=32, train_views=6, test_views=2, spp=4, env_height=32),
-        root / "data",
-        progress=False,
-        notify=lambda _: None,
-    )
+    make_tiny_object(root / "data")
     config = build_config("test", predictor="simulated", **{"refine.iterations": 8})
     Pipeline(root / "data", root / "run", config, progress=False, log=lambda _: None).run_all(["full"])
     return root

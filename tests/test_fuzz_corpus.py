@@ -5,8 +5,6 @@ that trains on it. The generated cases are in tests/test_fuzz_*.py."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +15,7 @@ from matspray.data import load_scene, write_image
 from matspray.data.images import write_raw
 from matspray.errors import DataError
 from matspray.geometry.ply import read_ply, write_ply
+from tests.conftest import run_cli
 from tests.test_captures import one_frame
 from tests.test_ply import random_gaussians
 from tests.test_readers import C2W_GL, FOCAL, H, W, blender_folder, write_colmap
@@ -26,9 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def refusal(data: Path) -> str:
     """The one line `python -m matspray info data` prints when it refuses the dataset (exit status 2)."""
-    done = subprocess.run(
-        [sys.executable, "-m", "matspray", "info", str(data)], cwd=ROOT, capture_output=True, text=True, timeout=120
-    )
+    done = run_cli("info", data, cwd=ROOT)
     assert "Traceback" not in done.stderr
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()

@@ -16,8 +16,6 @@ from __future__ import annotations
 import io
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -29,6 +27,7 @@ from PIL import Image
 
 from matspray.data.sfm import MIN_PHOTO_SIDE, SfmConfig, list_photos, prepare_photos, run_sfm
 from matspray.errors import MatsprayError
+from tests.conftest import run_cli
 from tests.fuzzing import damaged
 from tests.test_fuzz_images import damage
 from tests.test_fuzz_transforms import FUZZ
@@ -266,13 +265,7 @@ def test_colmap_refuses_bad_folders_in_one_line(tmp_path):
     for named, problem in refused_folders(tmp_path)[::2]:
         folder = named if named.is_dir() else named.parent
         out = tmp_path / f"{folder.name}-dataset"
-        done = subprocess.run(
-            [sys.executable, "-m", "matspray", "colmap", str(folder), "--out", str(out), "--quiet"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        done = run_cli("colmap", folder, "--out", out, "--quiet", cwd=ROOT)
         assert "Traceback" not in done.stderr and done.returncode == 2, done.stderr
         lines = done.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith(f"matspray colmap: error: {named}: {problem}"), done.stderr

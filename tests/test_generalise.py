@@ -31,6 +31,8 @@ from matspray.render.shade.lights import BUILTINS
 from matspray.rundir import newer_than_stages, share_stage
 
 HDRIS = ["city", "forest", "interior", "studio", "sunrise", "sunset"]
+# one object of the dev set at the test preset, error model `paper`: the end-to-end tests add their own flags
+ONE_OBJECT = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper"]
 
 
 def test_object_sets_have_disjoint_seeds_and_draw_their_lights():
@@ -232,53 +234,12 @@ def test_means_and_wins_over_objects():
 def test_start_splits_a_pass_over_jobs(tmp_path, capsys):
     pytest.importorskip("mitsuba")
     out = tmp_path / "g"
-    assert (
-        main(
-            [
-                "--set",
-                "dev",
-                "--start",
-                "1",
-                "--objects",
-                "1",
-                "--preset",
-                "test",
-                "--models",
-                "paper",
-                "--geometry-only",
-                "--out",
-                str(out),
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
+    second = [*ONE_OBJECT, "--start", "1"]
+    assert main([*second, "--geometry-only", "--out", str(out), "--no-progress"]) == 0
     assert [p.name for p in (out / "objects").iterdir()] == ["dev-01-seed1001"]  # the set's second object only
     assert (out / "objects" / "dev-01-seed1001" / "runs" / "paper" / "geometry" / "stage.json").exists()
-    assert (
-        main(
-            [
-                "--set",
-                "dev",
-                "--start",
-                "1",
-                "--objects",
-                "1",
-                "--preset",
-                "test",
-                "--models",
-                "paper",
-                "--variants",
-                "proj-average",
-                "--tag",
-                "part",
-                "--out",
-                str(out),
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
+    part = ["--variants", "proj-average", "--tag", "part", "--out", str(out), "--no-progress"]
+    assert main([*second, *part]) == 0
     report = json.loads((out / "results-part-from1.json").read_text())  # a part of a pass keeps its own files
     assert report["settings"]["start"] == 1 and [o["object"]["name"] for o in report["models"]["paper"]["objects"]] == [
         "dev-01-seed1001"
@@ -373,21 +334,7 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     # the default configuration runs in `runs/paper`, its geometry trained on the model's normals; another
     # configuration of the default method starts from its predictions, geometry and lift and keeps them where its
     # settings leave them unchanged
-    base = [
-        "--set",
-        "dev",
-        "--objects",
-        "1",
-        "--preset",
-        "test",
-        "--models",
-        "paper",
-        "--variants",
-        "proj-average",
-        "--out",
-        str(out),
-        "--no-progress",
-    ]
+    base = [*ONE_OBJECT, "--variants", "proj-average", "--out", str(out), "--no-progress"]
     assert main(base) == 0
     assert "geometry shared from" not in capsys.readouterr().out and (runs / "paper" / "lift" / "stage.json").exists()
     assert '"predicted_normal_weight": 1.0' in (runs / "paper" / "geometry" / "stage.json").read_text()
@@ -403,7 +350,7 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
 def test_resolution_renders_and_trains_the_objects_at_that_size(tmp_path):
     pytest.importorskip("mitsuba")
     out = tmp_path / "g"
-    argv = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", "paper", "--geometry-only"]
+    argv = [*ONE_OBJECT, "--geometry-only"]
     assert main([*argv, "--resolution", "24", "--out", str(out), "--no-progress"]) == 0
     data = out / "objects" / "dev-00-seed1000" / "data"
     assert read_image(data / "train" / "r_000.png")[0].shape[:2] == (24, 24)

@@ -3,8 +3,6 @@ refusal). gsplat's rasterization against backend torch is tests/test_gsplat_pari
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import types
 
 import pytest
@@ -17,6 +15,7 @@ from matspray.render import backend as backend_module
 from matspray.render.backend import gsplat_cuda_error, gsplat_import_error, resolve_backend
 from matspray.rundir import RunDir
 from tests import gsplat_cpu
+from tests.conftest import run_cli
 from tests.gsplat_cpu import gsplat_on_cpu
 
 
@@ -198,27 +197,8 @@ def test_harness_makes_gsplat_resolve_on_cpu(monkeypatch):
 
 
 def test_cli_backend_gsplat_on_cpu_is_one_line(tmp_path):
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "matspray",
-            "run",
-            "--data",
-            tmp_path / "nowhere",
-            "--out",
-            tmp_path / "run",
-            "--preset",
-            "test",
-            "--device",
-            "cpu",
-            "--backend",
-            "gsplat",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    run = ("run", "--data", tmp_path / "nowhere", "--out", tmp_path / "run", "--preset", "test")
+    result = run_cli(*run, "--device", "cpu", "--backend", "gsplat")
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()

@@ -4,8 +4,6 @@ without a predictor (--predictor none)."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from dataclasses import replace
 
 import pytest
@@ -17,6 +15,7 @@ from matspray.method.config import build_config, variant_refine_config
 from matspray.method.pipeline import Pipeline
 from matspray.method.refine.loop import refine
 from matspray.presets import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
+from tests.conftest import run_cli
 from tests.reference_metrics import relighting_psnr
 from tests.test_readers import blender_folder
 
@@ -90,26 +89,8 @@ def test_without_maps_the_lift_reads_the_views_at_the_size_geometry_trained_at(t
 def test_cli_refuses_a_variant_that_needs_maps_without_a_predictor(tmp_path):
     # the refusal comes before any training, so a two-view dataset written here does (no Mitsuba object needed)
     data = blender_folder(tmp_path / "data")
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "matspray",
-            "run",
-            "--data",
-            data,
-            "--out",
-            tmp_path / "run",
-            "--preset",
-            "test",
-            "--predictor",
-            "none",
-            "--variant",
-            "full",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
+    result = run_cli(
+        "run", "--data", data, "--out", tmp_path / "run", "--preset", "test", "--predictor", "none", "--variant", "full"
     )
     assert result.returncode == 2 and "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()

@@ -4,8 +4,6 @@ from the Gaussians inside it, `synth --background env --ground`, and the pipelin
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 
 import pytest
 import torch
@@ -31,6 +29,7 @@ from matspray.method.masks import (
     write_object_masks,
 )
 from matspray.render.raster.rasterize import rasterize
+from tests.conftest import make_tiny_object, run_cli
 
 
 def orbit(count: int, distance: float = 4.0, elevation_deg: float = 25.0, size: int = 24) -> list[Camera]:
@@ -176,22 +175,7 @@ def test_masks_are_the_rendered_alpha_of_the_gaussians_inside(tmp_path):
 
 
 def test_cli_refuses_malformed_object_bounds(tmp_path):
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "matspray",
-            "run",
-            "--data",
-            str(tmp_path),
-            "--out",
-            str(tmp_path / "run"),
-            "--object-bounds",
-            "0,0,0",
-        ],
-        capture_output=True,
-        text=True,
-    )
+    result = run_cli("run", "--data", tmp_path, "--out", tmp_path / "run", "--object-bounds", "0,0,0")
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "--object-bounds: give 4 numbers" in result.stderr
 
@@ -200,26 +184,7 @@ def test_cli_refuses_malformed_object_bounds(tmp_path):
 @pytest.fixture(scope="module")
 def unmasked_object(tmp_path_factory):
     pytest.importorskip("mitsuba")
-    from matspray.synth import SynthConfig, make_object
-
-    out = tmp_path_factory.mktemp("unmasked") / "data"
-    make_object(
-        SynthConfig(
-            shape="sphere",
-            seed=1,
-            resolution=32,
-            train_views=6,
-            test_views=2,
-            spp=4,
-            env_height=32,
-            background="env",
-            ground=True,
-        ),
-        out,
-        progress=False,
-        notify=lambda _: None,
-    )
-    return out
+    return make_tiny_object(tmp_path_factory.mktemp("unmasked") / "data", background="env", ground=True)
 
 
 def test_synth_photos_show_the_background_and_ground_and_carry_no_mask(unmasked_object):

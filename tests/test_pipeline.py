@@ -3,8 +3,6 @@ it take `tiny_object` (tests/conftest.py: made with Mitsuba, or one made elsewhe
 without Mitsuba."""
 
 import re
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,7 +15,7 @@ from matspray.method.pipeline import Pipeline
 from matspray.method.refine.loop import check_finite
 from matspray.presets import VARIANT_NAMES as VARIANTS
 from matspray.presets import WORKING_SIZE, asset_stage
-from tests.conftest import busy_message
+from tests.conftest import busy_message, run_cli
 from tests.reference_metrics import relighting_psnr
 
 
@@ -205,27 +203,8 @@ def test_eval_tables_and_report(tiny_object, finished_run):
 
 def test_relight_cli_writes_frames_and_video(finished_run, tmp_path):
     out = tmp_path / "relit"
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "matspray",
-            "relight",
-            "--run",
-            str(finished_run),
-            "--env",
-            "studio",
-            "--views",
-            "orbit",
-            "--frames",
-            "3",
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    views = ("--views", "orbit", "--frames", "3")
+    result = run_cli("relight", "--run", finished_run, "--env", "studio", *views, "--out", out, timeout=300)
     assert result.returncode == 0, result.stderr
     assert len(list(out.glob("orbit_*_studio.png"))) == 3
     assert (out / "orbit_studio.mp4").stat().st_size > 0
@@ -235,22 +214,8 @@ def test_relight_refuses_a_map_that_is_not_latlong(finished_run, tmp_path):
     from matspray.data import write_image
 
     write_image(tmp_path / "square.exr", torch.ones(8, 8, 3))
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "matspray",
-            "relight",
-            "--run",
-            str(finished_run),
-            "--env",
-            str(tmp_path / "square.exr"),
-            "--out",
-            str(tmp_path / "o"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
+    result = run_cli(
+        "relight", "--run", finished_run, "--env", tmp_path / "square.exr", "--out", tmp_path / "o", timeout=300
     )
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "lat-long" in result.stderr
@@ -323,22 +288,15 @@ def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_ob
     assert record["settings"]["seed"] == 1  # tiny_object is synth seed 1; the config gives no seed
     pipeline = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
     assert pipeline.predictor_options.seed == 1
-    given_zero = Pipeline(
-        tiny_object,
-        finished_run,
-        replace(tiny_config(), predictor_options={"seed": 0}),
-        progress=False,
-        log=lambda _: None,
-    )
+
+    def given(seed: int) -> Pipeline:  # the run with the predictor's seed given in the config
+        config = replace(tiny_config(), predictor_options={"seed": seed})
+        return Pipeline(tiny_object, finished_run, config, progress=False, log=lambda _: None)
+
+    given_zero = given(0)
     assert given_zero.predictor_options.seed == 0
     assert given_zero.predict_fingerprint() != pipeline.predict_fingerprint()  # other draws: predict runs again
-    given_one = Pipeline(
-        tiny_object,
-        finished_run,
-        replace(tiny_config(), predictor_options={"seed": 1}),
-        progress=False,
-        log=lambda _: None,
-    )
+    given_one = given(1)
     assert given_one.predictor_options == pipeline.predictor_options
     Pipeline(
         tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None

@@ -11,6 +11,7 @@ from matspray.data import Camera, View, load_scene, write_blender, write_raw
 from matspray.errors import ConfigError, DataError
 from matspray.predictors import encode_basecolor, make_predictor, predict_views, read_materials2d, read_predictor_info
 from matspray.predictors.files import FilesPredictor, detect_layout
+from tests.conftest import predict_argv
 
 H, W = 6, 8
 COLORS = [(0.8, 0.2, 0.1), (0.1, 0.6, 0.3), (0.2, 0.3, 0.9), (0.5, 0.5, 0.5), (0.9, 0.9, 0.1)]  # linear, one per view
@@ -255,7 +256,7 @@ def test_predict_from_files_writes_materials2d(dataset, tmp_path, capsys):
     folder.mkdir()
     write_matspray(folder, [v.name for v in views])
     run = tmp_path / "run"
-    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 0
+    assert main(predict_argv(root, run, "--predictor", f"files:{folder}")) == 0
     assert "wrote maps of 4 train view(s) from the files predictor" in capsys.readouterr().out
     assert_constants(read_materials2d(run, views), [v.name for v in views], atol=1e-4)
     info = read_predictor_info(run)
@@ -271,13 +272,10 @@ def test_failed_predict_leaves_no_materials2d(dataset, tmp_path, capsys):
     write_matspray(folder, [v.name for v in views])
     (folder / "r_003_metallic.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(40))  # fails after three good views
     run = tmp_path / "run"
-    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 2
+    assert main(predict_argv(root, run, "--predictor", f"files:{folder}")) == 2
     assert "r_003_metallic.png: cannot read image" in capsys.readouterr().err
     assert not (run / "materials2d").exists() and not any(run.glob(".materials2d*"))
-    assert (
-        main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}", "--split", "test"])
-        == 2
-    )
+    assert main(predict_argv(root, run, "--predictor", f"files:{folder}", "--split", "test")) == 2
     assert "no matspray maps for 2 of 2 views: r_004, r_005" in capsys.readouterr().err
 
 
@@ -290,31 +288,13 @@ def test_predicting_another_split_into_the_same_run_is_refused(dataset, tmp_path
     write_raw(folder / "r_005_roughness.png", torch.rand(H, W))
     write_raw(folder / "r_005_metallic.png", torch.rand(H, W))
     run = tmp_path / "run"
-    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 0
-    assert main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}"]) == 0
+    assert main(predict_argv(root, run, "--predictor", f"files:{folder}")) == 0
+    assert main(predict_argv(root, run, "--predictor", f"files:{folder}")) == 0
     assert "replaced the previous maps" in capsys.readouterr().out
-    assert (
-        main(["predict", "--data", str(root), "--out", str(run), "--predictor", f"files:{folder}", "--split", "test"])
-        == 2
-    )
+    assert main(predict_argv(root, run, "--predictor", f"files:{folder}", "--split", "test")) == 2
     assert "holds maps of the train split; predicting the test split would replace them" in capsys.readouterr().err
     assert read_predictor_info(run)["split"] == "train"
-    assert (
-        main(
-            [
-                "predict",
-                "--data",
-                str(root),
-                "--out",
-                str(tmp_path / "all"),
-                "--predictor",
-                f"files:{folder}",
-                "--split",
-                "all",
-            ]
-        )
-        == 0
-    )
+    assert main(predict_argv(root, tmp_path / "all", "--predictor", f"files:{folder}", "--split", "all")) == 0
     assert read_predictor_info(tmp_path / "all")["views"] == [f"r_{i:03d}" for i in range(6)]
 
 
@@ -322,20 +302,5 @@ def test_split_all_refuses_views_that_share_names(tmp_path, capsys):
     camera = Camera.look_at([3.0, 0.0, 0.5], [0, 0, 0], [0, 0, 1], 0.8, W, H)
     view = View("r_0", torch.rand(H, W, 3), None, camera)
     write_blender(tmp_path / "data", {"train": [view], "test": [view]})
-    assert (
-        main(
-            [
-                "predict",
-                "--data",
-                str(tmp_path / "data"),
-                "--out",
-                str(tmp_path / "run"),
-                "--predictor",
-                "ground-truth",
-                "--split",
-                "all",
-            ]
-        )
-        == 2
-    )
+    assert main(predict_argv(tmp_path / "data", tmp_path / "run", "--predictor", "ground-truth", "--split", "all")) == 2
     assert "train and test views share names (r_0)" in capsys.readouterr().err

@@ -85,34 +85,30 @@ def tiny_parts(folder, unet_in: int, unet_out: int) -> dict:
     return dict(unet=unet, vae=vae, scheduler=scheduler, text_encoder=text_encoder, tokenizer=tokenizer)
 
 
+def save_tiny_pipeline(folder, pipeline_class, unet_in: int, unet_out: int, **settings):
+    """A diffusers Marigold pipeline of `tiny_parts` (2 denoising steps at 16 px) saved to `folder`."""
+    parts = tiny_parts(folder, unet_in=unet_in, unet_out=unet_out)
+    pipe = pipeline_class(**parts, default_denoising_steps=2, default_processing_resolution=16, **settings)
+    pipe.save_pretrained(str(folder))
+    return folder
+
+
 def build_tiny_pipeline(folder):
     """A MarigoldIntrinsicsPipeline with the appearance model's targets and a few thousand random weights."""
     from diffusers import MarigoldIntrinsicsPipeline
 
-    pipe = MarigoldIntrinsicsPipeline(
-        **tiny_parts(folder, unet_in=12, unet_out=8),  # image latent + 2 target latents in, 2 target latents out
-        prediction_type="intrinsics",
-        target_properties=APPEARANCE,
-        default_denoising_steps=2,
-        default_processing_resolution=16,
+    # image latent + 2 target latents in, 2 target latents out
+    return save_tiny_pipeline(
+        folder, MarigoldIntrinsicsPipeline, 12, 8, prediction_type="intrinsics", target_properties=APPEARANCE
     )
-    pipe.save_pretrained(str(folder))
-    return folder
 
 
 def build_tiny_normals_pipeline(folder):
     """A MarigoldNormalsPipeline with a few thousand random weights."""
     from diffusers import MarigoldNormalsPipeline
 
-    pipe = MarigoldNormalsPipeline(
-        **tiny_parts(folder, unet_in=8, unet_out=4),  # image latent + normals latent in, normals latent out
-        prediction_type="normals",
-        use_full_z_range=True,
-        default_denoising_steps=2,
-        default_processing_resolution=16,
-    )
-    pipe.save_pretrained(str(folder))
-    return folder
+    # image latent + normals latent in, normals latent out
+    return save_tiny_pipeline(folder, MarigoldNormalsPipeline, 8, 4, prediction_type="normals", use_full_z_range=True)
 
 
 @pytest.fixture(scope="module")

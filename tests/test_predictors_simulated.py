@@ -23,6 +23,7 @@ from matspray.predictors.simulated import (
     filmic_tone,
     shading_ratio,
 )
+from tests.conftest import predict_argv
 
 LIGHT = torch.tensor([0.3, 0.5, 0.8]) / torch.tensor([0.3, 0.5, 0.8]).norm()
 
@@ -349,24 +350,7 @@ def test_spread_of_true_maps_is_near_zero_and_of_view_offsets_matches_analytic_v
 def test_predict_simulated_and_ground_truth_through_the_cli(sphere, tmp_path, capsys):
     root, scene = sphere
     run = tmp_path / "run"
-    assert (
-        main(
-            [
-                "predict",
-                "--data",
-                str(root),
-                "--out",
-                str(run),
-                "--predictor",
-                "simulated",
-                "--batch-size",
-                "2",
-                "--seed",
-                "5",
-            ]
-        )
-        == 0
-    )
+    assert main(predict_argv(root, run, "--predictor", "simulated", "--batch-size", "2", "--seed", "5")) == 0
     printed = capsys.readouterr().out
     assert "SIMULATED" in printed
     info = read_predictor_info(run)
@@ -378,16 +362,12 @@ def test_predict_simulated_and_ground_truth_through_the_cli(sphere, tmp_path, ca
         assert torch.allclose(m.roughness, expected[name].roughness, atol=1e-4)
         assert torch.allclose(m.basecolor, expected[name].basecolor, atol=1e-3)
     copied = tmp_path / "copied"  # maps read back from a simulated run stay labelled as simulated
-    assert (
-        main(["predict", "--data", str(root), "--out", str(copied), "--predictor", f"files:{run / 'materials2d'}"]) == 0
-    )
+    assert main(predict_argv(root, copied, "--predictor", f"files:{run / 'materials2d'}")) == 0
     assert "SIMULATED" in capsys.readouterr().out
     info = read_predictor_info(copied)
     assert info["simulated"] is True and info["source_predictor"]["predictor"] == "simulated"
     run = tmp_path / "evaluation"
-    assert (
-        main(["predict", "--data", str(root), "--out", str(run), "--predictor", "ground-truth", "--split", "test"]) == 0
-    )
+    assert main(predict_argv(root, run, "--predictor", "ground-truth", "--split", "test")) == 0
     assert "GROUND-TRUTH" in capsys.readouterr().out
     info = read_predictor_info(run)
     assert (
@@ -397,38 +377,11 @@ def test_predict_simulated_and_ground_truth_through_the_cli(sphere, tmp_path, ca
 
 def test_cli_rejects_options_that_do_not_apply(sphere, tmp_path, capsys):
     root, _ = sphere
-    code = main(
-        [
-            "predict",
-            "--data",
-            str(root),
-            "--out",
-            str(tmp_path / "run"),
-            "--predictor",
-            "ground-truth",
-            "--severity",
-            "2",
-        ]
-    )
+    code = main(predict_argv(root, tmp_path / "run", "--predictor", "ground-truth", "--severity", "2"))
     assert code == 2
     assert "--severity: does not apply to the ground-truth predictor" in capsys.readouterr().err
     assert not (tmp_path / "run" / "materials2d").exists()
-    assert (
-        main(
-            [
-                "predict",
-                "--data",
-                str(root),
-                "--out",
-                str(tmp_path / "run"),
-                "--predictor",
-                "simulated",
-                "--severity",
-                "-1",
-            ]
-        )
-        == 2
-    )
+    assert main(predict_argv(root, tmp_path / "run", "--predictor", "simulated", "--severity", "-1")) == 2
     assert "--severity: must be a number >= 0" in capsys.readouterr().err
 
 
@@ -491,7 +444,7 @@ def test_a_simulated_predictor_without_a_seed_draws_from_the_objects_own_seed(sp
 
     def predicted(data, *flags):
         run = tmp_path / f"run-{data.name}{''.join(flags)}"
-        assert main(["predict", "--data", str(data), "--out", str(run), "--predictor", "simulated", *flags]) == 0
+        assert main(predict_argv(data, run, "--predictor", "simulated", *flags)) == 0
         return read_materials2d(run, load_scene(data).train)
 
     object0, object5, forced = predicted(copies[0]), predicted(copies[5]), predicted(copies[0], "--seed", "5")

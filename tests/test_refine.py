@@ -4,7 +4,6 @@ import pytest
 import torch
 
 from matspray.errors import ConfigError
-from matspray.method.lift import LiftConfig, lift
 from matspray.method.merger import projection_average, view_gains
 from matspray.method.refine.loop import (
     RefineConfig,
@@ -22,7 +21,7 @@ from matspray.method.refine.loop import (
 from matspray.presets import VARIANT_NAMES
 from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.envmap import EnvironmentMap
-from tests.scenes import material_scene
+from tests.scenes import lift_material_scene, material_scene
 
 BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])
 
@@ -30,15 +29,7 @@ BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])
 @pytest.fixture(scope="module")
 def lifted_scene():
     gaussians, normals, materials, views, maps = material_scene()
-    result = lift(
-        gaussians,
-        [v.camera for v in views],
-        maps,
-        [v.alpha for v in views],
-        [v.name for v in views],
-        LiftConfig(samples_per_side=2),
-        progress=False,
-    )
+    result = lift_material_scene(gaussians, views, maps)
     kept = gaussians.subset(result.kept)
     return kept, normals[result.kept], materials[result.kept], views, maps, result
 

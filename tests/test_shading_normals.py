@@ -9,12 +9,11 @@ from matspray.errors import SettingError
 from matspray.geometry.losses import normal_map_loss
 from matspray.geometry.normals import angular_error_degrees
 from matspray.method.asset import Asset
-from matspray.method.lift import LiftConfig, lift
 from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
 from matspray.method.refine.normals import ShadingNormals, angle_change_degrees, normal_prior
 from matspray.method.relight import render_gbuffer
 from matspray.render.shade.envmap import EnvironmentMap
-from tests.scenes import material_scene, sky_map
+from tests.scenes import lift_material_scene, material_scene, sky_map
 
 BOUNDS = torch.tensor([[-1.2] * 3, [1.2] * 3])
 
@@ -24,15 +23,7 @@ def scene_with_tilted_normals():
     """The disk sphere's views (rendered with its true normals, materials and light), lifted, and the same normals
     each tilted by ~25 degrees in a random direction: the geometry's normals a refinement starts from."""
     gaussians, normals, materials, views, maps = material_scene(n_views=8)
-    lifted = lift(
-        gaussians,
-        [v.camera for v in views],
-        maps,
-        [v.alpha for v in views],
-        [v.name for v in views],
-        LiftConfig(samples_per_side=2),
-        progress=False,
-    )
+    lifted = lift_material_scene(gaussians, views, maps)
     kept, true_normals = gaussians.subset(lifted.kept), normals[lifted.kept]
     generator = torch.Generator().manual_seed(3)
     side = F.normalize(torch.linalg.cross(true_normals, torch.randn(true_normals.shape, generator=generator)), dim=-1)

@@ -15,6 +15,17 @@ from matspray.errors import ConfigError, DataError  # noqa: E402
 from matspray.synth import SynthConfig, make_object  # noqa: E402
 
 SMALL = dict(resolution=32, train_views=3, test_views=2, spp=32, texture_height=64, env_height=32)
+# a sphere at the smallest settings, for the tests of which files are written (not of how they look)
+TINY = dict(
+    shape="sphere",
+    resolution=16,
+    train_views=2,
+    test_views=1,
+    spp=2,
+    texture_height=16,
+    env_height=16,
+    relight_envs=["overcast"],
+)
 
 
 @pytest.fixture(scope="module")
@@ -115,17 +126,7 @@ def test_ground_truth_is_consistent_with_the_render(composite):
 
 
 def test_same_arguments_give_the_same_files(tmp_path):
-    config = dict(
-        shape="sphere",
-        seed=5,
-        resolution=16,
-        train_views=2,
-        test_views=1,
-        spp=2,
-        texture_height=16,
-        env_height=16,
-        relight_envs=["overcast"],
-    )
+    config = dict(TINY, seed=5)
     first, second = tmp_path / "a", tmp_path / "b"
     make_object(SynthConfig(**config), first, progress=False, notify=lambda _: None)
     make_object(SynthConfig(**config), second, progress=False, notify=lambda _: None)
@@ -139,16 +140,7 @@ def test_same_arguments_give_the_same_files(tmp_path):
 
 
 def test_refuses_a_folder_with_a_different_scene_unless_overwrite(tmp_path):
-    small = dict(
-        shape="sphere",
-        resolution=16,
-        train_views=2,
-        test_views=1,
-        spp=1,
-        texture_height=16,
-        env_height=16,
-        relight_envs=["overcast"],
-    )
+    small = dict(TINY, spp=1)
     make_object(SynthConfig(seed=1, **small), tmp_path, progress=False, notify=lambda _: None)
     with pytest.raises(ConfigError, match="already holds a different `matspray synth` scene.*overwrit"):
         make_object(SynthConfig(seed=2, **small), tmp_path, progress=False, notify=lambda _: None)
@@ -225,12 +217,11 @@ def test_cli_prints_variant_and_one_line_errors(tmp_path, capsys):
 
 
 FALLBACK = """
-import sys
+import json, sys
 import matspray.synth.mitsuba_scene as mitsuba_scene
 from matspray.synth import SynthConfig, make_object
 mitsuba_scene.VARIANTS = ("no_such_variant", "scalar_rgb")
-make_object(SynthConfig(shape="sphere", resolution=10, train_views=1, test_views=1, spp=32, gt_samples=2,
-                        texture_height=16, env_height=16, relight_envs=["studio"]), sys.argv[1], progress=False)
+make_object(SynthConfig(**json.loads(sys.argv[2])), sys.argv[1], progress=False)
 """
 
 
@@ -240,19 +231,12 @@ def test_scalar_variant_fallback_makes_the_same_object(tmp_path):
     import subprocess
     import sys
 
-    settings = dict(
-        shape="sphere",
-        resolution=10,
-        train_views=1,
-        test_views=1,
-        spp=32,
-        gt_samples=2,
-        texture_height=16,
-        env_height=16,
-        relight_envs=["studio"],
-    )
+    settings = dict(TINY, resolution=10, train_views=1, spp=32, gt_samples=2, relight_envs=["studio"])
     done = subprocess.run(
-        [sys.executable, "-c", FALLBACK, str(tmp_path / "scalar")], capture_output=True, text=True, timeout=240
+        [sys.executable, "-c", FALLBACK, str(tmp_path / "scalar"), json.dumps(settings)],
+        capture_output=True,
+        text=True,
+        timeout=240,
     )
     assert done.returncode == 0, done.stderr
     assert "Mitsuba variant: scalar_rgb" in done.stdout
