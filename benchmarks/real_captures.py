@@ -101,45 +101,11 @@ def run_capture(name: str, args, out_root: Path) -> dict:
         steps.append(
             command(["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *extra, *compute], log)
         )
+        relight = ["relight", "--run", str(run), "--variant", VARIANT, *compute]
         for light in args.lights:
-            steps.append(
-                command(
-                    [
-                        "relight",
-                        "--run",
-                        str(run),
-                        "--variant",
-                        VARIANT,
-                        "--env",
-                        light,
-                        "--out",
-                        str(out / "relit"),
-                        *compute,
-                    ],
-                    log,
-                )
-            )
-        steps.append(
-            command(
-                [
-                    "relight",
-                    "--run",
-                    str(run),
-                    "--variant",
-                    VARIANT,
-                    "--env",
-                    args.lights[0],
-                    "--views",
-                    "orbit",
-                    "--background",
-                    "env",
-                    "--out",
-                    str(out / "turntable"),
-                    *compute,
-                ],
-                log,
-            )
-        )
+            steps.append(command([*relight, "--env", light, "--out", str(out / "relit")], log))
+        turntable = ["--views", "orbit", "--background", "env", "--out", str(out / "turntable")]
+        steps.append(command([*relight, "--env", args.lights[0], *turntable], log))
         steps.append(
             command(
                 [

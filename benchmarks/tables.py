@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path("docs") / "results"  # relative to the repository root
 MARKER = re.compile(r"(<!-- table: ([\w.-]+) -->\n)(.*?)(<!-- /table -->)", re.S)
 MODELS = ("paper", "harsh", "outliers")
+CHANNELS = ("basecolor", "roughness", "metallic")
 
 
 def read(results: Path, name: str) -> dict:
@@ -53,6 +54,14 @@ EVAL_NORMALS = "generalise-eval-normals.json"  # the same three models with pred
 DEV_NOPRIOR = "generalise-dev-noprior-s38.json"
 
 
+def noprior_row(lead: list[str], label: str, relight: dict, full: dict, no_prior: dict) -> str:
+    """One row of `noprior_rows`: relighting PSNR by variant, and the 3D materials' PSNR per channel (channel ->
+    dB) of the full method and of no-prior."""
+    cells = lead + [label, fmt(relight.get("full")), fmt(relight.get("no-prior"))]
+    cells += [f"{fmt(full[c])} / {fmt(no_prior[c])}" for c in CHANNELS]
+    return "| " + " | ".join(cells) + " |"
+
+
 def noprior_rows(report: dict, models) -> list[str]:
     """Rows `| [model |] object | relight full | relight no-prior | base | rough | metal |` (full / no-prior)."""
     rows = []
@@ -61,27 +70,12 @@ def noprior_rows(report: dict, models) -> list[str]:
         lead = [model] if len(models) > 1 else []
         for o in result["objects"]:
             f = o["figures"]
-            cells = lead + [
-                short(o["object"]["name"]),
-                fmt(f["relight"].get("full")),
-                fmt(f["relight"].get("no-prior")),
-            ]
-            cells += [
-                f"{fmt(f['materials_3d'][c])} / {fmt(f['materials_no_prior'][c])}"
-                for c in ("basecolor", "roughness", "metallic")
-            ]
-            rows.append("| " + " | ".join(cells) + " |")
+            rows.append(
+                noprior_row(lead, short(o["object"]["name"]), f["relight"], f["materials_3d"], f["materials_no_prior"])
+            )
         s = result["summary"]
-        cells = lead + [
-            f"mean of {len(result['objects'])}",
-            fmt(s["relight"].get("full")),
-            fmt(s["relight"].get("no-prior")),
-        ]
-        cells += [
-            f"{fmt(s['materials_3d'][c]['psnr'])} / {fmt(s['materials_no_prior'][c]['psnr'])}"
-            for c in ("basecolor", "roughness", "metallic")
-        ]
-        rows.append("| " + " | ".join(cells) + " |")
+        full, no_prior = ({c: s[key][c]["psnr"] for c in CHANNELS} for key in ("materials_3d", "materials_no_prior"))
+        rows.append(noprior_row(lead, f"mean of {len(result['objects'])}", s["relight"], full, no_prior))
     return rows
 
 
@@ -153,7 +147,7 @@ def table_headline(results: Path, name: str = EVAL_NORMALS) -> str:
         cells = [f"`{model}`", fmt(s["relight"]["full"]), fmt(s["relight"]["no-prior"])]
         cells += [
             " / ".join(fmt(s[g][c]["psnr"]) for g in ("materials_3d", "materials_no_prior", "materials_2d"))
-            for c in ("basecolor", "roughness", "metallic")
+            for c in CHANNELS
         ]
         lines.append("| " + " | ".join(cells + [f"{win['wins']} of {win['of']}"]) + " |")
     return "\n".join(lines)
