@@ -10,7 +10,13 @@ from matspray.geometry.losses import normal_map_loss
 from matspray.geometry.normals import angular_error_degrees
 from matspray.method.asset import Asset
 from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
-from matspray.method.refine.normals import ShadingNormals, angle_change_degrees, normal_prior
+from matspray.method.refine.normals import (
+    ShadingNormals,
+    angle_change_degrees,
+    nearest_neighbours,
+    normal_prior,
+    smoothed_normals,
+)
 from matspray.method.relight import render_gbuffer
 from matspray.render.shade.envmap import EnvironmentMap
 from tests.scenes import lift_material_scene, material_scene, sky_map
@@ -148,3 +154,60 @@ def test_normal_settings_must_be_non_negative():
         RefineConfig(normal_lr=-1.0)
     with pytest.raises(SettingError, match="normal_prior_weight"):
         RefineConfig(normal_prior_weight=-0.1)
+    with pytest.raises(SettingError, match="normal_neighbours"):
+        RefineConfig(normal_neighbours=-1)
+
+
+def test_nearest_neighbours_match_sorting_every_distance():
+    points = torch.randn(300, 3, generator=torch.Generator().manual_seed(0))
+    d2, index = nearest_neighbours(points, 7)
+    full = torch.cdist(points, points).square().fill_diagonal_(float("inf"))
+    want = torch.sort(full, dim=1)
+    assert torch.allclose(d2, want.values[:, :7], atol=1e-5) and torch.equal(index, want.indices[:, :7])
+    twice = torch.cat([points[:5], points[:5]])  # duplicates: each point's twin is its nearest, never itself
+    d2, index = nearest_neighbours(twice, 1)
+    assert torch.equal(index[:, 0], torch.tensor([5, 6, 7, 8, 9, 0, 1, 2, 3, 4])) and torch.all(d2 == 0)
+    assert nearest_neighbours(points[:1], 4)[1].shape == (1, 0)
+
+
+def test_smoothed_normals_match_a_loop_over_each_gaussians_neighbours():
+    generator = torch.Generator().manual_seed(1)
+    means, normals = (
+        torch.randn(60, 3, generator=generator),
+        F.normalize(torch.randn(60, 3, generator=generator), dim=-1),
+    )
+    weights = torch.rand(60, generator=generator)
+    got = smoothed_normals(normals, means, weights, neighbours=5, agreement=2.0)
+    for i in range(60):
+        d2 = ((means - means[i]).square().sum(-1)).index_fill(0, torch.tensor([i]), float("inf"))
+        near = torch.argsort(d2)[:5]
+        scale = d2[near].mean()
+        total = weights[i] * normals[i]
+        for j in near:
+            cos = float(normals[j] @ normals[i])
+            total = total + weights[j] * torch.exp(-d2[j] / scale) * abs(cos) ** 2 * (1 if cos > 0 else -1) * normals[j]
+        assert torch.allclose(got[i], F.normalize(total, dim=0), atol=1e-5)
+
+
+def test_smoothing_takes_noise_off_a_plane_keeps_each_normals_sign_and_both_sides_of_a_crease():
+    generator = torch.Generator().manual_seed(2)
+    xy = torch.rand(2000, 2, generator=generator)
+    up = torch.tensor([0.0, 0.0, 1.0])
+    noisy = F.normalize(up + 0.3 * torch.randn(2000, 3, generator=generator), dim=-1)
+    signs = torch.where(torch.rand(2000, generator=generator) < 0.5, -1.0, 1.0)[:, None]  # no sign: either way
+    plane = torch.cat([xy, torch.zeros(2000, 1)], dim=1)
+    smoothed = smoothed_normals(noisy * signs, plane, torch.ones(2000))
+    assert mean_error(smoothed, up.expand(2000, 3)) < 0.5 * mean_error(noisy, up.expand(2000, 3))
+    assert ((smoothed * noisy * signs).sum(-1) > 0).all()
+    # a right-angled crease: the floor (normal +z) meets a wall (normal +x) along x = 0; exact normals stay exact
+    wall = torch.cat([torch.zeros(2000, 1), xy], dim=1)
+    crease = torch.cat([plane, wall])
+    exact = torch.cat([up.expand(2000, 3), torch.tensor([1.0, 0.0, 0.0]).expand(2000, 3)])
+    assert torch.allclose(smoothed_normals(exact, crease, torch.ones(4000)), exact, atol=1e-6)
+
+
+def test_normal_neighbours_smooth_the_normals_every_variant_shades_with(scene_with_tilted_normals):
+    truth, tilted = scene_with_tilted_normals[1], scene_with_tilted_normals[2]
+    result = refine_tilted(scene_with_tilted_normals, iterations=0, variant="proj-average", normal_neighbours=16)
+    assert mean_error(result.normals, truth) < mean_error(tilted, truth) - 5.0
+    assert rendered_error(scene_with_tilted_normals, result.normals) < rendered_error(scene_with_tilted_normals, tilted)

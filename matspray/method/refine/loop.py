@@ -49,7 +49,7 @@ from matspray.method.merger import (
     view_gains,
 )
 from matspray.method.refine.metallic import MetallicFitConfig, fit_metallic
-from matspray.method.refine.normals import ShadingNormals, normal_prior
+from matspray.method.refine.normals import ShadingNormals, normal_prior, smoothed_normals
 from matspray.method.refine.steps import adam as adam_optimizer
 from matspray.method.refine.steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
 from matspray.method.refine.terms import (  # noqa: F401 (the material losses: callers' API)
@@ -102,6 +102,9 @@ class RefineConfig:
     # multi-view average (`merger.view_gains`): per-view exposure and white balance removed before any variant fuses
     normal_lr: float = 1e-3  # Adam's rate for the per-Gaussian shading normals (variants with the PBR loss; about the
     # radians a normal turns per step); 0: shade with the geometry's normals, frozen
+    # the geometry's normals, each averaged over this many nearest Gaussians (`normals.smoothed_normals`) before shading
+    # and refinement, in every variant; 0: as the geometry trained them
+    normal_neighbours: int = 0
     normal_prior_weight: float = 0.1  # weight of 1 - |cos| between each refined normal and the geometry's: the photo
     # loss alone also turns normals to fake shading that the materials get wrong
     predicted_normal_weight: float = 0.0  # weight of 1 - |cos| between the rendered normals and the view's predicted
@@ -121,6 +124,8 @@ class RefineConfig:
         get_variant(self.variant)
         if self.iterations < 0:
             raise SettingError("iterations", f"must be >= 0, got {self.iterations}")
+        if self.normal_neighbours < 0:
+            raise SettingError("normal_neighbours", f"must be >= 0 (0: off), got {self.normal_neighbours}")
         if self.basecolor_loss not in BASECOLOR_LOSSES:
             raise SettingError(
                 "basecolor_loss", f"unknown loss '{self.basecolor_loss}'; choose one of {', '.join(BASECOLOR_LOSSES)}"
@@ -389,6 +394,8 @@ def refine(
     if config.align_view_gains:
         inputs = aligned_inputs(inputs)
     means = gaussians.means.detach()
+    if config.normal_neighbours > 0:
+        normals = smoothed_normals(normals, means, gaussians.opacities.detach(), config.normal_neighbours)
     source = MaterialSource(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
     envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
