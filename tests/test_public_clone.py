@@ -5,8 +5,9 @@ first: `demo --preset test`, `info`, `run` on a capture-like dataset (photos and
 `eval` of that run with its default lights, `relight` under every named light, `view` starting and stopping,
 `colmap --help`. Each must finish without an error or a traceback.
 
-The compiled CPU kernels (numba's cache in matspray/render/__pycache__) are carried over when this tree has them,
-as `make`'s install leaves them in a clone (it compiles them once); without them the first command compiles them.
+The compiled CPU kernels (numba's cache, in the __pycache__ folders beside their modules) are carried over when this
+tree has them, as `make`'s install leaves them in a clone (it compiles them once); without them the first command
+compiles them (70 s).
 The demo and the run take fewer steps than the test preset's (`--set`), which changes no code path.
 """
 
@@ -95,10 +96,10 @@ def clone(tmp_path_factory) -> Clone:
         target = clone.root / name
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / name, target)
-    kernels = ROOT / "matspray" / "render" / "__pycache__"
-    for cached in sorted(kernels.glob("*.nb[ic]")) if kernels.is_dir() else []:
-        (clone.root / "matspray" / "render" / "__pycache__").mkdir(exist_ok=True)
-        shutil.copy2(cached, clone.root / "matspray" / "render" / "__pycache__" / cached.name)
+    for cached in sorted((ROOT / "matspray").glob("**/__pycache__/*.nb[ic]")):
+        target = clone.root / cached.relative_to(ROOT)
+        target.parent.mkdir(exist_ok=True)
+        shutil.copy2(cached, target)
     assert not (base / "shared").exists() and sorted(p.name for p in base.iterdir()) == ["home", "matspray-clone"]
     return clone
 

@@ -478,6 +478,32 @@ def test_an_unreadable_estimated_light_starts_the_viewer_under_a_built_in(tmp_pa
     assert viewer.state.light == "studio" and len(told) == 1 and "envmap.exr" in told[0] and "studio" in told[0]
 
 
+def test_stop_waits_for_the_viewers_workers_and_not_for_another_viewers_tabs(view_run):
+    """stop() waits for the threads that end on their own (here a warm-up render still running), so that none is left
+    inside torch at exit, but not for another viewer's per-tab loop in the same process, which runs until that
+    viewer stops (it used to wait 60 s for one)."""
+    import threading
+    import time
+
+    from matspray.view.server import Viewer, ViewerConfig
+
+    viewer = Viewer(view_run, ViewerConfig(), device="cpu", backend="torch", notify=lambda _: None)
+    other_viewer_stopped, warm_up_done = threading.Event(), threading.Event()
+    other_tab = threading.Thread(target=other_viewer_stopped.wait, name="matspray-view-99", daemon=True)
+    warm_up = threading.Thread(
+        target=lambda: (time.sleep(0.5), warm_up_done.set()), name="matspray-warmup", daemon=True
+    )
+    other_tab.start()
+    warm_up.start()
+    try:
+        start = time.monotonic()
+        viewer.stop()
+        assert warm_up_done.is_set() and time.monotonic() - start < 10.0
+        assert other_tab.is_alive()
+    finally:
+        other_viewer_stopped.set()
+
+
 def test_the_page_opens_before_torch_is_imported(view_run):
     """`matspray view` serves its page while torch, the asset and the light load:
     the checks and the page need no torch."""

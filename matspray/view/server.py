@@ -58,6 +58,11 @@ def load_numba_kernels() -> None:
     ensure_compiled(np.float32)  # the assets' dtype
 
 
+# The viewer's background threads that end on their own (the warm-up render, the photos', the kernels' loading and
+# numba's compilation); stop() waits for them.
+WORKER_THREADS = frozenset({"matspray-warmup", "matspray-kernels", "matspray-view-photos", "matspray-numba"})
+
+
 class Viewer:
     """`matspray view` as a library: `Viewer(run, config).start()` returns the URL; `stop()` ends it. `page`: a page
     opened already (`launch.open_page`, before torch was imported),
@@ -133,9 +138,10 @@ class Viewer:
         for view in list(self.views.values()):
             view.thread.join(timeout=10.0)  # a frame being rendered is not sent to a closed page
         # the warm-up render, the photos' and the kernels' loading: a daemon thread still inside torch or numba when
-        # the interpreter exits aborts the process ("terminate called without an active exception")
+        # the interpreter exits aborts the process ("terminate called without an active exception"). Only those
+        # end on their own: another viewer's per-tab loops in this process run until that viewer stops.
         for thread in threading.enumerate():
-            if thread.name.startswith("matspray-") and thread is not threading.current_thread():
+            if thread.name in WORKER_THREADS and thread is not threading.current_thread():
                 thread.join(timeout=60.0)
         if self.page is not None:
             self.page.stop()
