@@ -62,13 +62,13 @@ EXPORT_PACKAGES = ("trimesh", "xatlas", "skimage", "fast_simplification", "scipy
 
 
 def export_main(args) -> int:
-    from matspray.device import out_of_memory_as_error
     from matspray.errors import optional_module
-    from matspray.render.backend import compute_target
 
-    for name in EXPORT_PACKAGES:  # before any work: one line naming the extra, not an ImportError deep inside
+    for name in EXPORT_PACKAGES:  # before any work or torch: one line naming the extra, not an ImportError deep inside
         optional_module(name, "export", "matspray export")
+    from matspray.device import out_of_memory_as_error
     from matspray.export.export import export_run
+    from matspray.render.backend import compute_target
     from matspray.rundir import RunDir
 
     device, backend = compute_target(args.device, args.backend)
