@@ -211,3 +211,21 @@ def test_normal_neighbours_smooth_the_normals_every_variant_shades_with(scene_wi
     result = refine_tilted(scene_with_tilted_normals, iterations=0, variant="proj-average", normal_neighbours=16)
     assert mean_error(result.normals, truth) < mean_error(tilted, truth) - 5.0
     assert rendered_error(scene_with_tilted_normals, result.normals) < rendered_error(scene_with_tilted_normals, tilted)
+
+
+def test_the_smoothed_normals_are_made_once_for_the_variants_of_one_run(scene_with_tilted_normals, monkeypatch):
+    """Two variants refined from the same inputs (as a run's are) average the normals once, and shade with the
+    same ones; without neighbours the geometry's normals are used as they are."""
+    import matspray.method.refine.loop as loop
+
+    gaussians, _, tilted, views, maps, lifted, _ = scene_with_tilted_normals
+    inputs = RefineInputs(gaussians, tilted, lifted.values, lifted.seen, views, maps, BOUNDS)
+    calls = []
+    monkeypatch.setattr(loop, "smoothed_normals", lambda *args: calls.append(args) or smoothed_normals(*args))
+    results = [
+        refine(inputs, RefineConfig(iterations=0, normal_neighbours=16, variant=variant), progress=False)
+        for variant in ("proj-average", "no-softmax")
+    ]
+    assert len(calls) == 1 and results[0].normals is results[1].normals
+    assert torch.equal(results[0].normals, smoothed_normals(tilted, gaussians.means, gaussians.opacities, 16))
+    assert refine(inputs, RefineConfig(iterations=0, variant="proj-average"), progress=False).normals is tilted

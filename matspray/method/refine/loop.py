@@ -171,6 +171,17 @@ class RefineInputs:
     bounds: Tensor  # [2, 3] object box (the merger's positional encoding)
     visibility: Tensor | None = None  # [N, D] directional visibility that shadows the PBR render; None: unshadowed
     normal_maps: list[Tensor] | None = None  # V predicted normal maps [H, W, 3], world space, unit (0: no prediction)
+    # `normals` averaged over K neighbours, by K: made once for all the variants refined from these inputs
+    smoothed: dict[int, Tensor] = field(default_factory=dict, repr=False, compare=False)
+
+    def normals_over(self, neighbours: int) -> Tensor:  # -> [N, 3] unit
+        """The geometry's normals, each averaged over its `neighbours` nearest Gaussians (0: as they are)."""
+        if neighbours == 0:
+            return self.normals
+        if neighbours not in self.smoothed:
+            means, opacities = self.gaussians.means.detach(), self.gaussians.opacities.detach()
+            self.smoothed[neighbours] = smoothed_normals(self.normals, means, opacities, neighbours)
+        return self.smoothed[neighbours]
 
 
 class MaterialSource(nn.Module):
@@ -389,13 +400,11 @@ def refine(
     graphs on a CUDA device (`TrainingViews`); False: op by op (the same values)."""
     torch.manual_seed(config.seed)
     variant = config.kind
-    gaussians, normals = inputs.gaussians, inputs.normals
+    gaussians, normals = inputs.gaussians, inputs.normals_over(config.normal_neighbours)
     device = gaussians.device
     if config.align_view_gains:
         inputs = aligned_inputs(inputs)
     means = gaussians.means.detach()
-    if config.normal_neighbours > 0:
-        normals = smoothed_normals(normals, means, gaussians.opacities.detach(), config.normal_neighbours)
     source = MaterialSource(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
     envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
