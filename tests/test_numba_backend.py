@@ -337,13 +337,35 @@ MISSES = (  # after the work: numba's cache misses (compilations) of every kerne
 )
 
 
-@pytest.mark.slow  # compiles the kernels from scratch (about 20 s), then loads them
-def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
+COMPILE_KERNELS = "import runpy\nrunpy.run_module('matspray.render.numba.compile', run_name='__main__')\n"
+COMPILE_TEST = "test_compiling_is_said_once_and_the_cache_is_reused"
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def fresh_compilation(request, tmp_path_factory):
+    """The first process of the compile test below, `python -m matspray.render.numba.compile` into a fresh cache
+    folder, started as this module starts (when that test is to run): its minute of compiling on one core runs beside
+    the module's other tests, which compile the float64 kernels in this process meanwhile. (cache folder, Popen)"""
+    if not any(item.name == COMPILE_TEST for item in request.session.items):
+        yield None
+        return
+    cache = tmp_path_factory.mktemp("numba-cache")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    command = [sys.executable, "-c", MISSES + COMPILE_KERNELS]
+    process = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    yield cache, process
+    if process.poll() is None:  # the test did not run (deselected by a marker) or failed before waiting for it
+        process.kill()
+        process.communicate()
+
+
+@pytest.mark.slow  # compiles the kernels from scratch (about a minute), then loads them
+def test_compiling_is_said_once_and_the_cache_is_reused(fresh_compilation):
     """A fresh cache folder: `python -m matspray.render.numba.compile` (what `make demo` runs while it installs)
     compiles every kernel of the warm-up once and says so in one line; a render in a later process loads them from
     the cache and says nothing, and its renders past RECORD_BUDGET compile the unrecorded backward once (said once).
     The compilations are numba's own count of cache misses per kernel."""
-    compile_kernels = "import runpy\nrunpy.run_module('matspray.render.numba.compile', run_name='__main__')\n"
     script = (
         "import torch; from tests.test_rasterize import random_scene\n"
         "from matspray.render.raster.rasterize import rasterize\n"
@@ -355,20 +377,20 @@ def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
         "    f = f.clone().requires_grad_(True)\n"
         "    rasterize(g, c, f, backend='numba').features.sum().backward()\n"
     )
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    said, compiled = [], []
-    for code in (MISSES + compile_kernels, MISSES + script):
-        done = subprocess.run(
-            [sys.executable, "-c", code],
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=600,
-            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-        )
-        assert done.returncode == 0, done.stderr
-        said.append([line for line in done.stderr.splitlines() if line.startswith("numba:")])
-        compiled.append(json.loads(done.stdout.splitlines()[-1]))
+    cache, first = fresh_compilation
+    out, err = first.communicate(timeout=600)
+    assert first.returncode == 0, err
+    later = subprocess.run(
+        [sys.executable, "-c", MISSES + script],
+        env=dict(os.environ, NUMBA_CACHE_DIR=str(cache)),
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=REPO,
+    )
+    assert later.returncode == 0, later.stderr
+    said = [[line for line in e.splitlines() if line.startswith("numba:")] for e in (err, later.stderr)]
+    compiled = [json.loads(o.splitlines()[-1]) for o in (out, later.stdout)]
     unrecorded = "kernels.backward"
     # the float32 warm-up compiles each kernel once (those inlined into their callers never on their own), all but
     # the unrecorded backward and float64's depth sort; the later process loads every one of them from the cache and
@@ -385,7 +407,7 @@ def test_compiling_is_said_once_and_the_cache_is_reused(tmp_path):
     assert (
         len(said[0]) == 2
         and "(float32: rasterizer, SH colour, normals, lifting's rays, frozen views)" in said[0][0]
-        and str(tmp_path / "cache") in said[0][0]
+        and str(cache) in said[0][0]
         and said[0][1].startswith("numba: the CPU kernels are ready")
     )
     assert len(said[1]) == 1 and "compiled the backward kernel for renders of more than -1 hits" in said[1][0], said[1]
