@@ -129,6 +129,12 @@ ADDITIONS = (
     ),
     Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
     Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering < 0.02 px of a view"),
+    Addition(
+        "normal-neighbours",
+        "refine.normal_neighbours",
+        0,
+        "each Gaussian's normal is averaged over its 16 nearest Gaussians' before shading and refinement",
+    ),
 )
 ADDITION_NAMES = tuple(a.name for a in ADDITIONS)
 

@@ -68,15 +68,19 @@ def test_asset_round_trip(finished_run):
 
 
 def test_the_asset_ply_carries_the_refined_normals_of_the_variants_with_the_pbr_loss(finished_run):
-    """The PBR variants' normals were trained (they left the geometry's); the others shade with the geometry's."""
+    """The PBR variants' normals were trained (they left the geometry's, averaged over their neighbours); the others
+    shade with the geometry's normals averaged over their neighbours (`refine.normal_neighbours`, on by default)."""
     from matspray.geometry.ply import read_ply
     from matspray.method.asset import read_asset
     from matspray.method.lift import load_lift
-    from matspray.method.refine.normals import angle_change_degrees
+    from matspray.method.refine.loop import RefineConfig
+    from matspray.method.refine.normals import angle_change_degrees, smoothed_normals
 
-    _, geometry_normals = read_ply(finished_run / "geometry" / "gaussians.ply")
+    gaussians, geometry_normals = read_ply(finished_run / "geometry" / "gaussians.ply")
     lifted = load_lift(finished_run / "lift" / "projected.pt", "cpu")
-    start = torch.nn.functional.normalize(geometry_normals, dim=-1)[lifted.kept]
+    kept = gaussians.subset(lifted.kept)
+    normals = torch.nn.functional.normalize(geometry_normals, dim=-1)[lifted.kept]
+    start = smoothed_normals(normals, kept.means, kept.opacities, RefineConfig().normal_neighbours)
     for variant in VARIANTS:
         turned = angle_change_degrees(start, read_asset(finished_run / asset_stage(variant)).normals)
         if variant in ("full", "no-softmax", "no-prior"):

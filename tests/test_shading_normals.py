@@ -51,7 +51,15 @@ def refine_tilted(scene, start=None, normal_maps=None, true_materials=False, **s
     inputs = RefineInputs(gaussians, start, values, lifted.seen, views, maps, BOUNDS, normal_maps=normal_maps)
     frozen_materials = {"merger_lr": 0.0, "material_weight": 0.0} if true_materials else {}
     config = RefineConfig(
-        **{"iterations": 150, "envmap_height": 8, "light_warmup": 0, "seed": 0, **frozen_materials, **settings}
+        **{
+            "iterations": 150,
+            "envmap_height": 8,
+            "light_warmup": 0,
+            "seed": 0,
+            "normal_neighbours": 0,  # the tests of refinement's own normals start from the tilted ones as they are
+            **frozen_materials,
+            **settings,
+        }
     )
     return refine(inputs, config, progress=False, light=known_light())
 
@@ -228,4 +236,6 @@ def test_the_smoothed_normals_are_made_once_for_the_variants_of_one_run(scene_wi
     ]
     assert len(calls) == 1 and results[0].normals is results[1].normals
     assert torch.equal(results[0].normals, smoothed_normals(tilted, gaussians.means, gaussians.opacities, 16))
-    assert refine(inputs, RefineConfig(iterations=0, variant="proj-average"), progress=False).normals is tilted
+    unsmoothed = RefineConfig(iterations=0, variant="proj-average", normal_neighbours=0)
+    assert refine(inputs, unsmoothed, progress=False).normals is tilted
+    assert RefineConfig().normal_neighbours == 16  # on by default; `--method paper` switches it off (an addition)

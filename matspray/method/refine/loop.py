@@ -103,8 +103,8 @@ class RefineConfig:
     normal_lr: float = 1e-3  # Adam's rate for the per-Gaussian shading normals (variants with the PBR loss; about the
     # radians a normal turns per step); 0: shade with the geometry's normals, frozen
     # the geometry's normals, each averaged over this many nearest Gaussians (`normals.smoothed_normals`) before shading
-    # and refinement, in every variant; 0: as the geometry trained them
-    normal_neighbours: int = 0
+    # and refinement, in every variant; 0: as the geometry trained them (the paper)
+    normal_neighbours: int = 16
     normal_prior_weight: float = 0.1  # weight of 1 - |cos| between each refined normal and the geometry's: the photo
     # loss alone also turns normals to fake shading that the materials get wrong
     predicted_normal_weight: float = 0.0  # weight of 1 - |cos| between the rendered normals and the view's predicted
