@@ -479,9 +479,9 @@ def test_an_unreadable_estimated_light_starts_the_viewer_under_a_built_in(tmp_pa
 
 
 def test_stop_waits_for_the_viewers_workers_and_not_for_another_viewers_tabs(view_run):
-    """stop() waits for the threads that end on their own (here a warm-up render still running), so that none is left
-    inside torch at exit, but not for another viewer's per-tab loop in the same process, which runs until that
-    viewer stops (it used to wait 60 s for one)."""
+    """stop() waits for the viewer's threads that end on their own (here a warm-up render still running), so that
+    none is left inside torch at exit, but not for another viewer's per-tab loop in the same process, which runs
+    until that viewer stops (it used to wait 60 s for one)."""
     import threading
     import time
 
@@ -490,11 +490,8 @@ def test_stop_waits_for_the_viewers_workers_and_not_for_another_viewers_tabs(vie
     viewer = Viewer(view_run, ViewerConfig(), device="cpu", backend="torch", notify=lambda _: None)
     other_viewer_stopped, warm_up_done = threading.Event(), threading.Event()
     other_tab = threading.Thread(target=other_viewer_stopped.wait, name="matspray-view-99", daemon=True)
-    warm_up = threading.Thread(
-        target=lambda: (time.sleep(0.5), warm_up_done.set()), name="matspray-warmup", daemon=True
-    )
     other_tab.start()
-    warm_up.start()
+    viewer.start_worker(lambda: (time.sleep(0.5), warm_up_done.set()), "matspray-warmup")
     try:
         start = time.monotonic()
         viewer.stop()

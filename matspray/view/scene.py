@@ -50,9 +50,11 @@ class ViewerRun:
         return estimated_light_path(self.run.asset_path(variant))
 
     # ---------------------------------------------------------------- photos
-    def load_photos(self) -> None:
-        """Read the training views in a background thread (`photos()` answers once they are there)."""
-        threading.Thread(target=self._load_photos, name="matspray-view-photos", daemon=True).start()
+    def load_photos(self) -> threading.Thread:
+        """Read the training views in a background thread (`photos()` answers once they are there); returns it."""
+        thread = threading.Thread(target=self._load_photos, name="matspray-view-photos", daemon=True)
+        thread.start()
+        return thread
 
     def _load_photos(self) -> None:
         from matspray.data import load_run_scene

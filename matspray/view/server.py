@@ -58,11 +58,6 @@ def load_numba_kernels() -> None:
     ensure_compiled(np.float32)  # the assets' dtype
 
 
-# The viewer's background threads that end on their own (the warm-up render, the photos', the kernels' loading and
-# numba's compilation); stop() waits for them.
-WORKER_THREADS = frozenset({"matspray-warmup", "matspray-kernels", "matspray-view-photos", "matspray-numba"})
-
-
 class Viewer:
     """`matspray view` as a library: `Viewer(run, config).start()` returns the URL; `stop()` ends it. `page`: a page
     opened already (`launch.open_page`, before torch was imported),
@@ -81,8 +76,9 @@ class Viewer:
         self.notify = notify or (lambda message: print(message, file=sys.stderr, flush=True))
         self.run = ViewerRun(run_root, device=self.device, notify=self.notify)
         files = light_files(config.env)  # a missing --env path: ConfigError before anything starts
+        self.workers: list[threading.Thread] = []  # the background threads that end on their own; stop() waits
         if backend == "numba":  # its compiled kernels load from numba's cache while the asset and the light are read
-            threading.Thread(target=load_numba_kernels, daemon=True, name="matspray-kernels").start()
+            self.start_worker(load_numba_kernels, "matspray-kernels")  # waits for a compilation already under way
         variant = self.run.variants[0]
         self.choices = light_choices(files, has_estimate=True)
         self.loader = LightLoader(self.device)
@@ -118,12 +114,10 @@ class Viewer:
         initial.position, initial.look_at, initial.up, initial.fov = tuple(position), tuple(center), UP, fov
         self.gui = Controls(self)
         self.page.loading.remove()
-        self.run.load_photos()
+        self.workers.append(self.run.load_photos())
         # the first frame's one-off costs (the rasterizer's compiled kernels loaded from their cache, first allocations)
         # are paid here, while the browser opens the page; a tab connected already waits for it on the render lock
-        threading.Thread(
-            target=self.render, args=(self.start_camera.scaled(0.25),), daemon=True, name="matspray-warmup"
-        ).start()
+        self.start_worker(self.render, "matspray-warmup", self.start_camera.scaled(0.25))
         self.server.on_client_connect(self._connect)  # also called now for the tabs that connected while the run loaded
         self.server.on_client_disconnect(self._disconnect)
         return self.url
@@ -132,16 +126,23 @@ class Viewer:
     def url(self) -> str:
         return self.page.url if self.page else f"http://{self.config.host}:{self.config.port}"
 
+    def start_worker(self, target, name: str, *args) -> threading.Thread:
+        """`target(*args)` in a daemon thread that ends on its own, which stop() waits for."""
+        thread = threading.Thread(target=target, args=args, daemon=True, name=name)
+        self.workers.append(thread)
+        thread.start()
+        return thread
+
     def stop(self) -> None:
         for view in list(self.views.values()):
             view.stop()
         for view in list(self.views.values()):
             view.thread.join(timeout=10.0)  # a frame being rendered is not sent to a closed page
         # the warm-up render, the photos' and the kernels' loading: a daemon thread still inside torch or numba when
-        # the interpreter exits aborts the process ("terminate called without an active exception"). Only those
-        # end on their own: another viewer's per-tab loops in this process run until that viewer stops.
-        for thread in threading.enumerate():
-            if thread.name in WORKER_THREADS and thread is not threading.current_thread():
+        # the interpreter exits aborts the process ("terminate called without an active exception"). This viewer's
+        # own, not every matspray thread: another viewer's per-tab loops in this process run until that one stops.
+        for thread in self.workers:
+            if thread is not threading.current_thread():
                 thread.join(timeout=60.0)
         if self.page is not None:
             self.page.stop()
