@@ -91,8 +91,8 @@ def part_figures(errors: torch.Tensor, parts: dict[str, torch.Tensor]) -> dict:
     total = float(errors.sum())
     pixels = errors.numel()
     on_object = sum(int(p.sum()) for p in parts.values())
-    # the pooled figure is the 3D metallic's (`matspray.eval.metallic`); the mean of the views' own PSNRs is how the 2D
-    # predictions' metallic is scored (`run_eval.evaluate_predictions`): the higher of the two, by Jensen's inequality
+    # the pooled figure is how `matspray eval` scores the 3D and the 2D metallic alike (`matspray.eval.metallic`); the
+    # mean of the views' own PSNRs (`psnr_views`), the 2D rule before 2026-11-28, is the higher, by Jensen's inequality
     per_view = errors.flatten(1).mean(1)
     figures = {"psnr": psnr(total / pixels), "view_mean": sum(psnr(float(e)) for e in per_view) / len(per_view)}
     for name, flags in parts.items():

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from benchmarks.calibrate_dr import TARGETS
+from benchmarks.calibrate_dr import TARGETS, calibration_figures
 from benchmarks.generalise import parse_args as generalise_args
 from benchmarks.generalise import predictor_spec
 from matspray.data import Camera, View, write_image, write_raw
@@ -226,7 +226,7 @@ def test_2d_psnr_of_synthetic_objects_in_the_calibrated_band(tmp_path):
         metrics = []
         for seed, (views, truth) in enumerate(zip(objects, truths)):
             out, _ = predict(views, error_model(name, seed=seed))
-            metrics.append(paper_tables({}, evaluate_predictions(out, views, truth, None), {}))
+            metrics.append(paper_tables({}, calibration_figures(evaluate_predictions(out, views, truth, None)), {}))
         table = average_tables(metrics)["table1"]["2D predictions"]
         return {c: table[c]["psnr"] for c in TARGETS}
 

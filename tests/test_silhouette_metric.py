@@ -12,9 +12,10 @@ from matspray.errors import DataError
 from matspray.eval.evaluate import evaluate_images, pooled_union_psnr
 from matspray.eval.glb import relighting_gap_line
 from matspray.eval.masked import covered_box, union_weights
-from matspray.eval.run_eval import GroundTruth, ViewRenders, paper_tables, score_renders
+from matspray.eval.run_eval import GroundTruth, ViewRenders, evaluate_predictions, paper_tables, score_renders
 from matspray.eval.tables import UNION_LABEL, average_tables, material_table, tables_markdown
 from matspray.metrics import ssim
+from matspray.predictors.maps import MaterialMaps
 
 SIZE = 16
 
@@ -233,3 +234,29 @@ def test_score_renders_reports_the_normals_angle_on_the_object_unsigned():
     summary = score_renders([render], [view], [truth], ["sky"], None)["summary"]
     assert summary["normals"]["error_deg"] == pytest.approx(30.0, abs=1e-3) and summary["normals"]["views"] == 1
     assert "normals" not in score_renders([replace(render, normals=None)], [view], [truth], ["sky"], None)["summary"]
+
+
+def test_2d_metallic_is_pooled_over_the_views_as_the_3d_one_is():
+    """Spurious metal in one view of four: the mean of the views' PSNRs forgives it (three exact views are
+    infinite), the pooled figure does not. The 2D predictions' metallic follows the 3D assets' pooled rule."""
+    mask = square()  # 64 object pixels of 256
+    truth = GroundTruth(
+        mask=mask.float(), basecolor=grey(0.5).float(), roughness=mask * 0.5, metallic=mask * 0.0, relit={}
+    )
+    exact = MaterialMaps(basecolor=grey(0.5).float(), roughness=mask * 0.5, metallic=mask * 0.0)
+    spurious = replace(exact, metallic=mask * 0.3)
+    views = [SimpleNamespace(name=f"v{i}") for i in range(4)]
+    maps = {"v0": spurious, "v1": exact, "v2": exact, "v3": exact}
+    metallic = evaluate_predictions(maps, views, [truth] * 4, None)["metallic"]
+    # pooled on black over the four full images: 64 pixels off by 0.3 among 4 x 256
+    assert metallic["psnr"] == pytest.approx(-10 * math.log10(64 * 0.09 / (4 * 256)), rel=1e-6)
+    assert metallic["psnr_infinite"] == 0 and metallic["psnr_views"] == math.inf
+    # the same maps as a 3D asset's renders get the same figure
+    renders = [
+        ViewRenders(relit={}, base_color=grey(0.5).float(), roughness=mask * 0.5, metallic=m.metallic, alpha=mask)
+        for m in maps.values()
+    ]
+    scored = score_renders(renders, views, [truth] * 4, [], None)["summary"]["metallic"]
+    assert scored["psnr"] == pytest.approx(metallic["psnr"], rel=1e-9)
+    exact_only = evaluate_predictions({v.name: exact for v in views}, views, [truth] * 4, None)["metallic"]
+    assert exact_only["psnr"] == math.inf and exact_only["psnr_infinite"] == 1  # the paper's infinity rule
