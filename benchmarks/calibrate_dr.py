@@ -99,7 +99,7 @@ def calibration_figures(predictions: dict) -> dict:
     (`psnr_views`), the tables' 2D rule when the constants were chosen. The tables now pool the metallic error over
     the views, as for the 3D assets; calibrating on that figure would change the model."""
     metallic = predictions["metallic"]
-    return {**predictions, "metallic": {**metallic, "psnr": metallic.get("psnr_views", metallic["psnr"])}}
+    return {**predictions, "metallic": {**metallic, "psnr": metallic["psnr_views"]}}
 
 
 def model_scores(config: SimulationConfig, objects: list[DevObject]) -> tuple[list[dict], dict]:

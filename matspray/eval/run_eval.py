@@ -241,7 +241,7 @@ def add_pooled_metallic(summary: dict, preds: list, alphas: list, truths: list, 
 def evaluate_predictions(maps: dict, views: list[View], truths: list[GroundTruth], lpips) -> dict:
     """The raw 2D predictions of the test views against the truth (what lifting starts from).
 
-    Metallic is scored by the rule of the 3D assets' metallic (`add_pooled_metallic`: the error pooled over the
+    Metallic is scored by the rule of the 3D assets' metallic (`pooled_metallic`: the error pooled over the
     views), so that "3D above 2D" compares like with like; the mean of the views' own PSNRs, which forgives a
     prediction whose spurious metal sits in a few views, stays beside it as `psnr_views`.
     """
