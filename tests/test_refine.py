@@ -219,16 +219,17 @@ def test_min_coverage_runs_the_merger_on_fewer_gaussians_with_a_close_result(lif
     frozen = FrozenViews(gaussians, [v.camera for v in views])
     visible = frozen.visible_ids[0]
     assert torch.equal(frozen.contributing_ids(0, 0.0), visible)
-    covering = frozen.contributing_ids(0, 0.05)
+    default = RefineConfig().min_coverage  # the threshold a run uses
+    covering = frozen.contributing_ids(0, default)
     assert 0 < len(covering) < len(visible)
-    assert (frozen.coverage[0][covering] >= 0.05).all()
+    assert (frozen.coverage[0][covering] >= default).all()
     results = {}
-    for min_coverage in (0.0, 0.05):
+    for min_coverage in (0.0, default):
         config = RefineConfig(iterations=20, envmap_height=8, seed=0, min_coverage=min_coverage, light_warmup=0)
         results[min_coverage] = refine(
             refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False
         ).materials
-    assert (results[0.0] - results[0.05]).abs().mean() < 0.01
+    assert (results[0.0] - results[default]).abs().mean() < 0.01
 
 
 def test_spread_loss_is_zero_for_equal_weights_and_log_n_for_one_view():

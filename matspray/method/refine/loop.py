@@ -87,7 +87,7 @@ class RefineConfig:
     # weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)
     light_tv_weight: float = 3e-4
     light_warmup: int = 200  # steps that fit only the environment map to the photos, materials fixed at their start
-    min_coverage: float = 0.02  # per step the material source runs only for Gaussians covering >= this many pixels of
+    min_coverage: float = 0.2  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
     material_weight: float = 1.0  # L_Image
     photo_weight: float = 1.0  # L_3DGS, as the paper (its released code adds the photometric term twice)
