@@ -309,3 +309,16 @@ def test_a_known_light_is_used_as_given_and_sets_the_base_colours_brightness(lif
             assert brightness > average + 0.005, (float(brightness), float(average))
         else:
             assert abs(brightness / truth - 1.0) < 0.1, (float(brightness), float(truth))
+
+
+def test_merger_coverage_counts_the_gaussians_the_merger_runs_for(lifted_scene):
+    from benchmarks.merger_coverage import covered_counts
+
+    gaussians, _, _, views, _, _ = lifted_scene
+    frozen = FrozenViews(gaussians, [v.camera for v in views])
+    counts = covered_counts(frozen, [0.0, 0.05, 0.5], views=len(views))
+    visible = sum(len(ids) for ids in frozen.visible_ids) / len(views)
+    assert counts[0.0] == pytest.approx(visible)
+    by_hand = sum(int((frozen.coverage[i][frozen.visible_ids[i]] >= 0.05).sum()) for i in range(len(views)))
+    assert counts[0.05] == pytest.approx(by_hand / len(views))
+    assert counts[0.0] >= counts[0.05] >= counts[0.5]
