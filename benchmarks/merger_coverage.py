@@ -2,10 +2,11 @@
 
     python -m benchmarks.merger_coverage --data DATA --run RUN [--thresholds 0 0.02 0.2 0.5] [--views 10]
 
-On a run whose geometry and lift are done (`matspray run` or `matspray demo`; the stages are reused, nothing is
-written), for each threshold: the mean, over `--views` training views spread over the set, of the Gaussians that
-cover at least that many pixels of the view (`FrozenViews.contributing_ids`: the ones the merger runs for; the others
-keep their last value).
+On a run whose geometry and lift are done with the preset's default settings and the simulated predictor (a
+`matspray demo` run, or `matspray run --predictor simulated` without --set: its stages are reused and nothing is
+written; a run made with other settings would have those stages redone in its folder), for each threshold: the
+mean, over `--views` training views spread over the set, of the Gaussians that cover at least that many pixels of
+the view (`FrozenViews.contributing_ids`: the ones the merger runs for; the others keep their last value).
 The merger's batched matrix products are most of a refinement step's time on a CPU, so a step's cost follows this
 count (docs/dev/demo-time.md).
 """
