@@ -128,7 +128,7 @@ ADDITIONS = (
         "unseen views get weight 0 (the paper's code fills them with the mean)",
     ),
     Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
-    Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering < 0.2 px of a view"),
+    Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering a sliver of a view"),
     Addition(
         "normal-neighbours",
         "refine.normal_neighbours",

@@ -101,7 +101,7 @@ SETTING_FLAGS = {
     "--min-coverage": (
         "refine.min_coverage",
         float,
-        "the merger skips Gaussians covering fewer pixels of a view (matspray 0.2, paper 0)",
+        "the merger skips Gaussians covering fewer pixels of a view (paper: 0)",
     ),
     "--light-tv-weight": (
         "refine.light_tv_weight",
