@@ -276,7 +276,7 @@ CEILINGS_DR = "ceilings-dev-dr.json"
 
 def table_dr_ceilings(results: Path) -> str:
     """benchmarks.ceilings' tables for `dr` on the development set (its own formatting)."""
-    from benchmarks.ceilings import markdown
+    from benchmarks.ceilings_markdown import markdown
 
     lines = markdown("dev", "demo", {"dr": read(results, CEILINGS_DR)["dr"]})
     start = next(i for i, line in enumerate(lines) if line.startswith("| row |"))

@@ -15,20 +15,16 @@ import torch
 
 import benchmarks.ceilings as ceilings
 from benchmarks.ceilings import (
-    CHANNEL_GROUPS,
-    GBUFFER_ROWS,
-    ROWS,
     at_brightness,
     gbuffer_row_figures,
     main,
-    markdown,
-    mean_rows,
     merge_with_saved,
     shading_ceiling,
     summary_figures,
     with_groups,
     with_normals_of,
 )
+from benchmarks.ceilings_markdown import CHANNEL_GROUPS, GBUFFER_ROWS, ROWS, markdown, material_costs, mean_rows
 from benchmarks.generalise import main as generalise
 from matspray.errors import RunError
 from matspray.gaussians import Gaussians
@@ -183,6 +179,18 @@ def test_the_markdown_splits_the_gap_from_the_lifted_truth_to_the_true_gbuffer()
     assert "Where the" not in text and "| true G-buffer | 33.00 |" in text and "true normals" not in text
 
 
+def test_the_markdown_says_what_each_of_fulls_materials_costs_it():
+    relight = {row: 24.0 for row in ROWS}
+    relight |= {"full, true base": 26.5, "full, true rough": 24.25, "full, true metal": 23.5}
+    relight["full, truth's brightness"] = 25.0
+    results = {"dr": [{"object": "dev-00", "rows": {row: {"relight": r} for row, r in relight.items()}}]}
+    line = "lifted truth's materials in place of its own gains (dB): base 2.50, rough 0.25, metal -0.50, base "
+    assert line + "brightness and tint 1.00" in "\n".join(markdown("dev", "demo", results))
+    means = mean_rows([results["dr"][0]["rows"]])
+    del means["full, true metal"]  # a results file of a version without the row
+    assert material_costs(means) == []
+
+
 def merge_one_model(path, model):  # a ceilings job of another process finishing its pass
     with held_exclusively(path):
         merge_with_saved(path, {model: [{"object": "dev-00", "rows": {row: {"relight": 20.0} for row in ROWS}}]})
@@ -275,6 +283,13 @@ def test_ceilings_of_a_protocol_run(tmp_path, capsys):
     assert rows["oracle base only"]["roughness"] == pytest.approx(
         rows["proj-average"]["roughness"]
     )  # one channel group swapped
+    swapped = rows["full, true rough"]  # full's base colour and metallic, the lifted truth's roughness
+    assert swapped["roughness"] == pytest.approx(rows["lifted truth"]["roughness"])
+    assert swapped["basecolor"] == pytest.approx(rows["full"]["basecolor"])
+    assert swapped["metallic"] == pytest.approx(rows["full"]["metallic"])
+    brightness = rows["full, truth's brightness"]  # only full's base colour rescaled
+    assert brightness["roughness"] == pytest.approx(rows["full"]["roughness"])
+    assert brightness["basecolor"] != pytest.approx(rows["full"]["basecolor"])
     true_light = out / "objects" / "dev-00-seed1000" / "runs" / "paper-true-light"
     assert (true_light / "asset" / "asset.ply").exists() and (true_light / "asset" / "envmap.exr").exists()
     assert rows["full, true light"]["relight"] != rows["full"]["relight"]  # refined again, under another light
