@@ -135,6 +135,12 @@ ADDITIONS = (
         0,
         "each Gaussian's normal is averaged over its 16 nearest Gaussians' before shading and refinement",
     ),
+    Addition(
+        "photo-weight",
+        "refine.photo_weight",
+        1.0,
+        "the photometric loss weighs twice the 2D maps' (as the paper's released code adds it twice)",
+    ),
 )
 ADDITION_NAMES = tuple(a.name for a in ADDITIONS)
 

@@ -17,12 +17,13 @@ from matspray.data.images import linear_to_srgb
 from matspray.device import Graphed, capturing_with
 from matspray.geometry.losses import normal_map_loss, photometric_loss
 from matspray.method.config import build_config
-from matspray.method.refine.loop import TrainingViews, refine, view_losses
+from matspray.method.refine.loop import RefineConfig, TrainingViews, refine, view_losses
 from matspray.method.refine.terms import (
     TermOptions,
     light_images,
     material_loss,
     prefiltered_light,
+    total_loss,
     view_terms,
     weighted_l1,
 )
@@ -232,3 +233,11 @@ def test_graphed_terms_match_op_by_op_on_the_device(device):
             for a, b in zip(*found):
                 torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-7)
     assert len(graphed.terms.captured) == (1 if device.type == "cuda" else 0)
+
+
+def test_the_photometric_weight_counts_against_the_2d_maps_loss_only():
+    config = RefineConfig(photo_weight=2.0, normal_prior_weight=0.1)
+    with_maps = {"material": torch.tensor(1.0), "photo": torch.tensor(3.0), "normal_prior": torch.tensor(1.0)}
+    assert total_loss(with_maps, config).item() == pytest.approx(1.0 + 2.0 * 3.0 + 0.1)
+    no_maps = {"photo": torch.tensor(3.0), "normal_prior": torch.tensor(1.0)}  # no-prior: no 2D maps to weigh against
+    assert total_loss(no_maps, replace(config, variant="no-prior")).item() == pytest.approx(3.0 + 0.1)

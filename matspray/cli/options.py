@@ -91,7 +91,8 @@ SETTING_FLAGS = {
     "--photo-weight": (
         "refine.photo_weight",
         float,
-        "weight of the photometric loss against the material loss (1, as the paper)",
+        "weight of the photometric loss against the material loss, in the variants with both "
+        "(paper: 1; its released code: 2)",
     ),
     "--light-warmup": (
         "refine.light_warmup",

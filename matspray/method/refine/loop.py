@@ -90,7 +90,8 @@ class RefineConfig:
     min_coverage: float = 0.2  # per step the material source runs only for Gaussians covering >= this many pixels of
     # the view; the others (a sliver of the image) reuse their last value, without gradient
     material_weight: float = 1.0  # L_Image
-    photo_weight: float = 1.0  # L_3DGS, as the paper (its released code adds the photometric term twice)
+    photo_weight: float = 2.0  # L_3DGS against L_Image, in the variants that read the 2D maps (the others weigh it 1):
+    # the paper's text gives no weight (1), its released code adds the term twice (2)
     basecolor_loss: str = "l1"  # "l1" (the paper, and our default), "scale-invariant" (only for variants with the
     # PBR loss, which then sets the brightness;
     # supervised compares by plain L1 then) or "huber" (quadratic below `basecolor_huber_delta`, so views that differ
