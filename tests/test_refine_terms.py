@@ -16,8 +16,8 @@ from matspray.data.camera import Camera
 from matspray.data.images import linear_to_srgb
 from matspray.device import Graphed, capturing_with
 from matspray.geometry.losses import normal_map_loss, photometric_loss
-from matspray.method.config import build_config
-from matspray.method.refine.loop import RefineConfig, TrainingViews, refine, view_losses
+from matspray.method.config import build_config, variant_refine_config
+from matspray.method.refine.loop import TrainingViews, refine, view_losses
 from matspray.method.refine.terms import (
     TermOptions,
     light_images,
@@ -236,8 +236,8 @@ def test_graphed_terms_match_op_by_op_on_the_device(device):
 
 
 def test_the_photometric_weight_counts_against_the_2d_maps_loss_only():
-    config = RefineConfig(photo_weight=2.0, normal_prior_weight=0.1)
+    run = build_config("demo", **{"refine.photo_weight": 2.0, "refine.normal_prior_weight": 0.1})
     with_maps = {"material": torch.tensor(1.0), "photo": torch.tensor(3.0), "normal_prior": torch.tensor(1.0)}
-    assert total_loss(with_maps, config).item() == pytest.approx(1.0 + 2.0 * 3.0 + 0.1)
+    assert total_loss(with_maps, variant_refine_config(run, "full")).item() == pytest.approx(1.0 + 2.0 * 3.0 + 0.1)
     no_maps = {"photo": torch.tensor(3.0), "normal_prior": torch.tensor(1.0)}  # no-prior: no 2D maps to weigh against
-    assert total_loss(no_maps, replace(config, variant="no-prior")).item() == pytest.approx(3.0 + 0.1)
+    assert total_loss(no_maps, variant_refine_config(run, "no-prior")).item() == pytest.approx(3.0 + 0.1)

@@ -159,7 +159,9 @@ def build_config(
 
 def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
     """The refinement settings of one variant: the run's, with the variant and the refinement seed
-    (`refine_seed`, else the run's `seed`)."""
-    get_variant(variant)
+    (`refine_seed`, else the run's `seed`); a variant without the 2D maps' loss weighs the photometric loss 1, as
+    `refine.photo_weight` weighs it against that loss."""
+    kind = get_variant(variant)
     seed = config.seed if config.refine_seed is None else config.refine_seed
-    return replace(config.refine, variant=variant, seed=seed)
+    photo_weight = config.refine.photo_weight if kind.uses_maps else 1.0
+    return replace(config.refine, variant=variant, seed=seed, photo_weight=photo_weight)

@@ -209,7 +209,7 @@ def total_loss(terms: dict[str, Tensor], config) -> Tensor:  # config: refine.lo
     """The weighted sum of the loss terms (a weight of 1 multiplies nothing)."""
     weights = {
         "material": config.material_weight,
-        "photo": config.photo_weight if config.kind.uses_maps else 1.0,  # a weight against the 2D maps' loss
+        "photo": config.photo_weight,
         "light_tv": config.light_tv_weight,
         "spread": config.basecolor_spread_weight,
         "normal_prior": config.normal_prior_weight,
