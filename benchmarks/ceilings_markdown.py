@@ -62,8 +62,9 @@ def markdown(set_name: str, preset: str, results: dict) -> list[str]:
             "| row | relight | vs proj-average | base | rough | metal |",
             "|---|---|---|---|---|---|",
         ]
+        base = means.get("proj-average", {}).get("relight")  # None where `--rows` left proj-average out
         for row, m in means.items():
-            gap = None if "relight" not in m else m["relight"] - means["proj-average"].get("relight", float("nan"))
+            gap = None if "relight" not in m or base is None else m["relight"] - base
             lines.append(
                 f"| {row} | {fmt(m.get('relight'))} | {'' if row == 'proj-average' else fmt(gap)} | "
                 + " | ".join(fmt(m.get(c)) for c in FIGURES[1:])
