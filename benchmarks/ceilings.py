@@ -50,6 +50,8 @@ The markdown splits the gap from the lifted truth to the true G-buffer over the 
 `--configuration KEY` scores the runs `MODEL-KEY` of another configuration of `benchmarks.generalise` (the key its
 log names), each with the truth lifted onto that run's own Gaussians (in `ground-truth-on-MODEL-KEY`): for
 configurations that change the geometry, e.g. `--geometry predicted_normal_weight=1`. Its files get the suffix -KEY.
+Among the default runs, those that trained their own geometry (their model's predicted normals are not the first
+model's) get their own lifted truth the same way, in `ground-truth-on-MODEL`.
 
 Writes OUT/ceilings-PRESET.json and .md (the models of earlier passes kept, this pass's replaced); each (object,
 model)'s figures are kept in RUN/eval/ceilings.json and reused while no stage of the run changed, so an
@@ -357,6 +359,20 @@ def merge_with_saved(path: Path, results: dict, log=print) -> dict:
     return kept | results
 
 
+def truth_run_name(run: Path, first: Path, key: str | None) -> str:
+    """The run folder, beside `run`, that holds the truth lifted onto `run`'s Gaussians. `ground-truth` (the
+    protocol's sanity-row run) serves the default runs of one geometry: the one it already holds, or else the one
+    the pass's first run (`first`) will lift it onto. A default run with another geometry (its model's predicted
+    normals differ) and another configuration's runs each get their own, `ground-truth-on-RUN`."""
+    from matspray.rundir import RunDir
+
+    if key is None:
+        held = RunDir(run.parent / run_name("ground-truth", None)).stage_fingerprint("geometry")
+        if (held or RunDir(first).stage_fingerprint("geometry")) == RunDir(run).stage_fingerprint("geometry"):
+            return run_name("ground-truth", None)
+    return f"ground-truth-on-{run.name}"
+
+
 def run_set(args, log=print) -> list[str]:
     from matspray.method.config import build_config
     from matspray.render.shade.lights import hdri_files
@@ -369,12 +385,8 @@ def run_set(args, log=print) -> list[str]:
     for number, spec in enumerate(objects, 1):
         folder = args.out / "objects" / spec.name
         run_dirs = {model: folder / "runs" / run_name(model, key) for model in args.models}
-        # the default runs share one geometry per object, so one lifted truth; another configuration's each its own
-        truth_runs = {
-            model: folder / "runs" / (run_name("ground-truth", None) if key is None else f"ground-truth-on-{run.name}")
-            for model, run in run_dirs.items()
-        }
         first = run_dirs[args.models[0]]
+        truth_runs = {model: folder / "runs" / truth_run_name(run, first, key) for model, run in run_dirs.items()}
         shared_truth = functools.cache(
             functools.partial(object_truth, folder / "data", first, truth_runs[args.models[0]], config)
         )
@@ -382,7 +394,7 @@ def run_set(args, log=print) -> list[str]:
             truth_run = truth_runs[model]
             truth = (
                 shared_truth
-                if key is None
+                if truth_run == truth_runs[args.models[0]]
                 else functools.partial(object_truth, folder / "data", run_dir, truth_run, config)
             )
             model_config = object_config(replace(config, predictor=predictor_spec(model)), spec)

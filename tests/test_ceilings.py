@@ -388,3 +388,26 @@ def test_the_markdown_of_rows_without_proj_average_leaves_the_gap_to_it_empty():
     text = "\n".join(markdown("eval", "demo", results))  # `--rows full "lifted truth"`: no proj-average to compare with
     assert "| full | 26.00 | — |" in text and "| lifted truth | 28.00 | — |" in text
     assert "- full - proj-average" not in text
+
+
+def test_each_geometry_of_an_objects_runs_gets_its_own_lifted_truth(tmp_path):
+    from matspray.rundir import STAGE_RECORD
+
+    def run_with_geometry(name, fingerprint):
+        run = tmp_path / name
+        (run / "geometry").mkdir(parents=True)
+        (run / "geometry" / STAGE_RECORD).write_text(json.dumps({"fingerprint": fingerprint}))
+        return run
+
+    paper, harsh = run_with_geometry("paper", "a"), run_with_geometry("harsh", "a")
+    outliers = run_with_geometry("outliers", "b")  # trained on other predicted normals
+    # nothing lifted yet: the pass's first run claims ground-truth, the runs of another geometry get their own
+    assert ceilings.truth_run_name(paper, paper, None) == "ground-truth"
+    assert ceilings.truth_run_name(harsh, paper, None) == "ground-truth"  # one geometry, one lifted truth
+    assert ceilings.truth_run_name(outliers, paper, None) == "ground-truth-on-outliers"
+    # ground-truth already holds paper's geometry: a later pass of outliers alone does not claim it
+    run_with_geometry("ground-truth", "a")
+    assert ceilings.truth_run_name(outliers, outliers, None) == "ground-truth-on-outliers"
+    assert ceilings.truth_run_name(harsh, outliers, None) == "ground-truth"
+    keyed = run_with_geometry("paper-matspray-1234", "a")  # another configuration: always its own
+    assert ceilings.truth_run_name(keyed, keyed, "matspray-1234") == "ground-truth-on-paper-matspray-1234"
