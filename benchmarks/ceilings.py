@@ -387,15 +387,11 @@ def run_set(args, log=print) -> list[str]:
         run_dirs = {model: folder / "runs" / run_name(model, key) for model in args.models}
         first = run_dirs[args.models[0]]
         truth_runs = {model: folder / "runs" / truth_run_name(run, first, key) for model, run in run_dirs.items()}
-        shared_truth = functools.cache(
-            functools.partial(object_truth, folder / "data", first, truth_runs[args.models[0]], config)
-        )
+        truths = {}  # per truth run its lifted truth, made once for the runs that share it (they share one geometry)
         for model, run_dir in run_dirs.items():
             truth_run = truth_runs[model]
-            truth = (
-                shared_truth
-                if truth_run == truth_runs[args.models[0]]
-                else functools.partial(object_truth, folder / "data", run_dir, truth_run, config)
+            truth = truths.setdefault(
+                truth_run, functools.cache(functools.partial(object_truth, folder / "data", run_dir, truth_run, config))
             )
             model_config = object_config(replace(config, predictor=predictor_spec(model)), spec)
             under_true_light = functools.partial(
