@@ -1,6 +1,7 @@
 """The exported mesh against the Gaussian asset it came from, on finished runs of `matspray synth` objects.
 
     python -m benchmarks.export RUN [RUN ...] --out DIR [--faces 200000] [--texture-size 1024] [--grid 128]
+        [--silhouette-rounds 2]
 
 For each run: `matspray export` in a child process (wall seconds and its peak resident memory, from
 the kernel's accounting of that process), then `matspray eval --glb` (Mitsuba renders the mesh under
@@ -40,6 +41,8 @@ def export_in_child(run: Path, out: Path, args) -> tuple[float, float]:  # -> se
         str(args.grid),
         "--normals",
         args.normals,
+        "--silhouette-rounds",
+        str(args.silhouette_rounds),
         "--backend",
         args.backend,
     ]
@@ -89,6 +92,7 @@ def main() -> None:
     parser.add_argument("--texture-size", type=int, default=1024)
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--normals", choices=("mesh", "asset"), default="mesh")
+    parser.add_argument("--silhouette-rounds", type=int, default=2)
     parser.add_argument(
         "--backend",
         default="torch",

@@ -231,18 +231,18 @@ def test_a_capture_region_bounds_the_surface():
 
     gaussians, _, _ = sphere_of_disks(1500)
     region = ObjectRegion(center=(0.0, 0.0, 0.0), radius=2.0, plane=(0.0, 0.0, 1.0, -0.3))
-    mesh, voxel = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05, region=region)
+    mesh, voxel, _ = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05, region=region)
     assert mesh.is_watertight and mesh.volume > 0
     z = np.asarray(mesh.vertices)[:, 2]
     assert z.min() > 0.3 - 1.5 * voxel  # nothing below the cut (marching cubes places the cap within a voxel)
     assert z.max() > 1.0  # the top of the sphere is kept
-    whole, _ = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05)
+    whole, _, _ = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05)
     assert np.asarray(whole.vertices)[:, 2].min() < -0.9
 
 
 def test_surface_is_closed_and_decimation_keeps_the_budget():
     gaussians, _, _ = sphere_of_disks(1500)
-    mesh, voxel = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05)
+    mesh, voxel, _ = fuse_surface(gaussians, sphere_cameras(12, 40), 48, 4.0, 0.5, 0.05)
     assert mesh.is_watertight and mesh.volume > 0  # closed, faces wound outwards
     radius = np.linalg.norm(mesh.vertices, axis=-1)
     assert 0.95 < radius.min() and radius.max() < 1.25  # the disks' surface around the unit sphere
@@ -267,6 +267,7 @@ def run_cli(args, capsys):
         (["--texture-size", "100"], "power of two in [64, 8192]"),
         (["--texture-size", "16384"], "power of two in [64, 8192]"),
         (["--texture-size", "32"], "power of two in [64, 8192]"),
+        (["--silhouette-rounds", "-1"], "silhouette fit's rounds must be >= 0"),
         (["--variant", "no-softmax"], "make it with `matspray run --variant no-softmax`"),
     ],
 )

@@ -50,6 +50,13 @@ def add_export_parser(parser) -> None:
         help="per-vertex normals: the surface's own (default) or the Gaussians' shading normals blended onto it",
     )
     parser.add_argument(
+        "--silhouette-rounds",
+        type=int,
+        default=DEFAULTS.silhouette_rounds,
+        help=f"rounds that move the mesh's rim onto the asset's silhouettes in the training views "
+        f"(default {DEFAULTS.silhouette_rounds}; 0: off)",
+    )
+    parser.add_argument(
         "--data",
         type=Path,
         help="the run's dataset, for the training cameras (default: the folder the run was made from)",
@@ -73,7 +80,12 @@ def export_main(args) -> int:
 
     device, backend = compute_target(args.device, args.backend)
     config = ExportConfig(
-        faces=args.faces, texture_size=args.texture_size, frame=args.frame, grid=args.grid, normals=args.normals
+        faces=args.faces,
+        texture_size=args.texture_size,
+        frame=args.frame,
+        grid=args.grid,
+        normals=args.normals,
+        silhouette_rounds=args.silhouette_rounds,
     )
     with out_of_memory_as_error("export", device):
         report = export_run(

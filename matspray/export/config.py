@@ -26,6 +26,7 @@ class ExportConfig:
     padding: int = 4  # xatlas gutter between charts, in texels
     normals: str = "mesh"  # per-vertex normals: mesh (the surface's own) or asset (the Gaussians' normals blended)
     normal_smoothing: int = 10  # Taubin passes on the copy of the surface its normals come from (0: the raw surface's)
+    silhouette_rounds: int = 2  # rounds moving the decimated mesh's rim vertices onto the asset's silhouettes (0: off)
 
     def __post_init__(self):
         if self.faces < MIN_FACES:
@@ -51,4 +52,8 @@ class ExportConfig:
         if self.normal_smoothing < 0:
             raise SettingError(
                 "export.normal_smoothing", f"the normals' smoothing passes must be >= 0, got {self.normal_smoothing}"
+            )
+        if self.silhouette_rounds < 0:
+            raise SettingError(
+                "export.silhouette_rounds", f"the silhouette fit's rounds must be >= 0, got {self.silhouette_rounds}"
             )

@@ -18,6 +18,7 @@ from matspray.errors import ConfigError, RunError
 from matspray.export.atlas import uv_atlas
 from matspray.export.bake import bake_textures, blend_normals, gaussian_weights
 from matspray.export.config import ExportConfig
+from matspray.export.contour import fit_silhouettes
 from matspray.export.decimate import decimate
 from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
 from matspray.export.normals import smoothed_vertex_normals
@@ -57,7 +58,7 @@ def mesh_from_asset(
     """Surface, decimation, atlas and textures of `asset` seen from `cameras` (the training views), bounded by
     `region` (a capture's object region, or None)."""
     seconds, start = {}, time.perf_counter()
-    bar = tqdm(total=4, desc="export", disable=not progress, dynamic_ncols=True, postfix="surface")
+    bar = tqdm(total=5, desc="export", disable=not progress, dynamic_ncols=True, postfix="surface")
 
     def step(name: str, following: str = "") -> None:
         nonlocal start
@@ -66,7 +67,7 @@ def mesh_from_asset(
         bar.set_postfix_str(following, refresh=False)
         bar.update()
 
-    mesh, voxel = fuse_surface(
+    mesh, voxel, alphas = fuse_surface(
         asset.gaussians,
         cameras,
         config.grid,
@@ -79,7 +80,9 @@ def mesh_from_asset(
     )
     step("surface", "decimate")
     mesh = decimate(mesh, config.faces)
-    step("decimate", "atlas")
+    step("decimate", "silhouettes")
+    mesh = fit_silhouettes(mesh, cameras, alphas, config.min_alpha, config.silhouette_rounds, config.normal_smoothing)
+    step("silhouettes", "atlas")
     atlas = uv_atlas(mesh, config.texture_size, config.padding)
     step("atlas", "bake")
     materials = asset.materials.detach().cpu().double().numpy()

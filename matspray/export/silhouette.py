@@ -18,18 +18,21 @@ from matspray.data.camera import Camera
 from matspray.export.bake import rasterize_uv
 
 
-def mesh_coverage(
-    vertices: np.ndarray, faces: np.ndarray, camera: Camera
-) -> np.ndarray:  # [V, 3], [F, 3] -> [H, W] bool
-    """Pixels whose centre a triangle of the mesh covers (in front of the camera), by the UV rasterizer on
-    the projected vertices: a square raster of the image's longer side, cropped."""
+def mesh_alpha(
+    vertices: np.ndarray, faces: np.ndarray, camera: Camera, samples_per_side: int = 1
+) -> np.ndarray:  # [V, 3], [F, 3] -> [H, W] float in [0, 1]
+    """The share of each pixel the mesh covers (triangles in front of the camera), on an s x s grid of samples
+    per pixel (s = 1: the pixel's centre alone), by the UV rasterizer on the projected vertices: a square raster
+    of the image's longer side, cropped."""
+    s = samples_per_side
     pixels, z = camera.project(torch.as_tensor(vertices, dtype=torch.float32))
-    side = max(camera.width, camera.height)
+    side = max(camera.width, camera.height) * s
     front = (z[faces].min(-1).values > 1e-6).numpy()  # [F] triangles wholly in front
-    texels = rasterize_uv(pixels.double().numpy() / side, faces[front], side)
-    covered = np.zeros(side * side, dtype=bool)
-    covered[texels.index] = True
-    return covered.reshape(side, side)[: camera.height, : camera.width]
+    texels = rasterize_uv(pixels.double().numpy() * s / side, faces[front], side)
+    covered = np.zeros(side * side)
+    covered[texels.index] = 1.0
+    covered = covered.reshape(side, side)[: camera.height * s, : camera.width * s]
+    return covered.reshape(camera.height, s, camera.width, s).mean(axis=(1, 3))
 
 
 def rim_length(mask: np.ndarray) -> int:  # [H, W] bool -> pixels of the mask with a 4-neighbour outside it
@@ -49,7 +52,7 @@ def silhouette_offset(
     shift, rim = 0.0, 0
     for i in picked:
         camera, target = cameras[i], (alphas[i] >= min_alpha).numpy()
-        covered = mesh_coverage(vertices, faces, camera)
+        covered = mesh_alpha(vertices, faces, camera) > 0.5
         _, z = camera.project(torch.as_tensor(vertices, dtype=torch.float32))
         pixel = float(z.median()) / (
             0.5 * float(camera.K[0, 0] + camera.K[1, 1])

@@ -235,13 +235,13 @@ def fuse_surface(
     calibrate: bool = True,
     materials: Tensor | None = None,
     region=None,
-) -> tuple[trimesh.Trimesh, float]:
+) -> tuple[trimesh.Trimesh, float, list[Tensor]]:
     """The whole step: depths -> TSDF on a grid around the Gaussians -> marching cubes -> the object, its
     level moved so its silhouettes cover what the asset's do (`calibrate`, `silhouette.silhouette_offset`); with the
-    Gaussians' `materials` [N, 5], mirror-like pixels' depths are not trusted (`depth_trust`); also returns the
-    voxel size (the surface's resolution). `region` (an ObjectRegion: a capture's object region) bounds the
-    surface: space outside it is free, so the unseen underside of an object on a table closes at the region's
-    cut instead of reaching down into the table."""
+    Gaussians' `materials` [N, 5], mirror-like pixels' depths are not trusted (`depth_trust`). Also returns the
+    voxel size (the surface's resolution) and the asset's coverage [H, W] at each camera (on the CPU). `region`
+    (an ObjectRegion: a capture's object region) bounds the surface: space outside it is free, so the unseen
+    underside of an object on a table closes at the region's cut instead of reaching down into the table."""
     depths, trust = render_views(gaussians, cameras, materials, progress)
     centres, voxel, shape = voxel_grid(object_box(gaussians).cpu(), grid)
     field, unknown = fuse_tsdf(
@@ -261,4 +261,4 @@ def fuse_surface(
         mesh = extract_surface(field, shape, centres[0], voxel, level)
     mesh = keep_object(mesh, keep_fraction)
     trimesh.repair.fill_holes(mesh)
-    return mesh, voxel
+    return mesh, voxel, [alpha for _, alpha in depths]
