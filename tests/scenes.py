@@ -48,6 +48,19 @@ def sphere_of_disks(n: int = 600, seed: int = 0) -> tuple[Gaussians, torch.Tenso
     return gaussians, normals, torch.cat([base, roughness, metallic], dim=-1)
 
 
+def sphere_cameras(count: int, size: int, distance: float = 4.0, turn: float = 0.0) -> list[Camera]:
+    """Cameras on a Fibonacci sphere around the origin (every side of the object is seen), the whole set turned
+    by `turn` radians about z (another set of views of the same object)."""
+    cameras = []
+    for i in range(count):
+        z = 1 - (2 * i + 1) / count
+        azimuth = i * math.pi * (3 - math.sqrt(5)) + turn
+        r = math.sqrt(1 - z * z)
+        eye = [distance * r * math.cos(azimuth), distance * r * math.sin(azimuth), distance * z]
+        cameras.append(Camera.look_at(eye, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.75, size, size))
+    return cameras
+
+
 def ring_cameras(count: int, size: int = 32, distance: float = 4.0) -> list[Camera]:
     cameras = []
     for i in range(count):

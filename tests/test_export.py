@@ -1,7 +1,6 @@
 """`matspray export`: a run's asset as a textured glTF 2.0 mesh (surface, decimation, atlas, baking, frames)."""
 
 import json
-import math
 import shutil
 import subprocess
 import sys
@@ -30,22 +29,10 @@ from matspray.export.frames import GLTF_FROM_DATASET, dataset_from_file, transfo
 from matspray.export.surface import fuse_surface  # noqa: E402
 from matspray.gltf.read import read_gltf  # noqa: E402
 from tests.conftest import make_tiny_object  # noqa: E402
-from tests.scenes import sphere_of_disks, write_disk_sphere_run  # noqa: E402
+from tests.scenes import sphere_cameras, sphere_of_disks, write_disk_sphere_run  # noqa: E402
 
 SMALL = ["--faces", "3000", "--texture-size", "128", "--grid", "48"]
 VALIDATOR = Path(sys.prefix) / "node" / "node_modules" / "gltf-validator"  # `make setup` installs it there
-
-
-def sphere_cameras(count: int, size: int, distance: float = 4.0) -> list[Camera]:
-    """Cameras on a Fibonacci sphere around the origin (every side of the object is seen)."""
-    cameras = []
-    for i in range(count):
-        z = 1 - (2 * i + 1) / count
-        azimuth = i * math.pi * (3 - math.sqrt(5))
-        r = math.sqrt(1 - z * z)
-        eye = [distance * r * math.cos(azimuth), distance * r * math.sin(azimuth), distance * z]
-        cameras.append(Camera.look_at(eye, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.75, size, size))
-    return cameras
 
 
 def make_disk_run(root: Path) -> Path:

@@ -1,7 +1,5 @@
 """`export.contour`: the decimated mesh's rim moved onto the asset's silhouettes, vertex by vertex."""
 
-import math
-
 import numpy as np
 import pytest
 import torch
@@ -17,19 +15,7 @@ from matspray.export.contour import contour_offsets, edge_position, fit_silhouet
 from matspray.export.decimate import decimate  # noqa: E402
 from matspray.export.silhouette import mesh_alpha  # noqa: E402
 from matspray.export.surface import fuse_surface  # noqa: E402
-from tests.scenes import sphere_of_disks  # noqa: E402
-
-
-def fibonacci_cameras(count: int, size: int, turn: float = 0.0, distance: float = 4.0) -> list[Camera]:
-    """Cameras on a Fibonacci sphere around the origin, the whole set turned by `turn` radians about z."""
-    cameras = []
-    for i in range(count):
-        z = 1 - (2 * i + 1) / count
-        azimuth = i * math.pi * (3 - math.sqrt(5)) + turn
-        r = math.sqrt(1 - z * z)
-        eye = [distance * r * math.cos(azimuth), distance * r * math.sin(azimuth), distance * z]
-        cameras.append(Camera.look_at(eye, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], 0.75, size, size))
-    return cameras
+from tests.scenes import sphere_cameras, sphere_of_disks  # noqa: E402
 
 
 def coverage(mesh: trimesh.Trimesh, camera: Camera) -> torch.Tensor:  # -> [H, W] share of each pixel covered
@@ -55,7 +41,7 @@ def test_the_edge_is_where_a_ramp_crosses_the_level_and_a_line_that_stays_inside
 def test_a_sphere_a_little_small_grows_onto_the_silhouettes_it_is_shown():
     """Silhouettes of the unit sphere (exact coverage) at 12 cameras pull a sphere of radius 0.96, tessellated
     otherwise, out to radius 1 within a few thousandths (a pixel is ~0.05 units here)."""
-    truth, cameras = sphere(1.0, 5), fibonacci_cameras(12, 64)
+    truth, cameras = sphere(1.0, 5), sphere_cameras(12, 64)
     alphas = [coverage(truth, camera) for camera in cameras]
     small = sphere(0.96, 3)
     fitted = fit_silhouettes(small, cameras, alphas, 0.5, rounds=2)
@@ -68,7 +54,7 @@ def test_a_sphere_a_little_small_grows_onto_the_silhouettes_it_is_shown():
 def test_a_view_that_shows_no_edge_near_the_rim_casts_no_vote():
     """Where the asset covers the whole image around the rim (another part in front, or the background's
     Gaussians), or none of it, no vertex is moved by that view."""
-    mesh, camera = sphere(1.0, 3), fibonacci_cameras(1, 64)[0]
+    mesh, camera = sphere(1.0, 3), sphere_cameras(1, 64)[0]
     normals = np.asarray(mesh.vertex_normals)
     for alpha in (torch.ones(64, 64), torch.zeros(64, 64)):
         offsets, voted = contour_offsets(mesh, normals, camera, alpha, 0.5)
@@ -81,7 +67,7 @@ def test_the_fit_brings_a_fused_surface_closer_to_the_asset_in_views_it_was_not_
     """The disk sphere's decimated TSDF surface (its level already calibrated to the asset's silhouettes), fit to
     them at 12 cameras: its coverage differs less from the asset's at 6 other cameras than before the fit."""
     gaussians, _, _ = sphere_of_disks(1500)
-    cameras, held_out = fibonacci_cameras(12, 48), fibonacci_cameras(6, 48, turn=0.9)
+    cameras, held_out = sphere_cameras(12, 48), sphere_cameras(6, 48, turn=0.9)
     mesh, _, alphas = fuse_surface(gaussians, cameras, 48, 4.0, 0.5, 0.05)
     mesh = decimate(mesh, 3000)
     fitted = fit_silhouettes(mesh, cameras, alphas, 0.5, rounds=2)
