@@ -11,10 +11,10 @@ pytest.importorskip("fast_simplification")
 import trimesh  # noqa: E402
 
 from matspray.data import Camera  # noqa: E402
-from matspray.export.contour import contour_offsets, edge_position, fit_silhouettes  # noqa: E402
+from matspray.export.contour import contour_offsets, edge_position, faces_near, fit_silhouettes  # noqa: E402
 from matspray.export.decimate import decimate  # noqa: E402
 from matspray.export.silhouette import mesh_alpha  # noqa: E402
-from matspray.export.surface import fuse_surface  # noqa: E402
+from matspray.export.surface import fuse_surface, sample_bilinear  # noqa: E402
 from tests.scenes import sphere_cameras, sphere_of_disks  # noqa: E402
 
 
@@ -78,3 +78,20 @@ def test_the_fit_brings_a_fused_surface_closer_to_the_asset_in_views_it_was_not_
 
     before, after = mismatch(mesh), mismatch(fitted)
     assert after < 0.9 * before, (before, after)  # 91.5 -> 78.6 pixels when written
+
+
+def test_the_faces_near_the_sampled_points_cover_them_as_all_the_faces_do():
+    """Coverage rasterized from `faces_near` alone, read by bilinear taps at the points, equals the whole mesh's;
+    and for a few points it is a small part of the faces."""
+    mesh, camera = sphere(1.0, 5), sphere_cameras(3, 96)[1]
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64)
+    pixels = camera.project(torch.as_tensor(vertices, dtype=torch.float32))[0].numpy()
+    points = np.random.default_rng(0).uniform(-2.0, 98.0, size=(40, 2))  # some off the image
+    near = faces_near(pixels, faces, points, camera.width, camera.height)
+    taps = torch.as_tensor(points, dtype=torch.float32)
+    whole, part = (
+        sample_bilinear(torch.from_numpy(mesh_alpha(vertices, f, camera, 4))[..., None], taps)
+        for f in (faces, faces[near])
+    )
+    assert torch.equal(whole, part) and 0 < whole.sum() < len(points)  # some points on the sphere, some off it
+    assert near.mean() < 0.2
