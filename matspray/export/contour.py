@@ -1,10 +1,9 @@
 """The decimated mesh's silhouettes moved onto the asset's, vertex by vertex.
 
 The level calibration (`silhouette.silhouette_offset`) moves the whole surface by one distance, so the mesh
-covers as many pixels as the asset in total; locally its rim still strays by a fraction of a pixel either way
-(the TSDF's voxels are ~0.02 units, a pixel ~0.02 units at 128 px). The silhouette-counting metric charges that
-stray rim in full against the asset, whose soft alpha sits on the truth: on the evaluation objects, over half of
-the mesh's loss against the Gaussians was at the silhouette (docs/dev/export.md).
+covers as many pixels as the asset in total; locally its rim still strays by a fraction of a pixel either way,
+which a metric that counts the silhouette charges in full against the asset, whose soft alpha sits on the truth
+(docs/dev/export.md).
 
 Each round, in every training view, the rim vertices (on an edge between a face turned to the camera and one
 turned away) are moved along their normal by how far the asset's silhouette edge (alpha = min_alpha) lies from
@@ -12,7 +11,9 @@ the mesh's own (its coverage on a 4 x 4 sample grid per pixel), both found on th
 projection in the direction its normal projects to. Comparing the two edges on the same line, instead of the
 vertex's own projection with the asset's edge, keeps out the bias of a rim vertex that sits a little inside the
 mesh's outline (a fold of the faceted surface); a line that does not run cleanly from inside to outside for
-both (a hidden rim, another part behind it) casts no vote."""
+both (a hidden rim, another part behind it) casts no vote, nor does a vertex whose normal points too nearly along
+the ray to move its edge sideways.
+"""
 
 from __future__ import annotations
 
@@ -33,6 +34,9 @@ STEP = 0.125  # pixels between the samples of that search
 OWN_SAMPLES = 4  # samples per pixel side of the mesh's own coverage: its edge to a quarter pixel
 ON_RIM = 0.75  # pixels: a rim vertex further than this from the mesh's own edge is inside the outline, no vote
 NORMAL_STEP = 1e-3  # world units: the finite step that projects a normal into the image
+# A normal within 30 degrees of the ray moves the vertex's projection by less than half its move: the pixels it
+# must travel would ask a long move in depth, which that view does not see
+MIN_SIDEWAYS = 0.5
 
 
 def edge_position(values: Tensor, steps: Tensor, level: float) -> tuple[Tensor, Tensor]:
@@ -95,7 +99,9 @@ def contour_offsets(
     direction = (moved - pixels) / NORMAL_STEP  # [V, 2] pixels per world unit along the normal
     speed = direction.norm(dim=1)
     front = facing(mesh, camera.camtoworld[:3, 3].double().numpy())
-    rim = torch.from_numpy(rim_vertices(mesh, front)) & (z > 1e-6) & (speed > 1e-6)
+    focal = 0.5 * float(camera.K[0, 0] + camera.K[1, 1])
+    sideways = speed * z / focal  # [V] sine of the angle between the normal and the ray, near the image's centre
+    rim = torch.from_numpy(rim_vertices(mesh, front)) & (z > 1e-6) & (sideways >= MIN_SIDEWAYS)
     index = rim.nonzero().squeeze(1)
     steps = torch.arange(-REACH, REACH + 1e-6, STEP)  # [T]
     outwards = direction[index] / speed[index, None]  # [R, 2]
