@@ -199,6 +199,8 @@ def test_rasterize_uv_matches_point_in_triangle_brute_force():
         d = np.stack([e[0] * p[:, 1] - e[1] * p[:, 0] for e, p in edges], -1)
         covered |= (d >= -1e-12).all(-1) | (d <= 1e-12).all(-1)
     assert np.array_equal(np.sort(texels.index), np.flatnonzero(covered))
+    none = rasterize_uv(uvs, faces[:0], size)  # no triangles: no texels
+    assert none.index.shape == none.face.shape == (0,) and none.bary.shape == (0, 3)
 
 
 def test_fill_empty_takes_the_nearest_filled_texel():

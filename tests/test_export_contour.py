@@ -53,7 +53,7 @@ def test_a_sphere_a_little_small_grows_onto_the_silhouettes_it_is_shown():
 
 def test_a_view_that_shows_no_edge_near_the_rim_casts_no_vote():
     """Where the asset covers the whole image around the rim (another part in front, or the background's
-    Gaussians), or none of it, no vertex is moved by that view."""
+    Gaussians), or none of it, no vertex is moved by that view; nor by a camera that sees none of the mesh."""
     mesh, camera = sphere(1.0, 3), sphere_cameras(1, 64)[0]
     normals = np.asarray(mesh.vertex_normals)
     for alpha in (torch.ones(64, 64), torch.zeros(64, 64)):
@@ -61,6 +61,11 @@ def test_a_view_that_shows_no_edge_near_the_rim_casts_no_vote():
         assert not voted.any() and not offsets.any()
     offsets, voted = contour_offsets(mesh, normals, camera, coverage(sphere(1.02, 5), camera), 0.5)
     assert voted.sum() > 20 and (offsets[voted] > 0).mean() > 0.9  # a larger sphere: outwards
+    away = Camera.look_at([0.0, 0.0, 4.0], [0.0, 0.0, 8.0], [0.0, 1.0, 0.0], 0.75, 32, 32)  # sees none of the mesh
+    offsets, voted = contour_offsets(mesh, normals, away, torch.zeros(32, 32), 0.5)
+    assert not voted.any() and not offsets.any()
+    unmoved = fit_silhouettes(mesh, [away], [torch.zeros(32, 32)], 0.5, rounds=2)
+    assert np.array_equal(unmoved.vertices, mesh.vertices)
 
 
 def test_the_fit_brings_a_fused_surface_closer_to_the_asset_in_views_it_was_not_fit_on():

@@ -57,8 +57,10 @@ def rasterize_uv(uvs: np.ndarray, faces: np.ndarray, size: int) -> Texels:  # [V
         found_face.append(face[inside])
         found_bary.append(bary[inside])
         start = stop
-    index = np.concatenate(found_index) if found_index else np.zeros(0, np.int64)
-    index, first = np.unique(index, return_index=True)  # a centre on a shared edge: the first triangle keeps it
+    if not found_index:  # no triangles
+        return Texels(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
+    index, first = np.unique(np.concatenate(found_index), return_index=True)  # a centre on a shared edge: the first
+    # triangle keeps it
     return Texels(index, np.concatenate(found_face)[first], np.concatenate(found_bary)[first])
 
 
