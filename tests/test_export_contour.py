@@ -82,7 +82,7 @@ def test_the_fit_brings_a_fused_surface_closer_to_the_asset_in_views_it_was_not_
         return sum(float((coverage(surface, c) - t).abs().sum()) for c, t in zip(held_out, targets))
 
     before, after = mismatch(mesh), mismatch(fitted)
-    assert after < 0.9 * before, (before, after)  # 91.5 -> 78.6 pixels when written
+    assert after < 0.9 * before, (before, after)
 
 
 def test_the_faces_near_the_sampled_points_cover_them_as_all_the_faces_do():

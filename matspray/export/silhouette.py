@@ -29,8 +29,8 @@ def mesh_alpha(
     side = max(camera.width, camera.height) * s
     front = (z[faces].min(-1).values > 1e-6).numpy()  # [F] triangles wholly in front
     texels = rasterize_uv(pixels.double().numpy() * s / side, faces[front], side)
-    covered = np.zeros(side * side)
-    covered[texels.index] = 1.0
+    covered = np.zeros(side * side, dtype=bool)  # a byte per sample: 10 MB at 800 px and 4 x 4 samples
+    covered[texels.index] = True
     covered = covered.reshape(side, side)[: camera.height * s, : camera.width * s]
     return covered.reshape(camera.height, s, camera.width, s).mean(axis=(1, 3))
 
