@@ -13,7 +13,7 @@ import trimesh  # noqa: E402
 from matspray.data import Camera  # noqa: E402
 from matspray.export.contour import contour_offsets, edge_position, faces_near, fit_silhouettes  # noqa: E402
 from matspray.export.decimate import decimate  # noqa: E402
-from matspray.export.silhouette import mesh_alpha  # noqa: E402
+from matspray.export.silhouette import mesh_alpha, spread  # noqa: E402
 from matspray.export.surface import fuse_surface, sample_bilinear  # noqa: E402
 from tests.scenes import sphere_cameras, sphere_of_disks  # noqa: E402
 
@@ -100,3 +100,14 @@ def test_the_faces_near_the_sampled_points_cover_them_as_all_the_faces_do():
     )
     assert torch.equal(whole, part) and 0 < whole.sum() < len(points)  # some points on the sphere, some off it
     assert near.mean() < 0.2
+
+
+def test_a_round_looks_at_up_to_its_number_of_views_spread_over_all():
+    assert spread(96, 48).tolist() == [round(i * 95 / 47) for i in range(48)]
+    assert spread(40, 48).tolist() == list(range(40)) and spread(0, 48).tolist() == []
+    mesh, cameras = sphere(0.96, 3), sphere_cameras(4, 48)
+    alphas = [coverage(sphere(1.0, 5), c) for c in cameras]
+    blank = [torch.zeros(48, 48)] * 4  # the asset shows nothing there: no votes
+    first_and_last = fit_silhouettes(mesh, cameras, [alphas[0], blank[1], blank[2], alphas[3]], 0.5, 1, views=2)
+    assert np.array_equal(first_and_last.vertices, fit_silhouettes(mesh, cameras, alphas, 0.5, 1, views=2).vertices)
+    assert not np.array_equal(first_and_last.vertices, fit_silhouettes(mesh, cameras, alphas, 0.5, 1).vertices)

@@ -26,7 +26,7 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.export.normals import smoothed_vertex_normals
-from matspray.export.silhouette import mesh_alpha
+from matspray.export.silhouette import mesh_alpha, spread
 from matspray.export.surface import sample_bilinear
 
 REACH = 2.0  # pixels searched either side of a rim vertex for the two silhouettes' edges
@@ -34,6 +34,9 @@ STEP = 0.125  # pixels between the samples of that search
 OWN_SAMPLES = 4  # samples per pixel side of the mesh's own coverage: its edge to a quarter pixel
 ON_RIM = 0.75  # pixels: a rim vertex further than this from the mesh's own edge is inside the outline, no vote
 NORMAL_STEP = 1e-3  # world units: the finite step that projects a normal into the image
+# views a round looks at, spread over the training views: the step's time grows with them, and on a capture of
+# about a hundred views half of them fit the rim as well (docs/dev/export.md)
+FIT_VIEWS = 48
 # A normal within 30 degrees of the ray moves the vertex's projection by less than half its move: the pixels it
 # must travel would ask a long move in depth, which that view does not see
 MIN_SIDEWAYS = 0.5
@@ -140,10 +143,12 @@ def fit_silhouettes(
     rounds: int,
     normal_smoothing: int = 10,
     spreading: int = 3,
+    views: int = FIT_VIEWS,
 ) -> trimesh.Trimesh:
     """`mesh` with its vertices moved along their (Taubin-smoothed) normals so that its silhouettes follow the
     asset's: per round, each vertex's `contour_offsets` averaged over the views where it votes, then `spreading`
-    passes that blend each move with its neighbours' mean (a vertex that never votes takes the mean)."""
+    passes that blend each move with its neighbours' mean (a vertex that never votes takes the mean). Up to `views` of
+    the cameras, spread over them, take part."""
     if rounds <= 0:
         return mesh
     neighbours = neighbour_mean(mesh)
@@ -152,8 +157,8 @@ def fit_silhouettes(
         normals = smoothed_vertex_normals(mesh, normal_smoothing)
         normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
         total, votes = np.zeros(len(mesh.vertices)), np.zeros(len(mesh.vertices))
-        for camera, alpha in zip(cameras, alphas):
-            offsets, voted = contour_offsets(mesh, normals, camera.to("cpu"), alpha.cpu(), min_alpha)
+        for i in spread(len(cameras), views):
+            offsets, voted = contour_offsets(mesh, normals, cameras[i].to("cpu"), alphas[i].cpu(), min_alpha)
             total += offsets
             votes += voted
         move = np.where(votes > 0, total / np.maximum(votes, 1.0), 0.0)

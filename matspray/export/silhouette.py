@@ -35,6 +35,11 @@ def mesh_alpha(
     return covered.reshape(camera.height, s, camera.width, s).mean(axis=(1, 3))
 
 
+def spread(count: int, most: int) -> np.ndarray:  # -> [<= most] int, increasing
+    """Up to `most` indices of `count` views, evenly spread from the first to the last."""
+    return np.unique(np.linspace(0, count - 1, min(most, count)).round().astype(int)) if count else np.zeros(0, int)
+
+
 def rim_length(mask: np.ndarray) -> int:  # [H, W] bool -> pixels of the mask with a 4-neighbour outside it
     padded = np.pad(mask, 1)
     inner = padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:]
@@ -48,7 +53,7 @@ def silhouette_offset(
     asset's (alpha >= min_alpha) in up to `views` of the cameras, spread over them: the summed deficit of
     covered pixels over the summed rim length, in pixels, times a pixel's size at the object's depth."""
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64)
-    picked = np.unique(np.linspace(0, len(cameras) - 1, min(views, len(cameras))).round().astype(int))
+    picked = spread(len(cameras), views)
     shift, rim = 0.0, 0
     for i in picked:
         camera, target = cameras[i], (alphas[i] >= min_alpha).numpy()
