@@ -21,6 +21,9 @@ import time
 from pathlib import Path
 
 from matspray.eval.glb import evaluate_glb
+from matspray.export.config import ExportConfig
+
+DEFAULTS = ExportConfig()
 
 
 def export_in_child(run: Path, out: Path, args) -> tuple[float, float]:  # -> seconds, peak MiB
@@ -88,11 +91,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--faces", type=int, default=50_000)
-    parser.add_argument("--texture-size", type=int, default=1024)
-    parser.add_argument("--grid", type=int, default=128)
-    parser.add_argument("--normals", choices=("mesh", "asset"), default="mesh")
-    parser.add_argument("--silhouette-rounds", type=int, default=2)
+    parser.add_argument("--faces", type=int, default=DEFAULTS.faces)
+    parser.add_argument("--texture-size", type=int, default=DEFAULTS.texture_size)
+    parser.add_argument("--grid", type=int, default=DEFAULTS.grid)
+    parser.add_argument("--normals", choices=("mesh", "asset"), default=DEFAULTS.normals)
+    parser.add_argument("--silhouette-rounds", type=int, default=DEFAULTS.silhouette_rounds)
     parser.add_argument(
         "--backend",
         default="torch",

@@ -384,7 +384,7 @@ def test_the_truth_is_rendered_at_the_datasets_spp_and_a_synth_objects_training_
 
 
 def test_unit_normals_replaces_zero_length_normals():
-    from matspray.export.export import unit_normals
+    from matspray.export.normals import unit_normals
 
     positions = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 2.0, 0], [0, -2.0, 0]])
     normals = np.array([[2.0, 0, 0], [0, 0, 0], [0, 1e-9, 0], [np.nan, 0, 0]])

@@ -59,8 +59,8 @@ def rasterize_uv(uvs: np.ndarray, faces: np.ndarray, size: int) -> Texels:  # [V
         start = stop
     if not found_index:  # no triangles
         return Texels(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
-    index, first = np.unique(np.concatenate(found_index), return_index=True)  # a centre on a shared edge: the first
-    # triangle keeps it
+    # a centre on a shared edge: the first triangle keeps it
+    index, first = np.unique(np.concatenate(found_index), return_index=True)
     return Texels(index, np.concatenate(found_face)[first], np.concatenate(found_bary)[first])
 
 

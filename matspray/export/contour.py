@@ -25,7 +25,7 @@ from scipy.sparse import coo_matrix
 from torch import Tensor
 
 from matspray.data.camera import Camera
-from matspray.export.normals import smoothed_vertex_normals
+from matspray.export.normals import smoothed_vertex_normals, unit_normals
 from matspray.export.silhouette import mesh_alpha, spread
 from matspray.export.surface import sample_bilinear
 
@@ -127,6 +127,8 @@ def contour_offsets(
 
 
 def neighbour_mean(mesh: trimesh.Trimesh):  # -> sparse [V, V]: row i averages vertex i's neighbours
+    # not trimesh.smoothing.laplacian_calculation: it divides by zero on a vertex no face uses and leaves out such
+    # vertices at the end of the list, which a decimated mesh may hold; here their row is zero
     edges = np.asarray(mesh.edges_unique)
     n = len(mesh.vertices)
     rows, cols = np.concatenate([edges[:, 0], edges[:, 1]]), np.concatenate([edges[:, 1], edges[:, 0]])
@@ -154,8 +156,7 @@ def fit_silhouettes(
     neighbours = neighbour_mean(mesh)
     faces = np.asarray(mesh.faces)
     for _ in range(rounds):
-        normals = smoothed_vertex_normals(mesh, normal_smoothing)
-        normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        normals = unit_normals(smoothed_vertex_normals(mesh, normal_smoothing), np.asarray(mesh.vertices))
         total, votes = np.zeros(len(mesh.vertices)), np.zeros(len(mesh.vertices))
         for i in spread(len(cameras), views):
             offsets, voted = contour_offsets(mesh, normals, cameras[i].to("cpu"), alphas[i].cpu(), min_alpha)

@@ -21,7 +21,7 @@ from matspray.export.config import ExportConfig
 from matspray.export.contour import fit_silhouettes
 from matspray.export.decimate import decimate
 from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
-from matspray.export.normals import smoothed_vertex_normals
+from matspray.export.normals import smoothed_vertex_normals, unit_normals
 from matspray.export.surface import fuse_surface
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
@@ -121,16 +121,6 @@ def mesh_from_asset(
         extras,
         seconds,
     )
-
-
-def unit_normals(normals: np.ndarray, positions: np.ndarray) -> np.ndarray:  # [V, 3], [V, 3] -> [V, 3] unit
-    """Vertex normals with the zero-length ones (a vertex whose faces cancel out) replaced by the direction
-    from the mesh's centre: glTF requires unit normals."""
-    length = np.linalg.norm(normals, axis=-1, keepdims=True)
-    outward = positions - positions.mean(0)
-    outward = outward / np.maximum(np.linalg.norm(outward, axis=-1, keepdims=True), 1e-12)
-    outward[np.linalg.norm(outward, axis=-1) < 0.5] = (0.0, 0.0, 1.0)
-    return np.where((length > 1e-6) & np.isfinite(length), normals / np.maximum(length, 1e-12), outward)
 
 
 def gltf_material(textures: np.ndarray) -> PbrMaterial:  # [S, S, 5] linear materials
