@@ -257,6 +257,8 @@ def run_cli(args, capsys):
         (["--texture-size", "16384"], "power of two in [64, 8192]"),
         (["--texture-size", "32"], "power of two in [64, 8192]"),
         (["--silhouette-rounds", "-1"], "silhouette fit's rounds must be >= 0"),
+        (["--asset-normals", "1.5"], "share of the normals must be in [0, 1], got 1.5"),
+        (["--asset-normals", "nan"], "share of the normals must be in [0, 1], got nan"),
         (["--variant", "no-softmax"], "make it with `matspray run --variant no-softmax`"),
     ],
 )
@@ -383,21 +385,6 @@ def test_the_truth_is_rendered_at_the_datasets_spp_and_a_synth_objects_training_
     assert training_light_path(tmp_path) == tmp_path / "envmaps" / "sky.exr"
 
 
-def test_unit_normals_replaces_zero_length_normals():
-    from matspray.export.normals import unit_normals
-
-    positions = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 2.0, 0], [0, -2.0, 0]])
-    normals = np.array([[2.0, 0, 0], [0, 0, 0], [0, 1e-9, 0], [np.nan, 0, 0]])
-    out = unit_normals(normals, positions)
-    assert np.allclose(np.linalg.norm(out, axis=-1), 1.0)
-    assert (
-        np.allclose(out[0], [1, 0, 0])
-        and np.allclose(out[1], [-1, 0, 0])
-        and np.allclose(out[2], [0, 1, 0])
-        and np.allclose(out[3], [0, -1, 0])
-    )
-
-
 def test_unknown_space_reaching_the_border_is_outside_and_enclosed_unknown_space_inside():
     from matspray.export.surface import open_to_outside
 
@@ -486,7 +473,7 @@ def test_padding_keeps_charts_apart_at_the_first_mip_level():
     assert not mixed.any(), f"{int(mixed.sum())} level-1 mip texels mix two charts"
 
 
-# -------------------------------------------------------------------------------- surface against wrong depths, normals
+# -------------------------------------------------------------------------------------- surface against wrong depths
 def sphere_depths(cameras: list[Camera], radius: float = 1.0) -> list[tuple[torch.Tensor, torch.Tensor]]:
     """What `render_depths` gives for an opaque sphere at the origin: camera z of the first hit (weighted
     by alpha 1) and alpha, 0 where the ray misses."""
@@ -525,34 +512,6 @@ def test_one_view_with_a_wrong_depth_does_not_carve_a_pit():
     radius = centres.norm(dim=-1)
     assert (field[radius > 1.0 + 2 * voxel] > 0).all()
     assert (field[radius < 1.0 - 6 * voxel] < 0).all()
-
-
-def noisy_sphere(subdivisions: int = 5, noise: float = 0.01, seed: int = 0):
-    import trimesh
-
-    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
-    rng = np.random.default_rng(seed)
-    vertices = sphere.vertices * (1.0 + noise * rng.standard_normal(len(sphere.vertices)))[:, None]
-    return trimesh.Trimesh(vertices, sphere.faces, process=False)
-
-
-def test_smoothed_normals_of_a_noisy_sphere_are_closer_to_the_analytic_ones_and_positions_stay():
-    from matspray.export.normals import angle_degrees, smoothed_vertex_normals
-
-    mesh = noisy_sphere()
-    before = np.asarray(mesh.vertices).copy()
-    analytic = before / np.linalg.norm(before, axis=-1, keepdims=True)
-    raw = angle_degrees(smoothed_vertex_normals(mesh, 0), analytic)
-    smooth = angle_degrees(smoothed_vertex_normals(mesh, 10), analytic)  # the export's default
-    smoother = angle_degrees(smoothed_vertex_normals(mesh, 40), analytic)
-    assert np.allclose(smoothed_vertex_normals(mesh, 0), mesh.vertex_normals)  # 0 passes: the surface's own normals
-    assert smooth.mean() < 0.6 * raw.mean() and np.percentile(smooth, 90) < 0.6 * np.percentile(raw, 90)
-    assert smoother.mean() < 0.35 * raw.mean()
-    assert np.array_equal(np.asarray(mesh.vertices), before)  # only a copy is smoothed
-    # a surface without noise keeps its normals: smoothing moves them by less than half a degree
-    exact = noisy_sphere(noise=0.0)
-    directions = np.asarray(exact.vertices) / np.linalg.norm(exact.vertices, axis=-1, keepdims=True)
-    assert angle_degrees(smoothed_vertex_normals(exact, 40), directions).max() < 0.5
 
 
 def test_depth_trust_is_low_on_smooth_metal_only():

@@ -1,11 +1,19 @@
 """`matspray export --run RUN --out FILE.glb`: the asset as a textured glTF 2.0 mesh."""
 
+import argparse
 from pathlib import Path
 
 from matspray.cli.options import VARIANT_HELP, add_compute_arguments, hidden_alias
 from matspray.export.config import ExportConfig
 
 DEFAULTS = ExportConfig()
+OLD_NORMALS = {"mesh": 0.0, "asset": 1.0}  # --normals mesh|asset, the flag before --asset-normals
+
+
+def old_normals(value: str) -> float:
+    if value not in OLD_NORMALS:
+        raise argparse.ArgumentTypeError(f"'{value}': choose mesh or asset, or pass --asset-normals SHARE")
+    return OLD_NORMALS[value]
 
 
 def add_export_parser(parser) -> None:
@@ -44,10 +52,12 @@ def add_export_parser(parser) -> None:
         help=f"TSDF voxels along the object's longest side (default {DEFAULTS.grid}); finer surface, more time",
     )
     parser.add_argument(
-        "--normals",
-        choices=("mesh", "asset"),
-        default=DEFAULTS.normals,
-        help="per-vertex normals: the surface's own (default) or the Gaussians' shading normals blended onto it",
+        "--asset-normals",
+        type=float,
+        default=DEFAULTS.asset_normals,
+        metavar="SHARE",
+        help="share of the Gaussians' refined shading normals in the mesh's per-vertex normals, in [0, 1]: 0 keeps "
+        f"the surface's own, 1 takes the Gaussians' alone (default {DEFAULTS.asset_normals})",
     )
     parser.add_argument(
         "--silhouette-rounds",
@@ -63,6 +73,7 @@ def add_export_parser(parser) -> None:
     )
     add_compute_arguments(parser)
     hidden_alias(parser, "--texture-size", "texture_size", type=int)  # the old name of --texture-resolution
+    hidden_alias(parser, "--normals", "asset_normals", type=old_normals)
 
 
 EXPORT_PACKAGES = ("trimesh", "xatlas", "skimage", "fast_simplification", "scipy", "pygltflib")  # the `export` extra
@@ -84,7 +95,7 @@ def export_main(args) -> int:
         texture_size=args.texture_size,
         frame=args.frame,
         grid=args.grid,
-        normals=args.normals,
+        asset_normals=args.asset_normals,
         silhouette_rounds=args.silhouette_rounds,
     )
     with out_of_memory_as_error("export", device):

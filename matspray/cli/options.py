@@ -190,7 +190,7 @@ FLAG_OF_SETTING.update(
         "export.faces": "--faces",
         "export.texture_size": "--texture-resolution",
         "export.frame": "--frame",
-        "export.normals": "--normals",
+        "export.asset_normals": "--asset-normals",
     }
 )
 

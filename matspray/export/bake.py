@@ -97,14 +97,22 @@ def blend(ids: np.ndarray, weights: np.ndarray, values: np.ndarray) -> np.ndarra
     return np.einsum("pk,pkc->pc", weights, values[ids])
 
 
-def blend_normals(ids: np.ndarray, weights: np.ndarray, normals: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Blend unoriented Gaussian normals [N, 3], each flipped to the side of `reference` [P, 3] (the
-    surface's own normal) first; falls back to `reference` where the flips cancel out."""
+def blend_normals(
+    ids: np.ndarray,  # [P, k] Gaussians near each point
+    weights: np.ndarray,  # [P, k] their weights, summing to 1
+    normals: np.ndarray,  # [N, 3] the Gaussians' unoriented unit normals
+    reference: np.ndarray,  # [P, 3] the surface's own unit normals
+    share: float = 1.0,  # the Gaussians' share of the result
+) -> np.ndarray:  # -> [P, 3] unit
+    """The Gaussians' normals, each flipped to the side of `reference` first, blended; then mixed with
+    `reference` at `share` (1: the Gaussians' alone). Falls back to `reference` where the flips cancel out."""
     picked = normals[ids]  # [P, k, 3]
     sign = np.where(np.einsum("pkc,pc->pk", picked, reference) < 0, -1.0, 1.0)
     summed = np.einsum("pk,pkc->pc", weights * sign, picked)
     length = np.linalg.norm(summed, axis=-1, keepdims=True)
-    return np.where(length > 1e-6, summed / np.maximum(length, 1e-12), reference)
+    gaussian = np.where(length > 1e-6, summed / np.maximum(length, 1e-12), reference)
+    mixed = share * gaussian + (1 - share) * reference  # both unit and on one side: never zero
+    return mixed / np.linalg.norm(mixed, axis=-1, keepdims=True)
 
 
 def fill_empty(texture: np.ndarray, filled: np.ndarray) -> np.ndarray:  # [S, S, C], [S, S] bool -> [S, S, C]

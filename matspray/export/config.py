@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from matspray.errors import SettingError
 
 FRAMES = ("gltf", "dataset")
-NORMALS = ("mesh", "asset")
 MIN_FACES = 100
 TEXTURE_SIZES = tuple(2**k for k in range(6, 14))  # 64 .. 8192
 
@@ -24,7 +23,8 @@ class ExportConfig:
     keep_fraction: float = 0.05  # keep connected components with at least this share of the largest one's faces
     neighbours: int = 16  # Gaussians blended per texel when baking
     padding: int = 4  # xatlas gutter between charts, in texels
-    normals: str = "mesh"  # per-vertex normals: mesh (the surface's own) or asset (the Gaussians' normals blended)
+    asset_normals: float = 0.5  # share of the Gaussians' refined normals in the vertex normals (0: the surface's own);
+    # the two sources err in different places, so their mix relights better than either (docs/dev/export.md)
     normal_smoothing: int = 10  # Taubin passes on the copy of the surface its normals come from (0: the raw surface's)
     silhouette_rounds: int = 2  # rounds moving the decimated mesh's rim vertices onto the asset's silhouettes (0: off)
 
@@ -43,9 +43,10 @@ class ExportConfig:
                 "the TSDF grid must be >= 16 voxels, the truncation > 0, the alpha threshold in (0, 1) "
                 "and the kept component share in [0, 1]",
             )
-        if self.normals not in NORMALS:
+        if not 0 <= self.asset_normals <= 1:
             raise SettingError(
-                "export.normals", f"unknown normals '{self.normals}'; choose one of {', '.join(NORMALS)}"
+                "export.asset_normals",
+                f"the Gaussians' share of the normals must be in [0, 1], got {self.asset_normals}",
             )
         if self.neighbours < 1 or self.padding < 0:
             raise SettingError("export", "baking needs >= 1 neighbour and a padding >= 0")

@@ -99,9 +99,10 @@ def mesh_from_asset(
     normals = unit_normals(smoothed_vertex_normals(mesh, config.normal_smoothing), np.asarray(mesh.vertices))[
         atlas.source
     ]
-    if config.normals == "asset":
+    if config.asset_normals > 0:
         ids, weights = gaussian_weights(atlas.positions, asset.gaussians, config.neighbours, voxel)
-        normals = blend_normals(ids, weights, asset.normals.detach().cpu().double().numpy(), normals)
+        gaussian_normals = asset.normals.detach().cpu().double().numpy()
+        normals = blend_normals(ids, weights, gaussian_normals, normals, config.asset_normals)
     step("bake")
     bar.close()
     matrix = file_from_dataset(config.frame)
