@@ -24,7 +24,7 @@ class ExportConfig:
     neighbours: int = 16  # Gaussians blended per texel when baking
     padding: int = 4  # xatlas gutter between charts, in texels
     asset_normals: float = 0.5  # share of the Gaussians' refined normals in the vertex normals (0: the surface's own);
-    # the two sources err in different places, so their mix relights better than either (docs/dev/export.md)
+    # the two sources err in different places, so their mix relights better than either (docs/defaults.md)
     normal_smoothing: int = 10  # Taubin passes on the copy of the surface its normals come from (0: the raw surface's)
     silhouette_rounds: int = 2  # rounds moving the decimated mesh's rim vertices onto the asset's silhouettes (0: off)
 
