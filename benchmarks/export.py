@@ -1,7 +1,7 @@
 """The exported mesh against the Gaussian asset it came from, on finished runs of `matspray synth` objects.
 
     python -m benchmarks.export RUN [RUN ...] --out DIR [--faces 200000] [--texture-size 1024] [--grid 128]
-        [--silhouette-rounds 2] [--asset-normals 0.5]
+        [--silhouette-rounds 2] [--asset-normals 0.5] [--bake auto]
 
 For each run: `matspray export` in a child process (wall seconds and its peak resident memory, from
 the kernel's accounting of that process), then `matspray eval --glb` (Mitsuba renders the mesh under
@@ -46,6 +46,8 @@ def export_in_child(run: Path, out: Path, args) -> tuple[float, float]:  # -> se
         str(args.asset_normals),
         "--silhouette-rounds",
         str(args.silhouette_rounds),
+        "--bake",
+        args.bake,
         "--backend",
         args.backend,
     ]
@@ -96,6 +98,7 @@ def main() -> None:
     parser.add_argument("--grid", type=int, default=DEFAULTS.grid)
     parser.add_argument("--asset-normals", type=float, default=DEFAULTS.asset_normals)
     parser.add_argument("--silhouette-rounds", type=int, default=DEFAULTS.silhouette_rounds)
+    parser.add_argument("--bake", default=DEFAULTS.bake)
     parser.add_argument(
         "--backend",
         default="torch",

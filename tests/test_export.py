@@ -149,6 +149,7 @@ def test_baked_texels_hold_the_materials_of_the_gaussians_on_the_surface(exporte
     """The disk sphere's materials are constant over regions (base colour by the sign of x, roughness by
     the sign of y, metallic where z > 0.6): texels well inside a region read back its exact material."""
     primitive, material, extras = file_mesh(exported["dataset"])
+    assert extras["bake"] == "gaussians"  # auto, for the full asset
     size = material.base_color_texture.image.shape[0]
     texels = rasterize_uv(primitive.uvs[0], primitive.indices, size)
     points = np.einsum("tk,tkc->tc", texels.bary, primitive.positions[primitive.indices[texels.face]])

@@ -11,10 +11,11 @@ pytest.importorskip("fast_simplification")
 import trimesh  # noqa: E402
 
 from matspray.data import Camera  # noqa: E402
+from matspray.export.bake import sample_bilinear  # noqa: E402
 from matspray.export.contour import contour_offsets, edge_position, faces_near, fit_silhouettes  # noqa: E402
 from matspray.export.decimate import decimate  # noqa: E402
 from matspray.export.silhouette import mesh_alpha, spread  # noqa: E402
-from matspray.export.surface import fuse_surface, sample_bilinear  # noqa: E402
+from matspray.export.surface import fuse_surface  # noqa: E402
 from tests.scenes import sphere_cameras, sphere_of_disks  # noqa: E402
 
 

@@ -4,7 +4,7 @@ import argparse
 from pathlib import Path
 
 from matspray.cli.options import VARIANT_HELP, add_compute_arguments, hidden_alias
-from matspray.export.config import ExportConfig
+from matspray.export.config import BAKES, ExportConfig
 
 DEFAULTS = ExportConfig()
 OLD_NORMALS = {"mesh": 0.0, "asset": 1.0}  # --normals mesh|asset, the flag before --asset-normals
@@ -60,6 +60,14 @@ def add_export_parser(parser) -> None:
         f"the surface's own, 1 takes the Gaussians' alone (default {DEFAULTS.asset_normals})",
     )
     parser.add_argument(
+        "--bake",
+        choices=BAKES,
+        default=DEFAULTS.bake,
+        help="where the textures read the materials: views (the asset's renders at the training views, what the "
+        "Gaussians show), gaussians (the Gaussians around each texel, blended in 3D), auto (default: views for the "
+        "no-prior asset, gaussians for the others)",
+    )
+    parser.add_argument(
         "--silhouette-rounds",
         type=int,
         default=DEFAULTS.silhouette_rounds,
@@ -97,6 +105,7 @@ def export_main(args) -> int:
         grid=args.grid,
         asset_normals=args.asset_normals,
         silhouette_rounds=args.silhouette_rounds,
+        bake=args.bake,
     )
     with out_of_memory_as_error("export", device):
         report = export_run(

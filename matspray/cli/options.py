@@ -191,6 +191,7 @@ FLAG_OF_SETTING.update(
         "export.texture_size": "--texture-resolution",
         "export.frame": "--frame",
         "export.asset_normals": "--asset-normals",
+        "export.bake": "--bake",
     }
 )
 

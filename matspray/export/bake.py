@@ -1,18 +1,27 @@
-"""Textures from the asset: every texel of the atlas finds its point on the surface, the Gaussians
-around that point blend their materials, and empty texels take their nearest filled texel's value (seam
-padding that reaches to the texture's edge, so no mip level mixes in a background colour)."""
+"""Textures from the asset: every texel of the atlas finds its point on the surface and takes the materials the
+asset shows there: its rendered material maps at the training views that see the point (what every render of the
+Gaussians composites), else the Gaussians around the point blended in 3D. Empty texels take their nearest filled
+texel's value (seam padding that reaches to the texture's edge, so no mip level mixes in a background colour)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+import torch
+import trimesh
 from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
+from torch import Tensor
 
+from matspray.data.camera import Camera
 from matspray.gaussians import Gaussians
+from matspray.render.raster.rasterize import rasterize
 
 MAX_PAIRS = 1 << 22  # (face, texel) candidates tested at once
+# A view's weight is its cosine to the texel to this power: the most frontal views, whose pixels lie closest to the
+# texel's own spot, dominate (docs/defaults.md)
+VIEW_POWER = 8
 
 
 @dataclass(frozen=True)
@@ -22,6 +31,19 @@ class Texels:
     index: np.ndarray  # [T] int64 flat texel index, row * size + column
     face: np.ndarray  # [T] int64 triangle the centre lies in
     bary: np.ndarray  # [T, 3] float64 barycentric coordinates of the centre in that triangle
+
+
+def sample_bilinear(image: Tensor, pixels: Tensor) -> Tensor:  # [H, W, C], [P, 2] continuous (x, y) -> [P, C]
+    """Bilinear lookup with pixel centres at +0.5, clamped to the border."""
+    h, w = image.shape[:2]
+    x = (pixels[:, 0] - 0.5).clamp(0, w - 1)
+    y = (pixels[:, 1] - 0.5).clamp(0, h - 1)
+    x0, y0 = x.floor().long().clamp(max=w - 2 if w > 1 else 0), y.floor().long().clamp(max=h - 2 if h > 1 else 0)
+    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
+    bottom = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
 
 
 def rasterize_uv(uvs: np.ndarray, faces: np.ndarray, size: int) -> Texels:  # [V, 2] in [0, 1], [F, 3]
@@ -115,6 +137,50 @@ def blend_normals(
     return mixed / np.linalg.norm(mixed, axis=-1, keepdims=True)
 
 
+@dataclass(frozen=True)
+class ViewBake:
+    """Where the textures are read from the asset's renders: the cameras, and how far (world units) a texel may lie
+    from the rendered depth and still count as seen (further: something else is in front of it)."""
+
+    cameras: list[Camera]
+    depth_tolerance: float
+    min_alpha: float  # rendered coverage below which a pixel shows no surface
+
+
+def view_materials(
+    points: np.ndarray,  # [T, 3] texel positions on the mesh
+    normals: np.ndarray,  # [T, 3] unit outward normals there
+    gaussians: Gaussians,
+    materials: Tensor,  # [N, C] the Gaussians' materials
+    views: ViewBake,
+) -> tuple[np.ndarray, np.ndarray]:  # -> [T, C] the views' weighted mean, [T] their total weight (0: unseen)
+    """Each texel's materials as the asset renders them: per camera, the alpha-composited material maps read where
+    the texel projects, where the rendered depth agrees with the texel's, weighted by the view's cosine to
+    `VIEW_POWER`."""
+    points_t = torch.as_tensor(points, dtype=torch.float32)
+    normals_t = torch.as_tensor(normals, dtype=torch.float32)
+    sums, total = torch.zeros(len(points), materials.shape[1], dtype=torch.float64), torch.zeros(len(points))
+    colours = materials.to(gaussians.device, torch.float32)
+    with torch.no_grad():
+        for camera in views.cameras:
+            raster = rasterize(gaussians, camera.to(colours.device), colours)
+            alpha = raster.alpha.cpu()[..., None]  # [H, W, 1]
+            maps = torch.cat([raster.features.cpu(), raster.depth.cpu()[..., None]], -1) / alpha.clamp_min(1e-6)
+            camera = camera.to("cpu")
+            pixels, z = camera.project(points_t)  # [T, 2], [T]
+            sampled = sample_bilinear(torch.cat([maps, alpha], -1), pixels)  # [T, C + 2]
+            toward = torch.nn.functional.normalize(camera.center[None] - points_t, dim=-1)
+            cosine = (normals_t * toward).sum(-1)
+            inside = (pixels >= 0).all(-1) & (pixels[:, 0] < camera.width) & (pixels[:, 1] < camera.height)
+            seen = inside & (z > 0) & (cosine > 0) & (sampled[:, -1] > views.min_alpha)
+            seen &= (sampled[:, -2] - z).abs() < views.depth_tolerance
+            weight = torch.where(seen, cosine.clamp_min(0) ** VIEW_POWER, torch.zeros_like(cosine))
+            sums += weight[:, None].double() * sampled[:, :-2].double()
+            total += weight
+    mean = sums / total.clamp_min(1e-12)[:, None].double()
+    return mean.numpy(), total.numpy()
+
+
 def fill_empty(texture: np.ndarray, filled: np.ndarray) -> np.ndarray:  # [S, S, C], [S, S] bool -> [S, S, C]
     """Every texel that no triangle covers takes the value of the nearest covered texel."""
     if filled.all() or not filled.any():
@@ -132,12 +198,21 @@ def bake_textures(
     size: int,
     neighbours: int,
     min_scale: float,
+    views: ViewBake | None = None,  # None: every texel from the Gaussians around it
 ) -> np.ndarray:  # -> [size, size, 5] linear materials, padded over the whole texture
     texels = rasterize_uv(uvs, faces, size)
     points = np.einsum("tk,tkc->tc", texels.bary, positions[faces[texels.face]])  # [T, 3]
-    ids, weights = gaussian_weights(points, gaussians, neighbours, min_scale)
+    values = np.zeros((len(points), materials.shape[1]))
+    unseen = np.ones(len(points), dtype=bool)
+    if views is not None and views.cameras:
+        normals = trimesh.Trimesh(positions, faces, process=False).face_normals[texels.face]
+        values, weight = view_materials(points, normals, gaussians, torch.from_numpy(materials), views)
+        unseen = weight <= 0
+    if unseen.any():
+        ids, weights = gaussian_weights(points[unseen], gaussians, neighbours, min_scale)
+        values[unseen] = blend(ids, weights, materials)
     texture = np.zeros((size * size, materials.shape[1]))
-    texture[texels.index] = blend(ids, weights, materials)
+    texture[texels.index] = values
     filled = np.zeros(size * size, dtype=bool)
     filled[texels.index] = True
     return fill_empty(texture.reshape(size, size, -1), filled.reshape(size, size))

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from matspray.errors import SettingError
 
 FRAMES = ("gltf", "dataset")
+BAKES = ("auto", "views", "gaussians")
 MIN_FACES = 100
 TEXTURE_SIZES = tuple(2**k for k in range(6, 14))  # 64 .. 8192
 
@@ -21,7 +22,10 @@ class ExportConfig:
     truncation: float = 4.0  # TSDF truncation, in voxels
     min_alpha: float = 0.5  # rendered coverage above which a pixel holds surface (below: free space)
     keep_fraction: float = 0.05  # keep connected components with at least this share of the largest one's faces
-    neighbours: int = 16  # Gaussians blended per texel when baking
+    neighbours: int = 16  # Gaussians blended per texel when baking in 3D (texels no bake view sees)
+    bake: str = "auto"  # where texels read materials: views (the asset's renders at the training views), gaussians
+    # (the Gaussians around each texel, blended in 3D), auto (views for the no-prior asset, whose Gaussians' materials
+    # are noisy one by one, gaussians for the others; `export_run` resolves it from the variant; docs/defaults.md)
     padding: int = 4  # xatlas gutter between charts, in texels
     asset_normals: float = 0.5  # share of the Gaussians' refined normals in the vertex normals (0: the surface's own);
     # the two sources err in different places, so their mix relights better than either (docs/defaults.md)
@@ -54,6 +58,8 @@ class ExportConfig:
             raise SettingError(
                 "export.normal_smoothing", f"the normals' smoothing passes must be >= 0, got {self.normal_smoothing}"
             )
+        if self.bake not in BAKES:
+            raise SettingError("export.bake", f"unknown bake '{self.bake}'; choose one of {', '.join(BAKES)}")
         if self.silhouette_rounds < 0:
             raise SettingError(
                 "export.silhouette_rounds", f"the silhouette fit's rounds must be >= 0, got {self.silhouette_rounds}"

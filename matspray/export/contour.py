@@ -25,9 +25,9 @@ from scipy.sparse import coo_matrix
 from torch import Tensor
 
 from matspray.data.camera import Camera
+from matspray.export.bake import sample_bilinear
 from matspray.export.normals import smoothed_vertex_normals, unit_normals
 from matspray.export.silhouette import mesh_alpha, spread
-from matspray.export.surface import sample_bilinear
 
 REACH = 2.0  # pixels searched either side of a rim vertex for the two silhouettes' edges
 STEP = 0.125  # pixels between the samples of that search

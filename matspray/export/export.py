@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -16,12 +16,13 @@ from matspray.data.images import atomic_target, read_image, write_image
 from matspray.data.loader import load_run_scene
 from matspray.errors import ConfigError, RunError
 from matspray.export.atlas import uv_atlas
-from matspray.export.bake import bake_textures, blend_normals, gaussian_weights
+from matspray.export.bake import ViewBake, bake_textures, blend_normals, gaussian_weights
 from matspray.export.config import ExportConfig
 from matspray.export.contour import fit_silhouettes
 from matspray.export.decimate import decimate
 from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
 from matspray.export.normals import smoothed_vertex_normals, unit_normals
+from matspray.export.silhouette import spread
 from matspray.export.surface import fuse_surface
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
@@ -32,6 +33,10 @@ from matspray.render.backend import rendering_with
 from matspray.rundir import RunDir
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
+# A texel further than this from the asset's rendered depth is hidden in that view. The surface is fused from those
+# depths, so a seen texel lies within about a voxel of them; what hides it lies further (the TSDF truncates at 4).
+DEPTH_TOLERANCE_VOXELS = 3.0
+BAKE_VIEWS = 48  # training views the textures are read from, spread over them (as many as the rim fit's)
 
 
 @dataclass(frozen=True)
@@ -95,6 +100,7 @@ def mesh_from_asset(
         config.texture_size,
         config.neighbours,
         voxel,
+        bake_views(cameras, config, voxel),
     )
     normals = unit_normals(smoothed_vertex_normals(mesh, config.normal_smoothing), np.asarray(mesh.vertices))[
         atlas.source
@@ -122,6 +128,24 @@ def mesh_from_asset(
         extras,
         seconds,
     )
+
+
+def bake_views(cameras: list[Camera], config: ExportConfig, voxel: float) -> ViewBake | None:
+    """The training views the textures are read from (`config.bake` views), else None: every texel from the
+    Gaussians around it (gaussians, and auto where no variant resolved it)."""
+    if config.bake != "views":
+        return None
+    picked = [cameras[i] for i in spread(len(cameras), BAKE_VIEWS)]
+    return ViewBake(picked, DEPTH_TOLERANCE_VOXELS * voxel, config.min_alpha)
+
+
+def resolve_bake(config: ExportConfig, variant: str) -> ExportConfig:
+    """`bake` auto: the asset's renders for an asset refined without the 2D maps (no-prior), whose Gaussians'
+    materials differ from their neighbours' several times more than fused ones do; the Gaussians around each texel
+    for the others."""
+    if config.bake != "auto":
+        return config
+    return replace(config, bake="gaussians" if get_variant(variant).uses_maps else "views")
 
 
 def gltf_material(textures: np.ndarray) -> PbrMaterial:  # [S, S, 5] linear materials
@@ -219,13 +243,14 @@ def export_run(
     scene = load_run_scene(RunDir(run_dir), data)
     asset = read_asset(folder, device=device)
     region = read_region(run_dir / "masks")  # a capture without masks: the mesh stays inside its object region
+    config = resolve_bake(config, variant)
     with rendering_with(backend):
         mesh = mesh_from_asset(
             asset,
             [view.camera for view in scene.train],
             config,
             progress,
-            notes={"variant": variant, "run": str(run_dir.resolve())},
+            notes={"variant": variant, "run": str(run_dir.resolve()), "bake": config.bake},
             region=region,
         )
     envmap = folder / "envmap.exr"

@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from matspray.data.camera import Camera
 from matspray.errors import DataError
+from matspray.export.bake import sample_bilinear
 from matspray.export.silhouette import silhouette_offset
 from matspray.gaussians import Gaussians
 from matspray.render.raster.rasterize import rasterize
@@ -98,19 +99,6 @@ def voxel_grid(box: Tensor, grid: int, margin: float = 0.05) -> tuple[Tensor, fl
     axes = [lo[i] + voxel * torch.arange(shape[i], dtype=torch.float32) for i in range(3)]
     centres = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
     return centres, voxel, shape
-
-
-def sample_bilinear(image: Tensor, pixels: Tensor) -> Tensor:  # [H, W, C], [P, 2] continuous (x, y) -> [P, C]
-    """Bilinear lookup with pixel centres at +0.5, clamped to the border."""
-    h, w = image.shape[:2]
-    x = (pixels[:, 0] - 0.5).clamp(0, w - 1)
-    y = (pixels[:, 1] - 0.5).clamp(0, h - 1)
-    x0, y0 = x.floor().long().clamp(max=w - 2 if w > 1 else 0), y.floor().long().clamp(max=h - 2 if h > 1 else 0)
-    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
-    bottom = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
-    return top * (1 - fy) + bottom * fy
 
 
 def silhouette_gap(alpha: Tensor, min_alpha: float) -> Tensor:  # [H, W] -> [H, W] float32, pixels
