@@ -18,7 +18,7 @@ from matspray.errors import ConfigError, RunError
 from matspray.export.atlas import uv_atlas
 from matspray.export.bake import ViewBake, bake_textures, blend_normals, gaussian_weights
 from matspray.export.config import ExportConfig
-from matspray.export.contour import fit_silhouettes
+from matspray.export.contour import FIT_VIEWS, fit_silhouettes
 from matspray.export.decimate import decimate
 from matspray.export.frames import file_from_dataset, frame_extras, transform_directions, transform_points
 from matspray.export.normals import smoothed_vertex_normals, unit_normals
@@ -34,9 +34,10 @@ from matspray.rundir import RunDir
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
 # A texel further than this from the asset's rendered depth is hidden in that view. The surface is fused from those
-# depths, so a seen texel lies within about a voxel of them; what hides it lies further (the TSDF truncates at 4).
+# depths (each pixel's blend of its Gaussians' centre depths), so a seen texel lies within a few voxels of them; what
+# hides it lies further (the TSDF truncates at 4). Seen fractions per tolerance: docs/dev/export.md.
 DEPTH_TOLERANCE_VOXELS = 3.0
-BAKE_VIEWS = 48  # training views the textures are read from, spread over them (as many as the rim fit's)
+BAKE_VIEWS = FIT_VIEWS  # training views the textures are read from, spread over them: as many as the rim fit reads
 
 
 @dataclass(frozen=True)
