@@ -97,3 +97,14 @@ def test_auto_bakes_from_the_views_for_an_asset_refined_without_the_2d_maps():
     assert resolve_bake(ExportConfig(bake="views"), "full").bake == "views"
     with pytest.raises(SettingError, match="unknown bake 'shiny'; choose one of auto, views, gaussians"):
         ExportConfig(bake="shiny")
+
+
+def test_camera_in_image_keeps_points_in_front_and_inside_the_frame():
+    import torch
+
+    from matspray.data import Camera
+
+    camera = Camera.look_at([0.0, 0.0, 4.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], 0.75, 32, 24)
+    points = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 8.0], [50.0, 0.0, 0.0], [0.0, -50.0, 0.0], [0.3, 0.2, 1.0]])
+    pixels, z = camera.project(points)
+    assert camera.in_image(pixels, z).tolist() == [True, False, False, False, True]  # behind; right; below

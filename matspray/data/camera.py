@@ -154,6 +154,10 @@ class Camera:
         pixels = uv * torch.stack([K[0, 0], K[1, 1]]) + torch.stack([K[0, 2], K[1, 2]])
         return pixels, z
 
+    def in_image(self, pixels: Tensor, z: Tensor) -> Tensor:  # [N, 2], [N] (`project`) -> [N] bool
+        """Projected points in front of the camera whose pixel coordinates lie inside the image."""
+        return (z > 1e-6) & (pixels >= 0).all(-1) & (pixels[:, 0] < self.width) & (pixels[:, 1] < self.height)
+
     def rays(self, samples_per_side: int = 1) -> tuple[Tensor, Tensor]:
         """Ray origins and unit directions in world space.
 

@@ -164,15 +164,14 @@ def view_materials(
     with torch.no_grad():
         for camera in views.cameras:
             raster = rasterize(gaussians, camera.to(colours.device), colours)
-            alpha = raster.alpha.cpu()[..., None]  # [H, W, 1]
-            maps = torch.cat([raster.features.cpu(), raster.depth.cpu()[..., None]], -1) / alpha.clamp_min(1e-6)
+            alpha = raster.alpha[..., None]  # [H, W, 1]
+            maps = torch.cat([raster.features / alpha.clamp_min(1e-6), raster.expected_depth[..., None], alpha], -1)
             camera = camera.to("cpu")
             pixels, z = camera.project(points_t)  # [T, 2], [T]
-            sampled = sample_bilinear(torch.cat([maps, alpha], -1), pixels)  # [T, C + 2]
+            sampled = sample_bilinear(maps.cpu(), pixels)  # [T, C + 2]: materials, depth, alpha
             toward = torch.nn.functional.normalize(camera.center[None] - points_t, dim=-1)
             cosine = (normals_t * toward).sum(-1)
-            inside = (pixels >= 0).all(-1) & (pixels[:, 0] < camera.width) & (pixels[:, 1] < camera.height)
-            seen = inside & (z > 0) & (cosine > 0) & (sampled[:, -1] > views.min_alpha)
+            seen = camera.in_image(pixels, z) & (cosine > 0) & (sampled[:, -1] > views.min_alpha)
             seen &= (sampled[:, -2] - z).abs() < views.depth_tolerance
             weight = torch.where(seen, cosine.clamp_min(0) ** VIEW_POWER, torch.zeros_like(cosine))
             sums += weight[:, None].double() * sampled[:, :-2].double()

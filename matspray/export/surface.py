@@ -135,14 +135,7 @@ def fuse_tsdf(
     in_view = torch.zeros(len(centres), dtype=torch.bool)
     for view, (camera, (depth, alpha)) in enumerate(zip(cameras, depths)):
         pixels, z = camera.project(centres)
-        inside = (
-            (z > 1e-6)
-            & (pixels[:, 0] >= 0)
-            & (pixels[:, 0] < camera.width)
-            & (pixels[:, 1] >= 0)
-            & (pixels[:, 1] < camera.height)
-        )
-        idx = inside.nonzero().squeeze(1)
+        idx = camera.in_image(pixels, z).nonzero().squeeze(1)
         gap = silhouette_gap(alpha.cpu(), min_alpha)
         confidence = trust[view].cpu() if trust is not None else torch.ones_like(gap)
         weighted, cover, off, sure = sample_bilinear(
