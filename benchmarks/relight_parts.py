@@ -1,12 +1,14 @@
 """Where the relighting error of an asset comes from: swap parts of its G-buffer for the truth.
 
-    python -m benchmarks.relight_parts [--out runs/demo-demo] [--variant full]
+    python -m benchmarks.relight_parts [--out runs/demo-demo] [--variant full] [--data DATA --run RUN]
 
 For every test view and held-out light, the asset's G-buffer (base color, roughness, metallic,
 normals, coverage) is shaded as `matspray eval` shades it, then again with one or more parts replaced
 by the ground truth of the `matspray synth` object (`test/{view}_{channel}.png`, `{view}_normal.exr`,
 the mask). Each row prints the relighting PSNR; the gap to "ours" is what that part costs. The asset's
-own shadowing (its baked visibility) is kept in every row, and "shadows off" drops it.
+own shadowing (its baked visibility, from a run with `--set shadows=on`) is kept in every row; the
+"shadows off" rows drop it, so that "all true, shadows off" against the shading ceiling is what the baked
+shadows are worth to a perfect G-buffer.
 """
 
 from __future__ import annotations
@@ -44,8 +46,10 @@ def main() -> None:
         "--out", type=Path, default=Path("runs/demo-demo"), help="folder with data/ and run/ (a demo's output)"
     )
     parser.add_argument("--variant", default="full")
+    parser.add_argument("--data", type=Path, help="the object's folder (default OUT/data)")
+    parser.add_argument("--run", type=Path, help="the run folder (default OUT/run), e.g. a benchmark's run")
     args = parser.parse_args()
-    data, run = args.out / "data", args.out / "run"
+    data, run = args.data or args.out / "data", args.run or args.out / "run"
     asset = read_asset(run / asset_stage(args.variant))
     scene = load_scene(data)
     truths = [read_view_truth(view) for view in scene.test]
@@ -64,6 +68,7 @@ def main() -> None:
                 ours = render_gbuffer(asset, view.camera, light)
             rows = {name: (swap, ours.shadow) for name, swap in SWAPS.items()}
             rows["ours, shadows off"] = (set(), None)
+            rows["all true, shadows off"] = (MATERIALS | {"normals", "alpha"}, None)
             for name, (swap, shadow) in rows.items():
                 parts = {k: (true_parts[k] if k in swap else getattr(ours, k)) for k in true_parts}
                 gbuffer = GBuffer(**parts, shadow=shadow)
