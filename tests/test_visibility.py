@@ -15,6 +15,7 @@ from matspray.render.shade.visibility import (
     bake_visibility,
     gaussian_shadows,
     light_cells,
+    open_side,
     shadow_factors,
     transmittance_at,
     visibility_directions,
@@ -103,6 +104,34 @@ def test_diffuse_shadow_factor_is_the_cosine_weighted_visible_share_of_a_uniform
     expected = float((cosine * visibility[0]).sum() / cosine.sum())
     torch.testing.assert_close(factors[0, :3], torch.full((3,), expected))
     assert abs(expected - 0.5) < 0.02  # half the hemisphere, by symmetry
+
+
+def test_a_normal_turned_into_the_object_is_turned_back_to_its_open_side():
+    rows = 6
+    directions, solid_angles = visibility_directions(rows)
+    outward = torch.nn.functional.normalize(torch.tensor([[1.0, 0.2, 0.3], [-0.4, 0.9, -0.1]]), dim=-1)
+    visibility = (outward @ directions.t() > 0).float()  # [2, D] the inside of each plane is hidden
+    for sign in (1.0, -1.0):
+        torch.testing.assert_close(open_side(visibility, sign * outward, directions, solid_angles), outward)
+    # unshadowed whichever way the viewer turned the normal; before, the inward turn read 0 (all hidden)
+    light = sky_map(rows)
+    for sign in (1.0, -1.0):
+        factors = shadow_factors(visibility, sign * outward, outward, torch.tensor([0.5, 0.8]), light)
+        torch.testing.assert_close(factors, torch.ones(2, 6))
+
+
+def test_the_sphere_is_shadowed_alike_whichever_way_its_normals_are_turned():
+    gaussians, normals, materials = sphere_of_disks()
+    outward = torch.where(((normals * gaussians.means).sum(-1, keepdim=True) < 0), -normals, normals)
+    visibility = bake_visibility(gaussians, SMALL)
+    light = EnvironmentMap.from_tensor(sky_map(), learnable=False).prefilter()
+    camera = ring_cameras(1, 32)[0]
+    turned = orient_normals(outward, gaussians.means, camera)  # towards the camera: inward on the far side
+    assert bool((turned != outward).any())
+    torch.testing.assert_close(
+        gaussian_shadows(visibility, turned, gaussians.means, materials, camera, light),
+        gaussian_shadows(visibility, outward, gaussians.means, materials, camera, light),
+    )
 
 
 def test_shading_with_unit_shadow_equals_unshadowed_shading():
