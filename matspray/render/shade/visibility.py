@@ -11,8 +11,9 @@ here it is baked with the rasterizer:
          visibility towards w_j is T at its own depth minus a bias (twice its own extent along w_j plus a
          small fraction of the object's size, so that a surface does not shadow itself), bilinear between
          the four shadow-map pixels around its projected centre: V [N, D].
-  shade  Per Gaussian and view, with n its (oriented) normal, L_j the light averaged over cell j and
-         dw_j the cell's solid angle, the diffuse and specular light are scaled by
+  shade  Per Gaussian and view, with n its normal turned to the side more directions reach (`open_side`),
+         L_j the light averaged over cell j and dw_j the cell's solid angle, the diffuse and specular light
+         are scaled by
              s_diffuse  = sum_j L_j V_j (n.w_j)+ dw_j / sum_j L_j (n.w_j)+ dw_j
              s_specular = sum_j L_j V_j K_j / sum_j L_j K_j,   K_j = exp(kappa (d.w_j - 1)) (n.w_j)+ dw_j
          (d the specular lobe's dominant direction, kappa its von Mises-Fisher sharpness from the
@@ -140,7 +141,7 @@ def open_side(visibility: Tensor, normals: Tensor, directions: Tensor, solid_ang
 
 def shadow_factors(
     visibility: Tensor,  # [N, D] in [0, 1]
-    normals: Tensor,  # [N, 3] unit, oriented towards the viewer
+    normals: Tensor,  # [N, 3] unit, either sign (turned to the open side here)
     view_dirs: Tensor,  # [N, 3] unit, from the Gaussian towards the camera
     roughness: Tensor,  # [N] perceptual
     light_cells: Tensor,  # [rows, 2 rows, 3] the light averaged over the grid's cells (`downsample_latlong`)
