@@ -112,7 +112,8 @@ def test_a_normal_turned_into_the_object_is_turned_back_to_its_open_side():
     outward = torch.nn.functional.normalize(torch.tensor([[1.0, 0.2, 0.3], [-0.4, 0.9, -0.1]]), dim=-1)
     visibility = (outward @ directions.t() > 0).float()  # [2, D] the inside of each plane is hidden
     for sign in (1.0, -1.0):
-        torch.testing.assert_close(open_side(visibility, sign * outward, directions, solid_angles), outward)
+        turned = open_side(visibility, sign * outward @ directions.t(), solid_angles) * sign * outward
+        torch.testing.assert_close(turned, outward)
     # unshadowed whichever way the viewer turned the normal; before, the inward turn read 0 (all hidden)
     light = sky_map(rows)
     for sign in (1.0, -1.0):

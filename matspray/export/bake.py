@@ -173,7 +173,7 @@ def view_materials(
             cosine = (normals_t * toward).sum(-1)
             seen = camera.in_image(pixels, z) & (cosine > 0) & (sampled[:, -1] > views.min_alpha)
             seen &= (sampled[:, -2] - z).abs() < views.depth_tolerance
-            weight = torch.where(seen, cosine.clamp_min(0) ** VIEW_POWER, torch.zeros_like(cosine))
+            weight = torch.where(seen, cosine**VIEW_POWER, torch.zeros_like(cosine))  # seen: cosine > 0
             sums += weight[:, None].double() * sampled[:, :-2].double()
             total += weight
     mean = sums / total.clamp_min(1e-12)[:, None].double()

@@ -124,19 +124,19 @@ def bake_visibility(
     return torch.stack(columns, dim=-1)
 
 
-def open_side(visibility: Tensor, normals: Tensor, directions: Tensor, solid_angles: Tensor) -> Tensor:
-    """Each normal [N, 3] turned to the side of its Gaussian's plane from which more of the directions [D, 3] are
-    visible (visibility [N, D], solid angles [D]): the outside of the surface.
+def open_side(visibility: Tensor, facing: Tensor, solid_angles: Tensor) -> Tensor:  # [N, D], [N, D], [D] -> [N, 1]
+    """+1 or -1 per Gaussian: the sign that turns its normal to the side of its plane from which more of the
+    directions are visible (the outside of the surface); `facing` holds the normals' cosines to the directions.
 
     Shading turns a normal towards the viewer, since a Gaussian's normal has no sign. Near a silhouette that
     guess is wrong for about half the Gaussians, and their hemisphere then lies inside the object, where
     nothing is visible: measured on a sphere, which nothing shades, the pixels within 2 px of its outline got
     a diffuse factor of 0.80 under a uniform light (docs/dev/relighting-gap.md)."""
-    facing = normals @ directions.t() * solid_angles  # [N, D]
-    balance = (visibility.to(normals.dtype) * facing).sum(-1, keepdim=True)  # [N, 1] > 0: more visible in front
+    weighted = facing * solid_angles  # [N, D]
+    balance = (visibility.to(facing.dtype) * weighted).sum(-1, keepdim=True)  # [N, 1] > 0: more visible in front
     # where both sides are about as visible the viewer's turn stays, so that rounding cannot flip it
-    behind = balance < -TIE * facing.abs().sum(-1, keepdim=True)
-    return torch.where(behind, -normals, normals)
+    behind = balance < -TIE * weighted.abs().sum(-1, keepdim=True)
+    return 1.0 - 2.0 * behind.to(facing.dtype)
 
 
 def shadow_factors(
@@ -153,8 +153,10 @@ def shadow_factors(
         raise ValueError(f"visibility has {visibility.shape[1]} directions but the light grid has {2 * rows * rows}")
     directions, solid_angles = visibility_directions(rows, device=normals.device)
     light = light_cells.reshape(-1, 3).to(normals.dtype)  # [D, 3]
-    normals = open_side(visibility, normals, directions, solid_angles)
-    cosine = (normals @ directions.t()).clamp_min(0.0) * solid_angles  # [N, D]
+    facing = normals @ directions.t()  # [N, D]
+    side = open_side(visibility, facing, solid_angles)  # [N, 1]
+    normals = normals * side  # a product by +-1: exact, so the cosines below are `facing`'s, turned
+    cosine = (facing * side).clamp_min(0.0) * solid_angles  # [N, D]
     lobe_dir = F.normalize(specular_direction(normals, view_dirs, roughness), dim=-1, eps=1e-12)
     alpha = roughness_to_alpha(roughness)
     kappa = (0.5 / alpha.square().clamp_min(1e-6)).clamp(max=MAX_KAPPA)[
