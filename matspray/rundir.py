@@ -234,6 +234,11 @@ class RunDir:
         )
         self.record_timing(stage, seconds)
 
+    def reopen_stage(self, stage: str) -> None:
+        """Drop a stage's record before its files are made again: from then on the folder holds no finished stage, so
+        an interruption leaves nothing that claims to be one."""
+        self.path(stage, STAGE_RECORD).unlink(missing_ok=True)
+
     def record_timing(self, stage: str, seconds: float) -> None:
         try:
             timings = self.timings()

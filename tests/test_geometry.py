@@ -94,7 +94,7 @@ def test_interrupted_run_resumes_to_the_same_result(tiny_object, tmp_path, monke
 
     again = train_geometry(scene, config, tmp_path / "resumed", progress=False)  # finished: read back, not retrained
     assert torch.equal(again.means, resumed.means)
-    with pytest.raises(RunError, match="other geometry settings .*iterations: 40 -> 50.*restart the geometry stage"):
+    with pytest.raises(RunError, match="other geometry settings .*iterations: 40 -> 50.*delete it .*--restart"):
         train_geometry(scene, replace(config, iterations=50), tmp_path / "resumed", progress=False)
 
 

@@ -104,6 +104,20 @@ def test_resize_area_preserves_mean_and_nearest_keeps_values():
     assert set(resize(mask, 8, 12, mode="nearest").unique().tolist()) <= {0.0, 1.0}
 
 
+def test_a_resized_views_alpha_stays_a_coverage_that_masked_metrics_take():
+    from matspray.data import Camera
+    from matspray.data.scene import View
+    from matspray.metrics import psnr
+
+    alpha = torch.zeros(128, 128)
+    alpha[20:100, 30:90] = 1.0
+    assert float(resize(alpha, 41, 37).max()) > 1.0  # the filter's rounding, which the view must not keep
+    camera = Camera(torch.tensor([[100.0, 0, 64], [0, 100.0, 64], [0, 0, 1]]), torch.eye(4), 128, 128)
+    small = View("v", torch.rand(128, 128, 3), alpha, camera).resized(37, 41)
+    assert 0.0 <= float(small.alpha.min()) and float(small.alpha.max()) == 1.0
+    assert psnr(small.image, small.image.flip(0), small.alpha) < 100.0  # was refused: "mask: values must be ..."
+
+
 @pytest.mark.parametrize("bits", [8, 16])
 def test_truncated_and_corrupt_png_are_data_errors(tmp_path, bits):
     write_raw(tmp_path / "a.png", torch.rand(16, 16, 3), bits=bits)

@@ -15,6 +15,7 @@ from matspray.method.pipeline import Pipeline
 from matspray.method.refine.loop import check_finite
 from matspray.presets import VARIANT_NAMES as VARIANTS
 from matspray.presets import WORKING_SIZE, asset_stage
+from matspray.rundir import RunDir
 from tests.conftest import busy_message, run_cli
 from tests.reference_metrics import relighting_psnr
 
@@ -505,3 +506,23 @@ def test_the_mergers_precision_is_part_of_the_refinement_and_its_record(tiny_obj
     flags = set(re.findall(r"^flags\s*:(.*)$", cpuinfo.read_text(), re.MULTILINE)[0].split())
     native = bool(flags & {"avx512_bf16", "amx_tile", "amx_bf16"})
     assert record["merger_precision"] == ("bfloat16" if native else "float32"), sorted(flags)
+
+
+def test_a_geometry_finished_with_other_inputs_or_settings_is_trained_again_not_kept(tiny_object, tmp_path):
+    def trained(run: Path, config) -> tuple[bytes, str]:  # the Gaussians' file and the stage's fingerprint
+        with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
+            pipeline.geometry()
+            return (run / "geometry" / "gaussians.ply").read_bytes(), pipeline.geometry_fingerprint()
+
+    first, first_fp = trained(tmp_path / "run", tiny_config())
+    # other predictions (their normals supervise the geometry), the same geometry settings: the finished training's
+    # checkpoint matches every setting, and resuming it kept the old Gaussians under the new fingerprint
+    other_maps = replace(tiny_config(), predictor_options={"seed": 7})
+    again, again_fp = trained(tmp_path / "run", other_maps)
+    fresh, _ = trained(tmp_path / "fresh", other_maps)
+    assert again_fp != first_fp and again != first and again == fresh
+    assert RunDir(tmp_path / "run").stage_fingerprint("geometry") == again_fp
+    # another geometry setting in the same folder: trained again, where the checkpoint was refused before
+    fewer = replace(other_maps, geometry=replace(other_maps.geometry, max_gaussians=500))
+    smaller, _ = trained(tmp_path / "run", fewer)
+    assert smaller == trained(tmp_path / "fresh-fewer", fewer)[0] != again

@@ -39,7 +39,8 @@ class View:
     def resized(self, width: int, height: int) -> "View":
         """The view resampled to `width` x `height` pixels (image, alpha and camera)."""
         image = resize(self.image, height, width)
-        alpha = None if self.alpha is None else resize(self.alpha, height, width)
+        # a coverage stays in [0, 1]: the filter's rounding reaches 1 + 1e-7 inside, which masked metrics refuse
+        alpha = None if self.alpha is None else resize(self.alpha, height, width).clamp(0.0, 1.0)
         return View(self.name, image, alpha, self.camera.resized(width, height), self.path)
 
     def cropped(self, left: int, top: int, width: int, height: int) -> "View":

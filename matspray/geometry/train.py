@@ -78,7 +78,7 @@ def load_checkpoint(path, config: GeometryConfig) -> tuple[int, dict] | None:
         shown = ", ".join(f"{k}: {saved.get(k)!r} -> {getattr(config, k)!r}" for k in differences[:4])
         raise RunError(
             f"{path}: was made with other geometry settings ({shown}); "
-            "use another run folder, or restart the geometry stage to discard the earlier training"
+            "use another run folder, or delete it (`matspray geometry --restart` does) to discard the earlier training"
         )
     return int(data["iteration"]), data["state"]
 

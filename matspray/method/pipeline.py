@@ -141,13 +141,21 @@ class Pipeline(RunPlan):
             material_maps = [maps_to_tensor(maps[v.name]) for v in self.scene.train] if edges else None
             return self.geometry_normal_targets(maps), material_maps
 
+        fp = self.geometry_fingerprint()
+        # a training that finished with another fingerprint is replaced, never resumed: its checkpoint's settings can
+        # all match (new predictions, new data), and resuming a finished training would keep its Gaussians
+        replaced = self.run.stage_fingerprint("geometry") not in (None, fp)
+
         def train(prepared) -> tuple:
             normal_targets, material_maps = prepared
+            if replaced:  # from here the folder holds no finished stage: an interrupted retraining resumes as itself
+                self.run.reopen_stage("geometry")
             train_geometry(
                 self.scene,
                 config,
                 self.run.path("geometry"),
                 device=self.device,
+                restart=replaced,
                 progress=self.progress,
                 normal_targets=normal_targets,
                 material_maps=material_maps,
@@ -156,7 +164,7 @@ class Pipeline(RunPlan):
             )
             return config, {}
 
-        self._stage("geometry", self.geometry_fingerprint(), train, before=inputs)
+        self._stage("geometry", fp, train, before=inputs)
         gaussians, normals = read_ply(self.run.path("geometry", "gaussians.ply"))
         return gaussians.to(self.device), torch.nn.functional.normalize(normals, dim=-1).to(self.device)
 
