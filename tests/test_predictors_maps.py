@@ -241,3 +241,18 @@ def test_corrupt_map_files_give_one_clear_error(tmp_path, content):
     (tmp_path / "materials2d" / "a_metallic.png").write_bytes(content)
     with pytest.raises(DataError, match="a_metallic.png: cannot read image"):
         read_materials2d(tmp_path, [make_view("a")])
+
+
+def test_ground_truth_of_another_size_than_the_view_names_the_flag_that_keeps_photos_whole(tmp_path):
+    from dataclasses import replace
+
+    from matspray.predictors.ground_truth import read_ground_truth
+
+    view = replace(make_view("r_000", 6, 8), path=tmp_path / "r_000.png")
+    write_raw(tmp_path / "r_000_basecolor.png", torch.rand(6, 8, 3))
+    for what in ("roughness", "metallic"):
+        write_raw(tmp_path / f"r_000_{what}.png", torch.rand(6, 8))
+    assert read_ground_truth(view).basecolor.shape == (6, 8, 3)
+    shrunk = replace(make_view("r_000", 3, 4), path=view.path)  # the photos brought to a preset's working size
+    with pytest.raises(DataError, match=r"r_000_basecolor\.png: is 8x6 but the view is 4x3 .*--downscale 1"):
+        read_ground_truth(shrunk)

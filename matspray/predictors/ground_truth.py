@@ -27,6 +27,10 @@ SYNTH_HINT = (
 )
 
 
+# the truth is compared pixel for pixel, so only at its own size; larger photos are shrunk to a preset's working size
+UNSCALED_HINT = "the ground truth is compared at its own size: make the run with --downscale 1 to keep the photos whole"
+
+
 def ground_truth_path(view: View, what: str) -> Path:
     """`{view}_{what}.png` (or `.exr` for normal and depth) next to the view's image."""
     if view.path is None:
@@ -60,7 +64,7 @@ def read_ground_truth(view: View) -> MaterialMaps:
             raise file_error(
                 ground_truth_path(view, what),
                 f"is {values.shape[1]}x{values.shape[0]} but the view is {view.width}x{view.height}",
-                "load the dataset without downscaling for benchmarks",
+                UNSCALED_HINT,
             )
     return MaterialMaps(srgb_to_linear(stored), roughness, metallic, normals=normals, normal_space="world")
 
@@ -90,7 +94,9 @@ def read_ground_truth_depth(view: View) -> Tensor:  # [H, W] camera z, 0 on back
     path = ground_truth_path(view, "depth")
     depth = read_raw(path)[..., 0]
     if tuple(depth.shape) != (view.height, view.width):
-        raise file_error(path, f"is {depth.shape[1]}x{depth.shape[0]} but the view is {view.width}x{view.height}")
+        raise file_error(
+            path, f"is {depth.shape[1]}x{depth.shape[0]} but the view is {view.width}x{view.height}", UNSCALED_HINT
+        )
     return depth
 
 
