@@ -169,8 +169,19 @@ def test_path_that_does_not_exist(tmp_path):
 
 
 def test_unknown_layout_lists_what_was_tried(tmp_path):
-    with pytest.raises(DataError, match="no dataset layout recognised.*blender.*tensoir.*colmap"):
+    with pytest.raises(DataError, match="no dataset layout recognised.*blender.*tensoir.*colmap") as refused:
         load_scene(tmp_path)
+    assert "matspray colmap" not in str(refused.value)  # no photos: nothing to make a dataset of
+
+
+@pytest.mark.parametrize("inside", ["", "images"])
+def test_a_folder_of_photos_without_poses_is_pointed_to_structure_from_motion(tmp_path, inside):
+    (tmp_path / inside).mkdir(exist_ok=True)
+    write_image(tmp_path / inside / "IMG_0001.JPG", torch.rand(8, 8, 3))
+    hint = f"for photos without camera poses, `matspray colmap {tmp_path / inside} --out DATA` makes a dataset"
+    with pytest.raises(DataError, match="no dataset layout recognised") as refused:
+        load_scene(tmp_path)
+    assert hint in str(refused.value)
 
 
 def test_malformed_json(tmp_path):

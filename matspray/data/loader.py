@@ -30,12 +30,22 @@ def detect_format(root: Path) -> str:
         return "tensoir"
     if colmap.find_model(root) is not None:
         return "colmap"
-    raise file_error(
-        root,
-        "no dataset layout recognised",
+    tried = (
         "tried blender (transforms_train.json), nerfstudio (transforms.json), tensoir (train_000/metadata.json), "
-        "colmap (sparse/0/cameras.bin)",
+        "colmap (sparse/0/cameras.bin)"
     )
+    photos = photo_folder(root)
+    if photos is not None:  # the usual first try: a folder of one's own photos, which have no camera poses yet
+        tried += f"; for photos without camera poses, `matspray colmap {photos} --out DATA` makes a dataset of them"
+    raise file_error(root, "no dataset layout recognised", tried)
+
+
+def photo_folder(root: Path) -> Path | None:
+    """`root` or its `images` subfolder when it holds JPEG or PNG photos, else None."""
+    for folder in (root, root / "images"):
+        if folder.is_dir() and any(p.suffix.lower() in (".jpg", ".jpeg", ".png") for p in folder.iterdir()):
+            return folder
+    return None
 
 
 def check_split(views: list[View], where: Path, split: str) -> None:
