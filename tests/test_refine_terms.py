@@ -15,9 +15,10 @@ from benchmarks.step_cost import graph_stand_in, measure, refine_inputs
 from matspray.data.camera import Camera
 from matspray.data.images import linear_to_srgb
 from matspray.device import Graphed, capturing_with
+from matspray.errors import SettingError
 from matspray.geometry.losses import normal_map_loss, photometric_loss
 from matspray.method.config import build_config, variant_refine_config
-from matspray.method.refine.loop import TrainingViews, refine, view_losses
+from matspray.method.refine.loop import RefineConfig, TrainingViews, refine, view_losses
 from matspray.method.refine.terms import (
     TermOptions,
     light_images,
@@ -241,3 +242,41 @@ def test_the_photometric_weight_counts_against_the_2d_maps_loss_only():
     assert total_loss(with_maps, variant_refine_config(run, "full")).item() == pytest.approx(1.0 + 2.0 * 3.0 + 0.1)
     no_maps = {"photo": torch.tensor(3.0), "normal_prior": torch.tensor(1.0)}  # no-prior: no 2D maps to weigh against
     assert total_loss(no_maps, variant_refine_config(run, "no-prior")).item() == pytest.approx(3.0 + 0.1)
+
+
+@pytest.mark.parametrize("quantile", [0.2, 0.5, 0.75])
+@pytest.mark.parametrize("basecolor_loss", ["l1", "huber"])
+def test_the_metallic_term_is_smallest_at_the_quantile_of_the_views_metallic(quantile, basecolor_loss):
+    """Brute force: a constant metallic tried against seven views' maps; the summed loss is least at their quantile
+    (with q = 0.5 the median, as plain L1)."""
+    views = torch.tensor([0.0, 0.05, 0.1, 0.3, 0.6, 0.7, 0.9])  # each view's metallic, sorted
+    mask = torch.ones(2, 3)
+    targets = [torch.full((2, 3, 5), 0.4).index_fill(-1, torch.tensor([4]), float(v)) for v in views]
+    candidates = torch.linspace(0.0, 1.0, 1001)
+
+    def total(m: float) -> float:
+        maps = torch.full((2, 3, 5), 0.4).index_fill(-1, torch.tensor([4]), m)
+        return sum(float(material_loss(maps, t, mask, basecolor_loss, metallic_quantile=quantile)) for t in targets)
+
+    losses = torch.tensor([total(float(m)) for m in candidates])
+    best = candidates[losses <= losses.min() + 1e-6]  # the minimisers (an interval where q * 7 is whole)
+    rank = quantile * len(views)  # the q-quantile: the smallest value with at least q of the views at or below it
+    expected = views[math.ceil(rank) - 1]
+    assert float(best.min()) <= float(expected) + 1e-3 and float(best.max()) >= float(expected) - 1e-3
+    if quantile == 0.5:
+        maps = torch.rand(2, 3, 5)
+        plain = material_loss(maps, targets[2], mask, basecolor_loss)
+        assert torch.equal(material_loss(maps, targets[2], mask, basecolor_loss, metallic_quantile=0.5), plain)
+
+
+def test_the_graphed_l1_term_takes_the_metallic_quantile_as_the_material_loss_does():
+    camera, t, log_map = view_inputs(6, 8, seed=3, shadowed=False)
+    options = TermOptions("l1", 0.05, False, False, 0.2, False, metallic_quantile=0.25)
+    maps = GBuffer.from_blended(t["blended"], t["alpha"]).materials
+    (term,) = view_terms(options, *graph_inputs(t, ()))
+    mask = t["surface"]
+    reference = material_loss(maps, t["target"], mask, "l1", metallic_quantile=0.25)
+    assert torch.allclose(term, reference, rtol=1e-5, atol=1e-7)
+    assert not torch.allclose(term, material_loss(maps, t["target"], mask, "l1"))
+    with pytest.raises(SettingError, match="metallic_quantile"):
+        RefineConfig(metallic_quantile=1.0)

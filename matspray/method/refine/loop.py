@@ -111,6 +111,10 @@ class RefineConfig:
     predicted_normal_weight: float = 0.0  # weight of 1 - |cos| between the rendered normals and the view's predicted
     # normal map (when the predictor gives one), per object pixel: the 2D model's normals as a target (a run's
     # default is `config.NORMAL_PRIOR_WEIGHT`, in the variants that read the 2D maps, where they have normal maps)
+    # the quantile of the views' metallic that the material loss is smallest at (its pinball loss on that channel;
+    # 0.5: L1, the median): 2D models "often predict partial metallicity in certain views" (the paper), which a lower
+    # quantile outvotes where most views have it
+    metallic_quantile: float = 0.5
     basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
@@ -144,6 +148,8 @@ class RefineConfig:
         ):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
+        if not 0.0 < self.metallic_quantile < 1.0:
+            raise SettingError("metallic_quantile", f"must be in (0, 1), got {self.metallic_quantile}")
         if not self.basecolor_huber_delta > 0:
             raise SettingError("basecolor_huber_delta", f"must be > 0, got {self.basecolor_huber_delta}")
         if self.envmap_height < 2:

@@ -17,7 +17,7 @@ from torch import Tensor
 
 from matspray.data.images import linear_to_srgb
 from matspray.geometry.losses import normal_map_loss, photometric_loss
-from matspray.material import BASE_COLOR, N_CHANNELS, unstack
+from matspray.material import BASE_COLOR, METALLIC_INDEX, N_CHANNELS, unstack
 from matspray.render.shade.deferred import shade_unit
 from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, prefilter_latlong
 from matspray.render.shade.latlong import total_variation
@@ -55,19 +55,38 @@ def masked_huber(
     ).sum() / weight.sum().clamp_min(1.0)
 
 
+def quantile_skew(maps: Tensor, target: Tensor, metallic_quantile: float) -> Tensor:  # [H, W, 5] x2 -> [H, W, 5]
+    """Per-element factors that turn L1 into the pinball loss of the `metallic_quantile` on the metallic channel (1
+    elsewhere): 2 q below the target, 2 (1 - q) above it, so that over the views the loss is smallest at their
+    q-quantile instead of their median (q = 0.5: L1 itself)."""
+    over = maps[..., METALLIC_INDEX] > target[..., METALLIC_INDEX]
+    metallic = torch.where(over, 2.0 * (1.0 - metallic_quantile), 2.0 * metallic_quantile)  # [H, W]
+    ones = torch.ones_like(maps[..., :METALLIC_INDEX])
+    return torch.cat([ones, metallic[..., None], torch.ones_like(maps[..., METALLIC_INDEX + 1 :])], dim=-1)
+
+
 def material_loss(
-    maps: Tensor, target: Tensor, mask: Tensor, basecolor_loss: str, huber_delta: float = DEFAULT_HUBER_DELTA
+    maps: Tensor,
+    target: Tensor,
+    mask: Tensor,
+    basecolor_loss: str,
+    huber_delta: float = DEFAULT_HUBER_DELTA,
+    metallic_quantile: float = 0.5,
 ) -> Tensor:
     """L1 of rendered material maps [H, W, 5] against the 2D maps [H, W, 5] over the mask [H, W], averaged over the 5
-    channels; the base color channels scale-invariant or Huber (`huber_delta`) when `basecolor_loss` says so."""
+    channels; the base color channels scale-invariant or Huber (`huber_delta`) when `basecolor_loss` says so, the
+    metallic the pinball loss of `metallic_quantile` (`quantile_skew`)."""
+    plain = mask[..., None].expand_as(maps)
+    weight = plain * quantile_skew(maps, target, metallic_quantile) if metallic_quantile != 0.5 else plain
     if basecolor_loss == "l1":
-        return masked_l1(maps, target, mask)
+        return weighted_l1(maps, target, weight, plain.sum().clamp_min(1.0))
     if basecolor_loss == "huber":
         base = masked_huber(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask, huber_delta)
     else:
         base = scale_invariant_l1(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask)
     rest = slice(BASE_COLOR.stop, N_CHANNELS)
-    return (3.0 * base + 2.0 * masked_l1(maps[..., rest], target[..., rest], mask)) / N_CHANNELS
+    rest_l1 = weighted_l1(maps[..., rest], target[..., rest], weight[..., rest], plain[..., rest].sum().clamp_min(1.0))
+    return (3.0 * base + 2.0 * rest_l1) / N_CHANNELS
 
 
 # ------------------------------------------------------------------------------------------ a view's terms
@@ -82,6 +101,7 @@ class TermOptions:
     ssim_weight: float  # 1 - photo_l1_weight
     shadowed: bool  # the blended features end with the 6 shadow factors
     levels: tuple[float, ...] = ()  # the prefiltered environment's roughness levels (with `photo`)
+    metallic_quantile: float = 0.5  # the material term's quantile of the views' metallic (`quantile_skew`)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -113,9 +133,12 @@ def view_terms(
     normals = blended[..., N_CHANNELS : N_CHANNELS + 3]
     terms = []
     if options.material == "l1":
-        terms.append(weighted_l1(maps, target, surface_weight, surface_count))
+        skewed = options.metallic_quantile != 0.5
+        weight = surface_weight * quantile_skew(maps, target, options.metallic_quantile) if skewed else surface_weight
+        terms.append(weighted_l1(maps, target, weight, surface_count))
     elif options.material is not None:
-        terms.append(material_loss(maps, target, surface, options.material, options.huber_delta))
+        quantile = options.metallic_quantile
+        terms.append(material_loss(maps, target, surface, options.material, options.huber_delta, quantile))
     if options.predicted_normals:
         terms.append(normal_map_loss(normals, normal_map, surface))
     if options.photo:
@@ -184,6 +207,7 @@ def view_losses(
         1.0 - config.photo_l1_weight,
         blended.shape[-1] > N_CHANNELS + 3,
         light.levels if light is not None else (),
+        config.metallic_quantile,
     )
     tensors = (
         blended,
