@@ -14,6 +14,7 @@ from matspray.errors import DataError, SettingError, file_error
 from matspray.rundir import RunDir
 
 FORMATS = ("blender", "nerfstudio", "tensoir", "colmap")
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")  # what structure from motion (`matspray colmap`) reads
 
 
 def detect_format(root: Path) -> str:
@@ -43,7 +44,7 @@ def detect_format(root: Path) -> str:
 def photo_folder(root: Path) -> Path | None:
     """`root` or its `images` subfolder when it holds JPEG or PNG photos, else None."""
     for folder in (root, root / "images"):
-        if folder.is_dir() and any(p.suffix.lower() in (".jpg", ".jpeg", ".png") for p in folder.iterdir()):
+        if folder.is_dir() and any(p.suffix.lower() in PHOTO_SUFFIXES for p in folder.iterdir()):
             return folder
     return None
 

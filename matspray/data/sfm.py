@@ -30,10 +30,9 @@ from PIL import Image, ImageOps
 from tqdm import tqdm
 
 from matspray.data.images import DECODER_ERRORS, atomic_target, read_raw, resize, split_alpha, write_raw
-from matspray.data.loader import describe_scene, load_scene
+from matspray.data.loader import PHOTO_SUFFIXES, describe_scene, load_scene
 from matspray.errors import ConfigError, DataError, file_error, optional_module
 
-PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")
 MATCHERS = ("exhaustive", "sequential")
 CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "SIMPLE_PINHOLE", "PINHOLE")  # what SfM may estimate
 MIN_REGISTERED = 3
