@@ -141,6 +141,12 @@ ADDITIONS = (
         1.0,
         "the photometric loss weighs twice the 2D maps' (as the paper's released code adds it twice)",
     ),
+    Addition(
+        "metallic-quantile",
+        "refine.metallic_quantile",
+        0.5,
+        "the 2D maps' loss on metallic is least at the lower quartile of the views' (the paper's L1: their median)",
+    ),
 )
 ADDITION_NAMES = tuple(a.name for a in ADDITIONS)
 

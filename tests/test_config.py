@@ -59,6 +59,7 @@ def test_paper_method_sets_every_switch_as_the_paper_and_config_yaml_records_it(
     assert (refine["merger"]["hidden"], refine["merger"]["layers"], refine["merger_lr"]) == (128, 3, 1e-3)
     assert refine["basecolor_loss"] == "l1" and refine["material_weight"] == 1.0
     assert refine["photo_weight"] == 1.0 and refine["photo_l1_weight"] == 0.8  # matspray: 2 (`photo-weight`)
+    assert refine["metallic_quantile"] == 0.5  # L1: the median of the views (matspray: 0.25, `metallic-quantile`)
     assert refine["light_warmup"] == 0 and refine["min_coverage"] == 0.0
     assert written["visibility"] is None  # no shadowing
     assert refine["light_tv_weight"] > 0  # the light prior is on in both methods (the released code has one)

@@ -280,3 +280,12 @@ def test_the_graphed_l1_term_takes_the_metallic_quantile_as_the_material_loss_do
     assert not torch.allclose(term, material_loss(maps, t["target"], mask, "l1"))
     with pytest.raises(SettingError, match="metallic_quantile"):
         RefineConfig(metallic_quantile=1.0)
+
+
+def test_refinement_takes_the_metallic_quantile_from_its_config():
+    """A lower quantile leaves less metal where the views' maps disagree (free materials, the 2D maps' loss only)."""
+    base = replace(build_config("paper").refine, iterations=30, log_every=10, variant="supervised")
+    with rendering_with("numba"):
+        inputs = refine_inputs(torch.device("cpu"), points=300)
+        metallic = {q: refined(inputs, replace(base, metallic_quantile=q), graphs=False)[0][:, 4] for q in (0.1, 0.9)}
+    assert float(metallic[0.1].mean()) < float(metallic[0.9].mean()) - 0.01

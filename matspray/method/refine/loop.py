@@ -112,9 +112,9 @@ class RefineConfig:
     # normal map (when the predictor gives one), per object pixel: the 2D model's normals as a target (a run's
     # default is `config.NORMAL_PRIOR_WEIGHT`, in the variants that read the 2D maps, where they have normal maps)
     # the quantile of the views' metallic that the material loss is smallest at (its pinball loss on that channel;
-    # 0.5: L1, the median): 2D models "often predict partial metallicity in certain views" (the paper), which a lower
-    # quantile outvotes where most views have it
-    metallic_quantile: float = 0.5
+    # 0.5: L1, the median, as the paper): 2D models "often predict partial metallicity in certain views" (the paper),
+    # which a lower quantile outvotes even where most views have it
+    metallic_quantile: float = 0.25
     basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
