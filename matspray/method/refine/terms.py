@@ -55,14 +55,15 @@ def masked_huber(
     ).sum() / weight.sum().clamp_min(1.0)
 
 
-def quantile_skew(maps: Tensor, target: Tensor, metallic_quantile: float) -> Tensor:  # [H, W, 5] x2 -> [H, W, 5]
-    """Per-element factors that turn L1 into the pinball loss of the `metallic_quantile` on the metallic channel (1
-    elsewhere): 2 q below the target, 2 (1 - q) above it, so that over the views the loss is smallest at their
-    q-quantile instead of their median (q = 0.5: L1 itself)."""
-    over = maps[..., METALLIC_INDEX] > target[..., METALLIC_INDEX]
-    metallic = torch.where(over, 2.0 * (1.0 - metallic_quantile), 2.0 * metallic_quantile)  # [H, W]
-    ones = torch.ones_like(maps[..., :METALLIC_INDEX])
-    return torch.cat([ones, metallic[..., None], torch.ones_like(maps[..., METALLIC_INDEX + 1 :])], dim=-1)
+def metallic_tilt(
+    maps: Tensor, target: Tensor, weight: Tensor, total: Tensor, quantile: float
+) -> Tensor:  # [H, W, 5] x2, [H, W], [] -> []
+    """What turns weighted L1 into the pinball loss of `quantile` on the metallic channel: 2 rho_q(e) =
+    |e| + (1 - 2 q) e for the error e = map - target, so that over the views the loss is smallest at their
+    q-quantile instead of their median. `weight` is the metallic channel's and `total` the L1's divisor; q = 0.5
+    (L1) needs no term."""
+    error = maps[..., METALLIC_INDEX] - target[..., METALLIC_INDEX]
+    return (1.0 - 2.0 * quantile) * (error * weight).sum() / total
 
 
 def material_loss(
@@ -75,17 +76,22 @@ def material_loss(
 ) -> Tensor:
     """L1 of rendered material maps [H, W, 5] against the 2D maps [H, W, 5] over the mask [H, W], averaged over the 5
     channels; the base color channels scale-invariant or Huber (`huber_delta`) when `basecolor_loss` says so, the
-    metallic the pinball loss of `metallic_quantile` (`quantile_skew`)."""
-    plain = mask[..., None].expand_as(maps)
-    weight = plain * quantile_skew(maps, target, metallic_quantile) if metallic_quantile != 0.5 else plain
+    metallic the pinball loss of `metallic_quantile` (`metallic_tilt`)."""
+
+    def with_tilt(l1: Tensor, channels: int) -> Tensor:  # `l1` averaged over `channels` channels of the mask
+        if metallic_quantile == 0.5:
+            return l1
+        total = (channels * mask.sum()).clamp_min(1.0)  # masked_l1's divisor
+        return l1 + metallic_tilt(maps, target, mask, total, metallic_quantile)
+
     if basecolor_loss == "l1":
-        return weighted_l1(maps, target, weight, plain.sum().clamp_min(1.0))
+        return with_tilt(masked_l1(maps, target, mask), N_CHANNELS)
     if basecolor_loss == "huber":
         base = masked_huber(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask, huber_delta)
     else:
         base = scale_invariant_l1(maps[..., BASE_COLOR], target[..., BASE_COLOR], mask)
     rest = slice(BASE_COLOR.stop, N_CHANNELS)
-    rest_l1 = weighted_l1(maps[..., rest], target[..., rest], weight[..., rest], plain[..., rest].sum().clamp_min(1.0))
+    rest_l1 = with_tilt(masked_l1(maps[..., rest], target[..., rest], mask), N_CHANNELS - BASE_COLOR.stop)
     return (3.0 * base + 2.0 * rest_l1) / N_CHANNELS
 
 
@@ -101,7 +107,7 @@ class TermOptions:
     ssim_weight: float  # 1 - photo_l1_weight
     shadowed: bool  # the blended features end with the 6 shadow factors
     levels: tuple[float, ...] = ()  # the prefiltered environment's roughness levels (with `photo`)
-    metallic_quantile: float = 0.5  # the material term's quantile of the views' metallic (`quantile_skew`)
+    metallic_quantile: float = 0.5  # the material term's quantile of the views' metallic (`metallic_tilt`)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -133,9 +139,11 @@ def view_terms(
     normals = blended[..., N_CHANNELS : N_CHANNELS + 3]
     terms = []
     if options.material == "l1":
-        skewed = options.metallic_quantile != 0.5
-        weight = surface_weight * quantile_skew(maps, target, options.metallic_quantile) if skewed else surface_weight
-        terms.append(weighted_l1(maps, target, weight, surface_count))
+        term = weighted_l1(maps, target, surface_weight, surface_count)
+        if options.metallic_quantile != 0.5:
+            metal = surface_weight[..., METALLIC_INDEX]
+            term = term + metallic_tilt(maps, target, metal, surface_count, options.metallic_quantile)
+        terms.append(term)
     elif options.material is not None:
         quantile = options.metallic_quantile
         terms.append(material_loss(maps, target, surface, options.material, options.huber_delta, quantile))
