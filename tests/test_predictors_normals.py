@@ -293,3 +293,55 @@ def test_files_rejects_bad_normal_files(named_folder, dataset_views):
 @pytest.fixture
 def dataset_views():
     return [View(name, torch.rand(H, W, 3), None, side_camera()) for name in ("r_000", "r_001")]
+
+
+def facing_world_normals(camera: Camera, seed: int = 0) -> torch.Tensor:  # [H, W, 3] world, each facing its pixel
+    g = torch.Generator().manual_seed(seed)
+    n = -torch.nn.functional.normalize(camera.pixel_directions(), dim=-1) + 0.3 * torch.randn(H, W, 3, generator=g)
+    return n / n.norm(dim=-1, keepdim=True)
+
+
+def write_normals(folder, views, space: str) -> dict:  # {name: world normals}; the files in `space`
+    truth = {}
+    for seed, view in enumerate(views):
+        truth[view.name] = world = facing_world_normals(view.camera, seed)
+        stored = {"world": world, "camera": world_to_camera(world, view.camera)}[space.removesuffix("-opengl")]
+        write_raw(folder / f"{view.name}_normal.exr", from_opengl_camera(stored) if "opengl" in space else stored)
+    return truth
+
+
+@pytest.mark.parametrize("space", ["world", "camera-opengl"])
+def test_files_refuses_normals_whose_space_is_not_said(named_folder, dataset_views, space):
+    """Normals in another space than MatSpray's camera axes, in a folder that does not say so, would be read wrongly
+    without a word: refused, naming the space they fit and the line to write; once said, read as that space."""
+    folder, _ = named_folder
+    views = [
+        View(v.name, v.image, None, Camera.look_at(eye, [0, 0, 0], [0, 0, 1], 0.8, W, H))
+        for v, eye in zip(dataset_views, ([0.0, -3.0, 0.0], [3.0, 0.5, 1.0]))
+    ]
+    truth = write_normals(folder, views, space)
+    with pytest.raises(DataError, match=f"as '{space}' normals.*say so in .*predictor.json: " + '{"normal_space": "'):
+        FilesPredictor(folder, notify=quiet).predict(views)
+    (folder / "predictor.json").write_text(json.dumps({"normal_space": space}))
+    maps = FilesPredictor(folder, notify=quiet).predict(views)
+    for view in views:
+        assert torch.allclose(world_normals(maps[view.name], view.camera), truth[view.name], atol=1e-5)
+
+
+def test_files_reads_camera_normals_unsaid_and_trusts_a_said_space(named_folder, dataset_views):
+    folder, _ = named_folder
+    truth = write_normals(folder, dataset_views, "camera")
+    told = []
+    maps = FilesPredictor(folder, notify=told.append).predict(dataset_views)  # MatSpray's camera axes: no word
+    assert told == []
+    assert torch.allclose(world_normals(maps["r_000"], dataset_views[0].camera), truth["r_000"], atol=1e-5)
+    (folder / "predictor.json").write_text(json.dumps({"normal_space": "world"}))  # said, though wrong: kept, warned
+    maps = FilesPredictor(folder, notify=told.append).predict(dataset_views)
+    assert maps["r_000"].normal_space == "world"
+    assert len(told) == 1 and "kept as 'world', as predictor.json says" in told[0] and "100% as 'camera'" in told[0]
+    (folder / "r_000_normal.exr").unlink()  # a view without normals: said once, the others still read
+    told.clear()
+    (folder / "predictor.json").unlink()
+    maps = FilesPredictor(folder, notify=told.append).predict(dataset_views)
+    assert maps["r_000"].normals is None and maps["r_001"].normals is not None
+    assert told == [f"notice: {folder}: normal maps for 1 of 2 views; none for r_000, whose normals are left out"]

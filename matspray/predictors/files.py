@@ -13,8 +13,11 @@ Normals, in the two named layouts: `{view}_normal.png` (8 or 16 bit, stored n * 
 pixels hold none) or `{view}_normal.exr|.npy` (the vectors), beside the maps. Their space is the view's camera
 in MatSpray's convention (OpenCV: x right, y down, z forward) unless the folder's `predictor.json` says
 `"normal_space"`: `"world"`, `"camera"`, or `"camera-opengl"` (x right, y up, z towards the viewer, as
-Marigold's normals; turned into ours on reading). The frame layouts' normal passes are not read: their axis
-convention is not pinned down here.
+Marigold's normals; turned into ours on reading). Nearly every normal of a map faces its camera in the map's own
+space and far fewer in a wrong one, so a folder whose normals fit another space much better than the one it
+says (or, saying none, MatSpray's camera axes) is refused with the space they fit, or, when its predictor.json
+names the space, warned of. The frame layouts' normal passes are not read: their axis convention is not pinned
+down here.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ from matspray.predictors.mapfile import (
     read_scalar_map,
 )
 from matspray.predictors.maps import INFO_FILE, MaterialMaps
-from matspray.predictors.normalmaps import from_opengl_camera
+from matspray.predictors.normalmaps import camera_to_world, facing_counts, from_opengl_camera
 
 SUFFIX_PREFERENCE = (
     ".npy",
@@ -52,6 +55,10 @@ SUFFIX_PREFERENCE = (
 FRAME_PASSES = ("basecolor", "roughness", "metallic")
 # what a folder's info file may say its normal files are in -> (MaterialMaps.normal_space, flip from OpenGL axes)
 SOURCE_NORMAL_SPACES = {"camera": ("camera", False), "camera-opengl": ("camera", True), "world": ("world", False)}
+# shares of a folder's normals that face their cameras: below MISREAD in the folder's space while another space
+# reaches FITS means the folder's space is not the files' (read in their own space, nearly all normals face it)
+MISREAD_SHARE, FITS_SHARE = 0.75, 0.9
+FACING_PIXELS = 128  # the facing check reads every k-th row and column, k = height // this (cost, not accuracy)
 
 
 @dataclass
@@ -318,7 +325,58 @@ class FilesPredictor(Predictor):
 
     def predict(self, views: list[View]) -> dict[str, MaterialMaps]:
         assigned = self.assign(views)
-        return {
+        maps = {
             name: self.read_entry(entry)
             for name, entry in tqdm(assigned.items(), desc=f"reading {self.layout.name} maps", unit="view")
         }
+        with_normals = [view for view in views if maps[view.name].normals is not None]
+        if with_normals:
+            self._check_normal_space(maps, with_normals)
+            if len(with_normals) < len(views):
+                lacking = [view.name for view in views if maps[view.name].normals is None]
+                self.notify(
+                    f"notice: {self.root}: normal maps for {len(with_normals)} of {len(views)} views; "
+                    f"none for {_list(lacking)}, whose normals are left out"
+                )
+        return maps
+
+    def facing_shares(self, maps: dict[str, MaterialMaps], views: list[View]) -> dict[str, float]:
+        """{space of SOURCE_NORMAL_SPACES: share of the views' normals that face their cameras read in it}."""
+        said_flip = SOURCE_NORMAL_SPACES[self.normal_space][1]
+        counts = dict.fromkeys(SOURCE_NORMAL_SPACES, (0, 0))
+        for view in views:
+            stored = maps[view.name].normals  # [h, w, 3] in the folder's space (OpenGL axes already turned)
+            step = max(1, stored.shape[0] // FACING_PIXELS)
+            raw = from_opengl_camera(stored) if said_flip else stored  # as in the files
+            camera = view.camera.resized(stored.shape[1], stored.shape[0])
+            rays = camera.pixel_directions().to(stored)[::step, ::step]  # [h', w', 3] world
+            for source, (space, flip) in SOURCE_NORMAL_SPACES.items():
+                normals = from_opengl_camera(raw) if flip else raw
+                normals = camera_to_world(normals, camera) if space == "camera" else normals
+                facing, total = facing_counts(normals[::step, ::step], rays)
+                counts[source] = (counts[source][0] + facing, counts[source][1] + total)
+        return {source: facing / max(total, 1) for source, (facing, total) in counts.items()}
+
+    def _check_normal_space(self, maps: dict[str, MaterialMaps], views: list[View]) -> None:
+        """Refuses normal files that face their cameras in another space far more often than in the folder's: read
+        in the wrong space (an unsaid space is MatSpray's camera axes) they would turn the Gaussians wrongly without a
+        word. A space that predictor.json names is trusted, with a warning."""
+        shares = self.facing_shares(maps, views)
+        said = self.normal_space
+        best = max(shares, key=shares.get)
+        if shares[said] >= MISREAD_SHARE or shares[best] < FITS_SHARE:
+            return
+        found = (
+            f"{shares[said]:.0%} of their normals face the camera when read as {said!r} normals, "
+            f"{shares[best]:.0%} as {best!r} normals"
+        )
+        if "normal_space" in self.source_info:
+            self.notify(f"warning: {self.root}: {found}; kept as {said!r}, as {INFO_FILE} says")
+            return
+        raise file_error(
+            self.root,
+            f"the normal maps do not look like normals in MatSpray's camera axes (x right, y down, z forward), what "
+            f"a folder whose {INFO_FILE} names no normal_space holds: {found}",
+            f'if they are {best!r} normals, say so in {self.root / INFO_FILE}: {{"normal_space": "{best}"}}; '
+            f'camera-axes normals that point into the surface: "normal_space": "camera" there keeps them',
+        )

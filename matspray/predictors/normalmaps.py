@@ -67,6 +67,16 @@ def from_opengl_camera(normals: Tensor) -> Tensor:  # [..., 3] (x right, y up, z
     return normals * torch.tensor(OPENGL_CAMERA_FLIP, dtype=normals.dtype, device=normals.device)
 
 
+def facing_counts(normals: Tensor, directions: Tensor) -> tuple[int, int]:
+    """How many defined normals of a map face its camera, and how many are defined: `normals` [H, W, 3] and the
+    pixels' rays `directions` [H, W, 3] (Camera.pixel_directions) in one space. A surface a camera sees faces it
+    (n . d < 0), so nearly all normals of a map read in its own space do; read in another space, about half or
+    almost none do, which is how `FilesPredictor` tells a folder's space from what it says."""
+    where = defined(normals)
+    facing = ((normals * directions).sum(-1) < 0) & where
+    return int(facing.sum()), int(where.sum())
+
+
 def decode_png_normals(stored: Tensor) -> Tensor:  # [H, W, 3 or 4] in [0, 1] -> [H, W, 3] raw vectors
     """Normals stored for display as n * 0.5 + 0.5. Pixels stored black (0, 0, 0), as many tools leave the
     background, or with alpha 0 hold no normal and come out (0, 0, 0)."""
