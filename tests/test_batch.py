@@ -227,6 +227,15 @@ def test_workers_below_one_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("gpus", ["nan", "inf", "-1"])
+def test_gpus_per_object_must_be_a_finite_share(tmp_path, capsys, gpus):
+    """NaN passed the `< 0` check and ended in a traceback from inside Ray."""
+    assert main(["batch", str(tmp_path), "--out", str(tmp_path / "out"), "--gpus-per-object", gpus]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"matspray batch: error: --gpus-per-object: must be a finite number >= 0, got {float(gpus):g}"
+    assert not (tmp_path / "out").exists()
+
+
 def test_two_inputs_with_one_name_are_refused(tmp_path, capsys):
     (tmp_path / "a" / "chair").mkdir(parents=True)
     (tmp_path / "b" / "chair").mkdir(parents=True)

@@ -148,6 +148,16 @@ def test_every_geometry_field_is_a_key_and_reaches_the_config():
             ["refine.merger.softmax=maybe"],
             "matspray run: error: --set refine.merger.softmax: cannot read 'maybe' as on|off",
         ),
+        # NaN would pass every `>= 0` check and compare as "off" wherever a weight is tested with `> 0`
+        (
+            ["geometry.predicted_normal_weight=nan"],
+            "matspray run: error: --set geometry.predicted_normal_weight: must be a finite number, got 'nan'",
+        ),
+        (["refine.normal_lr=inf"], "matspray run: error: --set refine.normal_lr: must be a finite number, got 'inf'"),
+        (  # float | None: "none" is None, a number must be finite
+            ["lift.footprint_sigmas=nan"],
+            "matspray run: error: --set lift.footprint_sigmas: must be a finite number, got 'nan'",
+        ),
     ],
 )
 def test_bad_set_words_are_one_line(tmp_path, capsys, words, message):

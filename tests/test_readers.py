@@ -2,13 +2,14 @@
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
 import torch
 
 from matspray.data import Camera, View, load_scene, write_blender, write_image
-from matspray.errors import DataError
+from matspray.errors import DataError, SettingError
 
 W, H = 40, 30
 FOV_X = 0.8
@@ -144,6 +145,20 @@ def test_downscale_halves_images_and_intrinsics(tmp_path):
     view = scene.train[0]
     assert (view.width, view.height) == (W // 2, H // 2)
     assert float(view.camera.K[0, 0]) == pytest.approx(FOCAL / 2, rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    "factor, message",
+    [
+        (float("nan"), "downscale: must be a finite number >= 1, got nan"),
+        (float("inf"), "downscale: must be a finite number >= 1, got inf"),
+        (0.5, "downscale: must be a finite number >= 1, got 0.5"),
+        (1000, "downscale: 1000 shrinks r_000's 40x30 image to 1x1 px, under 8 px a side; use a smaller factor"),
+    ],
+)
+def test_downscale_refuses_factors_that_leave_no_image(tmp_path, factor, message):
+    with pytest.raises(SettingError, match=re.escape(message)):
+        load_scene(blender_folder(tmp_path), downscale=factor)
 
 
 def test_bounds_come_from_masks(tmp_path):

@@ -8,6 +8,7 @@ settings that shape the results; another batch's settings in the same folder are
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from dataclasses import dataclass, field, replace
@@ -43,8 +44,8 @@ def check_config(config: BatchConfig) -> None:
         raise SettingError("workers", f"must be >= 1, got {config.workers}")
     if config.cpus_per_object < 1:
         raise SettingError("cpus_per_object", f"must be >= 1, got {config.cpus_per_object}")
-    if config.gpus_per_object < 0:
-        raise SettingError("gpus_per_object", f"must be >= 0, got {config.gpus_per_object:g}")
+    if not (math.isfinite(config.gpus_per_object) and config.gpus_per_object >= 0):
+        raise SettingError("gpus_per_object", f"must be a finite number >= 0, got {config.gpus_per_object:g}")
     unknown = [v for v in config.variants or () if v not in VARIANT_NAMES]
     if unknown or config.variants == ():
         raise SettingError(

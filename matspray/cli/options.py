@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from matspray.cli.settings import NotFinite, finite_float
 from matspray.presets import ADDITION_NAMES, METHODS, PRESETS, VARIANT_NAMES
 
 
@@ -41,13 +42,13 @@ SETTING_FLAGS = {
     ),
     "--min-support": (
         "lift.min_support",
-        float,
+        finite_float,
         "a view counts for a Gaussian when it gets at least this share of the hits of "
         "its best view (matspray: 0.5; paper: 0, every view with a hit)",
     ),
     "--transmittance-threshold": (
         "lift.visibility_threshold",
-        float,
+        finite_float,
         "lifting writes only into hits whose transmittance in "
         "front is at least this (default 0, every hit, as the paper)",
     ),
@@ -84,13 +85,13 @@ SETTING_FLAGS = {
     ),
     "--basecolor-huber-delta": (
         "refine.basecolor_huber_delta",
-        float,
+        finite_float,
         "with --basecolor-loss huber: the base-colour residual "
         "(linear) where the loss turns from quadratic to linear (default 0.05)",
     ),
     "--photo-weight": (
         "refine.photo_weight",
-        float,
+        finite_float,
         "weight of the photometric loss against the material loss, in the variants with both "
         "(paper: 1; its released code: 2)",
     ),
@@ -101,30 +102,30 @@ SETTING_FLAGS = {
     ),
     "--min-coverage": (
         "refine.min_coverage",
-        float,
+        finite_float,
         "the merger skips Gaussians covering fewer pixels of a view (paper: 0)",
     ),
     "--light-tv-weight": (
         "refine.light_tv_weight",
-        float,
+        finite_float,
         "weight of the smoothness prior on the estimated light "
         "(total variation of its log radiance; both methods; 0 turns it off)",
     ),
     "--normal-lr": (
         "refine.normal_lr",
-        float,
+        finite_float,
         "how fast refinement turns each Gaussian's shading normal by the rendering loss (both methods: the paper "
         "refines normals; 0 shades with the geometry's normals as they are)",
     ),
     "--predicted-normal-weight": (
         "refine.predicted_normal_weight",
-        float,
+        finite_float,
         "with a predictor that gives normal maps: weight of their angle to the rendered normals during refinement "
         "(default 1; 0: not used; a run whose 2D maps have no normals refines without them)",
     ),
     "--object-bounds": (
         "object_bounds",
-        lambda v: tuple(float(x) for x in v.replace(",", " ").split()),
+        lambda v: tuple(finite_float(x) for x in v.replace(",", " ").split()),
         "captures without masks: the object region, 'x,y,z,r' (a sphere) or 'x0,y0,z0,x1,y1,z1' (a box) in world "
         "units (default: chosen automatically after geometry; see docs/data.md, captures without masks)",
     ),
@@ -139,7 +140,7 @@ SETTING_FLAGS = {
     "--refine-seed": ("refine_seed", int, "the refinement's own seed (default: --seed)"),
     "--downscale": (
         "downscale",
-        float,
+        finite_float,
         "shrink images by this factor on load (default: photos whose long side exceeds the "
         "preset's working size, test 128 / demo 256 / paper 800 px, are brought to it; 1 keeps them)",
     ),
@@ -291,6 +292,8 @@ def method_settings_from_args(args) -> dict:
             continue
         try:
             settings[setting] = parse(text)
+        except NotFinite as exc:
+            raise SettingError(setting, str(exc)) from None
         except (ValueError, KeyError):
             raise SettingError(setting, f"cannot read {text!r}") from None
     if args.shadows is not None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import math
 import os
 import re
 import types
@@ -182,6 +183,17 @@ def settings_table() -> dict[str, Setting]:
 
 
 # ------------------------------------------------------------------------------------------ values
+class NotFinite(ValueError):
+    """A number that is NaN or infinite: no setting takes one (a weight of NaN would compare as off, silently)."""
+
+
+def finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise NotFinite(f"must be a finite number, got {text.strip()!r}")
+    return value
+
+
 def parse_value(text: str, hint):
     """`text` as a value of type `hint`; ValueError when it is not one."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
@@ -191,6 +203,8 @@ def parse_value(text: str, hint):
         for arg in (a for a in args if a is not type(None)):
             try:
                 return parse_value(text, arg)
+            except NotFinite:
+                raise
             except ValueError:
                 continue
         raise ValueError(text)
@@ -216,7 +230,7 @@ def parse_value(text: str, hint):
     if hint is int:
         return int(text)
     if hint is float:
-        return float(text)
+        return finite_float(text)
     if hint is str:
         return text
     if origin is tuple:
@@ -263,6 +277,8 @@ def settings_from_overrides(items, preset: str, allowed=None) -> dict:
             raise SettingError(key, "no such setting here (matspray run --list-settings lists them)")
         try:
             value = parse_value(text, table[key].hint)
+        except NotFinite as exc:
+            raise SettingError(key, str(exc)) from None
         except ValueError:
             raise SettingError(key, f"cannot read {text!r} as {type_name(table[key].hint)}") from None
         if key == SHADOWS:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,6 +81,9 @@ def check_alpha(views: list[View], where: Path, split: str) -> None:
         )
 
 
+MIN_WORKING_SIDE = 8  # px: a downscale that leaves less is a mistaken factor (1000 made 1 x 1 px views)
+
+
 class WorkingSize:
     """Brings each view to the working size as the reader makes it, so that a dataset is never held whole at its
     photos' resolution (200 photos of 12 megapixels are 29 GB as float32 RGB). The factor is `downscale`, or with
@@ -96,7 +100,16 @@ class WorkingSize:
             self.factor = max(1.0, max(view.width, view.height) / self.max_size) if self.max_size else 1.0
         if self.crop is not None:
             return self.crop.fit(view)
-        return view.scaled(1.0 / self.factor) if self.factor != 1.0 else view
+        if self.factor == 1.0:
+            return view
+        scaled = view.scaled(1.0 / self.factor)
+        if min(scaled.width, scaled.height) < MIN_WORKING_SIDE:
+            raise SettingError(
+                "downscale",
+                f"{self.factor:g} shrinks {view.name}'s {view.width}x{view.height} image to {scaled.width}x"
+                f"{scaled.height} px, under {MIN_WORKING_SIDE} px a side; use a smaller factor (1 keeps the images)",
+            )
+        return scaled
 
 
 def load_run_scene(run: RunDir, data=None) -> Scene:
@@ -116,8 +129,8 @@ def load_scene(
     first view read sets it). Each view is shrunk as it is read (`WorkingSize`); with a `crop` plan it is first cut
     to its window (matspray.data.crop), and every view then has the plan's size.
     """
-    if downscale is not None and downscale < 1.0:
-        raise SettingError("downscale", f"must be >= 1, got {downscale}")
+    if downscale is not None and not (math.isfinite(downscale) and downscale >= 1.0):
+        raise SettingError("downscale", f"must be a finite number >= 1, got {downscale}")
     root = Path(root)
     fmt = detect_format(root)
     points = colors = None
