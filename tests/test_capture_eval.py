@@ -126,3 +126,30 @@ def test_compare_with_a_run_of_another_capture_is_refused_before_any_work(captur
     err = capsys.readouterr().err
     assert f"{other} was made from {tmp_path / 'elsewhere'}" in err and "compare runs of the same capture" in err
     assert (held.stat().st_mtime_ns if held.exists() else None) == stamp  # nothing scored or written
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--aligned"], "--aligned is for datasets with ground truth (a capture's photos need no alignment)"),
+        (["--env", "nosuch"], "unknown environment map 'nosuch'"),
+        (["--no-report", "--env", "studio"], "--env is for a capture's report, which --no-report leaves out"),
+    ],
+)
+def test_flags_a_capture_would_not_read_are_refused_before_any_work(capture_run, capsys, flags, message):
+    """Each was ignored before (or, a bad light, failed after the held-out views were scored)."""
+    data, run = capture_run
+    held = run / "eval" / "heldout.json"
+    stamp = held.stat().st_mtime_ns if held.exists() else None
+    assert main(["eval", "--run", str(run), *flags]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
+    assert (held.stat().st_mtime_ns if held.exists() else None) == stamp
+
+
+def test_flags_of_the_other_kind_of_evaluation_are_refused(tmp_path, capsys):
+    assert main(["eval", "--run", str(tmp_path), "--spp", "4", "--frame", "gltf"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "matspray eval: error: --frame and --spp are for --glb (the evaluation of an exported mesh)"
+    assert main(["eval", "--glb", str(tmp_path / "mesh.glb"), "--credit", "photos by me"]) == 2
+    assert capsys.readouterr().err.strip() == "matspray eval: error: --credit is for --run, not --glb"

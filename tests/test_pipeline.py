@@ -32,6 +32,14 @@ def finished_run(tiny_object, tmp_path_factory):
     return run
 
 
+def test_eval_refuses_the_capture_flags_on_a_dataset_with_ground_truth(finished_run):
+    result = run_cli("eval", "--run", finished_run, "--env", "studio", "--credit", "me")
+    assert result.returncode == 2
+    assert result.stderr.strip() == (
+        "matspray eval: error: --env and --credit are for runs on a capture without ground truth; this dataset has it"
+    )
+
+
 def test_every_stage_writes_its_artifact(finished_run):
     for path in (
         "config.yaml",

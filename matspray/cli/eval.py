@@ -45,7 +45,6 @@ def add_eval_parser(parser) -> None:
     parser.add_argument(
         "--env",
         nargs="+",
-        default=["studio", "sunset", "forest"],
         metavar="NAME|PATH",
         help=(
             "a run on a capture without ground truth: lights its report shows the asset under, names "
@@ -68,10 +67,30 @@ def add_eval_parser(parser) -> None:
     add_compute_arguments(parser)
 
 
+CAPTURE_LIGHTS = ["studio", "sunset", "forest"]  # --env's default
+GLB_ONLY = ("--frame", "--spp")
+CAPTURE_ONLY = ("--env", "--credit", "--compare")
+
+
+def given(args, flags) -> list[str]:
+    return [flag for flag in flags if getattr(args, flag.lstrip("-")) not in (None, [], False)]
+
+
+def refuse(flags: list[str], what: str) -> None:
+    """A flag that would be read by nothing is refused, not ignored."""
+    if flags:
+        raise ConfigError(f"{' and '.join(flags)} {'is' if len(flags) == 1 else 'are'} {what}")
+
+
 def eval_main(args) -> int:
     from matspray.device import out_of_memory_as_error
     from matspray.render.backend import compute_target
 
+    refuse(given(args, GLB_ONLY) if args.glb is None else [], "for --glb (the evaluation of an exported mesh)")
+    if args.glb is not None:
+        refuse(given(args, CAPTURE_ONLY + ("--aligned",)), "for --run, not --glb")
+    if args.no_report:
+        refuse(given(args, CAPTURE_ONLY), "for a capture's report, which --no-report leaves out")
     device, backend = compute_target(args.device, args.backend)
     if args.glb is not None:
         from matspray.eval.glb import evaluate_glb
@@ -101,12 +120,16 @@ def eval_main(args) -> int:
 
     run_folder = RunDir(args.run).require()
     scene = load_run_scene(run_folder, args.data)
-    if args.compare and has_ground_truth(scene):
-        raise ConfigError("--compare is for runs on a capture without ground truth; this dataset has it")
+    if has_ground_truth(scene):
+        refuse(given(args, CAPTURE_ONLY), "for runs on a capture without ground truth; this dataset has it")
     if not has_ground_truth(scene):  # a real capture: its held-out photos are the only truth
         from matspray.eval.capture_report import comparable_runs, write_capture_report
+        from matspray.render.shade.lights import load_envmap
 
+        refuse(given(args, ("--aligned",)), "for datasets with ground truth (a capture's photos need no alignment)")
         comparable_runs(run_folder, args.compare)  # a wrong --compare is refused before the work
+        for light in args.env or CAPTURE_LIGHTS:  # and a wrong --env
+            load_envmap(light, height=16)
         print("eval: the dataset has no ground-truth materials (a real capture): scoring the held-out photos instead")
         with out_of_memory_as_error("eval", device):
             metrics = evaluate_capture(
@@ -115,7 +138,13 @@ def eval_main(args) -> int:
             print(heldout_table(metrics))
             if not args.no_report:
                 page = write_capture_report(
-                    args.run, metrics, args.env, args.credit, device=device, backend=backend, compare=args.compare
+                    args.run,
+                    metrics,
+                    args.env or CAPTURE_LIGHTS,
+                    args.credit,
+                    device=device,
+                    backend=backend,
+                    compare=args.compare,
                 )
                 print(f"report: {page}")
         return 0
