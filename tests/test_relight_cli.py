@@ -60,3 +60,13 @@ def test_a_light_of_negative_radiance_is_refused_in_one_line_naming_the_file(no_
         "(a light is >= 0 everywhere: re-export the map without negative values)\n"
     )
     assert not out.exists()  # every light is read before anything is written
+
+
+def test_orbit_flags_for_the_test_views_are_refused(no_prior_run, tmp_path, capsys):
+    """--frames and --fps shape the orbit only; with the test views they were ignored without a word."""
+    from matspray.cli import main
+
+    out = tmp_path / "out"
+    assert main(["relight", "--run", str(no_prior_run), "--env", "sky", "--out", str(out), "--frames", "10"]) == 2
+    assert capsys.readouterr().err == "matspray relight: error: --frames is for --views orbit\n"
+    assert not out.exists()

@@ -3,7 +3,7 @@
 
 from pathlib import Path
 
-from matspray.cli.options import add_compute_arguments, hidden_alias
+from matspray.cli.options import add_compute_arguments, given, hidden_alias, refuse
 from matspray.errors import ConfigError
 
 
@@ -70,16 +70,6 @@ def add_eval_parser(parser) -> None:
 CAPTURE_LIGHTS = ["studio", "sunset", "forest"]  # --env's default
 GLB_ONLY = ("--frame", "--spp")
 CAPTURE_ONLY = ("--env", "--credit", "--compare")
-
-
-def given(args, flags) -> list[str]:
-    return [flag for flag in flags if getattr(args, flag.lstrip("-")) not in (None, [], False)]
-
-
-def refuse(flags: list[str], what: str) -> None:
-    """A flag that would be read by nothing is refused, not ignored."""
-    if flags:
-        raise ConfigError(f"{' and '.join(flags)} {'is' if len(flags) == 1 else 'are'} {what}")
 
 
 def eval_main(args) -> int:

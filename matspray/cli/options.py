@@ -236,6 +236,19 @@ def predictor_options_from_args(args) -> dict:
     }
 
 
+def given(args, flags) -> list[str]:
+    """Which of `flags` the command line gave (a flag left at None, [] or off was not)."""
+    return [flag for flag in flags if getattr(args, flag.lstrip("-").replace("-", "_")) not in (None, [], False)]
+
+
+def refuse(flags: list[str], what: str) -> None:
+    """Flags that nothing would read are refused, not ignored: '<flags> is|are <what>'."""
+    if flags:
+        from matspray.errors import ConfigError
+
+        raise ConfigError(f"{' and '.join(flags)} {'is' if len(flags) == 1 else 'are'} {what}")
+
+
 def hidden_alias(parser, flag: str, dest: str, **kwargs) -> None:
     """An old name of a flag: it still parses (into `dest`), shown in no help."""
     parser.add_argument(flag, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)

@@ -4,7 +4,7 @@ The run-folder glue lives here: which asset, which cameras, which files; `matspr
 
 from pathlib import Path
 
-from matspray.cli.options import VARIANT_HELP, add_compute_arguments
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments, given, refuse
 
 
 def add_relight_parser(parser) -> None:
@@ -28,8 +28,8 @@ def add_relight_parser(parser) -> None:
         "--variant",
         help=VARIANT_HELP,
     )
-    parser.add_argument("--frames", type=int, default=60, help="orbit: number of frames (default 60)")
-    parser.add_argument("--fps", type=int, default=24, help="orbit: frames per second of the video (default 24)")
+    parser.add_argument("--frames", type=int, help="orbit: number of frames (default 60)")
+    parser.add_argument("--fps", type=int, help="orbit: frames per second of the video (default 24)")
     parser.add_argument(
         "--background",
         choices=("transparent", "env"),
@@ -125,6 +125,7 @@ def relight_main(args) -> int:
     from matspray.device import out_of_memory_as_error
     from matspray.render.backend import compute_target
 
+    refuse(given(args, ("--frames", "--fps")) if args.views != "orbit" else [], "for --views orbit")
     device, backend = compute_target(args.device, args.backend)
     with out_of_memory_as_error("relight", device):
         written = relight_run(
@@ -133,8 +134,8 @@ def relight_main(args) -> int:
             args.views,
             args.out,
             variant=args.variant,
-            frames=args.frames,
-            fps=args.fps,
+            frames=60 if args.frames is None else args.frames,
+            fps=24 if args.fps is None else args.fps,
             background=args.background,
             env_height=args.env_height,
             device=device,
