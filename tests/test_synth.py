@@ -214,6 +214,11 @@ def test_cli_prints_variant_and_one_line_errors(tmp_path, capsys):
     assert main(["synth", "--out", str(tmp_path / "p"), "--shape", "pyramid"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "unknown shape 'pyramid'" in err and "Traceback" not in err
+    # --placement places an asset; with a procedural shape it was ignored without a word
+    assert main(["synth", "--out", str(tmp_path / "q"), "--shape", "sphere", "--placement", "keep"]) == 2
+    err = capsys.readouterr().err
+    assert err == "matspray synth: error: --placement is for --asset (a procedural shape has no units)\n"
+    assert not (tmp_path / "q").exists()
 
 
 FALLBACK = """

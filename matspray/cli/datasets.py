@@ -5,7 +5,7 @@ truth."""
 import argparse
 from pathlib import Path
 
-from matspray.cli.options import hidden_alias
+from matspray.cli.options import given, hidden_alias, refuse
 
 
 # `matspray info --data DATA`
@@ -136,7 +136,6 @@ def add_synth_parser(parser) -> None:
     parser.add_argument(
         "--placement",
         choices=("fit", "keep"),
-        default="fit",
         help="of --asset: fit (centred, scaled into the unit sphere; default) or keep (the file's units and origin, "
         "glTF +Y up as our +z; reproduces a synth object from its object.glb)",
     )
@@ -198,10 +197,11 @@ def synth_main(args) -> int:
 
     if args.asset is not None and args.shape is not None:
         raise ConfigError("--shape and --asset exclude each other; give one")
+    refuse(given(args, ("--placement",)) if args.asset is None else [], "for --asset (a procedural shape has no units)")
     config = SynthConfig(
         shape=args.shape or "random",
         asset=args.asset,
-        placement=args.placement,
+        placement=args.placement or "fit",
         seed=args.object_seed,
         resolution=args.resolution,
         train_views=args.views,
