@@ -82,6 +82,8 @@ def test_single_additions_switch_off():
     assert config.lift.footprint_sigmas == 1.0  # the others stay on
     with pytest.raises(SettingError, match="unknown addition.*colour"):
         build_config("demo", without=("colour",))
+    with pytest.raises(SettingError, match="^without: turns off additions of --method matspray; --method paper has"):
+        build_config("demo", method="paper", without=("light-warmup",))  # was accepted, and changed nothing
 
 
 def test_bad_settings_name_the_setting():

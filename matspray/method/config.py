@@ -106,6 +106,8 @@ def method_settings(method: str, without: tuple[str, ...] = ()) -> dict:
         raise SettingError(
             "without", f"unknown addition(s) {', '.join(unknown)}; choose from {', '.join(ADDITION_NAMES)}"
         )
+    if method == "paper" and without:
+        raise SettingError("without", "turns off additions of --method matspray; --method paper has none to turn off")
     off = ADDITION_NAMES if method == "paper" else without
     return {a.setting: a.paper for a in ADDITIONS if a.name in off}
 
