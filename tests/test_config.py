@@ -84,6 +84,9 @@ def test_single_additions_switch_off():
         build_config("demo", without=("colour",))
     with pytest.raises(SettingError, match="^without: turns off additions of --method matspray; --method paper has"):
         build_config("demo", method="paper", without=("light-warmup",))  # was accepted, and changed nothing
+    with pytest.raises(SettingError, match=r"^lift.min_support: --without min-support sets it too \(to 0.0\); give"):
+        build_config("demo", without=("min-support",), **{"lift.min_support": 0.3})  # the setting won, silently
+    assert build_config("demo", method="paper", **{"lift.min_support": 0.3}).lift.min_support == 0.3  # an override
 
 
 def test_bad_settings_name_the_setting():

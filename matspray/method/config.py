@@ -154,7 +154,12 @@ def build_config(
     except ConfigError as exc:
         raise SettingError("geometry", str(exc)) from None
     config = PipelineConfig(preset=preset, method=method, geometry=geometry)
-    for path, value in {**STAGE_SETTINGS[preset], **method_settings(method, tuple(without)), **settings}.items():
+    turned_off = method_settings(method, tuple(without))
+    clash = sorted(set(turned_off) & set(settings)) if without else []
+    if clash:
+        names = ", ".join(a.name for a in ADDITIONS if a.setting in clash)
+        raise SettingError(clash[0], f"--without {names} sets it too (to {turned_off[clash[0]]}); give one of the two")
+    for path, value in {**STAGE_SETTINGS[preset], **turned_off, **settings}.items():
         config = with_setting(config, path, value)
     return config
 
