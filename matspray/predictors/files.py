@@ -340,20 +340,20 @@ class FilesPredictor(Predictor):
                 )
         return maps
 
-    def facing_shares(self, maps: dict[str, MaterialMaps], views: list[View]) -> dict[str, float]:
+    def _facing_shares(self, maps: dict[str, MaterialMaps], views: list[View]) -> dict[str, float]:
         """{space of SOURCE_NORMAL_SPACES: share of the views' normals that face their cameras read in it}."""
         said_flip = SOURCE_NORMAL_SPACES[self.normal_space][1]
         counts = dict.fromkeys(SOURCE_NORMAL_SPACES, (0, 0))
         for view in views:
             stored = maps[view.name].normals  # [h, w, 3] in the folder's space (OpenGL axes already turned)
             step = max(1, stored.shape[0] // FACING_PIXELS)
-            raw = from_opengl_camera(stored) if said_flip else stored  # as in the files
+            raw = (from_opengl_camera(stored) if said_flip else stored)[::step, ::step]  # [h', w', 3] as in the files
             camera = view.camera.resized(stored.shape[1], stored.shape[0])
             rays = camera.pixel_directions().to(stored)[::step, ::step]  # [h', w', 3] world
             for source, (space, flip) in SOURCE_NORMAL_SPACES.items():
                 normals = from_opengl_camera(raw) if flip else raw
                 normals = camera_to_world(normals, camera) if space == "camera" else normals
-                facing, total = facing_counts(normals[::step, ::step], rays)
+                facing, total = facing_counts(normals, rays)
                 counts[source] = (counts[source][0] + facing, counts[source][1] + total)
         return {source: facing / max(total, 1) for source, (facing, total) in counts.items()}
 
@@ -361,7 +361,7 @@ class FilesPredictor(Predictor):
         """Refuses normal files that face their cameras in another space far more often than in the folder's: read
         in the wrong space (an unsaid space is MatSpray's camera axes) they would turn the Gaussians wrongly without a
         word. A space that predictor.json names is trusted, with a warning."""
-        shares = self.facing_shares(maps, views)
+        shares = self._facing_shares(maps, views)
         said = self.normal_space
         best = max(shares, key=shares.get)
         if shares[said] >= MISREAD_SHARE or shares[best] < FITS_SHARE:
