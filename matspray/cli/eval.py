@@ -6,6 +6,10 @@ from pathlib import Path
 from matspray.cli.options import add_compute_arguments, given, hidden_alias, refuse
 from matspray.errors import ConfigError
 
+CAPTURE_LIGHTS = ["studio", "sunset", "forest"]  # --env's default
+GLB_ONLY = ("--frame", "--spp")  # flags that only `eval --glb` reads
+CAPTURE_ONLY = ("--env", "--credit", "--compare")  # flags that only a capture's report reads
+
 
 def add_eval_parser(parser) -> None:
     parser.add_argument(
@@ -48,7 +52,7 @@ def add_eval_parser(parser) -> None:
         metavar="NAME|PATH",
         help=(
             "a run on a capture without ground truth: lights its report shows the asset under, names "
-            "(`matspray relight --help`) or .exr/.hdr files (default: studio sunset forest)"
+            "(`matspray relight --help`) or .exr/.hdr files (default: " + " ".join(CAPTURE_LIGHTS) + ")"
         ),
     )
     parser.add_argument(
@@ -65,11 +69,6 @@ def add_eval_parser(parser) -> None:
     )
     hidden_alias(parser, "--relight", "env", nargs="+")  # the old name of --env
     add_compute_arguments(parser)
-
-
-CAPTURE_LIGHTS = ["studio", "sunset", "forest"]  # --env's default
-GLB_ONLY = ("--frame", "--spp")
-CAPTURE_ONLY = ("--env", "--credit", "--compare")
 
 
 def eval_main(args) -> int:

@@ -6,6 +6,8 @@ from pathlib import Path
 
 from matspray.cli.options import VARIANT_HELP, add_compute_arguments, given, refuse
 
+ORBIT_FRAMES, ORBIT_FPS = 60, 24  # --views orbit: frames of the circle, and of the video per second
+
 
 def add_relight_parser(parser) -> None:
     parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
@@ -28,8 +30,8 @@ def add_relight_parser(parser) -> None:
         "--variant",
         help=VARIANT_HELP,
     )
-    parser.add_argument("--frames", type=int, help="orbit: number of frames (default 60)")
-    parser.add_argument("--fps", type=int, help="orbit: frames per second of the video (default 24)")
+    parser.add_argument("--frames", type=int, help=f"orbit: number of frames (default {ORBIT_FRAMES})")
+    parser.add_argument("--fps", type=int, help=f"orbit: frames per second of the video (default {ORBIT_FPS})")
     parser.add_argument(
         "--background",
         choices=("transparent", "env"),
@@ -46,8 +48,8 @@ def relight_run(
     views: str,
     out_dir,
     variant: str | None = None,
-    frames: int = 60,
-    fps: int = 24,
+    frames: int = ORBIT_FRAMES,
+    fps: int = ORBIT_FPS,
     background: str = "transparent",
     env_height: int = 64,
     device="cpu",
@@ -134,8 +136,8 @@ def relight_main(args) -> int:
             args.views,
             args.out,
             variant=args.variant,
-            frames=60 if args.frames is None else args.frames,
-            fps=24 if args.fps is None else args.fps,
+            frames=ORBIT_FRAMES if args.frames is None else args.frames,
+            fps=ORBIT_FPS if args.fps is None else args.fps,
             background=args.background,
             env_height=args.env_height,
             device=device,
