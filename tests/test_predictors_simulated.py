@@ -383,6 +383,10 @@ def test_cli_rejects_options_that_do_not_apply(sphere, tmp_path, capsys):
     assert not (tmp_path / "run" / "materials2d").exists()
     assert main(predict_argv(root, tmp_path / "run", "--predictor", "simulated", "--severity", "-1")) == 2
     assert "--severity: must be a number >= 0" in capsys.readouterr().err
+    # marigold's own flags are named as the user typed them (they read '--set seed', '--set processing_resolution')
+    for flag in ("--seed", "--processing-resolution"):
+        assert main(predict_argv(root, tmp_path / "run", "--predictor", "ground-truth", flag, "64")) == 2
+        assert f"error: {flag}: does not apply to the ground-truth predictor" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------ benchmark

@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except MatsprayError as exc:
-        print(f"matspray {args.command}: error: {flag_message(exc)}", file=sys.stderr)
+        print(f"matspray {args.command}: error: {flag_message(exc, args.command)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         if args.command in RESUMING_COMMANDS:

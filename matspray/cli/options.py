@@ -325,10 +325,16 @@ def build_config_from_args(args, **fixed):
     )
 
 
-def flag_message(error, flags: dict = FLAG_OF_SETTING) -> str:
-    """An error's one-line message; a SettingError names the flag that set the setting (`--set KEY` for a research
-    setting)."""
+# where a command's own flag sets a setting whose name means a research setting elsewhere (predict's --seed is the
+# predictor's, a run's `--set seed` the pipeline's)
+COMMAND_FLAGS = {"predict": {"seed": "--seed", "processing_resolution": "--processing-resolution"}}
+
+
+def flag_message(error, command: str | None = None) -> str:
+    """An error's one-line message; a SettingError names the flag of `command` that set the setting (`--set KEY`
+    for a research setting)."""
     setting = getattr(error, "setting", None)
     if setting is None:
         return str(error)
+    flags = {**FLAG_OF_SETTING, **COMMAND_FLAGS.get(command, {})}
     return f"{flags.get(setting, f'--set {setting}')}: {error.problem}"
