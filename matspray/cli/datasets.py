@@ -197,7 +197,8 @@ def synth_main(args) -> int:
 
     if args.asset is not None and args.shape is not None:
         raise ConfigError("--shape and --asset exclude each other; give one")
-    refuse(given(args, ("--placement",)) if args.asset is None else [], "for --asset (a procedural shape has no units)")
+    if args.asset is None:
+        refuse(given(args, ("--placement",)), "for --asset (a procedural shape has no units)")
     config = SynthConfig(
         shape=args.shape or "random",
         asset=args.asset,

@@ -75,8 +75,9 @@ def eval_main(args) -> int:
     from matspray.device import out_of_memory_as_error
     from matspray.render.backend import compute_target
 
-    refuse(given(args, GLB_ONLY) if args.glb is None else [], "for --glb (the evaluation of an exported mesh)")
-    if args.glb is not None:
+    if args.glb is None:
+        refuse(given(args, GLB_ONLY), "for --glb (the evaluation of an exported mesh)")
+    else:
         refuse(given(args, CAPTURE_ONLY + ("--aligned",)), "for --run, not --glb")
     if args.no_report:
         refuse(given(args, CAPTURE_ONLY), "for a capture's report, which --no-report leaves out")
@@ -111,13 +112,14 @@ def eval_main(args) -> int:
     scene = load_run_scene(run_folder, args.data)
     if has_ground_truth(scene):
         refuse(given(args, CAPTURE_ONLY), "for runs on a capture without ground truth; this dataset has it")
-    if not has_ground_truth(scene):  # a real capture: its held-out photos are the only truth
+    else:  # a real capture: its held-out photos are the only truth
         from matspray.eval.capture_report import comparable_runs, write_capture_report
         from matspray.render.shade.lights import load_envmap
 
         refuse(given(args, ("--aligned",)), "for datasets with ground truth (a capture's photos need no alignment)")
         comparable_runs(run_folder, args.compare)  # a wrong --compare is refused before the work
-        for light in args.env or CAPTURE_LIGHTS:  # and a wrong --env
+        lights = args.env or CAPTURE_LIGHTS
+        for light in lights:  # and a wrong --env
             load_envmap(light, height=16)
         print("eval: the dataset has no ground-truth materials (a real capture): scoring the held-out photos instead")
         with out_of_memory_as_error("eval", device):
@@ -129,7 +131,7 @@ def eval_main(args) -> int:
                 page = write_capture_report(
                     args.run,
                     metrics,
-                    args.env or CAPTURE_LIGHTS,
+                    lights,
                     args.credit,
                     device=device,
                     backend=backend,

@@ -127,7 +127,8 @@ def relight_main(args) -> int:
     from matspray.device import out_of_memory_as_error
     from matspray.render.backend import compute_target
 
-    refuse(given(args, ("--frames", "--fps")) if args.views != "orbit" else [], "for --views orbit")
+    if args.views != "orbit":
+        refuse(given(args, ("--frames", "--fps")), "for --views orbit")
     device, backend = compute_target(args.device, args.backend)
     with out_of_memory_as_error("relight", device):
         written = relight_run(
