@@ -534,3 +534,8 @@ def test_a_geometry_finished_with_other_inputs_or_settings_is_trained_again_not_
     fewer = replace(other_maps, geometry=replace(other_maps.geometry, max_gaussians=500))
     smaller, _ = trained(tmp_path / "run", fewer)
     assert smaller == trained(tmp_path / "fresh-fewer", fewer)[0] != again
+    # interrupted after its checkpoint, before its record: the checkpoint of other predictions was resumed (finished,
+    # so its Gaussians kept) where the stage record had gone; it carries its inputs now, and is trained over
+    RunDir(tmp_path / "run").reopen_stage("geometry")
+    resumed, _ = trained(tmp_path / "run", other_maps)
+    assert resumed == again != smaller

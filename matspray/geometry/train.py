@@ -47,16 +47,25 @@ SYNC_EVERY = 25
 CHECKPOINT_VERSION = 1
 
 
-def save_checkpoint(path, config: GeometryConfig, iteration: int, state: dict) -> None:
-    """`state`: tensors and plain values (optimizer, density statistics, random generator...)."""
+def save_checkpoint(path, config: GeometryConfig, iteration: int, state: dict, inputs: str | None = None) -> None:
+    """`state`: tensors and plain values (optimizer, density statistics, random generator...); `inputs`: what the
+    training was given (`train_geometry`)."""
     save_torch_atomic(
-        {"version": CHECKPOINT_VERSION, "config": config.identity(), "iteration": iteration, "state": state}, path
+        {
+            "version": CHECKPOINT_VERSION,
+            "config": config.identity(),
+            "inputs": inputs,
+            "iteration": iteration,
+            "state": state,
+        },
+        path,
     )
 
 
-def load_checkpoint(path, config: GeometryConfig) -> tuple[int, dict] | None:
-    """(iteration, state) of the checkpoint at `path`, None when there is none. A checkpoint made with
-    other settings is refused: resuming it would mix two runs."""
+def load_checkpoint(path, config: GeometryConfig, inputs: str | None = None) -> tuple[int, dict] | None:
+    """(iteration, state) of the checkpoint at `path`, None when there is none. Resuming a checkpoint of other
+    inputs or settings would mix two runs: with `inputs` (`train_geometry`), one made for others is None too (its
+    training is not this one's); without, one made with other settings is refused."""
     path = Path(path)
     if not path.exists():
         return None
@@ -72,6 +81,8 @@ def load_checkpoint(path, config: GeometryConfig) -> tuple[int, dict] | None:
         raise file_error(
             path, "is not a matspray geometry checkpoint of this version", "delete it, or restart the geometry stage"
         )
+    if inputs is not None:  # the inputs' identity covers the settings
+        return (int(data["iteration"]), data["state"]) if data.get("inputs") == inputs else None
     saved = {**ADDED_LATER, **data["config"]}
     differences = sorted(k for k, v in config.to_dict().items() if saved.get(k) != v)
     if differences:
@@ -122,6 +133,7 @@ def train_geometry(
     material_maps: list | None = None,
     object_bounds=None,
     focus_region: ObjectRegion | None = None,
+    inputs: str | None = None,
 ) -> Gaussians:
     """Train Gaussians on `scene`'s training views on `device` and write the stage's artifacts into `out_dir`, with
     the backend of the enclosing `rendering_with` block (torch outside one). Resumes from out_dir/checkpoint.pt
@@ -133,12 +145,12 @@ def train_geometry(
     `material_maps`: per training view, its 2D maps [H, W, 5] (any size), whose edges
     `config.material_edge_threshold` splits Gaussians on (needed then). `object_bounds`: a capture without masks
     focuses on this region (`geometry.region.given_region`'s numbers) from `config.focus_from` on; `focus_region`:
-    a region found before training (the photos' crop, `data.crop`) that it focuses on instead."""
+    a region found before training (the photos' crop, `data.crop`) that it focuses on instead. `inputs`: an identity of
+    everything the training depends on (a pipeline's stage fingerprint: settings, data, predictions); a checkpoint
+    made for other inputs, finished or not, is trained over instead of resumed."""
     device = torch.device(device)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME, REGION_NAME) if restart else ():
-        (out_dir / name).unlink(missing_ok=True)
     train_views = [v.to(device) for v in prepare_views(scene.train, config.resolution)]  # moved once
     test_views = [v.to(device) for v in prepare_views(scene.test, config.resolution)]
     if not train_views:
@@ -149,7 +161,10 @@ def train_geometry(
     extent = scene_extent(train_views)
     generator = torch.Generator().manual_seed(config.seed)
 
-    resumed = load_checkpoint(out_dir / CHECKPOINT_NAME, config)
+    resumed = None if restart else load_checkpoint(out_dir / CHECKPOINT_NAME, config, inputs)
+    if resumed is None:  # a training from the start: no file of an earlier one stays to be taken for its own
+        for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME, REGION_NAME):
+            (out_dir / name).unlink(missing_ok=True)
     finished = resumed is not None and resumed[0] >= config.iterations
     if finished and (out_dir / PLY_NAME).exists() and (out_dir / METRICS_NAME).exists():
         return read_ply(out_dir / PLY_NAME)[0].to(device)
@@ -186,7 +201,7 @@ def train_geometry(
             bar.write(f"iteration {iteration + 1}: {event}")
         if checkpoint_now:
             state = training_checkpoint(optimizer, density, generator, order, time.perf_counter() - began)
-            save_checkpoint(out_dir / CHECKPOINT_NAME, config, done, state)
+            save_checkpoint(out_dir / CHECKPOINT_NAME, config, done, state, inputs)
     bar.close()
     return write_result(out_dir, optimizer, density, train_views, test_views, config, time.perf_counter() - began)
 

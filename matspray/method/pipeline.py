@@ -142,20 +142,21 @@ class Pipeline(RunPlan):
             return self.geometry_normal_targets(maps), material_maps
 
         fp = self.geometry_fingerprint()
-        # a training that finished with another fingerprint is replaced, never resumed: its checkpoint's settings can
-        # all match (new predictions, new data), and resuming a finished training would keep its Gaussians
+        # the checkpoint carries the fingerprint (`inputs`): one of other predictions or data is trained over, never
+        # resumed, though its settings all match; a finished stage of another fingerprint loses its record first, so an
+        # interrupted retraining leaves no record that claims its files
         replaced = self.run.stage_fingerprint("geometry") not in (None, fp)
 
         def train(prepared) -> tuple:
             normal_targets, material_maps = prepared
-            if replaced:  # from here the folder holds no finished stage: an interrupted retraining resumes as itself
+            if replaced:
                 self.run.reopen_stage("geometry")
             train_geometry(
                 self.scene,
                 config,
                 self.run.path("geometry"),
                 device=self.device,
-                restart=replaced,
+                inputs=fp,
                 progress=self.progress,
                 normal_targets=normal_targets,
                 material_maps=material_maps,
