@@ -71,16 +71,21 @@ def add_eval_parser(parser) -> None:
     add_compute_arguments(parser)
 
 
-def eval_main(args) -> int:
-    from matspray.device import out_of_memory_as_error
-    from matspray.render.backend import compute_target
-
+def refuse_unread_flags(args) -> None:
+    """The flags that this kind of evaluation would not read (the dataset's kind is checked once it is loaded)."""
     if args.glb is None:
         refuse(given(args, GLB_ONLY), "for --glb (the evaluation of an exported mesh)")
     else:
         refuse(given(args, CAPTURE_ONLY + ("--aligned",)), "for --run, not --glb")
     if args.no_report:
         refuse(given(args, CAPTURE_ONLY), "for a capture's report, which --no-report leaves out")
+
+
+def eval_main(args) -> int:
+    from matspray.device import out_of_memory_as_error
+    from matspray.render.backend import compute_target
+
+    refuse_unread_flags(args)
     device, backend = compute_target(args.device, args.backend)
     if args.glb is not None:
         from matspray.eval.glb import evaluate_glb

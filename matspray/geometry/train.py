@@ -94,6 +94,16 @@ def load_checkpoint(path, config: GeometryConfig, inputs: str | None = None) -> 
     return int(data["iteration"]), data["state"]
 
 
+def resumable(out_dir: Path, config: GeometryConfig, restart: bool, inputs: str | None) -> tuple[int, dict] | None:
+    """The checkpoint in `out_dir` to resume (`load_checkpoint`), or None for a training from the start; then no file
+    of an earlier training stays to be taken for this one's."""
+    resumed = None if restart else load_checkpoint(out_dir / CHECKPOINT_NAME, config, inputs)
+    if resumed is None:
+        for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME, REGION_NAME):
+            (out_dir / name).unlink(missing_ok=True)
+    return resumed
+
+
 def prepare_views(views: list[View], resolution: int) -> list[View]:
     """Views downscaled so that their longest side is `resolution` (never upscaled; 0 keeps them)."""
     out = []
@@ -145,9 +155,8 @@ def train_geometry(
     `material_maps`: per training view, its 2D maps [H, W, 5] (any size), whose edges
     `config.material_edge_threshold` splits Gaussians on (needed then). `object_bounds`: a capture without masks
     focuses on this region (`geometry.region.given_region`'s numbers) from `config.focus_from` on; `focus_region`:
-    a region found before training (the photos' crop, `data.crop`) that it focuses on instead. `inputs`: an identity of
-    everything the training depends on (a pipeline's stage fingerprint: settings, data, predictions); a checkpoint
-    made for other inputs, finished or not, is trained over instead of resumed."""
+    a region found before training (the photos' crop, `data.crop`) that it focuses on instead. `inputs`: what the
+    training depends on (a pipeline's stage fingerprint); a checkpoint made for other inputs is trained over."""
     device = torch.device(device)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -161,10 +170,7 @@ def train_geometry(
     extent = scene_extent(train_views)
     generator = torch.Generator().manual_seed(config.seed)
 
-    resumed = None if restart else load_checkpoint(out_dir / CHECKPOINT_NAME, config, inputs)
-    if resumed is None:  # a training from the start: no file of an earlier one stays to be taken for its own
-        for name in (CHECKPOINT_NAME, PLY_NAME, METRICS_NAME, REGION_NAME):
-            (out_dir / name).unlink(missing_ok=True)
+    resumed = resumable(out_dir, config, restart, inputs)
     finished = resumed is not None and resumed[0] >= config.iterations
     if finished and (out_dir / PLY_NAME).exists() and (out_dir / METRICS_NAME).exists():
         return read_ply(out_dir / PLY_NAME)[0].to(device)
