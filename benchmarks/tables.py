@@ -25,6 +25,8 @@ import sys
 from functools import partial
 from pathlib import Path
 
+from benchmarks.tables_method import table_methods
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path("docs") / "results"  # relative to the repository root
 MARKER = re.compile(r"(<!-- table: ([\w.-]+) -->\n)(.*?)(<!-- /table -->)", re.S)
@@ -533,6 +535,7 @@ TABLES = {
     "dr-tried": (table_dr_tried, [name for _, name, _ in DR_TRIED]),
     "demo-backends": (table_demo_backends, [DEMO_BACKENDS]),
     "cli": (table_cli, []),
+    "methods": (table_methods, []),
 }
 
 

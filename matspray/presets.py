@@ -101,52 +101,121 @@ DEMO_SIZES = {
 }
 
 
+PAPER = "../shared/paper/matspray.tex"  # the paper's text, by line, in the sources below
+RELEASED = "the paper's released code"  # where the text is silent: the values the project read from it
+
+
 @dataclass(frozen=True)
 class Addition:
-    """One thing the default method does beyond the paper: the setting, and the paper's value of it."""
+    """One thing the default method does beyond the paper: the setting, the paper's value of it, and where that
+    value comes from (a line of the paper, or the released code where the text is silent)."""
 
     name: str
     setting: str
     paper: object
     what: str
+    source: str
 
 
+# Every setting where `--method matspray` differs from `--method paper`: `method_settings` sets each to its paper value
+# under `paper`, and tests/test_methods_table.py resolves both methods and fails on a difference without a row here.
 ADDITIONS = (
     Addition(
-        "core-median",
-        "lift.footprint_sigmas",
-        None,
-        "a Gaussian's per-view median reads the rays through its 1-sigma core",
+        "hull-init",
+        "geometry.init",
+        "random",
+        "objects with masks start Gaussian Splatting from points on the masks' visual hull",
+        "l.209: synthetic scenes start from 100 000 points drawn uniformly in a unit cube",
     ),
     Addition(
-        "min-support", "lift.min_support", 0.0, "a view counts for a Gaussian only with >= 0.5 of its best view's hits"
+        "geometry-normals",
+        "geometry.predicted_normal_weight",
+        0.0,
+        "Gaussian Splatting trains on the 2D model's normal maps of every object that has them",
+        "l.213: only for highly specular objects (then also l.451: positions fixed)",
+    ),
+    Addition(
+        "min-support",
+        "lift.min_support",
+        0.0,
+        "a view counts for a Gaussian only with >= 0.5 of its best view's hits",
+        "eq. 1-3: every view whose rays hit the Gaussian",
     ),
     Addition(
         "unseen-mask",
         "refine.merger.unseen",
         "mean",
         "unseen views get weight 0 (the paper's code fills them with the mean)",
+        f"{RELEASED}: views that never saw a Gaussian are filled with the mean of those that did",
     ),
-    Addition("light-warmup", "refine.light_warmup", 0, "the light is fitted alone before the merger trains"),
-    Addition("min-coverage", "refine.min_coverage", 0.0, "the merger skips Gaussians covering a sliver of a view"),
+    Addition(
+        "pe-octaves",
+        "refine.merger.frequencies",
+        4,
+        "the merger encodes a Gaussian's position with 6 positional-encoding octaves",
+        f"l.460 names a NeRF-style encoding without its size; {RELEASED}: 4 octaves",
+    ),
+    Addition(
+        "merger-bfloat16",
+        "refine.merger.precision",
+        "float32",
+        "the merger multiplies in bfloat16 on CUDA (and on a CPU with native bfloat16)",
+        "l.451: PyTorch on an RTX 4090; no reduced precision is named",
+    ),
+    Addition(
+        "light-warmup",
+        "refine.light_warmup",
+        0,
+        "the light is fitted alone before the merger trains",
+        "l.163: one loss supervises the merger and the light together from the start",
+    ),
+    Addition(
+        "light-tv",
+        "refine.light_tv_weight",
+        0.0,
+        "the estimated light is kept smooth by the total variation of its log radiance",
+        "l.85: an optimisable environment map, with no prior named",
+    ),
+    Addition(
+        "min-coverage",
+        "refine.min_coverage",
+        0.0,
+        "the merger skips Gaussians covering a sliver of a view",
+        "l.454: random view sampling, every Gaussian of a view",
+    ),
     Addition(
         "normal-neighbours",
         "refine.normal_neighbours",
         0,
         "each Gaussian's normal is averaged over its 16 nearest Gaussians' before shading and refinement",
+        "l.84-85: the normals of R3DGS, refined by the rendering loss",
     ),
     Addition(
-        "photo-weight",
-        "refine.photo_weight",
-        1.0,
-        "the photometric loss weighs twice the 2D maps' (as the paper's released code adds it twice)",
+        "normal-prior",
+        "refine.normal_prior_weight",
+        0.0,
+        "refined normals are held near the geometry's",
+        "l.85: normals refined by the rendering loss alone",
+    ),
+    Addition(
+        "refine-normals",
+        "refine.predicted_normal_weight",
+        0.0,
+        "refinement holds the rendered normals near the 2D model's normal maps, where it has them",
+        "l.85: normals refined by the rendering loss alone",
     ),
     Addition(
         "metallic-quantile",
         "refine.metallic_quantile",
         0.5,
         "the 2D maps' loss on metallic is least at the lower quartile of the views' (the paper's L1: their median)",
+        "l.454: an L1 material loss, whose minimum is the views' median",
     ),
+)
+# Settings where the text is silent and both methods take the released code's value (docs/method.md shows them)
+RELEASED_VALUES = (
+    ("lift.footprint_sigmas", 1.0, f"{RELEASED}: a ray hits a Gaussian inside its 1-sigma ellipsoid"),
+    ("refine.photo_weight", 2.0, f"{RELEASED}: the photometric term is added twice (l.454 weighs the maps' L1 at 1)"),
 )
 ADDITION_NAMES = tuple(a.name for a in ADDITIONS)
 

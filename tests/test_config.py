@@ -39,10 +39,10 @@ def test_defaults_are_the_demo_preset_of_the_default_method():
     prior = NORMAL_PRIOR_WEIGHT  # a run's default, where its 2D maps have normal maps; the stages alone default to 0
     assert build_config("demo").refine == RefineConfig(predicted_normal_weight=prior)
     assert build_config("demo").lift == LiftConfig() and RefineConfig().merger == MergerConfig()
-    for preset in ("test", "demo", "paper"):
-        for method in ("matspray", "paper"):  # the paper trains on its 2D model's normals too
-            config = build_config(preset, method)
-            assert config.geometry.predicted_normal_weight == config.refine.predicted_normal_weight == prior > 0
+    for preset in ("test", "demo", "paper"):  # the paper trains on its 2D model's normals for specular objects only
+        ours, paper = build_config(preset), build_config(preset, "paper")
+        assert ours.geometry.predicted_normal_weight == ours.refine.predicted_normal_weight == prior > 0
+        assert paper.geometry.predicted_normal_weight == paper.refine.predicted_normal_weight == 0
 
 
 def test_paper_method_sets_every_switch_as_the_paper_and_config_yaml_records_it(tmp_path):
@@ -52,17 +52,18 @@ def test_paper_method_sets_every_switch_as_the_paper_and_config_yaml_records_it(
     assert written["method"] == "paper"
     lift, refine = written["lift"], written["refine"]
     assert lift["visibility_threshold"] == 0.0  # every ray hit receives the pixel's value
-    assert lift["footprint_sigmas"] is None  # no core median
+    assert lift["footprint_sigmas"] == 1.0  # the released code's 1-sigma ellipsoid
     assert lift["min_support"] == 0.0  # every view that hit a Gaussian counts
     assert refine["merger"]["unseen"] == "mean"  # unseen views filled with the mean (released code)
     assert refine["merger"]["seen_input"] is False  # merger input: PE(position) + per-view values only
     assert (refine["merger"]["hidden"], refine["merger"]["layers"], refine["merger_lr"]) == (128, 3, 1e-3)
     assert refine["basecolor_loss"] == "l1" and refine["material_weight"] == 1.0
-    assert refine["photo_weight"] == 1.0 and refine["photo_l1_weight"] == 0.8  # matspray: 2 (`photo-weight`)
+    assert refine["photo_weight"] == 2.0 and refine["photo_l1_weight"] == 0.8  # the released code's, as matspray
     assert refine["metallic_quantile"] == 0.5  # L1: the median of the views (matspray: 0.25, `metallic-quantile`)
     assert refine["light_warmup"] == 0 and refine["min_coverage"] == 0.0
     assert written["visibility"] is None  # no shadowing
-    assert refine["light_tv_weight"] > 0  # the light prior is on in both methods (the released code has one)
+    assert refine["light_tv_weight"] == 0.0 and refine["normal_prior_weight"] == 0.0  # no priors the paper names
+    assert refine["predicted_normal_weight"] == 0.0 and written["geometry"]["predicted_normal_weight"] == 0.0
     assert lift["samples_per_side"] == 2  # presets keep their sizes
     assert build_config("paper", "paper").lift.samples_per_side == 16
 
@@ -79,7 +80,7 @@ def test_matspray_differs_from_paper_exactly_by_the_additions():
 def test_single_additions_switch_off():
     config = build_config("demo", without=("light-warmup", "min-support"))
     assert config.refine.light_warmup == 0 and config.lift.min_support == 0.0
-    assert config.lift.footprint_sigmas == 1.0  # the others stay on
+    assert config.refine.light_tv_weight > 0 and config.refine.min_coverage > 0  # the others stay on
     with pytest.raises(SettingError, match="unknown addition.*colour"):
         build_config("demo", without=("colour",))
     with pytest.raises(SettingError, match="^without: turns off additions of --method matspray; --method paper has"):

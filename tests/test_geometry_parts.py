@@ -5,10 +5,12 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import pytest
 import torch
 
 from matspray.data.camera import Camera
 from matspray.data.scene import Scene, View
+from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.geometry.config import preset
 from matspray.geometry.densify import DensityControl, split_gaussians
@@ -179,6 +181,33 @@ def test_initial_points_lie_on_the_visual_hull():
     assert g.sh.shape[1:] == (9, 3) and (g.sh[:, 1:] == 0).all()
     torch.testing.assert_close(g.opacities, torch.full((len(g),), 0.3))
     torch.testing.assert_close(g.scales[:, 0], 0.5 * neighbour_spacing(g.means))
+
+
+def test_the_papers_start_fills_the_masked_objects_box_uniformly(monkeypatch):
+    """`init="random"` (the paper's 100 000 points in a unit cube, l.209): a masked object's Gaussians start anywhere in
+    its bounds, not on its hull, and geometry training passes the setting to the start."""
+    from matspray.geometry import train as train_module
+    from matspray.geometry.config import GeometryConfig
+
+    cameras = [Camera.look_at([3 * math.cos(a), 3 * math.sin(a), 1], [0, 0, 0], [0, 0, 1], 0.8, 24, 24) for a in (0, 2)]
+    disc = torch.zeros(24, 24)
+    disc[8:16, 8:16] = 1.0
+    views = [View(f"v{i}", torch.full((24, 24, 3), 0.5), disc, c) for i, c in enumerate(cameras)]
+    bounds = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    scene = Scene(train=views, test=[], bounds=bounds)
+    g = initial_gaussians(scene, views, 4000, 0, 0.3, torch.Generator().manual_seed(0), start="random")
+    assert len(g) == 4000 and bool((g.means.abs() <= 1.0).all())
+    # uniform in the box: each octant holds about an eighth, and the mean is near the centre
+    octants = torch.bincount(((g.means > 0).long() * torch.tensor([1, 2, 4])).sum(-1), minlength=8)
+    assert int(octants.min()) > 400 and float(g.means.mean(0).abs().max()) < 0.05
+    hull = initial_gaussians(scene, views, 4000, 0, 0.3, torch.Generator().manual_seed(0))
+    assert float(hull.means.norm(dim=-1).max()) < 0.9 * float(g.means.norm(dim=-1).max())  # the hull is inside
+    with pytest.raises(SettingError, match="^init: unknown start 'cube'; choose one of hull, random"):
+        GeometryConfig(init="cube")
+    seen = []
+    monkeypatch.setattr(train_module, "initial_gaussians", lambda *a, **k: seen.append(a[-1]) or g)
+    train_module.training_state(scene, views, GeometryConfig(init="random"), 1.0, None, None, torch.device("cpu"))
+    assert seen == ["random"]
 
 
 def test_a_few_points_of_a_capture_without_masks_are_topped_up_with_scattered_ones():

@@ -93,7 +93,7 @@ SETTING_FLAGS = {
         "refine.photo_weight",
         finite_float,
         "weight of the photometric loss against the material loss, in the variants with both "
-        "(paper: 1; its released code: 2)",
+        "(the paper's released code: 2; the text is silent)",
     ),
     "--light-warmup": (
         "refine.light_warmup",

@@ -18,6 +18,9 @@ class GeometryConfig:
     # initialisation: the sparse points of a COLMAP scene, points on the masks' visual hull, or random
     # points in the object bounds; isotropic, init_scale times the spacing of their neighbours
     init_points: int = 8000
+    # a scene with masks and no points starts from: "hull", points on the masks' visual hull; "random", points drawn
+    # uniformly in the object bounds (the paper's unit cube)
+    init: str = "hull"
     init_opacity: float = 0.3
     init_scale: float = 0.7
     sh_degree: int = 3
@@ -90,6 +93,8 @@ class GeometryConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise SettingError(name, f"must be >= 1, got {getattr(self, name)}")
+        if self.init not in INITS:
+            raise SettingError("init", f"unknown start '{self.init}'; choose one of {', '.join(INITS)}")
         if not 0 <= self.sh_degree <= 3:
             raise SettingError("sh_degree", f"must be 0..3, got {self.sh_degree}")
         if self.resolution < 0:
@@ -122,8 +127,11 @@ class GeometryConfig:
         return replace(self, **{k: ADDED_LATER[k] for k in FOCUS}) if masked else self
 
 
+INITS = ("hull", "random")
+
 # settings added after geometry runs existed -> the value under which training is what it was before them
 ADDED_LATER = {
+    "init": "hull",
     "predicted_normal_weight": 0.0,
     "focus_from": 0.0,
     "focus_grad_scale": 1.0,

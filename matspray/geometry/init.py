@@ -30,10 +30,12 @@ def initial_gaussians(
     opacity: float,
     generator: torch.Generator,
     scale: float = 1.0,
+    start: str = "hull",
 ) -> Gaussians:
     """`count` isotropic Gaussians (fewer with COLMAP points or thin masks), `scale` times the RMS
-    distance to their 3 nearest neighbours, coloured by the sRGB colour they project to. They are made on
-    the views' device; random draws come from the CPU `generator` (the same points on every device)."""
+    distance to their 3 nearest neighbours, coloured by the sRGB colour they project to. A masked scene without points
+    starts on its visual hull, or (`start="random"`, the paper's) anywhere in its bounds. They are made on the views'
+    device; random draws come from the CPU `generator` (the same points on every device)."""
     device = views[0].image.device
     masked = any(v.alpha is not None for v in views)
     if scene.points is not None and len(scene.points) >= MIN_COLMAP_POINTS:
@@ -46,8 +48,11 @@ def initial_gaussians(
             # to start from: the rest are scattered as without points
             points = torch.cat([points, scattered_points(scene, views, count - len(points), generator)])
         colours = projected_colours(points, views)
-    elif masked:
+    elif masked and start == "hull":
         points, colours = hull_surface_points(scene.bounds.float().to(device), views, count, generator)
+    elif masked:  # the paper's start: the object's box, filled uniformly (no background to cover)
+        points = uniform_points(scene.bounds.float().to(device), count, generator)
+        colours = projected_colours(points, views)
     else:
         points = scattered_points(scene, views, count, generator)
         colours = projected_colours(points, views)
@@ -70,10 +75,14 @@ def scattered_points(scene: Scene, views: list[View], count: int, generator: tor
     """Random points in the scene's bounds and, for the background of a capture without masks, BACKGROUND_SHARE of
     them on a far shell."""
     device = views[0].image.device
-    bounds = scene.bounds.float().to(device)
     shell = int(BACKGROUND_SHARE * count)
-    inner = bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count - shell, 3, generator=generator).to(device)
+    inner = uniform_points(scene.bounds.float().to(device), count - shell, generator)
     return torch.cat([inner, background_shell(views, shell).to(device)])
+
+
+def uniform_points(bounds: Tensor, count: int, generator: torch.Generator) -> Tensor:  # [2, 3] -> [count, 3]
+    """`count` points drawn uniformly in the box `bounds` (min and max corners), from the CPU `generator`."""
+    return bounds[0] + (bounds[1] - bounds[0]) * torch.rand(count, 3, generator=generator).to(bounds.device)
 
 
 def hull_surface_points(

@@ -256,7 +256,14 @@ def training_state(scene: Scene, train_views: list[View], config, extent: float,
     fresh Gaussians (drawn from `generator`), or the checkpoint `resumed` (iteration, state) restored."""
     if resumed is None:
         initial = initial_gaussians(
-            scene, train_views, config.init_points, config.sh_degree, config.init_opacity, generator, config.init_scale
+            scene,
+            train_views,
+            config.init_points,
+            config.sh_degree,
+            config.init_opacity,
+            generator,
+            config.init_scale,
+            config.init,
         )
         optimizer = GaussianOptimizer(initial, learning_rates(config, extent))
         return 0, [], optimizer, DensityControl(config, extent, len(initial), device), 0.0

@@ -6,8 +6,8 @@ A config is built in three layers, each a plain mapping of settings:
      off, leaving the paper's text (and its released code where the text is silent);
   3. overrides, by dotted setting name (`lift.min_support`, `refine.iterations`, ...).
 
-Every addition of `matspray` over `paper` is one row of `ADDITIONS`: the setting it changes and the
-paper's value, so each can be measured on its own (`without=` switches single additions off).
+Every addition of `matspray` over `paper` is one row of `ADDITIONS`: the setting it changes, the
+paper's value and its source, so each can be measured on its own (`without=` switches single additions off).
 """
 
 from __future__ import annotations
@@ -32,11 +32,12 @@ def unknown_preset(preset: str) -> SettingError:
     return SettingError("preset", f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
 
 
-# The 2D model's normals, in every preset and both methods (the paper trains Gaussian Splatting on DiffusionRenderer's
-# normals and refines normals by the rendering loss): Gaussian Splatting trains on them and refinement keeps its
-# normals near them, at this weight. A run applies them where its 2D maps have normal maps and turns them off
-# elsewhere (`Pipeline.geometry_config`, `Pipeline.refine_config`); the stages' own settings default to 0 (off), for
-# the stages called alone.
+# The 2D model's normals, in every preset under `matspray` (the paper trains Gaussian Splatting on DiffusionRenderer's
+# normals of highly specular objects only, and refines normals by the rendering loss: `--method paper` turns both off,
+# rows `geometry-normals` and `refine-normals` of `presets.ADDITIONS`): Gaussian Splatting trains on them and
+# refinement keeps its normals near them, at this weight. A run applies them where its 2D maps have normal maps and
+# turns them off elsewhere (`Pipeline.geometry_config`, `Pipeline.refine_config`); the stages' own settings default to
+# 0 (off), for the stages called alone.
 NORMAL_PRIOR_WEIGHT = 1.0
 
 
@@ -145,7 +146,13 @@ def build_config(
     if preset not in PRESETS:
         raise unknown_preset(preset)
     seed = settings.get("seed", 0)
-    settings = {"geometry.predicted_normal_weight": NORMAL_PRIOR_WEIGHT, **settings}
+    turned_off = method_settings(method, tuple(without))
+    clash = sorted(set(turned_off) & set(settings)) if without else []
+    if clash:
+        names = ", ".join(a.name for a in ADDITIONS if a.setting in clash)
+        raise SettingError(clash[0], f"--without {names} sets it too (to {turned_off[clash[0]]}); give one of the two")
+    # the method's values first, the settings given over them (an override of a paper value is the user's to make)
+    settings = {"geometry.predicted_normal_weight": NORMAL_PRIOR_WEIGHT, **turned_off, **settings}
     geometry_settings = {k.split(".", 1)[1]: settings.pop(k) for k in list(settings) if k.startswith("geometry.")}
     try:
         geometry = geometry_preset(preset, seed=seed, **geometry_settings)
@@ -154,12 +161,7 @@ def build_config(
     except ConfigError as exc:
         raise SettingError("geometry", str(exc)) from None
     config = PipelineConfig(preset=preset, method=method, geometry=geometry)
-    turned_off = method_settings(method, tuple(without))
-    clash = sorted(set(turned_off) & set(settings)) if without else []
-    if clash:
-        names = ", ".join(a.name for a in ADDITIONS if a.setting in clash)
-        raise SettingError(clash[0], f"--without {names} sets it too (to {turned_off[clash[0]]}); give one of the two")
-    for path, value in {**STAGE_SETTINGS[preset], **turned_off, **settings}.items():
+    for path, value in {**STAGE_SETTINGS[preset], **settings}.items():
         config = with_setting(config, path, value)
     return config
 

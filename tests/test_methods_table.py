@@ -1,0 +1,96 @@
+"""`--method paper` is the paper: every setting where the two methods resolve differently is a row of
+`presets.ADDITIONS`, holding the paper's value and its source, and the settings the text leaves to the released code
+are the same in both methods."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import fields, is_dataclass
+from pathlib import Path
+
+import pytest
+
+from matspray.method.config import build_config, variant_refine_config
+from matspray.presets import ADDITIONS, PAPER, PRESETS, RELEASED, RELEASED_VALUES, VARIANT_NAMES
+
+PAPER_TEXT = Path(__file__).resolve().parents[1] / PAPER
+
+
+def flattened(config, prefix: str = "") -> dict:
+    """Every setting of a (nested) frozen config by dotted name -> value."""
+    out = {}
+    for f in fields(config):
+        value = getattr(config, f.name)
+        if is_dataclass(value):
+            out |= flattened(value, f"{prefix}{f.name}.")
+        else:
+            out[f"{prefix}{f.name}"] = value
+    return out
+
+
+def differences(a, b, prefix: str = "") -> dict:
+    """Dotted name -> (a's value, b's value) wherever they differ (settings present in one only included)."""
+    fa, fb = flattened(a, prefix), flattened(b, prefix)
+    return {k: (fa.get(k), fb.get(k)) for k in fa.keys() | fb.keys() if fa.get(k) != fb.get(k)}
+
+
+def unlisted(ours, paper, prefix: str = "") -> dict:
+    """The differences between the methods' configs that no row of ADDITIONS names (`prefix`: the configs' place)."""
+    rows = {a.setting for a in ADDITIONS}
+    return {k: v for k, v in differences(ours, paper, prefix).items() if k != "method" and k not in rows}
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_every_difference_between_the_methods_has_a_row_with_the_papers_value(preset):
+    ours, paper = build_config(preset), build_config(preset, "paper")
+    assert unlisted(ours, paper) == {}
+    for variant in VARIANT_NAMES:  # the refinement as each variant runs it
+        refined = variant_refine_config(ours, variant), variant_refine_config(paper, variant)
+        assert unlisted(*refined, prefix="refine.") == {}
+    resolved = flattened(paper)
+    for addition in ADDITIONS:
+        assert resolved[addition.setting] == addition.paper, addition.name
+
+
+def test_the_table_check_finds_a_difference_without_a_row():
+    """The check itself fails where the methods differ in a setting no row names (here the merger's width)."""
+    ours, paper = build_config("demo"), build_config("demo", "paper", **{"refine.merger.hidden": 64})
+    assert set(unlisted(ours, paper)) == {"refine.merger.hidden"}
+
+
+def test_each_row_changes_its_setting_and_names_its_source():
+    ours = flattened(build_config("demo"))
+    for addition in ADDITIONS:
+        assert ours[addition.setting] != addition.paper, f"{addition.name} is not a difference"
+        assert addition.source.startswith(("l.", "eq.", RELEASED)), addition.name
+    assert len({a.setting for a in ADDITIONS}) == len(ADDITIONS) == len({a.name for a in ADDITIONS})
+
+
+@pytest.mark.skipif(not PAPER_TEXT.exists(), reason=f"the paper's text is not at {PAPER} (outside a developer's tree)")
+def test_the_sources_name_lines_of_the_papers_text():
+    lines = PAPER_TEXT.read_text().splitlines()
+    for addition in ADDITIONS:
+        for line in re.findall(r"l\.(\d+)", addition.source):
+            assert 1 <= int(line) <= len(lines) and lines[int(line) - 1].strip(), (addition.name, line)
+    text = "\n".join(lines)
+    assert "100{,}000$ points sampled uniformly at random" in text  # hull-init's source, l.209
+    assert "train Gaussian Splatting on DiffusionRenderer normals" in text  # geometry-normals' source, l.213
+
+
+def test_where_the_text_is_silent_both_methods_take_the_released_codes_value():
+    for preset in PRESETS:
+        ours, paper = flattened(build_config(preset)), flattened(build_config(preset, "paper"))
+        for path, value, source in RELEASED_VALUES:
+            assert ours[path] == paper[path] == value, (preset, path)
+            assert source.startswith(RELEASED)
+
+
+def test_the_paper_starts_a_masked_object_from_random_points_and_trains_no_predicted_normals():
+    paper = build_config("paper", "paper")
+    assert paper.geometry.init == "random" and paper.geometry.init_points == 100_000  # l.209
+    assert paper.geometry.predicted_normal_weight == 0 and paper.refine.predicted_normal_weight == 0
+    assert paper.refine.merger.frequencies == 4 and paper.refine.merger.precision == "float32"
+    assert paper.lift.footprint_sigmas == 1.0 and paper.refine.photo_weight == 2.0  # the released code's
+    # a user's setting wins over the paper's value, in geometry too (it was overwritten by the method before)
+    specular = build_config("demo", "paper", **{"geometry.predicted_normal_weight": 1.0})
+    assert specular.geometry.predicted_normal_weight == 1.0
