@@ -282,8 +282,18 @@ def test_resuming_with_the_other_method_recomputes_only_what_differs(tiny_object
         log=lambda _: None,
     )
     assert paper.predict_fingerprint() == ours.predict_fingerprint()
-    assert paper.geometry_fingerprint() == ours.geometry_fingerprint()
+    # the paper starts the geometry from random points and trains it without the predicted normals
+    assert paper.geometry_fingerprint() != ours.geometry_fingerprint()
     assert paper.lift_fingerprint() != ours.lift_fingerprint()
+    same_geometry = {"geometry.init": "hull", "geometry.predicted_normal_weight": 1.0, "refine.iterations": 8}
+    paper_on_ours = Pipeline(
+        tiny_object,
+        finished_run,
+        build_config("test", "paper", predictor="simulated", **same_geometry),
+        progress=False,
+        log=lambda _: None,
+    )
+    assert paper_on_ours.geometry_fingerprint() == ours.geometry_fingerprint()  # the geometry is reused
     # the same lift settings under another method name still do not share the stage: the method is in the fingerprint
     relabelled = Pipeline(
         tiny_object, finished_run, replace(tiny_config(), method="paper"), progress=False, log=lambda _: None
