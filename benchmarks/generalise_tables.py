@@ -32,12 +32,20 @@ def object_figures(metrics: dict) -> dict:
         "materials_3d": {c: full[c]["psnr"] for c in CHANNELS if c in full},
         "materials_no_prior": {c: baseline[c]["psnr"] for c in CHANNELS if c in baseline},
         "materials_2d": {c: predictions[c]["psnr"] for c in CHANNELS if c in predictions},
+        # after a per-channel scale fitted to the truth (TensoIR / IRGS), where the evaluation made them
+        "relight_aligned": {v: aligned_psnr(variants[v], "relighting_aligned") for v in VARIANTS if v in variants},
+        "basecolor_aligned": {v: aligned_psnr(variants[v], "basecolor_aligned") for v in VARIANTS if v in variants},
         "normal_error": {
             v: variants[v]["summary"]["normals"]["error_deg"]
             for v in VARIANTS
             if "normals" in variants.get(v, {}).get("summary", {})
         },
     }
+
+
+def aligned_psnr(variant: dict, row: str) -> float | None:
+    """A variant's scale-aligned PSNR of `row`; None where its evaluation had no aligned rows."""
+    return variant.get("summary", {}).get(row, {}).get("psnr")
 
 
 def wins(figures: list[dict], pairs) -> dict:
@@ -81,12 +89,24 @@ def model_summary(per_object: list[dict]) -> dict:
     pairs += [(f"3D > 2D {c}", get("materials_3d", c), get("materials_2d", c)) for c in CHANNELS]
     return {
         "relight": {k: v for k, v in relight.items() if v is not None},
+        "relight_aligned": mean_over_objects(figures, "relight_aligned"),
+        "basecolor_aligned": mean_over_objects(figures, "basecolor_aligned"),
         "materials_3d": {c: table1.get("Ours", {}).get(c, {}) for c in CHANNELS},
         "materials_no_prior": {c: table1.get(LABELS[BASELINE], {}).get(c, {}) for c in CHANNELS},
         "materials_2d": {c: table1.get("2D predictions", {}).get(c, {}) for c in CHANNELS},
         "wins": wins(figures, pairs),
         "tables": averaged,
     }
+
+
+def mean_over_objects(figures: list[dict], group: str) -> dict:
+    """Variant -> the mean of `group`'s figure over the objects, for the variants every object has it for."""
+    values: dict[str, list[float]] = {}
+    for f in figures:
+        for variant, value in f.get(group, {}).items():
+            if value is not None:
+                values.setdefault(variant, []).append(value)
+    return {v: math.fsum(x) / len(x) for v, x in values.items() if len(x) == len(figures)}
 
 
 def fmt(value) -> str:
@@ -116,7 +136,8 @@ def model_table(model: str, per_object: list[dict], summary: dict, variants) -> 
     head += [f"2D {SHORT[c]}" for c in CHANNELS]
     normals = [v for v in variants if any(v in o["figures"].get("normal_error", {}) for o in per_object)]
     head += [f"normals {v} (deg)" for v in normals] + ["s"]  # results of older versions have no normal errors
-    lines = [f"### error model `{model}` ({label})", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines = [f"### error model `{model}` ({label}; unaligned PSNR)", "", "| " + " | ".join(head) + " |"]
+    lines.append("|" + "---|" * len(head))
     for o in per_object:
         f = o["figures"]
         cells = [o["object"]["name"], o["object"]["env"], ", ".join(o["object"]["relight_envs"])]
@@ -137,7 +158,30 @@ def model_table(model: str, per_object: list[dict], summary: dict, variants) -> 
     lines.append("| " + " | ".join(mean + [f"{sum(o['seconds'] for o in per_object) / len(per_object):.0f}"]) + " |")
     counted = {k: w for k, w in summary["wins"].items() if w["of"]}  # a pair with a variant not run has no count
     lines += ["", "wins: " + ", ".join(f"{k} {w['wins']}/{w['of']}" for k, w in counted.items()), ""]
-    return lines
+    return lines + aligned_table(per_object, summary, variants)
+
+
+def aligned_table(per_object: list[dict], summary: dict, variants) -> list[str]:
+    """The relighting and base-colour PSNR after a per-channel scale fitted to the truth (the TensoIR / IRGS
+    convention), per object and their mean; nothing where the evaluation made no aligned rows."""
+    shown = [v for v in variants if v in summary.get("relight_aligned", {})]
+    if not shown:
+        return []
+    head = ["object"] + [f"relight {v}" for v in shown] + [f"base {v}" for v in shown]
+    lines = [
+        "Scale-aligned (each channel times the median ratio to the truth on the object: the TensoIR / IRGS "
+        "convention; the table above is unaligned):",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+    ]
+    for o in per_object:
+        f = o["figures"]
+        cells = [o["object"]["name"]] + [fmt(f["relight_aligned"].get(v)) for v in shown]
+        lines.append("| " + " | ".join(cells + [fmt(f["basecolor_aligned"].get(v)) for v in shown]) + " |")
+    mean = [f"**mean of {len(per_object)}**"] + [fmt(summary["relight_aligned"].get(v)) for v in shown]
+    mean += [fmt(summary["basecolor_aligned"].get(v)) for v in shown]
+    return lines + ["| " + " | ".join(mean) + " |", ""]
 
 
 def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict]) -> list[str]:

@@ -82,7 +82,11 @@ def run_one_object(
             log(f"{data}: no ground truth, not evaluated")
             return None
         stage("eval")
-        metrics = evaluate_run(run_dir, data, progress=progress, device=pipeline.device, backend=pipeline.backend)
+        # the scale-aligned rows too (the TensoIR / IRGS convention), beside the unaligned ones, so benchmark tables
+        # can show both protocols
+        metrics = evaluate_run(
+            run_dir, data, progress=progress, device=pipeline.device, backend=pipeline.backend, aligned=True
+        )
         write_report(run_dir, metrics, data)
     return metrics
 
