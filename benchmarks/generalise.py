@@ -49,6 +49,7 @@ from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
 from matspray.geometry.config import GeometryConfig
+from matspray.method.config import defaults_fingerprint
 from matspray.method.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.presets import VARIANT_NAMES as VARIANTS
@@ -358,6 +359,8 @@ def run_protocol(args, log=print) -> dict:
         "refine_overrides": refine,
         "geometry_overrides": geometry,
         "tag": tag,
+        # the defaults measured: a published pass is tied to them (tests/test_results_defaults.py)
+        "defaults": {m: defaults_fingerprint(args.preset, m) for m in ("matspray", "paper")},
     }
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
     if args.set == "eval":

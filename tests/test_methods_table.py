@@ -94,3 +94,13 @@ def test_the_paper_starts_a_masked_object_from_random_points_and_trains_no_predi
     # a user's setting wins over the paper's value, in geometry too (it was overwritten by the method before)
     specular = build_config("demo", "paper", **{"geometry.predicted_normal_weight": 1.0})
     assert specular.geometry.predicted_normal_weight == 1.0
+
+
+def test_the_defaults_fingerprint_follows_every_default_and_nothing_of_one_run(monkeypatch):
+    from matspray import presets
+    from matspray.method.config import defaults_fingerprint
+
+    demo, paper = defaults_fingerprint("demo"), defaults_fingerprint("demo", "paper")
+    assert demo != paper and demo == defaults_fingerprint("demo")
+    monkeypatch.setitem(presets.STAGE_SETTINGS, "demo", {**presets.STAGE_SETTINGS["demo"], "refine.iterations": 601})
+    assert defaults_fingerprint("demo") != demo  # a changed default is another set of defaults

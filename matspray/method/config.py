@@ -26,6 +26,7 @@ from matspray.presets import ADDITION_NAMES, ADDITIONS, METHODS, PRESETS, STAGE_
 from matspray.presets import SHADOW_MAPS as SHADOW_MAP_SIZES
 from matspray.render.backend import BACKENDS
 from matspray.render.shade.visibility import VisibilityConfig
+from matspray.rundir import fingerprint
 
 
 def unknown_preset(preset: str) -> SettingError:
@@ -174,3 +175,10 @@ def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
     seed = config.seed if config.refine_seed is None else config.refine_seed
     photo_weight = config.refine.photo_weight if kind.uses_maps else 1.0
     return replace(config.refine, variant=variant, seed=seed, photo_weight=photo_weight)
+
+
+def defaults_fingerprint(preset: str, method: str = "matspray") -> str:
+    """The fingerprint of every default setting of `preset` and `method`, less what names one run (predictor, seeds):
+    a results file records it, so a published figure is tied to the defaults it was measured with."""
+    config = build_config(preset, method)
+    return fingerprint(replace(config, predictor="", predictor_options={}, seed=0, refine_seed=None))
