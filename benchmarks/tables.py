@@ -1,7 +1,7 @@
 """The generated tables of README.md and docs/**/*.md, from the result files committed under docs/results/.
 
     python -m benchmarks.tables            # rewrite every generated table in place
-    python -m benchmarks.tables --check    # change nothing; exit 1 naming each table that differs
+    python -m benchmarks.tables --check    # change nothing; exit 1 naming each differing table or hand-typed figure
 
 A generated table sits between two markers in a markdown file:
 
@@ -25,6 +25,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
+from benchmarks.tables_figures import hand_typed_figures
 from benchmarks.tables_method import table_methods
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -578,7 +579,7 @@ def main(argv=None) -> int:
         prog="python -m benchmarks.tables", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--check", action="store_true", help="change nothing; exit 1 naming each table that differs from docs/results"
+        "--check", action="store_true", help="change nothing; exit 1 naming each differing table or hand-typed figure"
     )
     parser.add_argument("--root", type=Path, default=ROOT, help="repository root (default: this checkout)")
     args = parser.parse_args(argv)
@@ -588,7 +589,10 @@ def main(argv=None) -> int:
             print(f"differs from docs/results: {item}")
         if found:
             print("run `python -m benchmarks.tables` to regenerate them")
-        return 1 if found else 0
+        typed = hand_typed_figures(args.root)  # a figure these pages quote must come from a table of this script
+        for item in typed:
+            print(f"a figure typed by hand outside a generated table: {item} (generate it, or move it to docs/dev)")
+        return 1 if found or typed else 0
     print("\n".join(f"rewritten: {item}" for item in found) or "every generated table is up to date")
     return 0
 

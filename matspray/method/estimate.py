@@ -1,6 +1,6 @@
 """How long `matspray run` will take, said before it starts: each stage's work, in a unit its time grows with, times a
 rate measured on the reference machine (2 free CPU cores, numba rasterizer). The rates come from `python -m
-benchmarks.estimate RUN...` on finished runs (docs/benchmarks.md, "Time estimates", has the runs, the rates and how
+benchmarks.estimate RUN...` on finished runs (docs/dev/demo-time.md, "Time estimates", has the runs, the rates and how
 far each estimate was from the time taken). Objects differ (how many Gaussians the geometry grows, how much of a view
 they cover), so the estimate is a range of about 2x each way, not a promise; a GPU has no measured rate yet."""
 
@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 
 # seconds per unit of work with 2 free cores: the demo of `make demo` alone on the reference machine
-# (docs/benchmarks.md, "Time estimates"; runs that shared the cores with other jobs took 2 to 5 times longer)
+# (docs/dev/demo-time.md, "Time estimates"; runs that shared the cores with other jobs took 2 to 5 times longer)
 CPU_RATES = {
     "points": 2.0e-6,  # per (training view x pixel of the photos given to feature extraction)
     "geometry": 3.0e-6,  # per (iteration x pixel of a geometry view)
