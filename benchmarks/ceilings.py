@@ -405,7 +405,7 @@ def run_set(args, log=print) -> list[str]:
                 raise ConfigError(
                     f"{run_dir}: no finished full and proj-average assets; "
                     f"run `python -m benchmarks.generalise --set {args.set} "
-                    f"--objects {args.start + args.objects} --models {model} --preset {args.preset} "
+                    f"--objects {args.start + len(objects)} --models {model} --preset {args.preset} "
                     f"--out {args.out}` first"
                 )
             require_same_lift(run_dir, config)

@@ -1,23 +1,25 @@
 """Does the method beat its baselines on objects it was never tuned on? The benchmark protocol (issue 21).
 
-    python -m benchmarks.generalise --set dev|eval [--objects K] [--start I] [--preset demo|test]
+    python -m benchmarks.generalise --set dev|eval|real-dev|real-eval [--objects K] [--start I] [--preset demo|test]
         [--models paper harsh outliers dr ground-truth] [--variants full proj-average supervised no-softmax]
         [--method matspray|paper] [--without ADDITION ...] [setting flags of `matspray run`]
         [--refine KEY=VALUE ...] [--tag NAME] [--out DIR]
     python -m benchmarks.generalise --set dev --compare [--out DIR]
 
-Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every setting, `eval` (seeds
-2000 + i) to run once at the end. Object i is a procedural `random` shape (the seed picks it), trained
-under one HDRI of ../shared/data/hdri and relit under two other lights (HDRIs and built-ins), all drawn
-from its seed. Each object is run with every predictor error model (`simulated:paper`, `:harsh`,
-`:outliers`, `:dr`, and the ground truth as a sanity row; a simulated predictor draws its errors from the
-object's seed): one run folder per (object, model, configuration). Each run trains its Gaussian Splatting on its
-model's predicted normals (`geometry.predicted_normal_weight`, on by default); with that weight at 0 the geometry is
-trained once per object and shared by hard links (the pipeline's stage fingerprint checks it is the same). A
-configuration other than the default also starts from the default run's predictions, geometry, lift and shadows,
-which its pipeline keeps when its settings leave them unchanged and redoes otherwise. Every
-variant is refined, evaluated against the ground truth, and the raw 2D predictions of the test views are
-scored as the baseline 3D must beat.
+Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every setting, `eval` (seeds 2000 + i) to
+run once at the end. Object i is a procedural `random` shape (the seed picks it), trained under one HDRI of
+../shared/data/hdri and relit under two other lights (HDRIs and built-ins), all drawn from its seed. The real sets
+`real-dev` (3 objects, seeds 3000 + i) and `real-eval` (5 objects, seeds 4000 + i, run once on final defaults) are
+artist-made glTF objects kept in benchmarks/real (benchmarks/real_objects.py names them and their split), rendered
+by `matspray synth --asset` and lit the same way. Each object is run with every predictor error model
+(`simulated:paper`, `:harsh`, `:outliers`, `:dr`, and the ground truth as a sanity row; a simulated predictor draws
+its errors from the object's seed): one run folder per (object, model, configuration). Each run trains its Gaussian
+Splatting on its model's predicted normals (`geometry.predicted_normal_weight`, on by default); with that weight at
+0 the geometry is trained once per object and shared by hard links (the pipeline's stage fingerprint checks it is
+the same). A configuration other than the default also starts from the default run's predictions, geometry, lift and
+shadows, which its pipeline keeps when its settings leave them unchanged and redoes otherwise. Every variant is
+refined, evaluated against the ground truth, and the raw 2D predictions of the test views are scored as the baseline
+3D must beat.
 
 Prints, per error model, a table per object and the mean over objects (relighting PSNR of every variant;
 base colour, roughness, metallic PSNR of the full method's 3D materials and of the 2D predictions;
@@ -43,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.generalise_tables import choices_table, markdown, model_summary, object_figures
+from benchmarks.real_objects import REPO_ROOT, set_files
 from matspray.batch.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
 from matspray.errors import ConfigError, MatsprayError
@@ -66,8 +69,11 @@ from matspray.rundir import (
     write_text_atomic,
 )
 
-SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
+SET_SEEDS = {"dev": 1000, "eval": 2000, "real-dev": 3000, "real-eval": 4000}  # object i: seed SET_SEEDS[set] + i
+REAL_SETS = ("real-dev", "real-eval")  # glTF objects (benchmarks/real_objects.py); the others are procedural
+EVAL_SETS = ("eval", "real-eval")  # run once, with settings chosen on the development sets
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
+DEFAULT_OBJECTS = 6  # of a procedural set; a real set's default is all of its objects
 MODELS = (*ERROR_MODELS, "ground-truth")
 
 
@@ -77,15 +83,20 @@ class ObjectSpec:
     seed: int
     env: str  # training light
     relight_envs: tuple[str, ...]  # the two held-out lights
+    asset: str | None = None  # a real set's glTF file, relative to the repository (None: a procedural object)
 
 
-def object_set(which: str, count: int, hdris: list[str]) -> list[ObjectSpec]:
-    """The first `count` objects of set `which`: a training HDRI (a built-in light when there are no
-    HDRIs) and two other relighting lights from HDRIs and built-ins, drawn from the object's seed."""
+def object_set(which: str, count: int | None, hdris: list[str]) -> list[ObjectSpec]:
+    """The first `count` objects of set `which` (None: DEFAULT_OBJECTS, or all of a real set's): a training HDRI (a
+    built-in light when there are no HDRIs) and two other relighting lights from HDRIs and built-ins, drawn from the
+    object's seed."""
     if which not in SET_SEEDS:
         raise ConfigError(f"unknown object set '{which}'; choose one of {', '.join(SET_SEEDS)}")
-    if not 1 <= count <= MAX_OBJECTS:
-        raise ConfigError(f"--objects must be in [1, {MAX_OBJECTS}], got {count}")
+    assets = [str(path.relative_to(REPO_ROOT)) for path in set_files(which)] if which in REAL_SETS else None
+    size = MAX_OBJECTS if assets is None else len(assets)
+    count = (DEFAULT_OBJECTS if assets is None else size) if count is None else count
+    if not 1 <= count <= size:
+        raise ConfigError(f"--objects must be in [1, {size}] for the set {which}, got {count}")
     train_pool = sorted(hdris) or list(BUILTINS)
     pool = sorted(set(hdris) | set(BUILTINS))
     objects = []
@@ -95,13 +106,18 @@ def object_set(which: str, count: int, hdris: list[str]) -> list[ObjectSpec]:
         env = train_pool[int(rng.integers(len(train_pool)))]
         others = [name for name in pool if name != env]
         relight = tuple(others[int(i)] for i in rng.choice(len(others), size=2, replace=False))
-        objects.append(ObjectSpec(f"{which}-{index:02d}-seed{seed}", seed, env, relight))
+        if assets is None:
+            objects.append(ObjectSpec(f"{which}-{index:02d}-seed{seed}", seed, env, relight))
+        else:
+            name = f"{which}-{index:02d}-{Path(assets[index]).stem}"
+            objects.append(ObjectSpec(name, seed, env, relight, assets[index]))
     return objects
 
 
-def objects_part(which: str, start: int, count: int, hdris: list[str]) -> list[ObjectSpec]:
-    """Objects start .. start + count - 1 of set `which`: one part of a pass split over jobs (`--start`)."""
-    return object_set(which, start + count, hdris)[start:]
+def objects_part(which: str, start: int, count: int | None, hdris: list[str]) -> list[ObjectSpec]:
+    """Objects start .. start + count - 1 of set `which` (count None: to the default's end): one part of a pass
+    split over jobs (`--start`)."""
+    return object_set(which, None if count is None else start + count, hdris)[start:]
 
 
 def part_name(name: str, start: int) -> str:
@@ -110,7 +126,12 @@ def part_name(name: str, start: int) -> str:
 
 
 def add_part_arguments(parser) -> None:
-    parser.add_argument("--objects", type=int, default=6, help="objects of the set, the first K (default 6)")
+    parser.add_argument(
+        "--objects",
+        type=int,
+        default=None,
+        help=f"objects of the set, the first K (default {DEFAULT_OBJECTS}; of a real set, all of them)",
+    )
     parser.add_argument(
         "--start",
         type=int,
@@ -133,7 +154,7 @@ def print_lines(lines_of, args) -> int:
 
 
 def check_part_arguments(parser, args) -> None:
-    if args.start < 0 or args.objects < 1:
+    if args.start < 0 or args.objects is not None and args.objects < 1:
         parser.error(f"--objects must be >= 1 and --start >= 0 (got {args.objects} and {args.start})")
 
 
@@ -322,6 +343,12 @@ def only_variants(metrics: dict, variants, timings: dict) -> dict:
 
 
 # ------------------------------------------------------------------------------------------ protocol
+def spec_record(spec: ObjectSpec) -> dict:
+    """The object as its results record it (a procedural object's without the asset field it does not have)."""
+    record = vars(spec) | {"relight_envs": list(spec.relight_envs)}
+    return record if spec.asset is not None else {k: v for k, v in record.items() if k != "asset"}
+
+
 def run_protocol(args, log=print) -> dict:
     hdris = sorted(hdri_files())
     if not hdris:
@@ -363,7 +390,7 @@ def run_protocol(args, log=print) -> dict:
         "defaults": {m: defaults_fingerprint(args.preset, m) for m in ("matspray", "paper")},
     }
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
-    if args.set == "eval":
+    if args.set in EVAL_SETS:
         log("generalise: evaluation set — run it once, with settings chosen on the development set only")
         chosen = {k: settings[k] for k in ("preset", "method", "without", "settings", "refine_overrides")}
         earlier = sorted(
@@ -391,6 +418,7 @@ def run_protocol(args, log=print) -> dict:
             "random",
             spec.seed,
             progress=args.progress,
+            asset=None if spec.asset is None else str(REPO_ROOT / spec.asset),
             env=spec.env,
             relight_envs=list(spec.relight_envs),
             resolution=args.resolution,
@@ -432,7 +460,7 @@ def run_protocol(args, log=print) -> dict:
             )
             results[model].append(
                 {
-                    "object": vars(spec) | {"relight_envs": list(spec.relight_envs)},
+                    "object": spec_record(spec),
                     "figures": object_figures(metrics),
                     "metrics": metrics,
                     "seconds": seconds["models"][model],
@@ -490,7 +518,7 @@ def parse_args(argv=None):
         "--set",
         choices=tuple(SET_SEEDS),
         default="dev",
-        help="dev: choose settings here; eval: run once at the end (default dev)",
+        help="dev, real-dev: choose settings here; eval, real-eval: run once at the end (default dev)",
     )
     add_part_arguments(parser)
     parser.add_argument(

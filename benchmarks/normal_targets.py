@@ -83,7 +83,7 @@ def run_objects(args, log=print) -> list[str]:
             if not all((default_run / stage / "stage.json").exists() for stage in ("asset", "asset-proj-average")):
                 raise ConfigError(
                     f"{default_run}: no finished full and proj-average assets; run `python -m benchmarks.generalise "
-                    f"--set {args.set} --objects {args.start + args.objects} --models {model} --preset {args.preset} "
+                    f"--set {args.set} --objects {args.start + len(objects)} --models {model} --preset {args.preset} "
                     f"--out {args.out}` first"
                 )
         truth = read_test_truth(folder / "data")

@@ -46,7 +46,7 @@ def test_object_sets_have_disjoint_seeds_and_draw_their_lights():
         assert set(o.relight_envs) <= set(HDRIS) | set(BUILTINS)
     assert len({o.env for o in dev}) > 3 and any(set(o.relight_envs) & set(BUILTINS) for o in dev)  # the draws vary
     assert all(o.env in BUILTINS for o in object_set("dev", 5, []))  # without the shared HDRIs
-    with pytest.raises(ConfigError, match=rf"--objects must be in \[1, {MAX_OBJECTS}\], got 0"):
+    with pytest.raises(ConfigError, match=rf"--objects must be in \[1, {MAX_OBJECTS}\] for the set dev, got 0"):
         object_set("dev", 0, HDRIS)
     with pytest.raises(ConfigError, match="unknown object set 'test'"):
         object_set("test", 1, HDRIS)
