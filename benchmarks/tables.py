@@ -25,8 +25,8 @@ import sys
 from functools import partial
 from pathlib import Path
 
+from benchmarks.tables_extra import EXTRA
 from benchmarks.tables_figures import hand_typed_figures
-from benchmarks.tables_method import table_methods
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path("docs") / "results"  # relative to the repository root
@@ -536,7 +536,7 @@ TABLES = {
     "dr-tried": (table_dr_tried, [name for _, name, _ in DR_TRIED]),
     "demo-backends": (table_demo_backends, [DEMO_BACKENDS]),
     "cli": (table_cli, []),
-    "methods": (table_methods, []),
+    **EXTRA,
 }
 
 

@@ -1,0 +1,78 @@
+"""The generated tables made from the code and the committed files rather than docs/results (`benchmarks.tables`
+writes them): docs/method.md's table of the two methods, from `matspray.presets` (the table the code reads): every
+setting where `--method matspray` differs from `--method paper`, with the paper's value and its source, and the
+settings where the text is silent and both take the released code's value; docs/benchmarks.md's table of the real
+objects, measured on their files."""
+
+from __future__ import annotations
+
+from matspray.presets import ADDITIONS, RELEASED_VALUES
+
+
+def resolved(config, path: str):
+    """The value of the dotted setting `path` in a (nested) frozen config."""
+    for name in path.split("."):
+        config = getattr(config, name)
+    return config
+
+
+def shown(value) -> str:
+    return f"`{value}`" if value is not None else "none"
+
+
+def table_methods(results=None) -> str:
+    """`| addition | setting | matspray (demo) | paper | the paper's value from |`, then the released code's values."""
+    from matspray.method.config import build_config  # torch: only when this table is made
+
+    ours, paper = build_config("demo"), build_config("demo", "paper")
+    lines = [
+        "| addition | what `matspray` does | setting | matspray (demo) | paper | the paper's value from |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for a in ADDITIONS:
+        cells = (f"`{a.name}`", a.what, f"`{a.setting}`", shown(resolved(ours, a.setting)))
+        lines.append("| " + " | ".join((*cells, shown(resolved(paper, a.setting)), a.source)) + " |")
+    lines += ["", "Where the text is silent, both methods take the released code's value:", ""]
+    lines += ["| setting | both methods | from |", "| --- | --- | --- |"]
+    lines += [f"| `{path}` | {shown(value)} | {source} |" for path, value, source in RELEASED_VALUES]
+    return "\n".join(lines)
+
+
+def table_real_objects(results=None) -> str:
+    """docs/benchmarks.md's table of the real objects, measured on the committed files (`benchmarks.real_objects`)."""
+    from benchmarks.real_objects import METAL_AREA, SETS, metal_share, set_files, split
+    from matspray.gltf import read_gltf
+    from matspray.synth.gltf_object import asset_parts
+
+    lines = [
+        "| set | object | licence | triangles | textures | metal share | kind | file |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    total = 0
+    for which in SETS:
+        for spec, path in zip(split()[which], set_files(which)):
+            parts, textures, _ = asset_parts(read_gltf(path))
+            triangles = sum(len(part.faces) for part in parts)
+            side = max(max(t.base_color.shape[:2] + t.metallic.shape[:2]) for t in textures)  # largest
+            total += path.stat().st_size
+            share = metal_share(path)
+            cells = (f"`{which}`", spec.name, spec.licence, f"{triangles:,}".replace(",", " "))
+            cells += (
+                f"{side} px",
+                f"{share:.2f}",
+                spec.kind,
+                f"{path.stat().st_size // 1000:,} kB".replace(",", " "),
+            )
+            lines.append("| " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        f"In all {total / 2**20:.1f} MiB. Metal share: the part of the surface whose metallic is above 0.5; "
+        f'an object is "metal" from a share of {METAL_AREA:.2f}.',
+    ]
+    return "\n".join(lines)
+
+
+EXTRA = {  # the tables `benchmarks.tables` makes from the code and the committed files rather than docs/results
+    "methods": (table_methods, []),
+    "real-objects": (table_real_objects, []),
+}
