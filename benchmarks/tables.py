@@ -25,6 +25,8 @@ import sys
 from functools import partial
 from pathlib import Path
 
+from matspray.presets import PAPER_ABLATION, PAPER_SOFTMAX
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path("docs") / "results"  # relative to the repository root
 MARKER = re.compile(r"(<!-- table: ([\w.-]+) -->\n)(.*?)(<!-- /table -->)", re.S)
@@ -159,9 +161,6 @@ EVAL_DR_256 = "generalise-eval-256px-dr.json"  # the same protocol with the obje
 DEV_DR = "generalise-dev-dr.json"
 EVAL_THREE_256 = "generalise-eval-256px-three.json"  # paper, harsh, outliers at 256 px: full and proj-average
 EVAL_PA_128 = "generalise-eval-proj-average.json"  # the same three at 128 px: proj-average beside EVAL_NOPRIOR's full
-# the paper's relighting PSNR (dB): Table 2 (a subset of its objects) and the softmax ablation (all its objects)
-PAPER_ABLATION = {"full": 29.164, "supervised": 24.809, "proj-average": 25.555}
-PAPER_SOFTMAX = {"full": 27.282, "no-softmax": 24.600}
 
 
 def table_models_eval(results: Path, name: str = EVAL_THREE_256) -> str:

@@ -14,8 +14,9 @@ import torch
 
 from matspray.data import load_run_scene
 from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
+from matspray.eval.page.markup import Figures, html_page, markdown_to_html, srgb_inverse
 from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
-from matspray.eval.report import Figures, _srgb_inverse, html_page, markdown_to_html, object_masks_section
+from matspray.eval.report import object_masks_section
 from matspray.export.frames import find_glbs, glb_box
 from matspray.method.asset import ENVMAP_FILE, envmap_preview
 from matspray.method.masks import read_object_masks, read_region
@@ -194,7 +195,7 @@ def material_rows(assets: dict, camera, figures: Figures) -> list[str]:
             figures.image(f"maps_{variant}_basecolor", gbuffer.base_color.cpu(), f"base colour, {label}", alpha),
             figures.scalar(f"maps_{variant}_roughness", gbuffer.roughness.cpu(), f"roughness, {label}", alpha),
             figures.scalar(f"maps_{variant}_metallic", gbuffer.metallic.cpu(), f"metallic, {label}", alpha),
-            figures.image(f"maps_{variant}_normal", _srgb_inverse(normals.cpu()), f"normals, {label}", alpha),
+            figures.image(f"maps_{variant}_normal", srgb_inverse(normals.cpu()), f"normals, {label}", alpha),
         ]
         rows.append("<div>" + "".join(cells) + "</div>")
     return rows
