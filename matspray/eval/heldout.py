@@ -23,7 +23,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from matspray.data import View, load_run_scene
-from matspray.data.images import srgb_to_linear
+from matspray.data.images import linear_to_srgb, srgb_to_linear
 from matspray.errors import DataError, RunError
 from matspray.eval.evaluate import average_metrics, evaluate_images
 from matspray.eval.lpips import load_lpips
@@ -32,6 +32,7 @@ from matspray.geometry.ply import read_ply
 from matspray.method.asset import ENVMAP_FILE, read_asset
 from matspray.method.masks import read_object_masks
 from matspray.method.relight import render_relit
+from matspray.metrics import gradient_energy
 from matspray.presets import asset_stage
 from matspray.render.backend import rendering_with
 from matspray.render.shade.envmap import EnvironmentMap
@@ -132,8 +133,9 @@ def photo_renders(
 
 
 def score_photos(rendered: list[PhotoRenders], lpips) -> dict:
-    """PSNR / SSIM / LPIPS inside the object mask per render (mean over views, and per view),
-    and each mask's coverage."""
+    """PSNR / SSIM / LPIPS inside the object mask per render (mean over views, and per view), the render's gradient
+    energy as a share of the photo's in the same mask (`gradient_share`: below 1, softer than the photo), and each
+    mask's coverage."""
     per_view, records = [], {}
     for item in rendered:
         if float(item.mask.sum()) < 1.0:
@@ -142,8 +144,12 @@ def score_photos(rendered: list[PhotoRenders], lpips) -> dict:
                 "check the object region (setting object_bounds) in the run's report"
             )
         record = {"view": item.view.name, "mask_coverage": float(item.mask.mean())}
+        photo_energy = gradient_energy(linear_to_srgb(item.view.image.clamp(0, 1)), item.mask)
         for key, rgb in item.renders.items():
             record[key] = evaluate_images(rgb, item.view.image, item.mask, lpips)
+            # the render's fine detail as a share of the photo's, compared as the metrics compare (sRGB-encoded)
+            energy = gradient_energy(linear_to_srgb(rgb.clamp(0, 1)), item.mask)
+            record[key]["gradient_share"] = energy / photo_energy if photo_energy > 0 else None
             records.setdefault(key, []).append(record[key])
         per_view.append(record)
     coverage = [r["mask_coverage"] for r in per_view]
@@ -206,8 +212,8 @@ def heldout_table(metrics: dict) -> str:
     lines = [
         f"Scored {metrics['region']}.",
         "",
-        "| render | held-out PSNR | SSIM | LPIPS | training PSNR |",
-        "| --- | ---: | ---: | ---: | ---: |",
+        "| render | held-out PSNR | SSIM | LPIPS | gradient energy share | training PSNR |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
     ]
     held, train = metrics["heldout"]["summary"], metrics["train"]["summary"]
 
@@ -218,7 +224,7 @@ def heldout_table(metrics: dict) -> str:
         label = "geometry (3DGS colours)" if key == RADIANCE else f"{key} asset, its estimated light"
         lines.append(
             f"| {label} | {number(held[key]['psnr'], 2)} | {number(held[key]['ssim'], 3)} | "
-            f"{number(held[key]['lpips'], 3)} "
+            f"{number(held[key]['lpips'], 3)} | {number(held[key].get('gradient_share'), 2)} "
             f"| {number(train.get(key, {}).get('psnr'), 2)} |"
         )
     cover = metrics["heldout"]["mask_coverage"]
