@@ -8,12 +8,13 @@ must not be part of the asset). The figures are `matspray.eval.heldout`'s."""
 from __future__ import annotations
 
 import html
+import os
 from pathlib import Path
 
 import torch
 
 from matspray.data import load_run_scene
-from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
+from matspray.eval.heldout import RADIANCE, format_share, heldout_table, photo_renders, read_renderables
 from matspray.eval.page.glossary import glossary_html
 from matspray.eval.page.markup import Figures, html_page, markdown_to_html, srgb_inverse
 from matspray.eval.page.paths import lpips_line, object_name, page_places
@@ -83,7 +84,8 @@ def comparison_section(
     return (
         "<h2>Beside other runs of this capture</h2><p>The object relit under "
         f"{html.escape(name)} over grey, every run cut to the same square around it, at the same size: "
-        f"{html.escape(', '.join(r.root.name for r in others))}.</p><div>" + "".join(cells) + "</div>"
+        f"{html.escape(', '.join(os.path.relpath(r.root, run.root) for r in others))} (relative to this run's "
+        "folder).</p><div>" + "".join(cells) + "</div>"
     )
 
 
@@ -159,7 +161,7 @@ def sharpness_section(metrics: dict, item, figures: Figures) -> str:
     held = metrics["heldout"]["summary"]
     rows = [
         f"| {_label(key)} | {'n/a' if v.get('lpips') is None else format(v['lpips'], '.3f')} | "
-        f"{'n/a' if v.get('gradient_share') is None else format(v['gradient_share'], '.2f')} |"
+        f"{format_share(v.get('gradient_share'))} |"
         for key, v in held.items()
     ]
     header = ["| render | held-out LPIPS ↓ | gradient energy share (photo: 1) |", "| --- | ---: | ---: |"]
@@ -172,7 +174,8 @@ def sharpness_section(metrics: dict, item, figures: Figures) -> str:
         columns = [item.view.image, *item.renders.values()]
         strip = torch.cat([crop(c.clamp(0, 1), box, CROP_SIZE) for c in columns], dim=1)
         labels = ", ".join(["photo", *(_label(key) for key in item.renders)])
-        picture = figures.image(f"sharpness_{item.view.name}", strip, f"{item.view.name}, cut to the object: {labels}")
+        caption = f"{item.view.name}, cut to the object: {labels}"
+        picture = figures.image(f"sharpness_{item.view.name}", strip, caption, css="strip")
     return (
         "<h2>Sharpness</h2><p>Inside the object mask of the held-out photos: LPIPS (lower: closer to the photo in "
         "what people notice, blur included) and the render's gradient energy as a share of the photo's (the "

@@ -224,7 +224,7 @@ def heldout_table(metrics: dict) -> str:
         label = "geometry (3DGS colours)" if key == RADIANCE else f"{key} asset, its estimated light"
         lines.append(
             f"| {label} | {number(held[key]['psnr'], 2)} | {number(held[key]['ssim'], 3)} | "
-            f"{number(held[key]['lpips'], 3)} | {number(held[key].get('gradient_share'), 2)} "
+            f"{number(held[key]['lpips'], 3)} | {format_share(held[key].get('gradient_share'))} "
             f"| {number(train.get(key, {}).get('psnr'), 2)} |"
         )
     cover = metrics["heldout"]["mask_coverage"]
@@ -234,6 +234,11 @@ def heldout_table(metrics: dict) -> str:
         f"average ({100 * cover['min']:.1f}% to {100 * cover['max']:.1f}%).",
     ]
     return "\n".join(lines) + "\n"
+
+
+def format_share(value: float | None) -> str:
+    """A gradient energy share in two significant digits (0.95, 0.012: a very soft render still reads as a number)."""
+    return "n/a" if value is None else f"{value:.2g}"
 
 
 def write_heldout_table(path: Path, metrics: dict) -> None:

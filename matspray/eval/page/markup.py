@@ -19,10 +19,10 @@ h1 { font-size: 1.5em; margin: 0.2em 0 0.4em; } h2 { margin-top: 2em; border-bot
 table { border-collapse: collapse; margin: 0.5em 0 1.5em; } \
 td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: center; }
 figure { display: inline-block; margin: 4px; text-align: center; vertical-align: top; }
-figcaption { font-size: 0.8em; color: #555; max-width: 320px; }
+figcaption { font-size: 0.8em; color: #555; max-width: 320px; margin: auto; }
 img { image-rendering: pixelated; width: 160px; cursor: zoom-in; \
 background: repeating-conic-gradient(#ddd 0% 25%, #fff 0% 50%) 50% / 16px 16px; }
-img.env { width: 296px; image-rendering: auto; } img.large { width: 200px; }
+img.env { width: 296px; image-rendering: auto; } img.large { width: 200px; } img.strip { width: auto; height: 240px; }
 .warn { background: #fff3cd; padding: 0.4em 0.6em; border: 1px solid #e0c060; margin: 0.3em 0; }
 .summary { display: flex; gap: 20px; align-items: flex-start; }
 .summary table { margin: 0.2em 0 0.6em; font-size: 0.92em; } .summary h2 { margin-top: 0.2em; font-size: 1.1em; }
