@@ -22,11 +22,12 @@ figure { display: inline-block; margin: 4px; text-align: center; vertical-align:
 figcaption { font-size: 0.8em; color: #555; max-width: 320px; margin: auto; }
 img { image-rendering: pixelated; width: 160px; cursor: zoom-in; \
 background: repeating-conic-gradient(#ddd 0% 25%, #fff 0% 50%) 50% / 16px 16px; }
-img.env { width: 296px; image-rendering: auto; } img.large { width: 200px; } img.strip { width: auto; height: 240px; }
+img.env { width: 296px; image-rendering: auto; } img.strip { width: auto; height: 240px; }
 .warn { background: #fff3cd; padding: 0.4em 0.6em; border: 1px solid #e0c060; margin: 0.3em 0; }
 .summary { display: flex; gap: 20px; align-items: flex-start; }
 .summary table { margin: 0.2em 0 0.6em; font-size: 0.92em; } .summary h2 { margin-top: 0.2em; font-size: 1.1em; }
-.relit-grid { display: grid; gap: 2px 6px; align-items: center; }
+.relit-grid { display: grid; gap: 2px 6px; align-items: center; } .relit-grid img { width: var(--picture, 200px); }
+.note { font-size: 0.8em; color: #555; }
 .relit-grid .rowlabel { font-size: 0.85em; color: #555; writing-mode: vertical-rl; transform: rotate(180deg); }
 .verdicts { margin: 0; padding-left: 1.2em; font-size: 0.92em; } .verdicts li { margin: 0.15em 0; }
 .disagrees { color: #8a1c00; } .agrees { color: #1d5e20; }

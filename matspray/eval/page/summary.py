@@ -89,7 +89,7 @@ def verdicts_html(variants: dict) -> str:
     return (
         '<h2>Ablations against the paper</h2><ul class="verdicts" id="verdicts">'
         + items
-        + "</ul><p style='font-size:0.8em;color:#555'>Relighting PSNR over the test views and held-out lights of "
+        + "</ul><p class='note'>Relighting PSNR over the test views and held-out lights of "
         "this one object; the paper's are means over its objects (17, or a subset for Supervised and Proj. "
         "Average).</p>"
     )
@@ -99,10 +99,10 @@ def relit_grid(view_name: str, env_names: list[str], figures, size: int) -> str:
     """The truth above the Full asset, one column per light, from the PNGs the test view's rows wrote."""
     columns = f"1.2em repeat({len(env_names)}, {size + 8}px)"
     cells = ['<span class="rowlabel">ground truth</span>']
-    cells += [figures.figure(f"{view_name}_{env}_gt", f"ground truth, {env}", "large") for env in env_names]
+    cells += [figures.figure(f"{view_name}_{env}_gt", f"ground truth, {env}") for env in env_names]
     cells.append('<span class="rowlabel">Full (ours)</span>')
-    cells += [figures.figure(f"{view_name}_{env}_full", f"{LABELS['full']}, {env}", "large") for env in env_names]
-    style = f"grid-template-columns: {columns}"
+    cells += [figures.figure(f"{view_name}_{env}_full", f"{LABELS['full']}, {env}") for env in env_names]
+    style = f"grid-template-columns: {columns}; --picture: {size}px"
     return f'<div class="relit-grid" id="summary-relit" style="{style}">' + "".join(cells) + "</div>"
 
 
@@ -116,7 +116,7 @@ def summary_section(metrics: dict, view_name: str | None, figures, simulated: bo
         left = (
             f"<div><h2>Relit, test view {html.escape(view_name)}</h2>"
             + relit_grid(view_name, env_names, figures, size)
-            + "<p style='font-size:0.8em;color:#555'>Held-out lights, never seen in training. Click a picture to "
+            + "<p class='note'>Held-out lights, never seen in training. Click a picture to "
             "enlarge it.</p></div>"
         )
     table1 = metrics.get("table1", {})
@@ -127,7 +127,7 @@ def summary_section(metrics: dict, view_name: str | None, figures, simulated: bo
     right = (
         '<div><h2>Headline</h2><div id="headline">'
         + (markdown_to_html(headline_table(table1)) if table1 else f"<p>{MISSING} no figures</p>")
-        + f"</div><p style='font-size:0.8em;color:#555'>{html.escape(caption)}</p>"
+        + f"</div><p class='note'>{html.escape(caption)}</p>"
         + verdicts_html(metrics.get("variants", {}))
         + "</div>"
     )
