@@ -12,7 +12,7 @@ from matspray.errors import DataError
 from matspray.eval.page.glossary import glossary_html
 from matspray.eval.page.paths import lpips_line, object_name, page_places, without_machine_paths
 from matspray.eval.page.plot import linear_ticks, log_ticks, loss_curves_svg
-from matspray.eval.page.summary import ablation_verdicts, headline_table
+from matspray.eval.page.summary import ablation_verdicts, headline_table, verdicts_html
 from matspray.metrics import gradient_energy
 
 
@@ -49,11 +49,11 @@ def test_the_machines_paths_are_written_as_places_or_their_last_part():
     places = {"/tmp/x/run": ".", "/tmp/x/data": "the dataset (data)", "/root": "~"}
     text = (
         "<p>run /tmp/x/run/eval/metrics.json of /tmp/x/data, LPIPS at /root/.cache/torch/hub/a.pth and "
-        "(/work/shared/lpips/w.npz)</p><svg xmlns=\"http://www.w3.org/2000/svg\"><rect/></svg> 1/2 </b>"
+        '(/work/shared/lpips/w.npz)</p><svg xmlns="http://www.w3.org/2000/svg"><rect/></svg> 1/2 </b>'
     )
     assert without_machine_paths(text, places) == (
         "<p>run ./eval/metrics.json of the dataset (data), LPIPS at ~/.cache/torch/hub/a.pth and "
-        "(…/w.npz)</p><svg xmlns=\"http://www.w3.org/2000/svg\"><rect/></svg> 1/2 </b>"
+        '(…/w.npz)</p><svg xmlns="http://www.w3.org/2000/svg"><rect/></svg> 1/2 </b>'
     )
     assert page_places("/tmp/x/run", "/tmp/x/data")["/tmp/x/run"] == "."
 
@@ -99,7 +99,7 @@ TABLE1 = {
         "relighting": {"psnr": 27.1, "ssim": 0.9, "lpips": 0.08},
         "basecolor": {"psnr": 22.0},
         "roughness": {"psnr": 15.0},
-        "metallic": {"psnr": math.inf, "psnr_infinite": 1},  # one object, all zero metallic: '∞*/∞' 
+        "metallic": {"psnr": math.inf, "psnr_infinite": 1},  # one object, all zero metallic: '∞*/∞'
     },
     "No prior (R3DGS-like)": {"relighting": {"psnr": 25.0, "ssim": 0.8, "lpips": None}, "basecolor": {"psnr": 18.0}},
     "2D predictions": {"basecolor": {"psnr": 23.0}, "roughness": {"psnr": 14.0}, "metallic": {"psnr": 20.0}},
@@ -130,6 +130,8 @@ def test_each_ablation_line_says_whether_it_agrees_with_the_paper_and_says_so_wh
     tie = ablation_verdicts(variants(full=19.48, no_prior=19.46))
     assert tie[0][1] is None and "a tie here" in tie[0][0]
     assert ablation_verdicts(variants(no_prior=19.0)) == []  # nothing to compare with without Full
+    assert "relighting-gap.md" in verdicts_html(variants(full=19.48, no_softmax=20.68))  # a disagreement: where to read
+    assert "relighting-gap.md" not in verdicts_html(variants(full=19.48, no_softmax=19.0))
 
 
 def test_the_glossary_lists_the_terms_the_page_uses_and_only_those():
