@@ -204,6 +204,7 @@ def test_eval_tables_and_report(tiny_object, finished_run):
     assert 0 < summary["relighting"]["ssim"] <= 1
     tables = (finished_run / "eval" / "tables.md").read_text()
     assert "Table 1" in tables and "Proj. Average" in tables and "Without Softmax" in tables
+    assert "# MatSpray evaluation: sphere (seed 1)" in tables and str(tiny_object) not in tables  # shareable
     report = write_report(finished_run, metrics, tiny_object)
     page = report.read_text()
     sources = re.findall(r'src="([^"]+)"', page)

@@ -56,6 +56,7 @@ def test_the_machines_paths_are_written_as_places_or_their_last_part():
         '(…/w.npz)</p><svg xmlns="http://www.w3.org/2000/svg"><rect/></svg> 1/2 </b>'
     )
     assert page_places("/tmp/x/run", "/tmp/x/data")["/tmp/x/run"] == "."
+    assert without_machine_paths("at /rootfs/a and /root", {"/root": "~"}) == "at …/a and ~"  # whole folders only
 
 
 def test_the_lpips_line_says_how_to_get_the_weights_without_the_caches_path():

@@ -27,6 +27,7 @@ from matspray.data.images import linear_to_srgb, srgb_to_linear
 from matspray.errors import DataError, RunError
 from matspray.eval.evaluate import average_metrics, evaluate_images
 from matspray.eval.lpips import load_lpips
+from matspray.eval.page.paths import object_name
 from matspray.geometry.evaluate import render_view
 from matspray.geometry.ply import read_ply
 from matspray.method.asset import ENVMAP_FILE, read_asset
@@ -195,7 +196,7 @@ def evaluate_capture(
     loaded = read_renderables(run, device)
     stride = max(1, len(scene.train) // max(1, train_views))
     metrics = {
-        "title": f"MatSpray on a capture without ground truth: {identity['source']}",
+        "title": f"MatSpray on a capture without ground truth: {object_name(identity['source'])}",
         "lpips": lpips_source,
         "region": "inside the object mask (both images composited on white with it)",
         "heldout": score_photos(photo_renders(run, scene.test, "test", device, backend, progress, loaded), lpips),

@@ -52,7 +52,8 @@ def without_machine_paths(text: str, places: dict[str, str]) -> str:
     """`text` with each of `places` (longest first) written as given, and any other absolute path as '…/' and its
     last part; a path starting with '~' (the home folder) is left as it is."""
     for place in sorted((p for p in places if p not in ("", "/", ".")), key=len, reverse=True):
-        text = text.replace(place, places[place])
+        # the whole folder only: '/root' is not the start of '/rootfs'
+        text = re.sub(re.escape(place) + r"(?![\w.-])", lambda _, place=place: places[place], text)
 
     def shorten(match: re.Match) -> str:
         path = match.group(0)
