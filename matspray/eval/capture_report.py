@@ -19,7 +19,7 @@ from matspray.eval.page.glossary import glossary_html
 from matspray.eval.page.markup import Figures, html_page, markdown_to_html, srgb_inverse
 from matspray.eval.page.paths import lpips_line, object_name, page_places
 from matspray.eval.relit_crops import crop, default_asset, relit_crops, same_capture, square_box
-from matspray.eval.report import object_masks_section
+from matspray.eval.report import as_shaded, object_masks_section
 from matspray.export.frames import find_glbs, glb_box
 from matspray.method.asset import ENVMAP_FILE, envmap_preview
 from matspray.method.masks import read_object_masks, read_region
@@ -245,8 +245,9 @@ def estimated_light_section(run: RunDir, variants, figures: Figures) -> str:
         path = run.path(asset_stage(variant), ENVMAP_FILE)
         if path.exists():
             estimate = EnvironmentMap.from_file(path).map.detach()
-            label = f"estimated light ({LABELS.get(variant, variant)})"
-            cells.append(figures.image(f"envmap_{variant}", envmap_preview(estimate), label, css="env"))
+            height, width = estimate.shape[:2]
+            label = f"estimated light ({LABELS.get(variant, variant)}): {width} x {height} px, shown bilinear"
+            cells.append(figures.image(f"envmap_{variant}", envmap_preview(as_shaded(estimate)), label, css="env"))
     if not cells:
         return ""
     return (
