@@ -101,6 +101,21 @@ def test_the_page_holds_no_path_of_the_machine(report):
     assert "<title>MatSpray: data</title>" not in text and "MatSpray result: data<" not in text
 
 
+def test_the_estimated_light_is_shown_at_the_true_lights_size_and_its_own_size_is_said(report):
+    from PIL import Image
+
+    page, run, _ = report
+    text = page.read_text()
+    with (
+        Image.open(run / "report" / "envmap_estimated.png") as estimate,
+        Image.open(run / "report" / f"envmap_{HELD_OUT}.png") as truth,
+    ):
+        assert estimate.size == (128, 64) and truth.size == (32, 16)  # the held-out light is 32 x 16: as it is
+    assert "estimated light (Full): 16 x 8 px, shown bilinear at 128 x 64" in text
+    assert f"held-out light: {HELD_OUT}, 32 x 16 px" in text
+    assert "refinement step" in text and "loss (log scale)" in text  # the loss plot's axes
+
+
 @pytest.fixture(scope="module")
 def browser():
     if MISSING:

@@ -196,8 +196,9 @@ def light_section(run_dir: Path, data: Path, env_names: list, figures: "Figures"
     paths.sort(key=lambda path: training is None or path.stem != training[0])  # the training light first
     for path in paths:
         role = "held-out light" if path.stem in env_names else "training light"
-        preview = envmap_preview(EnvironmentMap.from_file(path, height=EVAL_ENV_HEIGHT).map)
-        caption = f"{role}: {path.stem}, {2 * EVAL_ENV_HEIGHT} x {EVAL_ENV_HEIGHT} px"
+        light = EnvironmentMap.from_file(path, height=EVAL_ENV_HEIGHT).map  # as evaluation relights with it
+        caption = f"{role}: {path.stem}, {light.shape[1]} x {light.shape[0]} px"
+        preview = envmap_preview(light)
         cells.append(figures.image(f"envmap_{path.stem}", preview, caption, css="env"))
     if not cells:
         return ""
