@@ -27,6 +27,7 @@ from pathlib import Path
 
 from benchmarks.tables_extra import EXTRA
 from benchmarks.tables_figures import hand_typed_figures
+from matspray.presets import PAPER_ABLATION, PAPER_SOFTMAX
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path("docs") / "results"  # relative to the repository root
@@ -162,9 +163,6 @@ EVAL_DR_256 = "generalise-eval-256px-dr.json"  # the same protocol with the obje
 DEV_DR = "generalise-dev-dr.json"
 EVAL_THREE_256 = "generalise-eval-256px-three.json"  # paper, harsh, outliers at 256 px: full and proj-average
 EVAL_PA_128 = "generalise-eval-proj-average.json"  # the same three at 128 px: proj-average beside EVAL_NOPRIOR's full
-# the paper's relighting PSNR (dB): Table 2 (a subset of its objects) and the softmax ablation (all its objects)
-PAPER_ABLATION = {"full": 29.164, "supervised": 24.809, "proj-average": 25.555}
-PAPER_SOFTMAX = {"full": 27.282, "no-softmax": 24.600}
 
 
 def table_models_eval(results: Path, name: str = EVAL_THREE_256) -> str:

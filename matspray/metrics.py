@@ -189,3 +189,15 @@ def ssim(pred, target, mask=None) -> float:
     if total == 0.0:
         raise DataError("mask: selects no pixels; SSIM over an empty region is undefined")
     return float((local * windows[..., None]).sum()) / (total * local.shape[-1])
+
+
+# ------------------------------------------------------------------------------------------ sharpness
+def gradient_energy(image, mask) -> float:  # [H, W, C] (or [H, W]) in [0, 1], [H, W] weights in [0, 1] -> >= 0
+    """How much fine detail an image holds inside a region: the sum, over horizontally and vertically neighbouring
+    pixel pairs and over channels, of the squared difference, each pair weighted by the product of its two pixels'
+    weights (a pair with a pixel outside the region counts nothing, so the region's edge adds no detail)."""
+    image = as_unit_image(image, "image")
+    weights = as_weights(mask, tuple(image.shape[:2]), image.device)
+    across = (image[:, 1:] - image[:, :-1]).square().sum(-1) * weights[:, 1:] * weights[:, :-1]  # [H, W - 1]
+    down = (image[1:] - image[:-1]).square().sum(-1) * weights[1:] * weights[:-1]  # [H - 1, W]
+    return float(across.sum() + down.sum())

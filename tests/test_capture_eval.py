@@ -3,6 +3,7 @@ made for it (issue 39)."""
 
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -48,6 +49,13 @@ def test_eval_of_a_capture_scores_held_out_photos_inside_the_mask_and_writes_its
     page = (run / "report.html").read_text()
     assert "test photos by nobody (CC0)" in page and "Held-out photos" in page and "Relit under other lights" in page
     assert "Object region" in page and "Estimated light" in page
+    # the sharpness figure (issue 81): LPIPS inside the mask (the tests have its weights) and the gradient energy share
+    assert "<h2>Sharpness</h2>" in page and (run / "report" / "sharpness_r_000.png").exists()
+    for key in ("radiance", "no-prior"):
+        share = held["summary"][key]["gradient_share"]
+        assert 0.0 < share < 2.0 and f"| {share:.2g} |" in printed  # the table `eval` prints
+        assert f"<td>{share:.2g}</td>" in page
+    assert all(path not in page for path in ("/tmp", "/root", "/home", str(run), str(data)))
     for name in (
         "photo_r_000",
         "render_r_000_radiance",
@@ -72,6 +80,15 @@ def test_held_out_score_is_the_masked_metric_of_the_render_against_the_photo(cap
     direct = evaluate_images(first.renders["radiance"], first.view.image, first.mask, None)
     assert scored["per_view"][0]["radiance"]["psnr"] == pytest.approx(direct["psnr"])
     assert scored["per_view"][0]["mask_coverage"] == pytest.approx(float(first.mask.mean()))
+    # the gradient energy share: the render's (sRGB-encoded, as the metrics compare) over the photo's, in the mask
+    from matspray.data.images import linear_to_srgb
+    from matspray.metrics import gradient_energy
+
+    def energy(rgb):
+        return gradient_energy(linear_to_srgb(rgb.clamp(0, 1)), first.mask)
+
+    share = energy(first.renders["radiance"]) / energy(first.view.image)
+    assert scored["per_view"][0]["radiance"]["gradient_share"] == pytest.approx(share)
     # the geometry reproduces the held-out photo far better than a black picture would
     black = evaluate_images(torch.zeros_like(first.view.image), first.view.image, first.mask, None)
     assert direct["psnr"] > black["psnr"] + 3.0
@@ -102,7 +119,8 @@ def test_report_shows_other_runs_of_the_capture_cropped_beside_it(capture_run, t
     code = main(["eval", "--run", str(run), "--env", "studio", "--compare", str(before)])
     assert code == 0, capsys.readouterr().err
     page = (run / "report.html").read_text()
-    assert "Beside other runs of this capture" in page and str(before) in page
+    assert "Beside other runs of this capture" in page and str(before) not in page  # no path of the machine:
+    assert f"{os.path.relpath(before, run)} (relative to this run's folder)" in page  # the other run, from this one
     for name in ("r_000", "r_001"):
         with Image.open(run / "report" / f"compare_{name}_studio.png") as picture:
             assert picture.size == (3 * 256, 256)  # photo, this run, the other run

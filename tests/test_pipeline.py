@@ -204,6 +204,7 @@ def test_eval_tables_and_report(tiny_object, finished_run):
     assert 0 < summary["relighting"]["ssim"] <= 1
     tables = (finished_run / "eval" / "tables.md").read_text()
     assert "Table 1" in tables and "Proj. Average" in tables and "Without Softmax" in tables
+    assert "# MatSpray evaluation: sphere (seed 1)" in tables and str(tiny_object) not in tables  # shareable
     report = write_report(finished_run, metrics, tiny_object)
     page = report.read_text()
     sources = re.findall(r'src="([^"]+)"', page)
@@ -212,6 +213,11 @@ def test_eval_tables_and_report(tiny_object, finished_run):
     assert not missing, f"report references files that do not exist: {missing}"
     assert "SIMULATED" in page
     assert "2D prediction" in page and any("pred2d_test_" in s for s in sources)  # the test views' own 2D baseline
+    # the answer first, titled by the object, with a glossary, and no path of the machine (issue 81)
+    assert max(page.index('id="headline"'), page.index('id="summary-relit"')) < page.index("<h2>Test views</h2>")
+    assert "<h1>MatSpray result: sphere (seed 1)</h1>" in page and '<h2 id="glossary">' in page
+    for path in ("/tmp", "/root", "/home", str(finished_run), str(tiny_object), str(Path.home())):
+        assert path not in page, path
 
 
 def test_relight_cli_writes_frames_and_video(finished_run, tmp_path):

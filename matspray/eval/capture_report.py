@@ -8,14 +8,18 @@ must not be part of the asset). The figures are `matspray.eval.heldout`'s."""
 from __future__ import annotations
 
 import html
+import os
 from pathlib import Path
 
 import torch
 
 from matspray.data import load_run_scene
-from matspray.eval.heldout import RADIANCE, heldout_table, photo_renders, read_renderables
-from matspray.eval.relit_crops import default_asset, relit_crops, same_capture
-from matspray.eval.report import Figures, _srgb_inverse, html_page, markdown_to_html, object_masks_section
+from matspray.eval.heldout import RADIANCE, format_share, heldout_table, photo_renders, read_renderables
+from matspray.eval.page.glossary import glossary_html
+from matspray.eval.page.markup import Figures, html_page, markdown_to_html, srgb_inverse
+from matspray.eval.page.paths import lpips_line, object_name, page_places
+from matspray.eval.relit_crops import crop, default_asset, relit_crops, same_capture, square_box
+from matspray.eval.report import as_shaded, object_masks_section
 from matspray.export.frames import find_glbs, glb_box
 from matspray.method.asset import ENVMAP_FILE, envmap_preview
 from matspray.method.masks import read_object_masks, read_region
@@ -80,7 +84,8 @@ def comparison_section(
     return (
         "<h2>Beside other runs of this capture</h2><p>The object relit under "
         f"{html.escape(name)} over grey, every run cut to the same square around it, at the same size: "
-        f"{html.escape(', '.join(str(r.root) for r in others))}.</p><div>" + "".join(cells) + "</div>"
+        f"{html.escape(', '.join(os.path.relpath(r.root, run.root) for r in others))} (relative to this run's "
+        "folder).</p><div>" + "".join(cells) + "</div>"
     )
 
 
@@ -112,7 +117,8 @@ def write_capture_report(
     source = run.dataset()["source"]
     scene = load_run_scene(run)
     figures = Figures(run.path("report"))
-    sections = [f"<h1>MatSpray result: {html.escape(Path(source).name)}</h1>"]
+    name = object_name(source)
+    sections = [f"<h1>MatSpray result: {html.escape(name)}</h1>"]
     if credit:
         sections.append(f"<p><i>Photos: {html.escape(credit)}</i></p>")
     sections.append(
@@ -124,6 +130,7 @@ def write_capture_report(
     loaded = read_renderables(run, device)
     held = photo_renders(run, scene.test[:MAX_VIEWS], "test", device, backend, progress=False, renderables=loaded)
     trained = photo_renders(run, scene.train[:1], "train", device, backend, progress=False, renderables=loaded)
+    sections.append(sharpness_section(metrics, held[0] if held else None, figures))
     sections += photo_rows("Held-out photos (never trained on) and the run's renders", held, figures)
     sections += photo_rows("A training photo and the run's renders", trained, figures)
 
@@ -141,9 +148,40 @@ def write_capture_report(
         sections.append(
             object_masks_section(read_object_masks(run.path("masks")), scene.train[:MAX_VIEWS], figures, None)
         )
+    sections.append(glossary_html("".join(sections)))
     path = run.path("report.html")
-    write_text_atomic(path, html_page(sections))
+    write_text_atomic(path, html_page(sections, f"MatSpray: {name}", page_places(run.root, source)))
     return path
+
+
+def sharpness_section(metrics: dict, item, figures: Figures) -> str:
+    """How sharp the asset is beside the photos it never saw: held-out LPIPS inside the mask (or how to get its
+    weights) and each render's gradient energy as a share of the photo's, with the first held-out photo beside the
+    renders, cut to the object and enlarged alike."""
+    held = metrics["heldout"]["summary"]
+    rows = [
+        f"| {_label(key)} | {'n/a' if v.get('lpips') is None else format(v['lpips'], '.3f')} | "
+        f"{format_share(v.get('gradient_share'))} |"
+        for key, v in held.items()
+    ]
+    header = ["| render | held-out LPIPS ↓ | gradient energy share (photo: 1) |", "| --- | ---: | ---: |"]
+    table = "\n".join([*header, *rows])
+    missing = any(v.get("lpips") is None for v in held.values())
+    how = f"<p>LPIPS: {html.escape(lpips_line(metrics.get('lpips')) or 'n/a')}</p>" if missing else ""
+    picture = ""
+    box = None if item is None else square_box([item.mask])
+    if box is not None:
+        columns = [item.view.image, *item.renders.values()]
+        strip = torch.cat([crop(c.clamp(0, 1), box, CROP_SIZE) for c in columns], dim=1)
+        labels = ", ".join(["photo", *(_label(key) for key in item.renders)])
+        caption = f"{item.view.name}, cut to the object: {labels}"
+        picture = figures.image(f"sharpness_{item.view.name}", strip, caption, css="strip")
+    return (
+        "<h2>Sharpness</h2><p>Inside the object mask of the held-out photos: LPIPS (lower: closer to the photo in "
+        "what people notice, blur included) and the render's gradient energy as a share of the photo's (the "
+        "squared differences of neighbouring pixels: 1 holds as much fine detail as the photo, below 1 is softer)."
+        f"</p>{markdown_to_html(table)}{how}<div>{picture}</div>"
+    )
 
 
 def photo_rows(title: str, items, figures: Figures) -> list[str]:
@@ -194,7 +232,7 @@ def material_rows(assets: dict, camera, figures: Figures) -> list[str]:
             figures.image(f"maps_{variant}_basecolor", gbuffer.base_color.cpu(), f"base colour, {label}", alpha),
             figures.scalar(f"maps_{variant}_roughness", gbuffer.roughness.cpu(), f"roughness, {label}", alpha),
             figures.scalar(f"maps_{variant}_metallic", gbuffer.metallic.cpu(), f"metallic, {label}", alpha),
-            figures.image(f"maps_{variant}_normal", _srgb_inverse(normals.cpu()), f"normals, {label}", alpha),
+            figures.image(f"maps_{variant}_normal", srgb_inverse(normals.cpu()), f"normals, {label}", alpha),
         ]
         rows.append("<div>" + "".join(cells) + "</div>")
     return rows
@@ -207,8 +245,9 @@ def estimated_light_section(run: RunDir, variants, figures: Figures) -> str:
         path = run.path(asset_stage(variant), ENVMAP_FILE)
         if path.exists():
             estimate = EnvironmentMap.from_file(path).map.detach()
-            label = f"estimated light ({LABELS.get(variant, variant)})"
-            cells.append(figures.image(f"envmap_{variant}", envmap_preview(estimate), label, css="env"))
+            height, width = estimate.shape[:2]
+            label = f"estimated light ({LABELS.get(variant, variant)}): {width} x {height} px, shown bilinear"
+            cells.append(figures.image(f"envmap_{variant}", envmap_preview(as_shaded(estimate)), label, css="env"))
     if not cells:
         return ""
     return (

@@ -24,7 +24,8 @@ from matspray.data import View, load_run_scene, load_scene, read_image
 from matspray.data.formats.blender import read_scene_json
 from matspray.errors import ConfigError, file_error
 from matspray.eval.lpips import load_lpips
-from matspray.eval.report import STYLE, Figures, markdown_to_html
+from matspray.eval.page.markup import Figures, html_page, markdown_to_html
+from matspray.eval.page.paths import page_places
 from matspray.eval.run_eval import (
     GroundTruth,
     ViewRenders,
@@ -257,10 +258,6 @@ def write_glb_report(
             )
             sections.append("<div>" + "".join(cells) + "</div>")
     sections.append(markdown_to_html(tables))
-    page = (
-        "<!doctype html><html><head><meta charset='utf-8'><title>MatSpray export</title>"
-        f"<style>{STYLE}</style></head><body>{''.join(sections)}</body></html>"
-    )
     path = out / "report.html"
-    write_text_atomic(path, page)
+    write_text_atomic(path, html_page(sections, "MatSpray export", page_places(out)))
     return path

@@ -23,15 +23,17 @@ from torch import Tensor
 from tqdm import tqdm
 
 from matspray.data import View, load_run_scene
-from matspray.data.images import srgb_to_linear
+from matspray.data.images import linear_to_srgb, srgb_to_linear
 from matspray.errors import DataError, RunError
 from matspray.eval.evaluate import average_metrics, evaluate_images
 from matspray.eval.lpips import load_lpips
+from matspray.eval.page.paths import object_name
 from matspray.geometry.evaluate import render_view
 from matspray.geometry.ply import read_ply
 from matspray.method.asset import ENVMAP_FILE, read_asset
 from matspray.method.masks import read_object_masks
 from matspray.method.relight import render_relit
+from matspray.metrics import gradient_energy
 from matspray.presets import asset_stage
 from matspray.render.backend import rendering_with
 from matspray.render.shade.envmap import EnvironmentMap
@@ -132,8 +134,9 @@ def photo_renders(
 
 
 def score_photos(rendered: list[PhotoRenders], lpips) -> dict:
-    """PSNR / SSIM / LPIPS inside the object mask per render (mean over views, and per view),
-    and each mask's coverage."""
+    """PSNR / SSIM / LPIPS inside the object mask per render (mean over views, and per view), the render's gradient
+    energy as a share of the photo's in the same mask (`gradient_share`: below 1, softer than the photo), and each
+    mask's coverage."""
     per_view, records = [], {}
     for item in rendered:
         if float(item.mask.sum()) < 1.0:
@@ -142,8 +145,12 @@ def score_photos(rendered: list[PhotoRenders], lpips) -> dict:
                 "check the object region (setting object_bounds) in the run's report"
             )
         record = {"view": item.view.name, "mask_coverage": float(item.mask.mean())}
+        photo_energy = gradient_energy(linear_to_srgb(item.view.image.clamp(0, 1)), item.mask)
         for key, rgb in item.renders.items():
             record[key] = evaluate_images(rgb, item.view.image, item.mask, lpips)
+            # the render's fine detail as a share of the photo's, compared as the metrics compare (sRGB-encoded)
+            energy = gradient_energy(linear_to_srgb(rgb.clamp(0, 1)), item.mask)
+            record[key]["gradient_share"] = energy / photo_energy if photo_energy > 0 else None
             records.setdefault(key, []).append(record[key])
         per_view.append(record)
     coverage = [r["mask_coverage"] for r in per_view]
@@ -189,7 +196,7 @@ def evaluate_capture(
     loaded = read_renderables(run, device)
     stride = max(1, len(scene.train) // max(1, train_views))
     metrics = {
-        "title": f"MatSpray on a capture without ground truth: {identity['source']}",
+        "title": f"MatSpray on a capture without ground truth: {object_name(identity['source'])}",
         "lpips": lpips_source,
         "region": "inside the object mask (both images composited on white with it)",
         "heldout": score_photos(photo_renders(run, scene.test, "test", device, backend, progress, loaded), lpips),
@@ -206,8 +213,8 @@ def heldout_table(metrics: dict) -> str:
     lines = [
         f"Scored {metrics['region']}.",
         "",
-        "| render | held-out PSNR | SSIM | LPIPS | training PSNR |",
-        "| --- | ---: | ---: | ---: | ---: |",
+        "| render | held-out PSNR | SSIM | LPIPS | gradient energy share | training PSNR |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
     ]
     held, train = metrics["heldout"]["summary"], metrics["train"]["summary"]
 
@@ -218,7 +225,7 @@ def heldout_table(metrics: dict) -> str:
         label = "geometry (3DGS colours)" if key == RADIANCE else f"{key} asset, its estimated light"
         lines.append(
             f"| {label} | {number(held[key]['psnr'], 2)} | {number(held[key]['ssim'], 3)} | "
-            f"{number(held[key]['lpips'], 3)} "
+            f"{number(held[key]['lpips'], 3)} | {format_share(held[key].get('gradient_share'))} "
             f"| {number(train.get(key, {}).get('psnr'), 2)} |"
         )
     cover = metrics["heldout"]["mask_coverage"]
@@ -228,6 +235,11 @@ def heldout_table(metrics: dict) -> str:
         f"average ({100 * cover['min']:.1f}% to {100 * cover['max']:.1f}%).",
     ]
     return "\n".join(lines) + "\n"
+
+
+def format_share(value: float | None) -> str:
+    """A gradient energy share in two significant digits (0.95, 0.012: a very soft render still reads as a number)."""
+    return "n/a" if value is None else f"{value:.2g}"
 
 
 def write_heldout_table(path: Path, metrics: dict) -> None:

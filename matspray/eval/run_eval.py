@@ -26,6 +26,7 @@ from matspray.eval.evaluate import average_metrics, evaluate_images, pooled_unio
 from matspray.eval.lpips import load_lpips
 from matspray.eval.masked import align_scale
 from matspray.eval.metallic import metallic_psnr_over_objects
+from matspray.eval.page.paths import object_name
 from matspray.eval.tables import UNION, write_tables
 from matspray.geometry.evaluate import true_normals
 from matspray.geometry.region import mask_iou
@@ -333,7 +334,7 @@ def evaluate_run(
     env_names = sorted(set.intersection(*(set(t.relit) for t in truths)))
     lights = load_relight_lights(data, env_names, device)
     metrics = {
-        "title": f"MatSpray evaluation: {identity['source']}",
+        "title": f"MatSpray evaluation: {object_name(data)}",  # tables.md is shared: no path of the machine
         "lpips": lpips_source,
         "notes": [],
         "relight_envs": env_names,
