@@ -33,6 +33,7 @@ EXTENSION = "KHR_gaussian_splatting"
 SPLATS_DRAFT = "KhronosGroup/glTF extensions/2.0/Khronos/KHR_gaussian_splatting/README.md @ 63770cc (2026-04-15)"
 PBR_ATTRIBUTES = ("_BASECOLOR", "_ROUGHNESS", "_METALLIC", "_NORMAL")
 FLOAT, SHORT, UNSIGNED_SHORT, UNSIGNED_BYTE = 5126, 5122, 5123, 5121
+ARRAY_BUFFER = 34962
 COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 # quantised attributes: (numpy dtype, glTF component type, steps of one unit)
 UNSIGNED_16 = (np.uint16, UNSIGNED_SHORT, 65535.0)
@@ -79,7 +80,9 @@ class _Builder:
         self.document = {"accessors": [], "bufferViews": []}
         self.data = bytearray()
 
-    def accessor(self, values: np.ndarray, kind: str, component: int = FLOAT, normalized=False, bounds=False) -> int:
+    def accessor(
+        self, values: np.ndarray, kind: str, component: int = FLOAT, normalized=False, bounds=False, vertex=True
+    ) -> int:
         width = COMPONENTS[kind]
         array = np.ascontiguousarray(values).reshape(len(values), width)
         size = array.itemsize * width
@@ -90,6 +93,8 @@ class _Builder:
         view = {"buffer": 0, "byteOffset": len(self.data), "byteLength": rows.size}
         if stride != size:
             view["byteStride"] = stride
+        if vertex:
+            view["target"] = ARRAY_BUFFER
         self.data.extend(rows.tobytes())
         self.document["bufferViews"].append(view)
         accessor = {"bufferView": len(self.document["bufferViews"]) - 1, "componentType": component}
@@ -135,7 +140,8 @@ def write_splats_glb(path, splats: SplatFile, node_matrix: np.ndarray | None = N
             attributes[name] = b.accessor(quantise(values, kind), shape, kind[1], normalized=True)
     if splats.light is not None:
         height = splats.light.shape[0]
-        extras["light"] = {"accessor": b.accessor(f32(splats.light.reshape(-1, 3)), "VEC3"), "height": height}
+        light = b.accessor(f32(splats.light.reshape(-1, 3)), "VEC3", vertex=False)
+        extras["light"] = {"accessor": light, "height": height}
     primitive = {"attributes": attributes, "mode": 0}
     primitive["extensions"] = {EXTENSION: {"kernel": "ellipse", "colorSpace": "srgb_rec709_display"}}
     primitive["extras"] = {"matspray": extras}
