@@ -56,10 +56,14 @@ void main() {
   if (det <= 0.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
   vConic = vec3(cyy, -cxy, cxx) / det;
   vCentre = vec2(fx * px + cx, fy * py + cy);
+  // a quad along the footprint's axes, out to where alpha falls to 1/255 (and half a pixel more): the fragments
+  // are what a software rasteriser spends its time on
   float mid = 0.5 * (cxx + cyy);
-  float lambda = mid + sqrt(max(mid * mid - det, 0.0));
-  float radius = sqrt(2.0 * log(255.0 * opacity) * lambda) + 1.0;  // where alpha falls to 1/255, and a pixel
-  vec2 pixel = vCentre + position.xy * radius;
+  float root = sqrt(max(mid * mid - det, 0.0));
+  float reach = 2.0 * log(255.0 * opacity);
+  vec2 axis = abs(cxy) > 1e-12 ? normalize(vec2(mid + root - cyy, cxy)) : (cxx >= cyy ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
+  vec2 pixel = vCentre + (position.x * (sqrt(reach * (mid + root)) + 0.5)) * axis
+    + (position.y * (sqrt(reach * max(mid - root, 0.0)) + 0.5)) * vec2(-axis.y, axis.x);
   gl_Position = vec4(pixel.x / size.x * 2.0 - 1.0, 1.0 - pixel.y / size.y * 2.0, 0.0, 1.0);
   vOpacity = opacity;
   vec4 base = texelFetch(tBase, uv, 0);
@@ -179,14 +183,13 @@ void main() {
   float a = r * r;
   float s = 1.0 - a;
   vec3 lobe = mix(n, reflect(-wo, n), pow(s, 1.5) + s * a);
+  // linear between the two levels around r (envmap._level_weights): two lookups, not a loop over every level,
+  // which a SIMD software rasteriser would run for every lane
   float rc = clamp(r, levelRoughness[0], levelRoughness[LEVELS - 1]);
-  vec3 specular = vec3(0.0);
-  for (int i = 0; i < LEVELS; i++) {
-    float below = i == 0 ? levelRoughness[0] - 1.0 : levelRoughness[i - 1];
-    float above = i == LEVELS - 1 ? levelRoughness[i] + 1.0 : levelRoughness[i + 1];
-    float weight = max(min((rc - below) / (levelRoughness[i] - below), (above - rc) / (above - levelRoughness[i])), 0.0);
-    if (weight > 0.0) specular += weight * lookup(levelPlace[i], lobe);
-  }
+  int low = 0;
+  for (int i = 1; i < LEVELS - 1; i++) low += rc >= levelRoughness[i] ? 1 : 0;
+  float t = (rc - levelRoughness[low]) / (levelRoughness[low + 1] - levelRoughness[low]);
+  vec3 specular = (1.0 - t) * lookup(levelPlace[low], lobe) + t * lookup(levelPlace[low + 1], lobe);
   vec3 irradiance = lookup(levelPlace[LEVELS], n);
   vec3 rgb = irradiance * albedo * (1.0 - metallic) / 3.14159265358979 + specular * (f0 * ab.x + ab.y);
   colour = vec4(srgb(rgb * exposure * alpha + background * (1.0 - alpha)), 1.0);
