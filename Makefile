@@ -7,7 +7,7 @@ DEMO_STAMP := $(VENV)/.installed-demo
 STAMP := $(VENV)/.installed
 PRESET ?= demo
 
-.PHONY: setup demo test lpips clean
+.PHONY: setup demo test lpips clean web
 
 $(DEMO_STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
@@ -45,7 +45,22 @@ $(STAMP): $(DEMO_STAMP)
 	# model-viewer (npm, on three.js) for the test that opens the exported glb in a standard glTF viewer; best effort.
 	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node @google/model-viewer >/dev/null 2>&1 \
 		|| echo "note: model-viewer not installed; the glb browser test will skip"; fi
+	-@$(MAKE) --no-print-directory web
 	touch $(STAMP)
+
+# The script of `matspray export --web`'s page: matspray/web/src/*.js and three.js (npm) bundled by esbuild into the
+# package (matspray/web/dist/, package data), so that the page fetches nothing; best effort: without node and npm,
+# export --web says how to build it and its browser tests skip.
+WEB_BUNDLE := matspray/web/dist/matspray-web.js
+web: $(WEB_BUNDLE)
+
+$(WEB_BUNDLE): $(wildcard matspray/web/src/*.js)
+	@if command -v npm >/dev/null; then \
+		npm install --silent --prefix $(VENV)/node three@0.187.0 esbuild@0.28.2 >/dev/null 2>&1 \
+		&& NODE_PATH=$(VENV)/node/node_modules $(VENV)/node/node_modules/.bin/esbuild matspray/web/src/main.js \
+			--bundle --format=iife --minify --legal-comments=eof --target=chrome100 --log-level=warning --outfile=$@ \
+		|| { echo "note: the web page's script did not build; export --web will say so"; exit 1; }; \
+	else echo "note: npm not installed; export --web needs its page's script (make web)"; exit 1; fi
 
 setup: $(STAMP)
 
@@ -61,4 +76,4 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 clean:
-	rm -rf $(VENV) runs
+	rm -rf $(VENV) runs matspray/web/dist

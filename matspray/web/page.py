@@ -58,5 +58,6 @@ def write_page(folder, asset: Asset, spec: dict, estimated: torch.Tensor | None 
         (folder / name).write_text(text)
         written.append(folder / name)
     shutil.copyfile(bundle, folder / "matspray-web.js")
-    written.append(folder / "matspray-web.js")
+    shutil.copyfile(PACKAGE / "static" / "LICENSES.txt", folder / "LICENSES.txt")  # three.js's MIT notice
+    written += [folder / "matspray-web.js", folder / "LICENSES.txt"]
     return written
