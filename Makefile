@@ -45,6 +45,9 @@ $(STAMP): $(DEMO_STAMP)
 	# model-viewer (npm, on three.js) for the test that opens the exported glb in a standard glTF viewer; best effort.
 	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node @google/model-viewer >/dev/null 2>&1 \
 		|| echo "note: model-viewer not installed; the glb browser test will skip"; fi
+	# CesiumJS (npm) for the test that draws --splats' tileset in a browser; best effort: without it that test skips.
+	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node cesium@1.145.0 >/dev/null 2>&1 \
+		|| echo "note: cesium not installed; the CesiumJS splats test will skip"; fi
 	-@$(MAKE) --no-print-directory web
 	touch $(STAMP)
 

@@ -173,6 +173,12 @@ def test_export_splats_then_relight_the_file(tmp_path, capsys):
     for name in ("orbit_000_city.png", "orbit_001_city.png"):
         (a, alpha_a), (b, alpha_b) = (read_image(tmp_path / f / name) for f in ("from_run", "from_glb"))
         assert alpha_a.mean() > 0.2 and psnr(a * alpha_a[..., None], b * alpha_b[..., None]) > 40
+    # the web page from the file: the same Gaussians (its script built by `make setup`)
+    from matspray.web.page import BUNDLE
+
+    if BUNDLE.exists():
+        assert main(["export", "--run", str(glb), "--web", str(tmp_path / "web")]) == 0
+        assert '"count":400' in (tmp_path / "web" / "asset.js").read_text()
     # the file keeps the run's orbit: the same cameras as the run's
     from matspray.cli.relight import relight_source
 

@@ -58,6 +58,16 @@ def test_a_light_keeps_its_rows_when_it_has_fewer_than_the_pages():
     assert page_light(torch.ones(128, 256, 3)).shape == (LIGHT_HEIGHT, 2 * LIGHT_HEIGHT, 3)
 
 
+def test_without_its_script_the_page_is_refused_in_one_line_before_any_work(tmp_path, monkeypatch, capsys):
+    import matspray.web.page as page_module
+
+    monkeypatch.setattr(page_module, "BUNDLE", tmp_path / "missing.js")
+    assert main(["export", "--run", str(tmp_path / "no-run"), "--web", str(tmp_path / "web")]) == 2
+    err = capsys.readouterr().err
+    assert "missing.js is not built" in err and "make setup" in err and err.count("\n") == 1
+    assert not (tmp_path / "web").exists()
+
+
 def missing_browser() -> str | None:
     try:
         import selenium  # noqa: F401

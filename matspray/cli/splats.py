@@ -68,8 +68,7 @@ def export_splats_and_web(args, device) -> list[Path]:
 
         path = Path(args.splats[0])
         light = bake_light(args.splats[1] if len(args.splats) > 1 else None, estimated, device)
-        write_splats(path, asset, light, estimated, view)
-        written.append(path)
+        written += write_splats(path, asset, light, estimated, view)
     if args.web is not None:
         from matspray.web.page import write_page
 

@@ -12,7 +12,9 @@ map about the dataset's +Z (`render.latlong`), and the asset's extras say so.
 
 from __future__ import annotations
 
+import json
 import math
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +26,7 @@ from matspray.data.images import linear_to_srgb
 from matspray.errors import file_error
 from matspray.export.frames import GLTF_FROM_DATASET, frame_extras
 from matspray.gaussians import Gaussians
-from matspray.gltf.splats import SplatFile, read_splats_glb, write_splats_glb
+from matspray.gltf.splats import SplatFile, read_splats_glb, tileset, write_splats_glb, write_spz_glb
 from matspray.method.asset import Asset
 from matspray.render.shade.deferred import shade
 from matspray.render.shade.sh import sh_basis
@@ -120,9 +122,41 @@ def asset_to_splats(asset: Asset, light, estimated: Tensor | None, view: dict | 
     )
 
 
-def write_splats(path, asset: Asset, light, estimated: Tensor | None, view: dict | None = None) -> None:
-    extras = {"matspray": frame_extras("gltf")}
-    write_splats_glb(path, asset_to_splats(asset, light, estimated, view), asset_extras=extras)
+def write_splats(path, asset: Asset, light, estimated: Tensor | None, view: dict | None = None) -> list[Path]:
+    """FILE.glb (the splats and MatSpray's materials) and, where gsply is installed, FILE_3dtiles/ (the splats
+    SPZ-compressed in a one-tile 3D Tiles tileset: what CesiumJS draws); returns the files written."""
+    path = Path(path)
+    splats = asset_to_splats(asset, light, estimated, view)
+    write_splats_glb(path, splats, asset_extras={"matspray": frame_extras("gltf")})
+    try:
+        spz = spz_bytes(splats)
+    except ImportError:
+        return [path]
+    tiles = path.with_name(f"{path.stem}_3dtiles")
+    tiles.mkdir(parents=True, exist_ok=True)
+    write_spz_glb(tiles / "splats.glb", splats, spz)
+    radius = float(np.linalg.norm(splats.positions, axis=1).max() + 3 * splats.scales.max())
+    (tiles / "tileset.json").write_text(json.dumps(tileset("splats.glb", radius), indent=1))
+    return [path, tiles / "tileset.json", tiles / "splats.glb"]
+
+
+def spz_bytes(splats: SplatFile) -> bytes:
+    """The splats as a Niantic SPZ stream (version 3: gzip, 12 fractional bits of position) by gsply; ImportError
+    without it."""
+    from gsply import GSData, write_spz
+
+    opacity = np.clip(splats.opacities, MIN_OPACITY, 1 - MIN_OPACITY)
+    data = GSData(
+        means=splats.positions.astype(np.float32),
+        scales=np.log(np.maximum(splats.scales, 1e-30)).astype(np.float32),
+        quats=splats.rotations[:, [3, 0, 1, 2]].astype(np.float32),  # SPZ's (w, x, y, z)
+        opacities=np.log(opacity / (1 - opacity)).astype(np.float32),
+        sh0=splats.sh[:, 0].astype(np.float32),
+        shN=splats.sh[:, 1:].astype(np.float32),
+    )
+    with tempfile.TemporaryDirectory() as folder:
+        write_spz(Path(folder) / "splats.spz", data, version=3)
+        return (Path(folder) / "splats.spz").read_bytes()
 
 
 def read_splats_asset(path, device="cpu") -> SplatsAsset:

@@ -294,3 +294,70 @@ def read_splats_glb(path) -> tuple[SplatFile, np.ndarray]:
         if node.get("mesh") == mesh_index and "matrix" in node:
             matrix = np.asarray(node["matrix"], dtype=np.float64).reshape(4, 4).T
     return splats, matrix
+
+
+SPZ_EXTENSION = "KHR_gaussian_splatting_compression_spz_2"
+
+
+def write_spz_glb(path, splats: SplatFile, spz: bytes) -> None:
+    """The splats as KHR_gaussian_splatting with their data in one SPZ buffer (`spz`, what `export.splats.spz_bytes`
+    makes of `splats`): the accessors say what the attributes are and hold no data, as CesiumJS reads them."""
+    count = len(splats.positions)
+    accessors = []
+
+    def accessor(kind: str, component: int = FLOAT, **more) -> int:
+        accessors.append({"componentType": component, "count": count, "type": kind, **more})
+        return len(accessors) - 1
+
+    bounds = {"min": splats.positions.min(0).tolist(), "max": splats.positions.max(0).tolist()}
+    attributes = {
+        "POSITION": accessor("VEC3", **bounds),
+        "COLOR_0": accessor("VEC4", UNSIGNED_BYTE, normalized=True),
+        f"{EXTENSION}:ROTATION": accessor("VEC4"),
+        f"{EXTENSION}:SCALE": accessor("VEC3"),
+        f"{EXTENSION}:OPACITY": accessor("SCALAR"),
+    }
+    for k in range(splats.sh.shape[1]):
+        attributes[sh_attribute(k)] = accessor("VEC3")
+    extension = {
+        "kernel": "ellipse",
+        "colorSpace": "srgb_rec709_display",
+        "extensions": {SPZ_EXTENSION: {"bufferView": 0}},
+    }
+    document = {
+        "asset": {"version": "2.0", "generator": "matspray", "extras": {"splats_draft": SPLATS_DRAFT}},
+        "extensionsUsed": [EXTENSION, SPZ_EXTENSION],
+        "extensionsRequired": [EXTENSION, SPZ_EXTENSION],
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "splats"}],
+        "meshes": [
+            {
+                "name": "splats",
+                "primitives": [{"attributes": attributes, "mode": 0, "extensions": {EXTENSION: extension}}],
+            }
+        ],
+        "buffers": [{"byteLength": len(spz) + (-len(spz) % 4)}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(spz)}],
+        "accessors": accessors,
+    }
+    write_glb_chunks(Path(path), document, spz)
+
+
+def tileset(content: str, radius: float) -> dict:
+    """A 3D Tiles 1.1 tileset of one glb `content` (a sphere of `radius` around the origin bounds it) whose glTF
+    requires the two splat extensions: CesiumJS draws splats only from such a tileset."""
+    gltf = {"extensionsUsed": [EXTENSION, SPZ_EXTENSION], "extensionsRequired": [EXTENSION, SPZ_EXTENSION]}
+    return {
+        "asset": {"version": "1.1"},
+        "extensionsUsed": ["3DTILES_content_gltf"],
+        "extensionsRequired": ["3DTILES_content_gltf"],
+        "extensions": {"3DTILES_content_gltf": gltf},
+        "geometricError": radius,
+        "root": {
+            "boundingVolume": {"sphere": [0.0, 0.0, 0.0, radius]},
+            "geometricError": 0.0,
+            "refine": "ADD",
+            "content": {"uri": content},
+        },
+    }
