@@ -54,14 +54,14 @@ def main() -> None:
         else:
             asset = random_asset(args.gaussians)
             light = EnvironmentMap.constant(1.0, 16, learnable=False)
-            cameras = [c for c in _ring()]
-            spec = orbit_spec(cameras, torch.zeros(3), (0.0, 0.0, 1.0))
+            spec = orbit_spec(list(_ring()), torch.zeros(3), (0.0, 0.0, 1.0))
             write_page(f"{tmp}/web", asset, spec, light.map)
             write_splats(f"{tmp}/splats.glb", asset, light.prefilter(), light.map, spec)
             what = f"{args.gaussians} random Gaussians"
         sizes = folder_size(Path(tmp) / "web")
         total = sum(sizes.values())
-        print(f"{what}: web folder {total / 1e6:.2f} MB ({', '.join(f'{k} {v / 1e6:.2f} MB' for k, v in sizes.items())})")
+        parts = ", ".join(f"{name} {size / 1e6:.2f} MB" for name, size in sizes.items())
+        print(f"{what}: web folder {total / 1e6:.2f} MB ({parts})")
         print(f"{what}: splats glb {(Path(tmp) / 'splats.glb').stat().st_size / 1e6:.2f} MB")
 
 
