@@ -10,7 +10,6 @@ import base64
 import functools
 import io
 import json
-import shutil
 import sys
 import threading
 import time
@@ -22,13 +21,12 @@ import pytest
 
 from matspray.cli import main
 from matspray.gltf.splats import SPZ_EXTENSION, read_splats_glb
+from tests.browser import headless_chromium, missing_browser
 from tests.scenes import sphere_cameras, write_disk_sphere_run
 
 pytest.importorskip("gsply", reason="gsply (the SPZ writer, in the `export` extra) is not installed")
 
 CESIUM = Path(sys.prefix) / "node" / "node_modules" / "cesium" / "Build" / "Cesium"
-CHROMIUM = Path("/usr/bin/chromium")
-DRIVER = Path("/usr/bin/chromedriver")
 PAGE = """<!doctype html><html><head><meta charset="utf-8"><link href="Cesium/Widgets/widgets.css" rel="stylesheet">
 <style>html, body, #c { margin: 0; width: 320px; height: 320px; overflow: hidden; }</style></head>
 <body><div id="c"></div>
@@ -80,20 +78,6 @@ def test_the_spz_tileset_holds_the_splats_within_spz_steps(exported):
     assert document["accessors"][0]["count"] == len(splats.positions) and "bufferView" not in document["accessors"][0]
 
 
-def missing_browser() -> str | None:
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        return "selenium is not installed (`make setup` installs it)"
-    if not CHROMIUM.exists() and shutil.which("chromium") is None:
-        return "chromium is not installed (`make setup` installs it, best effort)"
-    if not DRIVER.exists():
-        return f"chromedriver is not installed at {DRIVER}"
-    if not CESIUM.exists():
-        return f"CesiumJS is not installed at {CESIUM} (`make setup` installs npm's cesium, best effort)"
-    return None
-
-
 class QuietHandler(SimpleHTTPRequestHandler):
     extensions_map = {**SimpleHTTPRequestHandler.extensions_map, ".glb": "model/gltf-binary", ".js": "text/javascript"}
 
@@ -106,10 +90,8 @@ def test_cesium_loads_the_tileset_and_draws_the_splats(exported):
     """Served over http (CesiumJS starts web workers, which file:// pages may not); a sphere of splats fills its
     outline, where a point cloud of 1 500 points would leave most of it background."""
     from PIL import Image
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
 
-    reason = missing_browser()
+    reason = missing_browser({CESIUM: f"CesiumJS is not installed at {CESIUM} (`make setup` installs npm's cesium)"})
     if reason is not None:
         pytest.skip(reason)
     site = exported / "site"
@@ -119,12 +101,7 @@ def test_cesium_loads_the_tileset_and_draws_the_splats(exported):
     (site / "index.html").write_text(PAGE)
     server = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(QuietHandler, directory=str(site)))
     threading.Thread(target=server.serve_forever, daemon=True).start()
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM if CHROMIUM.exists() else shutil.which("chromium"))
-    for flag in ("--headless=new", "--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"):
-        options.add_argument(flag)
-    options.add_argument("--window-size=400,400")
-    driver = webdriver.Chrome(service=Service(str(DRIVER)), options=options)
+    driver = headless_chromium(400, 400)
     try:
         driver.get(f"http://127.0.0.1:{server.server_address[1]}/index.html")
         deadline, state = time.monotonic() + 180, None

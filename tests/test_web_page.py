@@ -8,7 +8,6 @@ from __future__ import annotations
 import base64
 import io
 import math
-import shutil
 import time
 from pathlib import Path
 
@@ -20,10 +19,9 @@ from matspray.cli import main
 from matspray.method.asset import Asset, read_asset
 from matspray.web.pack import LIGHT_HEIGHT, deflated, page_light, quantise_asset, unpack_asset
 from matspray.web.page import BUNDLE
+from tests.browser import headless_chromium, missing_browser
 from tests.scenes import sky_map, sphere_cameras, sphere_of_disks, write_disk_sphere_run
 
-CHROMIUM = Path("/usr/bin/chromium")
-DRIVER = Path("/usr/bin/chromedriver")
 BACKGROUND = np.array([0.02, 0.02, 0.02])  # the page's, linear (src/main.js)
 PSNR_FLOOR = 30.0  # the issue's target inside the object; measured 57 dB (docs/dev/web.md)
 
@@ -68,25 +66,11 @@ def test_without_its_script_the_page_is_refused_in_one_line_before_any_work(tmp_
     assert not (tmp_path / "web").exists()
 
 
-def missing_browser() -> str | None:
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        return "selenium is not installed (`make setup` installs it)"
-    if not CHROMIUM.exists() and shutil.which("chromium") is None:
-        return "chromium is not installed (`make setup` installs it, best effort)"
-    if not DRIVER.exists():
-        return f"chromedriver is not installed at {DRIVER}"
-    if not BUNDLE.exists():
-        return f"the page's script {BUNDLE} is not built (`make setup` builds it with node and npm, best effort)"
-    return None
-
-
 @pytest.fixture(scope="module")
 def site(tmp_path_factory):
     """The disk sphere's run (64 px cameras), its page and `matspray relight`'s orbit frames under the sunset and
     under the run's own light file, at the page's light resolution: (run, page folder, relight folder)."""
-    reason = missing_browser()
+    reason = missing_browser({BUNDLE: f"the page's script {BUNDLE} is not built (`make setup` builds it with npm)"})
     if reason is not None:
         pytest.skip(reason)
     root = tmp_path_factory.mktemp("web")
@@ -100,16 +84,7 @@ def site(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def page(site):
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM if CHROMIUM.exists() else shutil.which("chromium"))
-    for flag in ("--headless=new", "--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"):
-        options.add_argument(flag)
-    options.add_argument("--force-device-scale-factor=1")
-    options.add_argument("--window-size=1000,800")
-    driver = webdriver.Chrome(service=Service(str(DRIVER)), options=options)
+    driver = headless_chromium(1000, 800)
     driver.set_script_timeout(300)
     try:
         driver.get((site[1] / "index.html").as_uri())  # file://: no server
