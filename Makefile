@@ -53,14 +53,15 @@ $(STAMP): $(DEMO_STAMP)
 
 # The script of `matspray export --web`'s page: matspray/web/src/*.js and three.js (npm) bundled by esbuild into the
 # package (matspray/web/dist/, package data), so that the page fetches nothing; best effort: without node and npm,
-# export --web says how to build it and its browser tests skip.
+# export --web says how to build it and its browser tests skip. A prefix of its own: model-viewer (.venv/node) pins
+# another three.js as its peer.
 WEB_BUNDLE := matspray/web/dist/matspray-web.js
 web: $(WEB_BUNDLE)
 
 $(WEB_BUNDLE): $(wildcard matspray/web/src/*.js)
 	@if command -v npm >/dev/null; then \
-		npm install --silent --prefix $(VENV)/node three@0.187.0 esbuild@0.28.2 >/dev/null 2>&1 \
-		&& NODE_PATH=$(VENV)/node/node_modules $(VENV)/node/node_modules/.bin/esbuild matspray/web/src/main.js \
+		npm install --silent --prefix $(VENV)/web-build three@0.187.0 esbuild@0.28.2 >/dev/null 2>&1 \
+		&& NODE_PATH=$(VENV)/web-build/node_modules $(VENV)/web-build/node_modules/.bin/esbuild matspray/web/src/main.js \
 			--bundle --format=iife --minify --legal-comments=eof --target=chrome100 --log-level=warning --outfile=$@ \
 		|| { echo "note: the web page's script did not build; export --web will say so"; exit 1; }; \
 	else echo "note: npm not installed; export --web needs its page's script (make web)"; exit 1; fi
