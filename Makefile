@@ -7,7 +7,7 @@ DEMO_STAMP := $(VENV)/.installed-demo
 STAMP := $(VENV)/.installed
 PRESET ?= demo
 
-.PHONY: setup demo test lpips clean
+.PHONY: setup demo test lpips clean web
 
 $(DEMO_STAMP): pyproject.toml Makefile
 	$(PYTHON) -m venv $(VENV)
@@ -45,7 +45,26 @@ $(STAMP): $(DEMO_STAMP)
 	# model-viewer (npm, on three.js) for the test that opens the exported glb in a standard glTF viewer; best effort.
 	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node @google/model-viewer >/dev/null 2>&1 \
 		|| echo "note: model-viewer not installed; the glb browser test will skip"; fi
+	# CesiumJS (npm) for the test that draws --splats' tileset in a browser; best effort: without it that test skips.
+	-@if command -v npm >/dev/null; then npm install --silent --prefix $(VENV)/node cesium@1.145.0 >/dev/null 2>&1 \
+		|| echo "note: cesium not installed; the CesiumJS splats test will skip"; fi
+	-@$(MAKE) --no-print-directory web
 	touch $(STAMP)
+
+# The script of `matspray export --web`'s page: matspray/web/src/*.js and three.js (npm) bundled by esbuild into the
+# package (matspray/web/dist/, package data), so that the page fetches nothing; best effort: without node and npm,
+# export --web says how to build it and its browser tests skip. A prefix of its own: model-viewer (.venv/node) pins
+# another three.js as its peer.
+WEB_BUNDLE := matspray/web/dist/matspray-web.js
+web: $(WEB_BUNDLE)
+
+$(WEB_BUNDLE): $(wildcard matspray/web/src/*.js)
+	@if command -v npm >/dev/null; then \
+		npm install --silent --prefix $(VENV)/web-build three@0.187.0 esbuild@0.28.2 >/dev/null 2>&1 \
+		&& NODE_PATH=$(VENV)/web-build/node_modules $(VENV)/web-build/node_modules/.bin/esbuild matspray/web/src/main.js \
+			--bundle --format=iife --minify --legal-comments=eof --target=chrome100 --log-level=warning --outfile=$@ \
+		|| { echo "note: the web page's script did not build; export --web will say so"; exit 1; }; \
+	else echo "note: npm not installed; export --web needs its page's script (make web)"; exit 1; fi
 
 setup: $(STAMP)
 
@@ -61,4 +80,4 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 clean:
-	rm -rf $(VENV) runs
+	rm -rf $(VENV) runs matspray/web/dist

@@ -470,6 +470,8 @@ def table_cli(results: Path) -> str:
                         value = ""
                     elif a.choices is not None:
                         value = " | ".join(f"`{c}`" for c in a.choices) + (" ..." if a.nargs in ("+", "*") else "")
+                    elif isinstance(a.metavar, tuple):  # a value and optional ones: `--splats FILE.glb [LIGHT]`
+                        value = f"`{a.metavar[0]} [{' '.join(a.metavar[1:])}]`"
                     else:
                         value = (a.metavar or a.dest.upper()) + (" ..." if a.nargs in ("+", "*") else "")
                         value = f"`{value}`" if a.option_strings else ""

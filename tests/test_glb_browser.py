@@ -27,10 +27,10 @@ from matspray.data import Camera  # noqa: E402
 from matspray.export.frames import GLTF_FROM_DATASET  # noqa: E402
 from matspray.method.asset import read_asset  # noqa: E402
 from matspray.render.raster.rasterize import rasterize  # noqa: E402
+from tests.browser import headless_chromium  # noqa: E402
+from tests.browser import missing_browser as missing_chromium  # noqa: E402
 from tests.test_export import SMALL, make_disk_run  # noqa: E402
 
-CHROMIUM = Path("/usr/bin/chromium")
-DRIVER = Path("/usr/bin/chromedriver")
 MODEL_VIEWER = Path(sys.prefix) / "node" / "node_modules" / "@google" / "model-viewer" / "dist" / "model-viewer.min.js"
 SIZE = 160  # CSS pixels of the square viewer (device scale 1)
 ORBIT = (
@@ -59,17 +59,8 @@ mv.addEventListener('error', (e) => {{ window.viewerError = String(e.detail && e
 
 def missing_browser() -> str | None:
     """Why the browser test cannot run here, or None."""
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        return "selenium is not installed (`make setup` installs it)"
-    if not CHROMIUM.exists() and shutil.which("chromium") is None:
-        return "chromium is not installed (`make setup` installs it, best effort)"
-    if not DRIVER.exists():
-        return f"chromedriver is not installed at {DRIVER}"
-    if not MODEL_VIEWER.exists():
-        return f"model-viewer is not installed at {MODEL_VIEWER} (`make setup` installs it with npm, best effort)"
-    return None
+    reason = f"model-viewer is not installed at {MODEL_VIEWER} (`make setup` installs it with npm, best effort)"
+    return missing_chromium({MODEL_VIEWER: reason})
 
 
 @pytest.fixture(scope="module")
@@ -105,22 +96,7 @@ class QuietHandler(SimpleHTTPRequestHandler):
 
 
 def browser():
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM if CHROMIUM.exists() else shutil.which("chromium"))
-    for flag in (
-        "--headless=new",
-        "--no-sandbox",
-        "--enable-unsafe-swiftshader",
-        "--use-angle=swiftshader",
-        "--disable-gpu",
-        "--force-device-scale-factor=1",
-        f"--window-size={SIZE + 400},{SIZE + 400}",
-    ):
-        options.add_argument(flag)
-    return webdriver.Chrome(service=Service(str(DRIVER)), options=options)  # the explicit driver: no network lookup
+    return headless_chromium(SIZE + 400, SIZE + 400)
 
 
 def viewer_camera() -> Camera:

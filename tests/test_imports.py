@@ -174,6 +174,7 @@ LAYERS = (
     ("geometry",),
     ("method",),
     ("export",),
+    ("web",),
     ("view",),
     ("eval",),
     ("batch",),

@@ -1,4 +1,5 @@
-"""`matspray export --run RUN --out FILE.glb`: the asset as a textured glTF 2.0 mesh."""
+"""`matspray export --run RUN --out FILE.glb`: the asset as a textured glTF 2.0 mesh; `--splats FILE.glb`: as
+KHR_gaussian_splatting Gaussians with their materials; `--web DIR`: as a static page that relights it."""
 
 import argparse
 from pathlib import Path
@@ -23,38 +24,52 @@ def add_export_parser(parser) -> None:
         "(xatlas), with baked base colour (sRGB) and metallic-roughness textures (G = roughness, B = metallic) and "
         "per-vertex normals, in one binary glTF 2.0 file. The estimated environment map is written beside it as "
         "FILE_envmap.exr and FILE_envmap.hdr (lat-long, Z-up; in Blender turn its vector 180 degrees about Z: "
-        "docs/guide/export.md)."
+        "docs/guide/export.md). --splats writes the Gaussians themselves (KHR_gaussian_splatting) and --web a page "
+        "that relights them in a browser; any of the three may be given together."
     )
-    parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
-    parser.add_argument("--out", type=Path, required=True, help="the .glb file to write")
-    parser.add_argument("--variant", help=VARIANT_HELP)
     parser.add_argument(
-        "--faces", type=int, default=DEFAULTS.faces, help=f"face budget, >= 100 (default {DEFAULTS.faces})"
+        "--run",
+        type=Path,
+        required=True,
+        help="run folder made by `matspray run` (for --web and --splats also a .glb written by --splats)",
     )
+    parser.add_argument("--out", type=Path, help="the mesh: the .glb file to write")
+    parser.add_argument(
+        "--splats",
+        nargs="+",
+        metavar=("FILE.glb", "LIGHT"),
+        help="the Gaussians as glTF with the KHR_gaussian_splatting extension, their colour baked under LIGHT (a name "
+        "or .exr/.hdr file as relight's --env; default: the estimated light), with per-splat base colour, roughness, "
+        "metallic and normal and the estimated light beside them, which MatSpray reads back (relight --run FILE.glb)",
+    )
+    parser.add_argument(
+        "--web",
+        type=Path,
+        metavar="DIR",
+        help="a static page that relights the asset in the browser (open DIR/index.html, or put DIR on any host)",
+    )
+    parser.add_argument("--variant", help=VARIANT_HELP)
+    parser.add_argument("--faces", type=int, help=f"face budget, >= 100 (default {DEFAULTS.faces})")
     parser.add_argument(
         "--texture-resolution",
         dest="texture_size",
         type=int,
-        default=DEFAULTS.texture_size,
         help=f"side of the square textures, a power of two in [64, 8192] (default {DEFAULTS.texture_size})",
     )
     parser.add_argument(
         "--frame",
         choices=("gltf", "dataset"),
-        default=DEFAULTS.frame,
         help="gltf: Y-up as glTF expects (default); dataset: the dataset's own Z-up world coordinates. "
         "The transform between the two is stored in the file's asset.extras.matspray",
     )
     parser.add_argument(
         "--grid",
         type=int,
-        default=DEFAULTS.grid,
         help=f"TSDF voxels along the object's longest side (default {DEFAULTS.grid}); finer surface, more time",
     )
     parser.add_argument(
         "--asset-normals",
         type=float,
-        default=DEFAULTS.asset_normals,
         metavar="SHARE",
         help="share of the Gaussians' refined shading normals in the mesh's per-vertex normals, in [0, 1]: 0 keeps "
         f"the surface's own, 1 takes the Gaussians' alone (default {DEFAULTS.asset_normals})",
@@ -62,7 +77,6 @@ def add_export_parser(parser) -> None:
     parser.add_argument(
         "--bake",
         choices=BAKES,
-        default=DEFAULTS.bake,
         help="where the textures read the materials: views (the asset's renders at the training views, what the "
         "Gaussians show), gaussians (the Gaussians around each texel, blended in 3D), auto (default: views for the "
         "no-prior asset, gaussians for the others)",
@@ -70,7 +84,6 @@ def add_export_parser(parser) -> None:
     parser.add_argument(
         "--silhouette-rounds",
         type=int,
-        default=DEFAULTS.silhouette_rounds,
         help=f"rounds that move the mesh's rim onto the asset's silhouettes in the training views "
         f"(default {DEFAULTS.silhouette_rounds}; 0: off)",
     )
@@ -85,38 +98,66 @@ def add_export_parser(parser) -> None:
 
 
 EXPORT_PACKAGES = ("trimesh", "xatlas", "skimage", "fast_simplification", "scipy", "pygltflib")  # the `export` extra
+MESH_FLAGS = {  # flag -> its setting, read only for the mesh
+    "--faces": "faces",
+    "--texture-resolution": "texture_size",
+    "--frame": "frame",
+    "--grid": "grid",
+    "--asset-normals": "asset_normals",
+    "--bake": "bake",
+    "--silhouette-rounds": "silhouette_rounds",
+}
+
+
+def mesh_config(args) -> ExportConfig:
+    """The mesh's settings: the flags given, the defaults for the others."""
+    chosen = {name: getattr(args, name) for name in MESH_FLAGS.values() if getattr(args, name, None) is not None}
+    return ExportConfig(**chosen)
 
 
 def export_main(args) -> int:
-    from matspray.errors import optional_module
+    from matspray.cli.options import refuse
+    from matspray.errors import ConfigError, optional_module
 
-    for name in EXPORT_PACKAGES:  # before any work or torch: one line naming the extra, not an ImportError deep inside
-        optional_module(name, "export", "matspray export")
+    if args.out is None and args.splats is None and args.web is None:
+        raise ConfigError("say what to write: --out FILE.glb (a mesh), --splats FILE.glb or --web DIR")
+    if args.out is None:
+        refuse(
+            [flag for flag, name in MESH_FLAGS.items() if getattr(args, name, None) is not None], "for --out FILE.glb"
+        )
+    if args.splats is not None and len(args.splats) > 2:
+        raise ConfigError(f"--splats takes FILE.glb and at most one LIGHT, got {len(args.splats)} values")
+    if args.out is not None:
+        for name in EXPORT_PACKAGES:  # before any work or torch: one line naming the extra, not an ImportError
+            optional_module(name, "export", "matspray export")
     from matspray.device import out_of_memory_as_error
-    from matspray.export.export import export_run
     from matspray.render.backend import compute_target
-    from matspray.rundir import RunDir
 
     device, backend = compute_target(args.device, args.backend)
-    config = ExportConfig(
-        faces=args.faces,
-        texture_size=args.texture_size,
-        frame=args.frame,
-        grid=args.grid,
-        asset_normals=args.asset_normals,
-        silhouette_rounds=args.silhouette_rounds,
-        bake=args.bake,
-    )
     with out_of_memory_as_error("export", device):
-        report = export_run(
-            args.run,
-            args.out,
-            variant=args.variant or RunDir(args.run).require().default_variant(),
-            config=config,
-            data=args.data,
-            device=device,
-            backend=backend,
-        )
+        if args.out is not None:
+            export_mesh(args, device, backend)
+        if args.splats is not None or args.web is not None:
+            from matspray.cli.splats import export_splats_and_web
+
+            for path in export_splats_and_web(args, device):
+                print(f"wrote {path}")
+    return 0
+
+
+def export_mesh(args, device, backend) -> None:
+    from matspray.export.export import export_run
+    from matspray.rundir import RunDir
+
+    report = export_run(
+        args.run,
+        args.out,
+        variant=args.variant or RunDir(args.run).require().default_variant(),
+        config=mesh_config(args),
+        data=args.data,
+        device=device,
+        backend=backend,
+    )
     seconds = ", ".join(f"{name} {value:.1f} s" for name, value in report.seconds.items())
     print(
         f"wrote {report.files[0]}: {report.faces} faces, {report.vertices} vertices, "
@@ -124,4 +165,3 @@ def export_main(args) -> int:
     )
     for path in report.files[1:]:
         print(f"wrote {path}")
-    return 0

@@ -10,7 +10,12 @@ ORBIT_FRAMES, ORBIT_FPS = 60, 24  # --views orbit: frames of the circle, and of 
 
 
 def add_relight_parser(parser) -> None:
-    parser.add_argument("--run", type=Path, required=True, help="run folder made by `matspray run`")
+    parser.add_argument(
+        "--run",
+        type=Path,
+        required=True,
+        help="run folder made by `matspray run`, or a .glb made by `matspray export --splats` (--views orbit)",
+    )
     parser.add_argument(
         "--env",
         required=True,
@@ -57,45 +62,24 @@ def relight_run(
 ) -> list[Path]:
     """Render a run's asset under `env` (a light, or a list of them: names or files) for the dataset's test cameras
     or an orbit, on `device` with the rasterizer `backend` (both resolved); returns the files written."""
-    import torch
     from tqdm import tqdm
 
-    from matspray.data import load_run_scene, write_image
+    from matspray.data import write_image
     from matspray.data.formats.video import write_video
     from matspray.data.images import linear_to_srgb
-    from matspray.errors import ConfigError, RunError, optional_module
-    from matspray.method.asset import read_asset
-    from matspray.method.masks import read_region
-    from matspray.method.relight import background_radiance, cameras_up, orbit_cameras, render_relit
+    from matspray.errors import ConfigError, optional_module
+    from matspray.method.relight import background_radiance, render_relit
     from matspray.render.backend import rendering_with
     from matspray.render.shade.envmap import EnvironmentMap
     from matspray.render.shade.lights import load_envmap
-    from matspray.rundir import RunDir
 
-    run = RunDir(run_dir).require()
-    asset_folder = run.asset_path(variant if variant is not None else run.default_variant())
     if frames < 1 or fps < 1 or env_height < 4:
         raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
     if views == "orbit":  # said before any frame is rendered, not after
         optional_module("imageio_ffmpeg", "video", "the orbit's video (relight --views orbit)")
     out_dir = Path(out_dir)
     lights = [load_envmap(spec) for spec in ([env] if isinstance(env, (str, Path)) else env)]  # all read first
-    asset = read_asset(asset_folder, device=device)
-    source = run.dataset()["source"]
-    scene = load_run_scene(run)
-    if views == "test":
-        if not scene.test:
-            raise RunError(f"{source}: the dataset has no test views; use --views orbit")
-        cameras = [(v.name, v.camera) for v in scene.test]
-    else:
-        # a capture without masks: circle its object region, not the middle of everything the photos show
-        region = read_region(run.path("masks"))
-        center = torch.tensor(region.center) if region is not None else scene.bounds.mean(0)
-        reference = [v.camera for v in scene.train]
-        cameras = [
-            (f"orbit_{i:03d}", c)
-            for i, c in enumerate(orbit_cameras(reference, center, frames, up=cameras_up(reference)))
-        ]
+    asset, cameras = relight_source(run_dir, views, variant, frames, device)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name, env_map in lights:
@@ -121,6 +105,51 @@ def relight_run(
             write_video(video_frames, video, fps)
             written.append(video)
     return written
+
+
+def relight_source(run_dir, views: str, variant: str | None, frames: int, device):
+    """The asset to relight and its cameras [(name, Camera)]: of a run folder, or of a .glb that `matspray export
+    --splats` wrote (its orbit only: it holds no dataset)."""
+    from matspray.data import load_run_scene
+    from matspray.errors import ConfigError, RunError, file_error
+    from matspray.method.asset import read_asset
+    from matspray.method.relight import orbit_cameras, spec_cameras
+    from matspray.rundir import RunDir
+
+    if Path(run_dir).suffix.lower() == ".glb":
+        from matspray.export.splats import read_splats_asset
+
+        if variant is not None:
+            raise ConfigError("--variant is for run folders; a .glb holds one asset")
+        splats = read_splats_asset(run_dir, device)
+        if views == "test":
+            raise file_error(Path(run_dir), "holds no test views", "use --views orbit")
+        if not splats.view:
+            raise file_error(Path(run_dir), "records no orbit", "export it again with `matspray export --splats`")
+        return splats.asset, [(f"orbit_{i:03d}", c) for i, c in enumerate(spec_cameras(splats.view, frames))]
+    run = RunDir(run_dir).require()
+    asset = read_asset(run.asset_path(variant if variant is not None else run.default_variant()), device=device)
+    scene = load_run_scene(run)
+    if views == "test":
+        if not scene.test:
+            raise RunError(f"{run.dataset()['source']}: the dataset has no test views; use --views orbit")
+        return asset, [(v.name, v.camera) for v in scene.test]
+    reference, center, up = orbit_reference(run, scene)
+    return asset, [(f"orbit_{i:03d}", c) for i, c in enumerate(orbit_cameras(reference, center, frames, up=up))]
+
+
+def orbit_reference(run, scene):
+    """What a run's orbit circles: its training cameras, the object's centre [3] and the cameras' up [3]."""
+    import torch
+
+    from matspray.method.masks import read_region
+    from matspray.method.relight import cameras_up
+
+    # a capture without masks: circle its object region, not the middle of everything the photos show
+    region = read_region(run.path("masks"))
+    center = torch.tensor(region.center) if region is not None else scene.bounds.mean(0)
+    reference = [v.camera for v in scene.train]
+    return reference, center, cameras_up(reference)
 
 
 def relight_main(args) -> int:

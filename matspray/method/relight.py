@@ -43,16 +43,7 @@ def orbit_cameras(reference: list[Camera], target: Tensor, frames: int = 60, up=
     reference cameras and with their focal lengths and image size (principal point at the centre). The first frame
     looks from the side of the first reference camera."""
     target = torch.as_tensor(target, dtype=torch.float64)
-    up_axis = F.normalize(torch.as_tensor(up, dtype=torch.float64), dim=0)
-    offsets = torch.stack([c.center.double() - target for c in reference])
-    distance = float(offsets.norm(dim=-1).mean())
-    elevation = float(torch.asin((F.normalize(offsets, dim=-1) @ up_axis).clamp(-0.99, 0.99)).mean())
-    # a basis of the plane the orbit turns in: towards the first camera, and its right angle
-    side = offsets[0] - (offsets[0] @ up_axis) * up_axis
-    if float(side.norm()) < 1e-9 * max(distance, 1e-12):  # the first camera looks straight down the axis
-        side = torch.linalg.svd(up_axis[None]).Vh[1]
-    first_axis = F.normalize(side, dim=0)
-    second_axis = torch.linalg.cross(up_axis, first_axis)
+    distance, elevation, first_axis, second_axis, up_axis = orbit_basis(reference, target, up)
     first = reference[0]
     cameras = []
     for i in range(frames):
@@ -68,6 +59,51 @@ def orbit_cameras(reference: list[Camera], target: Tensor, frames: int = 60, up=
         camera.K[0, 2], camera.K[1, 2] = first.width / 2, first.height / 2
         cameras.append(camera)
     return cameras
+
+
+def orbit_basis(reference: list[Camera], target: Tensor, up) -> tuple[float, float, Tensor, Tensor, Tensor]:
+    """The circle `orbit_cameras` turns on: the reference cameras' mean distance from `target` [3] and mean elevation
+    (radians) above the plane normal to `up`, and that plane's axes (towards the first camera, and its right angle)
+    with the unit up axis, [3] float64 each."""
+    target = torch.as_tensor(target, dtype=torch.float64)
+    up_axis = F.normalize(torch.as_tensor(up, dtype=torch.float64), dim=0)
+    offsets = torch.stack([c.center.double() - target for c in reference])
+    distance = float(offsets.norm(dim=-1).mean())
+    elevation = float(torch.asin((F.normalize(offsets, dim=-1) @ up_axis).clamp(-0.99, 0.99)).mean())
+    side = offsets[0] - (offsets[0] @ up_axis) * up_axis
+    if float(side.norm()) < 1e-9 * max(distance, 1e-12):  # the first camera looks straight down the axis
+        side = torch.linalg.svd(up_axis[None]).Vh[1]
+    first_axis = F.normalize(side, dim=0)
+    return distance, elevation, first_axis, torch.linalg.cross(up_axis, first_axis), up_axis
+
+
+def orbit_spec(reference: list[Camera], target: Tensor, up) -> dict:
+    """`orbit_cameras`' circle as plain numbers, for a file or a page: centre, up, the plane's axes (first, second),
+    distance, elevation (radians), and the first reference camera's focal lengths and image size."""
+    distance, elevation, first_axis, second_axis, up_axis = orbit_basis(reference, target, up)
+    first = reference[0]
+    return {
+        "center": [float(x) for x in torch.as_tensor(target, dtype=torch.float64)],
+        "up": up_axis.tolist(),
+        "first": first_axis.tolist(),
+        "second": second_axis.tolist(),
+        "distance": distance,
+        "elevation": elevation,
+        "fx": float(first.K[0, 0]),
+        "fy": float(first.K[1, 1]),
+        "width": int(first.width),
+        "height": int(first.height),
+    }
+
+
+def spec_cameras(spec: dict, frames: int) -> list[Camera]:
+    """The orbit `orbit_spec` describes, `frames` cameras of it (the same as `orbit_cameras` of its references)."""
+    center, up, first = (torch.tensor(spec[k], dtype=torch.float64) for k in ("center", "up", "first"))
+    elevation, width, height = spec["elevation"], spec["width"], spec["height"]
+    eye = center + spec["distance"] * (math.cos(elevation) * first + math.sin(elevation) * up)
+    reference = Camera.look_at(eye, center, up, 2 * math.atan(width / (2 * spec["fx"])), width, height)
+    reference.K[1, 1] = spec["fy"]
+    return orbit_cameras([reference], center, frames, up)
 
 
 def cameras_up(cameras: list[Camera]) -> Tensor:  # -> [3] unit, float64

@@ -1,0 +1,63 @@
+"""The page's folder: index.html, the page's script and the data scripts, nothing that a browser fetches from
+elsewhere (`matspray export --web DIR`)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import torch
+
+from matspray.errors import ConfigError
+from matspray.method.asset import Asset
+from matspray.render.shade.lights import BUILTINS, hdri_files, load_envmap
+from matspray.web.pack import asset_script, lights_script
+
+PACKAGE = Path(__file__).parent
+BUNDLE = PACKAGE / "dist" / "matspray-web.js"  # made by `make setup` (npm: three, esbuild); shipped in the package
+PAGE_SIZE = 512  # pixels of the page's square view
+
+
+def bundle_path() -> Path:
+    if not BUNDLE.is_file():
+        raise ConfigError(
+            f"the page's script {BUNDLE} is not built: `make setup` builds it with npm (three.js and esbuild), "
+            "or run `make web` once node and npm are installed"
+        )
+    return BUNDLE
+
+
+def packaged_lights() -> list[tuple[str, torch.Tensor]]:
+    """Every light MatSpray ships: the built-ins, then the packaged HDRIs (a name a built-in has taken keeps its
+    suffix, as `load_envmap` reaches it)."""
+    names = list(BUILTINS) + [p.stem if p.stem not in BUILTINS else p.name for p in hdri_files().values()]
+    return [(name, load_envmap(name)[1]) for name in names]
+
+
+def page_view(spec: dict, size: int = PAGE_SIZE) -> dict:
+    """The orbit of `method.relight.orbit_spec` for the page's square view of `size` pixels (the same horizontal
+    field of view)."""
+    scale = size / spec["width"]
+    return {**spec, "fx": spec["fx"] * scale, "fy": spec["fy"] * scale, "width": size, "height": size}
+
+
+def write_page(folder, asset: Asset, spec: dict, estimated: torch.Tensor | None = None) -> list[Path]:
+    """Write the page for `asset` into `folder`: its orbit `spec` (`method.relight.orbit_spec`), the `estimated`
+    light [H, 2H, 3] first (when given), then the packaged ones. Returns the files written."""
+    bundle = bundle_path()
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    lights = ([("estimated", estimated)] if estimated is not None else []) + packaged_lights()
+    files = {
+        "index.html": (PACKAGE / "static" / "index.html").read_text(),
+        "asset.js": asset_script(asset, page_view(spec)),
+        "lights.js": lights_script(lights),
+    }
+    written = []
+    for name, text in files.items():
+        (folder / name).write_text(text)
+        written.append(folder / name)
+    shutil.copyfile(bundle, folder / "matspray-web.js")
+    shutil.copyfile(PACKAGE / "static" / "LICENSES.txt", folder / "LICENSES.txt")  # three.js's MIT notice
+    written += [folder / "matspray-web.js", folder / "LICENSES.txt"]
+    return written

@@ -1,0 +1,333 @@
+// `matspray export --web DIR`: the asset relit in the browser on three.js (WebGL 2). The Gaussians' materials and
+// normals are rasterised into a G-buffer and shaded by split-sum image-based lighting, the two passes of
+// `matspray relight`; the light is prefiltered on the page (prefilter.js), so that a dropped .hdr / .exr lights the
+// asset as a packaged one does. window.matspray is the page's interface for scripts (the tests drive it).
+
+import * as THREE from "three";
+import { EXRLoader } from "three/addons/loaders/EXRLoader.js";
+import { HDRLoader } from "three/addons/loaders/HDRLoader.js";
+import { decodeSplats, inflate, views } from "./data.js";
+import { downsampleLatlong, LEVELS, prefilter } from "./prefilter.js";
+import { SCREEN_VERTEX, SPLAT_FRAGMENT, SPLAT_VERTEX, shadeFragment } from "./shaders.js";
+import { sortBackToFront } from "./sort.js";
+import { orbitCamera } from "./orbit.js";
+
+const BACKGROUND = [0.02, 0.02, 0.02]; // linear
+
+function floatTexture(data, width, height) {
+  const texture = new THREE.DataTexture(data, width, height, THREE.RGBAFormat, THREE.FloatType);
+  texture.minFilter = texture.magFilter = THREE.NearestFilter;
+  texture.generateMipmaps = false;
+  texture.needsUpdate = true;
+  return texture;
+}
+
+function rawMaterial(vertexShader, fragmentShader, uniforms) {
+  return new THREE.RawShaderMaterial({
+    glslVersion: THREE.GLSL3,
+    vertexShader,
+    fragmentShader,
+    uniforms,
+    depthTest: false,
+    depthWrite: false,
+  });
+}
+
+// the padded maps of prefilter() stacked into one texture: {texture, places [first row, rows, columns] per map}
+function lightTexture(filtered) {
+  const maps = [...filtered.levels, filtered.irradiance];
+  const width = Math.max(...maps.map((m) => m.cols));
+  const height = maps.reduce((sum, m) => sum + m.rows, 0);
+  const data = new Float32Array(width * height * 4);
+  const places = [];
+  let row = 0;
+  for (const m of maps) {
+    for (let k = 0; k < m.rows; k++) data.set(m.data.subarray(k * m.cols * 4, (k + 1) * m.cols * 4), (row + k) * width * 4);
+    places.push(new THREE.Vector3(row, m.rows, m.cols));
+    row += m.rows;
+  }
+  return { texture: floatTexture(data, width, height), places };
+}
+
+class Viewer {
+  constructor(canvas, asset, lights) {
+    this.canvas = canvas;
+    this.meta = asset.meta;
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false, preserveDrawingBuffer: true, alpha: false });
+    this.renderer.setPixelRatio(1);
+    this.renderer.autoClear = false;
+    this.lights = lights;
+    this.camera = new THREE.Camera(); // the shaders project themselves
+    this.turn = 0;
+    this.exposure = 0;
+    this.explicit = null; // a camera given by a script: {viewmat, K, width, height}
+    this.makeSplats(asset.splats);
+    this.makeShading();
+    this.resize(this.meta.view.width, this.meta.view.height);
+  }
+
+  makeSplats(s) {
+    const geometry = new THREE.InstancedBufferGeometry();
+    const corners = new Float32Array([-1, -1, 0, 1, -1, 0, 1, 1, 0, -1, 1, 0]);
+    geometry.setAttribute("position", new THREE.BufferAttribute(corners, 3));
+    geometry.setIndex([0, 1, 2, 0, 2, 3]);
+    this.order = new THREE.InstancedBufferAttribute(new Float32Array(this.meta.count), 1);
+    this.order.setUsage(THREE.DynamicDrawUsage);
+    geometry.setAttribute("order", this.order);
+    this.means = s.centre;
+    this.splatUniforms = {
+      tCentre: { value: floatTexture(s.centre, s.width, s.height) },
+      tRotation: { value: floatTexture(s.rotation, s.width, s.height) },
+      tScale: { value: floatTexture(s.scale, s.width, s.height) },
+      tBase: { value: floatTexture(s.base, s.width, s.height) },
+      tNormal: { value: floatTexture(s.normal, s.width, s.height) },
+      texWidth: { value: s.width },
+      viewRotation: { value: new THREE.Matrix3() },
+      viewTranslation: { value: new THREE.Vector3() },
+      intrinsics: { value: new THREE.Vector4() },
+      size: { value: new THREE.Vector2() },
+      eye: { value: new THREE.Vector3() },
+    };
+    const material = rawMaterial(SPLAT_VERTEX, SPLAT_FRAGMENT, this.splatUniforms);
+    material.transparent = true;
+    material.side = THREE.DoubleSide; // the quads turn clockwise on screen: image rows run down
+    material.blending = THREE.CustomBlending;
+    material.blendEquation = material.blendEquationAlpha = THREE.AddEquation;
+    material.blendSrc = material.blendSrcAlpha = THREE.OneFactor;
+    material.blendDst = material.blendDstAlpha = THREE.OneMinusSrcAlphaFactor;
+    const mesh = new THREE.Mesh(geometry, material);
+    mesh.frustumCulled = false;
+    this.splatScene = new THREE.Scene();
+    this.splatScene.add(mesh);
+    this.geometry = geometry;
+  }
+
+  makeShading() {
+    const lut = this.lights.lut;
+    this.shadeUniforms = {
+      gBase: { value: null },
+      gNormal: { value: null },
+      gRoughMetal: { value: null },
+      tLut: { value: floatTexture(lut, 32, 32) },
+      tLight: { value: null },
+      levelPlace: { value: [] },
+      levelRoughness: { value: LEVELS },
+      cameraToWorld: { value: new THREE.Matrix3() },
+      intrinsics: this.splatUniforms.intrinsics,
+      size: this.splatUniforms.size,
+      exposure: { value: 1 },
+      background: { value: new THREE.Vector3(...BACKGROUND) },
+    };
+    const screen = new THREE.BufferGeometry();
+    screen.setAttribute("position", new THREE.BufferAttribute(new Float32Array([-1, -1, 0, 3, -1, 0, -1, 3, 0]), 3));
+    const mesh = new THREE.Mesh(screen, rawMaterial(SCREEN_VERTEX, shadeFragment(LEVELS.length), this.shadeUniforms));
+    mesh.frustumCulled = false;
+    this.shadeScene = new THREE.Scene();
+    this.shadeScene.add(mesh);
+  }
+
+  resize(width, height) {
+    if (this.target && this.target.width === width && this.target.height === height) return;
+    this.renderer.setSize(width, height, false);
+    this.canvas.style.width = `${width}px`;
+    this.canvas.style.height = `${height}px`;
+    if (this.target) this.target.dispose();
+    this.target = new THREE.WebGLRenderTarget(width, height, {
+      count: 3,
+      type: THREE.HalfFloatType,
+      format: THREE.RGBAFormat,
+      minFilter: THREE.NearestFilter,
+      magFilter: THREE.NearestFilter,
+      depthBuffer: false,
+    });
+    [this.shadeUniforms.gBase.value, this.shadeUniforms.gNormal.value, this.shadeUniforms.gRoughMetal.value] =
+      this.target.textures;
+  }
+
+  setLight(index) {
+    const light = this.lights.entries[index];
+    if (!light.filtered) light.filtered = lightTexture(prefilter(light.rgb, light.height));
+    this.shadeUniforms.tLight.value = light.filtered.texture;
+    this.shadeUniforms.levelPlace.value = light.filtered.places;
+    this.lightIndex = index;
+  }
+
+  // {viewmat [16] row-major world-to-camera (OpenCV axes), K [fx, fy, cx, cy], width, height}
+  currentCamera() {
+    if (this.explicit) return this.explicit;
+    const { width, height } = this.meta.view;
+    return orbitCamera(this.meta.view, this.turn, width, height);
+  }
+
+  render() {
+    const cam = this.currentCamera();
+    this.resize(cam.width, cam.height);
+    const v = cam.viewmat;
+    const u = this.splatUniforms;
+    u.viewRotation.value.set(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
+    u.viewTranslation.value.set(v[3], v[7], v[11]);
+    u.intrinsics.value.set(...cam.K);
+    u.size.value.set(cam.width, cam.height);
+    // the eye: -R^T t
+    const eye = [0, 1, 2].map((c) => -(v[c] * v[3] + v[4 + c] * v[7] + v[8 + c] * v[11]));
+    u.eye.value.set(...eye);
+    this.shadeUniforms.cameraToWorld.value.set(v[0], v[4], v[8], v[1], v[5], v[9], v[2], v[6], v[10]);
+    this.shadeUniforms.exposure.value = 2 ** this.exposure;
+    const visible = sortBackToFront(this.means, this.meta.count, v, this.order.array);
+    this.order.needsUpdate = true;
+    this.geometry.instanceCount = visible;
+    this.renderer.setRenderTarget(this.target);
+    this.renderer.setClearColor(0x000000, 0);
+    this.renderer.clear(true, false, false);
+    this.renderer.render(this.splatScene, this.camera);
+    this.renderer.setRenderTarget(null);
+    this.renderer.render(this.shadeScene, this.camera);
+  }
+
+  // milliseconds per frame over `frames` frames, each turned by `step` degrees (sorting included), waiting for
+  // each to finish (a pixel read back)
+  // milliseconds to prefilter the current light again (what a dropped file costs besides reading it)
+  timePrefilter() {
+    const light = this.lights.entries[this.lightIndex];
+    const start = performance.now();
+    prefilter(light.rgb, light.height);
+    return performance.now() - start;
+  }
+
+  timeFrames(frames, step) {
+    const gl = this.renderer.getContext();
+    const pixel = new Uint8Array(4);
+    const start = performance.now();
+    for (let i = 0; i < frames; i++) {
+      this.turn += step;
+      this.render();
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);
+    }
+    return (performance.now() - start) / frames;
+  }
+}
+
+// a dropped or chosen .hdr / .exr as a light of LIGHT_HEIGHT rows, or a one-line reason it is not one
+function parseLightFile(name, buffer, height) {
+  const lower = name.toLowerCase();
+  let parsed;
+  let flip = false;
+  if (lower.endsWith(".exr")) {
+    parsed = new EXRLoader().setDataType(THREE.FloatType).parse(buffer);
+    flip = true; // EXRLoader writes rows bottom up
+  } else if (lower.endsWith(".hdr")) {
+    parsed = new HDRLoader().setDataType(THREE.FloatType).parse(buffer);
+  } else {
+    throw new Error(`${name}: not an .hdr or .exr file`);
+  }
+  const { width, height: rows, data } = parsed;
+  if (width !== 2 * rows) throw new Error(`${name}: ${width} x ${rows} is not a lat-long map (width = 2 x height)`);
+  const channels = data.length / (width * rows);
+  const rgb = new Float32Array(width * rows * 3);
+  for (let y = 0; y < rows; y++) {
+    const src = flip ? rows - 1 - y : y;
+    for (let x = 0; x < width; x++) {
+      for (let c = 0; c < 3; c++) {
+        const value = data[(src * width + x) * channels + Math.min(c, channels - 1)];
+        if (!Number.isFinite(value)) throw new Error(`${name}: holds NaN or Inf values`);
+        rgb[(y * width + x) * 3 + c] = Math.max(value, 0);
+      }
+    }
+  }
+  return downsampleLatlong(rgb, rows, width, height);
+}
+
+async function start() {
+  const status = document.getElementById("status");
+  const api = (window.matspray = { ready: false, error: null });
+  try {
+    const asset = window.MATSPRAY_ASSET;
+    const lightData = window.MATSPRAY_LIGHTS;
+    const assetArrays = views(await inflate(asset.data), asset.meta.arrays);
+    const lightArrays = views(await inflate(lightData.data), lightData.arrays);
+    const height = lightData.height;
+    const lights = {
+      lut: lightArrays.lut,
+      entries: lightData.names.map((name, i) => ({ name, height: lightData.heights[i], rgb: lightArrays[name] })),
+    };
+    const viewer = new Viewer(document.getElementById("view"), { meta: asset.meta, splats: decodeSplats(asset.meta, assetArrays) }, lights);
+    const select = document.getElementById("light");
+    const addOption = (name) => select.add(new Option(name, String(select.options.length)));
+    lights.entries.forEach((entry) => addOption(entry.name));
+    const draw = () => requestAnimationFrame(() => viewer.render());
+    const useLight = (index) => {
+      viewer.setLight(index);
+      select.value = String(index);
+      viewer.render();
+    };
+    select.onchange = () => useLight(Number(select.value));
+    const turn = document.getElementById("turn");
+    turn.oninput = () => {
+      viewer.turn = Number(turn.value);
+      viewer.explicit = null;
+      draw();
+    };
+    const exposure = document.getElementById("exposure");
+    exposure.oninput = () => {
+      viewer.exposure = Number(exposure.value);
+      draw();
+    };
+    const addFile = async (file) => {
+      try {
+        const rgb = parseLightFile(file.name, await file.arrayBuffer(), height);
+        lights.entries.push({ name: file.name, height, rgb });
+        addOption(file.name);
+        useLight(lights.entries.length - 1);
+        status.textContent = `lit by ${file.name}`;
+      } catch (error) {
+        status.textContent = String(error.message || error);
+        api.error = status.textContent;
+      }
+    };
+    document.getElementById("file").onchange = (event) => event.target.files[0] && addFile(event.target.files[0]);
+    document.body.addEventListener("dragover", (event) => event.preventDefault());
+    document.body.addEventListener("drop", (event) => {
+      event.preventDefault();
+      if (event.dataTransfer.files.length) addFile(event.dataTransfer.files[0]);
+    });
+    let dragging = null;
+    viewer.canvas.addEventListener("pointerdown", (event) => (dragging = event.clientX));
+    window.addEventListener("pointerup", () => (dragging = null));
+    window.addEventListener("pointermove", (event) => {
+      if (dragging === null) return;
+      viewer.turn = ((viewer.turn + (event.clientX - dragging) * 0.5 + 540) % 360) - 180;
+      dragging = event.clientX;
+      turn.value = String(viewer.turn);
+      viewer.explicit = null;
+      draw();
+    });
+    useLight(0);
+    Object.assign(api, {
+      viewer,
+      lights: () => lights.entries.map((e) => e.name),
+      setLight: (name) => useLight(lights.entries.findIndex((e) => e.name === name)),
+      setCamera: (viewmat, K, width, height) => {
+        viewer.explicit = { viewmat, K, width, height };
+        viewer.render();
+      },
+      setTurn: (degrees) => {
+        viewer.explicit = null;
+        viewer.turn = degrees;
+        viewer.render();
+      },
+      setExposure: (stops) => {
+        viewer.exposure = stops;
+        viewer.render();
+      },
+      timeFrames: (frames, step) => viewer.timeFrames(frames, step),
+      timePrefilter: () => viewer.timePrefilter(),
+      ready: true,
+    });
+    status.textContent = `${asset.meta.count} Gaussians`;
+  } catch (error) {
+    api.error = String(error && error.stack ? error.stack : error);
+    status.textContent = `could not start: ${error.message || error}`;
+  }
+}
+
+start();

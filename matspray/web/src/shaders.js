@@ -1,0 +1,197 @@
+// The two passes of `matspray relight` as GLSL: the Gaussians rasterised into a G-buffer (materials and normals
+// alpha-blended as `render.raster` blends them: EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and
+// skipped below 1/255), then every pixel shaded by split-sum image-based lighting (`render.shade.deferred.shade`).
+// The page draws back to front with premultiplied "over", which sums the same weights as front-to-back blending.
+
+export const SPLAT_VERTEX = /* glsl */ `
+precision highp float;
+precision highp int;
+precision highp sampler2D;
+in vec3 position;
+in float order;
+uniform sampler2D tCentre;   // mean xyz, opacity
+uniform sampler2D tRotation; // unit quaternion w x y z
+uniform sampler2D tScale;    // scales xyz, roughness
+uniform sampler2D tBase;     // linear base colour rgb, metallic
+uniform sampler2D tNormal;   // unit normal xyz
+uniform int texWidth;
+uniform mat3 viewRotation;
+uniform vec3 viewTranslation;
+uniform vec4 intrinsics;     // fx fy cx cy
+uniform vec2 size;           // width height in pixels
+uniform vec3 eye;
+flat out vec2 vCentre;
+flat out vec3 vConic;
+flat out float vOpacity;
+flat out vec3 vBase;
+flat out vec2 vRoughMetal;
+flat out vec3 vNormal;
+
+void main() {
+  int i = int(order);
+  ivec2 uv = ivec2(i % texWidth, i / texWidth);
+  vec4 centre = texelFetch(tCentre, uv, 0);
+  vec3 t = viewRotation * centre.xyz + viewTranslation;
+  float opacity = centre.w;
+  if (t.z <= 0.01 || opacity < 1.0 / 255.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
+  vec4 q = texelFetch(tRotation, uv, 0);
+  vec4 sr = texelFetch(tScale, uv, 0);
+  float w = q.x, x = q.y, y = q.z, z = q.w;
+  mat3 R = mat3(  // columns
+    1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y),
+    2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x),
+    2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y));
+  mat3 M = viewRotation * R * mat3(sr.x, 0.0, 0.0, 0.0, sr.y, 0.0, 0.0, 0.0, sr.z);
+  mat3 sigma = M * transpose(M);  // camera-space covariance
+  float fx = intrinsics.x, fy = intrinsics.y, cx = intrinsics.z, cy = intrinsics.w;
+  float px = t.x / t.z, py = t.y / t.z;
+  float xc = clamp(px, -1.3 * cx / fx, 1.3 * (size.x - cx) / fx);
+  float yc = clamp(py, -1.3 * cy / fy, 1.3 * (size.y - cy) / fy);
+  vec3 a = vec3(fx / t.z, 0.0, -fx * xc / t.z);
+  vec3 b = vec3(0.0, fy / t.z, -fy * yc / t.z);
+  float cxx = dot(a, sigma * a) + 0.3;
+  float cxy = dot(a, sigma * b);
+  float cyy = dot(b, sigma * b) + 0.3;
+  float det = cxx * cyy - cxy * cxy;
+  if (det <= 0.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
+  vConic = vec3(cyy, -cxy, cxx) / det;
+  vCentre = vec2(fx * px + cx, fy * py + cy);
+  // a quad along the footprint's axes, out to where alpha falls to 1/255 (and half a pixel more): the fragments
+  // are what a software rasteriser spends its time on
+  float mid = 0.5 * (cxx + cyy);
+  float root = sqrt(max(mid * mid - det, 0.0));
+  float reach = 2.0 * log(255.0 * opacity);
+  vec2 axis = abs(cxy) > 1e-12 ? normalize(vec2(mid + root - cyy, cxy)) : (cxx >= cyy ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
+  vec2 pixel = vCentre + (position.x * (sqrt(reach * (mid + root)) + 0.5)) * axis
+    + (position.y * (sqrt(reach * max(mid - root, 0.0)) + 0.5)) * vec2(-axis.y, axis.x);
+  gl_Position = vec4(pixel.x / size.x * 2.0 - 1.0, 1.0 - pixel.y / size.y * 2.0, 0.0, 1.0);
+  vOpacity = opacity;
+  vec4 base = texelFetch(tBase, uv, 0);
+  vBase = base.rgb;
+  vRoughMetal = vec2(sr.w, base.w);
+  vec3 n = texelFetch(tNormal, uv, 0).xyz;
+  vNormal = dot(n, eye - centre.xyz) >= 0.0 ? n : -n;  // faces the camera (render.raster.gbuffer.orient_normals)
+}`;
+
+export const SPLAT_FRAGMENT = /* glsl */ `
+precision highp float;
+uniform vec2 size;
+flat in vec2 vCentre;
+flat in vec3 vConic;
+flat in float vOpacity;
+flat in vec3 vBase;
+flat in vec2 vRoughMetal;
+flat in vec3 vNormal;
+layout(location = 0) out vec4 outBase;
+layout(location = 1) out vec4 outNormal;
+layout(location = 2) out vec4 outRoughMetal;
+
+void main() {
+  vec2 d = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y) - vCentre;  // pixel centre, rows from the top
+  float power = -0.5 * (vConic.x * d.x * d.x + vConic.z * d.y * d.y) - vConic.y * d.x * d.y;
+  float alpha = min(0.999, vOpacity * exp(power));
+  if (alpha < 1.0 / 255.0) discard;
+  outBase = vec4(vBase * alpha, alpha);
+  outNormal = vec4(vNormal * alpha, alpha);
+  outRoughMetal = vec4(vRoughMetal * alpha, 0.0, alpha);
+}`;
+
+export const SCREEN_VERTEX = /* glsl */ `
+in vec3 position;
+void main() { gl_Position = vec4(position.xy, 0.0, 1.0); }`;
+
+export function shadeFragment(levelCount) {
+  return /* glsl */ `
+precision highp float;
+precision highp int;
+precision highp sampler2D;
+#define LEVELS ${levelCount}
+uniform sampler2D gBase;
+uniform sampler2D gNormal;
+uniform sampler2D gRoughMetal;
+uniform sampler2D tLut;      // split-sum table: rows n.v, columns roughness, (A, B)
+uniform sampler2D tLight;    // the padded maps, one above another
+uniform vec3 levelPlace[LEVELS + 1];  // first row, rows, columns of each specular level, then the irradiance
+uniform float levelRoughness[LEVELS];
+uniform mat3 cameraToWorld;  // camera axes in world coordinates (columns)
+uniform vec4 intrinsics;
+uniform vec2 size;
+uniform float exposure;      // a factor on the radiance
+uniform vec3 background;     // linear
+out vec4 colour;
+
+vec3 bilinear(vec3 place, vec2 p) {  // texel coordinates, clamped at the border (grid_sample's border padding)
+  p = clamp(p, vec2(0.0), vec2(place.z - 1.0, place.y - 1.0));
+  vec2 f = floor(p);
+  vec2 t = p - f;
+  ivec2 i0 = ivec2(f);
+  ivec2 i1 = min(i0 + 1, ivec2(int(place.z) - 1, int(place.y) - 1));
+  int row = int(place.x);
+  vec3 a = texelFetch(tLight, ivec2(i0.x, row + i0.y), 0).rgb;
+  vec3 b = texelFetch(tLight, ivec2(i1.x, row + i0.y), 0).rgb;
+  vec3 c = texelFetch(tLight, ivec2(i0.x, row + i1.y), 0).rgb;
+  vec3 d = texelFetch(tLight, ivec2(i1.x, row + i1.y), 0).rgb;
+  return mix(mix(a, b, t.x), mix(c, d, t.x), t.y);
+}
+
+vec3 lookup(vec3 place, vec3 dir) {  // envmap.latlong_grids on a padded map
+  float rho = length(dir.xy);
+  float phi = rho < 1e-12 ? 0.0 : atan(dir.y, -dir.x);
+  float theta = atan(rho, dir.z);
+  float width = place.z - 2.0;
+  float x = phi * width / (3.14159265358979 * (width + 1.0));
+  return bilinear(place, vec2((x + 1.0) * 0.5 * (place.z - 1.0), theta / 3.14159265358979 * (place.y - 1.0)));
+}
+
+vec2 lut(float nv, float r) {  // align_corners=False, border
+  vec2 p = clamp(vec2(r, nv) * 32.0 - 0.5, vec2(0.0), vec2(31.0));
+  vec2 f = floor(p);
+  vec2 t = p - f;
+  ivec2 i0 = ivec2(f);
+  ivec2 i1 = min(i0 + 1, ivec2(31));
+  vec2 a = texelFetch(tLut, ivec2(i0.x, i0.y), 0).rg;
+  vec2 b = texelFetch(tLut, ivec2(i1.x, i0.y), 0).rg;
+  vec2 c = texelFetch(tLut, ivec2(i0.x, i1.y), 0).rg;
+  vec2 d = texelFetch(tLut, ivec2(i1.x, i1.y), 0).rg;
+  return mix(mix(a, b, t.x), mix(c, d, t.x), t.y);
+}
+
+vec3 srgb(vec3 x) {
+  x = clamp(x, 0.0, 1.0);
+  return mix(12.92 * x, 1.055 * pow(max(x, vec3(1e-12)), vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x));
+}
+
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  vec4 base = texelFetch(gBase, p, 0);
+  float alpha = base.a;
+  if (alpha <= 0.0) { colour = vec4(srgb(background), 1.0); return; }
+  float cover = max(alpha, 1e-6);
+  vec3 albedo = base.rgb / cover;
+  vec2 rm = texelFetch(gRoughMetal, p, 0).rg / cover;
+  vec3 n = texelFetch(gNormal, p, 0).xyz;
+  n = n / max(length(n), 1e-12);
+  vec2 pixel = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y);
+  vec3 ray = cameraToWorld * vec3((pixel.x - intrinsics.z) / intrinsics.x, (pixel.y - intrinsics.w) / intrinsics.y, 1.0);
+  vec3 wo = -normalize(ray);
+  float nv = dot(n, wo);
+  if (nv < 0.0) { n = -n; nv = -nv; }
+  float r = clamp(rm.x, 0.04, 1.0);
+  float metallic = rm.y;
+  vec2 ab = lut(nv, r);
+  vec3 f0 = 0.04 * (1.0 - metallic) + albedo * metallic;
+  float a = r * r;
+  float s = 1.0 - a;
+  vec3 lobe = mix(n, reflect(-wo, n), pow(s, 1.5) + s * a);
+  // linear between the two levels around r (envmap._level_weights): two lookups, not a loop over every level,
+  // which a SIMD software rasteriser would run for every lane
+  float rc = clamp(r, levelRoughness[0], levelRoughness[LEVELS - 1]);
+  int low = 0;
+  for (int i = 1; i < LEVELS - 1; i++) low += rc >= levelRoughness[i] ? 1 : 0;
+  float t = (rc - levelRoughness[low]) / (levelRoughness[low + 1] - levelRoughness[low]);
+  vec3 specular = (1.0 - t) * lookup(levelPlace[low], lobe) + t * lookup(levelPlace[low + 1], lobe);
+  vec3 irradiance = lookup(levelPlace[LEVELS], n);
+  vec3 rgb = irradiance * albedo * (1.0 - metallic) / 3.14159265358979 + specular * (f0 * ab.x + ab.y);
+  colour = vec4(srgb(rgb * exposure * alpha + background * (1.0 - alpha)), 1.0);
+}`;
+}

@@ -1,0 +1,235 @@
+"""`matspray export --web DIR`: the page's data (quantised within its steps) and the page itself in headless
+chromium with software WebGL, opened from file://: it draws the object, relights it under another light or a
+dropped .exr, matches `matspray relight`'s frame, and its frame time is measured. The browser tests skip, with the
+reason, where chromium, its driver, selenium or the page's script (built by `make setup` with npm) are missing."""
+
+from __future__ import annotations
+
+import base64
+import io
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from matspray.cli import main
+from matspray.method.asset import Asset, read_asset
+from matspray.web.pack import LIGHT_HEIGHT, deflated, page_light, quantise_asset, unpack_asset
+from matspray.web.page import BUNDLE
+from tests.browser import headless_chromium, missing_browser
+from tests.scenes import sky_map, sphere_cameras, sphere_of_disks, write_disk_sphere_run
+
+BACKGROUND = np.array([0.02, 0.02, 0.02])  # the page's, linear (src/main.js)
+PSNR_FLOOR = 30.0  # the issue's target inside the object; measured 57 dB (docs/dev/web.md)
+
+
+def test_the_page_data_keeps_every_value_within_its_step():
+    g, normals, materials = sphere_of_disks(300)
+    materials[:, 3] = torch.rand(300, generator=torch.Generator().manual_seed(0))
+    meta, arrays = quantise_asset(Asset(g, materials, normals))
+    back = unpack_asset(meta, arrays)
+    span = np.array(meta["positionMax"]) - np.array(meta["positionMin"])
+    assert (np.abs(back["means"] - g.means.double().numpy()) <= span / 65535 / 2 + 1e-9).all()
+    log_span = meta["logScaleMax"] - meta["logScaleMin"]
+    assert np.abs(np.log(back["scales"]) - g.log_scales.double().numpy()).max() <= log_span / 65535 / 2 + 1e-9
+    assert np.abs(back["opacities"] - g.opacities.double().numpy()).max() <= 0.5 / 255 + 1e-9
+    assert np.abs(back["roughness"] - materials[:, 3].double().numpy()).max() <= 0.5 / 255 + 1e-9
+    assert np.abs(back["normals"] - normals.double().numpy()).max() <= 0.5 / 32767 + 1e-9
+    # base colour: 8 bits of its sRGB encoding, as glTF textures hold it: half a step there
+    encode = lambda x: np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)  # noqa: E731
+    assert np.abs(encode(back["base_color"]) - encode(materials[:, :3].double().numpy())).max() <= 0.5 / 255 + 1e-6
+    rotation_error = np.minimum(
+        np.abs(back["rotations"] - g.rotations.double().numpy()).max(1),
+        np.abs(back["rotations"] + g.rotations.double().numpy()).max(1),
+    )
+    assert rotation_error.max() < 2 / 32767
+    layout, data = deflated(arrays)
+    assert sum(len(a.tobytes()) for a in arrays.values()) == 32 * 300  # 32 bytes a Gaussian before deflating
+    assert layout["position"] == {"type": "u16", "offset": 0, "length": 900} and len(data) > 0
+
+
+def test_a_light_keeps_its_rows_when_it_has_fewer_than_the_pages():
+    assert page_light(sky_map(16)).shape == (16, 32, 3)
+    assert page_light(torch.ones(128, 256, 3)).shape == (LIGHT_HEIGHT, 2 * LIGHT_HEIGHT, 3)
+
+
+def test_without_its_script_the_page_is_refused_in_one_line_before_any_work(tmp_path, monkeypatch, capsys):
+    import matspray.web.page as page_module
+
+    monkeypatch.setattr(page_module, "BUNDLE", tmp_path / "missing.js")
+    assert main(["export", "--run", str(tmp_path / "no-run"), "--web", str(tmp_path / "web")]) == 2
+    err = capsys.readouterr().err
+    assert "missing.js is not built" in err and "make setup" in err and err.count("\n") == 1
+    assert not (tmp_path / "web").exists()
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    """The disk sphere's run (64 px cameras), its page and `matspray relight`'s orbit frames under the sunset and
+    under the run's own light file, at the page's light resolution: (run, page folder, relight folder)."""
+    reason = missing_browser({BUNDLE: f"the page's script {BUNDLE} is not built (`make setup` builds it with npm)"})
+    if reason is not None:
+        pytest.skip(reason)
+    root = tmp_path_factory.mktemp("web")
+    run = write_disk_sphere_run(root, 1500, sphere_cameras(6, 64), slice(None), slice(0, 1))
+    assert main(["export", "--run", str(run), "--web", str(root / "page")]) == 0
+    estimated = str(run / "asset" / "envmap.exr")
+    relight = ["relight", "--run", str(run), "--env", "sunset", estimated, "--views", "orbit", "--frames", "2"]
+    assert main([*relight, "--env-height", str(LIGHT_HEIGHT), "--out", str(root / "relit"), "--backend", "torch"]) == 0
+    return run, root / "page", root / "relit"
+
+
+@pytest.fixture(scope="module")
+def page(site):
+    driver = headless_chromium(1000, 800)
+    driver.set_script_timeout(300)
+    try:
+        driver.get((site[1] / "index.html").as_uri())  # file://: no server
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            state = driver.execute_script("return window.matspray && [window.matspray.ready, window.matspray.error]")
+            if state and (state[0] or state[1]):
+                break
+            time.sleep(0.2)
+        assert state and state[0], f"the page did not start: {state}"
+        yield driver
+    finally:
+        driver.quit()
+
+
+def frame(driver) -> np.ndarray:  # -> [H, W, 3] the canvas, sRGB in [0, 1]
+    from PIL import Image
+
+    url = driver.execute_script("return document.getElementById('view').toDataURL('image/png')")
+    image = Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB")
+    return np.asarray(image).astype(np.float64) / 255
+
+
+def show(driver, camera, light: str) -> np.ndarray:
+    K = [float(camera.K[0, 0]), float(camera.K[1, 1]), float(camera.K[0, 2]), float(camera.K[1, 2])]
+    driver.execute_script(
+        "window.matspray.setLight(arguments[0]); window.matspray.setCamera(arguments[1], arguments[2], "
+        "arguments[3], arguments[4]);",
+        light,
+        camera.viewmat.double().reshape(-1).tolist(),
+        K,
+        camera.width,
+        camera.height,
+    )
+    return frame(driver)
+
+
+def orbit(run, frames=2):
+    from matspray.cli.relight import relight_source
+
+    return [c for _, c in relight_source(run, "orbit", None, frames, "cpu")[1]]
+
+
+def psnr_inside(a: np.ndarray, b: np.ndarray, inside: np.ndarray) -> float:
+    return -10 * math.log10(max(((a - b)[inside] ** 2).mean(), 1e-12))
+
+
+@pytest.mark.slow
+def test_the_page_opens_from_file_and_draws_the_object(site, page):
+    from matspray.render.raster.rasterize import rasterize
+
+    run, _, _ = site
+    camera = orbit(run)[1]
+    shown = show(page, camera, "estimated")
+    drawn = np.abs(shown - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    asset = read_asset(run / "asset")
+    with torch.no_grad():
+        alpha = rasterize(asset.gaussians, camera, torch.ones(len(asset.gaussians), 1)).alpha.numpy()
+    expected = alpha > 0.05
+    iou = (drawn & expected).sum() / (drawn | expected).sum()
+    assert expected.mean() > 0.2 and iou > 0.9, (drawn.mean(), expected.mean(), iou)
+    assert page.execute_script("return window.matspray.lights()")[:2] == ["estimated", "sky"]
+
+
+@pytest.mark.slow
+def test_the_page_matches_matspray_relight_inside_the_object(site, page):
+    from matspray.data.images import read_image
+
+    run, _, relit = site
+    for i, camera in enumerate(orbit(run)):
+        for light, file_light in (("sunset", "sunset"), ("estimated", "envmap")):
+            rgb, alpha = read_image(relit / f"orbit_{i:03d}_{file_light}.png")
+            inside = alpha.numpy() > 0.99
+            reference = linear_to_srgb_np(rgb.numpy())
+            value = psnr_inside(show(page, camera, light), reference, inside)
+            print(f"\npage against matspray relight, orbit frame {i}, {light}: {value:.1f} dB inside the object")
+            assert inside.mean() > 0.2 and value > PSNR_FLOOR, (i, light, value)
+
+
+@pytest.mark.slow
+def test_another_light_changes_the_picture_and_a_dropped_exr_lights_as_the_packaged_one(site, page):
+    run, _, _ = site
+    camera = orbit(run)[0]
+    names = page.execute_script("return window.matspray.lights()")
+    assert len(names) == 11  # the estimated light, the 4 built-ins, the 6 packaged HDRIs
+    frames = {name: show(page, camera, name) for name in names}
+    city = frames["city"]
+    inside = np.abs(city - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    for a in names:  # every light lights the object, each its own way
+        assert frames[a][inside].mean() > 0.02, a
+        assert all(np.abs(frames[a] - frames[b])[inside].mean() > 0.005 for b in names if b != a), a
+    hdri = Path(__file__).parents[1] / "matspray" / "hdri" / "city.exr"
+    page.execute_script(
+        "const bytes = Uint8Array.from(atob(arguments[0]), (c) => c.charCodeAt(0));"
+        "const data = new DataTransfer(); data.items.add(new File([bytes], 'mine.exr'));"
+        "document.body.dispatchEvent(new DragEvent('drop', {dataTransfer: data, bubbles: true}));",
+        base64.b64encode(hdri.read_bytes()).decode(),
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and "mine.exr" not in page.execute_script("return window.matspray.lights()"):
+        time.sleep(0.2)
+    assert page.execute_script("return window.matspray.error") is None
+    dropped = show(page, camera, "mine.exr")
+    # three.js's EXR decoder against OpenEXR's, the page's area average against MatSpray's
+    assert psnr_inside(dropped, city, inside) > 40
+
+
+@pytest.mark.slow
+def test_a_dropped_file_that_is_no_light_is_refused_in_one_line(site, page):
+    page.execute_script(
+        "const data = new DataTransfer(); data.items.add(new File([new Uint8Array(8)], 'notes.txt'));"
+        "document.body.dispatchEvent(new DragEvent('drop', {dataTransfer: data, bubbles: true}));"
+    )
+    time.sleep(0.5)
+    assert page.execute_script("return window.matspray.error") == "notes.txt: not an .hdr or .exr file"
+    page.execute_script("window.matspray.error = null")
+
+
+@pytest.mark.slow
+def test_frame_time_at_512_pixels(site, page, tmp_path, record_property):
+    """Frames of the page's own 512 x 512 view of 4 000 Gaussians (a sphere of disks about as dense as a trained
+    asset's surface: each pixel under ~20 footprints), turned a little each (sorting included), each waited for. The
+    issue's target is 5 frames per second; what this machine gives is printed and recorded (docs/dev/web.md), and a
+    frame must come within FRAME_LIMIT_S."""
+    from matspray.method.relight import orbit_spec
+    from matspray.web.page import write_page
+
+    g, normals, materials = sphere_of_disks(4000)
+    g.log_scales = torch.tensor([0.05, 0.05, 0.003]).log().expand(4000, 3).clone()
+    spec = orbit_spec(sphere_cameras(6, 64), torch.zeros(3), (0.0, 0.0, 1.0))
+    write_page(tmp_path, Asset(g, materials, normals), spec, sky_map())
+    page.get((tmp_path / "index.html").as_uri())
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not page.execute_script("return window.matspray && window.matspray.ready"):
+        time.sleep(0.2)
+    assert page.execute_script("return document.getElementById('view').width") == 512
+    ms = page.execute_script("return window.matspray.timeFrames(3, 3)")
+    record_property("web_ms_per_frame_512", ms)
+    print(f"\npage frame at 512 x 512, 4 000 Gaussians: {ms:.0f} ms ({1000 / ms:.1f} fps)")
+    assert 0 < ms < FRAME_LIMIT_S * 1000
+
+
+FRAME_LIMIT_S = 10.0  # a loaded 2-core machine with software WebGL; the target (5 fps) is for an idle one
+
+
+def linear_to_srgb_np(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0, 1)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 1e-12), 1 / 2.4) - 0.055)
