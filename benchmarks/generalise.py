@@ -65,6 +65,10 @@ from matspray.rundir import (
     write_text_atomic,
 )
 
+# The sets were drawn while the packaged HDRIs studio-small and venice-sunset were named studio and sunset, names
+# under which `load_envmap` gave the built-in lights: the sets keep drawing those names, so each object keeps the
+# lights it was measured under.
+DRAWN_AS = {"studio-small": "studio", "venice-sunset": "sunset"}
 SET_SEEDS = {"dev": 1000, "eval": 2000}  # object i of a set has seed SET_SEEDS[set] + i
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
 MODELS = (*ERROR_MODELS, "ground-truth")
@@ -85,8 +89,8 @@ def object_set(which: str, count: int, hdris: list[str]) -> list[ObjectSpec]:
         raise ConfigError(f"unknown object set '{which}'; choose one of {', '.join(SET_SEEDS)}")
     if not 1 <= count <= MAX_OBJECTS:
         raise ConfigError(f"--objects must be in [1, {MAX_OBJECTS}], got {count}")
-    train_pool = sorted(hdris) or list(BUILTINS)
-    pool = sorted(set(hdris) | set(BUILTINS))
+    train_pool = sorted(DRAWN_AS.get(name, name) for name in hdris) or list(BUILTINS)
+    pool = sorted(set(train_pool) | set(BUILTINS))
     objects = []
     for index in range(count):
         seed = SET_SEEDS[which] + index

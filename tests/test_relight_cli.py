@@ -56,7 +56,7 @@ def test_a_light_of_negative_radiance_is_refused_in_one_line_naming_the_file(no_
     assert main(["relight", "--run", str(no_prior_run), "--env", "sky", str(light), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err == (
-        f"matspray relight: error: {light}: holds negative radiance (384 values, down to -0.5) "
+        f"matspray relight: error: {light}: holds negative radiance (384 values, 100 % of its energy, down to -0.5) "
         "(a light is >= 0 everywhere: re-export the map without negative values)\n"
     )
     assert not out.exists()  # every light is read before anything is written

@@ -4,7 +4,8 @@ The run-folder glue lives here: which asset, which cameras, which files; `matspr
 
 from pathlib import Path
 
-from matspray.cli.options import VARIANT_HELP, add_compute_arguments, given, refuse
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments, given, hidden_alias, refuse
+from matspray.presets import light_names
 
 ORBIT_FRAMES, ORBIT_FPS = 60, 24  # --views orbit: frames of the circle, and of the video per second
 
@@ -16,8 +17,7 @@ def add_relight_parser(parser) -> None:
         required=True,
         nargs="+",
         metavar="NAME|PATH",
-        help="environment lights, each rendered in turn: a built-in (sky, studio, sunset, overcast), a packaged HDRI "
-        "(city, forest, interior, sunrise) or a lat-long .exr/.hdr file",
+        help=f"environment lights, each rendered in turn: a named light ({light_names()}) or a lat-long .exr/.hdr file",
     )
     parser.add_argument(
         "--views",
@@ -25,7 +25,20 @@ def add_relight_parser(parser) -> None:
         default="test",
         help="test: the dataset's test cameras (default); orbit: a circle around the object, also as MP4",
     )
-    parser.add_argument("--out", type=Path, required=True, help="folder for the PNG frames (and orbit.mp4)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="folder for the frames, VIEW_LIGHT.png (e.g. r_000_sunset.png, orbit_000_sunset.png), and with "
+        "--views orbit a video per light, orbit_LIGHT.mp4",
+    )
+    parser.add_argument(
+        "--resolution",
+        type=int,
+        metavar="PX",
+        help="long side of the frames in pixels (default: the dataset's image size)",
+    )
+    hidden_alias(parser, "--size", "resolution", type=int)  # the name people try; image sizes are --resolution
     parser.add_argument(
         "--variant",
         help=VARIANT_HELP,
@@ -54,19 +67,19 @@ def relight_run(
     env_height: int = 64,
     device="cpu",
     backend: str = "torch",
+    resolution: int | None = None,
 ) -> list[Path]:
     """Render a run's asset under `env` (a light, or a list of them: names or files) for the dataset's test cameras
-    or an orbit, on `device` with the rasterizer `backend` (both resolved); returns the files written."""
-    import torch
+    or an orbit, `resolution` pixels on their long side (None: the dataset's size), on `device` with the rasterizer
+    `backend` (both resolved); returns the files written: VIEW_LIGHT.png, and orbit_LIGHT.mp4 for an orbit."""
     from tqdm import tqdm
 
-    from matspray.data import load_run_scene, write_image
+    from matspray.data import write_image
     from matspray.data.formats.video import write_video
     from matspray.data.images import linear_to_srgb
-    from matspray.errors import ConfigError, RunError, optional_module
+    from matspray.errors import ConfigError, optional_module
     from matspray.method.asset import read_asset
-    from matspray.method.masks import read_region
-    from matspray.method.relight import background_radiance, cameras_up, orbit_cameras, render_relit
+    from matspray.method.relight import background_radiance, render_relit
     from matspray.render.backend import rendering_with
     from matspray.render.shade.envmap import EnvironmentMap
     from matspray.render.shade.lights import load_envmap
@@ -76,26 +89,14 @@ def relight_run(
     asset_folder = run.asset_path(variant if variant is not None else run.default_variant())
     if frames < 1 or fps < 1 or env_height < 4:
         raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
+    if resolution is not None and not 8 <= resolution <= 8192:
+        raise ConfigError(f"--resolution {resolution}: choose 8 to 8192 pixels")
     if views == "orbit":  # said before any frame is rendered, not after
         optional_module("imageio_ffmpeg", "video", "the orbit's video (relight --views orbit)")
     out_dir = Path(out_dir)
     lights = [load_envmap(spec) for spec in ([env] if isinstance(env, (str, Path)) else env)]  # all read first
     asset = read_asset(asset_folder, device=device)
-    source = run.dataset()["source"]
-    scene = load_run_scene(run)
-    if views == "test":
-        if not scene.test:
-            raise RunError(f"{source}: the dataset has no test views; use --views orbit")
-        cameras = [(v.name, v.camera) for v in scene.test]
-    else:
-        # a capture without masks: circle its object region, not the middle of everything the photos show
-        region = read_region(run.path("masks"))
-        center = torch.tensor(region.center) if region is not None else scene.bounds.mean(0)
-        reference = [v.camera for v in scene.train]
-        cameras = [
-            (f"orbit_{i:03d}", c)
-            for i, c in enumerate(orbit_cameras(reference, center, frames, up=cameras_up(reference)))
-        ]
+    cameras = relight_cameras(run, views, frames, resolution)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name, env_map in lights:
@@ -123,6 +124,35 @@ def relight_run(
     return written
 
 
+def relight_cameras(run, views: str, frames: int, resolution: int | None) -> list[tuple]:
+    """(name, Camera) of each frame: the dataset's test views, or an orbit of `frames`; `resolution` pixels on the
+    long side (None: the dataset's size)."""
+    import torch
+
+    from matspray.data import load_run_scene
+    from matspray.errors import RunError
+    from matspray.method.masks import read_region
+    from matspray.method.relight import cameras_up, orbit_cameras
+
+    scene = load_run_scene(run)
+    if views == "test":
+        if not scene.test:
+            raise RunError(f"{run.dataset()['source']}: the dataset has no test views; use --views orbit")
+        cameras = [(v.name, v.camera) for v in scene.test]
+    else:
+        # a capture without masks: circle its object region, not the middle of everything the photos show
+        region = read_region(run.path("masks"))
+        center = torch.tensor(region.center) if region is not None else scene.bounds.mean(0)
+        reference = [v.camera for v in scene.train]
+        cameras = [
+            (f"orbit_{i:03d}", c)
+            for i, c in enumerate(orbit_cameras(reference, center, frames, up=cameras_up(reference)))
+        ]
+    if resolution is None:
+        return cameras
+    return [(name, c.scaled(resolution / max(c.width, c.height))) for name, c in cameras]
+
+
 def relight_main(args) -> int:
     from matspray.device import out_of_memory_as_error
     from matspray.render.backend import compute_target
@@ -143,6 +173,7 @@ def relight_main(args) -> int:
             env_height=args.env_height,
             device=device,
             backend=backend,
+            resolution=args.resolution,
         )
     print(f"wrote {len(written)} files to {args.out}")
     return 0
