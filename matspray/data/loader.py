@@ -74,8 +74,10 @@ def check_split(views: list[View], where: Path, split: str) -> None:
         )
     check_alpha(views, where, split)
     names = [v.name for v in views]
-    if len(set(names)) != len(names):
-        raise DataError(f"{where}: the {split} split has repeated view names")
+    repeated = next((name for name in names if names.count(name) > 1), None)
+    if repeated is not None:  # the readers refuse a file that lists a view twice; this is what slips past them
+        paths = ", ".join(str(v.path or v.name) for v in views if v.name == repeated)
+        raise DataError(f"{where}: the {split} split has {names.count(repeated)} views named '{repeated}' ({paths})")
 
 
 def check_alpha(views: list[View], where: Path, split: str) -> None:
