@@ -19,9 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from matspray.data.loader import load_scene
-from tests.fuzzing import read_or_refuse
+from tests.fuzzing import colmap_model, read_or_refuse
 from tests.test_fuzz_transforms import FUZZ, check_scene
-from tests.test_readers import C2W_GL, FOV_X, write_colmap, write_rgba
+from tests.test_readers import C2W_GL, FOV_X, write_rgba
 
 FEW = settings(FUZZ, max_examples=40)  # each example reads a dataset
 VIEWS = 4
@@ -114,17 +114,8 @@ pycolmap_tests = pytest.mark.skipif(
 
 @pytest.fixture(scope="module")
 def colmap_text():
-    """(dataset folder, the text model's files as written): three images, one camera."""
-    root = Path(tempfile.mkdtemp(prefix="fuzz-repeats-colmap-"))
-    write_colmap(root, n_images=3)
-    import pycolmap
-
-    folder = root / "sparse" / "0"
-    pycolmap.Reconstruction(str(folder)).write_text(str(folder))
-    binaries = {path.name: path.read_bytes() for path in folder.glob("*.bin")}
-    for binary in folder.glob("*.bin"):
-        binary.unlink()
-    return root, {path.name: path.read_text() for path in folder.glob("*.txt")}, binaries
+    """(dataset folder, its text model, its binary model): three images, one camera."""
+    return colmap_model("fuzz-repeats-colmap-")
 
 
 def data_lines(text: str) -> list[str]:
