@@ -153,9 +153,9 @@ def test_codec_ringing_below_zero_is_clamped():
     [
         (
             -1.0,
-            r"holds negative radiance \(1 values, [\d.]+ % of its energy, down to -1\) \(a light is >= 0 everywhere",
+            r"holds negative radiance \(1 value, [\d.]+ % of its energy, down to -1\) \(a light is >= 0 everywhere",
         ),
-        (-0.5, r"holds negative radiance \(1 values, [\d.]+ % of its energy, down to -0.5\)"),
+        (-0.5, r"holds negative radiance \(1 value, [\d.]+ % of its energy, down to -0.5\)"),
         (float("nan"), r"holds 1 NaN or Inf values"),
         (float("inf"), r"holds 1 NaN or Inf values"),
     ],

@@ -214,7 +214,7 @@ def physical_radiance(path: Path, rgb: Tensor) -> Tensor:  # [H, W, 3] -> [H, W,
     count, share = negative_energy(rgb)
     if count == 0:
         return rgb
-    figures = f"{count} values, {100 * share:.3g} % of its energy, down to {float(rgb.min()):.3g}"
+    figures = f"{count} value{'s' * (count != 1)}, {100 * share:.3g} % of its energy, down to {float(rgb.min()):.3g}"
     if share > NEGATIVE_ENERGY_SHARE:
         raise file_error(
             path,
