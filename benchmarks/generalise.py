@@ -69,6 +69,10 @@ from matspray.rundir import (
     write_text_atomic,
 )
 
+# The sets were drawn while the packaged HDRIs studio-small and venice-sunset were named studio and sunset, names
+# under which `load_envmap` gave the built-in lights: the sets keep drawing those names, so each object keeps the
+# lights it was measured under.
+DRAWN_AS = {"studio-small": "studio", "venice-sunset": "sunset"}
 SET_SEEDS = {"dev": 1000, "eval": 2000, "real-dev": 3000, "real-eval": 4000}  # object i: seed SET_SEEDS[set] + i
 REAL_SETS = ("real-dev", "real-eval")  # glTF objects (benchmarks/real_objects.py); the others are procedural
 EVAL_SETS = ("eval", "real-eval")  # run once, with settings chosen on the development sets
@@ -97,8 +101,8 @@ def object_set(which: str, count: int | None, hdris: list[str]) -> list[ObjectSp
     count = (DEFAULT_OBJECTS if assets is None else size) if count is None else count
     if not 1 <= count <= size:
         raise ConfigError(f"--objects must be in [1, {size}] for the set {which}, got {count}")
-    train_pool = sorted(hdris) or list(BUILTINS)
-    pool = sorted(set(hdris) | set(BUILTINS))
+    train_pool = sorted(DRAWN_AS.get(name, name) for name in hdris) or list(BUILTINS)
+    pool = sorted(set(train_pool) | set(BUILTINS))
     objects = []
     for index in range(count):
         seed = SET_SEEDS[which] + index

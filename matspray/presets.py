@@ -19,8 +19,32 @@ The variants are the paper's ablations, one registry that refinement, the CLI, t
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from matspray.errors import ConfigError
+
+# The named lights: the built-in procedural ones (drawn by `matspray.render.shade.lights`) and the packaged HDRIs
+# (`matspray/hdri/*.exr`, named by their stem). No name means two lights: `relight --help`, the viewer's menu and the
+# error for an unknown name all list `light_names()`.
+BUILTIN_LIGHTS = ("sky", "studio", "sunset", "overcast")
+HDRI_FOLDER = Path(__file__).resolve().parent / "hdri"  # package data (pyproject's package-data)
+HDRI_SUFFIXES = (".exr", ".hdr")
+
+
+def packaged_hdris() -> dict[str, Path]:
+    """Name (file stem) -> path of every .exr / .hdr in the package's HDRI folder, sorted by name."""
+    files: dict[str, Path] = {}
+    for path in sorted(HDRI_FOLDER.iterdir()) if HDRI_FOLDER.is_dir() else []:
+        if path.suffix.lower() in HDRI_SUFFIXES and path.stem not in files:
+            files[path.stem] = path
+    return files
+
+
+def light_names() -> str:
+    """The named lights as one phrase for help texts and errors."""
+    hdris = packaged_hdris()
+    return f"built-ins: {', '.join(BUILTIN_LIGHTS)}" + (f"; HDRIs: {', '.join(sorted(hdris))}" if hdris else "")
+
 
 PRESETS = ("test", "demo", "paper")
 METHODS = ("matspray", "paper")  # matspray: the paper plus the additions below; paper: exactly the paper's method

@@ -163,6 +163,21 @@ def held_exclusively(path: Path):
         yield
 
 
+# what a dataset folder holds (matspray.data.loader reads these layouts) and a run folder does not
+DATASET_FILES = ("transforms_train.json", "transforms_test.json", "transforms.json", "train_000", "sparse")
+
+
+def not_a_run(root: Path) -> RunError:
+    """The error for a folder without dataset.json: said to be a dataset, with the `run` that makes a run of it, when
+    it holds a dataset layout; else said to be no run folder."""
+    if any((Path(root) / name).exists() for name in DATASET_FILES):
+        return RunError(
+            f"{root}: is a dataset, not a run folder; make a run of it first with "
+            f"`matspray run --data {root} --out RUN`, then give --run RUN"
+        )
+    return RunError(f"{root}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
+
+
 class RunDir:
     def __init__(self, root):
         self.root = Path(root)
@@ -266,7 +281,7 @@ class RunDir:
     def require(self) -> "RunDir":
         """This folder, after checking that it is a run folder (raises RunError naming the command that makes one)."""
         if not self.path("dataset.json").exists():
-            raise RunError(f"{self.root}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
+            raise not_a_run(self.root)
         return self
 
     def config(self) -> dict:

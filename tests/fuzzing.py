@@ -33,3 +33,22 @@ def read_or_refuse(read: Callable[[], T], path: Path, label: str = "") -> T | No
         return None
     event(f"{label}accepted")
     return result
+
+
+def colmap_model(prefix: str) -> tuple[Path, dict[str, str], dict[str, bytes]]:
+    """A COLMAP dataset of three images and one camera (tests.test_readers.write_colmap) in a new folder, its model
+    as text: (folder, the text files' contents, the binary files' contents, removed from the folder)."""
+    import tempfile
+
+    import pycolmap
+
+    from tests.test_readers import write_colmap
+
+    root = Path(tempfile.mkdtemp(prefix=prefix))
+    write_colmap(root, n_images=3)
+    folder = root / "sparse" / "0"
+    pycolmap.Reconstruction(str(folder)).write_text(str(folder))
+    binaries = {path.name: path.read_bytes() for path in folder.glob("*.bin")}
+    for binary in folder.glob("*.bin"):
+        binary.unlink()
+    return root, {path.name: path.read_text() for path in folder.glob("*.txt")}, binaries

@@ -1,6 +1,7 @@
 """`matspray export`: a run's asset as a textured glTF 2.0 mesh (surface, decimation, atlas, baking, frames)."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -528,3 +529,18 @@ def test_depth_trust_is_low_on_smooth_metal_only():
     assert depth_trust(gaussians, mirror, [camera])[0][centre].max() < 0.05
     assert depth_trust(gaussians, rough_metal, [camera])[0][centre].min() > 0.95
     assert depth_trust(gaussians, dielectric, [camera])[0][centre].min() > 0.95
+
+
+def test_the_progress_bar_names_every_stage(disk_run, tmp_path, capsys, monkeypatch):
+    """Each stage is named when it starts, not at the bar's next refresh: a stage that ends before the bar refreshes
+    (the decimation of a small surface) left the next one, 'silhouettes', unnamed. Refreshes held off here as long
+    as a run takes make every stage such a stage."""
+    import functools
+
+    import matspray.export.export as export
+
+    monkeypatch.setattr(export, "tqdm", functools.partial(export.tqdm, mininterval=1000))
+    assert main(["export", "--run", str(disk_run), "--out", str(tmp_path / "x.glb"), *SMALL]) == 0
+    bar = [part for part in re.split(r"[\r\n]", capsys.readouterr().err) if part.startswith("export:")]
+    for stage in ("surface", "decimate", "silhouettes", "atlas", "bake"):
+        assert any(part.rstrip().endswith(f", {stage}]") for part in bar), (stage, bar)

@@ -7,15 +7,12 @@ scene (tests/test_fuzz_transforms.py: check_scene). A non-unit quaternion is nor
 
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
-
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tests.fuzzing import colmap_model
 from tests.test_fuzz_transforms import FUZZ, load_or_refuse
-from tests.test_readers import write_colmap
 
 pycolmap = pytest.importorskip("pycolmap")
 
@@ -27,14 +24,9 @@ TOKENS = st.sampled_from(
 
 @pytest.fixture(scope="module")
 def model():
-    """(dataset folder, its text files' intact contents)."""
-    root = Path(tempfile.mkdtemp(prefix="fuzz-colmap-"))
-    write_colmap(root, n_images=3)
-    folder = root / "sparse" / "0"
-    pycolmap.Reconstruction(str(folder)).write_text(str(folder))
-    for binary in folder.glob("*.bin"):
-        binary.unlink()  # the text model is what is fuzzed
-    return root, {path.name: path.read_text() for path in folder.glob("*.txt")}
+    """(dataset folder, its text files' intact contents): the text model is what is fuzzed."""
+    root, texts, _ = colmap_model("fuzz-colmap-")
+    return root, texts
 
 
 def replace_token(text: str, line: int, column: int, token: str) -> str:

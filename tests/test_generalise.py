@@ -52,6 +52,15 @@ def test_object_sets_have_disjoint_seeds_and_draw_their_lights():
         object_set("test", 1, HDRIS)
 
 
+def test_object_sets_keep_their_lights_after_the_hdris_were_renamed():
+    """studio-small and venice-sunset were named studio and sunset (names that gave the built-ins): every object of
+    both sets keeps the lights it was measured under."""
+    from matspray.render.shade.lights import hdri_files
+
+    for which in ("dev", "eval"):
+        assert object_set(which, 30, sorted(hdri_files())) == object_set(which, 30, HDRIS)
+
+
 def test_predictor_specs():
     assert [predictor_spec(m) for m in ("paper", "harsh", "outliers", "ground-truth")] == [
         "simulated:paper",

@@ -192,11 +192,13 @@ def test_unknown_layout_lists_what_was_tried(tmp_path):
 @pytest.mark.parametrize("inside", ["", "images"])
 def test_a_folder_of_photos_without_poses_is_pointed_to_structure_from_motion(tmp_path, inside):
     (tmp_path / inside).mkdir(exist_ok=True)
-    write_image(tmp_path / inside / "IMG_0001.JPG", torch.rand(8, 8, 3))
-    hint = f"for photos without camera poses, `matspray colmap {tmp_path / inside} --out DATA` makes a dataset"
-    with pytest.raises(DataError, match="no dataset layout recognised") as refused:
+    for i in range(3):
+        write_image(tmp_path / inside / f"IMG_000{i}.JPG", torch.rand(8, 8, 3))
+    seen = f"{tmp_path}: holds 3 photos{' in images/' if inside else ''} but no camera poses, so it is not a dataset"
+    hint = f"(`matspray colmap {tmp_path / inside} --out DATA` makes a dataset of them, then `matspray run"
+    with pytest.raises(DataError) as refused:
         load_scene(tmp_path)
-    assert hint in str(refused.value)
+    assert str(refused.value).startswith(seen) and hint in str(refused.value)
 
 
 def test_malformed_json(tmp_path):

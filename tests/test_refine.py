@@ -322,3 +322,18 @@ def test_merger_coverage_counts_the_gaussians_the_merger_runs_for(lifted_scene):
     by_hand = sum(int((frozen.coverage[i][frozen.visible_ids[i]] >= 0.05).sum()) for i in range(len(views)))
     assert counts[0.05] == pytest.approx(by_hand / len(views))
     assert counts[0.0] >= counts[0.05] >= counts[0.5]
+
+
+def test_the_metallic_prior_pulls_a_run_without_maps_towards_a_dielectric_and_leaves_the_others(lifted_scene):
+    gaussians, normals, _, views, maps, lifted = lifted_scene
+    inputs = refine_inputs(gaussians, normals, lifted, views, maps)
+    metallic = {}
+    for variant, weight in (("no-prior", 0.0), ("no-prior", 0.3), ("full", 0.0), ("full", 0.3)):
+        config = RefineConfig(
+            iterations=30, variant=variant, envmap_height=8, light_warmup=0, seed=0, metallic_prior_weight=weight
+        )
+        metallic[variant, weight] = refine(inputs, config, progress=False).materials[:, 4]
+    assert float(metallic["no-prior", 0.3].mean()) < float(metallic["no-prior", 0.0].mean()) - 0.02, metallic
+    assert torch.equal(metallic["full", 0.3], metallic["full", 0.0])  # the 2D maps say what is metal there
+    with pytest.raises(Exception, match="metallic_prior_weight: must be >= 0"):
+        RefineConfig(metallic_prior_weight=-1.0)

@@ -56,7 +56,7 @@ def test_a_light_of_negative_radiance_is_refused_in_one_line_naming_the_file(no_
     assert main(["relight", "--run", str(no_prior_run), "--env", "sky", str(light), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err == (
-        f"matspray relight: error: {light}: holds negative radiance (384 values, down to -0.5) "
+        f"matspray relight: error: {light}: holds negative radiance (384 values, 100 % of its energy, down to -0.5) "
         "(a light is >= 0 everywhere: re-export the map without negative values)\n"
     )
     assert not out.exists()  # every light is read before anything is written
@@ -70,3 +70,22 @@ def test_orbit_flags_for_the_test_views_are_refused(no_prior_run, tmp_path, caps
     assert main(["relight", "--run", str(no_prior_run), "--env", "sky", "--out", str(out), "--frames", "10"]) == 2
     assert capsys.readouterr().err == "matspray relight: error: --frames is for --views orbit\n"
     assert not out.exists()
+
+
+def test_resolution_sets_the_frames_long_side_and_the_help_names_the_files_written(no_prior_run, tmp_path, capsys):
+    from matspray.cli import main
+    from matspray.data.images import read_raw
+    from tests.test_newcomer import commands
+
+    help_text = " ".join(commands()["relight"].format_help().split())
+    assert "VIEW_LIGHT.png" in help_text and "orbit_LIGHT.mp4" in help_text and "orbit.mp4" not in help_text
+    for flag, size in (("--resolution", 64), ("--size", 48)):  # --size: the name people try first
+        out = tmp_path / flag
+        assert main(["relight", "--run", str(no_prior_run), "--env", "sky", "--out", str(out), flag, str(size)]) == 0
+        assert read_raw(out / "r_002_sky.png").shape[:2] == (size, size)  # the dataset's views are 32 x 32
+    written = relight_run(no_prior_run, "sky", "orbit", tmp_path / "orbit", frames=2, fps=2, resolution=40)
+    names = [p.name for p in written]
+    assert names == ["orbit_000_sky.png", "orbit_001_sky.png", "orbit_sky.mp4"]
+    assert read_raw(tmp_path / "orbit" / "orbit_000_sky.png").shape[:2] == (40, 40)
+    err = main(["relight", "--run", str(no_prior_run), "--env", "sky", "--out", str(tmp_path), "--resolution", "4"])
+    assert err == 2 and "--resolution 4: choose 8 to 8192 pixels" in capsys.readouterr().err

@@ -2,9 +2,9 @@
 
 from pathlib import Path
 
-from matspray.cli.options import add_compute_arguments, hidden_alias
+from matspray.cli.options import SETTING_FLAGS, add_compute_arguments, finite_float, hidden_alias
 from matspray.cli.settings import add_set_argument
-from matspray.presets import PRESETS
+from matspray.presets import PRESETS, WORKING_SIZE
 
 
 def add_geometry_parser(parser) -> None:
@@ -16,6 +16,7 @@ def add_geometry_parser(parser) -> None:
         default="demo",
         help="sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), paper (512 px, one GPU); default demo",
     )
+    parser.add_argument("--downscale", type=finite_float, help=SETTING_FLAGS["--downscale"][2])  # as `run` reads
     add_set_argument(parser, "geometry.iterations=1000 seed=1")  # the geometry.* settings and the seed, as in `run`
     hidden_alias(parser, "--iterations", "geometry_iterations", type=int)  # --set geometry.iterations=N
     hidden_alias(parser, "--seed", "seed", type=int)  # --set seed=N
@@ -58,7 +59,8 @@ def geometry_main(args) -> int:
     device, backend = compute_target(args.device, args.backend)
     if args.threads:
         torch.set_num_threads(args.threads)
-    scene = load_scene(args.data)
+    # the photos `run` reads: larger ones brought to the preset's working size unless --downscale says otherwise
+    scene = load_scene(args.data, downscale=args.downscale, max_size=WORKING_SIZE[args.preset])
     out = args.out / "geometry"
     with (
         RunDir(args.out).hold(),

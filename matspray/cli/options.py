@@ -330,11 +330,22 @@ def build_config_from_args(args, **fixed):
 COMMAND_FLAGS = {"predict": {"seed": "--seed", "processing_resolution": "--processing-resolution"}}
 
 
-def flag_message(error, command: str | None = None) -> str:
+def flag_message(error, command: str | None = None, flags=None) -> str:
     """An error's one-line message; a SettingError names the flag of `command` that set the setting (`--set KEY`
-    for a research setting)."""
+    for a research setting). `flags`: the options `command` shows, when known: a message never points at a flag the
+    command lacks (`--set downscale` in a command without --downscale is no setting of it, not 'use --downscale')."""
+    own = getattr(error, "flag", None)  # settings.OwnFlagError: --set KEY of a setting that a flag sets
+    if own is not None and flags is not None and own not in flags:
+        return f"--set {error.key}: `matspray {command}` has no such setting ({own} is a flag of `matspray run`)"
     setting = getattr(error, "setting", None)
     if setting is None:
         return str(error)
-    flags = {**FLAG_OF_SETTING, **COMMAND_FLAGS.get(command, {})}
-    return f"{flags.get(setting, f'--set {setting}')}: {error.problem}"
+    flag = {**FLAG_OF_SETTING, **COMMAND_FLAGS.get(command, {})}.get(setting, f"--set {setting}")
+    if flags is not None and flag.split()[0] not in flags:
+        flag = f"--set {setting}" if "--set" in flags else setting
+    return f"{flag}: {error.problem}"
+
+
+def shown_flags(parser) -> set[str]:
+    """The options a command's parser shows in its help (hidden old names are not pointed at)."""
+    return {s for a in parser._actions if a.help != argparse.SUPPRESS for s in a.option_strings}

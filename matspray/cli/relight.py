@@ -4,7 +4,8 @@ The run-folder glue lives here: which asset, which cameras, which files; `matspr
 
 from pathlib import Path
 
-from matspray.cli.options import VARIANT_HELP, add_compute_arguments, given, refuse
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments, given, hidden_alias, refuse
+from matspray.presets import light_names
 
 ORBIT_FRAMES, ORBIT_FPS = 60, 24  # --views orbit: frames of the circle, and of the video per second
 
@@ -21,8 +22,7 @@ def add_relight_parser(parser) -> None:
         required=True,
         nargs="+",
         metavar="NAME|PATH",
-        help="environment lights, each rendered in turn: a built-in (sky, studio, sunset, overcast), a packaged HDRI "
-        "(city, forest, interior, sunrise) or a lat-long .exr/.hdr file",
+        help=f"environment lights, each rendered in turn: a named light ({light_names()}) or a lat-long .exr/.hdr file",
     )
     parser.add_argument(
         "--views",
@@ -30,7 +30,20 @@ def add_relight_parser(parser) -> None:
         default="test",
         help="test: the dataset's test cameras (default); orbit: a circle around the object, also as MP4",
     )
-    parser.add_argument("--out", type=Path, required=True, help="folder for the PNG frames (and orbit.mp4)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="folder for the frames, VIEW_LIGHT.png (e.g. r_000_sunset.png, orbit_000_sunset.png), and with "
+        "--views orbit a video per light, orbit_LIGHT.mp4",
+    )
+    parser.add_argument(
+        "--resolution",
+        type=int,
+        metavar="PX",
+        help="long side of the frames in pixels (default: the dataset's image size)",
+    )
+    hidden_alias(parser, "--size", "resolution", type=int)  # the name people try; image sizes are --resolution
     parser.add_argument(
         "--variant",
         help=VARIANT_HELP,
@@ -59,9 +72,11 @@ def relight_run(
     env_height: int = 64,
     device="cpu",
     backend: str = "torch",
+    resolution: int | None = None,
 ) -> list[Path]:
     """Render a run's asset under `env` (a light, or a list of them: names or files) for the dataset's test cameras
-    or an orbit, on `device` with the rasterizer `backend` (both resolved); returns the files written."""
+    or an orbit, `resolution` pixels on their long side (None: the dataset's size), on `device` with the rasterizer
+    `backend` (both resolved); returns the files written: VIEW_LIGHT.png, and orbit_LIGHT.mp4 for an orbit."""
     from tqdm import tqdm
 
     from matspray.data import write_image
@@ -75,11 +90,15 @@ def relight_run(
 
     if frames < 1 or fps < 1 or env_height < 4:
         raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
+    if resolution is not None and not 8 <= resolution <= 8192:
+        raise ConfigError(f"--resolution {resolution}: choose 8 to 8192 pixels")
     if views == "orbit":  # said before any frame is rendered, not after
         optional_module("imageio_ffmpeg", "video", "the orbit's video (relight --views orbit)")
     out_dir = Path(out_dir)
     lights = [load_envmap(spec) for spec in ([env] if isinstance(env, (str, Path)) else env)]  # all read first
     asset, cameras = relight_source(run_dir, views, variant, frames, device)
+    if resolution is not None:
+        cameras = [(name, c.scaled(resolution / max(c.width, c.height))) for name, c in cameras]
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name, env_map in lights:
@@ -172,6 +191,7 @@ def relight_main(args) -> int:
             env_height=args.env_height,
             device=device,
             backend=backend,
+            resolution=args.resolution,
         )
     print(f"wrote {len(written)} files to {args.out}")
     return 0

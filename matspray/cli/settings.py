@@ -20,6 +20,8 @@ import types
 import typing
 from dataclasses import dataclass, fields, is_dataclass
 
+from matspray.errors import ConfigError
+
 # set by their own flags (or by nothing: the preset's and the seed's copies inside the geometry section)
 OWN_FLAGS = {
     "preset": "--preset",
@@ -260,9 +262,18 @@ def type_name(hint) -> str:
     return getattr(hint, "__name__", str(hint))
 
 
+class OwnFlagError(ConfigError):
+    """`--set KEY` of a setting that a flag sets. Which command was given is the CLI's to say (`options.flag_message`
+    names the flag where the command has it, and `run` where it has not)."""
+
+    def __init__(self, key: str, flag: str):
+        super().__init__(f"--set {key}: has its own flag, {flag}")
+        self.key, self.flag = key, flag
+
+
 def settings_from_overrides(items, preset: str, allowed=None) -> dict:
     """{dotted setting: value} from `--set KEY=VALUE ...` words (`allowed`: a predicate on keys, None = any)."""
-    from matspray.errors import ConfigError, SettingError
+    from matspray.errors import SettingError
 
     table = settings_table()
     settings = {}
@@ -272,7 +283,7 @@ def settings_from_overrides(items, preset: str, allowed=None) -> dict:
         if not sep or not key:
             raise ConfigError(f"--set takes KEY=VALUE, got {item!r} (matspray run --list-settings lists the keys)")
         if key in OWN_FLAGS:
-            raise ConfigError(f"--set {key}: has its own flag, {OWN_FLAGS[key]}")
+            raise OwnFlagError(key, OWN_FLAGS[key])
         if key not in table or (allowed is not None and not allowed(key)):
             raise SettingError(key, "no such setting here (matspray run --list-settings lists them)")
         try:

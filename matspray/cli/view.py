@@ -4,6 +4,7 @@ import argparse
 from pathlib import Path
 
 from matspray.cli.options import add_compute_arguments
+from matspray.presets import light_names
 
 
 def add_view_parser(parser) -> None:
@@ -15,8 +16,8 @@ def add_view_parser(parser) -> None:
         action="extend",
         default=[],
         metavar="FILE|FOLDER",
-        help="HDR lights to offer besides the run's estimated light and the built-ins: .exr/.hdr files, "
-        "or folders of them",
+        help=f"HDR lights to offer besides the run's estimated light and the named lights ({light_names()}): "
+        ".exr/.hdr files, or folders of them",
     )
     parser.add_argument("--port", type=int, default=8080, help="port to serve the page on (default 8080)")
     parser.add_argument(

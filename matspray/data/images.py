@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import re
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,44 @@ LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
 # what the decoders raise on a corrupt or truncated file (pypng's FormatError and ChunkError are
 # Exception subclasses of their own; a truncated scanline shows up as an IndexError)
 DECODER_ERRORS = (OSError, ValueError, SyntaxError, RuntimeError, EOFError, IndexError, KeyError)
+# The most pixels a file may hold: Pillow's guard against decompression bombs (2 x Image.MAX_IMAGE_PIXELS, 179 MP),
+# for every format. A header that claims more is damaged or hostile, and reading it would exhaust the memory.
+MAX_PIXELS = 2 * Image.MAX_IMAGE_PIXELS
+
+
+class TooLarge(ValueError):
+    """A header that claims more than MAX_PIXELS pixels: its (width, height)."""
+
+    def __init__(self, size: tuple[int, int]):
+        super().__init__(f"{size[0]}x{size[1]} pixels")
+        self.size = size
+
+
+def check_pixels(width: int, height: int) -> None:
+    if width * height > MAX_PIXELS:
+        raise TooLarge((width, height))
+
+
+def pillow_header_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) as a JPEG or PNG header claims it, read past Pillow's decompression-bomb guard (no pixel is
+    decoded); None when the header cannot be read."""
+    plugin = Image.OPEN.get(Image.registered_extensions().get(path.suffix.lower(), ""))
+    try:
+        with open(path, "rb") as handle:
+            return tuple(plugin[0](handle, str(path)).size) if plugin else None
+    except (*DECODER_ERRORS, struct.error):
+        return None
+
+
+def too_large_error(path: Path, error: Exception):
+    """The one-line error of a header claiming too many pixels (TooLarge, or Pillow's DecompressionBombError)."""
+    size = getattr(error, "size", None) or pillow_header_size(path)
+    claimed = f"{size[0]}x{size[1]} pixels ({size[0] * size[1] / 1e6:.0f} megapixels)" if size else "too many pixels"
+    return file_error(
+        path,
+        f"its header claims {claimed}, more than the {MAX_PIXELS / 1e6:.0f} megapixels an image may have",
+        "the file is damaged, or too large to read: shrink it",
+    )
 
 
 # ------------------------------------------------------------------------------------------ sRGB
@@ -101,6 +140,10 @@ def read_raw(path, orient: bool = False) -> Tensor:
                 array = np.moveaxis(array, 0, -1)  # CHW -> HWC
         else:
             raise file_error(path, f"unsupported image type '{suffix}'", "use PNG, JPG, EXR or HDR")
+    except (TooLarge, Image.DecompressionBombError) as exc:
+        raise too_large_error(path, exc) from None
+    except MemoryError:
+        raise file_error(path, "cannot read image: not enough memory to hold it", "shrink it") from None
     except DECODER_ERRORS as exc:
         raise file_error(path, f"cannot read image: {exc or type(exc).__name__}") from None
     if array.ndim == 2:
@@ -130,6 +173,8 @@ def image_size(path, orient: bool = False) -> tuple[int, int]:
                 if orient and img.getexif().get(EXIF_ORIENTATION) in EXIF_TRANSPOSED:
                     width, height = height, width
             return width, height
+        except Image.DecompressionBombError as exc:
+            raise too_large_error(path, exc) from None
         except DECODER_ERRORS as exc:
             raise file_error(path, f"cannot read image: {exc or type(exc).__name__}") from None
     values = read_raw(path)
@@ -164,6 +209,7 @@ def _read_png_unchecked(path: Path, png, orient: bool) -> np.ndarray:
     bit_depth = header[24]
     if bit_depth != 16:
         return _read_pillow(path, orient)
+    check_pixels(int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big"))  # IHDR's width, height
     width, height, rows, info = png.Reader(filename=str(path)).asDirect()
     planes = info["planes"]
     array = np.vstack([np.asarray(row, dtype=np.uint16) for row in rows]).reshape(height, width, planes)
@@ -171,6 +217,9 @@ def _read_png_unchecked(path: Path, png, orient: bool) -> np.ndarray:
 
 
 def _read_exr(path: Path) -> np.ndarray:
+    with OpenEXR.File(str(path), header_only=True) as exr:  # the size first: the pixels are allocated as it says
+        (left, top), (right, bottom) = exr.header()["dataWindow"]
+    check_pixels(int(right) - int(left) + 1, int(bottom) - int(top) + 1)
     with OpenEXR.File(str(path), separate_channels=True) as exr:
         channels = {name: np.asarray(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
     if not channels:
@@ -199,6 +248,7 @@ def _read_hdr(path: Path) -> np.ndarray:
     if match is None or match.group(1) != b"-" or match.group(3) != b"+":
         raise ValueError("only '-Y H +X W' orientation is supported")
     height, width = int(match.group(2)), int(match.group(4))
+    check_pixels(width, height)
     buf = np.frombuffer(data, dtype=np.uint8, offset=size_end + 1)
     if height < 1 or width < 1 or height * width > 16 * len(buf):  # RLE stores at most 127 pixels in 8 bytes
         raise ValueError(f"the header says {width}x{height} pixels but {len(buf)} bytes of pixel data follow")

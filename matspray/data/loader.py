@@ -32,20 +32,31 @@ def detect_format(root: Path) -> str:
         return "tensoir"
     if colmap.find_model(root) is not None:
         return "colmap"
+    photos = photo_folder(root)
+    if photos is not None:  # the usual first try: a folder of one's own photos, which have no camera poses yet
+        count = len(photo_files(photos))
+        where = "" if photos == root else f" in {photos.name}/"
+        raise file_error(
+            root,
+            f"holds {count} photo{'s' * (count != 1)}{where} but no camera poses, so it is not a dataset yet",
+            f"`matspray colmap {photos} --out DATA` makes a dataset of them, then `matspray run --data DATA --out RUN`",
+        )
     tried = (
         "tried blender (transforms_train.json), nerfstudio (transforms.json), tensoir (train_000/metadata.json), "
         "colmap (sparse/0/cameras.bin)"
     )
-    photos = photo_folder(root)
-    if photos is not None:  # the usual first try: a folder of one's own photos, which have no camera poses yet
-        tried += f"; for photos without camera poses, `matspray colmap {photos} --out DATA` makes a dataset of them"
     raise file_error(root, "no dataset layout recognised", tried)
+
+
+def photo_files(folder: Path) -> list[Path]:
+    """The JPEG and PNG files directly in `folder`."""
+    return [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES]
 
 
 def photo_folder(root: Path) -> Path | None:
     """`root` or its `images` subfolder when it holds JPEG or PNG photos, else None."""
     for folder in (root, root / "images"):
-        if folder.is_dir() and any(p.suffix.lower() in PHOTO_SUFFIXES for p in folder.iterdir()):
+        if folder.is_dir() and photo_files(folder):
             return folder
     return None
 
@@ -63,8 +74,10 @@ def check_split(views: list[View], where: Path, split: str) -> None:
         )
     check_alpha(views, where, split)
     names = [v.name for v in views]
-    if len(set(names)) != len(names):
-        raise DataError(f"{where}: the {split} split has repeated view names")
+    repeated = next((name for name in names if names.count(name) > 1), None)
+    if repeated is not None:  # the readers refuse a file that lists a view twice; this is what slips past them
+        paths = ", ".join(str(v.path or v.name) for v in views if v.name == repeated)
+        raise DataError(f"{where}: the {split} split has {names.count(repeated)} views named '{repeated}' ({paths})")
 
 
 def check_alpha(views: list[View], where: Path, split: str) -> None:

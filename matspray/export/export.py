@@ -30,7 +30,7 @@ from matspray.method.asset import Asset, read_asset
 from matspray.method.masks import read_region
 from matspray.presets import asset_stage, get_variant
 from matspray.render.backend import rendering_with
-from matspray.rundir import RunDir
+from matspray.rundir import RunDir, not_a_run
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
 # A texel further than this from the asset's rendered depth is hidden in that view. The surface is fused from those
@@ -70,8 +70,10 @@ def mesh_from_asset(
         nonlocal start
         now = time.perf_counter()
         seconds[name], start = round(now - start, 2), now
-        bar.set_postfix_str(following, refresh=False)
         bar.update()
+        # shown now, not at the bar's next refresh: a quick stage's update comes too soon after the last refresh to
+        # print, and the next stage would run unnamed (silhouettes, after the decimation's fraction of a second)
+        bar.set_postfix_str(following, refresh=True)
 
     mesh, voxel, alphas = fuse_surface(
         asset.gaussians,
@@ -208,7 +210,7 @@ def run_asset(run_dir: Path, variant: str) -> Path:
     """The asset folder of `variant` in a run, or a RunError that says how to make it."""
     get_variant(variant)  # an unknown variant: one clear line
     if not (run_dir / "dataset.json").exists():
-        raise RunError(f"{run_dir}: not a MatSpray run folder (no dataset.json); make one with `matspray run`")
+        raise not_a_run(run_dir)
     folder = run_dir / asset_stage(variant)
     if not (folder / "asset.ply").exists():
         raise RunError(

@@ -64,6 +64,7 @@ class Pipeline(RunPlan):
         self._frozen_views: FrozenViews | None = None  # their blending weights, shared by the variants refined
         self._warmed_lights: dict = {}  # light warm-ups, shared by variants that start alike (refine.warm_up_key)
         self._cropped, self._crop_region = False, None  # whether crop() has run, and the region it cut around
+        self._known: set[str] = set()  # stages this pipeline made, or said it reuses: "done before" is said once
 
     def close(self) -> None:
         """Lets the run folder go (see __init__); the pipeline must not write after this."""
@@ -80,16 +81,20 @@ class Pipeline(RunPlan):
         `before()` (what it needs from other stages, outside its timer), then `work(prepared)` (or `work()`) ->
         (settings, record), timed, rendered with the run's backend, out of memory said in one line; the record
         (settings, seconds, what it ran on) is written last, so an interrupted stage never counts as finished. `label`
-        names the stage in lines (default `stage`). Returns whether it ran."""
+        names the stage in lines (default `stage`). "Done before" is said once, and never of what this pipeline made
+        (the stages ask for each other's artifacts more than once). Returns whether it ran."""
         label, where = label or stage, stage_files(stage)
         if self.done(stage, fp):
-            self.log(f"{label}: done before, reusing {where.shown}")
+            if stage not in self._known:
+                self.log(f"{label}: done before, reusing {where.shown}")
+                self._known.add(stage)
             return False
         prepared = (before(),) if before is not None else ()
         with timed() as timer, rendering_with(self.backend) as use, out_of_memory_as_error(label, self.device):
             settings, record = work(*prepared)
         ran = {"device": str(self.device), "backend": self.backend, "renders": use.used()}  # what each call really used
         self.run.finish_stage(where.folder, fp, settings, timer.seconds, {**record, **ran})
+        self._known.add(stage)
         return True
 
     def predict(self):

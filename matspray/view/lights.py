@@ -1,6 +1,7 @@
 """The lights the viewer offers, loaded the way `matspray relight` loads them, and turned about the up axis.
 
-Choices: the run's estimated light (the shown variant's `envmap.exr`), the built-in lights, every HDRI given with
+Choices: the run's estimated light (the shown variant's `envmap.exr`), the named lights (the built-ins and the packaged
+HDRIs, the set `matspray relight --help` lists), every HDRI given with
 `--env` (files, or folders of .exr/.hdr files) and files uploaded from the page. A light is loaded with
 `lights.load_envmap`, brought to `ENV_HEIGHT` rows and prefiltered once, exactly as `relight` does with its default
 `--env-height`, so that the viewer's picture is the picture `relight` writes.
@@ -25,7 +26,7 @@ from matspray.errors import DataError, MatsprayError, file_error
 from matspray.method.asset import ENVMAP_FILE
 from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
 from matspray.render.shade.latlong import pixel_directions
-from matspray.render.shade.lights import BUILTINS, load_envmap
+from matspray.render.shade.lights import list_envmaps, load_envmap
 
 ENV_HEIGHT = 64  # `matspray relight --env-height` default
 ESTIMATED = "estimated (run)"  # the label of the run's own light
@@ -89,9 +90,9 @@ class RotatedLight:
 
 
 def light_choices(files, has_estimate: bool = True) -> list[LightChoice]:
-    """The menu: the run's estimated light, the built-ins, then the files (labelled by name, made unique)."""
+    """The menu: the run's estimated light, the named lights, then the files (labelled by name, made unique)."""
     choices = [LightChoice(ESTIMATED, None)] if has_estimate else []
-    choices += [LightChoice(name, name) for name in BUILTINS]
+    choices += [LightChoice(name, name) for name in list_envmaps()]
     for path in files:
         choices.append(LightChoice(unique_label(path.name, [c.label for c in choices]), str(path)))
     return choices
@@ -113,14 +114,14 @@ class LightLoader:
         self._cache: OrderedDict[str, RotatedLight] = OrderedDict()
 
     def load(self, spec: str | Path) -> RotatedLight:
-        """The light of a built-in name or a .exr/.hdr path (unturned). Raises MatsprayError with a one-line message
+        """The light of a named light or a .exr/.hdr path (unturned). Raises MatsprayError with a one-line message
         naming the file when it cannot be read, is no HDR file, or holds no lat-long map."""
         key = str(spec)
         if key in self._cache:
             self._cache.move_to_end(key)
             return self._cache[key]
         path = Path(key)
-        if key not in BUILTINS and path.suffix.lower() not in HDR_SUFFIXES:
+        if key not in list_envmaps() and path.suffix.lower() not in HDR_SUFFIXES:
             raise file_error(
                 path,
                 f"is not an HDR light ('{path.suffix or 'no suffix'}'); a light is a lat-long .exr or .hdr file",

@@ -16,6 +16,7 @@ from pathlib import Path
 import torch
 
 from matspray.data.camera import Camera, rigid_problem
+from matspray.data.formats.repeats import refuse_repeats, without_suffix
 from matspray.data.images import read_image, write_image
 from matspray.data.scene import View
 from matspray.errors import file_error
@@ -69,6 +70,7 @@ NUMBER_RANGES = {
 }
 CAMERA_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
 FIX_HINT = "fix the file, or the exporter that wrote it"
+REPEAT_HINT = "list each view once: remove the repeated frames"
 
 
 def frame_label(frame: dict, index: int) -> str:
@@ -183,6 +185,15 @@ def read_pose(frame: dict, index: int, json_path: Path) -> torch.Tensor:  # [4, 
     return pose
 
 
+def check_frames(frames: list, json_path: Path) -> None:
+    """Every frame is an object with a `file_path`, and no two frames name one image (two frames of one name in
+    different folders are two views of one name, which `loader.check_split` refuses within a split)."""
+    for index, frame in enumerate(frames):
+        if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
+            raise file_error(json_path, f"frame {index} has no 'file_path'")
+    refuse_repeats(json_path, [without_suffix(frame["file_path"]) for frame in frames], "image", "frames", REPEAT_HINT)
+
+
 def read_split(root: Path, split: str, fit: Callable[[View], View] = lambda view: view) -> list[View]:
     """Views of `transforms_{split}.json` under `root` ([] when the file is absent), each passed through `fit` as it
     is read (`loader.WorkingSize`)."""
@@ -193,10 +204,9 @@ def read_split(root: Path, split: str, fit: Callable[[View], View] = lambda view
     frames = meta.get("frames")
     if not isinstance(frames, list):
         raise file_error(json_path, "no 'frames' list")
+    check_frames(frames, json_path)
     views = []
     for index, frame in enumerate(frames):
-        if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
-            raise file_error(json_path, f"frame {index} has no 'file_path'")
         label = frame_label(frame, index)
         pose = read_pose(frame, index, json_path)
         image_path = resolve_image(root, frame["file_path"], json_path)

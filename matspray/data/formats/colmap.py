@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from matspray.data.formats.repeats import refuse_repeats
 from matspray.data.images import read_image, srgb_to_linear
 from matspray.data.scene import View
 from matspray.data.undistort import Lens, Undistorter
@@ -72,11 +73,12 @@ class _Binary:
         if not all(math.isfinite(v) for v in values):
             raise self.error(f"has NaN or Inf in {what}")
 
-    def name(self, what: str) -> None:
+    def name(self, what: str) -> str:
         end = self.blob.find(b"\0", self.at)
         if end < 0:
             raise self.error(f"ends inside {what}")
-        self.at = end + 1
+        name, self.at = self.blob[self.at : end].decode("utf-8", "replace"), end + 1
+        return name
 
     def error(self, problem: str) -> DataError:
         return file_error(
@@ -94,21 +96,25 @@ def check_binary_model(model_path: Path) -> None:
     """Refuse a damaged cameras.bin, images.bin, points3D.bin, rigs.bin or frames.bin (COLMAP 3.12 and later)
     before pycolmap reads it."""
     if (model_path / "cameras.bin").exists():
-        file = _Binary(model_path / "cameras.bin")
+        file, ids = _Binary(model_path / "cameras.bin"), []
         for i in range(file.count("cameras", 24)):
             camera_id, model_id = file.read("iiQQ", f"camera {i}")[:2]
             if model_id not in MODEL_PARAMS:
                 raise file.error(f"camera {camera_id} has the unknown camera model id {model_id}")
             file.read(f"{MODEL_PARAMS[model_id]}d", f"the parameters of camera {camera_id}")
+            ids.append(camera_id)
         file.done()
+        refuse_repeats(file.path, ids, "camera id", "entries", REPEAT_HINT)
     if (model_path / "images.bin").exists():
-        file = _Binary(model_path / "images.bin")
+        file, ids, names = _Binary(model_path / "images.bin"), [], []
         for i in range(file.count("images", 64)):
             values = file.read("i7di", f"image {i}")
             file.finite(values[1:8], f"the pose of image {values[0]}")
-            file.name(f"the name of image {values[0]}")
+            names.append(file.name(f"the name of image {values[0]}"))
             file.read(f"{file.count(f'points of image {values[0]}', 24) * 3}d", f"the points of image {values[0]}")
+            ids.append(values[0])
         file.done()
+        refuse_repeated_images(file.path, ids, names)
     if (model_path / "points3D.bin").exists():
         file = _Binary(model_path / "points3D.bin")
         for i in range(file.count("points", 43)):
@@ -135,6 +141,40 @@ def check_binary_model(model_path: Path) -> None:
                 "iIQ" * file.count(f"data ids of frame {values[0]}", 16, "I"), f"the data ids of frame {values[0]}"
             )
         file.done()
+
+
+REPEAT_HINT = "each photo once: rerun COLMAP's mapper, or remove the repeated entries"
+
+
+def refuse_repeated_images(path: Path, ids: list, names: list[str]) -> None:
+    """Two entries of one image id, or one photo under two ids (or two names but the suffix, a.jpg and a.png: one
+    view), are refused naming the file; pycolmap keeps one of a repeated id silently, or fails without a word on
+    what."""
+    refuse_repeats(path, ids, "image id", "entries", REPEAT_HINT)
+    refuse_repeats(path, [Path(name).stem for name in names], "photo", "image ids", REPEAT_HINT, labels=ids)
+
+
+def check_text_ids(model_path: Path) -> None:
+    """Refuse a cameras.txt or images.txt that lists one camera or image twice (see refuse_repeated_images)."""
+    for name in ("cameras.txt", "images.txt"):
+        path = model_path / name
+        if not path.exists():
+            continue
+        try:
+            lines = iter(path.read_text(errors="replace").splitlines())
+        except OSError as exc:
+            raise file_error(path, f"cannot be read ({exc.strerror})") from None
+        entries = []
+        for line in lines:  # as COLMAP reads them: blank and comment lines skipped, and in images.txt each entry's
+            if not line.strip() or line.startswith("#"):  # line is followed by its points' line, blank or not
+                continue
+            entries.append(line.split())
+            if name == "images.txt":
+                next(lines, None)
+        if name == "cameras.txt":
+            refuse_repeats(path, [words[0] for words in entries], "camera id", "entries", REPEAT_HINT)
+        else:
+            refuse_repeated_images(path, [words[0] for words in entries], [words[-1] for words in entries])
 
 
 def colmap_lens(camera, model_path: Path) -> Lens:
@@ -191,6 +231,7 @@ def read_colmap(
     if model_path is None:
         raise file_error(root, "no COLMAP model found", "expected sparse/0/cameras.bin or sparse/cameras.bin")
     check_binary_model(model_path)
+    check_text_ids(model_path)
     try:
         reconstruction = pycolmap.Reconstruction(str(model_path))
     except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError subclasses

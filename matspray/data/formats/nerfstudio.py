@@ -13,12 +13,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 from matspray.data.camera import Camera
 from matspray.data.formats.blender import (
     CAMERA_KEYS,
+    REPEAT_HINT,
     camera_number,
+    check_frames,
     frame_intrinsics,
     frame_label,
     intrinsics_record,
@@ -29,6 +31,7 @@ from matspray.data.formats.blender import (
     shown,
     view_name,
 )
+from matspray.data.formats.repeats import normalised, refuse_repeats, without_suffix
 from matspray.data.images import image_size, read_image, read_raw, split_alpha, write_image, write_raw
 from matspray.data.scene import View
 from matspray.data.undistort import Lens, Undistorter
@@ -96,17 +99,6 @@ def frame_lens(meta: dict, frame: dict, label: str, json_path: Path, width: int,
     return Lens.from_K(K, width, height, values, fisheye, model)
 
 
-def normalised(name: str) -> str:
-    return PurePosixPath(str(name).replace("\\", "/")).as_posix().removeprefix("./")
-
-
-def without_suffix(name: str) -> str:
-    """`name` normalised, without its suffix (split lists may omit it); names with no file name ('.')
-    stay as they are."""
-    path = PurePosixPath(normalised(name))
-    return str(path.with_suffix("")) if path.name not in ("", ".", "..") else str(path)
-
-
 def assign_splits(
     meta: dict, paths: list[str], json_path: Path, test_every: int
 ) -> tuple[list[int], list[int], list[str]]:
@@ -122,6 +114,7 @@ def assign_splits(
         names = meta[key]
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise file_error(json_path, f"'{key}' must be a list of file paths")
+        refuse_repeats(json_path, [without_suffix(name) for name in names], "frame", f"'{key}' entries", REPEAT_HINT)
         chosen = []
         for name in names:
             index = lookup.get(normalised(name), lookup.get(without_suffix(name)))
@@ -169,9 +162,7 @@ def read_nerfstudio(root, test_every: int = 8, fit: Callable[[View], View] = lam
     frames = meta.get("frames")
     if not isinstance(frames, list) or not frames:
         raise file_error(json_path, "no 'frames' list" if not isinstance(frames, list) else "has no frames")
-    for index, frame in enumerate(frames):
-        if not isinstance(frame, dict) or not isinstance(frame.get("file_path"), str):
-            raise file_error(json_path, f"frame {index} has no 'file_path'")
+    check_frames(frames, json_path)
     order = sorted(range(len(frames)), key=lambda i: normalised(frames[i]["file_path"]))
     paths = [frames[i]["file_path"] for i in order]
     train_ids, test_ids, notes = assign_splits(meta, paths, json_path, test_every)

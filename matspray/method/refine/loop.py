@@ -115,6 +115,10 @@ class RefineConfig:
     # 0.5: L1, the median, as the paper): 2D models "often predict partial metallicity in certain views" (the paper),
     # which a lower quantile outvotes even where most views have it
     metallic_quantile: float = 0.25
+    # weight of the mean metallic of the Gaussians a step refines, in the variants without the 2D maps (nothing else
+    # tells metal from a dielectric there, and the photo loss alone turns a skull into grey metal): an L1 pull
+    # towards a dielectric that only the photos' evidence of metal outweighs; 0: off (the paper's no-prior baseline)
+    metallic_prior_weight: float = 0.0
     basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
     # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
     variant: str = "full"
@@ -145,6 +149,7 @@ class RefineConfig:
             "normal_lr",
             "normal_prior_weight",
             "predicted_normal_weight",
+            "metallic_prior_weight",
         ):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
@@ -498,6 +503,8 @@ def step_losses(
     if shading is not None and config.normal_prior_weight > 0:
         seen = training.frozen.visible_ids[index]  # the normals this view's photo loss reaches
         terms["normal_prior"] = normal_prior(shading_normals[seen], normals[seen])
+    if config.metallic_prior_weight > 0 and not variant.uses_maps:
+        terms["metallic_prior"] = merged[:, METALLIC_INDEX].mean()
     return terms, total_loss(terms, config)
 
 

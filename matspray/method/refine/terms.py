@@ -246,6 +246,7 @@ def total_loss(terms: dict[str, Tensor], config) -> Tensor:  # config: refine.lo
         "spread": config.basecolor_spread_weight,
         "normal_prior": config.normal_prior_weight,
         "predicted_normals": config.predicted_normal_weight,
+        "metallic_prior": config.metallic_prior_weight,
     }
     weighted = [value if weights[name] == 1.0 else weights[name] * value for name, value in terms.items()]
     total = weighted[0]

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F
@@ -39,6 +40,7 @@ from matspray.errors import ConfigError, DataError, file_error
 from matspray.render.shade.bilinear import bilinear_sample, grid_sample_border
 from matspray.render.shade.brdf import MIN_ROUGHNESS, ggx_ndf, roughness_to_alpha, smith_visibility
 from matspray.render.shade.latlong import pixel_solid_angles
+from matspray.render.shade.lights import physical_radiance
 
 DEFAULT_LEVELS = (MIN_ROUGHNESS, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 PIXELS_PER_LOBE = 2.0  # a level's pixel spans at most alpha / PIXELS_PER_LOBE radians (the GGX lobe ~ alpha wide)
@@ -398,8 +400,10 @@ class EnvironmentMap(nn.Module):
 
     @classmethod
     def from_file(cls, path, height: int | None = None, learnable: bool = False):
-        """Read an EXR/HDR (or LDR, decoded to linear) lat-long map, e.g. for relighting."""
+        """Read an EXR/HDR (or LDR, decoded to linear) lat-long map, e.g. for relighting; a lossy codec's ringing
+        below zero is clamped as `lights.load_envmap` clamps it."""
         rgb, _ = read_image(path)
+        rgb = physical_radiance(Path(path), rgb)
         try:
             return cls.from_tensor(rgb, height, learnable, what="environment map")
         except DataError as exc:

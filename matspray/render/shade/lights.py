@@ -6,18 +6,20 @@ Every map is a lat-long tensor [H, 2H, 3] of linear RGB radiance in the conventi
 1. a built-in procedural map (`sky`, `studio`, `sunset`, `overcast`), made at any height;
 2. a path to a `.exr` / `.hdr` file;
 3. the name of an HDRI that ships in the package (`matspray/hdri/`: six CC0 Poly Haven maps, city, forest,
-   interior, studio, sunrise, sunset; THIRD_PARTY_NOTICES.md).
+   interior, studio-small, sunrise, venice-sunset; THIRD_PARTY_NOTICES.md).
 
-A built-in name wins over a file of the same stem; such a file is still reachable as `studio.exr`.
+No name means two lights (`matspray.presets.BUILTIN_LIGHTS` and the packaged files' stems differ; a test checks).
 
-A file's radiance must be physical: NaN, Inf and negative values beyond a compression codec's ringing are
-refused in one line naming the file; that ringing (a few thousandths below zero) is clamped to 0.
+A file's radiance must be physical: NaN and Inf are refused in one line naming the file, and so is a map whose
+negative values carry more than NEGATIVE_ENERGY_SHARE of its energy. Less than that is a lossy codec's ringing next
+to dark pixels: it is clamped to 0, with one notice line naming the file, the count and the share.
 """
 
 from __future__ import annotations
 
 import math
 import re
+import sys
 from pathlib import Path
 from typing import Callable
 
@@ -26,15 +28,17 @@ from torch import Tensor
 
 from matspray.data.images import HDR_SUFFIXES, read_raw, resize
 from matspray.errors import ConfigError, DataError, file_error
-from matspray.render.shade.latlong import direction_to_uv, pixel_directions
+from matspray.presets import BUILTIN_LIGHTS, HDRI_FOLDER
+from matspray.render.shade.latlong import direction_to_uv, pixel_directions, pixel_solid_angles
 
 DEFAULT_HEIGHT = 128  # working size for rendering: 128 x 256
 BUILTIN_HEIGHT = 256  # when a caller asks for a built-in map at "native" size
 SUPERSAMPLES = 4  # built-ins are averaged over 4 x 4 directions per pixel (small suns stay exact)
-# Lossy EXR codecs (DWAA/DWAB) ring a little below zero next to dark pixels, by thousandths of the map's mean
-# radiance; a map with more negative radiance than this share of its mean is not a light, and is refused.
-NEGATIVE_SHARE = 0.01
-NEGATIVE_FLOOR = 1e-6  # the least tolerance, for maps that are black or nearly so
+# Lossy EXR codecs (DWAA/DWAB) ring a little below zero next to dark pixels. How far below zero depends on the
+# bright pixels beside the dark ones, not on the map's mean (a night map rings as deep as a day map, with a mean a
+# hundred times lower), so a tolerance in values refuses dark maps. What the ringing never is, is energy: a map whose
+# negative values (weighted by solid angle) hold more than this share of its total |radiance| is not a light.
+NEGATIVE_ENERGY_SHARE = 1e-3
 
 
 # ------------------------------------------------------------------------------------------ helpers
@@ -114,12 +118,9 @@ def overcast_radiance(d: Tensor) -> Tensor:  # [..., 3] unit -> [..., 3]
     return ground + (sky - ground) * blend
 
 
-BUILTINS: dict[str, Callable[[Tensor], Tensor]] = {
-    "sky": sky_radiance,
-    "studio": studio_radiance,
-    "sunset": sunset_radiance,
-    "overcast": overcast_radiance,
-}
+BUILTINS: dict[str, Callable[[Tensor], Tensor]] = dict(
+    zip(BUILTIN_LIGHTS, (sky_radiance, studio_radiance, sunset_radiance, overcast_radiance), strict=True)
+)
 # Preference order for relighting lights that differ from a training light.
 RELIGHT_PREFERENCE = ("studio", "sunset", "sky", "overcast")
 
@@ -141,9 +142,6 @@ def default_relight_names(train_name: str, count: int = 2) -> list[str]:
 
 
 # ------------------------------------------------------------------------------------------ files
-HDRI_FOLDER = Path(__file__).resolve().parents[2] / "hdri"  # matspray/hdri: package data (pyproject's package-data)
-
-
 def hdri_folders() -> list[Path]:
     """The folders whose .exr / .hdr files are named lights: the package's own."""
     return [HDRI_FOLDER] if HDRI_FOLDER.is_dir() else []
@@ -185,30 +183,48 @@ def read_envmap_file(path: Path, height: int | None = DEFAULT_HEIGHT) -> Tensor:
             f"is {cols}x{rows} pixels but a lat-long environment map is twice as wide as tall",
             "use an equirectangular (lat-long) panorama",
         )
-    check_physical(path, values[..., :3])
-    env = values[..., :3].clamp_min(0.0).contiguous()
+    env = physical_radiance(path, values[..., :3]).contiguous()
     if height is not None and height != rows:
         check_height(height)
         env = resize(env, height, 2 * height, mode="area").clamp_min(0.0)
     return env.float()
 
 
-def negative_tolerance(rgb: Tensor) -> float:  # [H, W, 3] finite -> how far below 0 a value may be
-    return max(NEGATIVE_SHARE * float(rgb.abs().mean()) if rgb.numel() else 0.0, NEGATIVE_FLOOR)
+def negative_energy(rgb: Tensor) -> tuple[int, float]:  # [H, W, 3] finite lat-long -> (count, share)
+    """How many values are below zero, and the share of the map's energy they hold: sum over the negative values of
+    |L| dw over the sum of |L| dw over all of them (dw: each pixel's solid angle; 0 for an all-black map)."""
+    weights = pixel_solid_angles(rgb.shape[0], rgb.shape[1], dtype=torch.float64)[..., None]  # [H, W, 1]
+    magnitude = rgb.double().abs() * weights
+    negative = rgb < 0
+    total = float(magnitude.sum())
+    return int(negative.sum()), (float(magnitude[negative].sum()) / total if total > 0 else 0.0)
 
 
-def check_physical(path: Path, rgb: Tensor) -> None:
-    """Refuse, naming the file, radiance that is NaN, Inf or negative beyond a codec's ringing (`rgb` [H, W, 3])."""
-    if not torch.isfinite(rgb).all():  # read_raw refuses these already; a reader that does not must not pass them
-        raise file_error(path, "holds NaN or Inf radiance", "re-export the map with finite values")
-    lowest = float(rgb.min()) if rgb.numel() else 0.0
-    if lowest < -negative_tolerance(rgb):
-        count = int((rgb < -negative_tolerance(rgb)).sum())
+_NOTICED: set[str] = set()  # files whose ringing was reported: a light read twice is reported once
+
+
+def physical_radiance(path: Path, rgb: Tensor) -> Tensor:  # [H, W, 3] -> [H, W, 3] >= 0
+    """`rgb` with a codec's ringing clamped to 0 (one notice line per file), or a one-line DataError naming the file
+    when it holds NaN, Inf or negative radiance beyond ringing (more than NEGATIVE_ENERGY_SHARE of its energy)."""
+    finite = torch.isfinite(rgb)
+    if not finite.all():  # read_raw refuses these already; a reader that does not must not pass them
+        raise file_error(
+            path, f"holds {int((~finite).sum())} NaN or Inf values", "re-export the map with finite values"
+        )
+    count, share = negative_energy(rgb)
+    if count == 0:
+        return rgb
+    figures = f"{count} value{'s' * (count != 1)}, {100 * share:.3g} % of its energy, down to {float(rgb.min()):.3g}"
+    if share > NEGATIVE_ENERGY_SHARE:
         raise file_error(
             path,
-            f"holds negative radiance ({count} values, down to {lowest:.3g})",
+            f"holds negative radiance ({figures})",
             "a light is >= 0 everywhere: re-export the map without negative values",
         )
+    if str(path) not in _NOTICED:
+        _NOTICED.add(str(path))
+        print(f"notice: {path}: {figures} below zero, a lossy codec's ringing, clamped to 0", file=sys.stderr)
+    return rgb.clamp_min(0.0)
 
 
 def check_height(height: int) -> None:
@@ -233,10 +249,10 @@ def load_envmap(spec: str | Path, height: int | None = DEFAULT_HEIGHT) -> tuple[
     stem = path.stem if path.suffix.lower() in HDR_SUFFIXES else text
     if stem in packaged and (path.suffix == "" or packaged[stem].suffix.lower() == path.suffix.lower()):
         return envmap_name(packaged[stem]), read_envmap_file(packaged[stem], height)
-    files_note = f"; HDRIs: {', '.join(packaged)}" if packaged else ""
+    files_note = f"; HDRIs: {', '.join(sorted(packaged))}" if packaged else ""
     raise ConfigError(
-        f"unknown environment map '{text}': not a built-in ({', '.join(BUILTINS)}), not an existing .exr/.hdr file"
-        f"{files_note}"
+        f"unknown environment map '{text}': not an existing .exr/.hdr file, nor a named light (built-ins: "
+        f"{', '.join(BUILTINS)}{files_note})"
     )
 
 
