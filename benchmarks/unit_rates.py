@@ -13,8 +13,9 @@ settings and the device's backend (gsplat on CUDA when it loads):
     depend on their values); with `--lift-unfused` also with the rays' response by torch operations;
   - refinement of `full`: the light warm-up and the refinement steps, steps per second (each from two runs that
     differ only in its step count, so that set-up and the frozen views cancel);
-  - the paper preset projected: 30 000 + 10 000 steps, 100 views, 1 000 + 10 000 refinement steps, from these rates
-    (a projection, not a measurement; evaluation not included).
+  - the whole `demo --preset paper` projected from these rates (benchmarks.paper_projection: every stage and
+    variant, the merger at 100 views, the paper's densification schedule, the frozen views, evaluation; a
+    projection, not a measurement), each term labelled with what it was measured on.
 Each figure is one run; the device's name is printed with them.
 """
 
@@ -41,7 +42,6 @@ from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
 from matspray.render.backend import rendering_with, resolve_backend
 
 GAUSSIAN_FIELDS = ("means", "log_scales", "quats", "opacity_logits", "sh")
-PAPER = {"geometry_steps": 30_000, "views": 100, "warmup_steps": 1_000, "refine_steps": 10_000}
 
 
 def synchronized_seconds(device: torch.device, work) -> float:
@@ -148,6 +148,29 @@ def refine_rates(gaussians, views, device, warmup: int, steps: int) -> dict[str,
     return {"light warm-up": warm_rate, "refinement full": refine_rate}
 
 
+def projected(figures: dict, device_name: str) -> dict:
+    """The whole `demo --preset paper` projected (benchmarks.paper_projection) with these rates in place of the
+    committed H200 ones, for both count curves; printed term by term."""
+    from benchmarks import paper_projection
+
+    rates = {
+        **paper_projection.H200,
+        "geometry_rate": figures["geometry_rate"],
+        "rates_gaussians": figures["gaussians"],
+        "refine_rate": figures["refinement full"],
+        "warmup_rate": figures["light warm-up"],
+        "lift_s_per_view": figures["lift_seconds_per_view"],
+        "rates_views": figures["views"],
+    }
+    cpu = paper_projection.cpu_figures()
+    found = {}
+    for final in (paper_projection.H200["stretched_final_gaussians"], build_config("paper").geometry.max_gaussians):
+        terms = paper_projection.project(cpu, final, rates, f"{device_name}, measured now (the rest: H200)")
+        print(paper_projection.report(terms, final), flush=True)
+        found[str(final)] = {t.stage: t.seconds for t in terms}
+    return found
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, required=True, help="a `matspray synth` object")
@@ -210,15 +233,7 @@ def main() -> None:
             figures.update(rates)
             print(", ".join(f"{k} {v:.1f} steps/s" for k, v in rates.items()), flush=True)
     if len(args.units) == 3 and rate is not None:
-        projected = (
-            PAPER["geometry_steps"] / rate
-            + PAPER["views"] * lift_s
-            + PAPER["warmup_steps"] / rates["light warm-up"]
-            + PAPER["refine_steps"] / rates["refinement full"]
-        )
-        figures["paper_preset_projected_seconds"] = projected
-        print(f"paper preset (30 000 steps, 100 views, 1 000 + 10 000 refinement steps) PROJECTED from these rates: "
-              f"{projected:.0f} s, evaluation not included")  # fmt: skip
+        figures["paper_preset_projected"] = projected(figures, name)
     if args.json:
         args.json.write_text(json.dumps(figures, indent=1))
 
