@@ -11,8 +11,9 @@ key (`refine.warm_up_key`) on a tiny object.
 Each term says what it was measured on:
   - "H200": the committed figures of one NVIDIA H200 in docs/dev/gpu.md (`H200` below, each with its table), or
     the rates of a `benchmarks.unit_rates --json` file given with `--rates` (the same machine kind, named there);
-  - "CPU here": measured by this script on this machine at small sizes, used only as a ratio (how the merger's
-    step grows with the views, what a step of each variant costs against `full`'s);
+  - "CPU here": measured by this script on this machine at small sizes, used only as a ratio or scaled: how the
+    merger's step time grows with the views, each variant's step against `full`'s in operations dispatched (a launch
+    each on a GPU, where a step waits on its launches), how many light warm-ups refine runs, proj-average's stage;
   - a model joins them, stated with each term. The total is PROJECTED, not measured.
 
 The Gaussian count on the paper's schedule is not measured (no run of 30 000 steps has been made): the geometry,
@@ -136,31 +137,34 @@ def tiny_inputs(points: int):
     return refine_inputs(torch.device("cpu"), points=points)
 
 
-def variant_step_ratios(variants, points: int = 300, short: int = 4, long: int = 16, repeats: int = 2) -> dict:
-    """Each trained variant's refinement step against `full`'s, on the CPU (backend numba, a tiny object): two runs
-    that differ only in their step count, so the set-up cancels; the least of `repeats`, the variants in turn."""
+def variant_step_ratios(variants, points: int = 300, short: int = 2, long: int = 5) -> dict[str, float]:
+    """Each trained variant's refinement step against `full`'s in operations dispatched (`benchmarks.step_cost`'s
+    count, path gpu: what a CUDA device dispatches, the graphs replayed through the stand-in), on a tiny object: two
+    runs that differ only in their step count, so the set-up cancels. A step on the GPU waits on its launches (one
+    per operation; docs/dev/gpu.md), and a count does not move with the machine's load as a CPU time does."""
+    from benchmarks.graph_replay import graph_stand_in
+    from benchmarks.step_cost import counting, normals_by_torch
+    from matspray.device import capturing_with
     from matspray.method.refine.loop import refine
     from matspray.render.backend import rendering_with
 
     base = build_config("paper").refine
     names = ("full", *[v for v in variants if v != "full" and get_variant(v).trains])
-    found: dict[str, list[float]] = {name: [] for name in names}
-    with rendering_with("numba"):
+    operations = {}
+    cpu = torch.device("cpu")
+    with rendering_with("numba"), normals_by_torch(), capturing_with(graph_stand_in):
         inputs = tiny_inputs(points)
-
-        def run(name: str, iterations: int) -> float:
-            config = replace(base, variant=name, iterations=iterations, light_warmup=1, log_every=10**9)
-            start = time.perf_counter()
-            refine(inputs, config, progress=False)
-            return time.perf_counter() - start
-
         for name in names:
-            run(name, 2)  # first calls: compiled kernels, caches
-        for _ in range(repeats):
-            for name in names:
-                found[name].append((run(name, long) - run(name, short)) / (long - short))
-    step = {name: max(min(values), 1e-9) for name, values in found.items()}
-    return {name: s / step["full"] for name, s in step.items()}
+
+            def run(iterations: int, name=name) -> int:
+                config = replace(base, variant=name, iterations=iterations, light_warmup=1, log_every=10**9)
+                with counting(cpu, without_numba=True) as count:
+                    refine(inputs, config, progress=False)
+                return count.operations
+
+            run(2)  # first calls: compiled kernels, captures
+            operations[name] = max(run(long) - run(short), 1) / (long - short)
+    return {name: ops / operations["full"] for name, ops in operations.items()}
 
 
 def light_warm_ups(variants, points: int = 300) -> int:
@@ -196,7 +200,7 @@ def average_seconds(points: int = 300) -> float:
     return time.perf_counter() - start
 
 
-def cpu_figures(merger_gaussians: int = 2000, points: int = 300, short: int = 4, long: int = 16) -> dict:
+def cpu_figures(merger_gaussians: int = 2000, points: int = 300, short: int = 2, long: int = 5) -> dict:
     """What this script measures on this machine's CPU (small sizes, used as ratios or scaled)."""
     variants = paper_variants()
     return {
@@ -282,7 +286,9 @@ def project(
         )
         how = f"{rates_from}: `full`'s rate at {n} Gaussians"
         how += f", the merger at {size.views} views (its CPU step a + bV)" if uses_merger else ""
-        how += f", x{ratio:.2f} (this variant's step against full's, CPU here)" if name != "full" else ""
+        how += (
+            f", x{ratio:.2f} (its step's operations against full's, counted on the CPU here)" if name != "full" else ""
+        )
         terms.append(Term(f"refine [{name}] ({refine_config.iterations} steps)", seconds, how))
     per_view = rates["demo_unlisted_s"] / (rates["demo_test_views"] * rates["demo_variants"])
     variants = len(paper_variants())
