@@ -29,7 +29,7 @@ if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
     && SITE=/tmp/site:$PWD || { echo "installing the carried wheels failed"; exit 1; }
 fi
 source benchmarks/gsplat_prebuilt/use.sh  # GSPLAT_PREBUILT: an earlier call's build of gsplat, loaded, not compiled
-# Mitsuba cut down to what `synth` renders with (benchmarks/gpu_wheels.sh makes it; 17 MiB packed): the paper-scale
+# Mitsuba cut down to what `synth` renders with (benchmarks/gpu_wheels.sh makes it; 14.6 MiB packed): the paper-scale
 # object is then made here, by paper_scale and `matspray demo --preset paper`, with its cuda_ad_rgb variant
 MITSUBA_ARCHIVE=${GPU_CHECK_MITSUBA:-.gpu-data/mitsuba.tar.xz}
 if [ -f "$MITSUBA_ARCHIVE" ]; then
