@@ -44,7 +44,6 @@ from torch.overrides import TorchFunctionMode
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from benchmarks.graph_replay import OPAQUE, graph_stand_in
-from benchmarks.unit_rates import random_refine_inputs
 from matspray.data.scene import Scene
 from matspray.device import capturing_with
 from matspray.geometry import train as geometry_train
@@ -236,6 +235,19 @@ def geometry_steps(device: torch.device, counter, graphs: bool, points: int = 20
         for iteration in window:
             step(iteration)
     return count, len(window)
+
+
+def random_refine_inputs(gaussians, views, device) -> RefineInputs:
+    """Refinement's inputs for `gaussians` and `views` with random normals, lifted values and 2D maps (seen in every
+    view): what a step costs does not depend on their values."""
+    n, v = len(gaussians), len(views)
+    generator = torch.Generator().manual_seed(1)
+    normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1).to(device)
+    values = torch.rand(n, v, 5, generator=generator).to(device)
+    targets = [torch.rand(x.height, x.width, 5, generator=generator).to(device) for x in views]
+    bounds = torch.stack([gaussians.means.min(0).values, gaussians.means.max(0).values]).detach()
+    seen = torch.ones(n, v, dtype=torch.bool, device=device)
+    return RefineInputs(gaussians, normals, values, seen, views, targets, bounds)
 
 
 def refine_inputs(device: torch.device, points: int = 2000) -> RefineInputs:

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import torch
 
+from benchmarks.step_cost import random_refine_inputs
 from matspray.data.loader import load_scene
 from matspray.device import resolve_device
 from matspray.gaussians import Gaussians
@@ -38,7 +39,7 @@ from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.train import SYNC_EVERY, learning_rates, prepare_views, scene_extent, train_geometry
 from matspray.method.config import build_config
 from matspray.method.lift import lift
-from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
+from matspray.method.refine.loop import RefineConfig, refine
 from matspray.render.backend import rendering_with, resolve_backend
 
 GAUSSIAN_FIELDS = ("means", "log_scales", "quats", "opacity_logits", "sh")
@@ -117,19 +118,6 @@ def save_gaussians(gaussians: Gaussians, path: Path) -> None:
 def load_gaussians(path: Path, device) -> Gaussians:
     tensors = torch.load(path, map_location="cpu")
     return Gaussians(*(tensors[name] for name in GAUSSIAN_FIELDS)).to(device)
-
-
-def random_refine_inputs(gaussians, views, device) -> RefineInputs:
-    """Refinement's inputs for `gaussians` and `views` with random normals, lifted values and 2D maps (seen in every
-    view): what a step costs does not depend on their values."""
-    n, v = len(gaussians), len(views)
-    generator = torch.Generator().manual_seed(1)
-    normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1).to(device)
-    values = torch.rand(n, v, 5, generator=generator).to(device)
-    targets = [torch.rand(x.height, x.width, 5, generator=generator).to(device) for x in views]
-    bounds = torch.stack([gaussians.means.min(0).values, gaussians.means.max(0).values]).detach()
-    seen = torch.ones(n, v, dtype=torch.bool, device=device)
-    return RefineInputs(gaussians, normals, values, seen, views, targets, bounds)
 
 
 def refine_rates(gaussians, views, device, warmup: int, steps: int) -> dict[str, float]:
