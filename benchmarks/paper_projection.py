@@ -200,11 +200,18 @@ def average_seconds(points: int = 300) -> float:
     return time.perf_counter() - start
 
 
-def cpu_figures(merger_gaussians: int = 2000, points: int = 300, short: int = 2, long: int = 5) -> dict:
+def cpu_figures(
+    merger_gaussians: int = 2000,
+    points: int = 300,
+    short: int = 2,
+    long: int = 5,
+    merger_views=(6, 12, 25, 50, 100),
+    repeats: int = 5,
+) -> dict:
     """What this script measures on this machine's CPU (small sizes, used as ratios or scaled)."""
     variants = paper_variants()
     return {
-        "merger": merger_view_scaling(gaussians=merger_gaussians),
+        "merger": merger_view_scaling(merger_views, merger_gaussians, repeats),
         "variant_ratios": variant_step_ratios(variants, points, short, long),
         "warm_ups": light_warm_ups(variants, points),
         "average_seconds": average_seconds(points),

@@ -118,7 +118,7 @@ def test_the_refine_step_model_is_the_measured_step_at_its_size_and_grows_with_v
 
 @pytest.mark.slow
 def test_the_cpu_figures_are_measured():
-    figures = projection.cpu_figures(merger_gaussians=500, points=200, short=2, long=4)
+    figures = projection.cpu_figures(500, 200, short=2, long=3, merger_views=(6, 100), repeats=3)
     merger = figures["merger"]
     assert merger["seconds"][-1] > merger["seconds"][0] and merger["b"] > 0  # 100 views' inputs against 6 views'
     assert set(figures["variant_ratios"]) == {
