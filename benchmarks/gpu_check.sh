@@ -29,6 +29,12 @@ if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
     && SITE=/tmp/site:$PWD || { echo "installing the carried wheels failed"; exit 1; }
 fi
 source benchmarks/gsplat_prebuilt/use.sh  # GSPLAT_PREBUILT: an earlier call's build of gsplat, loaded, not compiled
+# Mitsuba cut down to what `synth` renders with (benchmarks/gpu_wheels.sh makes it; 14.6 MiB packed): the paper-scale
+# object is then made here, by paper_scale and `matspray demo --preset paper`, with its cuda_ad_rgb variant
+MITSUBA_ARCHIVE=${GPU_CHECK_MITSUBA:-.gpu-data/mitsuba.tar.xz}
+if [ -f "$MITSUBA_ARCHIVE" ]; then
+  mkdir -p /tmp/mitsuba-reduced && tar -xJf "$MITSUBA_ARCHIVE" -C /tmp/mitsuba-reduced && SITE=/tmp/mitsuba-reduced:$SITE
+fi
 export PYTHONPATH=$SITE
 python3 -c "import torch; assert torch.cuda.is_available(), 'no CUDA GPU'; print('torch', torch.__version__, 'on', torch.cuda.get_device_name())" \
   || { echo "gpu_check: no CUDA GPU that torch sees; nothing to check"; exit 1; }
@@ -87,10 +93,10 @@ if [ -n "${GPU_CHECK_DEMO_DATA:-}" ] && [ "$(left)" -gt 90 ]; then
   demo_run gsplat "$(( $(left) - 10 ))" full proj-average
 fi
 
-# 4. the paper preset, within what is left. It makes its object with Mitsuba, which the GPU image lacks and which
-# cannot be carried there (its wheel, 62.5 MB, and drjit's, 5 MB, exceed the device tool's 64 MiB per call)
+# 6. the paper preset, within what is left. It makes its object with Mitsuba, which the GPU image lacks: carry
+# .gpu-data/mitsuba.tar.xz (above; its whole wheel, 62.5 MB, and drjit's, 5 MB, exceed the 64 MiB a call carries)
 if ! python3 -c "import mitsuba" 2>/dev/null; then
-  summary+=("paper_scale: not run: Mitsuba is not installed here (it makes the paper-scale object); the device tests that need a Mitsuba object skipped too")
+  summary+=("paper_scale: not run: no Mitsuba here (carry .gpu-data/mitsuba.tar.xz: benchmarks/gpu_wheels.sh); the device tests that need a Mitsuba object skipped too")
 elif [ "$(left)" -gt 60 ]; then
   timeout "$(left)" python3 -m benchmarks.paper_scale --out "$OUT/paper-scale" 2>&1 | grep -v '\r' | tee "$OUT/paper_scale.log"
   summary+=("paper_scale (exit ${PIPESTATUS[0]}, 124 = out of time):")

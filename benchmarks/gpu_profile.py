@@ -7,7 +7,7 @@ most, per Gaussian Splatting step, per refinement step and per lifted view (torc
 On a `matspray synth` object at the paper preset's settings (backend gsplat on CUDA when it loads): Gaussian
 Splatting is trained `--geometry-steps` steps (the paper schedule stretched, densification included); then
   - Gaussian Splatting steps after densification, as `benchmarks.unit_rates --compare-eager` runs them;
-  - refinement steps of `full` on random lifted values (`unit_rates.random_refine_inputs`);
+  - refinement steps of `full` on random lifted values (`step_cost.random_refine_inputs`);
   - lifted views at 16 x 16 rays per pixel.
 Per unit, printed and written to OUT/profile.txt: the wall time per unit (timed without the profiler), the kernels'
 time per unit (the sum of their device time under the profiler, one stream), their ratio (how busy the GPU is), and
@@ -27,13 +27,8 @@ import torch
 from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
 
-from benchmarks.unit_rates import (
-    geometry_rate,
-    load_gaussians,
-    random_refine_inputs,
-    steps_after_densification,
-    synchronized_seconds,
-)
+from benchmarks.step_cost import random_refine_inputs
+from benchmarks.unit_rates import geometry_rate, load_gaussians, steps_after_densification, synchronized_seconds
 from matspray.data.loader import load_scene
 from matspray.device import resolve_device
 from matspray.geometry.train import prepare_views

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -42,7 +43,7 @@ import torch
 from torch.overrides import TorchFunctionMode
 from torch.utils._python_dispatch import TorchDispatchMode
 
-from benchmarks.unit_rates import random_refine_inputs
+from benchmarks.graph_replay import OPAQUE, graph_stand_in
 from matspray.data.scene import Scene
 from matspray.device import capturing_with
 from matspray.geometry import train as geometry_train
@@ -106,47 +107,6 @@ def is_sync(name: str, args, kwargs=None) -> bool:
     return False
 
 
-_OPAQUE = [False]  # within a stand-in for a captured CUDA graph: its operations are one launch, counted as one
-
-
-class _Graphed(torch.autograd.Function):
-    """A function run as one operation each way, as a CUDA graph's replay is one launch (its operations not
-    counted). The function returns a tensor or a tuple of tensors."""
-
-    @staticmethod
-    def forward(ctx, function, *inputs):
-        inputs = [x.detach().clone() for x in inputs]  # a graph's replay copies its inputs into its own buffers
-        _OPAQUE[0] = True
-        try:
-            with torch.enable_grad():
-                leaves = [x.requires_grad_(wanted) for x, wanted in zip(inputs, ctx.needs_input_grad[1:])]
-                out = function(*leaves)
-        finally:
-            _OPAQUE[0] = False
-        outputs = out if isinstance(out, tuple) else (out,)
-        ctx.graph = (outputs, leaves)
-        copies = tuple(o.detach().clone() for o in outputs)
-        return copies if isinstance(out, tuple) else copies[0]
-
-    @staticmethod
-    def backward(ctx, *grads):
-        outputs, leaves = ctx.graph
-        wanted = [x for x in leaves if x.requires_grad]
-        pairs = [(o, g) for o, g in zip(outputs, grads) if o.requires_grad and g is not None]
-        _OPAQUE[0] = True
-        try:
-            found = torch.autograd.grad([o for o, _ in pairs], wanted, [g for _, g in pairs], allow_unused=True)
-            found = iter(found)
-        finally:
-            _OPAQUE[0] = False
-        return (None, *(next(found) if x.requires_grad else None for x in leaves))
-
-
-def graph_stand_in(function, samples):
-    """`ImageTerms`' capture on the CPU: the function as one counted operation each way."""
-    return lambda *inputs: _Graphed.apply(function, *inputs)
-
-
 class _Operations(TorchDispatchMode):
     def __init__(self, count: Count, without_numba: bool):
         super().__init__()
@@ -155,7 +115,7 @@ class _Operations(TorchDispatchMode):
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         name = str(func)
         count = self.count
-        if _OPAQUE[0] or (self.without_numba and _inside_numba()):  # stands in for gsplat's kernels: not counted
+        if OPAQUE[0] or (self.without_numba and _inside_numba()):  # stands in for gsplat's kernels: not counted
             return func(*args, **(kwargs or {}))
         count.operations += 1
         count.by_operation[name] += 1
@@ -186,9 +146,12 @@ NUMBA_FOLDER = str(Path(numba_package.__file__).parent)  # backend numba's packa
 
 
 def _inside_numba() -> bool:
-    import traceback
-
-    return any(frame.filename.startswith(NUMBA_FOLDER) for frame in traceback.extract_stack())
+    frame = sys._getframe(1)  # walked by hand: traceback.extract_stack reads every frame's source line, per operation
+    while frame is not None:
+        if frame.f_code.co_filename.startswith(NUMBA_FOLDER):
+            return True
+        frame = frame.f_back
+    return False
 
 
 CUDA_WAITS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize", "cudaMemcpy")
@@ -274,6 +237,19 @@ def geometry_steps(device: torch.device, counter, graphs: bool, points: int = 20
     return count, len(window)
 
 
+def random_refine_inputs(gaussians, views, device) -> RefineInputs:
+    """Refinement's inputs for `gaussians` and `views` with random normals, lifted values and 2D maps (seen in every
+    view): what a step costs does not depend on their values."""
+    n, v = len(gaussians), len(views)
+    generator = torch.Generator().manual_seed(1)
+    normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1).to(device)
+    values = torch.rand(n, v, 5, generator=generator).to(device)
+    targets = [torch.rand(x.height, x.width, 5, generator=generator).to(device) for x in views]
+    bounds = torch.stack([gaussians.means.min(0).values, gaussians.means.max(0).values]).detach()
+    seen = torch.ones(n, v, dtype=torch.bool, device=device)
+    return RefineInputs(gaussians, normals, values, seen, views, targets, bounds)
+
+
 def refine_inputs(device: torch.device, points: int = 2000) -> RefineInputs:
     scene = tiny_scene(device)
     _, optimizer, *_ = trained_state(scene, device, points)
@@ -315,11 +291,15 @@ UNITS = {"geometry": geometry_steps, "refine": refine_steps, "lift": lift_one_vi
 UNIT_NAMES = {"geometry": "per Gaussian Splatting step", "refine": "per refinement step", "lift": "per lifted view"}
 
 
-def measure(unit: str, path: str, device: torch.device) -> dict:
-    """{operations, kernels, host_syncs, ...} per unit of `unit` on `path` (cpu | gpu | the device's own)."""
+def measure(unit: str, path: str, device: torch.device, graphs: bool | None = None, **sizes) -> dict:
+    """{operations, kernels, host_syncs, ...} per unit of `unit` on `path` (cpu | gpu | the device's own). `graphs`
+    (geometry and refine): the terms as CUDA graphs or not (default: on path cpu not, else so); `sizes`: the unit's
+    own (refine_steps' `short` and `long`)."""
     torch.manual_seed(0)
     counter = partial(counting, device, without_numba=path == "gpu")
-    options = {"graphs": path != "cpu"} if unit in ("geometry", "refine") else {}
+    options = dict(sizes)
+    if unit in ("geometry", "refine"):
+        options["graphs"] = path != "cpu" if graphs is None else graphs
     if device.type == "cuda":
         with rendering_with(resolve_backend("auto", device)):
             count, units = UNITS[unit](device, counter, **options)

@@ -13,8 +13,9 @@ settings and the device's backend (gsplat on CUDA when it loads):
     depend on their values); with `--lift-unfused` also with the rays' response by torch operations;
   - refinement of `full`: the light warm-up and the refinement steps, steps per second (each from two runs that
     differ only in its step count, so that set-up and the frozen views cancel);
-  - the paper preset projected: 30 000 + 10 000 steps, 100 views, 1 000 + 10 000 refinement steps, from these rates
-    (a projection, not a measurement; evaluation not included).
+  - the whole `demo --preset paper` projected from these rates (benchmarks.paper_projection: every stage and
+    variant, the merger at 100 views, the paper's densification schedule, the frozen views, evaluation; a
+    projection, not a measurement), each term labelled with what it was measured on.
 Each figure is one run; the device's name is printed with them.
 """
 
@@ -28,6 +29,7 @@ from pathlib import Path
 
 import torch
 
+from benchmarks.step_cost import random_refine_inputs
 from matspray.data.loader import load_scene
 from matspray.device import resolve_device
 from matspray.gaussians import Gaussians
@@ -37,11 +39,10 @@ from matspray.geometry.optim import GaussianOptimizer
 from matspray.geometry.train import SYNC_EVERY, learning_rates, prepare_views, scene_extent, train_geometry
 from matspray.method.config import build_config
 from matspray.method.lift import lift
-from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
+from matspray.method.refine.loop import RefineConfig, refine
 from matspray.render.backend import rendering_with, resolve_backend
 
 GAUSSIAN_FIELDS = ("means", "log_scales", "quats", "opacity_logits", "sh")
-PAPER = {"geometry_steps": 30_000, "views": 100, "warmup_steps": 1_000, "refine_steps": 10_000}
 
 
 def synchronized_seconds(device: torch.device, work) -> float:
@@ -119,19 +120,6 @@ def load_gaussians(path: Path, device) -> Gaussians:
     return Gaussians(*(tensors[name] for name in GAUSSIAN_FIELDS)).to(device)
 
 
-def random_refine_inputs(gaussians, views, device) -> RefineInputs:
-    """Refinement's inputs for `gaussians` and `views` with random normals, lifted values and 2D maps (seen in every
-    view): what a step costs does not depend on their values."""
-    n, v = len(gaussians), len(views)
-    generator = torch.Generator().manual_seed(1)
-    normals = torch.nn.functional.normalize(torch.randn(n, 3, generator=generator), dim=-1).to(device)
-    values = torch.rand(n, v, 5, generator=generator).to(device)
-    targets = [torch.rand(x.height, x.width, 5, generator=generator).to(device) for x in views]
-    bounds = torch.stack([gaussians.means.min(0).values, gaussians.means.max(0).values]).detach()
-    seen = torch.ones(n, v, dtype=torch.bool, device=device)
-    return RefineInputs(gaussians, normals, values, seen, views, targets, bounds)
-
-
 def refine_rates(gaussians, views, device, warmup: int, steps: int) -> dict[str, float]:
     inputs = random_refine_inputs(gaussians, views, device)
     base: RefineConfig = build_config("paper").refine
@@ -146,6 +134,29 @@ def refine_rates(gaussians, views, device, warmup: int, steps: int) -> dict[str,
     short, long = max(1, steps // 10), steps
     refine_rate = (long - short) / (seconds(1, long) - seconds(1, short))
     return {"light warm-up": warm_rate, "refinement full": refine_rate}
+
+
+def projected(figures: dict, device_name: str) -> dict:
+    """The whole `demo --preset paper` projected (benchmarks.paper_projection) with these rates in place of the
+    committed H200 ones, for both count curves; printed term by term."""
+    from benchmarks import paper_projection
+
+    rates = {
+        **paper_projection.H200,
+        "geometry_rate": figures["geometry_rate"],
+        "rates_gaussians": figures["gaussians"],
+        "refine_rate": figures["refinement full"],
+        "warmup_rate": figures["light warm-up"],
+        "lift_s_per_view": figures["lift_seconds_per_view"],
+        "rates_views": figures["views"],
+    }
+    cpu = paper_projection.cpu_figures()
+    found = {}
+    for final in (paper_projection.H200["stretched_final_gaussians"], build_config("paper").geometry.max_gaussians):
+        terms = paper_projection.project(cpu, final, rates, f"{device_name}, measured now (the rest: H200)")
+        print(paper_projection.report(terms, final), flush=True)
+        found[str(final)] = {t.stage: t.seconds for t in terms}
+    return found
 
 
 def main() -> None:
@@ -210,15 +221,7 @@ def main() -> None:
             figures.update(rates)
             print(", ".join(f"{k} {v:.1f} steps/s" for k, v in rates.items()), flush=True)
     if len(args.units) == 3 and rate is not None:
-        projected = (
-            PAPER["geometry_steps"] / rate
-            + PAPER["views"] * lift_s
-            + PAPER["warmup_steps"] / rates["light warm-up"]
-            + PAPER["refine_steps"] / rates["refinement full"]
-        )
-        figures["paper_preset_projected_seconds"] = projected
-        print(f"paper preset (30 000 steps, 100 views, 1 000 + 10 000 refinement steps) PROJECTED from these rates: "
-              f"{projected:.0f} s, evaluation not included")  # fmt: skip
+        figures["paper_preset_projected"] = projected(figures, name)
     if args.json:
         args.json.write_text(json.dumps(figures, indent=1))
 

@@ -38,19 +38,31 @@ def response_inputs(seed: int, n: int, width: int, height: int, pairs: int, side
     return frame, opacities, owner, pixel_ids, width, K.to(device), sub_x.to(device), sub_y.to(device)
 
 
+def torch_response(*inputs) -> tuple[torch.Tensor, torch.Tensor]:
+    """`_max_response` by torch operations: the reference the kernel is held to (with `FUSED` on, `_max_response`
+    calls the kernel itself on a CUDA device and in the simulator)."""
+    saved = contributions.FUSED[0]
+    try:
+        contributions.FUSED[0] = False
+        return _max_response(*inputs)
+    finally:
+        contributions.FUSED[0] = saved
+
+
 SIMULATED = """
 import torch
 from matspray.method.lift import LiftConfig, footprint_alpha, traced_entries
 from matspray.render.rays import contributions
 from matspray.render.rays import cuda as cuda_rays
 from matspray.render.settings import RasterSettings
-from tests.test_cuda_rays import response_inputs
+from tests.test_cuda_rays import response_inputs, torch_response
 from tests.test_lift_numba import dense_scene, sorted_entries
 
 inputs = response_inputs(0, 30, 9, 7, 40, 3)
 got = cuda_rays.max_response(*inputs, 1.3)
 assert got is not None, cuda_rays._STATE
-expected = contributions._max_response(*inputs, 1.3)
+expected = torch_response(*inputs, 1.3)
+assert contributions.FUSED[0]
 for a, b in zip(got, expected):
     torch.testing.assert_close(a, b, rtol=1e-14, atol=0)
 # the entries a view gives, with the kernel (simulated) and without
@@ -87,12 +99,7 @@ def test_the_kernel_gives_the_torch_response_and_entries_on_the_device(device):
     inputs = response_inputs(3, 400, 61, 47, 5000, 16, device)
     got = max_response(*inputs, 1.0)
     assert got is not None, "the kernel did not run"
-    saved = contributions.FUSED[0]
-    try:
-        contributions.FUSED[0] = False
-        expected = _max_response(*inputs, 1.0)
-    finally:
-        contributions.FUSED[0] = saved
+    expected = torch_response(*inputs, 1.0)
     # the same float64 arithmetic, rounded in another place where the compiler fuses a product and a sum; for a thin
     # Gaussian the whitened distance is a difference of terms of 1e5 and more, which either version knows only to
     # about 1e-11 (seen on an H200: 9e-12 relative, 2.5e-12 absolute, on 0.2 % of the values)
@@ -104,6 +111,7 @@ def test_the_kernel_gives_the_torch_response_and_entries_on_the_device(device):
     config = LiftConfig(samples_per_side=8)
     core = footprint_alpha(gaussians.opacities.detach(), config, RasterSettings().max_alpha)
     fused = sorted_entries(*traced_entries(gaussians, camera, None, config, RasterSettings(), core))
+    saved = contributions.FUSED[0]
     try:
         contributions.FUSED[0] = False
         eager = sorted_entries(*traced_entries(gaussians, camera, None, config, RasterSettings(), core))
