@@ -327,7 +327,8 @@ def test_protocol_end_to_end_shares_geometry(tmp_path, capsys):
     paper_run = next(runs.glob("paper-paper-*"))  # a configuration other than the default has run folders of its own
     truth_run = runs / paper_run.name.replace("paper-paper-", "ground-truth-paper-")
     assert f"geometry shared from {paper_run.name}" in printed
-    assert "error model `paper` (SIMULATED predictor)" in printed and "error model `ground-truth`" in printed
+    assert "error model `paper` (SIMULATED predictor; unaligned PSNR)" in printed
+    assert "error model `ground-truth`" in printed
     record = [json.loads((run / "geometry" / "stage.json").read_text()) for run in (paper_run, truth_run)]
     assert record[0] == record[1]  # one geometry, reused by the second model's pipeline
     assert "geometry" not in json.loads((truth_run / "timings.json").read_text())  # not trained again
