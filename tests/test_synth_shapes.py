@@ -181,5 +181,5 @@ def test_camera_layout_is_checked_and_kept_out_of_older_objects_identity():
 
     assert "cameras" not in SynthConfig().identity()  # objects made before the setting keep their identity
     assert SynthConfig(cameras="turntable").identity()["cameras"] == "turntable"
-    with pytest.raises(SettingError, match="cameras.*must be one of sphere, turntable, got 'ring'"):
+    with pytest.raises(SettingError, match="cameras.*must be one of sphere, turntable, front, got 'ring'"):
         SynthConfig(cameras="ring").validate()
