@@ -37,15 +37,23 @@ FAR = 6.0  # the room's Gaussians sit this many camera distances away along a pi
 SPARSE_EVERY = 10  # the sparse points: every tenth pixel Gaussian (structure from motion's points are sparse)
 
 
-def one_sided_config(tabletop: str, seed: int, resolution: int = 64, views: int = 16, fill: float = 1.1) -> SynthConfig:
+def one_sided_config(
+    tabletop: str,
+    seed: int,
+    resolution: int = 64,
+    views: int = 16,
+    fill: float = 1.1,
+    test_views: int = 4,
+    spp: int = 8,
+) -> SynthConfig:
     """A capture like the held-out skull's: from one side, the object filling the frame, on a textured table."""
     return SynthConfig(
         shape="random",
         seed=seed,
         resolution=resolution,
         train_views=views,
-        test_views=4,
-        spp=8,
+        test_views=test_views,
+        spp=spp,
         env_height=32,
         texture_height=64,
         background="env",
