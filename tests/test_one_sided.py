@@ -18,14 +18,8 @@ from benchmarks.one_sided import cloud, make_capture, one_sided_config, score
 from matspray.data import load_scene
 from matspray.geometry.region import auto_region
 
-CAPTURES = (
-    [("white-on-dark", 0)]
-    + [
-        pytest.param(tabletop, seed, marks=pytest.mark.slow)
-        for tabletop, seed in (("white-on-dark", 1), ("white-on-dark", 2), ("dark-on-light", 0), ("dark-on-light", 1))
-    ]
-    + [pytest.param("dark-on-light", 2, marks=pytest.mark.slow)]
-)
+SLOW = [("white-on-dark", 1), ("white-on-dark", 2), ("dark-on-light", 0), ("dark-on-light", 1), ("dark-on-light", 2)]
+CAPTURES = [("white-on-dark", 0)] + [pytest.param(*capture, marks=pytest.mark.slow) for capture in SLOW]
 
 
 @pytest.mark.parametrize("tabletop, seed", CAPTURES)
