@@ -2,7 +2,8 @@
 
     python -m benchmarks.unmasked [--preset demo|test] [--shape composite] [--seed 3] [--out runs/unmasked]
                                   [--object-bounds X,Y,Z,R] [--captures unmasked masked] [--set KEY=VALUE ...]
-                                  [--backdrop env|dark] [--cameras sphere|turntable]
+                                  [--backdrop env|dark] [--cameras sphere|turntable|front] [--fill 0.92]
+                                  [--tabletop grey|white-on-dark|dark-on-light]
 
 Makes a `matspray synth` object whose photos show the training light behind it and a ground plane under
 it (`--background env --ground`: RGB photos, no masks), at the preset's size, and a copy of it whose
@@ -14,7 +15,8 @@ unmasked capture, object for the masked one), the masks' IoU against the true ma
 Targets (issue 23): IoU >= 0.9, relighting within 1.5 dB of the masked run. `--captures unmasked` runs the
 unmasked capture alone; `--set` passes settings to its run (`matspray run --set`), e.g.
 `geometry.focus_from=0` for the geometry without object focus. `--backdrop dark` shows nothing behind the object
-and its ground (a table-top capture before black cloth, DTU-style); `--cameras turntable` puts every view on one ring.
+and its ground (a table-top capture before black cloth, DTU-style); `--cameras turntable` puts every view on one ring;
+`--cameras front --fill 1.1 --tabletop white-on-dark` makes issue 82's one-sided capture of an object filling the frame.
 """
 
 from __future__ import annotations
@@ -88,9 +90,17 @@ def main() -> None:
     )
     parser.add_argument(
         "--cameras",
-        choices=("sphere", "turntable"),
+        choices=("sphere", "turntable", "front"),
         default="sphere",
-        help="sphere (views from 10 to 70 degrees up; default) or turntable (one ring at 20 degrees)",
+        help="sphere (views from 10 to 70 degrees up; default), turntable (one ring at 20 degrees) or front (one side "
+        "only, up to 45 degrees: issue 82's one-sided capture)",
+    )
+    parser.add_argument("--fill", type=float, default=0.92, help="the object's share of the frame (1.1: fills it)")
+    parser.add_argument(
+        "--tabletop",
+        choices=("grey", "white-on-dark", "dark-on-light"),
+        default="grey",
+        help="the ground: grey (default) or a textured table with a white object on a dark one or a dark on a light",
     )
     args = parser.parse_args()
     settings = settings_from_overrides(args.set, args.preset)
@@ -106,6 +116,8 @@ def main() -> None:
         background=BACKDROPS[args.backdrop],
         ground=True,
         cameras=args.cameras,
+        fill=args.fill,
+        tabletop=args.tabletop,
     )
     if not (unmasked / "scene.json").exists():
         make_object(config, unmasked, progress=False)

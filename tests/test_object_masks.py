@@ -13,12 +13,15 @@ from matspray.data.scene import Scene
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
 from matspray.geometry.region import (
+    GROW_LIMIT,
     ObjectRegion,
     auto_region,
     dense_radius,
     framing_radius,
     given_region,
+    grown_radius,
     mask_iou,
+    regrown,
     support_plane,
 )
 from matspray.method.masks import (
@@ -222,8 +225,10 @@ def test_pipeline_masks_stage_on_an_unmasked_capture(unmasked_object, tmp_path):
     pipeline.run_all(("full",))
     masks = read_object_masks(run / "masks")
     assert (run / "masks" / "stage.json").exists() and masks.inside.any()
-    focused = read_region(run / "geometry")  # the geometry focused on its object; the masks keep that region
-    assert focused is not None and focused.rule == "auto" and masks.region == focused
+    focused = read_region(run / "geometry")  # the geometry focused on its object; the masks keep that region,
+    assert focused is not None and focused.rule == "auto"  # grown over the trained Gaussians where on a table
+    assert (masks.region.center, masks.region.plane) == (focused.center, focused.plane)
+    assert masks.region.radius >= focused.radius and (focused.plane is not None or masks.region == focused)
     assert all(v.alpha is not None for v in pipeline.scene.views)  # the masks became the views' alpha
     lift = torch.load(run / "lift" / "projected.pt", weights_only=False)
     assert len(lift["kept"]) == int(masks.inside.sum())  # only the object's Gaussians were lifted
@@ -247,3 +252,113 @@ def test_pipeline_masks_stage_on_an_unmasked_capture(unmasked_object, tmp_path):
         (0, 0, 0, 0.5)
     )  # a new region: masks and predictions redone
     assert "predict: done before, reusing materials2d/" not in logged[-3:]
+
+
+# ------------------------------------------------------------------------- an object that fills the frame (issue 82)
+def front_cameras(distance: float = 2.5, half_azimuth: float = 60.0, top: float = 45.0) -> list[Camera]:
+    """Views of the origin from one side only (-y), elevations 10 to `top` degrees, the NeRF-synthetic lens."""
+    cameras = []
+    for k in range(12):
+        azimuth = math.radians(-90.0 + half_azimuth * (2.0 * ((k * 0.618034) % 1.0) - 1.0))
+        elevation = math.radians(10.0 + (top - 10.0) * (k + 0.5) / 12)
+        eye = [distance * math.cos(elevation) * math.cos(azimuth), distance * math.cos(elevation) * math.sin(azimuth)]
+        cameras.append(Camera.look_at([*eye, distance * math.sin(elevation)], [0, 0, 0], [0, 0, 1], 0.69, 32, 32))
+    return cameras
+
+
+def box_surface(half: float, count: int, g: torch.Generator, faces=range(5)) -> torch.Tensor:
+    """Points on the faces of the cube [-half, half]^3: +x, -x, +y, -y, +z (0..4) and -z (5)."""
+    points = []
+    for face in faces:
+        p = (2 * torch.rand(count, 3, generator=g) - 1) * half
+        axis, sign = face // 2, 1.0 if face % 2 == 0 else -1.0
+        p[:, axis] = sign * half
+        points.append(p)
+    return torch.cat(points)
+
+
+def cube_on_a_table(g: torch.Generator):
+    """A cube (half 0.6) resting on a table z = -0.6 of which the photos show only a ring around it (out to 1.0, as
+    around an object that fills the frame), and a small ball on the table, apart from the cube."""
+    cube = box_surface(0.6, 1000, g)
+    ring = (2 * torch.rand(6000, 2, generator=g) - 1) * 1.0
+    ring = ring[(ring.abs().max(dim=-1).values > 0.62) & (ring.norm(dim=-1) < 1.0)]
+    table = torch.cat([ring, torch.full((len(ring), 1), -0.6)], dim=-1)
+    ball = torch.nn.functional.normalize(torch.randn(300, 3, generator=g), dim=-1) * 0.12 + torch.tensor(
+        [1.15, 0, -0.45]
+    )
+    return cube, table, ball
+
+
+def test_the_region_holds_an_object_that_fills_the_frame_and_leaves_its_table():
+    cube, table, ball = cube_on_a_table(torch.Generator().manual_seed(0))
+    cameras = front_cameras()
+    assert framing_radius(cameras, torch.zeros(3, dtype=torch.float64)) < 0.9  # the cube's corners reach 1.04
+    points = torch.cat([cube, table, ball])
+    region = auto_region(points, torch.ones(len(points)), cameras)
+    assert region.plane is not None and float(torch.tensor(region.plane[:3]) @ torch.tensor([0.0, 0, 1])) > 0.99
+    assert float(region.contains(cube[cube[:, 2] > -0.5]).float().mean()) == 1.0  # all of it above the table's cut
+    assert not region.contains(table).any()
+    assert not region.contains(ball).any()  # on the table beside it, apart from it: not the object
+
+
+def test_a_face_the_cameras_look_at_is_no_table_but_a_table_around_the_object_is():
+    g = torch.Generator().manual_seed(1)
+    cube, table, _ = cube_on_a_table(g)
+    centers = torch.stack([c.center for c in front_cameras(half_azimuth=30.0, top=30.0)]).double()
+    assert (centers[:, 1] < -0.6).all()  # every camera in front of the cube's front face
+    seen = box_surface(0.6, 1000, g, faces=(0, 1, 3, 4)).double()  # the faces they see: the sides, front, top
+    everywhere = torch.ones(len(seen), dtype=torch.bool)
+    nowhere = torch.zeros(len(seen), dtype=torch.bool)
+    # every point counted as past the framing sphere: the front face reaches, but the cube is behind it
+    assert support_plane(seen, centers, 0.05, torch.Generator().manual_seed(0), nowhere, everywhere) is None
+    on_table = torch.cat([seen, table.double()])
+    past = torch.cat([nowhere, torch.ones(len(table), dtype=torch.bool)])  # the table's ring is past it
+    plane = support_plane(on_table, centers, 0.05, torch.Generator().manual_seed(0), torch.zeros_like(past), past)
+    assert plane is not None and plane[2] > 0.99 and abs(float(plane[3]) - 0.6) < 0.05
+
+
+def test_grown_radius_follows_what_touches_the_core_and_stops_at_its_limit():
+    g = torch.Generator().manual_seed(2)
+    core = torch.nn.functional.normalize(torch.randn(4000, 3, generator=g), dim=-1) * 0.5
+    arm = torch.stack(
+        [
+            0.5 + 0.3 * torch.rand(800, generator=g),
+            0.02 * torch.randn(800, generator=g),
+            0.02 * torch.randn(800, generator=g),
+        ],
+        -1,
+    )
+    apart = torch.nn.functional.normalize(torch.randn(500, 3, generator=g), dim=-1) * 0.05 + torch.tensor(
+        [0.0, 0.72, 0.0]
+    )
+    focus = torch.zeros(3, dtype=torch.float64)
+    radius = 0.55
+    for points, low, high in (
+        (core, 0.55, 0.55),
+        (torch.cat([core, arm]), 0.78 * 1.05, 0.8 * 1.05),  # the arm, to 0.8, plus 5 %
+        (torch.cat([core, apart]), 0.55, 0.55),
+    ):
+        points = points.double()
+        grown = grown_radius(points.norm(dim=-1), points, focus, radius)
+        assert low <= grown <= high
+    rod = torch.stack([0.5 + 1.9 * torch.rand(3000, generator=g), torch.zeros(3000), torch.zeros(3000)], -1)
+    long_arm = torch.cat([core, rod]).double()  # connected all along, out to 2.4: the growth stops at its limit
+    assert grown_radius(long_arm.norm(dim=-1), long_arm, focus, radius) == pytest.approx(GROW_LIMIT * radius)
+
+
+def test_regrown_grows_an_automatic_region_on_a_table_over_the_trained_gaussians_only():
+    cube, table, _ = cube_on_a_table(torch.Generator().manual_seed(3))
+    cameras = front_cameras()
+    points = torch.cat([cube, table])
+    early = ObjectRegion(center=(0.0, 0.0, 0.0), radius=0.7, plane=(0.0, 0.0, 1.0, 0.5), rule="auto")
+    grown = regrown(early, points, torch.ones(len(points)), cameras)
+    assert grown.radius > 1.04 and (grown.center, grown.plane, grown.rule) == (early.center, early.plane, "auto")
+    assert float(grown.contains(cube[cube[:, 2] > -0.5]).float().mean()) == 1.0
+    for kept in (
+        ObjectRegion(center=(0.0, 0.0, 0.0), radius=0.7, plane=(0.0, 0.0, 1.0, 0.5)),  # given
+        ObjectRegion(center=(0.0, 0.0, 0.0), radius=0.7, rule="auto"),  # no table: the growth would run along it
+    ):
+        assert regrown(kept, points, torch.ones(len(points)), cameras) == kept
+    faint = regrown(early, points, torch.full((len(points),), 0.1), cameras)  # transparent Gaussians do not count
+    assert faint.radius >= 0.7

@@ -181,5 +181,64 @@ def test_camera_layout_is_checked_and_kept_out_of_older_objects_identity():
 
     assert "cameras" not in SynthConfig().identity()  # objects made before the setting keep their identity
     assert SynthConfig(cameras="turntable").identity()["cameras"] == "turntable"
-    with pytest.raises(SettingError, match="cameras.*must be one of sphere, turntable, got 'ring'"):
+    with pytest.raises(SettingError, match="cameras.*must be one of sphere, turntable, front, got 'ring'"):
         SynthConfig(cameras="ring").validate()
+
+
+def test_front_cameras_see_the_object_from_one_side_up_to_45_degrees_and_fill_sets_the_distance():
+    from matspray.synth.cameras import FRONT_HALF_AZIMUTH, framing_distance
+
+    train, test, distance = make_cameras(24, 6, 1.0, 32, np.random.default_rng(0), 10.0, "front", fill=1.1)
+    assert distance == pytest.approx(1.0 / math.sin(0.5 * FOV_X * 1.1)) == framing_distance(1.0, fill=1.1)
+    azimuths = []
+    for camera in train + test:
+        c = camera.center.double()
+        elevation = math.degrees(math.asin(float(c[2] / c.norm())))
+        assert 10.0 - 1e-6 <= elevation <= 45.0 + 1e-6
+        azimuths.append(math.degrees(math.atan2(float(c[0]), float(-c[1]))))  # 0: straight in front (-y)
+        pixels, _ = camera.project(torch.zeros(1, 3))
+        torch.testing.assert_close(pixels[0], torch.tensor([16.0, 16.0]), atol=1e-3, rtol=0)  # looks at the object
+    assert max(abs(a) for a in azimuths) <= FRONT_HALF_AZIMUTH + 1e-6  # never from behind
+    assert max(azimuths[:24]) - min(azimuths[:24]) > 120.0  # the training views spread over the front half
+
+
+def test_one_sided_settings_are_checked_and_kept_out_of_older_objects_identity():
+    from matspray.errors import SettingError
+    from matspray.synth import SynthConfig
+
+    assert not {"fill", "tabletop"} & set(SynthConfig().identity())  # objects made before keep their identity
+    made = SynthConfig(fill=1.1, tabletop="white-on-dark", ground=True, cameras="front")
+    made.validate()
+    assert {k: made.identity()[k] for k in ("fill", "tabletop", "cameras")} == {
+        "fill": 1.1,
+        "tabletop": "white-on-dark",
+        "cameras": "front",
+    }
+    for settings, message in (
+        ({"fill": 0.1}, r"fill.*must be a number in \[0.2, 2\], got 0.1"),
+        ({"fill": True}, "fill.*got True"),
+        ({"tabletop": "red", "ground": True}, "tabletop.*must be one of grey, white-on-dark, dark-on-light"),
+        ({"tabletop": "dark-on-light"}, "tabletop.*is a table: it needs the ground"),
+    ):
+        with pytest.raises(SettingError, match=message):
+            SynthConfig(**settings).validate()
+
+
+def test_tabletop_tones_and_table_texture():
+    from matspray.synth.materials import TABLES, Textures, table_texture, toned
+
+    g = np.random.default_rng(0)
+    textures = Textures(g.uniform(0, 1, (8, 16, 3)), g.uniform(0, 1, (8, 16)), g.uniform(0, 1, (8, 16)))
+    white, dark = toned(textures, "white-on-dark"), toned(textures, "dark-on-light")
+    assert white.base_color.min() >= 0.62 * 0.88 - 1e-9 and white.base_color.max() <= 0.92 + 1e-9
+    assert dark.base_color.max() <= 0.1 + 1e-9
+    for tone in (white, dark):
+        assert not tone.metallic.any() and np.array_equal(tone.roughness, textures.roughness)  # dielectric
+        luminance = textures.base_color.mean(-1)
+        assert np.corrcoef(tone.base_color[..., 0].ravel(), luminance.ravel())[0, 1] > 0.99  # keeps its pattern
+    for tabletop in ("white-on-dark", "dark-on-light"):
+        table = table_texture(tabletop, seed=3, texels=64)
+        assert table.shape == (64, 64, 3) and 0.0 <= table.min() and table.max() <= 1.0
+        np.testing.assert_allclose(table.reshape(-1, 3).mean(0), TABLES[tabletop], rtol=0.2)
+        assert table[..., 0].std() > 0.1 * TABLES[tabletop][0]  # grain and blotches: a textured table
+        assert np.array_equal(table, table_texture(tabletop, seed=3, texels=64))

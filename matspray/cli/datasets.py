@@ -183,10 +183,11 @@ def add_synth_parser(parser) -> None:
     )
     parser.add_argument(
         "--cameras",
-        choices=("sphere", "turntable"),
+        choices=("sphere", "turntable", "front"),
         default="sphere",
         help="where the cameras are: sphere (an even spiral over elevations -20 to 70 degrees, or 10 to 70 with "
-        "--ground; default) or turntable (one ring at 20 degrees, as a turntable capture)",
+        "--ground; default), turntable (one ring at 20 degrees, as a turntable capture) or front (one side only: "
+        "azimuths within 75 degrees of the front, elevations up to 45)",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace a different scene already in --out")
 

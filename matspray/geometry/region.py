@@ -15,12 +15,18 @@ or a box, given (`--object-bounds`) or chosen automatically by this rule:
      distance from the centre, and outward from the densest shell the region ends at the first shell
      whose density (Gaussians per volume) falls below 10% of that shell's, plus 5% (the densest shell among those
      holding at least 1% of the candidates).
+  5. Growth, on a table only (step 3 found one): the radius grows to hold, plus 5%, the candidates above the
+     table's cut that are connected to those inside it (through voxels of a 16th of the radius, each touching the
+     next), out to at most 1.6 times that radius. An object that fills the frame, or one seen from one side,
+     reaches past the framing sphere (issue 82: a skull's back was cut off); what rests on the table beside it and
+     touches it is held with it; the room, apart from it, is not. Without a table the growth is not made: it would
+     run along the ground.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -31,14 +37,16 @@ from matspray.errors import SettingError
 
 MIN_OPACITY = 0.5  # candidates of the automatic rule
 REACH = 0.9  # candidates lie within this fraction of the nearest camera's distance
-PLANE_TOLERANCE, PLANE_SHARE, PLANE_MARGIN = 0.02, 0.2, 0.04  # fractions of that distance (share: of the candidates)
+PLANE_TOLERANCE, PLANE_SHARE, PLANE_MARGIN = 0.02, 0.1, 0.04  # fractions of that distance (share: of the candidates)
 PLANE_TRIALS = 256
+PLANE_BELOW = 0.05  # a table past the framing sphere has at most this share of the candidates below it
 PLANE_REACH, PLANE_REACH_SHARE = (
     0.5,
     0.25,
 )  # a ground's points reach this far (fraction of that distance), this many of them
 SHELLS, DENSITY_FLOOR, RADIUS_MARGIN = 48, 0.1, 1.05
 PEAK_SHARE = 0.01  # the densest shell is chosen among those holding at least this share of the candidates
+GROW_CELLS, GROW_LIMIT = 16, 1.6  # step 5's voxels per radius, and how far it may grow (times the radius)
 
 
 @dataclass(frozen=True)
@@ -128,14 +136,22 @@ def given_region(values) -> ObjectRegion:
 
 
 def support_plane(
-    points: Tensor, camera_centers: Tensor, tolerance: float, generator: torch.Generator, far: Tensor | None = None
+    points: Tensor,
+    camera_centers: Tensor,
+    tolerance: float,
+    generator: torch.Generator,
+    far: Tensor | None = None,
+    framed: Tensor | None = None,
 ) -> Tensor | None:
     """RANSAC plane [4] (unit normal n, offset d; cameras on the side n.x + d > 0) holding >= PLANE_SHARE of
-    `points` [P, 3] within `tolerance`, PLANE_REACH_SHARE of them among the `far` ones
-    ([P] bool; None: any), or None."""
+    `points` [P, 3] within `tolerance`, PLANE_REACH_SHARE of them among the `far` ones ([P] bool; None: any), or
+    as many among those past the framing sphere (`framed`, [P] bool) with at most PLANE_BELOW of the points below it
+    (away from the cameras), or None. The second way finds the table of an object that fills the frame (none of
+    the table it shows is far; issue 82); the object's own face that the cameras look at has the object behind it."""
     count = len(points)
     if count < 3:
         return None
+    reaches = lambda on_plane, among: int((on_plane & among).sum()) >= PLANE_REACH_SHARE * int(on_plane.sum())  # noqa: E731
     best, best_inliers = None, int(PLANE_SHARE * count) - 1
     for _ in range(PLANE_TRIALS):
         a, b, c = points[torch.randint(count, (3,), generator=generator)]
@@ -147,10 +163,14 @@ def support_plane(
         side = camera_centers @ normal + offset
         if not ((side > tolerance).all() or (side < -tolerance).all()):
             continue  # a ground or table has every camera on one side
-        on_plane = (points @ normal + offset).abs() <= tolerance
+        sign = 1.0 if float(side[0]) > 0 else -1.0
+        height = sign * (points @ normal + offset)  # [P] above the plane, on the cameras' side
+        on_plane = height.abs() <= tolerance
         inliers = int(on_plane.sum())
-        if inliers > best_inliers and (far is None or int((on_plane & far).sum()) >= PLANE_REACH_SHARE * inliers):
-            sign = 1.0 if float(side[0]) > 0 else -1.0
+        if inliers <= best_inliers:
+            continue
+        supports = lambda: float((height < -tolerance).double().mean()) <= PLANE_BELOW  # noqa: E731
+        if far is None or reaches(on_plane, far) or (framed is not None and reaches(on_plane, framed) and supports()):
             best, best_inliers = torch.cat([sign * normal, (sign * offset).reshape(1)]), inliers
     return best
 
@@ -173,6 +193,29 @@ def dense_radius(distances: Tensor, reach: float) -> float:
     return reach
 
 
+def grown_radius(distances: Tensor, points: Tensor, focus: Tensor, radius: float) -> float:
+    """Rule step 5: the radius that holds the `points` [P, 3] (at `distances` [P] from `focus` [3]) connected to those
+    within `radius`, through voxels of radius / GROW_CELLS that touch (faces, edges or corners), out to GROW_LIMIT
+    times `radius`; at least `radius`."""
+    from scipy import ndimage
+
+    limit = GROW_LIMIT * radius
+    near = distances <= limit
+    if not bool((distances <= radius).any()):
+        return radius
+    side = radius / GROW_CELLS
+    cells = ((points[near] - focus + limit) / side).floor().long().clamp(min=0)  # [Q, 3]
+    shape = [int(cells.max()) + 1] * 3
+    occupied = torch.zeros(shape, dtype=torch.bool)
+    occupied[cells[:, 0], cells[:, 1], cells[:, 2]] = True
+    labels, _ = ndimage.label(occupied.numpy(), structure=torch.ones(3, 3, 3).numpy())
+    labels = torch.from_numpy(labels)[cells[:, 0], cells[:, 1], cells[:, 2]]  # [Q] each point's component
+    held = torch.zeros(int(labels.max()) + 1, dtype=torch.bool)
+    held[labels[distances[near] <= radius]] = True
+    reached = float(distances[near][held[labels]].max()) * RADIUS_MARGIN
+    return min(max(radius, reached), limit)
+
+
 def framing_radius(cameras: list[Camera], focus: Tensor) -> float:
     """The radius of the largest sphere around `focus` [3] inside every camera's field of view (centred
     principal point assumed: the narrower half-angle of each camera)."""
@@ -184,28 +227,59 @@ def framing_radius(cameras: list[Camera], focus: Tensor) -> float:
     return min(radii)
 
 
+def opaque_near(means: Tensor, opacities: Tensor, focus: Tensor, nearest: float) -> Tensor:  # -> [C, 3] float64
+    """Rule step 2's candidates: the opaque Gaussians within REACH x `nearest` of `focus` (all near ones when fewer
+    than 8 are opaque)."""
+    points = means.detach().double().cpu()
+    near = (points - focus).norm(dim=-1) <= REACH * nearest
+    candidates = points[near & (opacities.detach().cpu() >= MIN_OPACITY)]
+    return candidates if len(candidates) >= 8 else points[near]
+
+
+def nearest_distance(cameras: list[Camera], focus: Tensor) -> float:
+    return float((torch.stack([c.center.double().cpu() for c in cameras]) - focus).norm(dim=-1).min())
+
+
 def auto_region(means: Tensor, opacities: Tensor, cameras: list[Camera], seed: int = 0) -> ObjectRegion:
     """The object region of Gaussians (means [N, 3], opacities [N]) seen by `cameras`, by the module's rule."""
     centers = torch.stack([c.center.double().cpu() for c in cameras])
     focus = cameras_focus(cameras)
-    nearest = float((centers - focus).norm(dim=-1).min())
-    points = means.detach().double().cpu()
-    near = (points - focus).norm(dim=-1) <= REACH * nearest
-    candidates = points[near & (opacities.detach().cpu() >= MIN_OPACITY)]
-    if len(candidates) < 8:
-        candidates = points[near]
+    nearest = nearest_distance(cameras, focus)
+    candidates = opaque_near(means, opacities, focus, nearest)
     generator = torch.Generator().manual_seed(seed)
-    far = (candidates - focus).norm(dim=-1) > PLANE_REACH * nearest
-    plane = support_plane(candidates, centers, PLANE_TOLERANCE * nearest, generator, far)
+    framed = min(framing_radius(cameras, focus), REACH * nearest)
+    distances = (candidates - focus).norm(dim=-1)
+    plane = support_plane(
+        candidates, centers, PLANE_TOLERANCE * nearest, generator, distances > PLANE_REACH * nearest, distances > framed
+    )
     if plane is not None:
         plane = plane.clone()
         plane[3] -= PLANE_MARGIN * nearest  # the region starts a margin above the plane
         candidates = candidates[candidates @ plane[:3] + plane[3] >= 0]
-    framed = min(framing_radius(cameras, focus), REACH * nearest)
-    radius = dense_radius((candidates - focus).norm(dim=-1), framed) if len(candidates) else framed
+    distances = (candidates - focus).norm(dim=-1)
+    radius = dense_radius(distances, framed) if len(candidates) else framed
+    if plane is not None and len(candidates):  # the candidates are those above the table's cut
+        radius = grown_radius(distances, candidates, focus, radius)
     return ObjectRegion(
         center=tuple(focus.tolist()), radius=radius, plane=None if plane is None else tuple(plane.tolist()), rule="auto"
     )
+
+
+def regrown(region: ObjectRegion, means: Tensor, opacities: Tensor, cameras: list[Camera]) -> ObjectRegion:
+    """An automatic region on a table found before the geometry knew the object (on the sparse points the photos
+    were cut by, or on the Gaussians at the focus), grown (rule step 5) over the trained Gaussians (means [N, 3],
+    opacities [N]): the parts of the object that were thin then are held now. It only grows; a given region, a box
+    or one without a table is returned as it is."""
+    if region.rule != "auto" or region.plane is None or region.radius is None:
+        return region
+    focus = torch.tensor(region.center, dtype=torch.float64)
+    candidates = opaque_near(means, opacities, focus, nearest_distance(cameras, focus))
+    plane = torch.tensor(region.plane, dtype=torch.float64)
+    candidates = candidates[candidates @ plane[:3] + plane[3] >= 0]
+    if not len(candidates):
+        return region
+    radius = grown_radius((candidates - focus).norm(dim=-1), candidates, focus, region.radius)
+    return replace(region, radius=radius)
 
 
 def object_region(means: Tensor, opacities: Tensor, cameras: list[Camera], object_bounds=None) -> ObjectRegion:

@@ -21,7 +21,7 @@ from matspray.data.scene import Scene
 from matspray.errors import DataError, MatsprayError, file_error
 from matspray.gaussians import Gaussians
 from matspray.geometry.ply import vertex_count
-from matspray.geometry.region import ObjectRegion, object_region
+from matspray.geometry.region import ObjectRegion, object_region, regrown
 from matspray.render.raster.rasterize import rasterize
 from matspray.rundir import RunDir, read_record, stage_hint, write_json
 
@@ -70,9 +70,12 @@ def compute_object_masks(
     """The region (`object_bounds`, else `region`: the one the geometry focused on, else the automatic rule over the
     training cameras), the Gaussians inside it and the masks of every train and test view. A geometry that focused
     on its object drew the room coarsely, and the automatic rule, which finds the table among the room's Gaussians,
-    would then miss it: the region found then is the object's."""
+    would then miss it: the region found then is the object's, grown over the trained Gaussians (`regrown`)."""
+    cameras = [v.camera for v in scene.train]
     if region is None or object_bounds is not None:
-        region = object_region(gaussians.means, gaussians.opacities, [v.camera for v in scene.train], object_bounds)
+        region = object_region(gaussians.means, gaussians.opacities, cameras, object_bounds)
+    else:  # found before the geometry knew the whole object: grown over its Gaussians now (issue 82)
+        region = regrown(region, gaussians.means, gaussians.opacities, cameras)
     inside = region.contains(gaussians.means.detach()).cpu()
     if not inside.any():
         raise DataError(

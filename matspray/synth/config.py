@@ -8,7 +8,8 @@ from matspray.errors import SettingError
 
 PLACEMENTS = ("fit", "keep")  # how a glTF asset is placed in the world (matspray.synth.gltf_object)
 BACKGROUNDS = ("transparent", "env")  # behind the object in the photos: nothing (alpha = mask) or the light itself
-CAMERA_LAYOUTS = ("sphere", "turntable")  # an even spiral over an elevation band, or one ring (matspray.synth.cameras)
+CAMERA_LAYOUTS = ("sphere", "turntable", "front")  # a spiral over an elevation band, one ring, or one side only
+TABLETOPS = ("grey", "white-on-dark", "dark-on-light")  # the ground's look, and the object's tone with it
 
 MAX_RESOLUTION = 2048
 MAX_VIEWS = 1000
@@ -33,6 +34,11 @@ class SynthConfig:
     background: str = "transparent"  # 'env': the photos show the light behind the object and carry no mask
     ground: bool = False  # a grey ground plane under the object in the photos (cameras stay above it)
     cameras: str = "sphere"  # 'turntable': every camera on one ring at one elevation, as a turntable capture
+    # 'front': from one side only, a frontal half of the band up to 45 degrees (a hand-held capture of an object on
+    # a table against a wall)
+    fill: float = 0.92  # the bounding sphere's angular radius as a fraction of half the field of view (> 1: cut)
+    tabletop: str = "grey"  # with the ground: 'white-on-dark' a white object on a dark wooden table, 'dark-on-light'
+    # a dark object on a light one (both tables textured); 'grey' the plain grey ground and the object's own colours
     overwrite: bool = False  # replace a different scene already in the output folder
 
     @property
@@ -57,6 +63,12 @@ class SynthConfig:
         self.env = str(self.env)
         if self.background not in BACKGROUNDS:
             raise SettingError("background", f"must be one of {', '.join(BACKGROUNDS)}, got {self.background!r}")
+        if isinstance(self.fill, bool) or not isinstance(self.fill, (int, float)) or not 0.2 <= self.fill <= 2.0:
+            raise SettingError("fill", f"must be a number in [0.2, 2], got {self.fill!r}")
+        if self.tabletop not in TABLETOPS:
+            raise SettingError("tabletop", f"must be one of {', '.join(TABLETOPS)}, got {self.tabletop!r}")
+        if self.tabletop != "grey" and not self.ground:
+            raise SettingError("tabletop", f"{self.tabletop!r} is a table: it needs the ground (ground=True)")
         if self.cameras not in CAMERA_LAYOUTS:
             raise SettingError("cameras", f"must be one of {', '.join(CAMERA_LAYOUTS)}, got {self.cameras!r}")
         if self.placement not in PLACEMENTS:
@@ -74,7 +86,8 @@ class SynthConfig:
         """Everything that determines the files (all settings but `overwrite`)."""
         values = asdict(self)
         values.pop("overwrite")
-        for name, default in (("background", "transparent"), ("ground", False), ("cameras", "sphere")):
+        defaults = (("background", "transparent"), ("ground", False), ("cameras", "sphere"), ("fill", 0.92))
+        for name, default in (*defaults, ("tabletop", "grey")):
             # objects made before these existed keep their identity
             if values[name] == default:
                 values.pop(name)

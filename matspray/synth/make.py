@@ -22,7 +22,7 @@ from matspray.synth.cameras import FOV_X, GROUND_MIN_ELEVATION, MIN_ELEVATION, m
 from matspray.synth.config import SynthConfig
 from matspray.synth.gltf_object import asset_parts, write_object_glb
 from matspray.synth.groundtruth import cast_ground_truth
-from matspray.synth.materials import Textures, bake_textures, random_material
+from matspray.synth.materials import Textures, bake_textures, random_material, table_texture, toned
 from matspray.synth.mitsuba_scene import (
     GROUND_BASE_COLOR,
     GROUND_ROUGHNESS,
@@ -96,6 +96,8 @@ def procedural_content(config: SynthConfig) -> ObjectContent:
     parts = make_shape(shape, np.random.default_rng([config.seed, SHAPE_STREAM]))
     material = random_material(np.random.default_rng([config.seed, MATERIAL_STREAM]))
     textures = [bake_textures(material, part, config.texture_height) for part in parts]
+    if config.tabletop != "grey":
+        textures = [toned(t, config.tabletop) for t in textures]
     description = {
         "shape": shape,
         "parts": [{"name": p.name, **p.params} for p in parts],
@@ -150,10 +152,12 @@ def make_object(config: SynthConfig, out, progress: bool = True, notify: Callabl
         np.random.default_rng([config.seed, CAMERA_STREAM]),
         GROUND_MIN_ELEVATION if config.ground else MIN_ELEVATION,
         config.cameras,
+        config.fill,
     )
     ground = None
     if config.ground:  # touching the object's lowest point, wide enough to fill the lower background
-        ground = GroundPlane(z=float(min(p.vertices[:, 2].min() for p in parts)), half_size=4.0 * distance)
+        table = None if config.tabletop == "grey" else table_texture(config.tabletop, config.seed)
+        ground = GroundPlane(float(min(p.vertices[:, 2].min() for p in parts)), 4.0 * distance, table)
     record = scene_record(
         config, identity, variant, content.description, train_env, relight_envs, distance, bounding_radius, ground
     )
@@ -258,7 +262,7 @@ def scene_record(
             else {
                 "z": ground.z,
                 "half_size": ground.half_size,
-                "base_color": GROUND_BASE_COLOR,
+                "base_color": GROUND_BASE_COLOR if ground.texture is None else f"a {config.tabletop} table's texture",
                 "roughness": GROUND_ROUGHNESS,
                 "metallic": 0.0,
             },

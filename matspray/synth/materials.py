@@ -278,3 +278,31 @@ def single_wrap(texture: np.ndarray, sampling: Sampling, uvs: np.ndarray) -> tup
 def bilinear_lookup(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:  # [T, W, ...], [N, 2] -> [N, ...]
     """The repeating, untransformed lookup of procedural textures."""
     return texture_lookup(texture, uv)
+
+
+# ------------------------------------------------------------------------------------------ table-top captures
+# (linear RGB) an object's tone on a table: a bone-white object (its shadowed side is a dark grey, close to the dark
+# wooden table's colour) or a dark one on a light table; each keeps its pattern as a small variation of brightness
+TONES = {"white-on-dark": ((0.62, 0.3), (1.0, 0.96, 0.88)), "dark-on-light": ((0.03, 0.07), (1.0, 0.92, 0.85))}
+TABLES = {"white-on-dark": (0.16, 0.1, 0.06), "dark-on-light": (0.62, 0.52, 0.4)}  # the tables' mean colours
+TABLE_TEXELS = 512
+
+
+def toned(textures: Textures, tabletop: str) -> Textures:
+    """`textures` in the tone of `tabletop`'s object (TONES): dielectric, its base colour's luminance mapped to a
+    narrow band of brightness (offset + scale * luminance) times one tint."""
+    (offset, scale), tint = TONES[tabletop]
+    luminance = textures.base_color.mean(axis=-1, keepdims=True)  # [T, W, 1]
+    base = (offset + scale * luminance) * np.asarray(tint)
+    return Textures(base, textures.roughness, np.zeros_like(textures.metallic), double_sided=textures.double_sided)
+
+
+def table_texture(tabletop: str, seed: int, texels: int = TABLE_TEXELS) -> np.ndarray:  # -> [T, T, 3] linear
+    """A wooden table's base colour: grain (stripes bent by fractal noise) and blotches around TABLES' colour."""
+    noise = ValueNoise(np.random.default_rng([seed, 7]))
+    v, u = np.meshgrid((np.arange(texels) + 0.5) / texels, (np.arange(texels) + 0.5) / texels, indexing="ij")
+    points = np.stack([u, v, np.zeros_like(u)], axis=-1)
+    grain = 0.5 + 0.5 * np.sin(2.0 * np.pi * (60.0 * u + 3.0 * fbm(noise, points, 4.0)))
+    blotch = fbm(noise, points + 5.0, 12.0)
+    brightness = 0.75 + 0.35 * grain + 0.25 * blotch  # [T, T] about 1
+    return (brightness[..., None] * np.asarray(TABLES[tabletop])).clip(0.0, 1.0)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -233,6 +233,7 @@ class GroundPlane:
 
     z: float
     half_size: float
+    texture: np.ndarray | None = field(default=None, compare=False)  # [T, T, 3] linear base colour (a table)
 
     def shape(self) -> dict:
         import mitsuba as mi
@@ -240,9 +241,10 @@ class GroundPlane:
         to_world = mi.ScalarTransform4f().translate([0.0, 0.0, self.z]) @ mi.ScalarTransform4f().scale(
             [self.half_size, self.half_size, 1.0]
         )
+        plain = {"type": "rgb", "value": [GROUND_BASE_COLOR] * 3}
         bsdf = {
             "type": "principled",
-            "base_color": {"type": "rgb", "value": [GROUND_BASE_COLOR] * 3},
+            "base_color": plain if self.texture is None else bitmap_texture(self.texture),
             "roughness": GROUND_ROUGHNESS,
             "metallic": 0.0,
             "specular": 0.5,
