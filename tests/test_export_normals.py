@@ -115,9 +115,10 @@ def test_smoothed_normals_of_a_noisy_sphere_are_closer_to_the_analytic_ones_and_
 
 def test_the_old_normals_flag_still_parses_into_the_share(capsys):
     from matspray.cli import build_parser
+    from matspray.cli.export import mesh_config
 
-    def share(*flags):
-        return build_parser().parse_args(["export", "--run", "r", "--out", "o.glb", *flags]).asset_normals
+    def share(*flags):  # as the mesh's config reads it (a flag not given takes the config's default)
+        return mesh_config(build_parser().parse_args(["export", "--run", "r", "--out", "o.glb", *flags])).asset_normals
 
     assert (share(), share("--normals", "mesh"), share("--normals", "asset")) == (ExportConfig().asset_normals, 0, 1)
     assert share("--asset-normals", "0.25") == 0.25

@@ -113,7 +113,7 @@ def test_a_weight_without_normal_maps_is_refused(tmp_path):
 
 def test_runs_made_before_the_setting_keep_their_fingerprint_and_checkpoint(tmp_path):
     config = replace(preset("test"), predicted_normal_weight=0.0)  # off, as a run without normal maps trains
-    later = ("predicted_normal_weight", "material_edge_threshold")
+    later = ("predicted_normal_weight", "material_edge_threshold", "init")
     before = {k: v for k, v in asdict(config).items() if k not in later}  # the settings then
     assert fingerprint("geometry", "data", config.identity()) == fingerprint("geometry", "data", before)
     on = replace(config, predicted_normal_weight=0.5)

@@ -206,6 +206,8 @@ def _read_png_unchecked(path: Path, png, orient: bool) -> np.ndarray:
         header = handle.read(33)
     if header[:8] != b"\x89PNG\r\n\x1a\n":
         raise ValueError("not a PNG file")
+    if header[12:16] != b"IHDR":  # the sizes below are IHDR's: a file without it is damaged, not large
+        raise ValueError("damaged PNG file: its first chunk is not IHDR")
     bit_depth = header[24]
     if bit_depth != 16:
         return _read_pillow(path, orient)

@@ -193,7 +193,7 @@ def read_envmap_file(path: Path, height: int | None = DEFAULT_HEIGHT) -> Tensor:
 def negative_energy(rgb: Tensor) -> tuple[int, float]:  # [H, W, 3] finite lat-long -> (count, share)
     """How many values are below zero, and the share of the map's energy they hold: sum over the negative values of
     |L| dw over the sum of |L| dw over all of them (dw: each pixel's solid angle; 0 for an all-black map)."""
-    weights = pixel_solid_angles(rgb.shape[0], rgb.shape[1], dtype=torch.float64)[..., None]  # [H, W, 1]
+    weights = pixel_solid_angles(rgb.shape[0], rgb.shape[1], device=rgb.device, dtype=torch.float64)[..., None]
     magnitude = rgb.double().abs() * weights
     negative = rgb < 0
     total = float(magnitude.sum())
