@@ -1,4 +1,4 @@
-"""Does the method beat its baselines on objects it was never tuned on? The benchmark protocol (issue 21).
+"""Does the method beat its baselines on objects it was never tuned on? The benchmark protocol.
 
     python -m benchmarks.generalise --set dev|eval|real-dev|real-eval [--objects K] [--start I] [--preset demo|test]
         [--models paper harsh outliers dr ground-truth] [--variants full proj-average supervised no-softmax]
@@ -39,13 +39,20 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import dataclass, fields, is_dataclass, replace
+from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
 
-import numpy as np
-
+from benchmarks.generalise_sets import (  # noqa: F401  (object_set, SET_SEEDS: read by the tests and benchmarks)
+    DEFAULT_OBJECTS,
+    EVAL_SETS,
+    REAL_SETS,
+    SET_SEEDS,
+    ObjectSpec,
+    object_set,
+    objects_part,
+)
 from benchmarks.generalise_tables import choices_table, markdown, model_summary, object_figures
-from benchmarks.real_objects import REPO_ROOT, set_files
+from benchmarks.real_objects import REPO_ROOT
 from matspray.batch.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
 from matspray.errors import ConfigError, MatsprayError
@@ -56,7 +63,7 @@ from matspray.method.config import defaults_fingerprint
 from matspray.method.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.presets import VARIANT_NAMES as VARIANTS
-from matspray.render.shade.lights import BUILTINS, hdri_files
+from matspray.render.shade.lights import hdri_files
 from matspray.rundir import (
     STAGE_RECORD,
     RunDir,
@@ -69,59 +76,7 @@ from matspray.rundir import (
     write_text_atomic,
 )
 
-# The sets were drawn while the packaged HDRIs studio-small and venice-sunset were named studio and sunset, names
-# under which `load_envmap` gave the built-in lights: the sets keep drawing those names, so each object keeps the
-# lights it was measured under.
-DRAWN_AS = {"studio-small": "studio", "venice-sunset": "sunset"}
-SET_SEEDS = {"dev": 1000, "eval": 2000, "real-dev": 3000, "real-eval": 4000}  # object i: seed SET_SEEDS[set] + i
-REAL_SETS = ("real-dev", "real-eval")  # glTF objects (benchmarks/real_objects.py); the others are procedural
-EVAL_SETS = ("eval", "real-eval")  # run once, with settings chosen on the development sets
-MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
-DEFAULT_OBJECTS = 6  # of a procedural set; a real set's default is all of its objects
 MODELS = (*ERROR_MODELS, "ground-truth")
-
-
-@dataclass(frozen=True)
-class ObjectSpec:
-    name: str
-    seed: int
-    env: str  # training light
-    relight_envs: tuple[str, ...]  # the two held-out lights
-    asset: str | None = None  # a real set's glTF file, relative to the repository (None: a procedural object)
-
-
-def object_set(which: str, count: int | None, hdris: list[str]) -> list[ObjectSpec]:
-    """The first `count` objects of set `which` (None: DEFAULT_OBJECTS, or all of a real set's): a training HDRI (a
-    built-in light when there are no HDRIs) and two other relighting lights from HDRIs and built-ins, drawn from the
-    object's seed."""
-    if which not in SET_SEEDS:
-        raise ConfigError(f"unknown object set '{which}'; choose one of {', '.join(SET_SEEDS)}")
-    assets = [str(path.relative_to(REPO_ROOT)) for path in set_files(which)] if which in REAL_SETS else None
-    size = MAX_OBJECTS if assets is None else len(assets)
-    count = (DEFAULT_OBJECTS if assets is None else size) if count is None else count
-    if not 1 <= count <= size:
-        raise ConfigError(f"--objects must be in [1, {size}] for the set {which}, got {count}")
-    train_pool = sorted(DRAWN_AS.get(name, name) for name in hdris) or list(BUILTINS)
-    pool = sorted(set(train_pool) | set(BUILTINS))
-    objects = []
-    for index in range(count):
-        seed = SET_SEEDS[which] + index
-        rng = np.random.default_rng([seed, 21])
-        env = train_pool[int(rng.integers(len(train_pool)))]
-        others = [name for name in pool if name != env]
-        relight = tuple(others[int(i)] for i in rng.choice(len(others), size=2, replace=False))
-        if assets is None:
-            objects.append(ObjectSpec(f"{which}-{index:02d}-seed{seed}", seed, env, relight))
-        else:
-            name = f"{which}-{index:02d}-{Path(assets[index]).stem}"
-            objects.append(ObjectSpec(name, seed, env, relight, assets[index]))
-    return objects
-
-
-def objects_part(which: str, start: int, count: int | None, hdris: list[str]) -> list[ObjectSpec]:
-    """Objects start .. start + count - 1 of set `which` (count None: to the default's end): one part of a pass
-    split over jobs (`--start`)."""
-    return object_set(which, None if count is None else start + count, hdris)[start:]
 
 
 def part_name(name: str, start: int) -> str:
