@@ -1,4 +1,4 @@
-"""Photos cut to their object before the working size (issue 55): two runs of one capture without masks, one with
+"""Photos cut to their object before the working size: two runs of one capture without masks, one with
 its photos cut (the default) and one with them whole (`--set crop.enabled=false`), side by side.
 
     python -m benchmarks.crop_detail --cut RUN --whole RUN

@@ -1,4 +1,4 @@
-"""Peak memory of Gaussian Splatting at the sizes of issue 41's target: 100 training views of 256 px, 100 000 Gaussians.
+"""Peak memory of Gaussian Splatting at the sizes of the target: 100 training views of 256 px, 100 000 Gaussians.
 
     python -m benchmarks.geometry_memory [--iterations 300] [--views 100] [--resolution 256]
                                          [--gaussians 100000] [--backend auto]

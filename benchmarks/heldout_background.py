@@ -1,6 +1,6 @@
 """The whole-image held-out PSNR of runs' geometry on captures without masks, its render over black (what training
 composites on, and what `evaluate_views` uses for such views) against over white (what it used before): the part of
-a dark backdrop no training view saw turned white (issue 55).
+a dark backdrop no training view saw turned white.
 
     python -m benchmarks.heldout_background RUN [RUN ...]
 

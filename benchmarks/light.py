@@ -1,4 +1,4 @@
-"""The estimated light with and without its smoothness prior (issue 19's figures).
+"""The estimated light with and without its smoothness prior (the figures).
 
 For each prior weight, refines the full method on a `matspray synth` object (predict, geometry, lift and
 visibility are computed once, in OUT/base, and copied) and prints

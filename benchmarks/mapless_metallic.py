@@ -1,4 +1,4 @@
-"""How metallic a run without 2D maps makes its objects, by `refine.metallic_prior_weight` (issue 81).
+"""How metallic a run without 2D maps makes its objects, by `refine.metallic_prior_weight`.
 
     python -m benchmarks.generalise --set dev --objects 3 --preset test --models ground-truth --variants no-prior \
         --refine metallic_prior_weight=W --tag mpW --out DIR          # once per weight W

@@ -1,4 +1,4 @@
-"""Signed error of each variant's materials on the object, against the 2D predictions' (issue 21).
+"""Signed error of each variant's materials on the object, against the 2D predictions'.
 
     python -m benchmarks.material_bias RUN [RUN ...] [--channels roughness metallic basecolor]
 

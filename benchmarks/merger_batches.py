@@ -1,4 +1,4 @@
-"""Which prediction batches the Neural Merger trusts, against what the simulated predictor did to them (issue 21).
+"""Which prediction batches the Neural Merger trusts, against what the simulated predictor did to them.
 
     python -m benchmarks.merger_batches RUN [RUN ...]
 

@@ -1,4 +1,4 @@
-"""Where the 3D metallic loses against the truth: its error split over parts of the test views (issue 54).
+"""Where the 3D metallic loses against the truth: its error split over parts of the test views.
 
     python -m benchmarks.metallic_parts [--set dev] [--objects 3] [--model dr] [--radius 2]
         [--rows 2D=dr-matspray-0f581f72 "lifted truth=ground-truth-on-dr-matspray-0f581f72/asset-proj-average"

@@ -1,4 +1,4 @@
-"""Captures without a point cloud (issue 55): does a `transforms.json` capture train as well as its COLMAP form?
+"""Captures without a point cloud: does a `transforms.json` capture train as well as its COLMAP form?
 
     python -m benchmarks.no_points --colmap DATASET [--stitch [CAPTURE]] [--out runs/no-points] [--preset demo]
         [--geometry-iterations N] [--refine-iterations N]

@@ -1,4 +1,4 @@
-"""One-sided table-top captures (issue 82): how much of the object the object region holds, and the masks' IoU.
+"""One-sided table-top captures: how much of the object the object region holds, and the masks' IoU.
 
     python -m benchmarks.one_sided [--tabletops white-on-dark dark-on-light] [--seeds 0 1 2] [--out runs/one-sided]
                                    [--resolution 64] [--views 16] [--fill 1.1] [--cameras front] [--shape random]
@@ -14,7 +14,7 @@ the table, by the ray's hit on its plane; otherwise far behind, as the room's Ga
 Gaussians fitting the training photos exactly would sit on, seen only where the cameras saw. On those of the
 training views (`gaussians`) and on a sparse tenth of them (`sparse`, as the crop stage finds the region on
 structure from motion's points), it runs the automatic rule (matspray.geometry.region) and prints the region, the
-framing radius that capped it before issue 82 and the object's bounding radius, the shares of the object's and the
+framing radius that capped it before the fix and the object's bounding radius, the shares of the object's and the
 table's first hits (every view) it holds, and the IoU against the true masks of every view (train and test; a
 pixel is in the mask when its first hit is in the region), mean and worst. No Gaussians are trained or rendered:
 this measures the region alone (the full method on such a capture: `python -m benchmarks.unmasked`).

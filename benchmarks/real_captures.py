@@ -1,4 +1,4 @@
-"""Both real captures of the shared data through the whole method, as a user runs them (issue 39).
+"""Both real captures of the shared data through the whole method, as a user runs them.
 
     python -m benchmarks.real_captures [--captures skull stitch] [--preset demo] [--out runs/real-captures]
         [--lights studio sunset forest] [--geometry-iterations N] [--refine-iterations N] [--backend auto]

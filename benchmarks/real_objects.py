@@ -7,7 +7,7 @@ folder); THIRD_PARTY_NOTICES.md records each one's title, author, source, licenc
 
 The split, fixed before any object was run: the objects are grouped by kind ("metal": at least 15 % of the surface
 has metallic > 0.5, measured on the converted file; "dielectric": the rest), each group sorted by name and shuffled
-by numpy's default_rng(80) (issue 80); `real-dev` takes the first two metal objects and the first dielectric one,
+by numpy's default_rng(80); `real-dev` takes the first two metal objects and the first dielectric one,
 `real-eval` the other five (two metal, three dielectric). The evaluation objects are run once, on final defaults.
 """
 

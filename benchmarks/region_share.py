@@ -1,4 +1,4 @@
-"""The object region of a run of a capture without masks, and how many of its Gaussians it holds (issue 82).
+"""The object region of a run of a capture without masks, and how many of its Gaussians it holds.
 
     python -m benchmarks.region_share RUN [RUN ...]
 

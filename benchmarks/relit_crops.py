@@ -1,5 +1,5 @@
 """Relit crops of the object, before and after: the same held-out camera and light for several runs of one capture,
-each cropped to the object and brought to the same size, beside the photo (issue 55's "report before/after"); for a
+each cropped to the object and brought to the same size, beside the photo (the "report before/after"); for a
 `matspray synth` object with relit truth under ENV (one of its held-out lights), beside that truth, lit by the
 object's own map of ENV.
 

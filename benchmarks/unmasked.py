@@ -1,4 +1,4 @@
-"""An unmasked capture end to end, against the same capture run with its true masks (issue 23).
+"""An unmasked capture end to end, against the same capture run with its true masks.
 
     python -m benchmarks.unmasked [--preset demo|test] [--shape composite] [--seed 3] [--out runs/unmasked]
                                   [--object-bounds X,Y,Z,R] [--captures unmasked masked] [--set KEY=VALUE ...]
@@ -12,11 +12,11 @@ photos carry the true masks as alpha (the same pixels otherwise). Runs the full 
 `masks` stage). Prints, for each: the geometry's test PSNR on the held-out photos (whole image for the
 unmasked capture, object for the masked one), the masks' IoU against the true masks of the test views
 (unmasked only), the relighting PSNR under the held-out lights against Mitsuba's truth, and seconds.
-Targets (issue 23): IoU >= 0.9, relighting within 1.5 dB of the masked run. `--captures unmasked` runs the
+Targets: IoU >= 0.9, relighting within 1.5 dB of the masked run. `--captures unmasked` runs the
 unmasked capture alone; `--set` passes settings to its run (`matspray run --set`), e.g.
 `geometry.focus_from=0` for the geometry without object focus. `--backdrop dark` shows nothing behind the object
 and its ground (a table-top capture before black cloth, DTU-style); `--cameras turntable` puts every view on one ring;
-`--cameras front --fill 1.1 --tabletop white-on-dark` makes issue 82's one-sided capture of an object filling the frame.
+`--cameras front --fill 1.1 --tabletop white-on-dark` makes the one-sided capture of an object filling the frame.
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ def main() -> None:
         choices=("sphere", "turntable", "front"),
         default="sphere",
         help="sphere (views from 10 to 70 degrees up; default), turntable (one ring at 20 degrees) or front (one side "
-        "only, up to 45 degrees: issue 82's one-sided capture)",
+        "only, up to 45 degrees: the one-sided capture)",
     )
     parser.add_argument("--fill", type=float, default=0.92, help="the object's share of the frame (1.1: fills it)")
     parser.add_argument(

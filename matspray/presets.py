@@ -125,8 +125,9 @@ DEMO_SIZES = {
 }
 
 
-PAPER = "../shared/paper/matspray.tex"  # the paper's text, by line, in the sources below
-RELEASED = "the paper's released code"  # where the text is silent: the values the project read from it
+# The sources below name lines of the paper's text (`l.N`), or this where the text is silent: the values the project
+# read from the released code
+RELEASED = "the paper's released code"
 
 
 @dataclass(frozen=True)

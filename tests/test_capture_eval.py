@@ -1,5 +1,5 @@
 """A run on a capture without ground truth: `matspray eval` scores its held-out photos and writes a report
-made for it (issue 39)."""
+made for it."""
 
 import json
 import math
@@ -49,7 +49,7 @@ def test_eval_of_a_capture_scores_held_out_photos_inside_the_mask_and_writes_its
     page = (run / "report.html").read_text()
     assert "test photos by nobody (CC0)" in page and "Held-out photos" in page and "Relit under other lights" in page
     assert "Object region" in page and "Estimated light" in page
-    # the sharpness figure (issue 81): LPIPS inside the mask (the tests have its weights) and the gradient energy share
+    # the sharpness figure: LPIPS inside the mask (the tests have its weights) and the gradient energy share
     assert "<h2>Sharpness</h2>" in page and (run / "report" / "sharpness_r_000.png").exists()
     for key in ("radiance", "no-prior"):
         share = held["summary"][key]["gradient_share"]

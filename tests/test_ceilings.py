@@ -33,7 +33,7 @@ from matspray.method.config import build_config
 from matspray.rundir import RUN_LOCK, RunDir, held_exclusively
 from tests.scenes import ring_cameras, sky_map, sphere_of_disks
 
-OLD_ROWS = [r for r in ROWS if r != "lifted truth, full's normals" and r not in GBUFFER_ROWS]  # before issue 54
+OLD_ROWS = [r for r in ROWS if r != "lifted truth, full's normals" and r not in GBUFFER_ROWS]  # older files
 
 
 def tiny_asset(materials: torch.Tensor) -> Asset:

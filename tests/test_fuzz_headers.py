@@ -116,7 +116,7 @@ def test_image_headers_that_lie_about_size_or_depth(folder, suffix, bits, width,
 
 
 def test_a_60000_pixel_square_photo_is_one_line_naming_it(tmp_path):
-    """Issue 81: a JPEG whose header claims 60 000 x 60 000 pixels ended in Pillow's DecompressionBombError."""
+    """a JPEG whose header claims 60 000 x 60 000 pixels ended in Pillow's DecompressionBombError."""
     from matspray.errors import DataError
 
     blob, _ = written(".jpg", 8)

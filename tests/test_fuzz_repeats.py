@@ -190,7 +190,7 @@ def test_colmap_binary_entries_listed_twice(colmap_text, kind, new_id):
 
 
 def test_a_frame_listed_twice_names_the_file_and_the_frame(images):
-    """Issue 81: the message listed no repeated name and named neither the file nor the view."""
+    """the message listed no repeated name and named neither the file nor the view."""
     from matspray.errors import DataError
 
     path = images / "transforms_train.json"

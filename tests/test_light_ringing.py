@@ -29,7 +29,7 @@ def fresh_notices(monkeypatch):
 
 
 def panorama(rows: int, kind: str, seed: int = 0) -> np.ndarray:  # [rows, 2 rows, 3] float32 linear radiance
-    """A night map as issue 81's held-out one (a black ground, a sky of a ten-thousandth, a moon of 11 600 and a few
+    """A night map as the held-out one (a black ground, a sky of a ten-thousandth, a moon of 11 600 and a few
     street lamps: mean ~0.1) or a day map (a sky of ~1 over a dark ground, a sun of 30 000)."""
     rng = np.random.default_rng(seed)
     sky, ground = (2e-4, 1e-5) if kind == "night" else (1.5, 0.02)

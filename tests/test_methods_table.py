@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 
 from matspray.method.config import build_config, variant_refine_config
-from matspray.presets import ADDITIONS, PAPER, PRESETS, RELEASED, RELEASED_VALUES, VARIANT_NAMES
+from matspray.presets import ADDITIONS, PRESETS, RELEASED, RELEASED_VALUES, VARIANT_NAMES
 
+PAPER = "../shared/paper/matspray.tex"  # the paper's text, whose lines the sources name (a developer's tree only)
 PAPER_TEXT = Path(__file__).resolve().parents[1] / PAPER
 
 

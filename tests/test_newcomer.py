@@ -1,4 +1,4 @@
-"""What a newcomer meets first (issue 81): `info` on a folder of photos, a dataset given where a run is expected,
+"""What a newcomer meets first: `info` on a folder of photos, a dataset given where a run is expected,
 and `--set` of a setting that a flag sets, in every command that takes `--set`."""
 
 from __future__ import annotations

@@ -254,7 +254,7 @@ def test_pipeline_masks_stage_on_an_unmasked_capture(unmasked_object, tmp_path):
     assert "predict: done before, reusing materials2d/" not in logged[-3:]
 
 
-# ------------------------------------------------------------------------- an object that fills the frame (issue 82)
+# ------------------------------------------------------------------------- an object that fills the frame
 def front_cameras(distance: float = 2.5, half_azimuth: float = 60.0, top: float = 45.0) -> list[Camera]:
     """Views of the origin from one side only (-y), elevations 10 to `top` degrees, the NeRF-synthetic lens."""
     cameras = []

@@ -1,9 +1,9 @@
-"""Captures like the held-out skull of issue 82, scored against their true masks: an object that fills the frame, seen
+"""Captures like the held-out skull capture, scored against their true masks: an object that fills the frame, seen
 from one side only (views up to 45 degrees), on a textured table close to its shadowed side's colour (a white object
 on a dark table, a dark one on a light table). The object region the automatic rule finds on where Gaussians that
 fit the photos would sit (every pixel's first hit: `benchmarks.one_sided`), and on a sparse tenth of them (the crop
 stage's structure from motion's points), must hold the whole object and leave the table: the masks it makes agree
-with the true masks at IoU >= 0.90 on average and >= 0.80 in every view. Before issue 82's fix: 0.77 to 0.85 on
+with the true masks at IoU >= 0.90 on average and >= 0.80 in every view. before the fix: 0.77 to 0.85 on
 average, 0.64 at worst (the region was capped by the framing sphere, and the table, showing only around the object,
 was not found)."""
 

@@ -213,7 +213,7 @@ def test_eval_tables_and_report(tiny_object, finished_run):
     assert not missing, f"report references files that do not exist: {missing}"
     assert "SIMULATED" in page
     assert "2D prediction" in page and any("pred2d_test_" in s for s in sources)  # the test views' own 2D baseline
-    # the answer first, titled by the object, with a glossary, and no path of the machine (issue 81)
+    # the answer first, titled by the object, with a glossary, and no path of the machine
     assert max(page.index('id="headline"'), page.index('id="summary-relit"')) < page.index("<h2>Test views</h2>")
     assert "<h1>MatSpray result: sphere (seed 1)</h1>" in page and '<h2 id="glossary">' in page
     for path in ("/tmp", "/root", "/home", str(finished_run), str(tiny_object), str(Path.home())):

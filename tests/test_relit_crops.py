@@ -1,4 +1,4 @@
-"""Relit crops, run beside run (issue 55's before/after): the square around the object, the columns."""
+"""Relit crops, run beside run: the square around the object, the columns."""
 
 import torch
 

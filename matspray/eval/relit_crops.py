@@ -1,7 +1,7 @@
 """Relit crops of the object, run beside run: one camera, one light, the asset of each of several runs of the same
 capture, all cut to the same square around the object and brought to the same size, beside the photo.
 
-What shows whether a change of settings gave the object more detail (issue 55's "before/after": the object focus, a
+What shows whether a change of settings gave the object more detail (the "before/after": the object focus, a
 larger budget, another working size). The runs are rendered with the first run's camera: every run of one capture
 lives in the same world, so runs made at different working sizes are compared at one."""
 

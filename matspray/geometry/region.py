@@ -18,7 +18,7 @@ or a box, given (`--object-bounds`) or chosen automatically by this rule:
   5. Growth, on a table only (step 3 found one): the radius grows to hold, plus 5%, the candidates above the
      table's cut that are connected to those inside it (through voxels of a 16th of the radius, each touching the
      next), out to at most 1.6 times that radius. An object that fills the frame, or one seen from one side,
-     reaches past the framing sphere (issue 82: a skull's back was cut off); what rests on the table beside it and
+     reaches past the framing sphere (a skull's back was cut off); what rests on the table beside it and
      touches it is held with it; the room, apart from it, is not. Without a table the growth is not made: it would
      run along the ground.
 """
@@ -147,7 +147,7 @@ def support_plane(
     `points` [P, 3] within `tolerance`, PLANE_REACH_SHARE of them among the `far` ones ([P] bool; None: any), or
     as many among those past the framing sphere (`framed`, [P] bool) with at most PLANE_BELOW of the points below it
     (away from the cameras), or None. The second way finds the table of an object that fills the frame (none of
-    the table it shows is far; issue 82); the object's own face that the cameras look at has the object behind it."""
+    the table it shows is far); the object's own face that the cameras look at has the object behind it."""
     count = len(points)
     if count < 3:
         return None

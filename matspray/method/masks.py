@@ -74,7 +74,7 @@ def compute_object_masks(
     cameras = [v.camera for v in scene.train]
     if region is None or object_bounds is not None:
         region = object_region(gaussians.means, gaussians.opacities, cameras, object_bounds)
-    else:  # found before the geometry knew the whole object: grown over its Gaussians now (issue 82)
+    else:  # found before the geometry knew the whole object: grown over its Gaussians now
         region = regrown(region, gaussians.means, gaussians.opacities, cameras)
     inside = region.contains(gaussians.means.detach()).cpu()
     if not inside.any():
