@@ -12,16 +12,14 @@ from pathlib import Path
 import pytest
 
 from benchmarks.generalise import (
-    MAX_OBJECTS,
-    SET_SEEDS,
     geometry_run,
     main,
-    object_set,
     parse_args,
     predictor_spec,
     refine_overrides,
     with_overrides,
 )
+from benchmarks.generalise_sets import MAX_OBJECTS, SET_SEEDS, object_set
 from benchmarks.generalise_tables import model_summary, model_table
 from matspray.data.images import read_image
 from matspray.errors import ConfigError
