@@ -183,9 +183,15 @@ def metal_share(path) -> float:
     each triangle's centre) is above 0.5."""
     from matspray.gltf import read_gltf
     from matspray.synth.gltf_object import asset_parts
-    from matspray.synth.materials import texture_lookup
 
     parts, textures, _ = asset_parts(read_gltf(path))
+    return parts_metal_share(parts, textures)
+
+
+def parts_metal_share(parts, textures) -> float:
+    """`metal_share` of an object already read (`asset_parts`: its parts and their textures)."""
+    from matspray.synth.materials import texture_lookup
+
     metal = total = 0.0
     for part, texture in zip(parts, textures):
         corners = part.vertices[part.faces]  # [F, 3, 3]

@@ -40,7 +40,7 @@ def table_methods(results=None) -> str:
 
 def table_real_objects(results=None) -> str:
     """docs/benchmarks.md's table of the real objects, measured on the committed files (`benchmarks.real_objects`)."""
-    from benchmarks.real_objects import METAL_AREA, SETS, metal_share, set_files, split
+    from benchmarks.real_objects import METAL_AREA, SETS, parts_metal_share, set_files, split
     from matspray.gltf import read_gltf
     from matspray.synth.gltf_object import asset_parts
 
@@ -54,14 +54,15 @@ def table_real_objects(results=None) -> str:
             parts, textures, _ = asset_parts(read_gltf(path))
             triangles = sum(len(part.faces) for part in parts)
             side = max(max(t.base_color.shape[:2] + t.metallic.shape[:2]) for t in textures)  # largest
-            total += path.stat().st_size
-            share = metal_share(path)
+            size = path.stat().st_size
+            total += size
+            share = parts_metal_share(parts, textures)  # the file read once
             cells = (f"`{which}`", spec.name, spec.licence, f"{triangles:,}".replace(",", " "))
             cells += (
                 f"{side} px",
                 f"{share:.2f}",
                 spec.kind,
-                f"{path.stat().st_size // 1000:,} kB".replace(",", " "),
+                f"{size // 1000:,} kB".replace(",", " "),
             )
             lines.append("| " + " | ".join(cells) + " |")
     lines += [
