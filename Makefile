@@ -77,7 +77,8 @@ lpips: $(DEMO_STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -q
+	# on every core (at most 4 workers), a test file to a worker: a file's module fixtures are made once
+	$(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadfile
 
 clean:
 	rm -rf $(VENV) runs matspray/web/dist

@@ -80,6 +80,7 @@ from benchmarks.generalise import (
     predictor_spec,
     print_lines,
     run_name,
+    set_name,
 )
 from matspray.errors import ConfigError, RunError
 
@@ -430,7 +431,7 @@ def parse_args(argv=None):
         prog="python -m benchmarks.ceilings", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--set", choices=tuple(SET_SEEDS), default="dev", help="the protocol's object set (default dev)"
+        "--set", type=set_name, choices=tuple(SET_SEEDS), default="dev", help="the protocol's object set (default dev)"
     )
     add_part_arguments(parser)
     parser.add_argument(

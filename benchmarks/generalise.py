@@ -50,6 +50,7 @@ from benchmarks.generalise_sets import (  # noqa: F401  (object_set, SET_SEEDS: 
     ObjectSpec,
     object_set,
     objects_part,
+    set_name,
 )
 from benchmarks.generalise_tables import choices_table, markdown, model_summary, object_figures
 from benchmarks.real_objects import REPO_ROOT
@@ -475,9 +476,10 @@ def parse_args(argv=None):
     )
     parser.add_argument(
         "--set",
+        type=set_name,
         choices=tuple(SET_SEEDS),
         default="dev",
-        help="dev, real-dev: choose settings here; eval, real-eval: run once at the end (default dev)",
+        help="dev, dev-b, real-dev: choose settings here; real-eval: run once, on the final defaults (default dev)",
     )
     add_part_arguments(parser)
     parser.add_argument(

@@ -1,8 +1,9 @@
-"""The object sets of the generalisation protocol (`benchmarks.generalise`): procedural `dev` / `eval` and the real
+"""The object sets of the generalisation protocol (`benchmarks.generalise`): procedural `dev` / `dev-b` and the real
 `real-dev` / `real-eval`, each object with its seed, training light and two held-out lights, drawn from its seed."""
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,9 +17,11 @@ from matspray.render.shade.lights import BUILTINS
 # under which `load_envmap` gave the built-in lights: the sets keep drawing those names, so each object keeps the
 # lights it was measured under.
 DRAWN_AS = {"studio-small": "studio", "venice-sunset": "sunset"}
-SET_SEEDS = {"dev": 1000, "eval": 2000, "real-dev": 3000, "real-eval": 4000}  # object i: seed SET_SEEDS[set] + i
+SET_SEEDS = {"dev": 1000, "dev-b": 2000, "real-dev": 3000, "real-eval": 4000}  # object i: seed SET_SEEDS[set] + i
+# dev-b was the procedural evaluation set, until its many passes at successive defaults made it a development set
+RENAMED_SETS = {"eval": "dev-b"}
 REAL_SETS = ("real-dev", "real-eval")  # glTF objects (benchmarks/real_objects.py); the others are procedural
-EVAL_SETS = ("eval", "real-eval")  # run once, with settings chosen on the development sets
+EVAL_SETS = ("real-eval",)  # run once, with settings chosen on the development sets
 MAX_OBJECTS = 1000  # keeps the sets' seeds disjoint
 DEFAULT_OBJECTS = 6  # of a procedural set; a real set's default is all of its objects
 
@@ -32,10 +35,26 @@ class ObjectSpec:
     asset: str | None = None  # a real set's glTF file, relative to the repository (None: a procedural object)
 
 
+def renamed(which: str) -> str:
+    return (
+        f"the object set '{which}' is now named '{RENAMED_SETS[which]}' (it was used to choose settings); "
+        "the evaluation set is real-eval"
+    )
+
+
+def set_name(text: str) -> str:
+    """`--set`'s type: a renamed set's old name is refused with its new name (argparse shows the message)."""
+    if text in RENAMED_SETS:
+        raise argparse.ArgumentTypeError(renamed(text))
+    return text
+
+
 def object_set(which: str, count: int | None, hdris: list[str]) -> list[ObjectSpec]:
     """The first `count` objects of set `which` (None: DEFAULT_OBJECTS, or all of a real set's): a training HDRI (a
     built-in light when there are no HDRIs) and two other relighting lights from HDRIs and built-ins, drawn from the
     object's seed."""
+    if which in RENAMED_SETS:
+        raise ConfigError(renamed(which))
     if which not in SET_SEEDS:
         raise ConfigError(f"unknown object set '{which}'; choose one of {', '.join(SET_SEEDS)}")
     assets = [str(path.relative_to(REPO_ROOT)) for path in set_files(which)] if which in REAL_SETS else None

@@ -199,7 +199,7 @@ def table(label: str, figures: dict) -> list[str]:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--set", default="dev", choices=("dev", "eval"))
+    parser.add_argument("--set", default="dev", choices=("dev", "dev-b"))
     parser.add_argument("--objects", type=int, default=3)
     parser.add_argument("--model", default="dr")
     parser.add_argument("--radius", type=int, default=2, help="width of the silhouette and edge bands (px)")

@@ -48,13 +48,13 @@ def fmt(value, digits: int = 2) -> str:
 
 
 def short(name: str) -> str:
-    """eval-00-seed2000 -> eval-00"""
-    return "-".join(name.split("-")[:2])
+    """dev-b-00-seed2000 -> dev-b-00"""
+    return re.sub(r"-seed\d+$", "", name)
 
 
 # ------------------------------------------------------------------------------------------ generalisation
-EVAL_NOPRIOR = "generalise-eval-noprior.json"
-EVAL_NORMALS = "generalise-eval-normals.json"  # the same three models with predicted normals on (the default since)
+EVAL_NOPRIOR = "generalise-dev-b-noprior.json"
+EVAL_NORMALS = "generalise-dev-b-normals.json"  # the same three models with predicted normals on (the default since)
 DEV_NOPRIOR = "generalise-dev-noprior-s38.json"
 
 
@@ -158,11 +158,11 @@ def table_headline(results: Path, name: str = EVAL_NORMALS) -> str:
 
 
 # ------------------------------------------------------------------------------------------ the `dr` error model
-EVAL_DR = "generalise-eval-dr.json"
-EVAL_DR_256 = "generalise-eval-256px-dr.json"  # the same protocol with the objects at 256 px
+EVAL_DR = "generalise-dev-b-dr.json"
+EVAL_DR_256 = "generalise-dev-b-256px-dr.json"  # the same protocol with the objects at 256 px
 DEV_DR = "generalise-dev-dr.json"
-EVAL_THREE_256 = "generalise-eval-256px-three.json"  # paper, harsh, outliers at 256 px: full and proj-average
-EVAL_PA_128 = "generalise-eval-proj-average.json"  # the same three at 128 px: proj-average beside EVAL_NOPRIOR's full
+EVAL_THREE_256 = "generalise-dev-b-256px-three.json"  # paper, harsh, outliers at 256 px: full and proj-average
+EVAL_PA_128 = "generalise-dev-b-proj-average.json"  # the same three at 128 px: proj-average beside EVAL_NOPRIOR's full
 
 
 def table_models_eval(results: Path, name: str = EVAL_THREE_256) -> str:

@@ -35,6 +35,10 @@ def pytest_addoption(parser):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "on_device: runs on the device given by pytest --device (the CPU by default)")
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1 and "MATSPRAY_THREADS" not in os.environ:
+        # pytest -n K (make test): the cores shared among the workers, and the commands they start, not K x cores
+        os.environ["MATSPRAY_THREADS"] = str(max(1, (os.cpu_count() or 1) // workers))
     configure_threads()  # $MATSPRAY_THREADS holds for the tests as for a run (one thread beside another CPU job)
 
 

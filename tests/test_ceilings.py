@@ -384,7 +384,9 @@ def test_a_configuration_that_trains_its_own_geometry_gets_its_own_lifted_truth(
 
 
 def test_the_markdown_of_rows_without_proj_average_leaves_the_gap_to_it_empty():
-    results = {"paper": [{"object": "eval-00", "rows": {"full": {"relight": 26.0}, "lifted truth": {"relight": 28.0}}}]}
+    results = {
+        "paper": [{"object": "dev-b-00", "rows": {"full": {"relight": 26.0}, "lifted truth": {"relight": 28.0}}}]
+    }
     text = "\n".join(markdown("eval", "demo", results))  # `--rows full "lifted truth"`: no proj-average to compare with
     assert "| full | 26.00 | — |" in text and "| lifted truth | 28.00 | — |" in text
     assert "- full - proj-average" not in text

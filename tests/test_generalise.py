@@ -34,7 +34,7 @@ ONE_OBJECT = ["--set", "dev", "--objects", "1", "--preset", "test", "--models", 
 
 
 def test_object_sets_have_disjoint_seeds_and_draw_their_lights():
-    dev, evaluation = object_set("dev", 50, HDRIS), object_set("eval", 50, HDRIS)
+    dev, evaluation = object_set("dev", 50, HDRIS), object_set("dev-b", 50, HDRIS)
     assert {o.seed for o in dev}.isdisjoint({o.seed for o in evaluation})
     assert [o.seed for o in dev] == list(range(SET_SEEDS["dev"], SET_SEEDS["dev"] + 50))
     assert object_set("dev", 3, HDRIS) == dev[:3]  # the first K objects of a set do not depend on K
@@ -48,6 +48,8 @@ def test_object_sets_have_disjoint_seeds_and_draw_their_lights():
         object_set("dev", 0, HDRIS)
     with pytest.raises(ConfigError, match="unknown object set 'test'"):
         object_set("test", 1, HDRIS)
+    with pytest.raises(ConfigError, match="'eval' is now named 'dev-b'.*the evaluation set is real-eval"):
+        object_set("eval", 1, HDRIS)
 
 
 def test_object_sets_keep_their_lights_after_the_hdris_were_renamed():
@@ -55,7 +57,7 @@ def test_object_sets_keep_their_lights_after_the_hdris_were_renamed():
     both sets keeps the lights it was measured under."""
     from matspray.render.shade.lights import hdri_files
 
-    for which in ("dev", "eval"):
+    for which in ("dev", "dev-b"):
         assert object_set(which, 30, sorted(hdri_files())) == object_set(which, 30, HDRIS)
 
 
