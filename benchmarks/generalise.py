@@ -60,9 +60,10 @@ from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
 from matspray.geometry.config import GeometryConfig
-from matspray.method.config import defaults_fingerprint
+from matspray.method.config import default_settings, defaults_fingerprint
 from matspray.method.pipeline import Pipeline
 from matspray.predictors.error_models import ERROR_MODELS
+from matspray.presets import METHODS
 from matspray.presets import VARIANT_NAMES as VARIANTS
 from matspray.render.shade.lights import hdri_files
 from matspray.rundir import (
@@ -346,8 +347,9 @@ def run_protocol(args, log=print) -> dict:
         "refine_overrides": refine,
         "geometry_overrides": geometry,
         "tag": tag,
-        # the defaults measured: a published pass is tied to them (tests/test_results_defaults.py)
-        "defaults": {m: defaults_fingerprint(args.preset, m) for m in ("matspray", "paper")},
+        # the defaults measured: a published pass is tied to them (benchmarks/results_defaults.py)
+        "defaults": {m: defaults_fingerprint(args.preset, m) for m in METHODS},
+        "default_settings": {m: default_settings(args.preset, m) for m in METHODS},
     }
     log(f"generalise: {len(objects)} {args.set} objects x {len(specs)} error models, preset {args.preset}, tag {tag}")
     if args.set in EVAL_SETS:

@@ -26,7 +26,7 @@ from matspray.presets import ADDITION_NAMES, ADDITIONS, METHODS, PRESETS, STAGE_
 from matspray.presets import SHADOW_MAPS as SHADOW_MAP_SIZES
 from matspray.render.backend import BACKENDS
 from matspray.render.shade.visibility import VisibilityConfig
-from matspray.rundir import fingerprint
+from matspray.rundir import fingerprint, to_plain
 
 
 def unknown_preset(preset: str) -> SettingError:
@@ -177,8 +177,13 @@ def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
     return replace(config.refine, variant=variant, seed=seed, photo_weight=photo_weight)
 
 
-def defaults_fingerprint(preset: str, method: str = "matspray") -> str:
-    """The fingerprint of every default setting of `preset` and `method`, less what names one run (predictor, seeds):
-    a results file records it, so a published figure is tied to the defaults it was measured with."""
+def default_settings(preset: str, method: str = "matspray") -> dict:
+    """Every default setting of `preset` and `method` as plain values, less what names one run (predictor, seeds)."""
     config = build_config(preset, method)
-    return fingerprint(replace(config, predictor="", predictor_options={}, seed=0, refine_seed=None))
+    return to_plain(replace(config, predictor="", predictor_options={}, seed=0, refine_seed=None))
+
+
+def defaults_fingerprint(preset: str, method: str = "matspray") -> str:
+    """The fingerprint of `default_settings`: a results file records it, so a published figure is tied to the
+    defaults it was measured with."""
+    return fingerprint(default_settings(preset, method))
