@@ -166,7 +166,7 @@ def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
     for stage in ("materials2d", "geometry"):  # reuse the slow stages
         shutil.copytree(finished_run / stage, run / stage)
     shutil.copy(finished_run / "timings.json", run / "timings.json")
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
     assert main(args) == 0
     assert not (run / "visibility").exists()
     assert read_asset(run / "asset").visibility is None
@@ -350,21 +350,21 @@ def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_firs
     name = json.loads((tiny_object / "scene.json").read_text())["lights"]["train"]
     probe = tmp_path / "probe.exr"
     shutil.copy(tiny_object / "envmaps" / f"{name}.exr", probe)
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
 
     before = sorted(p.relative_to(run) for p in run.rglob("*"))
-    assert main(args + ["--light-probe", str(tmp_path / "nowhere.exr")]) == 2
+    assert main(args + ["--set", f"light_probe={tmp_path / 'nowhere.exr'}"]) == 2
     assert "nowhere.exr" in capsys.readouterr().err  # refused before the run folder is touched
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
 
-    assert main(args + ["--light-probe", str(probe)]) == 0
+    assert main(args + ["--set", f"light_probe={probe}"]) == 0
     expected = EnvironmentMap.from_file(probe, height=8).map  # the test preset's light size
     assert torch.allclose(EnvironmentMap.from_file(run / "asset" / "envmap.exr").map, expected, rtol=1e-3, atol=1e-6)
     capsys.readouterr()
-    assert main(args + ["--light-probe", str(probe)]) == 0
+    assert main(args + ["--set", f"light_probe={probe}"]) == 0
     assert "refine [full]: done before" in capsys.readouterr().out
     os.utime(probe, ns=(probe.stat().st_atime_ns, probe.stat().st_mtime_ns + 10**9))  # a changed probe refines again
-    assert main(args + ["--light-probe", str(probe)]) == 0
+    assert main(args + ["--set", f"light_probe={probe}"]) == 0
     assert "refine [full]: done before" not in capsys.readouterr().out
 
 
@@ -379,7 +379,7 @@ def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(
     shutil.copytree(finished_run, run)
     holder = hold_in_another_process(run)
     before = {p: p.stat().st_mtime_ns for p in run.rglob("*")}
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
     assert main(args) == 2
     assert capsys.readouterr().err.strip().endswith(busy_message(run, holder.pid))
     assert {p: p.stat().st_mtime_ns for p in run.rglob("*")} == before  # not even config.yaml rewritten
@@ -390,7 +390,10 @@ def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(
 
 @pytest.mark.parametrize(
     "command",
-    [["geometry", "--preset", "test", "--iterations", "5", "--quiet"], ["predict", "--predictor", "simulated"]],
+    [
+        ["geometry", "--preset", "test", "--set", "geometry.iterations=5", "--quiet"],
+        ["predict", "--predictor", "simulated"],
+    ],
 )
 def test_the_stage_commands_refuse_a_busy_run_folder_before_working(
     tiny_object, tmp_path, capsys, hold_in_another_process, command
@@ -451,10 +454,10 @@ def test_run_says_its_estimate_first_and_counts_only_what_is_left(tiny_object, f
                 str(run),
                 "--preset",
                 "test",
-                "--geometry-iterations",
-                "5",
-                "--refine-iterations",
-                "3",
+                "--set",
+                "geometry.iterations=5",
+                "--set",
+                "refine.iterations=3",
             ]
         )
         == 0
