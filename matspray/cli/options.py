@@ -19,7 +19,7 @@ from matspray.settings import flag_of, help_of
 __all__ = ["finite_float"]  # read by the commands' parsers from here
 
 # the setting flags each kind of command shows: `run` the user's, the others computing with the method only where
-SETTING_FLAGS = ("--downscale", "--object-bounds", "--device", "--backend")
+SETTING_FLAGS = ("--object-bounds", "--downscale", "--device", "--backend")
 COMPUTE_FLAGS = ("--device", "--backend")
 
 

@@ -30,10 +30,9 @@ from matspray.method.plan import (
     RunPlan,
     estimate_work,
     lift_views,
-    light_probe_identity,
     open_scene,
+    plan_for_run,
     recorded_normals,
-    resolve_plan,
     stage_done,
     stage_files,
     with_normals,
@@ -61,16 +60,10 @@ class Pipeline:
             compile_in_background()
         config, scene = open_scene(data, config, log)
         self.config, self.scene, self.device, self.run = config, scene, device, RunDir(out)
-        # a missing or unreadable light probe fails here, before the folder is used; it is read once, and the
-        # refinement's fingerprint names the file as it was read
-        probe = light_probe_identity(config.light_probe)
-        self.probe = None
-        if config.light_probe is not None:
-            self.probe = EnvironmentMap.from_file(config.light_probe, height=config.refine.envmap_height)
-        self.plan: RunPlan = resolve_plan(config, scene, device, probe=probe)
-        if not self.plan.complete:  # the maps' normals, where a run made before predicted them
-            normals = recorded_normals(self.plan, self.run)
-            self.plan = self.plan if normals is None else with_normals(self.plan, normals)
+        self.plan: RunPlan = plan_for_run(config, scene, device, self.run)  # a missing light probe fails here
+        # the probe is read once (the refinement's fingerprint names the file as it was read), before the folder is used
+        height = config.refine.envmap_height
+        self.probe = None if config.light_probe is None else EnvironmentMap.from_file(config.light_probe, height=height)
         # the folder is this process's while the pipeline lives (or until close()): another process that wants to write
         # it is refused, or with `wait` waits; a pipeline dropped or closed lets it go
         held = self.run.hold(wait=wait, notify=log)

@@ -250,6 +250,14 @@ def with_normals(plan: RunPlan, normals: bool) -> RunPlan:
     return replace(plan, normals=normals, refine=refine, merger_dtypes=dtypes)
 
 
+def plan_for_run(config: PipelineConfig, scene: Scene, device: torch.device, run: RunDir) -> RunPlan:
+    """`resolve_plan` for the run folder `run`: the light probe identified (a missing or unreadable one fails here),
+    and the 2D maps' normals as a run made before predicted them."""
+    plan = resolve_plan(config, scene, device, probe=light_probe_identity(config.light_probe))
+    normals = None if plan.complete else recorded_normals(plan, run)
+    return plan if normals is None else with_normals(plan, normals)
+
+
 def stage_done(run: RunDir, stage: str, fp: str | None) -> bool:
     """Whether `stage` (a key of STAGES, or an asset stage) finished in `run` with the fingerprint `fp`."""
     where = stage_files(stage)
