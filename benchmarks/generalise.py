@@ -543,7 +543,7 @@ def parse_args(argv=None):
         "its own folder (default --out runs/generalise-SET-PRESET-PXpx)",
     )
     add_method_arguments(parser, presets=("test", "demo"))
-    add_set_argument(parser)
+    add_set_argument(parser, flag="--setting")  # (its --set names the object set)
     args = parser.parse_args(argv)
     check_part_arguments(parser, args)
     if args.resolution is not None and args.resolution < 8:

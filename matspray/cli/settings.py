@@ -218,15 +218,16 @@ def settings_from_overrides(items, preset: str, allowed=None) -> dict:
 
 
 # ------------------------------------------------------------------------------------------ flags
-def add_set_argument(parser, example: str = "lift.min_support=0.5 refine.normal_lr=0") -> None:
+def add_set_argument(parser, example: str = "lift.min_support=0.5 refine.normal_lr=0", flag: str = "--set") -> None:
+    """`--set KEY=VALUE ...` into `args.overrides` (`flag`: its name in a parser whose --set means something else)."""
     parser.add_argument(
-        "--set",
+        flag,
         dest="overrides",
         nargs="+",
         action="extend",
         default=[],
         metavar="KEY=VALUE",
-        help=f"research settings by name, e.g. --set {example} (`matspray run --list-settings` lists every key "
+        help=f"research settings by name, e.g. {flag} {example} (`matspray run --list-settings` lists every key "
         "with its default and meaning)",
     )
 
