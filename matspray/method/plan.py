@@ -288,6 +288,12 @@ def lift_pixel_share(plan: RunPlan, scene: Scene) -> float:
     return sum(view_pixels(w, h, resolution) for w, h in sizes) / sum(w * h for w, h in sizes)
 
 
+def refine_iterations(plan: RunPlan, variant: str) -> int:
+    """The refinement steps of `variant`: the plan's, or before the plan is complete the config's (normals do not
+    change them)."""
+    return (plan.refine[variant].settings if plan.refine else variant_refine_config(plan.config, variant)).iterations
+
+
 def estimate_work(plan: RunPlan, scene: Scene, run: RunDir, variants=None) -> Work:
     """What refining `variants` has left to do, for `estimate.estimate_line`. Nothing is computed: predictions not
     made yet leave every refinement to do, and the geometry too where it follows their normals."""
@@ -308,7 +314,7 @@ def estimate_work(plan: RunPlan, scene: Scene, run: RunDir, variants=None) -> Wo
         config.geometry.iterations,
         config.geometry.resolution,
         lift_settings(config, plan.has_maps).samples_per_side ** 2 * lift_pixel_share(plan, scene),
-        [(variant_refine_config(config, v).iterations, get_variant(v).uses_maps) for v in to_refine],
+        [(refine_iterations(plan, v), get_variant(v).uses_maps) for v in to_refine],
         plan.unmasked,
         done,
         feature_views,
