@@ -11,14 +11,13 @@ from __future__ import annotations
 import argparse
 from dataclasses import fields
 
-from matspray.cli.settings import NotFinite, field_hint, finite_float, parse_value
+from matspray.cli.settings import NotFinite, field_hint, parse_value
 from matspray.method.config import PipelineConfig
 from matspray.presets import ADDITION_NAMES, METHODS, PRESETS, VARIANT_NAMES
 from matspray.settings import flag_of, help_of
 
-__all__ = ["finite_float"]  # read by the commands' parsers from here
-
-# the setting flags each kind of command shows: `run` the user's, the others computing with the method only where
+# the setting flags `run` offers (the research settings are behind --set), and those of every other command that
+# computes (demo, bench, batch, and geometry, relight, eval, export, view outside a pipeline)
 SETTING_FLAGS = ("--object-bounds", "--downscale", "--device", "--backend")
 COMPUTE_FLAGS = ("--device", "--backend")
 
