@@ -259,7 +259,7 @@ def refine_under_true_light(data: Path, run: Path, folder: Path, config):
         share_stage(run, folder, stage)
     pipeline = Pipeline(data, folder, replace(config, light_probe=str(probe)), progress=False, log=lambda _: None)
     made = RunDir(run)
-    if (pipeline.predict_fingerprint(), pipeline.lift_fingerprint()) != (
+    if (pipeline.plan.predict.fingerprint, pipeline.resolved().lift.fingerprint) != (
         made.stage_fingerprint("materials2d"),
         made.stage_fingerprint("lift"),
     ):

@@ -56,6 +56,7 @@ from benchmarks.generalise_tables import choices_table, markdown, model_summary,
 from benchmarks.real_objects import REPO_ROOT
 from matspray.batch.demo import DEMO_SIZES, make_demo_object, run_object
 from matspray.cli.options import add_method_arguments, build_config_from_args, flag_message, method_settings_from_args
+from matspray.cli.settings import add_set_argument, settings_from_overrides
 from matspray.errors import ConfigError, MatsprayError
 from matspray.eval.run_eval import paper_tables
 from matspray.eval.tables import write_tables
@@ -321,7 +322,8 @@ def run_protocol(args, log=print) -> dict:
     base = build_config_from_args(args)
     refine = refine_overrides(base.refine, args.refine)
     geometry = refine_overrides(base.geometry, args.geometry, flag="--geometry")
-    flags = method_settings_from_args(args)
+    # the settings given (flags and --set), by dotted name: part of the configuration's key
+    flags = {**method_settings_from_args(args), **settings_from_overrides(args.overrides, args.preset)}
     choices = {"without": list(args.without), "settings": {k: str(v) for k, v in flags.items()}, "refine": refine}
     if geometry:  # only then: the configurations run before the flag keep their names
         choices["geometry"] = geometry
@@ -545,6 +547,7 @@ def parse_args(argv=None):
         "its own folder (default --out runs/generalise-SET-PRESET-PXpx)",
     )
     add_method_arguments(parser, presets=("test", "demo"))
+    add_set_argument(parser, flag="--setting")  # (its --set names the object set)
     args = parser.parse_args(argv)
     check_part_arguments(parser, args)
     if args.resolution is not None and args.resolution < 8:

@@ -50,7 +50,7 @@ def refined_with_normals(data: Path, default_run: Path, folder: Path, config):
     for stage in ("geometry", "lift"):
         share_stage(default_run, folder, stage)
     with Pipeline(data, folder, config, progress=False, log=lambda _: None) as pipeline:
-        if pipeline.lift_fingerprint() != _stage_fingerprint(default_run, "lift"):
+        if pipeline.resolved().lift.fingerprint != _stage_fingerprint(default_run, "lift"):
             raise ConfigError(f"{default_run} lifted with other settings than the protocol's defaults; rerun it")
         return pipeline.refine("full")
 

@@ -93,11 +93,9 @@ def run_capture(name: str, args, out_root: Path) -> dict:
     before = args.compare_with / name / "run" if args.compare_with else None
     compare = [str(before)] if before is not None and before.is_dir() else []
     if not (run / "eval" / "heldout.json").exists():
-        extra = []
-        if args.geometry_iterations:
-            extra += ["--geometry-iterations", str(args.geometry_iterations)]
-        if args.refine_iterations:
-            extra += ["--refine-iterations", str(args.refine_iterations)]
+        named = {"geometry.iterations": args.geometry_iterations, "refine.iterations": args.refine_iterations}
+        extra = [f"{key}={value}" for key, value in named.items() if value]
+        extra = ["--set", *extra] if extra else []
         steps.append(
             command(["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *extra, *compute], log)
         )

@@ -53,56 +53,49 @@ METHODS = ("matspray", "paper")  # matspray: the paper plus the additions below;
 # (test: CI-sized; demo: a real capture on a 2-core CPU; paper: 512 px data, and real captures up to 800 px)
 WORKING_SIZE = {"test": 128, "demo": 256, "paper": 800}
 
-# Gaussian Splatting: each preset's changes to `GeometryConfig`'s defaults (which are the demo preset)
-GEOMETRY = {
+# Each preset as a partial config: its changes to the stages' defaults, section by section (the dataclasses' defaults
+# are the demo preset, so demo changes nothing). `matspray.method.config.preset_settings` checks every name and type
+# against the fields; `iterations` of the geometry stretches its schedule where a preset leaves the rest (`preset`).
+PRESET_SETTINGS: dict[str, dict[str, dict]] = {
     "test": {
-        "resolution": 40,
-        "iterations": 60,
-        "init_points": 1000,
-        "sh_degree": 1,
-        "sh_degree_every": 30,
-        "densify_from": 20,
-        "densify_until": 50,
-        "densify_every": 10,
-        "opacity_reset_every": 1000,
-        "max_gaussians": 3000,
-        "checkpoint_every": 20,
-        "normal_from": 0.5,
+        "geometry": {
+            "resolution": 40,
+            "iterations": 60,
+            "init_points": 1000,
+            "sh_degree": 1,
+            "sh_degree_every": 30,
+            "densify_from": 20,
+            "densify_until": 50,
+            "densify_every": 10,
+            "max_gaussians": 3000,
+            "checkpoint_every": 20,
+            "normal_from": 0.5,
+        },
+        "lift": {"samples_per_side": 2},
+        "refine": {"iterations": 30, "envmap_height": 8, "light_warmup": 10},
     },
     "demo": {},
     "paper": {
-        "resolution": 512,
-        "iterations": 30000,
-        "init_points": 100000,
-        "sh_degree_every": 1000,
-        "densify_from": 500,
-        "densify_until": 15000,
-        "densify_every": 100,
-        "opacity_reset_every": 3000,
-        "max_screen_fraction": 20 / 512,
-        "max_gaussians": 1_000_000,
-        "checkpoint_every": 2000,
-        "normal_from": 0.25,
-        "focus_from": 0.1,
+        "geometry": {
+            "resolution": 512,
+            "iterations": 30000,
+            "init_points": 100000,
+            "sh_degree_every": 1000,
+            "densify_from": 500,
+            "densify_until": 15000,
+            "opacity_reset_every": 3000,
+            "max_screen_fraction": 20 / 512,
+            "max_gaussians": 1_000_000,
+            "checkpoint_every": 2000,
+            "normal_from": 0.25,
+            "focus_from": 0.1,
+        },
+        "lift": {"samples_per_side": 16},
+        "refine": {"iterations": 10000, "envmap_height": 32, "light_warmup": 1000},
     },
 }
-
-# the later stages' settings each preset sets, by dotted name
-STAGE_SETTINGS: dict[str, dict] = {
-    "test": {"lift.samples_per_side": 2, "refine.iterations": 30, "refine.envmap_height": 8, "refine.light_warmup": 10},
-    "demo": {
-        "lift.samples_per_side": 4,
-        "refine.iterations": 600,
-        "refine.envmap_height": 16,
-        "refine.light_warmup": 200,
-    },
-    "paper": {
-        "lift.samples_per_side": 16,
-        "refine.iterations": 10000,
-        "refine.envmap_height": 32,
-        "refine.light_warmup": 1000,
-    },
-}
+# Gaussian Splatting's part of each preset (`matspray.geometry.config.preset`)
+GEOMETRY = {name: partial.get("geometry", {}) for name, partial in PRESET_SETTINGS.items()}
 
 # baked shadows (off by default): each preset's changes to `VisibilityConfig`'s shadow maps where they are on
 SHADOW_MAPS = {"test": {"rows": 4, "resolution": 48}, "demo": {}, "paper": {"rows": 16, "resolution": 512}}

@@ -23,7 +23,7 @@ from tests.reference_metrics import relighting_psnr
 from tests.viewer_process import free_port
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = ["--preset", "test", "--refine-iterations", "8", "--geometry-iterations", "150"]
+TINY = ["--preset", "test", "--set", "refine.iterations=8", "--set", "geometry.iterations=150"]
 
 
 @pytest.fixture(scope="module")
@@ -169,10 +169,10 @@ def test_other_settings_in_the_same_folder_are_refused(first_batch, capsys):
             str(out),
             "--preset",
             "test",
-            "--refine-iterations",
-            "9",
-            "--geometry-iterations",
-            "150",
+            "--set",
+            "refine.iterations=9",
+            "--set",
+            "geometry.iterations=150",
         ]
     )
     err = capsys.readouterr().err.strip()

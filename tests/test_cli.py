@@ -51,22 +51,22 @@ def run_config(*argv):
 
 def test_run_refines_the_base_color_by_l1_unless_told_scale_invariant():
     assert run_config().refine.basecolor_loss == "l1"
-    assert run_config("--basecolor-loss", "scale-invariant").refine.basecolor_loss == "scale-invariant"
+    assert run_config("--set", "refine.basecolor_loss=scale-invariant").refine.basecolor_loss == "scale-invariant"
     from matspray.errors import SettingError
 
     with pytest.raises(SettingError, match="refine.basecolor_loss: unknown loss 'l2'"):
-        run_config("--basecolor-loss", "l2")
+        run_config("--set", "refine.basecolor_loss=l2")
 
 
 def test_the_huber_base_color_loss_and_its_delta_come_from_their_flags():
     from matspray.cli.options import flag_message
     from matspray.errors import SettingError
 
-    refine = run_config("--basecolor-loss", "huber", "--basecolor-huber-delta", "0.1").refine
+    refine = run_config("--set", "refine.basecolor_loss=huber", "--set", "refine.basecolor_huber_delta=0.1").refine
     assert (refine.basecolor_loss, refine.basecolor_huber_delta) == ("huber", 0.1)
     assert run_config().refine.basecolor_huber_delta == 0.05
     with pytest.raises(SettingError) as error:
-        run_config("--basecolor-loss", "huber", "--basecolor-huber-delta", "0")
+        run_config("--set", "refine.basecolor_loss=huber", "--set", "refine.basecolor_huber_delta=0")
     assert flag_message(error.value) == "--set refine.basecolor_huber_delta: must be > 0, got 0.0"
 
 
@@ -76,19 +76,19 @@ def test_both_methods_refine_normals_and_the_flags_set_the_rate_and_the_predicte
 
     for method in ("matspray", "paper"):
         assert run_config("--method", method).refine.refines_normals  # the paper refines normals too
-    refine = run_config("--normal-lr", "0", "--predicted-normal-weight", "0.5").refine
+    refine = run_config("--set", "refine.normal_lr=0", "--set", "refine.predicted_normal_weight=0.5").refine
     assert not refine.refines_normals and refine.predicted_normal_weight == 0.5
     with pytest.raises(SettingError) as error:
-        run_config("--normal-lr", "-1")
+        run_config("--set", "refine.normal_lr=-1")
     assert flag_message(error.value) == "--set refine.normal_lr: must be >= 0, got -1.0"
 
 
 def test_refine_seed_overrides_the_seed_for_refinement_only():
     from matspray.method.config import variant_refine_config
 
-    config = run_config("--seed", "3")
+    config = run_config("--set", "seed=3")
     assert variant_refine_config(config, "full").seed == 3
-    config = run_config("--seed", "3", "--refine-seed", "7")
+    config = run_config("--set", "seed=3", "--set", "refine_seed=7")
     assert variant_refine_config(config, "full").seed == 7
     assert variant_refine_config(config, "supervised").variant == "supervised"
     assert config.geometry.seed == 3

@@ -9,7 +9,7 @@ import dataclasses
 import pytest
 
 from matspray.cli import build_parser, main
-from matspray.cli.options import SETTING_FLAGS, build_config_from_args
+from matspray.cli.options import build_config_from_args
 from matspray.cli.settings import settings_table
 
 MAX_OPTIONS = 15
@@ -23,7 +23,10 @@ CANONICAL = {
     "seed of a benchmark object": "--object-seed",
 }
 # names a concept had before, which must appear in no help (they still parse: test below)
-OLD_NAMES = {"--res", "--max-size", "--texture-size", "--relight", "--iterations", "--relight-envs", "--no-ray"}
+OLD_NAMES = {"--res", "--max-size", "--texture-size", "--relight", "--relight-envs", "--no-ray"}
+# the flags that once set research settings one by one: gone (`--set KEY=VALUE` sets each)
+RESEARCH_FLAGS = {"--min-support", "--geometry-iterations", "--refine-iterations", "--light-warmup", "--shadows"}
+RESEARCH_FLAGS |= {"--iterations"}  # geometry's, now --set geometry.iterations=N
 # a command's positional that names a concept with a flag elsewhere
 OLD_POSITIONALS = {"run", "run_positional", "data_positional"}
 
@@ -44,9 +47,7 @@ def test_every_command_shows_at_most_15_options():
 
 
 def test_no_research_flag_or_old_name_is_in_any_help():
-    research = {
-        flag for flag in SETTING_FLAGS if flag not in ("--downscale", "--object-bounds", "--device", "--backend")
-    }
+    research = RESEARCH_FLAGS
     for name, parser in subparsers().items():
         flags = {s for a in shown(parser) for s in a.option_strings}
         if name == "predict":  # its --seed is the predictor's own (marigold's noise, simulated's draws), not a run's
@@ -54,7 +55,7 @@ def test_no_research_flag_or_old_name_is_in_any_help():
         assert not flags & (research | OLD_NAMES | {"--shadows"}), (name, sorted(flags & (research | OLD_NAMES)))
         assert not {a.dest for a in shown(parser) if not a.option_strings} & OLD_POSITIONALS, name
         text = parser.format_help()
-        for flag in ("--min-support", "--geometry-iterations", "--light-warmup", "--shadows"):
+        for flag in RESEARCH_FLAGS:
             assert flag not in text, (name, flag)
 
 
@@ -90,7 +91,6 @@ def test_the_same_flag_means_the_same_setting_in_every_command():
         (["info", "data"], "data_positional", "data"),
         (["batch", "a", "b", "--out", "o"], "data_positional", ["a", "b"]),
         (["batch", "--data", "a", "b", "--out", "o", "--no-ray"], "no_ray", True),
-        (["geometry", "--data", "d", "--out", "o", "--iterations", "7"], "geometry_iterations", 7),
     ],
 )
 def test_old_names_still_parse_into_the_same_setting(argv, dest, value):
@@ -104,16 +104,17 @@ def run_args(*argv):
     return build_parser().parse_args(["run", "--data", "d", "--out", "o", *argv])
 
 
-def test_set_reaches_any_setting_and_the_hidden_flags_still_work():
+def test_set_reaches_any_setting_and_the_old_research_flags_are_gone(capsys):
     config = build_config_from_args(
         run_args("--set", "lift.min_support=0.25", "geometry.normal_weight=0.1", "refine.normal_lr=0", "seed=4"),
         predictor="none",
     )
     assert config.lift.min_support == 0.25 and config.geometry.normal_weight == 0.1
     assert config.refine.normal_lr == 0.0 and config.seed == 4 and config.geometry.seed == 4
-    # what the benchmarks pass: the research flags, one by one
-    config = build_config_from_args(run_args("--min-support", "0.3", "--geometry-iterations", "50", "--shadows", "on"))
-    assert config.lift.min_support == 0.3 and config.geometry.iterations == 50 and config.visibility is not None
+    for flag in sorted(RESEARCH_FLAGS):  # each research setting has one way in: --set
+        with pytest.raises(SystemExit):
+            run_args(flag, "1")
+        assert f"unrecognized arguments: {flag} 1" in capsys.readouterr().err
     config = build_config_from_args(
         run_args("--set", "shadows=on", "visibility.rows=4", "lift.footprint_sigmas=none", "refine.merger.softmax=off")
     )
@@ -181,27 +182,3 @@ def test_list_settings_prints_every_key_with_its_default_and_meaning(capsys):
     with pytest.raises(SystemExit):
         main(["run", "--method", "paper", "--list-settings"])
     assert "lift.min_support = 0.0  [float]" in capsys.readouterr().out
-
-
-@dataclasses.dataclass
-class Commented:
-    plain: int = 1  # beside it
-    wrapped: float = 0.5  # a comment that stops mid-phrase (an open parenthesis
-    # closed on the next line)
-    # the block above a field without a comment of its own
-    above: str = "x"
-    parenthesised: str | None = None  # inside its default: the
-    # rest, after the parenthesis
-    bare: int = 0
-
-
-def test_meanings_are_the_comments_beside_inside_or_above_each_field():
-    from matspray.cli.settings import field_comments
-
-    assert field_comments(Commented) == {
-        "plain": "beside it",
-        "wrapped": "a comment that stops mid-phrase (an open parenthesis closed on the next line)",
-        "above": "the block above a field without a comment of its own",
-        "parenthesised": "inside its default: the rest, after the parenthesis",
-        "bare": "",
-    }

@@ -110,7 +110,7 @@ def test_the_presets_are_one_torch_free_table_that_every_stage_reads():
     probe = "import sys\nimport matspray.presets, matspray.cli.options\nprint('torch' in sys.modules)"
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and done.stdout.strip() == "False", done.stderr
-    tables = (presets.GEOMETRY, presets.STAGE_SETTINGS, presets.SHADOW_MAPS, presets.DEMO_SIZES, presets.WORKING_SIZE)
+    tables = (presets.PRESET_SETTINGS, presets.GEOMETRY, presets.SHADOW_MAPS, presets.DEMO_SIZES, presets.WORKING_SIZE)
     assert all(tuple(table) == presets.PRESETS for table in tables)
     for name in presets.PRESETS:
         config = build_config(name)
@@ -118,9 +118,9 @@ def test_the_presets_are_one_torch_free_table_that_every_stage_reads():
             GeometryConfig(preset=name, **presets.GEOMETRY[name]),
             predicted_normal_weight=config.geometry.predicted_normal_weight,
         )
-        for path, value in presets.STAGE_SETTINGS[name].items():
-            stage, setting = path.split(".")
-            assert getattr(getattr(config, stage), setting) == value, path
+        for stage, partial in presets.PRESET_SETTINGS[name].items():
+            for setting, value in partial.items():
+                assert getattr(getattr(config, stage), setting) == value, (stage, setting)
         assert shadow_maps(name) == VisibilityConfig(**presets.SHADOW_MAPS[name])
     assert build_config("demo").geometry.iterations == GeometryConfig().iterations == 3000  # demo: the defaults
     assert build_config("paper").geometry.iterations == 30000 and build_config("paper").refine.iterations == 10000
@@ -139,7 +139,7 @@ def test_cli_names_the_flag_and_lists_methods(tmp_path):
         and "matspray" in result.stderr.splitlines()[-1]
         and "paper" in result.stderr.splitlines()[-1]
     )
-    result = run_cli("run", "--data", tmp_path, "--out", tmp_path / "run", "--min-support", "2")
+    result = run_cli("run", "--data", tmp_path, "--out", tmp_path / "run", "--set", "lift.min_support=2")
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert result.stderr.strip() == "matspray run: error: --set lift.min_support: must be in [0, 1], got 2.0"
 
@@ -204,15 +204,18 @@ def test_shadows_are_off_by_default_and_on_with_the_presets_shadow_maps():
     import argparse
 
     from matspray.cli.options import add_method_arguments, build_config_from_args
-    from matspray.method.config import SHADOW_MAPS, shadow_maps
+    from matspray.cli.settings import add_set_argument
+    from matspray.method.config import shadow_maps
 
     assert all(build_config(preset).visibility is None for preset in ("test", "demo", "paper"))
     assert (shadow_maps("test").rows, shadow_maps("paper").rows, shadow_maps("paper").resolution) == (4, 16, 512)
     parser = argparse.ArgumentParser()
     add_method_arguments(parser)
-    for preset in SHADOW_MAPS:
-        on = build_config_from_args(parser.parse_args(["--preset", preset, "--shadows", "on"]))
+    add_set_argument(parser)
+    for preset in presets.PRESETS:
+        on = build_config_from_args(parser.parse_args(["--preset", preset, "--set", "shadows=on"]))
         assert on.visibility == shadow_maps(preset)
-        assert build_config_from_args(parser.parse_args(["--preset", preset, "--shadows", "off"])).visibility is None
+        off = build_config_from_args(parser.parse_args(["--preset", preset, "--set", "shadows=off"]))
+        assert off.visibility is None
     with pytest.raises(SettingError, match="unknown preset 'huge'"):
         shadow_maps("huge")

@@ -190,7 +190,7 @@ def test_the_pipeline_cuts_the_photos_and_every_reader_of_the_run_does_too(ball_
     resumed.close()
     off = Pipeline(ball_capture, tmp_path / "off", build_config("test", predictor="none", **{"crop.enabled": False}))
     off.scene.points = object_points(400)
-    assert off.crop() is None and off.crop_fingerprint() is None and not (tmp_path / "off" / "crop").exists()
+    assert off.crop() is None and off.plan.crop_fp is None and not (tmp_path / "off" / "crop").exists()
     uncut = load_scene(ball_capture, downscale=pipeline.scene.downscale)
     assert torch.equal(uncut.train[0].camera.K, whole[uncut.train[0].name].camera.K)
 

@@ -502,8 +502,8 @@ def run_args(data: Path, run: Path) -> list[str]:  # the settings of the finishe
         "test",
         "--predictor",
         "simulated",
-        "--refine-iterations",
-        "4",
+        "--set",
+        "refine.iterations=4",
     ]
 
 

@@ -141,7 +141,12 @@ def test_cli_writes_the_stage_outputs(tiny_object, tmp_path, capsys):
 def test_cli_reports_bad_input(tmp_path, capsys):
     assert cli_main(["geometry", "--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "run")]) == 2
     assert "nowhere" in capsys.readouterr().err
-    assert cli_main(["geometry", "--data", str(tmp_path), "--out", str(tmp_path / "run"), "--iterations", "0"]) == 2
+    assert (
+        cli_main(
+            ["geometry", "--data", str(tmp_path), "--out", str(tmp_path / "run"), "--set", "geometry.iterations=0"]
+        )
+        == 2
+    )
     assert "--set geometry.iterations: must be >= 1, got 0" in capsys.readouterr().err
 
 

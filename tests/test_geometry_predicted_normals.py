@@ -140,14 +140,14 @@ def test_the_pipeline_trains_geometry_on_the_predictors_normals(tiny_object, tmp
         on_object = targets[0].norm(dim=-1) > 0.5
         assert on_object.float().mean() > 0.05
         torch.testing.assert_close(targets[0][on_object].norm(dim=-1), torch.ones(int(on_object.sum())))
-        fp_dr = pipeline.geometry_fingerprint()
+        fp_dr = pipeline.geometry_plan().fingerprint
         pipeline.geometry()
     record = (tmp_path / "run" / "geometry" / "stage.json").read_text()
     assert '"predicted_normal_weight": 1.0' in record
     # another predictor's normals make another geometry
     other = replace(config, predictor_options={**config.predictor_options, "seed": 7})
     with Pipeline(tiny_object, tmp_path / "other", other, progress=False, log=lambda _: None) as pipeline:
-        assert pipeline.geometry_fingerprint() != fp_dr
+        assert pipeline.geometry_plan().fingerprint != fp_dr
 
 
 def test_a_run_without_a_predictor_trains_its_geometry_without_normals(tiny_object, tmp_path):
@@ -159,9 +159,9 @@ def test_a_run_without_a_predictor_trains_its_geometry_without_normals(tiny_obje
     off = replace(config, geometry=replace(config.geometry, predicted_normal_weight=0.0))
     with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lines.append) as pipeline:
         assert config.geometry.predicted_normal_weight > 0
-        assert pipeline.geometry_config().predicted_normal_weight == 0.0
+        assert pipeline.geometry_plan().settings.predicted_normal_weight == 0.0
         assert pipeline.geometry_normal_targets() is None
-        fp = pipeline.geometry_fingerprint()
+        fp = pipeline.geometry_plan().fingerprint
     with Pipeline(tiny_object, tmp_path / "off", off, progress=False, log=lambda _: None) as pipeline:
-        assert pipeline.geometry_fingerprint() == fp  # the geometry of a run made before the default
+        assert pipeline.geometry_plan().fingerprint == fp  # the geometry of a run made before the default
     assert lines == [] and not (tmp_path / "run" / "materials2d").exists()  # nothing predicted, nothing to say

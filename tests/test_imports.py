@@ -163,6 +163,7 @@ PLUMBING = (
     "material",
     "metrics",
     "rundir",
+    "settings",
 )
 LAYERS = (
     PLUMBING,

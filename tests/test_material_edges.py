@@ -123,8 +123,8 @@ def test_the_pipeline_splits_on_its_predictors_maps_and_only_where_it_has_them(t
 
     config = build_config("test", predictor="simulated:dr", **{"geometry.material_edge_threshold": 0.05})
     with Pipeline(tiny_object, tmp_path / "run", config, progress=True, log=lambda _: None) as pipeline:
-        assert pipeline.geometry_config().material_edge_threshold == 0.05
-        fp = pipeline.geometry_fingerprint()
+        assert pipeline.geometry_plan().settings.material_edge_threshold == 0.05
+        fp = pipeline.geometry_plan().fingerprint
         pipeline.geometry()
     # densification split Gaussians on the maps' edges (its lines name how many)
     on_edges = [int(n) for n in re.findall(r"\((\d+) on material edges\)", capsys.readouterr().out)]
@@ -133,16 +133,16 @@ def test_the_pipeline_splits_on_its_predictors_maps_and_only_where_it_has_them(t
     assert '"material_edge_threshold": 0.05' in record
     off = build_config("test", predictor="simulated:dr")
     with Pipeline(tiny_object, tmp_path / "off", off, progress=False, log=lambda _: None) as pipeline:
-        assert pipeline.geometry_fingerprint() != fp
+        assert pipeline.geometry_plan().fingerprint != fp
     # the maps' draws are part of what the geometry depends on
     other = replace(config, predictor_options={**config.predictor_options, "seed": 7})
     with Pipeline(tiny_object, tmp_path / "other", other, progress=False, log=lambda _: None) as pipeline:
-        assert pipeline.geometry_fingerprint() != fp
+        assert pipeline.geometry_plan().fingerprint != fp
     # without a predictor there are no maps: the switch is off, and the fingerprint is the one of a run without it
     none = build_config("test", predictor="none", **{"geometry.material_edge_threshold": 0.05})
     plain = build_config("test", predictor="none")
     with Pipeline(tiny_object, tmp_path / "none", none, progress=False, log=lambda _: None) as pipeline:
-        assert pipeline.geometry_config().material_edge_threshold == 0.0
-        fp_none = pipeline.geometry_fingerprint()
+        assert pipeline.geometry_plan().settings.material_edge_threshold == 0.0
+        fp_none = pipeline.geometry_plan().fingerprint
     with Pipeline(tiny_object, tmp_path / "plain", plain, progress=False, log=lambda _: None) as pipeline:
-        assert pipeline.geometry_fingerprint() == fp_none
+        assert pipeline.geometry_plan().fingerprint == fp_none

@@ -103,5 +103,5 @@ def test_the_defaults_fingerprint_follows_every_default_and_nothing_of_one_run(m
 
     demo, paper = defaults_fingerprint("demo"), defaults_fingerprint("demo", "paper")
     assert demo != paper and demo == defaults_fingerprint("demo")
-    monkeypatch.setitem(presets.STAGE_SETTINGS, "demo", {**presets.STAGE_SETTINGS["demo"], "refine.iterations": 601})
+    monkeypatch.setitem(presets.PRESET_SETTINGS, "demo", {"refine": {"iterations": 601}})
     assert defaults_fingerprint("demo") != demo  # a changed default is another set of defaults

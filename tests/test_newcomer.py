@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from matspray.cli import build_parser, main
-from matspray.cli.options import COMMAND_FLAGS, FLAG_OF_SETTING, flag_message, shown_flags
-from matspray.cli.settings import OWN_FLAGS, OwnFlagError, settings_from_overrides
+from matspray.cli.options import flag_message, shown_flags
+from matspray.cli.settings import OwnFlagError, own_flags, settings_from_overrides, settings_table
 from matspray.data.images import write_image
 from matspray.errors import SettingError
 
@@ -59,21 +59,24 @@ def test_a_dataset_given_as_a_run_is_named_a_dataset_with_the_run_that_makes_a_r
 
 def test_no_setting_of_any_command_points_at_a_flag_the_command_lacks():
     run_flags = shown_flags(commands()["run"])
-    assert set(OWN_FLAGS.values()) <= run_flags  # the messages say these are flags of `matspray run`
+    assert set(own_flags().values()) <= run_flags  # the messages say these are flags of `matspray run`
+    # every research setting, every setting a flag sets, and every option's destination in any command
+    settings = {*settings_table(), *own_flags(), "visibility"}
+    settings |= {a.dest for parser in commands().values() for a in parser._actions if a.option_strings}
     walked = 0
     for name, parser in commands().items():
         flags = shown_flags(parser)
-        for setting in {*FLAG_OF_SETTING, *COMMAND_FLAGS.get(name, {})}:
-            message = flag_message(SettingError(setting, "is wrong"), name, flags)
+        for setting in settings:
+            message = flag_message(SettingError(setting, "is wrong"), name, parser)
             named = message.split(":")[0].split()[0]
             assert named in flags or named == setting, (name, setting, message)
             walked += 1
         if "--set" not in flags:
             continue
-        for key, flag in OWN_FLAGS.items():
+        for key, flag in own_flags().items():
             with pytest.raises(OwnFlagError) as caught:
                 settings_from_overrides([f"{key}=1"], "test")
-            message = flag_message(caught.value, name, flags)
+            message = flag_message(caught.value, name, parser)
             of_this_command = re.sub(r"\(--[a-z-]+ is a flag of `matspray run`\)", "", message)
             for pointed in re.findall(r"--[a-z][a-z-]*", of_this_command):
                 assert pointed in flags, (name, key, message)

@@ -142,16 +142,17 @@ def test_maps_without_normals_refine_without_them_and_say_so(tiny_object, tmp_pa
         refine=replace(config.refine, predicted_normal_weight=0.0),
     )
     with Pipeline(data, tmp_path / "run", off, progress=False, log=lambda _: None) as without:
-        assert without.geometry_fingerprint() == pipeline.geometry_fingerprint()
-        assert without.refine_fingerprint("full") == pipeline.refine_fingerprint("full")
+        assert without.geometry_plan().fingerprint == pipeline.geometry_plan().fingerprint
+        assert without.resolved().refine["full"].fingerprint == pipeline.resolved().refine["full"].fingerprint
     pipeline.close()
 
 
 def test_only_variants_that_read_the_maps_refine_towards_their_normals(tiny_object, finished_run):
     pipeline = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
-    assert pipeline.predicted_normals() is True
-    assert pipeline.refine_config("full").predicted_normal_weight == 1.0
-    assert pipeline.refine_config("no-prior").predicted_normal_weight == 0.0  # the variant without a 2D prior
+    assert pipeline.plan.normals is True
+    assert pipeline.resolved().refine["full"].settings.predicted_normal_weight == 1.0
+    no_prior = pipeline.resolved().refine["no-prior"].settings  # the variant without a 2D prior
+    assert no_prior.predicted_normal_weight == 0.0
     pipeline.close()
 
 
@@ -165,7 +166,7 @@ def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
     for stage in ("materials2d", "geometry"):  # reuse the slow stages
         shutil.copytree(finished_run / stage, run / stage)
     shutil.copy(finished_run / "timings.json", run / "timings.json")
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
     assert main(args) == 0
     assert not (run / "visibility").exists()
     assert read_asset(run / "asset").visibility is None
@@ -287,10 +288,10 @@ def test_resuming_with_the_other_method_recomputes_only_what_differs(tiny_object
         progress=False,
         log=lambda _: None,
     )
-    assert paper.predict_fingerprint() == ours.predict_fingerprint()
+    assert paper.plan.predict.fingerprint == ours.plan.predict.fingerprint
     # the paper starts the geometry from random points and trains it without the predicted normals
-    assert paper.geometry_fingerprint() != ours.geometry_fingerprint()
-    assert paper.lift_fingerprint() != ours.lift_fingerprint()
+    assert paper.geometry_plan().fingerprint != ours.geometry_plan().fingerprint
+    assert paper.resolved().lift.fingerprint != ours.resolved().lift.fingerprint
     same_geometry = {"geometry.init": "hull", "geometry.predicted_normal_weight": 1.0, "refine.iterations": 8}
     paper_on_ours = Pipeline(
         tiny_object,
@@ -299,12 +300,12 @@ def test_resuming_with_the_other_method_recomputes_only_what_differs(tiny_object
         progress=False,
         log=lambda _: None,
     )
-    assert paper_on_ours.geometry_fingerprint() == ours.geometry_fingerprint()  # the geometry is reused
+    assert paper_on_ours.geometry_plan().fingerprint == ours.geometry_plan().fingerprint  # the geometry is reused
     # the same lift settings under another method name still do not share the stage: the method is in the fingerprint
     relabelled = Pipeline(
         tiny_object, finished_run, replace(tiny_config(), method="paper"), progress=False, log=lambda _: None
     )
-    assert relabelled.lift_fingerprint() != ours.lift_fingerprint()
+    assert relabelled.resolved().lift.fingerprint != ours.resolved().lift.fingerprint
     Pipeline(
         tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None
     )  # leave config.yaml as the fixture's
@@ -316,17 +317,17 @@ def test_the_simulated_predictor_draws_from_the_objects_seed_and_says_so(tiny_ob
     record = json.loads((finished_run / "materials2d" / "stage.json").read_text())
     assert record["settings"]["seed"] == 1  # tiny_object is synth seed 1; the config gives no seed
     pipeline = Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None)
-    assert pipeline.predictor_options.seed == 1
+    assert pipeline.plan.predictor_options.seed == 1
 
     def given(seed: int) -> Pipeline:  # the run with the predictor's seed given in the config
         config = replace(tiny_config(), predictor_options={"seed": seed})
         return Pipeline(tiny_object, finished_run, config, progress=False, log=lambda _: None)
 
     given_zero = given(0)
-    assert given_zero.predictor_options.seed == 0
-    assert given_zero.predict_fingerprint() != pipeline.predict_fingerprint()  # other draws: predict runs again
+    assert given_zero.plan.predictor_options.seed == 0
+    assert given_zero.plan.predict.fingerprint != pipeline.plan.predict.fingerprint  # other draws: predict runs again
     given_one = given(1)
-    assert given_one.predictor_options == pipeline.predictor_options
+    assert given_one.plan.predictor_options == pipeline.plan.predictor_options
     Pipeline(
         tiny_object, finished_run, tiny_config(), progress=False, log=lambda _: None
     )  # leave config.yaml as the fixture's
@@ -349,21 +350,21 @@ def test_a_light_probe_is_shaded_with_as_given_and_a_missing_one_is_refused_firs
     name = json.loads((tiny_object / "scene.json").read_text())["lights"]["train"]
     probe = tmp_path / "probe.exr"
     shutil.copy(tiny_object / "envmaps" / f"{name}.exr", probe)
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
 
     before = sorted(p.relative_to(run) for p in run.rglob("*"))
-    assert main(args + ["--light-probe", str(tmp_path / "nowhere.exr")]) == 2
+    assert main(args + ["--set", f"light_probe={tmp_path / 'nowhere.exr'}"]) == 2
     assert "nowhere.exr" in capsys.readouterr().err  # refused before the run folder is touched
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
 
-    assert main(args + ["--light-probe", str(probe)]) == 0
+    assert main(args + ["--set", f"light_probe={probe}"]) == 0
     expected = EnvironmentMap.from_file(probe, height=8).map  # the test preset's light size
     assert torch.allclose(EnvironmentMap.from_file(run / "asset" / "envmap.exr").map, expected, rtol=1e-3, atol=1e-6)
     capsys.readouterr()
-    assert main(args + ["--light-probe", str(probe)]) == 0
+    assert main(args + ["--set", f"light_probe={probe}"]) == 0
     assert "refine [full]: done before" in capsys.readouterr().out
     os.utime(probe, ns=(probe.stat().st_atime_ns, probe.stat().st_mtime_ns + 10**9))  # a changed probe refines again
-    assert main(args + ["--light-probe", str(probe)]) == 0
+    assert main(args + ["--set", f"light_probe={probe}"]) == 0
     assert "refine [full]: done before" not in capsys.readouterr().out
 
 
@@ -378,7 +379,7 @@ def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(
     shutil.copytree(finished_run, run)
     holder = hold_in_another_process(run)
     before = {p: p.stat().st_mtime_ns for p in run.rglob("*")}
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--refine-iterations", "4"]
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
     assert main(args) == 2
     assert capsys.readouterr().err.strip().endswith(busy_message(run, holder.pid))
     assert {p: p.stat().st_mtime_ns for p in run.rglob("*")} == before  # not even config.yaml rewritten
@@ -389,7 +390,10 @@ def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(
 
 @pytest.mark.parametrize(
     "command",
-    [["geometry", "--preset", "test", "--iterations", "5", "--quiet"], ["predict", "--predictor", "simulated"]],
+    [
+        ["geometry", "--preset", "test", "--set", "geometry.iterations=5", "--quiet"],
+        ["predict", "--predictor", "simulated"],
+    ],
 )
 def test_the_stage_commands_refuse_a_busy_run_folder_before_working(
     tiny_object, tmp_path, capsys, hold_in_another_process, command
@@ -450,10 +454,10 @@ def test_run_says_its_estimate_first_and_counts_only_what_is_left(tiny_object, f
                 str(run),
                 "--preset",
                 "test",
-                "--geometry-iterations",
-                "5",
-                "--refine-iterations",
-                "3",
+                "--set",
+                "geometry.iterations=5",
+                "--set",
+                "refine.iterations=3",
             ]
         )
         == 0
@@ -518,7 +522,7 @@ def test_the_mergers_precision_is_part_of_the_refinement_and_its_record(tiny_obj
         config = replace(tiny_config(), refine=replace(tiny_config().refine, merger=replace(
             tiny_config().refine.merger, precision=precision)))  # fmt: skip
         pipeline = Pipeline(tiny_object, tmp_path / precision, config, progress=False, log=lambda _: None)
-        fingerprints[precision] = pipeline.refine_fingerprint("full")
+        fingerprints[precision] = pipeline.resolved().refine["full"].fingerprint
     assert fingerprints["float32"] != fingerprints["bfloat16"]
     record = json.loads((finished_run / "asset" / "stage.json").read_text())
     # finished_run's precision is "auto": bfloat16 on a CPU that multiplies it in hardware (AVX512-BF16 or AMX). The
@@ -536,7 +540,7 @@ def test_a_geometry_finished_with_other_inputs_or_settings_is_trained_again_not_
     def trained(run: Path, config) -> tuple[bytes, str]:  # the Gaussians' file and the stage's fingerprint
         with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
             pipeline.geometry()
-            return (run / "geometry" / "gaussians.ply").read_bytes(), pipeline.geometry_fingerprint()
+            return (run / "geometry" / "gaussians.ply").read_bytes(), pipeline.geometry_plan().fingerprint
 
     first, first_fp = trained(tmp_path / "run", tiny_config())
     # other predictions (their normals supervise the geometry), the same geometry settings: the finished training's

@@ -63,12 +63,17 @@ def test_unknown_encoding_is_rejected(bad):
 
 
 def test_the_cli_names_the_encoding_flag():
+    import argparse
+
+    from matspray.cli import build_parser
     from matspray.cli.options import flag_message
     from matspray.predictors.encodings import check_encoding
 
     with pytest.raises(ConfigError) as caught:
         check_encoding("rec709")
-    assert flag_message(caught.value).startswith("--basecolor-encoding: unknown encoding 'rec709'")
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    message = flag_message(caught.value, "predict", commands["predict"])
+    assert message.startswith("--basecolor-encoding: unknown encoding 'rec709'")
 
 
 # ------------------------------------------------------------------------------------------ MaterialMaps

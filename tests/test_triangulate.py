@@ -134,7 +134,7 @@ def test_pipeline_starts_the_gaussians_from_the_points_and_reuses_them(tmp_path,
     with pipeline_module.Pipeline(
         data, tmp_path / "run", build_config("test", predictor="none", **settings), progress=False, log=lines.append
     ) as run:
-        assert run.points_fp is not None
+        assert run.plan.points_fp is not None
         assert run.work().points == 7 * 96 * 96  # the estimate counts the feature photos (7 training views)
         run.geometry()
         assert run.work().points == 0.0  # done: no longer counted

@@ -9,7 +9,7 @@ import importlib
 import sys
 
 from matspray import __version__
-from matspray.cli.options import flag_message, shown_flags
+from matspray.cli.options import flag_message
 from matspray.errors import MatsprayError
 
 # (command, its module under matspray.cli, one-line help); order is the order of `matspray --help`
@@ -59,9 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except MatsprayError as exc:
         command = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[args.command]
-        print(
-            f"matspray {args.command}: error: {flag_message(exc, args.command, shown_flags(command))}", file=sys.stderr
-        )
+        print(f"matspray {args.command}: error: {flag_message(exc, args.command, command)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         if args.command in RESUMING_COMMANDS:

@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 from matspray.cli.options import (
-    COMPUTE_FLAGS,
     add_method_arguments,
     add_run_arguments,
     build_config_from_args,
@@ -28,7 +27,7 @@ def add_demo_parser(parser) -> None:
     parser.add_argument(
         "--object-seed", type=int, default=0, help="seed of the object's shape and materials (default 0)"
     )
-    add_method_arguments(parser, visible=COMPUTE_FLAGS)
+    add_method_arguments(parser)
     add_set_argument(parser, "geometry.iterations=1000 refine.iterations=200")
 
 
@@ -92,7 +91,7 @@ def add_bench_parser(parser) -> None:
         type=int,
         help="objects at once, as Ray tasks (default: one per CPU core; without Ray installed, one after another)",
     )
-    add_method_arguments(parser, visible=COMPUTE_FLAGS)
+    add_method_arguments(parser)
     add_set_argument(parser)
 
 
@@ -173,7 +172,7 @@ def add_batch_parser(parser) -> None:
     )
     parser.add_argument("--no-ray", action="store_true", help=argparse.SUPPRESS)  # in the description
     add_run_arguments(parser)
-    add_method_arguments(parser, visible=COMPUTE_FLAGS)
+    add_method_arguments(parser)
     add_set_argument(parser)
 
 

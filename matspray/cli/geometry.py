@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from matspray.cli.options import SETTING_FLAGS, add_compute_arguments, finite_float, hidden_alias
+from matspray.cli.options import add_choice_argument, add_compute_arguments, add_setting_flags
 from matspray.cli.settings import add_set_argument
 from matspray.presets import PRESETS, WORKING_SIZE
 
@@ -10,16 +10,9 @@ from matspray.presets import PRESETS, WORKING_SIZE
 def add_geometry_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
     parser.add_argument("--out", type=Path, required=True, help="run folder; the stage writes RUN/geometry/")
-    parser.add_argument(
-        "--preset",
-        choices=PRESETS,
-        default="demo",
-        help="sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), paper (512 px, one GPU); default demo",
-    )
-    parser.add_argument("--downscale", type=finite_float, help=SETTING_FLAGS["--downscale"][2])  # as `run` reads
+    add_choice_argument(parser, "preset", PRESETS)
+    add_setting_flags(parser, ["--downscale"])  # as `run` reads it
     add_set_argument(parser, "geometry.iterations=1000 seed=1")  # the geometry.* settings and the seed, as in `run`
-    hidden_alias(parser, "--iterations", "geometry_iterations", type=int)  # --set geometry.iterations=N
-    hidden_alias(parser, "--seed", "seed", type=int)  # --set seed=N
     parser.add_argument(
         "--restart", action="store_true", help="discard an earlier checkpoint in RUN/geometry/ instead of resuming it"
     )
@@ -29,6 +22,7 @@ def add_geometry_parser(parser) -> None:
 
 
 def geometry_main(args) -> int:
+    from matspray.cli.options import method_settings_from_args
     from matspray.cli.settings import settings_from_overrides
     from matspray.errors import ConfigError
 
@@ -36,9 +30,6 @@ def geometry_main(args) -> int:
         args.overrides, args.preset, allowed=lambda k: k.startswith("geometry.") or k == "seed"
     )
     overrides = {key.split(".", 1)[-1]: value for key, value in named.items()}
-    for old, key in (("geometry_iterations", "iterations"), ("seed", "seed")):
-        if getattr(args, old, None) is not None:
-            overrides.setdefault(key, getattr(args, old))
     if args.threads < 0:
         raise ConfigError(f"--threads must be >= 0, got {args.threads}")
 
@@ -60,7 +51,8 @@ def geometry_main(args) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     # the photos `run` reads: larger ones brought to the preset's working size unless --downscale says otherwise
-    scene = load_scene(args.data, downscale=args.downscale, max_size=WORKING_SIZE[args.preset])
+    downscale = method_settings_from_args(args).get("downscale")  # read as `run` reads it
+    scene = load_scene(args.data, downscale=downscale, max_size=WORKING_SIZE[args.preset])
     out = args.out / "geometry"
     with (
         RunDir(args.out).hold(),

@@ -3,7 +3,7 @@
 from pathlib import Path
 
 from matspray.cli.options import (
-    USER_SETTING_FLAGS,
+    SETTING_FLAGS,
     add_method_arguments,
     add_run_arguments,
     build_config_from_args,
@@ -17,7 +17,7 @@ def add_run_parser(parser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run folder; finished stages in it are reused")
     add_run_arguments(parser)
     parser.add_argument("--overwrite", action="store_true", help="reuse an --out folder made from another dataset")
-    add_method_arguments(parser, visible=USER_SETTING_FLAGS)
+    add_method_arguments(parser, flags=SETTING_FLAGS)
     add_set_argument(parser)
     parser.add_argument(
         "--list-settings",

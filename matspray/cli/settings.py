@@ -3,86 +3,41 @@
 
 The keys are the fields of `matspray.method.config.PipelineConfig` and of its sections' dataclasses (geometry, lift,
 refine, refine.merger, visibility), found by walking them, so a field added to a section is settable without a
-change here; its meaning is the comment beside (or just above) the field in the source. A value is read by the
-field's type (int, float, on/off, text, none where the field may be None, comma-separated numbers for tuples);
-the library validates it, and a bad one comes back naming `--set KEY`.
+change here; its meaning is the help declared on the field (`matspray.settings.setting`). A field with a flag of its
+own (`--downscale`, ...) is set by that flag, not by `--set`; an internal one (it follows another setting) by neither.
+A value is read by the field's type (int, float, on/off, text, none where the field may be None, comma-separated
+numbers for tuples); the library validates it, and a bad one comes back naming `--set KEY`.
 
 Nothing here imports torch at import time: the parsers stay fast."""
 
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import os
-import re
+import sys
 import types
 import typing
 from dataclasses import dataclass, fields, is_dataclass
 
 from matspray.errors import ConfigError
+from matspray.method.config import PipelineConfig
+from matspray.settings import flag_of, help_of, internal
 
-# set by their own flags (or by nothing: the preset's and the seed's copies inside the geometry section)
-OWN_FLAGS = {
-    "preset": "--preset",
-    "method": "--method",
-    "predictor": "--predictor",
-    "predictor_options": "--weights",
-    "device": "--device",
-    "backend": "--backend",
-    "downscale": "--downscale",
-}
-# follow --preset and seed, or are set per variant by the pipeline (matspray.method.pipeline.refine_config)
-DERIVED = ("geometry.preset", "geometry.seed", "refine.variant", "refine.seed")
-# a field's comment goes on in the comment lines below it while it is unfinished: a parenthesis left open, or a last
-# word that cannot end a phrase (otherwise those lines are the next field's)
-UNFINISHED = (
-    ",",
-    ";",
-    ":",
-    "(",
-    " the",
-    " a",
-    " an",
-    " of",
-    " and",
-    " or",
-    " to",
-    " in",
-    " by",
-    " it",
-    " is",
-    " are",
-    " not",
-    " be",
-)
-UNFINISHED += (" with", " for", " from", " as", " at", " on", " than", " that", " which", " when", " where")
-# meanings of fields whose source has no comment (a field with one uses its own)
-MEANINGS = {
-    "geometry.iterations": "Gaussian Splatting steps (the preset's; the densification schedule follows)",
-    "geometry.max_gaussians": "cap on the Gaussians densification may grow to (lower it when a GPU runs out of memory)",
-    "refine.iterations": "refinement steps of each variant (the preset's)",
-    "seed": "random seed of the run (geometry, predictor draws, refinement unless refine_seed)",
-    "geometry.init_opacity": "opacity of the initial Gaussians",
-    "geometry.init_scale": "initial size, in multiples of the spacing of the neighbouring points",
-    "geometry.sh_degree": "highest spherical-harmonics degree of the colours",
-    "geometry.lr_means_final": "learning rate of the positions at the last step (exponential decay from lr_means)",
-    "geometry.lr_sh_dc": "learning rate of the colours' constant term",
-    "geometry.lr_sh_rest": "learning rate of the colours' higher SH terms",
-    "geometry.lr_opacity": "learning rate of the opacities",
-    "geometry.lr_scales": "learning rate of the (log) scales",
-    "geometry.lr_quats": "learning rate of the rotations",
-    "geometry.densify_until": "last step of densification",
-    "geometry.densify_every": "steps between densifications",
-    "geometry.opacity_reset_every": "steps between opacity resets",
-    "geometry.prune_opacity": "Gaussians less opaque than this are pruned",
-    "geometry.checkpoint_every": "steps between checkpoints (a rerun resumes from the last)",
-    "refine.envmap_lr": "learning rate of the estimated light's log radiance",
-    "refine.merger.hidden": "width of the merger's hidden layers",
-    "refine.merger.layers": "hidden layers of each merger MLP",
-    "refine.merger.softmax": "weights by a softmax over the views (off: the paper's ablation without it)",
-}
 SHADOWS = "shadows"  # on: the preset's shadow maps (the visibility section), off: none
+# the one section whose fields do not declare their help yet (`matspray.render.shade.visibility.VisibilityConfig`):
+# their meanings until they do (tests/test_settings_once.py fails once a field declares its own)
+VISIBILITY_HELP = {
+    "rows": "directions: the centres of a rows x 2 rows lat-long grid",
+    "resolution": "shadow-map pixels per side",
+    "distance": "shadow cameras sit this many bounding radii away (nearly parallel rays)",
+    "bias": "depth bias as a fraction of the bounding radius, added to twice each Gaussian's extent",
+}
+
+
+def own_flags() -> dict[str, str]:
+    """PipelineConfig's settings that a flag of their own sets: {setting: flag} (`--set KEY` refuses them)."""
+    return {f.name: flag_of(f) for f in fields(PipelineConfig) if flag_of(f) and not flag_of(f).startswith("--set")}
 
 
 @dataclass(frozen=True)
@@ -92,11 +47,22 @@ class Setting:
     meaning: str  # one line
 
 
+def field_hint(cls, name: str):
+    """The type of the field `name` of `cls`, read from its annotation alone (the rest of the class's annotations may
+    name sections whose modules are not imported)."""
+    annotation = next(f.type for f in fields(cls) if f.name == name)
+    if not isinstance(annotation, str):
+        return annotation
+    return eval(annotation, vars(sys.modules[cls.__module__]))  # noqa: S307 - a field's own annotation
+
+
 def _hints(cls) -> dict:
-    try:
-        return typing.get_type_hints(cls)
-    except Exception:  # a forward reference that does not resolve: the annotations as written
-        return {f.name: f.type for f in fields(cls)}
+    """The fields' types; PipelineConfig's name the sections' classes, imported here."""
+    if cls is PipelineConfig:
+        from matspray.method.config import section_types
+
+        return typing.get_type_hints(cls, localns=section_types())
+    return typing.get_type_hints(cls)
 
 
 def _dataclass_of(hint):
@@ -109,76 +75,23 @@ def _dataclass_of(hint):
     return None
 
 
-def wrapped(text: str) -> bool:
-    """Whether a comment goes on in the next comment line: a parenthesis is open, or it stops mid-phrase."""
-    return text.count("(") > text.count(")") or text.rstrip().endswith(UNFINISHED)
-
-
-def field_comments(cls) -> dict[str, str]:
-    """Field name -> its comment: beside it (wrapped onto the next lines while they are full), inside its
-    parenthesised default, or else the block just above it."""
-    try:
-        lines = inspect.getsource(cls).splitlines()
-    except (OSError, TypeError):
-        return {}
-    comments, above, owner, continuing = {}, [], None, False
-    for i, line in enumerate(lines):
-        stripped = line.strip()
-        if stripped.startswith("#"):
-            text = stripped.lstrip("# ").strip()
-            if continuing and owner is not None:  # the wrapped end of the field's own comment
-                comments[owner] += " " + text
-                continuing = wrapped(comments[owner])
-            else:
-                above.append(text)
-            continue
-        match = re.match(r"^    (\w+)\s*:", line)
-        if not match or line.startswith("     "):
-            if not stripped:
-                above, owner, continuing = [], None, False
-            elif stripped.startswith(")"):
-                pass  # the end of a parenthesised default: its comment may go on below
-            elif "# " in stripped and owner is not None:  # inside a parenthesised default
-                comments[owner] = (comments[owner] + " " + stripped.split("# ", 1)[1]).strip()
-                continuing = wrapped(comments[owner])
-            continue
-        owner, continuing = match.group(1), False
-        if "  # " in line:
-            comments[owner] = line.split("  # ", 1)[1].strip()
-            continuing = wrapped(comments[owner])
-        else:
-            comments[owner] = ""
-        if not comments[owner]:
-            comments[owner] = " ".join(above)
-        above = []
-    return {name: " ".join(text.split()) for name, text in comments.items()}
-
-
 def settings_table() -> dict[str, Setting]:
     """Every settable key, in the dataclasses' field order."""
-    from matspray.method.config import PipelineConfig
-
     table: dict[str, Setting] = {}
 
     def walk(cls, prefix: str) -> None:
-        hints, comments = _hints(cls), field_comments(cls)
+        hints = _hints(cls)
         for f in fields(cls):
-            key = prefix + f.name
-            if key in OWN_FLAGS or key in DERIVED:
+            key, section = prefix + f.name, _dataclass_of(hints[f.name])
+            if key == "visibility":  # on/off by its own key; its fields size the shadow maps where it is on
+                table[SHADOWS] = Setting(SHADOWS, bool, help_of(f))
+            elif internal(f) or (flag_of(f) and section is None):
                 continue
-            hint = hints.get(f.name, f.type)
-            section = _dataclass_of(hint)
             if section is not None:
-                if key == "visibility":
-                    table[SHADOWS] = Setting(
-                        SHADOWS,
-                        bool,
-                        "bake each Gaussian's visibility and shadow the PBR "
-                        "shading with it (off: the paper's unshadowed split-sum shading)",
-                    )
                 walk(section, key + ".")
                 continue
-            table[key] = Setting(key, hint, comments.get(f.name) or MEANINGS.get(key, ""))
+            meaning = help_of(f) or (VISIBILITY_HELP.get(f.name, "") if prefix == "visibility." else "")
+            table[key] = Setting(key, hints[f.name], meaning)
 
     walk(PipelineConfig, "")
     return table
@@ -282,8 +195,9 @@ def settings_from_overrides(items, preset: str, allowed=None) -> dict:
         key = key.strip()
         if not sep or not key:
             raise ConfigError(f"--set takes KEY=VALUE, got {item!r} (matspray run --list-settings lists the keys)")
-        if key in OWN_FLAGS:
-            raise OwnFlagError(key, OWN_FLAGS[key])
+        own = own_flags()
+        if key in own:
+            raise OwnFlagError(key, own[key])
         if key not in table or (allowed is not None and not allowed(key)):
             raise SettingError(key, "no such setting here (matspray run --list-settings lists them)")
         try:
@@ -304,15 +218,16 @@ def settings_from_overrides(items, preset: str, allowed=None) -> dict:
 
 
 # ------------------------------------------------------------------------------------------ flags
-def add_set_argument(parser, example: str = "lift.min_support=0.5 refine.normal_lr=0") -> None:
+def add_set_argument(parser, example: str = "lift.min_support=0.5 refine.normal_lr=0", flag: str = "--set") -> None:
+    """`--set KEY=VALUE ...` into `args.overrides` (`flag`: its name in a parser whose --set means something else)."""
     parser.add_argument(
-        "--set",
+        flag,
         dest="overrides",
         nargs="+",
         action="extend",
         default=[],
         metavar="KEY=VALUE",
-        help=f"research settings by name, e.g. --set {example} (`matspray run --list-settings` lists every key "
+        help=f"research settings by name, e.g. {flag} {example} (`matspray run --list-settings` lists every key "
         "with its default and meaning)",
     )
 
@@ -344,7 +259,7 @@ def settings_listing(preset: str = "demo", method: str = "matspray") -> str:
             default = config
             for part in key.split("."):
                 default = getattr(default, part)
-        meaning = setting.meaning or "(no comment in the source)"
+        meaning = setting.meaning
         if key.startswith("visibility."):
             meaning = f"with shadows=on: {meaning}"
         lines.append(f"{key} = {show_value(default)}  [{type_name(setting.hint)}]  {meaning}")

@@ -27,6 +27,7 @@ from matspray.data.camera import Camera
 from matspray.data.scene import View
 from matspray.errors import DataError, SettingError, file_error
 from matspray.files import read_json
+from matspray.settings import setting
 
 CROP_FILE = "crop.json"
 WHOLE_FRAME = (0.0, 0.0, 1.0, 1.0)  # a window that keeps the whole photo
@@ -35,11 +36,13 @@ MIN_POINTS = 16  # a view sees fewer of the object's points than this: it keeps 
 
 @dataclass(frozen=True)
 class CropConfig:
-    # a capture without masks has each photo cut to its object (from the sparse points) before the working size
-    enabled: bool = True
-    margin: float = 0.15  # added to the object's box on each side, as a fraction of the box's size
-    quantile: float = 0.01  # the box holds the object's projected points from this quantile to 1 - it
-    min_gain: float = 1.2  # cut only when the windows' side is on average at most 1 / this of the photo's
+    enabled: bool = setting(
+        True,
+        "a capture without masks has each photo cut to its object (from the sparse points) before the working size",
+    )
+    margin: float = setting(0.15, "added to the object's box on each side, as a fraction of the box's size")
+    quantile: float = setting(0.01, "the box holds the object's projected points from this quantile to 1 - it")
+    min_gain: float = setting(1.2, "cut only when the windows' side is on average at most 1 / this of the photo's")
 
     def __post_init__(self):
         if not 0.0 <= self.margin <= 2.0:

@@ -30,18 +30,24 @@ from matspray.data.scene import MIN_COLMAP_POINTS, Scene, View
 from matspray.data.sfm import SfmConfig, extract_sift
 from matspray.errors import ConfigError
 from matspray.rundir import RunDir, timed
+from matspray.settings import setting
 
 STAGE, POINTS_FILE = "points", "points.pt"
 
 
 @dataclass(frozen=True)
 class PointsConfig:
-    # a capture without masks and without points gets points triangulated from its training photos at its known
-    # cameras (off: random points in the bounds)
-    triangulate: bool = True
-    max_size: int = 1024  # longest side of the photos given to feature extraction (loaded again up to this size)
-    neighbours: int = 12  # each training view is matched with this many views nearest in pose
-    threads: int = -1  # pycolmap threads (-1: all cores)
+    triangulate: bool = setting(
+        True,
+        "a capture without masks and without points gets points triangulated from its training photos at its "
+        "known cameras (off: random points in the bounds)",
+    )
+    max_size: int = setting(
+        1024,
+        "longest side of the photos given to feature extraction (loaded again up to this size)",
+    )
+    neighbours: int = setting(12, "each training view is matched with this many views nearest in pose")
+    threads: int = setting(-1, "pycolmap threads (-1: all cores)")
 
     def __post_init__(self):
         if not 64 <= self.max_size <= 16384:

@@ -6,79 +6,107 @@ from dataclasses import asdict, dataclass, fields, replace
 
 from matspray.errors import ConfigError, SettingError, check_unit_interval
 from matspray.presets import GEOMETRY
+from matspray.settings import setting
 
 
 @dataclass(frozen=True)
 class GeometryConfig:
-    preset: str = "demo"
-    seed: int = 0
-    resolution: int = 128  # longest image side used for training (views are downscaled to it); 0: as loaded
-    iterations: int = 3000
+    preset: str = setting("demo", "the preset whose sizes these are (follows --preset)", internal=True)
+    seed: int = setting(0, "random seed of the initial points and the training (follows the run's seed)", internal=True)
+    resolution: int = setting(128, "longest image side used for training (views are downscaled to it); 0: as loaded")
+    iterations: int = setting(3000, "Gaussian Splatting steps (the preset's; the densification schedule follows)")
 
-    # initialisation: the sparse points of a COLMAP scene, points on the masks' visual hull, or random
-    # points in the object bounds; isotropic, init_scale times the spacing of their neighbours
-    init_points: int = 8000
-    # a scene with masks and no points starts from: "hull", points on the masks' visual hull; "random", points drawn
-    # uniformly in the object bounds (the paper's unit cube)
-    init: str = "hull"
-    init_opacity: float = 0.3
-    init_scale: float = 0.7
-    sh_degree: int = 3
-    sh_degree_every: int = 500  # raise the active SH degree by one every this many iterations
+    init_points: int = setting(
+        8000,
+        "initialisation: the sparse points of a COLMAP scene, points on the masks' visual hull, or random "
+        "points in the object bounds; isotropic, init_scale times the spacing of their neighbours",
+    )
+    init: str = setting(
+        "hull",
+        'a scene with masks and no points starts from: "hull", points on the masks\' visual hull; "random", '
+        "points drawn uniformly in the object bounds (the paper's unit cube)",
+    )
+    init_opacity: float = setting(0.3, "opacity of the initial Gaussians")
+    init_scale: float = setting(0.7, "initial size, in multiples of the spacing of the neighbouring points")
+    sh_degree: int = setting(3, "highest spherical-harmonics degree of the colours")
+    sh_degree_every: int = setting(500, "raise the active SH degree by one every this many iterations")
 
-    # learning rates (3DGS); positions are scaled by the scene extent and decay exponentially
-    lr_means: float = 1.6e-4
-    lr_means_final: float = 1.6e-6
-    lr_sh_dc: float = 2.5e-3
-    lr_sh_rest: float = 2.5e-3 / 20
-    lr_opacity: float = 0.05
-    lr_scales: float = 5e-3
-    lr_quats: float = 1e-3
+    # learning rates (3DGS)
+    lr_means: float = setting(
+        1.6e-4, "learning rate of the positions, scaled by the scene extent; decays exponentially to lr_means_final"
+    )
+    lr_means_final: float = setting(
+        1.6e-6,
+        "learning rate of the positions at the last step (exponential decay from lr_means)",
+    )
+    lr_sh_dc: float = setting(2.5e-3, "learning rate of the colours' constant term")
+    lr_sh_rest: float = setting(2.5e-3 / 20, "learning rate of the colours' higher SH terms")
+    lr_opacity: float = setting(0.05, "learning rate of the opacities")
+    lr_scales: float = setting(5e-3, "learning rate of the (log) scales")
+    lr_quats: float = setting(1e-3, "learning rate of the rotations")
 
     # adaptive density control (3DGS)
-    densify_from: int = 200
-    densify_until: int = 2000
-    densify_every: int = 100
-    opacity_reset_every: int = 1000
-    grad_threshold: float = 2e-4  # mean screen-space gradient (NDC units) that triggers clone / split
-    # densify on the summed |per-pixel gradient| of each projected centre instead of |summed gradient| (AbsGS, as
-    # gsplat's strategy offers it); gradients of opposite sign then no longer cancel, so it wants a larger
-    # grad_threshold (gsplat: 8e-4)
-    absgrad: bool = False
-    percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
-    prune_opacity: float = 0.005
-    max_screen_fraction: float = 0.15  # prune Gaussians wider than this fraction of the image (after a reset)
-    max_world_fraction: float = 0.1  # ... or larger than this fraction of the scene extent
-    max_gaussians: int = 40000
-    # split Gaussians whose footprint straddles an edge of the 2D material maps (a change of base colour, roughness or
-    # metallic of at least this much in it, averaged over the views that see it; matspray.geometry.material_edges), so
-    # that one Gaussian does not carry two materials into the lift; 0: off. Needs the run's 2D maps
-    material_edge_threshold: float = 0.0
+    densify_from: int = setting(200, "first step of densification")
+    densify_until: int = setting(2000, "last step of densification")
+    densify_every: int = setting(100, "steps between densifications")
+    opacity_reset_every: int = setting(1000, "steps between opacity resets")
+    grad_threshold: float = setting(2e-4, "mean screen-space gradient (NDC units) that triggers clone / split")
+    absgrad: bool = setting(
+        False,
+        "densify on the summed |per-pixel gradient| of each projected centre instead of |summed gradient| "
+        "(AbsGS, as gsplat's strategy offers it); gradients of opposite sign then no longer cancel, so it "
+        "wants a larger grad_threshold (gsplat: 8e-4)",
+    )
+    percent_dense: float = setting(0.01, "clone below, split above this fraction of the scene extent")
+    prune_opacity: float = setting(0.005, "Gaussians less opaque than this are pruned")
+    max_screen_fraction: float = setting(0.15, "prune Gaussians wider than this fraction of the image (after a reset)")
+    max_world_fraction: float = setting(0.1, "prune Gaussians larger than this fraction of the scene extent")
+    max_gaussians: int = setting(
+        40000,
+        "cap on the Gaussians densification may grow to (lower it when a GPU runs out of memory)",
+    )
+    material_edge_threshold: float = setting(
+        0.0,
+        "split Gaussians whose footprint straddles an edge of the 2D material maps (a change of base colour, "
+        "roughness or metallic of at least this much in it, averaged over the views that see it; "
+        "matspray.geometry.material_edges), so that one Gaussian does not carry two materials into the lift; "
+        "0: off. Needs the run's 2D maps",
+    )
 
     # losses
-    ssim_weight: float = 0.2  # L = (1 - w) L1 + w (1 - SSIM) on sRGB values
-    alpha_weight: float = 0.5  # L1 between rendered and true alpha (data with masks)
-    flatten_weight: float = 0.05  # mean ratio of the shortest to the middle axis of each Gaussian
-    normal_weight: float = 0.05  # 1 - cos between rendered normals and normals of the rendered depth
-    normal_from: float = 0.3  # fraction of the iterations after which the normal loss is on
-    random_background: bool = True  # composite on a random colour each step (data with masks)
-    # 1 - |cos| between the 2D predictor's normal maps (world space) and the rendered normals (every step) and the
-    # normals of the rendered depth (after `normal_from`), over the object: the paper's treatment of specular
-    # objects ("we train Gaussian Splatting on DiffusionRenderer normals"); 0: off (a run's default is
-    # `config.NORMAL_PRIOR_WEIGHT`, where its 2D maps have normal maps)
-    predicted_normal_weight: float = 0.0
+    ssim_weight: float = setting(0.2, "L = (1 - w) L1 + w (1 - SSIM) on sRGB values")
+    alpha_weight: float = setting(0.5, "L1 between rendered and true alpha (data with masks)")
+    flatten_weight: float = setting(0.05, "mean ratio of the shortest to the middle axis of each Gaussian")
+    normal_weight: float = setting(0.05, "1 - cos between rendered normals and normals of the rendered depth")
+    normal_from: float = setting(0.3, "fraction of the iterations after which the normal loss is on")
+    random_background: bool = setting(True, "composite on a random colour each step (data with masks)")
+    predicted_normal_weight: float = setting(
+        0.0,
+        "1 - |cos| between the 2D predictor's normal maps (world space) and the rendered normals (every step)"
+        " and the normals of the rendered depth (after `normal_from`), over the object: the paper's treatment"
+        ' of specular objects ("we train Gaussian Splatting on DiffusionRenderer normals"); 0: off (a run\'s '
+        "default is `config.NORMAL_PRIOR_WEIGHT`, where its 2D maps have normal maps)",
+    )
 
-    # object focus, for captures without masks (a scene with masks trains on its object alone): after this fraction
-    # of the iterations (at that densification step; 0: never) the object region is found on the Gaussians so far
-    # (matspray.geometry.region's rule, or the run's object_bounds), and from then on only its Gaussians grow
-    focus_from: float = 0.15
-    # after the focus, the object's Gaussians are densified at this times grad_threshold
-    focus_grad_scale: float = 0.5
-    # at the focus the background keeps at most this times max_gaussians of its Gaussians (those covering most); it
-    # is no longer opacity-reset or pruned for its size and draws the room coarsely: the budget goes to the object
-    background_budget: float = 0.2
+    focus_from: float = setting(
+        0.15,
+        "object focus, for captures without masks (a scene with masks trains on its object alone): after this"
+        " fraction of the iterations (at that densification step; 0: never) the object region is found on the"
+        " Gaussians so far (matspray.geometry.region's rule, or the run's object_bounds), and from then on "
+        "only its Gaussians grow",
+    )
+    focus_grad_scale: float = setting(
+        0.5,
+        "after the focus, the object's Gaussians are densified at this times grad_threshold",
+    )
+    background_budget: float = setting(
+        0.2,
+        "at the focus the background keeps at most this times max_gaussians of its Gaussians (those covering "
+        "most); it is no longer opacity-reset or pruned for its size and draws the room coarsely: the budget "
+        "goes to the object",
+    )
 
-    checkpoint_every: int = 500
+    checkpoint_every: int = setting(500, "steps between checkpoints (a rerun resumes from the last)")
 
     def __post_init__(self) -> None:
         positive = [

@@ -45,6 +45,7 @@ from matspray.render.backend import active_backend, note_render
 from matspray.render.rays.contributions import iter_contributions
 from matspray.render.settings import RasterSettings
 from matspray.rundir import RunDir, read_json, stage_folder, stage_hint, to_plain
+from matspray.settings import setting
 
 QUANTISATION = 65535  # material values are 8/16-bit PNGs: medians are exact at this resolution
 DEFAULT_BAND_SAMPLES = 1 << 21  # iter_contributions' default
@@ -53,15 +54,22 @@ BYTES_PER_CANDIDATE = 160  # the float64 temporaries of one (Gaussian, ray) cand
 
 @dataclass(frozen=True)
 class LiftConfig:
-    samples_per_side: int = 4  # k: k x k rays per pixel (the paper uses 16)
-    # a hit counts while transmittance before it is >= this (0, every hit: the paper, and our default)
-    visibility_threshold: float = 0.0
-    falloff: float = 1.0  # lambda of eq. (2)
-    mask_threshold: float = 0.5  # pixels whose object mask is below this give nothing
-    min_support: float = 0.5  # a view sees a Gaussian when it gets >= this share of its best view's hits (0: any hit)
-    # a ray hits a Gaussian when it passes within this many standard deviations of its centre (the paper's released
-    # code intersects the 1-sigma ellipsoid); None: wherever alpha_max >= min_alpha (~3.3 sigma)
-    footprint_sigmas: float | None = 1.0
+    samples_per_side: int = setting(4, "k: k x k rays per pixel (the paper uses 16)")
+    visibility_threshold: float = setting(
+        0.0,
+        "a hit counts while transmittance before it is >= this (0, every hit: the paper, and our default)",
+    )
+    falloff: float = setting(1.0, "lambda of eq. (2)")
+    mask_threshold: float = setting(0.5, "pixels whose object mask is below this give nothing")
+    min_support: float = setting(
+        0.5,
+        "a view sees a Gaussian when it gets >= this share of its best view's hits (0: any hit)",
+    )
+    footprint_sigmas: float | None = setting(
+        1.0,
+        "a ray hits a Gaussian when it passes within this many standard deviations of its centre (the paper's"
+        " released code intersects the 1-sigma ellipsoid); None: wherever alpha_max >= min_alpha (~3.3 sigma)",
+    )
 
     def __post_init__(self):
         check_unit_interval(self, "min_support", "visibility_threshold", "mask_threshold")

@@ -29,6 +29,7 @@ from torch import Tensor, nn
 from matspray.data.images import save_torch_atomic
 from matspray.errors import RunError, SettingError, file_error
 from matspray.material import GROUPS
+from matspray.settings import setting
 
 UNSEEN_RULES = ("mask", "mean")
 PRECISIONS = ("auto", "float32", "bfloat16")
@@ -52,18 +53,26 @@ def mlp_dtype(precision: str, device: torch.device) -> torch.dtype:
 
 @dataclass(frozen=True)
 class MergerConfig:
-    hidden: int = 128
-    layers: int = 3
-    frequencies: int = 6  # NeRF positional-encoding octaves
-    softmax: bool = True
-    # the MLPs also read the seen mask [V]; off as in the paper (position and values only)
-    seen_input: bool = False
-    unseen: str = "mask"  # views that did not see a Gaussian: "mask" (weight 0) or "mean" (filled with the mean of the
-    # views that did, weighted like any view; the paper's released code)
-    # the MLPs' arithmetic: "float32", "bfloat16" (autocast: matrix products in bfloat16, weights and the merge in
-    # float32) or "auto": bfloat16 on a CUDA device (tensor cores) and on a CPU with native bfloat16 (AVX512-BF16 or
-    # AMX), where refinement is bound by these products, float32 elsewhere (docs/defaults.md)
-    precision: str = "auto"
+    hidden: int = setting(128, "width of the merger's hidden layers")
+    layers: int = setting(3, "hidden layers of each merger MLP")
+    frequencies: int = setting(6, "NeRF positional-encoding octaves")
+    softmax: bool = setting(True, "weights by a softmax over the views (off: the paper's ablation without it)")
+    seen_input: bool = setting(
+        False,
+        "the MLPs also read the seen mask [V]; off as in the paper (position and values only)",
+    )
+    unseen: str = setting(
+        "mask",
+        'views that did not see a Gaussian: "mask" (weight 0) or "mean" (filled with the mean of the views '
+        "that did, weighted like any view; the paper's released code)",
+    )
+    precision: str = setting(
+        "auto",
+        'the MLPs\' arithmetic: "float32", "bfloat16" (autocast: matrix products in bfloat16, weights and the '
+        'merge in float32) or "auto": bfloat16 on a CUDA device (tensor cores) and on a CPU with native '
+        "bfloat16 (AVX512-BF16 or AMX), where refinement is bound by these products, float32 elsewhere "
+        "(docs/defaults.md)",
+    )
 
     def __post_init__(self):
         if self.precision not in PRECISIONS:

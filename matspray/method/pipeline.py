@@ -26,18 +26,30 @@ from matspray.method.config import PipelineConfig
 from matspray.method.crop import crop_stage
 from matspray.method.lift import LiftResult, load_lift
 from matspray.method.masks import ObjectMasks, read_object_masks
-from matspray.method.plan import RunPlan, open_scene, stage_files
+from matspray.method.plan import (
+    RunPlan,
+    estimate_work,
+    lift_views,
+    open_scene,
+    plan_for_run,
+    recorded_normals,
+    stage_done,
+    stage_files,
+    with_normals,
+)
 from matspray.method.refine.loop import RefineInputs, frozen_views, refine
 from matspray.predictors import maps_to_tensor, predicted_normal_maps, read_materials2d, without_normals
 from matspray.presets import asset_stage, get_variant, variants_for_maps
 from matspray.render.backend import rendering_with, resolve_backend
 from matspray.render.numba.backend import compile_in_background
 from matspray.render.raster.gbuffer import FrozenViews
+from matspray.render.shade.envmap import EnvironmentMap
 from matspray.rundir import RunDir, timed
 
 
-class Pipeline(RunPlan):
-    """One run directory and the stages that fill it. Every stage method returns its artifact."""
+class Pipeline:
+    """One run directory and the stages that fill it, as its plan (`plan`, `matspray.method.plan.resolve_plan`)
+    says. Every stage method returns its artifact."""
 
     def __init__(self, data, out, config: PipelineConfig, overwrite=False, progress=True, log=print, wait=False):
         device = resolve_device(config.device)
@@ -47,7 +59,11 @@ class Pipeline(RunPlan):
         if self.backend == "numba":  # its kernels compile (a fresh install) or load while the data is read
             compile_in_background()
         config, scene = open_scene(data, config, log)
-        super().__init__(config, scene, device, RunDir(out))  # a bad light probe fails here, before the folder is used
+        self.config, self.scene, self.device, self.run = config, scene, device, RunDir(out)
+        self.plan: RunPlan = plan_for_run(config, scene, device, self.run)  # a missing light probe fails here
+        # the probe is read once (the refinement's fingerprint names the file as it was read), before the folder is used
+        height = config.refine.envmap_height
+        self.probe = None if config.light_probe is None else EnvironmentMap.from_file(config.light_probe, height=height)
         # the folder is this process's while the pipeline lives (or until close()): another process that wants to write
         # it is refused, or with `wait` waits; a pipeline dropped or closed lets it go
         held = self.run.hold(wait=wait, notify=log)
@@ -76,6 +92,27 @@ class Pipeline(RunPlan):
     def __exit__(self, *exc) -> None:
         self.close()
 
+    @property
+    def has_maps(self) -> bool:
+        return self.plan.has_maps
+
+    def resolved(self) -> RunPlan:
+        """The plan, complete: the 2D maps are predicted first where it is not yet known whether they have normals
+        (the geometry and refinement may follow them)."""
+        if not self.plan.complete:
+            self.predict()
+            self.plan = with_normals(self.plan, recorded_normals(self.plan, self.run))
+        return self.plan
+
+    def geometry_plan(self):
+        """The geometry's settings and fingerprint: in the plan from the start unless they follow the 2D maps' normals
+        (a capture without masks never waits: its predictions come after its geometry)."""
+        return self.plan.geometry or self.resolved().geometry
+
+    def work(self, variants=None):
+        """What refining `variants` has left to do (`plan.estimate_work`); nothing is computed."""
+        return estimate_work(self.plan, self.scene, self.run, variants)
+
     def _stage(self, stage: str, fp: str, work, before=None, label: str = "") -> bool:
         """How every stage runs, written once. Done before (`done`): said in one line, and nothing runs. Otherwise
         `before()` (what it needs from other stages, outside its timer), then `work(prepared)` (or `work()`) ->
@@ -84,7 +121,7 @@ class Pipeline(RunPlan):
         names the stage in lines (default `stage`). "Done before" is said once, and never of what this pipeline made
         (the stages ask for each other's artifacts more than once). Returns whether it ran."""
         label, where = label or stage, stage_files(stage)
-        if self.done(stage, fp):
+        if stage_done(self.run, stage, fp):
             if stage not in self._known:
                 self.log(f"{label}: done before, reusing {where.shown}")
                 self._known.add(stage)
@@ -102,20 +139,20 @@ class Pipeline(RunPlan):
         self.object_masks()
         if not self.has_maps:
             return None
-        options = self.predictor_options
+        options = self.plan.predictor_options
         work = partial(stages.predict_maps, self.run, self.scene.train, self.config.predictor, options, self.log)
-        self._stage("predict", self.predict_fingerprint(), work)
+        self._stage("predict", self.plan.predict.fingerprint, work)
         return read_materials2d(self.run.root, self.scene.train)
 
     def crop(self) -> ObjectRegion | None:
         """Cut every photo to its object (matspray.data.crop) before the stages that read them: the windows are found
         once (stage `crop`, from the sparse points) and the scene is read again through them. Returns the region the
         windows were found in (the geometry focuses on it), None when the photos are used whole."""
-        fp = self.crop_fingerprint()
+        fp, points_fp = self.plan.crop_fp, self.plan.points_fp
         if fp is None or self._cropped:
             return self._crop_region
-        if self.points_fp and not self.done("crop", fp):
-            points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
+        if points_fp and not stage_done(self.run, "crop", fp):
+            points_stage(self.run, points_fp, self.scene, self.config.points, self.progress, self.log)
         self.scene, self._crop_region = crop_stage(
             self.run, fp, self.scene, self.config.crop, self.config.object_bounds, self.log
         )
@@ -125,8 +162,8 @@ class Pipeline(RunPlan):
     def geometry_normal_targets(self, maps: dict | None = None) -> list[torch.Tensor] | None:
         """The predicted normal maps geometry trains on (world space, per training view), None when it trains on
         none (said in one line where its weight asks for them). `maps`: the 2D maps when the caller has them."""
-        if self.geometry_config().predicted_normal_weight <= 0:
-            if self.config.geometry.predicted_normal_weight > 0 and self.has_maps and not self.unmasked:
+        if self.geometry_plan().settings.predicted_normal_weight <= 0:
+            if self.config.geometry.predicted_normal_weight > 0 and self.has_maps and not self.plan.unmasked:
                 self.log(without_normals(self.run.path("materials2d"), "geometry"))
             return None
         views = [v.to(self.device) for v in self.scene.train]
@@ -135,18 +172,17 @@ class Pipeline(RunPlan):
     def geometry(self):
         """Trained Gaussians [N] and their oriented normals [N, 3]."""
         focus_region = self.crop()  # the photos are cut to the object first (a capture without masks)
-        config = self.geometry_config()
+        config, fp = self.geometry_plan().settings, self.geometry_plan().fingerprint
         edges = config.material_edge_threshold > 0
 
         def inputs():  # the predictions (read once for both uses) and the points, outside the geometry's timer
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             maps = self.predict() if edges or config.predicted_normal_weight > 0 else None
-            if self.points_fp and self.scene.points is None:  # (the crop may have read them already)
-                points_stage(self.run, self.points_fp, self.scene, self.config.points, self.progress, self.log)
+            if self.plan.points_fp and self.scene.points is None:  # (the crop may have read them already)
+                points_stage(self.run, self.plan.points_fp, self.scene, self.config.points, self.progress, self.log)
             material_maps = [maps_to_tensor(maps[v.name]) for v in self.scene.train] if edges else None
             return self.geometry_normal_targets(maps), material_maps
 
-        fp = self.geometry_fingerprint()
         # the checkpoint carries the fingerprint (`inputs`): one of other predictions or data is trained over, never
         # resumed, though its settings all match; a finished stage of another fingerprint loses its record first, so an
         # interrupted retraining leaves no record that claims its files
@@ -177,14 +213,14 @@ class Pipeline(RunPlan):
     def object_masks(self) -> ObjectMasks | None:
         """A capture without masks: the object region, which Gaussians it holds, and every view's mask (their
         rendered alpha), which from here on is the views' alpha. None when the dataset has masks."""
-        if not self.unmasked or self._object_masks is not None:
+        if not self.plan.unmasked or self._object_masks is not None:
             return self._object_masks
         self.crop()  # the masks belong to the cut photos: cut them first, also when the masks are reused
 
         def masks_of(gaussians) -> tuple[dict, dict]:
             return stages.object_masks_of(self.run, gaussians, self.scene, self.config.object_bounds, self.progress)
 
-        self._stage("masks", self.masks_fingerprint(), masks_of, before=lambda: self.geometry()[0])
+        self._stage("masks", self.plan.masks_fp, masks_of, before=lambda: self.geometry()[0])
         masks = self._object_masks = read_object_masks(self.run.path("masks"))
         self.log(stages.describe_masks(masks.inside, masks.region))
         masks.apply(self.scene)
@@ -202,16 +238,16 @@ class Pipeline(RunPlan):
     def lift(self, gaussians, maps) -> LiftResult:
         """Lift the 2D maps onto the Gaussians. Without maps (None) lifting still decides, from the same rays and
         masks, which Gaussians the views see (the kept ones); its values are zeros that no variant reads."""
-        path, config = self.run.path("lift", "projected.pt"), self.lift_config()
+        path, plan = self.run.path("lift", "projected.pt"), self.resolved()
 
         def views_and_values() -> tuple[list, list]:
-            views = self.lift_views()
+            views = lift_views(plan, self.scene)
             return views, stages.lift_values(views, maps, self.device)
 
         def lifted(prepared) -> tuple:
-            return stages.lift_maps(path, gaussians, *prepared, config, self.progress, self.log)
+            return stages.lift_maps(path, gaussians, *prepared, plan.lift.settings, self.progress, self.log)
 
-        self._stage("lift", self.lift_fingerprint(), lifted, before=views_and_values)
+        self._stage("lift", plan.lift.fingerprint, lifted, before=views_and_values)
         return load_lift(path, self.device)
 
     def visibility(self, kept) -> torch.Tensor | None:
@@ -220,7 +256,7 @@ class Pipeline(RunPlan):
             return None
         path, config = self.run.path("visibility", "visibility.pt"), self.config.visibility
         baked = partial(stages.bake_to, path, kept, config, self.progress, self.log)
-        self._stage("visibility", self.visibility_fingerprint(), baked)
+        self._stage("visibility", self.resolved().visibility.fingerprint, baked)
         return stages.read_visibility(path, len(kept), self.device)
 
     def refine_inputs(self) -> RefineInputs:
@@ -240,7 +276,8 @@ class Pipeline(RunPlan):
 
     def refine(self, variant: str = "full") -> Asset:
         variants_for_maps([variant], self.has_maps)  # a variant that reads 2D maps is refused in a run without them
-        config, stage = self.refine_config(variant), asset_stage(variant)
+        planned, stage = self.resolved().refine[variant], asset_stage(variant)
+        config = planned.settings
         probe = self.probe if get_variant(variant).learns_light else None  # variants without a light ignore it
 
         def refined(inputs) -> tuple:
@@ -249,11 +286,10 @@ class Pipeline(RunPlan):
             frozen, warmed = self._frozen_views, self._warmed_lights
             result = refine(inputs, config, self.progress, light=probe, frozen=frozen, warmed_lights=warmed)
             write_asset(self.run.path(stage), inputs.gaussians, result)
-            precision = str(self.merger_dtype(config)).removeprefix("torch.")
+            precision = str(self.plan.merger_dtypes[variant]).removeprefix("torch.")
             return config, {"history": result.history, "frozen_views": result.frozen, "merger_precision": precision}
 
-        fp = self.refine_fingerprint(variant)
-        self._stage(stage, fp, refined, before=self.refine_inputs, label=f"refine [{variant}]")
+        self._stage(stage, planned.fingerprint, refined, before=self.refine_inputs, label=f"refine [{variant}]")
         return read_asset(self.run.path(stage), device=self.device)
 
     def run_all(self, variants=None) -> dict:

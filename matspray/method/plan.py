@@ -1,7 +1,7 @@
-"""What a run will compute, before it computes it: the data it reads at the preset's working size, each stage's
-settings as they apply to that data, and each stage's fingerprint (its settings and its upstream stages' fingerprints).
-A stage whose files exist with the same fingerprint is done and reused (`RunPlan.done`); `Pipeline` (the stages
-themselves) is a `RunPlan`.
+"""What a run will compute, before it computes it: the data it reads at the preset's working size, and `resolve_plan`,
+a function of the config and the scene that gives each stage's settings as they apply to that data and each stage's
+fingerprint (its settings and its upstream stages' fingerprints), as one `RunPlan`. A stage whose files exist with the
+same fingerprint is done and reused (`stage_done`); `Pipeline` runs the stages of its plan.
 
 The method (`paper` or `matspray`) is part of the fingerprints of the stages it changes (lift, visibility, refine), so
 a run folder resumed with the other method recomputes those and reuses the rest.
@@ -9,7 +9,6 @@ a run folder resumed with the other method recomputes those and reuses the rest.
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from matspray.geometry.config import GeometryConfig
 from matspray.geometry.train import prepare_views
 from matspray.method.config import PipelineConfig, variant_refine_config
 from matspray.method.estimate import Work, feature_sizes, run_work, view_pixels
+from matspray.method.lift import LiftConfig
 from matspray.method.merger import mlp_dtype
 from matspray.method.refine.loop import RefineConfig
 from matspray.predictors import (
@@ -33,8 +33,7 @@ from matspray.predictors import (
     read_predictor_info,
     resolve_predictor,
 )
-from matspray.presets import WORKING_SIZE, asset_stage, get_variant, variants_for_maps
-from matspray.render.shade.envmap import EnvironmentMap
+from matspray.presets import VARIANT_NAMES, WORKING_SIZE, asset_stage, get_variant, variants_for_maps
 from matspray.rundir import RunDir, fingerprint
 
 
@@ -94,168 +93,229 @@ def light_probe_identity(probe: str | None) -> tuple:
     return ({"light_probe": str(path.resolve()), "bytes": stat.st_size, "modified_ns": stat.st_mtime_ns},)
 
 
-class RunPlan(ABC):
-    """The resolved config of one run over one scene, and what follows from it: each stage's settings and
-    fingerprint, and which stages are done. The 2D maps' normals are known only once predicted, so `predict`
-    (the stage) is the one thing a plan needs from the stages."""
+@dataclass(frozen=True)
+class StagePlan:
+    """One stage as this run will compute it: its settings (as they apply to this scene) and its fingerprint (the
+    settings and the upstream stages' fingerprints)."""
 
-    def __init__(self, config: PipelineConfig, scene: Scene, device: torch.device, run: RunDir):
-        self.config, self.scene, self.device, self.run = config, scene, device, run
-        self.predictor_options = options_for_dataset(
-            config.predictor, PredictorOptions(**config.predictor_options), scene.source
-        )
-        # a missing or unreadable light probe fails here; it is read once, and the refinement's fingerprint names the
-        # file as it was read
-        self.probe_identity = light_probe_identity(config.light_probe)
-        self.probe = (
-            None
-            if config.light_probe is None
-            else EnvironmentMap.from_file(config.light_probe, height=config.refine.envmap_height)
-        )
-        self.dataset_fp = fingerprint(dataset_identity(scene), config.downscale)
-        self.unmasked = not scene.has_masks  # masks then come from the geometry (stage `masks`)
-        # such a capture without points of its own gets them triangulated at its cameras (stage `points`)
-        self.points_fp = (
-            fingerprint("points", self.dataset_fp, config.points) if needs_points(scene, config.points) else None
-        )
-        self.has_maps = config.predictor != NO_PREDICTOR  # without 2D maps only the variants that need none run
-        self._normals_given: bool | None = None  # whether the 2D maps have normal maps, once they are predicted
+    settings: object
+    fingerprint: str
 
-    @abstractmethod
-    def predict(self):
-        """The predict stage: the 2D maps {view name: MaterialMaps}, predicted where they are not yet."""
 
-    def done(self, stage: str, fp: str) -> bool:
-        """Whether `stage` (a key of STAGES, or an asset stage) finished with the fingerprint `fp`."""
-        where = stage_files(stage)
-        return self.run.stage_done(where.folder, fp, list(where.files))
+@dataclass(frozen=True)
+class RunPlan:
+    """What a run will compute, resolved once from the config and the scene (`resolve_plan`): each stage's settings and
+    fingerprint. The 2D maps' normals are known only once predicted; until then (`normals` None) the stages that follow
+    them are None: `geometry`, `masks`, `lift` and `visibility` where the geometry trains on them, `refine` always."""
 
-    def predicted_normals(self) -> bool | None:
-        """Whether the 2D maps carry normal maps; None until predicted (then kept: their fingerprint is fixed)."""
-        if self._normals_given is None:
-            if not self.has_maps:
-                self._normals_given = False
-            elif self.done("predict", self.predict_fingerprint()):
-                self._normals_given = "normal_space" in read_predictor_info(self.run.root)  # recorded with the files
-        return self._normals_given
+    config: PipelineConfig
+    device: torch.device
+    predictor_options: PredictorOptions
+    probe: tuple  # the light probe's identity (`light_probe_identity`): the learnt-light variants' fingerprints
+    dataset_fp: str
+    unmasked: bool  # a capture without masks: its masks come from the geometry (stage `masks`)
+    has_maps: bool  # without 2D maps only the variants that need none run
+    normals: bool | None  # whether the 2D maps have normal maps; None: not predicted yet
+    points_fp: str | None  # a capture without masks or points of its own gets them triangulated (stage `points`)
+    crop_fp: str | None  # None where the photos are never cut
+    predict: StagePlan
+    geometry: StagePlan | None
+    masks_fp: str | None
+    lift: StagePlan | None
+    visibility: StagePlan | None  # also None when shadowing is off (`config.visibility`)
+    refine: dict[str, StagePlan] | None  # every variant this run can refine
+    merger_dtypes: dict[str, torch.dtype] | None  # what each variant's merger multiplies in on `device`
 
-    def maps_have_normals(self) -> bool:
-        """`predicted_normals`, predicting the maps first where they are not yet."""
-        if self.predicted_normals() is None:
-            self.predict()
-        return bool(self.predicted_normals())
+    @property
+    def complete(self) -> bool:
+        return self.normals is not None
 
-    def predict_fingerprint(self) -> str:
-        masks = () if not self.unmasked else (self.masks_fingerprint(),)  # the predictor sees the masked views
-        seed = self.predictor_options.seed  # an object's own seed changes the draws, except 0 (the default draws)
-        derived = () if seed in (self.config.predictor_options.get("seed"), None, 0) else ({"object_seed": seed},)
-        options = self.config.predictor_options
-        return fingerprint("predict", self.dataset_fp, self.config.predictor, options, *masks, *derived)
 
-    def crop_fingerprint(self) -> str | None:
-        """None where the photos are never cut: scenes with masks, and the crop switched off (their fingerprints are
-        kept)."""
-        if not self.unmasked or not self.config.crop.enabled:
-            return None
-        return fingerprint("crop", self.config.crop, self.config.object_bounds, self.points_fp or self.dataset_fp)
+def _geometry_settings(config: PipelineConfig, unmasked: bool, has_maps: bool, normals) -> GeometryConfig | None:
+    """The geometry settings as they apply to this dataset: the object focus only to a capture without masks, the
+    predicted normals only where the 2D maps have them (None: not known yet), the material edges where there are maps,
+    and neither to a capture without masks, whose masks, which the predictor sees, come from the geometry."""
+    geometry = config.geometry.for_scene(masked=not unmasked)
+    if geometry.predicted_normal_weight > 0 and not unmasked and normals is None:
+        return None  # waits on the predictions
+    if geometry.predicted_normal_weight > 0 and (unmasked or not normals):
+        geometry = replace(geometry, predicted_normal_weight=0.0)
+    if geometry.material_edge_threshold > 0 and (unmasked or not has_maps):
+        geometry = replace(geometry, material_edge_threshold=0.0)
+    return geometry
 
-    def geometry_config(self) -> GeometryConfig:
-        """The geometry settings as they apply to this dataset: the object focus only to a capture without masks, the
-        predicted normals only where the 2D maps have them (predicted first), the material edges where there are maps,
-        and neither to a capture without masks, whose masks, which the predictor sees, come from the geometry."""
-        config = self.config.geometry.for_scene(masked=not self.unmasked)
-        if config.predicted_normal_weight > 0 and (self.unmasked or not self.maps_have_normals()):
-            config = replace(config, predicted_normal_weight=0.0)
-        if config.material_edge_threshold > 0 and (self.unmasked or not self.has_maps):
-            config = replace(config, material_edge_threshold=0.0)
-        return config
 
-    def geometry_fingerprint(self) -> str:
-        # trained on predicted normals or split on the maps' edges, the geometry depends on the predictions too
-        config = self.geometry_config()
-        on_maps = config.predicted_normal_weight > 0 or config.material_edge_threshold > 0
-        upstream = [self.predict_fingerprint()] if on_maps else []
-        upstream += [self.points_fp] if self.points_fp else []  # none for masked scenes: their fingerprint is kept
-        crop = self.crop_fingerprint()
-        upstream += [crop] if crop else []
-        return fingerprint("geometry", self.dataset_fp, config.identity(), *upstream)
+def _geometry_plan(geometry: GeometryConfig, dataset_fp: str, predict_fp, points_fp, crop_fp) -> StagePlan:
+    """Trained on predicted normals or split on the maps' edges, the geometry depends on the predictions too (a capture
+    without masks never is: `predict_fp` may then be None)."""
+    on_maps = geometry.predicted_normal_weight > 0 or geometry.material_edge_threshold > 0
+    upstream = [predict_fp] if on_maps else []
+    upstream += [points_fp] if points_fp else []  # none for masked scenes: their fingerprint is kept
+    upstream += [crop_fp] if crop_fp else []
+    return StagePlan(geometry, fingerprint("geometry", dataset_fp, geometry.identity(), *upstream))
 
-    def masks_fingerprint(self) -> str:
-        return fingerprint("masks", self.config.object_bounds, self.geometry_fingerprint())
 
-    def lift_config(self):
-        """The lift's settings. A run without 2D maps lifts only to learn which Gaussians the views see (no value is
-        read), so one ray per pixel does."""
-        return self.config.lift if self.has_maps else replace(self.config.lift, samples_per_side=1)
+def _predict_fingerprint(config: PipelineConfig, options: PredictorOptions, dataset_fp: str, masks_fp) -> str:
+    masks = () if masks_fp is None else (masks_fp,)  # a capture without masks: the predictor sees the masked views
+    seed = options.seed  # an object's own seed changes the draws, except 0 (the default draws)
+    derived = () if seed in (config.predictor_options.get("seed"), None, 0) else ({"object_seed": seed},)
+    return fingerprint("predict", dataset_fp, config.predictor, config.predictor_options, *masks, *derived)
 
-    def lift_views(self) -> list:
-        """The views lifted from: the training views; without 2D maps, at the size Gaussian Splatting trained at
-        (`geometry.resolution`), which is where it decided what each view shows."""
-        return self.scene.train if self.has_maps else prepare_views(self.scene.train, self.config.geometry.resolution)
 
-    def lift_pixel_share(self) -> float:
-        """The lifted views' pixels over the training views' (1 with 2D maps; see `lift_views`)."""
-        if self.has_maps:
-            return 1.0
-        sizes = [(v.width, v.height) for v in self.scene.train]
-        return sum(view_pixels(w, h, self.config.geometry.resolution) for w, h in sizes) / sum(w * h for w, h in sizes)
+def _refine_settings(config: PipelineConfig, variant: str, normals: bool) -> RefineConfig:
+    """The refinement settings of `variant` in this run: the predicted normals only in a variant that reads the 2D
+    maps, and only where they have normal maps."""
+    refine = variant_refine_config(config, variant)
+    if not (get_variant(variant).uses_maps and refine.predicted_normal_weight > 0 and normals):
+        refine = replace(refine, predicted_normal_weight=0.0)
+    return refine
 
-    def lift_fingerprint(self) -> str:
-        at = () if self.has_maps else ({"views_at": self.config.geometry.resolution},)
-        upstream = (self.predict_fingerprint(), self.geometry_fingerprint())
-        return fingerprint("lift", self.config.method, self.lift_config(), *upstream, *at)
 
-    def visibility_fingerprint(self) -> str | None:
-        if self.config.visibility is None:
-            return None
-        return fingerprint("visibility", self.config.visibility, self.lift_fingerprint())
+def _refine_plans(config: PipelineConfig, device, normals: bool, upstream: tuple, probe: tuple) -> tuple[dict, dict]:
+    """Every variant's refinement settings and fingerprint, and its merger's dtype on `device` ("auto" resolved: part
+    of the fingerprint). Variants without a light ignore the probe."""
+    plans, dtypes = {}, {}
+    for variant in VARIANT_NAMES:
+        settings = _refine_settings(config, variant, normals)
+        dtypes[variant] = mlp_dtype(settings.merger.precision, device)
+        probed = probe if get_variant(variant).learns_light else ()
+        fp = fingerprint("refine", config.method, settings, str(dtypes[variant]), *upstream, *probed)
+        plans[variant] = StagePlan(settings, fp)
+    return plans, dtypes
 
-    def merger_dtype(self, config: RefineConfig) -> torch.dtype:
-        """What the merger of a refinement with `config` multiplies in on this run's device (`precision` resolved)."""
-        return mlp_dtype(config.merger.precision, self.device)
 
-    def refine_config(self, variant: str) -> RefineConfig:
-        """The refinement settings of `variant` in this run: the predicted normals only in a variant that reads the 2D
-        maps, and only where they have normal maps."""
-        config = variant_refine_config(self.config, variant)
-        if not (get_variant(variant).uses_maps and config.predicted_normal_weight > 0 and self.maps_have_normals()):
-            config = replace(config, predicted_normal_weight=0.0)
-        return config
+def lift_settings(config: PipelineConfig, has_maps: bool) -> LiftConfig:
+    """The lift's settings. A run without 2D maps lifts only to learn which Gaussians the views see (no value is
+    read), so one ray per pixel does."""
+    return config.lift if has_maps else replace(config.lift, samples_per_side=1)
 
-    def refine_fingerprint(self, variant: str) -> str:
-        config = self.refine_config(variant)
-        probe = self.probe_identity if self.probe is not None and get_variant(variant).learns_light else ()
-        upstream = (self.lift_fingerprint(), self.visibility_fingerprint())
-        # the merger's dtype: what "auto" is on this machine; variants without a light ignore the probe
-        return fingerprint("refine", self.config.method, config, str(self.merger_dtype(config)), *upstream, *probe)
 
-    def feature_views(self) -> list[tuple[int, int]]:
-        """The sizes of the photos the `points` stage extracts features from (none when the run has no such stage):
-        the photos as loaded, before the working size, at most `points.max_size` on their long side."""
-        if not self.points_fp:
-            return []
-        views = [(v.width, v.height) for v in self.scene.train]
-        return feature_sizes(views, self.scene.downscale, self.config.points.max_size)
+def resolve_plan(
+    config: PipelineConfig, scene: Scene, device: torch.device, normals: bool | None = None, probe: tuple = ()
+) -> RunPlan:
+    """The plan of `config` over `scene` on `device`: each stage's settings and fingerprint. `normals`: whether the 2D
+    maps have normal maps (None: not predicted yet; `with_normals` completes the plan once they are); `probe`: the
+    light probe's `light_probe_identity`."""
+    options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), scene.source)
+    dataset_fp = fingerprint(dataset_identity(scene), config.downscale)
+    unmasked, has_maps = not scene.has_masks, config.predictor != NO_PREDICTOR
+    points_fp = fingerprint("points", dataset_fp, config.points) if needs_points(scene, config.points) else None
+    crop_fp = None
+    if unmasked and config.crop.enabled:
+        crop_fp = fingerprint("crop", config.crop, config.object_bounds, points_fp or dataset_fp)
+    geometry = masks_fp = None
+    if unmasked:  # the geometry comes first (it never reads the predictions here), its masks before the predictor
+        settings = _geometry_settings(config, True, has_maps, False)
+        geometry = _geometry_plan(settings, dataset_fp, None, points_fp, crop_fp)
+        masks_fp = fingerprint("masks", config.object_bounds, geometry.fingerprint)
+    predict = StagePlan(config.predictor, _predict_fingerprint(config, options, dataset_fp, masks_fp))
+    plan = RunPlan(
+        config, device, options, probe, dataset_fp, unmasked, has_maps, None, points_fp, crop_fp, predict, geometry,
+        masks_fp, None, None, None, None,
+    )  # fmt: skip
+    plan = _with_geometry(plan, None)
+    return with_normals(plan, False) if not has_maps else plan if normals is None else with_normals(plan, normals)
 
-    def work(self, variants=None) -> Work:
-        """What refining `variants` has left to do, for `estimate.estimate_line`. Nothing is computed: predictions not
-        made yet leave every refinement to do, and the geometry too where it follows their normals."""
-        names = variants_for_maps(variants, self.has_maps)
-        pending = self.predicted_normals() is None
-        geometry_waits = pending and self.config.geometry.predicted_normal_weight > 0 and not self.unmasked
-        stages = {"points": self.points_fp} if self.points_fp else {}
-        if not geometry_waits:
-            stages |= {"geometry": self.geometry_fingerprint(), "masks": self.masks_fingerprint()}
-            stages["lift"] = self.lift_fingerprint()
-        done = frozenset(stage for stage, fp in stages.items() if self.done(stage, fp))
-        to_refine = [v for v in names if pending or not self.done(asset_stage(v), self.refine_fingerprint(v))]
-        return run_work(
-            [(v.width, v.height) for v in self.scene.train],
-            self.config.geometry.iterations,
-            self.config.geometry.resolution,
-            self.lift_config().samples_per_side ** 2 * self.lift_pixel_share(),
-            [(variant_refine_config(self.config, v).iterations, get_variant(v).uses_maps) for v in to_refine],
-            self.unmasked,
-            done,
-            self.feature_views(),
-        )
+
+def _with_geometry(plan: RunPlan, normals: bool | None) -> RunPlan:
+    """`plan` with the geometry (where it does not wait on unknown normals), the lift and the visibility."""
+    config, geometry, masks_fp = plan.config, plan.geometry, plan.masks_fp
+    if plan.lift is not None:
+        return plan
+    if geometry is None:
+        settings = _geometry_settings(config, plan.unmasked, plan.has_maps, normals)
+        if settings is None:
+            return plan  # waits on the predictions' normals
+        geometry = _geometry_plan(settings, plan.dataset_fp, plan.predict.fingerprint, plan.points_fp, plan.crop_fp)
+        masks_fp = fingerprint("masks", config.object_bounds, geometry.fingerprint)
+    at = () if plan.has_maps else ({"views_at": config.geometry.resolution},)
+    settings = lift_settings(config, plan.has_maps)
+    upstream = (plan.predict.fingerprint, geometry.fingerprint)
+    lift = StagePlan(settings, fingerprint("lift", config.method, settings, *upstream, *at))
+    visibility = None
+    if config.visibility is not None:
+        visibility = StagePlan(config.visibility, fingerprint("visibility", config.visibility, lift.fingerprint))
+    return replace(plan, geometry=geometry, masks_fp=masks_fp, lift=lift, visibility=visibility)
+
+
+def with_normals(plan: RunPlan, normals: bool) -> RunPlan:
+    """`plan` completed once it is known whether the 2D maps have normal maps: the geometry where it waited on them,
+    and every variant's refinement."""
+    if plan.complete:
+        return plan
+    normals = normals and plan.has_maps
+    plan = _with_geometry(plan, normals)
+    upstream = (plan.lift.fingerprint, None if plan.visibility is None else plan.visibility.fingerprint)
+    refine, dtypes = _refine_plans(plan.config, plan.device, normals, upstream, plan.probe)
+    return replace(plan, normals=normals, refine=refine, merger_dtypes=dtypes)
+
+
+def plan_for_run(config: PipelineConfig, scene: Scene, device: torch.device, run: RunDir) -> RunPlan:
+    """`resolve_plan` for the run folder `run`: the light probe identified (a missing or unreadable one fails here),
+    and the 2D maps' normals as a run made before predicted them."""
+    plan = resolve_plan(config, scene, device, probe=light_probe_identity(config.light_probe))
+    normals = None if plan.complete else recorded_normals(plan, run)
+    return plan if normals is None else with_normals(plan, normals)
+
+
+def stage_done(run: RunDir, stage: str, fp: str | None) -> bool:
+    """Whether `stage` (a key of STAGES, or an asset stage) finished in `run` with the fingerprint `fp`."""
+    where = stage_files(stage)
+    return fp is not None and run.stage_done(where.folder, fp, list(where.files))
+
+
+def recorded_normals(plan: RunPlan, run: RunDir) -> bool | None:
+    """Whether the 2D maps carry normal maps, as their predict stage recorded it in `run`; None until predicted."""
+    if not plan.has_maps:
+        return False
+    if stage_done(run, "predict", plan.predict.fingerprint):
+        return "normal_space" in read_predictor_info(run.root)  # recorded with the files
+    return None
+
+
+def lift_views(plan: RunPlan, scene: Scene) -> list:
+    """The views lifted from: the training views; without 2D maps, at the size Gaussian Splatting trained at
+    (`geometry.resolution`), which is where it decided what each view shows."""
+    return scene.train if plan.has_maps else prepare_views(scene.train, plan.config.geometry.resolution)
+
+
+def lift_pixel_share(plan: RunPlan, scene: Scene) -> float:
+    """The lifted views' pixels over the training views' (1 with 2D maps; see `lift_views`)."""
+    if plan.has_maps:
+        return 1.0
+    sizes = [(v.width, v.height) for v in scene.train]
+    resolution = plan.config.geometry.resolution
+    return sum(view_pixels(w, h, resolution) for w, h in sizes) / sum(w * h for w, h in sizes)
+
+
+def refine_iterations(plan: RunPlan, variant: str) -> int:
+    """The refinement steps of `variant`: the plan's, or before the plan is complete the config's (normals do not
+    change them)."""
+    return (plan.refine[variant].settings if plan.refine else variant_refine_config(plan.config, variant)).iterations
+
+
+def estimate_work(plan: RunPlan, scene: Scene, run: RunDir, variants=None) -> Work:
+    """What refining `variants` has left to do, for `estimate.estimate_line`. Nothing is computed: predictions not
+    made yet leave every refinement to do, and the geometry too where it follows their normals."""
+    config = plan.config
+    names = variants_for_maps(variants, plan.has_maps)
+    stages = {"points": plan.points_fp} if plan.points_fp else {}
+    if plan.geometry is not None:
+        stages |= {"geometry": plan.geometry.fingerprint, "masks": plan.masks_fp, "lift": plan.lift.fingerprint}
+    done = frozenset(stage for stage, fp in stages.items() if stage_done(run, stage, fp))
+    pending = plan.refine is None
+    to_refine = [v for v in names if pending or not stage_done(run, asset_stage(v), plan.refine[v].fingerprint)]
+    feature_views = []  # the photos the `points` stage extracts features from, before the working size
+    if plan.points_fp:
+        views = [(v.width, v.height) for v in scene.train]
+        feature_views = feature_sizes(views, scene.downscale, config.points.max_size)
+    return run_work(
+        [(v.width, v.height) for v in scene.train],
+        config.geometry.iterations,
+        config.geometry.resolution,
+        lift_settings(config, plan.has_maps).samples_per_side ** 2 * lift_pixel_share(plan, scene),
+        [(refine_iterations(plan, v), get_variant(v).uses_maps) for v in to_refine],
+        plan.unmasked,
+        done,
+        feature_views,
+    )

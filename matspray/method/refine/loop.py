@@ -71,63 +71,112 @@ from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.deferred import view_directions
 from matspray.render.shade.envmap import DEFAULT_LEVELS, EnvironmentMap, PrefilteredEnvironment
 from matspray.render.shade.latlong import total_variation
+from matspray.settings import setting
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")
 
 
 @dataclass(frozen=True)
 class RefineConfig:
-    iterations: int = 600
-    merger_lr: float = 1e-3  # paper: 0.001
-    envmap_lr: float = 3e-2
-    supervised_lr: float = 5e-2  # free per-Gaussian logits (3DGS's rate for per-Gaussian opacity logits);
-    # at the merger's 1e-3 a Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey
-    envmap_height: int = 16  # learnable lat-long map is H x 2H
-    envmap_init: float = 0.5  # initial constant radiance
-    # weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)
-    light_tv_weight: float = 3e-4
-    light_warmup: int = 200  # steps that fit only the environment map to the photos, materials fixed at their start
-    min_coverage: float = 0.2  # per step the material source runs only for Gaussians covering >= this many pixels of
-    # the view; the others (a sliver of the image) reuse their last value, without gradient
-    material_weight: float = 1.0  # L_Image
-    photo_weight: float = 2.0  # L_3DGS against L_Image, in the variants that read the 2D maps (the others weigh it 1):
-    # the paper's text gives no weight (1), its released code adds the term twice (2)
-    basecolor_loss: str = "l1"  # "l1" (the paper, and our default), "scale-invariant" (only for variants with the
-    # PBR loss, which then sets the brightness;
-    # supervised compares by plain L1 then) or "huber" (quadratic below `basecolor_huber_delta`, so views that differ
-    # by a little are averaged, as proj-average does; linear above, so a wrong view or batch is outvoted, as by L1's
-    # median)
-    basecolor_huber_delta: float = DEFAULT_HUBER_DELTA  # linear base colour; where "huber" turns quadratic to linear
-    photo_l1_weight: float = 0.8  # lambda of L_3DGS; (1 - lambda) goes to D-SSIM
-    align_view_gains: bool = False  # divide each view's base colour (lifted values and 2D map) by its gain against the
-    # multi-view average (`merger.view_gains`): per-view exposure and white balance removed before any variant fuses
-    normal_lr: float = 1e-3  # Adam's rate for the per-Gaussian shading normals (variants with the PBR loss; about the
-    # radians a normal turns per step); 0: shade with the geometry's normals, frozen
-    # the geometry's normals, each averaged over this many nearest Gaussians (`normals.smoothed_normals`) before shading
-    # and refinement, in every variant; 0: as the geometry trained them (the paper)
-    normal_neighbours: int = 16
-    normal_prior_weight: float = 0.1  # weight of 1 - |cos| between each refined normal and the geometry's: the photo
-    # loss alone also turns normals to fake shading that the materials get wrong
-    predicted_normal_weight: float = 0.0  # weight of 1 - |cos| between the rendered normals and the view's predicted
-    # normal map (when the predictor gives one), per object pixel: the 2D model's normals as a target (a run's
-    # default is `config.NORMAL_PRIOR_WEIGHT`, in the variants that read the 2D maps, where they have normal maps)
-    # the quantile of the views' metallic that the material loss is smallest at (its pinball loss on that channel;
-    # 0.5: L1, the median, as the paper): 2D models "often predict partial metallicity in certain views" (the paper),
-    # which a lower quantile outvotes even where most views have it
-    metallic_quantile: float = 0.25
-    # weight of the mean metallic of the Gaussians a step refines, in the variants without the 2D maps (nothing else
-    # tells metal from a dielectric there, and the photo loss alone turns a skull into grey metal): an L1 pull
-    # towards a dielectric that only the photos' evidence of metal outweighs; 0: off (the paper's no-prior baseline)
-    metallic_prior_weight: float = 0.0
-    basecolor_spread_weight: float = 0.0  # weight of the base-colour merger's KL divergence from equal weights over the
-    # seen views (softmax variants only): keeps it averaging views unless the losses show some are better
-    variant: str = "full"
-    seed: int = 0
-    log_every: int = 10  # steps between history records, and between the reads of whether losses stayed finite
-    merger: MergerConfig = field(default_factory=MergerConfig)
-    # variants with the material loss: after the merger, each Gaussian's metallic fitted to the 2D maps through the
-    # renderer (`matspray.method.refine.metallic`; steps 0: off), which sharpens the metal edges the lift blurs
-    metallic_fit: MetallicFitConfig = field(default_factory=MetallicFitConfig)
+    iterations: int = setting(600, "refinement steps of each variant (the preset's)")
+    merger_lr: float = setting(1e-3, "learning rate of the Neural Merger (the paper: 0.001)")
+    envmap_lr: float = setting(3e-2, "learning rate of the estimated light's log radiance")
+    supervised_lr: float = setting(
+        5e-2,
+        "free per-Gaussian logits (3DGS's rate for per-Gaussian opacity logits); at the merger's 1e-3 a "
+        "Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey",
+    )
+    envmap_height: int = setting(16, "learnable lat-long map is H x 2H")
+    envmap_init: float = setting(0.5, "initial constant radiance")
+    light_tv_weight: float = setting(
+        3e-4,
+        "weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)",
+    )
+    light_warmup: int = setting(
+        200,
+        "steps that fit only the environment map to the photos, materials fixed at their start",
+    )
+    min_coverage: float = setting(
+        0.2,
+        "per step the material source runs only for Gaussians covering >= this many pixels of the view; the "
+        "others (a sliver of the image) reuse their last value, without gradient",
+    )
+    material_weight: float = setting(
+        1.0, "weight of L_Image, the L1 between the rendered material maps and the 2D maps"
+    )
+    photo_weight: float = setting(
+        2.0,
+        "L_3DGS against L_Image, in the variants that read the 2D maps (the others weigh it 1): the paper's "
+        "text gives no weight (1), its released code adds the term twice (2)",
+    )
+    basecolor_loss: str = setting(
+        "l1",
+        '"l1" (the paper, and our default), "scale-invariant" (only for variants with the PBR loss, which '
+        'then sets the brightness; supervised compares by plain L1 then) or "huber" (quadratic below '
+        "`basecolor_huber_delta`, so views that differ by a little are averaged, as proj-average does; linear"
+        " above, so a wrong view or batch is outvoted, as by L1's median)",
+    )
+    basecolor_huber_delta: float = setting(
+        DEFAULT_HUBER_DELTA,
+        'linear base colour; where "huber" turns quadratic to linear',
+    )
+    photo_l1_weight: float = setting(0.8, "lambda of L_3DGS; (1 - lambda) goes to D-SSIM")
+    align_view_gains: bool = setting(
+        False,
+        "divide each view's base colour (lifted values and 2D map) by its gain against the multi-view average"
+        " (`merger.view_gains`): per-view exposure and white balance removed before any variant fuses",
+    )
+    normal_lr: float = setting(
+        1e-3,
+        "Adam's rate for the per-Gaussian shading normals (variants with the PBR loss; about the radians a "
+        "normal turns per step); 0: shade with the geometry's normals, frozen",
+    )
+    normal_neighbours: int = setting(
+        16,
+        "the geometry's normals, each averaged over this many nearest Gaussians (`normals.smoothed_normals`) "
+        "before shading and refinement, in every variant; 0: as the geometry trained them (the paper)",
+    )
+    normal_prior_weight: float = setting(
+        0.1,
+        "weight of 1 - |cos| between each refined normal and the geometry's: the photo loss alone also turns "
+        "normals to fake shading that the materials get wrong",
+    )
+    predicted_normal_weight: float = setting(
+        0.0,
+        "weight of 1 - |cos| between the rendered normals and the view's predicted normal map (when the "
+        "predictor gives one), per object pixel: the 2D model's normals as a target (a run's default is "
+        "`config.NORMAL_PRIOR_WEIGHT`, in the variants that read the 2D maps, where they have normal maps)",
+    )
+    metallic_quantile: float = setting(
+        0.25,
+        "the quantile of the views' metallic that the material loss is smallest at (its pinball loss on that "
+        'channel; 0.5: L1, the median, as the paper): 2D models "often predict partial metallicity in certain '
+        'views" (the paper), which a lower quantile outvotes even where most views have it',
+    )
+    metallic_prior_weight: float = setting(
+        0.0,
+        "weight of the mean metallic of the Gaussians a step refines, in the variants without the 2D maps "
+        "(nothing else tells metal from a dielectric there, and the photo loss alone turns a skull into grey "
+        "metal): an L1 pull towards a dielectric that only the photos' evidence of metal outweighs; 0: off "
+        "(the paper's no-prior baseline)",
+    )
+    basecolor_spread_weight: float = setting(
+        0.0,
+        "weight of the base-colour merger's KL divergence from equal weights over the seen views (softmax "
+        "variants only): keeps it averaging views unless the losses show some are better",
+    )
+    variant: str = setting("full", "the variant refined (set per variant by the pipeline)", internal=True)
+    seed: int = setting(
+        0, "seed of the view order and the merger's start (the run's refine_seed, else its seed)", internal=True
+    )
+    log_every: int = setting(10, "steps between history records, and between the reads of whether losses stayed finite")
+    merger: MergerConfig = setting(factory=MergerConfig, help="the Neural Merger")
+    metallic_fit: MetallicFitConfig = setting(
+        factory=MetallicFitConfig,
+        help="variants with the material loss: after the merger, each Gaussian's metallic fitted to the 2D maps "
+        "through the renderer (`matspray.method.refine.metallic`; steps 0: off), which sharpens the metal edges the "
+        "lift blurs",
+    )
 
     def __post_init__(self):
         get_variant(self.variant)

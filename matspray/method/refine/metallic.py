@@ -30,6 +30,7 @@ import torch
 from torch import Tensor
 
 from matspray.errors import SettingError
+from matspray.settings import setting
 
 # render(view index, features [N, C]) -> (blended over black [H, W, C], coverage alpha [H, W]): FrozenViews.render
 Render = Callable[[int, Tensor], tuple[Tensor, Tensor]]
@@ -37,10 +38,13 @@ Render = Callable[[int, Tensor], tuple[Tensor, Tensor]]
 
 @dataclass(frozen=True)
 class MetallicFitConfig:
-    steps: int = 0  # Adam steps of the fit, one training view each (0: off, the merger's metallic as it is)
-    pull: float = 0.5  # weight of the mean |m - m0| that holds each Gaussian at the merger's value
-    lr: float = 0.01  # Adam's rate: about the metallic a value moves per step
-    photo_weight: float = 5.0  # weight of the view's photometric loss (variants with the PBR loss; 0: maps alone)
+    steps: int = setting(0, "Adam steps of the fit, one training view each (0: off, the merger's metallic as it is)")
+    pull: float = setting(0.5, "weight of the mean |m - m0| that holds each Gaussian at the merger's value")
+    lr: float = setting(0.01, "Adam's rate: about the metallic a value moves per step")
+    photo_weight: float = setting(
+        5.0,
+        "weight of the view's photometric loss (variants with the PBR loss; 0: maps alone)",
+    )
 
     def __post_init__(self):
         if self.steps < 0:
