@@ -75,6 +75,10 @@ class Viewer {
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false, preserveDrawingBuffer: true, alpha: false });
     this.renderer.setPixelRatio(1);
     this.renderer.autoClear = false;
+    // blending into float32 is SwiftShader's fast path (half floats are converted per fragment: 2-3 times slower);
+    // it needs EXT_float_blend, which a browser may lack
+    const floatBlend = this.renderer.getContext().getExtension("EXT_float_blend");
+    this.blendType = floatBlend ? THREE.FloatType : THREE.HalfFloatType;
     this.lights = lights;
     this.camera = new THREE.Camera(); // the shaders project themselves
     this.turn = 0;
@@ -87,7 +91,7 @@ class Viewer {
 
   makeSplats(s) {
     const geometry = new THREE.InstancedBufferGeometry();
-    // an octagon around the unit circle: its corners at 1 / cos(22.5 degrees)
+    // a polygon around the unit circle: its corners at 1 / cos(180 / QUAD_CORNERS degrees)
     const corners = [];
     for (let k = 0; k < QUAD_CORNERS; k++) {
       const angle = ((k + 0.5) * 2 * Math.PI) / QUAD_CORNERS;
@@ -124,7 +128,7 @@ class Viewer {
     };
     const material = rawMaterial(SPLAT_VERTEX, SPLAT_FRAGMENT, this.splatUniforms);
     material.transparent = true;
-    material.side = THREE.DoubleSide; // the octagons turn clockwise on screen: image rows run down
+    material.side = THREE.DoubleSide; // the quads turn clockwise on screen: image rows run down
     material.blending = THREE.CustomBlending;
     material.blendEquation = material.blendEquationAlpha = THREE.AddEquation;
     material.blendSrc = material.blendSrcAlpha = THREE.OneFactor;
@@ -159,7 +163,7 @@ class Viewer {
     this.canvas.style.height = `${height}px`;
     if (this.target) this.target.dispose();
     this.target = new THREE.WebGLRenderTarget(width, height, {
-      type: THREE.HalfFloatType,
+      type: this.blendType,
       format: THREE.RGBAFormat,
       minFilter: THREE.NearestFilter,
       magFilter: THREE.NearestFilter,
