@@ -10,7 +10,6 @@ import { decodeSplats, inflate, views } from "./data.js";
 import { downsampleLatlong, LEVELS, prefilter } from "./prefilter.js";
 import {
   ENCODE_FRAGMENT,
-  QUAD_CORNERS,
   SCREEN_VERTEX,
   SPLAT_FRAGMENT,
   SPLAT_VERTEX,
@@ -90,19 +89,14 @@ class Viewer {
   }
 
   makeSplats(s) {
-    const geometry = new THREE.InstancedBufferGeometry();
-    // a polygon around the unit circle: its corners at 1 / cos(180 / QUAD_CORNERS degrees)
-    const corners = [];
-    for (let k = 0; k < QUAD_CORNERS; k++) {
-      const angle = ((k + 0.5) * 2 * Math.PI) / QUAD_CORNERS;
-      const radius = 1 / Math.cos(Math.PI / QUAD_CORNERS);
-      corners.push(radius * Math.cos(angle), radius * Math.sin(angle), 0);
-    }
-    geometry.setAttribute("position", new THREE.BufferAttribute(new Float32Array(corners), 3));
-    geometry.setIndex(Array.from({ length: QUAD_CORNERS - 2 }, (_, k) => [0, k + 1, k + 2]).flat());
-    this.order = new THREE.InstancedBufferAttribute(new Float32Array(this.meta.count), 1);
-    this.order.setUsage(THREE.DynamicDrawUsage);
-    geometry.setAttribute("order", this.order);
+    // two triangles a Gaussian, from four vertices each (the vertex shader finds its Gaussian and corner)
+    const geometry = new THREE.BufferGeometry();
+    const index = new Uint32Array(6 * this.meta.count);
+    for (let k = 0; k < this.meta.count; k++) index.set([4 * k, 4 * k + 1, 4 * k + 2, 4 * k, 4 * k + 2, 4 * k + 3], 6 * k);
+    geometry.setIndex(new THREE.BufferAttribute(index, 1));
+    this.order = new THREE.DataTexture(new Float32Array(s.width * s.height), s.width, s.height, THREE.RedFormat, THREE.FloatType);
+    this.order.minFilter = this.order.magFilter = THREE.NearestFilter;
+    this.order.generateMipmaps = false;
     this.means = s.centre;
     // each Gaussian's shaded colour, one texel each, laid out as the splat textures
     this.colourTarget = new THREE.WebGLRenderTarget(s.width, s.height, {
@@ -119,6 +113,7 @@ class Viewer {
       tBase: { value: floatTexture(s.base, s.width, s.height) },
       tNormal: { value: floatTexture(s.normal, s.width, s.height) },
       tColour: { value: this.colourTarget.texture },
+      tOrder: { value: this.order },
       texWidth: { value: s.width },
       viewRotation: { value: new THREE.Matrix3() },
       viewTranslation: { value: new THREE.Vector3() },
@@ -128,7 +123,7 @@ class Viewer {
     };
     const material = rawMaterial(SPLAT_VERTEX, SPLAT_FRAGMENT, this.splatUniforms);
     material.transparent = true;
-    material.side = THREE.DoubleSide; // the quads turn clockwise on screen: image rows run down
+    material.side = THREE.DoubleSide; // the rectangles turn clockwise on screen: image rows run down
     material.blending = THREE.CustomBlending;
     material.blendEquation = material.blendEquationAlpha = THREE.AddEquation;
     material.blendSrc = material.blendSrcAlpha = THREE.OneFactor;
@@ -203,7 +198,8 @@ class Viewer {
     const key = v.join(",");
     if (key !== this.sortedFor) {
       // the order changes only when the view does (not with the light or the exposure)
-      this.geometry.instanceCount = sortBackToFront(this.means, this.meta.count, v, this.order.array);
+      const visible = sortBackToFront(this.means, this.meta.count, v, this.order.image.data);
+      this.geometry.setDrawRange(0, 6 * visible);
       this.order.needsUpdate = true;
       this.sortedFor = key;
     }

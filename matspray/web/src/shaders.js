@@ -10,8 +10,6 @@
 //    were slower: SwiftShader pays per triangle and for the 2 x 2 pixel blocks along each thin triangle's edges).
 // 3. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs.
 
-export const QUAD_CORNERS = 4; // a rectangle's
-
 const FETCH = /* glsl */ `
 precision highp float;
 precision highp int;
@@ -25,8 +23,7 @@ uniform vec3 eye;
 `;
 
 export const SPLAT_VERTEX = /* glsl */ `${FETCH}
-in vec3 position;            // a corner of the square around the unit circle
-in float order;
+uniform sampler2D tOrder;    // the Gaussians' indices, back to front (one float each)
 uniform sampler2D tColour;   // each Gaussian's shaded linear colour (the SHADE pass)
 uniform int texWidth;
 uniform mat3 viewRotation;
@@ -39,7 +36,11 @@ flat out float vLogOpacity;  // log2(opacity)
 flat out vec3 vColour;
 
 void main() {
-  int i = int(order);
+  // four vertices a Gaussian, drawn without instancing (SwiftShader runs each instance as a draw of its own)
+  int slot = gl_VertexID / 4;
+  int corner = gl_VertexID % 4;
+  vec2 position = vec2(corner == 1 || corner == 2 ? 1.0 : -1.0, corner >= 2 ? 1.0 : -1.0);
+  int i = int(texelFetch(tOrder, ivec2(slot % texWidth, slot / texWidth), 0).r);
   ivec2 uv = ivec2(i % texWidth, i / texWidth);
   vec4 centre = texelFetch(tCentre, uv, 0);
   vec3 t = viewRotation * centre.xyz + viewTranslation;
