@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+from benchmarks.web_fps import milliseconds_per_frame, open_page, write_disk_sphere_page
 from matspray.cli import main
 from matspray.method.asset import Asset, read_asset
 from matspray.web.pack import LIGHT_HEIGHT, deflated, page_light, quantise_asset, unpack_asset
@@ -87,22 +88,10 @@ def page(site):
     driver = headless_chromium(1000, 800)
     driver.set_script_timeout(300)
     try:
-        load(driver, site[1])
+        open_page(driver, site[1])  # file://: no server
         yield driver
     finally:
         driver.quit()
-
-
-def load(driver, folder: Path) -> None:
-    """Open the page in `folder` from file:// (no server) and wait until it has started."""
-    driver.get((folder / "index.html").as_uri())
-    deadline, state = time.monotonic() + 120, None
-    while time.monotonic() < deadline:
-        state = driver.execute_script("return window.matspray && [window.matspray.ready, window.matspray.error]")
-        if state and (state[0] or state[1]):
-            break
-        time.sleep(0.1)
-    assert state and state[0], f"the page did not start: {state}"
 
 
 def frame(driver) -> np.ndarray:  # -> [H, W, 3] the canvas, sRGB in [0, 1]
@@ -212,22 +201,16 @@ def test_a_dropped_file_that_is_no_light_is_refused_in_one_line(site, page):
 def test_frames_per_second_at_512_pixels(site, page, tmp_path, record_property):
     """Frames of the page's own 512 x 512 view of 4 000 Gaussians (a sphere of disks about as dense as a trained
     asset's surface: each pixel under ~20 footprints), turned a little each (sorting and shading included), each
-    waited for, timed after two frames of warm-up. The issue's target is 5 frames per second; what this machine
-    gives is printed and recorded (docs/dev/web.md); MIN_FPS catches a return to the per-pixel G-buffer's 0.3-0.5."""
-    from matspray.method.relight import orbit_spec
-    from matspray.web.page import write_page
-
-    g, normals, materials = sphere_of_disks(4000)
-    g.log_scales = torch.tensor([0.05, 0.05, 0.003]).log().expand(4000, 3).clone()
-    spec = orbit_spec(sphere_cameras(6, 64), torch.zeros(3), (0.0, 0.0, 1.0))
-    write_page(tmp_path, Asset(g, materials, normals), spec, sky_map())
-    load(page, tmp_path)
+    waited for, timed after two frames of warm-up (`benchmarks.web_fps`). The issue's target is 5 frames per second;
+    what this machine gives is printed and recorded (docs/dev/web.md); MIN_FPS catches a return to the per-pixel
+    G-buffer's 0.3-0.5."""
+    write_disk_sphere_page(tmp_path, 4000)
     try:
+        open_page(page, tmp_path)
         assert page.execute_script("return document.getElementById('view').width") == 512
-        page.execute_script("return window.matspray.timeFrames(2, 3)")  # warm-up: shaders compiled, buffers made
-        ms = page.execute_script("return window.matspray.timeFrames(5, 3)")
+        ms = milliseconds_per_frame(page)
     finally:
-        load(page, site[1])  # the module's page again, for any test after this one
+        open_page(page, site[1])  # the module's page again, for any test after this one
     record_property("web_fps_512", 1000 / ms)
     print(f"\npage at 512 x 512, 4 000 Gaussians: {ms:.0f} ms a frame, {1000 / ms:.1f} frames per second")
     assert 1000 / ms >= MIN_FPS
