@@ -10,6 +10,7 @@ import { decodeSplats, inflate, views } from "./data.js";
 import { downsampleLatlong, LEVELS, prefilter } from "./prefilter.js";
 import {
   ENCODE_FRAGMENT,
+  PROJECT_FRAGMENT,
   SCREEN_VERTEX,
   SPLAT_FRAGMENT,
   SPLAT_VERTEX,
@@ -106,7 +107,20 @@ class Viewer {
       magFilter: THREE.NearestFilter,
       depthBuffer: false,
     });
+    // each Gaussian's footprint (PROJECT_FRAGMENT's three outputs), laid out as the splat textures
+    this.projectTarget = new THREE.WebGLRenderTarget(s.width, s.height, {
+      count: 3,
+      type: THREE.FloatType,
+      format: THREE.RGBAFormat,
+      minFilter: THREE.NearestFilter,
+      magFilter: THREE.NearestFilter,
+      depthBuffer: false,
+    });
+    const [centreAxis, extent, conic] = this.projectTarget.textures;
     this.splatUniforms = {
+      tCentreAxis: { value: centreAxis },
+      tExtent: { value: extent },
+      tConic: { value: conic },
       tCentre: { value: floatTexture(s.centre, s.width, s.height) },
       tRotation: { value: floatTexture(s.rotation, s.width, s.height) },
       tScale: { value: floatTexture(s.scale, s.width, s.height) },
@@ -129,6 +143,7 @@ class Viewer {
     material.blendSrc = material.blendSrcAlpha = THREE.OneFactor;
     material.blendDst = material.blendDstAlpha = THREE.OneMinusSrcAlphaFactor;
     this.splatScene = sceneOf(geometry, material);
+    this.projectScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, PROJECT_FRAGMENT, this.splatUniforms));
     this.geometry = geometry;
   }
 
@@ -206,6 +221,8 @@ class Viewer {
     this.renderer.setClearColor(0x000000, 0);
     this.renderer.setRenderTarget(this.colourTarget);
     this.renderer.render(this.shadeScene, this.camera);
+    this.renderer.setRenderTarget(this.projectTarget);
+    this.renderer.render(this.projectScene, this.camera);
     this.renderer.setRenderTarget(this.target);
     this.renderer.clear(true, false, false);
     this.renderer.render(this.splatScene, this.camera);

@@ -1,14 +1,15 @@
-// `matspray relight`'s image as GLSL, in three passes. Software WebGL (SwiftShader) spends its time per fragment and
+// `matspray relight`'s image as GLSL, in four passes. Software WebGL (SwiftShader) spends its time per fragment and
 // per render target, so the shading is done once per Gaussian and the splat pass blends one colour:
 // 1. SHADE: one fragment per Gaussian (its texel in the splat textures) shades it by split-sum image-based lighting
 //    (`render.shade.deferred.shade`) with its own normal, turned to face the eye, and the view direction to its
 //    centre. `relight` shades the blended G-buffer per pixel instead: the two differ where Gaussians of different
 //    normals or materials overlap (measured in docs/dev/web.md).
-// 2. SPLAT: the Gaussians back to front, premultiplied "over", onto the background (the same sums as `render.raster`'s
+// 2. PROJECT: one fragment per Gaussian projects it (its footprint on the screen); the splat pass only reads that.
+// 3. SPLAT: the Gaussians back to front, premultiplied "over", onto the background (the same sums as `render.raster`'s
 //    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255,
 //    drawn as rectangles along the axes of the ellipse where alpha reaches 1/255 (octagons, 17 % fewer fragments,
 //    were slower: SwiftShader pays per triangle and for the 2 x 2 pixel blocks along each thin triangle's edges).
-// 3. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs.
+// 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs.
 
 const FETCH = /* glsl */ `
 precision highp float;
@@ -22,30 +23,32 @@ uniform sampler2D tNormal;   // unit normal xyz
 uniform vec3 eye;
 `;
 
-export const SPLAT_VERTEX = /* glsl */ `${FETCH}
-uniform sampler2D tOrder;    // the Gaussians' indices, back to front (one float each)
-uniform sampler2D tColour;   // each Gaussian's shaded linear colour (the SHADE pass)
+const VIEW = /* glsl */ `
 uniform int texWidth;
 uniform mat3 viewRotation;
 uniform vec3 viewTranslation;
 uniform vec4 intrinsics;     // fx fy cx cy
 uniform vec2 size;           // width height in pixels
-flat out vec2 vCentre;       // in gl_FragCoord's frame: rows from the bottom
-flat out vec3 vConic;        // the quadratic form's terms, in log2 units
-flat out float vLogOpacity;  // log2(opacity)
-flat out vec3 vColour;
+`;
+
+// PROJECT: each Gaussian's footprint, once (the splat pass's four vertices a Gaussian only read it): its centre and
+// axes in gl_FragCoord's frame (rows from the bottom), the half sides of the rectangle around the ellipse where
+// alpha falls to 1/255 (0 when it is not drawn), log2(opacity), and the conic in log2 units:
+// alpha = opacity exp(-d^T conic d / 2) = exp2(log2(opacity) - d^T conic d / (2 ln 2))
+export const PROJECT_FRAGMENT = /* glsl */ `${FETCH}${VIEW}
+layout(location = 0) out vec4 outCentreAxis;  // centre xy, major axis xy
+layout(location = 1) out vec4 outExtent;      // half sides along the axes, log2(opacity), unused
+layout(location = 2) out vec4 outConic;       // xx, 2 xy, yy terms, unused
 
 void main() {
-  // four vertices a Gaussian, drawn without instancing (SwiftShader runs each instance as a draw of its own)
-  int slot = gl_VertexID / 4;
-  int corner = gl_VertexID % 4;
-  vec2 position = vec2(corner == 1 || corner == 2 ? 1.0 : -1.0, corner >= 2 ? 1.0 : -1.0);
-  int i = int(texelFetch(tOrder, ivec2(slot % texWidth, slot / texWidth), 0).r);
-  ivec2 uv = ivec2(i % texWidth, i / texWidth);
+  outCentreAxis = vec4(0.0);
+  outExtent = vec4(0.0);
+  outConic = vec4(0.0);
+  ivec2 uv = ivec2(gl_FragCoord.xy);  // this Gaussian's texel
   vec4 centre = texelFetch(tCentre, uv, 0);
   vec3 t = viewRotation * centre.xyz + viewTranslation;
   float opacity = centre.w;
-  if (t.z <= 0.01 || opacity < 1.0 / 255.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
+  if (t.z <= 0.01 || opacity < 1.0 / 255.0) return;
   vec4 q = texelFetch(tRotation, uv, 0);
   vec4 sr = texelFetch(tScale, uv, 0);
   float w = q.x, x = q.y, y = q.z, z = q.w;
@@ -65,21 +68,49 @@ void main() {
   float cxy = dot(a, sigma * b);
   float cyy = dot(b, sigma * b) + 0.3;
   float det = cxx * cyy - cxy * cxy;
-  if (det <= 0.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
-  // alpha = opacity exp(-d^T conic d / 2) = exp2(log2(opacity) - d^T conic d / (2 ln 2)), d in gl_FragCoord's
-  // frame, whose rows run up where the camera's run down: its cross term has the opposite sign
-  vConic = vec3(cyy, 2.0 * cxy, cxx) / (det * 2.0 * 0.6931471805599453);
-  vec2 centre2d = vec2(fx * px + cx, fy * py + cy);
-  vCentre = vec2(centre2d.x, size.y - centre2d.y);
-  vLogOpacity = log2(opacity);
-  // the ellipse where alpha falls to 1/255, half a pixel wider, along its axes
+  if (det <= 0.0) return;
+  // in gl_FragCoord's frame, whose rows run up where the camera's run down: y and the cross term change sign
+  outConic = vec4(cyy, 2.0 * cxy, cxx, 0.0) / (det * 2.0 * 0.6931471805599453);
   float mid = 0.5 * (cxx + cyy);
   float root = sqrt(max(mid * mid - det, 0.0));
   float reach = 2.0 * log(255.0 * opacity);
   vec2 axis = abs(cxy) > 1e-12 ? normalize(vec2(mid + root - cyy, cxy)) : (cxx >= cyy ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
-  vec2 pixel = centre2d + (position.x * (sqrt(reach * (mid + root)) + 0.5)) * axis
-    + (position.y * (sqrt(reach * max(mid - root, 0.0)) + 0.5)) * vec2(-axis.y, axis.x);
-  gl_Position = vec4(pixel.x / size.x * 2.0 - 1.0, 1.0 - pixel.y / size.y * 2.0, 0.0, 1.0);
+  outCentreAxis = vec4(fx * px + cx, size.y - (fy * py + cy), axis.x, -axis.y);
+  outExtent = vec4(sqrt(reach * vec2(mid + root, max(mid - root, 0.0))) + 0.5, log2(opacity), 0.0);
+}`;
+
+export const SPLAT_VERTEX = /* glsl */ `
+precision highp float;
+precision highp int;
+precision highp sampler2D;
+uniform sampler2D tOrder;    // the Gaussians' indices, back to front (one float each)
+uniform sampler2D tColour;   // each Gaussian's shaded linear colour (the SHADE pass)
+uniform sampler2D tCentreAxis;  // the PROJECT pass's
+uniform sampler2D tExtent;
+uniform sampler2D tConic;
+uniform int texWidth;
+uniform vec2 size;           // width height in pixels
+flat out vec2 vCentre;       // in gl_FragCoord's frame: rows from the bottom
+flat out vec3 vConic;        // the quadratic form's terms, in log2 units
+flat out float vLogOpacity;  // log2(opacity)
+flat out vec3 vColour;
+
+void main() {
+  // four vertices a Gaussian, drawn without instancing (SwiftShader runs each instance as a draw of its own)
+  int slot = gl_VertexID / 4;
+  int corner = gl_VertexID % 4;
+  vec2 position = vec2(corner == 1 || corner == 2 ? 1.0 : -1.0, corner >= 2 ? 1.0 : -1.0);
+  int i = int(texelFetch(tOrder, ivec2(slot % texWidth, slot / texWidth), 0).r);
+  ivec2 uv = ivec2(i % texWidth, i / texWidth);
+  vec4 extent = texelFetch(tExtent, uv, 0);
+  if (extent.x <= 0.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
+  vec4 centreAxis = texelFetch(tCentreAxis, uv, 0);
+  vec2 axis = centreAxis.zw;
+  vec2 pixel = centreAxis.xy + position.x * extent.x * axis + position.y * extent.y * vec2(-axis.y, axis.x);
+  gl_Position = vec4(pixel / size * 2.0 - 1.0, 0.0, 1.0);
+  vCentre = centreAxis.xy;
+  vConic = texelFetch(tConic, uv, 0).xyz;
+  vLogOpacity = extent.z;
   vColour = texelFetch(tColour, uv, 0).rgb;
 }`;
 
