@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from matspray.data.images import linear_to_srgb
+from matspray.data.images import atomic_target, linear_to_srgb
 from matspray.errors import file_error
 from matspray.export.frames import GLTF_FROM_DATASET, frame_extras
 from matspray.gaussians import Gaussians
@@ -157,6 +158,23 @@ def spz_bytes(splats: SplatFile) -> bytes:
     with tempfile.TemporaryDirectory() as folder:
         write_spz(Path(folder) / "splats.spz", data, version=3)
         return (Path(folder) / "splats.spz").read_bytes()
+
+
+def write_spz_file(path, asset: Asset, light, estimated: Tensor | None = None, view: dict | None = None) -> list[Path]:
+    """FILE.spz: the splats alone, their colour baked under `light` as in the glb (no materials: SPZ has no place for
+    them), for SuperSplat, Spark and other SPZ readers. SPZ's own axes are glTF's (right, up, back), so the glb's
+    splats go in as they are. Raises ImportError without gsply."""
+    path = Path(path)
+    data = spz_bytes(asset_to_splats(asset, light, estimated, view))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = atomic_target(path)
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return [path]
 
 
 def read_splats_asset(path, device="cpu") -> SplatsAsset:
