@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,11 +22,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from matspray.data.images import atomic_target, linear_to_srgb
+from matspray.data.images import linear_to_srgb
 from matspray.errors import file_error
 from matspray.export.frames import GLTF_FROM_DATASET, frame_extras
 from matspray.gaussians import Gaussians
-from matspray.gltf.splats import SplatFile, read_splats_glb, tileset, write_splats_glb, write_spz_glb
+from matspray.gltf.splats import (
+    SplatFile,
+    read_splats_glb,
+    tileset,
+    write_bytes_atomic,
+    write_splats_glb,
+    write_spz_glb,
+)
 from matspray.method.asset import Asset
 from matspray.render.shade.deferred import shade
 from matspray.render.shade.sh import sh_basis
@@ -165,15 +171,7 @@ def write_spz_file(path, asset: Asset, light, estimated: Tensor | None = None, v
     them), for SuperSplat, Spark and other SPZ readers. SPZ's own axes are glTF's (right, up, back), so the glb's
     splats go in as they are. Raises ImportError without gsply."""
     path = Path(path)
-    data = spz_bytes(asset_to_splats(asset, light, estimated, view))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = atomic_target(path)
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_bytes_atomic(path, spz_bytes(asset_to_splats(asset, light, estimated, view)))
     return [path]
 
 
