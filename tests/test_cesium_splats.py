@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
-from matspray.cli import main
 from matspray.gltf.splats import SPZ_EXTENSION, read_splats_glb
 from tests.browser import headless_chromium, missing_browser
-from tests.scenes import sphere_cameras, write_disk_sphere_run
+from tests.scenes import sky_map, sphere_cameras, sphere_of_disks
 
 pytest.importorskip("gsply", reason="gsply (the SPZ writer, in the `export` extra) is not installed")
 
@@ -53,9 +53,19 @@ PAGE = """<!doctype html><html><head><meta charset="utf-8"><link href="Cesium/Wi
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
+    """The disk sphere written by the library that `export --splats` calls (the command itself, from a run folder,
+    is tests/test_splats_glb.py's): no run folder, dataset or visual hull to make first."""
+    from matspray.export.splats import write_splats
+    from matspray.method.asset import Asset
+    from matspray.method.relight import orbit_spec
+    from matspray.render.shade.envmap import EnvironmentMap
+
     root = tmp_path_factory.mktemp("cesium")
-    run = write_disk_sphere_run(root, 1500, sphere_cameras(4, 32), slice(None), slice(0, 1))
-    assert main(["export", "--run", str(run), "--splats", str(root / "disks.glb")]) == 0
+    light = EnvironmentMap.from_tensor(sky_map(), learnable=False)
+    spec = orbit_spec(sphere_cameras(4, 32), torch.zeros(3), (0.0, 0.0, 1.0))
+    g, normals, materials = sphere_of_disks(1500)
+    written = write_splats(root / "disks.glb", Asset(g, materials, normals), light.prefilter(), light.map, spec)
+    assert root / "disks_3dtiles" / "tileset.json" in written
     return root
 
 
@@ -111,11 +121,11 @@ def test_cesium_loads_the_tileset_and_draws_the_splats(exported):
             )
             if state[0] or state[1]:
                 break
-            time.sleep(0.5)
+            time.sleep(0.2)
         assert state == [True, None], f"CesiumJS did not load the tileset: {state}"
         deadline, drawn = time.monotonic() + 120, np.zeros((1, 1), dtype=bool)
         while time.monotonic() < deadline and drawn.mean() <= 0.05:  # sorted in a worker, drawn frames later
-            time.sleep(1)
+            time.sleep(0.25)
             url = driver.execute_script("window.viewer.render(); return window.viewer.canvas.toDataURL('image/png')")
             image = Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB")
             drawn = np.abs(np.asarray(image).astype(int) - [255, 0, 255]).sum(-1) > 60

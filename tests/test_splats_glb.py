@@ -179,12 +179,31 @@ def test_export_splats_then_relight_the_file(tmp_path, capsys):
     if BUNDLE.exists():
         assert main(["export", "--run", str(glb), "--web", str(tmp_path / "web")]) == 0
         assert '"count":400' in (tmp_path / "web" / "asset.js").read_text()
+    # the baked splats alone as SPZ, from the file
+    gsply = pytest.importorskip("gsply.spz", reason="gsply (the SPZ writer, in the `export` extra) is not installed")
+    assert main(["export", "--run", str(glb), "--splats", str(tmp_path / "disks.spz")]) == 0
+    assert len(gsply.read_spz(tmp_path / "disks.spz").means) == 400
     # the file keeps the run's orbit: the same cameras as the run's
     from matspray.cli.relight import relight_source
 
     for (_, a), (_, b) in zip(*(relight_source(source, "orbit", None, 3, "cpu")[1] for source in (run, glb))):
         assert torch.allclose(a.viewmat, b.viewmat, atol=1e-5) and torch.allclose(a.K, b.K)
         assert (a.width, a.height) == (b.width, b.height) == (32, 32)
+
+
+def test_an_spz_file_holds_the_glbs_splats_within_spz_steps(disks, written, tmp_path):
+    """`--splats FILE.spz`: the glb's splats, colour baked the same way, in SPZ's axes (glTF's), read back by gsply."""
+    read_spz = pytest.importorskip("gsply.spz", reason="gsply (the SPZ writer) is not installed").read_spz
+    from matspray.export.splats import write_spz_file
+
+    glb, light = written
+    assert write_spz_file(tmp_path / "disks.spz", disks, light.prefilter(), light.map) == [tmp_path / "disks.spz"]
+    data = read_spz(tmp_path / "disks.spz")
+    splats, _ = read_splats_glb(glb)
+    assert np.abs(data.means - splats.positions).max() <= 2.0**-12  # 12 fractional bits
+    assert np.abs(data.sh0 - splats.sh[:, 0]).max() < 0.05  # 8-bit colour
+    assert np.abs(np.exp(data.scales) - splats.scales).max() < 0.05 * splats.scales.max()
+    assert data.shN.shape[1] == 15  # degree 3, as in the glb
 
 
 def test_the_cli_refuses_what_it_would_not_read(tmp_path, capsys):
@@ -194,4 +213,4 @@ def test_the_cli_refuses_what_it_would_not_read(tmp_path, capsys):
     assert main(["export", "--run", str(run), "--web", str(tmp_path / "w"), "--faces", "300"]) == 2
     assert "--faces is for --out FILE.glb" in capsys.readouterr().err
     assert main(["export", "--run", str(run), "--splats", str(tmp_path / "a.ply")]) == 2
-    assert "give a .glb file name" in capsys.readouterr().err
+    assert "(.glb) or an SPZ file (.spz)" in capsys.readouterr().err

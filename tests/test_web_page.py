@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+from benchmarks.web_fps import milliseconds_per_frame, open_page, write_disk_sphere_page
 from matspray.cli import main
 from matspray.method.asset import Asset, read_asset
 from matspray.web.pack import LIGHT_HEIGHT, deflated, page_light, quantise_asset, unpack_asset
@@ -87,14 +88,7 @@ def page(site):
     driver = headless_chromium(1000, 800)
     driver.set_script_timeout(300)
     try:
-        driver.get((site[1] / "index.html").as_uri())  # file://: no server
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            state = driver.execute_script("return window.matspray && [window.matspray.ready, window.matspray.error]")
-            if state and (state[0] or state[1]):
-                break
-            time.sleep(0.2)
-        assert state and state[0], f"the page did not start: {state}"
+        open_page(driver, site[1])  # file://: no server
         yield driver
     finally:
         driver.quit()
@@ -204,30 +198,25 @@ def test_a_dropped_file_that_is_no_light_is_refused_in_one_line(site, page):
 
 
 @pytest.mark.slow
-def test_frame_time_at_512_pixels(site, page, tmp_path, record_property):
+def test_frames_per_second_at_512_pixels(site, page, tmp_path, record_property):
     """Frames of the page's own 512 x 512 view of 4 000 Gaussians (a sphere of disks about as dense as a trained
-    asset's surface: each pixel under ~20 footprints), turned a little each (sorting included), each waited for. The
-    issue's target is 5 frames per second; what this machine gives is printed and recorded (docs/dev/web.md), and a
-    frame must come within FRAME_LIMIT_S."""
-    from matspray.method.relight import orbit_spec
-    from matspray.web.page import write_page
-
-    g, normals, materials = sphere_of_disks(4000)
-    g.log_scales = torch.tensor([0.05, 0.05, 0.003]).log().expand(4000, 3).clone()
-    spec = orbit_spec(sphere_cameras(6, 64), torch.zeros(3), (0.0, 0.0, 1.0))
-    write_page(tmp_path, Asset(g, materials, normals), spec, sky_map())
-    page.get((tmp_path / "index.html").as_uri())
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not page.execute_script("return window.matspray && window.matspray.ready"):
-        time.sleep(0.2)
-    assert page.execute_script("return document.getElementById('view').width") == 512
-    ms = page.execute_script("return window.matspray.timeFrames(3, 3)")
-    record_property("web_ms_per_frame_512", ms)
-    print(f"\npage frame at 512 x 512, 4 000 Gaussians: {ms:.0f} ms ({1000 / ms:.1f} fps)")
-    assert 0 < ms < FRAME_LIMIT_S * 1000
+    asset's surface: each pixel under ~20 footprints), turned a little each (sorting and shading included), each
+    waited for, timed after two frames of warm-up (`benchmarks.web_fps`). The issue's target is 5 frames per second;
+    what this machine gives is printed and recorded (docs/dev/web.md); MIN_FPS catches a return to the per-pixel
+    G-buffer's 0.3-0.5."""
+    write_disk_sphere_page(tmp_path, 4000)
+    try:
+        open_page(page, tmp_path)
+        assert page.execute_script("return document.getElementById('view').width") == 512
+        ms = milliseconds_per_frame(page)
+    finally:
+        open_page(page, site[1])  # the module's page again, for any test after this one
+    record_property("web_fps_512", 1000 / ms)
+    print(f"\npage at 512 x 512, 4 000 Gaussians: {ms:.0f} ms a frame, {1000 / ms:.1f} frames per second")
+    assert 1000 / ms >= MIN_FPS
 
 
-FRAME_LIMIT_S = 10.0  # a loaded 2-core machine with software WebGL; the target (5 fps) is for an idle one
+MIN_FPS = 1.0  # measured 2.4-3.3 on 2 loaded cores (docs/dev/web.md): the issue's 5 is not reached here
 
 
 def linear_to_srgb_np(x: np.ndarray) -> np.ndarray:

@@ -40,7 +40,8 @@ def add_export_parser(parser) -> None:
         metavar=("FILE.glb", "LIGHT"),
         help="the Gaussians as glTF with the KHR_gaussian_splatting extension, their colour baked under LIGHT (a name "
         "or .exr/.hdr file as relight's --env; default: the estimated light), with per-splat base colour, roughness, "
-        "metallic and normal and the estimated light beside them, which MatSpray reads back (relight --run FILE.glb)",
+        "metallic and normal and the estimated light beside them, which MatSpray reads back (relight --run FILE.glb); "
+        "FILE.spz: the baked splats alone, as SPZ",
     )
     parser.add_argument(
         "--web",

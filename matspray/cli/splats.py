@@ -56,19 +56,27 @@ def export_splats_and_web(args, device) -> list[Path]:
     from matspray.errors import ConfigError
 
     written = []
-    if args.splats is not None and Path(args.splats[0]).suffix.lower() != ".glb":
-        raise ConfigError(f"--splats writes a binary glTF: give a .glb file name, not '{args.splats[0]}'")
+    if args.splats is not None and Path(args.splats[0]).suffix.lower() not in (".glb", ".spz"):
+        raise ConfigError(
+            f"--splats writes a binary glTF (.glb) or an SPZ file (.spz): give one of those, not '{args.splats[0]}'"
+        )
     if args.web is not None:
         from matspray.web.page import bundle_path
 
         bundle_path()  # refused before any work when the page's script is not built
     asset, estimated, view = asset_source(args, device)
     if args.splats is not None:
-        from matspray.export.splats import write_splats
+        from matspray.export.splats import write_splats, write_spz_file
 
         path = Path(args.splats[0])
         light = bake_light(args.splats[1] if len(args.splats) > 1 else None, estimated, device)
-        written += write_splats(path, asset, light, estimated, view)
+        if path.suffix.lower() == ".spz":
+            try:
+                written += write_spz_file(path, asset, light, estimated, view)
+            except ImportError:
+                raise ConfigError("writing .spz needs gsply: pip install 'matspray[export]'") from None
+        else:
+            written += write_splats(path, asset, light, estimated, view)
     if args.web is not None:
         from matspray.web.page import write_page
 

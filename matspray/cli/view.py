@@ -8,7 +8,9 @@ from matspray.presets import light_names
 
 
 def add_view_parser(parser) -> None:
-    parser.add_argument("--run", type=Path, help="run folder made by `matspray run`")
+    parser.add_argument(
+        "--run", type=Path, help="run folder made by `matspray run`, or a .glb made by `matspray export --splats`"
+    )
     parser.add_argument("run_positional", nargs="?", type=Path, help=argparse.SUPPRESS)  # the old `view RUN`
     parser.add_argument(
         "--env",
@@ -40,14 +42,14 @@ def view_main(args) -> int:
     import time
 
     from matspray.errors import ConfigError
-    from matspray.view.launch import light_files, open_page, run_variants
+    from matspray.view.launch import check_source, light_files, open_page
 
     args.run = args.run or args.run_positional
     if args.run is None:
         raise ConfigError("give the run folder: --run RUN")
     if not 32 <= args.resolution <= 4096:
         raise ConfigError(f"--resolution {args.resolution}: choose 32 to 4096 pixels")
-    run_variants(args.run)  # bad input is one line before anything starts
+    check_source(args.run)  # bad input is one line before anything starts
     light_files(args.env)
     page = open_page(args.host, args.port)  # served before torch loads: the browser opens the page meanwhile
     print(f"matspray view: {page.url}  ({args.run}; Ctrl+C stops)", flush=True)

@@ -26,7 +26,14 @@ from matspray.data.images import linear_to_srgb
 from matspray.errors import file_error
 from matspray.export.frames import GLTF_FROM_DATASET, frame_extras
 from matspray.gaussians import Gaussians
-from matspray.gltf.splats import SplatFile, read_splats_glb, tileset, write_splats_glb, write_spz_glb
+from matspray.gltf.splats import (
+    SplatFile,
+    read_splats_glb,
+    tileset,
+    write_bytes_atomic,
+    write_splats_glb,
+    write_spz_glb,
+)
 from matspray.method.asset import Asset
 from matspray.render.shade.deferred import shade
 from matspray.render.shade.sh import sh_basis
@@ -157,6 +164,15 @@ def spz_bytes(splats: SplatFile) -> bytes:
     with tempfile.TemporaryDirectory() as folder:
         write_spz(Path(folder) / "splats.spz", data, version=3)
         return (Path(folder) / "splats.spz").read_bytes()
+
+
+def write_spz_file(path, asset: Asset, light, estimated: Tensor | None = None, view: dict | None = None) -> list[Path]:
+    """FILE.spz: the splats alone, their colour baked under `light` as in the glb (no materials: SPZ has no place for
+    them), for SuperSplat, Spark and other SPZ readers. SPZ's own axes are glTF's (right, up, back), so the glb's
+    splats go in as they are. Raises ImportError without gsply."""
+    path = Path(path)
+    write_bytes_atomic(path, spz_bytes(asset_to_splats(asset, light, estimated, view)))
+    return [path]
 
 
 def read_splats_asset(path, device="cpu") -> SplatsAsset:

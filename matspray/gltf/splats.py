@@ -174,6 +174,11 @@ def write_glb_chunks(path: Path, document: dict, data: bytes) -> None:
     total = 12 + 8 + len(text) + 8 + len(data)
     blob = struct.pack("<4sII", b"glTF", 2, total) + struct.pack("<II", len(text), 0x4E4F534A) + text
     blob += struct.pack("<II", len(data), 0x004E4942) + data
+    write_bytes_atomic(path, blob)
+
+
+def write_bytes_atomic(path: Path, blob: bytes) -> None:
+    """Write `blob` to `path` whole or not at all (a reader never sees half a file), making the folder."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = atomic_target(path)
     try:

@@ -34,6 +34,16 @@ def run_variants(root) -> list[str]:
     return variants
 
 
+def check_source(path) -> None:
+    """What `view --run` names, checked as far as it can be without torch: a run folder with an asset
+    (`run_variants`), or an existing .glb (its splats and materials are checked when it is read)."""
+    path = Path(path)
+    if path.suffix.lower() != ".glb":
+        run_variants(path)
+    elif not path.is_file():
+        raise RunError(f"{path}: no such file; write it with `matspray export --run RUN --splats {path}`")
+
+
 def light_files(paths) -> list[Path]:
     """The .exr/.hdr files that `--env` names: files as given (any suffix: a wrong one is reported when the light is
     chosen), folders by their .exr/.hdr files. A path that does not exist is a ConfigError of one line."""

@@ -1,10 +1,12 @@
 """What a run folder offers the viewer: its variants with an asset, each asset (read once, when first shown), the
 training photos (read in the background: a capture can take seconds to load, the first picture must not wait), the
-exported glb files, and a first camera that frames the object."""
+exported glb files, and a first camera that frames the object. A splats glb (`matspray export --splats`) offers its
+one asset and its light: `open_run` opens either."""
 
 from __future__ import annotations
 
 import math
+import tempfile
 import threading
 from pathlib import Path
 
@@ -16,8 +18,8 @@ from matspray.errors import MatsprayError
 from matspray.export.frames import find_glbs
 from matspray.method.asset import Asset, read_asset
 from matspray.rundir import RunDir
-from matspray.view.launch import run_variants
-from matspray.view.lights import estimated_light_path
+from matspray.view.launch import check_source, run_variants
+from matspray.view.lights import ENVMAP_FILE, estimated_light_path
 
 UP = (0.0, 0.0, 1.0)  # the dataset's world up (Blender / NeRF-synthetic, Z up)
 START_FOV = math.radians(40.0)  # vertical field of view of the first camera when the photos are not loaded yet
@@ -48,6 +50,10 @@ class ViewerRun:
 
     def estimated_light(self, variant: str) -> Path | None:
         return estimated_light_path(self.run.asset_path(variant))
+
+    @property
+    def snapshot_root(self) -> Path:  # snapshots go into its view/ folder
+        return self.root
 
     # ---------------------------------------------------------------- photos
     def load_photos(self) -> threading.Thread:
@@ -93,3 +99,58 @@ class ViewerRun:
         )
         fov_x = 2 * math.atan(math.tan(0.5 * START_FOV) * width / height)
         return Camera.look_at(center + distance * direction, center, UP, fov_x, width, height)
+
+
+class SplatsFileRun(ViewerRun):
+    """A glb of `matspray export --splats` opened for viewing: its one asset (named by the file), its estimated light
+    (written once to a temporary .exr, which the viewer's light loader reads as it reads a run's), no photos and no
+    meshes. Raises RunError / DataError (one line naming the file) when it is no such file."""
+
+    def __init__(self, path, device="cpu", notify=print):
+        from matspray.export.splats import read_splats_asset
+
+        path = Path(path)
+        check_source(path)
+        self.root = path
+        self.device = torch.device(device)
+        self.notify = notify
+        self.splats = read_splats_asset(path, self.device)
+        self.variants = [path.stem]
+        self.glbs = []
+        self._assets = {path.stem: self.splats.asset}
+        self._frames: dict[str, tuple[np.ndarray, float]] = {}
+        self._lock = threading.Lock()
+        self._views, self._views_ready = [], threading.Event()
+        self._views_ready.set()
+        self._light_folder = tempfile.TemporaryDirectory(prefix="matspray-view-splats-")
+        self._light = None
+
+    def asset(self, variant: str) -> Asset:
+        return self._assets[variant]
+
+    def estimated_light(self, variant: str) -> Path | None:
+        from matspray.data.images import write_image
+
+        if self.splats.light is None:
+            return None
+        with self._lock:
+            if self._light is None:
+                self._light = Path(self._light_folder.name) / ENVMAP_FILE
+                write_image(self._light, self.splats.light.float().cpu())
+        return self._light
+
+    @property
+    def snapshot_root(self) -> Path:  # snapshots go beside the file, into its folder's view/
+        return self.root.parent
+
+    def load_photos(self) -> threading.Thread:  # the file holds none
+        thread = threading.Thread(target=lambda: None, name="matspray-view-photos", daemon=True)
+        thread.start()
+        return thread
+
+
+def open_run(root, device="cpu", notify=print) -> ViewerRun:
+    """A run folder, or a splats .glb, opened for viewing."""
+    if Path(root).suffix.lower() == ".glb":
+        return SplatsFileRun(root, device, notify)
+    return ViewerRun(root, device, notify)

@@ -26,7 +26,7 @@ from matspray.view.camera import camera_from_viser, viser_pose
 from matspray.view.frames import BACKDROP, FrameSettings, Progressive, progressive_size, render_frame
 from matspray.view.launch import Page, light_files, open_page
 from matspray.view.lights import ESTIMATED, LightChoice, LightLoader, light_choices, unique_label
-from matspray.view.scene import UP, ViewerRun
+from matspray.view.scene import UP, open_run
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ class Viewer:
     ):
         self.config, self.device, self.backend = config, torch.device(device), backend
         self.notify = notify or (lambda message: print(message, file=sys.stderr, flush=True))
-        self.run = ViewerRun(run_root, device=self.device, notify=self.notify)
+        self.run = open_run(run_root, device=self.device, notify=self.notify)
         files = light_files(config.env)  # a missing --env path: ConfigError before anything starts
         self.workers: list[threading.Thread] = []  # the background threads that end on their own; stop() waits
         if backend == "numba":  # its compiled kernels load from numba's cache while the asset and the light are read
@@ -250,7 +250,7 @@ class Viewer:
         view = self.views[client.client_id]
         state = self.state
         frame = self.render(view.camera(moving=False), state)
-        return write_snapshot(self.run.root, frame.image, state.variant, state.light, state.mode)
+        return write_snapshot(self.run.snapshot_root, frame.image, state.variant, state.light, state.mode)
 
 
 class ClientView:

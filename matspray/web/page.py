@@ -3,6 +3,7 @@ elsewhere (`matspray export --web DIR`)."""
 
 from __future__ import annotations
 
+import functools
 import shutil
 from pathlib import Path
 
@@ -11,7 +12,7 @@ import torch
 from matspray.errors import ConfigError
 from matspray.method.asset import Asset
 from matspray.render.shade.lights import BUILTINS, hdri_files, load_envmap
-from matspray.web.pack import asset_script, lights_script
+from matspray.web.pack import asset_script, lights_script, page_light
 
 PACKAGE = Path(__file__).parent
 BUNDLE = PACKAGE / "dist" / "matspray-web.js"  # made by `make setup` (npm: three, esbuild); shipped in the package
@@ -29,9 +30,15 @@ def bundle_path() -> Path:
 
 def packaged_lights() -> list[tuple[str, torch.Tensor]]:
     """Every light MatSpray ships: the built-ins, then the packaged HDRIs (a name a built-in has taken keeps its
-    suffix, as `load_envmap` reaches it)."""
+    suffix, as `load_envmap` reaches it), each at the page's LIGHT_HEIGHT rows."""
+    return list(_packaged_page_lights())
+
+
+@functools.cache
+def _packaged_page_lights() -> tuple[tuple[str, torch.Tensor], ...]:
+    # made once a process: they take seconds (the built-ins are drawn at full size first) and never change
     names = list(BUILTINS) + [p.stem if p.stem not in BUILTINS else p.name for p in hdri_files().values()]
-    return [(name, load_envmap(name)[1]) for name in names]
+    return tuple((name, torch.from_numpy(page_light(load_envmap(name)[1]))) for name in names)
 
 
 def page_view(spec: dict, size: int = PAGE_SIZE) -> dict:

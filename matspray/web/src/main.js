@@ -8,7 +8,14 @@ import { EXRLoader } from "three/addons/loaders/EXRLoader.js";
 import { HDRLoader } from "three/addons/loaders/HDRLoader.js";
 import { decodeSplats, inflate, views } from "./data.js";
 import { downsampleLatlong, LEVELS, prefilter } from "./prefilter.js";
-import { SCREEN_VERTEX, SPLAT_FRAGMENT, SPLAT_VERTEX, shadeFragment } from "./shaders.js";
+import {
+  ENCODE_FRAGMENT,
+  PROJECT_FRAGMENT,
+  SCREEN_VERTEX,
+  SPLAT_FRAGMENT,
+  SPLAT_VERTEX,
+  shadeFragment,
+} from "./shaders.js";
 import { sortBackToFront } from "./sort.js";
 import { orbitCamera } from "./orbit.js";
 
@@ -31,6 +38,18 @@ function rawMaterial(vertexShader, fragmentShader, uniforms) {
     depthTest: false,
     depthWrite: false,
   });
+}
+
+// a triangle over the whole viewport, for the passes that run once per texel
+const SCREEN = new THREE.BufferGeometry();
+SCREEN.setAttribute("position", new THREE.BufferAttribute(new Float32Array([-1, -1, 0, 3, -1, 0, -1, 3, 0]), 3));
+
+function sceneOf(geometry, material) {
+  const mesh = new THREE.Mesh(geometry, material);
+  mesh.frustumCulled = false;
+  const scene = new THREE.Scene();
+  scene.add(mesh);
+  return scene;
 }
 
 // the padded maps of prefilter() stacked into one texture: {texture, places [first row, rows, columns] per map}
@@ -56,6 +75,10 @@ class Viewer {
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false, preserveDrawingBuffer: true, alpha: false });
     this.renderer.setPixelRatio(1);
     this.renderer.autoClear = false;
+    // blending into float32 is SwiftShader's fast path (half floats are converted per fragment: 2-3 times slower);
+    // it needs EXT_float_blend, which a browser may lack
+    const floatBlend = this.renderer.getContext().getExtension("EXT_float_blend");
+    this.blendType = floatBlend ? THREE.FloatType : THREE.HalfFloatType;
     this.lights = lights;
     this.camera = new THREE.Camera(); // the shaders project themselves
     this.turn = 0;
@@ -67,20 +90,44 @@ class Viewer {
   }
 
   makeSplats(s) {
-    const geometry = new THREE.InstancedBufferGeometry();
-    const corners = new Float32Array([-1, -1, 0, 1, -1, 0, 1, 1, 0, -1, 1, 0]);
-    geometry.setAttribute("position", new THREE.BufferAttribute(corners, 3));
-    geometry.setIndex([0, 1, 2, 0, 2, 3]);
-    this.order = new THREE.InstancedBufferAttribute(new Float32Array(this.meta.count), 1);
-    this.order.setUsage(THREE.DynamicDrawUsage);
-    geometry.setAttribute("order", this.order);
+    // two triangles a Gaussian, from four vertices each (the vertex shader finds its Gaussian and corner)
+    const geometry = new THREE.BufferGeometry();
+    const index = new Uint32Array(6 * this.meta.count);
+    for (let k = 0; k < this.meta.count; k++) index.set([4 * k, 4 * k + 1, 4 * k + 2, 4 * k, 4 * k + 2, 4 * k + 3], 6 * k);
+    geometry.setIndex(new THREE.BufferAttribute(index, 1));
+    this.order = new THREE.DataTexture(new Float32Array(s.width * s.height), s.width, s.height, THREE.RedFormat, THREE.FloatType);
+    this.order.minFilter = this.order.magFilter = THREE.NearestFilter;
+    this.order.generateMipmaps = false;
     this.means = s.centre;
+    // each Gaussian's shaded colour, one texel each, laid out as the splat textures
+    this.colourTarget = new THREE.WebGLRenderTarget(s.width, s.height, {
+      type: THREE.HalfFloatType,
+      format: THREE.RGBAFormat,
+      minFilter: THREE.NearestFilter,
+      magFilter: THREE.NearestFilter,
+      depthBuffer: false,
+    });
+    // each Gaussian's footprint (PROJECT_FRAGMENT's three outputs), laid out as the splat textures
+    this.projectTarget = new THREE.WebGLRenderTarget(s.width, s.height, {
+      count: 3,
+      type: THREE.FloatType,
+      format: THREE.RGBAFormat,
+      minFilter: THREE.NearestFilter,
+      magFilter: THREE.NearestFilter,
+      depthBuffer: false,
+    });
+    const [centreAxis, extent, conic] = this.projectTarget.textures;
     this.splatUniforms = {
+      tCentreAxis: { value: centreAxis },
+      tExtent: { value: extent },
+      tConic: { value: conic },
       tCentre: { value: floatTexture(s.centre, s.width, s.height) },
       tRotation: { value: floatTexture(s.rotation, s.width, s.height) },
       tScale: { value: floatTexture(s.scale, s.width, s.height) },
       tBase: { value: floatTexture(s.base, s.width, s.height) },
       tNormal: { value: floatTexture(s.normal, s.width, s.height) },
+      tColour: { value: this.colourTarget.texture },
+      tOrder: { value: this.order },
       texWidth: { value: s.width },
       viewRotation: { value: new THREE.Matrix3() },
       viewTranslation: { value: new THREE.Vector3() },
@@ -90,40 +137,33 @@ class Viewer {
     };
     const material = rawMaterial(SPLAT_VERTEX, SPLAT_FRAGMENT, this.splatUniforms);
     material.transparent = true;
-    material.side = THREE.DoubleSide; // the quads turn clockwise on screen: image rows run down
+    material.side = THREE.DoubleSide; // the rectangles turn clockwise on screen: image rows run down
     material.blending = THREE.CustomBlending;
     material.blendEquation = material.blendEquationAlpha = THREE.AddEquation;
     material.blendSrc = material.blendSrcAlpha = THREE.OneFactor;
     material.blendDst = material.blendDstAlpha = THREE.OneMinusSrcAlphaFactor;
-    const mesh = new THREE.Mesh(geometry, material);
-    mesh.frustumCulled = false;
-    this.splatScene = new THREE.Scene();
-    this.splatScene.add(mesh);
+    this.splatScene = sceneOf(geometry, material);
+    this.projectScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, PROJECT_FRAGMENT, this.splatUniforms));
     this.geometry = geometry;
   }
 
   makeShading() {
-    const lut = this.lights.lut;
+    const u = this.splatUniforms;
     this.shadeUniforms = {
-      gBase: { value: null },
-      gNormal: { value: null },
-      gRoughMetal: { value: null },
-      tLut: { value: floatTexture(lut, 32, 32) },
+      tCentre: u.tCentre,
+      tScale: u.tScale,
+      tBase: u.tBase,
+      tNormal: u.tNormal,
+      eye: u.eye,
+      tLut: { value: floatTexture(this.lights.lut, 32, 32) },
       tLight: { value: null },
       levelPlace: { value: [] },
       levelRoughness: { value: LEVELS },
-      cameraToWorld: { value: new THREE.Matrix3() },
-      intrinsics: this.splatUniforms.intrinsics,
-      size: this.splatUniforms.size,
       exposure: { value: 1 },
-      background: { value: new THREE.Vector3(...BACKGROUND) },
     };
-    const screen = new THREE.BufferGeometry();
-    screen.setAttribute("position", new THREE.BufferAttribute(new Float32Array([-1, -1, 0, 3, -1, 0, -1, 3, 0]), 3));
-    const mesh = new THREE.Mesh(screen, rawMaterial(SCREEN_VERTEX, shadeFragment(LEVELS.length), this.shadeUniforms));
-    mesh.frustumCulled = false;
-    this.shadeScene = new THREE.Scene();
-    this.shadeScene.add(mesh);
+    this.shadeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, shadeFragment(LEVELS.length), this.shadeUniforms));
+    this.encodeUniforms = { tBlended: { value: null }, background: { value: new THREE.Vector3(...BACKGROUND) } };
+    this.encodeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, ENCODE_FRAGMENT, this.encodeUniforms));
   }
 
   resize(width, height) {
@@ -133,15 +173,13 @@ class Viewer {
     this.canvas.style.height = `${height}px`;
     if (this.target) this.target.dispose();
     this.target = new THREE.WebGLRenderTarget(width, height, {
-      count: 3,
-      type: THREE.HalfFloatType,
+      type: this.blendType,
       format: THREE.RGBAFormat,
       minFilter: THREE.NearestFilter,
       magFilter: THREE.NearestFilter,
       depthBuffer: false,
     });
-    [this.shadeUniforms.gBase.value, this.shadeUniforms.gNormal.value, this.shadeUniforms.gRoughMetal.value] =
-      this.target.textures;
+    this.encodeUniforms.tBlended.value = this.target.texture;
   }
 
   setLight(index) {
@@ -171,17 +209,25 @@ class Viewer {
     // the eye: -R^T t
     const eye = [0, 1, 2].map((c) => -(v[c] * v[3] + v[4 + c] * v[7] + v[8 + c] * v[11]));
     u.eye.value.set(...eye);
-    this.shadeUniforms.cameraToWorld.value.set(v[0], v[4], v[8], v[1], v[5], v[9], v[2], v[6], v[10]);
     this.shadeUniforms.exposure.value = 2 ** this.exposure;
-    const visible = sortBackToFront(this.means, this.meta.count, v, this.order.array);
-    this.order.needsUpdate = true;
-    this.geometry.instanceCount = visible;
-    this.renderer.setRenderTarget(this.target);
+    const key = v.join(",");
+    if (key !== this.sortedFor) {
+      // the order changes only when the view does (not with the light or the exposure)
+      const visible = sortBackToFront(this.means, this.meta.count, v, this.order.image.data);
+      this.geometry.setDrawRange(0, 6 * visible);
+      this.order.needsUpdate = true;
+      this.sortedFor = key;
+    }
     this.renderer.setClearColor(0x000000, 0);
+    this.renderer.setRenderTarget(this.colourTarget);
+    this.renderer.render(this.shadeScene, this.camera);
+    this.renderer.setRenderTarget(this.projectTarget);
+    this.renderer.render(this.projectScene, this.camera);
+    this.renderer.setRenderTarget(this.target);
     this.renderer.clear(true, false, false);
     this.renderer.render(this.splatScene, this.camera);
     this.renderer.setRenderTarget(null);
-    this.renderer.render(this.shadeScene, this.camera);
+    this.renderer.render(this.encodeScene, this.camera);
   }
 
   // milliseconds per frame over `frames` frames, each turned by `step` degrees (sorting included), waiting for

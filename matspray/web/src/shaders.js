@@ -1,39 +1,54 @@
-// The two passes of `matspray relight` as GLSL: the Gaussians rasterised into a G-buffer (materials and normals
-// alpha-blended as `render.raster` blends them: EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and
-// skipped below 1/255), then every pixel shaded by split-sum image-based lighting (`render.shade.deferred.shade`).
-// The page draws back to front with premultiplied "over", which sums the same weights as front-to-back blending.
+// `matspray relight`'s image as GLSL, in four passes. Software WebGL (SwiftShader) spends its time per fragment and
+// per render target, so the shading is done once per Gaussian and the splat pass blends one colour:
+// 1. SHADE: one fragment per Gaussian (its texel in the splat textures) shades it by split-sum image-based lighting
+//    (`render.shade.deferred.shade`) with its own normal, turned to face the eye, and the view direction to its
+//    centre. `relight` shades the blended G-buffer per pixel instead: the two differ where Gaussians of different
+//    normals or materials overlap (measured in docs/dev/web.md).
+// 2. PROJECT: one fragment per Gaussian projects it (its footprint on the screen); the splat pass only reads that.
+// 3. SPLAT: the Gaussians back to front, premultiplied "over", onto the background (the same sums as `render.raster`'s
+//    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255,
+//    drawn as rectangles along the axes of the ellipse where alpha reaches 1/255 (octagons, 17 % fewer fragments,
+//    were slower: SwiftShader pays per triangle and for the 2 x 2 pixel blocks along each thin triangle's edges).
+// 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs.
 
-export const SPLAT_VERTEX = /* glsl */ `
+const FETCH = /* glsl */ `
 precision highp float;
 precision highp int;
 precision highp sampler2D;
-in vec3 position;
-in float order;
 uniform sampler2D tCentre;   // mean xyz, opacity
 uniform sampler2D tRotation; // unit quaternion w x y z
 uniform sampler2D tScale;    // scales xyz, roughness
 uniform sampler2D tBase;     // linear base colour rgb, metallic
 uniform sampler2D tNormal;   // unit normal xyz
+uniform vec3 eye;
+`;
+
+const VIEW = /* glsl */ `
 uniform int texWidth;
 uniform mat3 viewRotation;
 uniform vec3 viewTranslation;
 uniform vec4 intrinsics;     // fx fy cx cy
 uniform vec2 size;           // width height in pixels
-uniform vec3 eye;
-flat out vec2 vCentre;
-flat out vec3 vConic;
-flat out float vOpacity;
-flat out vec3 vBase;
-flat out vec2 vRoughMetal;
-flat out vec3 vNormal;
+`;
+
+// PROJECT: each Gaussian's footprint, once (the splat pass's four vertices a Gaussian only read it): its centre and
+// axes in gl_FragCoord's frame (rows from the bottom), the half sides of the rectangle around the ellipse where
+// alpha falls to 1/255 (0 when it is not drawn), log2(opacity), and the conic in log2 units:
+// alpha = opacity exp(-d^T conic d / 2) = exp2(log2(opacity) - d^T conic d / (2 ln 2))
+export const PROJECT_FRAGMENT = /* glsl */ `${FETCH}${VIEW}
+layout(location = 0) out vec4 outCentreAxis;  // centre xy, major axis xy
+layout(location = 1) out vec4 outExtent;      // half sides along the axes, log2(opacity), unused
+layout(location = 2) out vec4 outConic;       // xx, 2 xy, yy terms, unused
 
 void main() {
-  int i = int(order);
-  ivec2 uv = ivec2(i % texWidth, i / texWidth);
+  outCentreAxis = vec4(0.0);
+  outExtent = vec4(0.0);
+  outConic = vec4(0.0);
+  ivec2 uv = ivec2(gl_FragCoord.xy);  // this Gaussian's texel
   vec4 centre = texelFetch(tCentre, uv, 0);
   vec3 t = viewRotation * centre.xyz + viewTranslation;
   float opacity = centre.w;
-  if (t.z <= 0.01 || opacity < 1.0 / 255.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
+  if (t.z <= 0.01 || opacity < 1.0 / 255.0) return;
   vec4 q = texelFetch(tRotation, uv, 0);
   vec4 sr = texelFetch(tScale, uv, 0);
   float w = q.x, x = q.y, y = q.z, z = q.w;
@@ -53,71 +68,92 @@ void main() {
   float cxy = dot(a, sigma * b);
   float cyy = dot(b, sigma * b) + 0.3;
   float det = cxx * cyy - cxy * cxy;
-  if (det <= 0.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
-  vConic = vec3(cyy, -cxy, cxx) / det;
-  vCentre = vec2(fx * px + cx, fy * py + cy);
-  // a quad along the footprint's axes, out to where alpha falls to 1/255 (and half a pixel more): the fragments
-  // are what a software rasteriser spends its time on
+  if (det <= 0.0) return;
+  // in gl_FragCoord's frame, whose rows run up where the camera's run down: y and the cross term change sign
+  outConic = vec4(cyy, 2.0 * cxy, cxx, 0.0) / (det * 2.0 * 0.6931471805599453);
   float mid = 0.5 * (cxx + cyy);
   float root = sqrt(max(mid * mid - det, 0.0));
   float reach = 2.0 * log(255.0 * opacity);
   vec2 axis = abs(cxy) > 1e-12 ? normalize(vec2(mid + root - cyy, cxy)) : (cxx >= cyy ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
-  vec2 pixel = vCentre + (position.x * (sqrt(reach * (mid + root)) + 0.5)) * axis
-    + (position.y * (sqrt(reach * max(mid - root, 0.0)) + 0.5)) * vec2(-axis.y, axis.x);
-  gl_Position = vec4(pixel.x / size.x * 2.0 - 1.0, 1.0 - pixel.y / size.y * 2.0, 0.0, 1.0);
-  vOpacity = opacity;
-  vec4 base = texelFetch(tBase, uv, 0);
-  vBase = base.rgb;
-  vRoughMetal = vec2(sr.w, base.w);
-  vec3 n = texelFetch(tNormal, uv, 0).xyz;
-  vNormal = dot(n, eye - centre.xyz) >= 0.0 ? n : -n;  // faces the camera (render.raster.gbuffer.orient_normals)
+  outCentreAxis = vec4(fx * px + cx, size.y - (fy * py + cy), axis.x, -axis.y);
+  outExtent = vec4(sqrt(reach * vec2(mid + root, max(mid - root, 0.0))) + 0.5, log2(opacity), 0.0);
+}`;
+
+export const SPLAT_VERTEX = /* glsl */ `
+precision highp float;
+precision highp int;
+precision highp sampler2D;
+uniform sampler2D tOrder;    // the Gaussians' indices, back to front (one float each)
+uniform sampler2D tColour;   // each Gaussian's shaded linear colour (the SHADE pass)
+uniform sampler2D tCentreAxis;  // the PROJECT pass's
+uniform sampler2D tExtent;
+uniform sampler2D tConic;
+uniform int texWidth;
+uniform vec2 size;           // width height in pixels
+flat out vec2 vCentre;       // in gl_FragCoord's frame: rows from the bottom
+flat out vec3 vConic;        // the quadratic form's terms, in log2 units
+flat out float vLogOpacity;  // log2(opacity)
+flat out vec3 vColour;
+
+void main() {
+  // four vertices a Gaussian, drawn without instancing (SwiftShader runs each instance as a draw of its own)
+  int slot = gl_VertexID / 4;
+  int corner = gl_VertexID % 4;
+  vec2 position = vec2(corner == 1 || corner == 2 ? 1.0 : -1.0, corner >= 2 ? 1.0 : -1.0);
+  int i = int(texelFetch(tOrder, ivec2(slot % texWidth, slot / texWidth), 0).r);
+  ivec2 uv = ivec2(i % texWidth, i / texWidth);
+  vec4 extent = texelFetch(tExtent, uv, 0);
+  if (extent.x <= 0.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
+  vec4 centreAxis = texelFetch(tCentreAxis, uv, 0);
+  vec2 axis = centreAxis.zw;
+  vec2 pixel = centreAxis.xy + position.x * extent.x * axis + position.y * extent.y * vec2(-axis.y, axis.x);
+  gl_Position = vec4(pixel / size * 2.0 - 1.0, 0.0, 1.0);
+  vCentre = centreAxis.xy;
+  vConic = texelFetch(tConic, uv, 0).xyz;
+  vLogOpacity = extent.z;
+  vColour = texelFetch(tColour, uv, 0).rgb;
 }`;
 
 export const SPLAT_FRAGMENT = /* glsl */ `
 precision highp float;
-uniform vec2 size;
 flat in vec2 vCentre;
 flat in vec3 vConic;
-flat in float vOpacity;
-flat in vec3 vBase;
-flat in vec2 vRoughMetal;
-flat in vec3 vNormal;
-layout(location = 0) out vec4 outBase;
-layout(location = 1) out vec4 outNormal;
-layout(location = 2) out vec4 outRoughMetal;
+flat in float vLogOpacity;
+flat in vec3 vColour;
+out vec4 colour;
 
 void main() {
-  vec2 d = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y) - vCentre;  // pixel centre, rows from the top
-  float power = -0.5 * (vConic.x * d.x * d.x + vConic.z * d.y * d.y) - vConic.y * d.x * d.y;
-  float alpha = min(0.999, vOpacity * exp(power));
-  if (alpha < 1.0 / 255.0) discard;
-  outBase = vec4(vBase * alpha, alpha);
-  outNormal = vec4(vNormal * alpha, alpha);
-  outRoughMetal = vec4(vRoughMetal * alpha, 0.0, alpha);
+  vec2 d = gl_FragCoord.xy - vCentre;  // the pixel's centre
+  float alpha = min(0.999, exp2(vLogOpacity - vConic.x * d.x * d.x - vConic.z * d.y * d.y - vConic.y * d.x * d.y));
+  alpha = alpha < 1.0 / 255.0 ? 0.0 : alpha;  // a select, not a discard: cheaper in a SIMD software rasteriser
+  colour = vec4(vColour * alpha, alpha);
 }`;
 
 export const SCREEN_VERTEX = /* glsl */ `
 in vec3 position;
 void main() { gl_Position = vec4(position.xy, 0.0, 1.0); }`;
 
-export function shadeFragment(levelCount) {
-  return /* glsl */ `
+export const ENCODE_FRAGMENT = /* glsl */ `
 precision highp float;
-precision highp int;
 precision highp sampler2D;
+uniform sampler2D tBlended;  // linear colour and coverage, premultiplied
+uniform vec3 background;     // linear
+out vec4 colour;
+
+void main() {
+  vec4 blended = texelFetch(tBlended, ivec2(gl_FragCoord.xy), 0);
+  vec3 x = clamp(blended.rgb + background * (1.0 - blended.a), 0.0, 1.0);
+  colour = vec4(mix(12.92 * x, 1.055 * pow(max(x, vec3(1e-12)), vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x)), 1.0);
+}`;
+
+export function shadeFragment(levelCount) {
+  return /* glsl */ `${FETCH}
 #define LEVELS ${levelCount}
-uniform sampler2D gBase;
-uniform sampler2D gNormal;
-uniform sampler2D gRoughMetal;
 uniform sampler2D tLut;      // split-sum table: rows n.v, columns roughness, (A, B)
 uniform sampler2D tLight;    // the padded maps, one above another
 uniform vec3 levelPlace[LEVELS + 1];  // first row, rows, columns of each specular level, then the irradiance
 uniform float levelRoughness[LEVELS];
-uniform mat3 cameraToWorld;  // camera axes in world coordinates (columns)
-uniform vec4 intrinsics;
-uniform vec2 size;
 uniform float exposure;      // a factor on the radiance
-uniform vec3 background;     // linear
 out vec4 colour;
 
 vec3 bilinear(vec3 place, vec2 p) {  // texel coordinates, clamped at the border (grid_sample's border padding)
@@ -156,35 +192,23 @@ vec2 lut(float nv, float r) {  // align_corners=False, border
   return mix(mix(a, b, t.x), mix(c, d, t.x), t.y);
 }
 
-vec3 srgb(vec3 x) {
-  x = clamp(x, 0.0, 1.0);
-  return mix(12.92 * x, 1.055 * pow(max(x, vec3(1e-12)), vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x));
-}
-
 void main() {
-  ivec2 p = ivec2(gl_FragCoord.xy);
-  vec4 base = texelFetch(gBase, p, 0);
-  float alpha = base.a;
-  if (alpha <= 0.0) { colour = vec4(srgb(background), 1.0); return; }
-  float cover = max(alpha, 1e-6);
-  vec3 albedo = base.rgb / cover;
-  vec2 rm = texelFetch(gRoughMetal, p, 0).rg / cover;
-  vec3 n = texelFetch(gNormal, p, 0).xyz;
-  n = n / max(length(n), 1e-12);
-  vec2 pixel = vec2(gl_FragCoord.x, size.y - gl_FragCoord.y);
-  vec3 ray = cameraToWorld * vec3((pixel.x - intrinsics.z) / intrinsics.x, (pixel.y - intrinsics.w) / intrinsics.y, 1.0);
-  vec3 wo = -normalize(ray);
+  ivec2 p = ivec2(gl_FragCoord.xy);  // this Gaussian's texel
+  vec3 centre = texelFetch(tCentre, p, 0).xyz;
+  vec4 base = texelFetch(tBase, p, 0);
+  vec3 albedo = base.rgb;
+  float metallic = base.w;
+  float r = clamp(texelFetch(tScale, p, 0).w, 0.04, 1.0);
+  vec3 n = texelFetch(tNormal, p, 0).xyz;
+  vec3 wo = normalize(eye - centre);
   float nv = dot(n, wo);
-  if (nv < 0.0) { n = -n; nv = -nv; }
-  float r = clamp(rm.x, 0.04, 1.0);
-  float metallic = rm.y;
+  if (nv < 0.0) { n = -n; nv = -nv; }  // faces the camera (render.raster.gbuffer.orient_normals)
   vec2 ab = lut(nv, r);
   vec3 f0 = 0.04 * (1.0 - metallic) + albedo * metallic;
   float a = r * r;
   float s = 1.0 - a;
   vec3 lobe = mix(n, reflect(-wo, n), pow(s, 1.5) + s * a);
-  // linear between the two levels around r (envmap._level_weights): two lookups, not a loop over every level,
-  // which a SIMD software rasteriser would run for every lane
+  // linear between the two levels around r (envmap._level_weights)
   float rc = clamp(r, levelRoughness[0], levelRoughness[LEVELS - 1]);
   int low = 0;
   for (int i = 1; i < LEVELS - 1; i++) low += rc >= levelRoughness[i] ? 1 : 0;
@@ -192,6 +216,6 @@ void main() {
   vec3 specular = (1.0 - t) * lookup(levelPlace[low], lobe) + t * lookup(levelPlace[low + 1], lobe);
   vec3 irradiance = lookup(levelPlace[LEVELS], n);
   vec3 rgb = irradiance * albedo * (1.0 - metallic) / 3.14159265358979 + specular * (f0 * ab.x + ab.y);
-  colour = vec4(srgb(rgb * exposure * alpha + background * (1.0 - alpha)), 1.0);
+  colour = vec4(rgb * exposure, 1.0);
 }`;
 }

@@ -1,0 +1,76 @@
+"""Frames per second of `matspray export --web`'s page in headless chromium with software WebGL (SwiftShader), at
+its 512 x 512 view: a sphere of COUNT flat Gaussians, as wide as keeps every pixel of it under the same number of
+footprints at any count (sigma 0.05 at 4 000, about a trained surface's density), turned 3 degrees a frame (sorting
+and shading included), each frame waited for, after two frames of warm-up.
+
+    python -m benchmarks.web_fps --gaussians 4000 40000
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+WARM_UP, FRAMES, STEP = 2, 5, 3.0
+
+
+def write_disk_sphere_page(folder, count: int) -> None:
+    """The page of `count` flat disks on the unit sphere (the tests' disk sphere, thinner as it gets denser)."""
+    from matspray.method.asset import Asset
+    from matspray.method.relight import orbit_spec
+    from matspray.web.page import write_page
+    from tests.scenes import sky_map, sphere_cameras, sphere_of_disks
+
+    g, normals, materials = sphere_of_disks(count)
+    sigma = 0.05 * (4000 / count) ** 0.5
+    g.log_scales = torch.tensor([sigma, sigma, 0.003]).log().expand(count, 3).clone()
+    spec = orbit_spec(sphere_cameras(6, 64), torch.zeros(3), (0.0, 0.0, 1.0))
+    write_page(folder, Asset(g, materials, normals), spec, sky_map())
+
+
+def open_page(driver, folder: Path, timeout: float = 120.0) -> None:
+    """Open the page in `folder` from file:// (no server) and wait until it has started."""
+    driver.get((Path(folder) / "index.html").as_uri())
+    deadline, state = time.monotonic() + timeout, None
+    while time.monotonic() < deadline:
+        state = driver.execute_script("return window.matspray && [window.matspray.ready, window.matspray.error]")
+        if state and (state[0] or state[1]):
+            break
+        time.sleep(0.1)
+    if not (state and state[0]):
+        raise RuntimeError(f"the page did not start: {state}")
+
+
+def milliseconds_per_frame(driver) -> float:
+    """The open page's frame time, after WARM_UP frames."""
+    driver.execute_script(f"return window.matspray.timeFrames({WARM_UP}, {STEP})")
+    return driver.execute_script(f"return window.matspray.timeFrames({FRAMES}, {STEP})")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--gaussians", type=int, nargs="+", default=[4000, 40000])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    from tests.browser import headless_chromium
+
+    driver = headless_chromium(1000, 800)
+    driver.set_script_timeout(600)
+    try:
+        for count in args.gaussians:
+            with tempfile.TemporaryDirectory() as tmp:
+                write_disk_sphere_page(tmp, count)
+                open_page(driver, Path(tmp))
+                times = [milliseconds_per_frame(driver) for _ in range(args.repeats)]
+            shown = ", ".join(f"{ms:.0f} ms ({1000 / ms:.1f} fps)" for ms in times)
+            print(f"{count} Gaussians at 512 x 512: {shown}", flush=True)
+    finally:
+        driver.quit()
+
+
+if __name__ == "__main__":
+    main()
