@@ -5,8 +5,9 @@ from __future__ import annotations
 from matspray.errors import ConfigError
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.light import Light
+from matspray.render.shade.sg import SGLight
 
-LIGHT_MODELS: dict[str, type[Light]] = {model.kind: model for model in (EnvironmentMap,)}
+LIGHT_MODELS: dict[str, type[Light]] = {model.kind: model for model in (EnvironmentMap, SGLight)}
 
 
 def light_model(name: str) -> type[Light]:
