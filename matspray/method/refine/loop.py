@@ -32,7 +32,7 @@ import hashlib
 from dataclasses import dataclass, field, replace
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
@@ -42,14 +42,12 @@ from matspray.gaussians import Gaussians
 from matspray.material import METALLIC_INDEX, N_CHANNELS
 from matspray.method.merger import (
     MergerConfig,
-    NeuralMerger,
     align_view_gains,
-    prepare_values,
-    projection_average,
     view_gains,
 )
 from matspray.method.refine.metallic import MetallicFitConfig, fit_metallic
 from matspray.method.refine.normals import ShadingNormals, normal_prior, smoothed_normals
+from matspray.method.refine.sources import MaterialSource, material_source
 from matspray.method.refine.steps import adam as adam_optimizer
 from matspray.method.refine.steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
 from matspray.method.refine.terms import (  # noqa: F401 (the material losses: callers' API)
@@ -201,55 +199,6 @@ class RefineInputs:
             means, opacities = self.gaussians.means.detach(), self.gaussians.opacities.detach()
             self.smoothed[neighbours] = smoothed_normals(self.normals, means, opacities, neighbours)
         return self.smoothed[neighbours]
-
-
-class MaterialSource(nn.Module):
-    """Per-Gaussian materials [N, 5] for one variant."""
-
-    def __init__(
-        self,
-        variant: Variant,
-        positions: Tensor,
-        values: Tensor,
-        seen: Tensor,
-        bounds: Tensor,
-        merger_config: MergerConfig,
-    ):
-        super().__init__()
-        self.variant = variant
-        self.merger = None
-        unseen = "mask"  # unseen entries carry no information; the merger may fill them instead (the paper's rule)
-        if variant.source == "merger":
-            config = MergerConfig(**{**merger_config.__dict__, "softmax": variant.softmax})
-            self.merger = NeuralMerger(values.shape[1], bounds, config)
-            unseen = config.unseen
-        values, seen = prepare_values(values, seen, unseen)  # [N, V, 5], [N, V] what the source reads
-        self.register_buffer("values", values)
-        self.register_buffer("seen", seen)
-        if self.merger is not None:
-            with torch.no_grad():  # geometry is frozen: the MLPs' inputs never change
-                self.inputs = self.merger.group_inputs(positions, values, seen)  # [G, N, D]
-        elif variant.source == "free":  # free parameters, starting from an uninformed grey
-            self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
-
-    def forward(self, index: Tensor | None = None, return_weights: bool = False):
-        """Materials [N, 5], or [K, 5] for the Gaussians `index` [K]; with `return_weights` also the merger's
-        weights {group: [K, V]} (empty for a source without a merger)."""
-        pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
-        if self.merger is not None:
-            inputs = self.inputs if index is None else self.inputs.index_select(1, index)  # [G, K, D]
-            return self.merger.merge(inputs, pick(self.values), pick(self.seen), return_weights)
-        materials = self.source_materials(pick)
-        return (materials, {}) if return_weights else materials
-
-    def source_materials(self, pick) -> Tensor:  # the materials of a source without a merger
-        if self.variant.source == "free":
-            return torch.sigmoid(pick(self.logits))
-        return projection_average(pick(self.values), pick(self.seen))
-
-    @property
-    def trainable(self) -> bool:
-        return any(p.requires_grad for p in self.parameters())
 
 
 # ------------------------------------------------------------------------------------------ losses
@@ -426,7 +375,7 @@ def refine(
     if config.align_view_gains:
         inputs = aligned_inputs(inputs)
     means = gaussians.means.detach()
-    source = MaterialSource(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
+    source = material_source(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
     envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
     history: list[dict] = []
@@ -434,7 +383,7 @@ def refine(
         return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility)
 
     training = TrainingViews(inputs, frozen, graphs)
-    source_lr = config.supervised_lr if variant.source == "free" else config.merger_lr
+    source_lr = source.learning_rate(config)
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
     if estimates_light:
         groups.append(envmap_group(envmap, config))
