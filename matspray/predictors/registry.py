@@ -36,12 +36,17 @@ class PredictorOptions:
         unknown = sorted(set(given) - set(known))
         if unknown:
             raise TypeError(f"unknown predictor options: {', '.join(unknown)} (known: {', '.join(known)})")
-        self.given = {name: value for name, value in given.items() if value is not None}
+        # the given values are the instance's attributes, so `vars(options)` is what was given (`stages.predict_maps`)
+        vars(self).update({name: value for name, value in given.items() if value is not None})
 
-    def __getattr__(self, name: str):
-        if name != "given" and name in option_fields():
-            return self.given.get(name)
+    def __getattr__(self, name: str):  # an option not given: None (the predictor's default)
+        if name in option_fields():
+            return None
         raise AttributeError(name)
+
+    @property
+    def given(self) -> dict:
+        return dict(vars(self))
 
     def __eq__(self, other) -> bool:
         return isinstance(other, PredictorOptions) and self.given == other.given
