@@ -93,13 +93,12 @@ def cosine_table(device, dtype) -> Tensor:  # -> [1, 1, C, S]: rows n . xi from 
     return _TABLES[key]
 
 
-def sg_irradiance(axes: Tensor, sharpness: Tensor, amplitudes: Tensor, normals: Tensor) -> Tensor:
-    """[K, 3] unit, [K], [K, 3], [P, 3] unit -> [P, 3] E(n) = sum_k mu_k int SG_k(v) (n . v)+ dv."""
+def sg_irradiance(axes: Tensor, sharpness: Tensor, amplitudes: Tensor, normals: Tensor, table: Tensor) -> Tensor:
+    """[K, 3] unit, [K], [K, 3], [P, 3] unit, `cosine_table` -> [P, 3] E(n) = sum_k mu_k int SG_k(v) (n . v)+ dv."""
     low, high = (math.log(x) for x in TABLE_SHARPNESS)
     column = (sharpness.log() - low) * (2.0 / (high - low)) - 1.0  # [K] grid_sample's x (align_corners=True)
     row = normals @ axes.T  # [P, K] n . xi is already in [-1, 1]
     grid = torch.stack([column.expand_as(row), row], dim=-1)[None]  # [1, P, K, 2]
-    table = cosine_table(axes.device, axes.dtype)
     mean_cosine = F.grid_sample(table, grid, mode="bilinear", padding_mode="border", align_corners=True)[0, 0]
     return (mean_cosine * sg_integral(sharpness)) @ amplitudes  # [P, K] @ [K, 3]
 
@@ -139,6 +138,7 @@ class PrefilteredSG(PrefilteredLight):
     sharpness: Tensor  # [K]
     amplitudes: Tensor  # [K, 3]
     log_lobe_sharpness: Tensor  # [L] log of `lobe_sharpness` of each level
+    table: Tensor  # [1, 1, C, S] `cosine_table`: a constant, but an input of a captured graph like the rest
     source: Tensor | None = None  # [h, 2h, 3] the light drawn on a lat-long grid
 
     @property
@@ -146,7 +146,7 @@ class PrefilteredSG(PrefilteredLight):
         return self.levels, self.height
 
     def tensors(self) -> tuple[Tensor, ...]:
-        return self.axes, self.sharpness, self.amplitudes, self.log_lobe_sharpness
+        return self.axes, self.sharpness, self.amplitudes, self.log_lobe_sharpness, self.table
 
     @classmethod
     def from_tensors(cls, layout: tuple, tensors) -> PrefilteredSG:
@@ -164,12 +164,13 @@ class PrefilteredSG(PrefilteredLight):
 
     def lookup_diffuse(self, normals: Tensor) -> Tensor:  # [..., 3] -> [..., 3]
         n = F.normalize(normals.reshape(-1, 3).to(self.axes.dtype), dim=-1, eps=1e-12)
-        return sg_irradiance(self.axes, self.sharpness, self.amplitudes, n).reshape(*normals.shape[:-1], 3)
+        irradiance = sg_irradiance(self.axes, self.sharpness, self.amplitudes, n, self.table)  # [P, 3]
+        return irradiance.reshape(*normals.shape[:-1], 3)
 
 
 def sg_step(
-    layout: tuple, vectors: Tensor, log_sharpness: Tensor, log_amplitudes: Tensor, lobes: Tensor
-) -> tuple[Tensor, ...]:  # [K, 3], [K], [K, 3], [L] (`level_lobes`) ->
+    layout: tuple, vectors: Tensor, log_sharpness: Tensor, log_amplitudes: Tensor, lobes: Tensor, table: Tensor
+) -> tuple[Tensor, ...]:  # [K, 3], [K], [K, 3], [L] (`level_lobes`), `cosine_table` ->
     """A learnable SG light's prefiltering step (`Light.step_function`): the `PrefilteredSG` tensors, the light drawn
     on a lat-long grid [h, 2h, 3] and its prior []; one pure function of the parameters, for a CUDA graph."""
     _, height = layout
@@ -177,7 +178,7 @@ def sg_step(
     grid = pixel_directions(height, 2 * height, vectors.device, vectors.dtype)  # [h, 2h, 3]
     drawn = sg_radiance(axes, sharpness, amplitudes, grid)
     prior = total_variation(drawn.clamp_min(MIN_RADIANCE).log())
-    return axes, sharpness, amplitudes, lobes, drawn, prior
+    return axes, sharpness, amplitudes, lobes, table, drawn, prior
 
 
 def fibonacci_axes(count: int, dtype=torch.float32, device=None) -> Tensor:  # -> [count, 3] unit, evenly spread
@@ -224,8 +225,9 @@ class SGLight(Light):
 
     def step_function(self, levels):
         levels = tuple(float(r) for r in levels)
-        lobes = level_lobes(levels, self.vectors.device, self.vectors.dtype)
-        return sg_step, (levels, self.height), (self.vectors, self.log_sharpness, self.log_amplitudes, lobes)
+        device, dtype = self.vectors.device, self.vectors.dtype
+        constants = level_lobes(levels, device, dtype), cosine_table(device, dtype)  # made outside any graph
+        return sg_step, (levels, self.height), (self.vectors, self.log_sharpness, self.log_amplitudes, *constants)
 
     def prefilter(self, levels=DEFAULT_LEVELS) -> PrefilteredSG:
         function, layout, tensors = self.step_function(levels)
