@@ -120,6 +120,14 @@ def test_save_and_load_round_trip(tmp_path):
     assert isinstance(load_light(plain), EnvironmentMap)
 
 
+def test_a_fixed_copy_is_the_same_light_without_gradients():
+    light = random_light(torch.float32)
+    fixed = light.fixed()
+    assert light.learnable and not fixed.learnable
+    for got, want in zip(fixed.parameters(), light.parameters()):
+        assert torch.equal(got, want)
+
+
 def test_a_broken_lobes_file_is_one_line_naming_it(tmp_path):
     path = tmp_path / "envmap.exr"
     random_light(torch.float32).save(path)

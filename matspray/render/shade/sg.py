@@ -17,6 +17,7 @@ a free vector, log lambda and log mu). Split-sum shading reads it without a map:
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -238,7 +239,9 @@ class SGLight(Light):
         return total_variation(self.map.clamp_min(MIN_RADIANCE).log())
 
     def fixed(self) -> SGLight:
-        return SGLight(*(t.detach() for t in self.lobes), self.height, learnable=False)
+        fixed = copy.deepcopy(self)  # the parameters as they are (not through exp and log again)
+        fixed.requires_grad_(False)
+        return fixed
 
     def save(self, path) -> None:
         write_image(path, self.map.detach())
