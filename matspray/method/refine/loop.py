@@ -83,8 +83,8 @@ class RefineConfig:
     # at the merger's 1e-3 a Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey
     envmap_height: int = 16  # learnable lat-long map is H x 2H (another light model: its lat-long drawing's)
     envmap_init: float = 0.5  # initial constant radiance
-    light_model: str = "latlong"  # the estimated light's model, by name: "latlong" (the map above) or another of
-    # `matspray.render.shade.models.LIGHT_MODELS`
+    light_model: str = "latlong"  # the estimated light's model: "latlong" (a lat-long map of envmap_height rows) or
+    # another of `matspray.render.shade.models.LIGHT_MODELS`, e.g. "sg" (2 x envmap_height spherical Gaussians)
     # weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)
     light_tv_weight: float = 3e-4
     light_warmup: int = 200  # steps that fit only the environment map to the photos, materials fixed at their start
