@@ -101,14 +101,14 @@ def geometry_seconds(counts: torch.Tensor) -> float:
 # ------------------------------------------------------------------------------------------ CPU measurements
 def merger_timer(views: int, gaussians: int):
     """A function timing one forward and backward of the `full` source (the Neural Merger) for `views` views."""
-    from matspray.method.refine.loop import MaterialSource
+    from matspray.method.refine.loop import material_source
 
     g = torch.Generator().manual_seed(0)
     means = torch.rand(gaussians, 3, generator=g)
     values = torch.rand(gaussians, views, 5, generator=g)
     seen = torch.rand(gaussians, views, generator=g) > 0.3
     bounds = torch.tensor([[0.0] * 3, [1.0] * 3])
-    source = MaterialSource(get_variant("full"), means, values, seen, bounds, MergerConfig())
+    source = material_source(get_variant("full"), means, values, seen, bounds, MergerConfig())
     source().sum().backward()  # first call: allocations
 
     def timed() -> float:
@@ -170,7 +170,7 @@ def variant_step_ratios(variants, points: int = 300, short: int = 2, long: int =
 def light_warm_ups(variants, points: int = 300) -> int:
     """How many light warm-ups the variants run: those that learn the light, counted once per key of
     `refine.warm_up_key` (their starting materials and settings), as `refine` shares them within a run."""
-    from matspray.method.refine.loop import MaterialSource, warm_up_key
+    from matspray.method.refine.loop import material_source, warm_up_key
 
     inputs = tiny_inputs(points)
     base = build_config("paper").refine
@@ -182,7 +182,7 @@ def light_warm_ups(variants, points: int = 300) -> int:
         config = replace(base, variant=name)
         means = inputs.gaussians.means.detach()
         torch.manual_seed(config.seed)
-        source = MaterialSource(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger)
+        source = material_source(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger)
         with torch.no_grad():
             keys.add(warm_up_key(source(), config))
     return len(keys)

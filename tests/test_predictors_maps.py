@@ -217,8 +217,8 @@ def test_make_predictor_rejects_bad_specs(tmp_path):
     with pytest.raises(
         ConfigError,
         match=(
-            r"unknown predictor 'rgbx'; use one of files:DIR, marigold, "
-            r"simulated\[:paper\|harsh\|outliers\|dr\], ground-truth"
+            r"unknown predictor 'rgbx'; use one of files:DIR, ground-truth, marigold, "
+            r"simulated\[:paper\|harsh\|outliers\|dr\], none"
         ),
     ):
         make_predictor("rgbx")

@@ -337,3 +337,20 @@ def test_the_metallic_prior_pulls_a_run_without_maps_towards_a_dielectric_and_le
     assert torch.equal(metallic["full", 0.3], metallic["full", 0.0])  # the 2D maps say what is metal there
     with pytest.raises(Exception, match="metallic_prior_weight: must be >= 0"):
         RefineConfig(metallic_prior_weight=-1.0)
+
+
+@pytest.mark.parametrize(
+    "variant, kind, rate",
+    [("full", "MergerSource", 1e-3), ("supervised", "FreeSource", 5e-2), ("proj-average", "AverageSource", 1e-3)],
+)
+def test_each_variant_declares_its_source_class_and_its_rate(lifted_scene, variant, kind, rate):
+    from matspray.method.refine.sources import material_source
+    from matspray.presets import get_variant
+
+    gaussians, _, _, _, _, lifted = lifted_scene
+    source = material_source(
+        get_variant(variant), gaussians.means, lifted.values, lifted.seen, BOUNDS, RefineConfig().merger
+    )
+    assert type(source).__name__ == kind and source.trainable == (variant != "proj-average")
+    assert source.learning_rate(RefineConfig(merger_lr=1e-3, supervised_lr=5e-2)) == rate
+    assert source().shape == (len(gaussians), 5) and source(torch.tensor([0, 2])).shape == (2, 5)

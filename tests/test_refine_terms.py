@@ -239,7 +239,8 @@ def test_graphed_terms_match_op_by_op_on_the_device(device):
                 )
             for a, b in zip(*found):
                 torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-7)
-    assert len(graphed.terms.captured) == len(graphed.light.captured) == 1 and not eager.terms.captured
+    assert len(graphed.terms.captured) == len(graphed.lights[prefiltered_light].captured) == 1
+    assert not eager.terms.captured
 
 
 def test_the_photometric_weight_counts_against_the_2d_maps_loss_only():

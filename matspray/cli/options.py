@@ -56,12 +56,13 @@ def add_compute_arguments(parser) -> None:
 
 def add_run_arguments(parser) -> None:
     """What `run` and `batch` take besides the method: the predictor, its options and the variants."""
+    from matspray.predictors.kinds import add_run_option_flags, predictor_usage
+
     parser.add_argument(
         "--predictor",
         default="auto",
         metavar="SPEC",
-        help="2D material maps: files:DIR, marigold, simulated[:paper|harsh|outliers|dr] or ground-truth (benchmarks "
-        "only: they need the dataset's true maps), or none (no maps: only the no-prior variant); default auto: "
+        help=f"2D material maps: {predictor_usage()}, or none (no maps: only the no-prior variant); default auto: "
         "simulated where the dataset has ground-truth maps, else none",
     )
     parser.add_argument(
@@ -72,16 +73,14 @@ def add_run_arguments(parser) -> None:
         help="method variants to refine (the paper's ablations, and no-prior: the baseline without a 2D prior); "
         "default: full, or no-prior with --predictor none",
     )
-    parser.add_argument("--weights", help="marigold: pipeline folder")
-    # simulated: strength of the simulated failure modes (default 1); benchmarks only
-    parser.add_argument("--severity", type=float, help=argparse.SUPPRESS)
+    add_run_option_flags(parser)  # the predictors' options `run` offers (`matspray.predictors.kinds`)
 
 
 def predictor_options_from_args(args) -> dict:
-    """PredictorOptions fields from --weights and --severity, when given."""
-    return {
-        name: value for name, value in (("weights", args.weights), ("severity", args.severity)) if value is not None
-    }
+    """PredictorOptions fields from the predictors' flags given."""
+    from matspray.predictors.kinds import run_options_from_args
+
+    return run_options_from_args(args)
 
 
 def given(args, flags) -> list[str]:

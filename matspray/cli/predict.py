@@ -8,58 +8,14 @@ SPLITS = ("train", "test", "all")
 def add_predict_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
     parser.add_argument("--out", type=Path, required=True, help="run folder; maps go to OUT/materials2d/")
-    parser.add_argument(
-        "--predictor",
-        required=True,
-        metavar="SPEC",
-        help="files:DIR (precomputed maps: MatSpray, DiffusionRenderer or Marigold layout), marigold (diffusers, "
-        "from --weights), simulated[:paper|harsh|outliers|dr] (an error model; "
-        "plain simulated = paper) or ground-truth "
-        "(benchmarks on `matspray synth` objects only)",
-    )
+    from matspray.predictors.kinds import add_option_flags, predictor_usage
+
+    parser.add_argument("--predictor", required=True, metavar="SPEC", help=predictor_usage())
     parser.add_argument(
         "--split", choices=SPLITS, default="train", help="views to predict (default: train, what lifting uses)"
     )
     parser.add_argument("--downscale", type=float, default=1.0, help="shrink images by this factor on load (default 1)")
-    group = parser.add_argument_group("files and marigold")
-    group.add_argument(
-        "--basecolor-encoding",
-        metavar="ENC",
-        help="how stored base color relates to linear: srgb, gamma1.8 or linear "
-        "(default: gamma1.8 for DiffusionRenderer output, srgb otherwise)",
-    )
-    group = parser.add_argument_group("marigold")
-    group.add_argument(
-        "--weights",
-        help="MarigoldIntrinsicsPipeline folder, or a hub id when the network allows "
-        "(default prs-eth/marigold-iid-appearance-v1-1)",
-    )
-    group.add_argument(
-        "--normals-weights",
-        help="MarigoldNormalsPipeline folder (or hub id, e.g. prs-eth/marigold-normals-v1-1): also predict normal "
-        "maps (default: none)",
-    )
-    group.add_argument("--device", help="auto (default: CUDA when available), cpu, cuda or cuda:N")
-    group.add_argument("--steps", type=int, help="denoising steps (default: the model's)")
-    group.add_argument(
-        "--ensemble-size", type=int, help="predictions per view; >= 3 also writes a confidence map (default 1)"
-    )
-    group.add_argument(
-        "--processing-resolution", type=int, help="resolution the model works at (default: the model's; 0 = native)"
-    )
-    group = parser.add_argument_group("marigold and simulated")
-    group.add_argument(
-        "--batch-size", type=int, help="views per model call / window (default: marigold 4, simulated 8)"
-    )
-    group.add_argument(
-        "--seed",
-        type=int,
-        help="random seed (default: marigold 0; simulated: the synth object's seed, 0 for other data)",
-    )
-    group = parser.add_argument_group("simulated")
-    group.add_argument(
-        "--severity", type=float, help="strength of the simulated failure modes; 0 = ground truth (default 1)"
-    )
+    add_option_flags(parser)  # each predictor's options (`matspray.predictors.kinds`)
 
 
 def predict_main(args) -> int:
@@ -73,6 +29,7 @@ def predict_main(args) -> int:
         predict_views,
         write_materials2d,
     )
+    from matspray.predictors.kinds import options_from_args
     from matspray.rundir import RunDir
 
     check_run_split(args.out, args.split)
@@ -87,18 +44,7 @@ def predict_main(args) -> int:
             "and maps are stored by view name; "
             "predict one split at a time (--split train, or --split test into another --out)"
         )
-    options = PredictorOptions(
-        basecolor_encoding=args.basecolor_encoding,
-        weights=args.weights,
-        normals_weights=args.normals_weights,
-        device=args.device,
-        steps=args.steps,
-        ensemble_size=args.ensemble_size,
-        processing_resolution=args.processing_resolution,
-        batch_size=args.batch_size,
-        seed=args.seed,
-        severity=args.severity,
-    )
+    options = PredictorOptions(**options_from_args(args))
     predictor = make_predictor(args.predictor, options_for_dataset(args.predictor, options, args.data))
     with RunDir(args.out).hold():  # refused while another process writes the run folder, before predicting anything
         maps = predict_views(views, predictor)

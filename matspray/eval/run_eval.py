@@ -35,6 +35,7 @@ from matspray.method.masks import ObjectMasks, read_object_masks
 from matspray.method.relight import render_gbuffer
 from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
+from matspray.predictors.kinds import PredictorSpec, predictor_kinds
 from matspray.presets import ABLATION, BASELINE, LABELS, SOFTMAX_ABLATION, asset_stage
 from matspray.render.backend import rendering_with
 from matspray.render.shade.deferred import shade_gbuffer
@@ -290,7 +291,8 @@ def predict_test_views(run_dir: Path, views: list[View]) -> tuple[dict | None, s
             f"raw 2D predictions of test views not evaluated ({RunDir(run_dir).path('config.yaml')} names "
             "no readable predictor)",
         )
-    if spec.partition(":")[0] not in ("simulated", "ground-truth", "files"):
+    kind = predictor_kinds().get(PredictorSpec.parse(spec).kind)
+    if kind is None or not kind.reruns_for_eval:
         return None, f"raw 2D predictions of test views not evaluated (predictor '{spec}' would have to run again)"
     try:
         stored = PredictorOptions(**given)

@@ -1,62 +1,61 @@
-"""`--predictor SPEC` -> a Predictor. Specs: `files:DIR`, `marigold`, `simulated[:MODEL]`, `ground-truth`."""
+"""`--predictor SPEC` -> a Predictor, by the kinds declared in `matspray.predictors.kinds` (`files:DIR`, `marigold`,
+`simulated[:MODEL]`, `ground-truth`, and any kind registered there)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
 
 from matspray.data.formats.blender import read_scene_json
 from matspray.errors import DataError, SettingError
 from matspray.predictors.base import Predictor
-from matspray.predictors.error_models import DEFAULT_MODEL, error_model
-from matspray.predictors.files import FilesPredictor
-from matspray.predictors.ground_truth import GroundTruthPredictor, check_ground_truth
-from matspray.predictors.marigold import MarigoldConfig, MarigoldPredictor
-from matspray.predictors.simulated import SimulatedPredictor
+from matspray.predictors.ground_truth import check_ground_truth
+from matspray.predictors.kinds import (
+    AUTO_PREDICTOR,
+    NO_PREDICTOR,
+    PredictorKind,
+    PredictorSpec,
+    option_fields,
+    predictor_kinds,
+)
 
-SPECS = ("files:DIR", "marigold", "simulated[:paper|harsh|outliers|dr]", "ground-truth", "none")
-NO_PREDICTOR = "none"  # a run without 2D maps: only the variants that need none (matspray.presets.MAPLESS)
-AUTO_PREDICTOR = "auto"  # `run`'s default: simulated where the dataset has ground-truth maps (benchmarks), else none
-NEEDS_GROUND_TRUTH = ("simulated", "ground-truth")
+__all__ = ["AUTO_PREDICTOR", "NO_PREDICTOR", "PredictorOptions", "make_predictor", "predictor_specs"]
 
 
-@dataclass
+def predictor_specs() -> tuple[str, ...]:
+    """The spec of every kind, as its help names it, and none."""
+    return (*(kind.usage.split(" (")[0] for kind in predictor_kinds().values()), NO_PREDICTOR)
+
+
 class PredictorOptions:
-    """Every setting the command line offers; None = the predictor's default. Each predictor takes its own."""
+    """The predictor options given, by name (a field of some kind's options; None: the predictor's default). An
+    unknown name is a TypeError, as a dataclass's would be."""
 
-    basecolor_encoding: str | None = None  # files, marigold
-    weights: str | None = None  # marigold
-    normals_weights: str | None = None  # marigold: its normals model, which adds normal maps
-    device: str | None = None  # marigold
-    steps: int | None = None  # marigold
-    ensemble_size: int | None = None  # marigold
-    processing_resolution: int | None = None  # marigold
-    batch_size: int | None = None  # marigold, simulated
-    seed: int | None = None  # marigold, simulated
-    severity: float | None = None  # simulated
+    def __init__(self, **given):
+        known = option_fields()
+        unknown = sorted(set(given) - set(known))
+        if unknown:
+            raise TypeError(f"unknown predictor options: {', '.join(unknown)} (known: {', '.join(known)})")
+        # the given values are the instance's attributes, so `vars(options)` is what was given (`stages.predict_maps`)
+        vars(self).update({name: value for name, value in given.items() if value is not None})
 
+    def __getattr__(self, name: str):  # an option not given: None (the predictor's default)
+        if name in option_fields():
+            return None
+        raise AttributeError(name)
 
-USES = {
-    "files": {"basecolor_encoding"},
-    "marigold": {
-        "basecolor_encoding",
-        "weights",
-        "normals_weights",
-        "device",
-        "steps",
-        "ensemble_size",
-        "processing_resolution",
-        "batch_size",
-        "seed",
-    },
-    "simulated": {"batch_size", "seed", "severity"},
-    "ground-truth": set(),
-}
+    @property
+    def given(self) -> dict:
+        return dict(vars(self))
 
+    def __eq__(self, other) -> bool:
+        return isinstance(other, PredictorOptions) and self.given == other.given
 
-def _given(options: PredictorOptions, names: set[str]) -> dict:
-    return {n: getattr(options, n) for n in names if getattr(options, n) is not None}
+    def __repr__(self) -> str:
+        return f"PredictorOptions({', '.join(f'{k}={v!r}' for k, v in sorted(self.given.items()))})"
+
+    def replace(self, **changes) -> PredictorOptions:
+        return PredictorOptions(**{**self.given, **changes})
 
 
 def object_seed(data) -> int | None:
@@ -65,23 +64,28 @@ def object_seed(data) -> int | None:
     return seed if isinstance(seed, int) and not isinstance(seed, bool) else None
 
 
+def declared_kind(spec: PredictorSpec) -> PredictorKind | None:
+    return predictor_kinds().get(spec.kind)
+
+
 def options_for_dataset(spec: str, options: PredictorOptions, data) -> PredictorOptions:
-    """`options` for predicting the views of the dataset folder `data`: a simulated predictor given no
-    `seed` draws its errors from the synth object's own seed, so that the objects of a benchmark (made
-    with seeds 0, 1, ...) get independent errors rather than one draw repeated on every object (the
-    views of every synth object have the same names). Object seed 0 gives the error model's default draws."""
-    if str(spec).partition(":")[0].strip().lower() != "simulated" or options.seed is not None:
+    """`options` for predicting the views of the dataset folder `data`: a kind that draws from the object's seed
+    (simulated) given no `seed` draws its errors from the synth object's own seed, so that the objects of a benchmark
+    (made with seeds 0, 1, ...) get independent errors rather than one draw repeated on every object (the views of
+    every synth object have the same names). Object seed 0 gives the error model's default draws."""
+    kind = declared_kind(PredictorSpec.parse(spec))
+    if kind is None or not kind.object_seed or options.seed is not None:
         return options
     seed = object_seed(data)
-    return options if seed is None else replace(options, seed=seed)
+    return options if seed is None else options.replace(seed=seed)
 
 
 def resolve_predictor(spec: str, views: list, notify: Callable[[str], None] = print) -> str:
     """The predictor a run uses for the training `views`: `auto` becomes simulated where every view has ground-truth
     maps, else none (said in one line). A predictor that needs ground truth on views without it is refused here,
     before any training, naming the dataset and the views."""
-    kind = str(spec).partition(":")[0].strip().lower()
-    if kind == AUTO_PREDICTOR:
+    parsed = PredictorSpec.parse(spec)
+    if parsed.kind == AUTO_PREDICTOR:
         try:
             check_ground_truth(views)
         except DataError:
@@ -91,37 +95,36 @@ def resolve_predictor(spec: str, views: list, notify: Callable[[str], None] = pr
             )
             return NO_PREDICTOR
         return "simulated"
-    if kind in NEEDS_GROUND_TRUTH:
+    kind = declared_kind(parsed)
+    if kind is not None and kind.needs_ground_truth:
         check_ground_truth(views)
     return spec
+
+
+def checked_kind(spec: PredictorSpec, text: str) -> PredictorKind:
+    """The kind of a spec that names one, with the ':' argument it takes; a SettingError otherwise."""
+    if spec.kind == NO_PREDICTOR:
+        raise SettingError(
+            "predictor", "'none' predicts no maps; only a run refines without them (the no-prior variant)"
+        )
+    kind = declared_kind(spec)
+    if kind is None:
+        raise SettingError("predictor", f"unknown predictor '{text}'; use one of {', '.join(predictor_specs())}")
+    if kind.argument not in ("", "optional") and not spec.argument:
+        raise SettingError("predictor", f"{kind.usage.split(' (')[0]} needs {kind.argument}")
+    if not kind.argument and spec.argument:
+        raise SettingError("predictor", f"{kind.name} takes no ':' argument (got '{text}')")
+    return kind
 
 
 def make_predictor(
     spec: str, options: PredictorOptions | None = None, notify: Callable[[str], None] = print
 ) -> Predictor:
     options = options or PredictorOptions()
-    if spec == NO_PREDICTOR:
-        raise SettingError(
-            "predictor", "'none' predicts no maps; only a run refines without them (the no-prior variant)"
-        )
-    kind, _, argument = str(spec).partition(":")
-    kind = kind.strip().lower()
-    if kind not in USES:
-        raise SettingError("predictor", f"unknown predictor '{spec}'; use one of {', '.join(SPECS)}")
-    if kind == "files" and not argument:
-        raise SettingError(
-            "predictor", "files:DIR needs the folder holding the maps, e.g. files:outputs/diffusion_renderer"
-        )
-    if kind not in ("files", "simulated") and argument:
-        raise SettingError("predictor", f"{kind} takes no ':' argument (got '{spec}')")
-    unused = sorted(n for n in _given(options, {f.name for f in fields(options)}) if n not in USES[kind])
+    parsed = PredictorSpec.parse(spec)
+    kind = checked_kind(parsed, str(spec))
+    unused = sorted(name for name in options.given if name not in kind.option_names)
     if unused:
         others = f" (nor do {', '.join(unused[1:])})" if len(unused) > 1 else ""
-        raise SettingError(unused[0], f"does not apply to the {kind} predictor{others}")
-    if kind == "files":
-        return FilesPredictor(argument, options.basecolor_encoding, notify=notify)
-    if kind == "marigold":
-        return MarigoldPredictor(MarigoldConfig(**_given(options, USES["marigold"])), notify=notify)
-    if kind == "simulated":
-        return SimulatedPredictor(error_model(argument.strip() or DEFAULT_MODEL, **_given(options, USES["simulated"])))
-    return GroundTruthPredictor()
+        raise SettingError(unused[0], f"does not apply to the {kind.name} predictor{others}")
+    return kind.build(parsed.argument, kind.options(**options.given), notify)

@@ -26,6 +26,7 @@ from matspray.errors import DataError, MatsprayError, file_error
 from matspray.method.asset import ENVMAP_FILE
 from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
 from matspray.render.shade.latlong import pixel_directions
+from matspray.render.shade.light import PrefilteredLight
 from matspray.render.shade.lights import list_envmaps, load_envmap
 
 ENV_HEIGHT = 64  # `matspray relight --env-height` default
@@ -48,7 +49,7 @@ def rotate_about_up(directions: Tensor, angle: float) -> Tensor:  # [..., 3] -> 
     return torch.stack([c * x - s * y, s * x + c * y, z], dim=-1)
 
 
-class RotatedLight:
+class RotatedLight(PrefilteredLight):
     """An environment light turned by `angle` radians about the up axis: L'(d) = L(R(-angle) d). It answers every
     lookup `shade`, `background_radiance` and the shadow factors make (`lookup_specular`, `lookup_diffuse`,
     `radiance`, `map`, `source`), each by turning the direction back and asking the unturned light."""

@@ -32,7 +32,7 @@ import hashlib
 from dataclasses import dataclass, field, replace
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
@@ -42,14 +42,12 @@ from matspray.gaussians import Gaussians
 from matspray.material import METALLIC_INDEX, N_CHANNELS
 from matspray.method.merger import (
     MergerConfig,
-    NeuralMerger,
     align_view_gains,
-    prepare_values,
-    projection_average,
     view_gains,
 )
 from matspray.method.refine.metallic import MetallicFitConfig, fit_metallic
 from matspray.method.refine.normals import ShadingNormals, normal_prior, smoothed_normals
+from matspray.method.refine.sources import MaterialSource, material_source
 from matspray.method.refine.steps import adam as adam_optimizer
 from matspray.method.refine.steps import check_finite, check_finite_gradients, optimize  # noqa: F401 (the checks: callers' API)
 from matspray.method.refine.terms import (  # noqa: F401 (the material losses: callers' API)
@@ -69,8 +67,9 @@ from matspray.method.refine.terms import (  # noqa: F401 (the material losses: c
 from matspray.presets import Variant, get_variant
 from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.deferred import view_directions
-from matspray.render.shade.envmap import DEFAULT_LEVELS, EnvironmentMap, PrefilteredEnvironment
-from matspray.render.shade.latlong import total_variation
+from matspray.render.shade.envmap import DEFAULT_LEVELS
+from matspray.render.shade.light import Light, PrefilteredLight
+from matspray.render.shade.models import LIGHT_MODELS, light_model
 from matspray.settings import setting
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")
@@ -86,8 +85,13 @@ class RefineConfig:
         "free per-Gaussian logits (3DGS's rate for per-Gaussian opacity logits); at the merger's 1e-3 a "
         "Gaussian seen in half the steps moves its logit by ~0.2 in 400 steps and stays grey",
     )
-    envmap_height: int = setting(16, "learnable lat-long map is H x 2H")
+    envmap_height: int = setting(16, "learnable lat-long map is H x 2H (another light model: its lat-long drawing's)")
     envmap_init: float = setting(0.5, "initial constant radiance")
+    light_model: str = setting(
+        "latlong",
+        'the estimated light\'s model: "latlong" (a lat-long map of envmap_height rows) or "sg" (2 x envmap_height '
+        "spherical Gaussians)",
+    )
     light_tv_weight: float = setting(
         3e-4,
         "weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)",
@@ -208,6 +212,10 @@ class RefineConfig:
             raise SettingError("basecolor_huber_delta", f"must be > 0, got {self.basecolor_huber_delta}")
         if self.envmap_height < 2:
             raise SettingError("envmap_height", f"must be >= 2, got {self.envmap_height}")
+        if self.light_model not in LIGHT_MODELS:
+            raise SettingError(
+                "light_model", f"unknown model '{self.light_model}'; choose one of {', '.join(LIGHT_MODELS)}"
+            )
 
     @property
     def kind(self) -> Variant:
@@ -245,55 +253,6 @@ class RefineInputs:
         return self.smoothed[neighbours]
 
 
-class MaterialSource(nn.Module):
-    """Per-Gaussian materials [N, 5] for one variant."""
-
-    def __init__(
-        self,
-        variant: Variant,
-        positions: Tensor,
-        values: Tensor,
-        seen: Tensor,
-        bounds: Tensor,
-        merger_config: MergerConfig,
-    ):
-        super().__init__()
-        self.variant = variant
-        self.merger = None
-        unseen = "mask"  # unseen entries carry no information; the merger may fill them instead (the paper's rule)
-        if variant.source == "merger":
-            config = MergerConfig(**{**merger_config.__dict__, "softmax": variant.softmax})
-            self.merger = NeuralMerger(values.shape[1], bounds, config)
-            unseen = config.unseen
-        values, seen = prepare_values(values, seen, unseen)  # [N, V, 5], [N, V] what the source reads
-        self.register_buffer("values", values)
-        self.register_buffer("seen", seen)
-        if self.merger is not None:
-            with torch.no_grad():  # geometry is frozen: the MLPs' inputs never change
-                self.inputs = self.merger.group_inputs(positions, values, seen)  # [G, N, D]
-        elif variant.source == "free":  # free parameters, starting from an uninformed grey
-            self.logits = nn.Parameter(torch.zeros(values.shape[0], values.shape[2], device=values.device))
-
-    def forward(self, index: Tensor | None = None, return_weights: bool = False):
-        """Materials [N, 5], or [K, 5] for the Gaussians `index` [K]; with `return_weights` also the merger's
-        weights {group: [K, V]} (empty for a source without a merger)."""
-        pick = (lambda t: t) if index is None else (lambda t: t.index_select(0, index))
-        if self.merger is not None:
-            inputs = self.inputs if index is None else self.inputs.index_select(1, index)  # [G, K, D]
-            return self.merger.merge(inputs, pick(self.values), pick(self.seen), return_weights)
-        materials = self.source_materials(pick)
-        return (materials, {}) if return_weights else materials
-
-    def source_materials(self, pick) -> Tensor:  # the materials of a source without a merger
-        if self.variant.source == "free":
-            return torch.sigmoid(pick(self.logits))
-        return projection_average(pick(self.values), pick(self.seen))
-
-    @property
-    def trainable(self) -> bool:
-        return any(p.requires_grad for p in self.parameters())
-
-
 # ------------------------------------------------------------------------------------------ losses
 def spread_loss(weights: Tensor, seen: Tensor) -> Tensor:  # [K, V], [K, V] bool -> []
     """Mean KL divergence of each Gaussian's merger weights from equal weights over its seen views,
@@ -303,10 +262,9 @@ def spread_loss(weights: Tensor, seen: Tensor) -> Tensor:  # [K, V], [K, V] bool
     return (n_seen.log() - entropy).mean()
 
 
-def light_prior(envmap: EnvironmentMap) -> Tensor:  # -> []
-    """Total variation of the map's log radiance: small for a light made of smooth regions and sharp
-    sources, large for per-pixel noise (which the photos do not constrain)."""
-    return total_variation(envmap.log_map)
+def light_prior(envmap: Light) -> Tensor:  # -> []
+    """The light model's regulariser (`Light.prior`; a lat-long map's: the total variation of its log radiance)."""
+    return envmap.prior()
 
 
 # ------------------------------------------------------------------------------------------ one view
@@ -357,22 +315,25 @@ class TrainingViews:
         self._constants: dict[int, ViewConstants] = {}
         # past the render, a step's terms and the light's prefiltering: CUDA graphs on a CUDA device
         self.terms = Graphed(view_terms, "refinement's loss terms", graphs)
-        self.light = Graphed(prefiltered_light, "refinement's prefiltered light", graphs)
+        self.graphs = graphs
+        self.lights: dict = {}  # a learnable light's prefiltering per model (`Light.step_function`), graphed
 
     def __len__(self) -> int:
         return len(self.views)
 
-    def environment(
-        self, envmap: EnvironmentMap | None, with_prior: bool
-    ) -> tuple[PrefilteredEnvironment | None, Tensor | None]:
+    def environment(self, envmap: Light | None, with_prior: bool) -> tuple[PrefilteredLight | None, Tensor | None]:
         """The environment's split-sum maps and, `with_prior`, its light prior [] (None without an environment). A
         learnable map is prefiltered at every step (one graph on a CUDA device), a fixed one once (`prefilter`)."""
         if envmap is None:
             return None, None
-        if not envmap.log_map.requires_grad:
+        if not envmap.learnable:
             return envmap.prefilter(), light_prior(envmap) if with_prior else None
-        *images, radiance, prior = self.light(DEFAULT_LEVELS, envmap.log_map)
-        light = PrefilteredEnvironment(DEFAULT_LEVELS, images[:-1], images[-1], source=radiance)
+        function, layout, tensors = envmap.step_function(DEFAULT_LEVELS)
+        if function not in self.lights:
+            self.lights[function] = Graphed(function, "refinement's prefiltered light", self.graphs)
+        *parts, radiance, prior = self.lights[function](layout, *tensors)
+        light = envmap.prefiltered_type.from_tensors(layout, parts)
+        light.source = radiance
         return light, prior if with_prior else None
 
     def constants(self, index: int) -> ViewConstants:
@@ -383,7 +344,7 @@ class TrainingViews:
 
 
 # ------------------------------------------------------------------------------------------ optimisation
-def envmap_group(envmap: EnvironmentMap, config: RefineConfig) -> dict:
+def envmap_group(envmap: Light, config: RefineConfig) -> dict:
     """The environment map's optimizer parameter group."""
     return {"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"}
 
@@ -392,7 +353,7 @@ def warm_up_light(
     training: TrainingViews,
     materials: Tensor,
     normals: Tensor,
-    envmap: EnvironmentMap,
+    envmap: Light,
     config: RefineConfig,
     generator,
     progress: bool,
@@ -429,7 +390,7 @@ class RefineResult:
     materials: Tensor  # [N, 5]
     normals: Tensor  # [N, 3] unoriented unit normals used for shading
     source: MaterialSource
-    envmap: EnvironmentMap | None  # None for variants without the PBR loss
+    envmap: Light | None  # None for variants without the PBR loss
     history: list[dict]
     visibility: Tensor | None = None  # [N, D] the shadowing used (kept with the asset for relighting)
     frozen: dict | None = None  # what the frozen views kept (FrozenViews.describe()); None when none were made
@@ -447,7 +408,7 @@ def refine(
     config: RefineConfig,
     progress: bool = True,
     on_checkpoint=None,
-    light: EnvironmentMap | None = None,
+    light: Light | None = None,
     frozen: FrozenViews | None = None,
     warmed_lights: dict | None = None,
     graphs: bool = True,
@@ -466,7 +427,7 @@ def refine(
     if config.align_view_gains:
         inputs = aligned_inputs(inputs)
     means = gaussians.means.detach()
-    source = MaterialSource(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
+    source = material_source(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
     envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
     history: list[dict] = []
@@ -474,7 +435,7 @@ def refine(
         return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility)
 
     training = TrainingViews(inputs, frozen, graphs)
-    source_lr = config.supervised_lr if variant.source == "free" else config.merger_lr
+    source_lr = source.learning_rate(config)
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
     if estimates_light:
         groups.append(envmap_group(envmap, config))
@@ -525,7 +486,7 @@ def step_losses(
     last_materials: Tensor,  # [N, 5] each Gaussian's latest merged value (updated in place for the view's Gaussians)
     normals: Tensor,  # [N, 3] the geometry's
     shading: ShadingNormals | None,
-    envmap: EnvironmentMap | None,
+    envmap: Light | None,
     config: RefineConfig,
 ) -> tuple[dict, Tensor]:
     """One refinement step's loss terms on training view `index` and their weighted total: the material source runs
@@ -557,11 +518,12 @@ def step_losses(
     return terms, total_loss(terms, config)
 
 
-def starting_light(config: RefineConfig, light: EnvironmentMap | None, device) -> EnvironmentMap:
-    """The environment map refinement starts from: a constant one to learn, or the known `light`, never optimised."""
+def starting_light(config: RefineConfig, light: Light | None, device) -> Light:
+    """The light refinement starts from: a constant one of `config.light_model` to learn, or the known `light`, never
+    optimised."""
     if light is None:
-        return EnvironmentMap.constant(config.envmap_init, height=config.envmap_height, device=device)
-    return EnvironmentMap(light.log_map.detach().to(device), learnable=False)
+        return light_model(config.light_model).initial(config.envmap_init, config.envmap_height, device=device)
+    return light.fixed().to(device)
 
 
 def warm_up_or_reuse(training, materials, normals, envmap, config, generator, progress, warmed_lights) -> None:
@@ -569,27 +531,28 @@ def warm_up_or_reuse(training, materials, normals, envmap, config, generator, pr
     the same starting materials and settings; a warm-up run here is kept there for the next variant."""
     key = warm_up_key(materials, config)
     if warmed_lights is not None and key in warmed_lights:
-        log_map, state = warmed_lights[key]
+        parameters, state = warmed_lights[key]
         with torch.no_grad():
-            envmap.log_map.copy_(log_map)
+            for parameter, value in zip(envmap.parameters(), parameters):
+                parameter.copy_(value)
         generator.set_state(state)
         return
     warm_up_light(training, materials, normals, envmap, config, generator, progress)
     if warmed_lights is not None:
-        warmed_lights[key] = (envmap.log_map.detach().clone(), generator.get_state())
+        warmed_lights[key] = ([p.detach().clone() for p in envmap.parameters()], generator.get_state())
 
 
 def with_fitted_metallic(
     materials: Tensor,  # [N, 5]
     normals: Tensor,  # [N, 3]
-    envmap: EnvironmentMap | None,
+    envmap: Light | None,
     training: TrainingViews,
     targets: list[Tensor],  # V 2D maps [H, W, 5]
     config: RefineConfig,
 ) -> Tensor:  # [N, 5]
     """`materials` with the metallic fitted through refinement's frozen views to the 2D maps and, with a light, the
     photos; the rest of the materials, the normals and the light stay as refined."""
-    light = None if envmap is None else EnvironmentMap(envmap.log_map.detach(), learnable=False)
+    light = None if envmap is None else envmap.fixed()
     others = materials[:, :METALLIC_INDEX]  # the metallic is the last channel
 
     def photo(index: int, metallic: Tensor) -> Tensor:

@@ -19,8 +19,8 @@ from matspray.data.images import linear_to_srgb
 from matspray.geometry.losses import normal_map_loss, photometric_loss
 from matspray.material import BASE_COLOR, METALLIC_INDEX, N_CHANNELS, unstack
 from matspray.render.shade.deferred import shade_unit
-from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, prefilter_latlong
-from matspray.render.shade.latlong import total_variation
+from matspray.render.shade.envmap import PrefilteredEnvironment, prefilter_log_map
+from matspray.render.shade.light import Light, PrefilteredLight
 from matspray.render.shade.visibility import gaussian_shadows
 
 DEFAULT_HUBER_DELTA = 0.05  # linear base colour; the residual where "huber" turns from quadratic to linear
@@ -106,8 +106,10 @@ class TermOptions:
     photo: bool  # the PBR render against the photo (with an environment)
     ssim_weight: float  # 1 - photo_l1_weight
     shadowed: bool  # the blended features end with the 6 shadow factors
-    levels: tuple[float, ...] = ()  # the prefiltered environment's roughness levels (with `photo`)
+    levels: tuple = ()  # the prefiltered light's layout (`PrefilteredLight.layout`, with `photo`): a lat-long
+    # environment's roughness levels
     metallic_quantile: float = 0.5  # the material term's quantile of the views' metallic (`metallic_tilt`)
+    light_type: type = PrefilteredEnvironment  # the prefiltered light's type (`Light.prefiltered_type`)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -151,7 +153,7 @@ def view_terms(
         terms.append(normal_map_loss(normals, normal_map, surface))
     if options.photo:
         shadow = blended[..., N_CHANNELS + 3 :] / cover if options.shadowed else None
-        environment = PrefilteredEnvironment(options.levels, list(light[:-1]), light[-1])
+        environment = options.light_type.from_tensors(options.levels, light)
         base_color, roughness, metallic = unstack(maps)
         # `deferred.shade_gbuffer` over black: the shaded G-buffer times its coverage
         shaded = shade_unit(base_color, roughness, metallic, normals, view_dirs, environment, shadow)  # [H, W, 3]
@@ -160,17 +162,12 @@ def view_terms(
     return torch.stack(terms)
 
 
-def light_images(environment: PrefilteredEnvironment) -> tuple[Tensor, ...]:
-    """The prefiltered environment as `view_terms` takes it: the specular runs' images, then the irradiance's."""
-    return (*environment.specular_images, environment.irradiance_image)
+def light_images(environment: PrefilteredLight) -> tuple[Tensor, ...]:
+    """The prefiltered light as `view_terms` takes it (`PrefilteredLight.tensors`)."""
+    return environment.tensors()
 
 
-def prefiltered_light(levels: tuple[float, ...], log_map: Tensor) -> tuple[Tensor, ...]:  # [h, 2h, 3] ->
-    """The learnable environment's split-sum images (`light_images` of `prefilter_latlong`), its linear map [h, 2h, 3]
-    (what shadowing reads) and the total variation of its log radiance [] (the light prior): one pure function of
-    the map, for a CUDA graph."""
-    radiance = log_map.exp()
-    return (*light_images(prefilter_latlong(radiance, levels)), radiance, total_variation(log_map))
+prefiltered_light = prefilter_log_map  # a learnable lat-long map's prefiltering step (`Light.step_function`)
 
 
 # ------------------------------------------------------------------------------------------ a view's losses
@@ -179,7 +176,7 @@ def view_losses(
     index: int,
     materials: Tensor,
     normals: Tensor,
-    envmap: EnvironmentMap | None,
+    envmap: Light | None,
     config,  # refine.loop.RefineConfig
     with_material: bool = True,
     with_normals: bool = False,
@@ -214,8 +211,9 @@ def view_losses(
         light is not None,
         1.0 - config.photo_l1_weight,
         blended.shape[-1] > N_CHANNELS + 3,
-        light.levels if light is not None else (),
+        light.layout if light is not None else (),
         config.metallic_quantile,
+        type(light) if light is not None else PrefilteredEnvironment,
     )
     tensors = (
         blended,

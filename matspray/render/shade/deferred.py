@@ -31,8 +31,9 @@ from matspray.data.camera import Camera
 from matspray.material import N_CHANNELS, stack, unstack
 from matspray.render.shade.brdf import DIELECTRIC_F0, MIN_ROUGHNESS, cook_torrance, dot, reflect, roughness_to_alpha
 from matspray.render.shade.brdf_lut import brdf_scale_bias
-from matspray.render.shade.envmap import EnvironmentMap, PrefilteredEnvironment, sample_latlong
+from matspray.render.shade.envmap import sample_latlong
 from matspray.render.shade.latlong import pixel_directions, pixel_solid_angles
+from matspray.render.shade.light import Light, PrefilteredLight
 
 
 @dataclass
@@ -93,10 +94,10 @@ def shade(
     metallic: Tensor,  # [...]
     normals: Tensor,  # [..., 3] world space, any length
     view_dirs: Tensor,  # [..., 3] from the surface towards the camera (wo), any length
-    light: EnvironmentMap | PrefilteredEnvironment,
+    light: Light | PrefilteredLight,
     shadow: Tensor | None = None,  # [..., 6] diffuse and specular RGB light scales; None = unshadowed
 ) -> Tensor:  # [..., 3] outgoing linear radiance
-    """Split-sum image-based lighting. Pass a PrefilteredEnvironment to reuse one prefiltering."""
+    """Split-sum image-based lighting. Pass a prefiltered light (`Light.prefilter`) to reuse one prefiltering."""
     wo = F.normalize(view_dirs, dim=-1, eps=1e-12)
     return shade_unit(base_color, roughness, metallic, normals, wo, light, shadow)
 
@@ -107,12 +108,11 @@ def shade_unit(
     metallic: Tensor,  # [...]
     normals: Tensor,  # [..., 3] world space, any length
     wo: Tensor,  # [..., 3] unit, from the surface towards the camera
-    light: EnvironmentMap | PrefilteredEnvironment,
+    light: Light | PrefilteredLight,
     shadow: Tensor | None = None,  # [..., 6] diffuse and specular RGB light scales; None = unshadowed
 ) -> Tensor:  # [..., 3] outgoing linear radiance
     """`shade` with unit view directions, e.g. a camera's, normalised once (`view_directions`)."""
-    if isinstance(light, EnvironmentMap):
-        light = light.prefilter()
+    light = light.prefilter()  # a prefiltered light returns itself
     n = F.normalize(normals, dim=-1, eps=1e-12)
     n_dot_v = dot(n, wo)
     facing = torch.where(n_dot_v < 0, -1.0, 1.0)  # [...] turns a normal facing away towards the viewer
@@ -123,10 +123,7 @@ def shade_unit(
     dielectric = 1.0 - metallic[..., None]
     specular_weight = (DIELECTRIC_F0 * dielectric + base_color * metallic[..., None]) * scale[..., None]  # F0 A
     lobe = specular_direction(n, wo, r)
-    if isinstance(light, PrefilteredEnvironment):
-        specular_light, irradiance = light.lookup(lobe, r, n)
-    else:
-        specular_light, irradiance = light.lookup_specular(lobe, r), light.lookup_diffuse(n)
+    specular_light, irradiance = light.lookup(lobe, r, n)
     specular = specular_light * (specular_weight + bias[..., None])
     diffuse = irradiance * (base_color * dielectric) / math.pi
     if shadow is not None:
@@ -143,7 +140,7 @@ def view_directions(camera: Camera, device=None, dtype=torch.float32) -> Tensor:
 def shade_gbuffer(
     gbuffer: GBuffer,
     camera: Camera,
-    light: EnvironmentMap | PrefilteredEnvironment,
+    light: Light | PrefilteredLight,
     background: Tensor | None = None,  # [3] or [H, W, 3] linear; None = black
     view_dirs: Tensor | None = None,  # [H, W, 3] `view_directions(camera)` when the caller keeps them
 ) -> Tensor:  # [H, W, 3]

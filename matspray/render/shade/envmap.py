@@ -39,7 +39,8 @@ from matspray.data.images import read_image, write_image
 from matspray.errors import ConfigError, DataError, file_error
 from matspray.render.shade.bilinear import bilinear_sample, grid_sample_border
 from matspray.render.shade.brdf import MIN_ROUGHNESS, ggx_ndf, roughness_to_alpha, smith_visibility
-from matspray.render.shade.latlong import pixel_solid_angles
+from matspray.render.shade.latlong import pixel_solid_angles, total_variation
+from matspray.render.shade.light import Light, PrefilteredLight
 from matspray.render.shade.lights import physical_radiance
 
 DEFAULT_LEVELS = (MIN_ROUGHNESS, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
@@ -287,7 +288,7 @@ def _level_weights(roughness: Tensor, levels: tuple[float, ...]) -> Tensor:  # [
 
 
 @dataclass
-class PrefilteredEnvironment:
+class PrefilteredEnvironment(PrefilteredLight):
     """What split-sum shading reads from an environment: prefiltered specular levels and irradiance, kept as padded
     images for bilinear lookup (rows as `_padded_rows`, columns wrapped round by one on each side): levels of one
     resolution together, as channels."""
@@ -297,6 +298,18 @@ class PrefilteredEnvironment:
     # holding channel c of the run's level i
     irradiance_image: Tensor  # [1, 3, 2h + 1, 2h + 2]
     source: Tensor | None = None  # [H, 2H, 3] the map it was prefiltered from (for `render.visibility`)
+
+    @property
+    def layout(self) -> tuple[float, ...]:
+        return self.levels
+
+    def tensors(self) -> tuple[Tensor, ...]:
+        """The specular runs' images, then the irradiance's (what a captured graph takes)."""
+        return (*self.specular_images, self.irradiance_image)
+
+    @classmethod
+    def from_tensors(cls, layout: tuple[float, ...], tensors) -> PrefilteredEnvironment:
+        return cls(layout, list(tensors[:-1]), tensors[-1])
 
     @property
     def roughness_levels(self) -> Tensor:  # [L]
@@ -371,9 +384,20 @@ def prefilter_latlong(map: Tensor, levels=DEFAULT_LEVELS) -> PrefilteredEnvironm
     return PrefilteredEnvironment(levels, images[:-1], images[-1], source=map)
 
 
+def prefilter_log_map(levels: tuple[float, ...], log_map: Tensor) -> tuple[Tensor, ...]:  # [h, 2h, 3] ->
+    """A learnable map's split-sum images (`PrefilteredEnvironment.tensors` of `prefilter_latlong`), its linear map
+    [h, 2h, 3] (what shadowing reads) and the total variation of its log radiance [] (the light prior): one pure
+    function of the map, for a CUDA graph."""
+    radiance = log_map.exp()
+    return (*prefilter_latlong(radiance, levels).tensors(), radiance, total_variation(log_map))
+
+
 # ------------------------------------------------------------------------------------------ the module
-class EnvironmentMap(nn.Module):
+class EnvironmentMap(Light):
     """A lat-long HDR environment light [H, 2H, 3], stored as log radiance so that it stays positive."""
+
+    kind = "latlong"
+    prefiltered_type = PrefilteredEnvironment
 
     def __init__(self, log_map: Tensor, learnable: bool = True):
         super().__init__()
@@ -399,6 +423,10 @@ class EnvironmentMap(nn.Module):
         return cls.from_tensor(rgb.expand(height, 2 * height, 3).clone(), learnable=learnable)
 
     @classmethod
+    def initial(cls, value: float, height: int, device=None) -> EnvironmentMap:
+        return cls.constant(value, height=height, device=device)
+
+    @classmethod
     def from_file(cls, path, height: int | None = None, learnable: bool = False):
         """Read an EXR/HDR (or LDR, decoded to linear) lat-long map, e.g. for relighting; a lossy codec's ringing
         below zero is clamped as `lights.load_envmap` clamps it."""
@@ -420,6 +448,17 @@ class EnvironmentMap(nn.Module):
     def radiance(self, directions: Tensor) -> Tensor:  # [..., 3] unit -> [..., 3]
         """The light arriving from each direction (bilinear), e.g. to draw the background."""
         return sample_latlong(self.map, directions)
+
+    def prior(self) -> Tensor:  # []
+        """Total variation of the map's log radiance: small for a light made of smooth regions and sharp sources, large
+        for per-pixel noise (which the photos do not constrain)."""
+        return total_variation(self.log_map)
+
+    def step_function(self, levels):
+        return prefilter_log_map, tuple(levels), (self.log_map,)
+
+    def fixed(self) -> EnvironmentMap:
+        return EnvironmentMap(self.log_map.detach(), learnable=False)
 
     def prefilter(self, levels=DEFAULT_LEVELS) -> PrefilteredEnvironment:
         """The split-sum maps of the current radiance. A fixed light (not learnable, e.g. a light probe) is
@@ -445,3 +484,11 @@ class EnvironmentMap(nn.Module):
     def save(self, path) -> None:
         """Write the current map as linear EXR/HDR (atomically)."""
         write_image(path, self.map.detach())
+
+    @classmethod
+    def load(cls, path) -> EnvironmentMap:
+        return cls.from_file(path)
+
+    @classmethod
+    def saved_at(cls, path) -> bool:
+        return Path(path).is_file()

@@ -38,7 +38,7 @@ from matspray.material import ROUGHNESS_INDEX
 from matspray.render.raster.rasterize import view_weights
 from matspray.render.shade.brdf import roughness_to_alpha
 from matspray.render.shade.deferred import specular_direction
-from matspray.render.shade.envmap import EnvironmentMap, downsample_latlong
+from matspray.render.shade.envmap import downsample_latlong
 from matspray.render.shade.latlong import pixel_directions, pixel_solid_angles
 
 TIE = 1e-3  # `open_side`: a normal is turned only where the other side is visible by more than this share
@@ -171,9 +171,9 @@ def shadow_factors(
     return torch.cat(factors, dim=-1).clamp(0.0, 1.0)
 
 
-def light_cells(light, rows: int) -> Tensor:  # EnvironmentMap | PrefilteredEnvironment -> [rows, 2 rows, 3]
+def light_cells(light, rows: int) -> Tensor:  # Light | PrefilteredLight -> [rows, 2 rows, 3]
     """The light averaged over the visibility grid's cells."""
-    source = light.map if isinstance(light, EnvironmentMap) else light.source
+    source = light.source  # a light's lat-long map
     if source is None:
         raise ValueError(
             "this prefiltered environment does not keep its source map; prefilter with `prefilter_latlong`"
