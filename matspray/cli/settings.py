@@ -25,14 +25,6 @@ from matspray.method.config import PipelineConfig
 from matspray.settings import flag_of, help_of, internal
 
 SHADOWS = "shadows"  # on: the preset's shadow maps (the visibility section), off: none
-# the one section whose fields do not declare their help yet (`matspray.render.shade.visibility.VisibilityConfig`):
-# their meanings until they do (tests/test_settings_once.py fails once a field declares its own)
-VISIBILITY_HELP = {
-    "rows": "directions: the centres of a rows x 2 rows lat-long grid",
-    "resolution": "shadow-map pixels per side",
-    "distance": "shadow cameras sit this many bounding radii away (nearly parallel rays)",
-    "bias": "depth bias as a fraction of the bounding radius, added to twice each Gaussian's extent",
-}
 
 
 def own_flags() -> dict[str, str]:
@@ -90,7 +82,7 @@ def settings_table() -> dict[str, Setting]:
             if section is not None:
                 walk(section, key + ".")
                 continue
-            meaning = help_of(f) or (VISIBILITY_HELP.get(f.name, "") if prefix == "visibility." else "")
+            meaning = help_of(f)
             table[key] = Setting(key, hints[f.name], meaning)
 
     walk(PipelineConfig, "")

@@ -40,6 +40,7 @@ from matspray.render.shade.brdf import roughness_to_alpha
 from matspray.render.shade.deferred import specular_direction
 from matspray.render.shade.envmap import downsample_latlong
 from matspray.render.shade.latlong import pixel_directions, pixel_solid_angles
+from matspray.settings import setting
 
 TIE = 1e-3  # `open_side`: a normal is turned only where the other side is visible by more than this share
 MAX_KAPPA = 1.5  # the specular kernel stays broad: on the coarse grid (rows = 8: 22.5 degree cells) sharper
@@ -48,11 +49,14 @@ MAX_KAPPA = 1.5  # the specular kernel stays broad: on the coarse grid (rows = 8
 
 @dataclass(frozen=True)
 class VisibilityConfig:
-    rows: int = 8  # directions: the centres of a rows x 2 rows lat-long grid
-    resolution: int = 128  # shadow-map pixels per side
-    distance: float = 30.0  # shadow cameras sit this many bounding radii away (nearly parallel rays)
-    bias: float = 0.08  # depth bias as a fraction of the bounding radius, added to twice each Gaussian's extent
-    # along the direction (demo object, true G-buffer shadowed: 0.08 beat 0.008, 0.023, 0.047 and 0.125)
+    rows: int = setting(8, "directions: the centres of a rows x 2 rows lat-long grid")
+    resolution: int = setting(128, "shadow-map pixels per side")
+    distance: float = setting(30.0, "shadow cameras sit this many bounding radii away (nearly parallel rays)")
+    # (demo object, true G-buffer shadowed: 0.08 beat 0.008, 0.023, 0.047 and 0.125)
+    bias: float = setting(
+        0.08,
+        "depth bias as a fraction of the bounding radius, added to twice each Gaussian's extent along the direction",
+    )
 
 
 def visibility_directions(rows: int, device=None) -> tuple[Tensor, Tensor]:  # -> [D, 3] unit, [D] steradians
