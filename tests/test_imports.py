@@ -366,3 +366,17 @@ def test_help_is_fast_and_imports_no_torch():
     )
     assert loaded.returncode == 0, loaded.stderr
     assert loaded.stdout.strip() == "[]", f"building the CLI parser imports {loaded.stdout.strip()}"
+
+
+MAX_CLASS_LINES = 250
+
+
+def test_no_class_is_over_250_lines():
+    """A class that long does two jobs (as Pipeline did when it inherited its RunPlan: resolving and running)."""
+    long = [
+        f"{path.relative_to(PACKAGE_ROOT.parent)}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1} lines)"
+        for path in sorted(PACKAGE_ROOT.rglob("*.py"))
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > MAX_CLASS_LINES
+    ]
+    assert not long, "classes over 250 lines (split them):\n" + "\n".join(long)
