@@ -20,6 +20,9 @@ import { sortBackToFront } from "./sort.js";
 import { orbitCamera } from "./orbit.js";
 
 const BACKGROUND = [0.02, 0.02, 0.02]; // linear
+// while the view is dragged, the splats are blended at 1 / PREVIEW of the canvas's width and height (the splat pass's
+// fragments are nearly all of a frame's time in software WebGL); the frame drawn when the view stops is full size
+const PREVIEW = 2;
 
 function floatTexture(data, width, height) {
   const texture = new THREE.DataTexture(data, width, height, THREE.RGBAFormat, THREE.FloatType);
@@ -84,6 +87,8 @@ class Viewer {
     this.turn = 0;
     this.exposure = 0;
     this.explicit = null; // a camera given by a script: {viewmat, K, width, height}
+    this.moving = false; // drawn at 1 / PREVIEW size while true
+    this.targets = {}; // the blend targets by their shrink factor
     this.makeSplats(asset.splats);
     this.makeShading();
     this.resize(this.meta.view.width, this.meta.view.height);
@@ -162,24 +167,36 @@ class Viewer {
       exposure: { value: 1 },
     };
     this.shadeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, shadeFragment(LEVELS.length), this.shadeUniforms));
-    this.encodeUniforms = { tBlended: { value: null }, background: { value: new THREE.Vector3(...BACKGROUND) } };
+    this.encodeUniforms = {
+      tBlended: { value: null },
+      background: { value: new THREE.Vector3(...BACKGROUND) },
+      shrink: { value: 1 },
+    };
     this.encodeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, ENCODE_FRAGMENT, this.encodeUniforms));
   }
 
-  resize(width, height) {
-    if (this.target && this.target.width === width && this.target.height === height) return;
-    this.renderer.setSize(width, height, false);
-    this.canvas.style.width = `${width}px`;
-    this.canvas.style.height = `${height}px`;
-    if (this.target) this.target.dispose();
-    this.target = new THREE.WebGLRenderTarget(width, height, {
-      type: this.blendType,
-      format: THREE.RGBAFormat,
-      minFilter: THREE.NearestFilter,
-      magFilter: THREE.NearestFilter,
-      depthBuffer: false,
-    });
+  // the canvas at width x height and the blend target at 1 / shrink of it
+  resize(width, height, shrink) {
+    if (this.width !== width || this.height !== height) {
+      this.renderer.setSize(width, height, false);
+      this.canvas.style.width = `${width}px`;
+      this.canvas.style.height = `${height}px`;
+      Object.values(this.targets).forEach((target) => target.dispose());
+      this.targets = {};
+      [this.width, this.height] = [width, height];
+    }
+    if (!this.targets[shrink]) {
+      this.targets[shrink] = new THREE.WebGLRenderTarget(Math.ceil(width / shrink), Math.ceil(height / shrink), {
+        type: this.blendType,
+        format: THREE.RGBAFormat,
+        minFilter: THREE.NearestFilter,
+        magFilter: THREE.NearestFilter,
+        depthBuffer: false,
+      });
+    }
+    this.target = this.targets[shrink];
     this.encodeUniforms.tBlended.value = this.target.texture;
+    this.encodeUniforms.shrink.value = shrink;
   }
 
   setLight(index) {
@@ -199,13 +216,15 @@ class Viewer {
 
   render() {
     const cam = this.currentCamera();
-    this.resize(cam.width, cam.height);
+    const shrink = this.moving ? PREVIEW : 1;
+    this.resize(cam.width, cam.height, shrink);
     const v = cam.viewmat;
     const u = this.splatUniforms;
     u.viewRotation.value.set(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
     u.viewTranslation.value.set(v[3], v[7], v[11]);
-    u.intrinsics.value.set(...cam.K);
-    u.size.value.set(cam.width, cam.height);
+    // a blended pixel covers shrink x shrink of the canvas's: its centre projects to (canvas pixel) / shrink
+    u.intrinsics.value.set(...cam.K.map((k) => k / shrink));
+    u.size.value.set(this.target.width, this.target.height);
     // the eye: -R^T t
     const eye = [0, 1, 2].map((c) => -(v[c] * v[3] + v[4 + c] * v[7] + v[8 + c] * v[11]));
     u.eye.value.set(...eye);
@@ -230,8 +249,6 @@ class Viewer {
     this.renderer.render(this.encodeScene, this.camera);
   }
 
-  // milliseconds per frame over `frames` frames, each turned by `step` degrees (sorting included), waiting for
-  // each to finish (a pixel read back)
   // milliseconds to prefilter the current light again (what a dropped file costs besides reading it)
   timePrefilter() {
     const light = this.lights.entries[this.lightIndex];
@@ -240,16 +257,21 @@ class Viewer {
     return performance.now() - start;
   }
 
-  timeFrames(frames, step) {
+  // milliseconds per frame over `frames` frames, each turned by `step` degrees (sorting included), waiting for
+  // each to finish (a pixel read back); `moving`: as while the view is dragged (PREVIEW), else full size
+  timeFrames(frames, step, moving = false) {
     const gl = this.renderer.getContext();
     const pixel = new Uint8Array(4);
+    this.moving = moving;
     const start = performance.now();
     for (let i = 0; i < frames; i++) {
       this.turn += step;
       this.render();
       gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);
     }
-    return (performance.now() - start) / frames;
+    const ms = (performance.now() - start) / frames;
+    this.moving = false;
+    return ms;
   }
 }
 
@@ -300,7 +322,10 @@ async function start() {
     const select = document.getElementById("light");
     const addOption = (name) => select.add(new Option(name, String(select.options.length)));
     lights.entries.forEach((entry) => addOption(entry.name));
-    const draw = () => requestAnimationFrame(() => viewer.render());
+    const draw = (moving = false) => {
+      viewer.moving = moving;
+      requestAnimationFrame(() => viewer.render());
+    };
     const useLight = (index) => {
       viewer.setLight(index);
       select.value = String(index);
@@ -311,8 +336,9 @@ async function start() {
     turn.oninput = () => {
       viewer.turn = Number(turn.value);
       viewer.explicit = null;
-      draw();
+      draw(true);
     };
+    turn.onchange = () => draw(); // let go: full size
     const exposure = document.getElementById("exposure");
     exposure.oninput = () => {
       viewer.exposure = Number(exposure.value);
@@ -338,14 +364,17 @@ async function start() {
     });
     let dragging = null;
     viewer.canvas.addEventListener("pointerdown", (event) => (dragging = event.clientX));
-    window.addEventListener("pointerup", () => (dragging = null));
+    window.addEventListener("pointerup", () => {
+      if (dragging !== null) draw(); // let go: full size
+      dragging = null;
+    });
     window.addEventListener("pointermove", (event) => {
       if (dragging === null) return;
       viewer.turn = ((viewer.turn + (event.clientX - dragging) * 0.5 + 540) % 360) - 180;
       dragging = event.clientX;
       turn.value = String(viewer.turn);
       viewer.explicit = null;
-      draw();
+      draw(true);
     });
     useLight(0);
     Object.assign(api, {
@@ -354,18 +383,21 @@ async function start() {
       setLight: (name) => useLight(lights.entries.findIndex((e) => e.name === name)),
       setCamera: (viewmat, K, width, height) => {
         viewer.explicit = { viewmat, K, width, height };
+        viewer.moving = false;
         viewer.render();
       },
       setTurn: (degrees) => {
         viewer.explicit = null;
         viewer.turn = degrees;
+        viewer.moving = false;
         viewer.render();
       },
       setExposure: (stops) => {
         viewer.exposure = stops;
         viewer.render();
       },
-      timeFrames: (frames, step) => viewer.timeFrames(frames, step),
+      timeFrames: (frames, step, moving) => viewer.timeFrames(frames, step, moving),
+      moving: () => viewer.moving,
       timePrefilter: () => viewer.timePrefilter(),
       ready: true,
     });

@@ -9,7 +9,8 @@
 //    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255,
 //    drawn as rectangles along the axes of the ellipse where alpha reaches 1/255 (octagons, 17 % fewer fragments,
 //    were slower: SwiftShader pays per triangle and for the 2 x 2 pixel blocks along each thin triangle's edges).
-// 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs.
+// 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs (while the view moves, the
+//    splats are blended at a fraction of the canvas's size and each blended pixel fills a block of the canvas).
 
 const FETCH = /* glsl */ `
 precision highp float;
@@ -138,10 +139,11 @@ precision highp float;
 precision highp sampler2D;
 uniform sampler2D tBlended;  // linear colour and coverage, premultiplied
 uniform vec3 background;     // linear
+uniform int shrink;          // the canvas's pixels a blended pixel spans each way (1, or PREVIEW while moving)
 out vec4 colour;
 
 void main() {
-  vec4 blended = texelFetch(tBlended, ivec2(gl_FragCoord.xy), 0);
+  vec4 blended = texelFetch(tBlended, ivec2(gl_FragCoord.xy) / shrink, 0);
   vec3 x = clamp(blended.rgb + background * (1.0 - blended.a), 0.0, 1.0);
   colour = vec4(mix(12.92 * x, 1.055 * pow(max(x, vec3(1e-12)), vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x)), 1.0);
 }`;
