@@ -5,6 +5,7 @@ and shading included), each frame waited for, after two frames of warm-up. Each 
 frame drawn when the view stops) and moving (the smaller frames drawn while the view is dragged).
 
     python -m benchmarks.web_fps --gaussians 4000 40000
+    python -m benchmarks.web_fps --gaussians 40000 --passes   # each pass of a frame timed on its own
 """
 
 from __future__ import annotations
@@ -53,10 +54,35 @@ def milliseconds_per_frame(driver, moving: bool = False) -> float:
     return driver.execute_script(f"return window.matspray.timeFrames({FRAMES}, {STEP}, {flag})")
 
 
+# each pass of the page's frame drawn and waited for on its own (a pixel of the canvas read back), still and moving;
+# "splats, hidden": the splat pass with every rectangle shrunk to nothing on screen (vertices and set-up only)
+PASSES = """
+const v = window.matspray.viewer, r = v.renderer, gl = r.getContext(), px = new Uint8Array(4);
+const sync = () => { r.setRenderTarget(null); gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px); };
+const time = (f) => { sync(); const s = performance.now(); for (let i = 0; i < 3; i++) { f(); sync(); }
+  return Math.round((performance.now() - s) / 3); };
+const out = {}, u = v.splatUniforms;
+for (const moving of [false, true]) {
+  v.moving = moving; v.render();
+  const into = (target, scene) => () => { r.setRenderTarget(target); r.render(scene, v.camera); };
+  const splats = () => { r.setRenderTarget(v.target); r.clear(true, false, false); r.render(v.splatScene, v.camera); };
+  const size = u.size.value.clone();
+  const hidden = () => { u.size.value.set(1e9, 1e9); splats(); u.size.value.copy(size); };
+  out[moving ? "moving" : "still"] = {
+    frame: time(() => { v.turn += 3; v.render(); }), shade: time(into(v.colourTarget, v.shadeScene)),
+    project: time(into(v.projectTarget, v.projectScene)), splats: time(splats), "splats, hidden": time(hidden),
+    encode: time(into(null, v.encodeScene)) };
+}
+v.moving = false;
+return out;
+"""
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gaussians", type=int, nargs="+", default=[4000, 40000])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--passes", action="store_true", help="time each pass of a frame instead")
     args = parser.parse_args()
     from tests.browser import headless_chromium
 
@@ -67,6 +93,10 @@ def main() -> None:
             with tempfile.TemporaryDirectory() as tmp:
                 write_disk_sphere_page(tmp, count)
                 open_page(driver, Path(tmp))
+                if args.passes:
+                    for _ in range(args.repeats):
+                        print(f"{count} Gaussians, ms a pass: {driver.execute_script(PASSES)}", flush=True)
+                    continue
                 times = [
                     (milliseconds_per_frame(driver), milliseconds_per_frame(driver, True)) for _ in range(args.repeats)
                 ]
