@@ -154,8 +154,26 @@ def test_the_page_matches_matspray_relight_inside_the_object(site, page):
             inside = alpha.numpy() > 0.99
             reference = linear_to_srgb_np(rgb.numpy())
             value = psnr_inside(show(page, camera, light), reference, inside)
-            print(f"\npage against matspray relight, orbit frame {i}, {light}: {value:.1f} dB inside the object")
+            shape = page.execute_script("return window.matspray.drawnAs()")
+            print(
+                f"\npage against matspray relight, orbit frame {i}, {light}: {value:.1f} dB inside the object {shape}"
+            )
             assert inside.mean() > 0.2 and value > PSNR_FLOOR, (i, light, value)
+
+
+@pytest.mark.slow
+def test_a_gaussian_in_one_triangle_draws_what_its_rectangle_draws(site, page):
+    # both enclose the footprint's 1/255 alpha contour, outside which a fragment blends nothing
+    camera = orbit(site[0])[1]
+    show(page, camera, "sunset")
+    frames = {}
+    for shape in ("triangles", "rectangles"):
+        page.execute_script("window.matspray.forceShape(arguments[0])", shape)
+        assert page.execute_script("return window.matspray.drawnAs()")[1] == shape
+        frames[shape] = frame(page)
+    page.execute_script("window.matspray.forceShape(null)")
+    drawn = np.abs(frames["rectangles"] - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    assert drawn.mean() > 0.2 and np.abs(frames["triangles"] - frames["rectangles"]).max() <= 1 / 255 + 1e-9
 
 
 @pytest.mark.slow

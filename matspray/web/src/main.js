@@ -13,7 +13,7 @@ import {
   PROJECT_FRAGMENT,
   SCREEN_VERTEX,
   SPLAT_FRAGMENT,
-  SPLAT_VERTEX,
+  splatVertex,
   shadeFragment,
 } from "./shaders.js";
 import { sortBackToFront } from "./sort.js";
@@ -23,6 +23,10 @@ const BACKGROUND = [0.02, 0.02, 0.02]; // linear
 // while the view is dragged, the splats are blended at 1 / PREVIEW of the canvas's width and height (the splat pass's
 // fragments are nearly all of a frame's time in software WebGL); the frame drawn when the view stops is full size
 const PREVIEW = 2;
+// a frame whose typical Gaussian's rectangle covers fewer blended pixels than this draws each Gaussian in one
+// triangle, else in a rectangle (two): on SwiftShader triangles were faster at 300, rectangles at 750 (docs/dev/web.md)
+const TRIANGLE_FOOTPRINT = 500;
+const SAMPLES = 256; // Gaussians whose footprints give the typical one
 
 function floatTexture(data, width, height) {
   const texture = new THREE.DataTexture(data, width, height, THREE.RGBAFormat, THREE.FloatType);
@@ -95,11 +99,20 @@ class Viewer {
   }
 
   makeSplats(s) {
-    // two triangles a Gaussian, from four vertices each (the vertex shader finds its Gaussian and corner)
-    const geometry = new THREE.BufferGeometry();
-    const index = new Uint32Array(6 * this.meta.count);
-    for (let k = 0; k < this.meta.count; k++) index.set([4 * k, 4 * k + 1, 4 * k + 2, 4 * k, 4 * k + 2, 4 * k + 3], 6 * k);
-    geometry.setIndex(new THREE.BufferAttribute(index, 1));
+    // a rectangle (two triangles from four vertices) or a triangle a Gaussian (the vertex shader finds its Gaussian
+    // and corner)
+    const rectangles = new Uint32Array(6 * this.meta.count);
+    for (let k = 0; k < this.meta.count; k++) rectangles.set([4 * k, 4 * k + 1, 4 * k + 2, 4 * k, 4 * k + 2, 4 * k + 3], 6 * k);
+    const triangles = new Uint32Array(3 * this.meta.count).map((_, k) => k);
+    this.shapes = [6, 3].map((indices) => ({ indices, geometry: new THREE.BufferGeometry() }));
+    this.shapes[0].geometry.setIndex(new THREE.BufferAttribute(rectangles, 1));
+    this.shapes[1].geometry.setIndex(new THREE.BufferAttribute(triangles, 1));
+    // the product of each sampled Gaussian's two largest scales
+    this.sampled = Array.from({ length: Math.min(SAMPLES, this.meta.count) }, (_, j) => {
+      const i = Math.floor((j * this.meta.count) / Math.min(SAMPLES, this.meta.count));
+      const [a, b] = [0, 1, 2].map((k) => s.scale[4 * i + k]).sort((x, y) => y - x);
+      return { i, area: a * b };
+    });
     this.order = new THREE.DataTexture(new Float32Array(s.width * s.height), s.width, s.height, THREE.RedFormat, THREE.FloatType);
     this.order.minFilter = this.order.magFilter = THREE.NearestFilter;
     this.order.generateMipmaps = false;
@@ -140,16 +153,32 @@ class Viewer {
       size: { value: new THREE.Vector2() },
       eye: { value: new THREE.Vector3() },
     };
-    const material = rawMaterial(SPLAT_VERTEX, SPLAT_FRAGMENT, this.splatUniforms);
+    for (const shape of this.shapes) {
+      const material = rawMaterial(splatVertex(shape.indices === 6 ? 4 : 3), SPLAT_FRAGMENT, this.splatUniforms);
+      this.blendSplats(material);
+      shape.scene = sceneOf(shape.geometry, material);
+    }
+    this.projectScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, PROJECT_FRAGMENT, this.splatUniforms));
+  }
+
+  blendSplats(material) {
     material.transparent = true;
     material.side = THREE.DoubleSide; // the rectangles turn clockwise on screen: image rows run down
     material.blending = THREE.CustomBlending;
     material.blendEquation = material.blendEquationAlpha = THREE.AddEquation;
     material.blendSrc = material.blendSrcAlpha = THREE.OneFactor;
     material.blendDst = material.blendDstAlpha = THREE.OneMinusSrcAlphaFactor;
-    this.splatScene = sceneOf(geometry, material);
-    this.projectScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, PROJECT_FRAGMENT, this.splatUniforms));
-    this.geometry = geometry;
+  }
+
+  // the median footprint of the sampled Gaussians in canvas pixels (the rectangle's area, as if each faced the
+  // camera): 4 (2 ln 255) fx fy s1 s2 / z^2
+  typicalFootprint(viewmat, K) {
+    const [r0, r1, r2, tz] = [viewmat[8], viewmat[9], viewmat[10], viewmat[11]];
+    const areas = this.sampled.map(({ i, area }) => {
+      const z = r0 * this.means[4 * i] + r1 * this.means[4 * i + 1] + r2 * this.means[4 * i + 2] + tz;
+      return z > 0.01 ? (4 * 2 * Math.log(255) * K[0] * K[1] * area) / (z * z) : 0;
+    });
+    return areas.sort((x, y) => x - y)[areas.length >> 1];
   }
 
   makeShading() {
@@ -233,7 +262,8 @@ class Viewer {
     if (key !== this.sortedFor) {
       // the order changes only when the view does (not with the light or the exposure)
       const visible = sortBackToFront(this.means, this.meta.count, v, this.order.image.data);
-      this.geometry.setDrawRange(0, 6 * visible);
+      for (const shape of this.shapes) shape.geometry.setDrawRange(0, shape.indices * visible);
+      this.footprint = this.typicalFootprint(v, cam.K);
       this.order.needsUpdate = true;
       this.sortedFor = key;
     }
@@ -244,7 +274,9 @@ class Viewer {
     this.renderer.render(this.projectScene, this.camera);
     this.renderer.setRenderTarget(this.target);
     this.renderer.clear(true, false, false);
-    this.renderer.render(this.splatScene, this.camera);
+    const small = this.footprint / (shrink * shrink) < TRIANGLE_FOOTPRINT;
+    this.shape = this.shapes[(this.forcedShape ?? (small ? 3 : 6)) === 3 ? 1 : 0];
+    this.renderer.render(this.shape.scene, this.camera);
     this.renderer.setRenderTarget(null);
     this.renderer.render(this.encodeScene, this.camera);
   }
@@ -398,6 +430,12 @@ async function start() {
       },
       timeFrames: (frames, step, moving) => viewer.timeFrames(frames, step, moving),
       moving: () => viewer.moving,
+      // [the typical footprint, the last frame's shape]; forceShape("triangles" | "rectangles" | null: by footprint)
+      drawnAs: () => [viewer.footprint, viewer.shape.indices === 3 ? "triangles" : "rectangles"],
+      forceShape: (shape) => {
+        viewer.forcedShape = shape && { triangles: 3, rectangles: 6 }[shape];
+        viewer.render();
+      },
       timePrefilter: () => viewer.timePrefilter(),
       ready: true,
     });

@@ -80,7 +80,12 @@ void main() {
   outExtent = vec4(sqrt(reach * vec2(mid + root, max(mid - root, 0.0))) + 0.5, log2(opacity), 0.0);
 }`;
 
-export const SPLAT_VERTEX = /* glsl */ `
+// four vertices a Gaussian around its rectangle, or three around its ellipse's circumscribed triangle (the unit
+// circle's equilateral one, stretched as the ellipse: 30 % more area, one primitive instead of two): SwiftShader's
+// cost per triangle outweighs the area for small footprints (TRIANGLE_FOOTPRINT in main.js)
+export function splatVertex(corners) {
+  return /* glsl */ `
+#define CORNERS ${corners}
 precision highp float;
 precision highp int;
 precision highp sampler2D;
@@ -98,9 +103,13 @@ flat out vec3 vColour;
 
 void main() {
   // four vertices a Gaussian, drawn without instancing (SwiftShader runs each instance as a draw of its own)
-  int slot = gl_VertexID / 4;
-  int corner = gl_VertexID % 4;
+  int slot = gl_VertexID / CORNERS;
+  int corner = gl_VertexID % CORNERS;
+#if CORNERS == 3
+  vec2 position = corner == 0 ? vec2(0.0, 2.0) : vec2(corner == 1 ? -1.7320508 : 1.7320508, -1.0);
+#else
   vec2 position = vec2(corner == 1 || corner == 2 ? 1.0 : -1.0, corner >= 2 ? 1.0 : -1.0);
+#endif
   int i = int(texelFetch(tOrder, ivec2(slot % texWidth, slot / texWidth), 0).r);
   ivec2 uv = ivec2(i % texWidth, i / texWidth);
   vec4 extent = texelFetch(tExtent, uv, 0);
@@ -114,6 +123,7 @@ void main() {
   vLogOpacity = extent.z;
   vColour = texelFetch(tColour, uv, 0).rgb;
 }`;
+}
 
 export const SPLAT_FRAGMENT = /* glsl */ `
 precision highp float;
