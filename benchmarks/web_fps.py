@@ -6,6 +6,7 @@ frame drawn when the view stops) and moving (the smaller frames drawn while the 
 
     python -m benchmarks.web_fps --gaussians 4000 40000
     python -m benchmarks.web_fps --gaussians 40000 --passes   # each pass of a frame timed on its own
+    python -m benchmarks.web_fps --gaussians 40000 --shapes   # triangles against rectangles, interleaved
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ def main() -> None:
     parser.add_argument("--gaussians", type=int, nargs="+", default=[4000, 40000])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--passes", action="store_true", help="time each pass of a frame instead")
+    parser.add_argument("--shapes", action="store_true", help="time each Gaussian drawn in a triangle, a rectangle")
     args = parser.parse_args()
     from tests.browser import headless_chromium
 
@@ -96,6 +98,12 @@ def main() -> None:
                 if args.passes:
                     for _ in range(args.repeats):
                         print(f"{count} Gaussians, ms a pass: {driver.execute_script(PASSES)}", flush=True)
+                    continue
+                for shape in ("rectangles", "triangles") * args.repeats if args.shapes else ():
+                    driver.execute_script("window.matspray.forceShape(arguments[0])", shape)
+                    still, moving = milliseconds_per_frame(driver), milliseconds_per_frame(driver, True)
+                    print(f"{count} Gaussians as {shape}: {still:.0f} ms still, {moving:.0f} ms moving", flush=True)
+                if args.shapes:
                     continue
                 times = [
                     (milliseconds_per_frame(driver), milliseconds_per_frame(driver, True)) for _ in range(args.repeats)
