@@ -1,9 +1,12 @@
 """Frames per second of `matspray export --web`'s page in headless chromium with software WebGL (SwiftShader), at
 its 512 x 512 view: a sphere of COUNT flat Gaussians, as wide as keeps every pixel of it under the same number of
 footprints at any count (sigma 0.05 at 4 000, about a trained surface's density), turned 3 degrees a frame (sorting
-and shading included), each frame waited for, after two frames of warm-up.
+and shading included), each frame waited for, after two frames of warm-up. Each count is timed still (the full-size
+frame drawn when the view stops) and moving (the smaller frames drawn while the view is dragged).
 
     python -m benchmarks.web_fps --gaussians 4000 40000
+    python -m benchmarks.web_fps --gaussians 40000 --passes   # each pass of a frame timed on its own
+    python -m benchmarks.web_fps --gaussians 40000 --shapes   # triangles against rectangles, interleaved
 """
 
 from __future__ import annotations
@@ -45,16 +48,43 @@ def open_page(driver, folder: Path, timeout: float = 120.0) -> None:
         raise RuntimeError(f"the page did not start: {state}")
 
 
-def milliseconds_per_frame(driver) -> float:
-    """The open page's frame time, after WARM_UP frames."""
-    driver.execute_script(f"return window.matspray.timeFrames({WARM_UP}, {STEP})")
-    return driver.execute_script(f"return window.matspray.timeFrames({FRAMES}, {STEP})")
+def milliseconds_per_frame(driver, moving: bool = False) -> float:
+    """The open page's frame time, after WARM_UP frames: full size, or as drawn while the view is dragged."""
+    flag = "true" if moving else "false"
+    driver.execute_script(f"return window.matspray.timeFrames({WARM_UP}, {STEP}, {flag})")
+    return driver.execute_script(f"return window.matspray.timeFrames({FRAMES}, {STEP}, {flag})")
+
+
+# each pass of the page's frame drawn and waited for on its own (a pixel of the canvas read back), still and moving;
+# "splats, hidden": the splat pass with every rectangle shrunk to nothing on screen (vertices and set-up only)
+PASSES = """
+const v = window.matspray.viewer, r = v.renderer, gl = r.getContext(), px = new Uint8Array(4);
+const sync = () => { r.setRenderTarget(null); gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px); };
+const time = (f) => { sync(); const s = performance.now(); for (let i = 0; i < 3; i++) { f(); sync(); }
+  return Math.round((performance.now() - s) / 3); };
+const out = {}, u = v.splatUniforms;
+for (const moving of [false, true]) {
+  v.moving = moving; v.render();
+  const into = (target, scene) => () => { r.setRenderTarget(target); r.render(scene, v.camera); };
+  const splats = () => { r.setRenderTarget(v.target); r.clear(true, false, false); r.render(v.splatScene, v.camera); };
+  const size = u.size.value.clone();
+  const hidden = () => { u.size.value.set(1e9, 1e9); splats(); u.size.value.copy(size); };
+  out[moving ? "moving" : "still"] = {
+    frame: time(() => { v.turn += 3; v.render(); }), shade: time(into(v.colourTarget, v.shadeScene)),
+    project: time(into(v.projectTarget, v.projectScene)), splats: time(splats), "splats, hidden": time(hidden),
+    encode: time(into(null, v.encodeScene)) };
+}
+v.moving = false;
+return out;
+"""
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gaussians", type=int, nargs="+", default=[4000, 40000])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--passes", action="store_true", help="time each pass of a frame instead")
+    parser.add_argument("--shapes", action="store_true", help="time each Gaussian drawn in a triangle, a rectangle")
     args = parser.parse_args()
     from tests.browser import headless_chromium
 
@@ -65,9 +95,22 @@ def main() -> None:
             with tempfile.TemporaryDirectory() as tmp:
                 write_disk_sphere_page(tmp, count)
                 open_page(driver, Path(tmp))
-                times = [milliseconds_per_frame(driver) for _ in range(args.repeats)]
-            shown = ", ".join(f"{ms:.0f} ms ({1000 / ms:.1f} fps)" for ms in times)
-            print(f"{count} Gaussians at 512 x 512: {shown}", flush=True)
+                if args.passes:
+                    for _ in range(args.repeats):
+                        print(f"{count} Gaussians, ms a pass: {driver.execute_script(PASSES)}", flush=True)
+                    continue
+                for shape in ("rectangles", "triangles") * args.repeats if args.shapes else ():
+                    driver.execute_script("window.matspray.forceShape(arguments[0])", shape)
+                    still, moving = milliseconds_per_frame(driver), milliseconds_per_frame(driver, True)
+                    print(f"{count} Gaussians as {shape}: {still:.0f} ms still, {moving:.0f} ms moving", flush=True)
+                if args.shapes:
+                    continue
+                times = [
+                    (milliseconds_per_frame(driver), milliseconds_per_frame(driver, True)) for _ in range(args.repeats)
+                ]
+            for k, state in enumerate(("still", "moving")):
+                shown = ", ".join(f"{t[k]:.0f} ms ({1000 / t[k]:.1f} fps)" for t in times)
+                print(f"{count} Gaussians at 512 x 512, {state}: {shown}", flush=True)
     finally:
         driver.quit()
 

@@ -24,7 +24,7 @@ from tests.browser import headless_chromium, missing_browser
 from tests.scenes import sky_map, sphere_cameras, sphere_of_disks, write_disk_sphere_run
 
 BACKGROUND = np.array([0.02, 0.02, 0.02])  # the page's, linear (src/main.js)
-PSNR_FLOOR = 30.0  # the issue's target inside the object; measured 57 dB (docs/dev/web.md)
+PSNR_FLOOR = 30.0  # the issue's target inside the object; measured 37-45 dB (docs/dev/web.md)
 
 
 def test_the_page_data_keeps_every_value_within_its_step():
@@ -154,8 +154,26 @@ def test_the_page_matches_matspray_relight_inside_the_object(site, page):
             inside = alpha.numpy() > 0.99
             reference = linear_to_srgb_np(rgb.numpy())
             value = psnr_inside(show(page, camera, light), reference, inside)
-            print(f"\npage against matspray relight, orbit frame {i}, {light}: {value:.1f} dB inside the object")
+            shape = page.execute_script("return window.matspray.drawnAs()")
+            print(
+                f"\npage against matspray relight, orbit frame {i}, {light}: {value:.1f} dB inside the object {shape}"
+            )
             assert inside.mean() > 0.2 and value > PSNR_FLOOR, (i, light, value)
+
+
+@pytest.mark.slow
+def test_a_gaussian_in_one_triangle_draws_what_its_rectangle_draws(site, page):
+    # both enclose the footprint's 1/255 alpha contour, outside which a fragment blends nothing
+    camera = orbit(site[0])[1]
+    show(page, camera, "sunset")
+    frames = {}
+    for shape in ("triangles", "rectangles"):
+        page.execute_script("window.matspray.forceShape(arguments[0])", shape)
+        assert page.execute_script("return window.matspray.drawnAs()")[1] == shape
+        frames[shape] = frame(page)
+    page.execute_script("window.matspray.forceShape(null)")
+    drawn = np.abs(frames["rectangles"] - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    assert drawn.mean() > 0.2 and np.abs(frames["triangles"] - frames["rectangles"]).max() <= 1 / 255 + 1e-9
 
 
 @pytest.mark.slow
@@ -197,26 +215,60 @@ def test_a_dropped_file_that_is_no_light_is_refused_in_one_line(site, page):
     page.execute_script("window.matspray.error = null")
 
 
+def drawn_in_blocks(image: np.ndarray, size: int) -> bool:  # [H, W, 3]: every size x size block one colour
+    h, w = (image.shape[0] // size) * size, (image.shape[1] // size) * size
+    blocks = image[:h, :w].reshape(h // size, size, w // size, size, 3)
+    return bool((blocks == blocks[:, :1, :, :1]).all())
+
+
 @pytest.mark.slow
 def test_frames_per_second_at_512_pixels(site, page, tmp_path, record_property):
     """Frames of the page's own 512 x 512 view of 4 000 Gaussians (a sphere of disks about as dense as a trained
     asset's surface: each pixel under ~20 footprints), turned a little each (sorting and shading included), each
-    waited for, timed after two frames of warm-up (`benchmarks.web_fps`). The issue's target is 5 frames per second;
-    what this machine gives is printed and recorded (docs/dev/web.md); MIN_FPS catches a return to the per-pixel
-    G-buffer's 0.3-0.5."""
+    waited for, timed after two frames of warm-up (`benchmarks.web_fps`): still (full size) and moving (as while the
+    view is dragged: blended at half the width and height, each pixel filling 2 x 2 of the canvas). The issue's
+    target is 5 frames per second; what this machine gives is printed and recorded (docs/dev/web.md)."""
     write_disk_sphere_page(tmp_path, 4000)
     try:
         open_page(page, tmp_path)
         assert page.execute_script("return document.getElementById('view').width") == 512
-        ms = milliseconds_per_frame(page)
+        still = milliseconds_per_frame(page)
+        assert not drawn_in_blocks(frame(page), 2)
+        moving = milliseconds_per_frame(page, moving=True)
+        moving_frame = frame(page)
     finally:
         open_page(page, site[1])  # the module's page again, for any test after this one
-    record_property("web_fps_512", 1000 / ms)
-    print(f"\npage at 512 x 512, 4 000 Gaussians: {ms:.0f} ms a frame, {1000 / ms:.1f} frames per second")
-    assert 1000 / ms >= MIN_FPS
+    record_property("web_fps_512", 1000 / still)
+    record_property("web_fps_512_moving", 1000 / moving)
+    print(f"\npage at 512 x 512, 4 000 Gaussians: {still:.0f} ms a frame still, {moving:.0f} ms moving")
+    assert (np.abs(moving_frame - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02).mean() > 0.2  # the object
+    assert drawn_in_blocks(moving_frame, 2)
+    assert 1000 / still >= MIN_FPS and 1000 / moving >= MIN_MOVING_FPS, (still, moving)
 
 
-MIN_FPS = 1.0  # measured 2.4-3.3 on 2 loaded cores (docs/dev/web.md): the issue's 5 is not reached here
+MIN_FPS = 1.0  # still, 4 000 Gaussians: measured 3.1-5.2 on 2 loaded cores (docs/dev/web.md)
+MIN_MOVING_FPS = 4.0  # moving: measured 8.5-13.4 there; a full-size frame (the old page's only kind) 3.1-5.8
+
+
+@pytest.mark.slow
+def test_a_drag_draws_small_frames_and_letting_go_a_full_one(site, page):
+    def drag(script):
+        page.execute_script(script)
+        time.sleep(0.3)  # the frame is drawn on the next animation frame
+        return frame(page)
+
+    canvas = "document.getElementById('view')"
+    page.execute_script("window.matspray.setTurn(0)")
+    assert not drawn_in_blocks(frame(page), 2)
+    dragged = drag(
+        f"{canvas}.dispatchEvent(new PointerEvent('pointerdown', {{clientX: 10, bubbles: true}}));"
+        "window.dispatchEvent(new PointerEvent('pointermove', {clientX: 40}));"
+    )
+    assert page.execute_script("return window.matspray.moving()") and drawn_in_blocks(dragged, 2)
+    released = drag("window.dispatchEvent(new PointerEvent('pointerup', {}));")
+    assert not page.execute_script("return window.matspray.moving()") and not drawn_in_blocks(released, 2)
+    inside = np.abs(released - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    assert inside.mean() > 0.2 and psnr_inside(dragged, released, inside) > 15  # the same view, coarser
 
 
 def linear_to_srgb_np(x: np.ndarray) -> np.ndarray:

@@ -13,13 +13,20 @@ import {
   PROJECT_FRAGMENT,
   SCREEN_VERTEX,
   SPLAT_FRAGMENT,
-  SPLAT_VERTEX,
+  splatVertex,
   shadeFragment,
 } from "./shaders.js";
 import { sortBackToFront } from "./sort.js";
 import { orbitCamera } from "./orbit.js";
 
 const BACKGROUND = [0.02, 0.02, 0.02]; // linear
+// while the view is dragged, the splats are blended at 1 / PREVIEW of the canvas's width and height (the splat pass's
+// fragments are nearly all of a frame's time in software WebGL); the frame drawn when the view stops is full size
+const PREVIEW = 2;
+// a frame whose typical Gaussian's rectangle covers fewer blended pixels than this draws each Gaussian in one
+// triangle, else in a rectangle (two): on SwiftShader triangles were faster at 300, rectangles at 750 (docs/dev/web.md)
+const TRIANGLE_FOOTPRINT = 500;
+const SAMPLES = 256; // Gaussians whose footprints give the typical one
 
 function floatTexture(data, width, height) {
   const texture = new THREE.DataTexture(data, width, height, THREE.RGBAFormat, THREE.FloatType);
@@ -84,17 +91,28 @@ class Viewer {
     this.turn = 0;
     this.exposure = 0;
     this.explicit = null; // a camera given by a script: {viewmat, K, width, height}
+    this.moving = false; // drawn at 1 / PREVIEW size while true
+    this.targets = {}; // the blend targets by their shrink factor
     this.makeSplats(asset.splats);
     this.makeShading();
     this.resize(this.meta.view.width, this.meta.view.height);
   }
 
   makeSplats(s) {
-    // two triangles a Gaussian, from four vertices each (the vertex shader finds its Gaussian and corner)
-    const geometry = new THREE.BufferGeometry();
-    const index = new Uint32Array(6 * this.meta.count);
-    for (let k = 0; k < this.meta.count; k++) index.set([4 * k, 4 * k + 1, 4 * k + 2, 4 * k, 4 * k + 2, 4 * k + 3], 6 * k);
-    geometry.setIndex(new THREE.BufferAttribute(index, 1));
+    // a rectangle (two triangles from four vertices) or a triangle a Gaussian (the vertex shader finds its Gaussian
+    // and corner)
+    const rectangles = new Uint32Array(6 * this.meta.count);
+    for (let k = 0; k < this.meta.count; k++) rectangles.set([4 * k, 4 * k + 1, 4 * k + 2, 4 * k, 4 * k + 2, 4 * k + 3], 6 * k);
+    const triangles = new Uint32Array(3 * this.meta.count).map((_, k) => k);
+    this.shapes = [6, 3].map((indices) => ({ indices, geometry: new THREE.BufferGeometry() }));
+    this.shapes[0].geometry.setIndex(new THREE.BufferAttribute(rectangles, 1));
+    this.shapes[1].geometry.setIndex(new THREE.BufferAttribute(triangles, 1));
+    // the product of each sampled Gaussian's two largest scales
+    this.sampled = Array.from({ length: Math.min(SAMPLES, this.meta.count) }, (_, j) => {
+      const i = Math.floor((j * this.meta.count) / Math.min(SAMPLES, this.meta.count));
+      const [a, b] = [0, 1, 2].map((k) => s.scale[4 * i + k]).sort((x, y) => y - x);
+      return { i, area: a * b };
+    });
     this.order = new THREE.DataTexture(new Float32Array(s.width * s.height), s.width, s.height, THREE.RedFormat, THREE.FloatType);
     this.order.minFilter = this.order.magFilter = THREE.NearestFilter;
     this.order.generateMipmaps = false;
@@ -135,16 +153,32 @@ class Viewer {
       size: { value: new THREE.Vector2() },
       eye: { value: new THREE.Vector3() },
     };
-    const material = rawMaterial(SPLAT_VERTEX, SPLAT_FRAGMENT, this.splatUniforms);
+    for (const shape of this.shapes) {
+      const material = rawMaterial(splatVertex(shape.indices === 6 ? 4 : 3), SPLAT_FRAGMENT, this.splatUniforms);
+      this.blendSplats(material);
+      shape.scene = sceneOf(shape.geometry, material);
+    }
+    this.projectScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, PROJECT_FRAGMENT, this.splatUniforms));
+  }
+
+  blendSplats(material) {
     material.transparent = true;
     material.side = THREE.DoubleSide; // the rectangles turn clockwise on screen: image rows run down
     material.blending = THREE.CustomBlending;
     material.blendEquation = material.blendEquationAlpha = THREE.AddEquation;
     material.blendSrc = material.blendSrcAlpha = THREE.OneFactor;
     material.blendDst = material.blendDstAlpha = THREE.OneMinusSrcAlphaFactor;
-    this.splatScene = sceneOf(geometry, material);
-    this.projectScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, PROJECT_FRAGMENT, this.splatUniforms));
-    this.geometry = geometry;
+  }
+
+  // the median footprint of the sampled Gaussians in canvas pixels (the rectangle's area, as if each faced the
+  // camera): 4 (2 ln 255) fx fy s1 s2 / z^2
+  typicalFootprint(viewmat, K) {
+    const [r0, r1, r2, tz] = [viewmat[8], viewmat[9], viewmat[10], viewmat[11]];
+    const areas = this.sampled.map(({ i, area }) => {
+      const z = r0 * this.means[4 * i] + r1 * this.means[4 * i + 1] + r2 * this.means[4 * i + 2] + tz;
+      return z > 0.01 ? (4 * 2 * Math.log(255) * K[0] * K[1] * area) / (z * z) : 0;
+    });
+    return areas.sort((x, y) => x - y)[areas.length >> 1];
   }
 
   makeShading() {
@@ -162,24 +196,36 @@ class Viewer {
       exposure: { value: 1 },
     };
     this.shadeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, shadeFragment(LEVELS.length), this.shadeUniforms));
-    this.encodeUniforms = { tBlended: { value: null }, background: { value: new THREE.Vector3(...BACKGROUND) } };
+    this.encodeUniforms = {
+      tBlended: { value: null },
+      background: { value: new THREE.Vector3(...BACKGROUND) },
+      shrink: { value: 1 },
+    };
     this.encodeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, ENCODE_FRAGMENT, this.encodeUniforms));
   }
 
-  resize(width, height) {
-    if (this.target && this.target.width === width && this.target.height === height) return;
-    this.renderer.setSize(width, height, false);
-    this.canvas.style.width = `${width}px`;
-    this.canvas.style.height = `${height}px`;
-    if (this.target) this.target.dispose();
-    this.target = new THREE.WebGLRenderTarget(width, height, {
-      type: this.blendType,
-      format: THREE.RGBAFormat,
-      minFilter: THREE.NearestFilter,
-      magFilter: THREE.NearestFilter,
-      depthBuffer: false,
-    });
+  // the canvas at width x height and the blend target at 1 / shrink of it
+  resize(width, height, shrink) {
+    if (this.width !== width || this.height !== height) {
+      this.renderer.setSize(width, height, false);
+      this.canvas.style.width = `${width}px`;
+      this.canvas.style.height = `${height}px`;
+      Object.values(this.targets).forEach((target) => target.dispose());
+      this.targets = {};
+      [this.width, this.height] = [width, height];
+    }
+    if (!this.targets[shrink]) {
+      this.targets[shrink] = new THREE.WebGLRenderTarget(Math.ceil(width / shrink), Math.ceil(height / shrink), {
+        type: this.blendType,
+        format: THREE.RGBAFormat,
+        minFilter: THREE.NearestFilter,
+        magFilter: THREE.NearestFilter,
+        depthBuffer: false,
+      });
+    }
+    this.target = this.targets[shrink];
     this.encodeUniforms.tBlended.value = this.target.texture;
+    this.encodeUniforms.shrink.value = shrink;
   }
 
   setLight(index) {
@@ -199,13 +245,15 @@ class Viewer {
 
   render() {
     const cam = this.currentCamera();
-    this.resize(cam.width, cam.height);
+    const shrink = this.moving ? PREVIEW : 1;
+    this.resize(cam.width, cam.height, shrink);
     const v = cam.viewmat;
     const u = this.splatUniforms;
     u.viewRotation.value.set(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
     u.viewTranslation.value.set(v[3], v[7], v[11]);
-    u.intrinsics.value.set(...cam.K);
-    u.size.value.set(cam.width, cam.height);
+    // a blended pixel covers shrink x shrink of the canvas's: its centre projects to (canvas pixel) / shrink
+    u.intrinsics.value.set(...cam.K.map((k) => k / shrink));
+    u.size.value.set(this.target.width, this.target.height);
     // the eye: -R^T t
     const eye = [0, 1, 2].map((c) => -(v[c] * v[3] + v[4 + c] * v[7] + v[8 + c] * v[11]));
     u.eye.value.set(...eye);
@@ -214,7 +262,8 @@ class Viewer {
     if (key !== this.sortedFor) {
       // the order changes only when the view does (not with the light or the exposure)
       const visible = sortBackToFront(this.means, this.meta.count, v, this.order.image.data);
-      this.geometry.setDrawRange(0, 6 * visible);
+      for (const shape of this.shapes) shape.geometry.setDrawRange(0, shape.indices * visible);
+      this.footprint = this.typicalFootprint(v, cam.K);
       this.order.needsUpdate = true;
       this.sortedFor = key;
     }
@@ -225,13 +274,13 @@ class Viewer {
     this.renderer.render(this.projectScene, this.camera);
     this.renderer.setRenderTarget(this.target);
     this.renderer.clear(true, false, false);
-    this.renderer.render(this.splatScene, this.camera);
+    const small = this.footprint / (shrink * shrink) < TRIANGLE_FOOTPRINT;
+    this.shape = this.shapes[(this.forcedShape ?? (small ? 3 : 6)) === 3 ? 1 : 0];
+    this.renderer.render(this.shape.scene, this.camera);
     this.renderer.setRenderTarget(null);
     this.renderer.render(this.encodeScene, this.camera);
   }
 
-  // milliseconds per frame over `frames` frames, each turned by `step` degrees (sorting included), waiting for
-  // each to finish (a pixel read back)
   // milliseconds to prefilter the current light again (what a dropped file costs besides reading it)
   timePrefilter() {
     const light = this.lights.entries[this.lightIndex];
@@ -240,16 +289,21 @@ class Viewer {
     return performance.now() - start;
   }
 
-  timeFrames(frames, step) {
+  // milliseconds per frame over `frames` frames, each turned by `step` degrees (sorting included), waiting for
+  // each to finish (a pixel read back); `moving`: as while the view is dragged (PREVIEW), else full size
+  timeFrames(frames, step, moving = false) {
     const gl = this.renderer.getContext();
     const pixel = new Uint8Array(4);
+    this.moving = moving;
     const start = performance.now();
     for (let i = 0; i < frames; i++) {
       this.turn += step;
       this.render();
       gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);
     }
-    return (performance.now() - start) / frames;
+    const ms = (performance.now() - start) / frames;
+    this.moving = false;
+    return ms;
   }
 }
 
@@ -300,7 +354,10 @@ async function start() {
     const select = document.getElementById("light");
     const addOption = (name) => select.add(new Option(name, String(select.options.length)));
     lights.entries.forEach((entry) => addOption(entry.name));
-    const draw = () => requestAnimationFrame(() => viewer.render());
+    const draw = (moving = false) => {
+      viewer.moving = moving;
+      requestAnimationFrame(() => viewer.render());
+    };
     const useLight = (index) => {
       viewer.setLight(index);
       select.value = String(index);
@@ -311,8 +368,9 @@ async function start() {
     turn.oninput = () => {
       viewer.turn = Number(turn.value);
       viewer.explicit = null;
-      draw();
+      draw(true);
     };
+    turn.onchange = () => draw(); // let go: full size
     const exposure = document.getElementById("exposure");
     exposure.oninput = () => {
       viewer.exposure = Number(exposure.value);
@@ -338,14 +396,17 @@ async function start() {
     });
     let dragging = null;
     viewer.canvas.addEventListener("pointerdown", (event) => (dragging = event.clientX));
-    window.addEventListener("pointerup", () => (dragging = null));
+    window.addEventListener("pointerup", () => {
+      if (dragging !== null) draw(); // let go: full size
+      dragging = null;
+    });
     window.addEventListener("pointermove", (event) => {
       if (dragging === null) return;
       viewer.turn = ((viewer.turn + (event.clientX - dragging) * 0.5 + 540) % 360) - 180;
       dragging = event.clientX;
       turn.value = String(viewer.turn);
       viewer.explicit = null;
-      draw();
+      draw(true);
     });
     useLight(0);
     Object.assign(api, {
@@ -354,18 +415,27 @@ async function start() {
       setLight: (name) => useLight(lights.entries.findIndex((e) => e.name === name)),
       setCamera: (viewmat, K, width, height) => {
         viewer.explicit = { viewmat, K, width, height };
+        viewer.moving = false;
         viewer.render();
       },
       setTurn: (degrees) => {
         viewer.explicit = null;
         viewer.turn = degrees;
+        viewer.moving = false;
         viewer.render();
       },
       setExposure: (stops) => {
         viewer.exposure = stops;
         viewer.render();
       },
-      timeFrames: (frames, step) => viewer.timeFrames(frames, step),
+      timeFrames: (frames, step, moving) => viewer.timeFrames(frames, step, moving),
+      moving: () => viewer.moving,
+      // [the typical footprint, the last frame's shape]; forceShape("triangles" | "rectangles" | null: by footprint)
+      drawnAs: () => [viewer.footprint, viewer.shape.indices === 3 ? "triangles" : "rectangles"],
+      forceShape: (shape) => {
+        viewer.forcedShape = shape && { triangles: 3, rectangles: 6 }[shape];
+        viewer.render();
+      },
       timePrefilter: () => viewer.timePrefilter(),
       ready: true,
     });

@@ -7,9 +7,11 @@
 // 2. PROJECT: one fragment per Gaussian projects it (its footprint on the screen); the splat pass only reads that.
 // 3. SPLAT: the Gaussians back to front, premultiplied "over", onto the background (the same sums as `render.raster`'s
 //    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255,
-//    drawn as rectangles along the axes of the ellipse where alpha reaches 1/255 (octagons, 17 % fewer fragments,
-//    were slower: SwiftShader pays per triangle and for the 2 x 2 pixel blocks along each thin triangle's edges).
-// 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs.
+//    drawn as rectangles along the axes of the ellipse where alpha reaches 1/255, or, for small footprints, as one
+//    triangle around that ellipse (octagons, 17 % fewer fragments, were slower: SwiftShader pays per triangle and
+//    for the 2 x 2 pixel blocks along each thin triangle's edges).
+// 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs (while the view moves, the
+//    splats are blended at a fraction of the canvas's size and each blended pixel fills a block of the canvas).
 
 const FETCH = /* glsl */ `
 precision highp float;
@@ -79,7 +81,12 @@ void main() {
   outExtent = vec4(sqrt(reach * vec2(mid + root, max(mid - root, 0.0))) + 0.5, log2(opacity), 0.0);
 }`;
 
-export const SPLAT_VERTEX = /* glsl */ `
+// four vertices a Gaussian around its rectangle, or three around its ellipse's circumscribed triangle (the unit
+// circle's equilateral one, stretched as the ellipse: 30 % more area, one primitive instead of two): SwiftShader's
+// cost per triangle outweighs the area for small footprints (TRIANGLE_FOOTPRINT in main.js)
+export function splatVertex(corners) {
+  return /* glsl */ `
+#define CORNERS ${corners}
 precision highp float;
 precision highp int;
 precision highp sampler2D;
@@ -97,9 +104,13 @@ flat out vec3 vColour;
 
 void main() {
   // four vertices a Gaussian, drawn without instancing (SwiftShader runs each instance as a draw of its own)
-  int slot = gl_VertexID / 4;
-  int corner = gl_VertexID % 4;
+  int slot = gl_VertexID / CORNERS;
+  int corner = gl_VertexID % CORNERS;
+#if CORNERS == 3
+  vec2 position = corner == 0 ? vec2(0.0, 2.0) : vec2(corner == 1 ? -1.7320508 : 1.7320508, -1.0);
+#else
   vec2 position = vec2(corner == 1 || corner == 2 ? 1.0 : -1.0, corner >= 2 ? 1.0 : -1.0);
+#endif
   int i = int(texelFetch(tOrder, ivec2(slot % texWidth, slot / texWidth), 0).r);
   ivec2 uv = ivec2(i % texWidth, i / texWidth);
   vec4 extent = texelFetch(tExtent, uv, 0);
@@ -113,6 +124,7 @@ void main() {
   vLogOpacity = extent.z;
   vColour = texelFetch(tColour, uv, 0).rgb;
 }`;
+}
 
 export const SPLAT_FRAGMENT = /* glsl */ `
 precision highp float;
@@ -138,10 +150,11 @@ precision highp float;
 precision highp sampler2D;
 uniform sampler2D tBlended;  // linear colour and coverage, premultiplied
 uniform vec3 background;     // linear
+uniform int shrink;          // the canvas's pixels a blended pixel spans each way (1, or PREVIEW while moving)
 out vec4 colour;
 
 void main() {
-  vec4 blended = texelFetch(tBlended, ivec2(gl_FragCoord.xy), 0);
+  vec4 blended = texelFetch(tBlended, ivec2(gl_FragCoord.xy) / shrink, 0);
   vec3 x = clamp(blended.rgb + background * (1.0 - blended.a), 0.0, 1.0);
   colour = vec4(mix(12.92 * x, 1.055 * pow(max(x, vec3(1e-12)), vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x)), 1.0);
 }`;
