@@ -230,7 +230,7 @@ def points_stage(
         with timed() as timer:
             result = triangulate_views(feature_views(scene, config.max_size), config, progress, log)
             save_torch_atomic({"points": result.points, "colours": result.colours, "message": result.message}, path)
-        run.finish_stage(STAGE, fingerprint, config, timer.seconds, {"points": len(result.points)})
+        run.finish_stage(STAGE, fingerprint, config, timer.seconds, {"points": len(result.points)}, timer.peak_mib)
     where = f" (reused {STAGE}/{POINTS_FILE})" if reused else ""
     if len(result.points) < MIN_COLMAP_POINTS:
         log(

@@ -130,7 +130,7 @@ class Pipeline:
         with timed() as timer, rendering_with(self.backend) as use, out_of_memory_as_error(label, self.device):
             settings, record = work(*prepared)
         ran = {"device": str(self.device), "backend": self.backend, "renders": use.used()}  # what each call really used
-        self.run.finish_stage(where.folder, fp, settings, timer.seconds, {**record, **ran})
+        self.run.finish_stage(where.folder, fp, settings, timer.seconds, {**record, **ran}, timer.peak_mib)
         self._known.add(stage)
         return True
 
