@@ -3,10 +3,16 @@
 Linux keeps a process's peak resident set (VmHWM in /proc/self/status) and lets the process reset it to the current
 resident set (writing 5 to /proc/self/clear_refs), so a stage's own peak is measured without sampling: reset at its
 start, read at its end. Blocks may nest: a reset inside one first folds the peak so far into every enclosing block.
-Where /proc is absent or refuses the reset (not Linux), the peak is None and nothing is recorded."""
+Where /proc is absent or refuses the reset (not Linux), the peak is None and nothing is recorded.
+
+`release_free_memory()` hands what the C allocator holds free back to the system (glibc's malloc_trim): glibc keeps
+freed small blocks in its arenas (one per thread that allocated: pycolmap's SIFT threads, torch's), so without it a
+stage's peak stays resident after the stage and the next stage's peak comes on top of it."""
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -26,6 +32,26 @@ def peak_rss_bytes() -> int | None:
     except (OSError, ValueError, IndexError):
         pass
     return None
+
+
+def _libc():
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return libc if hasattr(libc, "malloc_trim") else None
+    except OSError:
+        return None
+
+
+_LIBC = _libc()
+
+
+def release_free_memory() -> bool:
+    """Give the allocator's free memory back to the system (glibc; elsewhere nothing happens). Returns whether it
+    could: the memory in use is untouched, only pages no block uses are released."""
+    if _LIBC is None:
+        return False
+    _LIBC.malloc_trim(0)
+    return True
 
 
 def process_peak_bytes() -> int | None:

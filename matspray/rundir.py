@@ -23,7 +23,7 @@ from matspray.errors import MatsprayError, RunError, file_error
 
 # callers import these from here too
 from matspray.files import read_json, to_plain, write_json, write_text_atomic  # noqa: F401
-from matspray.memory import peak_memory
+from matspray.memory import peak_memory, release_free_memory
 from matspray.presets import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
@@ -410,4 +410,5 @@ def timed():
             yield timer
         finally:
             timer.seconds = time.perf_counter() - start
+            release_free_memory()  # what the stage freed leaves the process: the next stage's peak is its own
     timer.peak_mib = peak.mib
