@@ -23,6 +23,7 @@ from matspray.errors import MatsprayError, RunError, file_error
 
 # callers import these from here too
 from matspray.files import read_json, to_plain, write_json, write_text_atomic  # noqa: F401
+from matspray.memory import peak_memory, release_free_memory
 from matspray.presets import VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
@@ -241,11 +242,14 @@ class RunDir:
         return value if isinstance(value, str) else None
 
     def finish_stage(
-        self, stage: str, stage_fingerprint: str, settings, seconds: float, extra: dict | None = None
+        self, stage: str, stage_fingerprint: str, settings, seconds: float, extra: dict | None = None, peak_mib=None
     ) -> None:
+        """Writes the stage's record (last: an interrupted stage has none); `peak_mib`: the process's peak resident
+        memory during the stage (`timed`), kept as `peak_memory_mib` when known."""
+        memory = {} if peak_mib is None else {"peak_memory_mib": peak_mib}
         write_json(
             self.path(stage, STAGE_RECORD),
-            {"fingerprint": stage_fingerprint, "settings": settings, "seconds": seconds, **(extra or {})},
+            {"fingerprint": stage_fingerprint, "settings": settings, "seconds": seconds, **memory, **(extra or {})},
         )
         self.record_timing(stage, seconds)
 
@@ -273,6 +277,20 @@ class RunDir:
             if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 <= seconds < float("inf"):
                 raise file_error(path, f"{stage}: {json.dumps(seconds)[:40]} is not a number of seconds", hint)
         return timings
+
+    def peak_memory(self) -> dict:
+        """{stage: MiB}: the peak resident memory of each timed stage whose record keeps it (runs of older versions
+        and systems without /proc keep none)."""
+        peaks = {}
+        for stage in self.timings():
+            try:
+                record = read_json(self.path(stage, STAGE_RECORD))
+            except (OSError, ValueError):
+                continue
+            value = record.get("peak_memory_mib") if isinstance(record, dict) else None
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                peaks[stage] = value
+        return peaks
 
     def write_config(self, config) -> None:
         write_text_atomic(self.path("config.yaml"), yaml.safe_dump(to_plain(config), sort_keys=False))
@@ -378,14 +396,19 @@ def share_stage(source_run, target_run, stage: str) -> bool:
 
 @contextmanager
 def timed():
-    """`with timed() as t: ...; t.seconds`."""
+    """`with timed() as t: ...; t.seconds, t.peak_mib` (the process's peak resident memory in the block, MiB; None
+    where it cannot be measured: `matspray.memory`)."""
 
     class Timer:
         seconds = 0.0
+        peak_mib = None
 
     timer = Timer()
     start = time.perf_counter()
-    try:
-        yield timer
-    finally:
-        timer.seconds = time.perf_counter() - start
+    with peak_memory() as peak:
+        try:
+            yield timer
+        finally:
+            timer.seconds = time.perf_counter() - start
+            release_free_memory()  # what the stage freed leaves the process: the next stage's peak is its own
+    timer.peak_mib = peak.mib

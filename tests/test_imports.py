@@ -162,6 +162,7 @@ PLUMBING = (
     "gaussians",
     "material",
     "metrics",
+    "memory",
     "rundir",
     "settings",
 )

@@ -172,6 +172,29 @@ def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
     assert read_asset(run / "asset").visibility is None
 
 
+def test_a_run_records_the_peak_memory_of_each_stage_and_prints_it(tiny_object, finished_run, tmp_path, capsys):
+    import json
+    import shutil
+
+    from matspray.cli import main
+    from matspray.memory import peak_rss_bytes
+
+    run = tmp_path / "run"
+    for stage in ("materials2d", "geometry"):  # reuse the slow stages
+        shutil.copytree(finished_run / stage, run / stage)
+    shutil.copy(finished_run / "timings.json", run / "timings.json")
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
+    assert main(args) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("peak memory: ")]
+    assert len(lines) == 1
+    if peak_rss_bytes() is None:
+        return  # no /proc: nothing is measured, and the line says "unknown"
+    record = json.loads((run / "asset" / "stage.json").read_text())
+    assert 50 < record["peak_memory_mib"] < 64 * 1024  # the whole process: torch alone is over 50 MiB
+    assert RunDir(run).peak_memory()["asset"] == record["peak_memory_mib"]
+    assert f"asset {record['peak_memory_mib'] / 1024:.2f}" in lines[0]
+
+
 def test_second_run_reuses_every_stage(tiny_object, finished_run):
     messages = []
     Pipeline(tiny_object, finished_run, tiny_config(), progress=False, log=messages.append).run_all(VARIANTS)

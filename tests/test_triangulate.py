@@ -168,3 +168,19 @@ def test_features_come_from_photos_larger_than_the_run_holds(tmp_path):
     assert [v.name for v in larger] == [v.name for v in scene.train] and larger[0].width == 96
     assert torch.allclose(larger[0].camera.viewmat, scene.train[0].camera.viewmat)
     assert feature_views(load_scene(tmp_path / "capture"), 1024)[0].width == 96  # held at full size: as they are
+
+
+def test_photos_loaded_again_for_features_are_held_as_8_bit(tmp_path):
+    """The points stage holds the photos it loads again as 8-bit sRGB (a quarter of float32: stitch's 110 photos of
+    800 x 800 px took 845 MB), the very bytes the feature extractor was given from the float images before."""
+    from matspray.data import load_scene
+    from matspray.data.triangulate import feature_views, srgb8
+
+    views = plane_views(count=9, size=96)
+    write_blender(tmp_path / "capture", {"train": views[:8], "test": views[8:]})
+    scene = load_scene(tmp_path / "capture", downscale=None, max_size=48)
+    larger = feature_views(scene, 1024)
+    full = load_scene(tmp_path / "capture")
+    assert all(v.image.dtype == torch.uint8 for v in larger)
+    for mine, whole in zip(larger, full.train):
+        assert torch.equal(mine.image, srgb8(whole.image))

@@ -30,6 +30,7 @@ def add_run_parser(parser) -> None:
 def run_main(args) -> int:
     import time
 
+    from matspray.memory import memory_line, process_peak_bytes
     from matspray.method.estimate import estimate_line, minutes
     from matspray.method.pipeline import Pipeline
     from matspray.predictors import NO_PREDICTOR
@@ -50,6 +51,7 @@ def run_main(args) -> int:
         f"method {config.method}, on {pipeline.device} with rasterizer {pipeline.backend}; seconds per stage: "
         + ", ".join(f"{k} {v:.1f}" for k, v in timings.items())
     )
+    print(memory_line(pipeline.run.peak_memory(), process_peak_bytes()))
     for variant in assets:
         print(f"asset [{variant}]: {pipeline.run.path(asset_stage(variant), 'asset.ply')}")
     return 0

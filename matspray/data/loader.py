@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import torch
 
@@ -103,12 +104,17 @@ class WorkingSize:
     `downscale` None the one that brings the first view read to `max_size` on its longest side (1: never enlarged).
     With a `crop` plan each photo is first cut to its window, which then becomes a frame of the plan's size."""
 
-    def __init__(self, downscale: float | None, max_size: int | None, crop: CropPlan | None = None):
+    def __init__(self, downscale: float | None, max_size: int | None, crop: CropPlan | None = None, then=None):
         self.factor = downscale
         self.max_size = max_size
         self.crop = crop
+        self.then = then  # View -> View, applied to each view at its working size (load_scene's `each`)
 
     def __call__(self, view: View) -> View:
+        fitted = self._fit(view)
+        return fitted if self.then is None else self.then(fitted)
+
+    def _fit(self, view: View) -> View:
         if self.factor is None:
             self.factor = max(1.0, max(view.width, view.height) / self.max_size) if self.max_size else 1.0
         if self.crop is not None:
@@ -133,14 +139,21 @@ def load_run_scene(run: RunDir, data=None) -> Scene:
 
 
 def load_scene(
-    root, downscale: float = 1.0, test_every: int = 8, max_size: int | None = None, crop: CropPlan | None = None
+    root,
+    downscale: float = 1.0,
+    test_every: int = 8,
+    max_size: int | None = None,
+    crop: CropPlan | None = None,
+    each: Callable[[View], View] | None = None,
 ) -> Scene:
     """Load a dataset folder (Blender, nerfstudio, TensoIR or COLMAP layout) into a Scene.
 
     `downscale` > 1 shrinks every image and camera by that factor (2 halves the resolution). With `max_size`,
     `downscale` None brings images whose longest side is larger to that size (Scene.downscale says by how much; the
     first view read sets it). Each view is shrunk as it is read (`WorkingSize`); with a `crop` plan it is first cut
-    to its window (matspray.data.crop), and every view then has the plan's size.
+    to its window (matspray.data.crop), and every view then has the plan's size. `each` (View -> View) is applied to
+    every view once it has that size, before the next is read: a caller that keeps less of each photo (the points
+    stage keeps 8-bit images) never holds the whole dataset as float32.
     """
     if downscale is not None and not (math.isfinite(downscale) and downscale >= 1.0):
         raise SettingError("downscale", f"must be a finite number >= 1, got {downscale}")
@@ -148,7 +161,7 @@ def load_scene(
     fmt = detect_format(root)
     points = colors = None
     log = []
-    fit = WorkingSize(downscale, max_size, crop)
+    fit = WorkingSize(downscale, max_size, crop, each)
     if fmt == "blender":
         train, test = blender.read_split(root, "train", fit), blender.read_split(root, "test", fit)
         if not train:

@@ -73,16 +73,30 @@ def needs_points(scene: Scene, config: PointsConfig) -> bool:
 def feature_views(scene: Scene, max_size: int) -> list[View]:
     """The training views at up to `max_size` pixels on their longest side: loaded again from the dataset when the run
     holds them smaller (its working size), since SIFT finds few features on a weakly textured object at that size;
-    else the views as the scene holds them."""
+    else the views as the scene holds them. Views loaded again hold 8-bit sRGB images (`srgb8`, what SIFT is given),
+    made as each photo is read: stitch's 110 photos of 800 x 800 px took 845 MB as float32, 211 MB so."""
     from matspray.data.loader import load_scene  # the loader's readers import far more than this module needs
 
     largest = max(max(v.width, v.height) for v in scene.train)
     if scene.source is None or scene.downscale <= 1.0 or largest >= max_size:
         return scene.train
-    larger = {v.name: v for v in load_scene(scene.source, downscale=None, max_size=max_size).train}
+    again = load_scene(scene.source, downscale=None, max_size=max_size, each=srgb8_view)
+    larger = {v.name: v for v in again.train}
     if set(larger) != {v.name for v in scene.train}:
         return scene.train
     return [larger[v.name] for v in scene.train]
+
+
+def srgb8(image: Tensor) -> Tensor:  # [H, W, 3] linear float -> [H, W, 3] uint8 sRGB; uint8 is returned as it is
+    if image.dtype == torch.uint8:
+        return image
+    return (linear_to_srgb(image).clamp(0, 1) * 255).round().to(torch.uint8)
+
+
+def srgb8_view(view: View) -> View:
+    """The view with its image as 8-bit sRGB: the photo as the feature extractor reads it, a quarter of float32's
+    memory (the view is no longer a linear float image: only this module's PNG writer reads it)."""
+    return View(view.name, srgb8(view.image), None, view.camera, view.path)
 
 
 def neighbour_pairs(views: list[View], neighbours: int) -> list[tuple[int, int]]:
@@ -133,7 +147,7 @@ def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, 
         small = view.scaled(factor) if factor < 1.0 else view
         names.append(f"{i:05d}.png")
         cameras.append(small.camera)
-        pixels = (linear_to_srgb(small.image).clamp(0, 1) * 255).round().to(torch.uint8).numpy()
+        pixels = srgb8(small.image).numpy()
         Image.fromarray(pixels).save(image_dir / names[-1])
     pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
     # SIFT's threshold as structure from motion's: smooth objects need it
@@ -230,7 +244,7 @@ def points_stage(
         with timed() as timer:
             result = triangulate_views(feature_views(scene, config.max_size), config, progress, log)
             save_torch_atomic({"points": result.points, "colours": result.colours, "message": result.message}, path)
-        run.finish_stage(STAGE, fingerprint, config, timer.seconds, {"points": len(result.points)})
+        run.finish_stage(STAGE, fingerprint, config, timer.seconds, {"points": len(result.points)}, timer.peak_mib)
     where = f" (reused {STAGE}/{POINTS_FILE})" if reused else ""
     if len(result.points) < MIN_COLMAP_POINTS:
         log(

@@ -90,7 +90,7 @@ def crop_stage(
             views, points = (scene.train, scene.test), scene.points
             plan, region, message = plan_crop(*views, points, scene.downscale, config, object_bounds)
             write_crop(folder, plan, region, message)
-        run.finish_stage("crop", fingerprint, config, timer.seconds, {"message": message})
+        run.finish_stage("crop", fingerprint, config, timer.seconds, {"message": message}, timer.peak_mib)
         log(message)
     if plan is None:
         return scene, None

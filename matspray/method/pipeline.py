@@ -20,6 +20,7 @@ from matspray.device import configure_threads, out_of_memory_as_error, resolve_d
 from matspray.geometry.ply import read_ply
 from matspray.geometry.region import ObjectRegion
 from matspray.geometry.train import train_geometry
+from matspray.memory import release_free_memory
 from matspray.method import stages
 from matspray.method.asset import Asset, read_asset, write_asset
 from matspray.method.config import PipelineConfig
@@ -59,6 +60,7 @@ class Pipeline:
         if self.backend == "numba":  # its kernels compile (a fresh install) or load while the data is read
             compile_in_background()
         config, scene = open_scene(data, config, log)
+        release_free_memory()  # the photos read at their full size are freed: their pages leave the process too
         self.config, self.scene, self.device, self.run = config, scene, device, RunDir(out)
         self.plan: RunPlan = plan_for_run(config, scene, device, self.run)  # a missing light probe fails here
         # the probe is read once (the refinement's fingerprint names the file as it was read), before the folder is used
@@ -130,7 +132,7 @@ class Pipeline:
         with timed() as timer, rendering_with(self.backend) as use, out_of_memory_as_error(label, self.device):
             settings, record = work(*prepared)
         ran = {"device": str(self.device), "backend": self.backend, "renders": use.used()}  # what each call really used
-        self.run.finish_stage(where.folder, fp, settings, timer.seconds, {**record, **ran})
+        self.run.finish_stage(where.folder, fp, settings, timer.seconds, {**record, **ran}, timer.peak_mib)
         self._known.add(stage)
         return True
 
@@ -157,6 +159,7 @@ class Pipeline:
             self.run, fp, self.scene, self.config.crop, self.config.object_bounds, self.log
         )
         self._cropped = True
+        release_free_memory()  # the photos read again through their windows, and the uncut scene
         return self._crop_region
 
     def geometry_normal_targets(self, maps: dict | None = None) -> list[torch.Tensor] | None:
