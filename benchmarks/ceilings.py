@@ -137,28 +137,26 @@ def lift_truth(data: Path, run: Path, truth_run: Path, config):
     the proj-average asset of the ground-truth predictor. `run` must have lifted with `config` (checked first).
     Jobs for other error models of the same object share `truth_run`: they take turns, and the later ones reuse it."""
     from matspray.method.pipeline import Pipeline
+    from matspray.method.plan import on_geometry
     from matspray.rundir import RunDir, share_stage
 
     require_same_lift(run, config)
     geometry = RunDir(run).stage_fingerprint("geometry")
 
-    class OnTheRunsGeometry(Pipeline):
-        # the truth goes onto `run`'s Gaussians whatever trained them (a geometry trained on an error model's
-        # predicted normals has that model's predictions in its fingerprint, which the truth's pipeline lacks)
-        def geometry_fingerprint(self) -> str:
-            return geometry
-
     with RunDir(truth_run).hold(wait=True):  # another job lifting it goes first; this one then reuses its lift
         if RunDir(truth_run).stage_fingerprint("geometry") not in (None, geometry):
             raise RunError(f"{truth_run} holds another geometry than {run}; delete it to lift the truth again")
         share_stage(run, truth_run, "geometry")
-        with OnTheRunsGeometry(
+        with Pipeline(
             data,
             truth_run,
             replace(config, predictor="ground-truth", predictor_options={}),
             progress=False,
             log=lambda _: None,
         ) as pipeline:
+            # the truth goes onto `run`'s Gaussians whatever trained them (a geometry trained on an error model's
+            # predicted normals has that model's predictions in its fingerprint, which the truth's plan lacks)
+            pipeline.plan = on_geometry(pipeline.resolved(), geometry)
             return pipeline.run_all(("proj-average",))["proj-average"]
 
 

@@ -224,7 +224,10 @@ def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(
 
     class RecordingPipeline:
         def __init__(self, data, out, config, **_):
-            self.out, self.config = out, config
+            self.out, self.config, self.plan = out, config, None
+
+        def resolved(self):
+            return self.plan
 
         def __enter__(self):
             return self
@@ -239,6 +242,7 @@ def test_jobs_for_other_models_of_one_object_take_turns_on_its_ground_truth_run(
     monkeypatch.setattr(ceilings, "require_same_lift", lambda run, config: None)
     monkeypatch.setattr("matspray.rundir.share_stage", lambda source, target, stage: made.append((target, stage)))
     monkeypatch.setattr("matspray.method.pipeline.Pipeline", RecordingPipeline)
+    monkeypatch.setattr("matspray.method.plan.on_geometry", lambda plan, geometry: plan)
     truth_run = tmp_path / "runs" / "ground-truth"
     config = build_config("test")
     job = threading.Thread(

@@ -250,6 +250,16 @@ def with_normals(plan: RunPlan, normals: bool) -> RunPlan:
     return replace(plan, normals=normals, refine=refine, merger_dtypes=dtypes)
 
 
+def on_geometry(plan: RunPlan, geometry_fp: str) -> RunPlan:
+    """`plan` (complete) over the Gaussians of a geometry stage of fingerprint `geometry_fp`, whatever trained them:
+    the stages after the geometry follow it. (The benchmarks lift the true maps onto the Gaussians another run
+    trained, on its error model's normals, which the truth's own plan knows nothing of.)"""
+    geometry = replace(plan.geometry, fingerprint=geometry_fp)
+    masks_fp = fingerprint("masks", plan.config.object_bounds, geometry_fp)
+    unset = dict(lift=None, visibility=None, refine=None, merger_dtypes=None, normals=None)
+    return with_normals(replace(plan, geometry=geometry, masks_fp=masks_fp, **unset), plan.normals)
+
+
 def plan_for_run(config: PipelineConfig, scene: Scene, device: torch.device, run: RunDir) -> RunPlan:
     """`resolve_plan` for the run folder `run`: the light probe identified (a missing or unreadable one fails here),
     and the 2D maps' normals as a run made before predicted them."""
