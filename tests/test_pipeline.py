@@ -157,34 +157,19 @@ def test_only_variants_that_read_the_maps_refine_towards_their_normals(tiny_obje
 
 
 def test_a_run_is_unshadowed_by_default(tiny_object, finished_run, tmp_path):
-    import shutil
-
-    from matspray.cli import main
     from matspray.method.asset import read_asset
 
-    run = tmp_path / "run"
-    for stage in ("materials2d", "geometry"):  # reuse the slow stages
-        shutil.copytree(finished_run / stage, run / stage)
-    shutil.copy(finished_run / "timings.json", run / "timings.json")
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
-    assert main(args) == 0
+    run = rerun_from_slow_stages(tiny_object, finished_run, tmp_path)
     assert not (run / "visibility").exists()
     assert read_asset(run / "asset").visibility is None
 
 
 def test_a_run_records_the_peak_memory_of_each_stage_and_prints_it(tiny_object, finished_run, tmp_path, capsys):
     import json
-    import shutil
 
-    from matspray.cli import main
     from matspray.memory import peak_rss_bytes
 
-    run = tmp_path / "run"
-    for stage in ("materials2d", "geometry"):  # reuse the slow stages
-        shutil.copytree(finished_run / stage, run / stage)
-    shutil.copy(finished_run / "timings.json", run / "timings.json")
-    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
-    assert main(args) == 0
+    run = rerun_from_slow_stages(tiny_object, finished_run, tmp_path)
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("peak memory: ")]
     assert len(lines) == 1
     if peak_rss_bytes() is None:
@@ -582,3 +567,18 @@ def test_a_geometry_finished_with_other_inputs_or_settings_is_trained_again_not_
     RunDir(tmp_path / "run").reopen_stage("geometry")
     resumed, _ = trained(tmp_path / "run", other_maps)
     assert resumed == again != smaller
+
+
+def rerun_from_slow_stages(tiny_object, finished_run, tmp_path):
+    """A run of the test preset (4 refinement steps) that reuses `finished_run`'s predictions and geometry."""
+    import shutil
+
+    from matspray.cli import main
+
+    run = tmp_path / "run"
+    for stage in ("materials2d", "geometry"):  # reuse the slow stages
+        shutil.copytree(finished_run / stage, run / stage)
+    shutil.copy(finished_run / "timings.json", run / "timings.json")
+    args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
+    assert main(args) == 0
+    return run
