@@ -10,8 +10,9 @@ import json
 from pathlib import Path
 
 from benchmarks.generalise_sets import EVAL_SETS
-from matspray.method.config import default_settings, defaults_fingerprint
+from matspray.method.config import default_settings
 from matspray.presets import METHODS
+from matspray.rundir import fingerprint
 
 
 def flat(settings: dict, prefix: str = "") -> dict:
@@ -30,13 +31,14 @@ def stale_defaults(settings: dict) -> dict[str, list[str]]:
     recorded = settings.get("defaults") or {}
     stale = {}
     for method in METHODS:
-        if recorded.get(method) == defaults_fingerprint(settings["preset"], method):
+        today = default_settings(settings["preset"], method)
+        if recorded.get(method) == fingerprint(today):
             continue
         before = (settings.get("default_settings") or {}).get(method)
         if before is None:
             stale[method] = ["fingerprint"]
             continue
-        now, then = flat(default_settings(settings["preset"], method)), flat(before)
+        now, then = flat(today), flat(before)
         stale[method] = sorted(k for k in now.keys() | then.keys() if now.get(k, "<absent>") != then.get(k, "<absent>"))
     return stale
 
