@@ -1,14 +1,15 @@
 """Does the method beat its baselines on objects it was never tuned on? The benchmark protocol.
 
-    python -m benchmarks.generalise --set dev|eval|real-dev|real-eval [--objects K] [--start I] [--preset demo|test]
+    python -m benchmarks.generalise --set dev|dev-b|real-dev|real-eval [--objects K] [--start I] [--preset demo|test]
         [--models paper harsh outliers dr ground-truth] [--variants full proj-average supervised no-softmax]
         [--method matspray|paper] [--without ADDITION ...] [setting flags of `matspray run`]
         [--refine KEY=VALUE ...] [--tag NAME] [--out DIR]
     python -m benchmarks.generalise --set dev --compare [--out DIR]
 
-Two object sets with disjoint seeds: `dev` (seeds 1000 + i) for choosing every setting, `eval` (seeds 2000 + i) to
-run once at the end. Object i is a procedural `random` shape (the seed picks it), trained under one HDRI of
-../shared/data/hdri and relit under two other lights (HDRIs and built-ins), all drawn from its seed. The real sets
+Two procedural development sets with disjoint seeds: `dev` (seeds 1000 + i) and `dev-b` (seeds 2000 + i; once the
+evaluation set, it was used to choose defaults and is development now). Object i is a procedural `random` shape (the
+seed picks it), trained under one HDRI of ../shared/data/hdri and relit under two other lights (HDRIs and built-ins),
+all drawn from its seed. The real sets
 `real-dev` (3 objects, seeds 3000 + i) and `real-eval` (5 objects, seeds 4000 + i, run once on final defaults) are
 artist-made glTF objects kept in benchmarks/real (benchmarks/real_objects.py names them and their split), rendered
 by `matspray synth --asset` and lit the same way. Each object is run with every predictor error model
