@@ -93,6 +93,34 @@ def test_without_softmax_weights_are_unconstrained():
     assert not torch.allclose(weights["base_color"].sum(-1), torch.ones(len(positions)), atol=1e-2)
 
 
+def test_raw_weights_without_softmax_are_the_mlp_output_from_a_random_start():
+    positions, values, seen = random_inputs()
+    torch.manual_seed(0)
+    merger = NeuralMerger(6, BOUNDS, MergerConfig(softmax=False, unconstrained="raw"))
+    out, weights = merger(positions, values, seen, return_weights=True)
+    # the released code's layers without their softmax: no zero start, so not the projection average
+    assert not torch.allclose(out, projection_average(values, seen), atol=1e-2)
+    inputs = merger.group_inputs(positions, values * seen[..., None], seen)
+    hidden = inputs
+    for i, (w, b) in enumerate(zip(merger.weights, merger.biases)):
+        hidden = torch.baddbmm(b, hidden, w.transpose(1, 2))
+        hidden = hidden.relu() if i < len(merger.weights) - 1 else hidden
+    assert torch.allclose(weights["base_color"], hidden[0] * seen, atol=1e-6)  # the weights are the logits, unseen 0
+    assert weights["base_color"][~seen].abs().max() == 0
+
+
+def test_softmax_merger_ignores_the_unconstrained_rule():
+    positions, values, seen = random_inputs()
+    for rule in ("offset", "raw"):
+        merger = NeuralMerger(6, BOUNDS, MergerConfig(unconstrained=rule))
+        assert torch.allclose(merger(positions, values, seen), projection_average(values, seen), atol=1e-6)
+
+
+def test_unknown_unconstrained_rule_is_refused():
+    with pytest.raises(Exception, match="unknown rule 'free'; choose one of offset, raw"):
+        MergerConfig(unconstrained="free")
+
+
 def test_merger_learns_to_pick_the_right_view():
     torch.manual_seed(0)
     positions, values, seen = random_inputs(n=64, v=4)

@@ -12,7 +12,10 @@ either way the merged value is a convex combination of what the Gaussian receive
 
 The last layer starts at zero, so before training the merger returns the plain average of the seen
 views (the paper's "Proj. Average", its initialisation). With `softmax=False` (the paper's ablation)
-the weights are 1/n_seen + h: the same starting point, but free to leave the convex hull.
+the weights are 1/n_seen + h (`unconstrained="offset"`): the same starting point, but free to leave the convex
+hull; or, with `unconstrained="raw"`, h itself from a last layer initialised as torch initialises any linear layer:
+the released code's merger with its softmax taken out, which starts away from the average and whose weights need
+not sum to one.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from matspray.material import GROUPS
 from matspray.settings import setting
 
 UNSEEN_RULES = ("mask", "mean")
+UNCONSTRAINED_RULES = ("offset", "raw")
 PRECISIONS = ("auto", "float32", "bfloat16")
 
 
@@ -57,6 +61,12 @@ class MergerConfig:
     layers: int = setting(3, "hidden layers of each merger MLP")
     frequencies: int = setting(6, "NeRF positional-encoding octaves")
     softmax: bool = setting(True, "weights by a softmax over the views (off: the paper's ablation without it)")
+    unconstrained: str = setting(
+        "offset",
+        'the weights without the softmax: "offset" (1/n_seen + the MLP\'s output, its last layer starting at zero: '
+        'the projection average to start from) or "raw" (the output itself, from torch\'s default initialisation: '
+        "the released code's merger with its softmax removed)",
+    )
     seen_input: bool = setting(
         False,
         "the MLPs also read the seen mask [V]; off as in the paper (position and values only)",
@@ -79,6 +89,11 @@ class MergerConfig:
             raise SettingError(
                 "precision", f"unknown precision '{self.precision}'; choose one of {', '.join(PRECISIONS)}"
             )
+        if self.unconstrained not in UNCONSTRAINED_RULES:
+            raise SettingError(
+                "unconstrained",
+                f"unknown rule '{self.unconstrained}'; choose one of {', '.join(UNCONSTRAINED_RULES)}",
+            )
         if self.unseen not in UNSEEN_RULES:
             raise SettingError("unseen", f"unknown rule '{self.unseen}'; choose one of {', '.join(UNSEEN_RULES)}")
         if self.hidden < 1 or self.layers < 1 or self.frequencies < 0:
@@ -95,7 +110,7 @@ def positional_encoding(x: Tensor, frequencies: int) -> Tensor:  # [N, 3] in ~[-
     return torch.cat([x, torch.sin(angles).flatten(1), torch.cos(angles).flatten(1)], dim=-1)
 
 
-def mlp(n_in: int, n_out: int, hidden: int, layers: int) -> nn.Sequential:
+def mlp(n_in: int, n_out: int, hidden: int, layers: int, zero_head: bool = True) -> nn.Sequential:
     blocks: list[nn.Module] = []
     width = n_in
     for _ in range(layers):
@@ -104,8 +119,9 @@ def mlp(n_in: int, n_out: int, hidden: int, layers: int) -> nn.Sequential:
         blocks += [nn.Linear(width, hidden), nn.ReLU(inplace=True)]
         width = hidden
     head = nn.Linear(width, n_out)
-    nn.init.zeros_(head.weight)
-    nn.init.zeros_(head.bias)
+    if zero_head:
+        nn.init.zeros_(head.weight)
+        nn.init.zeros_(head.bias)
     return nn.Sequential(*blocks, head)
 
 
@@ -113,11 +129,14 @@ def _widened(weight: Tensor, width: int) -> Tensor:  # [out, in] -> [out, width]
     return weight if weight.shape[1] == width else F.pad(weight, (0, width - weight.shape[1]))
 
 
-def merge_weights(logits: Tensor, seen: Tensor, softmax: bool) -> Tensor:
-    """Per-view weights [N, V] from logits [N, V]; views not seen (seen [N, V] False) get weight 0."""
+def merge_weights(logits: Tensor, seen: Tensor, softmax: bool, unconstrained: str = "offset") -> Tensor:
+    """Per-view weights [N, V] from logits [N, V]; views not seen (seen [N, V] False) get weight 0. Without the
+    softmax, `unconstrained` (MergerConfig) says what the logits are: offsets from 1/n_seen, or the weights."""
     if softmax:
         masked = logits.masked_fill(~seen, float("-inf"))
         return torch.softmax(masked, dim=-1).nan_to_num(0.0)  # a row with no seen view gives zeros
+    if unconstrained == "raw":
+        return logits * seen
     n_seen = seen.sum(-1, keepdim=True).clamp_min(1)
     return (1.0 / n_seen + logits) * seen
 
@@ -140,6 +159,7 @@ class NeuralMerger(nn.Module):
                 self.n_views,
                 self.config.hidden,
                 self.config.layers,
+                zero_head=self.config.softmax or self.config.unconstrained == "offset",
             )
             for group in GROUPS.values()
         ]
@@ -189,7 +209,7 @@ class NeuralMerger(nn.Module):
                     # [G, N, hidden] tensor per layer and step)
                     hidden = hidden.relu_()
         logits = hidden.to(masked_values.dtype)  # [G, N, V]: bfloat16 back to float32
-        w = merge_weights(logits, seen, self.config.softmax)  # [G, N, V]
+        w = merge_weights(logits, seen, self.config.softmax, self.config.unconstrained)  # [G, N, V]
         channel_weights = w.index_select(0, self.channel_groups).permute(1, 2, 0)  # [N, V, 5]
         # unconstrained weights (no softmax) can leave [0, 1]; with softmax only rounding can: keep materials valid
         out = (channel_weights * masked_values).sum(1).clamp(0.0, 1.0)

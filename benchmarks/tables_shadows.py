@@ -1,0 +1,57 @@
+"""The README's table of baked shadows (`--set shadows=on`) against the default unshadowed shading: the same
+development objects, error model and variants, one `benchmarks.generalise` pass with each shading (the second reuses
+the first's predictions, geometry and lift), relighting PSNR per object and the mean."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+SHADOWS_REAL_DEV = ("generalise-real-dev-shadows-off.json", "generalise-real-dev-shadows-on.json")
+SHADOW_VARIANTS = ("full", "proj-average", "no-softmax")
+
+
+def relight_by_object(report: dict, model: str) -> dict[str, dict[str, float]]:
+    """{object name: {variant: relighting PSNR}} of one error model of a generalise results file."""
+    return {o["object"]["name"]: o["figures"]["relight"] for o in report["models"][model]["objects"]}
+
+
+def shadow_rows(off: dict, on: dict, model: str) -> list[str]:
+    """Rows `| object | full off / on | ... | full - no-softmax off / on |`, then the mean over the common objects."""
+    first, second = relight_by_object(off, model), relight_by_object(on, model)
+    names = [name for name in first if name in second]
+    if not names:
+        raise SystemExit(f"benchmarks.tables: shadows: the two passes share no object under `{model}`")
+
+    def cells(pick) -> list[str]:
+        pairs = [(pick(first[n]), pick(second[n])) for n in names]
+        return [f"{a:.2f} / {b:.2f}" for a, b in pairs], pairs
+
+    rows, means = [], []
+    for pick in [lambda r, v=v: r[v] for v in SHADOW_VARIANTS] + [lambda r: r["full"] - r["no-softmax"]]:
+        texts, pairs = cells(pick)
+        rows.append(texts)
+        means.append(f"{sum(a for a, _ in pairs) / len(pairs):.2f} / {sum(b for _, b in pairs) / len(pairs):.2f}")
+    lines = [f"| {name} | " + " | ".join(column[i] for column in rows) + " |" for i, name in enumerate(names)]
+    return lines + [f"| **mean of {len(names)}** | " + " | ".join(means) + " |"]
+
+
+def table_shadows(results: Path, names: tuple[str, str] = SHADOWS_REAL_DEV) -> str:
+    """Relighting PSNR (dB) without / with baked shadows, per object and variant, with `full` minus `no-softmax`."""
+    off, on = (json.loads((results / name).read_text()) for name in names)
+    models = [m for m in off["models"] if m in on["models"]]
+    head = " | ".join(f"{v} off / on" for v in SHADOW_VARIANTS)
+    lines = []
+    for model in models:
+        lines += [
+            f"Error model `{model}` (SIMULATED predictor), relighting PSNR (dB) under two held-out lights:",
+            "",
+            f"| object | {head} | full - no-softmax off / on |",
+            "| --- |" + " ---: |" * (len(SHADOW_VARIANTS) + 1),
+            *shadow_rows(off, on, model),
+            "",
+        ]
+    return "\n".join(lines).rstrip()
+
+
+SHADOW_TABLES = {"shadows-real-dev": (table_shadows, list(SHADOWS_REAL_DEV))}

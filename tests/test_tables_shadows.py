@@ -1,0 +1,39 @@
+import json
+
+import pytest
+
+from benchmarks.tables_shadows import table_shadows
+
+
+def report(figures: dict[str, dict[str, float]]) -> dict:
+    objects = [{"object": {"name": name}, "figures": {"relight": relight}} for name, relight in figures.items()]
+    return {"models": {"paper": {"objects": objects}}}
+
+
+def test_shadow_table_pairs_each_object_and_variant_and_averages_them(tmp_path):
+    off = {
+        "a": {"full": 25.0, "proj-average": 24.0, "no-softmax": 25.5},
+        "b": {"full": 27.0, "proj-average": 26.0, "no-softmax": 26.5},
+    }
+    on = {
+        "b": {"full": 28.0, "proj-average": 26.5, "no-softmax": 27.0},
+        "a": {"full": 26.0, "proj-average": 24.5, "no-softmax": 26.5},
+    }
+    (tmp_path / "off.json").write_text(json.dumps(report(off)))
+    (tmp_path / "on.json").write_text(json.dumps(report(on)))
+    lines = table_shadows(tmp_path, ("off.json", "on.json")).splitlines()
+    assert lines[0].startswith("Error model `paper`")
+    assert (
+        lines[2]
+        == "| object | full off / on | proj-average off / on | no-softmax off / on | full - no-softmax off / on |"
+    )
+    assert lines[4] == "| a | 25.00 / 26.00 | 24.00 / 24.50 | 25.50 / 26.50 | -0.50 / -0.50 |"
+    assert lines[5] == "| b | 27.00 / 28.00 | 26.00 / 26.50 | 26.50 / 27.00 | 0.50 / 1.00 |"
+    assert lines[6] == "| **mean of 2** | 26.00 / 27.00 | 25.00 / 25.50 | 26.00 / 26.75 | 0.00 / 0.25 |"
+
+
+def test_shadow_table_refuses_passes_without_a_common_object(tmp_path):
+    (tmp_path / "off.json").write_text(json.dumps(report({"a": {"full": 1.0, "proj-average": 1.0, "no-softmax": 1.0}})))
+    (tmp_path / "on.json").write_text(json.dumps(report({"b": {"full": 1.0, "proj-average": 1.0, "no-softmax": 1.0}})))
+    with pytest.raises(SystemExit, match="share no object"):
+        table_shadows(tmp_path, ("off.json", "on.json"))
