@@ -27,6 +27,7 @@ from pathlib import Path
 from benchmarks.tables_cli import table_cli
 from benchmarks.tables_extra import EXTRA
 from benchmarks.tables_figures import hand_typed_figures
+from benchmarks.tables_shadows import SHADOW_TABLES
 from matspray.presets import PAPER_ABLATION, PAPER_SOFTMAX
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -439,6 +440,7 @@ TABLES = {
     "demo-backends": (table_demo_backends, [DEMO_BACKENDS]),
     "cli": (table_cli, []),
     **EXTRA,
+    **SHADOW_TABLES,
 }
 
 

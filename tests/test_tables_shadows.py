@@ -2,7 +2,7 @@ import json
 
 import pytest
 
-from benchmarks.tables_shadows import table_shadows
+from benchmarks.tables_shadows import table_shadows, table_shadows_mean
 
 
 def report(figures: dict[str, dict[str, float]]) -> dict:
@@ -37,3 +37,22 @@ def test_shadow_table_refuses_passes_without_a_common_object(tmp_path):
     (tmp_path / "on.json").write_text(json.dumps(report({"b": {"full": 1.0, "proj-average": 1.0, "no-softmax": 1.0}})))
     with pytest.raises(SystemExit, match="share no object"):
         table_shadows(tmp_path, ("off.json", "on.json"))
+
+
+def test_shadow_mean_table_has_one_row_per_shading(tmp_path):
+    off = {
+        "a": {"full": 25.0, "proj-average": 24.0, "no-softmax": 25.5},
+        "b": {"full": 27.0, "proj-average": 26.0, "no-softmax": 26.5},
+    }
+    on = {
+        "a": {"full": 26.0, "proj-average": 24.5, "no-softmax": 26.5},
+        "c": {"full": 1.0, "proj-average": 1.0, "no-softmax": 1.0},
+    }
+    (tmp_path / "off.json").write_text(json.dumps(report(off)))
+    (tmp_path / "on.json").write_text(json.dumps(report(on)))
+    assert table_shadows_mean(tmp_path, ("off.json", "on.json")).splitlines() == [
+        "| shading (1 object, `paper`) | full | proj-average | no-softmax |",
+        "| --- | ---: | ---: | ---: |",
+        "| unshadowed (the default) | 25.00 | 24.00 | 25.50 |",
+        "| baked shadows (`--set shadows=on`) | 26.00 | 24.50 | 26.50 |",
+    ]
