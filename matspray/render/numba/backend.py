@@ -430,10 +430,11 @@ def _compile(key: str, np_dtype) -> None:
     from matspray.render.numba import normals as numba_normals
     from matspray.render.numba import rays as numba_rays
     from matspray.render.numba import sh as numba_sh
+    from matspray.render.numba import sparse as numba_sparse
     from matspray.render.numba import weights as numba_weights
 
     module = kernels()
-    dispatchers = _dispatchers(module, projection(), numba_sh, numba_normals, numba_rays, numba_weights)
+    dispatchers = _dispatchers(module, projection(), numba_sh, numba_normals, numba_rays, numba_weights, numba_sparse)
     misses = _cache_misses(dispatchers)
     start = time.perf_counter()
     # numba's OpenMP layer loads its own libgomp at the first parallel loop, and libgomp reads OMP_WAIT_POLICY
@@ -497,6 +498,9 @@ def _warm_up(np_dtype) -> None:
     CompiledNormals.apply(quats, gaussians.log_scales, gaussians.means, camera.center).sum().backward()
     on_object = torch.ones(camera.height * camera.width, dtype=torch.bool)
     trace_view(gaussians.detach(), camera, on_object, 2, torch.zeros(1), 1.0, RasterSettings(), 0.0)
+    from matspray.render.numba.sparse import warm_up
+
+    warm_up(np_dtype)  # frozen views' backward pass
     if np_dtype == np.float32:  # frozen views' weights (float32 only)
         from matspray.render.numba.weights import recorded_weights
 

@@ -9,7 +9,10 @@ kernel call, cheaper on a GPU than the sparse product and free of the matrices' 
 matspray.render.numba.weights) the
 matrices stay where `storage` says: on the Gaussians' device, on the host (copied to the device view by view),
 or "auto": on a CUDA device while it keeps DEVICE_RESERVE of its memory free, on the host after that
-(`frozen_views_bytes` says how large they are).
+(`frozen_views_bytes` says how large they are). Frozen views of Gaussians on a CUDA device keep each matrix and its
+transpose (the backward pass is cuSPARSE's product with the transpose); on the CPU only the matrix, the backward
+pass a compiled scatter over it (matspray.render.numba.sparse): half the memory, for a slower backward product
+(docs/dev/real-captures.md, "Frozen views without their transposes").
 """
 
 from __future__ import annotations
@@ -24,16 +27,19 @@ from matspray.gaussians import Gaussians
 from matspray.render.backend import active_backend
 from matspray.render.raster.rasterize import rasterize, view_weights
 
-# a (Gaussian, pixel) weight is kept twice (the matrix and its transpose): an int32 column index and a float32
-# value each (int64 indices for a matrix of 2^31 entries or more: `blend_matrix`)
-BYTES_PER_HIT = 2 * (4 + 4)
+# a (Gaussian, pixel) weight in one matrix: an int32 column index and a float32 value (int64 indices for a matrix of
+# 2^31 entries or more: `blend_matrix`); kept twice on a CUDA device (the matrix and its transpose)
+BYTES_PER_HIT = 4 + 4
 DEVICE_RESERVE = 0.25  # share of a GPU's memory left free for the rest of refinement (storage "auto")
 
 
-def frozen_views_bytes(hits: int, pixels: int, gaussians: int, views: int) -> int:
+def frozen_views_bytes(hits: int, pixels: int, gaussians: int, views: int, transposed: bool = True) -> int:
     """Bytes the torch backend's frozen views keep: `hits` (Gaussian, pixel) weights over all views, plus each
-    view's row pointers of both matrices (pixels + 1 and gaussians + 1 int32)."""
-    return BYTES_PER_HIT * hits + 4 * views * (pixels + gaussians + 2)
+    view's row pointers (pixels + 1 int32); with `transposed` (frozen views on a CUDA device), the transposes too
+    (the weights again, gaussians + 1 row pointers)."""
+    if transposed:
+        return 2 * BYTES_PER_HIT * hits + 4 * views * (pixels + gaussians + 2)
+    return BYTES_PER_HIT * hits + 4 * views * (pixels + 1)
 
 
 def blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: int, n_columns: int) -> Tensor:
@@ -56,16 +62,21 @@ def blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: i
 
 
 class SparseBlend(torch.autograd.Function):
-    """features [N, C] -> matrix @ features [P, C]; the backward pass multiplies by the stored transpose."""
+    """features [N, C] -> matrix @ features [P, C]; the backward pass multiplies by the stored transpose, or without
+    one (None: frozen views on the CPU) scatters through the matrix (`transposed_product`)."""
 
     @staticmethod
-    def forward(ctx, features: Tensor, matrix: Tensor, transposed: Tensor) -> Tensor:
-        ctx.transposed = transposed
+    def forward(ctx, features: Tensor, matrix: Tensor, transposed: Tensor | None) -> Tensor:
+        ctx.matrix, ctx.transposed = matrix, transposed
         return matrix @ features
 
     @staticmethod
     def backward(ctx, grad: Tensor):
-        return ctx.transposed @ grad, None, None
+        if ctx.transposed is not None:
+            return ctx.transposed @ grad, None, None
+        from matspray.render.numba.sparse import transposed_product
+
+        return transposed_product(ctx.matrix, grad), None, None
 
 
 def hits_of_view(gaussians: Gaussians, camera: Camera, backend: str) -> tuple[Tensor, Tensor, Tensor]:
@@ -85,7 +96,8 @@ def hits_of_view(gaussians: Gaussians, camera: Camera, backend: str) -> tuple[Te
 class FrozenViews:
     """Views of frozen Gaussians, rendered with the backend of the enclosing `rendering_with` block (or `backend`).
     `storage` (torch backend): "device" keeps the blend matrices beside the Gaussians, "host" in (pinned) host
-    memory, "auto" on the device while it has room (see the module's docstring)."""
+    memory, "auto" on the device while it has room (see the module's docstring). The transposes are kept where the
+    Gaussians are on a CUDA device (`transposed`: None each on the CPU)."""
 
     def __init__(self, gaussians: Gaussians, cameras: list[Camera], backend: str | None = None, storage: str = "auto"):
         if storage not in ("device", "host", "auto"):
@@ -95,6 +107,7 @@ class FrozenViews:
         self.means = gaussians.means
         self.backend = backend or active_backend()
         device, n = self.means.device, len(gaussians)
+        self.keeps_transposes = device.type != "cpu"  # CUDA's product with the transpose, the CPU's scatter
         self.matrices, self.transposed, self.visible_ids, self.coverage, self.on_host = [], [], [], [], []
         self.kept_bytes, self.hits = 0, 0  # what the frozen views hold beyond the Gaussians; (Gaussian, pixel) weights
         for camera in cameras:
@@ -105,18 +118,17 @@ class FrozenViews:
                 continue
             gaussian_ids, pixel_ids, weights = hits_of_view(gaussians, camera, self.backend)  # [M] each
             pixels = camera.height * camera.width
-            matrices = (
-                blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),
-                blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),
-            )  # [HW, N], [N, HW]
+            matrices = [blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n)]  # [HW, N]
+            if self.keeps_transposes:
+                matrices.append(blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels))  # [N, HW]
             on_host = storage == "host" or (storage == "auto" and not _room_on(device))
             if on_host:
-                matrices = tuple(_to_host(m) for m in matrices)
+                matrices = [_to_host(m) for m in matrices]
             self.on_host.append(on_host)
             self.hits += len(weights)
             self.kept_bytes += sum(_sparse_bytes(m) for m in matrices)
             self.matrices.append(matrices[0])
-            self.transposed.append(matrices[1])
+            self.transposed.append(matrices[1] if self.keeps_transposes else None)
             self.visible_ids.append(torch.unique(gaussian_ids).long())  # [K] Gaussians that contribute to the view
             self.coverage.append(
                 torch.zeros(n, device=device).index_add_(0, gaussian_ids.long(), weights.float())
@@ -132,26 +144,24 @@ class FrozenViews:
         camera = self.cameras[index]
         if self.backend == "gsplat":
             return rasterize(self.gaussians, camera, features, backend=self.backend).features
-        matrix, transposed = self.matrices[index], self.transposed[index]
+        matrices = [self.matrices[index], self.transposed[index]]
         if self.on_host[index]:
-            matrix, transposed = (
-                matrix.to(features.device, non_blocking=True),
-                transposed.to(features.device, non_blocking=True),
-            )
-        if features.dtype != matrix.dtype:  # e.g. float64 for gradcheck
-            matrix, transposed = matrix.to(features.dtype), transposed.to(features.dtype)
-        return SparseBlend.apply(features.contiguous(), matrix, transposed).reshape(camera.height, camera.width, -1)
+            matrices = [m if m is None else m.to(features.device, non_blocking=True) for m in matrices]
+        if features.dtype != matrices[0].dtype:  # e.g. float64 for gradcheck
+            matrices = [m if m is None else m.to(features.dtype) for m in matrices]
+        return SparseBlend.apply(features.contiguous(), *matrices).reshape(camera.height, camera.width, -1)
 
     def render(self, index: int, features: Tensor) -> tuple[Tensor, Tensor]:
         """features [N, C] -> blended features [H, W, C] over black, and the coverage alpha [H, W]."""
         return self._blend(index, features), self.alphas[index]
 
     def describe(self) -> dict:
-        """What the views keep, for a stage record: the backend, bytes, (Gaussian, pixel) weights, pixels,
-        views on the host."""
+        """What the views keep, for a stage record: the backend, bytes, (Gaussian, pixel) weights, whether the
+        transposes are kept too, pixels, views on the host."""
         return {
             "backend": self.backend,
             "bytes": self.kept_bytes,
+            "transposed": self.keeps_transposes and self.backend != "gsplat",
             "hits": self.hits,
             "gaussians": len(self.means),
             "pixels": sum(c.width * c.height for c in self.cameras),
