@@ -35,9 +35,10 @@ def write_disk_sphere_page(folder, count: int) -> None:
     write_page(folder, Asset(g, materials, normals), spec, sky_map())
 
 
-def open_page(driver, folder: Path, timeout: float = 120.0) -> None:
-    """Open the page in `folder` from file:// (no server) and wait until it has started."""
-    driver.get((Path(folder) / "index.html").as_uri())
+def open_page(driver, folder: Path, timeout: float = 120.0, hooks: bool = True) -> None:
+    """Open the page in `folder` from file:// (no server), with its test hooks (`?test`: the page's src/hooks.js)
+    unless `hooks` is False, and wait until it has started."""
+    driver.get((Path(folder) / "index.html").as_uri() + ("?test" if hooks else ""))
     deadline, state = time.monotonic() + timeout, None
     while time.monotonic() < deadline:
         state = driver.execute_script("return window.matspray && [window.matspray.ready, window.matspray.error]")

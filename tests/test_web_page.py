@@ -143,6 +143,22 @@ def test_the_page_opens_from_file_and_draws_the_object(site, page):
     assert page.execute_script("return window.matspray.lights()")[:2] == ["estimated", "sky"]
 
 
+SCRIPT_INTERFACE = {"ready", "error", "lights", "setLight", "setTurn", "setExposure", "setCamera"}
+TEST_HOOKS = {"viewer", "timeFrames", "moving", "drawnAs", "forceShape", "timePrefilter"}
+
+
+@pytest.mark.slow
+def test_the_page_offers_its_test_hooks_only_when_its_address_asks(site, page):
+    # the same shipped script either way: the tests exercise the page as it ships (src/hooks.js says why)
+    try:
+        open_page(page, site[1], hooks=False)
+        assert set(page.execute_script("return Object.keys(window.matspray)")) == SCRIPT_INTERFACE
+        assert "Gaussians" in page.execute_script("return document.getElementById('status').textContent")
+    finally:
+        open_page(page, site[1])
+    assert set(page.execute_script("return Object.keys(window.matspray)")) == SCRIPT_INTERFACE | TEST_HOOKS
+
+
 @pytest.mark.slow
 def test_the_page_matches_matspray_relight_inside_the_object(site, page):
     from matspray.data.images import read_image

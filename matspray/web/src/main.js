@@ -1,7 +1,9 @@
-// `matspray export --web DIR`: the asset relit in the browser on three.js (WebGL 2). The Gaussians' materials and
-// normals are rasterised into a G-buffer and shaded by split-sum image-based lighting, the two passes of
-// `matspray relight`; the light is prefiltered on the page (prefilter.js), so that a dropped .hdr / .exr lights the
-// asset as a packaged one does. window.matspray is the page's interface for scripts (the tests drive it).
+// `matspray export --web DIR`: the asset relit in the browser on three.js (WebGL 2). Each Gaussian is shaded by
+// split-sum image-based lighting, as `matspray relight` shades, and the shaded Gaussians are blended (shaders.js says
+// how and why it differs from relight's G-buffer); the light is prefiltered on the page (prefilter.js), so that a
+// dropped .hdr / .exr lights the asset as a packaged one does. window.matspray is the page's interface for
+// scripts: ready, error, lights(), setLight, setTurn, setExposure, setCamera (hooks.js adds the tests' hooks when
+// the page's address asks for them).
 
 import * as THREE from "three";
 import { EXRLoader } from "three/addons/loaders/EXRLoader.js";
@@ -18,6 +20,7 @@ import {
 } from "./shaders.js";
 import { sortBackToFront } from "./sort.js";
 import { orbitCamera } from "./orbit.js";
+import { installTestHooks, wantsTestHooks } from "./hooks.js";
 
 const BACKGROUND = [0.02, 0.02, 0.02]; // linear
 // while the view is dragged, the splats are blended at 1 / PREVIEW of the canvas's width and height (the splat pass's
@@ -127,18 +130,17 @@ class Viewer {
     });
     // each Gaussian's footprint (PROJECT_FRAGMENT's three outputs), laid out as the splat textures
     this.projectTarget = new THREE.WebGLRenderTarget(s.width, s.height, {
-      count: 3,
+      count: 2,
       type: THREE.FloatType,
       format: THREE.RGBAFormat,
       minFilter: THREE.NearestFilter,
       magFilter: THREE.NearestFilter,
       depthBuffer: false,
     });
-    const [centreAxis, extent, conic] = this.projectTarget.textures;
+    const [centreAxis, extent] = this.projectTarget.textures;
     this.splatUniforms = {
       tCentreAxis: { value: centreAxis },
       tExtent: { value: extent },
-      tConic: { value: conic },
       tCentre: { value: floatTexture(s.centre, s.width, s.height) },
       tRotation: { value: floatTexture(s.rotation, s.width, s.height) },
       tScale: { value: floatTexture(s.scale, s.width, s.height) },
@@ -280,31 +282,6 @@ class Viewer {
     this.renderer.setRenderTarget(null);
     this.renderer.render(this.encodeScene, this.camera);
   }
-
-  // milliseconds to prefilter the current light again (what a dropped file costs besides reading it)
-  timePrefilter() {
-    const light = this.lights.entries[this.lightIndex];
-    const start = performance.now();
-    prefilter(light.rgb, light.height);
-    return performance.now() - start;
-  }
-
-  // milliseconds per frame over `frames` frames, each turned by `step` degrees (sorting included), waiting for
-  // each to finish (a pixel read back); `moving`: as while the view is dragged (PREVIEW), else full size
-  timeFrames(frames, step, moving = false) {
-    const gl = this.renderer.getContext();
-    const pixel = new Uint8Array(4);
-    this.moving = moving;
-    const start = performance.now();
-    for (let i = 0; i < frames; i++) {
-      this.turn += step;
-      this.render();
-      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);
-    }
-    const ms = (performance.now() - start) / frames;
-    this.moving = false;
-    return ms;
-  }
 }
 
 // a dropped or chosen .hdr / .exr as a light of LIGHT_HEIGHT rows, or a one-line reason it is not one
@@ -410,7 +387,6 @@ async function start() {
     });
     useLight(0);
     Object.assign(api, {
-      viewer,
       lights: () => lights.entries.map((e) => e.name),
       setLight: (name) => useLight(lights.entries.findIndex((e) => e.name === name)),
       setCamera: (viewmat, K, width, height) => {
@@ -428,17 +404,9 @@ async function start() {
         viewer.exposure = stops;
         viewer.render();
       },
-      timeFrames: (frames, step, moving) => viewer.timeFrames(frames, step, moving),
-      moving: () => viewer.moving,
-      // [the typical footprint, the last frame's shape]; forceShape("triangles" | "rectangles" | null: by footprint)
-      drawnAs: () => [viewer.footprint, viewer.shape.indices === 3 ? "triangles" : "rectangles"],
-      forceShape: (shape) => {
-        viewer.forcedShape = shape && { triangles: 3, rectangles: 6 }[shape];
-        viewer.render();
-      },
-      timePrefilter: () => viewer.timePrefilter(),
-      ready: true,
     });
+    if (wantsTestHooks(window.location.search)) installTestHooks(api, viewer);
+    api.ready = true;
     status.textContent = `${asset.meta.count} Gaussians`;
   } catch (error) {
     api.error = String(error && error.stack ? error.stack : error);
