@@ -30,6 +30,10 @@ const PREVIEW = 2;
 // triangle, else in a rectangle (two): on SwiftShader triangles were faster at 300, rectangles at 750 (docs/dev/web.md)
 const TRIANGLE_FOOTPRINT = 500;
 const SAMPLES = 256; // Gaussians whose footprints give the typical one
+// the alpha below which a Gaussian blends nothing: render.raster's 1/255 in the frame drawn when the view stops; while
+// it moves, a higher one, which shrinks each footprint's shape to fewer fragments (docs/dev/web.md)
+const CUTOFF = 1 / 255;
+const PREVIEW_CUTOFF = 1 / 32;
 
 function floatTexture(data, width, height) {
   const texture = new THREE.DataTexture(data, width, height, THREE.RGBAFormat, THREE.FloatType);
@@ -153,6 +157,7 @@ class Viewer {
       viewTranslation: { value: new THREE.Vector3() },
       intrinsics: { value: new THREE.Vector4() },
       size: { value: new THREE.Vector2() },
+      cutoff: { value: CUTOFF },
       eye: { value: new THREE.Vector3() },
     };
     for (const shape of this.shapes) {
@@ -256,6 +261,7 @@ class Viewer {
     // a blended pixel covers shrink x shrink of the canvas's: its centre projects to (canvas pixel) / shrink
     u.intrinsics.value.set(...cam.K.map((k) => k / shrink));
     u.size.value.set(this.target.width, this.target.height);
+    u.cutoff.value = this.moving ? PREVIEW_CUTOFF : CUTOFF;
     // the eye: -R^T t
     const eye = [0, 1, 2].map((c) => -(v[c] * v[3] + v[4 + c] * v[7] + v[8 + c] * v[11]));
     u.eye.value.set(...eye);
@@ -276,7 +282,8 @@ class Viewer {
     this.renderer.render(this.projectScene, this.camera);
     this.renderer.setRenderTarget(this.target);
     this.renderer.clear(true, false, false);
-    const small = this.footprint / (shrink * shrink) < TRIANGLE_FOOTPRINT;
+    // the footprint's shape reaches 2 ln(1 / cutoff) variances each way, the typical footprint's 2 ln 255
+    const small = (this.footprint * Math.log(u.cutoff.value)) / Math.log(CUTOFF) / (shrink * shrink) < TRIANGLE_FOOTPRINT;
     this.shape = this.shapes[(this.forcedShape ?? (small ? 3 : 6)) === 3 ? 1 : 0];
     this.renderer.render(this.shape.scene, this.camera);
     this.renderer.setRenderTarget(null);

@@ -6,8 +6,8 @@
 //    normals or materials overlap (measured in docs/dev/web.md).
 // 2. PROJECT: one fragment per Gaussian projects it (its footprint on the screen); the splat pass only reads that.
 // 3. SPLAT: the Gaussians back to front, premultiplied "over", onto the background (the same sums as `render.raster`'s
-//    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255,
-//    drawn as rectangles along the axes of the ellipse where alpha reaches 1/255, or, for small footprints, as one
+//    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255
+//    (more while the view moves), drawn as rectangles along the axes of the ellipse where alpha reaches that, or, for small footprints, as one
 //    triangle around that ellipse (octagons, 17 % fewer fragments, were slower: SwiftShader pays per triangle and
 //    for the 2 x 2 pixel blocks along each thin triangle's edges).
 // 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs (while the view moves, the
@@ -31,11 +31,12 @@ uniform mat3 viewRotation;
 uniform vec3 viewTranslation;
 uniform vec4 intrinsics;     // fx fy cx cy
 uniform vec2 size;           // width height in pixels
+uniform float cutoff;        // the alpha below which a Gaussian blends nothing (CUTOFF in main.js)
 `;
 
 // PROJECT: each Gaussian's footprint, once (the splat pass's vertices only read it): its centre and major axis in
 // gl_FragCoord's frame (rows from the bottom), the half sides of the rectangle around the ellipse where alpha falls
-// to 1/255 (0 when it is not drawn), and those half sides in the ellipse's own units p, where
+// to the cutoff (0 when it is not drawn), and those half sides in the ellipse's own units p, where
 // alpha = opacity exp(-d^T conic d / 2) = opacity exp2(-|p|^2), p = (d.major, d.minor) / sqrt(2 ln 2 (l1, l2))
 // for the footprint's eigenvalues l1 >= l2 and d the pixel's offset from the centre: p is linear in the pixel, so
 // the splat pass interpolates it from the corners and its fragments only square it (docs/dev/web.md)
@@ -50,7 +51,7 @@ void main() {
   vec4 centre = texelFetch(tCentre, uv, 0);
   vec3 t = viewRotation * centre.xyz + viewTranslation;
   float opacity = centre.w;
-  if (t.z <= 0.01 || opacity < 1.0 / 255.0) return;
+  if (t.z <= 0.01 || opacity < cutoff) return;
   vec4 q = texelFetch(tRotation, uv, 0);
   vec4 sr = texelFetch(tScale, uv, 0);
   float w = q.x, x = q.y, y = q.z, z = q.w;
@@ -73,7 +74,7 @@ void main() {
   if (det <= 0.0) return;
   float mid = 0.5 * (cxx + cyy);
   float root = sqrt(max(mid * mid - det, 0.0));
-  float reach = 2.0 * log(255.0 * opacity);
+  float reach = 2.0 * log(opacity / cutoff);
   vec2 axis = abs(cxy) > 1e-12 ? normalize(vec2(mid + root - cyy, cxy)) : (cxx >= cyy ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
   vec2 eigen = vec2(mid + root, det / (mid + root));
   vec2 halfSide = sqrt(reach * eigen) + 0.5;
@@ -131,11 +132,12 @@ export const SPLAT_FRAGMENT = /* glsl */ `
 precision highp float;
 in vec2 vLocal;
 flat in vec4 vPremultiplied;
+uniform float cutoff;
 out vec4 colour;
 
 void main() {
   vec4 blended = vPremultiplied * exp2(-dot(vLocal, vLocal));
-  colour = blended.a < 1.0 / 255.0 ? vec4(0.0) : blended;  // a select, not a discard: cheaper in a SIMD rasteriser
+  colour = blended.a < cutoff ? vec4(0.0) : blended;  // a select, not a discard: cheaper in a SIMD rasteriser
 }`;
 
 export const SCREEN_VERTEX = /* glsl */ `
