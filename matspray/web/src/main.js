@@ -283,7 +283,8 @@ class Viewer {
     this.renderer.setRenderTarget(this.target);
     this.renderer.clear(true, false, false);
     // the footprint's shape reaches 2 ln(1 / cutoff) variances each way, the typical footprint's 2 ln 255
-    const small = (this.footprint * Math.log(u.cutoff.value)) / Math.log(CUTOFF) / (shrink * shrink) < TRIANGLE_FOOTPRINT;
+    const blended = (this.footprint * Math.log(u.cutoff.value)) / Math.log(CUTOFF) / (shrink * shrink);
+    const small = blended < TRIANGLE_FOOTPRINT;
     this.shape = this.shapes[(this.forcedShape ?? (small ? 3 : 6)) === 3 ? 1 : 0];
     this.renderer.render(this.shape.scene, this.camera);
     this.renderer.setRenderTarget(null);

@@ -7,9 +7,9 @@
 // 2. PROJECT: one fragment per Gaussian projects it (its footprint on the screen); the splat pass only reads that.
 // 3. SPLAT: the Gaussians back to front, premultiplied "over", onto the background (the same sums as `render.raster`'s
 //    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255
-//    (more while the view moves), drawn as rectangles along the axes of the ellipse where alpha reaches that, or, for small footprints, as one
-//    triangle around that ellipse (octagons, 17 % fewer fragments, were slower: SwiftShader pays per triangle and
-//    for the 2 x 2 pixel blocks along each thin triangle's edges).
+//    (more while the view moves), drawn as rectangles along the axes of the ellipse where alpha reaches that, or, for
+//    small footprints, as one triangle around that ellipse (octagons, 17 % fewer fragments, were slower: SwiftShader
+//    pays per triangle and for the 2 x 2 pixel blocks along each thin triangle's edges).
 // 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs (while the view moves, the
 //    splats are blended at a fraction of the canvas's size and each blended pixel fills a block of the canvas).
 
