@@ -285,6 +285,11 @@ def test_a_drag_draws_small_frames_and_letting_go_a_full_one(site, page):
     assert not page.execute_script("return window.matspray.moving()") and not drawn_in_blocks(released, 2)
     inside = np.abs(released - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
     assert inside.mean() > 0.2 and psnr_inside(dragged, released, inside) > 15  # the same view, coarser
+    # while dragged a Gaussian blends nothing below alpha 1/32 (1/255 once let go): the faint rim goes
+    background = np.round(released[0, 0] * 255)
+    touched = [(np.abs(np.round(f * 255) - background).max(-1) > 1).mean() for f in (released, dragged)]
+    print(f"\npixels the Gaussians touch: {touched[0]:.3f} let go, {touched[1]:.3f} dragged")
+    assert touched[1] < 0.93 * touched[0], touched
 
 
 def linear_to_srgb_np(x: np.ndarray) -> np.ndarray:
