@@ -7,11 +7,17 @@ frame drawn when the view stops) and moving (the smaller frames drawn while the 
     python -m benchmarks.web_fps --gaussians 4000 40000
     python -m benchmarks.web_fps --gaussians 40000 --passes   # each pass of a frame timed on its own
     python -m benchmarks.web_fps --gaussians 40000 --shapes   # triangles against rectangles, interleaved
+    python -m benchmarks.web_fps --scripts OLD.js NEW.js      # pages with these builds of the script, interleaved
+
+Besides the wall time, each frame's CPU time: the seconds that chromium's processes (SwiftShader's threads among
+them) spent, which other work on the machine's cores changes far less than the wall time.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -35,9 +41,10 @@ def write_disk_sphere_page(folder, count: int) -> None:
     write_page(folder, Asset(g, materials, normals), spec, sky_map())
 
 
-def open_page(driver, folder: Path, timeout: float = 120.0) -> None:
-    """Open the page in `folder` from file:// (no server) and wait until it has started."""
-    driver.get((Path(folder) / "index.html").as_uri())
+def open_page(driver, folder: Path, timeout: float = 120.0, hooks: bool = True) -> None:
+    """Open the page in `folder` from file:// (no server), with its test hooks (`?test`: the page's src/hooks.js)
+    unless `hooks` is False, and wait until it has started."""
+    driver.get((Path(folder) / "index.html").as_uri() + ("?test" if hooks else ""))
     deadline, state = time.monotonic() + timeout, None
     while time.monotonic() < deadline:
         state = driver.execute_script("return window.matspray && [window.matspray.ready, window.matspray.error]")
@@ -50,9 +57,38 @@ def open_page(driver, folder: Path, timeout: float = 120.0) -> None:
 
 def milliseconds_per_frame(driver, moving: bool = False) -> float:
     """The open page's frame time, after WARM_UP frames: full size, or as drawn while the view is dragged."""
+    return frame_cost(driver, moving)[0]
+
+
+def frame_cost(driver, moving: bool = False) -> tuple[float, float]:
+    """(wall, CPU) milliseconds per frame of the open page, after WARM_UP frames (milliseconds_per_frame)."""
     flag = "true" if moving else "false"
     driver.execute_script(f"return window.matspray.timeFrames({WARM_UP}, {STEP}, {flag})")
-    return driver.execute_script(f"return window.matspray.timeFrames({FRAMES}, {STEP}, {flag})")
+    before = chromium_cpu_seconds(driver)
+    wall = driver.execute_script(f"return window.matspray.timeFrames({FRAMES}, {STEP}, {flag})")
+    return wall, (chromium_cpu_seconds(driver) - before) * 1000 / FRAMES
+
+
+def chromium_cpu_seconds(driver) -> float:
+    """User and system seconds of the driver's chromedriver and every process under it (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            children.setdefault(int(fields[1]), []).append(int(entry))
+    total, todo = 0, [driver.service.process.pid]
+    while todo:
+        pid = todo.pop()
+        todo += children.get(pid, [])
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
 
 
 # each pass of the page's frame drawn and waited for on its own (a pixel of the canvas read back), still and moving;
@@ -66,7 +102,7 @@ const out = {}, u = v.splatUniforms;
 for (const moving of [false, true]) {
   v.moving = moving; v.render();
   const into = (target, scene) => () => { r.setRenderTarget(target); r.render(scene, v.camera); };
-  const splats = () => { r.setRenderTarget(v.target); r.clear(true, false, false); r.render(v.splatScene, v.camera); };
+  const splats = () => { r.setRenderTarget(v.target); r.clear(true, false, false); r.render(v.shape.scene, v.camera); };
   const size = u.size.value.clone();
   const hidden = () => { u.size.value.set(1e9, 1e9); splats(); u.size.value.copy(size); };
   out[moving ? "moving" : "still"] = {
@@ -79,12 +115,27 @@ return out;
 """
 
 
+def pages(root: Path, count: int, scripts: list[str]) -> list[tuple[str, Path]]:
+    """The disk sphere's page under `root`, one copy per script in `scripts` (or the built one): (name, folder)."""
+    write_disk_sphere_page(root / "page", count)
+    if not scripts:
+        return [("page", root / "page")]
+    folders = []
+    for k, script in enumerate(scripts):
+        folder = root / f"page{k}"
+        shutil.copytree(root / "page", folder)
+        shutil.copyfile(script, folder / "matspray-web.js")
+        folders.append((script, folder))
+    return folders
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gaussians", type=int, nargs="+", default=[4000, 40000])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--passes", action="store_true", help="time each pass of a frame instead")
     parser.add_argument("--shapes", action="store_true", help="time each Gaussian drawn in a triangle, a rectangle")
+    parser.add_argument("--scripts", nargs="+", default=[], help="builds of the page's script to time, interleaved")
     args = parser.parse_args()
     from tests.browser import headless_chromium
 
@@ -93,8 +144,8 @@ def main() -> None:
     try:
         for count in args.gaussians:
             with tempfile.TemporaryDirectory() as tmp:
-                write_disk_sphere_page(tmp, count)
-                open_page(driver, Path(tmp))
+                folders = pages(Path(tmp), count, args.scripts)
+                open_page(driver, folders[0][1])
                 if args.passes:
                     for _ in range(args.repeats):
                         print(f"{count} Gaussians, ms a pass: {driver.execute_script(PASSES)}", flush=True)
@@ -105,12 +156,16 @@ def main() -> None:
                     print(f"{count} Gaussians as {shape}: {still:.0f} ms still, {moving:.0f} ms moving", flush=True)
                 if args.shapes:
                     continue
-                times = [
-                    (milliseconds_per_frame(driver), milliseconds_per_frame(driver, True)) for _ in range(args.repeats)
-                ]
-            for k, state in enumerate(("still", "moving")):
-                shown = ", ".join(f"{t[k]:.0f} ms ({1000 / t[k]:.1f} fps)" for t in times)
-                print(f"{count} Gaussians at 512 x 512, {state}: {shown}", flush=True)
+                times = {name: [] for name, _ in folders}
+                for _ in range(args.repeats):
+                    for name, folder in folders:
+                        open_page(driver, folder)
+                        times[name].append((frame_cost(driver), frame_cost(driver, True)))
+            for name, costs in times.items():
+                for k, state in enumerate(("still", "moving")):
+                    pairs = [t[k] for t in costs]
+                    shown = ", ".join(f"{w:.0f} ms ({1000 / w:.1f} fps, CPU {c:.0f} ms)" for w, c in pairs)
+                    print(f"{count} Gaussians at 512 x 512, {name}, {state}: {shown}", flush=True)
     finally:
         driver.quit()
 

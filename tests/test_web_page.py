@@ -143,6 +143,22 @@ def test_the_page_opens_from_file_and_draws_the_object(site, page):
     assert page.execute_script("return window.matspray.lights()")[:2] == ["estimated", "sky"]
 
 
+SCRIPT_INTERFACE = {"ready", "error", "lights", "setLight", "setTurn", "setExposure", "setCamera"}
+TEST_HOOKS = {"viewer", "timeFrames", "moving", "drawnAs", "forceShape", "timePrefilter"}
+
+
+@pytest.mark.slow
+def test_the_page_offers_its_test_hooks_only_when_its_address_asks(site, page):
+    # the same shipped script either way: the tests exercise the page as it ships (src/hooks.js says why)
+    try:
+        open_page(page, site[1], hooks=False)
+        assert set(page.execute_script("return Object.keys(window.matspray)")) == SCRIPT_INTERFACE
+        assert "Gaussians" in page.execute_script("return document.getElementById('status').textContent")
+    finally:
+        open_page(page, site[1])
+    assert set(page.execute_script("return Object.keys(window.matspray)")) == SCRIPT_INTERFACE | TEST_HOOKS
+
+
 @pytest.mark.slow
 def test_the_page_matches_matspray_relight_inside_the_object(site, page):
     from matspray.data.images import read_image
@@ -269,6 +285,11 @@ def test_a_drag_draws_small_frames_and_letting_go_a_full_one(site, page):
     assert not page.execute_script("return window.matspray.moving()") and not drawn_in_blocks(released, 2)
     inside = np.abs(released - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
     assert inside.mean() > 0.2 and psnr_inside(dragged, released, inside) > 15  # the same view, coarser
+    # while dragged a Gaussian blends nothing below alpha 1/32 (1/255 once let go): the faint rim goes
+    background = np.round(released[0, 0] * 255)
+    touched = [(np.abs(np.round(f * 255) - background).max(-1) > 1).mean() for f in (released, dragged)]
+    print(f"\npixels the Gaussians touch: {touched[0]:.3f} let go, {touched[1]:.3f} dragged")
+    assert touched[1] < 0.93 * touched[0], touched
 
 
 def linear_to_srgb_np(x: np.ndarray) -> np.ndarray:

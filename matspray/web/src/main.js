@@ -1,7 +1,9 @@
-// `matspray export --web DIR`: the asset relit in the browser on three.js (WebGL 2). The Gaussians' materials and
-// normals are rasterised into a G-buffer and shaded by split-sum image-based lighting, the two passes of
-// `matspray relight`; the light is prefiltered on the page (prefilter.js), so that a dropped .hdr / .exr lights the
-// asset as a packaged one does. window.matspray is the page's interface for scripts (the tests drive it).
+// `matspray export --web DIR`: the asset relit in the browser on three.js (WebGL 2). Each Gaussian is shaded by
+// split-sum image-based lighting, as `matspray relight` shades, and the shaded Gaussians are blended (shaders.js says
+// how and why it differs from relight's G-buffer); the light is prefiltered on the page (prefilter.js), so that a
+// dropped .hdr / .exr lights the asset as a packaged one does. window.matspray is the page's interface for
+// scripts: ready, error, lights(), setLight, setTurn, setExposure, setCamera (hooks.js adds the tests' hooks when
+// the page's address asks for them).
 
 import * as THREE from "three";
 import { EXRLoader } from "three/addons/loaders/EXRLoader.js";
@@ -18,6 +20,7 @@ import {
 } from "./shaders.js";
 import { sortBackToFront } from "./sort.js";
 import { orbitCamera } from "./orbit.js";
+import { installTestHooks, wantsTestHooks } from "./hooks.js";
 
 const BACKGROUND = [0.02, 0.02, 0.02]; // linear
 // while the view is dragged, the splats are blended at 1 / PREVIEW of the canvas's width and height (the splat pass's
@@ -27,6 +30,10 @@ const PREVIEW = 2;
 // triangle, else in a rectangle (two): on SwiftShader triangles were faster at 300, rectangles at 750 (docs/dev/web.md)
 const TRIANGLE_FOOTPRINT = 500;
 const SAMPLES = 256; // Gaussians whose footprints give the typical one
+// the alpha below which a Gaussian blends nothing: render.raster's 1/255 in the frame drawn when the view stops; while
+// it moves, a higher one, which shrinks each footprint's shape to fewer fragments (docs/dev/web.md)
+const CUTOFF = 1 / 255;
+const PREVIEW_CUTOFF = 1 / 32;
 
 function floatTexture(data, width, height) {
   const texture = new THREE.DataTexture(data, width, height, THREE.RGBAFormat, THREE.FloatType);
@@ -127,18 +134,17 @@ class Viewer {
     });
     // each Gaussian's footprint (PROJECT_FRAGMENT's three outputs), laid out as the splat textures
     this.projectTarget = new THREE.WebGLRenderTarget(s.width, s.height, {
-      count: 3,
+      count: 2,
       type: THREE.FloatType,
       format: THREE.RGBAFormat,
       minFilter: THREE.NearestFilter,
       magFilter: THREE.NearestFilter,
       depthBuffer: false,
     });
-    const [centreAxis, extent, conic] = this.projectTarget.textures;
+    const [centreAxis, extent] = this.projectTarget.textures;
     this.splatUniforms = {
       tCentreAxis: { value: centreAxis },
       tExtent: { value: extent },
-      tConic: { value: conic },
       tCentre: { value: floatTexture(s.centre, s.width, s.height) },
       tRotation: { value: floatTexture(s.rotation, s.width, s.height) },
       tScale: { value: floatTexture(s.scale, s.width, s.height) },
@@ -151,6 +157,7 @@ class Viewer {
       viewTranslation: { value: new THREE.Vector3() },
       intrinsics: { value: new THREE.Vector4() },
       size: { value: new THREE.Vector2() },
+      cutoff: { value: CUTOFF },
       eye: { value: new THREE.Vector3() },
     };
     for (const shape of this.shapes) {
@@ -254,6 +261,7 @@ class Viewer {
     // a blended pixel covers shrink x shrink of the canvas's: its centre projects to (canvas pixel) / shrink
     u.intrinsics.value.set(...cam.K.map((k) => k / shrink));
     u.size.value.set(this.target.width, this.target.height);
+    u.cutoff.value = this.moving ? PREVIEW_CUTOFF : CUTOFF;
     // the eye: -R^T t
     const eye = [0, 1, 2].map((c) => -(v[c] * v[3] + v[4 + c] * v[7] + v[8 + c] * v[11]));
     u.eye.value.set(...eye);
@@ -274,36 +282,13 @@ class Viewer {
     this.renderer.render(this.projectScene, this.camera);
     this.renderer.setRenderTarget(this.target);
     this.renderer.clear(true, false, false);
-    const small = this.footprint / (shrink * shrink) < TRIANGLE_FOOTPRINT;
+    // the footprint's shape reaches 2 ln(1 / cutoff) variances each way, the typical footprint's 2 ln 255
+    const blended = (this.footprint * Math.log(u.cutoff.value)) / Math.log(CUTOFF) / (shrink * shrink);
+    const small = blended < TRIANGLE_FOOTPRINT;
     this.shape = this.shapes[(this.forcedShape ?? (small ? 3 : 6)) === 3 ? 1 : 0];
     this.renderer.render(this.shape.scene, this.camera);
     this.renderer.setRenderTarget(null);
     this.renderer.render(this.encodeScene, this.camera);
-  }
-
-  // milliseconds to prefilter the current light again (what a dropped file costs besides reading it)
-  timePrefilter() {
-    const light = this.lights.entries[this.lightIndex];
-    const start = performance.now();
-    prefilter(light.rgb, light.height);
-    return performance.now() - start;
-  }
-
-  // milliseconds per frame over `frames` frames, each turned by `step` degrees (sorting included), waiting for
-  // each to finish (a pixel read back); `moving`: as while the view is dragged (PREVIEW), else full size
-  timeFrames(frames, step, moving = false) {
-    const gl = this.renderer.getContext();
-    const pixel = new Uint8Array(4);
-    this.moving = moving;
-    const start = performance.now();
-    for (let i = 0; i < frames; i++) {
-      this.turn += step;
-      this.render();
-      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);
-    }
-    const ms = (performance.now() - start) / frames;
-    this.moving = false;
-    return ms;
   }
 }
 
@@ -410,7 +395,6 @@ async function start() {
     });
     useLight(0);
     Object.assign(api, {
-      viewer,
       lights: () => lights.entries.map((e) => e.name),
       setLight: (name) => useLight(lights.entries.findIndex((e) => e.name === name)),
       setCamera: (viewmat, K, width, height) => {
@@ -428,17 +412,9 @@ async function start() {
         viewer.exposure = stops;
         viewer.render();
       },
-      timeFrames: (frames, step, moving) => viewer.timeFrames(frames, step, moving),
-      moving: () => viewer.moving,
-      // [the typical footprint, the last frame's shape]; forceShape("triangles" | "rectangles" | null: by footprint)
-      drawnAs: () => [viewer.footprint, viewer.shape.indices === 3 ? "triangles" : "rectangles"],
-      forceShape: (shape) => {
-        viewer.forcedShape = shape && { triangles: 3, rectangles: 6 }[shape];
-        viewer.render();
-      },
-      timePrefilter: () => viewer.timePrefilter(),
-      ready: true,
     });
+    if (wantsTestHooks(window.location.search)) installTestHooks(api, viewer);
+    api.ready = true;
     status.textContent = `${asset.meta.count} Gaussians`;
   } catch (error) {
     api.error = String(error && error.stack ? error.stack : error);

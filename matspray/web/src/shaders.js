@@ -6,10 +6,10 @@
 //    normals or materials overlap (measured in docs/dev/web.md).
 // 2. PROJECT: one fragment per Gaussian projects it (its footprint on the screen); the splat pass only reads that.
 // 3. SPLAT: the Gaussians back to front, premultiplied "over", onto the background (the same sums as `render.raster`'s
-//    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255,
-//    drawn as rectangles along the axes of the ellipse where alpha reaches 1/255, or, for small footprints, as one
-//    triangle around that ellipse (octagons, 17 % fewer fragments, were slower: SwiftShader pays per triangle and
-//    for the 2 x 2 pixel blocks along each thin triangle's edges).
+//    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255
+//    (more while the view moves), drawn as rectangles along the axes of the ellipse where alpha reaches that, or, for
+//    small footprints, as one triangle around that ellipse (octagons, 17 % fewer fragments, were slower: SwiftShader
+//    pays per triangle and for the 2 x 2 pixel blocks along each thin triangle's edges).
 // 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs (while the view moves, the
 //    splats are blended at a fraction of the canvas's size and each blended pixel fills a block of the canvas).
 
@@ -31,26 +31,27 @@ uniform mat3 viewRotation;
 uniform vec3 viewTranslation;
 uniform vec4 intrinsics;     // fx fy cx cy
 uniform vec2 size;           // width height in pixels
+uniform float cutoff;        // the alpha below which a Gaussian blends nothing (CUTOFF in main.js)
 `;
 
-// PROJECT: each Gaussian's footprint, once (the splat pass's four vertices a Gaussian only read it): its centre and
-// axes in gl_FragCoord's frame (rows from the bottom), the half sides of the rectangle around the ellipse where
-// alpha falls to 1/255 (0 when it is not drawn), log2(opacity), and the conic in log2 units:
-// alpha = opacity exp(-d^T conic d / 2) = exp2(log2(opacity) - d^T conic d / (2 ln 2))
+// PROJECT: each Gaussian's footprint, once (the splat pass's vertices only read it): its centre and major axis in
+// gl_FragCoord's frame (rows from the bottom), the half sides of the rectangle around the ellipse where alpha falls
+// to the cutoff (0 when it is not drawn), and those half sides in the ellipse's own units p, where
+// alpha = opacity exp(-d^T conic d / 2) = opacity exp2(-|p|^2), p = (d.major, d.minor) / sqrt(2 ln 2 (l1, l2))
+// for the footprint's eigenvalues l1 >= l2 and d the pixel's offset from the centre: p is linear in the pixel, so
+// the splat pass interpolates it from the corners and its fragments only square it (docs/dev/web.md)
 export const PROJECT_FRAGMENT = /* glsl */ `${FETCH}${VIEW}
 layout(location = 0) out vec4 outCentreAxis;  // centre xy, major axis xy
-layout(location = 1) out vec4 outExtent;      // half sides along the axes, log2(opacity), unused
-layout(location = 2) out vec4 outConic;       // xx, 2 xy, yy terms, unused
+layout(location = 1) out vec4 outExtent;      // half sides along the axes: in pixels, in p's units
 
 void main() {
   outCentreAxis = vec4(0.0);
   outExtent = vec4(0.0);
-  outConic = vec4(0.0);
   ivec2 uv = ivec2(gl_FragCoord.xy);  // this Gaussian's texel
   vec4 centre = texelFetch(tCentre, uv, 0);
   vec3 t = viewRotation * centre.xyz + viewTranslation;
   float opacity = centre.w;
-  if (t.z <= 0.01 || opacity < 1.0 / 255.0) return;
+  if (t.z <= 0.01 || opacity < cutoff) return;
   vec4 q = texelFetch(tRotation, uv, 0);
   vec4 sr = texelFetch(tScale, uv, 0);
   float w = q.x, x = q.y, y = q.z, z = q.w;
@@ -71,14 +72,15 @@ void main() {
   float cyy = dot(b, sigma * b) + 0.3;
   float det = cxx * cyy - cxy * cxy;
   if (det <= 0.0) return;
-  // in gl_FragCoord's frame, whose rows run up where the camera's run down: y and the cross term change sign
-  outConic = vec4(cyy, 2.0 * cxy, cxx, 0.0) / (det * 2.0 * 0.6931471805599453);
   float mid = 0.5 * (cxx + cyy);
   float root = sqrt(max(mid * mid - det, 0.0));
-  float reach = 2.0 * log(255.0 * opacity);
+  float reach = 2.0 * log(opacity / cutoff);
   vec2 axis = abs(cxy) > 1e-12 ? normalize(vec2(mid + root - cyy, cxy)) : (cxx >= cyy ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
+  vec2 eigen = vec2(mid + root, det / (mid + root));
+  vec2 halfSide = sqrt(reach * eigen) + 0.5;
+  // in gl_FragCoord's frame, whose rows run up where the camera's run down: the axis's y changes sign
   outCentreAxis = vec4(fx * px + cx, size.y - (fy * py + cy), axis.x, -axis.y);
-  outExtent = vec4(sqrt(reach * vec2(mid + root, max(mid - root, 0.0))) + 0.5, log2(opacity), 0.0);
+  outExtent = vec4(halfSide, halfSide * inversesqrt(2.0 * 0.6931471805599453 * eigen));
 }`;
 
 // four vertices a Gaussian around its rectangle, or three around its ellipse's circumscribed triangle (the unit
@@ -91,16 +93,13 @@ precision highp float;
 precision highp int;
 precision highp sampler2D;
 uniform sampler2D tOrder;    // the Gaussians' indices, back to front (one float each)
-uniform sampler2D tColour;   // each Gaussian's shaded linear colour (the SHADE pass)
+uniform sampler2D tColour;   // each Gaussian's shaded linear colour and opacity (the SHADE pass)
 uniform sampler2D tCentreAxis;  // the PROJECT pass's
 uniform sampler2D tExtent;
-uniform sampler2D tConic;
 uniform int texWidth;
 uniform vec2 size;           // width height in pixels
-flat out vec2 vCentre;       // in gl_FragCoord's frame: rows from the bottom
-flat out vec3 vConic;        // the quadratic form's terms, in log2 units
-flat out float vLogOpacity;  // log2(opacity)
-flat out vec3 vColour;
+out vec2 vLocal;             // p (PROJECT_FRAGMENT): alpha = opacity exp2(-|p|^2)
+flat out vec4 vPremultiplied;  // colour x opacity, opacity
 
 void main() {
   // four vertices a Gaussian, drawn without instancing (SwiftShader runs each instance as a draw of its own)
@@ -117,28 +116,28 @@ void main() {
   if (extent.x <= 0.0) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
   vec4 centreAxis = texelFetch(tCentreAxis, uv, 0);
   vec2 axis = centreAxis.zw;
-  vec2 pixel = centreAxis.xy + position.x * extent.x * axis + position.y * extent.y * vec2(-axis.y, axis.x);
+  vec2 minor = vec2(-axis.y, axis.x);
+  // on the 1/16 pixel grid that rasterisers snap vertices to (GLES asks at least 4 subpixel bits), so that p,
+  // interpolated from the corners where they are drawn, is p at each pixel (unsnapped, it strays by up to 5 %)
+  vec2 pixel = round(16.0 * (centreAxis.xy + position.x * extent.x * axis + position.y * extent.y * minor)) / 16.0;
   gl_Position = vec4(pixel / size * 2.0 - 1.0, 0.0, 1.0);
-  vCentre = centreAxis.xy;
-  vConic = texelFetch(tConic, uv, 0).xyz;
-  vLogOpacity = extent.z;
-  vColour = texelFetch(tColour, uv, 0).rgb;
+  vec2 d = pixel - centreAxis.xy;
+  vLocal = vec2(dot(d, axis), dot(d, minor)) * extent.zw / extent.xy;
+  vec4 colour = texelFetch(tColour, uv, 0);
+  vPremultiplied = vec4(colour.rgb * colour.a, colour.a);
 }`;
 }
 
 export const SPLAT_FRAGMENT = /* glsl */ `
 precision highp float;
-flat in vec2 vCentre;
-flat in vec3 vConic;
-flat in float vLogOpacity;
-flat in vec3 vColour;
+in vec2 vLocal;
+flat in vec4 vPremultiplied;
+uniform float cutoff;
 out vec4 colour;
 
 void main() {
-  vec2 d = gl_FragCoord.xy - vCentre;  // the pixel's centre
-  float alpha = min(0.999, exp2(vLogOpacity - vConic.x * d.x * d.x - vConic.z * d.y * d.y - vConic.y * d.x * d.y));
-  alpha = alpha < 1.0 / 255.0 ? 0.0 : alpha;  // a select, not a discard: cheaper in a SIMD software rasteriser
-  colour = vec4(vColour * alpha, alpha);
+  vec4 blended = vPremultiplied * exp2(-dot(vLocal, vLocal));
+  colour = blended.a < cutoff ? vec4(0.0) : blended;  // a select, not a discard: cheaper in a SIMD rasteriser
 }`;
 
 export const SCREEN_VERTEX = /* glsl */ `
@@ -229,6 +228,8 @@ void main() {
   vec3 specular = (1.0 - t) * lookup(levelPlace[low], lobe) + t * lookup(levelPlace[low + 1], lobe);
   vec3 irradiance = lookup(levelPlace[LEVELS], n);
   vec3 rgb = irradiance * albedo * (1.0 - metallic) / 3.14159265358979 + specular * (f0 * ab.x + ab.y);
-  colour = vec4(rgb * exposure, 1.0);
+  // the opacity rides along for the splat pass; clamped as render.raster clamps alpha (an opacity of 1 gives
+  // 0.999 exp2(-|p|^2) where it gave min(0.999, exp2(-|p|^2)): 0.001 apart at most)
+  colour = vec4(rgb * exposure, min(texelFetch(tCentre, p, 0).w, 0.999));
 }`;
 }
