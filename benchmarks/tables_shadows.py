@@ -1,6 +1,7 @@
-"""The README's table of baked shadows (`--set shadows=on`) against the default unshadowed shading: the same
-development objects, error model and variants, one `benchmarks.generalise` pass with each shading (the second reuses
-the first's predictions, geometry and lift), relighting PSNR per object and the mean."""
+"""The real development objects' tables: the README's table of baked shadows (`--set shadows=on`) against the
+default unshadowed shading (the same objects, error model and variants, one `benchmarks.generalise` pass with each
+shading, the second reusing the first's predictions, geometry and lift), relighting PSNR per object and the mean;
+and docs/dev/softmax.md's table of the two forms of the ablation without the softmax, from a third pass."""
 
 from __future__ import annotations
 
@@ -73,7 +74,29 @@ def table_shadows_mean(results: Path, names: tuple[str, str] = SHADOWS_REAL_DEV)
     return "\n".join(lines)
 
 
+NO_SOFTMAX_RAW = "generalise-real-dev-no-softmax-raw.json"  # --variants no-softmax --setting ...unconstrained=raw
+
+
+def table_no_softmax_forms(results: Path, names: tuple[str, str] = (SHADOWS_REAL_DEV[0], NO_SOFTMAX_RAW)) -> str:
+    """Relighting PSNR (dB) of `full` and of `no-softmax` with our weights (offsets from the projection average) and
+    with the raw weights (the released code's merger without its softmax), per object and the mean."""
+    ours, raw = (json.loads((results / name).read_text()) for name in names)
+    lines = []
+    for model in [m for m in ours["models"] if m in raw["models"]]:
+        first, second = relight_by_object(ours, model), relight_by_object(raw, model)
+        both = [name for name in first if name in second]
+        rows = [(n, first[n]["full"], first[n]["no-softmax"], second[n]["no-softmax"]) for n in both]
+        rows.append((f"**mean of {len(both)}**", *(sum(r[i] for r in rows) / len(rows) for i in (1, 2, 3))))
+        lines += [
+            f"| object (`{model}`) | full | no-softmax, offset weights | no-softmax, raw weights |",
+            "| --- | ---: | ---: | ---: |",
+            *(f"| {n} | {a:.2f} | {b:.2f} | {c:.2f} |" for n, a, b, c in rows),
+        ]
+    return "\n".join(lines)
+
+
 SHADOW_TABLES = {
+    "no-softmax-forms": (table_no_softmax_forms, [SHADOWS_REAL_DEV[0], NO_SOFTMAX_RAW]),
     "shadows-real-dev": (table_shadows, list(SHADOWS_REAL_DEV)),
     "shadows-real-dev-mean": (table_shadows_mean, list(SHADOWS_REAL_DEV)),
 }

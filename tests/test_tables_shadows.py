@@ -2,7 +2,7 @@ import json
 
 import pytest
 
-from benchmarks.tables_shadows import table_shadows, table_shadows_mean
+from benchmarks.tables_shadows import table_no_softmax_forms, table_shadows, table_shadows_mean
 
 
 def report(figures: dict[str, dict[str, float]]) -> dict:
@@ -55,4 +55,19 @@ def test_shadow_mean_table_has_one_row_per_shading(tmp_path):
         "| --- | ---: | ---: | ---: |",
         "| unshadowed (the default) | 25.00 | 24.00 | 25.50 |",
         "| baked shadows (`--set shadows=on`) | 26.00 | 24.50 | 26.50 |",
+    ]
+
+
+def test_no_softmax_forms_table_puts_the_raw_pass_beside_the_default(tmp_path):
+    ours = {
+        "a": {"full": 25.0, "proj-average": 24.0, "no-softmax": 25.5},
+        "b": {"full": 27.0, "proj-average": 26.0, "no-softmax": 26.5},
+    }
+    raw = {"b": {"no-softmax": 26.0}, "a": {"no-softmax": 24.0}}
+    (tmp_path / "ours.json").write_text(json.dumps(report(ours)))
+    (tmp_path / "raw.json").write_text(json.dumps(report(raw)))
+    assert table_no_softmax_forms(tmp_path, ("ours.json", "raw.json")).splitlines()[2:] == [
+        "| a | 25.00 | 25.50 | 24.00 |",
+        "| b | 27.00 | 26.50 | 26.00 |",
+        "| **mean of 2** | 26.00 | 26.00 | 25.00 |",
     ]
