@@ -15,8 +15,9 @@ both columns where a part exists in both:
 
     python -m benchmarks.shadow_cost [--gaussians 12000] [--views 8] [--resolution 96] [--repeats 5] [--json FILE]
 
-Run it under `MATSPRAY_THREADS=1` (one torch thread, and as many for numba) on a quiet machine; the figures are wall
-time of this process.
+Run it under `MATSPRAY_THREADS=1` (one torch thread, and as many for numba): the figures are the CPU time of this
+process (`time.process_time`), which on a shared machine moves less with the other processes' load than wall time
+does (on one thread it is the compute time; a busy machine still slows it through shared caches and memory).
 """
 
 from __future__ import annotations
@@ -111,9 +112,9 @@ def refine_inputs(count: int, views: int, resolution: int) -> tuple[RefineInputs
     geometry = Gaussians(
         *(getattr(gaussians, f)[kept] for f in ("means", "log_scales", "quats", "opacity_logits", "sh"))
     )
-    start = time.perf_counter()
+    start = time.process_time()
     visibility = bake_visibility(geometry, VisibilityConfig())
-    bake = time.perf_counter() - start
+    bake = time.process_time() - start
     bounds = torch.stack([geometry.means.amin(0), geometry.means.amax(0)])
     inputs = RefineInputs(geometry, normals[kept], lifted.values, lifted.seen, photos, maps, bounds, visibility)
     return inputs, bake
@@ -126,10 +127,10 @@ def timed_ms(function, calls: list, repeats: int) -> tuple[float, float]:
         function(*args)  # warm-up
     rounds = []
     for _ in range(repeats):
-        start = time.perf_counter()
+        start = time.process_time()
         for args in calls:
             function(*args)
-        rounds.append(1000.0 * (time.perf_counter() - start) / len(calls))
+        rounds.append(1000.0 * (time.process_time() - start) / len(calls))
     return min(rounds), statistics.median(rounds)
 
 
@@ -242,8 +243,8 @@ def main(argv=None) -> None:
         f"{len(inputs.gaussians)} Gaussians ({seen:.0f} seen per view), {args.views} views of {args.resolution} px, "
         f"{inputs.visibility.shape[1]} directions, torch threads {threads}"
     )
-    print(f"bake: {bake:.2f} s")
-    print("| part | shadows off, ms (best / median) | shadows on, ms (best / median) |\n| --- | --- | --- |")
+    print(f"bake: {bake:.2f} s (CPU)")
+    print("| part | shadows off, CPU ms (best / median) | shadows on, CPU ms (best / median) |\n| --- | --- | --- |")
     names = list(dict.fromkeys([*rows["off"], *rows["on"]]))
     for name in names:
         cells = [f"{rows[m][name][0]:.2f} / {rows[m][name][1]:.2f}" if name in rows[m] else "" for m in ("off", "on")]
