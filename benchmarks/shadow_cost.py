@@ -9,7 +9,9 @@ Printed, in milliseconds (best of --repeats rounds of all the views each, and th
 both columns where a part exists in both:
   - bake: the shadow maps of every direction (seconds, once per run);
   - step: one whole refinement step (`step_losses`, backward, Adam), shadows off and on;
-  - gaussian_shadows: the shadow factors of a view's Gaussians, forward, and forward + backward;
+  - gaussian_shadows: the shadow factors of a view's Gaussians, forward, and forward + backward; and forward +
+    backward taking turns with the formula it replaced, op by op (`tests/test_shadow_factors.py`'s reference), on
+    the same inputs;
   - blend: the sparse blend of the per-Gaussian features (8 channels off, 14 on), forward + backward;
   - terms: the view's loss terms (the split-sum shading, SSIM, L1; shadowed on), forward + backward.
 
@@ -31,10 +33,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from matspray.data import View
 from matspray.device import configure_threads
 from matspray.gaussians import Gaussians
+from matspray.material import ROUGHNESS_INDEX
 from matspray.method.asset import Asset
 from matspray.method.lift import LiftConfig, lift
 from matspray.method.refine.loop import RefineConfig, RefineInputs, TrainingViews, refine, starting_light, step_losses
@@ -47,24 +51,23 @@ from matspray.render.backend import rendering_with
 from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.lights import builtin_envmap
-from matspray.render.shade.visibility import VisibilityConfig, bake_visibility, gaussian_shadows
+from matspray.render.shade.visibility import (
+    VisibilityConfig,
+    bake_visibility,
+    gaussian_shadows,
+    light_cells,
+    visibility_rows,
+)
 from matspray.synth.cameras import make_cameras
 from matspray.synth.shapes import composite
 
 
 # ------------------------------------------------------------------------------------------ the object
-def quaternion_z_to(normals: torch.Tensor) -> torch.Tensor:  # [N, 3] unit -> [N, 4] (w, x, y, z) turning +z onto n
-    z = torch.tensor([0.0, 0.0, 1.0]).expand_as(normals)
-    axis = torch.linalg.cross(z, normals)
-    sin = axis.norm(dim=-1, keepdim=True)
-    angle = torch.atan2(sin, normals[:, 2:3])
-    axis = torch.where(sin > 1e-8, axis / sin.clamp_min(1e-8), torch.tensor([1.0, 0.0, 0.0]))
-    return torch.cat([torch.cos(angle / 2), axis * torch.sin(angle / 2)], dim=-1)
-
-
 def composite_disks(count: int, seed: int = 0) -> tuple[Gaussians, torch.Tensor, torch.Tensor]:
     """`count` flat opaque disks on the composite object's surface, area-uniform, each part one random material;
     returns Gaussians, normals [N, 3], materials [N, 5]."""
+    from tests.scenes import quaternion_z_to  # the disks' rotations, as the tests' disk sphere has them
+
     rng = np.random.default_rng(seed)
     parts = composite(rng)
     triangles = np.concatenate([p.vertices[p.faces] for p in parts])  # [F, 3, 3]
@@ -134,6 +137,20 @@ def timed_ms(function, calls: list, repeats: int) -> tuple[float, float]:
     return min(rounds), statistics.median(rounds)
 
 
+def interleaved(functions: dict, indices: list, repeats: int) -> dict[str, tuple[float, float]]:
+    """`timed_ms` of each function over `indices`, the functions taking turns round by round (the same load)."""
+    rounds = {name: [] for name in functions}
+    for function in functions.values():
+        function(indices[0])  # warm-up
+    for _ in range(repeats):
+        for name, function in functions.items():
+            start = time.process_time()
+            for i in indices:
+                function(i)
+            rounds[name].append(1000.0 * (time.process_time() - start) / len(indices))
+    return {name: (min(r), statistics.median(r)) for name, r in rounds.items()}
+
+
 class Refinement:
     """One refinement's state (`refine`'s set-up, without warm-up) for stepping a chosen view by hand."""
 
@@ -188,6 +205,21 @@ def part_timings(run: Refinement, shadowed: bool, repeats: int) -> dict[str, tup
             out.sum().backward()
 
     if shadowed:
+        from tests.test_shadow_factors import reference_shadow_factors  # the formula op by op, as it was
+
+        def formula(i: int) -> None:  # `gaussian_shadows` with the old formula: the same inputs, forward + backward
+            p, seen = prepared[i], prepared[i]["seen"]
+            normals = F.normalize(p["normals"][seen], dim=-1, eps=1e-12)
+            view_dirs = F.normalize(t.views[i].camera.center.to(normals) - t.frozen.means[seen], dim=-1)
+            v = t.visibility[seen]
+            cells = light_cells(p["light"], visibility_rows(v))
+            reference_shadow_factors(
+                v, normals, view_dirs, p["materials"][seen, ROUGHNESS_INDEX], cells
+            ).sum().backward()
+
+        pair = interleaved({"now": lambda i: shadows(i, True), "formula": formula}, list(views), repeats)
+        found["gaussian_shadows forward+backward, interleaved"] = pair["now"]
+        found["the formula op by op forward+backward, interleaved"] = pair["formula"]
         with torch.no_grad():
             found["gaussian_shadows forward"] = timed_ms(shadows, [(i, False) for i in views], repeats)
         found["gaussian_shadows forward+backward"] = timed_ms(shadows, [(i, True) for i in views], repeats)
