@@ -195,9 +195,9 @@ def view_losses(
         light is not None and training.visibility is not None
     ):  # only for the Gaussians this view sees: the rest blend with weight 0
         seen = frozen.visible_ids[index]
-        shadows = gaussian_shadows(
-            training.visibility[seen], oriented[seen], frozen.means[seen], materials[seen], view.camera, light
-        )
+        # index_select: the same rows as indexing by `seen`, several times faster on the CPU for [N, D] visibility
+        picked = (x.index_select(0, seen) for x in (training.visibility, oriented, frozen.means, materials))
+        shadows = gaussian_shadows(*picked, view.camera, light)
         features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
     blended, alpha = frozen.render(index, torch.cat(features, dim=-1))  # [H, W, 8 or 14], [H, W]
     material = None

@@ -24,12 +24,14 @@ Interreflections are not modelled.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+from torch.autograd.function import once_differentiable
 from tqdm import tqdm
 
 from matspray.data.camera import Camera
@@ -63,6 +65,17 @@ def visibility_directions(rows: int, device=None) -> tuple[Tensor, Tensor]:  # -
     """The grid's cell centres and solid angles, in the lat-long order of `downsample_latlong(map, rows)`."""
     directions = pixel_directions(rows, 2 * rows, device=device).reshape(-1, 3)
     return directions, pixel_solid_angles(rows, 2 * rows, device=device).reshape(-1)
+
+
+@functools.cache
+def grid_rows(rows: int, device: torch.device, dtype: torch.dtype) -> tuple[Tensor, Tensor]:  # -> [3, D], [3, D]
+    """`visibility_directions(rows)` as the contiguous [3, D] transposes that `shadow_factors` multiplies by: the
+    directions, and the directions times their solid angles (made once per grid, device and dtype: every refinement
+    step reads them)."""
+    with torch.inference_mode(False):  # kept: tensors that autograd may save, whatever mode the first call ran in
+        directions, solid_angles = visibility_directions(rows, device=device)
+        directions_t = directions.to(dtype).t().contiguous()
+        return directions_t, directions_t * solid_angles.to(dtype)
 
 
 def shadow_camera(direction: Tensor, center: Tensor, radius: float, config: VisibilityConfig) -> Camera:
@@ -138,9 +151,15 @@ def open_side(visibility: Tensor, facing: Tensor, solid_angles: Tensor) -> Tenso
     a diffuse factor of 0.80 under a uniform light (docs/dev/relighting-gap.md)."""
     weighted = facing * solid_angles  # [N, D]
     balance = (visibility.to(facing.dtype) * weighted).sum(-1, keepdim=True)  # [N, 1] > 0: more visible in front
-    # where both sides are about as visible the viewer's turn stays, so that rounding cannot flip it
-    behind = balance < -TIE * weighted.abs().sum(-1, keepdim=True)
-    return 1.0 - 2.0 * behind.to(facing.dtype)
+    return side_of(balance, weighted.abs().sum(-1, keepdim=True))
+
+
+def side_of(balance: Tensor, spread: Tensor) -> Tensor:  # [N, 1], [N, 1] -> [N, 1]
+    """`open_side` from the visible directions' cosine-weighted sum `balance` and the sum of all |cosines| `spread`
+    (both weighted by the solid angles): where both sides are about as visible the viewer's turn stays, so that
+    rounding cannot flip it."""
+    behind = balance < -TIE * spread
+    return 1.0 - 2.0 * behind.to(balance.dtype)
 
 
 def shadow_factors(
@@ -151,28 +170,90 @@ def shadow_factors(
     light_cells: Tensor,  # [rows, 2 rows, 3] the light averaged over the grid's cells (`downsample_latlong`)
 ) -> Tensor:  # [N, 6]: diffuse RGB and specular RGB scale factors in [0, 1]
     """How much of the split-sum diffuse and specular light actually reaches each Gaussian, over the hemisphere
-    on the open side of its plane (`open_side`)."""
+    on the open side of its plane (`open_side`). The [N, D] part (the kernels and their sums against the light) is
+    one autograd Function (`KernelSums`): this runs at every refinement step."""
     rows = light_cells.shape[0]
     if visibility.shape[1] != 2 * rows * rows:
         raise ValueError(f"visibility has {visibility.shape[1]} directions but the light grid has {2 * rows * rows}")
-    directions, solid_angles = visibility_directions(rows, device=normals.device)
-    light = light_cells.reshape(-1, 3).to(normals.dtype)  # [D, 3]
-    facing = normals @ directions.t()  # [N, D]
-    side = open_side(visibility, facing, solid_angles)  # [N, 1]
-    normals = normals * side  # a product by +-1: exact, so the cosines below are `facing`'s, turned
-    cosine = (facing * side).clamp_min(0.0) * solid_angles  # [N, D]
+    dtype = normals.dtype
+    directions_t, weighted_t = grid_rows(rows, normals.device, dtype)  # [3, D] each
+    light_t = light_cells.reshape(-1, 3).to(dtype).t().contiguous()  # [3, D]
+    visibility = visibility.to(dtype)
+    with torch.no_grad():  # a sign: `open_side` of the normals' cosines, its balance as one product over the directions
+        facing = normals @ weighted_t  # [N, D] cosines times solid angles
+        balance = (normals * (visibility @ weighted_t.t())).sum(-1, keepdim=True)  # [N, 1]
+        side = side_of(balance, facing.abs().sum(-1, keepdim=True))  # [N, 1]
+    normals = normals * side  # a product by +-1: exact, so the cosines of the turned normals are `facing`'s, turned
     lobe_dir = F.normalize(specular_direction(normals, view_dirs, roughness), dim=-1, eps=1e-12)
     alpha = roughness_to_alpha(roughness)
-    kappa = (0.5 / alpha.square().clamp_min(1e-6)).clamp(max=MAX_KAPPA)[
-        :, None
-    ]  # reflected GGX lobe ~ vMF(1 / (2 alpha^2))
-    lobe = torch.exp(kappa * (lobe_dir @ directions.t() - 1.0)) * cosine  # [N, D]
+    # reflected GGX lobe ~ vMF(1 / (2 alpha^2))
+    kappa = (0.5 / alpha.square().clamp_min(1e-6)).clamp(max=MAX_KAPPA)[:, None]  # [N, 1]
+    sums = KernelSums.apply(
+        normals, kappa * lobe_dir, kappa, facing, side, visibility, weighted_t, directions_t, light_t
+    )
     factors = []
-    for kernel in (cosine, lobe):
-        lit = kernel @ light  # [N, 3]
-        shadowed = (kernel * visibility) @ light
+    for lit, shadowed in ((sums[0], sums[1]), (sums[2], sums[3])):  # [N, 3] each
         factors.append(torch.where(lit > 1e-12, shadowed / lit.clamp_min(1e-12), torch.ones_like(lit)))
     return torch.cat(factors, dim=-1).clamp(0.0, 1.0)
+
+
+class KernelSums(torch.autograd.Function):
+    """The light's sums over the directions of the diffuse and specular kernels, without and with the visibility:
+    for C_j = (n.w_j)+ dw_j and S_j = exp(kappa (d.w_j - 1)) C_j (`shadow_factors`),
+        sums [4, N, 3] = sum_j (C_j L_j, C_j V_j L_j, S_j L_j, S_j V_j L_j).
+
+    Autograd of the same expression walks [N, D] tensors about three times as often, and its [N, D] by [D, 3]
+    products take the CPU's slow layout; here the four kernels are one [4 N, D] buffer, each product over the
+    directions is one matrix product with the [D, 3] factor column-major (the transpose of a contiguous [3, D]),
+    and the backward pass works in place. Not twice differentiable."""
+
+    @staticmethod
+    def forward(
+        ctx,
+        turned: Tensor,  # [N, 3] the normals turned to their open side (only their gradient is read)
+        lobe_axis: Tensor,  # [N, 3] kappa d, d the specular lobe's unit direction
+        kappa: Tensor,  # [N, 1]
+        facing: Tensor,  # [N, D] the unturned normals' cosines times solid angles (no gradient; overwritten)
+        side: Tensor,  # [N, 1] +-1 (`open_side`): turned = normals * side
+        visibility: Tensor,  # [N, D]
+        weighted_t: Tensor,  # [3, D] directions times solid angles
+        directions_t: Tensor,  # [3, D]
+        light_t: Tensor,  # [3, D]
+    ) -> Tensor:  # [4, N, 3]
+        n, d = facing.shape
+        kernels = facing.new_empty(4, n, d)
+        cosine, cosine_seen, lobe, lobe_seen = kernels.unbind(0)
+        torch.mul(facing, side, out=cosine).clamp_min_(0.0)
+        torch.mul(cosine, visibility, out=cosine_seen)
+        spread = torch.addmm(-kappa, lobe_axis, directions_t).exp_()  # [N, D] exp(kappa (d.w_j - 1))
+        torch.mul(spread, cosine, out=lobe)
+        torch.mul(lobe, visibility, out=lobe_seen)
+        ctx.save_for_backward(kernels, spread, visibility, weighted_t, directions_t, light_t)
+        return (kernels.view(4 * n, d) @ light_t.t()).view(4, n, 3)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: Tensor):  # [4, N, 3]
+        kernels, spread, visibility, weighted_t, directions_t, light_t = ctx.saved_tensors
+        _, n, d = kernels.shape
+        grad = grad.contiguous().view(4 * n, 3)
+        needs = ctx.needs_input_grad
+        grad_turned = grad_axis = grad_kappa = grad_light = None
+        if needs[8]:
+            grad_light = grad.t() @ kernels.view(4 * n, d)  # [3, D]
+        if needs[0] or needs[1] or needs[2]:
+            cosine, _, lobe, _ = kernels.unbind(0)
+            parts = (grad @ light_t).view(4, n, d)  # each sum's gradient spread over the directions
+            grad_cosine = parts[0].addcmul_(visibility, parts[1])  # [N, D] through C alone
+            grad_lobe = parts[2].addcmul_(visibility, parts[3])  # [N, D] through S
+            if needs[0]:
+                # S = spread C; C is 0 behind the plane (its sign: a float mask, cheaper than a comparison's)
+                grad_cosine.addcmul_(grad_lobe, spread).mul_(cosine.sign())
+                grad_turned = grad_cosine @ weighted_t.t()  # [N, 3]
+            grad_exponent = grad_lobe.mul_(lobe)  # dS / d(kappa (d.w - 1)) = S
+            grad_axis = grad_exponent @ directions_t.t()  # [N, 3]
+            grad_kappa = -grad_exponent.sum(-1, keepdim=True)
+        return grad_turned, grad_axis, grad_kappa, None, None, None, None, None, grad_light
 
 
 def light_cells(light, rows: int) -> Tensor:  # Light | PrefilteredLight -> [rows, 2 rows, 3]
@@ -201,4 +282,4 @@ def gaussian_shadows(
     view_dirs = F.normalize(camera.center.to(means) - means, dim=-1)
     normals = F.normalize(normals, dim=-1, eps=1e-12)
     cells = light_cells(light, visibility_rows(visibility))
-    return shadow_factors(visibility.to(normals.dtype), normals, view_dirs, roughness, cells)
+    return shadow_factors(visibility, normals, view_dirs, roughness, cells)
