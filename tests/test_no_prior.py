@@ -9,17 +9,20 @@ from dataclasses import replace
 import pytest
 import torch
 
+from benchmarks.mapless_metallic import main as mapless_metallic
 from matspray.errors import ConfigError
 from matspray.eval.run_eval import evaluate_run
 from matspray.method.asset import read_asset
 from matspray.method.config import build_config, variant_refine_config
 from matspray.method.pipeline import Pipeline
-from matspray.method.refine.loop import refine
+from matspray.method.refine.loop import RefineConfig, refine
 from matspray.presets import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
 from matspray.rundir import RunDir
 from tests.conftest import run_cli
 from tests.reference_metrics import relighting_psnr
 from tests.test_readers import blender_folder
+
+DEFAULTS = RefineConfig()
 
 
 def test_no_prior_and_photos_only_are_the_variants_that_need_no_maps():
@@ -60,7 +63,8 @@ def test_the_variants_without_maps_read_neither_the_lifted_values_nor_the_maps(t
         assert all(("metallic_prior" in record) == (variant == "photos-only") for record in a.history), variant
 
 
-def test_a_run_without_a_predictor_makes_the_photos_only_asset_and_no_prior_on_request(tiny_object, tmp_path):
+@pytest.mark.slow
+def test_a_run_without_a_predictor_makes_the_photos_only_asset_and_no_prior_on_request(tiny_object, tmp_path, capsys):
     run = tmp_path / "run"
     config = build_config("test", predictor="none", **{"refine.iterations": 8})
     with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
@@ -88,6 +92,19 @@ def test_a_run_without_a_predictor_makes_the_photos_only_asset_and_no_prior_on_r
         reference = relighting_psnr(run, tiny_object, variant)
         assert metrics["table1"][LABELS[variant]]["relighting"]["psnr"] == pytest.approx(reference, abs=1e-6)
     assert "| Relighting |" in (run / "eval" / "tables.md").read_text()
+    # the development table of benchmarks.mapless_metallic reads both assets, as their stage records say they were made
+    bench = tmp_path / "bench" / "objects" / "tiny"
+    (bench / "runs").mkdir(parents=True)
+    (bench / "data").symlink_to(tiny_object)
+    (bench / "runs" / "run").symlink_to(run)
+    mapless_metallic([str(tmp_path / "bench")])
+    table = capsys.readouterr().out
+    psnr = {v: metrics["variants"][v]["summary"]["relighting"]["psnr"] for v in MAPLESS}
+    assert f"| no-prior | 8 | 0 | 0.5 | {metallic['no-prior']:.3f} | " in table, table
+    pulled = f"photos-only | 8 | {DEFAULTS.metallic_prior_weight:g} | {DEFAULTS.metallic_prior_start:g}"
+    assert f"| {pulled} | {metallic['photos-only']:.3f} | " in table, table
+    assert f"| mean of 1 |  | {pulled} | {metallic['photos-only']:.3f} | " in table, table
+    assert all(f" | {psnr[v]:.2f} | " in table for v in MAPLESS), (psnr, table)
 
 
 def test_photos_only_settings_change_neither_no_prior_nor_its_fingerprint():
