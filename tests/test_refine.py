@@ -75,7 +75,7 @@ def test_each_variant_runs(lifted_scene, variant):
     result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
     assert result.materials.shape == (len(gaussians), 5)
     assert torch.isfinite(result.materials).all()
-    assert (result.envmap is not None) == (variant in ("full", "no-softmax", "no-prior"))
+    assert (result.envmap is not None) == (variant in ("full", "no-softmax", "no-prior", "photos-only"))
 
 
 def test_unknown_variant_is_refused():
