@@ -12,7 +12,7 @@ from matspray.batch.demo import DEMO_SIZES
 from matspray.errors import ConfigError
 from matspray.eval.tables import average_tables
 from matspray.predictors.error_models import ERROR_MODELS
-from matspray.presets import BASELINE, LABELS
+from matspray.presets import BASELINE, LABELS, MAPLESS
 from matspray.presets import VARIANT_NAMES as VARIANTS
 from matspray.rundir import read_json
 
@@ -70,7 +70,8 @@ def model_summary(per_object: list[dict]) -> dict:
             ("no-softmax", "Without Softmax"),
         )
     }
-    relight[BASELINE] = table1.get(LABELS[BASELINE], {}).get("relighting", {}).get("psnr")
+    for name in MAPLESS:  # the variants without 2D maps: Table 1's columns
+        relight[name] = table1.get(LABELS[name], {}).get("relighting", {}).get("psnr")
     figures = [o["figures"] for o in per_object]
 
     def get(group, key):

@@ -10,7 +10,8 @@ Per capture, the `matspray` commands a user types, each in its own process:
 then `relight` under each light (the held-out test cameras) and once as a turntable (orbit MP4 over the light),
 `export` (RUN/export/NAME.glb, which the report and `matspray view` find), and `eval` (held-out photos scored inside the
 object mask; report.html with the photo credit). Neither capture has 2D material maps here (no diffusion weights), so
-the run makes the no-prior asset.
+the run makes the user's asset without maps (photos-only), which relight and export take, and beside it the paper's
+no-prior baseline, so that the evaluation scores both on the same geometry.
 
 Prints per capture: photos registered and mean reprojection error (skull), held-out novel-view PSNR / SSIM /
 LPIPS inside the object mask on views never trained on, the share of each held-out view the mask covers,
@@ -29,13 +30,16 @@ import sys
 import time
 from pathlib import Path
 
+from matspray.presets import BASELINE, MAPLESS_DEFAULT
+
 CAPTURES_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "captures"
 SKULL_CREDIT = (
     '"Photogrammetry Test Set: Skull - Cameramoves - Flash - No Background" by alansartlog '
     "(photogrammetry-test-sets), CC BY 4.0"
 )
 CREDITS = {"skull": SKULL_CREDIT, "stitch": "toy figure video frames from a public TensoRF user-data repository (MIT)"}
-VARIANT = "no-prior"
+VARIANT = MAPLESS_DEFAULT  # what a user's run without maps makes, relights and exports
+VARIANTS = ["--variant", VARIANT, BASELINE]  # and the paper's baseline beside it, scored by the same evaluation
 
 
 def command(args: list[str], log: Path) -> dict:
@@ -97,7 +101,10 @@ def run_capture(name: str, args, out_root: Path) -> dict:
         extra = [f"{key}={value}" for key, value in named.items() if value]
         extra = ["--set", *extra] if extra else []
         steps.append(
-            command(["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *extra, *compute], log)
+            command(
+                ["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *VARIANTS, *extra, *compute],
+                log,
+            )
         )
         relight = ["relight", "--run", str(run), "--variant", VARIANT, *compute]
         for light in args.lights:

@@ -14,6 +14,9 @@ The variants are the paper's ablations, one registry that refinement, the CLI, t
   proj-average  the mean of the projected per-view values; no training at all
   no-prior      free per-Gaussian materials from an uninformed grey, trained with the PBR loss alone and a
                 learnable light, no 2D maps at all: the R3DGS-like baseline of the paper's Table 1
+  photos-only   no-prior for a user's run without 2D maps (its default): a dielectric unless the photos demand
+                metal (the metallic starts at `refine.metallic_prior_start` and is pulled down by
+                `refine.metallic_prior_weight`); not the paper's baseline, which stays no-prior
 """
 
 from __future__ import annotations
@@ -246,6 +249,9 @@ class Variant:
     softmax: bool = True  # merger only: softmax over views (False: the paper's ablation)
     learns_light: bool = False  # trained with the PBR photometric loss and a learnable environment map
     uses_maps: bool = True  # reads the 2D material maps (lifted values, the 2D-map loss); False: needs no predictor
+    # a free source's metallic starts at refine.metallic_prior_start and is pulled down by refine.metallic_prior_weight
+    # (a dielectric unless the photos demand metal); only this variant reads those two settings
+    dielectric_prior: bool = False
 
     @property
     def trains(self) -> bool:
@@ -260,6 +266,7 @@ VARIANTS: dict[str, Variant] = {
         Variant("supervised", "Supervised", "free"),
         Variant("no-softmax", "Without Softmax", "merger", softmax=False, learns_light=True),
         Variant("no-prior", "No prior (R3DGS-like)", "free", learns_light=True, uses_maps=False),
+        Variant("photos-only", "Photos only", "free", learns_light=True, uses_maps=False, dielectric_prior=True),
     )
 }
 VARIANT_NAMES = tuple(VARIANTS)
@@ -273,6 +280,9 @@ PAPER_ABLATION = {"full": 29.164, "supervised": 24.809, "proj-average": 25.555}
 PAPER_SOFTMAX = {"full": 27.282, "no-softmax": 24.600}
 PAPER_BASELINE = {"full": 27.282, "no-prior": 25.483}
 MAPLESS = tuple(v.name for v in VARIANTS.values() if not v.uses_maps)  # what a run without 2D maps can make
+MAPLESS_DEFAULT = "photos-only"  # what it makes unless told: the user's asset (no-prior is the paper's baseline)
+# the asset a command takes from a run when none is named, the first of these the run has (else the first it has)
+DEFAULT_ASSETS = ("full", MAPLESS_DEFAULT)
 
 
 def get_variant(name: str) -> Variant:
@@ -282,10 +292,10 @@ def get_variant(name: str) -> Variant:
 
 
 def variants_for_maps(requested: tuple[str, ...] | list[str] | None, has_maps: bool) -> tuple[str, ...]:
-    """The variants a run refines: `requested`, or by default `full` (with 2D maps) or the variants that need none.
+    """The variants a run refines: `requested`, or by default `full` (with 2D maps) or `MAPLESS_DEFAULT` (without).
     Without maps, a requested variant that reads them is refused in one line."""
     if requested is None:
-        return ("full",) if has_maps else MAPLESS
+        return ("full",) if has_maps else (MAPLESS_DEFAULT,)
     for name in requested:
         if not has_maps and get_variant(name).uses_maps:
             raise ConfigError(

@@ -24,7 +24,7 @@ from matspray.errors import MatsprayError, RunError, file_error
 # callers import these from here too
 from matspray.files import read_json, to_plain, write_json, write_text_atomic  # noqa: F401
 from matspray.memory import peak_memory, release_free_memory
-from matspray.presets import VARIANT_NAMES, asset_stage
+from matspray.presets import DEFAULT_ASSETS, VARIANT_NAMES, asset_stage
 
 STAGE_RECORD = "stage.json"
 DATASET_RECORD = "the dataset record `matspray run` writes"  # what dataset.json holds, for messages
@@ -356,15 +356,16 @@ class RunDir:
         return [v for v in VARIANT_NAMES if self.path(asset_stage(v), "asset.ply").exists()]
 
     def default_variant(self) -> str:
-        """The asset a command takes when none is named: full when the run has it, else the first the run has (a run
-        made with `--predictor none` has only no-prior); RunError when it has none."""
+        """The asset a command takes when none is named: the first of `DEFAULT_ASSETS` the run has (full, else
+        photos-only, the default of a run made with `--predictor none`), else the first it has; RunError when it has
+        none."""
         variants = self.asset_variants()
         if not variants:
             raise RunError(
                 f"{self.root}: the run has no asset yet (no asset*/asset.ply); "
                 f"make it with `matspray run --data DATA --out {self.root}`"
             )
-        return "full" if "full" in variants else variants[0]
+        return next((v for v in DEFAULT_ASSETS if v in variants), variants[0])
 
 
 def _link_or_copy(source: str, target: str) -> None:

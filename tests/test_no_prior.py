@@ -1,5 +1,5 @@
-"""The no-prior variant (the paper's Table 1 baseline): materials from the PBR loss alone, no 2D maps read, and runs
-without a predictor (--predictor none)."""
+"""The variants without 2D maps: no-prior (the paper's Table 1 baseline: materials from the PBR loss alone, no 2D maps
+read) and photos-only (the same with a dielectric prior, what a run without a predictor makes by default)."""
 
 from __future__ import annotations
 
@@ -9,69 +9,115 @@ from dataclasses import replace
 import pytest
 import torch
 
+from benchmarks.mapless_metallic import main as mapless_metallic
 from matspray.errors import ConfigError
 from matspray.eval.run_eval import evaluate_run
+from matspray.method.asset import read_asset
 from matspray.method.config import build_config, variant_refine_config
 from matspray.method.pipeline import Pipeline
-from matspray.method.refine.loop import refine
+from matspray.method.refine.loop import RefineConfig, refine
 from matspray.presets import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
+from matspray.rundir import RunDir
 from tests.conftest import run_cli
 from tests.reference_metrics import relighting_psnr
 from tests.test_readers import blender_folder
 
+DEFAULTS = RefineConfig()
 
-def test_no_prior_is_the_only_variant_that_needs_no_maps():
-    assert MAPLESS == ("no-prior",) and "no-prior" in VARIANT_NAMES
-    variant = get_variant("no-prior")
-    assert variant.source == "free" and variant.learns_light and not variant.uses_maps
-    assert variants_for_maps(None, True) == ("full",) and variants_for_maps(None, False) == ("no-prior",)
+
+def test_no_prior_and_photos_only_are_the_variants_that_need_no_maps():
+    assert MAPLESS == ("no-prior", "photos-only") and set(MAPLESS) <= set(VARIANT_NAMES)
+    for name in MAPLESS:
+        variant = get_variant(name)
+        assert variant.source == "free" and variant.learns_light and not variant.uses_maps
+    assert [v.name for v in map(get_variant, VARIANT_NAMES) if v.dielectric_prior] == ["photos-only"]
+    assert variants_for_maps(None, True) == ("full",) and variants_for_maps(None, False) == ("photos-only",)
     assert variants_for_maps(["full", "no-prior"], True) == ("full", "no-prior")
+    assert variants_for_maps(["no-prior"], False) == ("no-prior",)
     with pytest.raises(
         ConfigError,
         match=r"^variant 'supervised' needs 2D material maps, and this run has none \(--predictor none\); "
-        r"give a predictor \(files:DIR, marigold, \.\.\.\) or ask for no-prior$",
+        r"give a predictor \(files:DIR, marigold, \.\.\.\) or ask for no-prior / photos-only$",
     ):
         variants_for_maps(["no-prior", "supervised"], False)
 
 
-def test_no_prior_reads_neither_the_lifted_values_nor_the_maps(tiny_object, tmp_path):
+def test_the_variants_without_maps_read_neither_the_lifted_values_nor_the_maps(tiny_object, tmp_path):
     config = build_config("test", predictor="simulated", **{"refine.iterations": 12})
     with Pipeline(tiny_object, tmp_path / "run", config, progress=False, log=lambda _: None) as pipeline:
         inputs = pipeline.refine_inputs()
-    settings = variant_refine_config(config, "no-prior")
     generator = torch.Generator().manual_seed(5)
     scrambled = replace(
         inputs,
         values=torch.rand(inputs.values.shape, generator=generator),
         targets=[torch.rand(t.shape, generator=generator) for t in inputs.targets],
     )
-    a, b = refine(inputs, settings, progress=False), refine(scrambled, settings, progress=False)
-    torch.testing.assert_close(a.materials, b.materials, rtol=0, atol=0)
-    assert all("material" not in record and "photo" in record for record in a.history)
-    # and it trained: the grey it starts from moved
-    assert (a.materials - 0.5).abs().max() > 1e-3
+    for variant in MAPLESS:
+        settings = variant_refine_config(config, variant)
+        a, b = refine(inputs, settings, progress=False), refine(scrambled, settings, progress=False)
+        torch.testing.assert_close(a.materials, b.materials, rtol=0, atol=0)
+        assert all("material" not in record and "photo" in record for record in a.history)
+        # and it trained: the grey it starts from moved
+        assert (a.materials - 0.5).abs().max() > 1e-3
+        # the metallic pull is photos-only's alone
+        assert all(("metallic_prior" in record) == (variant == "photos-only") for record in a.history), variant
 
 
-def test_a_run_without_a_predictor_makes_the_no_prior_asset_and_its_table_row(tiny_object, tmp_path):
+@pytest.mark.slow
+def test_a_run_without_a_predictor_makes_the_photos_only_asset_and_no_prior_on_request(tiny_object, tmp_path, capsys):
     run = tmp_path / "run"
     config = build_config("test", predictor="none", **{"refine.iterations": 8})
     with Pipeline(tiny_object, run, config, progress=False, log=lambda _: None) as pipeline:
         assets = pipeline.run_all()
-        assert list(assets) == ["no-prior"]
+        assert list(assets) == ["photos-only"]
+        assert RunDir(run).default_variant() == "photos-only"
         with pytest.raises(ConfigError, match="variant 'full' needs 2D material maps"):
             pipeline.refine("full")
+        assets |= pipeline.run_all(["no-prior"])  # the paper's baseline, on the same geometry
     assert not (run / "materials2d").exists() and not (run / "asset").exists()
-    assert (run / asset_stage("no-prior") / "asset.ply").exists() and (run / "lift" / "projected.pt").exists()
+    assert (run / asset_stage("photos-only") / "asset.ply").exists() and (run / "lift" / "projected.pt").exists()
+    # what commands take by default (relight, export, view, eval's report): the user's asset, not the baseline
+    assert RunDir(run).asset_variants() == ["no-prior", "photos-only"]
+    assert RunDir(run).default_variant() == "photos-only"
+    metallic = {v: float(read_asset(run / asset_stage(v)).materials[:, 4].mean()) for v in MAPLESS}
+    assert metallic["photos-only"] < metallic["no-prior"] - 0.1, metallic
     # without maps the lift only decides which Gaussians are seen: one ray per pixel, not the preset's 2 x 2
     lift_record = json.loads((run / "lift" / "stage.json").read_text())
     assert lift_record["settings"]["samples_per_side"] == 1 and lift_record["stats"]["samples_per_side"] == 1
     metrics = evaluate_run(run, progress=False)
-    assert set(metrics["variants"]) == {"no-prior"}
+    assert set(metrics["variants"]) == set(MAPLESS)
     assert "no 2D predictions: the run had none (--predictor none)" in metrics["notes"]
-    assert set(metrics["table1"]) == {LABELS["no-prior"]}
-    reference = relighting_psnr(run, tiny_object, "no-prior")
-    assert metrics["table1"][LABELS["no-prior"]]["relighting"]["psnr"] == pytest.approx(reference, abs=1e-6)
+    assert list(metrics["table1"]) == [LABELS["no-prior"], LABELS["photos-only"]]
+    for variant in MAPLESS:
+        reference = relighting_psnr(run, tiny_object, variant)
+        assert metrics["table1"][LABELS[variant]]["relighting"]["psnr"] == pytest.approx(reference, abs=1e-6)
     assert "| Relighting |" in (run / "eval" / "tables.md").read_text()
+    # the development table of benchmarks.mapless_metallic reads both assets, as their stage records say they were made
+    bench = tmp_path / "bench" / "objects" / "tiny"
+    (bench / "runs").mkdir(parents=True)
+    (bench / "data").symlink_to(tiny_object)
+    (bench / "runs" / "run").symlink_to(run)
+    mapless_metallic([str(tmp_path / "bench")])
+    table = capsys.readouterr().out
+    psnr = {v: metrics["variants"][v]["summary"]["relighting"]["psnr"] for v in MAPLESS}
+    assert f"| no-prior | 8 | 0 | 0.5 | {metallic['no-prior']:.3f} | " in table, table
+    pulled = f"photos-only | 8 | {DEFAULTS.metallic_prior_weight:g} | {DEFAULTS.metallic_prior_start:g}"
+    assert f"| {pulled} | {metallic['photos-only']:.3f} | " in table, table
+    assert f"| mean of 1 |  | {pulled} | {metallic['photos-only']:.3f} | " in table, table
+    assert all(f" | {psnr[v]:.2f} | " in table for v in MAPLESS), (psnr, table)
+
+
+def test_photos_only_settings_change_neither_no_prior_nor_its_fingerprint():
+    plain = build_config("test", predictor="none")
+    pulled = build_config(
+        "test", predictor="none", **{"refine.metallic_prior_weight": 0.7, "refine.metallic_prior_start": 0.3}
+    )
+    for config in (plain, pulled):  # no-prior records them off: the paper's baseline, whatever photos-only's are
+        settings = variant_refine_config(config, "no-prior")
+        assert (settings.metallic_prior_weight, settings.metallic_prior_start) == (0.0, 0.5)
+    assert variant_refine_config(pulled, "photos-only").metallic_prior_weight == 0.7
+    assert variant_refine_config(pulled, "photos-only").metallic_prior_start == 0.3
+    assert variant_refine_config(pulled, "no-prior") == variant_refine_config(plain, "no-prior")
 
 
 def test_without_maps_the_lift_reads_the_views_at_the_size_geometry_trained_at(tiny_object, tmp_path):
@@ -116,8 +162,10 @@ def test_the_default_predictor_on_a_dataset_without_ground_truth_is_none(capture
     config = build_config("test", predictor="auto", **{"refine.iterations": 4})
     with Pipeline(capture_without_truth, tmp_path / "run", config, progress=False, log=said.append) as pipeline:
         assert pipeline.config.predictor == "none" and not pipeline.has_maps
-        assert list(pipeline.run_all()) == ["no-prior"]
-    assert said[0].startswith("predictor: this dataset has no ground-truth maps, so the run makes the no-prior asset")
+        assert list(pipeline.run_all()) == ["photos-only"]
+    assert said[0].startswith(
+        "predictor: this dataset has no ground-truth maps, so the run makes the photos-only asset"
+    )
     assert json.loads(json.dumps(pipeline.run.config()))["predictor"] == "none"  # config.yaml says what ran
 
 

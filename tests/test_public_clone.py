@@ -126,7 +126,7 @@ def test_a_public_clone_runs_the_first_commands_without_shared_data_or_network(c
     data = capture_like(clone.root / "runs" / "demo" / "data", clone.root / "capture")
     assert "format: blender" in clone.run("info", "--data", data).stdout
     clone.run("run", "--data", data, "--out", "runs/capture", "--preset", "test", *FEWER_STEPS)
-    assert (clone.root / "runs" / "capture" / "asset-no-prior" / "asset.ply").is_file()
+    assert (clone.root / "runs" / "capture" / "asset-photos-only" / "asset.ply").is_file()
 
     report = clone.run("eval", "--run", "runs/capture")  # its default lights: studio sunset forest
     assert "a real capture" in report.stdout

@@ -75,7 +75,7 @@ def test_each_variant_runs(lifted_scene, variant):
     result = refine(refine_inputs(gaussians, normals, lifted, views, maps), config, progress=False)
     assert result.materials.shape == (len(gaussians), 5)
     assert torch.isfinite(result.materials).all()
-    assert (result.envmap is not None) == (variant in ("full", "no-softmax", "no-prior"))
+    assert (result.envmap is not None) == (variant in ("full", "no-softmax", "no-prior", "photos-only"))
 
 
 def test_unknown_variant_is_refused():
@@ -324,19 +324,34 @@ def test_merger_coverage_counts_the_gaussians_the_merger_runs_for(lifted_scene):
     assert counts[0.0] >= counts[0.05] >= counts[0.5]
 
 
-def test_the_metallic_prior_pulls_a_run_without_maps_towards_a_dielectric_and_leaves_the_others(lifted_scene):
+def test_the_metallic_prior_pulls_photos_only_towards_a_dielectric_and_leaves_the_others(lifted_scene):
     gaussians, normals, _, views, maps, lifted = lifted_scene
     inputs = refine_inputs(gaussians, normals, lifted, views, maps)
-    metallic = {}
-    for variant, weight in (("no-prior", 0.0), ("no-prior", 0.3), ("full", 0.0), ("full", 0.3)):
+
+    def metallic(variant: str, weight: float, start: float = 0.5, iterations: int = 30) -> torch.Tensor:  # -> [N]
         config = RefineConfig(
-            iterations=30, variant=variant, envmap_height=8, light_warmup=0, seed=0, metallic_prior_weight=weight
+            iterations=iterations,
+            variant=variant,
+            envmap_height=8,
+            light_warmup=0,
+            seed=0,
+            metallic_prior_weight=weight,
+            metallic_prior_start=start,
         )
-        metallic[variant, weight] = refine(inputs, config, progress=False).materials[:, 4]
-    assert float(metallic["no-prior", 0.3].mean()) < float(metallic["no-prior", 0.0].mean()) - 0.02, metallic
-    assert torch.equal(metallic["full", 0.3], metallic["full", 0.0])  # the 2D maps say what is metal there
+        return refine(inputs, config, progress=False).materials[:, 4]
+
+    # both settings are used by photos-only: it starts where told, and from the same start the pull lowers it
+    assert torch.allclose(metallic("photos-only", 0.0, 0.2, iterations=0), torch.full((len(gaussians),), 0.2))
+    pulled, free = metallic("photos-only", 0.3), metallic("photos-only", 0.0)
+    assert float(pulled.mean()) < float(free.mean()) - 0.02, (float(pulled.mean()), float(free.mean()))
+    # and they are all it differs by: with both off it is no-prior, bit for bit
+    assert torch.equal(free, metallic("no-prior", 0.0))
+    for variant in ("no-prior", "full"):  # the others never read them (full: the 2D maps say what is metal there)
+        assert torch.equal(metallic(variant, 0.3, 0.1), metallic(variant, 0.0, 0.5)), variant
     with pytest.raises(Exception, match="metallic_prior_weight: must be >= 0"):
         RefineConfig(metallic_prior_weight=-1.0)
+    with pytest.raises(Exception, match=r"metallic_prior_start: must be in \(0, 1\), got 0.0"):
+        RefineConfig(metallic_prior_start=0.0)
 
 
 @pytest.mark.parametrize(

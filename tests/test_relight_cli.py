@@ -1,4 +1,5 @@
-"""`matspray relight` and `export` without --variant take the asset the run has (full, else e.g. no-prior)."""
+"""`matspray relight` and `export` without --variant take the asset the run has (full, else photos-only, else the one
+it has)."""
 
 import shutil
 
@@ -8,12 +9,13 @@ from matspray.cli.relight import relight_run
 from matspray.errors import RunError
 from matspray.presets import asset_stage
 from matspray.rundir import RunDir
+from matspray.view.launch import run_variants
 from tests.scenes import ring_cameras, write_disk_sphere_run
 
 
 @pytest.fixture(scope="module")
 def no_prior_run(tmp_path_factory):
-    """A run whose only asset is no-prior's, as `matspray run --predictor none` leaves it."""
+    """A run whose only asset is no-prior's, as `matspray run --predictor none --variant no-prior` leaves it."""
     root = tmp_path_factory.mktemp("relight")
     run = write_disk_sphere_run(root, 300, ring_cameras(3, size=32), slice(0, 2), slice(2, 3))
     shutil.move(run / asset_stage("full"), run / asset_stage("no-prior"))
@@ -28,12 +30,16 @@ def test_relight_takes_the_runs_only_variant(no_prior_run, tmp_path):
         relight_run(no_prior_run, "forest", "test", tmp_path / "out", variant="full")
 
 
-def test_full_is_preferred_and_a_run_without_assets_is_one_line(no_prior_run, tmp_path):
+def test_full_is_preferred_then_photos_only_and_a_run_without_assets_is_one_line(no_prior_run, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(no_prior_run, run)
+    # a run without maps that made the user's asset beside the paper's baseline: commands take the user's
+    shutil.copytree(run / asset_stage("no-prior"), run / asset_stage("photos-only"))
+    assert RunDir(run).default_variant() == "photos-only"
+    assert run_variants(run) == ["photos-only", "no-prior"]  # the viewer starts with the first
     shutil.copytree(run / asset_stage("no-prior"), run / asset_stage("full"))
-    assert RunDir(run).default_variant() == "full"
-    for variant in ("full", "no-prior"):
+    assert RunDir(run).default_variant() == "full" and run_variants(run) == ["full", "no-prior", "photos-only"]
+    for variant in ("full", "no-prior", "photos-only"):
         shutil.rmtree(run / asset_stage(variant))
     with pytest.raises(RunError, match=f"^{run}: the run has no asset yet .*`matspray run --data DATA --out {run}`$"):
         RunDir(run).default_variant()

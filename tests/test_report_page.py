@@ -142,6 +142,7 @@ def test_the_glossary_lists_the_terms_the_page_uses_and_only_those():
         assert f"<dt>{term}</dt>" in glossary
     assert "<dt>SSIM</dt>" not in glossary and "<dt>LPIPS</dt>" not in glossary
     assert glossary_html("<p>nothing</p>") == ""
+    assert "<dt>Photos only</dt>" in glossary_html("<td>Photos only</td>")  # the asset a run without maps makes
 
 
 def test_a_small_estimated_light_is_shown_smooth_at_the_evaluation_size():

@@ -31,7 +31,7 @@ POLL_S = 0.5
 @dataclass(frozen=True)
 class BatchConfig:
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)  # every object's run settings
-    variants: tuple[str, ...] | None = ("full",)  # None: each run's default (full, or no-prior without 2D maps)
+    variants: tuple[str, ...] | None = ("full",)  # None: each run's default (full, or photos-only without 2D maps)
     workers: int | None = None  # objects at once; None: local CPUs // cpus_per_object, or the whole cluster
     address: str | None = None  # an existing Ray cluster ('HOST:PORT', 'ray://HOST:PORT', 'auto'); None: a local Ray
     cpus_per_object: int = 1  # Ray CPUs of one object's task, and its torch threads

@@ -80,7 +80,7 @@ def add_export_parser(parser) -> None:
         choices=BAKES,
         help="where the textures read the materials: views (the asset's renders at the training views, what the "
         "Gaussians show), gaussians (the Gaussians around each texel, blended in 3D), auto (default: views for the "
-        "no-prior asset, gaussians for the others)",
+        "assets made without 2D maps, gaussians for the others)",
     )
     parser.add_argument(
         "--silhouette-rounds",

@@ -44,7 +44,7 @@ def add_choice_argument(parser, name: str, choices, **kwargs) -> None:
     )
 
 
-VARIANT_HELP = "which asset of the run (default: full when the run has it, else the one it has, e.g. no-prior)"
+VARIANT_HELP = "which asset of the run (default: full, else photos-only when the run has it, else the one it has)"
 
 
 def add_compute_arguments(parser) -> None:
@@ -62,7 +62,7 @@ def add_run_arguments(parser) -> None:
         "--predictor",
         default="auto",
         metavar="SPEC",
-        help=f"2D material maps: {predictor_usage()}, or none (no maps: only the no-prior variant); default auto: "
+        help=f"2D material maps: {predictor_usage()}, or none (no maps: the photos-only asset); default auto: "
         "simulated where the dataset has ground-truth maps, else none",
     )
     parser.add_argument(
@@ -70,8 +70,8 @@ def add_run_arguments(parser) -> None:
         choices=VARIANT_NAMES,
         nargs="+",
         default=None,
-        help="method variants to refine (the paper's ablations, and no-prior: the baseline without a 2D prior); "
-        "default: full, or no-prior with --predictor none",
+        help="method variants to refine (the paper's ablations; without 2D maps no-prior, the paper's baseline, and "
+        "photos-only, a dielectric unless the photos show metal); default: full, or photos-only with --predictor none",
     )
     add_run_option_flags(parser)  # the predictors' options `run` offers (`matspray.predictors.kinds`)
 

@@ -36,7 +36,7 @@ from matspray.method.relight import render_gbuffer
 from matspray.predictors import NO_PREDICTOR, PredictorOptions, make_predictor, options_for_dataset, predict_views
 from matspray.predictors.ground_truth import read_ground_truth, read_ground_truth_coverage
 from matspray.predictors.kinds import PredictorSpec, predictor_kinds
-from matspray.presets import ABLATION, BASELINE, LABELS, SOFTMAX_ABLATION, asset_stage
+from matspray.presets import ABLATION, BASELINE, LABELS, MAPLESS_DEFAULT, SOFTMAX_ABLATION, asset_stage
 from matspray.render.backend import rendering_with
 from matspray.render.shade.deferred import shade_gbuffer
 from matspray.render.shade.envmap import EnvironmentMap
@@ -388,9 +388,10 @@ def paper_tables(variants: dict, predictions: dict | None, timings: dict) -> dic
     if "full" in variants:
         summary = variants["full"]["summary"]
         table1["Ours"] = {row: summary[row] for row in rows if row in summary}
-    if BASELINE in variants:  # the paper's baseline column: no 2D prior
-        summary = variants[BASELINE]["summary"]
-        table1[LABELS[BASELINE]] = {row: summary[row] for row in rows if row in summary}
+    for name in (BASELINE, MAPLESS_DEFAULT):  # the paper's baseline column (no 2D prior), and the user's asset without
+        if name in variants:  # maps beside it
+            summary = variants[name]["summary"]
+            table1[LABELS[name]] = {row: summary[row] for row in rows if row in summary}
     if predictions is not None:
         table1["2D predictions"] = {row: predictions[row] for row in ("basecolor", "roughness", "metallic")}
     table2 = {LABELS[v]: variants[v]["summary"]["relighting"] for v in ABLATION if v in variants}

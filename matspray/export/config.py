@@ -24,8 +24,9 @@ class ExportConfig:
     keep_fraction: float = 0.05  # keep connected components with at least this share of the largest one's faces
     neighbours: int = 16  # Gaussians blended per texel when baking in 3D (texels no bake view sees)
     bake: str = "auto"  # where texels read materials: views (the asset's renders at the training views), gaussians
-    # (the Gaussians around each texel, blended in 3D), auto (views for the no-prior asset, whose Gaussians' materials
-    # are noisy one by one, gaussians for the others; `export_run` resolves it from the variant; docs/defaults.md)
+    # (the Gaussians around each texel, blended in 3D), auto (views for the assets made without 2D maps, whose
+    # Gaussians' materials are noisy one by one, gaussians for the others; `export_run` resolves it from the variant;
+    # docs/defaults.md)
     padding: int = 4  # xatlas gutter between charts, in texels
     asset_normals: float = 0.5  # share of the Gaussians' refined normals in the vertex normals (0: the surface's own);
     # the two sources err in different places, so their mix relights better than either (docs/defaults.md)

@@ -143,9 +143,9 @@ def bake_views(cameras: list[Camera], config: ExportConfig, voxel: float) -> Vie
 
 
 def resolve_bake(config: ExportConfig, variant: str) -> ExportConfig:
-    """`bake` auto: the asset's renders for an asset refined without the 2D maps (no-prior), whose Gaussians'
-    materials differ from their neighbours' several times more than fused ones do; the Gaussians around each texel
-    for the others."""
+    """`bake` auto: the asset's renders for an asset refined without the 2D maps (no-prior, photos-only), whose
+    Gaussians' materials differ from their neighbours' several times more than fused ones do; the Gaussians around
+    each texel for the others."""
     if config.bake != "auto":
         return config
     return replace(config, bake="gaussians" if get_variant(variant).uses_maps else "views")

@@ -90,8 +90,8 @@ def resolve_predictor(spec: str, views: list, notify: Callable[[str], None] = pr
             check_ground_truth(views)
         except DataError:
             notify(
-                "predictor: this dataset has no ground-truth maps, so the run makes the no-prior asset without 2D maps "
-                "(give --predictor files:DIR or marigold for the full method)"
+                "predictor: this dataset has no ground-truth maps, so the run makes the photos-only asset without 2D "
+                "maps (give --predictor files:DIR or marigold for the full method)"
             )
             return NO_PREDICTOR
         return "simulated"
@@ -105,7 +105,7 @@ def checked_kind(spec: PredictorSpec, text: str) -> PredictorKind:
     """The kind of a spec that names one, with the ':' argument it takes; a SettingError otherwise."""
     if spec.kind == NO_PREDICTOR:
         raise SettingError(
-            "predictor", "'none' predicts no maps; only a run refines without them (the no-prior variant)"
+            "predictor", "'none' predicts no maps; only a run refines without them (no-prior, photos-only)"
         )
     kind = declared_kind(spec)
     if kind is None:

@@ -20,18 +20,15 @@ LOADING = "**matspray view** loading the run…"
 
 
 def run_variants(root) -> list[str]:
-    """The variants with an asset in run folder `root`; RunError (one line naming the command to run first) when it
-    is no run folder or holds no asset."""
+    """The variants with an asset in run folder `root`, the one the viewer starts with first (`RunDir.default_variant`:
+    full, else photos-only); RunError (one line naming the command to run first) when it is no run folder or holds no
+    asset."""
     root = Path(root)
     if not root.is_dir():
         raise RunError(f"{root}: no such run folder; make one with `matspray run --data DATA --out {root}`")
-    variants = RunDir(root).require().asset_variants()
-    if not variants:
-        raise RunError(
-            f"{root}: the run has no asset yet (no asset*/asset.ply); "
-            f"make it with `matspray run --data DATA --out {root}`"
-        )
-    return variants
+    run = RunDir(root).require()
+    first = run.default_variant()  # RunError in one line when there is none
+    return [first] + [v for v in run.asset_variants() if v != first]
 
 
 def check_source(path) -> None:

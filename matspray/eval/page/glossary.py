@@ -26,6 +26,9 @@ TERMS = {
     "R3DGS-like": "The no-prior baseline: materials optimised per Gaussian from a uniform grey with the photometric "
     "loss and a learnt light, without any 2D maps, as Relightable 3D Gaussians (R3DGS, Gao et al. 2024) does; "
     "the paper's extended R3DGS column.",
+    "Photos only": "What a run without 2D maps makes by default: the no-prior baseline's free per-Gaussian materials, "
+    "but starting as a dielectric and pulled towards one (refine.metallic_prior_start and metallic_prior_weight), so "
+    "a Gaussian turns metal only where the photos demand it. Not one of the paper's variants.",
     "2D predictions": "The per-view material maps of the 2D model for the test views, scored directly: what the "
     "method starts from and should improve on.",
     "split-sum": "The real-time approximation of image-based lighting (Karis 2013) the asset is shaded with: the "

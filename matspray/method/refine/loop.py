@@ -158,11 +158,16 @@ class RefineConfig:
         'views" (the paper), which a lower quantile outvotes even where most views have it',
     )
     metallic_prior_weight: float = setting(
-        0.0,
-        "weight of the mean metallic of the Gaussians a step refines, in the variants without the 2D maps "
-        "(nothing else tells metal from a dielectric there, and the photo loss alone turns a skull into grey "
-        "metal): an L1 pull towards a dielectric that only the photos' evidence of metal outweighs; 0: off "
-        "(the paper's no-prior baseline)",
+        0.03,
+        "photos-only variant only: weight of the mean metallic of the Gaussians a step refines (without 2D maps "
+        "nothing else tells metal from a dielectric, and the photo loss alone turns a skull into grey metal): an L1 "
+        "pull towards a dielectric that only the photos' evidence of metal outweighs (the other variants: 0, so "
+        "no-prior stays the paper's baseline)",
+    )
+    metallic_prior_start: float = setting(
+        0.1,
+        "photos-only variant only: the metallic its free per-Gaussian materials start from, and its light warm-up "
+        "sees (the others: 0.5, an uninformed grey)",
     )
     basecolor_spread_weight: float = setting(
         0.0,
@@ -206,6 +211,8 @@ class RefineConfig:
         ):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
+        if not 0.0 < self.metallic_prior_start < 1.0:
+            raise SettingError("metallic_prior_start", f"must be in (0, 1), got {self.metallic_prior_start}")
         if not 0.0 < self.metallic_quantile < 1.0:
             raise SettingError("metallic_quantile", f"must be in (0, 1), got {self.metallic_quantile}")
         if not self.basecolor_huber_delta > 0:
@@ -428,6 +435,8 @@ def refine(
         inputs = aligned_inputs(inputs)
     means = gaussians.means.detach()
     source = material_source(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
+    if variant.dielectric_prior:  # a dielectric until the photos say otherwise (the others start from grey)
+        source.start_metallic(config.metallic_prior_start)
     envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
     history: list[dict] = []
@@ -513,7 +522,7 @@ def step_losses(
     if shading is not None and config.normal_prior_weight > 0:
         seen = training.frozen.visible_ids[index]  # the normals this view's photo loss reaches
         terms["normal_prior"] = normal_prior(shading_normals[seen], normals[seen])
-    if config.metallic_prior_weight > 0 and not variant.uses_maps:
+    if config.metallic_prior_weight > 0 and variant.dielectric_prior:
         terms["metallic_prior"] = merged[:, METALLIC_INDEX].mean()
     return terms, total_loss(terms, config)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from matspray.material import METALLIC_INDEX
 from matspray.method.merger import MergerConfig, NeuralMerger, prepare_values, projection_average
 from matspray.presets import Variant
 
@@ -66,6 +67,11 @@ class FreeSource(MaterialSource):
 
     def source_materials(self, pick) -> Tensor:
         return torch.sigmoid(pick(self.logits))
+
+    def start_metallic(self, value: float) -> None:
+        """Every Gaussian's metallic starts at `value` in (0, 1) instead of the grey's 0.5."""
+        with torch.no_grad():
+            self.logits[:, METALLIC_INDEX] = torch.logit(torch.tensor(value, dtype=self.logits.dtype))
 
     def learning_rate(self, config) -> float:
         return config.supervised_lr
