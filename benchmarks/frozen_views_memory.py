@@ -9,9 +9,9 @@ blends about 34 weights per pixel, stitch's 33) seen by `--views` cameras on a s
 refinement makes them (FrozenViews, backend numba's weights), which on the CPU keep one matrix per view; the old way
 kept each view's transpose too, made here view by view for its timing. Per view: the forward product and the backward
 pass of `--channels` features, the old one (the product with the transpose) and the new one (numba.sparse's scatter),
-the fastest of `--repeats` after one untimed; printed: the bytes kept each way, the ms per view of each, the largest difference of the
-gradients, and the load average (the machine may be shared: the times are CPU times of this process as well as
-wall-clock ones).
+the fastest of `--repeats` after one untimed; printed: the bytes kept each way, the ms per view of each, the largest
+difference of the gradients, and the load average (the machine may be shared: the times are CPU times of this
+process as well as wall-clock ones).
 """
 
 from __future__ import annotations
