@@ -5,7 +5,7 @@
 What the preset runs is read from the code, not listed here: the object's size (`presets.DEMO_SIZES`), the
 geometry schedule (`build_config("paper").geometry`), the stages of `batch.objects.run_one_object` (predict,
 geometry, lift, the frozen views, refine per variant, eval) and the variants `batch.demo.run_demo` refines
-(`variants_for_maps(VARIANT_NAMES, has_maps=True)`); which of them share a light warm-up is found by the code's own
+(`variants_for_maps(PAPER_VARIANTS, has_maps=True)`); which of them share a light warm-up is found by the code's own
 key (`refine.warm_up_key`) on a tiny object.
 
 Each term says what it was measured on:

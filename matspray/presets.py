@@ -270,6 +270,8 @@ VARIANTS: dict[str, Variant] = {
     )
 }
 VARIANT_NAMES = tuple(VARIANTS)
+# the paper's method, its ablations and its baseline: what `matspray demo` refines and scores (not the user's asset)
+PAPER_VARIANTS = tuple(v.name for v in VARIANTS.values() if not v.dielectric_prior)
 LABELS = {v.name: v.label for v in VARIANTS.values()}
 ABLATION = ("full", "supervised", "proj-average")  # the paper's Table 2
 SOFTMAX_ABLATION = ("full", "no-softmax")  # the paper's softmax ablation

@@ -14,7 +14,7 @@ from matspray.method.config import build_config, shadow_maps
 from matspray.method.pipeline import Pipeline
 from matspray.method.refine.loop import check_finite
 from matspray.presets import VARIANT_NAMES as VARIANTS
-from matspray.presets import WORKING_SIZE, asset_stage
+from matspray.presets import WORKING_SIZE, asset_stage, get_variant
 from matspray.rundir import RunDir
 from tests.conftest import busy_message, run_cli
 from tests.reference_metrics import relighting_psnr
@@ -92,7 +92,7 @@ def test_the_asset_ply_carries_the_refined_normals_of_the_variants_with_the_pbr_
     start = smoothed_normals(normals, kept.means, kept.opacities, RefineConfig().normal_neighbours)
     for variant in VARIANTS:
         turned = angle_change_degrees(start, read_asset(finished_run / asset_stage(variant)).normals)
-        if variant in ("full", "no-softmax", "no-prior"):
+        if get_variant(variant).learns_light:  # full, no-softmax and the two without maps
             assert float(turned.max()) > 0.2, variant  # 8 steps of Adam at 1e-3 rad: up to 0.46 degrees
         else:
             assert float(turned.max()) < 0.05, variant  # the PLY's float32 round trip

@@ -19,7 +19,7 @@ from matspray.errors import DataError, SettingError
 from matspray.eval.tables import write_tables
 from matspray.gltf.read import read_gltf
 from matspray.method.config import PipelineConfig, build_config
-from matspray.presets import DEMO_SIZES, LABELS, VARIANT_NAMES
+from matspray.presets import DEMO_SIZES, LABELS, PAPER_VARIANTS
 from matspray.render.backend import resolve_backend
 from matspray.render.numba.backend import compile_in_background
 from matspray.rundir import write_json
@@ -103,7 +103,7 @@ def make_demo_object(
 
 
 def run_object(
-    data: Path, run_dir: Path, config: PipelineConfig, variants=VARIANT_NAMES, progress: bool = True, log=print
+    data: Path, run_dir: Path, config: PipelineConfig, variants=PAPER_VARIANTS, progress: bool = True, log=print
 ) -> dict:
     """Run every variant of the method on one object, evaluate it and write its report (earlier stages are reused)."""
     metrics = run_one_object(data, run_dir, config, variants, progress=progress, log=log)
@@ -163,7 +163,7 @@ def run_bench(
     summary = run_batch(
         datas,
         out,
-        BatchConfig(pipeline=config, variants=VARIANT_NAMES, workers=workers, use_ray=use_ray),
+        BatchConfig(pipeline=config, variants=PAPER_VARIANTS, workers=workers, use_ray=use_ray),
         progress=progress,
         log=log,
     )

@@ -4,6 +4,8 @@ projection average."""
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor, nn
 
@@ -71,7 +73,7 @@ class FreeSource(MaterialSource):
     def start_metallic(self, value: float) -> None:
         """Every Gaussian's metallic starts at `value` in (0, 1) instead of the grey's 0.5."""
         with torch.no_grad():
-            self.logits[:, METALLIC_INDEX] = torch.logit(torch.tensor(value, dtype=self.logits.dtype))
+            self.logits[:, METALLIC_INDEX] = math.log(value / (1.0 - value))  # the logit of the start
 
     def learning_rate(self, config) -> float:
         return config.supervised_lr
