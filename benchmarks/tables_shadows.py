@@ -17,39 +17,45 @@ def relight_by_object(report: dict, model: str) -> dict[str, dict[str, float]]:
     return {o["object"]["name"]: o["figures"]["relight"] for o in report["models"][model]["objects"]}
 
 
-def shadow_rows(off: dict, on: dict, model: str) -> list[str]:
-    """Rows `| object | full off / on | ... | full - no-softmax off / on |`, then the mean over the common objects."""
-    first, second = relight_by_object(off, model), relight_by_object(on, model)
-    names = [name for name in first if name in second]
-    if not names:
-        raise SystemExit(f"benchmarks.tables: shadows: the two passes share no object under `{model}`")
+def paired_passes(results: Path, names: tuple[str, str]):
+    """For each error model both results files hold: (model, first's figures, second's figures, the objects both
+    hold, in the first's order); two passes without a common object are refused."""
+    first_report, second_report = (json.loads((results / name).read_text()) for name in names)
+    for model in [m for m in first_report["models"] if m in second_report["models"]]:
+        first, second = relight_by_object(first_report, model), relight_by_object(second_report, model)
+        common = [name for name in first if name in second]
+        if not common:
+            raise SystemExit(f"benchmarks.tables: {names[0]} and {names[1]} share no object under `{model}`")
+        yield model, first, second, common
 
-    def cells(pick) -> list[str]:
-        pairs = [(pick(first[n]), pick(second[n])) for n in names]
-        return [f"{a:.2f} / {b:.2f}" for a, b in pairs], pairs
 
-    rows, means = [], []
-    for pick in [lambda r, v=v: r[v] for v in SHADOW_VARIANTS] + [lambda r: r["full"] - r["no-softmax"]]:
-        texts, pairs = cells(pick)
-        rows.append(texts)
-        means.append(f"{sum(a for a, _ in pairs) / len(pairs):.2f} / {sum(b for _, b in pairs) / len(pairs):.2f}")
-    lines = [f"| {name} | " + " | ".join(column[i] for column in rows) + " |" for i, name in enumerate(names)]
-    return lines + [f"| **mean of {len(names)}** | " + " | ".join(means) + " |"]
+def mean(values) -> float:
+    values = list(values)
+    return sum(values) / len(values)
+
+
+def shadow_rows(first: dict, second: dict, common: list[str]) -> list[str]:
+    """Rows `| object | full off / on | ... | full - no-softmax off / on |`, then the mean over the objects."""
+    picks = [lambda r, v=v: r[v] for v in SHADOW_VARIANTS] + [lambda r: r["full"] - r["no-softmax"]]
+
+    def row(label: str, objects: list[str]) -> str:
+        cells = [f"{mean(p(first[n]) for n in objects):.2f} / {mean(p(second[n]) for n in objects):.2f}" for p in picks]
+        return f"| {label} | " + " | ".join(cells) + " |"
+
+    return [row(name, [name]) for name in common] + [row(f"**mean of {len(common)}**", common)]
 
 
 def table_shadows(results: Path, names: tuple[str, str] = SHADOWS_REAL_DEV) -> str:
     """Relighting PSNR (dB) without / with baked shadows, per object and variant, with `full` minus `no-softmax`."""
-    off, on = (json.loads((results / name).read_text()) for name in names)
-    models = [m for m in off["models"] if m in on["models"]]
     head = " | ".join(f"{v} off / on" for v in SHADOW_VARIANTS)
     lines = []
-    for model in models:
+    for model, first, second, common in paired_passes(results, names):
         lines += [
             f"Error model `{model}` (SIMULATED predictor), relighting PSNR (dB) under two held-out lights:",
             "",
             f"| object | {head} | full - no-softmax off / on |",
             "| --- |" + " ---: |" * (len(SHADOW_VARIANTS) + 1),
-            *shadow_rows(off, on, model),
+            *shadow_rows(first, second, common),
             "",
         ]
     return "\n".join(lines).rstrip()
@@ -57,20 +63,16 @@ def table_shadows(results: Path, names: tuple[str, str] = SHADOWS_REAL_DEV) -> s
 
 def table_shadows_mean(results: Path, names: tuple[str, str] = SHADOWS_REAL_DEV) -> str:
     """The README's two rows: each shading's mean relighting PSNR (dB) per variant over the objects of both passes."""
-    off, on = (json.loads((results / name).read_text()) for name in names)
     lines = []
-    for model in [m for m in off["models"] if m in on["models"]]:
-        first, second = relight_by_object(off, model), relight_by_object(on, model)
-        names_both = [name for name in first if name in second]
+    for model, first, second, common in paired_passes(results, names):
+        count = f"{len(common)} object{'s' * (len(common) != 1)}"
         lines += [
-            f"| shading ({len(names_both)} object{'s' * (len(names_both) != 1)}, `{model}`) | "
-            + " | ".join(SHADOW_VARIANTS)
-            + " |",
+            f"| shading ({count}, `{model}`) | " + " | ".join(SHADOW_VARIANTS) + " |",
             "| --- |" + " ---: |" * len(SHADOW_VARIANTS),
         ]
         for label, figures in (("unshadowed (the default)", first), ("baked shadows (`--set shadows=on`)", second)):
-            means = [sum(figures[n][v] for n in names_both) / len(names_both) for v in SHADOW_VARIANTS]
-            lines.append(f"| {label} | " + " | ".join(f"{m:.2f}" for m in means) + " |")
+            cells = [f"{mean(figures[n][v] for n in common):.2f}" for v in SHADOW_VARIANTS]
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -80,13 +82,10 @@ NO_SOFTMAX_RAW = "generalise-real-dev-no-softmax-raw.json"  # --variants no-soft
 def table_no_softmax_forms(results: Path, names: tuple[str, str] = (SHADOWS_REAL_DEV[0], NO_SOFTMAX_RAW)) -> str:
     """Relighting PSNR (dB) of `full` and of `no-softmax` with our weights (offsets from the projection average) and
     with the raw weights (the released code's merger without its softmax), per object and the mean."""
-    ours, raw = (json.loads((results / name).read_text()) for name in names)
     lines = []
-    for model in [m for m in ours["models"] if m in raw["models"]]:
-        first, second = relight_by_object(ours, model), relight_by_object(raw, model)
-        both = [name for name in first if name in second]
-        rows = [(n, first[n]["full"], first[n]["no-softmax"], second[n]["no-softmax"]) for n in both]
-        rows.append((f"**mean of {len(both)}**", *(sum(r[i] for r in rows) / len(rows) for i in (1, 2, 3))))
+    for model, ours, raw, common in paired_passes(results, names):
+        rows = [(n, ours[n]["full"], ours[n]["no-softmax"], raw[n]["no-softmax"]) for n in common]
+        rows.append((f"**mean of {len(common)}**", *(mean(r[i] for r in rows) for i in (1, 2, 3))))
         lines += [
             f"| object (`{model}`) | full | no-softmax, offset weights | no-softmax, raw weights |",
             "| --- | ---: | ---: | ---: |",
