@@ -158,7 +158,7 @@ class RefineConfig:
         'views" (the paper), which a lower quantile outvotes even where most views have it',
     )
     metallic_prior_weight: float = setting(
-        0.03,
+        0.01,
         "photos-only variant only: weight of the mean metallic of the Gaussians a step refines (without 2D maps "
         "nothing else tells metal from a dielectric, and the photo loss alone turns a skull into grey metal): an L1 "
         "pull towards a dielectric that only the photos' evidence of metal outweighs (the other variants: 0, so "
