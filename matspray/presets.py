@@ -49,12 +49,13 @@ def light_names() -> str:
     return f"built-ins: {', '.join(BUILTIN_LIGHTS)}" + (f"; HDRIs: {', '.join(sorted(hdris))}" if hdris else "")
 
 
-PRESETS = ("test", "demo", "paper")
+PRESETS = ("test", "demo", "quality", "paper")
 METHODS = ("matspray", "paper")  # matspray: the paper plus the additions below; paper: exactly the paper's method
 
 # the longest image side each preset works at: larger photos are shrunk to it on load unless --downscale is given
-# (test: CI-sized; demo: a real capture on a 2-core CPU; paper: 512 px data, and real captures up to 800 px)
-WORKING_SIZE = {"test": 128, "demo": 256, "paper": 800}
+# (test: CI-sized; demo: a real capture on a 2-core CPU; quality: a capture's detail for whoever can wait on a CPU;
+# paper: 512 px data, and real captures up to 800 px)
+WORKING_SIZE = {"test": 128, "demo": 256, "quality": 512, "paper": 800}
 
 # Each preset as a partial config: its changes to the stages' defaults, section by section (the dataclasses' defaults
 # are the demo preset, so demo changes nothing). `matspray.method.config.preset_settings` checks every name and type
@@ -78,6 +79,16 @@ PRESET_SETTINGS: dict[str, dict[str, dict]] = {
         "refine": {"iterations": 30, "envmap_height": 8, "light_warmup": 10},
     },
     "demo": {},
+    # trains on the photos at the working size (demo: at half of it) with room for the Gaussians their detail asks
+    # for; densification runs as long as at the demo preset's, in steps (docs/dev/real-captures.md, "quality")
+    "quality": {
+        "geometry": {
+            "resolution": 512,
+            "iterations": 4000,
+            "densify_until": 3000,
+            "max_gaussians": 200_000,
+        },
+    },
     "paper": {
         "geometry": {
             "resolution": 512,
@@ -101,7 +112,7 @@ PRESET_SETTINGS: dict[str, dict[str, dict]] = {
 GEOMETRY = {name: partial.get("geometry", {}) for name, partial in PRESET_SETTINGS.items()}
 
 # baked shadows (off by default): each preset's changes to `VisibilityConfig`'s shadow maps where they are on
-SHADOW_MAPS = {"test": {"rows": 4, "resolution": 48}, "demo": {}, "paper": {"rows": 16, "resolution": 512}}
+SHADOW_MAPS = {"test": {"rows": 4, "resolution": 48}, "demo": {}, "quality": {}, "paper": {"rows": 16, "resolution": 512}}
 
 
 @dataclass(frozen=True)
@@ -117,6 +128,7 @@ class DemoSize:
 DEMO_SIZES = {
     "test": DemoSize(res=40, views=8, test_views=2, spp=8),
     "demo": DemoSize(res=128, views=40, test_views=10, spp=64),
+    "quality": DemoSize(res=256, views=40, test_views=10, spp=64),
     "paper": DemoSize(res=512, views=100, test_views=200, spp=256),
 }
 

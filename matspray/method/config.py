@@ -77,7 +77,10 @@ NORMAL_PRIOR_WEIGHT = 1.0
 @dataclass(frozen=True)
 class PipelineConfig:
     preset: str = setting(
-        "demo", "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), paper (512 px, one GPU)", flag="--preset"
+        "demo",
+        "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), quality (512 px, for who can wait on a CPU), "
+        "paper (512 px, one GPU)",
+        flag="--preset",
     )
     method: str = setting(
         "matspray",
