@@ -112,7 +112,12 @@ PRESET_SETTINGS: dict[str, dict[str, dict]] = {
 GEOMETRY = {name: partial.get("geometry", {}) for name, partial in PRESET_SETTINGS.items()}
 
 # baked shadows (off by default): each preset's changes to `VisibilityConfig`'s shadow maps where they are on
-SHADOW_MAPS = {"test": {"rows": 4, "resolution": 48}, "demo": {}, "quality": {}, "paper": {"rows": 16, "resolution": 512}}
+SHADOW_MAPS = {
+    "test": {"rows": 4, "resolution": 48},
+    "demo": {},
+    "quality": {},
+    "paper": {"rows": 16, "resolution": 512},
+}
 
 
 @dataclass(frozen=True)
