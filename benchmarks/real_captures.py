@@ -2,7 +2,7 @@
 
     python -m benchmarks.real_captures [--captures skull stitch] [--preset demo] [--out runs/real-captures]
         [--lights studio sunset forest] [--geometry-iterations N] [--refine-iterations N] [--backend auto]
-        [--compare-with ROOT]
+        [--compare-with ROOT] [--user-asset-only]
 
 Per capture, the `matspray` commands a user types, each in its own process:
   skull   `matspray colmap` on its 66 photos (no poses), then `run` on the dataset it made
@@ -11,7 +11,9 @@ then `relight` under each light (the held-out test cameras) and once as a turnta
 `export` (RUN/export/NAME.glb, which the report and `matspray view` find), and `eval` (held-out photos scored inside the
 object mask; report.html with the photo credit). Neither capture has 2D material maps here (no diffusion weights), so
 the run makes the user's asset without maps (photos-only), which relight and export take, and beside it the paper's
-no-prior baseline, so that the evaluation scores both on the same geometry.
+no-prior baseline, so that the evaluation scores both on the same geometry (`--user-asset-only` leaves the baseline
+out). Each capture's summary goes to RESULTS/real-captures-NAME.json, or real-captures-NAME-PRESET.json at another
+preset than demo.
 
 Prints per capture: photos registered and mean reprojection error (skull), held-out novel-view PSNR / SSIM /
 LPIPS inside the object mask on views never trained on, the share of each held-out view the mask covers,
@@ -30,7 +32,7 @@ import sys
 import time
 from pathlib import Path
 
-from matspray.presets import BASELINE, MAPLESS_DEFAULT
+from matspray.presets import BASELINE, MAPLESS_DEFAULT, PRESETS
 
 CAPTURES_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "captures"
 SKULL_CREDIT = (
@@ -39,7 +41,7 @@ SKULL_CREDIT = (
 )
 CREDITS = {"skull": SKULL_CREDIT, "stitch": "toy figure video frames from a public TensoRF user-data repository (MIT)"}
 VARIANT = MAPLESS_DEFAULT  # what a user's run without maps makes, relights and exports
-VARIANTS = ["--variant", VARIANT, BASELINE]  # and the paper's baseline beside it, scored by the same evaluation
+VARIANTS = [VARIANT, BASELINE]  # and the paper's baseline beside it, scored by the same evaluation
 
 
 def command(args: list[str], log: Path) -> dict:
@@ -96,13 +98,14 @@ def run_capture(name: str, args, out_root: Path) -> dict:
     compute = ["--backend", args.backend]
     before = args.compare_with / name / "run" if args.compare_with else None
     compare = [str(before)] if before is not None and before.is_dir() else []
+    variants = ["--variant", *(VARIANTS[:1] if args.user_asset_only else VARIANTS)]
     if not (run / "eval" / "heldout.json").exists():
         named = {"geometry.iterations": args.geometry_iterations, "refine.iterations": args.refine_iterations}
         extra = [f"{key}={value}" for key, value in named.items() if value]
         extra = ["--set", *extra] if extra else []
         steps.append(
             command(
-                ["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *VARIANTS, *extra, *compute],
+                ["run", "--data", str(data), "--out", str(run), "--preset", args.preset, *variants, *extra, *compute],
                 log,
             )
         )
@@ -215,7 +218,12 @@ def print_record(record: dict) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--captures", nargs="+", choices=("skull", "stitch"), default=["skull", "stitch"])
-    parser.add_argument("--preset", default="demo", choices=("test", "demo", "paper"))
+    parser.add_argument("--preset", default="demo", choices=PRESETS)
+    parser.add_argument(
+        "--user-asset-only",
+        action="store_true",
+        help=f"refine only the user's asset ({VARIANT}), not the paper's {BASELINE} baseline beside it",
+    )
     parser.add_argument(
         "--out", type=Path, help="folder of the captures' datasets and runs (default runs/real-captures)"
     )
@@ -248,8 +256,14 @@ def main() -> None:
         print_record(record)
         if args.results_dir is not None:
             args.results_dir.mkdir(parents=True, exist_ok=True)
-            (args.results_dir / f"real-captures-{name}.json").write_text(json.dumps(record, indent=1))
-            print(f"results: {args.results_dir / f'real-captures-{name}.json'}")
+            path = args.results_dir / results_name(name, args.preset)
+            path.write_text(json.dumps({**record, "preset": args.preset}, indent=1))
+            print(f"results: {path}")
+
+
+def results_name(capture: str, preset: str) -> str:
+    """The results file of a capture at a preset (the demo preset's keeps its first name)."""
+    return f"real-captures-{capture}.json" if preset == "demo" else f"real-captures-{capture}-{preset}.json"
 
 
 if __name__ == "__main__":
