@@ -53,9 +53,9 @@ PRESETS = ("test", "demo", "quality", "paper")
 METHODS = ("matspray", "paper")  # matspray: the paper plus the additions below; paper: exactly the paper's method
 
 # the longest image side each preset works at: larger photos are shrunk to it on load unless --downscale is given
-# (test: CI-sized; demo: a real capture on a 2-core CPU; quality: a capture's detail for whoever can wait on a CPU;
-# paper: 512 px data, and real captures up to 800 px)
-WORKING_SIZE = {"test": 128, "demo": 256, "quality": 512, "paper": 800}
+# (test: CI-sized; demo: a real capture on a 2-core CPU, quality: the same photos trained on at their full working
+# size; paper: 512 px data, and real captures up to 800 px)
+WORKING_SIZE = {"test": 128, "demo": 256, "quality": 256, "paper": 800}
 
 # Each preset as a partial config: its changes to the stages' defaults, section by section (the dataclasses' defaults
 # are the demo preset, so demo changes nothing). `matspray.method.config.preset_settings` checks every name and type
@@ -79,16 +79,10 @@ PRESET_SETTINGS: dict[str, dict[str, dict]] = {
         "refine": {"iterations": 30, "envmap_height": 8, "light_warmup": 10},
     },
     "demo": {},
-    # trains on the photos at the working size (demo: at half of it) with room for the Gaussians their detail asks
-    # for; densification runs as long as at the demo preset's, in steps (docs/dev/real-captures.md, "quality")
-    "quality": {
-        "geometry": {
-            "resolution": 512,
-            "iterations": 4000,
-            "densify_until": 3000,
-            "max_gaussians": 200_000,
-        },
-    },
+    # demo's sizes, but Gaussian Splatting (and so the lift and refinement of a run without maps) trains on the
+    # photos at the working size rather than half of it; 512 px trained worse on held-out photos in 4x the time
+    # (docs/dev/real-captures.md, "The quality preset")
+    "quality": {"geometry": {"resolution": 256}},
     "paper": {
         "geometry": {
             "resolution": 512,
