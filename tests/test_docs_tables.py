@@ -60,15 +60,15 @@ def test_a_changed_number_in_a_results_file_fails_the_check(tmp_path, capsys):
 
 def test_an_edited_table_fails_the_check(tmp_path, capsys):
     root = copy_docs(tmp_path)
-    readme = root / "README.md"
-    text = readme.read_text()
+    page = root / "docs" / "benchmarks.md"
+    text = page.read_text()
     edited = re.sub(
         r"\| skull \| whole \| (\d+) \|", lambda m: f"| skull | whole | {int(m.group(1)) + 1} |", text, count=1
     )
     assert edited != text  # the skull's held-out views, one more
-    readme.write_text(edited)
+    page.write_text(edited)
     assert tables.main(["--check", "--root", str(root)]) == 1
-    assert "README.md: table captures-headline" in capsys.readouterr().out
+    assert "benchmarks.md: table captures-headline" in capsys.readouterr().out
 
 
 def test_relative_links_point_to_existing_files():

@@ -79,7 +79,7 @@ class PipelineConfig:
     preset: str = setting(
         "demo",
         "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), quality (256 px: sharper, about 1.6x demo's time; "
-        "11 min for the 64 photos of docs/dev/real-captures.md's skull on 2 CPU cores), paper (512 px, one GPU)",
+        "10 to 11 min for the 64 photos of docs/dev/real-captures.md's skull on 2 CPU cores), paper (512 px, one GPU)",
         flag="--preset",
     )
     method: str = setting(
