@@ -96,7 +96,7 @@ def test_refine_seed_overrides_the_seed_for_refinement_only():
 
 def test_demo_offers_the_paper_preset_and_refuses_it_without_a_gpu(tmp_path, monkeypatch):
     result = run_cli("demo", "--help")
-    assert "{test,demo,paper}" in result.stdout
+    assert "{test,demo,quality,paper}" in result.stdout
     result = run_cli("demo", "--preset", "paper", "--out", tmp_path / "demo")
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "paper is sized for one CUDA GPU" in result.stderr and "--device cpu" in result.stderr
