@@ -98,7 +98,7 @@ def run_capture(name: str, args, out_root: Path) -> dict:
     compute = ["--backend", args.backend]
     before = args.compare_with / name / "run" if args.compare_with else None
     compare = [str(before)] if before is not None and before.is_dir() else []
-    variants = ["--variant", *(VARIANTS[:1] if args.user_asset_only else VARIANTS)]
+    variants = ["--variant", *([VARIANT] if args.user_asset_only else VARIANTS)]
     if not (run / "eval" / "heldout.json").exists():
         named = {"geometry.iterations": args.geometry_iterations, "refine.iterations": args.refine_iterations}
         extra = [f"{key}={value}" for key, value in named.items() if value]

@@ -69,11 +69,12 @@ def transposed_product(matrix: Tensor, grad: Tensor) -> Tensor:  # CSR [P, N] on
     out = grad.new_empty(matrix.shape[1], grad.shape[1])  # new_empty: on grad's device (tests' stray-tensor check)
     values = matrix.values()
     args = (matrix.crow_indices().numpy(), matrix.col_indices().numpy(), values.numpy(), grad.numpy())
-    misses = _misses()
+    misses = None if _TOLD else _misses()  # counted until a compilation was said: not on every backward pass
     start = time.perf_counter()
     with threads():
         scatter_transposed(*args, chunk_count(len(values)), out.numpy())
-    _tell_compiled(misses, start)
+    if misses is not None:
+        _tell_compiled(misses, start)
     return out
 
 
@@ -85,7 +86,7 @@ def _tell_compiled(misses: int, start: float) -> None:
     """Say once per process on stderr that the kernel was compiled (backend numba's warm-up compiles it; backend
     torch on the CPU compiles it at its first backward pass), and where later runs load it from."""
     global _TOLD
-    if _TOLD or _misses() == misses:
+    if _misses() == misses:
         return
     _TOLD = True
     print(
