@@ -1,17 +1,18 @@
-"""Refinement's frozen views on the CPU, with and without the transposes of their blend matrices: bytes kept and
-milliseconds per blend (forward and backward) at stitch's refinement scaled down.
+"""Refinement's frozen views on the CPU, packed (16-bit weights and columns, no transposes) and as torch's CSR
+matrices with their transposes: bytes kept and milliseconds per blend (forward and backward) at stitch's refinement
+scaled down.
 
     MATSPRAY_THREADS=1 python -m benchmarks.frozen_views_memory [--views 24] [--resolution 256]
                                                                 [--gaussians 32000] [--channels 8]
 
 A shell of `--gaussians` random Gaussians (radii 0.8 to 1 of a unit sphere, sizes and opacities such that a view
 blends about 34 weights per pixel, stitch's 33) seen by `--views` cameras on a sphere. The frozen views are made as
-refinement makes them (FrozenViews, backend numba's weights), which on the CPU keep one matrix per view; the old way
-kept each view's transpose too, made here view by view for its timing. Per view: the forward product and the backward
-pass of `--channels` features, the old one (the product with the transpose) and the new one (numba.sparse's scatter),
-the fastest of `--repeats` after one untimed; printed: the bytes kept each way, the ms per view of each, the largest
-difference of the gradients, and the load average (the machine may be shared: the times are CPU times of this
-process as well as wall-clock ones).
+refinement makes them (FrozenViews, backend numba's weights), which on the CPU keep one packed matrix per view; the
+old way kept torch's matrix and its transpose, made here view by view for its timing. Per view: the forward product
+and the backward pass of `--channels` features, the old way (torch's products) and the new (numba.sparse's gather
+and scatter), the fastest of `--repeats` after one untimed; printed: the bytes kept each way, the ms per view of
+each, the largest difference of the images and of the gradients (relative to the largest value), and the load
+average (the machine may be shared: the times are CPU times of this process as well as wall-clock ones).
 """
 
 from __future__ import annotations
@@ -49,10 +50,15 @@ def timed(function, repeats: int) -> tuple[float, float]:  # -> fastest (wall ms
     return best
 
 
-def blend(features: torch.Tensor, upstream: torch.Tensor, matrix, transposed) -> torch.Tensor:  # -> grad [N, C]
+def blend(features: torch.Tensor, upstream: torch.Tensor, matrix, transposed):  # -> image [P, C], grad [N, C]
     leaf = features.detach().requires_grad_(True)
-    (grad,) = torch.autograd.grad(SparseBlend.apply(leaf, matrix, transposed), leaf, upstream)
-    return grad
+    image = SparseBlend.apply(leaf, matrix, transposed)
+    (grad,) = torch.autograd.grad(image, leaf, upstream)
+    return image.detach(), grad
+
+
+def relative_difference(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float((a - b).abs().max() / a.abs().max())
 
 
 def main(argv=None) -> int:
@@ -72,27 +78,34 @@ def main(argv=None) -> int:
     g = torch.Generator().manual_seed(1)
     features = torch.rand(n, args.channels, generator=g)
     upstream = torch.rand(pixels, args.channels, generator=g)
-    old, new, difference = [0.0, 0.0], [0.0, 0.0], 0.0
+    old, new, differences = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
     for index, camera in enumerate(cameras):
         gaussian_ids, pixel_ids, weights = hits_of_view(gaussians, camera, "numba")
-        transposed = blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels)  # what the old way kept too
-        matrix = frozen.matrices[index]
-        for total, kept in ((old, transposed), (new, None)):
-            wall, cpu = timed(lambda kept=kept: blend(features, upstream, matrix, kept), args.repeats)
+        matrices = (  # what the old way kept
+            blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),
+            blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),
+        )
+        packed = (frozen.matrices[index], None)
+        for total, kept in ((old, matrices), (new, packed)):
+            wall, cpu = timed(lambda kept=kept: blend(features, upstream, *kept), args.repeats)
             total[0], total[1] = total[0] + wall / args.views, total[1] + cpu / args.views
-        grads = [blend(features, upstream, matrix, kept) for kept in (transposed, None)]
-        difference = max(difference, float((grads[0] - grads[1]).abs().max() / grads[0].abs().max()))
-        del transposed
+        results = [blend(features, upstream, *kept) for kept in (matrices, packed)]
+        for k in range(2):
+            differences[k] = max(differences[k], relative_difference(results[0][k], results[1][k]))
+        del matrices
     before = frozen_views_bytes(frozen.hits, pixels, n, args.views, transposed=True)
     print(
         f"{args.views} views of {args.resolution}x{args.resolution} px, {n} Gaussians, {args.channels} channels, "
         f"{threads} thread(s); {frozen.hits} weights ({frozen.hits / pixels / args.views:.1f} per pixel); "
         f"load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end"
     )
-    print(f"  kept: {before / 2**20:.1f} MiB with the transposes, {frozen.kept_bytes / 2**20:.1f} MiB without")
-    for name, (wall, cpu) in (("with the transposes", old), ("without (numba scatter)", new)):
+    print(f"  kept: {before / 2**20:.1f} MiB torch's with the transposes, {frozen.kept_bytes / 2**20:.1f} MiB packed")
+    for name, (wall, cpu) in (("torch's with the transposes", old), ("packed (numba gather and scatter)", new)):
         print(f"  forward + backward per view, {name}: {wall:.1f} ms wall, {cpu:.1f} ms CPU")
-    print(f"  largest difference of the gradients, relative to the largest: {difference:.1e}")
+    print(
+        f"  largest difference, relative to the largest value: images {differences[0]:.1e}, "
+        f"gradients {differences[1]:.1e}"
+    )
     return 0
 
 

@@ -6,6 +6,8 @@ from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.raster.rasterize import rasterize, view_weights
 from tests.test_rasterize import random_scene
 
+PACKED_ATOL = 1e-6 + 40 * 0.5 / 65535  # frozen views' packed weights (16 bits) of at most 40 Gaussians in a pixel
+
 
 def test_frozen_views_match_the_rasterizer_values_and_gradients():
     gaussians, camera = random_scene(40, 0, width=24, height=20)[:2]
@@ -13,12 +15,12 @@ def test_frozen_views_match_the_rasterizer_values_and_gradients():
     frozen = FrozenViews(gaussians, [camera])
     image, alpha = frozen.render(0, features)
     reference = rasterize(gaussians.detach(), camera, features)
-    assert torch.allclose(image, reference.features, atol=1e-5)
-    assert torch.allclose(alpha, reference.alpha, atol=1e-5)
+    assert (image - reference.features).abs().max() <= PACKED_ATOL
+    assert (alpha - reference.alpha).abs().max() <= PACKED_ATOL
     upstream = torch.rand_like(image)
     (grad,) = torch.autograd.grad((image * upstream).sum(), features)
     (grad_ref,) = torch.autograd.grad((reference.features * upstream).sum(), features)
-    assert torch.allclose(grad, grad_ref, atol=1e-5)
+    assert (grad - grad_ref).abs().max() <= 1e-5 + 12 * PACKED_ATOL  # a Gaussian's weights over 480 pixels
     assert frozen.visible(0).any()
 
 
@@ -76,7 +78,7 @@ def test_frozen_views_use_the_compiled_weights_on_backend_numba(monkeypatch):
     with rendering_with("numba") as use:
         image, _ = FrozenViews(gaussians, [camera]).render(0, features)
     assert use.used().get("numba", 0) >= 1 and "torch" not in use.used()
-    assert torch.allclose(image, rasterize(gaussians, camera, features).features, atol=1e-5)
+    assert torch.allclose(image, rasterize(gaussians, camera, features).features, atol=PACKED_ATOL)
     monkeypatch.setattr(numba_backend, "RECORD_BUDGET", 10)  # a record too large: torch's weights instead
     with rendering_with("numba") as use:
         again, _ = FrozenViews(gaussians, [camera]).render(0, features)

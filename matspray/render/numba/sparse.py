@@ -1,18 +1,25 @@
-"""The backward pass of frozen views' blend on the CPU (matspray.render.raster.gbuffer.SparseBlend): the product of the
-transpose of a view's CSR blend matrix [pixels, Gaussians] with the image's gradient, without keeping that transpose
-(half the frozen views' memory: docs/dev/real-captures.md, "Frozen views without their transposes").
+"""Frozen views' blend matrices on the CPU (matspray.render.raster.gbuffer): each view's blending weights as a packed
+CSR matrix [pixels, Gaussians], its product with the features and, for the backward pass, the product of its
+transpose with the image's gradient, without keeping that transpose.
 
-Rows are cut into chunks of about CHUNK_HITS weights; each chunk scatters its rows into a [N, C] buffer of its own
-(chunks run in parallel), and the buffers are summed in chunk order. The chunks depend on the matrix only, so the
-gradient has the same bits whatever the thread count.
+Packed: a column (Gaussian) index takes 16 bits where the Gaussians number at most 2^16 (32 beyond), and a weight,
+which lies in [0, 1], is kept as round(weight * WEIGHT_STEPS) in 16 bits, within 0.5 / WEIGHT_STEPS (7.6e-6) of
+itself: 4 bytes per (Gaussian, pixel) weight instead of torch CSR's 8, and 16 with the transpose
+(docs/dev/real-captures.md, "Frozen views without their transposes" and "Packed frozen views").
+
+The product is a gather, row by row. The transposed product cuts the rows into chunks of about CHUNK_HITS weights;
+each chunk scatters its rows into a [N, C] buffer of its own (chunks run in parallel), and the buffers are summed in
+chunk order. Both depend on the matrix only, so their results have the same bits whatever the thread count.
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
+import torch
 from numba import prange
 from torch import Tensor
 
@@ -21,7 +28,43 @@ from matspray.render.numba.threads import threads
 
 CHUNK_HITS = 1 << 18  # weights per chunk: a chunk's [N, C] buffer costs about as much as scattering them
 MAX_CHUNKS = 16  # at most this many [N, C] buffers at once
-_TOLD = False  # whether a compilation of the kernel was said on stderr
+WEIGHT_STEPS = 65535  # a weight w in [0, 1] is kept as the 16-bit integer round(w * WEIGHT_STEPS)
+_TOLD = False  # whether a compilation of the kernels was said on stderr
+
+
+@dataclass(frozen=True, eq=False)
+class PackedBlend:
+    """A view's blend matrix [rows, columns] (pixels, Gaussians): CSR row pointers `crow` [rows + 1] (int32, or
+    int64 for 2^31 weights or more), column indices `col` [M] (uint16, or int32 for more than 2^16 columns) and
+    weights `steps` [M] (uint16, the weight times WEIGHT_STEPS). `matrix @ features` is its product."""
+
+    crow: np.ndarray
+    col: np.ndarray
+    steps: np.ndarray
+    shape: tuple[int, int]
+
+    @property
+    def nbytes(self) -> int:
+        return self.crow.nbytes + self.col.nbytes + self.steps.nbytes
+
+    def weights(self, dtype: torch.dtype = torch.float32) -> Tensor:  # [M]: the weights as the products use them
+        like = torch.empty(0, dtype=dtype)
+        return torch.from_numpy(self.steps.astype(like.numpy().dtype) * _step(like))
+
+    def __matmul__(self, features: Tensor) -> Tensor:  # [N, C] -> [P, C], in features' float type
+        features = features.contiguous()
+        out = features.new_empty(self.shape[0], features.shape[1])
+        _run(gather_rows, self.crow, self.col, self.steps, _step(features), features.numpy(), out.numpy())
+        return out
+
+
+def pack_blend(crow: Tensor, columns: Tensor, weights: Tensor, n_columns: int) -> PackedBlend:
+    """The CSR matrix (crow [P + 1], columns [M], weights [M] in [0, 1], on the CPU) packed."""
+    index = np.int32 if len(weights) < 2**31 else np.int64
+    col = np.int32 if n_columns > 2**16 else np.uint16
+    steps = torch.round(weights.detach().float().clamp(0.0, 1.0) * WEIGHT_STEPS).to(torch.int32)
+    shape = (len(crow) - 1, n_columns)
+    return PackedBlend(crow.numpy().astype(index), columns.numpy().astype(col), steps.numpy().astype(np.uint16), shape)
 
 
 def chunk_count(hits: int) -> int:
@@ -29,12 +72,28 @@ def chunk_count(hits: int) -> int:
 
 
 @njit(cache=True, parallel=True)
-def scatter_transposed(crow, col, val, grad, chunks, out):
-    """out [N, C] = A^T grad, A the CSR matrix (crow [P + 1], col [M], val [M]) [P, N], grad [P, C] C-contiguous.
-    Each chunk of rows (bounds by equal shares of the weights) adds into its own buffer; the buffers are summed in
-    chunk order."""
+def gather_rows(crow, col, steps, step, features, out):
+    """out [P, C] = A features [N, C], A the packed matrix (crow [P + 1], col [M], steps [M]) [P, N]; `step` [1]:
+    1 / WEIGHT_STEPS in the float type of the features."""
+    p_count, c = out.shape
+    real = features.dtype.type  # the 16-bit integers become floats of the features' type, not float64
+    for p in prange(p_count):
+        row = out[p]
+        row[:] = 0
+        for e in range(crow[p], crow[p + 1]):
+            weight = real(steps[e]) * step[0]
+            source = features[col[e]]
+            for j in range(c):
+                row[j] += weight * source[j]
+
+
+@njit(cache=True, parallel=True)
+def scatter_transposed(crow, col, steps, step, grad, chunks, out):
+    """out [N, C] = A^T grad [P, C] (C-contiguous), A the packed matrix [P, N] as in `gather_rows`. Each chunk of
+    rows (bounds by equal shares of the weights) adds into its own buffer; the buffers are summed in chunk order."""
     p_count, c = grad.shape
     n = out.shape[0]
+    real = grad.dtype.type
     bounds = np.empty(chunks + 1, np.int64)
     bounds[0], bounds[chunks] = 0, p_count
     row = 0
@@ -52,7 +111,7 @@ def scatter_transposed(crow, col, val, grad, chunks, out):
             source = np.uint64(p) * width
             for e in range(crow[p], crow[p + 1]):
                 target = np.uint64(col[e]) * width
-                weight = val[e]
+                weight = real(steps[e]) * step[0]
                 for j in range(width):
                     part[target + j] += weight * flat[source + j]
     for i in prange(n):
@@ -63,44 +122,52 @@ def scatter_transposed(crow, col, val, grad, chunks, out):
             out[i, j] = total
 
 
-def transposed_product(matrix: Tensor, grad: Tensor) -> Tensor:  # CSR [P, N] on the CPU, [P, C] -> [N, C]
-    """matrix^T @ grad, in matrix's float type (grad's must be the same), on numba's threads (as many as torch's)."""
+def transposed_product(matrix: PackedBlend, grad: Tensor) -> Tensor:  # [P, N], [P, C] -> [N, C]
+    """matrix^T @ grad, in grad's float type."""
     grad = grad.contiguous()
     out = grad.new_empty(matrix.shape[1], grad.shape[1])  # new_empty: on grad's device (tests' stray-tensor check)
-    values = matrix.values()
-    args = (matrix.crow_indices().numpy(), matrix.col_indices().numpy(), values.numpy(), grad.numpy())
-    misses = None if _TOLD else _misses()  # counted until a compilation was said: not on every backward pass
-    start = time.perf_counter()
-    with threads():
-        scatter_transposed(*args, chunk_count(len(values)), out.numpy())
-    if misses is not None:
-        _tell_compiled(misses, start)
+    chunks = chunk_count(len(matrix.steps))
+    _run(scatter_transposed, matrix.crow, matrix.col, matrix.steps, _step(grad), grad.numpy(), chunks, out.numpy())
     return out
 
 
+def _run(kernel, *args) -> None:
+    """kernel(*args) on numba's threads (as many as torch's), saying once if that compiled it."""
+    misses = None if _TOLD else _misses()  # counted until a compilation was said: not on every product
+    start = time.perf_counter()
+    with threads():
+        kernel(*args)
+    if misses is not None:
+        _tell_compiled(misses, start)
+
+
+def _step(like: Tensor) -> np.ndarray:  # [1]: 1 / WEIGHT_STEPS in like's float type
+    return np.array([1.0 / WEIGHT_STEPS], dtype=like.numpy().dtype)
+
+
 def _misses() -> int:
-    return sum(scatter_transposed.stats.cache_misses.values())
+    return sum(sum(kernel.stats.cache_misses.values()) for kernel in (gather_rows, scatter_transposed))
 
 
 def _tell_compiled(misses: int, start: float) -> None:
-    """Say once per process on stderr that the kernel was compiled (backend numba's warm-up compiles it; backend
-    torch on the CPU compiles it at its first backward pass), and where later runs load it from."""
+    """Say once per process on stderr that the kernels were compiled (backend numba's warm-up compiles them; backend
+    torch on the CPU compiles them at the first frozen view's render), and where later runs load them from."""
     global _TOLD
     if _misses() == misses:
         return
     _TOLD = True
     print(
-        f"numba: compiled the frozen views' backward kernel in {time.perf_counter() - start:.1f} s, once: later runs "
-        f"load it from {scatter_transposed.stats.cache_path}",
+        f"numba: compiled the frozen views' kernels in {time.perf_counter() - start:.1f} s, once: later runs "
+        f"load them from {scatter_transposed.stats.cache_path}",
         file=sys.stderr,
         flush=True,
     )
 
 
 def warm_up(np_dtype) -> None:
-    """Compile (or load) the kernel for `np_dtype` weights with 32-bit indices, as frozen views make them (backend
-    numba's warm-up, which says itself what it compiled)."""
-    empty = np.zeros(0, np.int32)
-    scatter_transposed(
-        np.zeros(2, np.int32), empty, np.zeros(0, np_dtype), np.zeros((1, 1), np_dtype), 1, np.empty((1, 1), np_dtype)
-    )
+    """Compile (or load) the kernels for `np_dtype` features and matrices of 16-bit columns, as frozen views of up to
+    2^16 Gaussians make them (backend numba's warm-up, which says itself what it compiled)."""
+    matrix = PackedBlend(np.zeros(2, np.int32), np.zeros(0, np.uint16), np.zeros(0, np.uint16), (1, 1))
+    step, ones = np.ones(1, np_dtype), np.zeros((1, 1), np_dtype)
+    gather_rows(matrix.crow, matrix.col, matrix.steps, step, ones, np.empty((1, 1), np_dtype))
+    scatter_transposed(matrix.crow, matrix.col, matrix.steps, step, ones, 1, np.empty((1, 1), np_dtype))

@@ -10,9 +10,10 @@ matspray.render.numba.weights) the
 matrices stay where `storage` says: on the Gaussians' device, on the host (copied to the device view by view),
 or "auto": on a CUDA device while it keeps DEVICE_RESERVE of its memory free, on the host after that
 (`frozen_views_bytes` says how large they are). Frozen views of Gaussians on a CUDA device keep each matrix and its
-transpose (the backward pass is cuSPARSE's product with the transpose); on the CPU only the matrix, the backward
-pass a compiled scatter over it (matspray.render.numba.sparse): half the memory, for a slower backward product
-(docs/dev/real-captures.md, "Frozen views without their transposes").
+transpose (the backward pass is cuSPARSE's product with the transpose); on the CPU only the matrix, packed in 4 bytes
+a weight (16-bit columns and weights), its products compiled, the backward pass a scatter over it
+(matspray.render.numba.sparse): a quarter of the memory (docs/dev/real-captures.md, "Frozen views without their
+transposes" and "Packed frozen views").
 """
 
 from __future__ import annotations
@@ -27,43 +28,61 @@ from matspray.gaussians import Gaussians
 from matspray.render.backend import active_backend
 from matspray.render.raster.rasterize import rasterize, view_weights
 
-# a (Gaussian, pixel) weight in one matrix: an int32 column index and a float32 value (int64 indices for a matrix of
-# 2^31 entries or more: `blend_matrix`); kept twice on a CUDA device (the matrix and its transpose)
+# a (Gaussian, pixel) weight in one torch matrix: an int32 column index and a float32 value (int64 indices for a
+# matrix of 2^31 entries or more: `blend_matrix`); kept twice on a CUDA device (the matrix and its transpose)
 BYTES_PER_HIT = 4 + 4
 DEVICE_RESERVE = 0.25  # share of a GPU's memory left free for the rest of refinement (storage "auto")
 
 
 def frozen_views_bytes(hits: int, pixels: int, gaussians: int, views: int, transposed: bool = True) -> int:
-    """Bytes the torch backend's frozen views keep: `hits` (Gaussian, pixel) weights over all views, plus each
-    view's row pointers (pixels + 1 int32); with `transposed` (frozen views on a CUDA device), the transposes too
-    (the weights again, gaussians + 1 row pointers)."""
+    """Bytes the torch and numba backends' frozen views keep: `hits` (Gaussian, pixel) weights over all views, plus
+    each view's row pointers (pixels + 1 int32). With `transposed` (frozen views on a CUDA device) torch's matrices
+    and their transposes (the weights again, gaussians + 1 row pointers); without (on the CPU) the packed matrices
+    (2 bytes a weight, and 2 a column index for up to 2^16 Gaussians, 4 beyond)."""
     if transposed:
         return 2 * BYTES_PER_HIT * hits + 4 * views * (pixels + gaussians + 2)
-    return BYTES_PER_HIT * hits + 4 * views * (pixels + 1)
+    return (2 + (2 if gaussians <= 2**16 else 4)) * hits + 4 * views * (pixels + 1)
+
+
+def sorted_pairs(
+    column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: int, n_columns: int
+) -> tuple[Tensor, Tensor, Tensor]:  # -> crow [n_rows + 1] int64, columns [M], weights [M]
+    """The pairs (row_ids, column_ids) [M] and their `weights` [M] in CSR order: by row, then column. Made by one sort
+    of the pairs, not by COO's coalesce (three times faster and without its intermediates)."""
+    row_ids = row_ids.long()
+    order = torch.argsort(row_ids * n_columns + column_ids.long())
+    crow = torch.zeros(n_rows + 1, dtype=torch.int64, device=weights.device)
+    crow[1:] = torch.bincount(row_ids.index_select(0, order), minlength=n_rows).cumsum(0)
+    return crow, column_ids.index_select(0, order), weights.index_select(0, order)
 
 
 def blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: int, n_columns: int) -> Tensor:
     """Sparse CSR matrix [n_rows, n_columns] with `weights` [M] at (row_ids, column_ids) [M]: a view's
     blending weights as [pixels, Gaussians] (or, swapped, its transpose). A pair given twice is summed by the product.
-
-    Made by one sort of the pairs, not by COO's coalesce (three times faster and without its intermediates). The
-    indices are 32-bit where they fit: a third less memory (a dense view of many Gaussians holds tens of hits per
+    The indices are 32-bit where they fit: a third less memory (a dense view of many Gaussians holds tens of hits per
     pixel) and a faster product on the CPU."""
     index = torch.int32 if max(n_rows, n_columns, len(weights)) < 2**31 else torch.int64
-    row_ids = row_ids.long()
-    order = torch.argsort(row_ids * n_columns + column_ids.long())
-    rows = row_ids.index_select(0, order)
-    crow = torch.zeros(n_rows + 1, dtype=torch.int64, device=weights.device)
-    crow[1:] = torch.bincount(rows, minlength=n_rows).cumsum(0)
-    columns, values = column_ids.index_select(0, order).to(index), weights.index_select(0, order)
+    crow, columns, values = sorted_pairs(column_ids, row_ids, weights, n_rows, n_columns)
     with warnings.catch_warnings():  # torch calls sparse CSR "beta"; only its matrix product is used here
         warnings.simplefilter("ignore", UserWarning)
-        return torch.sparse_csr_tensor(crow.to(index), columns, values, (n_rows, n_columns), check_invariants=False)
+        return torch.sparse_csr_tensor(
+            crow.to(index), columns.to(index), values, (n_rows, n_columns), check_invariants=False
+        )
+
+
+def packed_blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: int, n_columns: int):
+    """`blend_matrix` packed for the CPU (matspray.render.numba.sparse.PackedBlend: a quarter of a torch matrix and
+    its transpose), from pairs on the CPU."""
+    from matspray.render.numba.sparse import pack_blend
+
+    crow, columns, values = sorted_pairs(column_ids, row_ids, weights, n_rows, n_columns)
+    return pack_blend(crow, columns, values, n_columns)
 
 
 class SparseBlend(torch.autograd.Function):
     """features [N, C] -> matrix @ features [P, C]; the backward pass multiplies by the stored transpose, or without
-    one (None: frozen views on the CPU) scatters through the matrix (`transposed_product`)."""
+    one (None: frozen views on the CPU, whose matrices are packed) scatters through the matrix
+    (`transposed_product`)."""
 
     @staticmethod
     def forward(ctx, features: Tensor, matrix: Tensor, transposed: Tensor | None) -> Tensor:
@@ -118,12 +137,15 @@ class FrozenViews:
                 continue
             gaussian_ids, pixel_ids, weights = hits_of_view(gaussians, camera, self.backend)  # [M] each
             pixels = camera.height * camera.width
-            matrices = [blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n)]  # [HW, N]
-            if self.keeps_transposes:
-                matrices.append(blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels))  # [N, HW]
             on_host = storage == "host" or (storage == "auto" and not _room_on(device))
-            if on_host:
-                matrices = [_to_host(m) for m in matrices]
+            if self.keeps_transposes:
+                matrices = [
+                    blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),  # [HW, N]
+                    blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),  # [N, HW]
+                ]
+                matrices = [_to_host(m) for m in matrices] if on_host else matrices
+            else:  # on the host already
+                matrices = [packed_blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n)]  # [HW, N]
             self.on_host.append(on_host)
             self.hits += len(weights)
             self.kept_bytes += sum(_sparse_bytes(m) for m in matrices)
@@ -145,10 +167,10 @@ class FrozenViews:
         if self.backend == "gsplat":
             return rasterize(self.gaussians, camera, features, backend=self.backend).features
         matrices = [self.matrices[index], self.transposed[index]]
-        if self.on_host[index]:
-            matrices = [m if m is None else m.to(features.device, non_blocking=True) for m in matrices]
-        if features.dtype != matrices[0].dtype:  # e.g. float64 for gradcheck
-            matrices = [m if m is None else m.to(features.dtype) for m in matrices]
+        if self.keeps_transposes and self.on_host[index]:
+            matrices = [m.to(features.device, non_blocking=True) for m in matrices]
+        if self.keeps_transposes and features.dtype != matrices[0].dtype:  # e.g. float64 for gradcheck
+            matrices = [m.to(features.dtype) for m in matrices]  # (the packed ones' products take any float type)
         return SparseBlend.apply(features.contiguous(), *matrices).reshape(camera.height, camera.width, -1)
 
     def render(self, index: int, features: Tensor) -> tuple[Tensor, Tensor]:
@@ -157,11 +179,12 @@ class FrozenViews:
 
     def describe(self) -> dict:
         """What the views keep, for a stage record: the backend, bytes, (Gaussian, pixel) weights, whether the
-        transposes are kept too, pixels, views on the host."""
+        transposes are kept too or the matrices packed, pixels, views on the host."""
         return {
             "backend": self.backend,
             "bytes": self.kept_bytes,
             "transposed": self.keeps_transposes and self.backend != "gsplat",
+            "packed": not self.keeps_transposes and self.backend != "gsplat",  # 16-bit weights and columns
             "hits": self.hits,
             "gaussians": len(self.means),
             "pixels": sum(c.width * c.height for c in self.cameras),
@@ -214,7 +237,9 @@ def _to_host(matrix: Tensor) -> Tensor:
     return host.pin_memory() if torch.cuda.is_available() else host
 
 
-def _sparse_bytes(matrix: Tensor) -> int:
+def _sparse_bytes(matrix) -> int:
+    if not isinstance(matrix, Tensor):  # packed
+        return matrix.nbytes
     parts = (matrix.crow_indices(), matrix.col_indices(), matrix.values())
     return sum(p.numel() * p.element_size() for p in parts)
 
