@@ -7,15 +7,7 @@ Where /proc is absent or refuses the reset (not Linux), the peak is None and not
 
 `release_free_memory()` hands what the C allocator holds free back to the system (glibc's malloc_trim): glibc keeps
 freed small blocks in its arenas (one per thread that allocated: pycolmap's SIFT threads, torch's), so without it a
-stage's peak stays resident after the stage and the next stage's peak comes on top of it.
-
-`map_large_blocks()` has glibc serve every block of MAPPED_BLOCK bytes or more by its own mapping, returned whole when
-freed. By default glibc raises that threshold to the size of the largest block freed so far (up to 32 MiB), so that
-after the first large photo or tensor is freed the later ones come from the arenas, where blocks still in use keep
-them from shrinking: a whole `matspray run` on stitch then held 0.2 to 0.4 GB more when its refinement began than with
-the threshold fixed, and peaked 0.3 to 0.5 GB higher. Refinement allocates its per-step tensors of a few MiB again
-at every step, and mapping each anew made it a third slower: it runs with `large_blocks_on_heap()`
-(docs/dev/real-captures.md, "Packed frozen views")."""
+stage's peak stays resident after the stage and the next stage's peak comes on top of it."""
 
 from __future__ import annotations
 
@@ -51,9 +43,6 @@ def _libc():
 
 
 _LIBC = _libc()
-M_MMAP_THRESHOLD = -3  # mallopt's parameter (glibc's malloc.h)
-MAPPED_BLOCK = 4 * 2**20  # blocks at least this large are mapped (`map_large_blocks`)
-HEAP_BLOCK = 32 * 2**20  # glibc's ceiling for its own threshold (64-bit): refinement's steps reuse their blocks
 
 
 def release_free_memory() -> bool:
@@ -63,23 +52,6 @@ def release_free_memory() -> bool:
         return False
     _LIBC.malloc_trim(0)
     return True
-
-
-def map_large_blocks(threshold: int = MAPPED_BLOCK) -> bool:
-    """Serve blocks of `threshold` bytes or more by their own mapping from now on (glibc's M_MMAP_THRESHOLD: fixed,
-    no longer raised by what is freed). Returns whether it could (glibc; elsewhere nothing happens)."""
-    return _LIBC is not None and hasattr(_LIBC, "mallopt") and _LIBC.mallopt(M_MMAP_THRESHOLD, int(threshold)) == 1
-
-
-@contextmanager
-def large_blocks_on_heap():
-    """Within the block, blocks below HEAP_BLOCK come from the arenas (where a loop finds them again), then
-    `map_large_blocks()` again."""
-    map_large_blocks(HEAP_BLOCK)
-    try:
-        yield
-    finally:
-        map_large_blocks()
 
 
 def process_peak_bytes() -> int | None:

@@ -1,7 +1,5 @@
 """The peak resident memory of a block (matspray.memory) and the stage records that keep it."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -90,49 +88,3 @@ def test_memory_freed_in_small_blocks_leaves_the_process_when_a_stage_ends():
     assert held - start > 150 * MIB  # freed, but still resident before the stage ended
     assert after - start < 50 * MIB, ((held - start) / MIB, (after - start) / MIB)
     assert top
-
-
-LARGE_BLOCKS_FREED = """
-import sys
-import numpy as np
-from matspray.memory import map_large_blocks, STATUS
-
-def rss():
-    return next(int(l.split()[1]) for l in STATUS.read_text().splitlines() if l.startswith("VmRSS:")) * 1024
-
-if sys.argv[1] == "mapped":
-    assert map_large_blocks()
-warm = np.ones(6 * 2**20, np.uint8); del warm  # glibc's own threshold rises past 6 MiB here
-before = rss()
-big, small = [], []
-for _ in range(24):  # 24 blocks of 6 MiB, a small block kept after each
-    big.append(np.ones(6 * 2**20, np.uint8))
-    small.append(np.ones(64, np.uint8).tobytes() * 1000)
-del big
-print(rss() - before)
-"""
-
-
-@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="no /proc: resident memory is not read")
-def test_large_blocks_freed_leave_the_process_once_they_are_mapped():
-    """Freed without malloc_trim: 144 MiB of 6 MiB blocks, each followed by a small block still in use, stay resident
-    under glibc's moving threshold and leave the process with map_large_blocks (each in a fresh process: the
-    threshold is the process's)."""
-    import subprocess
-    import sys
-
-    if _libc_mallopt() is None:
-        pytest.skip("not glibc: map_large_blocks does nothing")
-    held = {}
-    for mode in ("default", "mapped"):
-        out = subprocess.run(
-            [sys.executable, "-c", LARGE_BLOCKS_FREED, mode], capture_output=True, text=True, check=True
-        )
-        held[mode] = int(out.stdout.split()[-1])
-    assert held["default"] > 100 * MIB and held["mapped"] < 20 * MIB, held
-
-
-def _libc_mallopt():
-    from matspray import memory
-
-    return None if memory._LIBC is None else getattr(memory._LIBC, "mallopt", None)

@@ -511,39 +511,6 @@ def test_the_variants_of_a_run_share_the_frozen_views_and_a_light_warm_up_that_s
         torch.testing.assert_close(shared.materials, own.materials, rtol=0, atol=0)
 
 
-def test_a_run_maps_large_blocks_and_its_refinement_keeps_them_on_the_heap(
-    finished_run, tiny_object, tmp_path, monkeypatch
-):
-    """matspray.memory.map_large_blocks from the pipeline's start; refinement (and only it) inside
-    large_blocks_on_heap."""
-    import shutil
-    from contextlib import contextmanager
-
-    from matspray.method import pipeline as pipeline_module
-
-    calls, inside = [], []
-
-    @contextmanager
-    def on_heap():
-        calls.append("heap")
-        inside.append(True)
-        yield
-        inside.pop()
-        calls.append("mapped")
-
-    refine = pipeline_module.refine
-    monkeypatch.setattr(pipeline_module, "map_large_blocks", lambda: calls.append("mapped"))
-    monkeypatch.setattr(pipeline_module, "large_blocks_on_heap", on_heap)
-    monkeypatch.setattr(
-        pipeline_module, "refine", lambda *a, **k: calls.append(f"refine {bool(inside)}") or refine(*a, **k)
-    )
-    run = tmp_path / "run"
-    shutil.copytree(finished_run, run)
-    shutil.rmtree(run / asset_stage("no-prior"))
-    Pipeline(tiny_object, run, tiny_config(), progress=False, log=lambda _: None).refine("no-prior")
-    assert calls == ["mapped", "heap", "refine True", "mapped"]
-
-
 def test_a_run_with_backend_numba_compiles_its_kernels_while_it_reads_its_data(tiny_object, tmp_path, monkeypatch):
     from matspray.method import pipeline as pipeline_module
 

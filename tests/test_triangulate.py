@@ -101,6 +101,19 @@ def test_stage_falls_back_in_one_line_and_caches(tmp_path):
     assert (tmp_path / "points" / "points.pt").is_file() and not list((tmp_path / "points").glob("*.tmp*"))
 
 
+def test_the_stage_gives_back_what_reading_the_photos_freed_before_sift(tmp_path, monkeypatch):
+    """malloc_trim between the photos read again and the feature extraction: their freed float images would else stay
+    resident under SIFT's threads (docs/dev/real-captures.md, "Packed frozen views")."""
+    from matspray.data import triangulate
+
+    calls = []
+    monkeypatch.setattr(triangulate, "feature_views", lambda scene, size: calls.append("read") or scene.train)
+    monkeypatch.setattr(triangulate, "release_free_memory", lambda: calls.append("trim"))
+    monkeypatch.setattr(triangulate, "triangulate_views", lambda *a: calls.append("sift") or triangulate._nothing("-"))
+    points_stage(RunDir(tmp_path), "fp", _Scene(plane_views(count=2, size=16)), PointsConfig(), False, lambda _: None)
+    assert calls[:3] == ["read", "trim", "sift"]
+
+
 def test_needs_points_only_for_unmasked_captures_without_points():
     class Bare:
         points, has_masks = None, False

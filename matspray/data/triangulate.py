@@ -29,6 +29,7 @@ from matspray.data.images import linear_to_srgb, save_torch_atomic, srgb_to_line
 from matspray.data.scene import MIN_COLMAP_POINTS, Scene, View
 from matspray.data.sfm import SfmConfig, extract_sift
 from matspray.errors import ConfigError
+from matspray.memory import release_free_memory
 from matspray.rundir import RunDir, timed
 from matspray.settings import setting
 
@@ -242,7 +243,9 @@ def points_stage(
     else:
         log(f"points: the capture has no masks and no points; triangulating features of {len(scene.train)} views")
         with timed() as timer:
-            result = triangulate_views(feature_views(scene, config.max_size), config, progress, log)
+            views = feature_views(scene, config.max_size)
+            release_free_memory()  # what reading the photos again freed, before SIFT's threads allocate beside it
+            result = triangulate_views(views, config, progress, log)
             save_torch_atomic({"points": result.points, "colours": result.colours, "message": result.message}, path)
         run.finish_stage(STAGE, fingerprint, config, timer.seconds, {"points": len(result.points)}, timer.peak_mib)
     where = f" (reused {STAGE}/{POINTS_FILE})" if reused else ""

@@ -20,7 +20,7 @@ from matspray.device import configure_threads, out_of_memory_as_error, resolve_d
 from matspray.geometry.ply import read_ply
 from matspray.geometry.region import ObjectRegion
 from matspray.geometry.train import train_geometry
-from matspray.memory import large_blocks_on_heap, map_large_blocks, release_free_memory
+from matspray.memory import release_free_memory
 from matspray.method import stages
 from matspray.method.asset import Asset, read_asset, write_asset
 from matspray.method.config import PipelineConfig
@@ -53,7 +53,6 @@ class Pipeline:
     says. Every stage method returns its artifact."""
 
     def __init__(self, data, out, config: PipelineConfig, overwrite=False, progress=True, log=print, wait=False):
-        map_large_blocks()  # large blocks freed leave the process (refinement keeps its own: `refine`)
         device = resolve_device(config.device)
         configure_threads(device)
         # "torch", "numba" or "gsplat"; fails here, before any work. Every stage renders with it (see _stage)
@@ -288,8 +287,7 @@ class Pipeline:
             if self._frozen_views is None and get_variant(variant).trains and config.iterations > 0:
                 self._frozen_views = frozen_views(inputs)
             frozen, warmed = self._frozen_views, self._warmed_lights
-            with large_blocks_on_heap():  # its steps allocate the same blocks of a few MiB again and again
-                result = refine(inputs, config, self.progress, light=probe, frozen=frozen, warmed_lights=warmed)
+            result = refine(inputs, config, self.progress, light=probe, frozen=frozen, warmed_lights=warmed)
             write_asset(self.run.path(stage), inputs.gaussians, result)
             precision = str(self.plan.merger_dtypes[variant]).removeprefix("torch.")
             return config, {"history": result.history, "frozen_views": result.frozen, "merger_precision": precision}
