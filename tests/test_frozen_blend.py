@@ -34,12 +34,18 @@ def random_hits(seed: int, hits: int, pixels: int, count: int, dtype, twice: boo
     return gaussian_ids, pixel_ids, torch.rand(hits, generator=g, dtype=dtype)
 
 
+def unpacked(packed: sparse.PackedBlend, dtype=torch.float32) -> torch.Tensor:  # [M]
+    """The weights as the products of `dtype` features use them: each step times 1 / WEIGHT_STEPS in that type."""
+    real = torch.empty(0, dtype=dtype).numpy().dtype.type
+    return torch.from_numpy(packed.steps.astype(real) * real(1.0 / sparse.WEIGHT_STEPS))
+
+
 def dense_of(packed: sparse.PackedBlend, dtype=torch.float32) -> torch.Tensor:  # -> [P, N] float64
     """The weights that the products of `dtype` features use."""
     rows = torch.repeat_interleave(torch.arange(packed.shape[0]), torch.from_numpy(np.diff(packed.crow)).long())
     columns = torch.from_numpy(packed.col.astype(np.int64))
     dense = torch.zeros(packed.shape, dtype=torch.float64)
-    return dense.index_put_((rows, columns), packed.weights(dtype).double(), accumulate=True)
+    return dense.index_put_((rows, columns), unpacked(packed, dtype).double(), accumulate=True)
 
 
 def blend(features, upstream, matrix, transposed=None):  # -> image [P, C], grad [N, C]
@@ -102,8 +108,8 @@ def test_packing_keeps_each_weight_within_half_a_step_and_16_bit_columns_up_to_2
         assert packed.col.tolist() == [7, 7, 0, count - 1, 3]  # by pixel, then Gaussian
         assert packed.crow.tolist()[:6] == [0, 2, 2, 2, 2, 4] and packed.crow[-1] == 5
         expected = torch.tensor([0.3, 0.123456789, 1.0, 0.0, 1e-6])
-        assert (packed.weights() - expected).abs().max() <= HALF_STEP
-        assert packed.weights()[2] == 1.0 and packed.weights()[3] == 0.0  # the ends exactly
+        assert (unpacked(packed) - expected).abs().max() <= HALF_STEP
+        assert unpacked(packed)[2] == 1.0 and unpacked(packed)[3] == 0.0  # the ends exactly
     wide = packed_blend_matrix(gaussian_ids, pixel_ids, weights, pixels, count)
     features = torch.rand(count, 2)
     torch.testing.assert_close((wide @ features).double(), dense_of(wide) @ features.double())

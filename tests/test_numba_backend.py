@@ -477,3 +477,23 @@ def test_a_second_thread_waits_for_a_warm_up_in_progress_and_a_failed_one_is_not
     second.join(30)
     assert not first.is_alive() and not second.is_alive()
     assert len(failed) == 2 and len(runs) == 2 and "float32" not in numba_backend._READY  # each tried, none ready
+
+
+def test_a_kernel_s_compilation_is_said_once_per_argument_types_and_later_calls_only_run_it(capsys, monkeypatch):
+    import numba
+
+    from matspray.render.numba import kernels as numba_kernels
+
+    @numba.njit
+    def doubled(x):
+        return x * 2
+
+    counted = []
+    cache_misses = numba_kernels.cache_misses
+    monkeypatch.setattr(numba_kernels, "cache_misses", lambda d: counted.append(1) or cache_misses(d))
+    ints, floats = np.arange(3), np.ones(2)
+    results = [numba_kernels.call_saying_compiled(doubled, "doubling", a) for a in (ints, ints, floats, floats)]
+    said = [line for line in capsys.readouterr().err.splitlines() if line.startswith("numba:")]
+    assert [r.tolist() for r in results] == [[0, 2, 4], [0, 2, 4], [2.0, 2.0], [2.0, 2.0]]
+    assert len(said) == 2 and all(line.startswith("numba: compiled doubling in ") for line in said), said
+    assert len(counted) == 4  # before and after the first call of each argument type only

@@ -363,18 +363,8 @@ def _unrecorded_backward(common: tuple, slot, state: tuple, grad):
     """numba_kernels.backward, for renders whose record would pass RECORD_BUDGET (large images with many Gaussians).
     It is not part of `ensure_compiled`'s warm-up (most runs never need it): compiled at its first use instead, which
     is said once on stderr with its time, and cached as the others."""
-    dispatcher = kernels().backward
-    misses = _cache_misses([dispatcher])
-    start = time.perf_counter()
-    entry_grads = dispatcher(*common, slot, *state, grad)
-    if _cache_misses([dispatcher]) > misses:
-        print(
-            f"numba: compiled the backward kernel for renders of more than {RECORD_BUDGET} hits in "
-            f"{time.perf_counter() - start:.1f} s, once: later runs load it from {dispatcher.stats.cache_path}",
-            file=sys.stderr,
-            flush=True,
-        )
-    return entry_grads
+    what = f"the backward kernel for renders of more than {RECORD_BUDGET} hits"
+    return kernels().call_saying_compiled(kernels().backward, what, *common, slot, *state, grad)
 
 
 def _dispatchers(*modules) -> list:
@@ -383,11 +373,6 @@ def _dispatchers(*modules) -> list:
     from numba.core.dispatcher import Dispatcher
 
     return [f for m in modules for f in vars(m).values() if isinstance(f, Dispatcher) and f.__module__ == m.__name__]
-
-
-def _cache_misses(dispatchers) -> int:
-    """How many compilations numba's on-disk cache could not spare these kernels so far in this process."""
-    return sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
 
 
 def projection():
@@ -435,7 +420,7 @@ def _compile(key: str, np_dtype) -> None:
 
     module = kernels()
     dispatchers = _dispatchers(module, projection(), numba_sh, numba_normals, numba_rays, numba_weights, numba_sparse)
-    misses = _cache_misses(dispatchers)
+    misses = module.cache_misses(dispatchers)
     start = time.perf_counter()
     # numba's OpenMP layer loads its own libgomp at the first parallel loop, and libgomp reads OMP_WAIT_POLICY
     # then: passive, its idle threads sleep rather than spin after each kernel while torch's threads need the
@@ -448,7 +433,7 @@ def _compile(key: str, np_dtype) -> None:
     finally:
         if told is None:
             os.environ.pop("OMP_WAIT_POLICY", None)
-    compiled = _cache_misses(dispatchers) > misses
+    compiled = module.cache_misses(dispatchers) > misses
     if compiled and not _TOLD:
         _TOLD = True
         where = module.bin_tiles.stats.cache_path

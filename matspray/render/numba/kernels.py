@@ -11,6 +11,9 @@ consts: [0] 0.5, [1] min_alpha, [2] max_alpha, [3] 0 (RasterSettings' values in 
 
 from __future__ import annotations
 
+import sys
+import time
+
 import numpy as np
 from numba import njit as _njit
 from numba import prange
@@ -27,6 +30,33 @@ def njit(**options):
             return _njit(**{k: v for k, v in options.items() if k != "cache"})(function)
 
     return wrap
+
+
+_CALLED: set = set()  # (kernel, its arguments' types) run before in this process: they cannot compile again
+
+
+def cache_misses(dispatchers) -> int:
+    """How many compilations numba's on-disk cache could not spare these kernels so far in this process."""
+    return sum(sum(d.stats.cache_misses.values()) for d in dispatchers)
+
+
+def call_saying_compiled(kernel, what: str, *args):
+    """kernel(*args); at the first call for its arguments' types, one line on stderr if numba compiled it then
+    (`what` names it), with the time and where later runs load it from. Later calls only run it."""
+    key = (kernel, tuple((a.dtype, a.ndim) if isinstance(a, np.ndarray) else type(a) for a in args))
+    if key in _CALLED:
+        return kernel(*args)
+    misses, start = cache_misses([kernel]), time.perf_counter()
+    result = kernel(*args)
+    _CALLED.add(key)
+    if cache_misses([kernel]) > misses:
+        print(
+            f"numba: compiled {what} in {time.perf_counter() - start:.1f} s, once: later runs load it from "
+            f"{kernel.stats.cache_path}",
+            file=sys.stderr,
+            flush=True,
+        )
+    return result
 
 
 TILE = 16  # pixels per tile side

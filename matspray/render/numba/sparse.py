@@ -14,8 +14,6 @@ chunk order. Both depend on the matrix only, so their results have the same bits
 
 from __future__ import annotations
 
-import sys
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,13 +21,13 @@ import torch
 from numba import prange
 from torch import Tensor
 
-from matspray.render.numba.kernels import njit
+from matspray.render.numba.kernels import call_saying_compiled, njit
 from matspray.render.numba.threads import threads
 
 CHUNK_HITS = 1 << 18  # weights per chunk: a chunk's [N, C] buffer costs about as much as scattering them
 MAX_CHUNKS = 16  # at most this many [N, C] buffers at once
 WEIGHT_STEPS = 65535  # a weight w in [0, 1] is kept as the 16-bit integer round(w * WEIGHT_STEPS)
-_TOLD = False  # whether a compilation of the kernels was said on stderr
+SHORT_COLUMNS = 2**16  # up to this many columns (Gaussians) a column index takes 16 bits, 32 beyond
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,21 +45,24 @@ class PackedBlend:
     def nbytes(self) -> int:
         return self.crow.nbytes + self.col.nbytes + self.steps.nbytes
 
-    def weights(self, dtype: torch.dtype = torch.float32) -> Tensor:  # [M]: the weights as the products use them
-        like = torch.empty(0, dtype=dtype)
-        return torch.from_numpy(self.steps.astype(like.numpy().dtype) * _step(like))
-
     def __matmul__(self, features: Tensor) -> Tensor:  # [N, C] -> [P, C], in features' float type
         features = features.contiguous()
         out = features.new_empty(self.shape[0], features.shape[1])
-        _run(gather_rows, self.crow, self.col, self.steps, _step(features), features.numpy(), out.numpy())
+        args = (self.crow, self.col, self.steps, _step(features), features.numpy(), out.numpy())
+        with threads():
+            call_saying_compiled(gather_rows, "the frozen views' product kernel", *args)
         return out
+
+
+def bytes_per_weight(n_columns: int) -> int:
+    """A packed weight's bytes: its 16-bit step and its column index."""
+    return 2 + (2 if n_columns <= SHORT_COLUMNS else 4)
 
 
 def pack_blend(crow: Tensor, columns: Tensor, weights: Tensor, n_columns: int) -> PackedBlend:
     """The CSR matrix (crow [P + 1], columns [M], weights [M] in [0, 1], on the CPU) packed."""
     index = np.int32 if len(weights) < 2**31 else np.int64
-    col = np.int32 if n_columns > 2**16 else np.uint16
+    col = np.uint16 if n_columns <= SHORT_COLUMNS else np.int32
     steps = torch.round(weights.detach().float().clamp(0.0, 1.0) * WEIGHT_STEPS).to(torch.int32)
     shape = (len(crow) - 1, n_columns)
     return PackedBlend(crow.numpy().astype(index), columns.numpy().astype(col), steps.numpy().astype(np.uint16), shape)
@@ -126,42 +127,14 @@ def transposed_product(matrix: PackedBlend, grad: Tensor) -> Tensor:  # [P, N], 
     """matrix^T @ grad, in grad's float type."""
     grad = grad.contiguous()
     out = grad.new_empty(matrix.shape[1], grad.shape[1])  # new_empty: on grad's device (tests' stray-tensor check)
-    chunks = chunk_count(len(matrix.steps))
-    _run(scatter_transposed, matrix.crow, matrix.col, matrix.steps, _step(grad), grad.numpy(), chunks, out.numpy())
-    return out
-
-
-def _run(kernel, *args) -> None:
-    """kernel(*args) on numba's threads (as many as torch's), saying once if that compiled it."""
-    misses = None if _TOLD else _misses()  # counted until a compilation was said: not on every product
-    start = time.perf_counter()
+    args = (matrix.crow, matrix.col, matrix.steps, _step(grad), grad.numpy(), chunk_count(len(matrix.steps)))
     with threads():
-        kernel(*args)
-    if misses is not None:
-        _tell_compiled(misses, start)
+        call_saying_compiled(scatter_transposed, "the frozen views' backward kernel", *args, out.numpy())
+    return out
 
 
 def _step(like: Tensor) -> np.ndarray:  # [1]: 1 / WEIGHT_STEPS in like's float type
     return np.array([1.0 / WEIGHT_STEPS], dtype=like.numpy().dtype)
-
-
-def _misses() -> int:
-    return sum(sum(kernel.stats.cache_misses.values()) for kernel in (gather_rows, scatter_transposed))
-
-
-def _tell_compiled(misses: int, start: float) -> None:
-    """Say once per process on stderr that the kernels were compiled (backend numba's warm-up compiles them; backend
-    torch on the CPU compiles them at the first frozen view's render), and where later runs load them from."""
-    global _TOLD
-    if _misses() == misses:
-        return
-    _TOLD = True
-    print(
-        f"numba: compiled the frozen views' kernels in {time.perf_counter() - start:.1f} s, once: later runs "
-        f"load them from {scatter_transposed.stats.cache_path}",
-        file=sys.stderr,
-        flush=True,
-    )
 
 
 def warm_up(np_dtype) -> None:

@@ -41,7 +41,9 @@ def frozen_views_bytes(hits: int, pixels: int, gaussians: int, views: int, trans
     (2 bytes a weight, and 2 a column index for up to 2^16 Gaussians, 4 beyond)."""
     if transposed:
         return 2 * BYTES_PER_HIT * hits + 4 * views * (pixels + gaussians + 2)
-    return (2 + (2 if gaussians <= 2**16 else 4)) * hits + 4 * views * (pixels + 1)
+    from matspray.render.numba.sparse import bytes_per_weight
+
+    return bytes_per_weight(gaussians) * hits + 4 * views * (pixels + 1)
 
 
 def sorted_pairs(
@@ -85,7 +87,7 @@ class SparseBlend(torch.autograd.Function):
     (`transposed_product`)."""
 
     @staticmethod
-    def forward(ctx, features: Tensor, matrix: Tensor, transposed: Tensor | None) -> Tensor:
+    def forward(ctx, features: Tensor, matrix, transposed: Tensor | None) -> Tensor:  # matrix: Tensor or PackedBlend
         ctx.matrix, ctx.transposed = matrix, transposed
         return matrix @ features
 
@@ -167,10 +169,11 @@ class FrozenViews:
         if self.backend == "gsplat":
             return rasterize(self.gaussians, camera, features, backend=self.backend).features
         matrices = [self.matrices[index], self.transposed[index]]
-        if self.keeps_transposes and self.on_host[index]:
-            matrices = [m.to(features.device, non_blocking=True) for m in matrices]
-        if self.keeps_transposes and features.dtype != matrices[0].dtype:  # e.g. float64 for gradcheck
-            matrices = [m.to(features.dtype) for m in matrices]  # (the packed ones' products take any float type)
+        if self.keeps_transposes:  # torch's matrices (the packed ones' products take features of any float type)
+            if self.on_host[index]:
+                matrices = [m.to(features.device, non_blocking=True) for m in matrices]
+            if features.dtype != matrices[0].dtype:  # e.g. float64 for gradcheck
+                matrices = [m.to(features.dtype) for m in matrices]
         return SparseBlend.apply(features.contiguous(), *matrices).reshape(camera.height, camera.width, -1)
 
     def render(self, index: int, features: Tensor) -> tuple[Tensor, Tensor]:
