@@ -6,10 +6,10 @@ under other lights, all cut to one square around the object and brought to one s
 
 RUN is a `matspray run` folder of a capture; the asset is the one a command takes when none is named (full, else
 photos-only). The view must be one the run never trained on (a test view of its dataset): the picture shows what
-the asset makes of a photo it did not see. Columns: the photo as taken; the asset under its estimated light, over
-white (as `matspray eval` scores it); the asset under each light, over that light. The held-out scores that belong
-beside the picture are the run's `matspray eval` (`RUN/eval/heldout.json`), kept under docs/results by
-`benchmarks.real_captures`.
+the asset makes of a photo it did not see. Columns: the photo as taken; the asset under its estimated light (and
+flash, when the photo was taken with one: `refine.camera_light`), over white (as `matspray eval` scores it); the asset
+under each light, over that light. The held-out scores that belong beside the picture are the run's `matspray eval`
+(`RUN/eval/heldout.json`), kept under docs/results by `benchmarks.real_captures`.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from matspray.data.images import write_image
 from matspray.eval.capture_report import RELIGHT_ENV_HEIGHT
 from matspray.eval.heldout import estimated_lights
 from matspray.eval.relit_crops import crop, default_asset, square_box
+from matspray.method.refine.camera_light import lighting
 from matspray.method.relight import background_radiance, render_relit
 from matspray.render.shade.envmap import EnvironmentMap
 from matspray.render.shade.lights import load_envmap
@@ -46,8 +47,10 @@ def picture(run: RunDir, view_name: str | None, lights: list[str], size: int) ->
     if estimated is None:
         raise SystemExit(f"{run.root}: the {variant} asset has no estimated light (envmap.exr) to show it under")
     with torch.no_grad():
-        rgb, alpha = render_relit(asset, view.camera, estimated)
-        columns, labels = [view.image.cpu(), rgb + WHITE * (1 - alpha[..., None])], ["photo", "its estimated light"]
+        flash = lighting(asset.camera_light, view.path)  # as the held-out scores render it
+        rgb, alpha = render_relit(asset, view.camera, estimated, camera_light=flash)
+        label = "its estimated light" if flash is None else "its estimated light and flash"
+        columns, labels = [view.image.cpu(), rgb + WHITE * (1 - alpha[..., None])], ["photo", label]
         for spec in lights:
             name, env = load_envmap(spec, height=RELIGHT_ENV_HEIGHT)
             light = EnvironmentMap.from_tensor(env, learnable=False)

@@ -177,9 +177,22 @@ def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dic
         "region": region.describe(),
         "glb_box": [[round(v, 3) for v in corner] for corner in glb_box(glb)] if glb.exists() else None,
         "crop_gain": None if plan is None else round(1.0 / plan.mean_side(), 2),  # pixels across the object, x
+        "camera_light": camera_light_of(run),
     }
     (out / "summary.json").write_text(json.dumps(record, indent=1))
     return record
+
+
+def camera_light_of(run: Path) -> dict | None:
+    """The flash the user's asset learned beside its light (`refine.camera_light`), None without one."""
+    from matspray.method.refine.camera_light import CAMERA_LIGHT_FILE, CameraLight
+    from matspray.rundir import RunDir
+
+    path = RunDir(run).asset_path(VARIANT) / CAMERA_LIGHT_FILE
+    if not path.exists():
+        return None
+    light = CameraLight.load(path)
+    return {"intensity": [round(float(x), 4) for x in light.intensity], "reference_distance": light.reference_distance}
 
 
 def print_record(record: dict) -> None:

@@ -406,6 +406,7 @@ def table_capture_quality(results: Path) -> str:
     r = read(results, QUALITY_SKULL)
     asset = next(key for key in r["heldout"] if key != "radiance")  # the user's asset the run made
     seconds = sum(r["stage_seconds"].values())
+    flash = " and flash" if r.get("camera_light") else ""  # a flash at the camera, learned on flash photos
 
     def cells(entry: dict) -> str:
         return f"{metric_triple(entry)} | {entry['gradient_share']:.2f}"
@@ -415,7 +416,7 @@ def table_capture_quality(results: Path) -> str:
             "| render, held-out photos inside the mask | PSNR / SSIM / LPIPS | detail (gradient energy share) |",
             "| --- | ---: | ---: |",
             f"| Gaussian Splatting's own colours | {cells(r['heldout']['radiance'])} |",
-            f"| the {asset} asset under its estimated light | {cells(r['heldout'][asset])} |",
+            f"| the {asset} asset under its estimated light{flash} | {cells(r['heldout'][asset])} |",
             "",
             f"Preset `{r['preset']}`: {len(r['mask_coverage'])} held-out photos, "
             + f"{r['gaussians_asset']:,}".replace(",", " ")

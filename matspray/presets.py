@@ -209,6 +209,13 @@ ADDITIONS = (
         "l.85: an optimisable environment map, with no prior named",
     ),
     Addition(
+        "camera-light",
+        "refine.camera_light",
+        "off",
+        "photos taken with a flash (their EXIF says) are lit by a learned flash at the camera beside the environment",
+        "l.85: an optimisable environment map is the only light",
+    ),
+    Addition(
         "min-coverage",
         "refine.min_coverage",
         0.0,

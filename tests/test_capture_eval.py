@@ -171,3 +171,37 @@ def test_flags_of_the_other_kind_of_evaluation_are_refused(tmp_path, capsys):
     assert err == "matspray eval: error: --frame and --spp are for --glb (the evaluation of an exported mesh)"
     assert main(["eval", "--glb", str(tmp_path / "mesh.glb"), "--credit", "photos by me"]) == 2
     assert capsys.readouterr().err.strip() == "matspray eval: error: --credit is for --run, not --glb"
+
+
+def test_a_flash_the_asset_learned_lights_its_held_out_photos_and_the_report_names_it(capture_run, tmp_path, capsys):
+    import shutil
+
+    from matspray.data import load_scene
+    from matspray.eval.heldout import photo_renders
+    from matspray.method.refine.camera_light import CAMERA_LIGHT_FILE, CameraLight
+    from matspray.presets import asset_stage
+    from matspray.rundir import RunDir
+
+    data, run = capture_run
+    flashed = tmp_path / "flashed"
+    shutil.copytree(run, flashed)
+    views = load_scene(data).test[:1]
+
+    def render():
+        return photo_renders(RunDir(flashed), views, "test", progress=False)[0]
+
+    before = render()
+    path = flashed / asset_stage("no-prior") / CAMERA_LIGHT_FILE
+    CameraLight(torch.tensor([0.5, 0.5, 0.5]), 2.0, "on").save(path)
+    after = render()
+    inside = after.mask > 0.5
+    assert torch.equal(after.renders["radiance"], before.renders["radiance"])  # the geometry's colours: no flash
+    added = (after.renders["no-prior"] - before.renders["no-prior"])[inside]
+    assert float(added.min()) >= -1e-5 and float(added.mean()) > 0.01
+    CameraLight(torch.tensor([0.5, 0.5, 0.5]), 2.0, "auto").save(path)  # the renders' PNGs say no flash fired
+    assert torch.equal(render().renders["no-prior"], before.renders["no-prior"])
+    code = main(["eval", "--run", str(flashed), "--env", "studio"])
+    assert code == 0, capsys.readouterr().err
+    assert (
+        "with a flash at the camera on the flash photos (RGB 0.50, 0.50, 0.50)" in (flashed / "report.html").read_text()
+    )

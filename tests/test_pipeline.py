@@ -582,3 +582,29 @@ def rerun_from_slow_stages(tiny_object, finished_run, tmp_path):
     args = ["run", "--data", str(tiny_object), "--out", str(run), "--preset", "test", "--set", "refine.iterations=4"]
     assert main(args) == 0
     return run
+
+
+def test_a_run_with_a_camera_light_says_so_records_it_and_keeps_it_with_the_asset(tiny_object, finished_run, tmp_path):
+    import json
+    import shutil
+
+    from matspray.method.asset import read_asset
+
+    run = tmp_path / "run"
+    for stage in ("materials2d", "geometry", "visibility"):  # reuse the slow stages
+        shutil.copytree(finished_run / stage, run / stage)
+    config = replace(tiny_config(), refine=replace(tiny_config().refine, camera_light="on"))
+    said = []
+    with Pipeline(tiny_object, run, config, progress=False, log=said.append) as pipeline:
+        pipeline.refine("full")
+        views = len(pipeline.refine_inputs().views)
+    flash = [line for line in said if "lit by a flash" in line]
+    assert len(flash) == 1 and f"{views} of {views} training photos" in flash[0], said
+    assert "refine.camera_light=on" in flash[0]
+    record = json.loads((run / "asset" / "stage.json").read_text())["camera_light"]
+    asset = read_asset(run / "asset")
+    assert record["lit_views"] == views and record["intensity"] == [
+        round(float(x), 4) for x in asset.camera_light.intensity
+    ]
+    assert asset.camera_light.views == "on"
+    assert not (finished_run / "asset" / "camera_light.json").exists()  # the default on PNG renders: no flash

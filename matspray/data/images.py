@@ -181,6 +181,24 @@ def image_size(path, orient: bool = False) -> tuple[int, int]:
     return int(values.shape[1]), int(values.shape[0])
 
 
+EXIF_IFD = 0x8769  # the sub-directory of the camera's settings
+EXIF_FLASH = 0x9209  # bit 0: the flash fired
+
+
+def flash_fired(path) -> bool:
+    """Whether the photo at `path` was taken with its flash firing, as its EXIF says; False for a file without EXIF
+    (PNG renders, EXR) or one that cannot be read (the image's own reading says what is wrong with it)."""
+    path = Path(path) if path is not None else None
+    if path is None or path.suffix.lower() not in LDR_SUFFIXES or not path.is_file():
+        return False
+    try:
+        with Image.open(path) as img:
+            value = img.getexif().get_ifd(EXIF_IFD).get(EXIF_FLASH)
+    except (*DECODER_ERRORS, Image.DecompressionBombError, struct.error, ValueError):
+        return False
+    return isinstance(value, int) and bool(value & 1)
+
+
 def _read_pillow(path: Path, orient: bool = False) -> np.ndarray:
     with Image.open(path) as img:
         if orient:

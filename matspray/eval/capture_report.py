@@ -23,6 +23,7 @@ from matspray.eval.report import as_shaded, object_masks_section
 from matspray.export.frames import find_glbs, glb_box
 from matspray.method.asset import ENVMAP_FILE, envmap_preview
 from matspray.method.masks import read_object_masks, read_region
+from matspray.method.refine.camera_light import CAMERA_LIGHT_FILE, CameraLight
 from matspray.method.relight import background_radiance, render_gbuffer, render_relit
 from matspray.presets import LABELS, asset_stage
 from matspray.render.backend import rendering_with
@@ -247,6 +248,10 @@ def estimated_light_section(run: RunDir, variants, figures: Figures) -> str:
             estimate = EnvironmentMap.from_file(path).map.detach()
             height, width = estimate.shape[:2]
             label = f"estimated light ({LABELS.get(variant, variant)}): {width} x {height} px, shown bilinear"
+            flash_path = run.path(asset_stage(variant), CAMERA_LIGHT_FILE)
+            if flash_path.exists():  # the capture's flash, learned beside it (`refine.camera_light`)
+                rgb = ", ".join(f"{float(x):.2f}" for x in CameraLight.load(flash_path).intensity)
+                label += f"; with a flash at the camera on the flash photos (RGB {rgb}), left out when relit"
             cells.append(figures.image(f"envmap_{variant}", envmap_preview(as_shaded(estimate)), label, css="env"))
     if not cells:
         return ""

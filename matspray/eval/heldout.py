@@ -7,8 +7,9 @@ right; the mask's share of the frame is reported beside it, so that a mask that 
 cannot pass for a good score. Two renders per view:
 
   radiance   the Gaussian Splatting geometry with its view-dependent colours (what 3DGS reproduces)
-  <variant>  each relightable asset shaded under the light it estimated (`envmap.exr`): the
-             photo as the asset explains it, materials times light
+  <variant>  each relightable asset shaded under the light it estimated (`envmap.exr`, and on a
+             photo taken with a flash the flash it estimated, `camera_light.json`): the photo as the
+             asset explains it, materials times light
 
 Training views are scored the same way (how well the run fits what it saw).
 """
@@ -32,6 +33,7 @@ from matspray.geometry.evaluate import render_view
 from matspray.geometry.ply import read_ply
 from matspray.method.asset import ENVMAP_FILE, read_asset
 from matspray.method.masks import read_object_masks
+from matspray.method.refine.camera_light import lighting
 from matspray.method.relight import render_relit
 from matspray.metrics import gradient_energy
 from matspray.presets import asset_stage
@@ -125,7 +127,9 @@ def photo_renders(
                 RADIANCE: srgb_to_linear(render_view(loaded.gaussians, camera).rgb.clamp(0, 1)).cpu()
             }  # its SH colours are sRGB
             for variant, light in loaded.lights.items():
-                rgb, alpha = render_relit(loaded.assets[variant], camera, light)
+                asset = loaded.assets[variant]
+                flash = lighting(asset.camera_light, view.path)  # the flash refinement learned, on a flash photo
+                rgb, alpha = render_relit(asset, camera, light, camera_light=flash)
                 renders[variant] = (
                     rgb / alpha[..., None].clamp_min(1e-4)
                 ).cpu()  # unpremultiplied: scored inside the mask

@@ -1,6 +1,7 @@
 """The relightable asset on disk: `asset.ply` (3DGS layout + normals + base_color_{r,g,b}, roughness,
 metallic), `envmap.exr` (the estimated light, when the variant learns one), `merger.pt` (the Neural
-Merger, when the variant has one) and `history.json` (the loss curves)."""
+Merger, when the variant has one), `camera_light.json` (the flash estimated beside the light, when the photos had one:
+`refine.camera_light`) and `history.json` (the loss curves)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from matspray.gaussians import Gaussians
 from matspray.geometry.ply import read_ply, write_ply
 from matspray.material import CHANNELS, N_CHANNELS
 from matspray.method.merger import save_merger
+from matspray.method.refine.camera_light import CAMERA_LIGHT_FILE, CameraLight
 from matspray.rundir import read_record, stage_hint, write_json
 
 VISIBILITY_FILE = "visibility.pt"  # optional: directional visibility [N, D] as uint8 (1/255 steps)
@@ -33,6 +35,7 @@ class Asset:
     materials: Tensor  # [N, 5] `matspray.material` layout: base color rgb (linear), roughness, metallic
     normals: Tensor  # [N, 3] unit; sign is fixed per view when rendering
     visibility: Tensor | None = None  # [N, D] directional visibility (`render.visibility`); None = no shadowing
+    camera_light: CameraLight | None = None  # the capture's flash (scoring its photos); relighting leaves it out
 
     def __post_init__(self):
         n = len(self.gaussians)
@@ -103,6 +106,11 @@ def write_asset(folder, gaussians, result) -> None:
         write_visibility(visibility_path, result.visibility)
     elif visibility_path.exists():
         visibility_path.unlink()  # a stale file from an earlier run must not shadow this asset
+    flash_path = folder / CAMERA_LIGHT_FILE
+    if getattr(result, "camera_light", None) is not None:
+        result.camera_light.save(flash_path)
+    elif flash_path.exists():
+        flash_path.unlink()  # nor light it with an earlier run's flash
     # the PLY last: its presence marks the asset complete
     extra = {name: result.materials[:, i] for i, name in enumerate(CHANNELS)}
     write_ply(folder / "asset.ply", gaussians, result.normals, extra=extra)
@@ -120,11 +128,14 @@ def read_asset(folder, device="cpu") -> Asset:
     materials = torch.stack([extra[name] for name in CHANNELS], dim=-1)
     visibility_path = Path(folder) / VISIBILITY_FILE
     visibility = read_visibility(visibility_path, len(gaussians)).to(device) if visibility_path.exists() else None
+    flash_path = Path(folder) / CAMERA_LIGHT_FILE
+    camera_light = CameraLight.load(flash_path).to(device) if flash_path.exists() else None
     return Asset(
         gaussians.to(device),
         materials.to(device),
         torch.nn.functional.normalize(normals, dim=-1).to(device),
         visibility,
+        camera_light,
     )
 
 

@@ -38,6 +38,7 @@ from matspray.method.plan import (
     stage_files,
     with_normals,
 )
+from matspray.method.refine.camera_light import lit_views
 from matspray.method.refine.loop import RefineInputs, frozen_views, refine
 from matspray.predictors import maps_to_tensor, predicted_normal_maps, read_materials2d, without_normals
 from matspray.presets import asset_stage, get_variant, variants_for_maps
@@ -290,7 +291,7 @@ class Pipeline:
             result = refine(inputs, config, self.progress, light=probe, frozen=frozen, warmed_lights=warmed)
             write_asset(self.run.path(stage), inputs.gaussians, result)
             precision = str(self.plan.merger_dtypes[variant]).removeprefix("torch.")
-            return config, {"history": result.history, "frozen_views": result.frozen, "merger_precision": precision}
+            return config, refine_record(result, precision, variant, inputs, config, self.log)
 
         self._stage(stage, planned.fingerprint, refined, before=self.refine_inputs, label=f"refine [{variant}]")
         return read_asset(self.run.path(stage), device=self.device)
@@ -298,3 +299,22 @@ class Pipeline:
     def run_all(self, variants=None) -> dict:
         """Refine `variants` (default: full, or in a run without 2D maps the variants that need none)."""
         return {variant: self.refine(variant) for variant in variants_for_maps(variants, self.has_maps)}
+
+
+def refine_record(result, precision: str, variant: str, inputs: RefineInputs, config, log) -> dict:
+    """What a refinement stage's record keeps: the loss curves, the frozen views, the merger's precision, and a flash
+    learned beside the light (said in one line: on which photos, how strong)."""
+    record = {"history": result.history, "frozen_views": result.frozen, "merger_precision": precision}
+    flash = result.camera_light
+    if flash is None:
+        return record
+    lit = sum(lit_views(config.camera_light, [v.path for v in inputs.views]))
+    intensity = [round(float(x), 4) for x in flash.intensity]
+    why = "their EXIF says the flash fired" if config.camera_light == "auto" else "refine.camera_light=on"
+    log(
+        f"refine [{variant}]: {lit} of {len(inputs.views)} training photos lit by a flash ({why}): learned a flash "
+        f"at the camera beside the light (RGB {', '.join(f'{x:.3g}' for x in intensity)}), saved with the asset "
+        "for scoring its photos; relighting leaves it out (--set refine.camera_light=off: no flash)"
+    )
+    record["camera_light"] = {"lit_views": lit, "intensity": intensity, "reference_distance": flash.reference_distance}
+    return record

@@ -11,9 +11,11 @@ from torch import Tensor
 
 from matspray.data.camera import Camera
 from matspray.method.asset import Asset
+from matspray.method.refine.camera_light import CameraLight, falloff
 from matspray.render.raster.gbuffer import orient_normals
 from matspray.render.raster.rasterize import rasterize
-from matspray.render.shade.deferred import GBuffer, shade_gbuffer
+from matspray.render.shade.brdf import camera_light_radiance
+from matspray.render.shade.deferred import GBuffer, shade_gbuffer, view_directions
 from matspray.render.shade.visibility import gaussian_shadows
 
 
@@ -30,12 +32,30 @@ def render_gbuffer(asset: Asset, camera: Camera, light=None):
     return GBuffer.from_blended(out.features, out.alpha)
 
 
-def render_relit(asset: Asset, camera: Camera, light, background: Tensor | None = None) -> tuple[Tensor, Tensor]:
-    """Linear RGB [H, W, 3] of the asset lit by `light` (EnvironmentMap or PrefilteredEnvironment),
-    composited over `background` ([3] linear; None = black), and the coverage alpha [H, W]."""
+def render_relit(
+    asset: Asset, camera: Camera, light, background: Tensor | None = None, camera_light: CameraLight | None = None
+) -> tuple[Tensor, Tensor]:
+    """Linear RGB [H, W, 3] of the asset lit by `light` (EnvironmentMap or PrefilteredEnvironment), and by a flash at
+    the camera with `camera_light` (a capture's photo as refinement explained it), composited over `background` ([3]
+    linear; None = black), and the coverage alpha [H, W]."""
     with torch.no_grad():
         gbuffer = render_gbuffer(asset, camera, light)
-        return shade_gbuffer(gbuffer, camera, light, background), gbuffer.alpha
+        rgb = shade_gbuffer(gbuffer, camera, light, background)
+        if camera_light is not None:
+            rgb = rgb + flash_radiance(asset, camera, gbuffer, camera_light) * gbuffer.alpha[..., None]
+        return rgb, gbuffer.alpha
+
+
+def flash_radiance(asset: Asset, camera: Camera, gbuffer: GBuffer, camera_light: CameraLight) -> Tensor:  # [H, W, 3]
+    """What a flash at `camera` adds to each pixel of its G-buffer (`brdf.camera_light_radiance`), its distance the
+    Gaussians' blended distance to the camera, as refinement computes it (`refine.training.TrainingViews`)."""
+    distances = (asset.gaussians.means - camera.center.to(asset.gaussians.means)).norm(dim=-1, keepdim=True)
+    out = rasterize(asset.gaussians, camera, distances)  # [H, W, 1]
+    irradiance = falloff(out.features[..., 0], out.alpha, camera_light.reference_distance) * camera_light.intensity
+    wo = view_directions(camera, gbuffer.normals.device, gbuffer.normals.dtype)
+    return camera_light_radiance(
+        gbuffer.base_color, gbuffer.roughness, gbuffer.metallic, gbuffer.normals, wo, irradiance
+    )
 
 
 def orbit_cameras(reference: list[Camera], target: Tensor, frames: int = 60, up=(0.0, 0.0, 1.0)) -> list[Camera]:

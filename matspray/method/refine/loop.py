@@ -34,17 +34,16 @@ from dataclasses import dataclass, field, replace
 import torch
 from torch import Tensor
 
-from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
-from matspray.device import Graphed
 from matspray.errors import SettingError
 from matspray.gaussians import Gaussians
-from matspray.material import METALLIC_INDEX, N_CHANNELS
+from matspray.material import METALLIC_INDEX
 from matspray.method.merger import (
     MergerConfig,
     align_view_gains,
     view_gains,
 )
+from matspray.method.refine.camera_light import CameraLight, check_mode, lit_views, reference_distance
 from matspray.method.refine.metallic import MetallicFitConfig, fit_metallic
 from matspray.method.refine.normals import ShadingNormals, normal_prior, smoothed_normals
 from matspray.method.refine.sources import MaterialSource, material_source
@@ -64,11 +63,15 @@ from matspray.method.refine.terms import (  # noqa: F401 (the material losses: c
     view_terms,
     weighted_l1,
 )
+from matspray.method.refine.training import (  # noqa: F401 (ViewConstants, frozen_views, light_prior: callers' API)
+    TrainingViews,
+    ViewConstants,
+    frozen_views,
+    light_prior,
+)
 from matspray.presets import Variant, get_variant
 from matspray.render.raster.gbuffer import FrozenViews
-from matspray.render.shade.deferred import view_directions
-from matspray.render.shade.envmap import DEFAULT_LEVELS
-from matspray.render.shade.light import Light, PrefilteredLight
+from matspray.render.shade.light import Light
 from matspray.render.shade.models import LIGHT_MODELS, light_model
 from matspray.settings import setting
 
@@ -95,6 +98,11 @@ class RefineConfig:
     light_tv_weight: float = setting(
         3e-4,
         "weight of the total variation of the map's log radiance (0: no prior; `benchmarks.light`)",
+    )
+    camera_light: str = setting(
+        "auto",
+        'a flash at each photo\'s camera, learned beside the environment (`refine.camera_light`): "auto" on the '
+        'photos whose EXIF says their flash fired, "on" on every photo, "off" never',
     )
     light_warmup: int = setting(
         200,
@@ -219,6 +227,7 @@ class RefineConfig:
             raise SettingError("basecolor_huber_delta", f"must be > 0, got {self.basecolor_huber_delta}")
         if self.envmap_height < 2:
             raise SettingError("envmap_height", f"must be >= 2, got {self.envmap_height}")
+        check_mode(self.camera_light)
         if self.light_model not in LIGHT_MODELS:
             raise SettingError(
                 "light_model", f"unknown model '{self.light_model}'; choose one of {', '.join(LIGHT_MODELS)}"
@@ -269,91 +278,18 @@ def spread_loss(weights: Tensor, seen: Tensor) -> Tensor:  # [K, V], [K, V] bool
     return (n_seen.log() - entropy).mean()
 
 
-def light_prior(envmap: Light) -> Tensor:  # -> []
-    """The light model's regulariser (`Light.prior`; a lat-long map's: the total variation of its log radiance)."""
-    return envmap.prior()
-
-
-# ------------------------------------------------------------------------------------------ one view
-def frozen_views(inputs: RefineInputs) -> FrozenViews:
-    """The training views' frozen blending weights, rendered with the enclosing block's backend."""
-    return FrozenViews(inputs.gaussians.detach(), [v.camera for v in inputs.views])
-
-
-@dataclass(frozen=True)
-class ViewConstants:
-    """What the losses of one training view read that stays the same from step to step, made once per view."""
-
-    mask: Tensor  # [H, W] the object's mask (ones without one)
-    surface: Tensor  # [H, W] the mask where the frozen Gaussians cover over half of a pixel: where 2D maps count
-    surface_weight: Tensor  # [H, W, 5] `surface` per material channel
-    surface_count: Tensor  # [] its sum, at least 1
-    cover: Tensor  # [H, W, 1] the coverage, clamped: blended materials over it are the G-buffer's
-    view_dirs: Tensor  # [H, W, 3] unit, from the surface towards the camera (`deferred.view_directions`)
-    photo: Tensor  # [H, W, 3] the photo over black, sRGB
-
-    @classmethod
-    def of(cls, view: View, alpha: Tensor) -> ViewConstants:  # alpha [H, W]: the frozen Gaussians' coverage
-        mask = view.alpha if view.alpha is not None else torch.ones(view.height, view.width, device=alpha.device)
-        surface = mask * (alpha > 0.5)
-        weight = surface[..., None].expand(*surface.shape, N_CHANNELS)
-        return cls(
-            mask,
-            surface,
-            weight,
-            weight.sum().clamp_min(1.0),
-            alpha.clamp_min(1e-6)[..., None],
-            view_directions(view.camera, alpha.device, alpha.dtype),
-            linear_to_srgb(view.image * mask[..., None]),
-        )
-
-
-class TrainingViews:
-    """The training views with their frozen blending weights, 2D maps and the Gaussians' shadowing."""
-
-    def __init__(self, inputs: RefineInputs, frozen: FrozenViews | None = None, graphs: bool = True):
-        """`frozen`: the views' frozen blending weights when the caller keeps them (`frozen_views(inputs)`: the
-        variants of one run share them); made here otherwise. `graphs=False`: the terms op by op everywhere."""
-        self.frozen = frozen_views(inputs) if frozen is None else frozen
-        self.views = inputs.views
-        self.targets = inputs.targets
-        self.visibility = inputs.visibility
-        self.normal_maps = inputs.normal_maps
-        self._constants: dict[int, ViewConstants] = {}
-        # past the render, a step's terms and the light's prefiltering: CUDA graphs on a CUDA device
-        self.terms = Graphed(view_terms, "refinement's loss terms", graphs)
-        self.graphs = graphs
-        self.lights: dict = {}  # a learnable light's prefiltering per model (`Light.step_function`), graphed
-
-    def __len__(self) -> int:
-        return len(self.views)
-
-    def environment(self, envmap: Light | None, with_prior: bool) -> tuple[PrefilteredLight | None, Tensor | None]:
-        """The environment's split-sum maps and, `with_prior`, its light prior [] (None without an environment). A
-        learnable map is prefiltered at every step (one graph on a CUDA device), a fixed one once (`prefilter`)."""
-        if envmap is None:
-            return None, None
-        if not envmap.learnable:
-            return envmap.prefilter(), light_prior(envmap) if with_prior else None
-        function, layout, tensors = envmap.step_function(DEFAULT_LEVELS)
-        if function not in self.lights:
-            self.lights[function] = Graphed(function, "refinement's prefiltered light", self.graphs)
-        *parts, radiance, prior = self.lights[function](layout, *tensors)
-        light = envmap.prefiltered_type.from_tensors(layout, parts)
-        light.source = radiance
-        return light, prior if with_prior else None
-
-    def constants(self, index: int) -> ViewConstants:
-        if index not in self._constants:
-            with torch.no_grad():
-                self._constants[index] = ViewConstants.of(self.views[index], self.frozen.alphas[index])
-        return self._constants[index]
-
-
 # ------------------------------------------------------------------------------------------ optimisation
 def envmap_group(envmap: Light, config: RefineConfig) -> dict:
     """The environment map's optimizer parameter group."""
     return {"params": list(envmap.parameters()), "lr": config.envmap_lr, "name": "environment map"}
+
+
+def light_groups(envmap: Light, camera_light: CameraLight | None, config: RefineConfig) -> list[dict]:
+    """The estimated lights' parameter groups: the environment's, and a camera light's at the same rate."""
+    if camera_light is None:
+        return [envmap_group(envmap, config)]
+    flash = {"params": list(camera_light.parameters()), "lr": config.envmap_lr, "name": "camera light"}
+    return [envmap_group(envmap, config), flash]
 
 
 def warm_up_light(
@@ -365,12 +301,14 @@ def warm_up_light(
     generator,
     progress: bool,
 ) -> None:
-    """Fit the environment map alone to the photos for `config.light_warmup` steps, with fixed materials
-    [N, 5] (what the source starts from: the projection average for the merger variants)."""
-    optimizer = adam_optimizer([envmap_group(envmap, config)])
+    """Fit the environment map (and the camera light, when the views have one) alone to the photos for
+    `config.light_warmup` steps, with fixed materials [N, 5] (what the source starts from: the projection average for
+    the merger variants)."""
+    camera_light = training.camera_light
+    optimizer = adam_optimizer(light_groups(envmap, camera_light, config))
 
     def photo_losses(index: int):
-        terms = view_losses(training, index, materials, normals, envmap, config, with_material=False)
+        terms = view_losses(training, index, materials, normals, envmap, config, False, False, camera_light)
         return terms, total_loss(terms, config)
 
     optimize(
@@ -401,6 +339,7 @@ class RefineResult:
     history: list[dict]
     visibility: Tensor | None = None  # [N, D] the shadowing used (kept with the asset for relighting)
     frozen: dict | None = None  # what the frozen views kept (FrozenViews.describe()); None when none were made
+    camera_light: CameraLight | None = None  # the flash estimated beside the environment, on photos that had one
 
 
 def aligned_inputs(inputs: RefineInputs) -> RefineInputs:
@@ -443,11 +382,12 @@ def refine(
     if not source.trainable or config.iterations == 0:
         return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility)
 
-    training = TrainingViews(inputs, frozen, graphs)
+    camera_light = starting_camera_light(config, inputs, device) if estimates_light else None
+    training = TrainingViews(inputs, frozen, graphs, camera_light)
     source_lr = source.learning_rate(config)
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
     if estimates_light:
-        groups.append(envmap_group(envmap, config))
+        groups.extend(light_groups(envmap, camera_light, config))
     generator = torch.Generator().manual_seed(config.seed)
     with torch.no_grad():
         last_materials = source()  # [N, 5] each Gaussian's latest merged value
@@ -485,7 +425,8 @@ def refine(
     if variant.uses_maps and config.metallic_fit.steps > 0:
         materials = with_fitted_metallic(materials, final_normals, envmap, training, inputs.targets, config)
     frozen_used = training.frozen.describe()
-    return RefineResult(materials, final_normals, source, envmap, history, inputs.visibility, frozen_used)
+    flash = None if camera_light is None else camera_light.fixed()
+    return RefineResult(materials, final_normals, source, envmap, history, inputs.visibility, frozen_used, flash)
 
 
 def step_losses(
@@ -516,6 +457,7 @@ def step_losses(
         config,
         with_material=variant.uses_maps,
         with_normals=shading is not None and config.predicted_normal_weight > 0,
+        camera_light=training.camera_light,
     )
     if spread and "base_color" in weights:
         terms["spread"] = spread_loss(weights["base_color"], source.seen.index_select(0, active))
@@ -525,6 +467,15 @@ def step_losses(
     if config.metallic_prior_weight > 0 and variant.dielectric_prior:
         terms["metallic_prior"] = merged[:, METALLIC_INDEX].mean()
     return terms, total_loss(terms, config)
+
+
+def starting_camera_light(config: RefineConfig, inputs: RefineInputs, device) -> CameraLight | None:
+    """The flash refinement estimates beside the environment, starting at the environment's starting radiance; None
+    when `config.camera_light` lights none of the training views."""
+    if not any(lit_views(config.camera_light, [v.path for v in inputs.views])):
+        return None
+    distance = reference_distance([v.camera for v in inputs.views], inputs.bounds)
+    return CameraLight.initial(config.envmap_init, distance, config.camera_light, device)
 
 
 def starting_light(config: RefineConfig, light: Light | None, device) -> Light:
@@ -539,16 +490,17 @@ def warm_up_or_reuse(training, materials, normals, envmap, config, generator, pr
     """The light's warm-up (`warm_up_light`), or its outcome (light and random state) found in `warmed_lights` for
     the same starting materials and settings; a warm-up run here is kept there for the next variant."""
     key = warm_up_key(materials, config)
+    lights = [*envmap.parameters(), *(training.camera_light.parameters() if training.camera_light else ())]
     if warmed_lights is not None and key in warmed_lights:
         parameters, state = warmed_lights[key]
         with torch.no_grad():
-            for parameter, value in zip(envmap.parameters(), parameters):
+            for parameter, value in zip(lights, parameters, strict=True):
                 parameter.copy_(value)
         generator.set_state(state)
         return
     warm_up_light(training, materials, normals, envmap, config, generator, progress)
     if warmed_lights is not None:
-        warmed_lights[key] = ([p.detach().clone() for p in envmap.parameters()], generator.get_state())
+        warmed_lights[key] = ([p.detach().clone() for p in lights], generator.get_state())
 
 
 def with_fitted_metallic(
@@ -562,11 +514,12 @@ def with_fitted_metallic(
     """`materials` with the metallic fitted through refinement's frozen views to the 2D maps and, with a light, the
     photos; the rest of the materials, the normals and the light stay as refined."""
     light = None if envmap is None else envmap.fixed()
+    flash = None if training.camera_light is None else training.camera_light.fixed()
     others = materials[:, :METALLIC_INDEX]  # the metallic is the last channel
 
     def photo(index: int, metallic: Tensor) -> Tensor:
         candidate = torch.cat([others, metallic[:, None].to(others)], dim=1)
-        return view_losses(training, index, candidate, normals, light, config, with_material=False)["photo"]
+        return view_losses(training, index, candidate, normals, light, config, False, False, flash)["photo"]
 
     fitted = fit_metallic(
         materials[:, METALLIC_INDEX].float(),

@@ -18,6 +18,7 @@ from torch import Tensor
 from matspray.data.images import linear_to_srgb
 from matspray.geometry.losses import normal_map_loss, photometric_loss
 from matspray.material import BASE_COLOR, METALLIC_INDEX, N_CHANNELS, unstack
+from matspray.render.shade.brdf import camera_light_radiance
 from matspray.render.shade.deferred import shade_unit
 from matspray.render.shade.envmap import PrefilteredEnvironment, prefilter_log_map
 from matspray.render.shade.light import Light, PrefilteredLight
@@ -110,6 +111,7 @@ class TermOptions:
     # environment's roughness levels
     metallic_quantile: float = 0.5  # the material term's quantile of the views' metallic (`metallic_tilt`)
     light_type: type = PrefilteredEnvironment  # the prefiltered light's type (`Light.prefiltered_type`)
+    camera_light: bool = False  # with `photo`: a flash at the camera adds its light (`refine.camera_light`)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -131,12 +133,14 @@ def view_terms(
     surface_weight: Tensor,  # [H, W, 5] `surface` per channel
     surface_count: Tensor,  # [] its sum, at least 1
     normal_map: Tensor,  # [H, W, 3] the predicted normals (read with `predicted_normals`)
+    flash: Tensor,  # [H, W, 3] the camera light's irradiance I (d0 / d)^2 (read with `camera_light`)
     *light: Tensor,  # with `photo`: the prefiltered environment's images (`light_images`), specular runs then
     # irradiance
 ) -> Tensor:  # [T] the terms of `options.names`
     """The loss terms of one view from its blended features: the G-buffer (coverage divided out once), L1 of its
     material maps against the 2D maps, the angle of its normals to the predicted ones, and 0.8 L1 + 0.2 D-SSIM of its
-    split-sum shading (in sRGB) against the photo. No host reads: what a CUDA graph can capture."""
+    split-sum shading (in sRGB; with a camera light, plus its flash: `brdf.camera_light_radiance`) against the photo.
+    No host reads: what a CUDA graph can capture."""
     maps = blended[..., :N_CHANNELS] / cover  # [H, W, 5]
     normals = blended[..., N_CHANNELS : N_CHANNELS + 3]
     terms = []
@@ -157,6 +161,8 @@ def view_terms(
         base_color, roughness, metallic = unstack(maps)
         # `deferred.shade_gbuffer` over black: the shaded G-buffer times its coverage
         shaded = shade_unit(base_color, roughness, metallic, normals, view_dirs, environment, shadow)  # [H, W, 3]
+        if options.camera_light:
+            shaded = shaded + camera_light_radiance(base_color, roughness, metallic, normals, view_dirs, flash)
         rendered = shaded * alpha[..., None]
         terms.append(photometric_loss(linear_to_srgb(rendered), photo, options.ssim_weight))
     return torch.stack(terms)
@@ -180,11 +186,13 @@ def view_losses(
     config,  # refine.loop.RefineConfig
     with_material: bool = True,
     with_normals: bool = False,
+    camera_light=None,  # refine.camera_light.CameraLight: a flash on the views that had one
 ) -> dict[str, Tensor]:
     """The losses of training view `index`: L1 of the rasterized material maps against the view's 2D maps
     ("material", when `with_material`), and 0.8 L1 + 0.2 D-SSIM of the PBR render against the photo
     ("photo", only with an environment map), and with `with_normals` the angle of the rendered normals to the view's
-    predicted normal map ("predicted_normals", when there is one). materials [N, 5], normals [N, 3] any
+    predicted normal map ("predicted_normals", when there is one); with a `camera_light`, a view whose photo had a
+    flash is shaded with it too. materials [N, 5], normals [N, 3] any
     orientation. Past the render, the terms are one function of tensors (`view_terms`), and so is the
     learnable light's prefiltering: CUDA graphs on a CUDA device (`TrainingViews`)."""
     frozen, view, constants = training.frozen, training.views[index], training.constants(index)
@@ -200,6 +208,7 @@ def view_losses(
         shadows = gaussian_shadows(*picked, view.camera, light)
         features.append(materials.new_zeros(len(materials), 6).index_copy(0, seen, shadows))
     blended, alpha = frozen.render(index, torch.cat(features, dim=-1))  # [H, W, 8 or 14], [H, W]
+    flashed = light is not None and camera_light is not None and constants.falloff is not None
     material = None
     if with_material:  # without the PBR loss nothing sets the scale
         scale_free = config.basecolor_loss == "scale-invariant"
@@ -214,6 +223,7 @@ def view_losses(
         light.layout if light is not None else (),
         config.metallic_quantile,
         type(light) if light is not None else PrefilteredEnvironment,
+        flashed,
     )
     tensors = (
         blended,
@@ -226,6 +236,7 @@ def view_losses(
         constants.surface_weight,
         constants.surface_count,
         training.normal_maps[index] if options.predicted_normals else constants.view_dirs,  # read only if predicted
+        constants.falloff * camera_light.intensity if flashed else constants.view_dirs,  # read only if flashed
         *(light_images(light) if light is not None else ()),
     )
     stacked = training.terms(options, *tensors)  # [T]

@@ -98,3 +98,20 @@ def cook_torrance(
     f = diffuse_albedo(base_color, metallic) / math.pi + specular
     above = (n_dot_l > 0) & (n_dot_v > 0)
     return f * above[..., None].to(f.dtype)
+
+
+def camera_light_radiance(
+    base_color: Tensor,  # [..., 3] linear
+    roughness: Tensor,  # [...] perceptual
+    metallic: Tensor,  # [...]
+    normals: Tensor,  # [..., 3] world space, any length and sign
+    wo: Tensor,  # [..., 3] unit, towards the camera
+    irradiance: Tensor,  # [..., 3] what a point light at the camera delivers there, facing it (I / d^2)
+) -> Tensor:  # [..., 3] outgoing linear radiance towards the camera
+    """A point light at the camera's centre (a flash), seen by that camera: E f_r(wo, wo) (n.wo), wi = wo. The normal
+    is turned to face the viewer, as split-sum shading turns it (`deferred.shade_unit`); a flash casts no shadow that
+    its camera sees."""
+    n = torch.nn.functional.normalize(normals, dim=-1, eps=1e-12)
+    n = n * torch.where(dot(n, wo) < 0, -1.0, 1.0)[..., None]
+    f = cook_torrance(base_color, roughness, metallic, n, wo, wo)  # [..., 3]
+    return f * (irradiance * dot(n, wo).clamp_min(0.0)[..., None])
