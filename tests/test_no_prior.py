@@ -15,7 +15,7 @@ from matspray.eval.run_eval import evaluate_run
 from matspray.method.asset import read_asset
 from matspray.method.config import build_config, variant_refine_config
 from matspray.method.pipeline import Pipeline
-from matspray.method.refine.loop import RefineConfig, refine
+from matspray.method.refine.loop import RefineConfig, RefineInputs, refine
 from matspray.presets import LABELS, MAPLESS, VARIANT_NAMES, asset_stage, get_variant, variants_for_maps
 from matspray.rundir import RunDir
 from tests.conftest import run_cli
@@ -185,3 +185,19 @@ def test_a_predictor_that_needs_ground_truth_is_refused_before_training(capture_
         tiny_object, tmp_path / "synth", build_config("test", predictor="auto"), progress=False, log=lambda _: None
     ) as pipeline:
         assert pipeline.config.predictor == "simulated"  # benchmarks: the synth object's true maps, degraded
+
+
+def test_free_materials_learn_for_every_gaussian_a_view_shows_however_small_its_share():
+    # `min_coverage` spares the merger's work on slivers of a view; a free per-Gaussian parameter costs nothing to read,
+    # so none is left at its uninformed start: here no Gaussian reaches the (huge) threshold, and the seen ones learn
+    from tests.scenes import lift_material_scene, material_scene
+
+    gaussians, normals, _, views, maps = material_scene()
+    lifted = lift_material_scene(gaussians, views, maps)
+    kept = gaussians.subset(lifted.kept)
+    bounds = torch.tensor([[-1.2] * 3, [1.2] * 3])
+    inputs = RefineInputs(kept, normals[lifted.kept], lifted.values, lifted.seen, views, maps, bounds)
+    config = RefineConfig(iterations=30, envmap_height=4, light_warmup=0, variant="no-prior", min_coverage=1e9)
+    materials = refine(inputs, config, progress=False).materials
+    moved = (materials - 0.5).abs().amax(-1) > 1e-4  # the free logits start at 0: grey 0.5
+    assert float(moved.float().mean()) > 0.95, float(moved.float().mean())

@@ -101,7 +101,7 @@ class RefineConfig:
     )
     camera_light: str = setting(
         "auto",
-        'a flash at each photo\'s camera, learned beside the environment (`refine.camera_light`): "auto" on the '
+        'a flash at each photo\'s camera, learned beside the environment (`method.refine.camera_light`): "auto" on the '
         'photos whose EXIF says their flash fired, "on" on every photo, "off" never',
     )
     light_warmup: int = setting(
@@ -110,8 +110,9 @@ class RefineConfig:
     )
     min_coverage: float = setting(
         0.2,
-        "per step the material source runs only for Gaussians covering >= this many pixels of the view; the "
-        "others (a sliver of the image) reuse their last value, without gradient",
+        "per step the Neural Merger runs only for Gaussians covering >= this many pixels of the view; the "
+        "others (a sliver of the image) reuse their last value, without gradient (free per-Gaussian materials, "
+        "which cost nothing to read, learn for every Gaussian the view shows)",
     )
     material_weight: float = setting(
         1.0, "weight of L_Image, the L1 between the rendered material maps and the 2D maps"
@@ -442,7 +443,9 @@ def step_losses(
     """One refinement step's loss terms on training view `index` and their weighted total: the material source runs
     only for the Gaussians the view shows."""
     variant = config.kind
-    active = training.frozen.contributing_ids(index, config.min_coverage)
+    # a free parameter costs nothing to read: only the merger skips slivers; every visible Gaussian's own values learn
+    coverage = config.min_coverage if source.merger is not None else 0.0
+    active = training.frozen.contributing_ids(index, coverage)
     spread = config.basecolor_spread_weight > 0 and variant.softmax
     merged, weights = source(active, return_weights=True) if spread else (source(active), {})
     materials = last_materials.index_copy(0, active, merged)
