@@ -170,3 +170,27 @@ def test_a_relit_render_adds_the_flash_only_when_asked():
     torch.testing.assert_close(render_relit(asset, camera, sky, camera_light=twice)[0], plain + 2 * added)
     farther = CameraLight(flash.intensity, 6.0).requires_grad_(False)  # the same light, d0 twice: 4 times as bright
     torch.testing.assert_close(render_relit(asset, camera, sky, camera_light=farther)[0], plain + 4 * added)
+
+
+def test_refinement_with_a_flash_runs_as_graphs_with_the_same_results(capsys):
+    # through the graph stand-in (static buffers replayed), as on a CUDA device: the flash's irradiance is an input of
+    # the captured terms that needs a gradient (its intensity is learned), as the light's images are
+    from benchmarks.graph_replay import graph_stand_in
+    from matspray.device import capturing_with
+
+    gaussians, normals, _, views, maps = material_scene()
+    lifted = lift_material_scene(gaussians, views, maps)
+    inputs = RefineInputs(
+        gaussians.subset(lifted.kept), normals[lifted.kept], lifted.values, lifted.seen, views, maps, BOUNDS
+    )
+    config = RefineConfig(iterations=6, envmap_height=4, light_warmup=2, log_every=1, camera_light="on")
+    results = []
+    for graphs in (True, False):
+        with capturing_with(graph_stand_in):
+            results.append(refine(inputs, config, progress=False, graphs=graphs))
+    graphed, eager = results
+    assert "without CUDA graphs" not in capsys.readouterr().err
+    assert [r["photo"] for r in graphed.history] == [r["photo"] for r in eager.history]
+    torch.testing.assert_close(graphed.camera_light.intensity, eager.camera_light.intensity, rtol=0, atol=0)
+    start = torch.full((3,), RefineConfig().envmap_init)
+    assert not torch.allclose(eager.camera_light.intensity, start)  # learned, in both
