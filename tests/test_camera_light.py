@@ -194,3 +194,23 @@ def test_refinement_with_a_flash_runs_as_graphs_with_the_same_results(capsys):
     torch.testing.assert_close(graphed.camera_light.intensity, eager.camera_light.intensity, rtol=0, atol=0)
     start = torch.full((3,), RefineConfig().envmap_init)
     assert not torch.allclose(eager.camera_light.intensity, start)  # learned, in both
+
+
+def test_info_says_which_photos_a_flash_lit(tmp_path):
+    from matspray.data.loader import describe_scene
+    from matspray.data.scene import Scene
+
+    camera = ring_cameras(1, 4)[0]
+    paths = [photo(tmp_path / "a.jpg", 9), photo(tmp_path / "b.jpg", 16), photo(tmp_path / "c.jpg", 9)]
+    views = [photo_view(p.stem, camera, p) for p in paths]
+    lines = describe_scene(Scene(views[:2], views[2:], BOUNDS)).lines
+    assert "  taken with a flash (EXIF): 1 of 2; refinement learns a flash at the camera" in "\n".join(lines)
+    assert sum("taken with a flash" in line for line in lines) == 2  # the held-out split's line too
+    plain = describe_scene(Scene([photo_view("d", camera, None)], [], BOUNDS)).lines
+    assert not any("flash" in line for line in plain)
+
+
+def photo_view(name, camera, path):
+    from matspray.data.scene import View
+
+    return View(name, torch.rand(4, 4, 3), None, camera, path)

@@ -11,6 +11,7 @@ import torch
 
 from matspray.data.crop import CropPlan, read_crop_plan
 from matspray.data.formats import blender, colmap, nerfstudio, tensoir
+from matspray.data.images import flash_fired
 from matspray.data.scene import Scene, View, bounds_from_cameras, bounds_from_points, bounds_from_visual_hull
 from matspray.errors import DataError, SettingError, file_error
 from matspray.rundir import RunDir
@@ -242,6 +243,12 @@ def describe_scene(scene: Scene) -> SceneSummary:
             f"  camera distance to object centre: {float(distances.min()):.3f} .. {float(distances.max()):.3f}",
             f"  masks: {masks} of {len(views)}",
         ]
+        flashed = sum(flash_fired(v.path) for v in views)
+        if flashed:  # refinement learns a flash at the camera on them (`refine.camera_light` auto)
+            lines.append(
+                f"  taken with a flash (EXIF): {flashed} of {len(views)}; refinement learns a flash at the camera "
+                "for them (--set refine.camera_light=off: it does not)"
+            )
         for view in views:
             if view.alpha is not None and float(view.alpha.mean()) < 1e-4:
                 problems.append(f"{view.path or view.name}: mask is empty")
