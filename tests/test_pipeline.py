@@ -396,28 +396,6 @@ def test_a_run_folder_another_process_writes_is_refused_and_left_as_it_was(
     assert main(args) == 0
 
 
-@pytest.mark.parametrize(
-    "command",
-    [
-        ["geometry", "--preset", "test", "--set", "geometry.iterations=5", "--quiet"],
-        ["predict", "--predictor", "simulated"],
-    ],
-)
-def test_the_stage_commands_refuse_a_busy_run_folder_before_working(
-    tiny_object, tmp_path, capsys, hold_in_another_process, command
-):
-    from matspray.cli import main
-
-    run = tmp_path / "run"
-    holder = hold_in_another_process(run)
-    assert main([command[0], "--data", str(tiny_object), "--out", str(run), *command[1:]]) == 2
-    assert capsys.readouterr().err.strip().endswith(busy_message(run, holder.pid))
-    assert [p.name for p in run.iterdir()] == ["run.lock"]  # nothing predicted or trained into it
-    holder.kill()
-    holder.wait()
-    assert main([command[0], "--data", str(tiny_object), "--out", str(run), *command[1:]]) == 0
-
-
 def test_photos_larger_than_the_working_size_are_brought_to_it(tiny_object, tmp_path, monkeypatch):
     monkeypatch.setitem(WORKING_SIZE, "test", 16)  # the object is 32 px
     said = []

@@ -1,6 +1,7 @@
 """Who writes a run folder: `RunDir.hold` (its run.lock), re-entrant in one thread, refused or waited for elsewhere,
 gone with its process; `share_stage` waits for the target's writer; the generalisation protocol trains an object's
-geometry once when jobs for several models start together."""
+geometry once when jobs for several models start together; the stage commands refuse a busy run folder before they
+work."""
 
 from __future__ import annotations
 
@@ -182,3 +183,25 @@ def test_where_files_cannot_be_locked_it_warns_and_goes_on(tmp_path, monkeypatch
     with pytest.warns(UserWarning, match="files cannot be locked here"):
         held = RunDir(tmp_path / "run").hold()
     held.release()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["geometry", "--preset", "test", "--set", "geometry.iterations=5", "--quiet"],
+        ["predict", "--predictor", "simulated"],
+    ],
+)
+def test_the_stage_commands_refuse_a_busy_run_folder_before_working(
+    tiny_object, tmp_path, capsys, hold_in_another_process, command
+):
+    from matspray.cli import main
+
+    run = tmp_path / "run"
+    holder = hold_in_another_process(run)
+    assert main([command[0], "--data", str(tiny_object), "--out", str(run), *command[1:]]) == 2
+    assert capsys.readouterr().err.strip().endswith(busy_message(run, holder.pid))
+    assert [p.name for p in run.iterdir()] == ["run.lock"]  # nothing predicted or trained into it
+    holder.kill()
+    holder.wait()
+    assert main([command[0], "--data", str(tiny_object), "--out", str(run), *command[1:]]) == 0
