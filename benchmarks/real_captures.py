@@ -159,6 +159,7 @@ def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dic
     from matspray.method.masks import read_object_masks
     from matspray.rundir import RunDir
 
+    asset = read_asset(RunDir(run).asset_path(VARIANT))
     metrics = json.loads((run / "eval" / "heldout.json").read_text())
     timings = json.loads((run / "timings.json").read_text())
     region = read_object_masks(run / "masks").region
@@ -170,28 +171,23 @@ def summarise(name: str, out: Path, run: Path, sfm: dict | None, steps: list[dic
         "steps": steps,
         "stage_seconds": timings,
         "gaussians_geometry": len(read_ply(run / "geometry" / "gaussians.ply")[0]),
-        "gaussians_asset": len(read_asset(RunDir(run).asset_path(VARIANT)).gaussians),
+        "gaussians_asset": len(asset.gaussians),
         "heldout": metrics["heldout"]["summary"],
         "train": metrics["train"]["summary"],
         "mask_coverage": [(r["view"], round(r["mask_coverage"], 3)) for r in metrics["heldout"]["per_view"]],
         "region": region.describe(),
         "glb_box": [[round(v, 3) for v in corner] for corner in glb_box(glb)] if glb.exists() else None,
         "crop_gain": None if plan is None else round(1.0 / plan.mean_side(), 2),  # pixels across the object, x
-        "camera_light": camera_light_of(run),
+        "camera_light": flash_record(asset.camera_light),
     }
     (out / "summary.json").write_text(json.dumps(record, indent=1))
     return record
 
 
-def camera_light_of(run: Path) -> dict | None:
-    """The flash the user's asset learned beside its light (`refine.camera_light`), None without one."""
-    from matspray.method.refine.camera_light import CAMERA_LIGHT_FILE, CameraLight
-    from matspray.rundir import RunDir
-
-    path = RunDir(run).asset_path(VARIANT) / CAMERA_LIGHT_FILE
-    if not path.exists():
+def flash_record(light) -> dict | None:
+    """The flash the user's asset learned beside its light (a `CameraLight`: `refine.camera_light`), or None."""
+    if light is None:
         return None
-    light = CameraLight.load(path)
     return {"intensity": [round(float(x), 4) for x in light.intensity], "reference_distance": light.reference_distance}
 
 

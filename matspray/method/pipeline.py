@@ -38,7 +38,6 @@ from matspray.method.plan import (
     stage_files,
     with_normals,
 )
-from matspray.method.refine.camera_light import lit_views
 from matspray.method.refine.loop import RefineInputs, frozen_views, refine
 from matspray.predictors import maps_to_tensor, predicted_normal_maps, read_materials2d, without_normals
 from matspray.presets import asset_stage, get_variant, variants_for_maps
@@ -308,7 +307,7 @@ def refine_record(result, precision: str, variant: str, inputs: RefineInputs, co
     flash = result.camera_light
     if flash is None:
         return record
-    lit = sum(lit_views(config.camera_light, [v.path for v in inputs.views]))
+    lit = result.flash_views
     intensity = [round(float(x), 4) for x in flash.intensity]
     why = "their EXIF says the flash fired" if config.camera_light == "auto" else "refine.camera_light=on"
     log(

@@ -341,6 +341,7 @@ class RefineResult:
     visibility: Tensor | None = None  # [N, D] the shadowing used (kept with the asset for relighting)
     frozen: dict | None = None  # what the frozen views kept (FrozenViews.describe()); None when none were made
     camera_light: CameraLight | None = None  # the flash estimated beside the environment, on photos that had one
+    flash_views: int = 0  # how many training views that flash lit
 
 
 def aligned_inputs(inputs: RefineInputs) -> RefineInputs:
@@ -383,8 +384,8 @@ def refine(
     if not source.trainable or config.iterations == 0:
         return RefineResult(source().detach(), normals, source, envmap, history, inputs.visibility)
 
-    camera_light = starting_camera_light(config, inputs, device) if estimates_light else None
-    training = TrainingViews(inputs, frozen, graphs, camera_light)
+    camera_light, lit = starting_camera_light(config, inputs, device) if estimates_light else (None, None)
+    training = TrainingViews(inputs, frozen, graphs, camera_light, lit)
     source_lr = source.learning_rate(config)
     groups = [{"params": list(source.parameters()), "lr": source_lr, "name": f"{variant.name} materials"}]
     if estimates_light:
@@ -427,7 +428,9 @@ def refine(
         materials = with_fitted_metallic(materials, final_normals, envmap, training, inputs.targets, config)
     frozen_used = training.frozen.describe()
     flash = None if camera_light is None else camera_light.fixed()
-    return RefineResult(materials, final_normals, source, envmap, history, inputs.visibility, frozen_used, flash)
+    return RefineResult(
+        materials, final_normals, source, envmap, history, inputs.visibility, frozen_used, flash, sum(training.lit)
+    )
 
 
 def step_losses(
@@ -443,9 +446,7 @@ def step_losses(
     """One refinement step's loss terms on training view `index` and their weighted total: the material source runs
     only for the Gaussians the view shows."""
     variant = config.kind
-    # a free parameter costs nothing to read: only the merger skips slivers; every visible Gaussian's own values learn
-    coverage = config.min_coverage if source.merger is not None else 0.0
-    active = training.frozen.contributing_ids(index, coverage)
+    active = training.frozen.contributing_ids(index, source.min_coverage(config))
     spread = config.basecolor_spread_weight > 0 and variant.softmax
     merged, weights = source(active, return_weights=True) if spread else (source(active), {})
     materials = last_materials.index_copy(0, active, merged)
@@ -472,13 +473,14 @@ def step_losses(
     return terms, total_loss(terms, config)
 
 
-def starting_camera_light(config: RefineConfig, inputs: RefineInputs, device) -> CameraLight | None:
-    """The flash refinement estimates beside the environment, starting at the environment's starting radiance; None
-    when `config.camera_light` lights none of the training views."""
-    if not any(lit_views(config.camera_light, [v.path for v in inputs.views])):
-        return None
+def starting_camera_light(config: RefineConfig, inputs: RefineInputs, device) -> tuple[CameraLight | None, list[bool]]:
+    """The flash refinement estimates beside the environment, starting at the environment's starting radiance, and the
+    training views it lit, read once from the photos' EXIF (`config.camera_light`); None when it lit none."""
+    lit = lit_views(config.camera_light, [v.path for v in inputs.views])
+    if not any(lit):
+        return None, lit
     distance = reference_distance([v.camera for v in inputs.views], inputs.bounds)
-    return CameraLight.initial(config.envmap_init, distance, config.camera_light, device)
+    return CameraLight.initial(config.envmap_init, distance, config.camera_light, device), lit
 
 
 def starting_light(config: RefineConfig, light: Light | None, device) -> Light:

@@ -44,6 +44,11 @@ class MaterialSource(nn.Module):
     def learning_rate(self, config) -> float:  # config: refine.loop.RefineConfig
         return config.merger_lr
 
+    def min_coverage(self, config) -> float:  # config: refine.loop.RefineConfig
+        """The pixels' worth of a view below which a Gaussian's materials are not made at a step: 0 for a source whose
+        values cost nothing to read (every Gaussian the view shows learns)."""
+        return 0.0
+
     @property
     def trainable(self) -> bool:
         return any(p.requires_grad for p in self.parameters())
@@ -93,6 +98,9 @@ class MergerSource(MaterialSource):
     @classmethod
     def made(cls, variant: Variant, positions: Tensor, values: Tensor, seen: Tensor, bounds, merger_config):
         return cls(variant, positions, values, seen, bounds, merger_config)
+
+    def min_coverage(self, config) -> float:
+        return config.min_coverage  # the merger's work on the slivers of a view is spared
 
     def forward(self, index: Tensor | None = None, return_weights: bool = False):
         pick = picker(index)

@@ -13,7 +13,7 @@ from matspray.data.images import linear_to_srgb
 from matspray.data.scene import View
 from matspray.device import Graphed
 from matspray.material import N_CHANNELS
-from matspray.method.refine.camera_light import CameraLight, falloff, lit_views
+from matspray.method.refine.camera_light import CameraLight, falloff
 from matspray.method.refine.terms import view_terms
 from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.deferred import view_directions
@@ -71,10 +71,11 @@ class TrainingViews:
         frozen: FrozenViews | None = None,
         graphs: bool = True,
         camera_light: CameraLight | None = None,
+        lit: list[bool] | None = None,
     ):
         """`frozen`: the views' frozen blending weights when the caller keeps them (`frozen_views(inputs)`: the
         variants of one run share them); made here otherwise. `graphs=False`: the terms op by op everywhere.
-        `camera_light`: the flash that lights the views it says (`camera_light.lit_views`)."""
+        `camera_light`: the flash that lit the views `lit` says (`camera_light.lit_views`; None: none)."""
         self.frozen = frozen_views(inputs) if frozen is None else frozen
         self.views = inputs.views
         self.targets = inputs.targets
@@ -86,7 +87,7 @@ class TrainingViews:
         self.graphs = graphs
         self.lights: dict = {}  # a learnable light's prefiltering per model (`Light.step_function`), graphed
         self.camera_light = camera_light
-        self.lit = lit_views(camera_light.views if camera_light else "off", [v.path for v in self.views])
+        self.lit = list(lit) if camera_light is not None and lit is not None else [False] * len(self.views)
 
     def __len__(self) -> int:
         return len(self.views)
