@@ -8,6 +8,7 @@ frame drawn when the view stops) and moving (the smaller frames drawn while the 
     python -m benchmarks.web_fps --gaussians 40000 --passes   # each pass of a frame timed on its own
     python -m benchmarks.web_fps --gaussians 40000 --shapes   # triangles against rectangles, interleaved
     python -m benchmarks.web_fps --scripts OLD.js NEW.js      # pages with these builds of the script, interleaved
+    python -m benchmarks.web_fps --run RUN                    # a run's asset (its `matspray export --web` page)
 
 Besides the wall time, each frame's CPU time: the seconds that chromium's processes (SwiftShader's threads among
 them) spent, which other work on the machine's cores changes far less than the wall time.
@@ -115,9 +116,16 @@ return out;
 """
 
 
-def pages(root: Path, count: int, scripts: list[str]) -> list[tuple[str, Path]]:
-    """The disk sphere's page under `root`, one copy per script in `scripts` (or the built one): (name, folder)."""
-    write_disk_sphere_page(root / "page", count)
+def pages(root: Path, count: int | str, scripts: list[str]) -> list[tuple[str, Path]]:
+    """The page of the disk sphere of `count` Gaussians (or of a run folder's asset, `count` its path) under `root`,
+    one copy per script in `scripts` (or the built one): (name, folder)."""
+    if isinstance(count, str):
+        from matspray.cli import main as matspray
+
+        if matspray(["export", "--run", count, "--web", str(root / "page")]) != 0:
+            raise SystemExit(f"{count}: its page could not be exported (the message above says why)")
+    else:
+        write_disk_sphere_page(root / "page", count)
     if not scripts:
         return [("page", root / "page")]
     folders = []
@@ -132,6 +140,7 @@ def pages(root: Path, count: int, scripts: list[str]) -> list[tuple[str, Path]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gaussians", type=int, nargs="+", default=[4000, 40000])
+    parser.add_argument("--run", help="time the page of this run folder's asset instead of the disk spheres")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--passes", action="store_true", help="time each pass of a frame instead")
     parser.add_argument("--shapes", action="store_true", help="time each Gaussian drawn in a triangle, a rectangle")
@@ -142,18 +151,19 @@ def main() -> None:
     driver = headless_chromium(1000, 800)
     driver.set_script_timeout(600)
     try:
-        for count in args.gaussians:
+        for count in [args.run] if args.run else args.gaussians:
+            label = f"the asset of {count}" if isinstance(count, str) else f"{count} Gaussians"
             with tempfile.TemporaryDirectory() as tmp:
                 folders = pages(Path(tmp), count, args.scripts)
                 open_page(driver, folders[0][1])
                 if args.passes:
                     for _ in range(args.repeats):
-                        print(f"{count} Gaussians, ms a pass: {driver.execute_script(PASSES)}", flush=True)
+                        print(f"{label}, ms a pass: {driver.execute_script(PASSES)}", flush=True)
                     continue
                 for shape in ("rectangles", "triangles") * args.repeats if args.shapes else ():
                     driver.execute_script("window.matspray.forceShape(arguments[0])", shape)
                     still, moving = milliseconds_per_frame(driver), milliseconds_per_frame(driver, True)
-                    print(f"{count} Gaussians as {shape}: {still:.0f} ms still, {moving:.0f} ms moving", flush=True)
+                    print(f"{label} as {shape}: {still:.0f} ms still, {moving:.0f} ms moving", flush=True)
                 if args.shapes:
                     continue
                 times = {name: [] for name, _ in folders}
@@ -165,7 +175,7 @@ def main() -> None:
                 for k, state in enumerate(("still", "moving")):
                     pairs = [t[k] for t in costs]
                     shown = ", ".join(f"{w:.0f} ms ({1000 / w:.1f} fps, CPU {c:.0f} ms)" for w, c in pairs)
-                    print(f"{count} Gaussians at 512 x 512, {name}, {state}: {shown}", flush=True)
+                    print(f"{label} at 512 x 512, {name}, {state}: {shown}", flush=True)
     finally:
         driver.quit()
 
