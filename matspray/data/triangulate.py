@@ -149,7 +149,8 @@ def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, 
         names.append(f"{i:05d}.png")
         cameras.append(small.camera)
         pixels = srgb8(small.image).numpy()
-        Image.fromarray(pixels).save(image_dir / names[-1])
+        # scratch files that SIFT reads once: zlib's fastest level (its default, 6, took 3-4 times as long)
+        Image.fromarray(pixels).save(image_dir / names[-1], compress_level=1)
     pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
     # SIFT's threshold as structure from motion's: smooth objects need it
     extract_sift(
