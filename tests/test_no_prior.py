@@ -201,3 +201,37 @@ def test_free_materials_learn_for_every_gaussian_a_view_shows_however_small_its_
     materials = refine(inputs, config, progress=False).materials
     moved = (materials - 0.5).abs().amax(-1) > 1e-4  # the free logits start at 0: grey 0.5
     assert float(moved.float().mean()) > 0.95, float(moved.float().mean())
+
+
+def test_photos_only_can_start_its_base_colour_from_the_gaussians_own_colours():
+    # refine.basecolor_start="photos": the free base colour starts at each Gaussian's view-independent colour (its
+    # SH DC term) instead of grey; refinement then trains from there (0 steps: the start as it is)
+    from matspray.errors import SettingError
+    from matspray.render.shade.sh import rgb_to_sh_dc
+    from tests.scenes import lift_material_scene, material_scene
+
+    gaussians, normals, _, views, maps = material_scene()
+    lifted = lift_material_scene(gaussians, views, maps)
+    kept = gaussians.subset(lifted.kept)
+    colours = torch.rand(len(kept), 3, generator=torch.Generator().manual_seed(3)) * 0.9 + 0.05
+    kept.sh = kept.sh.clone()
+    kept.sh[:, 0] = rgb_to_sh_dc(colours)
+    bounds = torch.tensor([[-1.2] * 3, [1.2] * 3])
+    inputs = RefineInputs(kept, normals[lifted.kept], lifted.values, lifted.seen, views, maps, bounds)
+    for start, expected in (("photos", colours), ("grey", torch.full_like(colours, 0.5))):
+        config = RefineConfig(
+            iterations=0, envmap_height=4, light_warmup=0, variant="photos-only", basecolor_start=start
+        )
+        materials = refine(inputs, config, progress=False).materials
+        assert torch.allclose(materials[:, :3], expected, atol=1e-5), start
+        assert torch.allclose(materials[:, 4], torch.full_like(materials[:, 4], DEFAULTS.metallic_prior_start))
+    config = RefineConfig(iterations=0, envmap_height=4, variant="no-prior", basecolor_start="photos")
+    assert torch.allclose(
+        refine(inputs, config, progress=False).materials[:, :3], torch.tensor(0.5)
+    )  # photos-only's own
+    assert (
+        variant_refine_config(build_config("test", **{"refine.basecolor_start": "photos"}), "no-prior").basecolor_start
+        == "grey"
+    )
+    with pytest.raises(SettingError, match="unknown start 'paint'; choose one of grey, photos"):
+        RefineConfig(basecolor_start="paint")

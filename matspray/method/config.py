@@ -276,7 +276,7 @@ def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
     photo_weight = config.refine.photo_weight if kind.uses_maps else 1.0
     refine = replace(config.refine, variant=variant, seed=seed, photo_weight=photo_weight)
     if not kind.dielectric_prior:  # photos-only's own: recorded off for the others, whose refinement they do not change
-        refine = replace(refine, metallic_prior_weight=0.0, metallic_prior_start=0.5)
+        refine = replace(refine, metallic_prior_weight=0.0, metallic_prior_start=0.5, basecolor_start="grey")
     return refine
 
 

@@ -73,9 +73,11 @@ from matspray.presets import Variant, get_variant
 from matspray.render.raster.gbuffer import FrozenViews
 from matspray.render.shade.light import Light
 from matspray.render.shade.models import LIGHT_MODELS, light_model
+from matspray.render.shade.sh import sh_dc_to_rgb
 from matspray.settings import setting
 
 BASECOLOR_LOSSES = ("l1", "scale-invariant", "huber")
+BASECOLOR_STARTS = ("grey", "photos")
 
 
 @dataclass(frozen=True)
@@ -178,6 +180,12 @@ class RefineConfig:
         "photos-only variant only: the metallic its free per-Gaussian materials start from, and its light warm-up "
         "sees (the others: 0.5, an uninformed grey)",
     )
+    basecolor_start: str = setting(
+        "grey",
+        'photos-only variant only: what its free base colour starts from: "grey" (0.5, as the other free variants) '
+        "or \"photos\" (each Gaussian's view-independent colour from Gaussian Splatting, the photos' light in it, "
+        "for the light and the photo loss to take out)",
+    )
     basecolor_spread_weight: float = setting(
         0.0,
         "weight of the base-colour merger's KL divergence from equal weights over the seen views (softmax "
@@ -220,6 +228,11 @@ class RefineConfig:
         ):
             if not getattr(self, name) >= 0:
                 raise SettingError(name, f"must be >= 0, got {getattr(self, name)}")
+        if self.basecolor_start not in BASECOLOR_STARTS:
+            raise SettingError(
+                "basecolor_start",
+                f"unknown start '{self.basecolor_start}'; choose one of {', '.join(BASECOLOR_STARTS)}",
+            )
         if not 0.0 < self.metallic_prior_start < 1.0:
             raise SettingError("metallic_prior_start", f"must be in (0, 1), got {self.metallic_prior_start}")
         if not 0.0 < self.metallic_quantile < 1.0:
@@ -378,6 +391,8 @@ def refine(
     source = material_source(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
     if variant.dielectric_prior:  # a dielectric until the photos say otherwise (the others start from grey)
         source.start_metallic(config.metallic_prior_start)
+        if config.basecolor_start == "photos":
+            source.start_base_color(sh_dc_to_rgb(gaussians.sh[:, 0].detach()))
     envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
     history: list[dict] = []

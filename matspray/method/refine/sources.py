@@ -80,6 +80,11 @@ class FreeSource(MaterialSource):
         with torch.no_grad():
             self.logits[:, METALLIC_INDEX] = math.log(value / (1.0 - value))  # the logit of the start
 
+    def start_base_color(self, colours: Tensor) -> None:  # [N, 3] linear
+        """Every Gaussian's base colour starts at `colours`, kept inside (0, 1) so that its logit is finite."""
+        with torch.no_grad():
+            self.logits[:, :3] = torch.logit(colours.to(self.logits).clamp(0.02, 0.98))
+
     def learning_rate(self, config) -> float:
         return config.supervised_lr
 
