@@ -364,6 +364,18 @@ def aligned_inputs(inputs: RefineInputs) -> RefineInputs:
     return replace(inputs, values=align_view_gains(inputs.values, gains), targets=targets)
 
 
+def starting_source(variant: Variant, inputs: RefineInputs, config: RefineConfig, device) -> MaterialSource:
+    """The variant's material source on `device`, at its start: photos-only's a dielectric until the photos say
+    otherwise, its base colour grey or the Gaussians' own colours (`basecolor_start`); the others grey."""
+    means = inputs.gaussians.means.detach()
+    source = material_source(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
+    if variant.dielectric_prior:
+        source.start_metallic(config.metallic_prior_start)
+        if config.basecolor_start == "photos":
+            source.start_base_color(sh_dc_to_rgb(inputs.gaussians.sh[:, 0].detach()))
+    return source
+
+
 def refine(
     inputs: RefineInputs,
     config: RefineConfig,
@@ -387,12 +399,7 @@ def refine(
     device = gaussians.device
     if config.align_view_gains:
         inputs = aligned_inputs(inputs)
-    means = gaussians.means.detach()
-    source = material_source(variant, means, inputs.values, inputs.seen, inputs.bounds, config.merger).to(device)
-    if variant.dielectric_prior:  # a dielectric until the photos say otherwise (the others start from grey)
-        source.start_metallic(config.metallic_prior_start)
-        if config.basecolor_start == "photos":
-            source.start_base_color(sh_dc_to_rgb(gaussians.sh[:, 0].detach()))
+    source = starting_source(variant, inputs, config, device)
     envmap = starting_light(config, light, device) if variant.learns_light else None
     estimates_light = envmap is not None and light is None
     history: list[dict] = []
