@@ -17,6 +17,7 @@ them) spent, which other work on the machine's cores changes far less than the w
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import shutil
 import tempfile
@@ -116,16 +117,18 @@ return out;
 """
 
 
-def pages(root: Path, count: int | str, scripts: list[str]) -> list[tuple[str, Path]]:
-    """The page of the disk sphere of `count` Gaussians (or of a run folder's asset, `count` its path) under `root`,
-    one copy per script in `scripts` (or the built one): (name, folder)."""
-    if isinstance(count, str):
-        from matspray.cli import main as matspray
+def export_run_page(folder: Path, run: str) -> None:
+    """The page of a run folder's default asset, as `matspray export --web` writes it."""
+    from matspray.cli import main as matspray
 
-        if matspray(["export", "--run", count, "--web", str(root / "page")]) != 0:
-            raise SystemExit(f"{count}: its page could not be exported (the message above says why)")
-    else:
-        write_disk_sphere_page(root / "page", count)
+    if matspray(["export", "--run", run, "--web", str(folder)]) != 0:
+        raise SystemExit(f"{run}: its page could not be exported (the message above says why)")
+
+
+def pages(root: Path, write_page, scripts: list[str]) -> list[tuple[str, Path]]:
+    """The page `write_page(folder)` makes, under `root`, one copy per script in `scripts` (or the built one):
+    (name, folder)."""
+    write_page(root / "page")
     if not scripts:
         return [("page", root / "page")]
     folders = []
@@ -151,10 +154,12 @@ def main() -> None:
     driver = headless_chromium(1000, 800)
     driver.set_script_timeout(600)
     try:
-        for count in [args.run] if args.run else args.gaussians:
-            label = f"the asset of {count}" if isinstance(count, str) else f"{count} Gaussians"
+        subjects = [(f"{n} Gaussians", functools.partial(write_disk_sphere_page, count=n)) for n in args.gaussians]
+        if args.run:
+            subjects = [(f"the asset of {args.run}", functools.partial(export_run_page, run=args.run))]
+        for label, write_page in subjects:
             with tempfile.TemporaryDirectory() as tmp:
-                folders = pages(Path(tmp), count, args.scripts)
+                folders = pages(Path(tmp), write_page, args.scripts)
                 open_page(driver, folders[0][1])
                 if args.passes:
                     for _ in range(args.repeats):

@@ -30,7 +30,7 @@ from PIL import Image, ImageOps
 from tqdm import tqdm
 
 from matspray.data.images import DECODER_ERRORS, atomic_target, read_raw, resize, split_alpha, write_raw
-from matspray.data.loader import PHOTO_SUFFIXES, describe_scene, load_scene
+from matspray.data.loader import PHOTO_SUFFIXES, load_scene
 from matspray.errors import ConfigError, DataError, file_error, optional_module
 
 MATCHERS = ("exhaustive", "sequential")
@@ -301,7 +301,7 @@ def run_sfm(
     result.notes = [note.replace(str(work.resolve()), str(out.resolve())) for note in result.notes]
     log("undistorting the images ...")
     scene = load_scene(out)  # undistorts into the cache under the dataset's final name, so that later loads read them
-    result.notes += [line for line in describe_scene(scene).lines if line.startswith("loading:")]
+    result.notes += [f"loading: {line}" for line in scene.log]  # what `matspray info` prints of the load
     result.seconds = time.perf_counter() - start
     return result
 
