@@ -177,7 +177,7 @@ def test_export_splats_then_relight_the_file(tmp_path, capsys):
     from matspray.web.page import BUNDLE
 
     if BUNDLE.exists():
-        assert main(["export", "--run", str(glb), "--web", str(tmp_path / "web")]) == 0
+        assert main(["export", "--run", str(glb), "--web", str(tmp_path / "web"), "inf"]) == 0
         assert '"count":400' in (tmp_path / "web" / "asset.js").read_text()
     # the baked splats alone as SPZ, from the file
     gsply = pytest.importorskip("gsply.spz", reason="gsply (the SPZ writer, in the `export` extra) is not installed")

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from matspray.cli.options import VARIANT_HELP, add_compute_arguments, hidden_alias
 from matspray.export.config import BAKES, ExportConfig
+from matspray.web import DEFAULT_WEB_PSNR
 
 DEFAULTS = ExportConfig()
 OLD_NORMALS = {"mesh": 0.0, "asset": 1.0}  # --normals mesh|asset, the flag before --asset-normals
@@ -15,6 +16,41 @@ def old_normals(value: str) -> float:
     if value not in OLD_NORMALS:
         raise argparse.ArgumentTypeError(f"'{value}': choose mesh or asset, or pass --asset-normals SHARE")
     return OLD_NORMALS[value]
+
+
+def web_psnr(value: str) -> float:
+    """--web's DB: a PSNR above 0, or inf."""
+    from matspray.errors import ConfigError
+
+    try:
+        decibels = float(value)
+    except ValueError:
+        decibels = float("nan")
+    if not decibels > 0:
+        raise ConfigError(f"--web DIR {value}: give the page's PSNR in dB, above 0 (inf draws every Gaussian)")
+    return decibels
+
+
+def add_splats_and_web_arguments(parser) -> None:
+    """--splats and --web."""
+    parser.add_argument(
+        "--splats",
+        nargs="+",
+        metavar=("FILE.glb", "LIGHT"),
+        help="the Gaussians as glTF with the KHR_gaussian_splatting extension, their colour baked under LIGHT (a name "
+        "or .exr/.hdr file as relight's --env; default: the estimated light), with per-splat base colour, roughness, "
+        "metallic and normal and the estimated light beside them, which MatSpray reads back (relight --run FILE.glb); "
+        "FILE.spz: the baked splats alone, as SPZ",
+    )
+    parser.add_argument(
+        "--web",
+        nargs="+",
+        metavar=("DIR", "DB"),
+        help="a static page that relights the asset in the browser (open DIR/index.html, or put DIR on any host); it "
+        "leaves out the Gaussians that add least per pixel they cover, as many as keeps its frames within DB of the "
+        f"whole asset's (PSNR; default {DEFAULT_WEB_PSNR:g}: the demo's asset in about half the frame time); DB inf "
+        "draws every Gaussian",
+    )
 
 
 def add_export_parser(parser) -> None:
@@ -34,21 +70,7 @@ def add_export_parser(parser) -> None:
         help="run folder made by `matspray run` (for --web and --splats also a .glb written by --splats)",
     )
     parser.add_argument("--out", type=Path, help="the mesh: the .glb file to write")
-    parser.add_argument(
-        "--splats",
-        nargs="+",
-        metavar=("FILE.glb", "LIGHT"),
-        help="the Gaussians as glTF with the KHR_gaussian_splatting extension, their colour baked under LIGHT (a name "
-        "or .exr/.hdr file as relight's --env; default: the estimated light), with per-splat base colour, roughness, "
-        "metallic and normal and the estimated light beside them, which MatSpray reads back (relight --run FILE.glb); "
-        "FILE.spz: the baked splats alone, as SPZ",
-    )
-    parser.add_argument(
-        "--web",
-        type=Path,
-        metavar="DIR",
-        help="a static page that relights the asset in the browser (open DIR/index.html, or put DIR on any host)",
-    )
+    add_splats_and_web_arguments(parser)
     parser.add_argument("--variant", help=VARIANT_HELP)
     parser.add_argument("--faces", type=int, help=f"face budget, >= 100 (default {DEFAULTS.faces})")
     parser.add_argument(
@@ -126,6 +148,11 @@ def export_main(args) -> int:
         refuse(
             [flag for flag, name in MESH_FLAGS.items() if getattr(args, name, None) is not None], "for --out FILE.glb"
         )
+    if args.web is not None:
+        if len(args.web) > 2:
+            raise ConfigError(f"--web takes DIR and at most one DB, got {len(args.web)} values")
+        args.web_psnr = web_psnr(args.web[1]) if len(args.web) == 2 else DEFAULT_WEB_PSNR
+        args.web = Path(args.web[0])
     if args.splats is not None and len(args.splats) > 2:
         raise ConfigError(f"--splats takes FILE.glb and at most one LIGHT, got {len(args.splats)} values")
     if args.out is not None:
@@ -140,9 +167,11 @@ def export_main(args) -> int:
             export_mesh(args, device, backend)
         if args.splats is not None or args.web is not None:
             from matspray.cli.splats import export_splats_and_web
+            from matspray.render.backend import rendering_with
 
-            for path in export_splats_and_web(args, device):
-                print(f"wrote {path}")
+            with rendering_with(backend):  # the page's choice of Gaussians renders the asset (web.detail)
+                for path in export_splats_and_web(args, device):
+                    print(f"wrote {path}")
     return 0
 
 

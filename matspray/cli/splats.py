@@ -51,6 +51,28 @@ def bake_light(spec: str | None, estimated, device):
     return EnvironmentMap.from_tensor(light.to(device), height=BAKE_ENV_HEIGHT, learnable=False).prefilter()
 
 
+def write_web_page(args, asset, view: dict, estimated, device) -> list[Path]:
+    """The page of `asset` with the Gaussians it draws (`web.detail`), chosen under its estimated light (when it has
+    one) and the packaged light that shows most what is left out."""
+    import torch
+
+    from matspray.web.detail import CHECK_LIGHT, page_gaussians, subset
+    from matspray.web.page import BACKGROUND, write_page
+
+    lights = [bake_light(CHECK_LIGHT, estimated, device)]
+    if estimated is not None:
+        lights.append(bake_light(None, estimated, device))
+    background = torch.tensor(BACKGROUND, device=device)
+    detail = page_gaussians(asset, view, lights, background, args.web_psnr, progress=True)
+    drawn = int(detail.keep.sum())
+    if drawn < len(asset.gaussians):
+        print(
+            f"web page: draws {drawn} of the asset's {len(asset.gaussians)} Gaussians, its frames {detail.psnr:.1f} dB "
+            "from the whole asset's (--web DIR inf draws every one)"
+        )
+    return write_page(args.web, subset(asset, detail.keep), view, estimated, drawn_of=len(asset.gaussians))
+
+
 def export_splats_and_web(args, device) -> list[Path]:
     """Write what --splats and --web ask for; returns the files written."""
     from matspray.errors import ConfigError
@@ -78,7 +100,5 @@ def export_splats_and_web(args, device) -> list[Path]:
         else:
             written += write_splats(path, asset, light, estimated, view)
     if args.web is not None:
-        from matspray.web.page import write_page
-
-        written += write_page(args.web, asset, view, estimated)
+        written += write_web_page(args, asset, view, estimated, device)
     return written

@@ -110,10 +110,11 @@ def script(variable: str, value: dict) -> str:
     return f"window.{variable} = {json.dumps(value, separators=(',', ':'))};\n"
 
 
-def asset_script(asset: Asset, view: dict) -> str:
+def asset_script(asset: Asset, view: dict, notes: dict | None = None) -> str:
+    """The page's asset script: the quantised arrays, what reading them needs, the orbit `view` and `notes`."""
     meta, arrays = quantise_asset(asset)
     layout, data = deflated(arrays)
-    return script("MATSPRAY_ASSET", {"meta": {**meta, "view": view, "arrays": layout}, "data": data})
+    return script("MATSPRAY_ASSET", {"meta": {**meta, **(notes or {}), "view": view, "arrays": layout}, "data": data})
 
 
 def page_light(map: torch.Tensor) -> np.ndarray:  # [H, 2H, 3] linear -> [LIGHT_HEIGHT, 2 LIGHT_HEIGHT, 3] float32

@@ -17,6 +17,7 @@ from matspray.web.pack import asset_script, lights_script, page_light
 PACKAGE = Path(__file__).parent
 BUNDLE = PACKAGE / "dist" / "matspray-web.js"  # made by `make setup` (npm: three, esbuild); shipped in the package
 PAGE_SIZE = 512  # pixels of the page's square view
+BACKGROUND = (0.02, 0.02, 0.02)  # linear, behind the object (src/main.js BACKGROUND)
 
 
 def bundle_path() -> Path:
@@ -48,16 +49,19 @@ def page_view(spec: dict, size: int = PAGE_SIZE) -> dict:
     return {**spec, "fx": spec["fx"] * scale, "fy": spec["fy"] * scale, "width": size, "height": size}
 
 
-def write_page(folder, asset: Asset, spec: dict, estimated: torch.Tensor | None = None) -> list[Path]:
+def write_page(
+    folder, asset: Asset, spec: dict, estimated: torch.Tensor | None = None, drawn_of: int | None = None
+) -> list[Path]:
     """Write the page for `asset` into `folder`: its orbit `spec` (`method.relight.orbit_spec`), the `estimated`
-    light [H, 2H, 3] first (when given), then the packaged ones. Returns the files written."""
+    light [H, 2H, 3] first (when given), then the packaged ones; `drawn_of`: the Gaussians of the asset the page's
+    were chosen from (`web.detail`), for its status line. Returns the files written."""
     bundle = bundle_path()
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     lights = ([("estimated", estimated)] if estimated is not None else []) + packaged_lights()
     files = {
         "index.html": (PACKAGE / "static" / "index.html").read_text(),
-        "asset.js": asset_script(asset, page_view(spec)),
+        "asset.js": asset_script(asset, page_view(spec), {"drawnOf": drawn_of or len(asset.gaussians)}),
         "lights.js": lights_script(lights),
     }
     written = []

@@ -33,6 +33,7 @@ export function installTestHooks(api, viewer) {
     viewer,
     timeFrames: (frames, step, moving = false) => timeFrames(viewer, frames, step, moving),
     moving: () => viewer.moving,
+    blends: () => viewer.blends, // G-buffers blended so far (a new light or exposure only shades again)
     // [the typical footprint, the last frame's shape]; forceShape("triangles" | "rectangles" | null: by footprint)
     drawnAs: () => [viewer.footprint, viewer.shape.indices === 3 ? "triangles" : "rectangles"],
     forceShape: (shape) => {

@@ -1,9 +1,8 @@
-// `matspray export --web DIR`: the asset relit in the browser on three.js (WebGL 2). Each Gaussian is shaded by
-// split-sum image-based lighting, as `matspray relight` shades, and the shaded Gaussians are blended (shaders.js says
-// how and why it differs from relight's G-buffer); the light is prefiltered on the page (prefilter.js), so that a
-// dropped .hdr / .exr lights the asset as a packaged one does. window.matspray is the page's interface for
-// scripts: ready, error, lights(), setLight, setTurn, setExposure, setCamera (hooks.js adds the tests' hooks when
-// the page's address asks for them).
+// `matspray export --web DIR`: the asset relit in the browser on three.js (WebGL 2), as `matspray relight` renders
+// it: the Gaussians' materials and normals blended into a G-buffer, each pixel shaded by split-sum image-based
+// lighting (shaders.js); the light is prefiltered on the page (prefilter.js), so that a dropped .hdr / .exr lights the
+// asset as a packaged one does. window.matspray is the page's interface for scripts: ready, error, lights(),
+// setLight, setTurn, setExposure, setCamera (hooks.js adds the tests' hooks when the page's address asks for them).
 
 import * as THREE from "three";
 import { EXRLoader } from "three/addons/loaders/EXRLoader.js";
@@ -11,7 +10,6 @@ import { HDRLoader } from "three/addons/loaders/HDRLoader.js";
 import { decodeSplats, inflate, views } from "./data.js";
 import { downsampleLatlong, LEVELS, prefilter } from "./prefilter.js";
 import {
-  ENCODE_FRAGMENT,
   PROJECT_FRAGMENT,
   SCREEN_VERTEX,
   SPLAT_FRAGMENT,
@@ -100,6 +98,7 @@ class Viewer {
     this.explicit = null; // a camera given by a script: {viewmat, K, width, height}
     this.moving = false; // drawn at 1 / PREVIEW size while true
     this.targets = {}; // the blend targets by their shrink factor
+    this.blends = 0; // G-buffers blended so far (a new light or exposure blends none)
     this.makeSplats(asset.splats);
     this.makeShading();
     this.resize(this.meta.view.width, this.meta.view.height);
@@ -124,14 +123,6 @@ class Viewer {
     this.order.minFilter = this.order.magFilter = THREE.NearestFilter;
     this.order.generateMipmaps = false;
     this.means = s.centre;
-    // each Gaussian's shaded colour, one texel each, laid out as the splat textures
-    this.colourTarget = new THREE.WebGLRenderTarget(s.width, s.height, {
-      type: THREE.HalfFloatType,
-      format: THREE.RGBAFormat,
-      minFilter: THREE.NearestFilter,
-      magFilter: THREE.NearestFilter,
-      depthBuffer: false,
-    });
     // each Gaussian's footprint (PROJECT_FRAGMENT's three outputs), laid out as the splat textures
     this.projectTarget = new THREE.WebGLRenderTarget(s.width, s.height, {
       count: 2,
@@ -150,7 +141,6 @@ class Viewer {
       tScale: { value: floatTexture(s.scale, s.width, s.height) },
       tBase: { value: floatTexture(s.base, s.width, s.height) },
       tNormal: { value: floatTexture(s.normal, s.width, s.height) },
-      tColour: { value: this.colourTarget.texture },
       tOrder: { value: this.order },
       texWidth: { value: s.width },
       viewRotation: { value: new THREE.Matrix3() },
@@ -191,11 +181,14 @@ class Viewer {
   makeShading() {
     const u = this.splatUniforms;
     this.shadeUniforms = {
-      tCentre: u.tCentre,
-      tScale: u.tScale,
-      tBase: u.tBase,
-      tNormal: u.tNormal,
-      eye: u.eye,
+      tBlendedBase: { value: null },
+      tBlendedNormal: { value: null },
+      tBlendedMaterial: { value: null },
+      shrink: { value: 1 },
+      size: u.size,
+      intrinsics: u.intrinsics,
+      viewRotation: u.viewRotation,
+      background: { value: new THREE.Vector3(...BACKGROUND) },
       tLut: { value: floatTexture(this.lights.lut, 32, 32) },
       tLight: { value: null },
       levelPlace: { value: [] },
@@ -203,15 +196,9 @@ class Viewer {
       exposure: { value: 1 },
     };
     this.shadeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, shadeFragment(LEVELS.length), this.shadeUniforms));
-    this.encodeUniforms = {
-      tBlended: { value: null },
-      background: { value: new THREE.Vector3(...BACKGROUND) },
-      shrink: { value: 1 },
-    };
-    this.encodeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, ENCODE_FRAGMENT, this.encodeUniforms));
   }
 
-  // the canvas at width x height and the blend target at 1 / shrink of it
+  // the canvas at width x height and the blend targets (the G-buffer) at 1 / shrink of it
   resize(width, height, shrink) {
     if (this.width !== width || this.height !== height) {
       this.renderer.setSize(width, height, false);
@@ -223,6 +210,7 @@ class Viewer {
     }
     if (!this.targets[shrink]) {
       this.targets[shrink] = new THREE.WebGLRenderTarget(Math.ceil(width / shrink), Math.ceil(height / shrink), {
+        count: 3,
         type: this.blendType,
         format: THREE.RGBAFormat,
         minFilter: THREE.NearestFilter,
@@ -231,8 +219,11 @@ class Viewer {
       });
     }
     this.target = this.targets[shrink];
-    this.encodeUniforms.tBlended.value = this.target.texture;
-    this.encodeUniforms.shrink.value = shrink;
+    const [base, normal, material] = this.target.textures;
+    this.shadeUniforms.tBlendedBase.value = base;
+    this.shadeUniforms.tBlendedNormal.value = normal;
+    this.shadeUniforms.tBlendedMaterial.value = material;
+    this.shadeUniforms.shrink.value = shrink;
   }
 
   setLight(index) {
@@ -267,17 +258,29 @@ class Viewer {
     u.eye.value.set(...eye);
     this.shadeUniforms.exposure.value = 2 ** this.exposure;
     const key = v.join(",");
+    // a new light or exposure shades the G-buffer of the same view again: only a new view blends the splats
+    const blendedKey = [key, cam.K.join(","), cam.width, cam.height, shrink, this.forcedShape].join(";");
+    if (blendedKey !== this.blendedFor) {
+      this.splat(v, cam.K, key, shrink);
+      this.blendedFor = blendedKey;
+      this.blends += 1;
+    }
+    this.renderer.setRenderTarget(null);
+    this.renderer.render(this.shadeScene, this.camera);
+  }
+
+  // the G-buffer of the view: the Gaussians sorted (when the view changed), projected and blended
+  splat(v, K, key, shrink) {
+    const u = this.splatUniforms;
     if (key !== this.sortedFor) {
       // the order changes only when the view does (not with the light or the exposure)
       const visible = sortBackToFront(this.means, this.meta.count, v, this.order.image.data);
       for (const shape of this.shapes) shape.geometry.setDrawRange(0, shape.indices * visible);
-      this.footprint = this.typicalFootprint(v, cam.K);
+      this.footprint = this.typicalFootprint(v, K);
       this.order.needsUpdate = true;
       this.sortedFor = key;
     }
     this.renderer.setClearColor(0x000000, 0);
-    this.renderer.setRenderTarget(this.colourTarget);
-    this.renderer.render(this.shadeScene, this.camera);
     this.renderer.setRenderTarget(this.projectTarget);
     this.renderer.render(this.projectScene, this.camera);
     this.renderer.setRenderTarget(this.target);
@@ -287,8 +290,6 @@ class Viewer {
     const small = blended < TRIANGLE_FOOTPRINT;
     this.shape = this.shapes[(this.forcedShape ?? (small ? 3 : 6)) === 3 ? 1 : 0];
     this.renderer.render(this.shape.scene, this.camera);
-    this.renderer.setRenderTarget(null);
-    this.renderer.render(this.encodeScene, this.camera);
   }
 }
 
@@ -415,7 +416,9 @@ async function start() {
     });
     if (wantsTestHooks(window.location.search)) installTestHooks(api, viewer);
     api.ready = true;
-    status.textContent = `${asset.meta.count} Gaussians`;
+    const { count, drawnOf } = asset.meta;
+    // the Gaussians left out at export add least to the page's frames (matspray/web/detail.py)
+    status.textContent = drawnOf > count ? `${count} of the asset's ${drawnOf} Gaussians` : `${count} Gaussians`;
   } catch (error) {
     api.error = String(error && error.stack ? error.stack : error);
     status.textContent = `could not start: ${error.message || error}`;

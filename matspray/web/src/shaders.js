@@ -1,17 +1,18 @@
-// `matspray relight`'s image as GLSL, in four passes. Software WebGL (SwiftShader) spends its time per fragment and
-// per render target, so the shading is done once per Gaussian and the splat pass blends one colour:
-// 1. SHADE: one fragment per Gaussian (its texel in the splat textures) shades it by split-sum image-based lighting
-//    (`render.shade.deferred.shade`) with its own normal, turned to face the eye, and the view direction to its
-//    centre. `relight` shades the blended G-buffer per pixel instead: the two differ where Gaussians of different
-//    normals or materials overlap (measured in docs/dev/web.md).
-// 2. PROJECT: one fragment per Gaussian projects it (its footprint on the screen); the splat pass only reads that.
-// 3. SPLAT: the Gaussians back to front, premultiplied "over", onto the background (the same sums as `render.raster`'s
-//    front-to-back blending): EWA footprints with 0.3 px^2 added, alphas clamped to 0.999 and dropped below 1/255
-//    (more while the view moves), drawn as rectangles along the axes of the ellipse where alpha reaches that, or, for
-//    small footprints, as one triangle around that ellipse (octagons, 17 % fewer fragments, were slower: SwiftShader
-//    pays per triangle and for the 2 x 2 pixel blocks along each thin triangle's edges).
-// 4. ENCODE: the blended linear colour to sRGB, clipped, as `relight` writes its PNGs (while the view moves, the
-//    splats are blended at a fraction of the canvas's size and each blended pixel fills a block of the canvas).
+// `matspray relight`'s image as GLSL, in three passes, as relight renders it: materials and normals blended into a
+// G-buffer, then shaded per pixel. Software WebGL (SwiftShader) spends its time per fragment and per render target:
+// 1. PROJECT: one fragment per Gaussian projects it (its footprint on the screen); the splat pass only reads that.
+// 2. SPLAT: the Gaussians back to front, premultiplied "over", into three float targets (base colour; the normal
+//    turned to face the eye; roughness and metallic), each with the coverage in its alpha, which "over" blends by:
+//    the same sums as `render.raster`'s front-to-back blending. EWA footprints with 0.3 px^2 added, alphas clamped
+//    to 0.999 and dropped below 1/255 (more while the view moves), drawn as rectangles along the axes of the ellipse
+//    where alpha reaches that, or, for small footprints, as one triangle around that ellipse (octagons, 17 % fewer
+//    fragments, were slower: SwiftShader pays per triangle and for the 2 x 2 pixel blocks along each thin
+//    triangle's edges).
+// 3. SHADE: each blended pixel's materials divided by its coverage, shaded by split-sum image-based lighting
+//    (`render.shade.deferred.shade_gbuffer`) with the view direction through the pixel's centre, composited over the
+//    background and encoded to sRGB, clipped, as `relight` writes its PNGs. While the view moves, the splats are
+//    blended at a fraction of the canvas's size and each blended pixel fills a block of the canvas. A new light or
+//    exposure runs this pass alone.
 
 const FETCH = /* glsl */ `
 precision highp float;
@@ -87,19 +88,17 @@ void main() {
 // circle's equilateral one, stretched as the ellipse: 30 % more area, one primitive instead of two): SwiftShader's
 // cost per triangle outweighs the area for small footprints (TRIANGLE_FOOTPRINT in main.js)
 export function splatVertex(corners) {
-  return /* glsl */ `
+  return /* glsl */ `${FETCH}
 #define CORNERS ${corners}
-precision highp float;
-precision highp int;
-precision highp sampler2D;
 uniform sampler2D tOrder;    // the Gaussians' indices, back to front (one float each)
-uniform sampler2D tColour;   // each Gaussian's shaded linear colour and opacity (the SHADE pass)
 uniform sampler2D tCentreAxis;  // the PROJECT pass's
 uniform sampler2D tExtent;
 uniform int texWidth;
 uniform vec2 size;           // width height in pixels
 out vec2 vLocal;             // p (PROJECT_FRAGMENT): alpha = opacity exp2(-|p|^2)
-flat out vec4 vPremultiplied;  // colour x opacity, opacity
+flat out vec4 vBase;         // base colour, opacity
+flat out vec4 vNormal;       // unit normal facing the eye, roughness
+flat out float vMetallic;
 
 void main() {
   // four vertices a Gaussian, drawn without instancing (SwiftShader runs each instance as a draw of its own)
@@ -123,44 +122,55 @@ void main() {
   gl_Position = vec4(pixel / size * 2.0 - 1.0, 0.0, 1.0);
   vec2 d = pixel - centreAxis.xy;
   vLocal = vec2(dot(d, axis), dot(d, minor)) * extent.zw / extent.xy;
-  vec4 colour = texelFetch(tColour, uv, 0);
-  vPremultiplied = vec4(colour.rgb * colour.a, colour.a);
+  vec4 centre = texelFetch(tCentre, uv, 0);
+  vec4 base = texelFetch(tBase, uv, 0);
+  vec3 n = texelFetch(tNormal, uv, 0).xyz;
+  if (dot(n, eye - centre.xyz) < 0.0) n = -n;  // faces the eye before blending (render.raster.gbuffer.orient_normals)
+  // the opacity clamped as render.raster clamps alpha (an opacity of 1 gives 0.999 exp2(-|p|^2) where it gave
+  // min(0.999, exp2(-|p|^2)): 0.001 apart at most)
+  vBase = vec4(base.rgb, min(centre.w, 0.999));
+  vNormal = vec4(n, texelFetch(tScale, uv, 0).w);
+  vMetallic = base.w;
 }`;
 }
 
 export const SPLAT_FRAGMENT = /* glsl */ `
 precision highp float;
 in vec2 vLocal;
-flat in vec4 vPremultiplied;
+flat in vec4 vBase;
+flat in vec4 vNormal;
+flat in float vMetallic;
 uniform float cutoff;
-out vec4 colour;
+layout(location = 0) out vec4 outBase;      // base colour x alpha, alpha
+layout(location = 1) out vec4 outNormal;    // normal x alpha, alpha
+layout(location = 2) out vec4 outMaterial;  // roughness x alpha, metallic x alpha, 0, alpha
 
 void main() {
-  vec4 blended = vPremultiplied * exp2(-dot(vLocal, vLocal));
-  colour = blended.a < cutoff ? vec4(0.0) : blended;  // a select, not a discard: cheaper in a SIMD rasteriser
+  float alpha = vBase.a * exp2(-dot(vLocal, vLocal));
+  alpha = alpha < cutoff ? 0.0 : alpha;  // a select, not a discard: cheaper in a SIMD rasteriser
+  outBase = vec4(vBase.rgb * alpha, alpha);
+  outNormal = vec4(vNormal.xyz * alpha, alpha);
+  outMaterial = vec4(vec2(vNormal.w, vMetallic) * alpha, 0.0, alpha);
 }`;
 
 export const SCREEN_VERTEX = /* glsl */ `
 in vec3 position;
 void main() { gl_Position = vec4(position.xy, 0.0, 1.0); }`;
 
-export const ENCODE_FRAGMENT = /* glsl */ `
-precision highp float;
-precision highp sampler2D;
-uniform sampler2D tBlended;  // linear colour and coverage, premultiplied
-uniform vec3 background;     // linear
-uniform int shrink;          // the canvas's pixels a blended pixel spans each way (1, or PREVIEW while moving)
-out vec4 colour;
-
-void main() {
-  vec4 blended = texelFetch(tBlended, ivec2(gl_FragCoord.xy) / shrink, 0);
-  vec3 x = clamp(blended.rgb + background * (1.0 - blended.a), 0.0, 1.0);
-  colour = vec4(mix(12.92 * x, 1.055 * pow(max(x, vec3(1e-12)), vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x)), 1.0);
-}`;
-
 export function shadeFragment(levelCount) {
-  return /* glsl */ `${FETCH}
+  return /* glsl */ `
+precision highp float;
+precision highp int;
+precision highp sampler2D;
 #define LEVELS ${levelCount}
+uniform sampler2D tBlendedBase;      // the SPLAT pass's three targets
+uniform sampler2D tBlendedNormal;
+uniform sampler2D tBlendedMaterial;
+uniform int shrink;          // the canvas's pixels a blended pixel spans each way (1, or PREVIEW while moving)
+uniform vec2 size;           // the blended targets' width height
+uniform vec4 intrinsics;     // fx fy cx cy in the blended targets' pixels
+uniform mat3 viewRotation;   // world to camera
+uniform vec3 background;     // linear
 uniform sampler2D tLut;      // split-sum table: rows n.v, columns roughness, (A, B)
 uniform sampler2D tLight;    // the padded maps, one above another
 uniform vec3 levelPlace[LEVELS + 1];  // first row, rows, columns of each specular level, then the irradiance
@@ -205,31 +215,38 @@ vec2 lut(float nv, float r) {  // align_corners=False, border
 }
 
 void main() {
-  ivec2 p = ivec2(gl_FragCoord.xy);  // this Gaussian's texel
-  vec3 centre = texelFetch(tCentre, p, 0).xyz;
-  vec4 base = texelFetch(tBase, p, 0);
-  vec3 albedo = base.rgb;
-  float metallic = base.w;
-  float r = clamp(texelFetch(tScale, p, 0).w, 0.04, 1.0);
-  vec3 n = texelFetch(tNormal, p, 0).xyz;
-  vec3 wo = normalize(eye - centre);
-  float nv = dot(n, wo);
-  if (nv < 0.0) { n = -n; nv = -nv; }  // faces the camera (render.raster.gbuffer.orient_normals)
-  vec2 ab = lut(nv, r);
-  vec3 f0 = 0.04 * (1.0 - metallic) + albedo * metallic;
-  float a = r * r;
-  float s = 1.0 - a;
-  vec3 lobe = mix(n, reflect(-wo, n), pow(s, 1.5) + s * a);
-  // linear between the two levels around r (envmap._level_weights)
-  float rc = clamp(r, levelRoughness[0], levelRoughness[LEVELS - 1]);
-  int low = 0;
-  for (int i = 1; i < LEVELS - 1; i++) low += rc >= levelRoughness[i] ? 1 : 0;
-  float t = (rc - levelRoughness[low]) / (levelRoughness[low + 1] - levelRoughness[low]);
-  vec3 specular = (1.0 - t) * lookup(levelPlace[low], lobe) + t * lookup(levelPlace[low + 1], lobe);
-  vec3 irradiance = lookup(levelPlace[LEVELS], n);
-  vec3 rgb = irradiance * albedo * (1.0 - metallic) / 3.14159265358979 + specular * (f0 * ab.x + ab.y);
-  // the opacity rides along for the splat pass; clamped as render.raster clamps alpha (an opacity of 1 gives
-  // 0.999 exp2(-|p|^2) where it gave min(0.999, exp2(-|p|^2)): 0.001 apart at most)
-  colour = vec4(rgb * exposure, min(texelFetch(tCentre, p, 0).w, 0.999));
+  ivec2 texel = ivec2(gl_FragCoord.xy) / shrink;
+  vec4 blendedBase = texelFetch(tBlendedBase, texel, 0);
+  float coverage = blendedBase.a;
+  vec3 rgb = vec3(0.0);
+  if (coverage > 0.0) {  // the targets hold sums weighted by alpha (render.shade.deferred.GBuffer.from_accumulated)
+    float cover = max(coverage, 1e-6);
+    vec3 albedo = blendedBase.rgb / cover;
+    vec4 material = texelFetch(tBlendedMaterial, texel, 0) / cover;
+    float metallic = material.y;
+    float r = clamp(material.x, 0.04, 1.0);
+    vec3 n = texelFetch(tBlendedNormal, texel, 0).xyz;
+    n = n / max(length(n), 1e-12);
+    // the reversed camera ray through the blended pixel's centre (camera rows run down, gl_FragCoord's up)
+    vec2 pixel = vec2(float(texel.x) + 0.5, size.y - float(texel.y) - 0.5);
+    vec3 wo = -normalize(transpose(viewRotation) * vec3((pixel - intrinsics.zw) / intrinsics.xy, 1.0));
+    float nv = dot(n, wo);
+    if (nv < 0.0) { n = -n; nv = -nv; }  // faces the camera, as shade_unit turns it
+    vec2 ab = lut(nv, r);
+    vec3 f0 = 0.04 * (1.0 - metallic) + albedo * metallic;
+    float a = r * r;
+    float s = 1.0 - a;
+    vec3 lobe = mix(n, reflect(-wo, n), pow(s, 1.5) + s * a);
+    // linear between the two levels around r (envmap._level_weights)
+    float rc = clamp(r, levelRoughness[0], levelRoughness[LEVELS - 1]);
+    int low = 0;
+    for (int i = 1; i < LEVELS - 1; i++) low += rc >= levelRoughness[i] ? 1 : 0;
+    float t = (rc - levelRoughness[low]) / (levelRoughness[low + 1] - levelRoughness[low]);
+    vec3 specular = (1.0 - t) * lookup(levelPlace[low], lobe) + t * lookup(levelPlace[low + 1], lobe);
+    vec3 irradiance = lookup(levelPlace[LEVELS], n);
+    rgb = irradiance * albedo * (1.0 - metallic) / 3.14159265358979 + specular * (f0 * ab.x + ab.y);
+  }
+  vec3 x = clamp(rgb * exposure * coverage + background * (1.0 - coverage), 0.0, 1.0);
+  colour = vec4(mix(12.92 * x, 1.055 * pow(max(x, vec3(1e-12)), vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x)), 1.0);
 }`;
 }
