@@ -52,6 +52,7 @@ from benchmarks.generalise_sets import (  # noqa: F401  (object_set, SET_SEEDS: 
     object_set,
     objects_part,
     set_name,
+    with_training_light,
 )
 from benchmarks.generalise_tables import choices_table, markdown, model_summary, object_figures
 from benchmarks.real_objects import REPO_ROOT
@@ -316,7 +317,7 @@ def run_protocol(args, log=print) -> dict:
     hdris = sorted(hdri_files())
     if not hdris:
         log("notice: no ../shared/data/hdri found; objects are trained under built-in lights instead of HDRIs")
-    objects = objects_part(args.set, args.start, args.objects, hdris)
+    objects = with_training_light(objects_part(args.set, args.start, args.objects, hdris), args.train_light)
     specs = {m: predictor_spec(m) for m in args.models}
     configs = {m: protocol_config(args, spec) for m, spec in specs.items()}
     first_model = args.models[0]
@@ -339,6 +340,7 @@ def run_protocol(args, log=print) -> dict:
     defaults = {m: default_settings(args.preset, m) for m in METHODS}  # each built once
     settings = {
         "set": args.set,
+        "train_light": args.train_light,
         "preset": args.preset,
         "resolution": args.resolution or DEMO_SIZES[args.preset].res,
         "objects": len(objects),
@@ -547,6 +549,9 @@ def parse_args(argv=None):
         metavar="PX",
         help="render the objects at PX and train at that size (default: the preset's, demo 128); "
         "its own folder (default --out runs/generalise-SET-PRESET-PXpx)",
+    )
+    parser.add_argument(
+        "--train-light", metavar="NAME", help="train every object under this light instead of its own (e.g. sunset)"
     )
     add_method_arguments(parser, presets=("test", "demo"))
     add_set_argument(parser, flag="--setting")  # (its --set names the object set)

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +77,17 @@ def object_set(which: str, count: int | None, hdris: list[str]) -> list[ObjectSp
             name = f"{which}-{index:02d}-{Path(assets[index]).stem}"
             objects.append(ObjectSpec(name, seed, env, relight, assets[index]))
     return objects
+
+
+def with_training_light(objects: list[ObjectSpec], light: str | None) -> list[ObjectSpec]:
+    """The objects trained under `light` instead of their own (None: as drawn), named for it so that their folders
+    are their own; an object relit under that light is refused (its held-out light would be its training one)."""
+    if light is None:
+        return objects
+    clash = [spec.name for spec in objects if light in spec.relight_envs]
+    if clash:
+        raise ConfigError(f"--train-light {light}: {', '.join(clash)} are relit under it; choose another light")
+    return [replace(spec, name=f"{spec.name}-train-{light}", env=light) for spec in objects]
 
 
 def objects_part(which: str, start: int, count: int | None, hdris: list[str]) -> list[ObjectSpec]:

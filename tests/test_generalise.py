@@ -19,7 +19,7 @@ from benchmarks.generalise import (
     refine_overrides,
     with_overrides,
 )
-from benchmarks.generalise_sets import MAX_OBJECTS, SET_SEEDS, object_set
+from benchmarks.generalise_sets import MAX_OBJECTS, SET_SEEDS, object_set, with_training_light
 from benchmarks.generalise_tables import model_summary, model_table
 from matspray.data.images import read_image
 from matspray.errors import ConfigError
@@ -59,6 +59,16 @@ def test_object_sets_keep_their_lights_after_the_hdris_were_renamed():
 
     for which in ("dev", "dev-b"):
         assert object_set(which, 30, sorted(hdri_files())) == object_set(which, 30, HDRIS)
+
+
+def test_a_training_light_for_every_object_names_their_folders_and_never_a_held_out_light():
+    objects = object_set("real-dev", None, ["city", "studio-small"])
+    lit = with_training_light(objects, "sunset")
+    assert [o.env for o in lit] == ["sunset"] * 3 and [o.relight_envs for o in lit] == [o.relight_envs for o in objects]
+    assert [o.name for o in lit] == [f"{o.name}-train-sunset" for o in objects]
+    assert with_training_light(objects, None) == objects
+    with pytest.raises(ConfigError, match="relit under it; choose another light"):
+        with_training_light(objects, objects[0].relight_envs[0])
 
 
 def test_predictor_specs():
