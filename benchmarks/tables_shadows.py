@@ -1,12 +1,14 @@
 """The real development objects' tables: the README's table of baked shadows (`--set shadows=on`) against the
 default unshadowed shading (the same objects, error model and variants, one `benchmarks.generalise` pass with each
 shading, the second reusing the first's predictions, geometry and lift), relighting PSNR per object and the mean;
-docs/dev/softmax.md's table of the two forms of the ablation without the softmax, from a third pass, and its table of
-the ablation under two error models (the default pass and one under `outliers`)."""
+docs/dev/softmax.md's table of the two forms of the ablation without the softmax, from a third pass, its table of
+the ablation under two error models (the default pass and one under `outliers`) and under two training lights (the
+default pass and one with every object trained under a low sun)."""
 
 from __future__ import annotations
 
 import json
+from functools import partial
 from pathlib import Path
 
 SHADOWS_REAL_DEV = ("generalise-real-dev-shadows-off.json", "generalise-real-dev-shadows-on.json")
@@ -96,28 +98,36 @@ def table_no_softmax_forms(results: Path, names: tuple[str, str] = (SHADOWS_REAL
 
 
 SOFTMAX_OUTLIERS = "generalise-real-dev-outliers.json"  # --models outliers --variants full proj-average no-softmax
+SOFTMAX_SUNSET = "generalise-real-dev-train-sunset.json"  # --train-light sunset --variants full proj-average no-softmax
 
 
 def table_softmax_by_model(results: Path, names: tuple[str, ...] = (SHADOWS_REAL_DEV[0], SOFTMAX_OUTLIERS)) -> str:
     """Relighting PSNR (dB) of `full`, `proj-average` and `no-softmax` per object under each error model of the
-    files (default shading), with `full`'s margins over the two, and the mean over the objects."""
+    files (default shading), with `full`'s margins over the two, and the mean over the objects; a pass that trained
+    every object under one light (`--train-light`) says which."""
     lines = [
         "| error model | object | full | proj-average | no-softmax | full - proj-average | full - no-softmax |",
         "| --- | --- | ---: | ---: | ---: | ---: | ---: |",
     ]
     for name in names:
         report = json.loads((results / name).read_text())
+        light = report["settings"].get("train_light")
         for model in report["models"]:
             figures = relight_by_object(report, model)
             rows = [(n, f["full"], f["proj-average"], f["no-softmax"]) for n, f in figures.items()]
             rows.append((f"**mean of {len(rows)}**", *(mean(r[i] for r in rows) for i in (1, 2, 3))))
+            label = f"`{model}`" + (f", trained under {light}" if light else "")
             for n, a, b, c in rows:
-                lines.append(f"| `{model}` | {n} | {a:.2f} | {b:.2f} | {c:.2f} | {a - b:+.2f} | {a - c:+.2f} |")
+                lines.append(f"| {label} | {n} | {a:.2f} | {b:.2f} | {c:.2f} | {a - b:+.2f} | {a - c:+.2f} |")
     return "\n".join(lines)
 
 
 SHADOW_TABLES = {
     "softmax-real-dev-models": (table_softmax_by_model, [SHADOWS_REAL_DEV[0], SOFTMAX_OUTLIERS]),
+    "softmax-real-dev-sunset": (
+        partial(table_softmax_by_model, names=(SHADOWS_REAL_DEV[0], SOFTMAX_SUNSET)),
+        [SHADOWS_REAL_DEV[0], SOFTMAX_SUNSET],
+    ),
     "no-softmax-forms": (table_no_softmax_forms, [SHADOWS_REAL_DEV[0], NO_SOFTMAX_RAW]),
     "shadows-real-dev": (table_shadows, list(SHADOWS_REAL_DEV)),
     "shadows-real-dev-mean": (table_shadows_mean, list(SHADOWS_REAL_DEV)),

@@ -24,10 +24,10 @@ from matspray.render.settings import RasterSettings
 from matspray.web import DEFAULT_WEB_PSNR
 from matspray.web.page import page_view
 
-RANKED_VIEWS = 12  # orbit views the ranking sums over; the check uses as many others between them, every second one
-RESOLUTION = 256  # pixels of those views (the ranking is a ratio of pixel counts: it hardly changes with the size)
+RANKED_VIEWS = 12  # orbit views the ranking sums over; the check renders 6 others, between them
+RESOLUTION = 256  # pixels of those views, under the page's 512: the ranking is a ratio of pixel counts
 BISECTIONS = 7  # halvings of the share of footprint left out (1/128 of MOST_LEFT_OUT at the end)
-MOST_LEFT_OUT = 0.8  # of the summed footprint: past this the frames have holes on any asset measured
+MOST_LEFT_OUT = 0.8  # the most of the summed footprint the bisection tries (docs/dev/web.md: what 0.6 costs)
 # besides the asset's own light: of the packaged lights, the one under which leaving Gaussians out showed most on the
 # demo's asset (small bright lamps: sharp highlights; docs/dev/web.md)
 CHECK_LIGHT = "studio-small"
