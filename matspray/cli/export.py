@@ -48,8 +48,8 @@ def add_splats_and_web_arguments(parser) -> None:
         metavar=("DIR", "DB"),
         help="a static page that relights the asset in the browser (open DIR/index.html, or put DIR on any host); it "
         "leaves out the Gaussians that add least per pixel they cover, as many as keeps its frames within DB of the "
-        f"whole asset's (PSNR; default {DEFAULT_WEB_PSNR:g}: the demo's asset in about half the frame time); DB inf "
-        "draws every Gaussian",
+        f"whole asset's (PSNR; default {DEFAULT_WEB_PSNR:g}), for browsers without a GPU; DB inf draws every "
+        "Gaussian",
     )
 
 
