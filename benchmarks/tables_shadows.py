@@ -2,8 +2,8 @@
 default unshadowed shading (the same objects, error model and variants, one `benchmarks.generalise` pass with each
 shading, the second reusing the first's predictions, geometry and lift), relighting PSNR per object and the mean;
 docs/dev/softmax.md's table of the two forms of the ablation without the softmax, from a third pass, its table of
-the ablation under two error models (the default pass and one under `outliers`) and under two training lights (the
-default pass and one with every object trained under a low sun)."""
+the ablation under three error models (the default pass, one under `harsh`, one under `outliers`) and under two
+training lights (the default pass and one with every object trained under a low sun)."""
 
 from __future__ import annotations
 
@@ -98,10 +98,13 @@ def table_no_softmax_forms(results: Path, names: tuple[str, str] = (SHADOWS_REAL
 
 
 SOFTMAX_OUTLIERS = "generalise-real-dev-outliers.json"  # --models outliers --variants full proj-average no-softmax
+SOFTMAX_HARSH = "generalise-real-dev-harsh.json"  # --models harsh --variants full proj-average no-softmax
 SOFTMAX_SUNSET = "generalise-real-dev-train-sunset.json"  # --train-light sunset --variants full proj-average no-softmax
 
 
-def table_softmax_by_model(results: Path, names: tuple[str, ...] = (SHADOWS_REAL_DEV[0], SOFTMAX_OUTLIERS)) -> str:
+def table_softmax_by_model(
+    results: Path, names: tuple[str, ...] = (SHADOWS_REAL_DEV[0], SOFTMAX_HARSH, SOFTMAX_OUTLIERS)
+) -> str:
     """Relighting PSNR (dB) of `full`, `proj-average` and `no-softmax` per object under each error model of the
     files (default shading), with `full`'s margins over the two, and the mean over the objects; a pass that trained
     every object under one light (`--train-light`) says which."""
@@ -123,7 +126,7 @@ def table_softmax_by_model(results: Path, names: tuple[str, ...] = (SHADOWS_REAL
 
 
 SHADOW_TABLES = {
-    "softmax-real-dev-models": (table_softmax_by_model, [SHADOWS_REAL_DEV[0], SOFTMAX_OUTLIERS]),
+    "softmax-real-dev-models": (table_softmax_by_model, [SHADOWS_REAL_DEV[0], SOFTMAX_HARSH, SOFTMAX_OUTLIERS]),
     "softmax-real-dev-sunset": (
         partial(table_softmax_by_model, names=(SHADOWS_REAL_DEV[0], SOFTMAX_SUNSET)),
         [SHADOWS_REAL_DEV[0], SOFTMAX_SUNSET],
