@@ -20,11 +20,6 @@ import numpy as np
 from benchmarks.web_fps import open_page
 
 
-def linear_to_srgb_np(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0, 1)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 1e-12), 1 / 2.4) - 0.055)
-
-
 def frame(driver) -> np.ndarray:  # -> [H, W, 3] the canvas, sRGB in [0, 1]
     from PIL import Image
 
@@ -62,7 +57,7 @@ def main() -> None:
     from matspray.cli import main as matspray
     from matspray.cli.relight import relight_source
     from matspray.data.images import read_image
-    from matspray.web.pack import LIGHT_HEIGHT
+    from matspray.web.pack import LIGHT_HEIGHT, srgb_encode
     from matspray.web.page import PAGE_SIZE
     from tests.browser import headless_chromium
 
@@ -86,7 +81,7 @@ def main() -> None:
                 for light in args.lights:
                     rgb, alpha = read_image(root / "relit" / f"orbit_{i:03d}_{light}.png")
                     inside = alpha.numpy() > 0.99
-                    value = psnr_inside(show(driver, camera, light), linear_to_srgb_np(rgb.numpy()), inside)
+                    value = psnr_inside(show(driver, camera, light), srgb_encode(rgb.numpy()), inside)
                     values.append(value)
                     print(f"orbit frame {i}, {light}: {value:.1f} dB inside the object", flush=True)
             status = driver.execute_script("return document.getElementById('status').textContent")

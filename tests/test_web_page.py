@@ -14,10 +14,10 @@ import pytest
 import torch
 
 from benchmarks.web_fps import milliseconds_per_frame, open_page, write_disk_sphere_page
-from benchmarks.web_match import frame, linear_to_srgb_np, psnr_inside, show
+from benchmarks.web_match import frame, psnr_inside, show
 from matspray.cli import main
 from matspray.method.asset import Asset, read_asset
-from matspray.web.pack import LIGHT_HEIGHT, deflated, page_light, quantise_asset, unpack_asset
+from matspray.web.pack import LIGHT_HEIGHT, deflated, page_light, quantise_asset, srgb_encode, unpack_asset
 from matspray.web.page import BACKGROUND, BUNDLE
 from tests.browser import headless_chromium, missing_browser
 from tests.scenes import sky_map, sphere_cameras, sphere_of_disks, write_disk_sphere_run
@@ -109,7 +109,7 @@ def test_the_page_opens_from_file_and_draws_the_object(site, page):
     run, _, _ = site
     camera = orbit(run)[1]
     shown = show(page, camera, "estimated")
-    drawn = np.abs(shown - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    drawn = np.abs(shown - srgb_encode(BACKGROUND)).sum(-1) > 0.02
     asset = read_asset(run / "asset")
     with torch.no_grad():
         alpha = rasterize(asset.gaussians, camera, torch.ones(len(asset.gaussians), 1)).alpha.numpy()
@@ -144,7 +144,7 @@ def test_the_page_matches_matspray_relight_inside_the_object(site, page):
         for light, file_light in (("sunset", "sunset"), ("estimated", "envmap")):
             rgb, alpha = read_image(relit / f"orbit_{i:03d}_{file_light}.png")
             inside = alpha.numpy() > 0.99
-            reference = linear_to_srgb_np(rgb.numpy())
+            reference = srgb_encode(rgb.numpy())
             value = psnr_inside(show(page, camera, light), reference, inside)
             shape = page.execute_script("return window.matspray.drawnAs()")
             print(
@@ -156,7 +156,7 @@ def test_the_page_matches_matspray_relight_inside_the_object(site, page):
         status = page.execute_script("return document.getElementById('status').textContent")
         for i, camera in enumerate(orbit(run)):
             rgb, alpha = read_image(relit / f"orbit_{i:03d}_sunset.png")
-            value = psnr_inside(show(page, camera, "sunset"), linear_to_srgb_np(rgb.numpy()), alpha.numpy() > 0.99)
+            value = psnr_inside(show(page, camera, "sunset"), srgb_encode(rgb.numpy()), alpha.numpy() > 0.99)
             print(f"\nthe default page ({status}) against matspray relight, orbit frame {i}: {value:.1f} dB")
             assert value > ISSUE_PSNR and "of the asset's 1500 Gaussians" in status, (value, status)
     finally:
@@ -174,7 +174,7 @@ def test_a_gaussian_in_one_triangle_draws_what_its_rectangle_draws(site, page):
         assert page.execute_script("return window.matspray.drawnAs()")[1] == shape
         frames[shape] = frame(page)
     page.execute_script("window.matspray.forceShape(null)")
-    drawn = np.abs(frames["rectangles"] - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    drawn = np.abs(frames["rectangles"] - srgb_encode(BACKGROUND)).sum(-1) > 0.02
     assert drawn.mean() > 0.2 and np.abs(frames["triangles"] - frames["rectangles"]).max() <= 1 / 255 + 1e-9
 
 
@@ -186,7 +186,7 @@ def test_another_light_changes_the_picture_and_a_dropped_exr_lights_as_the_packa
     assert len(names) == 11  # the estimated light, the 4 built-ins, the 6 packaged HDRIs
     frames = {name: show(page, camera, name) for name in names}
     city = frames["city"]
-    inside = np.abs(city - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    inside = np.abs(city - srgb_encode(BACKGROUND)).sum(-1) > 0.02
     for a in names:  # every light lights the object, each its own way
         assert frames[a][inside].mean() > 0.02, a
         assert all(np.abs(frames[a] - frames[b])[inside].mean() > 0.005 for b in names if b != a), a
@@ -216,7 +216,7 @@ def test_a_new_light_or_exposure_shades_the_same_g_buffer_again_and_a_turn_blend
     brighter = frame(page)
     page.execute_script("window.matspray.setExposure(0)")
     assert page.execute_script("return window.matspray.blends()") == blends
-    inside = np.abs(city - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    inside = np.abs(city - srgb_encode(BACKGROUND)).sum(-1) > 0.02
     assert np.abs(city - sunset)[inside].mean() > 0.005 and brighter[inside].mean() > city[inside].mean() + 0.02
     page.execute_script("window.matspray.setTurn(10)")
     assert page.execute_script("return window.matspray.blends()") == blends + 1
@@ -259,7 +259,7 @@ def test_frames_per_second_at_512_pixels(site, page, tmp_path, record_property):
     record_property("web_fps_512", 1000 / still)
     record_property("web_fps_512_moving", 1000 / moving)
     print(f"\npage at 512 x 512, 4 000 Gaussians: {still:.0f} ms a frame still, {moving:.0f} ms moving")
-    assert (np.abs(moving_frame - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02).mean() > 0.2  # the object
+    assert (np.abs(moving_frame - srgb_encode(BACKGROUND)).sum(-1) > 0.02).mean() > 0.2  # the object
     assert drawn_in_blocks(moving_frame, 2)
     assert 1000 / still >= MIN_FPS and 1000 / moving >= MIN_MOVING_FPS, (still, moving)
 
@@ -285,7 +285,7 @@ def test_a_drag_draws_small_frames_and_letting_go_a_full_one(site, page):
     assert page.execute_script("return window.matspray.moving()") and drawn_in_blocks(dragged, 2)
     released = drag("window.dispatchEvent(new PointerEvent('pointerup', {}));")
     assert not page.execute_script("return window.matspray.moving()") and not drawn_in_blocks(released, 2)
-    inside = np.abs(released - linear_to_srgb_np(BACKGROUND)).sum(-1) > 0.02
+    inside = np.abs(released - srgb_encode(BACKGROUND)).sum(-1) > 0.02
     assert inside.mean() > 0.2 and psnr_inside(dragged, released, inside) > 15  # the same view, coarser
     # while dragged a Gaussian blends nothing below alpha 1/32 (1/255 once let go): the faint rim goes
     background = np.round(released[0, 0] * 255)

@@ -78,10 +78,15 @@ def project_gaussians(
     )
 
 
-def max_eigen_radius(cov2d: Tensor) -> Tensor:  # [N, 3] -> [N] 3-sigma radius of the major axis (px)
+def footprint_eigenvalues(cov2d: Tensor) -> tuple[Tensor, Tensor]:  # [N, 3] (a, b, c) -> [N], [N] px^2
+    """The variances along a footprint's major and minor axes (the 2 x 2 covariance's eigenvalues, clamped >= 0)."""
     mid = 0.5 * (cov2d[:, 0] + cov2d[:, 2])
     spread = torch.sqrt((mid * mid - (cov2d[:, 0] * cov2d[:, 2] - cov2d[:, 1] ** 2)).clamp_min(0.0))
-    return 3.0 * torch.sqrt((mid + spread).clamp_min(0.0))
+    return (mid + spread).clamp_min(0.0), (mid - spread).clamp_min(0.0)
+
+
+def max_eigen_radius(cov2d: Tensor) -> Tensor:  # [N, 3] -> [N] 3-sigma radius of the major axis (px)
+    return 3.0 * torch.sqrt(footprint_eigenvalues(cov2d)[0])
 
 
 def log_opacity_ratio(opacities: Tensor, min_alpha: float) -> Tensor:  # [N] -> [N] ln(opacity / min_alpha), >= 0

@@ -18,7 +18,8 @@ from matspray.data.images import linear_to_srgb
 from matspray.gaussians import Gaussians
 from matspray.method.asset import Asset
 from matspray.method.relight import render_relit, spec_cameras
-from matspray.render.projection import log_opacity_ratio, project_gaussians
+from matspray.metrics import psnr_from_mse
+from matspray.render.projection import footprint_eigenvalues, log_opacity_ratio, project_gaussians
 from matspray.render.raster.gbuffer import rendered_weights
 from matspray.render.settings import RasterSettings
 from matspray.web import DEFAULT_WEB_PSNR
@@ -48,14 +49,12 @@ def footprint_areas(gaussians: Gaussians, camera: Camera, settings: RasterSettin
     proj = project_gaussians(
         g.means, g.scaled_axes(), camera.viewmat, camera.K, camera.width, camera.height, settings.near, settings.eps2d
     )
-    a, b, c = proj.cov2d.unbind(-1)  # [N] each
-    mid = 0.5 * (a + c)
-    root = torch.sqrt((mid * mid - (a * c - b * b)).clamp_min(0.0))
+    major, minor = footprint_eigenvalues(proj.cov2d)  # [N] each
     reach = 2.0 * log_opacity_ratio(g.opacities, settings.min_alpha)  # [N] variances where alpha meets the cutoff
-    half_major = torch.sqrt(reach * (mid + root)) + 0.5
-    half_minor = torch.sqrt(reach * (mid - root).clamp_min(0.0)) + 0.5
+    half_major = torch.sqrt(reach * major) + 0.5
+    half_minor = torch.sqrt(reach * minor) + 0.5
     drawn = proj.valid & (reach > 0)
-    return torch.where(drawn, 4.0 * half_major * half_minor, torch.zeros_like(mid))
+    return torch.where(drawn, 4.0 * half_major * half_minor, torch.zeros_like(major))
 
 
 def colour_per_pixel(gaussians: Gaussians, cameras: list[Camera]) -> tuple[Tensor, Tensor]:
@@ -106,7 +105,7 @@ def frames_psnr(
         inside = coverage > 0.5
         squared += float((srgb_frame(asset, camera, light, background)[0] - reference)[inside].square().sum())
         pixels += 3 * int(inside.sum())
-    return -10.0 * math.log10(max(squared / max(pixels, 1), 1e-20))
+    return psnr_from_mse(squared / max(pixels, 1))
 
 
 def page_gaussians(
@@ -121,15 +120,19 @@ def page_gaussians(
     ranking, checks = cameras[0::2], cameras[1::4]
     order, shares = drop_order(*colour_per_pixel(asset.gaussians, ranking))
     references = [[srgb_frame(asset, camera, light, background) for camera in checks] for light in lights]
-    low, high, psnr = 0.0, MOST_LEFT_OUT, math.inf
-    for step in tqdm(range(BISECTIONS + 1), desc="web page: Gaussians to draw", disable=not progress):
-        share = low if step == BISECTIONS else 0.5 * (low + high)
+
+    def worst(share: float) -> float:  # the lowest PSNR over the lights with `share` of the footprint left out
         drawn = subset(asset, kept(order, shares, share))
-        value = min(frames_psnr(drawn, frames, checks, light, background) for light, frames in zip(lights, references))
-        if step == BISECTIONS:
-            psnr = value
-        elif value >= min_psnr:
-            low = share
+        return min(frames_psnr(drawn, frames, checks, light, background) for light, frames in zip(lights, references))
+
+    low, high, psnr = 0.0, MOST_LEFT_OUT, None
+    for _ in tqdm(range(BISECTIONS), desc="web page: Gaussians to draw", disable=not progress):
+        share = 0.5 * (low + high)
+        value = worst(share)
+        if value >= min_psnr:
+            low, psnr = share, value
         else:
             high = share
+    if psnr is None:  # only what no view draws goes: its frames' PSNR at that
+        psnr = worst(0.0)
     return PageDetail(kept(order, shares, low), low, psnr)
