@@ -220,6 +220,11 @@ def test_a_new_light_or_exposure_shades_the_same_g_buffer_again_and_a_turn_blend
     assert np.abs(city - sunset)[inside].mean() > 0.005 and brighter[inside].mean() > city[inside].mean() + 0.02
     page.execute_script("window.matspray.setTurn(10)")
     assert page.execute_script("return window.matspray.blends()") == blends + 1
+    controls = "return ['turn', 'exposure'].map((id) => Number(document.getElementById(id).value))"
+    assert page.execute_script(controls) == [10, 0]  # the sliders show what a script set
+    page.execute_script("window.matspray.setExposure(1)")
+    assert page.execute_script(controls) == [10, 1]
+    page.execute_script("window.matspray.setExposure(0)")
 
 
 @pytest.mark.slow

@@ -4,12 +4,14 @@ elsewhere (`matspray export --web DIR`)."""
 from __future__ import annotations
 
 import functools
+import os
 import shutil
 from pathlib import Path
 
 import torch
 
 from matspray.errors import ConfigError
+from matspray.files import atomic_target
 from matspray.method.asset import Asset
 from matspray.render.shade.lights import BUILTINS, hdri_files, load_envmap
 from matspray.web.pack import asset_script, lights_script, page_light
@@ -54,21 +56,32 @@ def write_page(
 ) -> list[Path]:
     """Write the page for `asset` into `folder`: its orbit `spec` (`method.relight.orbit_spec`), the `estimated`
     light [H, 2H, 3] first (when given), then the packaged ones; `drawn_of`: the Gaussians of the asset the page's
-    were chosen from (`web.detail`), for its status line. Returns the files written."""
+    were chosen from (`web.detail`), for its status line. Returns the files written.
+
+    The files are made in a hidden sibling folder first and moved in only once all are made, index.html last: an
+    export that fails or is stopped leaves the page that was there before, not one whose files are of two exports."""
     bundle = bundle_path()
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     lights = ([("estimated", estimated)] if estimated is not None else []) + packaged_lights()
-    files = {
-        "index.html": (PACKAGE / "static" / "index.html").read_text(),
+    texts = {
         "asset.js": asset_script(asset, page_view(spec), {"drawnOf": drawn_of or len(asset.gaussians)}),
         "lights.js": lights_script(lights),
+        "index.html": (PACKAGE / "static" / "index.html").read_text(),
     }
-    written = []
-    for name, text in files.items():
-        (folder / name).write_text(text)
-        written.append(folder / name)
-    shutil.copyfile(bundle, folder / "matspray-web.js")
-    shutil.copyfile(PACKAGE / "static" / "LICENSES.txt", folder / "LICENSES.txt")  # three.js's MIT notice
-    written += [folder / "matspray-web.js", folder / "LICENSES.txt"]
-    return written
+    copies = {"matspray-web.js": bundle, "LICENSES.txt": PACKAGE / "static" / "LICENSES.txt"}  # three.js's MIT notice
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    stage = atomic_target(folder)
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir()
+    try:
+        for name, text in texts.items():
+            (stage / name).write_text(text)
+        for name, source in copies.items():
+            shutil.copyfile(source, stage / name)
+        folder.mkdir(exist_ok=True)
+        names = [*copies, *texts]  # index.html, which names the others, moves in last
+        for name in names:
+            os.replace(stage / name, folder / name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return [folder / name for name in names]

@@ -403,14 +403,17 @@ async function start() {
         viewer.moving = false;
         viewer.render();
       },
+      // the controls show what a script set, as they show what the user set
       setTurn: (degrees) => {
         viewer.explicit = null;
         viewer.turn = degrees;
+        turn.value = String(degrees);
         viewer.moving = false;
         viewer.render();
       },
       setExposure: (stops) => {
         viewer.exposure = stops;
+        exposure.value = String(stops);
         viewer.render();
       },
     });
