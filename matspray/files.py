@@ -26,6 +26,35 @@ def write_text_atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+def check_output_folder(folder: Path, named) -> Path:
+    """`folder` can be made (or is a folder) and written into, checked before any work and without making anything;
+    a ConfigError that names `named` (the output asked for: the folder, or a file to be written in it) when not."""
+    from matspray.errors import ConfigError
+
+    folder = Path(folder)
+    existing = next(p for p in (folder, *folder.parents) if p.exists())  # the root at the latest
+    if not existing.is_dir():
+        which = "" if existing == Path(named) else f"{existing} "
+        raise ConfigError(f"{named}: {which}is a file, not a folder; choose another output path")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ConfigError(f"{named}: {existing} cannot be written (permission denied); choose another output path")
+    return folder
+
+
+def check_output_file(out: Path, endings: str) -> Path:
+    """A file `out` can be written (not a folder, in a folder that is or can be made), checked before any work;
+    `endings`: the file names it may have, for the message (".glb")."""
+    from matspray.errors import ConfigError
+
+    out = Path(out)
+    if out.is_dir():
+        raise ConfigError(f"{out}: is a folder; give a file name ending in {endings}")
+    check_output_folder(out.parent, out)
+    if out.exists() and not os.access(out, os.W_OK):
+        raise ConfigError(f"{out}: cannot be written (permission denied); choose another output path")
+    return out
+
+
 def to_plain(value):
     """Dataclasses, paths and tuples as plain JSON/YAML values."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):

@@ -5,6 +5,7 @@ import sys
 
 import pytest
 
+from matspray.cli import main
 from tests.conftest import run_cli
 from tests.test_readers import blender_folder
 
@@ -142,3 +143,29 @@ def test_colmap_commands_without_pycolmap_say_which_extra_in_one_line(tmp_path):
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and "pip install 'matspray[colmap]'" in lines[0], lines
     assert not (tmp_path / "out").exists()
+
+
+OUTPUT_FOLDER_COMMANDS = {  # every command whose --out is a folder it makes, with what else it must be given
+    "run": ["--data", "DATA"],
+    "geometry": ["--data", "DATA"],
+    "predict": ["--data", "DATA", "--predictor", "none"],
+    "relight": ["--run", "RUN", "--env", "sunset"],
+    "synth": [],
+    "colmap": ["PHOTOS"],
+    "demo": [],
+    "bench": [],
+    "batch": ["--data", "DATA"],
+}
+
+
+def test_every_output_folder_under_a_file_is_refused_in_one_line_before_any_work(tmp_path, capsys):
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("a file where the output's folder would go")
+    for command, given in OUTPUT_FOLDER_COMMANDS.items():
+        for out, message in ((blocker / "out", f"{blocker} is a file, not a folder"), (blocker, "is a file, not")):
+            with pytest.raises(SystemExit) as exit_:
+                main([command, *given, "--out", str(out)])
+            code, err = exit_.value.code, capsys.readouterr().err
+            assert code == 2 and message in err and "Traceback" not in err, (command, err)
+            assert err.strip().splitlines()[-1].startswith(f"matspray {command}: error: argument --out:"), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]

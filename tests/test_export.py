@@ -284,12 +284,23 @@ def test_a_run_without_an_asset_and_unwritable_outputs_are_one_clear_line(disk_r
     folder = tmp_path / "folder.glb"
     folder.mkdir()
     for out, message in (
-        (blocker / "x.glb", "cannot create its folder"),
+        (blocker / "x.glb", f"{blocker} is a file, not a folder"),
         (tmp_path / "x.gltf", "must be a .glb file"),
         (folder, "is a folder"),
     ):
         code, err = run_cli(["export", "--run", str(disk_run), "--out", str(out)], capsys)
         assert code == 2 and message in err and "\n" not in err, err
+    for flag, out, message in (  # the splats' file and the page's folder: refused before any work
+        ("--splats", blocker / "x.glb", f"{blocker} is a file, not a folder"),
+        ("--splats", folder, "is a folder; give a file name ending in .glb or .spz"),
+        ("--web", blocker, f"{blocker}: is a file, not a folder"),
+        ("--web", blocker / "page", f"{blocker} is a file, not a folder"),
+    ):
+        code, err = run_cli(
+            ["export", "--run", str(disk_run), "--out", str(tmp_path / "m.glb"), flag, str(out)], capsys
+        )
+        assert code == 2 and message in err and "\n" not in err, err
+        assert not (tmp_path / "m.glb").exists()  # the mesh asked for beside them was not made first
 
 
 def test_a_failed_export_leaves_no_partial_file(disk_run, tmp_path, capsys):

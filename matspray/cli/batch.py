@@ -10,6 +10,7 @@ from matspray.cli.options import (
     add_method_arguments,
     add_run_arguments,
     build_config_from_args,
+    output_folder,
     predictor_options_from_args,
 )
 from matspray.cli.settings import add_set_argument
@@ -19,7 +20,7 @@ from matspray.cli.settings import add_set_argument
 def add_demo_parser(parser) -> None:
     parser.add_argument(
         "--out",
-        type=Path,
+        type=output_folder,
         help="folder for the object, the run and the report (default: runs/demo-PRESET, "
         "runs/demo-PRESET-paper for --method paper)",
     )
@@ -83,7 +84,7 @@ def add_bench_parser(parser) -> None:
     )
     parser.add_argument(
         "--out",
-        type=Path,
+        type=output_folder,
         help="folder for everything (default: runs/bench-PRESET, with --assets runs/bench-assets-PRESET)",
     )
     parser.add_argument(
@@ -142,7 +143,7 @@ def add_batch_parser(parser) -> None:
     )
     parser.add_argument("data_positional", nargs="*", type=Path, help=argparse.SUPPRESS)  # the old `batch DATA...`
     parser.add_argument(
-        "--out", type=Path, required=True, help="batch folder: DIR/<object>/ per object, DIR/summary.md"
+        "--out", type=output_folder, required=True, help="batch folder: DIR/<object>/ per object, DIR/summary.md"
     )
     parser.add_argument(
         "--workers",

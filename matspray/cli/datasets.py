@@ -5,7 +5,7 @@ truth."""
 import argparse
 from pathlib import Path
 
-from matspray.cli.options import given, hidden_alias, refuse
+from matspray.cli.options import given, hidden_alias, output_folder, refuse
 
 
 # `matspray info --data DATA`
@@ -48,7 +48,9 @@ def add_colmap_parser(parser) -> None:
         "of the number of photos."
     )
     parser.add_argument("images", type=Path, help="folder of photos (JPEG or PNG; EXIF orientation is honoured)")
-    parser.add_argument("--out", type=Path, required=True, help="dataset folder to create (must not exist or be empty)")
+    parser.add_argument(
+        "--out", type=output_folder, required=True, help="dataset folder to create (must not exist or be empty)"
+    )
     parser.add_argument(
         "--matcher",
         choices=MATCHERS,
@@ -118,7 +120,9 @@ def colmap_main(args) -> int:
 # `matspray synth --out DIR`: a synthetic benchmark object rendered by Mitsuba 3, with ground truth
 # (a procedural shape, or a glTF 2.0 asset with `--asset FILE.glb|FILE.gltf`)
 def add_synth_parser(parser) -> None:
-    parser.add_argument("--out", type=Path, required=True, help="output folder (Blender layout + ground truth)")
+    parser.add_argument(
+        "--out", type=output_folder, required=True, help="output folder (Blender layout + ground truth)"
+    )
     parser.add_argument(
         "--shape",
         default=None,

@@ -141,6 +141,7 @@ def mesh_config(args) -> ExportConfig:
 def export_main(args) -> int:
     from matspray.cli.options import refuse
     from matspray.errors import ConfigError, optional_module
+    from matspray.files import check_output_file, check_output_folder
 
     if args.out is None and args.splats is None and args.web is None:
         raise ConfigError("say what to write: --out FILE.glb (a mesh), --splats FILE.glb or --web DIR")
@@ -152,9 +153,15 @@ def export_main(args) -> int:
         if len(args.web) > 2:
             raise ConfigError(f"--web takes DIR and at most one DB, got {len(args.web)} values")
         args.web_psnr = web_psnr(args.web[1]) if len(args.web) == 2 else DEFAULT_WEB_PSNR
-        args.web = Path(args.web[0])
-    if args.splats is not None and len(args.splats) > 2:
-        raise ConfigError(f"--splats takes FILE.glb and at most one LIGHT, got {len(args.splats)} values")
+        args.web = check_output_folder(Path(args.web[0]), Path(args.web[0]))
+    if args.splats is not None:
+        if len(args.splats) > 2:
+            raise ConfigError(f"--splats takes FILE.glb and at most one LIGHT, got {len(args.splats)} values")
+        if Path(args.splats[0]).suffix.lower() not in (".glb", ".spz"):
+            raise ConfigError(
+                f"--splats writes a binary glTF (.glb) or an SPZ file (.spz): give one of those, not '{args.splats[0]}'"
+            )
+        check_output_file(Path(args.splats[0]), ".glb or .spz")
     if args.out is not None:
         for name in EXPORT_PACKAGES:  # before any work or torch: one line naming the extra, not an ImportError
             optional_module(name, "export", "matspray export")

@@ -2,14 +2,14 @@
 
 from pathlib import Path
 
-from matspray.cli.options import add_choice_argument, add_compute_arguments, add_setting_flags
+from matspray.cli.options import add_choice_argument, add_compute_arguments, add_setting_flags, output_folder
 from matspray.cli.settings import add_set_argument
 from matspray.presets import PRESETS, WORKING_SIZE
 
 
 def add_geometry_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
-    parser.add_argument("--out", type=Path, required=True, help="run folder; the stage writes RUN/geometry/")
+    parser.add_argument("--out", type=output_folder, required=True, help="run folder; the stage writes RUN/geometry/")
     add_choice_argument(parser, "preset", PRESETS)
     add_setting_flags(parser, ["--downscale"])  # as `run` reads it
     add_set_argument(parser, "geometry.iterations=1000 seed=1")  # the geometry.* settings and the seed, as in `run`

@@ -83,6 +83,21 @@ def predictor_options_from_args(args) -> dict:
     return run_options_from_args(args)
 
 
+def output_folder(value: str):
+    """An --out folder, checked as the command line is read (before any work): refused in one line when it is a
+    file, when a folder on its way is one, or when it cannot be made there; the command makes it."""
+    from pathlib import Path
+
+    from matspray.errors import ConfigError
+    from matspray.files import check_output_folder
+
+    path = Path(value)
+    try:
+        return check_output_folder(path, path)
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def given(args, flags) -> list[str]:
     """Which of `flags` the command line gave (a flag left at None, [] or off was not)."""
     return [flag for flag in flags if getattr(args, flag.lstrip("-").replace("-", "_")) not in (None, [], False)]

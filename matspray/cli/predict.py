@@ -2,12 +2,14 @@
 
 from pathlib import Path
 
+from matspray.cli.options import output_folder
+
 SPLITS = ("train", "test", "all")
 
 
 def add_predict_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
-    parser.add_argument("--out", type=Path, required=True, help="run folder; maps go to OUT/materials2d/")
+    parser.add_argument("--out", type=output_folder, required=True, help="run folder; maps go to OUT/materials2d/")
     from matspray.predictors.kinds import add_option_flags, predictor_usage
 
     parser.add_argument("--predictor", required=True, metavar="SPEC", help=predictor_usage())

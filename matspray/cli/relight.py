@@ -4,7 +4,7 @@ The run-folder glue lives here: which asset, which cameras, which files; `matspr
 
 from pathlib import Path
 
-from matspray.cli.options import VARIANT_HELP, add_compute_arguments, given, hidden_alias, refuse
+from matspray.cli.options import VARIANT_HELP, add_compute_arguments, given, hidden_alias, output_folder, refuse
 from matspray.presets import light_names
 
 ORBIT_FRAMES, ORBIT_FPS = 60, 24  # --views orbit: frames of the circle, and of the video per second
@@ -32,7 +32,7 @@ def add_relight_parser(parser) -> None:
     )
     parser.add_argument(
         "--out",
-        type=Path,
+        type=output_folder,
         required=True,
         help="folder for the frames, VIEW_LIGHT.png (e.g. r_000_sunset.png, orbit_000_sunset.png), and with "
         "--views orbit a video per light, orbit_LIGHT.mp4",

@@ -7,6 +7,7 @@ from matspray.cli.options import (
     add_method_arguments,
     add_run_arguments,
     build_config_from_args,
+    output_folder,
     predictor_options_from_args,
 )
 from matspray.cli.settings import ListSettings, add_set_argument
@@ -14,7 +15,7 @@ from matspray.cli.settings import ListSettings, add_set_argument
 
 def add_run_parser(parser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (Blender, TensoIR or COLMAP layout)")
-    parser.add_argument("--out", type=Path, required=True, help="run folder; finished stages in it are reused")
+    parser.add_argument("--out", type=output_folder, required=True, help="run folder; finished stages in it are reused")
     add_run_arguments(parser)
     parser.add_argument("--overwrite", action="store_true", help="reuse an --out folder made from another dataset")
     add_method_arguments(parser, flags=SETTING_FLAGS)

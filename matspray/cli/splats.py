@@ -78,10 +78,6 @@ def export_splats_and_web(args, device) -> list[Path]:
     from matspray.errors import ConfigError
 
     written = []
-    if args.splats is not None and Path(args.splats[0]).suffix.lower() not in (".glb", ".spz"):
-        raise ConfigError(
-            f"--splats writes a binary glTF (.glb) or an SPZ file (.spz): give one of those, not '{args.splats[0]}'"
-        )
     if args.web is not None:
         from matspray.web.page import bundle_path
 

@@ -24,6 +24,7 @@ from matspray.export.frames import file_from_dataset, frame_extras, transform_di
 from matspray.export.normals import smoothed_vertex_normals, unit_normals
 from matspray.export.silhouette import spread
 from matspray.export.surface import fuse_surface
+from matspray.files import check_output_file
 from matspray.gltf.model import PbrMaterial, Primitive, TextureRef
 from matspray.gltf.write import encode_base_color, pack_metallic_roughness, write_glb
 from matspray.method.asset import Asset, read_asset
@@ -195,14 +196,8 @@ def check_output(out: Path) -> Path:
     out = Path(out)
     if out.suffix.lower() != ".glb":
         raise ConfigError(f"{out}: the output must be a .glb file")
-    if out.is_dir():
-        raise ConfigError(f"{out}: is a folder; give a file name ending in .glb")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"{out}: cannot create its folder ({exc.strerror}); choose another output path") from None
-    if not os.access(out.parent, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
-        raise ConfigError(f"{out}: cannot be written (permission denied); choose another output path")
+    check_output_file(out, ".glb")
+    out.parent.mkdir(parents=True, exist_ok=True)
     return out
 
 
