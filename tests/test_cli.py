@@ -169,3 +169,16 @@ def test_every_output_folder_under_a_file_is_refused_in_one_line_before_any_work
             assert code == 2 and message in err and "Traceback" not in err, (command, err)
             assert err.strip().splitlines()[-1].startswith(f"matspray {command}: error: argument --out:"), err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_a_run_folder_given_as_a_dataset_is_named_so_with_its_dataset(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "dataset.json").write_text('{"source": "/data/mug", "format": "blender"}')
+    for argv in (["info", str(run)], ["run", "--data", str(run), "--out", str(tmp_path / "other")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{run}: is a MatSpray run folder, not a dataset (its dataset is /data/mug; a run folder goes to" in err
+    (run / "dataset.json").write_text("{not json")
+    assert main(["info", str(run)]) == 2
+    assert "not a dataset (give the dataset folder it was made from" in capsys.readouterr().err

@@ -43,6 +43,12 @@ def detect_format(root: Path) -> str:
             f"holds {count} photo{'s' * (count != 1)}{where} but no camera poses, so it is not a dataset yet",
             f"`matspray colmap {photos} --out DATA` makes a dataset of them, then `matspray run --data DATA --out RUN`",
         )
+    if (root / "dataset.json").is_file():  # `--data RUN` for `--run RUN`: say what it is and where its dataset is
+        try:
+            hint = f"its dataset is {RunDir(root).dataset()['source']}"
+        except DataError:
+            hint = "give the dataset folder it was made from"
+        raise file_error(root, "is a MatSpray run folder, not a dataset", f"{hint}; a run folder goes to --run")
     tried = (
         "tried blender (transforms_train.json), nerfstudio (transforms.json), tensoir (train_000/metadata.json), "
         "colmap (sparse/0/cameras.bin)"
