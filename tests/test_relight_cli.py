@@ -95,3 +95,19 @@ def test_resolution_sets_the_frames_long_side_and_the_help_names_the_files_writt
     assert read_raw(tmp_path / "orbit" / "orbit_000_sky.png").shape[:2] == (40, 40)
     err = main(["relight", "--run", str(no_prior_run), "--env", "sky", "--out", str(tmp_path), "--resolution", "4"])
     assert err == 2 and "--resolution 4: choose 8 to 8192 pixels" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--views", "orbit", "--frames", "0"], "--frames 0: give 1 or more"),
+        (["--views", "orbit", "--fps", "0"], "--fps 0: give 1 or more"),
+        (["--env-height", "2"], "--env-height 2: give 4 or more"),
+    ],
+)
+def test_a_count_out_of_range_names_its_own_flag(tmp_path, capsys, flags, message):
+    from matspray.cli import main
+
+    argv = ["relight", "--run", str(tmp_path / "run"), "--env", "sky", "--out", str(tmp_path / "out"), *flags]
+    assert main(argv) == 2
+    assert capsys.readouterr().err == f"matspray relight: error: {message}\n"

@@ -88,8 +88,9 @@ def relight_run(
     from matspray.render.shade.envmap import EnvironmentMap
     from matspray.render.shade.lights import load_envmap
 
-    if frames < 1 or fps < 1 or env_height < 4:
-        raise ConfigError("--frames and --fps must be >= 1 and --env-height >= 4")
+    for flag, value, least in (("--frames", frames, 1), ("--fps", fps, 1), ("--env-height", env_height, 4)):
+        if value < least:
+            raise ConfigError(f"{flag} {value}: give {least} or more")
     if resolution is not None and not 8 <= resolution <= 8192:
         raise ConfigError(f"--resolution {resolution}: choose 8 to 8192 pixels")
     if views == "orbit":  # said before any frame is rendered, not after
