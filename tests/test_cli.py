@@ -182,3 +182,14 @@ def test_a_run_folder_given_as_a_dataset_is_named_so_with_its_dataset(tmp_path, 
     (run / "dataset.json").write_text("{not json")
     assert main(["info", str(run)]) == 2
     assert "not a dataset (give the dataset folder it was made from" in capsys.readouterr().err
+
+
+def test_an_unknown_flag_is_refused_by_the_command_that_was_given_it(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["eval", "--run", "RUN", "--lights", "nope"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith("usage: matspray eval ")
+    assert err.endswith("matspray eval: error: unrecognized arguments: --lights nope\n")
+    with pytest.raises(SystemExit):
+        main(["--bogus"])
+    assert capsys.readouterr().err.endswith("matspray: error: unrecognized arguments: --bogus\n")

@@ -51,14 +51,18 @@ RESUMING_COMMANDS = ("run", "geometry", "demo", "bench", "batch")  # staged: a r
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
     if args.command is None:
+        if unknown:
+            parser.error(f"unrecognized arguments: {' '.join(unknown)}")
         parser.print_help()
         return 2
+    command = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[args.command]
+    if unknown:  # said by the command's own parser: its usage and its name, not the top level's
+        command.error(f"unrecognized arguments: {' '.join(unknown)}")
     try:
         return int(args._run(args) or 0)
     except MatsprayError as exc:
-        command = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[args.command]
         print(f"matspray {args.command}: error: {flag_message(exc, args.command, command)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
