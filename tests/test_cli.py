@@ -193,3 +193,14 @@ def test_an_unknown_flag_is_refused_by_the_command_that_was_given_it(capsys):
     with pytest.raises(SystemExit):
         main(["--bogus"])
     assert capsys.readouterr().err.endswith("matspray: error: unrecognized arguments: --bogus\n")
+
+
+def test_batch_refuses_dataset_folders_that_are_not_there_before_starting_workers(tmp_path, capsys):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("")
+    argv = ["batch", "--data", str(tmp_path / "gone"), str(notes), str(tmp_path), "--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    gone = tmp_path / "gone"
+    assert err == f"matspray batch: error: --data: {gone}, {notes}: not a folder (give each object's dataset folder)\n"
+    assert not (tmp_path / "out").exists()

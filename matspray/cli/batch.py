@@ -203,6 +203,9 @@ def batch_main(args) -> int:
     datasets = [*(args.data or []), *args.data_positional]
     if not datasets:
         raise ConfigError("give the dataset folders: --data DATA [DATA ...]")
+    missing = [str(path) for path in datasets if not Path(path).is_dir()]
+    if missing:  # said before any worker starts; a dataset that is there but broken fails as its object
+        raise ConfigError(f"--data: {', '.join(missing)}: not a folder (give each object's dataset folder)")
     summary = run_batch(datasets, args.out, batch_config(args))
     rows = summary["objects"]
     print(
