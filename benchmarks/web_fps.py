@@ -9,6 +9,7 @@ frame drawn when the view stops) and moving (the smaller frames drawn while the 
     python -m benchmarks.web_fps --gaussians 40000 --shapes   # triangles against rectangles, interleaved
     python -m benchmarks.web_fps --scripts OLD.js NEW.js      # pages with these builds of the script, interleaved
     python -m benchmarks.web_fps --run RUN                    # a run's asset (its `matspray export --web` page)
+    python -m benchmarks.web_fps --run RUN --web-db 35 32 29  # its pages exported at these PSNRs, interleaved
 
 Besides the wall time, each frame's CPU time: the seconds that chromium's processes (SwiftShader's threads among
 them) spent, which other work on the machine's cores changes far less than the wall time.
@@ -116,12 +117,21 @@ return out;
 """
 
 
-def export_run_page(folder: Path, run: str) -> None:
-    """The page of a run folder's default asset, as `matspray export --web` writes it."""
+def export_run_page(folder: Path, run: str, web_db: str | None = None) -> None:
+    """The page of a run folder's default asset, as `matspray export --web DIR [DB]` writes it."""
     from matspray.cli import main as matspray
 
-    if matspray(["export", "--run", run, "--web", str(folder)]) != 0:
+    if matspray(["export", "--run", run, "--web", str(folder), *([web_db] if web_db else [])]) != 0:
         raise SystemExit(f"{run}: its page could not be exported (the message above says why)")
+
+
+def run_pages(root: Path, run: str, dbs: list[str]) -> list[tuple[str, Path]]:
+    """The pages of a run's asset exported at each of the PSNRs `dbs`, under `root`: (name, folder)."""
+    folders = []
+    for k, db in enumerate(dbs):
+        export_run_page(root / f"page{k}", run, db)
+        folders.append((f"--web DIR {db}", root / f"page{k}"))
+    return folders
 
 
 def pages(root: Path, write_page, scripts: list[str]) -> list[tuple[str, Path]]:
@@ -147,7 +157,10 @@ def main() -> None:
     parser.add_argument("--passes", action="store_true", help="time each pass of a frame instead")
     parser.add_argument("--shapes", action="store_true", help="time each Gaussian drawn in a triangle, a rectangle")
     parser.add_argument("--scripts", nargs="+", default=[], help="builds of the page's script to time, interleaved")
+    parser.add_argument("--web-db", nargs="+", default=[], help="with --run: its pages at these PSNRs, interleaved")
     args = parser.parse_args()
+    if args.web_db and (not args.run or args.scripts):
+        parser.error("--web-db times the pages of --run's asset, with the built script (not with --scripts)")
     from tests.browser import headless_chromium
 
     driver = headless_chromium(1000, 800)
@@ -158,7 +171,10 @@ def main() -> None:
             subjects = [(f"the asset of {args.run}", functools.partial(export_run_page, run=args.run))]
         for label, write_page in subjects:
             with tempfile.TemporaryDirectory() as tmp:
-                folders = pages(Path(tmp), write_page, args.scripts)
+                if args.web_db:
+                    folders = run_pages(Path(tmp), args.run, args.web_db)
+                else:
+                    folders = pages(Path(tmp), write_page, args.scripts)
                 open_page(driver, folders[0][1])
                 if args.passes:
                     for _ in range(args.repeats):
