@@ -1,5 +1,6 @@
 """`web.page.write_page` makes the page's folder whole or not at all: its files appear together, an export that fails
-half way leaves the page that was there before, and nothing of its own is left behind."""
+half way leaves the page that was there before, and nothing of its own is left behind (`contents` would list its
+staging folder)."""
 
 import shutil
 
@@ -37,7 +38,15 @@ def test_the_page_is_written_whole_and_leaves_nothing_beside_it(tmp_path, page_i
     written = write_page(folder, asset, spec, sky_map())
     assert {p.name for p in written} == PAGE_FILES and written[-1].name == "index.html"
     assert set(contents(folder)) == PAGE_FILES
-    assert sorted(p.name for p in folder.parent.iterdir()) == ["page"]  # no staging folder left
+    assert sorted(p.name for p in folder.parent.iterdir()) == ["page"]
+
+
+def test_the_page_goes_into_the_current_folder_when_given_dot(tmp_path, page_inputs, monkeypatch):
+    asset, spec = page_inputs
+    (tmp_path / "site").mkdir()
+    monkeypatch.chdir(tmp_path / "site")
+    write_page(".", asset, spec, sky_map())
+    assert set(contents(tmp_path / "site")) == PAGE_FILES
 
 
 def test_a_failed_export_leaves_the_page_before_it(tmp_path, page_inputs, monkeypatch):
@@ -60,7 +69,7 @@ def test_a_failed_export_leaves_the_page_before_it(tmp_path, page_inputs, monkey
     with pytest.raises(OSError, match="No space left"):
         write_page(folder, smaller, spec, sky_map())
     assert contents(folder) == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["build", "page"]  # no staging folder left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["build", "page"]
 
     monkeypatch.setattr(page_module.shutil, "copyfile", copyfile)
     write_page(folder, smaller, spec, sky_map())

@@ -11,7 +11,6 @@ from pathlib import Path
 import torch
 
 from matspray.errors import ConfigError
-from matspray.files import atomic_target
 from matspray.method.asset import Asset
 from matspray.render.shade.lights import BUILTINS, hdri_files, load_envmap
 from matspray.web.pack import asset_script, lights_script, page_light
@@ -58,7 +57,7 @@ def write_page(
     light [H, 2H, 3] first (when given), then the packaged ones; `drawn_of`: the Gaussians of the asset the page's
     were chosen from (`web.detail`), for its status line. Returns the files written.
 
-    The files are made in a hidden sibling folder first and moved in only once all are made, index.html last: an
+    The files are made in a hidden folder inside it first and moved out only once all are made, index.html last: an
     export that fails or is stopped leaves the page that was there before, not one whose files are of two exports."""
     bundle = bundle_path()
     folder = Path(folder)
@@ -69,8 +68,8 @@ def write_page(
         "index.html": (PACKAGE / "static" / "index.html").read_text(),
     }
     copies = {"matspray-web.js": bundle, "LICENSES.txt": PACKAGE / "static" / "LICENSES.txt"}  # three.js's MIT notice
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    stage = atomic_target(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    stage = folder / f".page.tmp-{os.getpid()}"  # inside: the folder may be "." and its parent not ours to write
     shutil.rmtree(stage, ignore_errors=True)
     stage.mkdir()
     try:
@@ -78,7 +77,6 @@ def write_page(
             (stage / name).write_text(text)
         for name, source in copies.items():
             shutil.copyfile(source, stage / name)
-        folder.mkdir(exist_ok=True)
         names = [*copies, *texts]  # index.html, which names the others, moves in last
         for name in names:
             os.replace(stage / name, folder / name)
