@@ -10,6 +10,7 @@ import { HDRLoader } from "three/addons/loaders/HDRLoader.js";
 import { decodeSplats, inflate, views } from "./data.js";
 import { downsampleLatlong, LEVELS, prefilter } from "./prefilter.js";
 import {
+  ENLARGE_FRAGMENT,
   PROJECT_FRAGMENT,
   SCREEN_VERTEX,
   SPLAT_FRAGMENT,
@@ -184,7 +185,6 @@ class Viewer {
       tBlendedBase: { value: null },
       tBlendedNormal: { value: null },
       tBlendedMaterial: { value: null },
-      shrink: { value: 1 },
       size: u.size,
       intrinsics: u.intrinsics,
       viewRotation: u.viewRotation,
@@ -196,6 +196,8 @@ class Viewer {
       exposure: { value: 1 },
     };
     this.shadeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, shadeFragment(LEVELS.length), this.shadeUniforms));
+    this.enlargeUniforms = { tShaded: { value: null }, shrink: { value: 1 } };
+    this.enlargeScene = sceneOf(SCREEN, rawMaterial(SCREEN_VERTEX, ENLARGE_FRAGMENT, this.enlargeUniforms));
   }
 
   // the canvas at width x height and the blend targets (the G-buffer) at 1 / shrink of it
@@ -204,7 +206,7 @@ class Viewer {
       this.renderer.setSize(width, height, false);
       this.canvas.style.width = `${width}px`;
       this.canvas.style.height = `${height}px`;
-      Object.values(this.targets).forEach((target) => target.dispose());
+      Object.values(this.targets).forEach((target) => [target, target.shaded].forEach((t) => t?.dispose()));
       this.targets = {};
       [this.width, this.height] = [width, height];
     }
@@ -217,13 +219,21 @@ class Viewer {
         magFilter: THREE.NearestFilter,
         depthBuffer: false,
       });
+      if (shrink > 1) {
+        // the frame shaded at the blended size, 8 bits as the canvas holds it: enlarged, the same bytes
+        this.targets[shrink].shaded = new THREE.WebGLRenderTarget(Math.ceil(width / shrink), Math.ceil(height / shrink), {
+          minFilter: THREE.NearestFilter,
+          magFilter: THREE.NearestFilter,
+          depthBuffer: false,
+        });
+      }
     }
     this.target = this.targets[shrink];
     const [base, normal, material] = this.target.textures;
     this.shadeUniforms.tBlendedBase.value = base;
     this.shadeUniforms.tBlendedNormal.value = normal;
     this.shadeUniforms.tBlendedMaterial.value = material;
-    this.shadeUniforms.shrink.value = shrink;
+    this.enlargeUniforms.shrink.value = shrink;
   }
 
   setLight(index) {
@@ -265,8 +275,19 @@ class Viewer {
       this.blendedFor = blendedKey;
       this.blends += 1;
     }
-    this.renderer.setRenderTarget(null);
+    this.shade();
+  }
+
+  // each blended pixel shaded once, onto the canvas, or while the view moves onto a target of the blended size that
+  // is then enlarged onto it (shading per canvas pixel did the same work for each of a block's pixels)
+  shade() {
+    const shaded = this.target.shaded;
+    this.renderer.setRenderTarget(shaded ?? null);
     this.renderer.render(this.shadeScene, this.camera);
+    if (!shaded) return;
+    this.enlargeUniforms.tShaded.value = shaded.texture;
+    this.renderer.setRenderTarget(null);
+    this.renderer.render(this.enlargeScene, this.camera);
   }
 
   // the G-buffer of the view: the Gaussians sorted (when the view changed), projected and blended

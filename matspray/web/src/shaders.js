@@ -11,8 +11,8 @@
 // 3. SHADE: each blended pixel's materials divided by its coverage, shaded by split-sum image-based lighting
 //    (`render.shade.deferred.shade_gbuffer`) with the view direction through the pixel's centre, composited over the
 //    background and encoded to sRGB, clipped, as `relight` writes its PNGs. While the view moves, the splats are
-//    blended at a fraction of the canvas's size and each blended pixel fills a block of the canvas. A new light or
-//    exposure runs this pass alone.
+//    blended and shaded at a fraction of the canvas's size and ENLARGE fills a block of the canvas with each shaded
+//    pixel. A new light or exposure runs this pass alone.
 
 const FETCH = /* glsl */ `
 precision highp float;
@@ -157,6 +157,15 @@ export const SCREEN_VERTEX = /* glsl */ `
 in vec3 position;
 void main() { gl_Position = vec4(position.xy, 0.0, 1.0); }`;
 
+// while the view moves: the frame shaded at the blended size, each of its pixels filling shrink x shrink of the canvas
+export const ENLARGE_FRAGMENT = /* glsl */ `
+precision highp float;
+precision highp int;
+uniform sampler2D tShaded;
+uniform int shrink;
+out vec4 colour;
+void main() { colour = texelFetch(tShaded, ivec2(gl_FragCoord.xy) / shrink, 0); }`;
+
 export function shadeFragment(levelCount) {
   return /* glsl */ `
 precision highp float;
@@ -166,7 +175,6 @@ precision highp sampler2D;
 uniform sampler2D tBlendedBase;      // the SPLAT pass's three targets
 uniform sampler2D tBlendedNormal;
 uniform sampler2D tBlendedMaterial;
-uniform int shrink;          // the canvas's pixels a blended pixel spans each way (1, or PREVIEW while moving)
 uniform vec2 size;           // the blended targets' width height
 uniform vec4 intrinsics;     // fx fy cx cy in the blended targets' pixels
 uniform mat3 viewRotation;   // world to camera
@@ -215,7 +223,7 @@ vec2 lut(float nv, float r) {  // align_corners=False, border
 }
 
 void main() {
-  ivec2 texel = ivec2(gl_FragCoord.xy) / shrink;
+  ivec2 texel = ivec2(gl_FragCoord.xy);
   vec4 blendedBase = texelFetch(tBlendedBase, texel, 0);
   float coverage = blendedBase.a;
   vec3 rgb = vec3(0.0);
