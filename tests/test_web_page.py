@@ -273,6 +273,14 @@ MIN_FPS = 1.0  # still, 4 000 Gaussians: measured 3.1-5.2 on 2 loaded cores (doc
 MIN_MOVING_FPS = 4.0  # moving: measured 8.5-13.4 there; a full-size frame (the old page's only kind) 3.1-5.8
 
 
+# the moving frame's shaded target (the blended size, rows from the bottom) as RGBA bytes
+SHADED_PIXELS = """
+const v = window.matspray.viewer, t = v.target.shaded, out = new Uint8Array(4 * t.width * t.height);
+v.renderer.readRenderTargetPixels(t, 0, 0, t.width, t.height, out);
+return Array.from(out);
+"""
+
+
 @pytest.mark.slow
 def test_a_drag_draws_small_frames_and_letting_go_a_full_one(site, page):
     def drag(script):
@@ -288,6 +296,9 @@ def test_a_drag_draws_small_frames_and_letting_go_a_full_one(site, page):
         "window.dispatchEvent(new PointerEvent('pointermove', {clientX: 40}));"
     )
     assert page.execute_script("return window.matspray.moving()") and drawn_in_blocks(dragged, 2)
+    # shaded once per blended pixel, at the blended size, then enlarged: each 2 x 2 block is that pixel's bytes
+    shaded = np.array(page.execute_script(SHADED_PIXELS), dtype=np.float64).reshape(256, 256, 4)[::-1, :, :3] / 255
+    assert np.array_equal(dragged[::2, ::2], shaded)
     released = drag("window.dispatchEvent(new PointerEvent('pointerup', {}));")
     assert not page.execute_script("return window.matspray.moving()") and not drawn_in_blocks(released, 2)
     inside = np.abs(released - srgb_encode(BACKGROUND)).sum(-1) > 0.02
