@@ -100,11 +100,11 @@ def table_no_softmax_forms(results: Path, names: tuple[str, str] = (SHADOWS_REAL
 SOFTMAX_OUTLIERS = "generalise-real-dev-outliers.json"  # --models outliers --variants full proj-average no-softmax
 SOFTMAX_HARSH = "generalise-real-dev-harsh.json"  # --models harsh --variants full proj-average no-softmax
 SOFTMAX_SUNSET = "generalise-real-dev-train-sunset.json"  # --train-light sunset --variants full proj-average no-softmax
+SOFTMAX_BY_MODEL = (SHADOWS_REAL_DEV[0], SOFTMAX_HARSH, SOFTMAX_OUTLIERS)  # the default pass, then the two models
+SOFTMAX_BY_LIGHT = (SHADOWS_REAL_DEV[0], SOFTMAX_SUNSET)  # the default pass (drawn lights), then a low sun
 
 
-def table_softmax_by_model(
-    results: Path, names: tuple[str, ...] = (SHADOWS_REAL_DEV[0], SOFTMAX_HARSH, SOFTMAX_OUTLIERS)
-) -> str:
+def table_softmax_by_model(results: Path, names: tuple[str, ...] = SOFTMAX_BY_MODEL) -> str:
     """Relighting PSNR (dB) of `full`, `proj-average` and `no-softmax` per object under each error model of the
     files (default shading), with `full`'s margins over the two, and the mean over the objects; a pass that trained
     every object under one light (`--train-light`) says which."""
@@ -126,11 +126,8 @@ def table_softmax_by_model(
 
 
 SHADOW_TABLES = {
-    "softmax-real-dev-models": (table_softmax_by_model, [SHADOWS_REAL_DEV[0], SOFTMAX_HARSH, SOFTMAX_OUTLIERS]),
-    "softmax-real-dev-sunset": (
-        partial(table_softmax_by_model, names=(SHADOWS_REAL_DEV[0], SOFTMAX_SUNSET)),
-        [SHADOWS_REAL_DEV[0], SOFTMAX_SUNSET],
-    ),
+    "softmax-real-dev-models": (table_softmax_by_model, list(SOFTMAX_BY_MODEL)),
+    "softmax-real-dev-sunset": (partial(table_softmax_by_model, names=SOFTMAX_BY_LIGHT), list(SOFTMAX_BY_LIGHT)),
     "no-softmax-forms": (table_no_softmax_forms, [SHADOWS_REAL_DEV[0], NO_SOFTMAX_RAW]),
     "shadows-real-dev": (table_shadows, list(SHADOWS_REAL_DEV)),
     "shadows-real-dev-mean": (table_shadows_mean, list(SHADOWS_REAL_DEV)),

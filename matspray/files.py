@@ -8,6 +8,8 @@ import json
 import os
 from pathlib import Path
 
+from matspray.errors import ConfigError
+
 HDR_SUFFIXES = (".exr", ".hdr")  # the high-dynamic-range image files MatSpray reads as lights
 
 
@@ -29,8 +31,6 @@ def write_text_atomic(path: Path, text: str) -> None:
 def check_output_folder(folder: Path, named) -> Path:
     """`folder` can be made (or is a folder) and written into, checked before any work and without making anything;
     a ConfigError that names `named` (the output asked for: the folder, or a file to be written in it) when not."""
-    from matspray.errors import ConfigError
-
     folder = Path(folder)
     existing = next(p for p in (folder, *folder.parents) if p.exists())  # the root at the latest
     if not existing.is_dir():
@@ -44,8 +44,6 @@ def check_output_folder(folder: Path, named) -> Path:
 def check_output_file(out: Path, endings: str) -> Path:
     """A file `out` can be written (not a folder, in a folder that is or can be made), checked before any work;
     `endings`: the file names it may have, for the message (".glb")."""
-    from matspray.errors import ConfigError
-
     out = Path(out)
     if out.is_dir():
         raise ConfigError(f"{out}: is a folder; give a file name ending in {endings}")

@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import fields
+from pathlib import Path
 
 from matspray.cli.settings import NotFinite, field_hint, parse_value
+from matspray.errors import ConfigError
+from matspray.files import check_output_folder
 from matspray.method.config import PipelineConfig
 from matspray.presets import ADDITION_NAMES, METHODS, PRESETS, VARIANT_NAMES
 from matspray.settings import flag_of, help_of
@@ -86,11 +89,6 @@ def predictor_options_from_args(args) -> dict:
 def output_folder(value: str):
     """An --out folder, checked as the command line is read (before any work): refused in one line when it is a
     file, when a folder on its way is one, or when it cannot be made there; the command makes it."""
-    from pathlib import Path
-
-    from matspray.errors import ConfigError
-    from matspray.files import check_output_folder
-
     path = Path(value)
     try:
         return check_output_folder(path, path)

@@ -68,6 +68,7 @@ def write_page(
         "index.html": (PACKAGE / "static" / "index.html").read_text(),
     }
     copies = {"matspray-web.js": bundle, "LICENSES.txt": PACKAGE / "static" / "LICENSES.txt"}  # three.js's MIT notice
+    names = [*copies, *texts]  # the order they move in: index.html, which names the others, last
     folder.mkdir(parents=True, exist_ok=True)
     stage = folder / f".page.tmp-{os.getpid()}"  # inside: the folder may be "." and its parent not ours to write
     shutil.rmtree(stage, ignore_errors=True)
@@ -77,7 +78,6 @@ def write_page(
             (stage / name).write_text(text)
         for name, source in copies.items():
             shutil.copyfile(source, stage / name)
-        names = [*copies, *texts]  # index.html, which names the others, moves in last
         for name in names:
             os.replace(stage / name, folder / name)
     finally:
