@@ -114,16 +114,21 @@ def page_meta(folder) -> dict:
 
 
 @pytest.mark.slow
-def test_export_web_draws_what_the_detail_chose_and_refuses_a_psnr_that_is_none(tmp_path, capsys):
+def test_export_web_draws_what_the_detail_chose_and_refuses_a_psnr_that_is_none(tmp_path, capsys, monkeypatch):
+    import matspray.cli.splats as splats_cli
     from matspray.web.page import BUNDLE
 
     if not BUNDLE.exists():
         pytest.skip(f"the page's script {BUNDLE} is not built (`make setup` builds it with npm)")
+    baked, bake = [], splats_cli.bake_light
+    monkeypatch.setattr(splats_cli, "bake_light", lambda *a, **k: baked.append(a[0]) or bake(*a, **k))
     run = write_disk_sphere_run(tmp_path, 1500, sphere_cameras(6, 64), slice(None), slice(0, 1))
     assert main(["export", "--run", str(run), "--web", str(tmp_path / "all"), "inf"]) == 0
     every = page_meta(tmp_path / "all")
     assert every["count"] == every["drawnOf"] == 1500
+    assert baked == []  # every Gaussian kept: no light prefiltered for a check that is not made
     assert main(["export", "--run", str(run), "--web", str(tmp_path / "some"), "25"]) == 0
+    assert baked  # the check's lights
     some = page_meta(tmp_path / "some")
     assert some["drawnOf"] == 1500 and some["count"] < 1500
     assert f"draws {some['count']} of the asset's 1500 Gaussians" in capsys.readouterr().out

@@ -3,6 +3,7 @@ orbit); `matspray.export.splats` and `matspray.web` do the work."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 BAKE_ENV_HEIGHT = 64  # rows of the light the splats' colour is baked under (relight's default --env-height)
@@ -59,9 +60,11 @@ def write_web_page(args, asset, view: dict, estimated, device) -> list[Path]:
     from matspray.web.detail import CHECK_LIGHT, page_gaussians, subset
     from matspray.web.page import BACKGROUND, write_page
 
-    lights = [bake_light(CHECK_LIGHT, estimated, device)]
-    if estimated is not None:
-        lights.append(bake_light(None, estimated, device))
+    lights = []  # --web DIR inf keeps every Gaussian: nothing is checked, so no light is prefiltered for it
+    if not math.isinf(args.web_psnr):
+        lights.append(bake_light(CHECK_LIGHT, estimated, device))
+        if estimated is not None:
+            lights.append(bake_light(None, estimated, device))
     background = torch.tensor(BACKGROUND, device=device)
     detail = page_gaussians(asset, view, lights, background, args.web_psnr, progress=True)
     drawn = int(detail.keep.sum())
