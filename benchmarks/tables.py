@@ -27,6 +27,7 @@ from pathlib import Path
 from benchmarks.tables_cli import table_cli
 from benchmarks.tables_extra import EXTRA
 from benchmarks.tables_figures import hand_typed_figures
+from benchmarks.tables_real_eval import REAL_EVAL_TABLES
 from benchmarks.tables_shadows import SHADOW_TABLES
 from matspray.presets import PAPER_ABLATION, PAPER_SOFTMAX
 
@@ -139,7 +140,7 @@ def table_generalise_eval(results: Path) -> str:
 
 
 def table_headline(results: Path, name: str = EVAL_NORMALS) -> str:
-    """README: means over the evaluation set per error model, full method against no-prior and the 2D maps."""
+    """docs/benchmarks.md: means over dev-b per error model, full method against no-prior and the 2D maps."""
     report = read(results, name)
     lines = [
         "| error model | relight full | relight no-prior | base colour full / no-prior / 2D | roughness full / "
@@ -444,7 +445,7 @@ def table_demo_backends(results: Path) -> str:
 
 # name -> (function of the results folder, the result files it reads)
 TABLES = {
-    "headline": (table_headline, [EVAL_NORMALS]),
+    "dev-b-headline": (table_headline, [EVAL_NORMALS]),
     "normals-eval": (partial(table_models_eval, name=EVAL_NORMALS), [EVAL_NORMALS]),
     "captures-headline": (table_captures_headline, [f"real-captures-{n}.json" for n in CAPTURES]),
     "capture-quality": (table_capture_quality, [QUALITY_SKULL]),
@@ -469,6 +470,7 @@ TABLES = {
     "cli": (table_cli, []),
     **EXTRA,
     **SHADOW_TABLES,
+    **REAL_EVAL_TABLES,
 }
 
 

@@ -45,17 +45,17 @@ def test_a_changed_number_in_a_results_file_fails_the_check(tmp_path, capsys):
     assert tables.main(["--check", "--root", str(root)]) == 0
     path = root / "docs" / "results" / tables.EVAL_NORMALS
     report = json.loads(path.read_text())
-    report["models"]["harsh"]["summary"]["relight"]["full"] += 0.5  # the README's headline and no more
+    report["models"]["harsh"]["summary"]["relight"]["full"] += 0.5  # dev-b's means and no more
     changed = report["models"]["harsh"]["summary"]["relight"]["full"]
     path.write_text(json.dumps(report))
     assert tables.main(["--check", "--root", str(root)]) == 1
     printed = capsys.readouterr().out
-    assert "README.md: table headline" in printed
+    assert "benchmarks.md: table dev-b-headline" in printed
     assert "normals-eval" in printed  # the other table with the mean row
     assert "real-captures" not in printed and "no-prior-eval" not in printed and "generalise-eval" not in printed
     assert tables.main(["--root", str(root)]) == 0  # regenerate; then the check passes
     assert tables.main(["--check", "--root", str(root)]) == 0
-    assert f"| `harsh` | {changed:.2f} |" in (root / "README.md").read_text()
+    assert f"| `harsh` | {changed:.2f} |" in (root / "docs" / "benchmarks.md").read_text()
 
 
 def test_an_edited_table_fails_the_check(tmp_path, capsys):
