@@ -434,7 +434,9 @@ def run_protocol(args, log=print) -> dict:
                     "seconds": seconds["models"][model],
                 }
             )
-        seconds["geometry"] = None if own_geometry else RunDir(first_run).timings().get("geometry")
+        # each model's own geometry (the models' seconds leave it out), or the one they share
+        runs = [folder / "runs" / run_name(model, key) for model in specs] if own_geometry else [first_run]
+        seconds["geometry"] = sum(RunDir(run).timings().get("geometry") or 0.0 for run in runs)
         seconds["total"] = (
             seconds["synth"] + (seconds["geometry"] or 0.0) + sum(seconds["models"].values())
         )  # earlier passes' work included

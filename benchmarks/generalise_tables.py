@@ -206,7 +206,7 @@ def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict])
     lines += [
         "### seconds per object",
         "",
-        "| object | synth | geometry (once) | "
+        "| object | synth | geometry (each model's, or once when shared) | "
         + " | ".join(f"{m} (all variants + eval)" for m in results)
         + " | total |",
         "|" + "---|" * (4 + len(results)),

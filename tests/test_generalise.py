@@ -298,6 +298,10 @@ def test_start_splits_a_pass_over_jobs(tmp_path, capsys):
     assert report["settings"]["start"] == 1 and [o["object"]["name"] for o in report["models"]["paper"]["objects"]] == [
         "dev-01-seed1001"
     ]
+    timing = report["timing"][0]  # the model's own geometry (trained by the first call) is in the object's total
+    assert timing["geometry"] > 0 and timing["total"] == pytest.approx(
+        timing["synth"] + timing["geometry"] + sum(timing["models"].values())
+    )
     for bad in (["--start", "-1"], ["--objects", "0", "--start", "2"]):
         with pytest.raises(SystemExit):
             main(["--set", "dev", *bad, "--out", str(out)])
