@@ -438,7 +438,7 @@ def run_protocol(args, log=print) -> dict:
         runs = [folder / "runs" / run_name(model, key) for model in specs] if own_geometry else [first_run]
         seconds["geometry"] = sum(RunDir(run).timings().get("geometry") or 0.0 for run in runs)
         seconds["total"] = (
-            seconds["synth"] + (seconds["geometry"] or 0.0) + sum(seconds["models"].values())
+            seconds["synth"] + seconds["geometry"] + sum(seconds["models"].values())
         )  # earlier passes' work included
         timing.append({"object": spec.name, **seconds})
     if args.geometry_only:

@@ -212,7 +212,7 @@ def markdown(settings: dict, results: dict, summaries: dict, timing: list[dict])
         "|" + "---|" * (4 + len(results)),
     ]
     for t in timing:
-        cells = [t["object"], f"{t['synth']:.0f}", "—" if t["geometry"] is None else f"{t['geometry']:.0f}"]
+        cells = [t["object"], f"{t['synth']:.0f}", f"{t['geometry']:.0f}"]
         lines.append(
             "| " + " | ".join(cells + [f"{t['models'][m]:.0f}" for m in results] + [f"{t['total']:.0f}"]) + " |"
         )

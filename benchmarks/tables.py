@@ -18,7 +18,6 @@ default --out), except `cli`, which is docs/cli.md's reference made from the arg
 from __future__ import annotations
 
 import argparse
-import json
 import re
 import sys
 from functools import partial
@@ -27,6 +26,7 @@ from pathlib import Path
 from benchmarks.tables_cli import table_cli
 from benchmarks.tables_extra import EXTRA
 from benchmarks.tables_figures import hand_typed_figures
+from benchmarks.tables_files import object_table, read
 from benchmarks.tables_real_eval import REAL_EVAL_TABLES
 from benchmarks.tables_shadows import SHADOW_TABLES
 from matspray.presets import PAPER_ABLATION, PAPER_SOFTMAX
@@ -36,13 +36,6 @@ RESULTS = Path("docs") / "results"  # relative to the repository root
 MARKER = re.compile(r"(<!-- table: ([\w.-]+) -->\n)(.*?)(<!-- /table -->)", re.S)
 MODELS = ("paper", "harsh", "outliers")
 CHANNELS = ("basecolor", "roughness", "metallic")
-
-
-def read(results: Path, name: str) -> dict:
-    path = results / name
-    if not path.exists():
-        raise SystemExit(f"benchmarks.tables: {path} is missing; the table needs it")
-    return json.loads(path.read_text())
 
 
 def fmt(value, digits: int = 2) -> str:
@@ -118,14 +111,6 @@ def table_noprior_eval(results: Path) -> str:
     return "\n".join(
         noprior_head(True) + noprior_rows(report, models) + ["", "Wins (out of 6):"] + wins_lines(report, models)
     )
-
-
-def object_table(report: dict, model: str) -> list[str]:
-    """One error model's per-object table in benchmarks.generalise's format, without its heading."""
-    from benchmarks.generalise_tables import model_table
-
-    result = report["models"][model]
-    return model_table(model, result["objects"], result["summary"], report["settings"]["variants"])[2:]
 
 
 def table_generalise_eval(results: Path) -> str:

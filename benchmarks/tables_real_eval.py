@@ -7,8 +7,9 @@ then the maps of `full`, `no-prior` and the 2D model. docs/benchmarks.md carries
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+
+from benchmarks.tables_files import mean, object_table, read
 
 REAL_EVAL = ("generalise-real-eval-final.json",)  # one results file per method, in the order the tables show them
 OTHERS = ("proj-average", "no-softmax", "no-prior")  # what `full` is compared with, as the paper's tables do
@@ -17,18 +18,7 @@ CHANNELS = ("basecolor", "roughness", "metallic")
 
 
 def reports(results: Path, names: tuple[str, ...]) -> list[dict]:
-    out = []
-    for name in names:
-        path = results / name
-        if not path.exists():
-            raise SystemExit(f"benchmarks.tables: {path} is missing; the table needs it")
-        out.append(json.loads(path.read_text()))
-    return out
-
-
-def mean(values) -> float:
-    values = list(values)
-    return sum(values) / len(values)
+    return [read(results, name) for name in names]
 
 
 def margin(objects: list[dict], group: str, other: str) -> str:
@@ -86,14 +76,11 @@ def table_real_eval_maps(results: Path, names: tuple[str, ...] = REAL_EVAL) -> s
 
 def table_real_eval_objects(results: Path, names: tuple[str, ...] = REAL_EVAL) -> str:
     """Each method's and error model's per-object table, benchmarks.generalise's own format."""
-    from benchmarks.generalise_tables import model_table
-
     parts = []
     for report in reports(results, names):
-        method, variants = report["settings"]["method"], report["settings"]["variants"]
-        for model, result in report["models"].items():
-            table = model_table(model, result["objects"], result["summary"], variants)[2:]
-            parts.append(f"`--method {method}`, error model `{model}`:\n\n" + "\n".join(table).strip())
+        for model in report["models"]:
+            table = "\n".join(object_table(report, model)).strip()
+            parts.append(f"`--method {report['settings']['method']}`, error model `{model}`:\n\n{table}")
     return "\n\n".join(parts)
 
 

@@ -11,6 +11,8 @@ import json
 from functools import partial
 from pathlib import Path
 
+from benchmarks.tables_files import mean
+
 SHADOWS_REAL_DEV = ("generalise-real-dev-shadows-off.json", "generalise-real-dev-shadows-on.json")
 SHADOW_VARIANTS = ("full", "proj-average", "no-softmax")
 
@@ -30,11 +32,6 @@ def paired_passes(results: Path, names: tuple[str, str]):
         if not common:
             raise SystemExit(f"benchmarks.tables: {names[0]} and {names[1]} share no object under `{model}`")
         yield model, first, second, common
-
-
-def mean(values) -> float:
-    values = list(values)
-    return sum(values) / len(values)
 
 
 def shadow_rows(first: dict, second: dict, common: list[str]) -> list[str]:
