@@ -407,8 +407,8 @@ def run_protocol(args, log=print) -> dict:
                 f"({time.perf_counter() - start:.0f} s with synth)"
             )
             continue
-        for model in specs:
-            run_dir = folder / "runs" / run_name(model, key)
+        run_dirs = {model: folder / "runs" / run_name(model, key) for model in specs}
+        for model, run_dir in run_dirs.items():
             if not own_geometry and run_dir != first_run and share_stage(first_run, run_dir, "geometry"):
                 log(f"generalise: {spec.name} / {run_dir.name}: geometry shared from {first_run.name}")
             # the run to start from: the default one, or with geometry overrides the configuration that has only
@@ -435,7 +435,7 @@ def run_protocol(args, log=print) -> dict:
                 }
             )
         # each model's own geometry (the models' seconds leave it out), or the one they share
-        runs = [folder / "runs" / run_name(model, key) for model in specs] if own_geometry else [first_run]
+        runs = list(run_dirs.values()) if own_geometry else [first_run]
         seconds["geometry"] = sum(RunDir(run).timings().get("geometry") or 0.0 for run in runs)
         seconds["total"] = (
             seconds["synth"] + seconds["geometry"] + sum(seconds["models"].values())

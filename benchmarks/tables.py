@@ -26,7 +26,7 @@ from pathlib import Path
 from benchmarks.tables_cli import table_cli
 from benchmarks.tables_extra import EXTRA
 from benchmarks.tables_figures import hand_typed_figures
-from benchmarks.tables_files import object_table, read
+from benchmarks.tables_files import CHANNELS, object_table, read
 from benchmarks.tables_real_eval import REAL_EVAL_TABLES
 from benchmarks.tables_shadows import SHADOW_TABLES
 from matspray.presets import PAPER_ABLATION, PAPER_SOFTMAX
@@ -35,7 +35,6 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path("docs") / "results"  # relative to the repository root
 MARKER = re.compile(r"(<!-- table: ([\w.-]+) -->\n)(.*?)(<!-- /table -->)", re.S)
 MODELS = ("paper", "harsh", "outliers")
-CHANNELS = ("basecolor", "roughness", "metallic")
 
 
 def fmt(value, digits: int = 2) -> str:

@@ -9,13 +9,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from benchmarks.tables_files import mean, object_table, read
+from benchmarks.tables_files import CHANNELS, mean, object_table, read
 
 # one results file per method, in the order the tables show them
 REAL_EVAL = ("generalise-real-eval-final.json", "generalise-real-eval-final-paper.json")
 OTHERS = ("proj-average", "no-softmax", "no-prior")  # what `full` is compared with, as the paper's tables do
 PROTOCOLS = (("relight", "as measured"), ("relight_aligned", "scale-aligned"))
-CHANNELS = ("basecolor", "roughness", "metallic")
 
 
 def reports(results: Path, names: tuple[str, ...]) -> list[dict]:
