@@ -206,20 +206,19 @@ def object_figures(results: Path, names: list[str], model: str) -> dict:
 def table_resolutions(results: Path, models=("dr",), low=(EVAL_DR,), high=(EVAL_DR_256,)) -> str:
     """The evaluation set at 128 px (`low` results files) and at 256 px (`high`), object by object (those done at
     both): what the resolution changes in full's gain over proj-average and in its 3D materials against the 2D maps."""
-    channels = ("basecolor", "roughness", "metallic")
     lead = ["error model"] if len(models) > 1 else []
     lines = [
         "| "
         + " | ".join(lead + ["object", "full - proj-average, 128 / 256 px"])
         + " | "
-        + " | ".join(f"3D - 2D {c}, 128 / 256 px" for c in channels)
+        + " | ".join(f"3D - 2D {c}, 128 / 256 px" for c in CHANNELS)
         + " |",
         "| " + " | ".join(["---"] * len(lead) + ["---"] + ["---:"] * 4) + " |",
     ]
 
     def row(label: list, figures: list) -> str:
         cells = [" / ".join(f"{f['relight']['full'] - f['relight']['proj-average']:+.2f}" for f in figures)]
-        for c in channels:
+        for c in CHANNELS:
             cells.append(" / ".join(f"{f['materials_3d'][c] - f['materials_2d'][c]:+.2f}" for f in figures))
         return "| " + " | ".join(label + cells) + " |"
 
