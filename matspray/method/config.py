@@ -78,8 +78,8 @@ NORMAL_PRIOR_WEIGHT = 1.0
 class PipelineConfig:
     preset: str = setting(
         "demo",
-        "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), quality (256 px: sharper, about 1.6x demo's time; "
-        "10 to 11 min for the 64 photos of docs/dev/real-captures.md's skull on 2 CPU cores), paper (512 px, one GPU)",
+        "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), quality (256 px and 1500 refinement steps: sharper, "
+        "slower; the README's first table says how long it took), paper (512 px, one GPU)",
         flag="--preset",
     )
     method: str = setting(
