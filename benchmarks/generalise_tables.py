@@ -11,12 +11,12 @@ from pathlib import Path
 from matspray.batch.demo import DEMO_SIZES
 from matspray.errors import ConfigError
 from matspray.eval.tables import average_tables
+from matspray.predictors import CHANNELS
 from matspray.predictors.error_models import ERROR_MODELS
 from matspray.presets import BASELINE, LABELS, MAPLESS
 from matspray.presets import VARIANT_NAMES as VARIANTS
 from matspray.rundir import read_json
 
-CHANNELS = ("basecolor", "roughness", "metallic")
 SHORT = {"basecolor": "base", "roughness": "rough", "metallic": "metal"}
 
 

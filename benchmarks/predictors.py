@@ -26,11 +26,9 @@ import torch
 
 from matspray.data import linear_to_srgb, load_scene
 from matspray.errors import MatsprayError
-from matspray.predictors import PredictorOptions, make_predictor, predict_views
+from matspray.predictors import CHANNELS, PredictorOptions, make_predictor, predict_views
 from matspray.predictors.consistency import multiview_spread
 from matspray.predictors.ground_truth import check_ground_truth, read_ground_truth, read_ground_truth_depth
-
-CHANNELS = ("basecolor", "roughness", "metallic")
 
 
 def channel_values(maps) -> dict[str, torch.Tensor]:  # name -> [H, W, C] in the space metrics use

@@ -26,9 +26,10 @@ from pathlib import Path
 from benchmarks.tables_cli import table_cli
 from benchmarks.tables_extra import EXTRA
 from benchmarks.tables_figures import hand_typed_figures
-from benchmarks.tables_files import CHANNELS, object_table, read
+from benchmarks.tables_files import object_table, read
 from benchmarks.tables_real_eval import REAL_EVAL_TABLES
 from benchmarks.tables_shadows import SHADOW_TABLES
+from matspray.predictors import CHANNELS
 from matspray.presets import PAPER_ABLATION, PAPER_SOFTMAX
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,13 +1,11 @@
 """What the generated tables' modules share (`benchmarks.tables` and its table modules import it, never the other
 way): a results file read with the missing-file message, one error model's per-object table in
-benchmarks.generalise's format, a plain mean, and the material channels in the tables' order."""
+benchmarks.generalise's format, and a plain mean."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-
-CHANNELS = ("basecolor", "roughness", "metallic")
 
 
 def read(results: Path, name: str) -> dict:

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from benchmarks.tables_files import CHANNELS, mean, object_table, read
+from benchmarks.tables_files import mean, object_table, read
+from matspray.predictors import CHANNELS
 
 # one results file per method, in the order the tables show them
 REAL_EVAL = ("generalise-real-eval-final.json", "generalise-real-eval-final-paper.json")

@@ -80,7 +80,7 @@ PRESET_SETTINGS: dict[str, dict[str, dict]] = {
     },
     "demo": {},
     # demo's sizes, but Gaussian Splatting (and so the lift and refinement of a run without maps) trains on the
-    # photos at the working size rather than half of it; 512 px trained worse on held-out photos in 4x the time
+    # photos at the working size rather than half of it; 512 px trained worse on held-out photos, and slower
     # (docs/dev/real-captures.md, "The quality preset"); and a longer refinement, which the larger photos' detail
     # needs (docs/dev/camera-light.md, "The skull's LPIPS at quality")
     "quality": {"geometry": {"resolution": 256}, "refine": {"iterations": 1500}},

@@ -12,6 +12,10 @@ importable without torch.
 
 import importlib
 
+# the 2D maps' channels, by the names their files, the evaluation's metrics and the docs' tables use (here, without
+# torch, for what only names them)
+CHANNELS = ("basecolor", "roughness", "metallic")
+
 _WHERE = {
     "matspray.predictors.base": ("Predictor", "predict_views"),
     "matspray.predictors.encodings": ("BASECOLOR_ENCODINGS", "decode_basecolor", "encode_basecolor"),
@@ -36,7 +40,7 @@ _WHERE = {
     ),
 }
 _MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
-__all__ = sorted(_MODULE_OF)
+__all__ = sorted([*_MODULE_OF, "CHANNELS"])
 
 
 def __getattr__(name: str):

@@ -25,13 +25,13 @@ from matspray.data.images import linear_to_srgb, read_raw, resize, srgb_to_linea
 from matspray.data.scene import View
 from matspray.errors import DataError, MatsprayError, file_error
 from matspray.material import stack
+from matspray.predictors import CHANNELS
 from matspray.predictors.mapfile import read_color_map, read_scalar_map
 from matspray.predictors.normalmaps import NORMAL_SPACES, camera_to_world, normal_problem, renormalised
 from matspray.rundir import read_mapping, stage_hint
 
 MATERIALS2D = "materials2d"
 INFO_FILE = "predictor.json"
-CHANNELS = ("basecolor", "roughness", "metallic")
 
 
 @dataclass
