@@ -391,6 +391,7 @@ def table_capture_quality(results: Path) -> str:
     r = read(results, QUALITY_SKULL)
     asset = next(key for key in r["heldout"] if key != "radiance")  # the user's asset the run made
     seconds = sum(r["stage_seconds"].values())
+    peak = next(step["peak_mib"] for step in r["steps"] if step["command"].startswith("matspray run "))
     flash = " and flash" if r.get("camera_light") else ""  # a flash at the camera, learned on flash photos
 
     def cells(entry: dict) -> str:
@@ -405,7 +406,8 @@ def table_capture_quality(results: Path) -> str:
             "",
             f"Preset `{r['preset']}`: {len(r['mask_coverage'])} held-out photos, "
             + f"{r['gaussians_asset']:,}".replace(",", " ")
-            + f" Gaussians in the asset; `matspray run` took {seconds / 60:.0f} min on a 2-core CPU.",
+            + f" Gaussians in the asset; `matspray run` took {seconds / 60:.0f} min and at most"
+            + f" {peak / 1024:.1f} GB of memory on a 2-core CPU.",
         ]
     )
 

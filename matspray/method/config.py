@@ -78,8 +78,9 @@ NORMAL_PRIOR_WEIGHT = 1.0
 class PipelineConfig:
     preset: str = setting(
         "demo",
-        "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), quality (256 px and 1500 refinement steps: sharper, "
-        "slower; the README's first table says how long it took), paper (512 px, one GPU)",
+        "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), quality (256 px, up to 120 000 Gaussians and 1500 "
+        "refinement steps: sharper, slower, more memory; the README's first table says how long it took), paper "
+        "(512 px, one GPU)",
         flag="--preset",
     )
     method: str = setting(
