@@ -4,7 +4,6 @@ pipeline's stage `points` that starts the initial Gaussians from them."""
 from __future__ import annotations
 
 import math
-import re
 import shutil
 
 import pytest
@@ -71,28 +70,6 @@ def test_featureless_photos_give_no_points_and_say_why():
     shuffled = [plane_view(v.camera, texture(seed=i), v.name) for i, v in enumerate(plane_views(count=4, size=96))]
     result = triangulate_views(shuffled, PointsConfig(threads=1))
     assert len(result.points) < MIN_COLMAP_POINTS
-
-
-def test_many_views_triangulate_from_every_other_one_when_that_is_enough(monkeypatch):
-    from matspray.data import triangulate
-
-    monkeypatch.setattr(triangulate, "SPARSE_FROM", 8)  # 8 views count as many here
-    assert triangulate.first_pass(8) == [0, 2, 4, 6] and triangulate.first_pass(7) == list(range(7))
-    views, config = plane_views(count=8), PointsConfig(neighbours=2, threads=1)
-    lines = []
-    enough = triangulate_views(views, config, log=lines.append, enough=MIN_COLMAP_POINTS)
-    assert len(enough.points) >= MIN_COLMAP_POINTS and " from 4 views " in enough.message, enough.message
-    assert not any("adding the rest" in line for line in lines)
-    lines = []
-    wanting = triangulate_views(views, config, log=lines.append, enough=10**6)  # never enough: every view
-    assert " from 8 views " in wanting.message, wanting.message
-    added = [line for line in lines if "adding the rest" in line]
-    assert len(added) == 1 and re.fullmatch(
-        r"points: \d+ points from every other view, fewer than 1000000; adding the rest", added[0]
-    )
-    assert len(wanting.points) > len(enough.points)
-    assert torch.quantile(wanting.points[:, 2].abs(), 0.9) < 0.02 * HALF  # still on the true surface
-    assert " from 8 views " in triangulate_views(views, config).message  # without `enough`: every view at once
 
 
 def test_neighbour_pairs_join_views_near_in_pose():

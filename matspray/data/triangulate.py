@@ -6,10 +6,9 @@ scattered at random in its bounds spend themselves on empty space. Here pycolmap
 held fixed: the training photos (undistorted on load, so pinhole) are written at a modest size (loaded again when
 the run holds them smaller), features are extracted and matched between each view and its `neighbours` nearest
 views in pose (not every pair: a video's frames are many, and far-apart views share little), and
-`pycolmap.triangulate_points` triangulates the verified matches without moving the cameras. A capture of many views
-(a video's frames) is triangulated from every other view first, and from all of them only when that gives fewer
-points than the geometry starts from twice over (`enough_points`). The points are in the scene's world frame:
-COLMAP's cam_from_world is our world-to-camera `viewmat` (both OpenCV axes, pixel centres at +0.5).
+`pycolmap.triangulate_points` triangulates the verified matches without moving the cameras. The points are in the
+scene's world frame: COLMAP's cam_from_world is our world-to-camera `viewmat` (both OpenCV axes, pixel centres at
++0.5).
 
 In a run (`matspray.method.pipeline`) the result is a stage of its own, `points/points.pt`, so a rerun does not redo it.
 """
@@ -35,15 +34,6 @@ from matspray.rundir import RunDir, timed
 from matspray.settings import setting
 
 STAGE, POINTS_FILE = "points", "points.pt"
-# A capture of this many training views or more triangulates from every other view first (`first_pass`), and keeps
-# those points when they are twice the initial Gaussians (`enough_points`): the initialisation draws its points from
-# them, and more cost SIFT and matching time without placing the Gaussians better
-SPARSE_FROM, POINTS_PER_GAUSSIAN = 40, 2
-
-
-def enough_points(init_points: int) -> int:
-    """How many points a first pass must give for a geometry that starts from `init_points` Gaussians."""
-    return POINTS_PER_GAUSSIAN * init_points
 
 
 @dataclass(frozen=True)
@@ -129,11 +119,9 @@ def triangulate_views(
     config: PointsConfig = PointsConfig(),
     progress: bool = False,
     log: Callable[[str], None] = print,
-    enough: int | None = None,
 ) -> Triangulation:
-    """Points [P, 3] and linear colours [P, 3] triangulated from `views` at their cameras; with `enough`, from every
-    other view when they are many and that gives `enough` points (`first_pass`). Never raises for what the photos
-    are like: no features, no matches or no pycolmap give no points and a message that says so."""
+    """Points [P, 3] and linear colours [P, 3] triangulated from `views` at their cameras. Never raises for what the
+    photos are like: no features, no matches or no pycolmap give no points and a message that says so."""
     try:
         import pycolmap
     except ImportError:
@@ -142,7 +130,7 @@ def triangulate_views(
         return _nothing(f"{len(views)} training view(s): triangulation needs two or more")
     with tempfile.TemporaryDirectory(prefix="matspray-points-") as work:
         try:
-            return _triangulate(pycolmap, [v.to("cpu") for v in views], Path(work), config, progress, log, enough)
+            return _triangulate(pycolmap, [v.to("cpu") for v in views], Path(work), config, progress, log)
         except (RuntimeError, ValueError) as exc:  # pycolmap raises these for what it cannot do with the photos
             return _nothing(f"pycolmap failed: {' '.join(str(exc).split())[:160]}")
 
@@ -151,111 +139,63 @@ def _nothing(reason: str) -> Triangulation:
     return Triangulation(torch.zeros(0, 3), torch.zeros(0, 3), reason)
 
 
-def first_pass(count: int) -> list[int]:
-    """The views a first pass triangulates from: every other one of `count` when they are many (a video's neighbouring
-    frames see nearly the same; SIFT and matching cost each view), else all."""
-    return list(range(0, count, 2)) if count >= SPARSE_FROM else list(range(count))
-
-
-@dataclass
-class Scratch:
-    """What the passes of one triangulation share: the views, their scratch photos' names and cameras (at the size
-    SIFT reads), the work folder (images, database, models) and how to report."""
-
-    views: list[View]
-    names: list[str]
-    cameras: dict  # view index -> its camera at the size SIFT reads, once its photo is written
-    work: Path
-    config: PointsConfig
-    progress: bool
-    log: Callable[[str], None]
-
-
-def _triangulate(
-    pycolmap, views: list[View], work: Path, config: PointsConfig, progress: bool, log, enough: int | None
-) -> Triangulation:
-    """Triangulate in passes: from every other view first when the views are many and `enough` is given, then, if
-    that gave fewer than `enough` points, from all of them (the first pass's features and matches kept)."""
-    (work / "images").mkdir()
-    pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
-    names = [f"{i:05d}.png" for i in range(len(views))]
-    scratch = Scratch(views, names, {}, work, config, progress, log)
-    first = first_pass(len(views)) if enough is not None else list(range(len(views)))
-    passes = [first] + ([list(range(len(views)))] if len(first) < len(views) else [])
-    result, done = _nothing("no features found in the training photos"), set()
-    for number, chosen in enumerate(passes):
-        if number:
-            log(f"points: {len(result.points)} points from every other view, fewer than {enough}; adding the rest")
-        result = _pass(pycolmap, scratch, [i for i in chosen if i not in done], chosen, f"{number}")
-        done.update(chosen)
-        if enough is None or len(result.points) >= enough:
-            break
-    return result
-
-
-def _pass(pycolmap, scratch: Scratch, new: list[int], chosen: list[int], number: str) -> Triangulation:
-    """One pass: SIFT features of the views `new` (indices) into the database, matches between each of the views
-    `chosen` and its nearest in pose, points triangulated from all `chosen` at their cameras."""
-    views, names, cameras, work, config = scratch.views, scratch.names, scratch.cameras, scratch.work, scratch.config
+def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, progress: bool, log) -> Triangulation:
     image_dir, database = work / "images", work / "database.db"
-    for i in new:
-        factor = config.max_size / max(views[i].width, views[i].height)
-        small = views[i].scaled(factor) if factor < 1.0 else views[i]
-        cameras[i] = small.camera
+    image_dir.mkdir()
+    names, cameras = [], []
+    for i, view in enumerate(views):
+        factor = config.max_size / max(view.width, view.height)
+        small = view.scaled(factor) if factor < 1.0 else view
+        names.append(f"{i:05d}.png")
+        cameras.append(small.camera)
+        pixels = srgb8(small.image).numpy()
         # scratch files that SIFT reads once: zlib's fastest level (its default, 6, took 3-4 times as long)
-        Image.fromarray(srgb8(small.image).numpy()).save(image_dir / names[i], compress_level=1)
+        Image.fromarray(pixels).save(image_dir / names[-1], compress_level=1)
+    pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
     # SIFT's threshold as structure from motion's: smooth objects need it
     extract_sift(
         database,
         image_dir,
-        [names[i] for i in new],
+        names,
         "PINHOLE",
         pycolmap.CameraMode.PER_IMAGE,
         config.threads,
         SfmConfig.peak_threshold,
-        scratch.progress,
+        progress,
         desc="points: SIFT features",
         batch=8,
     )
-    chosen_names = [names[i] for i in chosen]
     with pycolmap.Database.open(database) as db:  # the known intrinsics replace the ones guessed from the files
         ids = {image.name: (image.image_id, image.camera_id) for image in db.read_all_images()}
-        for i in new:
-            camera, K = db.read_camera(ids[names[i]][1]), cameras[i].K.double().cpu()
+        for image in db.read_all_images():
+            camera, ours = db.read_camera(image.camera_id), cameras[names.index(image.name)]
+            K = ours.K.double().cpu()
             camera.params = [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])]
             camera.has_prior_focal_length = True
             db.update_camera(camera)
-        if not any(db.num_keypoints_for_image(ids[n][0]) for n in chosen_names):
+        if not any(db.num_keypoints_for_image(ids[n][0]) for n in names):
             return _nothing("no features found in the training photos")
-    pairs = [(chosen[i], chosen[j]) for i, j in neighbour_pairs([views[c] for c in chosen], config.neighbours)]
-    (work / f"pairs{number}.txt").write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
-    scratch.log(f"points: matching {len(pairs)} pairs of nearby views ...")
+    pairs = neighbour_pairs(views, config.neighbours)
+    (work / "pairs.txt").write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+    log(f"points: matching {len(pairs)} pairs of nearby views ...")
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = config.threads
     pycolmap.match_image_pairs(
         database,
         matching_options=matching,
-        pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(work / f"pairs{number}.txt")),
+        pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(work / "pairs.txt")),
         device=pycolmap.Device.cpu,
     )
     with pycolmap.Database.open(database) as db:
         if db.num_verified_image_pairs() == 0:
             return _nothing(f"no pair of the {len(pairs)} nearby views shares verified feature matches")
-    reconstruction = posed_reconstruction(
-        pycolmap, work / f"posed{number}", chosen_names, ids, [cameras[i] for i in chosen]
-    )
+    reconstruction = posed_reconstruction(pycolmap, work, names, ids, cameras)
     options = pycolmap.IncrementalPipelineOptions()
     options.num_threads = config.threads
-    scratch.log("points: triangulating at the known cameras ...")
-    (work / f"model{number}").mkdir()
+    log("points: triangulating at the known cameras ...")
+    (work / "model").mkdir()
     model = pycolmap.triangulate_points(
-        reconstruction,
-        database,
-        image_dir,
-        work / f"model{number}",
-        clear_points=True,
-        options=options,
-        refine_intrinsics=False,
+        reconstruction, database, image_dir, work / "model", clear_points=True, options=options, refine_intrinsics=False
     )
     found = list(model.points3D.values())
     if not found:
@@ -263,14 +203,14 @@ def _pass(pycolmap, scratch: Scratch, new: list[int], chosen: list[int], number:
     points = torch.from_numpy(np.array([p.xyz for p in found], dtype=np.float32))
     colours = srgb_to_linear(torch.from_numpy(np.array([p.color for p in found], dtype=np.float32)) / 255.0)
     return Triangulation(
-        points, colours, f"triangulated {len(found)} points from {len(chosen)} views ({len(pairs)} pairs matched)"
+        points, colours, f"triangulated {len(found)} points from {len(views)} views ({len(pairs)} pairs matched)"
     )
 
 
-def posed_reconstruction(pycolmap, model: Path, names: list[str], ids: dict, cameras: list) -> object:
-    """A pycolmap Reconstruction of the images `names` with the database's image and camera ids, our pinhole
-    intrinsics and our poses (COLMAP's text model, written to the new folder `model` and read back, which gives each
-    image its trivial rig and frame)."""
+def posed_reconstruction(pycolmap, work: Path, names: list[str], ids: dict, cameras: list) -> object:
+    """A pycolmap Reconstruction with the database's image and camera ids, our pinhole intrinsics and our poses
+    (COLMAP's text model read back, which gives each image its trivial rig and frame)."""
+    model = work / "posed"
     model.mkdir()
     camera_lines, image_lines = [], []
     for name, camera in zip(names, cameras):
@@ -291,13 +231,7 @@ def posed_reconstruction(pycolmap, model: Path, names: list[str], ids: dict, cam
 
 
 def points_stage(
-    run: RunDir,
-    fingerprint: str,
-    scene: Scene,
-    config: PointsConfig,
-    progress: bool,
-    log: Callable[[str], None],
-    enough: int | None = None,
+    run: RunDir, fingerprint: str, scene: Scene, config: PointsConfig, progress: bool, log: Callable[[str], None]
 ) -> Triangulation:
     """The run's stage `points`: `triangulate_views` of the training views, kept in RUN/points/points.pt (written whole
     or not at all) and reused while its record holds `fingerprint`. With enough points they become the scene's, which
@@ -312,7 +246,7 @@ def points_stage(
         with timed() as timer:
             views = feature_views(scene, config.max_size)
             release_free_memory()  # what reading the photos again freed, before SIFT's threads allocate beside it
-            result = triangulate_views(views, config, progress, log, enough)
+            result = triangulate_views(views, config, progress, log)
             save_torch_atomic({"points": result.points, "colours": result.colours, "message": result.message}, path)
         run.finish_stage(STAGE, fingerprint, config, timer.seconds, {"points": len(result.points)}, timer.peak_mib)
     where = f" (reused {STAGE}/{POINTS_FILE})" if reused else ""

@@ -15,7 +15,7 @@ from functools import partial
 import torch
 
 from matspray.data.scene import dataset_identity
-from matspray.data.triangulate import enough_points, points_stage
+from matspray.data.triangulate import points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
 from matspray.geometry.ply import read_ply
 from matspray.geometry.region import ObjectRegion
@@ -146,11 +146,6 @@ class Pipeline:
         self._stage("predict", self.plan.predict.fingerprint, work)
         return read_materials2d(self.run.root, self.scene.train)
 
-    def _points(self) -> None:
-        """The stage `points` (a capture without masks or points of its own): its points become the scene's."""
-        enough = enough_points(self.config.geometry.init_points)
-        points_stage(self.run, self.plan.points_fp, self.scene, self.config.points, self.progress, self.log, enough)
-
     def crop(self) -> ObjectRegion | None:
         """Cut every photo to its object (matspray.data.crop) before the stages that read them: the windows are found
         once (stage `crop`, from the sparse points) and the scene is read again through them. Returns the region the
@@ -159,7 +154,7 @@ class Pipeline:
         if fp is None or self._cropped:
             return self._crop_region
         if points_fp and not stage_done(self.run, "crop", fp):
-            self._points()
+            points_stage(self.run, points_fp, self.scene, self.config.points, self.progress, self.log)
         self.scene, self._crop_region = crop_stage(
             self.run, fp, self.scene, self.config.crop, self.config.object_bounds, self.log
         )
@@ -187,7 +182,7 @@ class Pipeline:
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             maps = self.predict() if edges or config.predicted_normal_weight > 0 else None
             if self.plan.points_fp and self.scene.points is None:  # (the crop may have read them already)
-                self._points()
+                points_stage(self.run, self.plan.points_fp, self.scene, self.config.points, self.progress, self.log)
             material_maps = [maps_to_tensor(maps[v.name]) for v in self.scene.train] if edges else None
             return self.geometry_normal_targets(maps), material_maps
 

@@ -17,7 +17,7 @@ import torch
 from matspray.data import load_scene
 from matspray.data.crop import CROP_FILE
 from matspray.data.scene import Scene, dataset_identity
-from matspray.data.triangulate import POINTS_FILE, enough_points, first_pass, needs_points
+from matspray.data.triangulate import POINTS_FILE, needs_points
 from matspray.errors import file_error
 from matspray.geometry.config import GeometryConfig
 from matspray.geometry.train import prepare_views
@@ -199,9 +199,7 @@ def resolve_plan(
     options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), scene.source)
     dataset_fp = fingerprint(dataset_identity(scene), config.downscale)
     unmasked, has_maps = not scene.has_masks, config.predictor != NO_PREDICTOR
-    points_fp = None
-    if needs_points(scene, config.points):  # how many points are enough follows the geometry's start
-        points_fp = fingerprint("points", dataset_fp, config.points, enough_points(config.geometry.init_points))
+    points_fp = fingerprint("points", dataset_fp, config.points) if needs_points(scene, config.points) else None
     crop_fp = None
     if unmasked and config.crop.enabled:
         crop_fp = fingerprint("crop", config.crop, config.object_bounds, points_fp or dataset_fp)
@@ -318,8 +316,8 @@ def estimate_work(plan: RunPlan, scene: Scene, run: RunDir, variants=None) -> Wo
     pending = plan.refine is None
     to_refine = [v for v in names if pending or not stage_done(run, asset_stage(v), plan.refine[v].fingerprint)]
     feature_views = []  # the photos the `points` stage extracts features from, before the working size
-    if plan.points_fp:  # its first pass's (most captures of many views have enough points after it)
-        views = [(scene.train[i].width, scene.train[i].height) for i in first_pass(len(scene.train))]
+    if plan.points_fp:
+        views = [(v.width, v.height) for v in scene.train]
         feature_views = feature_sizes(views, scene.downscale, config.points.max_size)
     return run_work(
         [(v.width, v.height) for v in scene.train],
