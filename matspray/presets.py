@@ -81,10 +81,9 @@ PRESET_SETTINGS: dict[str, dict[str, dict]] = {
     "demo": {},
     # demo's sizes, but Gaussian Splatting (and so the lift and refinement of a run without maps) trains on the
     # photos at the working size rather than half of it; 512 px trained worse on held-out photos, and slower
-    # (docs/dev/real-captures.md, "The quality preset"); room for three times the Gaussians, which the object grows
-    # into when densified at a quarter of the threshold (at 40 000 densification stopped at the cap), and a longer
-    # refinement, which the larger photos' detail needs (docs/dev/camera-light.md, "The skull's LPIPS at quality",
-    # and "More Gaussians at quality")
+    # (docs/dev/real-captures.md, "The quality preset"); room for three times demo's Gaussians, which the object
+    # grows into when densified at a quarter of the threshold, and a longer refinement, which the larger photos'
+    # detail needs (docs/dev/camera-light.md, "The skull's LPIPS at quality", and "More Gaussians at quality")
     "quality": {
         "geometry": {"resolution": 256, "max_gaussians": 120_000, "focus_grad_scale": 0.25},
         "refine": {"iterations": 1500},

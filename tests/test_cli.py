@@ -204,3 +204,13 @@ def test_batch_refuses_dataset_folders_that_are_not_there_before_starting_worker
     gone = tmp_path / "gone"
     assert err == f"matspray batch: error: --data: {gone}, {notes}: not a folder (give each object's dataset folder)\n"
     assert not (tmp_path / "out").exists()
+
+
+def test_the_preset_help_names_the_quality_presets_own_sizes():
+    from matspray.method.config import build_config
+
+    quality = build_config("quality")
+    help_text = " ".join(run_cli("run", "--help").stdout.split())
+    sizes = f"{quality.geometry.max_gaussians:,}".replace(",", " ")
+    assert f"quality ({quality.geometry.resolution} px, up to {sizes} Gaussians and" in help_text
+    assert f"and {quality.refine.iterations} refinement steps" in help_text

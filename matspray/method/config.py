@@ -34,6 +34,13 @@ if TYPE_CHECKING:
     from matspray.method.refine.loop import RefineConfig
     from matspray.render.shade.visibility import VisibilityConfig
 
+_QUALITY = PRESET_SETTINGS["quality"]  # its sizes, as `--preset`'s help names them
+QUALITY_SIZES = (
+    f"{_QUALITY['geometry']['resolution']} px, up to "
+    + f"{_QUALITY['geometry']['max_gaussians']:,}".replace(",", " ")
+    + f" Gaussians and {_QUALITY['refine']['iterations']} refinement steps"
+)
+
 # where each section's dataclass lives ("module:Class"), imported when a config is first made
 SECTIONS = {
     "points": "matspray.data.triangulate:PointsConfig",
@@ -78,9 +85,9 @@ NORMAL_PRIOR_WEIGHT = 1.0
 class PipelineConfig:
     preset: str = setting(
         "demo",
-        "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), quality (256 px, up to 120 000 Gaussians and 1500 "
-        "refinement steps: sharper, slower, more memory; the README's first table says how long it took), paper "
-        "(512 px, one GPU)",
+        "sizes: test (tiny, for CI), demo (128 px, 2 CPU cores), "
+        f"quality ({QUALITY_SIZES}: sharper, slower, more memory; the README's first "
+        "table says how long it took), paper (512 px, one GPU)",
         flag="--preset",
     )
     method: str = setting(
