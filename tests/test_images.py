@@ -46,6 +46,37 @@ def test_png_image_with_alpha_is_srgb_decoded(tmp_path):
     assert (rgb2 - rgb).abs().max() < 2e-4  # 16-bit quantisation in sRGB space, mapped back
 
 
+@pytest.mark.parametrize("suffix,bits", [(".png", 8), (".png", 16), (".jpg", 8)])
+@pytest.mark.parametrize("channels", [1, 2, 3, 4])
+def test_integer_files_decode_every_level_as_the_srgb_curve_does(tmp_path, suffix, bits, channels):
+    # every stored level of the file's depth appears: the table that decodes them must give the curve's values,
+    # colour channels decoded, an alpha channel only scaled
+    if suffix == ".jpg" and channels in (2, 4):
+        pytest.skip("JPEG holds no alpha")
+    levels = 2**bits
+    count = min(levels, 4096)
+    stored = np.linspace(0, levels - 1, count).round().astype(np.int64)
+    values = torch.from_numpy(np.stack([np.roll(stored, c * 7) for c in range(channels)], -1) / (levels - 1))
+    path = tmp_path / f"a{suffix}"
+    if suffix == ".jpg":
+        from PIL import Image
+
+        pixels = np.repeat((values[None] * 255).round().numpy().astype(np.uint8), 8, 0)
+        Image.fromarray(pixels[..., 0] if channels == 1 else pixels).save(path, quality=100)
+    else:
+        write_raw(path, values[None].float(), bits=bits)
+    raw = read_raw(path)
+    rgb, alpha = read_image(path)
+    colour = 1 if channels < 3 else 3
+    expected = srgb_to_linear(raw[..., :colour]).expand(*raw.shape[:-1], 3)
+    assert rgb.dtype == torch.float32 and rgb.shape == (*raw.shape[:-1], 3)
+    assert (rgb - expected).abs().max() <= 6e-8  # one float32 step at 1 at most (the curve's power, vectorised)
+    if channels in (2, 4):
+        assert torch.equal(alpha, raw[..., -1])
+    else:
+        assert alpha is None
+
+
 def test_exr_round_trip_is_exact(tmp_path):
     for channels in (1, 3, 4):
         values = torch.randn(9, 4, channels) * 100

@@ -6,6 +6,7 @@ values for scalar maps such as roughness); EXR and HDR hold linear values.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import struct
@@ -99,10 +100,12 @@ def read_image(path, orient: bool = False) -> tuple[Tensor, Tensor | None]:
     PNG/JPG are decoded from sRGB; EXR/HDR are read as stored. `orient`: turn photos upright as their
     EXIF orientation tag says (what a photo viewer shows).
     """
-    values = read_raw(path, orient=orient)  # [H, W, C] in the file's own encoding, [0, 1] for LDR
     path = Path(path)
-    rgb, alpha = split_alpha(values)
-    if path.suffix.lower() in LDR_SUFFIXES:
+    stored = _read_stored(path, orient)  # [H, W, C] as the file holds it
+    if stored.dtype.kind == "u":  # 8- or 16-bit sRGB: decoded by a table of every stored level
+        return split_alpha(torch.from_numpy(_decode_srgb_levels(stored)))
+    rgb, alpha = split_alpha(torch.from_numpy(stored))
+    if path.suffix.lower() in LDR_SUFFIXES:  # a rarer mode of an sRGB file, read as floats
         rgb = srgb_to_linear(rgb)
     return rgb, alpha
 
@@ -121,7 +124,31 @@ def split_alpha(values: Tensor) -> tuple[Tensor, Tensor | None]:  # [H, W, C] ->
 def read_raw(path, orient: bool = False) -> Tensor:
     """Read stored values without colour decoding: [H, W, C] float32, LDR scaled to [0, 1]
     (`orient`: apply the EXIF orientation of 8-bit PNG and JPEG files)."""
-    path = Path(path)
+    stored = _read_stored(Path(path), orient)
+    if stored.dtype.kind == "u":
+        stored = stored.astype(np.float32) / float(np.iinfo(stored.dtype).max)
+    return torch.from_numpy(stored)
+
+
+@functools.lru_cache(maxsize=None)
+def _srgb_levels(dtype: str) -> np.ndarray:  # [256] or [65536] float32: each stored level of an integer file, linear
+    levels = np.arange(np.iinfo(dtype).max + 1, dtype=np.float32) / float(np.iinfo(dtype).max)
+    return srgb_to_linear(torch.from_numpy(levels)).numpy()
+
+
+def _decode_srgb_levels(stored: np.ndarray) -> np.ndarray:  # [H, W, C] uint8 | uint16 -> [H, W, C] float32
+    """The colour channels decoded from sRGB by a table of the file depth's levels (`srgb_to_linear` of the scaled
+    levels: a gather a value instead of a power), an alpha channel scaled as it is."""
+    colour = 3 if stored.shape[-1] >= 3 else 1
+    out = np.empty(stored.shape, np.float32)
+    np.take(_srgb_levels(stored.dtype.name), stored[..., :colour], out=out[..., :colour])
+    out[..., colour:] = stored[..., colour:] / np.float32(np.iinfo(stored.dtype).max)
+    return out
+
+
+def _read_stored(path: Path, orient: bool) -> np.ndarray:
+    """[H, W, C] as the file stores it: uint8 or uint16 for 8- and 16-bit PNG and JPEG (their rarer modes as float32
+    in [0, 1]), float32 for the others."""
     if not path.exists():
         raise file_error(path, "file does not exist")
     suffix = path.suffix.lower()
@@ -150,10 +177,12 @@ def read_raw(path, orient: bool = False) -> Tensor:
         array = array[..., None]
     if array.ndim != 3:
         raise file_error(path, f"expected a 2D image, got an array of shape {array.shape}")
+    if array.dtype.kind == "u":
+        return np.ascontiguousarray(array)
     if not np.isfinite(array).all():
         bad = int((~np.isfinite(array)).sum())
         raise file_error(path, f"holds {bad} NaN or Inf values", "re-export the file with finite values")
-    return torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32))
+    return np.ascontiguousarray(array, dtype=np.float32)
 
 
 EXIF_ORIENTATION = 0x0112
@@ -209,6 +238,8 @@ def _read_pillow(path: Path, orient: bool = False) -> np.ndarray:
             return np.asarray(img, dtype=np.float32) / 65535.0
         if img.mode == "1":
             img = img.convert("L")
+        if img.mode in ("L", "LA", "RGB", "RGBA"):
+            return np.asarray(img, dtype=np.uint8)
         return np.asarray(img, dtype=np.float32) / 255.0
 
 
@@ -233,7 +264,7 @@ def _read_png_unchecked(path: Path, png, orient: bool) -> np.ndarray:
     width, height, rows, info = png.Reader(filename=str(path)).asDirect()
     planes = info["planes"]
     array = np.vstack([np.asarray(row, dtype=np.uint16) for row in rows]).reshape(height, width, planes)
-    return array.astype(np.float32) / 65535.0
+    return array
 
 
 def _read_exr(path: Path) -> np.ndarray:
