@@ -73,7 +73,35 @@ def table_real_objects(results=None) -> str:
     return "\n".join(lines)
 
 
+PRESET_PURPOSES = {  # what each preset is for: docs text, beside the sizes the code holds
+    "test": "a quick check that everything runs",
+    "demo": "(default) a real capture on a 2-core CPU, in minutes",
+    "quality": "sharper, for a longer run and more memory",
+    "paper": "the paper's settings, on a GPU ([gpu.md](gpu.md))",
+}
+
+
+def table_presets(results=None) -> str:
+    """docs/guide/your-photos.md's table of the presets, each one's sizes resolved from `matspray.presets`."""
+    from matspray.method.config import build_config  # torch: only when this table is made
+    from matspray.presets import PRESETS, WORKING_SIZE
+
+    lines = [
+        "| `--preset` | for | photos' longest side | Gaussian Splatting trains at | its steps | Gaussians at most "
+        "| refinement steps |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for preset in PRESETS:
+        config = build_config(preset)
+        geometry = config.geometry
+        cells = (f"`{preset}`", PRESET_PURPOSES[preset], f"{WORKING_SIZE[preset]} px", f"{geometry.resolution} px")
+        cells += tuple(f"{n:,}".replace(",", " ") for n in (geometry.iterations, geometry.max_gaussians))
+        lines.append("| " + " | ".join((*cells, f"{config.refine.iterations:,}".replace(",", " "))) + " |")
+    return "\n".join(lines)
+
+
 EXTRA = {  # the tables `benchmarks.tables` makes from the code and the committed files rather than docs/results
     "methods": (table_methods, []),
     "real-objects": (table_real_objects, []),
+    "presets": (table_presets, []),
 }
