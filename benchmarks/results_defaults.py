@@ -25,12 +25,12 @@ def flat(settings: dict, prefix: str = "") -> dict:
 
 
 def stale_defaults(settings: dict) -> dict[str, list[str]]:
-    """{method: what differs} between the defaults a pass recorded (its `settings`) and today's; empty when they
-    agree. What differs: each setting changed, added or gone, or `fingerprint` alone when the pass recorded no
-    settings to compare with."""
+    """{method: what differs} between the defaults a pass recorded (its `settings`) and today's, for the method the
+    pass ran (both where it names none); empty when they agree. What differs: each setting changed, added or gone, or
+    `fingerprint` alone when the pass recorded no settings to compare with."""
     recorded = settings.get("defaults") or {}
     stale = {}
-    for method in METHODS:
+    for method in [settings["method"]] if settings.get("method") in METHODS else METHODS:
         today = default_settings(settings["preset"], method)
         if recorded.get(method) == fingerprint(today):
             continue

@@ -193,6 +193,15 @@ ADDITIONS = (
         f"l.460 names a NeRF-style encoding without its size; {RELEASED}: 4 octaves",
     ),
     Addition(
+        "ablation-offset",
+        "refine.merger.unconstrained",
+        "raw",
+        "the softmax ablation's merger starts at the projection average (weights 1/n_seen plus its output, whose last "
+        "layer starts at zero)",
+        "l.407, l.417 (the supplement's ablation): the Softmax layer removed, the merger is unconstrained: the MLP's "
+        f"outputs, initialised as {RELEASED} initialises its layers, are the weights",
+    ),
+    Addition(
         "merger-bfloat16",
         "refine.merger.precision",
         "float32",

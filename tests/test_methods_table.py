@@ -105,3 +105,29 @@ def test_the_defaults_fingerprint_follows_every_default_and_nothing_of_one_run(m
     assert demo != paper and demo == defaults_fingerprint("demo")
     monkeypatch.setitem(presets.PRESET_SETTINGS, "demo", {"refine": {"iterations": 601}})
     assert defaults_fingerprint("demo") != demo  # a changed default is another set of defaults
+
+
+def test_the_papers_softmax_ablation_is_its_merger_with_the_softmax_taken_out():
+    import torch
+
+    from matspray.method.merger import projection_average
+    from matspray.method.refine.sources import MergerSource
+    from matspray.presets import get_variant
+
+    paper, ours = build_config("demo", "paper"), build_config("demo")
+    assert variant_refine_config(paper, "no-softmax").merger.unconstrained == "raw"
+    assert variant_refine_config(ours, "no-softmax").merger.unconstrained == "offset"
+    # the variants that do not read the rule record it at its default: their stages keep their fingerprints
+    for name in set(VARIANT_NAMES) - {"no-softmax"}:
+        assert variant_refine_config(paper, name).merger.unconstrained == "offset", name
+    g = torch.Generator().manual_seed(0)
+    positions, values, seen = torch.rand(40, 3, generator=g), torch.rand(40, 5, 5, generator=g), torch.ones(40, 5) > 0
+    bounds = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    average = projection_average(values, seen)
+    for config, starts_at_average in ((paper, False), (ours, True)):
+        torch.manual_seed(0)
+        merger = variant_refine_config(config, "no-softmax").merger
+        source = MergerSource(get_variant("no-softmax"), positions, values, seen, bounds, merger)
+        with torch.no_grad():
+            merged = source.merger(positions, values, seen)
+        assert torch.allclose(merged, average, atol=1e-6) == starts_at_average

@@ -43,6 +43,15 @@ def test_a_changed_default_is_named_for_the_method_it_changed():
     assert stale_defaults(settings) == {}
 
 
+def test_a_pass_is_tied_to_the_defaults_of_the_method_it_ran():
+    settings = recorded()
+    settings["default_settings"]["paper"]["refine"]["iterations"] += 1  # paper's defaults changed since the pass
+    settings["defaults"]["paper"] = "0" * 16
+    assert stale_defaults({**settings, "method": "matspray"}) == {}  # a pass of the default method measured none
+    assert stale_defaults({**settings, "method": "paper"}) == {"paper": ["refine.iterations"]}
+    assert stale_defaults(settings) == {"paper": ["refine.iterations"]}  # a pass that names no method: both
+
+
 def test_flat_names_every_setting_by_its_dotted_path():
     assert flat({"a": 1, "b": {"c": 2, "d": {"e": None}}, "f": {}}) == {"a": 1, "b.c": 2, "b.d.e": None, "f": {}}
     assert "refine.iterations" in flat(default_settings("test"))

@@ -278,13 +278,16 @@ def build_config(
 def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
     """The refinement settings of one variant: the run's, with the variant and the refinement seed
     (`refine_seed`, else the run's `seed`); a variant without the 2D maps' loss weighs the photometric loss 1, as
-    `refine.photo_weight` weighs it against that loss; only photos-only keeps its metallic prior's settings."""
+    `refine.photo_weight` weighs it against that loss; only photos-only keeps its metallic prior's settings, and only
+    no-softmax its merger's rule for unconstrained weights."""
     kind = get_variant(variant)
     seed = config.seed if config.refine_seed is None else config.refine_seed
     photo_weight = config.refine.photo_weight if kind.uses_maps else 1.0
     refine = replace(config.refine, variant=variant, seed=seed, photo_weight=photo_weight)
     if not kind.dielectric_prior:  # photos-only's own: recorded off for the others, whose refinement they do not change
         refine = replace(refine, metallic_prior_weight=0.0, metallic_prior_start=0.5, basecolor_start="grey")
+    if kind.softmax or kind.source != "merger":  # no-softmax's own, recorded at its default for the others
+        refine = replace(refine, merger=replace(refine.merger, unconstrained=type(refine.merger).unconstrained))
     return refine
 
 
