@@ -26,7 +26,7 @@ from pathlib import Path
 from benchmarks.tables_cli import table_cli
 from benchmarks.tables_extra import EXTRA
 from benchmarks.tables_figures import hand_typed_figures
-from benchmarks.tables_files import object_table, read
+from benchmarks.tables_files import grouped, object_table, read
 from benchmarks.tables_real_eval import REAL_EVAL_TABLES
 from benchmarks.tables_shadows import SHADOW_TABLES
 from matspray.predictors import CHANNELS
@@ -356,7 +356,7 @@ def table_real_captures(results: Path) -> str:
             row("mask coverage of the held-out views", coverage),
             row(
                 "Gaussians: geometry / asset (object region)",
-                lambda r: f"{r['gaussians_geometry']:,} / {r['gaussians_asset']:,}".replace(",", " "),
+                lambda r: f"{grouped(r['gaussians_geometry'])} / {grouped(r['gaussians_asset'])}",
             ),
             row("object region (automatic)", lambda r: r["region"].replace(" (chosen automatically)", "")),
             row("exported glb box (dataset world)", box),
@@ -378,7 +378,7 @@ def table_captures_headline(results: Path) -> str:
         photos = f"cut to the object ({r['crop_gain']:.2f}x across)" if r.get("crop_gain") else "whole"
         lines.append(
             f"| {name} | {photos} | {len(r['mask_coverage'])} | {metric_triple(r['heldout']['no-prior'])} | "
-            + f"{r['gaussians_asset']:,} |".replace(",", " ")
+            + f"{grouped(r['gaussians_asset'])} |"
         )
     return "\n".join(lines)
 
@@ -405,7 +405,7 @@ def table_capture_quality(results: Path) -> str:
             f"| the {asset} asset under its estimated light{flash} | {cells(r['heldout'][asset])} |",
             "",
             f"Preset `{r['preset']}`: {len(r['mask_coverage'])} held-out photos, "
-            + f"{r['gaussians_asset']:,}".replace(",", " ")
+            + grouped(r["gaussians_asset"])
             + f" Gaussians in the asset; `matspray run` took {seconds / 60:.0f} min and at most"
             + f" {peak / 1024:.1f} GB of memory on a 2-core CPU.",
         ]

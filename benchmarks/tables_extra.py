@@ -6,6 +6,7 @@ objects, measured on their files."""
 
 from __future__ import annotations
 
+from benchmarks.tables_files import grouped
 from matspray.presets import ADDITIONS, RELEASED_VALUES
 
 
@@ -57,12 +58,12 @@ def table_real_objects(results=None) -> str:
             size = path.stat().st_size
             total += size
             share = parts_metal_share(parts, textures)  # the file read once
-            cells = (f"`{which}`", spec.name, spec.licence, f"{triangles:,}".replace(",", " "))
+            cells = (f"`{which}`", spec.name, spec.licence, grouped(triangles))
             cells += (
                 f"{side} px",
                 f"{share:.2f}",
                 spec.kind,
-                f"{size // 1000:,} kB".replace(",", " "),
+                f"{grouped(size // 1000)} kB",
             )
             lines.append("| " + " | ".join(cells) + " |")
     lines += [
@@ -95,8 +96,8 @@ def table_presets(results=None) -> str:
         config = build_config(preset)
         geometry = config.geometry
         cells = (f"`{preset}`", PRESET_PURPOSES[preset], f"{WORKING_SIZE[preset]} px", f"{geometry.resolution} px")
-        cells += tuple(f"{n:,}".replace(",", " ") for n in (geometry.iterations, geometry.max_gaussians))
-        lines.append("| " + " | ".join((*cells, f"{config.refine.iterations:,}".replace(",", " "))) + " |")
+        cells += tuple(grouped(n) for n in (geometry.iterations, geometry.max_gaussians, config.refine.iterations))
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

@@ -1,6 +1,6 @@
 """What the generated tables' modules share (`benchmarks.tables` and its table modules import it, never the other
 way): a results file read with the missing-file message, one error model's per-object table in
-benchmarks.generalise's format, and a plain mean."""
+benchmarks.generalise's format, a plain mean, and counts grouped by thousands."""
 
 from __future__ import annotations
 
@@ -26,3 +26,8 @@ def object_table(report: dict, model: str) -> list[str]:
 def mean(values) -> float:
     values = list(values)
     return sum(values) / len(values)
+
+
+def grouped(count: int) -> str:
+    """12345 -> "12 345": the docs' way of writing counts."""
+    return f"{count:,}".replace(",", " ")

@@ -125,15 +125,16 @@ def read_raw(path, orient: bool = False) -> Tensor:
     """Read stored values without colour decoding: [H, W, C] float32, LDR scaled to [0, 1]
     (`orient`: apply the EXIF orientation of 8-bit PNG and JPEG files)."""
     stored = _read_stored(Path(path), orient)
-    if stored.dtype.kind == "u":
-        stored = stored.astype(np.float32) / float(np.iinfo(stored.dtype).max)
-    return torch.from_numpy(stored)
+    return torch.from_numpy(_scaled(stored) if stored.dtype.kind == "u" else stored)
+
+
+def _scaled(levels: np.ndarray) -> np.ndarray:  # [...] uint8 | uint16 -> [...] float32 in [0, 1]
+    return levels.astype(np.float32) / float(np.iinfo(levels.dtype).max)
 
 
 @functools.lru_cache(maxsize=None)
 def _srgb_levels(dtype: str) -> np.ndarray:  # [256] or [65536] float32: each stored level of an integer file, linear
-    levels = np.arange(np.iinfo(dtype).max + 1, dtype=np.float32) / float(np.iinfo(dtype).max)
-    return srgb_to_linear(torch.from_numpy(levels)).numpy()
+    return srgb_to_linear(torch.from_numpy(_scaled(np.arange(np.iinfo(dtype).max + 1, dtype=dtype)))).numpy()
 
 
 def _decode_srgb_levels(stored: np.ndarray) -> np.ndarray:  # [H, W, C] uint8 | uint16 -> [H, W, C] float32
@@ -142,7 +143,7 @@ def _decode_srgb_levels(stored: np.ndarray) -> np.ndarray:  # [H, W, C] uint8 | 
     colour = 3 if stored.shape[-1] >= 3 else 1
     out = np.empty(stored.shape, np.float32)
     np.take(_srgb_levels(stored.dtype.name), stored[..., :colour], out=out[..., :colour])
-    out[..., colour:] = stored[..., colour:] / np.float32(np.iinfo(stored.dtype).max)
+    out[..., colour:] = _scaled(stored[..., colour:])
     return out
 
 
