@@ -143,7 +143,7 @@ def variant_step_ratios(variants, points: int = 300, short: int = 2, long: int =
     runs that differ only in their step count, so the set-up cancels. A step on the GPU waits on its launches (one
     per operation; docs/dev/gpu.md), and a count does not move with the machine's load as a CPU time does."""
     from benchmarks.graph_replay import graph_stand_in
-    from benchmarks.step_cost import counting, normals_by_torch
+    from benchmarks.step_cost import as_on_a_gpu, counting
     from matspray.device import capturing_with
     from matspray.method.refine.loop import refine
     from matspray.render.backend import rendering_with
@@ -152,7 +152,7 @@ def variant_step_ratios(variants, points: int = 300, short: int = 2, long: int =
     names = ("full", *[v for v in variants if v != "full" and get_variant(v).trains])
     operations = {}
     cpu = torch.device("cpu")
-    with rendering_with("numba"), normals_by_torch(), capturing_with(graph_stand_in):
+    with rendering_with("numba"), as_on_a_gpu(), capturing_with(graph_stand_in):
         inputs = tiny_inputs(points)
         for name in names:
 

@@ -15,8 +15,9 @@ that reaches a kernel (autograd's backward ones too, composite operations as the
 
 Paths (`--path`):
   - `cpu`: backend numba with its compiled per-Gaussian work (SH colour, normals), what a CPU run does;
-  - `gpu`: backend numba's rasterizer, but SH colour and normals by torch operations, as on a CUDA device where
-    gsplat rasterizes (gsplat's own launches, about ten per step, are not in the count);
+  - `gpu`: backend numba's rasterizer, but SH colour and normals by torch operations and the merger's groups in
+    batched products, as on a CUDA device where gsplat rasterizes (gsplat's own launches, about ten per step, are
+    not in the count);
   - on `--device cuda`, the run's own backend (gsplat when it loads).
 
     python -m benchmarks.step_cost [--path cpu gpu] [--units geometry refine lift] [--json FILE]
@@ -182,17 +183,20 @@ def counting(device: torch.device, without_numba: bool = False):
 
 
 @contextmanager
-def normals_by_torch():
-    """The Gaussians' normals by torch operations, as on a CUDA device, while backend numba rasterizes (its SH colour
-    stays one fused call each way, as gsplat's kernel is there)."""
+def as_on_a_gpu():
+    """What a CUDA device does op by op while backend numba rasterizes: the Gaussians' normals by torch operations,
+    and the merger's groups in one batched product per layer (SH colour stays one fused call each way, as gsplat's
+    kernel is there)."""
     import matspray.geometry.normals as normals_module
+    import matspray.method.merger as merger_module
 
-    saved = normals_module.compiled_on_cpu
+    saved = normals_module.compiled_on_cpu, merger_module.batched_products
     normals_module.compiled_on_cpu = lambda device: False
+    merger_module.batched_products = lambda device: True
     try:
         yield
     finally:
-        normals_module.compiled_on_cpu = saved
+        normals_module.compiled_on_cpu, merger_module.batched_products = saved
 
 
 # ------------------------------------------------------------------------------------------ the tiny object
@@ -306,7 +310,7 @@ def measure(unit: str, path: str, device: torch.device, graphs: bool | None = No
     else:
         with rendering_with("torch" if path == "gpu" and unit == "lift" else "numba"):
             if path == "gpu":
-                with normals_by_torch():
+                with as_on_a_gpu():
                     count, units = UNITS[unit](device, counter, **options)
             else:
                 count, units = UNITS[unit](device, counter, **options)

@@ -217,6 +217,49 @@ def test_the_batched_groups_merge_as_one_mlp_per_group():
     torch.testing.assert_close(merger(positions, values, seen), per_group_merge(merger, positions, values, seen))
 
 
+def test_each_group_multiplies_its_own_inputs_on_the_cpu_and_merges_as_the_batched_products(monkeypatch):
+    import matspray.method.merger as merger_module
+
+    merger = NeuralMerger(6, BOUNDS, MergerConfig(precision="float32"))
+    randomise(merger)
+    with torch.no_grad():
+        for p in merger.parameters():
+            p.mul_(0.1)
+        merger.weights[0][1:, :, 39 + 6 :] = 0.0  # the padding of the one-channel groups, as the merger keeps it
+    positions, values, seen = random_inputs()
+    merged = {}
+    for batched in (False, True):  # a product per group (the CPU), one batched product per layer (a GPU)
+        monkeypatch.setattr(merger_module, "batched_products", lambda device: batched)
+        merger.zero_grad()
+        with ProductShapes() as products:
+            out = merger(positions, values, seen)
+        out.square().sum().backward()
+        merged[batched] = out, [p.grad.clone() for p in merger.parameters()]
+        if batched:
+            assert products.shapes == []  # no product per group
+        else:  # the first layer's product of each group at its own width: no product over the padding
+            assert [shapes[1][1] for shapes in products.shapes[:: len(merger.weights)]] == [39 + 6 * 3, 39 + 6, 39 + 6]
+    torch.testing.assert_close(merged[False][0], merged[True][0])
+    for per_group, one_batch in zip(merged[False][1], merged[True][1]):
+        torch.testing.assert_close(per_group, one_batch)
+    monkeypatch.undo()
+    assert merger_module.batched_products(torch.device("cuda"))
+    assert not merger_module.batched_products(torch.device("cpu"))
+
+
+class ProductShapes(TorchDispatchMode):
+    """The operand shapes of every addmm (bias, mat1, mat2) run inside it."""
+
+    def __init__(self):
+        super().__init__()
+        self.shapes = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        if func is torch.ops.aten.addmm.default:
+            self.shapes.append([tuple(a.shape) for a in args[:3]])
+        return func(*args, **(kwargs or {}))
+
+
 def test_a_checkpoint_with_one_mlp_per_group_loads(tmp_path):
     import dataclasses
 
@@ -265,7 +308,7 @@ class ProductDtypes(TorchDispatchMode):
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         out = func(*args, **(kwargs or {}))
-        if func is torch.ops.aten.baddbmm.default:
+        if func is torch.ops.aten.addmm.default:
             self.dtypes.append(out.dtype)
         return out
 

@@ -141,6 +141,13 @@ def merge_weights(logits: Tensor, seen: Tensor, softmax: bool, unconstrained: st
     return (1.0 / n_seen + logits) * seen
 
 
+def batched_products(device: torch.device) -> bool:
+    """Whether the channel groups' MLPs run as one batched product per layer over the padded inputs: on a GPU, where
+    every product is a kernel launch; on the CPU a product per group at its own width is faster (MKL's batched
+    product ran slower than the same products one by one, and the padding is left out: docs/dev/demo-time.md)."""
+    return device.type != "cpu"
+
+
 class NeuralMerger(nn.Module):
     def __init__(self, n_views: int, bounds: Tensor, config: MergerConfig | None = None):
         """`bounds` [2, 3]: the object's box; positions are mapped to [-1, 1] inside it."""
@@ -149,19 +156,16 @@ class NeuralMerger(nn.Module):
         self.n_views = int(n_views)
         self.register_buffer("bounds", torch.as_tensor(bounds, dtype=torch.float32).clone())
         pe_dim = 3 * (1 + 2 * self.config.frequencies)
+        per_view = [group.stop - group.start + int(self.config.seen_input) for group in GROUPS.values()]
+        self.input_widths = [pe_dim + self.n_views * n for n in per_view]  # each group's own MLP input
         # one MLP per group, made (and initialised) one after the other, then kept layer by layer as batches: a
         # layer's weights [G, out, in] (the first layer's padded with zero columns to the widest group's input, which
         # the padded inputs meet: their gradient is 0, so they stay 0) and biases [G, 1, out], so that one batched
-        # product runs every group's layer
+        # product can run every group's layer (`batched_products`)
+        zero_head = self.config.softmax or self.config.unconstrained == "offset"
         mlps = [
-            mlp(
-                pe_dim + self.n_views * (group.stop - group.start + int(self.config.seen_input)),
-                self.n_views,
-                self.config.hidden,
-                self.config.layers,
-                zero_head=self.config.softmax or self.config.unconstrained == "offset",
-            )
-            for group in GROUPS.values()
+            mlp(width, self.n_views, self.config.hidden, self.config.layers, zero_head=zero_head)
+            for width in self.input_widths
         ]
         self.weights, self.biases = nn.ParameterList(), nn.ParameterList()
         for linears in zip(*([m for m in sequence if isinstance(m, nn.Linear)] for sequence in mlps)):
@@ -201,19 +205,39 @@ class NeuralMerger(nn.Module):
         # float64 inputs (gradient checks) keep their precision
         lower = masked_values.dtype == torch.float32 and mlp_dtype(self.config.precision, device) == torch.bfloat16
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=lower):
-            hidden = inputs
-            for i, (weights, biases) in enumerate(zip(self.weights, self.biases)):
-                hidden = torch.baddbmm(biases, hidden, weights.transpose(1, 2))  # [G, N, out]
-                if i < len(self.weights) - 1:
-                    # in place: the product's backward does not read its output, so ReLU may overwrite it (no extra
-                    # [G, N, hidden] tensor per layer and step)
-                    hidden = hidden.relu_()
-        logits = hidden.to(masked_values.dtype)  # [G, N, V]: bfloat16 back to float32
+            if batched_products(device):
+                logits = self._batched_logits(inputs)
+            else:
+                logits = torch.stack([self._group_logits(g, inputs[g]) for g in range(len(self.input_widths))])
+        logits = logits.to(masked_values.dtype)  # [G, N, V]: bfloat16 back to float32
         w = merge_weights(logits, seen, self.config.softmax, self.config.unconstrained)  # [G, N, V]
         channel_weights = w.index_select(0, self.channel_groups).permute(1, 2, 0)  # [N, V, 5]
         # unconstrained weights (no softmax) can leave [0, 1]; with softmax only rounding can: keep materials valid
         out = (channel_weights * masked_values).sum(1).clamp(0.0, 1.0)
         return (out, dict(zip(GROUPS, w.unbind(0)))) if return_weights else out
+
+    def _batched_logits(self, inputs: Tensor) -> Tensor:  # [G, N, D] -> [G, N, V]
+        """Every group's MLP at once, one batched product per layer (the padding included)."""
+        hidden = inputs
+        for i, (weights, biases) in enumerate(zip(self.weights, self.biases)):
+            hidden = torch.baddbmm(biases, hidden, weights.transpose(1, 2))  # [G, N, out]
+            if i < len(self.weights) - 1:
+                # in place: the product's backward does not read its output, so ReLU may overwrite it (no extra
+                # [G, N, hidden] tensor per layer and step)
+                hidden = hidden.relu_()
+        return hidden
+
+    def _group_logits(self, g: int, inputs: Tensor) -> Tensor:  # [N, D] -> [N, V]
+        """Group g's MLP, a product per layer at the group's own input width (its first layer leaves out the
+        padding)."""
+        hidden = inputs[:, : self.input_widths[g]]
+        last = len(self.weights) - 1
+        for i, (weights, biases) in enumerate(zip(self.weights, self.biases)):
+            weight = weights[g, :, : self.input_widths[g]] if i == 0 else weights[g]  # [out, in]
+            hidden = torch.addmm(biases[g, 0], hidden, weight.t())  # [N, out]
+            if i < last:
+                hidden = hidden.relu_()  # in place, as in _batched_logits
+        return hidden
 
     def forward(
         self,
