@@ -127,11 +127,14 @@ def test_no_temporary_files_left(tmp_path):
 
 
 def test_resize_area_preserves_mean_and_nearest_keeps_values():
-    image = torch.rand(32, 48, 3)
+    g = torch.Generator().manual_seed(0)  # the global generator's state depends on which tests ran before
+    image = torch.rand(32, 48, 3, generator=g)
     small = resize(image, 16, 24)
     assert small.shape == (16, 24, 3)
-    assert torch.allclose(small.mean((0, 1)), image.mean((0, 1)), atol=1e-3)
-    mask = (torch.rand(32, 48) > 0.5).float()
+    # antialiased bilinear weighs the border rows and columns differently from the inner ones; the box mean does not
+    assert torch.allclose(small.mean((0, 1)), image.mean((0, 1)), atol=2e-3)
+    assert torch.allclose(resize(image, 16, 24, mode="box").mean((0, 1)), image.mean((0, 1)), atol=1e-6)
+    mask = (torch.rand(32, 48, generator=g) > 0.5).float()
     assert set(resize(mask, 8, 12, mode="nearest").unique().tolist()) <= {0.0, 1.0}
 
 
