@@ -132,3 +132,22 @@ def test_a_resized_photo_gets_the_focal_plane_resolution_of_its_pixels(tmp_path,
         kept = written.getexif().get_ifd(0x8769)
     assert (kept[0xA002], kept[0xA003]) == (width, height) == ((80, 60) if max_size > 80 else (40, 30))
     assert kept[0xA20E] == pytest.approx(1000.0 * width / 4000) and kept[0x920A] == 50.0
+
+
+def test_features_are_extracted_in_batches_of_24_photos_and_a_single_camera_is_shared(monkeypatch, tmp_path):
+    import pycolmap
+
+    from matspray.data.sfm import extract_sift
+
+    calls = []
+
+    def record(database, image_dir, image_names, camera_mode, reader_options, extraction_options, device):
+        calls.append((list(image_names), reader_options.existing_camera_id, extraction_options.num_threads))
+
+    monkeypatch.setattr(pycolmap, "extract_features", record)
+    names = [f"{i:05d}.png" for i in range(50)]
+    extract_sift(tmp_path / "db", tmp_path, names, "PINHOLE", pycolmap.CameraMode.SINGLE, 2, 0.004, progress=False)
+    assert [len(batch) for batch, _, _ in calls] == [24, 24, 2]
+    assert [name for batch, _, _ in calls for name in batch] == names  # every photo once, in order
+    assert [camera for _, camera, _ in calls][1:] == [1, 1]  # the later batches share the first one's camera
+    assert {threads for _, _, threads in calls} == {2}

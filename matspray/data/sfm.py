@@ -245,10 +245,12 @@ def extract_sift(
     peak_threshold: float,
     progress: bool,
     desc: str = "SIFT features",
-    batch: int = 4,
+    batch: int = 24,
 ) -> None:
-    """SIFT features of the images `names` of `image_dir` into the COLMAP `database`, on the CPU, in small batches
-    for the progress bar; with a single camera (CameraMode.SINGLE) every batch shares the first one's."""
+    """SIFT features of the images `names` of `image_dir` into the COLMAP `database`, on the CPU, `batch` photos a
+    call for the progress bar; with a single camera (CameraMode.SINGLE) every batch shares the first one's. The
+    batches are not small: each call ends waiting for its slowest photo with the other threads idle, and starts its
+    extractor again (docs/dev/real-captures.md, "SIFT in fewer calls")."""
     import pycolmap
 
     reader = pycolmap.ImageReaderOptions()

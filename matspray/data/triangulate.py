@@ -163,7 +163,6 @@ def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, 
         SfmConfig.peak_threshold,
         progress,
         desc="points: SIFT features",
-        batch=8,
     )
     with pycolmap.Database.open(database) as db:  # the known intrinsics replace the ones guessed from the files
         ids = {image.name: (image.image_id, image.camera_id) for image in db.read_all_images()}
