@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from matspray.errors import ConfigError
 
@@ -302,6 +303,15 @@ VARIANTS: dict[str, Variant] = {
     )
 }
 VARIANT_NAMES = tuple(VARIANTS)
+# refinement's settings that only some variants read: {dotted setting: (whether a variant reads it, what every other
+# variant records in its place)}, so that changing one leaves the others' stages and fingerprints alone; None records
+# the setting's own default
+VARIANT_OWNED_SETTINGS: dict[str, tuple[Callable[[Variant], bool], object]] = {
+    "metallic_prior_weight": (lambda v: v.dielectric_prior, 0.0),
+    "metallic_prior_start": (lambda v: v.dielectric_prior, 0.5),
+    "basecolor_start": (lambda v: v.dielectric_prior, "grey"),
+    "merger.unconstrained": (lambda v: v.source == "merger" and not v.softmax, None),
+}
 # the paper's method, its ablations and its baseline: what `matspray demo` refines and scores (not the user's asset)
 PAPER_VARIANTS = tuple(v.name for v in VARIANTS.values() if not v.dielectric_prior)
 LABELS = {v.name: v.label for v in VARIANTS.values()}

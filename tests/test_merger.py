@@ -231,7 +231,7 @@ def test_each_group_multiplies_its_own_inputs_on_the_cpu_and_merges_as_the_batch
     for batched in (False, True):  # a product per group (the CPU), one batched product per layer (a GPU)
         monkeypatch.setattr(merger_module, "batched_products", lambda device: batched)
         merger.zero_grad()
-        with ProductShapes() as products:
+        with Products() as products:
             out = merger(positions, values, seen)
         out.square().sum().backward()
         merged[batched] = out, [p.grad.clone() for p in merger.parameters()]
@@ -247,17 +247,19 @@ def test_each_group_multiplies_its_own_inputs_on_the_cpu_and_merges_as_the_batch
     assert not merger_module.batched_products(torch.device("cpu"))
 
 
-class ProductShapes(TorchDispatchMode):
-    """The operand shapes of every addmm (bias, mat1, mat2) run inside it."""
+class Products(TorchDispatchMode):
+    """The MLPs' layer products (addmm) run inside it: their operands' shapes (bias, mat1, mat2) and outputs' dtypes."""
 
     def __init__(self):
         super().__init__()
-        self.shapes = []
+        self.shapes, self.dtypes = [], []
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        out = func(*args, **(kwargs or {}))
         if func is torch.ops.aten.addmm.default:
             self.shapes.append([tuple(a.shape) for a in args[:3]])
-        return func(*args, **(kwargs or {}))
+            self.dtypes.append(out.dtype)
+        return out
 
 
 def test_a_checkpoint_with_one_mlp_per_group_loads(tmp_path):
@@ -299,20 +301,6 @@ def test_auto_precision_is_bfloat16_on_cuda_and_on_a_cpu_that_multiplies_it_nati
     assert mlp_dtype("auto", cpu) == torch.float32 and mlp_dtype("auto", cuda) == torch.bfloat16
 
 
-class ProductDtypes(TorchDispatchMode):
-    """The dtypes of the batched matrix products' outputs (the MLPs' layers)."""
-
-    def __init__(self):
-        super().__init__()
-        self.dtypes = []
-
-    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-        out = func(*args, **(kwargs or {}))
-        if func is torch.ops.aten.addmm.default:
-            self.dtypes.append(out.dtype)
-        return out
-
-
 def test_a_bfloat16_merger_multiplies_in_bfloat16_and_merges_close_to_float32():
     positions, values, seen = random_inputs(n=200, v=8)
     merged, products = {}, {}
@@ -322,7 +310,7 @@ def test_a_bfloat16_merger_multiplies_in_bfloat16_and_merges_close_to_float32():
         with torch.no_grad():
             for p in merger.parameters():
                 p.mul_(0.1)  # logits of a few units, as a trained merger's
-        with ProductDtypes() as seen_dtypes:
+        with Products() as seen_dtypes:
             merged[precision], weights = merger(positions, values, seen, return_weights=True)
         products[precision] = seen_dtypes.dtypes[0]
         assert all(w.dtype == torch.float32 for w in weights.values())  # the merge itself stays float32

@@ -131,3 +131,19 @@ def test_the_papers_softmax_ablation_is_its_merger_with_the_softmax_taken_out():
         with torch.no_grad():
             merged = source.merger(positions, values, seen)
         assert torch.allclose(merged, average, atol=1e-6) == starts_at_average
+
+
+def test_a_variant_records_the_settings_only_other_variants_read_as_the_table_says():
+    from matspray.method.config import setting_default
+
+    config = build_config("demo", "paper", **{"refine.metallic_prior_weight": 0.2})  # paper: unconstrained "raw"
+    assert setting_default(config.refine, "merger.unconstrained") == "offset"  # the field's own, not the paper's
+    assert setting_default(config.refine, "metallic_prior_weight") == 0.01
+    recorded = {
+        name: (refine.metallic_prior_weight, refine.metallic_prior_start, refine.merger.unconstrained)
+        for name in VARIANT_NAMES
+        for refine in [variant_refine_config(config, name)]
+    }
+    assert recorded.pop("photos-only") == (0.2, 0.1, "offset")
+    assert recorded.pop("no-softmax") == (0.0, 0.5, "raw")
+    assert set(recorded.values()) == {(0.0, 0.5, "offset")}

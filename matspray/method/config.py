@@ -22,7 +22,16 @@ from dataclasses import dataclass, fields, is_dataclass, replace
 from typing import TYPE_CHECKING
 
 from matspray.errors import ConfigError, SettingError
-from matspray.presets import ADDITION_NAMES, ADDITIONS, METHODS, PRESET_SETTINGS, PRESETS, SHADOW_MAPS, get_variant
+from matspray.presets import (
+    ADDITION_NAMES,
+    ADDITIONS,
+    METHODS,
+    PRESET_SETTINGS,
+    PRESETS,
+    SHADOW_MAPS,
+    VARIANT_OWNED_SETTINGS,
+    get_variant,
+)
 from matspray.rundir import fingerprint, to_plain
 from matspray.settings import setting
 
@@ -278,17 +287,22 @@ def build_config(
 def variant_refine_config(config: PipelineConfig, variant: str) -> RefineConfig:
     """The refinement settings of one variant: the run's, with the variant and the refinement seed
     (`refine_seed`, else the run's `seed`); a variant without the 2D maps' loss weighs the photometric loss 1, as
-    `refine.photo_weight` weighs it against that loss; only photos-only keeps its metallic prior's settings, and only
-    no-softmax its merger's rule for unconstrained weights."""
+    `refine.photo_weight` weighs it against that loss; a setting only some variants read (`VARIANT_OWNED_SETTINGS`)
+    is recorded as that table says for the others."""
     kind = get_variant(variant)
     seed = config.seed if config.refine_seed is None else config.refine_seed
     photo_weight = config.refine.photo_weight if kind.uses_maps else 1.0
     refine = replace(config.refine, variant=variant, seed=seed, photo_weight=photo_weight)
-    if not kind.dielectric_prior:  # photos-only's own: recorded off for the others, whose refinement they do not change
-        refine = replace(refine, metallic_prior_weight=0.0, metallic_prior_start=0.5, basecolor_start="grey")
-    if kind.softmax or kind.source != "merger":  # no-softmax's own, recorded at its default for the others
-        refine = replace(refine, merger=replace(refine.merger, unconstrained=type(refine.merger).unconstrained))
+    for path, (reads, others) in VARIANT_OWNED_SETTINGS.items():
+        if not reads(kind):
+            refine = with_setting(refine, path, setting_default(refine, path) if others is None else others)
     return refine
+
+
+def setting_default(config, path: str):
+    """The declared default of the dotted setting `path` of `config` (a frozen dataclass of settings)."""
+    head, _, rest = path.partition(".")
+    return setting_default(getattr(config, head), rest) if rest else getattr(type(config)(), head)
 
 
 def default_settings(preset: str, method: str = "matspray") -> dict:

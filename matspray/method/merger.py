@@ -141,6 +141,17 @@ def merge_weights(logits: Tensor, seen: Tensor, softmax: bool, unconstrained: st
     return (1.0 / n_seen + logits) * seen
 
 
+def _layered(hidden: Tensor, layers: list[tuple[Tensor, Tensor]], product) -> Tensor:  # [..., N, in] -> [..., N, out]
+    """An MLP's layers, `product(bias, hidden, weight [in, out])` each (torch.addmm or torch.baddbmm), ReLU between."""
+    for i, (bias, weight) in enumerate(layers):
+        hidden = product(bias, hidden, weight)
+        if i < len(layers) - 1:
+            # in place: the product's backward does not read its output, so ReLU may overwrite it (no extra
+            # [..., N, hidden] tensor per layer and step)
+            hidden = hidden.relu_()
+    return hidden
+
+
 def batched_products(device: torch.device) -> bool:
     """Whether the channel groups' MLPs run as one batched product per layer over the padded inputs: on a GPU, where
     every product is a kernel launch; on the CPU a product per group at its own width is faster (MKL's batched
@@ -218,26 +229,18 @@ class NeuralMerger(nn.Module):
 
     def _batched_logits(self, inputs: Tensor) -> Tensor:  # [G, N, D] -> [G, N, V]
         """Every group's MLP at once, one batched product per layer (the padding included)."""
-        hidden = inputs
-        for i, (weights, biases) in enumerate(zip(self.weights, self.biases)):
-            hidden = torch.baddbmm(biases, hidden, weights.transpose(1, 2))  # [G, N, out]
-            if i < len(self.weights) - 1:
-                # in place: the product's backward does not read its output, so ReLU may overwrite it (no extra
-                # [G, N, hidden] tensor per layer and step)
-                hidden = hidden.relu_()
-        return hidden
+        layers = [(biases, weights.transpose(1, 2)) for weights, biases in zip(self.weights, self.biases)]
+        return _layered(inputs, layers, torch.baddbmm)
 
     def _group_logits(self, g: int, inputs: Tensor) -> Tensor:  # [N, D] -> [N, V]
         """Group g's MLP, a product per layer at the group's own input width (its first layer leaves out the
         padding)."""
-        hidden = inputs[:, : self.input_widths[g]]
-        last = len(self.weights) - 1
-        for i, (weights, biases) in enumerate(zip(self.weights, self.biases)):
-            weight = weights[g, :, : self.input_widths[g]] if i == 0 else weights[g]  # [out, in]
-            hidden = torch.addmm(biases[g, 0], hidden, weight.t())  # [N, out]
-            if i < last:
-                hidden = hidden.relu_()  # in place, as in _batched_logits
-        return hidden
+        width = self.input_widths[g]
+        layers = [
+            (biases[g, 0], (weights[g, :, :width] if i == 0 else weights[g]).t())
+            for i, (weights, biases) in enumerate(zip(self.weights, self.biases))
+        ]
+        return _layered(inputs[:, :width], layers, torch.addmm)
 
     def forward(
         self,
