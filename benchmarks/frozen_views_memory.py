@@ -26,7 +26,8 @@ import torch
 from matspray.device import configure_threads
 from matspray.gaussians import Gaussians
 from matspray.render.backend import rendering_with
-from matspray.render.raster.gbuffer import FrozenViews, SparseBlend, blend_matrix, frozen_views_bytes, hits_of_view
+from matspray.render.numba.backend import numba_view_weights
+from matspray.render.raster.gbuffer import FrozenViews, SparseBlend, blend_matrix, frozen_views_bytes
 from tests.scenes import sphere_cameras
 
 
@@ -80,7 +81,7 @@ def main(argv=None) -> int:
     upstream = torch.rand(pixels, args.channels, generator=g)
     old, new, differences = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
     for index, camera in enumerate(cameras):
-        gaussian_ids, pixel_ids, weights = hits_of_view(gaussians, camera, "numba")
+        gaussian_ids, pixel_ids, weights = numba_view_weights(gaussians, camera)
         matrices = (  # what the old way kept
             blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),
             blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),

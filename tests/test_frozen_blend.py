@@ -12,12 +12,17 @@ from matspray.render.raster.gbuffer import (
     SparseBlend,
     blend_matrix,
     frozen_views_bytes,
-    hits_of_view,
-    packed_blend_matrix,
+    sorted_pairs,
 )
+from matspray.render.raster.rasterize import view_weights
 from tests.test_rasterize import random_scene
 
 HALF_STEP = 0.5 / sparse.WEIGHT_STEPS  # the largest error of a packed weight
+
+
+def packed_blend_matrix(gaussian_ids, pixel_ids, weights, pixels: int, count: int) -> sparse.PackedBlend:
+    """The packed matrix [pixels, count] of (Gaussian, pixel) weights given in any order (a pair twice: summed)."""
+    return sparse.pack_blend(*sorted_pairs(gaussian_ids, pixel_ids, weights, pixels, count), count)
 
 
 def random_hits(seed: int, hits: int, pixels: int, count: int, dtype, twice: bool = True):  # -> ids, ids, weights [M]
@@ -172,7 +177,7 @@ def test_frozen_views_keep_the_transposes_only_for_cuda(device):
     upstream = torch.rand(24, 32, 5, device=device)
     image, _ = frozen.render(1, features)
     (grad,) = torch.autograd.grad(image, features, upstream)
-    gaussian_ids, pixel_ids, weights = hits_of_view(gaussians, camera, "torch")
+    gaussian_ids, pixel_ids, weights = view_weights(gaussians, camera)
     matrix = blend_matrix(gaussian_ids, pixel_ids, weights, pixels, count)
     transposed = blend_matrix(pixel_ids, gaussian_ids, weights, count, pixels)
     old_image, old_grad = blend(features.detach(), upstream.reshape(pixels, 5), matrix, transposed)

@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from matspray.render.backend import rendering_with
-from matspray.render.raster.gbuffer import FrozenViews
+from matspray.render.raster.gbuffer import FrozenViews, view_blend
 from matspray.render.raster.rasterize import rasterize, view_weights
 from tests.test_rasterize import random_scene
 
@@ -67,6 +67,23 @@ def test_numba_weights_are_torchs_hits(seed, count, width, height):
     reference = weight_matrix(torch_hits, pixels, len(gaussians))
     assert torch.allclose(weight_matrix(numba_hits, pixels, len(gaussians)), reference, atol=1e-6)
     assert reference.sum() > 0  # the view sees some of the Gaussians
+
+
+@pytest.mark.parametrize("seed, count, width, height", [(0, 60, 40, 30), (3, 400, 70, 50), (5, 1, 16, 16)])
+def test_numba_blend_matrix_is_torchs_in_csr_order_with_its_coverage_and_visible_gaussians(seed, count, width, height):
+    """The compiled blend matrix (placed pixel by pixel from the forward's record, each pixel's hits put in Gaussian
+    order) is the torch backend's hits sorted: the same rows and columns, the weights within float32 rounding."""
+    pytest.importorskip("numba")
+    from matspray.render.numba.backend import numba_view_blend
+
+    gaussians, camera = random_scene(count, seed, width=width, height=height)[:2]
+    crow, columns, weights, coverage, visible = numba_view_blend(gaussians, camera)
+    torch_crow, torch_columns, torch_weights, torch_coverage, torch_visible = view_blend(gaussians, camera, "torch")
+    assert torch.equal(crow, torch_crow) and torch.equal(columns, torch_columns) and torch.equal(visible, torch_visible)
+    assert crow.dtype == columns.dtype == visible.dtype == torch.int64 and weights.dtype == torch.float32
+    torch.testing.assert_close(weights, torch_weights, rtol=0, atol=1e-6)
+    torch.testing.assert_close(coverage, torch_coverage, rtol=1e-5, atol=1e-6)
+    assert len(weights) > 0 and (weights > 0).all()
 
 
 def test_frozen_views_use_the_compiled_weights_on_backend_numba(monkeypatch):

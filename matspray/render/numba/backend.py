@@ -324,14 +324,16 @@ class _NumbaRaster(torch.autograd.Function):
         return sums[:, 0:2], sums[:, 2:5], sums[:, 5], sums[:, 8:-2], sums[:, -2], None
 
 
-def numba_view_weights(gaussians, camera, settings: RasterSettings = RasterSettings()) -> tuple[Tensor, Tensor, Tensor]:
-    """`rasterize.view_weights` on backend numba: Gaussian ids [M], row-major pixel ids [M], weights [M]; None when
-    the forward's record would pass RECORD_BUDGET (the torch version does those)."""
+def numba_view_blend(gaussians, camera, settings: RasterSettings = RasterSettings()):
+    """A view's blend matrix [H W, N] on backend numba, in CSR order (`weights.recorded_blend`): row pointers
+    crow [H W + 1] int64, Gaussian ids [M] int64 and weights [M] float32, by pixel (row-major) then Gaussian; each
+    Gaussian's coverage [N] (its weights' sum) and the Gaussians with a weight [K] (increasing). None when the
+    forward's record would pass RECORD_BUDGET (the torch version does those)."""
     from matspray.render.backend import note_render
-    from matspray.render.numba.weights import recorded_weights
+    from matspray.render.numba.weights import recorded_blend
 
     note_render("numba")
-    ensure_compiled(np.float32)  # (its warm-up compiles `recorded_weights` too)
+    ensure_compiled(np.float32)  # (its warm-up compiles `recorded_blend` too)
     layout = _Layout(camera, settings, np.float32)
     with torch.no_grad():  # the projection as a render makes it (footprints and tile lists into `layout`)
         g = gaussians.detach()
@@ -346,7 +348,7 @@ def numba_view_weights(gaussians, camera, settings: RasterSettings = RasterSetti
         kernels().forward(
             *layout.common(means2d, conics, opacities, values), layout.min_transmittance, layout.record_offsets, *record
         )
-        gaussian, pixel, weight, valid = recorded_weights(
+        found = recorded_blend(
             layout.ids,
             layout.offsets,
             opacities,
@@ -354,9 +356,22 @@ def numba_view_weights(gaussians, camera, settings: RasterSettings = RasterSetti
             *record,
             layout.tiles_x,
             layout.width,
+            layout.height,
             layout.blend_consts,
         )
-    return tuple(torch.from_numpy(column[valid]) for column in (gaussian, pixel, weight))
+    crow, columns, weights, coverage, hits = (torch.from_numpy(array) for array in found)
+    return crow, columns, weights, coverage, torch.nonzero(hits).squeeze(1)
+
+
+def numba_view_weights(gaussians, camera, settings: RasterSettings = RasterSettings()) -> tuple[Tensor, Tensor, Tensor]:
+    """`rasterize.view_weights` on backend numba: Gaussian ids [M], row-major pixel ids [M], weights [M] (by pixel,
+    then Gaussian); None where `numba_view_blend` is."""
+    found = numba_view_blend(gaussians, camera, settings)
+    if found is None:
+        return None
+    crow, columns, weights = found[:3]
+    pixels = torch.repeat_interleave(torch.arange(len(crow) - 1), crow.diff())
+    return columns, pixels, weights
 
 
 def _unrecorded_backward(common: tuple, slot, state: tuple, grad):
@@ -487,10 +502,10 @@ def _warm_up(np_dtype) -> None:
 
     warm_up(np_dtype)  # frozen views' backward pass
     if np_dtype == np.float32:  # frozen views' weights (float32 only)
-        from matspray.render.numba.weights import recorded_weights
+        from matspray.render.numba.weights import recorded_blend
 
         empty = np.zeros(0, np.int64)
-        recorded_weights(
+        recorded_blend(
             empty,
             np.zeros(2, np.int64),
             np.zeros(1, np.float32),
@@ -499,6 +514,7 @@ def _warm_up(np_dtype) -> None:
             np.zeros(0, np.float32),
             empty,
             1,
+            16,
             16,
             np.zeros(4, np.float32),
         )

@@ -1,10 +1,10 @@
-"""A view's blending weights (every blended (Gaussian, pixel) hit and its weight alpha * T) on backend `numba`: what
-`rasterize.view_weights` computes with torch, which frozen views (matspray.render.raster.gbuffer) need once per training
-view. The torch version builds every candidate pair as a tensor; here the compiled forward blends once with its
-record of hits (pixel and response, in blending order: kernels.forward; backend.numba_view_weights),
-and `recorded_weights` replays the record tile by tile to turn each hit into its weight, with the forward's
-arithmetic (float32 alpha, float64 transmittance). The hits are the forward's, which are the torch backend's
-(kernels._row_span).
+"""A view's blend matrix (every blended (Gaussian, pixel) hit and its weight alpha * T, by pixel then Gaussian) on
+backend `numba`: what frozen views (matspray.render.raster.gbuffer) build once per training view, and what
+`rasterize.view_weights` and `gbuffer.sorted_pairs` make with torch. The torch version builds every candidate pair
+as a tensor and sorts them; here the compiled forward blends once with its record of hits (pixel and response, in
+blending order: kernels.forward; backend.numba_view_blend), and `recorded_blend` replays the record tile by tile to
+turn each hit into its weight, with the forward's arithmetic (float32 alpha, float64 transmittance), and places it
+in its pixel's row. The hits are the forward's, which are the torch backend's (kernels._row_span).
 """
 
 from __future__ import annotations
@@ -16,19 +16,23 @@ from matspray.render.numba.kernels import TILE, njit
 
 
 @njit(cache=True, parallel=True)
-def recorded_weights(
-    ids, offsets, opacities, record_offsets, rec_pixel, rec_response, entry_end, tiles_x, width, consts
+def recorded_blend(
+    ids, offsets, opacities, record_offsets, rec_pixel, rec_response, entry_end, tiles_x, width, height, consts
 ):
-    """Per recorded hit h (record_offsets[t] <= h < entry_end of the tile's last entry): its Gaussian, its pixel
-    (row-major over the image) and its weight; `valid[h]` is False where the tile's room held no hit.
-    consts: [2] max_alpha (kernels' layout)."""
-    room = rec_pixel.shape[0]
-    gaussian = np.empty(room, np.int64)
-    pixel = np.empty(room, np.int64)
-    weight = np.empty(room, opacities.dtype)
-    valid = np.zeros(room, np.bool_)
+    """The view's blend matrix [pixels, Gaussians] from the forward's record, in CSR order (by pixel, row-major over
+    the image, then by Gaussian): row pointers crow [P + 1], columns [M] and weights [M] (float32); with each
+    Gaussian's coverage [N] (float32: its weights summed in blending order, tile by tile, as `index_add_` over the
+    hits in record order sums them) and its number of hits [N].
+
+    A pixel belongs to one tile, so the tiles run in parallel while they count their pixels' hits and while they
+    place them, each tile's entries in increasing Gaussian id, so that each pixel's row comes out in Gaussian order
+    without a sort. Only the coverage, whose Gaussians span tiles, is summed in one thread. consts: [2] max_alpha
+    (kernels' layout)."""
+    num_tiles, n, pixels = offsets.shape[0] - 1, opacities.shape[0], width * height
     max_alpha = consts[2]
-    for t in prange(offsets.shape[0] - 1):
+    rec_weight = np.empty(rec_pixel.shape[0], opacities.dtype)
+    per_pixel = np.zeros(pixels + 1, np.int64)
+    for t in prange(num_tiles):  # each hit's weight, and each pixel's count of hits
         trans = np.ones(TILE * TILE, np.float64)
         x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
         start = record_offsets[t]
@@ -37,10 +41,35 @@ def recorded_weights(
             for h in range(start, entry_end[e]):
                 p = rec_pixel[h]
                 alpha = min(opacities[g] * rec_response[h], max_alpha)
-                weight[h] = alpha * opacities.dtype.type(trans[p])
+                rec_weight[h] = alpha * opacities.dtype.type(trans[p])
                 trans[p] = trans[p] * (1.0 - np.float64(alpha))
-                gaussian[h] = g
-                pixel[h] = (y_start + p // TILE) * width + x_start + p % TILE
-                valid[h] = True
+                per_pixel[(y_start + p // TILE) * width + x_start + p % TILE + 1] += 1
             start = entry_end[e]
-    return gaussian, pixel, weight, valid
+    crow = np.cumsum(per_pixel)
+    columns = np.empty(crow[pixels], np.int64)
+    weights = np.empty(crow[pixels], opacities.dtype)
+    for t in prange(num_tiles):  # each hit to its pixel's row, the tile's entries taken in Gaussian order
+        x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
+        cursor = np.empty(TILE * TILE, np.int64)
+        for p in range(TILE * TILE):
+            row, col = y_start + p // TILE, x_start + p % TILE
+            cursor[p] = crow[row * width + col] if row < height and col < width else 0
+        first = offsets[t]
+        for k in np.argsort(ids[first : offsets[t + 1]]):  # a Gaussian has one entry per tile
+            e = first + k
+            # entry e's hits follow the previous entry's (an entry after the tile's early end: an empty range)
+            for h in range(entry_end[e - 1] if e > first else record_offsets[t], entry_end[e]):
+                p = rec_pixel[h]
+                columns[cursor[p]], weights[cursor[p]] = ids[e], rec_weight[h]
+                cursor[p] += 1
+    coverage = np.zeros(n, opacities.dtype)
+    hits = np.zeros(n, np.int64)
+    for t in range(num_tiles):
+        start = record_offsets[t]
+        for e in range(offsets[t], offsets[t + 1]):
+            g = ids[e]
+            for h in range(start, entry_end[e]):
+                coverage[g] += rec_weight[h]
+                hits[g] += 1
+            start = entry_end[e]
+    return crow, columns, weights, coverage, hits

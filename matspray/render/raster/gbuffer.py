@@ -72,15 +72,6 @@ def blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: i
         )
 
 
-def packed_blend_matrix(column_ids: Tensor, row_ids: Tensor, weights: Tensor, n_rows: int, n_columns: int):
-    """`blend_matrix` packed for the CPU (matspray.render.numba.sparse.PackedBlend: a quarter of a torch matrix and
-    its transpose), from pairs on the CPU."""
-    from matspray.render.numba.sparse import pack_blend
-
-    crow, columns, values = sorted_pairs(column_ids, row_ids, weights, n_rows, n_columns)
-    return pack_blend(crow, columns, values, n_columns)
-
-
 class SparseBlend(torch.autograd.Function):
     """features [N, C] -> matrix @ features [P, C]; the backward pass multiplies by the stored transpose, or without
     one (None: frozen views on the CPU, whose matrices are packed) scatters through the matrix
@@ -100,18 +91,27 @@ class SparseBlend(torch.autograd.Function):
         return transposed_product(ctx.matrix, grad), None, None
 
 
-def hits_of_view(gaussians: Gaussians, camera: Camera, backend: str) -> tuple[Tensor, Tensor, Tensor]:
-    """`view_weights`' hits and weights: compiled on backend numba (a view whose record of hits would be too large
-    falls back to torch's), torch's otherwise. In no particular order on numba (a tile's hits in blending order), which
-    the blend matrices do not need; a caller that needs `view_weights`' order (pixel, then front to back: the shadow
-    maps of `render.visibility`) calls it."""
+def view_blend(gaussians: Gaussians, camera: Camera, backend: str) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """A view's blend matrix [H W, N] as CSR pairs (`sorted_pairs`: row pointers [H W + 1], Gaussian ids [M],
+    weights [M]), each Gaussian's coverage [N] (the sum of its weights: pixels' worth) and the Gaussians with a
+    weight [K] (increasing). Compiled on backend numba (a view whose record of hits would be too large falls back to
+    torch's `view_weights`), torch's otherwise."""
     if backend == "numba" and gaussians.means.device.type == "cpu":
-        from matspray.render.numba.backend import numba_view_weights
+        from matspray.render.numba.backend import numba_view_blend
 
-        found = numba_view_weights(gaussians, camera)
+        found = numba_view_blend(gaussians, camera)
         if found is not None:
             return found
-    return view_weights(gaussians, camera)
+    gaussian_ids, pixel_ids, weights = view_weights(gaussians, camera)  # [M] each
+    n = len(gaussians)
+    crow, columns, values = sorted_pairs(gaussian_ids, pixel_ids, weights, camera.height * camera.width, n)
+    return crow, columns, values, *coverage_of_hits(gaussian_ids, weights, n)
+
+
+def coverage_of_hits(gaussian_ids: Tensor, weights: Tensor, n: int) -> tuple[Tensor, Tensor]:  # [M], [M] ->
+    """Each of the n Gaussians' coverage [N] (the sum of its weights) and the Gaussians with a hit [K] (increasing)."""
+    coverage = torch.zeros(n, device=weights.device).index_add_(0, gaussian_ids.long(), weights.float())
+    return coverage, torch.unique(gaussian_ids).long()
 
 
 class FrozenViews:
@@ -137,26 +137,28 @@ class FrozenViews:
                 self.visible_ids.append(torch.nonzero(coverage > 0).squeeze(1))
                 self.coverage.append(coverage)
                 continue
-            gaussian_ids, pixel_ids, weights = hits_of_view(gaussians, camera, self.backend)  # [M] each
             pixels = camera.height * camera.width
             on_host = storage == "host" or (storage == "auto" and not _room_on(device))
             if self.keeps_transposes:
+                gaussian_ids, pixel_ids, weights = view_weights(gaussians, camera)  # [M] each
                 matrices = [
                     blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),  # [HW, N]
                     blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),  # [N, HW]
                 ]
                 matrices = [_to_host(m) for m in matrices] if on_host else matrices
+                coverage, visible = coverage_of_hits(gaussian_ids, weights, n)
             else:  # on the host already
-                matrices = [packed_blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n)]  # [HW, N]
+                from matspray.render.numba.sparse import pack_blend
+
+                crow, columns, weights, coverage, visible = view_blend(gaussians, camera, self.backend)
+                matrices = [pack_blend(crow, columns, weights, n)]  # [HW, N]
             self.on_host.append(on_host)
             self.hits += len(weights)
             self.kept_bytes += sum(_sparse_bytes(m) for m in matrices)
             self.matrices.append(matrices[0])
             self.transposed.append(matrices[1] if self.keeps_transposes else None)
-            self.visible_ids.append(torch.unique(gaussian_ids).long())  # [K] Gaussians that contribute to the view
-            self.coverage.append(
-                torch.zeros(n, device=device).index_add_(0, gaussian_ids.long(), weights.float())
-            )  # [N] pixels' worth
+            self.visible_ids.append(visible)  # [K] Gaussians that contribute to the view
+            self.coverage.append(coverage)  # [N] pixels' worth
         self.alphas = [self._blend(index, torch.ones(n, 1, device=device))[..., 0] for index in range(len(cameras))]
         self.centers = [camera.center.to(self.means) for camera in cameras]  # [3] each
         self._contributing: dict[tuple[int, float], Tensor] = {}  # (view, min_coverage) -> ids, asked every step
