@@ -11,9 +11,9 @@ import torch
 import torch.nn.functional as F
 
 from matspray.cli import main
-from matspray.data import Camera, View, load_scene, write_image
+from matspray.data import Camera, View, load_scene, undistort, write_image
 from matspray.data.formats.nerfstudio import write_nerfstudio
-from matspray.data.images import linear_to_srgb, read_image
+from matspray.data.images import SCRATCH_PNG_LEVEL, linear_to_srgb, read_image
 from matspray.data.undistort import Lens, cache_folder, distort_view, plan_undistortion
 from matspray.errors import DataError
 from tests.test_readers import write_colmap
@@ -84,7 +84,7 @@ def synth_object(tmp_path_factory):
     return load_scene(out)
 
 
-def test_distorted_nerfstudio_capture_undistorts_to_the_ground_truth(synth_object, tmp_path, capsys):
+def test_distorted_nerfstudio_capture_undistorts_to_the_ground_truth(synth_object, tmp_path, capsys, monkeypatch):
     original = synth_object
     first = original.train[0].camera
     lens = Lens.from_K(first.K, first.width, first.height, (-0.12, 0.03, 0.002, -0.001, 0.0), model="OPENCV")
@@ -92,12 +92,20 @@ def test_distorted_nerfstudio_capture_undistorts_to_the_ground_truth(synth_objec
     write_nerfstudio(tmp_path, distorted, lens=lens, separate_masks=True)
     written = sorted(p for p in tmp_path.rglob("*"))
     tmp_path.chmod(0o555)  # a read-only capture, as ../shared is in CI: nothing is written into it
+    levels = []
+
+    def write_recording_level(*args, png_level, **kwargs):
+        levels.append(png_level)
+        write_image(*args, png_level=png_level, **kwargs)
+
+    monkeypatch.setattr(undistort, "write_image", write_recording_level)
     try:
         scene = load_scene(tmp_path)
     finally:
         tmp_path.chmod(0o755)
     assert sorted(p for p in tmp_path.rglob("*")) == written
     assert len(list(cache_folder(tmp_path).glob("*.png"))) == 4  # the undistorted views, in the cache ($MATSPRAY_CACHE)
+    assert levels == [SCRATCH_PNG_LEVEL] * 4  # written fast: only this tool reads them back
     assert scene.format == "nerfstudio"
     assert [v.name for v in scene.train] == [v.name for v in original.train]
     assert [v.name for v in scene.test] == [v.name for v in original.test]

@@ -3,6 +3,8 @@ import pytest
 import torch
 
 from matspray.data.images import (
+    PNG_LEVEL,
+    SCRATCH_PNG_LEVEL,
     linear_to_srgb,
     read_image,
     read_raw,
@@ -35,6 +37,17 @@ def test_png_round_trip(tmp_path, bits, tol, channels):
     back = read_raw(tmp_path / "a.png")
     assert back.shape == (7, 5, channels)
     assert (back - values).abs().max() <= tol
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+def test_a_scratch_png_is_zlibs_fastest_level_and_holds_the_same_values(tmp_path, bits):
+    noise = torch.rand(64, 48, 3, generator=torch.Generator().manual_seed(0)) / 8  # compressible: a gradient
+    values = torch.linspace(0, 0.8, 64 * 48).reshape(64, 48, 1) + noise
+    for level in (PNG_LEVEL, SCRATCH_PNG_LEVEL):
+        write_raw(tmp_path / f"{level}.png", values, bits=bits, png_level=level)
+    assert torch.equal(read_raw(tmp_path / f"{PNG_LEVEL}.png"), read_raw(tmp_path / f"{SCRATCH_PNG_LEVEL}.png"))
+    sizes = [(tmp_path / f"{level}.png").stat().st_size for level in (PNG_LEVEL, SCRATCH_PNG_LEVEL)]
+    assert sizes[0] != sizes[1]  # the level reached zlib
 
 
 def test_png_image_with_alpha_is_srgb_decoded(tmp_path):

@@ -25,7 +25,7 @@ import torch
 from PIL import Image
 from torch import Tensor
 
-from matspray.data.images import linear_to_srgb, save_torch_atomic, srgb_to_linear
+from matspray.data.images import SCRATCH_PNG_LEVEL, linear_to_srgb, save_torch_atomic, srgb_to_linear
 from matspray.data.scene import MIN_COLMAP_POINTS, Scene, View
 from matspray.data.sfm import SfmConfig, extract_sift
 from matspray.errors import ConfigError
@@ -149,8 +149,7 @@ def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, 
         names.append(f"{i:05d}.png")
         cameras.append(small.camera)
         pixels = srgb8(small.image).numpy()
-        # scratch files that SIFT reads once: zlib's fastest level (its default, 6, took 3-4 times as long)
-        Image.fromarray(pixels).save(image_dir / names[-1], compress_level=1)
+        Image.fromarray(pixels).save(image_dir / names[-1], compress_level=SCRATCH_PNG_LEVEL)  # read once by SIFT
     pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
     # SIFT's threshold as structure from motion's: smooth objects need it
     extract_sift(

@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from matspray.data.camera import Camera
-from matspray.data.images import LDR_SUFFIXES, read_image, write_image
+from matspray.data.images import LDR_SUFFIXES, SCRATCH_PNG_LEVEL, read_image, write_image
 from matspray.data.scene import View
 from matspray.errors import file_error, optional_module
 
@@ -328,7 +328,7 @@ class Undistorter:
         try:
             for stale in cached.parent.glob(f"{cached.stem.rsplit('-', 1)[0]}-*{cached.suffix}"):  # older versions
                 stale.unlink()
-            write_image(cached, rgb, alpha)  # atomic: a reader never sees half a file
+            write_image(cached, rgb, alpha, png_level=SCRATCH_PNG_LEVEL)  # atomic: a reader never sees half a file
             return True
         except OSError:
             return False  # a cache that cannot be written only costs time on the next load
