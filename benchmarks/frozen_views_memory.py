@@ -26,8 +26,7 @@ import torch
 from matspray.device import configure_threads
 from matspray.gaussians import Gaussians
 from matspray.render.backend import rendering_with
-from matspray.render.numba.backend import numba_view_weights
-from matspray.render.raster.gbuffer import FrozenViews, SparseBlend, blend_matrix, frozen_views_bytes
+from matspray.render.raster.gbuffer import FrozenViews, SparseBlend, blend_matrix, frozen_views_bytes, view_blend
 from tests.scenes import sphere_cameras
 
 
@@ -81,7 +80,8 @@ def main(argv=None) -> int:
     upstream = torch.rand(pixels, args.channels, generator=g)
     old, new, differences = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
     for index, camera in enumerate(cameras):
-        gaussian_ids, pixel_ids, weights = numba_view_weights(gaussians, camera)
+        crow, gaussian_ids, weights = view_blend(gaussians, camera, "numba")[:3]
+        pixel_ids = torch.repeat_interleave(torch.arange(pixels), crow.diff())
         matrices = (  # what the old way kept
             blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),
             blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),

@@ -3,7 +3,7 @@ import torch
 
 from matspray.render.backend import rendering_with
 from matspray.render.raster.gbuffer import FrozenViews, view_blend
-from matspray.render.raster.rasterize import rasterize, view_weights
+from matspray.render.raster.rasterize import rasterize
 from tests.test_rasterize import random_scene
 
 PACKED_ATOL = 1e-6 + 40 * 0.5 / 65535  # frozen views' packed weights (16 bits) of at most 40 Gaussians in a pixel
@@ -47,26 +47,6 @@ def test_coverage_is_each_gaussians_share_of_the_rendered_alpha():
     _, alpha = frozen.render(0, torch.ones(len(gaussians), 1))
     assert torch.allclose(frozen.coverage[0].sum(), alpha.sum(), rtol=1e-5)
     assert (frozen.coverage[0][frozen.visible(0)] > 0).all() and (frozen.coverage[0][~frozen.visible(0)] == 0).all()
-
-
-def weight_matrix(hits, pixels: int, count: int) -> torch.Tensor:  # (gaussian ids, pixel ids, weights) -> [P, N]
-    matrix = torch.zeros(pixels, count, dtype=torch.float64)
-    matrix.index_put_((hits[1].long(), hits[0].long()), hits[2].double(), accumulate=True)
-    return matrix
-
-
-@pytest.mark.parametrize("seed, count, width, height", [(0, 60, 40, 30), (3, 400, 70, 50), (5, 1, 16, 16)])
-def test_numba_weights_are_torchs_hits(seed, count, width, height):
-    pytest.importorskip("numba")
-    from matspray.render.numba.backend import numba_view_weights
-
-    gaussians, camera = random_scene(count, seed, width=width, height=height)[:2]
-    torch_hits, numba_hits = view_weights(gaussians, camera), numba_view_weights(gaussians, camera)
-    assert len(numba_hits[0]) == len(torch_hits[0])  # the same hits, none twice
-    pixels = width * height
-    reference = weight_matrix(torch_hits, pixels, len(gaussians))
-    assert torch.allclose(weight_matrix(numba_hits, pixels, len(gaussians)), reference, atol=1e-6)
-    assert reference.sum() > 0  # the view sees some of the Gaussians
 
 
 @pytest.mark.parametrize("seed, count, width, height", [(0, 60, 40, 30), (3, 400, 70, 50), (5, 1, 16, 16)])

@@ -337,7 +337,7 @@ def test_snapshots_are_written_whole_with_unique_names(tmp_path, monkeypatch):
     assert np.array_equal(np.round(read_raw(first).numpy() * 255).astype(np.uint8), image)
     import matspray.data.images as images
 
-    def fail_halfway(path, array, bits):
+    def fail_halfway(path, array, bits, level):
         Path(path).write_bytes(b"\x89PNG half")
         raise OSError("No space left on device")
 

@@ -363,17 +363,6 @@ def numba_view_blend(gaussians, camera, settings: RasterSettings = RasterSetting
     return crow, columns, weights, coverage, torch.nonzero(hits).squeeze(1)
 
 
-def numba_view_weights(gaussians, camera, settings: RasterSettings = RasterSettings()) -> tuple[Tensor, Tensor, Tensor]:
-    """`rasterize.view_weights` on backend numba: Gaussian ids [M], row-major pixel ids [M], weights [M] (by pixel,
-    then Gaussian); None where `numba_view_blend` is."""
-    found = numba_view_blend(gaussians, camera, settings)
-    if found is None:
-        return None
-    crow, columns, weights = found[:3]
-    pixels = torch.repeat_interleave(torch.arange(len(crow) - 1), crow.diff())
-    return columns, pixels, weights
-
-
 def _unrecorded_backward(common: tuple, slot, state: tuple, grad):
     """numba_kernels.backward, for renders whose record would pass RECORD_BUDGET (large images with many Gaussians).
     It is not part of `ensure_compiled`'s warm-up (most runs never need it): compiled at its first use instead, which

@@ -15,6 +15,13 @@ from numba import prange
 from matspray.render.numba.kernels import TILE, njit
 
 
+@njit(cache=True, inline="always")
+def _entry_hits(t, e, offsets, record_offsets, entry_end):
+    """The record's rows of tile t's entry e: they follow the previous entry's (an entry after the tile's early end
+    has an empty range: its end is the tile's start)."""
+    return range(entry_end[e - 1] if e > offsets[t] else record_offsets[t], entry_end[e])
+
+
 @njit(cache=True, parallel=True)
 def recorded_blend(
     ids, offsets, opacities, record_offsets, rec_pixel, rec_response, entry_end, tiles_x, width, height, consts
@@ -35,16 +42,14 @@ def recorded_blend(
     for t in prange(num_tiles):  # each hit's weight, and each pixel's count of hits
         trans = np.ones(TILE * TILE, np.float64)
         x_start, y_start = (t % tiles_x) * TILE, (t // tiles_x) * TILE
-        start = record_offsets[t]
         for e in range(offsets[t], offsets[t + 1]):
             g = ids[e]
-            for h in range(start, entry_end[e]):
+            for h in _entry_hits(t, e, offsets, record_offsets, entry_end):
                 p = rec_pixel[h]
                 alpha = min(opacities[g] * rec_response[h], max_alpha)
                 rec_weight[h] = alpha * opacities.dtype.type(trans[p])
                 trans[p] = trans[p] * (1.0 - np.float64(alpha))
                 per_pixel[(y_start + p // TILE) * width + x_start + p % TILE + 1] += 1
-            start = entry_end[e]
     crow = np.cumsum(per_pixel)
     columns = np.empty(crow[pixels], np.int64)
     weights = np.empty(crow[pixels], opacities.dtype)
@@ -54,22 +59,17 @@ def recorded_blend(
         for p in range(TILE * TILE):
             row, col = y_start + p // TILE, x_start + p % TILE
             cursor[p] = crow[row * width + col] if row < height and col < width else 0
-        first = offsets[t]
-        for k in np.argsort(ids[first : offsets[t + 1]]):  # a Gaussian has one entry per tile
-            e = first + k
-            # entry e's hits follow the previous entry's (an entry after the tile's early end: an empty range)
-            for h in range(entry_end[e - 1] if e > first else record_offsets[t], entry_end[e]):
+        for k in np.argsort(ids[offsets[t] : offsets[t + 1]]):  # a Gaussian has one entry per tile
+            e = offsets[t] + k
+            for h in _entry_hits(t, e, offsets, record_offsets, entry_end):
                 p = rec_pixel[h]
                 columns[cursor[p]], weights[cursor[p]] = ids[e], rec_weight[h]
                 cursor[p] += 1
     coverage = np.zeros(n, opacities.dtype)
     hits = np.zeros(n, np.int64)
     for t in range(num_tiles):
-        start = record_offsets[t]
         for e in range(offsets[t], offsets[t + 1]):
-            g = ids[e]
-            for h in range(start, entry_end[e]):
-                coverage[g] += rec_weight[h]
-                hits[g] += 1
-            start = entry_end[e]
+            for h in _entry_hits(t, e, offsets, record_offsets, entry_end):
+                coverage[ids[e]] += rec_weight[h]
+                hits[ids[e]] += 1
     return crow, columns, weights, coverage, hits
