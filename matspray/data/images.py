@@ -25,7 +25,8 @@ from matspray.files import HDR_SUFFIXES, atomic_target  # noqa: F401 - data modu
 
 LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
 # zlib's compression level of PNGs: Pillow's default for what users keep; its fastest for files that only this tool
-# reads back (caches, scratch photos), which write 3 to 4 times as fast and about a tenth larger
+# reads back (caches, scratch photos), where writing time counts more than size (docs/dev/real-captures.md, "The
+# undistortion cache's PNGs")
 PNG_LEVEL, SCRATCH_PNG_LEVEL = 6, 1
 # what the decoders raise on a corrupt or truncated file (pypng's FormatError and ChunkError are
 # Exception subclasses of their own; a truncated scanline shows up as an IndexError)

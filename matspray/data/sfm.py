@@ -248,9 +248,9 @@ def extract_sift(
     batch: int = 24,
 ) -> None:
     """SIFT features of the images `names` of `image_dir` into the COLMAP `database`, on the CPU, `batch` photos a
-    call for the progress bar; with a single camera (CameraMode.SINGLE) every batch shares the first one's. The
-    batches are not small: each call ends waiting for its slowest photo with the other threads idle, and starts its
-    extractor again (docs/dev/real-captures.md, "SIFT in fewer calls")."""
+    call for the progress bar; with a single camera (CameraMode.SINGLE) every batch shares the first one's. A batch
+    is many photos because each call starts its extractor again and ends waiting for its slowest photo with the
+    other threads idle (docs/dev/real-captures.md, "SIFT in fewer calls")."""
     import pycolmap
 
     reader = pycolmap.ImageReaderOptions()

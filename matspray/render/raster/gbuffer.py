@@ -114,6 +114,27 @@ def coverage_of_hits(gaussian_ids: Tensor, weights: Tensor, n: int) -> tuple[Ten
     return coverage, torch.unique(gaussian_ids).long()
 
 
+def view_matrices(
+    gaussians: Gaussians, camera: Camera, backend: str, on_host: bool
+) -> tuple[list, int, Tensor, Tensor]:
+    """What frozen views keep of one view: its blend matrix [H W, N] and, for Gaussians on a CUDA device, its
+    transpose [N, H W] (torch's, moved to the host when `on_host`), else the matrix packed (on the CPU already); the
+    number of weights, each Gaussian's coverage [N] and the Gaussians with a weight [K] (`view_blend`)."""
+    n, pixels = len(gaussians), camera.height * camera.width
+    if gaussians.means.device.type != "cpu":
+        gaussian_ids, pixel_ids, weights = view_weights(gaussians, camera)  # [M] each
+        matrices = [
+            blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),  # [HW, N]
+            blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),  # [N, HW]
+        ]
+        matrices = [_to_host(m) for m in matrices] if on_host else matrices
+        return matrices, len(weights), *coverage_of_hits(gaussian_ids, weights, n)
+    from matspray.render.numba.sparse import pack_blend
+
+    crow, columns, weights, coverage, visible = view_blend(gaussians, camera, backend)
+    return [pack_blend(crow, columns, weights, n)], len(weights), coverage, visible  # [HW, N]
+
+
 class FrozenViews:
     """Views of frozen Gaussians, rendered with the backend of the enclosing `rendering_with` block (or `backend`).
     `storage` (torch backend): "device" keeps the blend matrices beside the Gaussians, "host" in (pinned) host
@@ -137,23 +158,10 @@ class FrozenViews:
                 self.visible_ids.append(torch.nonzero(coverage > 0).squeeze(1))
                 self.coverage.append(coverage)
                 continue
-            pixels = camera.height * camera.width
             on_host = storage == "host" or (storage == "auto" and not _room_on(device))
-            if self.keeps_transposes:
-                gaussian_ids, pixel_ids, weights = view_weights(gaussians, camera)  # [M] each
-                matrices = [
-                    blend_matrix(gaussian_ids, pixel_ids, weights, pixels, n),  # [HW, N]
-                    blend_matrix(pixel_ids, gaussian_ids, weights, n, pixels),  # [N, HW]
-                ]
-                matrices = [_to_host(m) for m in matrices] if on_host else matrices
-                coverage, visible = coverage_of_hits(gaussian_ids, weights, n)
-            else:  # on the host already
-                from matspray.render.numba.sparse import pack_blend
-
-                crow, columns, weights, coverage, visible = view_blend(gaussians, camera, self.backend)
-                matrices = [pack_blend(crow, columns, weights, n)]  # [HW, N]
+            matrices, hits, coverage, visible = view_matrices(gaussians, camera, self.backend, on_host)
             self.on_host.append(on_host)
-            self.hits += len(weights)
+            self.hits += hits
             self.kept_bytes += sum(_sparse_bytes(m) for m in matrices)
             self.matrices.append(matrices[0])
             self.transposed.append(matrices[1] if self.keeps_transposes else None)
