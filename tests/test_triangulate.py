@@ -62,6 +62,29 @@ def test_points_lie_on_the_true_surface():
     assert result.colours.shape == result.points.shape and 0 <= result.colours.min() <= result.colours.max() <= 1
 
 
+def test_sift_starts_at_the_photos_scale_and_doubles_it_only_for_too_few_points(monkeypatch):
+    from matspray.data import triangulate
+
+    octaves, lines = [], []
+    real = triangulate.extract_sift
+
+    def recording(*args, first_octave, **kwargs):
+        octaves.append(first_octave)
+        return real(*args, first_octave=first_octave, **kwargs)
+
+    monkeypatch.setattr(triangulate, "extract_sift", recording)
+    views, config = plane_views(size=160), PointsConfig(neighbours=4, threads=1)
+    once = triangulate_views(views, config, log=lines.append, enough=MIN_COLMAP_POINTS)
+    assert octaves == [0] and len(once.points) >= MIN_COLMAP_POINTS, once.message
+    assert not any("twice the scale" in line for line in lines)
+    octaves.clear()
+    twice = triangulate_views(views, config, log=lines.append, enough=len(once.points) + 1)
+    assert octaves == [0, -1]  # too few for `enough`: SIFT again from twice the photos' size
+    assert any(line.startswith(f"points: {len(once.points)} points from SIFT at the photos' scale") for line in lines)
+    assert len(twice.points) > len(once.points)  # the pass with more points is kept: here the doubled scale's
+    assert torch.quantile(twice.points[:, 2].abs(), 0.9) < 0.02 * HALF
+
+
 def test_featureless_photos_give_no_points_and_say_why():
     flat = [View(v.name, torch.full_like(v.image, 0.3), None, v.camera) for v in plane_views(count=4, size=64)]
     result = triangulate_views(flat, PointsConfig(threads=1))
@@ -142,6 +165,13 @@ def test_pipeline_starts_the_gaussians_from_the_points_and_reuses_them(tmp_path,
         return original(scene, *args, **kwargs)
 
     monkeypatch.setattr(train_module, "initial_gaussians", recording)
+    enough = []
+
+    def recording_enough(views, config, progress, log, wanted):
+        enough.append(wanted)
+        return triangulate_views(views, config, progress, log, wanted)
+
+    monkeypatch.setattr("matspray.data.triangulate.triangulate_views", recording_enough)
     settings = {"geometry.iterations": 2, "points.neighbours": 4, "points.threads": 1}
     lines = []
     with pipeline_module.Pipeline(
@@ -155,6 +185,7 @@ def test_pipeline_starts_the_gaussians_from_the_points_and_reuses_them(tmp_path,
     assert len(saved["points"]) >= MIN_COLMAP_POINTS
     assert seen and seen[0] is not None and torch.equal(seen[0], saved["points"])
     assert any(line.startswith("points: triangulated") for line in lines)
+    assert enough == [build_config("test").geometry.init_points]  # the stage triangulates what the Gaussians start from
 
     def no_second_time(*args, **kwargs):
         raise AssertionError("triangulated again")

@@ -246,9 +246,11 @@ def extract_sift(
     progress: bool,
     desc: str = "SIFT features",
     batch: int = 24,
+    first_octave: int = -1,
 ) -> None:
     """SIFT features of the images `names` of `image_dir` into the COLMAP `database`, on the CPU, `batch` photos a
-    call for the progress bar; with a single camera (CameraMode.SINGLE) every batch shares the first one's. A batch
+    call for the progress bar; with a single camera (CameraMode.SINGLE) every batch shares the first one's.
+    `first_octave`: -1 (COLMAP's default) starts from the photos at twice their size, 0 at their own. A batch
     is many photos because each call starts its extractor again and ends waiting for its slowest photo with the
     other threads idle (docs/dev/real-captures.md, "SIFT in fewer calls")."""
     import pycolmap
@@ -258,6 +260,7 @@ def extract_sift(
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = threads
     extraction.sift.peak_threshold = peak_threshold
+    extraction.sift.first_octave = first_octave
     bar = tqdm(total=len(names), desc=desc, unit="photo", disable=not progress)
     for start in range(0, len(names), batch):
         pycolmap.extract_features(

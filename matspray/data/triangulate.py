@@ -10,6 +10,12 @@ views in pose (not every pair: a video's frames are many, and far-apart views sh
 scene's world frame: COLMAP's cam_from_world is our world-to-camera `viewmat` (both OpenCV axes, pixel centres at
 +0.5).
 
+SIFT starts at the photos' own scale, not at COLMAP's default of twice it: the doubled octave finds the finest and
+most numerous features, which cost most of the extraction and, through their number, most of the matching, while the
+Gaussians start from `enough` points at most (`geometry.init_points`). A capture that gives fewer at the photos'
+scale (a weakly textured object) is extracted and matched again from twice it (docs/dev/real-captures.md, "SIFT at
+the photos' own scale").
+
 In a run (`matspray.method.pipeline`) the result is a stage of its own, `points/points.pt`, so a rerun does not redo it.
 """
 
@@ -34,6 +40,8 @@ from matspray.rundir import RunDir, timed
 from matspray.settings import setting
 
 STAGE, POINTS_FILE = "points", "points.pt"
+# SIFT's first octave (pycolmap's `first_octave`): the photos' own scale, then twice it when that gave too few points
+SIFT_OCTAVES = (0, -1)
 
 
 @dataclass(frozen=True)
@@ -119,9 +127,11 @@ def triangulate_views(
     config: PointsConfig = PointsConfig(),
     progress: bool = False,
     log: Callable[[str], None] = print,
+    enough: int = MIN_COLMAP_POINTS,
 ) -> Triangulation:
-    """Points [P, 3] and linear colours [P, 3] triangulated from `views` at their cameras. Never raises for what the
-    photos are like: no features, no matches or no pycolmap give no points and a message that says so."""
+    """Points [P, 3] and linear colours [P, 3] triangulated from `views` at their cameras: from SIFT at the photos'
+    own scale, or at twice it when that gives fewer than `enough` points (then the pass with more). Never raises for
+    what the photos are like: no features, no matches or no pycolmap give no points and a message that says so."""
     try:
         import pycolmap
     except ImportError:
@@ -130,7 +140,7 @@ def triangulate_views(
         return _nothing(f"{len(views)} training view(s): triangulation needs two or more")
     with tempfile.TemporaryDirectory(prefix="matspray-points-") as work:
         try:
-            return _triangulate(pycolmap, [v.to("cpu") for v in views], Path(work), config, progress, log)
+            return _triangulate(pycolmap, [v.to("cpu") for v in views], Path(work), config, enough, progress, log)
         except (RuntimeError, ValueError) as exc:  # pycolmap raises these for what it cannot do with the photos
             return _nothing(f"pycolmap failed: {' '.join(str(exc).split())[:160]}")
 
@@ -139,18 +149,55 @@ def _nothing(reason: str) -> Triangulation:
     return Triangulation(torch.zeros(0, 3), torch.zeros(0, 3), reason)
 
 
-def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, progress: bool, log) -> Triangulation:
-    image_dir, database = work / "images", work / "database.db"
+def _triangulate(
+    pycolmap, views: list[View], work: Path, config: PointsConfig, enough: int, progress: bool, log
+) -> Triangulation:
+    photos = _write_photos(views, work / "images", config.max_size)
+    pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
+    best = None
+    for first_octave in SIFT_OCTAVES:
+        if best is not None:
+            log(
+                f"points: {len(best.points)} points from SIFT at the photos' scale, fewer than the {enough} the "
+                "Gaussians start from; again from twice the scale ..."
+            )
+        found = _triangulate_from(
+            pycolmap, views, photos, work / f"octave{first_octave}", config, first_octave, progress, log
+        )
+        best = found if best is None or len(found.points) > len(best.points) else best
+        if len(best.points) >= enough:
+            break
+    return best
+
+
+@dataclass(frozen=True)
+class _Photos:
+    folder: Path
+    names: list[str]  # one PNG per view, in the views' order
+    cameras: list  # [Camera] at the PNGs' size
+
+
+def _write_photos(views: list[View], image_dir: Path, max_size: int) -> _Photos:
+    """The views as 8-bit sRGB PNGs of at most `max_size` pixels in `image_dir`, which each pass's SIFT reads."""
     image_dir.mkdir()
     names, cameras = [], []
     for i, view in enumerate(views):
-        factor = config.max_size / max(view.width, view.height)
+        factor = max_size / max(view.width, view.height)
         small = view.scaled(factor) if factor < 1.0 else view
         names.append(f"{i:05d}.png")
         cameras.append(small.camera)
         pixels = srgb8(small.image).numpy()
-        Image.fromarray(pixels).save(image_dir / names[-1], compress_level=SCRATCH_PNG_LEVEL)  # read once by SIFT
-    pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
+        Image.fromarray(pixels).save(image_dir / names[-1], compress_level=SCRATCH_PNG_LEVEL)
+    return _Photos(image_dir, names, cameras)
+
+
+def _triangulate_from(
+    pycolmap, views, photos: _Photos, work: Path, config: PointsConfig, first_octave: int, progress: bool, log
+) -> Triangulation:
+    """One pass in its own folder `work`: SIFT from `first_octave`, the nearby views' matches, the points."""
+    image_dir, names, cameras = photos.folder, photos.names, photos.cameras
+    work.mkdir()
+    database = work / "database.db"
     # SIFT's threshold as structure from motion's: smooth objects need it
     extract_sift(
         database,
@@ -161,7 +208,8 @@ def _triangulate(pycolmap, views: list[View], work: Path, config: PointsConfig, 
         config.threads,
         SfmConfig.peak_threshold,
         progress,
-        desc="points: SIFT features",
+        desc="points: SIFT features" + (" (twice the scale)" if first_octave < 0 else ""),
+        first_octave=first_octave,
     )
     with pycolmap.Database.open(database) as db:  # the known intrinsics replace the ones guessed from the files
         ids = {image.name: (image.image_id, image.camera_id) for image in db.read_all_images()}
@@ -229,11 +277,18 @@ def posed_reconstruction(pycolmap, work: Path, names: list[str], ids: dict, came
 
 
 def points_stage(
-    run: RunDir, fingerprint: str, scene: Scene, config: PointsConfig, progress: bool, log: Callable[[str], None]
+    run: RunDir,
+    fingerprint: str,
+    scene: Scene,
+    config: PointsConfig,
+    progress: bool,
+    log: Callable[[str], None],
+    enough: int = MIN_COLMAP_POINTS,
 ) -> Triangulation:
-    """The run's stage `points`: `triangulate_views` of the training views, kept in RUN/points/points.pt (written whole
-    or not at all) and reused while its record holds `fingerprint`. With enough points they become the scene's, which
-    the initial Gaussians start from; else the scene is left as it is and one line says why."""
+    """The run's stage `points`: `triangulate_views` of the training views (`enough`: the points the Gaussians start
+    from, `geometry.init_points`), kept in RUN/points/points.pt (written whole or not at all) and reused while its
+    record holds `fingerprint`. With enough points they become the scene's, which the initial Gaussians start from;
+    else the scene is left as it is and one line says why."""
     path = run.path(STAGE, POINTS_FILE)
     reused = run.stage_done(STAGE, fingerprint, [POINTS_FILE])
     if reused:
@@ -244,7 +299,7 @@ def points_stage(
         with timed() as timer:
             views = feature_views(scene, config.max_size)
             release_free_memory()  # what reading the photos again freed, before SIFT's threads allocate beside it
-            result = triangulate_views(views, config, progress, log)
+            result = triangulate_views(views, config, progress, log, enough)
             save_torch_atomic({"points": result.points, "colours": result.colours, "message": result.message}, path)
         run.finish_stage(STAGE, fingerprint, config, timer.seconds, {"points": len(result.points)}, timer.peak_mib)
     where = f" (reused {STAGE}/{POINTS_FILE})" if reused else ""

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 # seconds per unit of work with 2 free cores: the demo of `make demo` alone on the reference machine
 # (docs/dev/demo-time.md, "Time estimates"; runs that shared the cores with other jobs took 2 to 5 times longer)
 CPU_RATES = {
-    "points": 2.0e-6,  # per (training view x pixel of the photos given to feature extraction)
+    "points": 7.5e-7,  # per (training view x pixel of the photos given to feature extraction)
     "geometry": 3.0e-6,  # per (iteration x pixel of a geometry view)
     "masks": 1.0e-6,  # per (training view x pixel)
     "lift": 4.3e-6,  # per ray

@@ -154,13 +154,18 @@ class Pipeline:
         if fp is None or self._cropped:
             return self._crop_region
         if points_fp and not stage_done(self.run, "crop", fp):
-            points_stage(self.run, points_fp, self.scene, self.config.points, self.progress, self.log)
+            self.points()
         self.scene, self._crop_region = crop_stage(
             self.run, fp, self.scene, self.config.crop, self.config.object_bounds, self.log
         )
         self._cropped = True
         release_free_memory()  # the photos read again through their windows, and the uncut scene
         return self._crop_region
+
+    def points(self) -> None:
+        """Stage `points` (a capture without masks or points): as many as the Gaussians start from, if it can."""
+        enough = self.config.geometry.init_points
+        points_stage(self.run, self.plan.points_fp, self.scene, self.config.points, self.progress, self.log, enough)
 
     def geometry_normal_targets(self, maps: dict | None = None) -> list[torch.Tensor] | None:
         """The predicted normal maps geometry trains on (world space, per training view), None when it trains on
@@ -182,7 +187,7 @@ class Pipeline:
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             maps = self.predict() if edges or config.predicted_normal_weight > 0 else None
             if self.plan.points_fp and self.scene.points is None:  # (the crop may have read them already)
-                points_stage(self.run, self.plan.points_fp, self.scene, self.config.points, self.progress, self.log)
+                self.points()
             material_maps = [maps_to_tensor(maps[v.name]) for v in self.scene.train] if edges else None
             return self.geometry_normal_targets(maps), material_maps
 

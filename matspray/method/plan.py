@@ -199,7 +199,12 @@ def resolve_plan(
     options = options_for_dataset(config.predictor, PredictorOptions(**config.predictor_options), scene.source)
     dataset_fp = fingerprint(dataset_identity(scene), config.downscale)
     unmasked, has_maps = not scene.has_masks, config.predictor != NO_PREDICTOR
-    points_fp = fingerprint("points", dataset_fp, config.points) if needs_points(scene, config.points) else None
+    # the stage triangulates until it has the points the Gaussians start from (`geometry.init_points`)
+    points_fp = (
+        fingerprint("points", dataset_fp, config.points, config.geometry.init_points)
+        if needs_points(scene, config.points)
+        else None
+    )
     crop_fp = None
     if unmasked and config.crop.enabled:
         crop_fp = fingerprint("crop", config.crop, config.object_bounds, points_fp or dataset_fp)
