@@ -15,7 +15,6 @@ from functools import partial
 import torch
 
 from matspray.data.scene import dataset_identity
-from matspray.data.triangulate import points_stage
 from matspray.device import configure_threads, out_of_memory_as_error, resolve_device
 from matspray.geometry.ply import read_ply
 from matspray.geometry.region import ObjectRegion
@@ -154,18 +153,13 @@ class Pipeline:
         if fp is None or self._cropped:
             return self._crop_region
         if points_fp and not stage_done(self.run, "crop", fp):
-            self.points()
+            stages.points(self.run, points_fp, self.scene, self.config, self.progress, self.log)
         self.scene, self._crop_region = crop_stage(
             self.run, fp, self.scene, self.config.crop, self.config.object_bounds, self.log
         )
         self._cropped = True
         release_free_memory()  # the photos read again through their windows, and the uncut scene
         return self._crop_region
-
-    def points(self) -> None:
-        """Stage `points` (a capture without masks or points): as many as the Gaussians start from, if it can."""
-        enough = self.config.geometry.init_points
-        points_stage(self.run, self.plan.points_fp, self.scene, self.config.points, self.progress, self.log, enough)
 
     def geometry_normal_targets(self, maps: dict | None = None) -> list[torch.Tensor] | None:
         """The predicted normal maps geometry trains on (world space, per training view), None when it trains on
@@ -187,7 +181,7 @@ class Pipeline:
             self.log(f"geometry: 3D Gaussian Splatting ({self.config.geometry.iterations} iterations)")
             maps = self.predict() if edges or config.predicted_normal_weight > 0 else None
             if self.plan.points_fp and self.scene.points is None:  # (the crop may have read them already)
-                self.points()
+                stages.points(self.run, self.plan.points_fp, self.scene, self.config, self.progress, self.log)
             material_maps = [maps_to_tensor(maps[v.name]) for v in self.scene.train] if edges else None
             return self.geometry_normal_targets(maps), material_maps
 

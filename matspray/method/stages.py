@@ -10,6 +10,7 @@ import torch
 
 from matspray.data.images import save_torch_atomic
 from matspray.data.scene import Scene
+from matspray.data.triangulate import points_stage
 from matspray.errors import RunError
 from matspray.geometry.region import ObjectRegion
 from matspray.method.lift import LiftConfig, lift, save_lift
@@ -34,6 +35,12 @@ def predict_maps(run: RunDir, views: list, predictor: str, options: PredictorOpt
     write_materials2d(run.root, predict_views(views, made, notify=log), made.describe())
     used = {k: v for k, v in vars(options).items() if v is not None}  # the configured options and a derived seed
     return {"predictor": predictor, **used}, {}
+
+
+def points(run: RunDir, fingerprint: str, scene: Scene, config, progress: bool, log=print) -> None:
+    """Stage `points` of a capture without masks or points (`config`: the run's PipelineConfig): triangulated until
+    it holds as many as the Gaussians start from (`geometry.init_points`), if it can; they become the scene's."""
+    points_stage(run, fingerprint, scene, config.points, progress, log, config.geometry.init_points)
 
 
 def object_masks_of(run: RunDir, gaussians, scene: Scene, bounds, progress: bool) -> tuple[dict, dict]:
