@@ -20,7 +20,7 @@ def test_torchs_openmp_threads_spin_briefly_unless_the_user_says_otherwise():
     """matspray sets libgomp's spin before torch is imported (matspray/__init__.py), where torch's OpenMP reads it;
     a value in the environment stays."""
     code = (
-        "import os, sys, matspray.cli, torch\n"
+        "import os, matspray.cli, torch\n"
         "assert 'OpenMP' in torch.__config__.parallel_info()  # the threads the setting is for\n"
         "print(os.environ['GOMP_SPINCOUNT'])"
     )
