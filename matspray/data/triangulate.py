@@ -152,7 +152,7 @@ def _nothing(reason: str) -> Triangulation:
 def _triangulate(
     pycolmap, views: list[View], work: Path, config: PointsConfig, enough: int, progress: bool, log
 ) -> Triangulation:
-    photos = _write_photos(views, work / "images", config.max_size)
+    inputs = _pass_inputs(views, work, config)
     pycolmap.logging.minloglevel = 2  # warnings and errors only; progress is ours
     best = None
     for first_octave in SIFT_OCTAVES:
@@ -161,9 +161,7 @@ def _triangulate(
                 f"points: {len(best.points)} points from SIFT at the photos' scale, fewer than the {enough} the "
                 "Gaussians start from; again from twice the scale ..."
             )
-        found = _triangulate_from(
-            pycolmap, views, photos, work / f"octave{first_octave}", config, first_octave, progress, log
-        )
+        found = _triangulate_from(pycolmap, inputs, work / f"octave{first_octave}", config, first_octave, progress, log)
         best = found if best is None or len(found.points) > len(best.points) else best
         if len(best.points) >= enough:
             break
@@ -171,31 +169,38 @@ def _triangulate(
 
 
 @dataclass(frozen=True)
-class _Photos:
+class _PassInputs:
+    """What every pass reads, made once: the photos, their cameras and the pairs of nearby views to match."""
+
     folder: Path
     names: list[str]  # one PNG per view, in the views' order
     cameras: list  # [Camera] at the PNGs' size
+    pairs: list[tuple[int, int]]  # indices into names
+    pairs_file: Path  # the pairs by name, as pycolmap imports them
 
 
-def _write_photos(views: list[View], image_dir: Path, max_size: int) -> _Photos:
-    """The views as 8-bit sRGB PNGs of at most `max_size` pixels in `image_dir`, which each pass's SIFT reads."""
+def _pass_inputs(views: list[View], work: Path, config: PointsConfig) -> _PassInputs:
+    """The views as 8-bit sRGB PNGs of at most `config.max_size` pixels in work/images, and their nearby pairs."""
+    image_dir = work / "images"
     image_dir.mkdir()
     names, cameras = [], []
     for i, view in enumerate(views):
-        factor = max_size / max(view.width, view.height)
+        factor = config.max_size / max(view.width, view.height)
         small = view.scaled(factor) if factor < 1.0 else view
         names.append(f"{i:05d}.png")
         cameras.append(small.camera)
         pixels = srgb8(small.image).numpy()
         Image.fromarray(pixels).save(image_dir / names[-1], compress_level=SCRATCH_PNG_LEVEL)
-    return _Photos(image_dir, names, cameras)
+    pairs = neighbour_pairs(views, config.neighbours)
+    (work / "pairs.txt").write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+    return _PassInputs(image_dir, names, cameras, pairs, work / "pairs.txt")
 
 
 def _triangulate_from(
-    pycolmap, views, photos: _Photos, work: Path, config: PointsConfig, first_octave: int, progress: bool, log
+    pycolmap, inputs: _PassInputs, work: Path, config: PointsConfig, first_octave: int, progress: bool, log
 ) -> Triangulation:
     """One pass in its own folder `work`: SIFT from `first_octave`, the nearby views' matches, the points."""
-    image_dir, names, cameras = photos.folder, photos.names, photos.cameras
+    image_dir, names, cameras, pairs = inputs.folder, inputs.names, inputs.cameras, inputs.pairs
     work.mkdir()
     database = work / "database.db"
     # SIFT's threshold as structure from motion's: smooth objects need it
@@ -221,15 +226,13 @@ def _triangulate_from(
             db.update_camera(camera)
         if not any(db.num_keypoints_for_image(ids[n][0]) for n in names):
             return _nothing("no features found in the training photos")
-    pairs = neighbour_pairs(views, config.neighbours)
-    (work / "pairs.txt").write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
     log(f"points: matching {len(pairs)} pairs of nearby views ...")
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = config.threads
     pycolmap.match_image_pairs(
         database,
         matching_options=matching,
-        pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(work / "pairs.txt")),
+        pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(inputs.pairs_file)),
         device=pycolmap.Device.cpu,
     )
     with pycolmap.Database.open(database) as db:
@@ -249,7 +252,7 @@ def _triangulate_from(
     points = torch.from_numpy(np.array([p.xyz for p in found], dtype=np.float32))
     colours = srgb_to_linear(torch.from_numpy(np.array([p.color for p in found], dtype=np.float32)) / 255.0)
     return Triangulation(
-        points, colours, f"triangulated {len(found)} points from {len(views)} views ({len(pairs)} pairs matched)"
+        points, colours, f"triangulated {len(found)} points from {len(names)} views ({len(pairs)} pairs matched)"
     )
 
 

@@ -69,7 +69,8 @@ def recorded_blend(
     hits = np.zeros(n, np.int64)
     for t in range(num_tiles):
         for e in range(offsets[t], offsets[t + 1]):
+            g = ids[e]
             for h in _entry_hits(t, e, offsets, record_offsets, entry_end):
-                coverage[ids[e]] += rec_weight[h]
-                hits[ids[e]] += 1
+                coverage[g] += rec_weight[h]
+                hits[g] += 1
     return crow, columns, weights, coverage, hits
