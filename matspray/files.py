@@ -19,6 +19,27 @@ def atomic_target(path: Path) -> Path:
     return path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
 
 
+def leftover_temporaries(folder: Path) -> list[Path]:
+    """The files in `folder` that `atomic_target` named for a process that is gone: a run killed in the middle of a
+    write leaves its temporary behind, and nothing else would ever remove it."""
+    leftovers = []
+    for path in Path(folder).glob(".*.tmp-*"):
+        pid = path.name.rsplit(".tmp-", 1)[1].split(".", 1)[0]
+        if pid.isdigit() and path.is_file() and not _process_running(int(pid)):
+            leftovers.append(path)
+    return leftovers
+
+
+def _process_running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's process
+    return True
+
+
 def write_text_atomic(path: Path, text: str) -> None:
     """Write `text` atomically (a reader never sees half a file), making the folder when needed."""
     path = Path(path)

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -256,7 +259,16 @@ def test_colmap_simple_radial_model_is_undistorted(tmp_path, capsys):
         and "0 made, 3 read from the cache" in printed
     )
     write_image(tmp_path / "images" / "img1.png", analytic(truth_xy).flip(1))  # a changed photo is undistorted again
+    # a load killed while writing to the cache left its temporary: the next load that writes removes it, and keeps
+    # those of a process still writing
+    cache = cache_folder(tmp_path)
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    killed, writing = cache / f".img2-x.tmp-{gone.stdout.strip()}.png", cache / f".img0-x.tmp-{os.getpid()}.png"
+    killed.write_bytes(b"half a PNG")
+    writing.write_bytes(b"half a PNG")
     again = load_scene(tmp_path, test_every=0)
+    assert not killed.exists() and writing.exists()
+    writing.unlink()
     assert any("1 made, 2 read from the cache" in line for line in again.log)
     assert torch.equal(again.train[0].image, scene.train[0].image)
     assert (again.train[1].image - scene.train[1].image).abs().mean() > 0.05

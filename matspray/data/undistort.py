@@ -28,6 +28,7 @@ from matspray.data.camera import Camera
 from matspray.data.images import LDR_SUFFIXES, SCRATCH_PNG_LEVEL, read_image, write_image
 from matspray.data.scene import View
 from matspray.errors import file_error, optional_module
+from matspray.files import leftover_temporaries
 
 MIN_KEPT = 0.5  # refuse undistortion that keeps less than this fraction of the photo
 CACHE_FOLDER = "matspray-undistorted"
@@ -283,6 +284,7 @@ class Undistorter:
         self.plans: dict[Lens, Undistortion] = {}
         self.undistorted = 0
         self.from_cache = 0
+        self.swept = False
 
     def view(self, name: str, path: Path, lens: Lens, viewmat: Tensor, load: Callable, sources=()) -> View:
         """A pinhole View of the photo at `path` taken with `lens` (world-to-camera `viewmat` [4, 4]);
@@ -326,6 +328,10 @@ class Undistorter:
 
     def store(self, cached: Path, rgb: Tensor, alpha: Tensor | None) -> bool:
         try:
+            if not self.swept:  # before this load's first write: what killed loads left behind goes
+                for leftover in leftover_temporaries(cached.parent):
+                    leftover.unlink(missing_ok=True)
+                self.swept = True
             for stale in cached.parent.glob(f"{cached.stem.rsplit('-', 1)[0]}-*{cached.suffix}"):  # older versions
                 stale.unlink()
             write_image(cached, rgb, alpha, png_level=SCRATCH_PNG_LEVEL)  # atomic: a reader never sees half a file
