@@ -96,7 +96,8 @@ def test_without_softmax_weights_are_unconstrained():
 def test_raw_weights_without_softmax_are_the_mlp_output_from_a_random_start():
     positions, values, seen = random_inputs()
     torch.manual_seed(0)
-    merger = NeuralMerger(6, BOUNDS, MergerConfig(softmax=False, unconstrained="raw"))
+    # float32: the reference below multiplies in float32, where "auto" takes bfloat16 on a CPU with native bfloat16
+    merger = NeuralMerger(6, BOUNDS, MergerConfig(softmax=False, unconstrained="raw", precision="float32"))
     out, weights = merger(positions, values, seen, return_weights=True)
     # the released code's layers without their softmax: no zero start, so not the projection average
     assert not torch.allclose(out, projection_average(values, seen), atol=1e-2)
